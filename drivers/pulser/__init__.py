@@ -1,0 +1,1 @@
+"""Pulser-receiver drivers: interface, Modbus RTU/TCP client, simulated Modbus server."""

@@ -1,0 +1,1 @@
+"""Joint zero-offset calibration (paper 000): measurement model, solvers, procedure."""

@@ -1,0 +1,153 @@
+"""Exact joint-offset solution: nonlinear least squares over the full forward kinematics.
+
+Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame; the block's
+orientation is taken as known, its position is not). Every face measurement contributes
+(see ``ucal.calibration.model``):
+
+    r_tilt = tilt_components(b(q+δ)) / σ_tilt            two residuals, eq. (1)
+    r_dist = (n_k·(p(q+δ) − c) − d) / σ_d                  one residual, eq. (2)
+
+No Taylor expansion is made, so finite joint steps cause no bias (the first-order method of
+paper 000 assigns the chord direction of a δθ3 step, i.e. θ2+θ3 at the middle of the step, to
+its start: a bias of half the step). The block corner absorbs the tool's offset along the beam
+and any constant delay of the time-of-flight reading.
+
+Observability: the weighted Jacobian J (columns scaled to unit norm) is decomposed by SVD;
+a right singular vector with a singular value below ``rank_tol``·s_max is a direction the data
+cannot see. Joints that carry weight in such a direction, or whose standard deviation exceeds
+``max_std_deg``, are reported unobservable, held at their profile values and the problem is
+solved again without them. Example: with the beam on the joint-6 axis, θ6 never changes the
+beam direction nor the distance, so its column of J is zero.
+
+Uncertainty: Cov = (JᵀJ)⁻¹ of the weighted problem (the weights come from the measured TOF and
+posture repeatability), scaled by the reduced χ² when that exceeds one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp, tilt_components
+
+
+@dataclass(frozen=True)
+class OffsetSolution:
+    """Result of a solver: offsets (deg), their standard deviations (NaN = unobservable)."""
+
+    offsets_deg: np.ndarray
+    std_deg: np.ndarray
+    unobservable_joints: tuple[int, ...]     # 1-based
+    condition_number: float
+    method: str
+    corner_mm: np.ndarray | None = None
+    rms_tilt_deg: float = float("nan")
+    rms_distance_mm: float = float("nan")
+    extra: dict = field(default_factory=dict)
+
+
+def _initial_corner(geom: CellGeometry, meas: list[FaceMeasurement],
+                    offsets_deg: np.ndarray) -> np.ndarray:
+    """Corner estimate from eq. (2): n_k·c = n_k·p − d, averaged per face."""
+    coord = np.zeros(3)
+    for k in range(3):
+        vals = [geom.normal(k) @ beam_and_tcp(geom, m.joints_deg, offsets_deg)[1] - m.distance_mm
+                for m in meas if m.face == k]
+        coord[k] = np.mean(vals) if vals else 0.0
+    return geom.block_rotation @ coord
+
+
+def residuals(geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.ndarray,
+              corner_mm: np.ndarray) -> np.ndarray:
+    """Weighted residual vector (3 per measurement)."""
+    q = np.array([m.joints_deg for m in meas])
+    beam, tcp = beam_and_tcp(geom, q, offsets_deg)
+    out = np.empty((len(meas), 3))
+    for i, m in enumerate(meas):
+        out[i, :2] = tilt_components(geom, beam[i], m.face) / np.radians(m.tilt_std_deg)
+        n = geom.normal(m.face)
+        out[i, 2] = (n @ (tcp[i] - corner_mm) - m.distance_mm) / m.distance_std_mm
+    return out.ravel()
+
+
+def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_deg: np.ndarray,
+                rank_tol: float = 1e-6, max_std_deg: float = 0.5) -> OffsetSolution:
+    """Joint offsets from face measurements by nonlinear least squares (see module docstring)."""
+    prior = np.asarray(prior_offsets_deg, float)
+    free = list(range(6))
+    while True:
+        x, jac, res = _fit(geom, meas, prior, free)
+        js = jac / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
+        _, s, vt = np.linalg.svd(js, full_matrices=False)
+        weak = set()
+        for sv, v in zip(s, vt):
+            if sv < rank_tol * s[0]:
+                for i, j in enumerate(free):
+                    if abs(v[i]) > 0.2:
+                        weak.add(j)
+        cov, scale = _covariance(jac, res)
+        std_free = np.sqrt(np.clip(np.diag(cov)[: len(free)], 0, None)) * scale
+        if not weak:
+            weak = {j for i, j in enumerate(free) if not np.isfinite(std_free[i])
+                    or std_free[i] > max_std_deg}
+        if not weak:
+            break
+        free = [j for j in free if j not in weak]
+        if not free:
+            break
+    offsets = prior.copy()
+    std = np.full(6, np.nan)
+    for i, j in enumerate(free):
+        offsets[j] = x[i]
+        std[j] = std_free[i]
+    corner = x[len(free):len(free) + 3]
+    r = residuals(geom, meas, offsets, corner).reshape(-1, 3)
+    tilt_rms = float(np.sqrt(np.mean([(r[i, :2] * np.radians(m.tilt_std_deg)) ** 2
+                                      for i, m in enumerate(meas)])))
+    dist_rms = float(np.sqrt(np.mean([(r[i, 2] * m.distance_std_mm) ** 2
+                                      for i, m in enumerate(meas)])))
+    return OffsetSolution(
+        offsets_deg=offsets, std_deg=std,
+        unobservable_joints=tuple(sorted(j + 1 for j in range(6) if j not in free)),
+        condition_number=float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+        method="exact", corner_mm=corner, rms_tilt_deg=float(np.degrees(tilt_rms)),
+        rms_distance_mm=dist_rms,
+        extra={"chi2_reduced": float(res @ res / max(1, len(res) - len(x)))})
+
+
+def _fit(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
+         free: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        off = prior.copy()
+        off[free] = x[: len(free)]
+        return off, x[len(free):]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        off, c = unpack(x)
+        return residuals(geom, meas, off, c)
+
+    x0 = np.concatenate([prior[free], _initial_corner(geom, meas, prior)])
+    sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                        x_scale=np.concatenate([np.full(len(free), 1.0), np.full(3, 10.0)]),
+                        max_nfev=2000)
+    jac = _jacobian(fun, sol.x)
+    return sol.x, jac, fun(sol.x)
+
+
+def _jacobian(fun, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Central-difference Jacobian (more accurate than the solver's forward one)."""
+    cols = []
+    for i in range(len(x)):
+        dx = np.zeros_like(x)
+        dx[i] = h
+        cols.append((fun(x + dx) - fun(x - dx)) / (2 * h))
+    return np.array(cols).T
+
+
+def _covariance(jac: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, float]:
+    dof = max(1, len(res) - jac.shape[1])
+    chi2 = float(res @ res) / dof
+    cov = np.linalg.pinv(jac.T @ jac)
+    return cov, float(np.sqrt(max(1.0, chi2)))

@@ -1,0 +1,133 @@
+"""What a cell is made of: the profile (what we believe) and the world (the simulator's truth).
+
+Both are plain frozen dataclasses; ``ucal.profile`` reads/writes profiles and ``ucal.world``
+reads world files. Units: mm and degrees throughout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ucal.kinematics.dh import RobotModel, transform
+from ucal.kinematics.rotations import rpy_to_matrix
+
+#: Paper 000, §5.1: the calibration pose of the TX90L (deg).
+PAPER_CALIBRATION_POSE_DEG = np.array([30.53, 31.15, 109.49, 0.0, 39.36, 30.54])
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """Procedure settings (``[procedure]`` in the profile; every key optional)."""
+
+    calibration_pose_deg: np.ndarray | None = None  # None: computed with IK from the block pose
+    water_path_mm: float = 120.0     # nominal TCP-to-face distance; room for ±5° offsets (W moves ~90 mm)
+    step_deg: float = 2.0            # δθ3 and δθ2 of paper 000
+    speed: float = 0.3               # fraction of the controller's maximum speed
+    singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target
+    tof_averages: int = 16           # pulser averaging for distance readings
+
+
+@dataclass(frozen=True)
+class CellProfile:
+    """A robot cell as the profile describes it (nominal values + calibration results)."""
+
+    model: RobotModel
+    tool_position_mm: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 80.0]))
+    tool_rotation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sample_position_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sample_rotation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sample_face_size_mm: float = 500.0
+    reflector_points_mm: np.ndarray | None = None  # (n, 3), n >= 3
+    water_temperature_c: float = 20.0
+    frequency_mhz: float = 25.0
+    element_diameter_mm: float = 6.0
+    joint_offsets_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    unobservable_joints: tuple[int, ...] = ()
+    procedure: Procedure = field(default_factory=Procedure)
+    path: Path | None = None
+
+    @property
+    def tool_matrix(self) -> np.ndarray:
+        """Tool frame relative to the flange (4, 4)."""
+        return transform(self.tool_position_mm, rpy_to_matrix(self.tool_rotation_deg))
+
+    @property
+    def sample_matrix(self) -> np.ndarray:
+        """Calibration-block frame in the base frame (4, 4); faces are its coordinate planes."""
+        return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
+
+    def replace(self, **changes: object) -> "CellProfile":
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class Reflector:
+    """A finite flat plate: a point on it, its unit normal (towards the water side), its extent.
+
+    The plate is the rectangle ``point + u·e1 + v·e2`` with |u| <= size[0]/2, |v| <= size[1]/2,
+    ``e1`` = ``edge_direction`` projected into the plane, ``e2 = normal × e1``.
+    """
+
+    point_mm: np.ndarray
+    normal: np.ndarray
+    size_mm: np.ndarray = field(default_factory=lambda: np.array([200.0, 200.0]))
+    edge_direction: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
+class Noise:
+    tof_ns: float = 0.0       # one-sigma TOF jitter of a single reading
+    amplitude: float = 0.0    # one-sigma relative amplitude noise of a single reading
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class WorldTruth:
+    """The truth a real cell hides (world file of SPEC.md, missing keys = as the profile says)."""
+
+    model: RobotModel                 # true DH table (nominal or with DH errors)
+    joint_offsets_deg: np.ndarray     # actual = reading + offset
+    tool_position_mm: np.ndarray
+    tool_rotation_deg: np.ndarray
+    sample_position_mm: np.ndarray
+    sample_rotation_deg: np.ndarray
+    sample_face_size_mm: float
+    reflector: Reflector | None
+    water_temperature_c: float
+    frequency_mhz: float
+    element_diameter_mm: float
+    noise: Noise = field(default_factory=Noise)
+    initial_joints_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    @property
+    def tool_matrix(self) -> np.ndarray:
+        return transform(self.tool_position_mm, rpy_to_matrix(self.tool_rotation_deg))
+
+    @property
+    def sample_matrix(self) -> np.ndarray:
+        return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
+
+    def replace(self, **changes: object) -> "WorldTruth":
+        return replace(self, **changes)
+
+    @classmethod
+    def nominal(cls, profile: CellProfile) -> "WorldTruth":
+        """A world equal to what the profile says: no hidden error, no noise."""
+        refl = None
+        if profile.reflector_points_mm is not None and len(profile.reflector_points_mm) >= 3:
+            p = np.asarray(profile.reflector_points_mm, float)
+            n = np.cross(p[1] - p[0], p[2] - p[0])
+            n = n / np.linalg.norm(n)
+            refl = Reflector(point_mm=p.mean(0), normal=n if n[2] >= 0 else -n)
+        return cls(model=profile.model, joint_offsets_deg=np.zeros(6),
+                   tool_position_mm=np.array(profile.tool_position_mm, float),
+                   tool_rotation_deg=np.array(profile.tool_rotation_deg, float),
+                   sample_position_mm=np.array(profile.sample_position_mm, float),
+                   sample_rotation_deg=np.array(profile.sample_rotation_deg, float),
+                   sample_face_size_mm=profile.sample_face_size_mm, reflector=refl,
+                   water_temperature_c=profile.water_temperature_c,
+                   frequency_mhz=profile.frequency_mhz,
+                   element_diameter_mm=profile.element_diameter_mm)

@@ -1,0 +1,54 @@
+"""Typed errors of the application layer and the exit codes of SPEC.md they map to."""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_OUT_OF_TOLERANCE = 1
+EXIT_USAGE = 2
+EXIT_HARDWARE = 3
+EXIT_SAFETY = 4
+EXIT_INTERRUPTED = 130
+
+
+class UcalError(Exception):
+    """Base of every error the CLI turns into a one-line message and an exit code."""
+
+    exit_code = EXIT_USAGE
+
+
+class InputError(UcalError):
+    """Bad flag, unreadable or invalid profile/world file; the message names file and key."""
+
+    exit_code = EXIT_USAGE
+
+
+class ProfileError(InputError):
+    """A profile or world file that cannot be read or does not validate."""
+
+    def __init__(self, path: object, key: str | None, message: str):
+        self.path = str(path)
+        self.key = key
+        where = f"{self.path}: {key}" if key else self.path
+        super().__init__(f"{where}: {message}")
+
+
+class SafetyError(UcalError):
+    """Refused for safety: out of joint range, unreachable, too close to a singularity."""
+
+    exit_code = EXIT_SAFETY
+
+
+class UnreachableError(SafetyError):
+    """No joint solution reaches the requested pose inside the joint ranges."""
+
+
+class HardwareError(UcalError):
+    """Hardware or communication fault; the message names the device."""
+
+    exit_code = EXIT_HARDWARE
+
+
+class OutOfToleranceError(UcalError):
+    """The run finished but its result is outside tolerance."""
+
+    exit_code = EXIT_OUT_OF_TOLERANCE

@@ -1,0 +1,1 @@
+"""Kinematics: DH forward kinematics, rotations, closed-form inverse kinematics, paths."""
