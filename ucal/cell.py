@@ -23,7 +23,7 @@ class Procedure:
     """Procedure settings (``[procedure]`` in the profile; every key optional)."""
 
     calibration_pose_deg: np.ndarray | None = None  # None: computed with IK from the block pose
-    water_path_mm: float = 120.0     # nominal TCP-to-face distance; room for ±5° offsets (W moves ~90 mm)
+    water_path_mm: float = 100.0     # nominal TCP-to-face distance; ±5° offsets move W by ~90 mm
     step_deg: float = 2.0            # δθ3 and δθ2 of paper 000
     speed: float = 0.3               # fraction of the controller's maximum speed
     singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target

@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp, tilt_components
+from ucal.calibration.model import (CellGeometry, FaceMeasurement, beam_and_tcp, distance_joints,
+                                    tilt_components)
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,8 @@ def _initial_corner(geom: CellGeometry, meas: list[FaceMeasurement],
     """Corner estimate from eq. (2): n_k·c = n_k·p − d, averaged per face."""
     coord = np.zeros(3)
     for k in range(3):
-        vals = [geom.normal(k) @ beam_and_tcp(geom, m.joints_deg, offsets_deg)[1] - m.distance_mm
+        vals = [geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), offsets_deg)[1]
+                - m.distance_mm
                 for m in meas if m.face == k]
         coord[k] = np.mean(vals) if vals else 0.0
     return geom.block_rotation @ coord
@@ -63,7 +65,8 @@ def residuals(geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.n
               corner_mm: np.ndarray) -> np.ndarray:
     """Weighted residual vector (3 per measurement)."""
     q = np.array([m.joints_deg for m in meas])
-    beam, tcp = beam_and_tcp(geom, q, offsets_deg)
+    beam, _ = beam_and_tcp(geom, q, offsets_deg)
+    _, tcp = beam_and_tcp(geom, np.array([distance_joints(m) for m in meas]), offsets_deg)
     out = np.empty((len(meas), 3))
     for i, m in enumerate(meas):
         out[i, :2] = tilt_components(geom, beam[i], m.face) / np.radians(m.tilt_std_deg)

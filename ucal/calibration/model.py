@@ -46,6 +46,8 @@ class FaceMeasurement:
     distance_std_mm: float = 0.01  # one-sigma of distance_mm (from repeated TOF readings)
     tilt_std_deg: float = 0.002    # one-sigma of the normal-incidence posture, as beam tilt
     amplitude: float = float("nan")
+    #: Readings where the TOF was read, if not ``joints_deg`` (the last probe at the peak).
+    distance_joints_deg: np.ndarray | None = None
     meta: dict = field(default_factory=dict, compare=False)
 
 
@@ -76,6 +78,11 @@ def beam_and_tcp(geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.nda
     beam = flange[..., :3, :3] @ a_t
     tcp = flange[..., :3, :3] @ geom.tool_matrix[:3, 3] + flange[..., :3, 3]
     return beam, tcp
+
+
+def distance_joints(m: FaceMeasurement) -> np.ndarray:
+    """Readings at which the water path of ``m`` was read."""
+    return m.joints_deg if m.distance_joints_deg is None else m.distance_joints_deg
 
 
 def face_basis(geom: CellGeometry, face: int) -> np.ndarray:

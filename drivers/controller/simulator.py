@@ -1,0 +1,505 @@
+"""A simulated Staubli controller that speaks Simple Message on 127.0.0.1.
+
+It behaves like the VAL3 server (ros-industrial/staubli_val3_driver, ``val3/ros_server``) as
+far as a client can tell: a motion port that acknowledges every JOINT_TRAJ_PT request with a
+52-byte SERVICE_REPLY echoing the sequence (FAILURE for a target outside the joint ranges, a
+non-positive velocity, or — unlike VAL3, which queues the point and lets the arm controller
+refuse it — while e-stopped, unpowered or in error), points executed one after the other as
+joint-interpolated moves at ``velocity`` times each joint's maximum speed, STOP_TRAJECTORY
+(sequence -4) freezing the arm where it is and dropping queued points, motion stopped when the
+motion client disconnects (``motionControl.pgx`` resets motion when a connection drops), and a
+state port that streams joint state and STATUS to every connected client.
+
+Motion model: every joint moves linearly in time from start to target, all joints arriving
+together; duration = max over joints of |Δ| / (max_speed · velocity) · ``time_scale``
+(``time_scale`` 0 makes moves instantaneous). ``joints_deg()`` evaluates that model at the
+current instant without locking, so other simulated devices may call it at a high rate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Self
+
+import numpy as np
+
+from drivers.controller.simple_message import (
+    CommType,
+    FrameReader,
+    JointFeedback,
+    JointPosition,
+    JointTrajPt,
+    JointTrajPtReply,
+    Message,
+    MsgType,
+    ReplyCode,
+    RobotMode,
+    SpecialSeq,
+    Status,
+)
+from drivers.errors import ProtocolError
+
+log = logging.getLogger(__name__)
+
+N_JOINTS = 6
+# Nominal maximum joint speeds of a TX90-class arm (deg/s), J1..J6.
+DEFAULT_MAX_SPEED_DEG_S = (250.0, 200.0, 250.0, 400.0, 400.0, 600.0)
+# Targets this far beyond a joint limit are clamped onto it instead of refused: a target that
+# sits exactly on the limit comes back a few 1e-5 deg beyond it after deg → float32 rad → deg.
+RANGE_EPS_DEG = 1e-4
+_POLL_S = 0.1  # how often blocking loops look at the stop flag (s)
+_SEND_TIMEOUT_S = 0.5  # a state client that cannot take a frame within this is dropped
+_LOOPBACK = ("127.0.0.1", "localhost")
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """One joint-interpolated move; times on the host monotonic clock (s)."""
+
+    seq: int
+    t_start: float
+    t_end: float
+    start_deg: np.ndarray
+    target_deg: np.ndarray
+
+    def at(self, t: float) -> np.ndarray:
+        if t >= self.t_end:
+            return self.target_deg.copy()
+        if t <= self.t_start:
+            return self.start_deg.copy()
+        f = (t - self.t_start) / (self.t_end - self.t_start)
+        return self.start_deg + f * (self.target_deg - self.start_deg)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Position at rest before the first segment, then the queued segments (immutable)."""
+
+    rest_deg: np.ndarray
+    segments: tuple[_Segment, ...] = ()
+
+    def at(self, t: float) -> np.ndarray:
+        for seg in reversed(self.segments):
+            if t >= seg.t_start:
+                return seg.at(t)
+        return self.rest_deg.copy()
+
+    def in_motion(self, t: float) -> bool:
+        return bool(self.segments) and t < self.segments[-1].t_end
+
+
+class SimulatedController:
+    """Simple Message controller simulator (see the module docstring for its behaviour).
+
+    Joint limits and positions in degrees, speeds in deg/s, ``state_rate_hz`` in Hz.
+    ``on_motion(record)`` is called once per executed move, when it ends, with the JSON-able
+    record ``{"seq", "t_start" (host monotonic s), "t_wall_start" (Unix time s), "start_deg",
+    "target_deg", "end_deg", "duration_s", "stopped"}``; it runs on a simulator thread and must
+    not block. ``moves_executed`` counts accepted trajectory points (STOP and the other special
+    sequences excluded).
+    ``joint_message`` selects what the state port streams: ``MsgType.JOINT_POSITION`` (10) or
+    ``MsgType.JOINT_FEEDBACK`` (15, as current VAL3 servers do).
+    """
+
+    device = "controller"
+
+    def __init__(self, joint_min_deg: Sequence[float], joint_max_deg: Sequence[float],
+                 initial_deg: Sequence[float] | None = None, host: str = "127.0.0.1",
+                 motion_port: int = 0, state_port: int = 0,
+                 max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
+                 time_scale: float = 1.0, state_rate_hz: float = 50.0,
+                 on_motion: Callable[[dict], None] | None = None,
+                 joint_message: int = MsgType.JOINT_POSITION):
+        self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
+        self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
+        self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
+        for name, arr in (("joint_min_deg", self.joint_min_deg),
+                          ("joint_max_deg", self.joint_max_deg),
+                          ("max_speed_deg_s", self.max_speed_deg_s)):
+            if arr.shape != (N_JOINTS,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name} must be {N_JOINTS} finite numbers, got {arr.tolist()}")
+        if np.any(self.joint_min_deg >= self.joint_max_deg):
+            raise ValueError("every joint_min_deg must be below its joint_max_deg")
+        if np.any(self.max_speed_deg_s <= 0):
+            raise ValueError("max_speed_deg_s must be positive")
+        if initial_deg is None:
+            initial = np.clip(np.zeros(N_JOINTS), self.joint_min_deg, self.joint_max_deg)
+        else:
+            initial = np.asarray(initial_deg, dtype=float)
+            if initial.shape != (N_JOINTS,) or not self._in_range(initial):
+                raise ValueError(f"initial_deg {initial.tolist()} is not {N_JOINTS} values "
+                                 "inside the joint ranges")
+        if host not in _LOOPBACK:
+            raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")
+        if not (time_scale >= 0 and math.isfinite(time_scale)):
+            raise ValueError(f"time_scale must be >= 0, got {time_scale}")
+        if not (state_rate_hz > 0 and math.isfinite(state_rate_hz)):
+            raise ValueError(f"state_rate_hz must be > 0, got {state_rate_hz}")
+        if joint_message not in (MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK):
+            raise ValueError(f"joint_message must be 10 or 15, got {joint_message}")
+        self.host = "127.0.0.1"
+        self._requested_ports = (int(motion_port), int(state_port))
+        self.time_scale = float(time_scale)
+        self.state_rate_hz = float(state_rate_hz)
+        self.on_motion = on_motion
+        self.joint_message = int(joint_message)
+
+        self._lock = threading.Lock()  # guards plan changes, faults, client lists, counters
+        self._plan = _Plan(initial.copy())  # replaced whole, read without the lock
+        self._drives_powered = True
+        self._e_stopped = False
+        self._in_error = False
+        self._error_code = 0
+        self.moves_executed = 0
+        self.motion_port: int | None = None
+        self.state_port: int | None = None
+
+        self._stop_evt = threading.Event()
+        self._listeners: list[socket.socket] = []
+        self._motion_clients: set[socket.socket] = set()
+        self._state_clients: set[socket.socket] = set()
+        self._threads: list[threading.Thread] = []
+        self._started = False
+
+    # -- lifecycle --------------------------------------------------------------------------
+
+    @property
+    def url(self) -> str:
+        """``tcp://127.0.0.1:<motion>?state=<state>`` (after ``start()``)."""
+        if self.motion_port is None:
+            raise RuntimeError("simulated controller not started")
+        return f"tcp://{self.host}:{self.motion_port}?state={self.state_port}"
+
+    def start(self) -> Self:
+        """Bind both ports on 127.0.0.1 and start serving; returns ``self``."""
+        if self._started:
+            return self
+        self._stop_evt.clear()
+        try:
+            motion = self._listen(self._requested_ports[0])
+            self._listeners.append(motion)
+            state = self._listen(self._requested_ports[1])
+            self._listeners.append(state)
+        except OSError:
+            self._close_all(abort=False)
+            raise
+        self.motion_port = motion.getsockname()[1]
+        self.state_port = state.getsockname()[1]
+        self._started = True
+        self._spawn(self._accept_loop, (motion, self._serve_motion), "accept-motion")
+        self._spawn(self._accept_loop, (state, self._add_state_client), "accept-state")
+        self._spawn(self._stream_loop, (), "stream")
+        log.info("simulated controller serving at %s", self.url)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving, close every connection, end any motion (reported stopped)."""
+        self._shutdown(abort=False)
+
+    def kill(self) -> None:
+        """Simulate a crash: reset every connection at once and stop serving."""
+        self._shutdown(abort=True)
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _shutdown(self, abort: bool) -> None:
+        if not self._started:
+            return
+        self._started = False
+        self._stop_evt.set()
+        self._freeze(time.monotonic(), "simulator killed" if abort else "simulator stopped")
+        self._close_all(abort)
+        # Two passes: the accept threads may spawn a connection thread while they wind down.
+        for _ in range(2):
+            with self._lock:
+                threads = list(self._threads)
+            for thread in threads:
+                if thread is not threading.current_thread():
+                    thread.join(timeout=2.0)
+        with self._lock:
+            self._threads.clear()
+        log.info("simulated controller %s", "killed" if abort else "stopped")
+
+    def _listen(self, port: int) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((self.host, port))
+        sock.listen(8)
+        sock.settimeout(_POLL_S)
+        return sock
+
+    def _spawn(self, target: Callable, args: tuple, name: str) -> None:
+        thread = threading.Thread(target=target, args=args, daemon=True,
+                                  name=f"sim-controller-{name}")
+        with self._lock:
+            self._threads.append(thread)
+        thread.start()
+
+    def _close_all(self, abort: bool) -> None:
+        with self._lock:
+            socks = [*self._listeners, *self._motion_clients, *self._state_clients]
+            self._listeners.clear()
+            self._motion_clients.clear()
+            self._state_clients.clear()
+        for sock in socks:
+            if abort:
+                # SO_LINGER with zero timeout: close() sends RST, as a crashed controller would.
+                try:
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                except OSError:
+                    pass
+            else:
+                try:
+                    sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass  # listener, or peer already gone
+            sock.close()
+
+    def _accept_loop(self, listener: socket.socket,
+                     handler: Callable[[socket.socket, str], None]) -> None:
+        while not self._stop_evt.is_set():
+            try:
+                conn, addr = listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return  # listener closed by stop()/kill()
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            handler(conn, f"{addr[0]}:{addr[1]}")
+
+    # -- model ------------------------------------------------------------------------------
+
+    def joints_deg(self) -> np.ndarray:
+        """Joint readings (deg, (6,)) at this instant. Thread-safe, lock-free."""
+        return self._plan.at(time.monotonic())
+
+    def in_motion(self) -> bool:
+        """Whether a move is executing at this instant."""
+        return self._plan.in_motion(time.monotonic())
+
+    def set_fault(self, *, e_stopped: bool | None = None, drives_powered: bool | None = None,
+                  in_error: bool | None = None, error_code: int | None = None) -> None:
+        """Change the reported fault state; an e-stop, power loss or error freezes motion."""
+        with self._lock:
+            if e_stopped is not None:
+                self._e_stopped = bool(e_stopped)
+            if drives_powered is not None:
+                self._drives_powered = bool(drives_powered)
+            if in_error is not None:
+                self._in_error = bool(in_error)
+            if error_code is not None:
+                self._error_code = int(error_code)
+            halt = self._e_stopped or not self._drives_powered or self._in_error
+        if halt:
+            self._freeze(time.monotonic(), "fault")
+
+    def _in_range(self, joints: np.ndarray) -> bool:
+        return bool(np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
+                    and np.all(joints <= self.joint_max_deg + RANGE_EPS_DEG))
+
+    def _status(self, now: float) -> Status:
+        with self._lock:
+            powered, estop, err, code = (self._drives_powered, self._e_stopped,
+                                         self._in_error, self._error_code)
+        possible = powered and not estop and not err
+        return Status(drives_powered=int(powered), e_stopped=int(estop), error_code=code,
+                      in_error=int(err), in_motion=int(self._plan.in_motion(now)),
+                      mode=RobotMode.AUTO, motion_possible=int(possible))
+
+    def _record(self, seg: _Segment, end_deg: np.ndarray, stopped: bool) -> dict:
+        wall_start = time.time() - (time.monotonic() - seg.t_start)
+        return {"seq": seg.seq, "t_start": seg.t_start, "t_wall_start": wall_start,
+                "start_deg": [float(v) for v in seg.start_deg],
+                "target_deg": [float(v) for v in seg.target_deg],
+                "end_deg": [float(v) for v in end_deg],
+                "duration_s": seg.t_end - seg.t_start, "stopped": stopped}
+
+    def _notify(self, records: list[dict]) -> None:
+        callback = self.on_motion
+        if callback is None:
+            return
+        for record in records:
+            try:
+                callback(record)
+            except Exception:  # a faulty observer must not kill the simulator
+                log.exception("on_motion callback failed")
+
+    def _retire(self, now: float) -> None:
+        """Drop finished segments from the plan and report them."""
+        with self._lock:
+            plan = self._plan
+            done = [s for s in plan.segments if s.t_end <= now]
+            if not done:
+                return
+            self._plan = _Plan(done[-1].target_deg.copy(), plan.segments[len(done):])
+        self._notify([self._record(s, s.target_deg, False) for s in done])
+
+    def _freeze(self, now: float, why: str) -> None:
+        """Stop where the arm is now: report finished and interrupted moves, drop queued ones."""
+        with self._lock:
+            plan = self._plan
+            if not plan.segments:
+                return
+            here = plan.at(now)
+            records = [self._record(s, s.target_deg, False)
+                       for s in plan.segments if s.t_end <= now]
+            active = [s for s in plan.segments if s.t_start <= now < s.t_end]
+            records += [self._record(s, here, True) for s in active]
+            dropped = sum(1 for s in plan.segments if s.t_start > now)
+            self._plan = _Plan(here)
+        if active or dropped:
+            log.info("simulated controller stopped motion (%s) at %s deg; %d queued point(s) "
+                     "dropped", why, np.round(here, 4).tolist(), dropped)
+        self._notify(records)
+
+    def _enqueue(self, msg: JointTrajPt) -> bool:
+        """Queue one trajectory point; False when it must be refused."""
+        target = np.degrees(np.asarray(msg.joints_rad[:N_JOINTS], dtype=float))
+        velocity = min(float(msg.velocity), 1.0)  # VAL3: limit(velocity * 100, 0, 100) %
+        if not (np.all(np.isfinite(target)) and math.isfinite(velocity) and velocity > 0):
+            log.warning("simulated controller refuses point %d: bad target or velocity %r",
+                        msg.sequence, msg.velocity)
+            return False
+        if not self._in_range(target):
+            log.warning("simulated controller refuses point %d: %s deg outside the joint ranges",
+                        msg.sequence, np.round(target, 4).tolist())
+            return False
+        target = np.clip(target, self.joint_min_deg, self.joint_max_deg)
+        now = time.monotonic()
+        self._retire(now)
+        with self._lock:
+            if self._e_stopped or not self._drives_powered or self._in_error:
+                log.warning("simulated controller refuses point %d: e-stopped=%s powered=%s "
+                            "in error=%s", msg.sequence, self._e_stopped, self._drives_powered,
+                            self._in_error)
+                return False
+            plan = self._plan
+            if plan.segments:
+                start_t, start = plan.segments[-1].t_end, plan.segments[-1].target_deg
+            else:
+                start_t, start = now, plan.rest_deg
+            t0 = max(now, start_t)
+            duration = float(np.max(np.abs(target - start) / (self.max_speed_deg_s * velocity)))
+            seg = _Segment(msg.sequence, t0, t0 + duration * self.time_scale, start.copy(), target)
+            self._plan = _Plan(plan.rest_deg, plan.segments + (seg,))
+            self.moves_executed += 1
+        log.debug("simulated controller queued point %d: %s deg in %.3f s", msg.sequence,
+                  np.round(target, 4).tolist(), seg.t_end - seg.t_start)
+        return True
+
+    # -- motion port ------------------------------------------------------------------------
+
+    def _serve_motion(self, conn: socket.socket, peer: str) -> None:
+        with self._lock:
+            if self._stop_evt.is_set():
+                conn.close()
+                return
+            self._motion_clients.add(conn)
+        self._spawn(self._motion_loop, (conn, peer), f"motion {peer}")
+
+    def _motion_loop(self, conn: socket.socket, peer: str) -> None:
+        log.info("simulated controller: motion client %s connected", peer)
+        reader = FrameReader("simulated controller", f"motion client {peer}")
+        try:
+            # Inside the try: stop() may already have closed this socket.
+            conn.settimeout(_POLL_S)
+            while not self._stop_evt.is_set():
+                try:
+                    data = conn.recv(4096)
+                except TimeoutError:
+                    continue
+                if not data:
+                    break
+                for msg in reader.feed(data):
+                    reply = self._handle(msg)
+                    if reply is not None:
+                        conn.sendall(reply)
+        except ProtocolError as e:
+            log.warning("%s; dropping the connection", e)
+        except OSError as e:
+            if not self._stop_evt.is_set():
+                log.info("simulated controller: motion client %s: %s", peer, e)
+        finally:
+            with self._lock:
+                known = conn in self._motion_clients
+                self._motion_clients.discard(conn)
+            if known:
+                conn.close()
+            if not self._stop_evt.is_set():
+                # motionControl.pgx: no motion while the motion connection is down.
+                self._freeze(time.monotonic(), "motion client disconnected")
+                log.info("simulated controller: motion client %s disconnected", peer)
+
+    def _handle(self, msg: Message) -> bytes | None:
+        """Act on one message from the motion port; return the reply frame, if any."""
+        if not isinstance(msg, JointTrajPt):
+            # REP-I0006: unsupported service requests get a FAILURE reply, topics are ignored.
+            if msg.comm_type == CommType.SERVICE_REQUEST:
+                return dataclasses.replace(msg, comm_type=CommType.SERVICE_REPLY,
+                                           reply_code=ReplyCode.FAILURE).pack()
+            log.info("simulated controller ignores %s on the motion port", type(msg).__name__)
+            return None
+        if msg.sequence == SpecialSeq.STOP_TRAJECTORY:
+            self._freeze(time.monotonic(), "STOP_TRAJECTORY")
+            ok = True
+        elif msg.sequence < 0:
+            ok = True  # trajectory start/end markers: nothing to execute
+        else:
+            ok = self._enqueue(msg)
+        if msg.comm_type != CommType.SERVICE_REQUEST:
+            return None
+        code = ReplyCode.SUCCESS if ok else ReplyCode.FAILURE
+        return JointTrajPtReply(code, msg.sequence).pack()
+
+    # -- state port -------------------------------------------------------------------------
+
+    def _add_state_client(self, conn: socket.socket, peer: str) -> None:
+        conn.settimeout(_SEND_TIMEOUT_S)
+        with self._lock:
+            if self._stop_evt.is_set():
+                conn.close()
+                return
+            self._state_clients.add(conn)
+        log.info("simulated controller: state client %s connected", peer)
+
+    def _state_frames(self, now: float) -> bytes:
+        rad = tuple(np.radians(self._plan.at(now)))
+        if self.joint_message == MsgType.JOINT_FEEDBACK:
+            joints = JointFeedback(rad, robot_id=0, valid_fields=0x02).pack()
+        else:
+            joints = JointPosition(rad).pack()
+        return joints + self._status(now).pack()
+
+    def _stream_loop(self) -> None:
+        period = 1.0 / self.state_rate_hz
+        next_t = time.monotonic()
+        while not self._stop_evt.is_set():
+            now = time.monotonic()
+            self._retire(now)
+            with self._lock:
+                clients = list(self._state_clients)
+            if clients:
+                frames = self._state_frames(now)
+                for conn in clients:
+                    try:
+                        conn.sendall(frames)
+                    except OSError as e:
+                        log.info("simulated controller: dropping state client: %s", e)
+                        with self._lock:
+                            self._state_clients.discard(conn)
+                        conn.close()
+            next_t = max(next_t + period, time.monotonic())
+            self._stop_evt.wait(next_t - time.monotonic())
+

@@ -1,0 +1,491 @@
+"""Modbus client for the pulser-receiver: RTU over a serial line or pyserial URL, and Modbus TCP.
+
+The register map and its encodings are in ``drivers.pulser.registers``; this module owns the
+transport (a pymodbus synchronous client), timeouts, the mapping of Modbus faults to
+``drivers.errors`` and the DEBUG log of every frame (``WRITE:``/``READ:`` in hex).
+
+Fault mapping (every message names the device ``pulser`` and its URL):
+
+- Modbus exception response → ``DeviceError`` ("illegal data address (0x02)" …);
+- no byte back within the timeout → ``DeviceTimeout``;
+- bytes back that never form a valid frame (bad CRC, wrong unit, truncated) → ``ProtocolError``;
+- connection refused, serial device missing, peer closed → ``ConnectionLost``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import socket
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client.base import ModbusBaseSyncClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.framer import FramerType
+from serial import SerialException
+from serial.urlhandler.protocol_socket import Serial as _PyserialSocket
+
+from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
+from drivers.pulser import registers as reg
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from drivers.pulser.urls import PulserUrl, parse_pulser_url
+
+log = logging.getLogger(__name__)
+
+#: Default time one request may wait for its answer, s.
+DEFAULT_TIMEOUT_S = 1.0
+#: Pause between two polls of the measurement block while waiting for a new counter, s.
+POLL_INTERVAL_S = 0.002
+#: Shortest per-request timeout used when a deadline is almost reached, s.
+_MIN_REQUEST_TIMEOUT_S = 0.01
+
+
+@dataclass(frozen=True)
+class AScan:
+    """One A-scan: normalised samples (1.0 = full screen), sample rate (Hz), time of sample 0."""
+
+    samples: np.ndarray
+    sample_rate_hz: float
+    start_ns: float
+    counter: int
+
+    @property
+    def time_ns(self) -> np.ndarray:
+        """Round-trip time of each sample, ns."""
+        return self.start_ns + np.arange(self.samples.size) * (1e9 / self.sample_rate_hz)
+
+
+class _SocketPort(_PyserialSocket):
+    """pyserial's ``socket://`` port with an exact ``in_waiting`` and a close without delay.
+
+    pyserial reports at most 1 byte waiting on a socket, so pymodbus's RTU receiver would read a
+    frame one byte per poll (~1 ms each); peeking gives the real count. pyserial also sleeps
+    0.3 s in ``close()``; a closed TCP stream needs no such pause.
+    """
+
+    @property
+    def in_waiting(self) -> int:
+        """Return the number of bytes received and not yet read."""
+        if not self.is_open or self._socket is None:
+            return super().in_waiting
+        ready, _, _ = select.select([self._socket], [], [], 0)
+        if not ready:
+            return 0
+        try:
+            peeked = self._socket.recv(65536, socket.MSG_PEEK)
+        except BlockingIOError:
+            return 0
+        return max(len(peeked), 1)  # 1 at EOF, so that read() reports the disconnect
+
+    def close(self) -> None:
+        """Close the TCP stream."""
+        if self.is_open and self._socket is not None:
+            try:
+                self._socket.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self._socket.close()
+            self._socket = None
+        self.is_open = False
+
+
+class ModbusPulser(PulserReceiver):
+    """The pulser-receiver over Modbus RTU or Modbus TCP (register map ``registers``).
+
+    Build it with :meth:`from_url`. No I/O happens before :meth:`connect` (or the first call
+    that needs the device, which connects lazily). ``timeout_s`` bounds every request.
+    ``port`` (RTU only) injects an already-open pyserial-compatible port instead of opening
+    ``DEVICE``, e.g. a test double; it is closed by :meth:`close`.
+    """
+
+    def __init__(
+        self, url: str | PulserUrl, timeout_s: float = DEFAULT_TIMEOUT_S, *, port: Any = None
+    ):
+        parsed = parse_pulser_url(url) if isinstance(url, str) else url
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
+        if port is not None and parsed.framing != "rtu":
+            raise ValueError("port can only be injected for modbus-rtu URLs")
+        self._url = parsed
+        self._endpoint = str(parsed)
+        self._unit = parsed.unit
+        self._timeout_s = float(timeout_s)
+        self._lock = threading.RLock()
+        self._rx = b""  # bytes received for the request in flight (cumulative)
+        self._connected = False
+        self._last_counter: int | None = None
+        self.last_status = reg.Status(0)  #: status bits of the last gate reading
+        self._injected_port = port
+        self._client = self._make_client(parsed)
+
+    @classmethod
+    def from_url(cls, url: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> ModbusPulser:
+        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request.
+
+        ``url`` is ``modbus-tcp://HOST:PORT[?unit=N]`` or
+        ``modbus-rtu://DEVICE[?baud=N&unit=N&parity=E]``. Raises ``ValueError`` for a
+        malformed URL. Does not connect.
+        """
+        return cls(url, timeout_s)
+
+    def _make_client(self, url: PulserUrl) -> ModbusBaseSyncClient:
+        common: dict[str, Any] = {
+            "timeout": self._timeout_s,
+            "retries": 0,
+            "trace_packet": self._trace_packet,
+            "name": "pulser",
+        }
+        if url.framing == "tcp":
+            return ModbusTcpClient(
+                url.host or "", port=url.port or 502, framer=FramerType.SOCKET, **common
+            )
+        return ModbusSerialClient(
+            url.device or "",
+            framer=FramerType.RTU,
+            baudrate=url.baud,
+            bytesize=8,
+            parity=url.parity,
+            stopbits=1,
+            **common,
+        )
+
+    def _open_port(self) -> None:
+        """Give the RTU client its port when pymodbus should not open it itself.
+
+        pymodbus uses an already-set ``client.socket`` instead of calling ``serial_for_url``:
+        that is how an injected port, or the faster ``socket://`` port, is handed over.
+        """
+        client = self._client
+        if not isinstance(client, ModbusSerialClient) or client.socket is not None:
+            return
+        port = self._injected_port
+        if port is None and (self._url.device or "").startswith("socket://"):
+            port = _SocketPort(None, timeout=self._timeout_s)
+            port.port = self._url.device
+            try:
+                port.open()
+            except (SerialException, OSError) as exc:
+                raise ConnectionLost(self.device, self._endpoint, f"cannot open: {exc}") from exc
+        if port is not None:
+            port.inter_byte_timeout = client.inter_byte_timeout or None
+            client.socket = port
+            client.last_frame_end = None
+
+    # --- PulserReceiver ---------------------------------------------------------------------
+    @property
+    def endpoint(self) -> str:
+        """The pulser URL, e.g. ``modbus-tcp://127.0.0.1:5020?unit=1``."""
+        return self._endpoint
+
+    @property
+    def timeout_s(self) -> float:
+        """Time one request may wait for its answer, s."""
+        return self._timeout_s
+
+    def connect(self) -> None:
+        """Open the connection and check the device identity (map version).
+
+        Raises ``ConnectionLost`` (cannot open), ``DeviceTimeout`` (no answer),
+        ``ProtocolError`` (not this register map) or ``DeviceError`` (exception response).
+        """
+        with self._lock:
+            if self._connected:
+                return
+            log.debug("pulser %s: connecting", self._endpoint)
+            self._open_port()
+            if not self._client.connect():
+                self._client.close()
+                what = (
+                    f"serial device {self._url.device!r}"
+                    if self._url.framing == "rtu"
+                    else f"TCP {self._url.host}:{self._url.port}"
+                )
+                raise ConnectionLost(
+                    self.device,
+                    self._endpoint,
+                    f"cannot open {what} (refused, unreachable or no answer "
+                    f"within {self._timeout_s:.3g} s)",
+                )
+            try:
+                ident = self._read(
+                    reg.FunctionCode.READ_INPUT_REGISTERS,
+                    reg.IDENTITY_ADDRESS,
+                    reg.IDENTITY_COUNT,
+                    "identify",
+                    autoconnect=False,
+                )
+            except BaseException:
+                self._client.close()
+                raise
+            magic, version = ident
+            if magic != reg.DEVICE_MAGIC or version != reg.MAP_VERSION:
+                self._client.close()
+                raise ProtocolError(
+                    self.device,
+                    self._endpoint,
+                    f"unexpected identity 0x{magic:04X} v{version} (expected "
+                    f"0x{reg.DEVICE_MAGIC:04X} v{reg.MAP_VERSION}): not this register map",
+                )
+            self._connected = True
+            log.debug("pulser %s: connected, map version %d", self._endpoint, version)
+
+    def close(self) -> None:
+        """Close the connection. Idempotent."""
+        with self._lock:
+            self._connected = False
+            self._client.close()
+
+    def configure(self, settings: PulserSettings) -> None:
+        """Validate and write gain, PRF, gate and averages in one request (FC 16).
+
+        Raises ``ValueError`` naming the setting for an out-of-range value (nothing is
+        written then); values are rounded to the register resolution (0.1 dB, 1 Hz, 1 ns).
+        """
+        registers = reg.encode_settings(settings)
+        self._write(reg.SETTINGS_ADDRESS, registers, "configure")
+        log.debug("pulser %s: configured %s", self._endpoint, settings)
+
+    def settings(self) -> PulserSettings:
+        """Read gain, PRF, gate and averages back from the device."""
+        registers = self._read(
+            reg.FunctionCode.READ_HOLDING_REGISTERS,
+            reg.SETTINGS_ADDRESS,
+            reg.SETTINGS_COUNT,
+            "read settings",
+        )
+        return reg.decode_settings(registers)
+
+    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+        """Read the gated peak amplitude and time of flight (ns, round trip).
+
+        With ``fresh`` poll the measurement block until its counter differs from the last one
+        this object returned (the first call accepts any reading); ``timeout_s`` (s) bounds
+        the whole wait, then ``DeviceTimeout``. ``host_time_s`` is ``time.monotonic()`` when
+        the answer arrived. A gate ending after the pulse period raises ``DeviceError``.
+        """
+        deadline = time.monotonic() + float(timeout_s)
+        while True:
+            registers = self._read(
+                reg.FunctionCode.READ_INPUT_REGISTERS,
+                reg.MEASUREMENT_ADDRESS,
+                reg.MEASUREMENT_COUNT,
+                "read gate",
+                deadline,
+            )
+            host_time_s = time.monotonic()
+            m = reg.Measurement.from_registers(registers)
+            if not fresh or self._last_counter is None or m.counter != self._last_counter:
+                break
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise DeviceTimeout(
+                    self.device,
+                    self._endpoint,
+                    f"no new reading within {timeout_s:g} s (counter stays at {m.counter})",
+                )
+            time.sleep(min(POLL_INTERVAL_S, remaining))
+        self._last_counter = m.counter
+        self.last_status = m.status
+        if reg.Status.GATE_ERROR in m.status:
+            raise DeviceError(
+                self.device,
+                self._endpoint,
+                "gate error: the gate ends after the pulse repetition period",
+            )
+        tof_ns = float("nan")
+        if reg.Status.ECHO in m.status:
+            if not math.isfinite(m.tof_ns):
+                raise ProtocolError(
+                    self.device, self._endpoint, f"echo flagged but time of flight is {m.tof_ns}"
+                )
+            tof_ns = m.tof_ns
+        return GateReading(
+            amplitude=m.amplitude,
+            tof_ns=tof_ns,
+            counter=m.counter,
+            device_time_s=m.device_time_ms / 1000.0,
+            host_time_s=host_time_s,
+        )
+
+    def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
+        """Read the A-scan over the gate: normalised samples (n,) and sample rate (Hz)."""
+        scan = self.read_ascan_trace(timeout_s)
+        return scan.samples, scan.sample_rate_hz
+
+    # --- beyond the interface ---------------------------------------------------------------
+    def read_ascan_trace(self, timeout_s: float = 2.0) -> AScan:
+        """Read the A-scan with its time base; ``timeout_s`` (s) bounds the whole transfer.
+
+        Reading the header makes the device freeze the A-scan of its latest acquisition; the
+        samples are then read in blocks of at most 125 registers.
+        """
+        deadline = time.monotonic() + float(timeout_s)
+        header = reg.AScanHeader.from_registers(
+            self._read(
+                reg.FunctionCode.READ_INPUT_REGISTERS,
+                reg.ASCAN_HEADER_ADDRESS,
+                reg.ASCAN_HEADER_COUNT,
+                "read A-scan header",
+                deadline,
+            )
+        )
+        if header.length > reg.ASCAN_MAX_SAMPLES:
+            raise ProtocolError(
+                self.device,
+                self._endpoint,
+                f"A-scan length {header.length} exceeds {reg.ASCAN_MAX_SAMPLES}",
+            )
+        if header.length and not (
+            math.isfinite(header.sample_rate_hz) and header.sample_rate_hz > 0
+        ):
+            raise ProtocolError(
+                self.device, self._endpoint, f"A-scan sample rate {header.sample_rate_hz} Hz"
+            )
+        samples: list[int] = []
+        while len(samples) < header.length:
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(
+                    self.device,
+                    self._endpoint,
+                    f"A-scan of {header.length} samples not read within "
+                    f"{timeout_s:g} s ({len(samples)} read)",
+                )
+            count = min(reg.MAX_READ_REGISTERS, header.length - len(samples))
+            samples += self._read(
+                reg.FunctionCode.READ_INPUT_REGISTERS,
+                reg.Input.ASCAN_SAMPLES + len(samples),
+                count,
+                "read A-scan samples",
+                deadline,
+            )
+        return AScan(
+            samples=reg.decode_samples(samples),
+            sample_rate_hz=header.sample_rate_hz,
+            start_ns=float(header.start_ns),
+            counter=header.counter,
+        )
+
+    def set_gate_threshold(self, fraction: float) -> None:
+        """Set the gate threshold, fraction of full screen height (0 … 1, 0.001 resolution)."""
+        self._write(reg.Holding.THRESHOLD, [reg.THRESHOLD.to_raw(fraction)], "set gate threshold")
+
+    def gate_threshold(self) -> float:
+        """Read the gate threshold, fraction of full screen height."""
+        (raw,) = self._read(
+            reg.FunctionCode.READ_HOLDING_REGISTERS, reg.Holding.THRESHOLD, 1, "read gate threshold"
+        )
+        return reg.THRESHOLD.from_raw(raw)
+
+    def trigger(self) -> None:
+        """Make the device acquire now (its reading counter advances by one)."""
+        self._write(reg.Holding.COMMAND, [int(reg.Command.TRIGGER)], "trigger")
+
+    def clear_counter(self) -> None:
+        """Reset the device's reading counter and measurement block to zero."""
+        self._write(reg.Holding.COMMAND, [int(reg.Command.CLEAR_COUNTER)], "clear counter")
+        self._last_counter = None
+
+    # --- transport --------------------------------------------------------------------------
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        """Log every frame and remember what came back (pymodbus ``trace_packet`` hook)."""
+        if sending:
+            self._rx = b""
+            log.debug("pulser %s WRITE: %s", self._endpoint, data.hex(" "))
+        else:
+            self._rx = bytes(data)
+            log.debug("pulser %s READ: %s", self._endpoint, data.hex(" "))
+        return data
+
+    def _read(
+        self,
+        function: reg.FunctionCode,
+        address: int,
+        count: int,
+        what: str,
+        deadline: float | None = None,
+        *,
+        autoconnect: bool = True,
+    ) -> list[int]:
+        if function == reg.FunctionCode.READ_HOLDING_REGISTERS:
+            call: Callable[..., Any] = self._client.read_holding_registers
+        else:
+            call = self._client.read_input_registers
+        response = self._execute(what, deadline, autoconnect, call, address, count=count)
+        registers = list(response.registers)
+        if len(registers) != count:
+            raise ProtocolError(
+                self.device,
+                self._endpoint,
+                f"{what}: asked for {count} registers at 0x{address:04X}, got {len(registers)}",
+            )
+        return registers
+
+    def _write(self, address: int, values: Sequence[int], what: str) -> None:
+        self._execute(what, None, True, self._client.write_registers, address, list(values))
+
+    def _execute(
+        self,
+        what: str,
+        deadline: float | None,
+        autoconnect: bool,
+        call: Callable[..., Any],
+        *args: Any,
+        **kwargs: Any,
+    ) -> Any:
+        """Run one request; map every pymodbus/pyserial fault to a ``drivers.errors`` type.
+
+        ``deadline`` (``time.monotonic()`` s) shortens the request timeout; ``autoconnect``
+        connects first when the pulser is not connected yet.
+        """
+        with self._lock:
+            if autoconnect and not self._connected:
+                self.connect()
+            timeout_s = self._timeout_s
+            if deadline is not None:
+                timeout_s = min(timeout_s, max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S))
+            # pymodbus reads the receive timeout from comm_params on every request
+            self._client.comm_params.timeout_connect = timeout_s
+            self._rx = b""
+            try:
+                response = call(*args, device_id=self._unit, **kwargs)
+            except ConnectionException as exc:
+                self._lost()
+                raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
+            except ModbusIOException as exc:
+                if self._rx:
+                    raise ProtocolError(
+                        self.device,
+                        self._endpoint,
+                        f"{what}: invalid reply (bad CRC, wrong unit or truncated frame): "
+                        f"{self._rx.hex(' ')}",
+                    ) from exc
+                raise DeviceTimeout(
+                    self.device, self._endpoint, f"{what}: no answer within {timeout_s:.3g} s"
+                ) from exc
+            except ModbusException as exc:
+                raise ProtocolError(self.device, self._endpoint, f"{what}: {exc}") from exc
+            except OSError as exc:  # includes serial.SerialException
+                self._lost()
+                raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
+            finally:
+                self._client.comm_params.timeout_connect = self._timeout_s
+            if response.isError():
+                code = int(getattr(response, "exception_code", 0))
+                raise DeviceError(
+                    self.device,
+                    self._endpoint,
+                    f"{what}: Modbus exception {reg.exception_name(code)}",
+                )
+            return response
+
+    def _lost(self) -> None:
+        """Forget the connection so that the next call reconnects."""
+        self._connected = False
+        self._client.close()

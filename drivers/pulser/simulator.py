@@ -1,0 +1,481 @@
+"""A simulated pulser-receiver that speaks the real register map over Modbus TCP or RTU framing.
+
+The echo itself is injected: ``model(settings) -> (amplitude, tof_ns)`` gives the amplitude as a
+fraction of full screen height and the round-trip time of flight in ns (NaN = no echo) at the
+instant of the call, noise included. This module only plays the device: it applies the gate
+and threshold, counts acquisitions, time-stamps them, and synthesises an A-scan.
+
+Acquisition policy (deterministic): every read of the measurement block (input registers
+``COUNTER`` … ``TOF``) is one new acquisition — ``model`` is called once, the counter advances
+by one and the device clock is sampled — and the read returns it. So ``read_gate(fresh=True)``
+costs one round trip. The ``TRIGGER`` command acquires too. Reading the A-scan header freezes
+the A-scan of the latest acquisition (acquiring first if there was none).
+
+The server (pymodbus ``ModbusTcpServer``, framer ``SOCKET`` or ``RTU``) runs on 127.0.0.1 in a
+background thread with its own asyncio loop. Faults for tests: :meth:`SimulatedPulser.set_silent`
+(requests are received but never answered; the connection stays open) and
+:meth:`SimulatedPulser.set_exception` (every request is answered with that exception code).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, Self
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+from pymodbus.datastore import (
+    ModbusDeviceContext,
+    ModbusSequentialDataBlock,
+    ModbusServerContext,
+)
+from pymodbus.framer import FramerType
+from pymodbus.server import ModbusTcpServer
+
+from drivers.pulser import registers as reg
+from drivers.pulser.base import PulserSettings
+from drivers.pulser.urls import format_rtu_url, format_tcp_url
+
+log = logging.getLogger(__name__)
+
+#: ``model(settings) -> (amplitude_fsh, tof_ns)``; NaN ``tof_ns`` means no echo.
+PulserModel = Callable[[PulserSettings], tuple[float, float]]
+
+#: −6 dB bandwidth of the simulated transducer, as a fraction of its centre frequency.
+FRACTIONAL_BANDWIDTH = 0.6
+#: Longest wait for the server thread to start listening or to stop, s.
+START_TIMEOUT_S = 5.0
+STOP_TIMEOUT_S = 5.0
+
+_FC_READ_HOLDING = int(reg.FunctionCode.READ_HOLDING_REGISTERS)
+_FC_READ_INPUT = int(reg.FunctionCode.READ_INPUT_REGISTERS)
+_FC_WRITE_SINGLE = int(reg.FunctionCode.WRITE_SINGLE_REGISTER)
+
+
+def gaussian_pulse(
+    time_ns: np.ndarray,
+    tof_ns: float,
+    amplitude: float,
+    center_frequency_hz: float,
+    fractional_bandwidth: float = FRACTIONAL_BANDWIDTH,
+) -> np.ndarray:
+    """Return a Gaussian-modulated cosine echo peaking at ``tof_ns`` (ns), height ``amplitude``.
+
+    The envelope ``exp(-t²/2σ²)`` has a spectrum whose −6 dB full width is
+    ``fractional_bandwidth · center_frequency_hz``: σ = √(2 ln 2) / (π · bw · f_c).
+    """
+    t_s = (np.asarray(time_ns, float) - tof_ns) * 1e-9
+    sigma_s = math.sqrt(2.0 * math.log(2.0)) / (
+        math.pi * fractional_bandwidth * center_frequency_hz
+    )
+    envelope = np.exp(-0.5 * (t_s / sigma_s) ** 2)
+    return amplitude * envelope * np.cos(2.0 * math.pi * center_frequency_hz * t_s)
+
+
+class _PulserContext(ModbusDeviceContext):
+    """pymodbus device context whose reads and writes go through the simulated device.
+
+    The register image lives in two ``ModbusSequentialDataBlock`` created at block address
+    ``DATASTORE_OFFSET`` (= 1), because ``ModbusDeviceContext.getValues``/``setValues`` add 1
+    to the protocol address: protocol address N is ``values[N]`` of each block.
+    """
+
+    def __init__(self, device: SimulatedPulser):
+        super().__init__(
+            hr=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * reg.HOLDING_COUNT),
+            ir=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * reg.INPUT_SPAN),
+        )
+        self._device = device
+
+    async def async_getValues(
+        self, func_code: int, address: int, count: int = 1
+    ) -> list[int] | list[bool] | ExcCodes:
+        return self._device._get(func_code, address, count)
+
+    async def async_setValues(
+        self, func_code: int, address: int, values: list[int] | list[bool]
+    ) -> None | ExcCodes:
+        return self._device._set(func_code, address, values)
+
+
+class SimulatedPulser:
+    """A pulser-receiver on 127.0.0.1 whose echo comes from ``model``. Use as a context manager.
+
+    ``framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU frames over a TCP stream,
+    reached through pyserial's ``socket://``). ``port`` 0 picks a free port; :attr:`url` tells
+    it after :meth:`start`. ``center_frequency_hz`` and ``sample_rate_hz`` shape the A-scan.
+    Nothing is opened before :meth:`start`.
+    """
+
+    def __init__(
+        self,
+        model: PulserModel,
+        framing: str = "tcp",
+        host: str = "127.0.0.1",
+        port: int = 0,
+        unit: int = 1,
+        center_frequency_hz: float = 25e6,
+        sample_rate_hz: float = 100e6,
+    ):
+        if not callable(model):
+            raise TypeError("model must be callable: model(settings) -> (amplitude, tof_ns)")
+        if framing not in ("tcp", "rtu"):
+            raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
+        if not _is_loopback(host):
+            raise ValueError(f"the simulated pulser serves on loopback only, got host {host!r}")
+        if not 0 <= int(port) <= 65535:
+            raise ValueError(f"port must be 0 … 65535, got {port!r}")
+        if not 1 <= int(unit) <= 247:
+            raise ValueError(f"unit must be 1 … 247, got {unit!r}")
+        for name, value in (
+            ("center_frequency_hz", center_frequency_hz),
+            ("sample_rate_hz", sample_rate_hz),
+        ):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive frequency in Hz, got {value!r}")
+        self.model = model
+        self.framing = framing
+        self.host = host
+        self.unit = int(unit)
+        self.center_frequency_hz = float(center_frequency_hz)
+        self.sample_rate_hz = float(sample_rate_hz)
+        self._requested_port = int(port)
+        self._port: int | None = None
+        self._lock = threading.RLock()
+        self._silent = False
+        self._exception: ExcCodes | None = None
+        self._context = _PulserContext(self)
+        self._counter = 0
+        self._acquisitions = 0
+        self._echo: tuple[float, float] = (0.0, float("nan"))  # latest raw (amp, tof_ns)
+        self._fc6_echo: list[int] = []
+        self._t0 = time.monotonic()
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._reset_registers()
+
+    # --- lifecycle --------------------------------------------------------------------------
+    def start(self) -> Self:
+        """Start serving (idempotent); return self. Raises ``RuntimeError`` if it cannot."""
+        if self._thread is not None:
+            return self
+        self._ready.clear()
+        self._error = None
+        self._stopping = asyncio.Event()
+        self._t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="simulated-pulser", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(START_TIMEOUT_S):
+            self.stop()
+            raise RuntimeError(f"simulated pulser did not start within {START_TIMEOUT_S:g} s")
+        if self._error is not None:
+            error = self._error
+            self.stop()
+            raise RuntimeError(
+                f"simulated pulser could not listen on {self.host}:{self._requested_port}: {error}"
+            ) from error
+        log.info("simulated pulser serving %s", self.url)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close every connection. Idempotent; returns within ~5 s at most."""
+        thread, loop, stopping = self._thread, self._loop, self._stopping
+        if thread is None:
+            return
+        if loop is not None and stopping is not None:
+            try:
+                loop.call_soon_threadsafe(stopping.set)
+            except RuntimeError:  # loop already closed: the thread is ending by itself
+                pass
+        thread.join(STOP_TIMEOUT_S)
+        if thread.is_alive():
+            log.warning("simulated pulser thread did not stop within %g s", STOP_TIMEOUT_S)
+        self._thread = None
+        self._loop = None
+        self._port = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def port(self) -> int:
+        """The TCP port served on (after :meth:`start`)."""
+        if self._port is None:
+            raise RuntimeError("the simulated pulser is not running")
+        return self._port
+
+    @property
+    def url(self) -> str:
+        """``modbus-tcp://127.0.0.1:PORT?unit=1`` or ``modbus-rtu://socket://127.0.0.1:PORT?unit=1``."""
+        if self.framing == "tcp":
+            return format_tcp_url(self.host, self.port, self.unit)
+        return format_rtu_url(f"socket://{self.host}:{self.port}", self.unit)
+
+    # --- fault hooks and state for tests ----------------------------------------------------
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop (or resume) answering: requests are still received, the connection stays open."""
+        with self._lock:
+            self._silent = bool(silent)
+
+    def set_exception(self, code: int | None) -> None:
+        """Answer every following request with Modbus exception ``code``; None to stop.
+
+        ``code`` is a standard exception code (1 … 8, 10, 11), e.g. 2 = illegal data address.
+        """
+        with self._lock:
+            if code is None:
+                self._exception = None
+                return
+            try:
+                self._exception = ExcCodes(int(code))
+            except ValueError:
+                raise ValueError(f"not a Modbus exception code: {code!r}") from None
+
+    @property
+    def counter(self) -> int:
+        """The reading counter (number of acquisitions since the last clear, mod 2**32)."""
+        with self._lock:
+            return self._counter
+
+    @property
+    def acquisitions(self) -> int:
+        """How many times ``model`` was called."""
+        with self._lock:
+            return self._acquisitions
+
+    @property
+    def settings(self) -> PulserSettings:
+        """The settings currently in the holding registers."""
+        with self._lock:
+            return self._settings()
+
+    @property
+    def gate_threshold(self) -> float:
+        """The gate threshold, fraction of full screen height."""
+        with self._lock:
+            return reg.THRESHOLD.from_raw(self._holding()[reg.Holding.THRESHOLD])
+
+    # --- the device -------------------------------------------------------------------------
+    def _holding(self) -> list[int]:
+        return list(self._context.getValues(_FC_READ_HOLDING, 0, reg.HOLDING_COUNT))
+
+    def _settings(self) -> PulserSettings:
+        return reg.decode_settings(self._holding()[: reg.SETTINGS_COUNT])
+
+    def _reset_registers(self) -> None:
+        """Power-on state: default settings and threshold, zeroed measurement, identity."""
+        defaults = reg.encode_settings(PulserSettings())
+        defaults += [reg.THRESHOLD.to_raw(reg.DEFAULT_THRESHOLD), int(reg.Command.NONE)]
+        self._context.setValues(_FC_READ_HOLDING, 0, defaults)
+        self._context.setValues(
+            _FC_READ_INPUT, reg.IDENTITY_ADDRESS, [reg.DEVICE_MAGIC, reg.MAP_VERSION]
+        )
+        self._store_measurement(reg.Measurement(0, 0, reg.Status(0), 0.0, float("nan")))
+
+    def _store_measurement(self, m: reg.Measurement) -> None:
+        self._context.setValues(_FC_READ_INPUT, reg.MEASUREMENT_ADDRESS, m.to_registers())
+
+    def _get(self, func_code: int, address: int, count: int) -> list[int] | ExcCodes:
+        """Serve a read (protocol address, server thread)."""
+        with self._lock:
+            if self._exception is not None:
+                return self._exception
+            if func_code == _FC_WRITE_SINGLE:  # pymodbus reads back the register to echo it
+                return list(self._fc6_echo)
+            table = self._context.decode(func_code)
+            if table == "h":
+                if address < 0 or address + count > reg.HOLDING_COUNT:
+                    return ExcCodes.ILLEGAL_ADDRESS
+                return self._context.getValues(func_code, address, count)
+            if table != "i":
+                return ExcCodes.ILLEGAL_FUNCTION
+            block = _input_range(address, count)
+            if block is None:
+                return ExcCodes.ILLEGAL_ADDRESS
+            if block == reg.MEASUREMENT_ADDRESS and not self._acquire():
+                return ExcCodes.DEVICE_FAILURE
+            if block == reg.ASCAN_HEADER_ADDRESS and not self._freeze_ascan():
+                return ExcCodes.DEVICE_FAILURE
+            return self._context.getValues(func_code, address, count)
+
+    def _set(self, func_code: int, address: int, values: list[int] | list[bool]) -> None | ExcCodes:
+        """Serve a write (protocol address, server thread): validate, store, run commands."""
+        with self._lock:
+            if self._exception is not None:
+                return self._exception
+            if self._context.decode(func_code) != "h":
+                return ExcCodes.ILLEGAL_FUNCTION
+            if address < 0 or address + len(values) > reg.HOLDING_COUNT:
+                return ExcCodes.ILLEGAL_ADDRESS
+            image = self._holding()
+            image[address : address + len(values)] = [int(v) for v in values]
+            for s in reg.HOLDING_SETTINGS:
+                if s.address + s.words <= address or s.address >= address + len(values):
+                    continue  # not written
+                raw = (
+                    image[s.address]
+                    if s.words == 1
+                    else reg.decode_uint32(image[s.address], image[s.address + 1])
+                )
+                if not s.raw_ok(raw):
+                    log.debug("simulated pulser: rejected %s raw %d", s.name, raw)
+                    return ExcCodes.ILLEGAL_VALUE
+            command = reg.Command(image[reg.Holding.COMMAND])
+            image[reg.Holding.COMMAND] = int(reg.Command.NONE)  # write-only: reads 0
+            self._context.setValues(_FC_READ_HOLDING, 0, image)
+            if func_code == _FC_WRITE_SINGLE:
+                self._fc6_echo = [int(v) for v in values]
+            if command == reg.Command.TRIGGER and not self._acquire():
+                return ExcCodes.DEVICE_FAILURE
+            if command == reg.Command.CLEAR_COUNTER:
+                self._counter = 0
+                self._store_measurement(reg.Measurement(0, 0, reg.Status(0), 0.0, float("nan")))
+            return None
+
+    def _acquire(self) -> bool:
+        """One acquisition: call the model once, gate it, store the measurement block."""
+        settings = self._settings()
+        threshold = reg.THRESHOLD.from_raw(self._holding()[reg.Holding.THRESHOLD])
+        try:
+            reg.check_gate(settings)
+        except ValueError:
+            amp, tof, status = 0.0, float("nan"), reg.Status.GATE_ERROR
+            self._echo = (0.0, float("nan"))
+        else:
+            try:
+                raw_amp, raw_tof = self.model(settings)
+                raw_amp, raw_tof = float(raw_amp), float(raw_tof)
+            except Exception:  # a failing model is a device failure, not a server crash
+                log.exception("simulated pulser: the echo model failed")
+                return False
+            self._acquisitions += 1
+            if not math.isfinite(raw_amp) or raw_amp < 0.0:
+                raw_amp = 0.0
+            self._echo = (raw_amp, raw_tof)
+            amp, tof, status = self._gate(settings, threshold, raw_amp, raw_tof)
+        self._counter = (self._counter + 1) & 0xFFFF_FFFF
+        time_ms = int((time.monotonic() - self._t0) * 1000.0) & 0xFFFF_FFFF
+        self._store_measurement(reg.Measurement(self._counter, time_ms, status, amp, tof))
+        return True
+
+    @staticmethod
+    def _gate(
+        settings: PulserSettings, threshold: float, amp: float, tof_ns: float
+    ) -> tuple[float, float, reg.Status]:
+        """Apply the gate and threshold to the raw echo: (amplitude, tof_ns, status)."""
+        start_ns = settings.gate_start_us * 1e3
+        end_ns = start_ns + settings.gate_width_us * 1e3
+        if math.isfinite(tof_ns) and not start_ns <= tof_ns <= end_ns:
+            return 0.0, float("nan"), reg.Status(0)  # the echo is outside the gate
+        status = reg.Status(0)
+        if amp >= 1.0:
+            amp, status = 1.0, reg.Status.SATURATED
+        if math.isfinite(tof_ns) and amp >= threshold:
+            return amp, tof_ns, status | reg.Status.ECHO
+        return amp, float("nan"), status
+
+    def _freeze_ascan(self) -> bool:
+        """Synthesise the A-scan of the latest acquisition over the gate; store header+samples."""
+        if self._counter == 0 and not self._acquire():
+            return False
+        settings = self._settings()
+        start_ns = round(settings.gate_start_us * 1e3)
+        try:
+            reg.check_gate(settings)
+            n = round(settings.gate_width_us * 1e-6 * self.sample_rate_hz) + 1
+            n = min(n, reg.ASCAN_MAX_SAMPLES)
+        except ValueError:
+            n = 0
+        time_ns = start_ns + np.arange(n) * (1e9 / self.sample_rate_hz)
+        amp, tof_ns = self._echo
+        if math.isfinite(tof_ns) and amp > 0.0:
+            wave = gaussian_pulse(time_ns, tof_ns, amp, self.center_frequency_hz)
+        else:
+            wave = np.zeros(n)
+        header = reg.AScanHeader(self._counter, n, self.sample_rate_hz, start_ns)
+        self._context.setValues(_FC_READ_INPUT, reg.ASCAN_HEADER_ADDRESS, header.to_registers())
+        if n:
+            self._context.setValues(
+                _FC_READ_INPUT, reg.Input.ASCAN_SAMPLES, reg.encode_samples(wave)
+            )
+        return True
+
+    # --- server thread ----------------------------------------------------------------------
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        """Log frames; drop answers while silent (pymodbus ``trace_packet`` hook)."""
+        if not sending:
+            log.debug("simulated pulser READ: %s", data.hex(" "))
+            return data
+        with self._lock:
+            silent = self._silent
+        if silent:
+            log.debug("simulated pulser (silent) drops: %s", data.hex(" "))
+            return b""
+        log.debug("simulated pulser WRITE: %s", data.hex(" "))
+        return data
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._serve())
+        except BaseException as exc:  # noqa: BLE001 — reported to start()
+            self._error = exc
+        finally:
+            self._ready.set()
+            pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+            for task in pending:
+                task.cancel()
+            if pending:
+                loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+            loop.run_until_complete(loop.shutdown_asyncgens())
+            loop.close()
+
+    async def _serve(self) -> None:
+        assert self._stopping is not None
+        context = ModbusServerContext(devices={self.unit: self._context}, single=False)
+        server = ModbusTcpServer(
+            context,
+            framer=FramerType.RTU if self.framing == "rtu" else FramerType.SOCKET,
+            address=(self.host, self._requested_port),
+            # a serial device with another address stays silent; a TCP gateway answers 0x0B
+            ignore_missing_devices=self.framing == "rtu",
+            trace_packet=self._trace_packet,
+        )
+        await server.serve_forever(background=True)
+        try:
+            listener: Any = server.transport
+            self._port = int(listener.sockets[0].getsockname()[1])
+            self._ready.set()
+            await self._stopping.wait()
+        finally:
+            await server.shutdown()
+
+
+def _input_range(address: int, count: int) -> int | None:
+    """Return the first address of the input range that holds the whole read, or None."""
+    for first, size in reg.INPUT_RANGES:
+        if first <= address and address + count <= first + size:
+            return first
+    return None
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

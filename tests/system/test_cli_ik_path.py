@@ -1,0 +1,145 @@
+"""``ucal ik`` and ``ucal path`` as a user runs them (separate processes)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.kinematics.dh import fk
+from ucal.kinematics.ik import ik
+from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix
+from ucal.profile import create_profile, load_profile, write_profile
+
+OFFSETS = [0.4, -0.3, 0.2, 0.5, -0.25, 0.1]
+
+
+def ucal(*args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``python -m ucal ARGS`` in a separate process."""
+    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False,
+                          capture_output=True, text=True, timeout=60)
+
+
+@pytest.fixture
+def profile_path(tmp_path: Path) -> Path:
+    """A TX90L cell profile with non-zero joint offsets and a tilted tool."""
+    path = tmp_path / "cell.toml"
+    create_profile(path, "tx90l")
+    write_profile(path, {"calibration": {"joint_offsets_deg": OFFSETS},
+                         "tool": {"position_mm": [2.0, -1.0, 85.0],
+                                  "rotation_deg": [0.0, 5.0, 0.0]}}, reason="test")
+    return path
+
+
+def _csv(values: np.ndarray) -> str:
+    return ",".join(repr(float(v)) for v in values)
+
+
+def _tool_pose(path: Path, joints: np.ndarray) -> np.ndarray:
+    p = load_profile(path)
+    return matrix_to_pose(fk(p.model, joints, p.tool_matrix, p.joint_offsets_deg))
+
+
+def test_ik_json_nearest_and_all(profile_path: Path) -> None:
+    q = np.array([25.0, 30.0, 100.0, 15.0, 40.0, 20.0])
+    pose = _tool_pose(profile_path, q)
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--near", _csv(q), "--json")
+    assert r.returncode == 0, r.stderr
+    sols = json.loads(r.stdout)["solutions"]
+    assert len(sols) == 1
+    np.testing.assert_allclose(sols[0], q, atol=1e-7)  # offsets taken out: readings
+
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all", "--json")
+    assert r.returncode == 0, r.stderr
+    sols = np.array(json.loads(r.stdout)["solutions"])
+    p = load_profile(profile_path)
+    expected = ik(p.model, pose_to_matrix(pose), p.tool_matrix, p.joint_offsets_deg,
+                  all_solutions=True)
+    assert 1 < len(sols) <= 8 and sols.shape == expected.shape
+    np.testing.assert_allclose(sols, expected, atol=1e-9)
+    assert np.all(p.model.within_limits(sols))
+    back = matrix_to_pose(fk(p.model, sols, p.tool_matrix, p.joint_offsets_deg))
+    np.testing.assert_allclose(back[:, :3], np.broadcast_to(pose[:3], (len(sols), 3)),
+                               atol=1e-8)
+    # nearest first: weighted distance to the default reference (zeros) never decreases
+    cost = np.sum(np.array([6, 5, 4, 3, 2, 1]) * np.abs(sols), -1)
+    assert np.all(np.diff(cost) >= 0)
+
+
+def test_ik_table_output(profile_path: Path) -> None:
+    pose = _tool_pose(profile_path, np.array([0.0, 20.0, 90.0, 0.0, 60.0, 0.0]))
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all")
+    assert r.returncode == 0, r.stderr
+    assert "J1" in r.stdout and "J6" in r.stdout and "tx90l" in r.stdout
+
+
+def test_ik_unreachable_exit_4(profile_path: Path) -> None:
+    r = ucal("ik", str(profile_path), "--pose", "5000,0,0,0,0,0", "--json")
+    assert r.returncode == 4
+    assert "unreachable" in r.stderr and "Traceback" not in r.stderr
+    assert r.stdout == ""
+
+
+def test_ik_bad_pose_exit_2(profile_path: Path) -> None:
+    r = ucal("ik", str(profile_path), "--pose", "1,2,3")
+    assert r.returncode == 2
+    assert "--pose" in r.stderr and "Traceback" not in r.stderr
+    r = ucal("ik", str(profile_path.with_name("missing.toml")), "--pose", "0,0,0,0,0,0")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def _singular_path(profile_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Joints (41, 6) that take θ5 (kinematic) through 0 with joint 4 at 40°, and their poses."""
+    q = np.tile([10.0, 20.0, 80.0, 40.0, 0.0, -30.0], (41, 1))
+    q[:, 4] = np.linspace(-10.0, 10.0, 41) - OFFSETS[4]
+    q[:, 1] += np.linspace(0.0, 4.0, 41)
+    return q, _tool_pose(profile_path, q)
+
+
+def test_path_through_wrist_singularity(profile_path: Path, tmp_path: Path) -> None:
+    q, poses = _singular_path(profile_path)
+    src, out = tmp_path / "scan.csv", tmp_path / "joints.csv"
+    src.write_text("X,Y,Z,RX,RY,RZ\n" + "\n".join(_csv(p) for p in poses) + "\n")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]),
+             "--json")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert data["points"] == 41
+    assert data["max_step_deg"] < 1.0
+    rows = list(csv.reader(out.read_text().splitlines()))
+    assert rows[0] == ["J1", "J2", "J3", "J4", "J5", "J6"]
+    joints = np.array(rows[1:], float)
+    np.testing.assert_allclose(joints, q, atol=1e-6)
+
+    r = ucal("path", str(profile_path), str(src), "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "largest joint step" in r.stdout
+
+
+def test_path_bad_row_exit_2(profile_path: Path, tmp_path: Path) -> None:
+    src, out = tmp_path / "bad.csv", tmp_path / "joints.csv"
+    src.write_text("X,Y,Z,RX,RY,RZ\n600,0,500,180,0,0\n600,0,abc,180,0,0\n")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out))
+    assert r.returncode == 2
+    line = r.stderr.strip().splitlines()
+    assert len(line) == 1 and str(src) in line[0] and "row 3" in line[0]
+    assert not out.exists()
+    src.write_text("600,0,500,180,0\n")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out))
+    assert r.returncode == 2 and "row 1" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_path_unreachable_exit_4_writes_nothing(profile_path: Path, tmp_path: Path) -> None:
+    _, poses = _singular_path(profile_path)
+    poses[5, :3] = [4000.0, 0.0, 0.0]
+    src, out = tmp_path / "scan.csv", tmp_path / "joints.csv"
+    src.write_text("\n".join(_csv(p) for p in poses) + "\n")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out))
+    assert r.returncode == 4
+    assert "path point 6" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()

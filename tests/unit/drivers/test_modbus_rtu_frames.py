@@ -1,0 +1,286 @@
+"""Modbus RTU frames of the pulser, byte for byte (CRC included), without sockets or processes.
+
+The client runs against a scripted serial port in the style of pymeasure's
+``expected_protocol``: every write must equal the next expected request, its reply then becomes
+readable, and the test fails if a pair is left unused or bytes are left unread.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+from pymodbus.framer import FramerRTU
+from pymodbus.pdu import DecodePDU, ExceptionResponse
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersRequest,
+    WriteMultipleRegistersRequest,
+)
+
+from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
+from drivers.pulser.base import PulserSettings
+from drivers.pulser.modbus import ModbusPulser
+
+
+def crc16_modbus(data: bytes) -> bytes:
+    """Reference CRC-16/MODBUS, bit by bit (poly 0xA001 reflected, init 0xFFFF), low byte first."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes([crc & 0xFF, crc >> 8])
+
+
+def h(text: str) -> bytes:
+    return bytes.fromhex(text)
+
+
+# Hand-written frames, CRC included (low byte first).
+READ_HR_0_2 = h("01 03 00 00 00 02 C4 0B")  # the classic example: unit 1, address 0, count 2
+EXC_READ_HR_ILLEGAL_ADDRESS = h("01 83 02 C0 F1")
+IDENTIFY = h("01 04 00 00 00 02 71 CB")
+IDENTIFY_REPLY = h("01 04 04 55 50 00 01 2B 99")  # magic "UP", map version 1
+READ_SETTINGS = h("01 03 00 00 00 07 04 08")
+# gain 200 (20.0 dB), PRF 1000 Hz, gate start 5000 ns, gate width 200000 ns, averages 1
+SETTINGS_REPLY = h("01 03 0E 00 C8 03 E8 00 00 13 88 00 03 0D 40 00 01 47 52")
+WRITE_SETTINGS = h("01 10 00 00 00 07 0E 00 C8 03 E8 00 00 13 88 00 03 0D 40 00 01 AD 28")
+WRITE_SETTINGS_REPLY = h("01 10 00 00 00 07 81 CB")
+READ_GATE = h("01 04 00 10 00 0A 71 C8")
+# counter 7, device time 1234 ms, status ECHO, reserved, amplitude 0.5, tof 40000.0 ns
+GATE_REPLY = h("01 04 14 00 00 00 07 00 00 04 D2 00 01 00 00 3F 00 00 00 47 1C 40 00 B9 BD")
+EXC_READ_INPUT_ILLEGAL_ADDRESS = h("01 84 02 C2 C1")
+WRITE_THRESHOLD_5PCT = h("01 10 00 07 00 01 02 00 32 26 32")
+WRITE_THRESHOLD_REPLY = h("01 10 00 07 00 01 B0 08")
+WRITE_TRIGGER = h("01 10 00 08 00 01 02 00 01 66 D8")
+WRITE_TRIGGER_REPLY = h("01 10 00 08 00 01 80 0B")
+
+
+class ScriptedPort:
+    """A serial port double: a dialogue of (expected request, reply or None) pairs."""
+
+    def __init__(self, dialogue: list[tuple[bytes, bytes | None]]):
+        self.dialogue = list(dialogue)
+        self.rx = bytearray()
+        self.is_open = True
+        self.inter_byte_timeout: float | None = None
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.rx)
+
+    def write(self, data: bytes) -> int:
+        assert self.dialogue, f"unexpected write {bytes(data).hex(' ')}"
+        expected, reply = self.dialogue.pop(0)
+        assert bytes(data) == expected, f"sent {bytes(data).hex(' ')}, expected {expected.hex(' ')}"
+        self.rx += reply or b""
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        out = bytes(self.rx[:size])
+        del self.rx[:size]
+        return out
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def assert_done(self) -> None:
+        assert not self.dialogue, f"unused pairs: {self.dialogue}"
+        assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
+
+
+URL = "modbus-rtu:///dev/ttyPULSER0?unit=1&baud=115200"
+
+
+def scripted(
+    dialogue: list[tuple[bytes, bytes | None]], timeout_s: float = 0.2
+) -> tuple[ModbusPulser, ScriptedPort]:
+    port = ScriptedPort([(IDENTIFY, IDENTIFY_REPLY), *dialogue])
+    return ModbusPulser(URL, timeout_s=timeout_s, port=port), port
+
+
+# --- the CRC and pymodbus's framer against hand-written bytes ----------------------------------
+@pytest.mark.parametrize(
+    "frame",
+    [
+        READ_HR_0_2,
+        EXC_READ_HR_ILLEGAL_ADDRESS,
+        IDENTIFY,
+        IDENTIFY_REPLY,
+        READ_SETTINGS,
+        SETTINGS_REPLY,
+        WRITE_SETTINGS,
+        WRITE_SETTINGS_REPLY,
+        READ_GATE,
+        GATE_REPLY,
+        EXC_READ_INPUT_ILLEGAL_ADDRESS,
+        WRITE_THRESHOLD_5PCT,
+        WRITE_THRESHOLD_REPLY,
+        WRITE_TRIGGER,
+        WRITE_TRIGGER_REPLY,
+    ],
+)
+def test_hand_written_frames_carry_the_crc16_modbus(frame: bytes) -> None:
+    assert crc16_modbus(frame[:-2]) == frame[-2:]
+
+
+def test_crc_of_a_frame_including_its_crc_is_zero() -> None:
+    assert crc16_modbus(READ_HR_0_2) == b"\x00\x00"
+
+
+def test_pymodbus_rtu_framer_builds_read_holding_registers() -> None:
+    framer = FramerRTU(DecodePDU(False))
+    request = ReadHoldingRegistersRequest(address=0, count=2, dev_id=1)
+    assert framer.buildFrame(request) == READ_HR_0_2
+
+
+def test_pymodbus_rtu_framer_builds_write_multiple_registers() -> None:
+    framer = FramerRTU(DecodePDU(False))
+    request = WriteMultipleRegistersRequest(
+        address=0, registers=[200, 1000, 0, 5000, 3, 0x0D40, 1], dev_id=1
+    )
+    assert framer.buildFrame(request) == WRITE_SETTINGS
+
+
+def test_pymodbus_rtu_framer_builds_exception_response() -> None:
+    framer = FramerRTU(DecodePDU(True))
+    assert framer.buildFrame(ExceptionResponse(3, 2, device_id=1)) == EXC_READ_HR_ILLEGAL_ADDRESS
+
+
+def test_pymodbus_rtu_framer_rejects_a_bad_crc() -> None:
+    framer = FramerRTU(DecodePDU(False))
+    bad = READ_HR_0_2[:-1] + bytes([READ_HR_0_2[-1] ^ 0xFF])
+    _, pdu = framer.handleFrame(bad, 1, 0)
+    assert pdu is None
+    _, pdu = framer.handleFrame(IDENTIFY_REPLY, 1, 0)
+    assert pdu is not None and pdu.registers == [0x5550, 1]
+
+
+# --- the client's requests and its decoding of replies -----------------------------------------
+def test_connect_checks_identity_then_settings_read_back() -> None:
+    pulser, port = scripted([(READ_SETTINGS, SETTINGS_REPLY)])
+    with pulser:
+        assert pulser.settings() == PulserSettings(
+            gain_db=20.0, prf_hz=1000.0, gate_start_us=5.0, gate_width_us=200.0, averages=1
+        )
+    port.assert_done()
+    assert not port.is_open
+
+
+def test_configure_writes_all_settings_in_one_fc16_frame() -> None:
+    pulser, port = scripted([(WRITE_SETTINGS, WRITE_SETTINGS_REPLY)])
+    with pulser:
+        pulser.configure(
+            PulserSettings(
+                gain_db=20.0, prf_hz=1000, gate_start_us=5.0, gate_width_us=200.0, averages=1
+            )
+        )
+    port.assert_done()
+
+
+def test_configure_out_of_range_raises_before_any_byte_is_sent() -> None:
+    pulser, port = scripted([])
+    with pulser, pytest.raises(ValueError, match="gain_db"):
+        pulser.configure(PulserSettings(gain_db=80.5))
+    port.assert_done()
+
+
+def test_read_gate_decodes_the_measurement_block() -> None:
+    pulser, port = scripted([(READ_GATE, GATE_REPLY)])
+    with pulser:
+        before = time.monotonic()
+        reading = pulser.read_gate()
+        after = time.monotonic()
+    port.assert_done()
+    assert reading.amplitude == 0.5
+    assert reading.tof_ns == 40000.0
+    assert reading.counter == 7
+    assert reading.device_time_s == pytest.approx(1.234)
+    assert before <= reading.host_time_s <= after
+    assert reading.has_echo
+
+
+def test_read_gate_fresh_polls_until_the_counter_advances() -> None:
+    newer = bytearray(GATE_REPLY[:-2])
+    newer[6] = 8  # counter 7 -> 8
+    newer += crc16_modbus(bytes(newer))
+    pulser, port = scripted(
+        [(READ_GATE, GATE_REPLY), (READ_GATE, GATE_REPLY), (READ_GATE, bytes(newer))]
+    )
+    with pulser:
+        assert pulser.read_gate().counter == 7
+        assert pulser.read_gate(fresh=True).counter == 8
+    port.assert_done()
+
+
+def test_gate_threshold_and_trigger_frames() -> None:
+    pulser, port = scripted(
+        [(WRITE_THRESHOLD_5PCT, WRITE_THRESHOLD_REPLY), (WRITE_TRIGGER, WRITE_TRIGGER_REPLY)]
+    )
+    with pulser:
+        pulser.set_gate_threshold(0.05)
+        pulser.trigger()
+    port.assert_done()
+
+
+def test_exception_response_becomes_device_error_with_a_readable_name() -> None:
+    pulser, port = scripted([(READ_GATE, EXC_READ_INPUT_ILLEGAL_ADDRESS)])
+    with pulser, pytest.raises(DeviceError) as info:
+        pulser.read_gate()
+    port.assert_done()
+    message = str(info.value)
+    assert "illegal data address (0x02)" in message
+    assert message.startswith("pulser at modbus-rtu:///dev/ttyPULSER0")
+    assert info.value.device == "pulser"
+
+
+def test_bad_crc_becomes_protocol_error() -> None:
+    corrupted = GATE_REPLY[:-1] + bytes([GATE_REPLY[-1] ^ 0x01])
+    pulser, port = scripted([(READ_GATE, corrupted)], timeout_s=0.1)
+    with pulser, pytest.raises(ProtocolError, match="bad CRC"):
+        pulser.read_gate()
+    port.assert_done()
+
+
+def test_reply_from_another_unit_becomes_protocol_error() -> None:
+    other = b"\x02" + GATE_REPLY[1:-2]
+    other += crc16_modbus(other)
+    pulser, port = scripted([(READ_GATE, other)], timeout_s=0.1)
+    with pulser, pytest.raises(ProtocolError):
+        pulser.read_gate()
+    port.assert_done()
+
+
+def test_no_reply_becomes_device_timeout_within_the_timeout() -> None:
+    pulser, port = scripted([(READ_GATE, None)], timeout_s=0.15)
+    with pulser:
+        start = time.monotonic()
+        with pytest.raises(DeviceTimeout, match="no answer"):
+            pulser.read_gate()
+        elapsed = time.monotonic() - start
+    port.assert_done()
+    assert 0.1 <= elapsed < 0.6
+
+
+def test_identity_of_another_map_is_refused() -> None:
+    wrong = h("01 04 04 12 34 00 01")
+    wrong += crc16_modbus(wrong)
+    port = ScriptedPort([(IDENTIFY, wrong)])
+    pulser = ModbusPulser(URL, timeout_s=0.2, port=port)
+    with pytest.raises(ProtocolError, match="0x1234"):
+        pulser.connect()
+    port.assert_done()
+
+
+def test_no_echo_reading_has_nan_tof() -> None:
+    reply = bytearray(GATE_REPLY[:-2])
+    reply[12] = 0x00  # status: no ECHO bit
+    reply[19:23] = bytes.fromhex("7F C0 00 00")  # tof NaN
+    reply += crc16_modbus(bytes(reply))
+    pulser, port = scripted([(READ_GATE, bytes(reply))])
+    with pulser:
+        reading = pulser.read_gate()
+    port.assert_done()
+    assert not reading.has_echo and math.isnan(reading.tof_ns)
+    assert reading.amplitude == 0.5

@@ -1,0 +1,163 @@
+"""World files: every key optional, overrides over the profile's nominal world, validation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomlkit
+
+from ucal.cell import CellProfile, WorldTruth
+from ucal.errors import ProfileError
+from ucal.models import load_model
+from ucal.profile import default_profile_text, load_profile
+from ucal.validation import DH_KEYS
+from ucal.world import load_world, world_warnings
+
+
+@pytest.fixture
+def profile(tmp_path: Path) -> CellProfile:
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"))
+    return load_profile(path)
+
+
+def _world(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "world.toml"
+    path.write_text(text)
+    return path
+
+
+def _assert_same(a: WorldTruth, b: WorldTruth) -> None:
+    np.testing.assert_array_equal(a.model.dh, b.model.dh)
+    for name in ("joint_offsets_deg", "tool_position_mm", "tool_rotation_deg",
+                 "sample_position_mm", "sample_rotation_deg", "initial_joints_deg"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name in ("sample_face_size_mm", "water_temperature_c", "frequency_mhz",
+                 "element_diameter_mm", "noise"):
+        assert getattr(a, name) == getattr(b, name), name
+    np.testing.assert_allclose(a.reflector.point_mm, b.reflector.point_mm)
+    np.testing.assert_allclose(a.reflector.normal, b.reflector.normal)
+
+
+def test_no_world_and_empty_world_are_nominal(profile: CellProfile, tmp_path: Path) -> None:
+    nominal = WorldTruth.nominal(profile)
+    _assert_same(load_world(None, profile), nominal)
+    _assert_same(load_world(_world(tmp_path, "# nothing hidden\n"), profile), nominal)
+    np.testing.assert_array_equal(nominal.joint_offsets_deg, np.zeros(6))
+    assert nominal.noise.tof_ns == 0.0
+
+
+def test_world_overrides(profile: CellProfile, tmp_path: Path) -> None:
+    path = _world(tmp_path, """
+[robot]
+joint_offsets_deg = [0.5, -0.3, 0.25, 0.1, -0.4, 0.2]
+initial_joints_deg = [0, 10, 90, 0, 45, 0]
+[tool]
+position_mm = [0.4, -0.2, 81.5]
+[sample]
+rotation_deg = [0.5, -0.25, 1.0]
+face_size_mm = 400
+[reflector]
+point_mm = [500, -100, -300]
+normal = [0, 0.1, 2]
+size_mm = [150, 250]
+[water]
+temperature_c = 23.5
+[transducer]
+frequency_mhz = 10
+[noise]
+tof_ns = 0.5
+amplitude = 0.02
+seed = 7
+""")
+    w = load_world(path, profile)
+    np.testing.assert_array_equal(w.joint_offsets_deg, [0.5, -0.3, 0.25, 0.1, -0.4, 0.2])
+    np.testing.assert_array_equal(w.initial_joints_deg, [0, 10, 90, 0, 45, 0])
+    np.testing.assert_array_equal(w.tool_position_mm, [0.4, -0.2, 81.5])
+    np.testing.assert_array_equal(w.tool_rotation_deg, profile.tool_rotation_deg)  # not given
+    np.testing.assert_array_equal(w.sample_position_mm, profile.sample_position_mm)
+    np.testing.assert_array_equal(w.sample_rotation_deg, [0.5, -0.25, 1.0])
+    assert w.sample_face_size_mm == 400.0
+    np.testing.assert_array_equal(w.reflector.point_mm, [500, -100, -300])
+    np.testing.assert_allclose(w.reflector.normal, np.array([0, 0.1, 2]) / np.hypot(0.1, 2))
+    np.testing.assert_array_equal(w.reflector.size_mm, [150, 250])
+    assert w.water_temperature_c == 23.5
+    assert w.frequency_mhz == 10.0
+    assert w.element_diameter_mm == profile.element_diameter_mm
+    assert (w.noise.tof_ns, w.noise.amplitude, w.noise.seed) == (0.5, 0.02, 7)
+    np.testing.assert_array_equal(w.model.dh, profile.model.dh)
+
+
+def test_world_partial_reflector_keeps_the_profile_plate(profile: CellProfile,
+                                                         tmp_path: Path) -> None:
+    w = load_world(_world(tmp_path, "[reflector]\nnormal = [0.01, 0, 1]\n"), profile)
+    np.testing.assert_allclose(w.reflector.point_mm, profile.reflector_points_mm.mean(0))
+    assert w.reflector.normal[0] == pytest.approx(0.01 / np.hypot(0.01, 1))
+
+
+def test_world_model_and_dh(profile: CellProfile, tmp_path: Path) -> None:
+    w = load_world(_world(tmp_path, '[robot]\nmodel = "tx90xl"\n'), profile)
+    np.testing.assert_array_equal(w.model.dh, load_model("tx90xl").dh)
+    np.testing.assert_array_equal(w.model.joint_min_deg, profile.model.joint_min_deg)
+
+    dh = profile.model.dh.copy()
+    dh[1, 2] += 0.8  # upper arm 0.8 mm longer than nominal
+    doc = tomlkit.document()
+    robot = tomlkit.table()
+    robot["dh"] = [dict(zip(DH_KEYS, map(float, row), strict=True)) for row in dh]
+    doc["robot"] = robot
+    w = load_world(_world(tmp_path, tomlkit.dumps(doc)), profile)
+    np.testing.assert_array_equal(w.model.dh, dh)
+    np.testing.assert_array_equal(w.tool_position_mm, profile.tool_position_mm)
+
+
+def test_world_needs_a_plate_if_the_profile_has_none(profile: CellProfile,
+                                                     tmp_path: Path) -> None:
+    bare = profile.replace(reflector_points_mm=None)
+    with pytest.raises(ProfileError) as err:
+        load_world(_world(tmp_path, "[reflector]\npoint_mm = [0, 0, 0]\n"), bare)
+    assert err.value.key == "reflector.normal"
+    w = load_world(_world(tmp_path, "[reflector]\npoint_mm = [1, 2, 3]\nnormal = [0, 0, 1]\n"),
+                   bare)
+    np.testing.assert_array_equal(w.reflector.point_mm, [1, 2, 3])
+
+
+BAD_WORLDS = [
+    ("[robot]\njoint_offsets_deg = [0, 0, 0]\n", "robot.joint_offsets_deg", "must have 6"),
+    ("[robot]\njoint_offsets_deg = [0, nan, 0, 0, 0, 0]\n", "robot.joint_offsets_deg[1]",
+     "finite"),
+    ('[robot]\nmodel = "kr16"\n', "robot.model", "unknown robot model"),
+    ("[robot]\ninitial_joints_deg = [0, 0, 0, 0, 200, 0]\n", "robot.initial_joints_deg[4]",
+     "outside its range"),
+    ('[tool]\nposition_mm = [0, 0, "80"]\n', "tool.position_mm[2]", "got '80'"),
+    ("[noise]\ntof_ns = -1\n", "noise.tof_ns", ">= 0"),
+    ("[noise]\nseed = 1.5\n", "noise.seed", "integer"),
+    ("[water]\ntemperature_c = -5\n", "water.temperature_c", ">= 0"),
+    ("[transducer]\nelement_diameter_mm = 0\n", "transducer.element_diameter_mm", "> 0"),
+    ("[reflector]\nnormal = [0, 0, 0]\n", "reflector.normal", "non-zero"),
+    ("[reflector]\nnormal = [0, 0, 1]\nedge_direction = [0, 0, 2]\n",
+     "reflector.edge_direction", "parallel"),
+    ("[reflector]\nsize_mm = [100, -1]\n", "reflector.size_mm[1]", "> 0"),
+    ("[sample]\nface_size_mm = 0\n", "sample.face_size_mm", "> 0"),
+    ("noise = 3\n", "noise", "must be a table"),
+]
+
+
+@pytest.mark.parametrize("text, key, message", BAD_WORLDS, ids=[b[1] for b in BAD_WORLDS])
+def test_bad_world_names_file_and_key(text: str, key: str, message: str,
+                                      profile: CellProfile, tmp_path: Path) -> None:
+    path = _world(tmp_path, text)
+    with pytest.raises(ProfileError) as err:
+        load_world(path, profile)
+    assert err.value.key == key
+    assert str(err.value).startswith(f"{path}: {key}: ")
+    assert message in str(err.value)
+    assert err.value.exit_code == 2
+
+
+def test_world_unknown_keys_are_reported(tmp_path: Path) -> None:
+    path = _world(tmp_path, "[noise]\ntof_ns = 1.0\nsigma = 2\n[wind]\nspeed = 1\n")
+    assert world_warnings(path) == ["unknown key noise.sigma (ignored)",
+                                    "unknown key wind (ignored)"]

@@ -1,0 +1,432 @@
+"""Finding normal incidence: echo acquisition and the peak-amplitude posture search.
+
+The echo of a flat face exists only within a fraction of a degree of normal incidence (for
+25 MHz and a 6 mm element the −6 dB half-angle is 0.20°, the first null 0.35°), while ±5°
+joint offsets misaim the beam by up to 15°. So the search works in three stages, with the
+wrist joints only (they turn the beam about W without moving it):
+
+1. **Acquire** (high gain, continuous sweeps). At high gain the piston's side lobes are well
+   above the noise a couple of degrees around normal, so raster lines a few degrees apart
+   catch the echo. Each raster line is one joint-space move during which the pulser is read
+   as fast as it answers; every reading is paired with the streamed joint positions by
+   interpolation at its arrival time. Lines are taken outward from the predicted posture.
+2. **Centre** (cross sweeps, gain stepped down). The side-lobe pattern along a line is
+   symmetric about the line's point nearest to normal, so the middle of the run of readings
+   above threshold locates that point even where the screen saturates. Alternating sweeps
+   along the two search joints, shorter and at lower gain each time, converge on the main
+   lobe.
+3. **Fit** (static probes). A 3×3 grid of settled postures on the main lobe's flanks is fitted
+   with the piston directivity ``A = A0·|2 J1(x)/x|``, ``x = ka·sin 2θ``, with the tilt θ a
+   quadratic form of the joint deviations from the unknown peak: ``θ² = Δuᵀ G Δu`` (G free,
+   so any linear distortion of the nominal joint-to-tilt map is absorbed). A second grid,
+   tighter and centred on the first estimate, gives the normal-incidence posture to a few
+   thousandths of a degree; its covariance gives the posture uncertainty.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from drivers.controller.base import RobotController
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal.errors import HardwareError
+from ucal.sim.acoustics import piston_directivity, water_path_mm, wavenumber_per_mm
+
+log = logging.getLogger(__name__)
+
+
+#: Joint travel between readings on main-lobe sweeps (deg): the −6 dB lobe is ~0.4° wide.
+MAIN_LOBE_STEP_DEG = 0.01
+
+
+@dataclass
+class RigCounters:
+    moves: int = 0
+    reads: int = 0
+
+
+class Rig:
+    """The robot and the pulser as the procedures use them: counted moves and reads, gain."""
+
+    def __init__(self, controller: RobotController, pulser: PulserReceiver,
+                 joint_min_deg: np.ndarray, joint_max_deg: np.ndarray, speed: float = 0.3,
+                 move_timeout_s: float = 60.0, settings: PulserSettings | None = None):
+        self.controller = controller
+        self.pulser = pulser
+        self.joint_min_deg = np.asarray(joint_min_deg, float)
+        self.joint_max_deg = np.asarray(joint_max_deg, float)
+        self.speed = speed
+        self.sweep_speed = speed
+        self.move_timeout_s = move_timeout_s
+        self.counters = RigCounters()
+        self.settings = settings or PulserSettings(gain_db=40.0, gate_start_us=5.0,
+                                                   gate_width_us=400.0, averages=1)
+        self.floor_per_gain: float | None = None  # noise-floor amplitude at 0 dB gain
+        self.on_move = None  # optional callback(target) for progress display
+        self.last_sweep_step_deg = 0.0
+
+    def clip(self, q: np.ndarray) -> np.ndarray:
+        return np.clip(q, self.joint_min_deg, self.joint_max_deg)
+
+    def configure(self, **changes: object) -> None:
+        new = replace(self.settings, **changes)
+        if new != self.settings:
+            self.pulser.configure(new)
+            self.settings = new
+
+    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
+        q = np.asarray(q, float)
+        self.counters.moves += 1
+        if self.on_move:
+            self.on_move(q)
+        return self.controller.move_joints(q, speed or self.speed, self.move_timeout_s)
+
+    def read(self, averages: int = 1) -> GateReading:
+        self.configure(averages=int(averages))
+        self.counters.reads += 1
+        return self.pulser.read_gate(fresh=True)
+
+    def threshold(self) -> float:
+        """Detection level at the current gain: six times the measured noise floor."""
+        floor = (self.floor_per_gain or 1e-4) * 10 ** (self.settings.gain_db / 20)
+        return max(6.0 * floor, 0.02)
+
+    def measure_floor(self, n: int = 8) -> None:
+        """Noise floor from readings without an echo (call with the beam in open water)."""
+        vals = [self.read().amplitude for _ in range(n)]
+        self.floor_per_gain = float(np.median(vals)) / 10 ** (self.settings.gain_db / 20)
+        log.info("noise floor %.2e FSH at %.1f dB", float(np.median(vals)), self.settings.gain_db)
+
+    def sweep(self, target: np.ndarray, max_step_deg: float = 0.08
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Move to ``target`` reading the pulser all the way.
+
+        Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
+        (n,), readings paired with the streamed joints by interpolation at arrival time. If the
+        readings come further apart than ``max_step_deg`` the sweep speed is lowered for the
+        next sweeps.
+        """
+        target = np.asarray(target, float)
+        start = self.controller.read_joints()
+        self.configure(averages=1)
+        self.counters.moves += 1
+        if self.on_move:
+            self.on_move(target)
+        t0 = time.monotonic()
+        self.controller.start_move(target, self.sweep_speed)
+        readings: list[GateReading] = []
+        sent: list[float] = []
+        deadline = t0 + self.move_timeout_s
+        while True:
+            sent.append(time.monotonic())
+            readings.append(self.pulser.read_gate(fresh=True))
+            self.counters.reads += 1
+            if len(readings) % 4 == 0 or time.monotonic() > deadline:
+                st = self.controller.status()
+                here = self.controller.read_joints()
+                if not st.in_motion and np.max(np.abs(here - target)) < 1e-3:
+                    break
+                if time.monotonic() > deadline:
+                    raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
+                                        f"within {self.move_timeout_s:.0f} s")
+        samples = self.controller.joint_samples(t0 - 0.1)
+        ts = np.array([s.t_s for s in samples])
+        js = np.array([s.joints_deg for s in samples])
+        # The acquisition happens between request and answer: pair at the midpoint.
+        tr = 0.5 * (np.array(sent) + np.array([r.host_time_s for r in readings]))
+        if len(ts) >= 2:
+            q = np.column_stack([np.interp(tr, ts, js[:, j]) for j in range(6)])
+        else:
+            q = np.tile(target, (len(tr), 1))
+        amps = np.array([r.amplitude for r in readings])
+        tofs = np.array([r.tof_ns for r in readings])
+        travel = float(np.max(np.abs(target - start)))
+        step = travel / max(len(readings), 1)
+        self.last_sweep_step_deg = step
+        if step > max_step_deg:
+            self.sweep_speed = max(self.sweep_speed * max_step_deg / step * 0.7, 1e-4)
+        elif step < 0.25 * max_step_deg:
+            self.sweep_speed = min(self.sweep_speed * 2.0, self.speed)
+        return q, amps, tofs
+
+    def line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
+        readings came too far apart is swept again, back, at the lowered speed."""
+        here = self.controller.read_joints()
+        if np.max(np.abs(here - start)) > 1e-3:
+            self.move(start)
+        a, b = np.asarray(start, float), np.asarray(end, float)
+        for _ in range(4):
+            out = self.sweep(b, max_step_deg)
+            if self.last_sweep_step_deg <= 1.5 * max_step_deg:
+                return out
+            a, b = b, a
+        return out
+
+
+@dataclass(frozen=True)
+class PeakResult:
+    """Normal-incidence posture found by the fit, with its quality."""
+
+    joints_deg: np.ndarray        # (6,) readings at the fitted peak
+    amplitude: float              # fitted peak amplitude (FSH)
+    tilt_std_deg: float           # one-sigma of the peak posture, as beam tilt
+    residual_rms: float           # amplitude fit residual (FSH)
+    distance: tuple[float, float] | None = None   # water path and its σ (mm), if read
+    distance_joints_deg: np.ndarray | None = None  # readings where it was read
+
+
+def _run_centre(u: np.ndarray, amps: np.ndarray, level: float) -> float | None:
+    """Middle of the span of readings above ``level`` along a sweep coordinate ``u``."""
+    above = amps >= level
+    if not np.any(above):
+        return None
+    return float(0.5 * (u[above].min() + u[above].max()))
+
+
+class PeakSearch:
+    """Acquisition and peak-posture search for one face (see module docstring)."""
+
+    def __init__(self, rig: Rig, ka: float, joints: tuple[int, int], tilt_map: np.ndarray,
+                 temperature_c: float):
+        self.rig = rig
+        self.ka = ka
+        self.ja, self.jb = joints
+        self.m = np.asarray(tilt_map, float)  # (2, 2): joint deg → tilt rad (nominal)
+        self.per_deg = np.degrees(np.linalg.norm(self.m, axis=0))  # tilt deg per joint deg
+        self.temperature_c = temperature_c
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def _with(self, q: np.ndarray, ua: float, ub: float) -> np.ndarray:
+        out = np.array(q, float)
+        out[self.ja] = ua
+        out[self.jb] = ub
+        return self.rig.clip(out)
+
+    # -- stage 1: acquisition ----------------------------------------------------------------------
+    def acquire(self, q_pred: np.ndarray, radius_tilt_deg: float, gain_db: float,
+                spacing_tilt_deg: float = 1.5) -> tuple[np.ndarray, float] | None:
+        """Raster outward from ``q_pred`` until an echo is seen; returns (posture, level)."""
+        self.rig.configure(gain_db=gain_db)
+        level = self.rig.threshold()
+        half_a = radius_tilt_deg / self.per_deg[0]
+        step_b = spacing_tilt_deg / self.per_deg[1]
+        n_lines = int(np.ceil(radius_tilt_deg / spacing_tilt_deg))
+        order = [0] + [s * i for i in range(1, n_lines + 1) for s in (1, -1)]
+        ua0, ub0 = q_pred[self.ja], q_pred[self.jb]
+        direction = 1.0
+        for i in order:
+            ub = ub0 + i * step_b
+            start = self._with(q_pred, ua0 - direction * half_a, ub)
+            end = self._with(q_pred, ua0 + direction * half_a, ub)
+            q, amps, _ = self.rig.line(start, end)
+            direction = -direction
+            if np.max(amps) >= level:
+                k = int(np.argmax(amps))
+                centre = _run_centre(q[:, self.ja], amps, level)
+                best = q[k].copy()
+                best[self.ja] = centre if centre is not None else best[self.ja]
+                best[self.jb] = ub
+                log.info("echo acquired on line %+d: amplitude %.3f", i, amps[k])
+                return best, level
+        return None
+
+    # -- stage 2: centring -------------------------------------------------------------------------
+    def _cross(self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float = 0.04
+               ) -> tuple[np.ndarray, float]:
+        """Sweep joint ``j`` through ``q``; move ``q[j]`` to the middle of the half-max run."""
+        per = self.per_deg[0] if j == self.ja else self.per_deg[1]
+        h = half_tilt_deg / per
+        a, b = q.copy(), q.copy()
+        a[j] -= h
+        b[j] += h
+        qs, amps, _ = self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
+        peak = float(np.max(amps))
+        q = q.copy()
+        if peak >= self.rig.threshold():
+            c = _run_centre(qs[:, j], amps, 0.5 * peak)
+            if c is not None:
+                q[j] = c
+        return q, peak
+
+    def centre(self, q: np.ndarray, half_tilt_deg: float, gain_db: float) -> np.ndarray:
+        """Cross sweeps through ``q`` at acquisition gain, then a main-lobe cross at fit gain.
+
+        The side-lobe pattern along a sweep is symmetric about the sweep's point nearest to
+        normal, so the middle of the run above half the sweep's maximum finds that point even
+        when the screen saturates and the line misses the main lobe.
+        """
+        self.rig.configure(gain_db=float(np.clip(gain_db, 0.0, 80.0)))
+        q = np.array(q, float)
+        half = half_tilt_deg
+        for _ in range(2):
+            q, _ = self._cross(q, self.jb, half)
+            q, _ = self._cross(q, self.ja, half)
+            half = max(0.5 * half, 1.0)
+        # Main lobe: at fit gain the side lobes sink below half the peak.
+        self.set_fit_gain(q, averages=1)
+        for _ in range(3):
+            before = q.copy()
+            q, _ = self._cross(q, self.ja, 0.6, MAIN_LOBE_STEP_DEG)
+            q, _ = self._cross(q, self.jb, 0.6, MAIN_LOBE_STEP_DEG)
+            if np.all(np.abs(q - before) * np.r_[np.ones(3), 1, 1, 1] < 0.01):
+                break
+            self.set_fit_gain(q, averages=1)
+        return q
+
+    def quick_centre(self, q_pred: np.ndarray) -> np.ndarray | None:
+        """Main-lobe cross at fit gain straight from a good prediction; None if no echo."""
+        self.set_fit_gain(q_pred, averages=1)
+        if self.rig.read().amplitude < self.rig.threshold():
+            return None
+        q = np.array(q_pred, float)
+        for _ in range(3):
+            before = q.copy()
+            q, pa = self._cross(q, self.ja, 0.6, MAIN_LOBE_STEP_DEG)
+            q, pb = self._cross(q, self.jb, 0.6, MAIN_LOBE_STEP_DEG)
+            if max(pa, pb) < self.rig.threshold():
+                return None
+            if np.all(np.abs(q - before) < 0.01):
+                break
+            self.set_fit_gain(q, averages=1)
+        return q
+
+    # -- stage 3: fit ------------------------------------------------------------------------------
+    def set_fit_gain(self, q: np.ndarray, averages: int) -> None:
+        """Lower (or raise) the gain until the peak sits at 40–85 % of full screen."""
+        self.rig.move(q)
+        for _ in range(8):
+            a = self.rig.read(averages).amplitude
+            if 0.4 <= a <= 0.85:
+                return
+            g = self.rig.settings.gain_db
+            if a >= 0.999:
+                new = g - 12.0
+            else:
+                new = g + 20 * np.log10(0.6 / max(a, 1e-4))
+            new = float(np.clip(new, 0.0, 80.0))
+            if abs(new - g) < 0.05:
+                return
+            self.rig.configure(gain_db=new)
+
+    def _unsaturated_read(self, averages: int) -> float:
+        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
+        for _ in range(8):
+            a = self.rig.read(averages).amplitude
+            g = self.rig.settings.gain_db
+            if a < 0.98 or g <= 0.0:
+                return a / 10 ** (g / 20)
+            self.rig.configure(gain_db=max(g - 10.0, 0.0))
+        raise HardwareError(f"{self.rig.pulser.endpoint}: echo saturates at every gain")
+
+    def fit(self, q_centre: np.ndarray, averages: int, half_tilt_deg: float = 0.14,
+            distance: Callable[[], tuple[float, float]] | None = None) -> PeakResult:
+        """Static probes around the peak, fitted with the piston directivity.
+
+        Round 1: a 3×3 grid (the centre and eight neighbours); round 2: a plus pattern, tighter,
+        centred on the first estimate; both rounds are fitted together. ``distance``, if given,
+        is called with the robot settled at round 2's centre (the TOF reading is taken there,
+        saving a move); its result is returned in ``PeakResult.distance``.
+        """
+        q = np.array(q_centre, float)
+        g_init = self.m.T @ self.m  # nominal metric, rad² per deg²
+        grid = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0)], float)
+        plus = np.array([(1, 0), (-1, 0), (0, 1), (0, -1)], float)
+        pts: list[list[float]] = []
+        amps: list[float] = []
+        dist = None
+        result = None
+        for pattern, half in ((grid, half_tilt_deg), (plus, 0.7 * half_tilt_deg)):
+            self.set_fit_gain(q, averages)  # leaves the robot settled at q
+            settled = self.rig.controller.read_joints()
+            amps.append(self._unsaturated_read(averages))
+            pts.append([settled[self.ja], settled[self.jb]])
+            if pattern is plus and distance is not None:
+                dist = (distance(), settled.copy())
+            for d in pattern:
+                p = self._with(q, q[self.ja] + d[0] * half / self.per_deg[0],
+                               q[self.jb] + d[1] * half / self.per_deg[1])
+                settled = self.rig.move(p)
+                amps.append(self._unsaturated_read(averages))
+                pts.append([settled[self.ja], settled[self.jb]])
+            result = self._fit_grid(np.array(pts), np.array(amps), q, g_init)
+            log.info("peak fit: %s amp %.4g tilt σ %.2e° rms %.2e (gain %.1f dB)",
+                     np.round(result.joints_deg[3:], 5).tolist(), result.amplitude,
+                     result.tilt_std_deg, result.residual_rms, self.rig.settings.gain_db)
+            if result.tilt_std_deg > 0.02:
+                log.info("poor fit data: pts %s amps %s", np.round(np.array(pts), 4).tolist(),
+                         np.round(np.array(amps) * 10 ** (self.rig.settings.gain_db / 20), 4).tolist())
+            q = result.joints_deg
+        assert result is not None
+        if dist is not None:
+            result = replace(result, distance=dist[0], distance_joints_deg=dist[1])
+        return result
+
+    def _fit_grid(self, pts: np.ndarray, amps: np.ndarray, q: np.ndarray,
+                  g_init: np.ndarray) -> PeakResult:
+        ka = self.ka
+
+        def model(p: np.ndarray, x: np.ndarray) -> np.ndarray:
+            a0, ua, ub, l11, l21, l22 = p
+            chol = np.array([[l11, 0.0], [l21, l22]])
+            d = np.radians(x - [ua, ub])
+            t = np.linalg.norm(d @ chol, axis=1)  # tilt (rad) = |Lᵀ Δu|
+            return a0 * np.abs(piston_directivity(ka * np.sin(2 * t)))
+
+        lchol = np.linalg.cholesky(np.degrees(np.degrees(g_init)) + 1e-12 * np.eye(2))
+        i = int(np.argmax(amps))
+        p0 = np.array([amps[i] * 1.05, pts[i, 0], pts[i, 1], lchol[0, 0], lchol[1, 0],
+                       lchol[1, 1]])
+        span = np.ptp(pts, axis=0) + 1e-6
+        lo = np.array([0.0, pts[:, 0].min() - span[0], pts[:, 1].min() - span[1],
+                       1e-3 * lchol[0, 0], -np.inf, 1e-3 * abs(lchol[1, 1])])
+        hi = np.array([np.inf, pts[:, 0].max() + span[0], pts[:, 1].max() + span[1],
+                       1e3 * lchol[0, 0], np.inf, 1e3 * abs(lchol[1, 1])])
+        p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
+        sol = least_squares(lambda p: model(p, pts) - amps, p0, method="trf", bounds=(lo, hi),
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000)
+        res = sol.fun
+        dof = max(1, len(amps) - len(p0))
+        sigma = max(float(np.sqrt(res @ res / dof)), 1e-6 * sol.x[0])
+        jac = sol.jac
+        cov = np.linalg.pinv(jac.T @ jac) * sigma ** 2
+        # Posture covariance (deg²) → tilt covariance via the fitted metric.
+        lfit = np.array([[sol.x[3], 0.0], [sol.x[4], sol.x[5]]])
+        cov_u = cov[1:3, 1:3]
+        cov_tilt_rad = lfit.T @ np.radians(np.radians(cov_u)) @ lfit
+        tilt_std_deg = float(np.degrees(np.sqrt(np.trace(cov_tilt_rad) / 2.0)))
+        out = self._with(q, sol.x[1], sol.x[2])
+        gain = 10 ** (self.rig.settings.gain_db / 20)
+        return PeakResult(out, float(sol.x[0]) * gain, tilt_std_deg,
+                          float(np.sqrt(np.mean(res ** 2))) * gain)
+
+
+def read_distance(rig: Rig, temperature_c: float, averages: int, repeats: int = 4
+                  ) -> tuple[float, float]:
+    """Water path (mm) from averaged TOF readings at the current posture, and its one-sigma."""
+    tofs = []
+    for _ in range(repeats):
+        r = rig.read(averages)
+        if not r.has_echo:
+            log.info("no echo: %s at gain %.1f dB", r, rig.settings.gain_db)
+            raise HardwareError(f"{rig.pulser.endpoint}: no echo in the gate at the peak posture")
+        tofs.append(r.tof_ns)
+        log.debug("distance reading %s", r)
+    tofs = np.array(tofs)
+    mean = float(np.mean(tofs))
+    # Standard error of the mean, with a floor of the float32 register resolution.
+    sem = max(float(np.std(tofs, ddof=1) / np.sqrt(len(tofs))), 0.004)
+    path = float(water_path_mm(mean, temperature_c))
+    return path, float(water_path_mm(sem, temperature_c))
+
+
+def ka_of(frequency_mhz: float, element_diameter_mm: float, temperature_c: float) -> float:
+    """k·a of the transducer (dimensionless)."""
+    return wavenumber_per_mm(frequency_mhz, temperature_c) * element_diameter_mm / 2.0

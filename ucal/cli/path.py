@@ -1,0 +1,120 @@
+"""``ucal path``: a Cartesian tool path (CSV) to a continuous joint path (CSV), paper 004."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ucal.cli.options import emit_json, json_option, parse_floats
+from ucal.errors import InputError
+
+#: Column names of the output file.
+JOINT_HEADER = ("J1", "J2", "J3", "J4", "J5", "J6")
+
+
+def read_pose_csv(path: Path) -> np.ndarray:
+    """Read rows ``X,Y,Z,RX,RY,RZ`` (mm, deg) → (n, 6); an optional header line is skipped.
+
+    Blank lines and lines starting with ``#`` are ignored. Raises ``InputError`` (exit 2)
+    naming the file and the 1-based line of the first bad row.
+    """
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read: {e}") from None
+    rows: list[list[float]] = []
+    first = True
+    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
+        if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):
+            continue
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            if first and not any(_is_number(f) for f in fields):
+                first = False  # a header line
+                continue
+            raise InputError(f"{path}: row {lineno}: expected 6 numbers X,Y,Z,RX,RY,RZ, "
+                             f"got {','.join(fields)!r}") from None
+        first = False
+        if len(values) != 6 or not all(math.isfinite(v) for v in values):
+            raise InputError(f"{path}: row {lineno}: expected 6 finite numbers X,Y,Z,RX,RY,RZ, "
+                             f"got {len(values)} value(s)")
+        rows.append(values)
+    if not rows:
+        raise InputError(f"{path}: no pose rows (expected X,Y,Z,RX,RY,RZ per line)")
+    return np.array(rows)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
+    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header."""
+    tmp = Path(path).with_name(Path(path).name + ".tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(JOINT_HEADER)
+        for row in joints_deg:
+            w.writerow([f"{v:.9f}" for v in row])
+    tmp.replace(path)
+
+
+@click.command("path", epilog="""\b
+Examples:
+  ucal path cell.toml scan.csv -o scan_joints.csv
+  ucal path cell.toml scan.csv -o scan_joints.csv --near 0,30,110,0,40,0 --json
+""")
+@click.argument("profile_path", metavar="PROFILE",
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("in_path", metavar="IN.csv",
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-o", "--output", "out_path", required=True, metavar="OUT.csv",
+              type=click.Path(dir_okay=False, writable=True, path_type=Path),
+              help="Joint path to write: J1..J6 readings (deg), one row per pose.")
+@click.option("--near", metavar="J1,...,J6",
+              help="Joint readings (deg) the robot starts from; the first point takes the "
+                   "solution nearest them (default all zeros).")
+@json_option
+def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None,
+        as_json: bool) -> None:
+    """Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a continuous joint path.
+
+    Each point takes the solution nearest the previous one (paper 004's weighted shortest
+    distance), so a path through a wrist singularity does not flip joint 4 by 180 deg.
+    Prints the largest joint step. Exit 2 for a bad CSV row, 4 if a point is unreachable.
+    """
+    from ucal.kinematics.path import cartesian_path_to_joints
+    from ucal.profile import load_profile
+
+    near_v = parse_floats(near, 6, "--near") if near is not None else None
+    profile = load_profile(profile_path)
+    poses = read_pose_csv(in_path)
+    joints, step = cartesian_path_to_joints(profile.model, poses, profile.tool_matrix,
+                                            profile.joint_offsets_deg, start_deg=near_v)
+    write_joint_csv(out_path, joints)
+    if len(joints) > 1:
+        d = np.abs(np.diff(joints, axis=0))
+        row, joint = np.unravel_index(int(np.argmax(d)), d.shape)
+        where = {"joint": int(joint) + 1, "row": int(row) + 2}
+    else:
+        where = {"joint": None, "row": None}
+    if as_json:
+        emit_json({"points": len(joints), "max_step_deg": step,
+                   "max_step_joint": where["joint"], "max_step_row": where["row"],
+                   "output": str(out_path)})
+        return
+    click.echo(f"wrote {len(joints)} joint rows to {out_path}")
+    if where["joint"] is None:
+        click.echo("largest joint step: 0 deg (one point)")
+    else:
+        click.echo(f"largest joint step: {step:.4f} deg (J{where['joint']}, "
+                   f"into point {where['row']})")

@@ -1,0 +1,170 @@
+"""``ucal profile``: create, print, check a cell profile; list and undo its recorded writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ucal.cli.options import emit_json, json_option
+from ucal.models import KNOWN_MODELS
+
+profile_arg = click.argument("path", metavar="PATH",
+                             type=click.Path(dir_okay=False, path_type=Path))
+
+
+@click.group("profile", epilog="""\b
+Examples:
+  ucal profile init tx90l cell.toml
+  ucal profile show cell.toml --json
+  ucal profile validate cell.toml
+  ucal profile history cell.toml
+  ucal profile undo cell.toml
+""")
+def cli() -> None:
+    """Cell profiles (TOML): nominal geometry of the cell and calibration results."""
+
+
+@cli.command("init")
+@click.argument("model", type=click.Choice(KNOWN_MODELS, case_sensitive=False))
+@profile_arg
+@click.option("--force", is_flag=True,
+              help="Replace an existing file (the old one is kept in PATH.history/).")
+def init(model: str, path: Path, force: bool) -> None:
+    """Write a new commented profile for a shipped MODEL at PATH.
+
+    The DH table and joint ranges are the shipped model's; the calibration block and the
+    reflector plate are placed for paper 000's calibration pose. Exit 2 if PATH exists and
+    --force is not given.
+    """
+    from ucal.profile import create_profile
+
+    create_profile(path, model.lower(), force=force)
+    click.echo(f"wrote {path} ({model.lower()}); measure the block and the reflector plate "
+               f"and edit [sample] and [reflector] before calibrating", err=True)
+
+
+@cli.command("show")
+@profile_arg
+@json_option
+def show(path: Path, as_json: bool) -> None:
+    """Print the profile as ucal reads it (validated; mm, deg)."""
+    from ucal.profile import load_profile, profile_to_dict
+
+    data = profile_to_dict(load_profile(path))
+    if as_json:
+        emit_json(data)
+        return
+    _print_profile(data)
+
+
+@cli.command("validate")
+@profile_arg
+@json_option
+def validate(path: Path, as_json: bool) -> None:
+    """Check a profile; exit 2 with the file and key of the first problem.
+
+    Keys ucal does not know are reported as warnings (they are allowed, but often typos).
+    """
+    from ucal.profile import load_profile, profile_warnings
+
+    profile = load_profile(path)
+    warnings = profile_warnings(path)
+    if as_json:
+        emit_json({"valid": True, "path": str(path), "model": profile.model.name,
+                   "warnings": warnings})
+        return
+    for w in warnings:
+        click.echo(f"warning: {path}: {w}", err=True)
+    click.echo(f"{path}: valid ({profile.model.name})")
+
+
+@cli.command("history")
+@profile_arg
+@json_option
+def history(path: Path, as_json: bool) -> None:
+    """List the recorded writes of a profile (kept in PATH.history/), oldest first."""
+    from dataclasses import asdict
+
+    from ucal.profile import history_dir, profile_history
+
+    entries = profile_history(path)
+    if as_json:
+        emit_json({"history_dir": str(history_dir(path)),
+                   "entries": [asdict(e) for e in entries]})
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{path}: writes (copies in {history_dir(path)})")
+    for col in ("#", "time (UTC)", "reason", "replaced version", "state"):
+        table.add_column(col)
+    for e in entries:
+        table.add_row(str(e.id), e.time, e.reason, e.before,
+                      f"undone {e.undone_time}" if e.undone else "applied")
+    Console().print(table)
+
+
+@cli.command("undo")
+@profile_arg
+@click.option("--force", is_flag=True,
+              help="Undo even if the profile was edited since the last recorded write.")
+@json_option
+def undo(path: Path, force: bool, as_json: bool) -> None:
+    """Restore the version the last recorded write replaced (atomically).
+
+    The version being replaced is kept in PATH.history/ too, so an undo loses nothing.
+    """
+    from ucal.profile import undo_profile
+
+    entry = undo_profile(path, force=force)
+    if as_json:
+        emit_json({"undone": entry.id, "reason": entry.reason, "time": entry.time,
+                   "restored": entry.before, "kept": entry.after})
+        return
+    click.echo(f"{path}: undid write {entry.id} ({entry.reason}, {entry.time}); "
+               f"the replaced version is kept as {entry.after}")
+
+
+def _fmt(values: object) -> str:
+    if values is None:
+        return "—"
+    if isinstance(values, (list, tuple)):
+        return ", ".join(_fmt(v) for v in values)
+    if isinstance(values, float):
+        return f"{values:g}"
+    return str(values)
+
+
+def _print_profile(data: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    robot = data["robot"]
+    dh = Table(title=f"{data['path']}: robot {robot['model']}")
+    for col in ("joint", "θ offset (deg)", "d (mm)", "a (mm)", "α (deg)", "min (deg)",
+                "max (deg)", "offset (deg)"):
+        dh.add_column(col, justify="right")
+    offsets = data["calibration"]["joint_offsets_deg"]
+    unobs = set(data["calibration"]["unobservable_joints"])
+    for i, row in enumerate(robot["dh"]):
+        dh.add_row(str(i + 1), *(f"{row[k]:g}" for k in
+                                 ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg")),
+                   f"{robot['joint_min_deg'][i]:g}", f"{robot['joint_max_deg'][i]:g}",
+                   f"{offsets[i]:.4f}" + (" (unobservable)" if i + 1 in unobs else ""))
+    console.print(dh)
+
+    cell = Table(title="cell")
+    cell.add_column("key")
+    cell.add_column("value")
+    for tname in ("tool", "sample", "reflector", "water", "transducer", "procedure"):
+        table = data.get(tname)
+        if table is None:
+            cell.add_row(f"[{tname}]", "—")
+            continue
+        for key, value in table.items():
+            if key == "points_mm":
+                value = "; ".join(_fmt(p) for p in value)
+            cell.add_row(f"{tname}.{key}", _fmt(value))
+    console.print(cell)

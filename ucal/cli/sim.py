@@ -1,0 +1,82 @@
+"""``ucal sim serve``: serve the simulated controller and pulser on 127.0.0.1."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import click
+
+from ucal.cell import CellProfile
+
+
+@click.group("sim")
+def cli() -> None:
+    """The simulated cell (controller and pulser speaking the real protocols)."""
+
+
+@cli.command("serve", epilog="""\b
+Examples:
+  ucal sim serve
+  ucal sim serve --profile cell.toml --world truth.toml --log motions.jsonl
+  ucal sim serve --rtu --time-scale 0.1
+""")
+@click.option("--world", "world_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="World TOML with the truth (default: the demo truth of the profile).")
+@click.option("--profile", "profile_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Cell profile TOML (default: a new profile of the default model).")
+@click.option("--log", "log_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Append one JSON line per executed motion to this file.")
+@click.option("--time-scale", type=click.FloatRange(min=0.0), default=1.0, show_default=True,
+              help="Multiply motion durations (0.1 = ten times faster, 0 = instantaneous).")
+@click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
+def serve(world_path: Path | None, profile_path: Path | None, log_path: Path | None,
+          time_scale: float, rtu: bool) -> None:
+    """Serve the simulated cell until SIGINT or SIGTERM.
+
+    Prints one JSON line {"controller": URL, "pulser": URL} on stdout, then serves.
+    """
+    from ucal.sim.serve import SimulatedCellServer
+
+    profile = _load_profile(profile_path)
+    world = None
+    if world_path is not None:
+        from ucal.world import load_world
+
+        world = load_world(world_path, profile)
+
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with SimulatedCellServer(world, profile, log_path=log_path, time_scale=time_scale,
+                                 pulser_framing="rtu" if rtu else "tcp") as server:
+            sys.stdout.write(json.dumps(server.urls) + "\n")
+            sys.stdout.flush()
+            while not stop.wait(0.2):
+                pass
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _load_profile(path: Path | None) -> CellProfile:
+    """The profile at ``path``, or a new profile of the default model."""
+    from ucal.profile import load_profile
+
+    if path is not None:
+        return load_profile(path)
+    from ucal.models import DEFAULT_MODEL
+    from ucal.profile import default_profile_text
+
+    with tempfile.TemporaryDirectory(prefix="ucal-sim-") as tmp:
+        tmp_path = Path(tmp) / f"{DEFAULT_MODEL}.toml"
+        tmp_path.write_text(default_profile_text(DEFAULT_MODEL), encoding="utf-8")
+        return load_profile(tmp_path).replace(path=None)

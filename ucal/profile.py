@@ -1,0 +1,714 @@
+"""Cell profiles: load and validate, create from a shipped model, write results, undo.
+
+A profile (SPEC.md, "Profile file") is a commented TOML file the technician owns. ucal reads it
+with tomlkit and writes results back into it with tomlkit, so comments and key order survive.
+
+Writes are atomic and reversible:
+
+* the new text is validated as a profile before anything touches the disk;
+* the previous bytes are copied into the history directory ``<profile>.history/``
+  (``cell.toml`` → ``cell.toml.history/``) as ``NNNN-before.toml`` and an entry is added to
+  ``history.json`` there (id, UTC time, reason, SHA-256 of the bytes before and after);
+* the new bytes go to a temporary file in the profile's directory, are fsync'ed and replace
+  the profile with ``os.replace``. If any step fails the profile is byte-for-byte unchanged and
+  the history entry is withdrawn.
+
+:func:`undo_profile` restores the bytes of the newest entry not yet undone (again atomically),
+after saving the bytes it replaces as ``NNNN-after.toml``: an undo loses nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomlkit
+from tomlkit.items import Array, InlineTable, Table
+
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, Procedure
+from ucal.errors import InputError, ProfileError
+from ucal.kinematics.dh import RobotModel, wrist_centre
+from ucal.models import KNOWN_MODELS, load_model
+from ucal.validation import DH_KEYS, Reader, parse_toml_bytes, read_toml, unknown_keys
+
+log = logging.getLogger(__name__)
+
+#: The profile schema this version reads and writes.
+SCHEMA = 1
+
+#: Keys ucal knows in each table (others are allowed and reported as warnings).
+KNOWN_KEYS: dict[str, frozenset[str] | None] = {
+    "": frozenset({"schema"}),
+    "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "upper_arm_mm",
+                        "forearm_mm"}),
+    "tool": frozenset({"position_mm", "rotation_deg"}),
+    "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
+    "reflector": frozenset({"points_mm"}),
+    "water": frozenset({"temperature_c"}),
+    "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
+    "calibration": None,  # ucal writes run metadata next to the results
+    "procedure": frozenset({"calibration_pose_deg", "water_path_mm", "step_deg", "speed",
+                            "singularity_margin_deg", "tof_averages"}),
+}
+
+#: Flange length of the shipped models (mm): wrist centre to flange along z6.
+FLANGE_MM = 100.0
+#: Tool frame of a new profile: transducer 80 mm beyond the flange, beam along flange z.
+DEFAULT_TOOL_MM = (0.0, 0.0, 80.0)
+#: Edge length of the calibration block's faces (mm): the ``CellProfile`` default.
+DEFAULT_FACE_MM = float(CellProfile.__dataclass_fields__["sample_face_size_mm"].default)
+#: Distance of the nominal reflector plate's centre behind the block's XZ face plane (mm).
+REFLECTOR_BEHIND_MM = 200.0
+
+HISTORY_SUFFIX = ".history"
+HISTORY_INDEX = "history.json"
+
+
+# ---------------------------------------------------------------------------------------------
+# loading
+
+
+def load_profile(path: str | Path) -> CellProfile:
+    """Read and validate the profile at ``path`` (SPEC.md keys; mm, deg, °C, MHz).
+
+    Raises :class:`ProfileError` (exit 2) naming the file and the dotted key of the first
+    problem: unreadable file, bad TOML, missing key, wrong type or length, NaN/inf, value out
+    of range, unknown robot model without a ``dh`` table.
+    """
+    p = Path(path)
+    return profile_from_data(read_toml(p), p)
+
+
+def profile_warnings(path: str | Path) -> list[str]:
+    """Non-fatal remarks on a valid profile: keys ucal does not know (usually typos)."""
+    data = read_toml(path).unwrap()
+    return [f"unknown key {k} (ignored)" for k in unknown_keys(data, KNOWN_KEYS)]
+
+
+def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
+    """Validate parsed profile data (a tomlkit document or plain dict) → :class:`CellProfile`."""
+    if hasattr(data, "unwrap"):
+        data = data.unwrap()
+    r = Reader(path, data)
+    schema = r.get(data, "schema", required=True)
+    if isinstance(schema, bool) or schema != SCHEMA:
+        raise r.error("schema", f"must be {SCHEMA} (this version of ucal reads schema "
+                                f"{SCHEMA}), got {schema!r}")
+
+    model = read_robot(r, r.table("robot", required=True), "robot")
+
+    tool = r.table("tool", required=True)
+    tool_pos = r.vector("tool.position_mm", r.get(tool, "tool.position_mm", True), 3,
+                        unit="mm")
+    tool_rot = r.vector("tool.rotation_deg", r.get(tool, "tool.rotation_deg", True), 3,
+                        unit="deg")
+
+    sample = r.table("sample", required=True)
+    sample_pos = r.vector("sample.position_mm", r.get(sample, "sample.position_mm", True), 3,
+                          unit="mm")
+    sample_rot = r.vector("sample.rotation_deg", r.get(sample, "sample.rotation_deg", True), 3,
+                          unit="deg")
+    face = r.get(sample, "sample.face_size_mm")
+    face_mm = (DEFAULT_FACE_MM if face is None else
+               r.number("sample.face_size_mm", face, lo=0.0, lo_open=True, unit="mm"))
+
+    reflector = r.table("reflector")
+    points = None
+    if reflector is not None:
+        points = r.plane_points("reflector.points_mm",
+                                r.get(reflector, "reflector.points_mm", True))
+
+    water_c = read_water(r, r.table("water", required=True), "water", required=True)
+    freq, diam = read_transducer(r, r.table("transducer", required=True), "transducer", True)
+
+    cal = r.table("calibration")
+    offsets = np.zeros(6)
+    unobservable: tuple[int, ...] = ()
+    if cal is not None:
+        v = r.get(cal, "calibration.joint_offsets_deg")
+        if v is not None:
+            offsets = r.joint_offsets("calibration.joint_offsets_deg", v)
+        v = r.get(cal, "calibration.unobservable_joints")
+        if v is not None:
+            unobservable = r.joint_numbers("calibration.unobservable_joints", v)
+
+    procedure = read_procedure(r, r.table("procedure"), model)
+
+    return CellProfile(model=model, tool_position_mm=tool_pos, tool_rotation_deg=tool_rot,
+                       sample_position_mm=sample_pos, sample_rotation_deg=sample_rot,
+                       sample_face_size_mm=face_mm, reflector_points_mm=points,
+                       water_temperature_c=water_c, frequency_mhz=freq,
+                       element_diameter_mm=diam, joint_offsets_deg=offsets,
+                       unobservable_joints=unobservable, procedure=procedure, path=Path(path))
+
+
+def read_robot(r: Reader, robot: Mapping[str, Any] | None, prefix: str,
+               ranges_from: RobotModel | None = None) -> RobotModel:
+    """``[robot]``: a shipped ``model`` name, or a full ``dh`` table (then ``model`` is just a
+    name), plus joint ranges (deg). Ranges default to ``ranges_from``'s if given (a world
+    file keeps the profile's), else to the shipped model's."""
+    name_raw = r.get(robot, f"{prefix}.model")
+    dh_raw = r.get(robot, f"{prefix}.dh")
+    name = None if name_raw is None else r.string(f"{prefix}.model", name_raw)
+    if dh_raw is None:
+        if name is None:
+            raise r.error(f"{prefix}.model", "missing key (a shipped model name or a full "
+                                             "dh table is required)")
+        if name not in KNOWN_MODELS:
+            raise r.error(f"{prefix}.model", f"unknown robot model {name!r} (known: "
+                          f"{', '.join(KNOWN_MODELS)}; or give a full dh table)")
+    shipped = load_model(name) if name in KNOWN_MODELS else None
+    base = ranges_from if ranges_from is not None else shipped
+    dh = shipped.dh if dh_raw is None else r.dh_table(f"{prefix}.dh", dh_raw)
+
+    lo, hi = r.get(robot, f"{prefix}.joint_min_deg"), r.get(robot, f"{prefix}.joint_max_deg")
+    if lo is None and hi is None and base is not None:
+        jmin, jmax = base.joint_min_deg, base.joint_max_deg
+    else:
+        if lo is None:
+            raise r.error(f"{prefix}.joint_min_deg", "missing key")
+        if hi is None:
+            raise r.error(f"{prefix}.joint_max_deg", "missing key")
+        jmin, jmax = r.joint_ranges(f"{prefix}.joint_min_deg", lo, f"{prefix}.joint_max_deg", hi)
+    meta = {"source": "shipped" if dh_raw is None else str(r.path)}
+    return RobotModel(name or "custom", dh, jmin, jmax, meta)
+
+
+def read_water(r: Reader, water: Mapping[str, Any] | None, prefix: str,
+               required: bool) -> float | None:
+    """``[water] temperature_c`` in 0–60 °C (the range of the sound-speed formula)."""
+    v = r.get(water, f"{prefix}.temperature_c", required)
+    return None if v is None else r.number(f"{prefix}.temperature_c", v, lo=0.0, hi=60.0,
+                                           unit="degC")
+
+
+def read_transducer(r: Reader, table: Mapping[str, Any] | None, prefix: str,
+                    required: bool) -> tuple[float | None, float | None]:
+    """``[transducer] frequency_mhz`` (> 0, <= 500 MHz), ``element_diameter_mm`` (> 0, <= 100)."""
+    f = r.get(table, f"{prefix}.frequency_mhz", required)
+    d = r.get(table, f"{prefix}.element_diameter_mm", required)
+    freq = None if f is None else r.number(f"{prefix}.frequency_mhz", f, lo=0.0, lo_open=True,
+                                           hi=500.0, unit="MHz")
+    diam = None if d is None else r.number(f"{prefix}.element_diameter_mm", d, lo=0.0,
+                                           lo_open=True, hi=100.0, unit="mm")
+    return freq, diam
+
+
+def read_procedure(r: Reader, table: Mapping[str, Any] | None,
+                   model: RobotModel) -> Procedure:
+    """Optional ``[procedure]`` → :class:`Procedure` (missing keys keep its defaults)."""
+    if table is None:
+        return Procedure()
+    d = Procedure()
+    pose = None
+    v = r.get(table, "procedure.calibration_pose_deg")
+    if v is not None:
+        pose = r.joints_within("procedure.calibration_pose_deg", v, model.joint_min_deg,
+                               model.joint_max_deg)
+
+    def num(key: str, default: float, **kw: Any) -> float:
+        raw = r.get(table, f"procedure.{key}")
+        return default if raw is None else r.number(f"procedure.{key}", raw, **kw)
+
+    averages = r.get(table, "procedure.tof_averages")
+    return Procedure(
+        calibration_pose_deg=pose,
+        water_path_mm=num("water_path_mm", d.water_path_mm, lo=0.0, lo_open=True, hi=1000.0,
+                          unit="mm"),
+        step_deg=num("step_deg", d.step_deg, lo=0.0, lo_open=True, hi=30.0, unit="deg"),
+        speed=num("speed", d.speed, lo=0.0, lo_open=True, hi=1.0),
+        singularity_margin_deg=num("singularity_margin_deg", d.singularity_margin_deg, lo=0.0,
+                                   hi=90.0, hi_open=True, unit="deg"),
+        tof_averages=(d.tof_averages if averages is None else
+                      r.integer("procedure.tof_averages", averages, lo=1, hi=65535)),
+    )
+
+
+def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
+    """A profile as plain JSON-able data in the profile's own table/key layout."""
+    m = profile.model
+    proc = profile.procedure
+    return {
+        "schema": SCHEMA,
+        "path": None if profile.path is None else str(profile.path),
+        "robot": {"model": m.name,
+                  "dh": [dict(zip(DH_KEYS, map(float, row), strict=True)) for row in m.dh],
+                  "joint_min_deg": m.joint_min_deg.tolist(),
+                  "joint_max_deg": m.joint_max_deg.tolist()},
+        "tool": {"position_mm": profile.tool_position_mm.tolist(),
+                 "rotation_deg": profile.tool_rotation_deg.tolist()},
+        "sample": {"position_mm": profile.sample_position_mm.tolist(),
+                   "rotation_deg": profile.sample_rotation_deg.tolist(),
+                   "face_size_mm": profile.sample_face_size_mm},
+        "reflector": (None if profile.reflector_points_mm is None else
+                      {"points_mm": np.asarray(profile.reflector_points_mm).tolist()}),
+        "water": {"temperature_c": profile.water_temperature_c},
+        "transducer": {"frequency_mhz": profile.frequency_mhz,
+                       "element_diameter_mm": profile.element_diameter_mm},
+        "calibration": {"joint_offsets_deg": profile.joint_offsets_deg.tolist(),
+                        "unobservable_joints": list(profile.unobservable_joints)},
+        "procedure": {
+            "calibration_pose_deg": (None if proc.calibration_pose_deg is None else
+                                     np.asarray(proc.calibration_pose_deg).tolist()),
+            "water_path_mm": proc.water_path_mm, "step_deg": proc.step_deg,
+            "speed": proc.speed, "singularity_margin_deg": proc.singularity_margin_deg,
+            "tof_averages": proc.tof_averages},
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# new profiles
+
+
+def _num(x: float) -> str:
+    """A number for the template: 3 decimals (µm), no negative zero."""
+    v = round(float(x), 3)
+    return repr(v + 0.0)
+
+
+def _vec(values: Any) -> str:
+    return "[" + ", ".join(_num(v) for v in values) + "]"
+
+
+def nominal_layout(model: RobotModel, water_path_mm: float | None = None,
+                   tool_z_mm: float = DEFAULT_TOOL_MM[2],
+                   face_mm: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Block corner and reflector points (mm, base frame) consistent with paper 000's pose.
+
+    At the calibration pose the flange z axis points straight down from the wrist centre W.
+    With ``s = flange 100 + tool z + water path`` the block corner is ``W − (s, s, s)``: the
+    TCP then stands ``water_path_mm`` above the block's XY face, and the same distance
+    separates it from the YZ/XZ faces when the tool points at them from W.
+
+    The reflector plate is horizontal at the XY face's height, centred at
+    ``(W_x, W_y − s − 200, W_z − s)``: 200 mm behind the plane of the block's XZ face, on the
+    side of the robot base, so the arm reaches it with the beam down (wrist centre at W's
+    height) without passing over the block's walls. Defaults: ``Procedure`` water path and
+    ``CellProfile`` face size.
+    """
+    if water_path_mm is None:
+        water_path_mm = Procedure().water_path_mm
+    w = wrist_centre(model, PAPER_CALIBRATION_POSE_DEG)
+    s = FLANGE_MM + tool_z_mm + water_path_mm
+    corner = w - s
+    centre = np.array([w[0], w[1] - s - REFLECTOR_BEHIND_MM, w[2] - s])
+    # Centroid = plate centre; a 120 mm x 120 mm triangle defines the plane well.
+    points = centre + np.array([[-60.0, -40.0, 0.0], [60.0, -40.0, 0.0], [0.0, 80.0, 0.0]])
+    return corner, points
+
+
+def default_profile_text(model: str) -> str:
+    """Commented TOML of a new profile for the shipped ``model`` (``tx90``, ``tx90l``,
+    ``tx90xl``): its DH table and joint ranges, a 80 mm tool along the flange axis, a block
+    and a reflector plate placed for paper 000's calibration pose, water at 20 °C, a 25 MHz
+    6 mm transducer, zero calibration."""
+    if model not in KNOWN_MODELS:
+        raise InputError(f"unknown robot model {model!r} (known: {', '.join(KNOWN_MODELS)})")
+    m = load_model(model)
+    proc = Procedure()
+    corner, points = nominal_layout(m, proc.water_path_mm)
+    w = wrist_centre(m, PAPER_CALIBRATION_POSE_DEG)
+    s = FLANGE_MM + DEFAULT_TOOL_MM[2] + proc.water_path_mm
+    rows = "\n".join(
+        f"    {{ theta_offset_deg = {_num(t)}, d_mm = {_num(d)}, a_mm = {_num(a)}, "
+        f"alpha_deg = {_num(al)} }}," for t, d, a, al in m.dh)
+    pts = "\n".join(f"    {_vec(p)}," for p in points)
+    return f"""\
+# ucal cell profile: one robot cell, nominal geometry and calibration results.
+# Units: mm, degrees, degrees Celsius, MHz. Orientations [rx, ry, rz] follow the Staubli
+# convention R = Rot(x, rx) * Rot(y, ry) * Rot(z, rz). Check every value against your cell.
+# ucal rewrites only the keys it computes; comments and key order are kept. Each write keeps
+# the version it replaced in the folder <this file name>.history next to this file
+# (see `ucal profile history PATH` and `ucal profile undo PATH`).
+schema = 1
+
+[robot]
+model = "{model}"
+# Standard DH rows: theta_offset_deg, d_mm, a_mm, alpha_deg (copied from the shipped
+# {model} model; zero pose = arm straight up, as on the controller).
+dh = [
+{rows}
+]
+joint_min_deg = {_vec(m.joint_min_deg)}
+joint_max_deg = {_vec(m.joint_max_deg)}
+
+[tool]
+# Tool centre point (transducer face) relative to the flange; the beam leaves it along +Z.
+position_mm = {_vec(DEFAULT_TOOL_MM)}
+rotation_deg = [0.0, 0.0, 0.0]
+
+[sample]
+# Calibration block: the corner where its three reflecting faces meet (base frame).
+# Nominal placement for the calibration pose below: corner = W - ({s:g}, {s:g}, {s:g}) mm,
+# W = {_vec(w)} being the wrist centre at that pose and {s:g} = flange {FLANGE_MM:g}
+# + tool {DEFAULT_TOOL_MM[2]:g} + water path {proc.water_path_mm:g}: the beam (straight down)
+# meets the XY face {proc.water_path_mm:g} mm below the TCP. Replace with the measured pose.
+position_mm = {_vec(corner)}
+rotation_deg = [0.0, 0.0, 0.0]
+face_size_mm = {_num(DEFAULT_FACE_MM)}
+
+[reflector]
+# Three or more points touched on a flat plate (tool-frame calibration). Nominal plate:
+# horizontal, centred at W + (0, -{s + REFLECTOR_BEHIND_MM:g}, -{s:g}) mm, i.e. at the
+# height of the block's XY face and {REFLECTOR_BEHIND_MM:g} mm behind its XZ face on the
+# robot's side: reachable with the beam down, {proc.water_path_mm:g} mm of water below the TCP,
+# without reaching over the block. Replace with the touched points.
+points_mm = [
+{pts}
+]
+
+[water]
+temperature_c = 20.0
+
+[transducer]
+frequency_mhz = 25.0
+element_diameter_mm = 6.0
+
+[procedure]
+# Paper 000, section 5.1: calibration pose (deg); theta2 + theta3 + theta5 = 180 points
+# the flange axis straight down.
+calibration_pose_deg = {_vec(PAPER_CALIBRATION_POSE_DEG)}
+water_path_mm = {_num(proc.water_path_mm)}   # TCP to face at each measurement
+step_deg = {_num(proc.step_deg)}         # joint step between measurements
+speed = {_num(proc.speed)}            # fraction of the controller's maximum speed
+singularity_margin_deg = {_num(proc.singularity_margin_deg)}   # |theta5| stays above this
+tof_averages = {proc.tof_averages}       # pulser averages per distance reading
+
+[calibration]
+# Written by `ucal calibrate`: actual joint angle = encoder reading + offset (deg).
+joint_offsets_deg = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+# 1-based joints whose offset the data could not determine (their offset is kept).
+unobservable_joints = []
+"""
+
+
+def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
+    """Write a new profile for ``model`` at ``path``; refuse (exit 2) if it exists unless
+    ``force`` (the replaced file then goes to the history, so it can be undone)."""
+    p = Path(path)
+    text = default_profile_text(model)
+    profile_from_data(tomlkit.parse(text), p)  # the template must always validate
+    if p.exists():
+        if not force:
+            raise ProfileError(p, None, "already exists (use --force to replace it; the old "
+                                        "file is kept in the history)")
+        _replace_with_history(p, text.encode("utf-8"), f"init {model} --force")
+    else:
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ProfileError(p, None, f"cannot create directory: {e.strerror or e}") from None
+        _atomic_write(p, text.encode("utf-8"))
+    return p
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def to_plain(value: Any) -> Any:
+    """numpy arrays/scalars and tuples → plain lists, floats, ints (recursively)."""
+    if isinstance(value, np.ndarray):
+        return [to_plain(v) for v in value.tolist()]
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): to_plain(v) for k, v in value.items()}
+    return value
+
+
+def _is_multiline(item: Any) -> bool:
+    return isinstance(item, Array) and "\n" in item.as_string()
+
+
+def _toml_value(value: Any, old: Any) -> Any:
+    """A plain value → tomlkit item; arrays keep the old value's one-line/multiline layout;
+    a list of tables becomes a multiline array of inline tables (as the ``dh`` table)."""
+    if isinstance(value, list):
+        arr = tomlkit.array()
+        for v in value:
+            if isinstance(v, Mapping):
+                it = tomlkit.inline_table()
+                it.update(v)
+                arr.append(it)
+            else:
+                arr.append(v)
+        if _is_multiline(old) or (old is None and any(isinstance(v, (Mapping, list))
+                                                      for v in value)):
+            arr.multiline(True)
+        return arr
+    if isinstance(value, Mapping) and isinstance(old, InlineTable):
+        it = tomlkit.inline_table()
+        it.update(value)
+        return it
+    return tomlkit.item(value)
+
+
+def _set_key(table: Any, key: str, value: Any) -> None:
+    """Set ``key`` in a tomlkit table: in place if present (its comment kept), else after the
+    table's last key (not after the comments that introduce the next table)."""
+    if value is None:
+        if key in table:
+            del table[key]
+        return
+    old = table.get(key) if key in table else None
+    item = _toml_value(value, old)
+    if old is not None:
+        table[key] = item
+        return
+    container = getattr(table, "value", None)
+    keys = list(table)
+    # tomlkit appends after the table's trailing comments, i.e. below the comment that
+    # introduces the next table; Container._insert_after (no public equivalent) avoids that.
+    # If a tomlkit release drops it, the key is appended (still valid TOML).
+    if isinstance(table, Table) and keys and hasattr(container, "_insert_after"):
+        container._insert_after(keys[-1], key, item)
+    else:
+        table[key] = item
+
+
+def render_update(text: str, updates: Mapping[str, Mapping[str, Any]]) -> str:
+    """Apply ``updates`` (table → key → value; ``None`` deletes the key) to TOML ``text``,
+    keeping comments and key order; missing tables are appended."""
+    doc = tomlkit.parse(text)
+    for tname, keys in updates.items():
+        if not isinstance(keys, Mapping):
+            doc[tname] = tomlkit.item(to_plain(keys))
+            continue
+        if tname not in doc:
+            doc.add(tname, tomlkit.table())
+        table = doc[tname]
+        for key, value in keys.items():
+            _set_key(table, key, to_plain(value))
+    return tomlkit.dumps(doc)
+
+
+def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]],
+                  reason: str) -> None:
+    """Write ``updates`` (e.g. ``{"calibration": {"joint_offsets_deg": offsets}}``) into the
+    profile at ``path``, atomically, keeping comments and key order, and record the replaced
+    bytes in the history with ``reason`` (e.g. ``"calibrate"``).
+
+    The result is validated as a profile first. Any failure raises :class:`ProfileError`
+    (exit 2) and leaves the profile byte-for-byte unchanged.
+    """
+    p = Path(path)
+    try:
+        before = p.read_bytes()
+    except OSError as e:
+        raise ProfileError(p, None, f"cannot read: {e.strerror or e}") from None
+    text = parse_toml_bytes(before, p).as_string()
+    after = render_update(text, updates).encode("utf-8")
+    profile_from_data(parse_toml_bytes(after, p), p)
+    if after == before:
+        log.info("%s: nothing to change", p)
+        return
+    _replace_with_history(p, after, reason, before)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return  # not supported on this platform: the rename itself is still atomic
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    """Replace ``path`` with ``data``: temp file in the same directory, fsync, ``os.replace``.
+
+    On failure the temp file is removed and ``path`` is untouched; raises ProfileError.
+    """
+    mode = None
+    try:
+        mode = path.stat().st_mode & 0o7777
+    except OSError:
+        pass
+    tmp: str | None = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, path)
+        tmp = None
+        _fsync_dir(path.parent)
+    except OSError as e:
+        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
+            from None
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+
+# ---------------------------------------------------------------------------------------------
+# history and undo
+
+
+@dataclass
+class HistoryEntry:
+    """One write of a profile: what it replaced and why.
+
+    ``before`` is the file (in the history directory) holding the replaced bytes; the hashes
+    are SHA-256 hex digests of the profile bytes before and after the write. ``after`` names
+    the copy of the replaced-by-undo bytes once the entry has been undone.
+    """
+
+    id: int
+    time: str
+    reason: str
+    before: str
+    before_sha256: str
+    after_sha256: str
+    undone: bool = False
+    undone_time: str | None = None
+    after: str | None = None
+
+
+def history_dir(path: str | Path) -> Path:
+    """The history directory of a profile: ``cell.toml`` → ``cell.toml.history``."""
+    p = Path(path)
+    return p.with_name(p.name + HISTORY_SUFFIX)
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def profile_history(path: str | Path) -> list[HistoryEntry]:
+    """The history entries of a profile, oldest first (empty if it was never rewritten)."""
+    index = history_dir(path) / HISTORY_INDEX
+    if not index.exists():
+        return []
+    try:
+        raw = json.loads(index.read_text(encoding="utf-8"))
+        return [HistoryEntry(**e) for e in raw["entries"]]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ProfileError(index, None, f"unreadable history index: {e}") from None
+
+
+def _save_history(path: Path, entries: list[HistoryEntry]) -> None:
+    data = {"profile": path.name, "entries": [asdict(e) for e in entries]}
+    _atomic_write(history_dir(path) / HISTORY_INDEX,
+                  (json.dumps(data, indent=1) + "\n").encode("utf-8"))
+
+
+def _write_new(path: Path, data: bytes) -> None:
+    """Write a history copy (fsync'ed); it is new, so no rename is needed."""
+    try:
+        with open(path, "xb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as e:
+        raise ProfileError(path, None, f"cannot write history copy: {e.strerror or e}") \
+            from None
+
+
+def _replace_with_history(path: Path, after: bytes, reason: str,
+                          before: bytes | None = None) -> HistoryEntry:
+    """Record ``before`` (default: the current bytes) in the history, then replace ``path``
+    with ``after`` atomically; withdraw the entry if the replacement fails."""
+    if before is None:
+        before = path.read_bytes()
+    hdir = history_dir(path)
+    try:
+        hdir.mkdir(exist_ok=True)
+    except OSError as e:
+        raise ProfileError(hdir, None, f"cannot create history directory: {e.strerror or e}") \
+            from None
+    entries = profile_history(path)
+    new_id = max((e.id for e in entries), default=0) + 1
+    copy = hdir / f"{new_id:04d}-before.toml"
+    _write_new(copy, before)
+    entry = HistoryEntry(id=new_id, time=_now(), reason=reason, before=copy.name,
+                         before_sha256=_sha(before), after_sha256=_sha(after))
+    try:
+        _save_history(path, entries + [entry])
+        _atomic_write(path, after)
+    except ProfileError:
+        _withdraw(path, entries, copy)
+        raise
+    log.info("%s: written (%s); previous version kept as %s", path, reason, copy)
+    return entry
+
+
+def _withdraw(path: Path, entries: list[HistoryEntry], copy: Path) -> None:
+    """Best effort: put the index back as it was and remove the unused copy."""
+    try:
+        _save_history(path, entries)
+        copy.unlink()
+    except (ProfileError, OSError):
+        log.warning("%s: could not withdraw history entry %s", path, copy.name)
+
+
+def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
+    """Restore the profile bytes replaced by the newest write not yet undone, atomically.
+
+    Refuses (exit 2) when there is nothing to undo, or when the profile was changed since that
+    write (its SHA-256 differs), unless ``force``. The bytes replaced by the undo are kept as
+    ``NNNN-after.toml``. Returns the undone entry.
+    """
+    p = Path(path)
+    entries = profile_history(p)
+    pending = [e for e in entries if not e.undone]
+    if not pending:
+        raise ProfileError(p, None, "nothing to undo (no recorded write)")
+    entry = pending[-1]
+    hdir = history_dir(p)
+    try:
+        current = p.read_bytes()
+        previous = (hdir / entry.before).read_bytes()
+    except OSError as e:
+        raise ProfileError(p, None, f"cannot read for undo: {e.strerror or e}") from None
+    if _sha(previous) != entry.before_sha256:
+        raise ProfileError(hdir / entry.before, None, "history copy is corrupt (hash mismatch)")
+    if _sha(current) != entry.after_sha256 and not force:
+        raise ProfileError(p, None, f"changed since write {entry.id} ({entry.reason}, "
+                                    f"{entry.time}); use --force to undo anyway")
+    after_copy = hdir / f"{entry.id:04d}-after.toml"
+    if after_copy.exists():  # left over by an undo whose rename failed
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
+        after_copy = hdir / f"{entry.id:04d}-after-{stamp}.toml"
+    _write_new(after_copy, current)
+    entry.undone, entry.undone_time, entry.after = True, _now(), after_copy.name
+    _save_history(p, entries)
+    try:
+        _atomic_write(p, previous)
+    except ProfileError:
+        entry.undone, entry.undone_time, entry.after = False, None, None
+        try:
+            _save_history(p, entries)
+            after_copy.unlink()
+        except (ProfileError, OSError):
+            log.warning("%s: could not withdraw the undo record", p)
+        raise
+    return entry

@@ -1,0 +1,114 @@
+"""Beam–reflector geometry: the beam ray, the calibration block's faces, the reflector plate.
+
+The beam is a ray from the tool centre point along the tool frame's +Z axis (SPEC.md). A
+reflector face is a finite rectangle ``origin + u·e1 + v·e2`` with ``u_min ≤ u ≤ u_max``,
+``v_min ≤ v ≤ v_max`` and a unit normal pointing to the side that reflects (the water side).
+A face reflects only when the beam arrives from that side. Lengths in mm, angles in degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ucal.cell import Reflector
+
+#: Beam–normal cosine below which a face is treated as seen edge-on (no intersection).
+_MIN_COS = 1e-9
+
+
+@dataclass(frozen=True)
+class Face:
+    """A finite plane reflector: origin, in-plane unit axes, reflecting normal, extent (mm)."""
+
+    name: str
+    origin_mm: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    normal: np.ndarray
+    u_range_mm: tuple[float, float]
+    v_range_mm: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class FaceHit:
+    """Where the beam axis meets a face's plane.
+
+    ``distance_mm``: along the beam from the TCP (the one-way water path); ``point_mm``: the
+    hit point (base frame); ``uv_mm``: the hit point in the face's (u, v); ``tilt_deg``: angle
+    between the beam and the reversed face normal (0 = normal incidence); ``edge_distances_mm``:
+    signed distances to the edges ``u_min, u_max, v_min, v_max`` (positive inside the face);
+    ``facing``: the beam arrives from the reflecting side.
+    """
+
+    face: Face
+    distance_mm: float
+    point_mm: np.ndarray
+    uv_mm: np.ndarray
+    tilt_deg: float
+    edge_distances_mm: np.ndarray
+    facing: bool
+
+    @property
+    def inside(self) -> bool:
+        """True when the beam axis hits the face itself (not only its plane)."""
+        return bool(np.all(self.edge_distances_mm >= 0.0))
+
+
+def beam_ray(tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Beam origin (mm, (3,)) and unit direction ((3,)) of a TCP frame (4, 4): its origin and +Z."""
+    tcp = np.asarray(tcp, dtype=float)
+    return tcp[:3, 3].copy(), tcp[:3, 2].copy()
+
+
+def block_faces(sample_matrix: np.ndarray, face_size_mm: float) -> tuple[Face, Face, Face]:
+    """The calibration block's three faces, named by their normal: ``"x"``, ``"y"``, ``"z"``.
+
+    The block frame (4, 4, in the base frame) has its origin at the corner; each face is the
+    square [0, S]² of a coordinate plane and reflects towards the positive octant, e.g. face
+    ``"z"`` is the plane z = 0 with u along x, v along y and normal +z.
+    """
+    m = np.asarray(sample_matrix, dtype=float)
+    corner = m[:3, 3].copy()
+    ax = [m[:3, i].copy() for i in range(3)]
+    span = (0.0, float(face_size_mm))
+    return (Face("x", corner, ax[1], ax[2], ax[0], span, span),
+            Face("y", corner, ax[2], ax[0], ax[1], span, span),
+            Face("z", corner, ax[0], ax[1], ax[2], span, span))
+
+
+def reflector_face(reflector: Reflector) -> Face:
+    """The reflector plate as a ``Face``: centred on its point, ``e1`` = edge direction in-plane."""
+    n = np.asarray(reflector.normal, dtype=float)
+    n = n / np.linalg.norm(n)
+    e1 = np.asarray(reflector.edge_direction, dtype=float)
+    e1 = e1 - np.dot(e1, n) * n
+    if np.linalg.norm(e1) < 1e-9:  # edge direction along the normal: pick any in-plane axis
+        e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 = e1 / np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    w, h = (float(s) for s in np.asarray(reflector.size_mm, dtype=float))
+    return Face("reflector", np.asarray(reflector.point_mm, dtype=float), e1, e2, n,
+                (-w / 2.0, w / 2.0), (-h / 2.0, h / 2.0))
+
+
+def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceHit | None:
+    """Intersect the beam ray with a face's plane; None if parallel or behind the transducer."""
+    d = np.asarray(direction, dtype=float)
+    cos_n = float(np.dot(d, face.normal))
+    if abs(cos_n) < _MIN_COS:
+        return None
+    rel = face.origin_mm - np.asarray(origin_mm, dtype=float)
+    t = float(np.dot(rel, face.normal)) / cos_n
+    if t <= 0.0:
+        return None
+    p = origin_mm + t * d
+    q = p - face.origin_mm
+    u, v = float(np.dot(q, face.e1)), float(np.dot(q, face.e2))
+    edges = np.array([u - face.u_range_mm[0], face.u_range_mm[1] - u,
+                      v - face.v_range_mm[0], face.v_range_mm[1] - v])
+    # tilt between beam and −n, via atan2 (accurate near 0)
+    sin_t = float(np.linalg.norm(np.cross(d, face.normal)))
+    tilt = float(np.degrees(np.arctan2(sin_t, -cos_n)))
+    return FaceHit(face, t, p, np.array([u, v]), tilt, edges, facing=cos_n < 0.0)

@@ -1,0 +1,157 @@
+"""Serve the simulated cell on 127.0.0.1: the simulated controller and pulser, one truth.
+
+The controller (ROS-Industrial Simple Message, ``drivers.controller.simulator``) moves the
+simulated robot; the pulser (Modbus, ``drivers.pulser.simulator``) answers every acquisition
+with ``SimulatedCell.echo`` at the controller's joint readings of that instant, so a reading
+taken while the robot moves sees the robot where it is. Both listen on free ports.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any, Self
+
+import numpy as np
+
+from drivers.pulser.base import PulserSettings
+from ucal.cell import CellProfile, WorldTruth
+from ucal.kinematics.rotations import matrix_to_pose
+from ucal.sim.cell import SimulatedCell
+from ucal.sim.demo import demo_world
+
+log = logging.getLogger(__name__)
+
+HOST = "127.0.0.1"
+
+
+class SimulatedCellServer:
+    """The simulated controller and pulser of one world, served on 127.0.0.1 (context manager).
+
+    ``world`` None means the demo truth of ``profile``. ``log_path`` receives one JSON line per
+    executed motion; ``time_scale`` multiplies every motion's duration (0 = instantaneous);
+    ``pulser_framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU over a TCP socket).
+    """
+
+    def __init__(self, world: WorldTruth | None, profile: CellProfile,
+                 log_path: str | Path | None = None, time_scale: float = 1.0,
+                 pulser_framing: str = "tcp", host: str = HOST):
+        if pulser_framing not in ("tcp", "rtu"):
+            raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
+        self.profile = profile
+        self.world = world if world is not None else demo_world(profile)
+        # the simulated pulser applies its own gate and threshold (holding registers)
+        self.cell = SimulatedCell(self.world, threshold=0.0)
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.time_scale = float(time_scale)
+        self.pulser_framing = pulser_framing
+        self.host = host
+        self.controller: Any = None
+        self.pulser: Any = None
+        self._log_file: IO[str] | None = None
+        self._log_lock = threading.Lock()
+        self._motions = 0
+
+    # --- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> Self:
+        """Start both simulators (idempotent); returns self."""
+        if self.controller is not None:
+            return self
+        from drivers.controller.simulator import SimulatedController
+        from drivers.pulser.simulator import SimulatedPulser
+
+        if self.log_path is not None:
+            # open for the server's lifetime, closed by stop()
+            self._log_file = open(self.log_path, "a", encoding="utf-8")  # noqa: SIM115
+        model = self.world.model
+        try:
+            self.controller = SimulatedController(
+                np.asarray(model.joint_min_deg, float), np.asarray(model.joint_max_deg, float),
+                np.asarray(self.world.initial_joints_deg, float), self.host,
+                motion_port=0, state_port=0, time_scale=self.time_scale,
+                on_motion=self._on_motion)
+            self.controller.start()
+            self.pulser = SimulatedPulser(self._acquire, framing=self.pulser_framing,
+                                          host=self.host, port=0, unit=1,
+                                          center_frequency_hz=self.world.frequency_mhz * 1e6)
+            self.pulser.start()
+        except BaseException:
+            self.stop()
+            raise
+        log.info("simulated cell: controller %s, pulser %s", self.controller.url, self.pulser.url)
+        return self
+
+    def stop(self) -> None:
+        """Stop both simulators and close the motion log. Idempotent."""
+        for name in ("pulser", "controller"):
+            dev = getattr(self, name)
+            if dev is not None:
+                try:
+                    dev.stop()
+                except Exception:  # stopping one device must not hide the other
+                    log.exception("stopping the simulated %s failed", name)
+                setattr(self, name, None)
+        if self._log_file is not None:
+            with self._log_lock:
+                self._log_file.close()
+                self._log_file = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def urls(self) -> dict[str, str]:
+        """``{"controller": URL, "pulser": URL}`` of the running simulators."""
+        if self.controller is None or self.pulser is None:
+            raise RuntimeError("the simulated cell is not running")
+        return {"controller": self.controller.url, "pulser": self.pulser.url}
+
+    @property
+    def motions(self) -> int:
+        """Number of motions the controller reported as executed."""
+        return self._motions
+
+    # --- callbacks (server threads) -----------------------------------------------------------
+    def _acquire(self, settings: PulserSettings) -> tuple[float, float]:
+        """Pulser model: the raw echo at the controller's joint readings of this instant."""
+        joints = self.controller.joints_deg()
+        return self.cell.echo(joints, averages=settings.averages, gain_db=settings.gain_db)
+
+    def _on_motion(self, record: dict) -> None:
+        """Controller callback at the end of each executed move: write one JSON line.
+
+        The controller's record (``seq``, ``t_start``, ``start_deg``, ``target_deg``,
+        ``end_deg``, ``duration_s``, ``stopped``) plus the wall-clock time ``t_wall_s``, the
+        move's number ``motion`` and the true TCP pose ``true_tcp_pose`` (X, Y, Z, RX, RY, RZ;
+        mm, deg) at ``end_deg``.
+        """
+        with self._log_lock:
+            self._motions += 1
+            number = self._motions
+        if self._log_file is None:
+            return
+        line_record: dict[str, Any] = {"motion": number, "t_wall_s": time.time(), **record}
+        try:
+            end = np.asarray(record["end_deg"], float)
+            line_record["true_tcp_pose"] = matrix_to_pose(self.cell.true_tcp(end))
+        except Exception:  # the log must never break the controller thread
+            log.debug("motion log: no end position in %r", record, exc_info=True)
+        line = json.dumps(line_record, default=_jsonable)
+        with self._log_lock:
+            if self._log_file is not None:
+                self._log_file.write(line + "\n")
+                self._log_file.flush()
+
+
+def _jsonable(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    return repr(o)

@@ -1,0 +1,151 @@
+"""World files: the truth the simulator is told (SPEC.md, "World file").
+
+Every key is optional. A missing key means "as the profile says" (nominal = true), zero joint
+offsets, zero noise. Values use the profile's units (mm, deg, °C, MHz) and the same validators,
+so an error names the world file and the dotted key. Extra keys beyond SPEC.md:
+
+* ``[robot] initial_joints_deg`` — joint readings (deg) the simulated robot starts at;
+* ``[sample] face_size_mm`` — edge length of the block faces (mm);
+* ``[reflector] size_mm = [w, h]`` and ``edge_direction = [x, y, z]`` — extent of the plate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ucal.cell import CellProfile, Noise, Reflector, WorldTruth
+from ucal.profile import read_robot, read_transducer, read_water
+from ucal.validation import Reader, read_toml, unknown_keys
+
+#: Keys a world file may hold (others are reported by :func:`world_warnings`).
+KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
+    "": frozenset(),
+    "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "joint_offsets_deg",
+                        "initial_joints_deg"}),
+    "tool": frozenset({"position_mm", "rotation_deg"}),
+    "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
+    "reflector": frozenset({"point_mm", "normal", "size_mm", "edge_direction"}),
+    "water": frozenset({"temperature_c"}),
+    "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
+    "noise": frozenset({"tof_ns", "amplitude", "seed"}),
+}
+
+
+def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
+    """The simulator's truth: the world file at ``path`` over ``WorldTruth.nominal(profile)``.
+
+    ``path=None`` gives the nominal world (no hidden error, no noise). Raises
+    :class:`ucal.errors.ProfileError` (exit 2) naming the world file and the key.
+    """
+    world = WorldTruth.nominal(profile)
+    if path is None:
+        return world
+    p = Path(path)
+    return world_from_data(read_toml(p), p, profile)
+
+
+def world_warnings(path: str | Path) -> list[str]:
+    """Keys of a world file that the simulator does not know (usually typos)."""
+    data = read_toml(path).unwrap()
+    return [f"unknown key {k} (ignored)" for k in unknown_keys(data, KNOWN_WORLD_KEYS)]
+
+
+def world_from_data(data: Mapping[str, Any], path: str | Path,
+                    profile: CellProfile) -> WorldTruth:
+    """Validate parsed world data (tomlkit document or dict) over the profile's nominal world."""
+    if hasattr(data, "unwrap"):
+        data = data.unwrap()
+    r = Reader(path, data)
+    world = WorldTruth.nominal(profile)
+    changes: dict[str, Any] = {}
+
+    robot = r.table("robot")
+    if robot is not None:
+        if "model" in robot or "dh" in robot:
+            changes["model"] = read_robot(r, robot, "robot", ranges_from=profile.model)
+        elif "joint_min_deg" in robot or "joint_max_deg" in robot:
+            raise r.error("robot.joint_min_deg", "joint ranges need a model or dh table here "
+                                                 "(they are taken from the profile otherwise)")
+        model = changes.get("model", world.model)
+        v = r.get(robot, "robot.joint_offsets_deg")
+        if v is not None:
+            changes["joint_offsets_deg"] = r.joint_offsets("robot.joint_offsets_deg", v)
+        v = r.get(robot, "robot.initial_joints_deg")
+        if v is not None:
+            changes["initial_joints_deg"] = r.joints_within(
+                "robot.initial_joints_deg", v, model.joint_min_deg, model.joint_max_deg)
+
+    tool = r.table("tool")
+    _vector(r, tool, "tool", "position_mm", 3, "mm", changes, "tool_position_mm")
+    _vector(r, tool, "tool", "rotation_deg", 3, "deg", changes, "tool_rotation_deg")
+
+    sample = r.table("sample")
+    _vector(r, sample, "sample", "position_mm", 3, "mm", changes, "sample_position_mm")
+    _vector(r, sample, "sample", "rotation_deg", 3, "deg", changes, "sample_rotation_deg")
+    v = r.get(sample, "sample.face_size_mm")
+    if v is not None:
+        changes["sample_face_size_mm"] = r.number("sample.face_size_mm", v, lo=0.0,
+                                                  lo_open=True, unit="mm")
+
+    reflector = r.table("reflector")
+    if reflector is not None:
+        changes["reflector"] = _reflector(r, reflector, world.reflector)
+
+    water_c = read_water(r, r.table("water"), "water", required=False)
+    if water_c is not None:
+        changes["water_temperature_c"] = water_c
+    freq, diam = read_transducer(r, r.table("transducer"), "transducer", required=False)
+    if freq is not None:
+        changes["frequency_mhz"] = freq
+    if diam is not None:
+        changes["element_diameter_mm"] = diam
+
+    noise = r.table("noise")
+    if noise is not None:
+        d = Noise()
+        tof = r.get(noise, "noise.tof_ns")
+        amp = r.get(noise, "noise.amplitude")
+        seed = r.get(noise, "noise.seed")
+        changes["noise"] = Noise(
+            tof_ns=d.tof_ns if tof is None else r.number("noise.tof_ns", tof, lo=0.0,
+                                                         hi=1000.0, unit="ns"),
+            amplitude=d.amplitude if amp is None else r.number("noise.amplitude", amp,
+                                                               lo=0.0, hi=10.0),
+            seed=d.seed if seed is None else r.integer("noise.seed", seed, lo=0,
+                                                       hi=2**63 - 1))
+    return world.replace(**changes)
+
+
+def _vector(r: Reader, table: Mapping[str, Any] | None, tname: str, key: str, n: int,
+            unit: str, changes: dict[str, Any], field_name: str) -> None:
+    v = r.get(table, f"{tname}.{key}")
+    if v is not None:
+        changes[field_name] = r.vector(f"{tname}.{key}", v, n, unit=unit)
+
+
+def _reflector(r: Reader, table: Mapping[str, Any], nominal: Reflector | None) -> Reflector:
+    """``[reflector]``: point_mm (mm), normal (unit vector, towards the water side), optional
+    size_mm = [w, h] (mm, > 0) and edge_direction (not parallel to the normal)."""
+    required = nominal is None  # no plate in the profile: the world must define one
+    point_raw = r.get(table, "reflector.point_mm", required)
+    normal_raw = r.get(table, "reflector.normal", required)
+    point = (nominal.point_mm if point_raw is None else
+             r.vector("reflector.point_mm", point_raw, 3, unit="mm"))
+    normal = (nominal.normal if normal_raw is None else
+              r.direction("reflector.normal", normal_raw))
+    base = nominal if nominal is not None else Reflector(point_mm=point, normal=normal)
+    size_raw = r.get(table, "reflector.size_mm")
+    size = (base.size_mm if size_raw is None else
+            r.vector("reflector.size_mm", size_raw, 2, lo=0.0, lo_open=True, unit="mm"))
+    edge_raw = r.get(table, "reflector.edge_direction")
+    edge = base.edge_direction if edge_raw is None else r.direction("reflector.edge_direction",
+                                                                    edge_raw)
+    if np.linalg.norm(np.cross(edge, normal)) < 1e-6:
+        key = "reflector.edge_direction" if edge_raw is not None else "reflector.normal"
+        raise r.error(key, "edge_direction must not be parallel to the normal")
+    return Reflector(point_mm=np.asarray(point, float), normal=np.asarray(normal, float),
+                     size_mm=np.asarray(size, float), edge_direction=np.asarray(edge, float))
