@@ -19,6 +19,12 @@ cannot see. Joints that carry weight in such a direction, or whose standard devi
 solved again without them. Example: with the beam on the joint-6 axis, θ6 never changes the
 beam direction nor the distance, so its column of J is zero.
 
+Beam direction: the tool's beam direction in the flange frame, a_T, can be fitted too (two
+more unknowns: a tilt of the nominal beam). Its tilt magnitude is seen by the data; its azimuth
+about the joint-6 axis trades off with θ6. So ``beam="auto"`` fits it when the nominal beam lies
+on the joint-6 axis (θ6 is unobservable anyway, and an unmodelled tool tilt would bias θ4, θ5)
+and keeps it fixed for a deliberately angled tool (which makes θ6 observable).
+
 Uncertainty: Cov = (JᵀJ)⁻¹ of the weighted problem (the weights come from the measured TOF and
 posture repeatability), scaled by the reduced χ² when that exceeds one.
 """
@@ -61,11 +67,23 @@ def _initial_corner(geom: CellGeometry, meas: list[FaceMeasurement],
     return geom.block_rotation @ coord
 
 
+def tilted_beam(geom: CellGeometry, tilt_rad: np.ndarray | None) -> np.ndarray:
+    """Nominal beam (flange frame) tilted by two small components (rad) across it."""
+    a = geom.beam_flange
+    if tilt_rad is None:
+        return a
+    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    v = a + tilt_rad[0] * e1 + tilt_rad[1] * e2
+    return v / np.linalg.norm(v)
+
+
 def residuals(geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.ndarray,
-              corner_mm: np.ndarray) -> np.ndarray:
+              corner_mm: np.ndarray, beam_flange: np.ndarray | None = None) -> np.ndarray:
     """Weighted residual vector (3 per measurement)."""
     q = np.array([m.joints_deg for m in meas])
-    beam, _ = beam_and_tcp(geom, q, offsets_deg)
+    beam, _ = beam_and_tcp(geom, q, offsets_deg, beam_flange)
     _, tcp = beam_and_tcp(geom, np.array([distance_joints(m) for m in meas]), offsets_deg)
     out = np.empty((len(meas), 3))
     for i, m in enumerate(meas):
@@ -75,21 +93,34 @@ def residuals(geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.n
     return out.ravel()
 
 
+def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:
+    """True if the nominal beam lies within ``tol_deg`` of the joint-6 axis (flange z)."""
+    return bool(np.degrees(np.arccos(np.clip(geom.beam_flange[2], -1, 1))) < tol_deg)
+
+
 def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_deg: np.ndarray,
-                rank_tol: float = 1e-6, max_std_deg: float = 0.5) -> OffsetSolution:
-    """Joint offsets from face measurements by nonlinear least squares (see module docstring)."""
+                rank_tol: float = 1e-6, max_std_deg: float = 0.5, beam: str = "auto"
+                ) -> OffsetSolution:
+    """Joint offsets from face measurements by nonlinear least squares (see module docstring).
+
+    ``beam``: "fixed" (the profile's tool), "fit" (fit the beam direction too) or "auto".
+    """
     prior = np.asarray(prior_offsets_deg, float)
+    fit_beam = beam == "fit" or (beam == "auto" and beam_on_axis(geom))
     free = list(range(6))
     while True:
-        x, jac, res = _fit(geom, meas, prior, free)
+        x, jac, res = _fit(geom, meas, prior, free, fit_beam)
         js = jac / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
         _, s, vt = np.linalg.svd(js, full_matrices=False)
         weak = set()
         for sv, v in zip(s, vt):
             if sv < rank_tol * s[0]:
-                for i, j in enumerate(free):
-                    if abs(v[i]) > 0.2:
-                        weak.add(j)
+                # One joint per null direction: the one it moves most. Several joints can share a
+                # direction (e.g. θ5, θ6 and the beam azimuth); fixing the main one may free the rest.
+                i = int(np.argmax(np.abs(v[: len(free)])))
+                if abs(v[i]) > 0.2:
+                    weak.add(free[i])
+                break
         cov, scale = _covariance(jac, res)
         std_free = np.sqrt(np.clip(np.diag(cov)[: len(free)], 0, None)) * scale
         if not weak:
@@ -106,7 +137,8 @@ def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
         offsets[j] = x[i]
         std[j] = std_free[i]
     corner = x[len(free):len(free) + 3]
-    r = residuals(geom, meas, offsets, corner).reshape(-1, 3)
+    beam_vec = tilted_beam(geom, x[len(free) + 3:] if fit_beam else None)
+    r = residuals(geom, meas, offsets, corner, beam_vec).reshape(-1, 3)
     tilt_rms = float(np.sqrt(np.mean([(r[i, :2] * np.radians(m.tilt_std_deg)) ** 2
                                       for i, m in enumerate(meas)])))
     dist_rms = float(np.sqrt(np.mean([(r[i, 2] * m.distance_std_mm) ** 2
@@ -117,24 +149,25 @@ def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
         method="exact", corner_mm=corner, rms_tilt_deg=float(np.degrees(tilt_rms)),
         rms_distance_mm=dist_rms,
-        extra={"chi2_reduced": float(res @ res / max(1, len(res) - len(x)))})
+        extra={"chi2_reduced": float(res @ res / max(1, len(res) - len(x))),
+               "beam_flange": beam_vec, "beam_fitted": fit_beam})
 
 
 def _fit(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
-         free: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        off = prior.copy()
-        off[free] = x[: len(free)]
-        return off, x[len(free):]
+         free: list[int], fit_beam: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = len(free)
 
     def fun(x: np.ndarray) -> np.ndarray:
-        off, c = unpack(x)
-        return residuals(geom, meas, off, c)
+        off = prior.copy()
+        off[free] = x[:n]
+        beam_vec = tilted_beam(geom, x[n + 3:n + 5]) if fit_beam else None
+        return residuals(geom, meas, off, x[n:n + 3], beam_vec)
 
-    x0 = np.concatenate([prior[free], _initial_corner(geom, meas, prior)])
+    x0 = np.concatenate([prior[free], _initial_corner(geom, meas, prior),
+                         np.zeros(2) if fit_beam else np.zeros(0)])
+    scale = np.concatenate([np.full(n, 1.0), np.full(3, 10.0), np.full(2 if fit_beam else 0, 0.01)])
     sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                        x_scale=np.concatenate([np.full(len(free), 1.0), np.full(3, 10.0)]),
-                        max_nfev=2000)
+                        x_scale=scale, max_nfev=4000)
     jac = _jacobian(fun, sol.x)
     return sol.x, jac, fun(sol.x)
 

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.calibration.exact import OffsetSolution, residuals, solve_exact
+from ucal.calibration.exact import OffsetSolution, beam_on_axis, residuals, solve_exact
 from ucal.calibration.model import (FACE_NAMES, CellGeometry, FaceMeasurement, beam_and_tcp,
                                     face_basis)
 from ucal.calibration.paper import solve_paper
@@ -65,11 +65,9 @@ class CalibrationPlan:
 
 @dataclass
 class CalibrationRun:
-    """What a run measured and concluded."""
+    """What a run measured."""
 
     measurements: list[FaceMeasurement]
-    exact: OffsetSolution
-    paper: OffsetSolution | None
     moves: int
     reads: int
     notes: list[str] = field(default_factory=list)
@@ -114,6 +112,7 @@ def config_arm(pose_deg: np.ndarray, config: str, step_deg: float) -> np.ndarray
 
 
 CONFIGS = ("base", "j3", "j2")
+THETA6_SHIFT_DEG = {"base": 0.0, "j3": 90.0, "j2": -90.0}
 
 
 def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
@@ -146,8 +145,16 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         raise SafetyError(f"the calibration pose {np.round(pose, 2).tolist()} is outside the "
                           "joint ranges")
     targets = []
+    on_axis = beam_on_axis(geom)
     for config in CONFIGS:
         arm = config_arm(pose, config, proc.step_deg)
+        if on_axis:
+            # θ6 does not aim an on-axis beam; turning it between configurations separates a
+            # joint-5 offset from a tilt of the beam in the flange (see ucal.calibration.exact).
+            shift = THETA6_SHIFT_DEG[config]
+            if not model.joint_min_deg[5] + 10 <= arm[5] + shift <= model.joint_max_deg[5] - 10:
+                shift = -shift
+            arm[5] += shift
         for face in FACE_ORDER:
             label = f"{config}/{FACE_NAMES[face]}"
             q = aim_wrist(geom, arm, -geom.normal(face), offsets)
@@ -232,6 +239,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         arm = config_arm(plan.pose_deg, target.config, plan.step_deg)
         start = arm.copy()
         start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
+        start[5] = target.joints_deg[5]
         q_pred = aim_wrist(geom, start, -geom.normal(target.face), est)
         js, tilt_map = search_joints(geom, q_pred, est, face_basis(geom, target.face))
         search = PeakSearch(rig, ka, js, tilt_map, temp)
@@ -268,12 +276,22 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         est, corner = _estimate(geom, meas, prior, corner)
     # Leave the robot at the calibration pose's XY posture.
     rig.move(plan.targets[0].joints_deg)
-    exact = solve_exact(geom, meas, prior)
+    if progress:
+        progress("done", total, total)
+    return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
+
+
+def solve(profile: CellProfile, run: CalibrationRun, beam: str = "auto"
+          ) -> tuple[OffsetSolution, OffsetSolution | None]:
+    """Both solutions from one run's measurements: exact, and paper 000's (None if it cannot
+    be applied, e.g. a DH table of another structure)."""
+    geom = geometry(profile)
+    prior = np.asarray(profile.joint_offsets_deg, float)
+    exact = solve_exact(geom, run.measurements, prior, beam=beam)
     try:
-        paper = solve_paper(geom, meas, prior, exact.unobservable_joints, exact.condition_number)
+        paper = solve_paper(geom, run.measurements, prior, exact.unobservable_joints,
+                            exact.condition_number)
     except Exception as e:  # noqa: BLE001 — the paper method is a comparison, never fatal
         log.warning("paper method failed: %s", e)
         paper = None
-    if progress:
-        progress("done", total, total)
-    return CalibrationRun(meas, exact, paper, rig.counters.moves, rig.counters.reads)
+    return exact, paper

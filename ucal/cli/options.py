@@ -48,3 +48,22 @@ def _to_jsonable(o: Any) -> Any:
     if isinstance(o, np.generic):
         return o.item()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def confirm_motion(yes: bool, summary: str) -> None:
+    """Ask before the first motion; ``--yes`` skips; no terminal and no ``--yes`` → refuse (exit 2).
+
+    ``summary`` (the plan) goes to stderr so that ``--json`` keeps stdout clean.
+    """
+    import sys
+
+    from ucal.errors import InputError
+
+    click.echo(summary, err=True)
+    if yes:
+        return
+    if not sys.stdin.isatty():
+        raise InputError("refusing to move the robot without confirmation: stdin is not a "
+                         "terminal; pass --yes")
+    if not click.confirm("Move the robot now?", default=False, err=True):
+        raise click.exceptions.Abort()

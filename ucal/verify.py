@@ -1,0 +1,620 @@
+"""Positioning error before and after calibration (paper 000, §5.2): plan, measure, statistics.
+
+**Nominal points.** ``n`` points on a grid (e.g. 5 × 4 for 20) spread uniformly over the plane
+parallel to the block's XY face, ``height_mm`` (30 mm, as in the paper) above it, the tool
+pointing straight down onto the face (tool z = −block z, the orientation of the calibration
+pose). The grid stays inside the XY face with ``EDGE_MARGIN_MM`` and where the wrist centre W
+is ``WALL_PATH_MM`` (50–150 mm of water path) from the two walls (the YZ and XZ faces), so that
+each wall can be measured from every point. Coordinates are block coordinates (mm): origin at
+the block corner of the profile, axes along the block's edges.
+
+**Two passes.** *before*: every point is commanded with joint readings from IK *without* the
+profile's ``[calibration]`` offsets (the uncalibrated robot); *after*: with them
+(``ik(..., offsets_deg=profile offsets)``, readings = kinematic angle − offset).
+
+**What is measured, and how.** At each commanded point the arm (joints 1–3) stays still and the
+wrist turns the beam onto each of the three faces in turn; the wrist turns the beam about W
+without moving W (arm–wrist separation, paper 000 §4.2). For each face the peak-amplitude
+(normal-incidence) posture is searched (``PeakSearch``: a main-lobe cross from a prediction,
+a raster acquisition if the prediction misses, then the directivity fit) and the water path
+``d_k`` is read by time of flight. At normal incidence (``ucal.calibration.model``, eq. 2)
+
+    d_k = n_k·(W − c) − a_T·v        (v: W → TCP in the flange frame, a_T: beam in that frame)
+
+so the three distances give W in block coordinates, ``W_k = d_k + a_T·v``, against the *true*
+block. The three peak postures also fix the true orientation of the flange: they are three
+known wrist postures at which the true beam is −n_k. With the arm still, the true flange
+rotation is ``R(q) = Exp(ω)·R06(q, δ + (0, 0, 0, 0, ε5, ε6))`` for an unknown small rotation ω
+(it absorbs the arm offsets and joint 4) and wrist residuals ε5, ε6: five unknowns, six
+equations (joint 6 is held at its prior where the beam lies on the joint-6 axis: it then moves
+neither beam nor TCP). The **reached tool centre** is the TCP of the *commanded* posture,
+``TCP = W + R(q_cmd)·v``: the point the robot really reached, in block coordinates. Its
+deviation from the nominal point, per block axis X, Y, Z, is what the statistics describe.
+
+Because W is measured against the true block while the nominal points are placed from the
+profile's block corner, an error in the block's position shows as a *common bias* in both
+passes (a tool-frame error does too); calibration removes the joint-offset part only.
+
+**Predictions.** Every face measurement enters a running regularised fit of the joint offsets
+and the block corner (as in the calibration sequence), so the posture correction found at one
+point predicts the next: only the first faces of a run need a wide search.
+
+**Statistics** (paper 000, Table 5): per axis, the mean, maximum and standard deviation
+(population, ddof = 0) of the absolute deviations; the signed mean and standard deviation are
+given as well (the bias and the scatter).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from ucal.calibration.exact import residuals
+from ucal.calibration.model import (FACE_NAMES, CellGeometry, FaceMeasurement, face_basis)
+from ucal.calibration.search import PeakSearch, Rig, ka_of, read_distance
+from ucal.calibration.sequence import calibration_pose, geometry
+from ucal.calibration.wrist import aim_wrist, search_joints
+from ucal.cell import CellProfile
+from ucal.errors import HardwareError, SafetyError, UnreachableError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik
+
+log = logging.getLogger(__name__)
+
+#: Paper 000, §5.2: the plane of the nominal points is 30 mm from the block's XY face.
+VERIFY_HEIGHT_MM = 30.0
+#: Paper 000, §5.2: twenty nominal points.
+DEFAULT_POINTS = 20
+#: Water path from the TCP to each wall (YZ, XZ face) when the wrist points at it (mm):
+#: short enough for a strong echo at 25 MHz (−0.27 dB per mm), long enough for clearance.
+WALL_PATH_MM = (50.0, 150.0)
+#: Closest the TCP may come to a face while the wrist turns about W (mm).
+MIN_CLEARANCE_MM = 20.0
+#: Distance kept between a beam's hit point and a face's edges (mm).
+EDGE_MARGIN_MM = 20.0
+#: Room kept inside the wrist joints' ranges for the peak search (deg).
+SEARCH_MARGIN_DEG = 8.0
+#: Faces in the order they are measured at each point: XY (beam straight down), YZ, XZ.
+FACE_ORDER = (2, 0, 1)
+PASSES = ("before", "after")
+
+
+# ---------------------------------------------------------------------------------------------
+# geometry
+
+
+def tool_lever(profile: CellProfile) -> tuple[np.ndarray, float]:
+    """The vector v from the wrist centre W to the TCP in the flange frame (mm) and a_T·v (mm).
+
+    Constant for a spherical wrist; computed from the model at the zero pose.
+    """
+    frames = fk_frames(profile.model, np.zeros(6))
+    flange = frames[6]
+    w = frames[4, :3, 3]
+    tcp = (flange @ profile.tool_matrix)[:3, 3]
+    v = flange[:3, :3].T @ (tcp - w)
+    return v, float(profile.tool_matrix[:3, 2] @ v)
+
+
+def down_rotation_local() -> np.ndarray:
+    """Tool orientation of the nominal points in block coordinates: tool z = −block z."""
+    return np.diag([-1.0, 1.0, -1.0])
+
+
+def grid_shape(n: int) -> tuple[int, int]:
+    """Columns (along block X) and rows (along block Y) of an ``n``-point grid, most square
+    first, more columns than rows (20 → 5 × 4, 4 → 2 × 2, 6 → 3 × 2, 7 → 7 × 1)."""
+    if n < 1:
+        raise ValueError(f"the number of points must be at least 1, got {n}")
+    rows = max(r for r in range(1, math.isqrt(n) + 1) if n % r == 0)
+    return n // rows, rows
+
+
+def verify_region(profile: CellProfile, height_mm: float = VERIFY_HEIGHT_MM
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corner (block X, Y of the TCP, mm) of the area the grid spans.
+
+    The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``WALL_PATH_MM`` of
+    water path (plus the lever a_T·v) from the YZ and XZ faces.
+    """
+    v, lever = tool_lever(profile)
+    r_flange = down_rotation_local() @ profile.tool_matrix[:3, :3].T
+    w_from_tcp = -(r_flange @ v)                 # W − TCP in block coordinates
+    size = profile.sample_face_size_mm
+    lo = np.maximum(EDGE_MARGIN_MM, WALL_PATH_MM[0] + lever - w_from_tcp[:2])
+    hi = np.minimum(size - EDGE_MARGIN_MM, WALL_PATH_MM[1] + lever - w_from_tcp[:2])
+    if np.any(hi <= lo):
+        raise SafetyError(f"no room for verification points on the XY face of the block "
+                          f"({size:g} mm faces, tool lever {lever:.1f} mm, walls "
+                          f"{WALL_PATH_MM[0]:g}–{WALL_PATH_MM[1]:g} mm away)")
+    return lo, hi
+
+
+def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGHT_MM
+                   ) -> np.ndarray:
+    """Nominal TCP positions (n, 3) in block coordinates (mm): a grid (``grid_shape``) over
+    ``verify_region`` at ``height_mm`` above the XY face, in serpentine order (short moves)."""
+    nx, ny = grid_shape(n)
+    lo, hi = verify_region(profile, height_mm)
+    xs = np.linspace(lo[0], hi[0], nx) if nx > 1 else np.array([0.5 * (lo[0] + hi[0])])
+    ys = np.linspace(lo[1], hi[1], ny) if ny > 1 else np.array([0.5 * (lo[1] + hi[1])])
+    pts = []
+    for j, y in enumerate(ys):
+        row = xs if j % 2 == 0 else xs[::-1]
+        pts.extend([x, y, height_mm] for x in row)
+    return np.array(pts, float)
+
+
+def target_matrix(profile: CellProfile, point_local_mm: np.ndarray) -> np.ndarray:
+    """Tool pose (4, 4, base frame) of a nominal point given in block coordinates (mm)."""
+    s_mat = profile.sample_matrix
+    t = np.eye(4)
+    t[:3, :3] = s_mat[:3, :3] @ down_rotation_local()
+    t[:3, 3] = s_mat[:3, :3] @ np.asarray(point_local_mm, float) + s_mat[:3, 3]
+    return t
+
+
+# ---------------------------------------------------------------------------------------------
+# plan
+
+
+@dataclass(frozen=True)
+class VerifyTarget:
+    """One commanded point of one pass, with the planned face postures."""
+
+    pass_name: str                 # "before" or "after"
+    index: int                     # 0-based point number
+    joints_deg: np.ndarray         # (6,) commanded readings (TCP on the nominal point)
+    face_joints_deg: np.ndarray    # (3, 6) planned normal-incidence postures, by face 0, 1, 2
+
+    @property
+    def label(self) -> str:
+        return f"{self.pass_name} {self.index + 1}"
+
+
+@dataclass(frozen=True)
+class VerifyPlan:
+    """Nominal points and the commanded postures of both passes."""
+
+    nominal_mm: np.ndarray                     # (n, 3) block coordinates
+    height_mm: float
+    offsets_deg: dict[str, np.ndarray]         # offsets the IK of each pass used
+    targets: tuple[VerifyTarget, ...]          # all "before" targets, then all "after"
+
+    @property
+    def points(self) -> int:
+        return len(self.nominal_mm)
+
+
+def _check_joints(profile: CellProfile, q: np.ndarray, label: str) -> None:
+    model = profile.model
+    lo = model.joint_min_deg.copy()
+    hi = model.joint_max_deg.copy()
+    lo[3:] += SEARCH_MARGIN_DEG
+    hi[3:] -= SEARCH_MARGIN_DEG
+    bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
+    if bad:
+        raise SafetyError(f"plan {label}: joint(s) {bad} at "
+                          f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
+                          f"range (keeping {SEARCH_MARGIN_DEG:g} deg for the wrist search)")
+    margin = profile.procedure.singularity_margin_deg
+    theta5 = q[4] + model.theta_offset_deg[4]
+    if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
+        raise SafetyError(f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:g} deg "
+                          "of the wrist singularity")
+
+
+def _check_face(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
+                offsets: np.ndarray, label: str) -> None:
+    """The beam meets ``face`` inside its edges at a positive water path, TCP clear of it."""
+    frames = fk_frames(geom.model, q, offsets)
+    flange = frames[6]
+    beam = flange[:3, :3] @ geom.beam_flange
+    tcp = flange[:3, :3] @ geom.tool_matrix[:3, 3] + flange[:3, 3]
+    s_mat = profile.sample_matrix
+    local_tcp = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+    path = float(local_tcp[face])
+    if path < MIN_CLEARANCE_MM:
+        raise SafetyError(f"plan {label}/{FACE_NAMES[face]}: the tool centre would be "
+                          f"{path:.1f} mm from face {FACE_NAMES[face]} (minimum "
+                          f"{MIN_CLEARANCE_MM:g} mm)")
+    hit = local_tcp + path * (s_mat[:3, :3].T @ beam)
+    size = profile.sample_face_size_mm
+    edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != face)
+    if edge < EDGE_MARGIN_MM:
+        raise SafetyError(f"plan {label}/{FACE_NAMES[face]}: the beam would meet face "
+                          f"{FACE_NAMES[face]} {edge:.1f} mm from its edge (minimum "
+                          f"{EDGE_MARGIN_MM:g} mm)")
+
+
+def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
+                height_mm: float = VERIFY_HEIGHT_MM) -> VerifyPlan:
+    """Plan and check every posture of both passes before the first motion.
+
+    Checks (``SafetyError``, exit 4): IK reaches each point inside the joint ranges; every
+    commanded and planned face posture keeps ``SEARCH_MARGIN_DEG`` inside the wrist ranges and
+    the θ5 singularity margin of the profile; each beam meets its face inside the edges; the
+    wrist centre is far enough from each face that the TCP, turning about W, stays
+    ``MIN_CLEARANCE_MM`` away from it.
+    """
+    geom = geometry(profile)
+    nominal = nominal_points(profile, n_points, height_mm)
+    v, _ = tool_lever(profile)
+    reach = float(np.linalg.norm(v))
+    offsets = {"before": np.zeros(6), "after": np.array(profile.joint_offsets_deg, float)}
+    near = calibration_pose(profile)
+    s_mat = profile.sample_matrix
+    targets: list[VerifyTarget] = []
+    for pass_name in PASSES:
+        off = offsets[pass_name]
+        prev = near
+        for i, p in enumerate(nominal):
+            label = f"{pass_name} point {i + 1}"
+            try:
+                q = ik(profile.model, target_matrix(profile, p), profile.tool_matrix, off,
+                       near_deg=prev)
+            except UnreachableError as e:
+                raise SafetyError(f"plan {label}: {e}") from None
+            _check_joints(profile, q, label)
+            w = fk_frames(profile.model, q, off)[4, :3, 3]
+            w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
+            if np.min(w_local) - reach < MIN_CLEARANCE_MM:
+                raise SafetyError(f"plan {label}: the wrist centre would be "
+                                  f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
+                                  f"mm from it) needs {MIN_CLEARANCE_MM:g} mm more")
+            faces = np.empty((3, 6))
+            for k in FACE_ORDER:
+                qf = aim_wrist(geom, q, -geom.normal(k), off)
+                _check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
+                _check_face(profile, geom, qf, k, off, label)
+                faces[k] = qf
+            targets.append(VerifyTarget(pass_name, i, q, faces))
+            prev = q
+    return VerifyPlan(nominal, float(height_mm), offsets, tuple(targets))
+
+
+# ---------------------------------------------------------------------------------------------
+# reconstruction (pure functions)
+
+
+def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:
+    """W in block coordinates (mm) from the normal-incidence water paths to faces 0, 1, 2.
+
+    ``d_k = n_k·(W − c) − a_T·v`` (``ucal.calibration.model``, eq. 2) → ``W_k = d_k + a_T·v``.
+    """
+    return np.asarray(distances_mm, float) + float(lever_mm)
+
+
+@dataclass(frozen=True)
+class WristOrientation:
+    """True flange orientation at a fixed arm: ``R(q) = Exp(ω)·R06(q, offsets_deg)``."""
+
+    correction: np.ndarray        # (3, 3) Exp(ω), base frame
+    offsets_deg: np.ndarray       # (6,) model offsets incl. the fitted wrist residuals
+    rms_deg: float                # residual beam misfit (deg)
+
+    def rotation(self, geom: CellGeometry, joints_deg: np.ndarray) -> np.ndarray:
+        """True flange rotation (3, 3) at readings with this arm."""
+        r06 = fk_frames(geom.model, joints_deg, self.offsets_deg)[6, :3, :3]
+        return self.correction @ r06
+
+
+def estimate_orientation(geom: CellGeometry, peak_joints_deg: np.ndarray,
+                         offsets_deg: np.ndarray) -> WristOrientation:
+    """Fit ω (rad) and the joint-5/6 residuals (deg) to three normal-incidence postures.
+
+    ``peak_joints_deg`` (3, 6): the postures at which the true beam is −n_k, k = 0, 1, 2 (same
+    arm joints). Joint 6 carries a weak prior towards 0: where the beam lies on its axis it
+    moves neither the beam nor the TCP and the data cannot see it.
+    """
+    q = np.asarray(peak_joints_deg, float)
+    base = np.asarray(offsets_deg, float)
+    a_t = geom.beam_flange
+    normals = np.array([geom.normal(k) for k in range(3)])
+
+    def model(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        off = base.copy()
+        off[4:] += x[3:]
+        corr = Rotation.from_rotvec(x[:3]).as_matrix()
+        r06 = fk_frames(geom.model, q, off)[:, 6, :3, :3]
+        return corr, off, (corr @ r06 @ a_t)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        _, _, beams = model(x)
+        return np.concatenate([(beams + normals).ravel(), [1e-3 * np.radians(x[4])]])
+
+    sol = least_squares(fun, np.zeros(5), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                        max_nfev=2000)
+    corr, off, beams = model(sol.x)
+    rms = float(np.degrees(np.sqrt(np.mean(np.sum((beams + normals) ** 2, axis=1)))))
+    return WristOrientation(corr, off, rms)
+
+
+def reached_tcp_local(geom: CellGeometry, w_local_mm: np.ndarray, orientation: WristOrientation,
+                      commanded_deg: np.ndarray, v_flange_mm: np.ndarray) -> np.ndarray:
+    """Reached TCP at the commanded posture in block coordinates (mm): W + R(q_cmd)·v."""
+    r = orientation.rotation(geom, commanded_deg)
+    return np.asarray(w_local_mm, float) + geom.block_rotation.T @ (r @ v_flange_mm)
+
+
+def deviation_stats(deviations_mm: np.ndarray) -> dict[str, list[float]]:
+    """Per-axis statistics (paper 000, Table 5) of deviations (n, 3) mm.
+
+    ``mean``, ``max``, ``std``: of the absolute deviations (std with ddof = 0); ``signed_mean``
+    and ``signed_std``: of the signed deviations (bias and scatter).
+    """
+    d = np.asarray(deviations_mm, float).reshape(-1, 3)
+    a = np.abs(d)
+    return {"mean": a.mean(0).tolist(), "max": a.max(0).tolist(), "std": a.std(0).tolist(),
+            "signed_mean": d.mean(0).tolist(), "signed_std": d.std(0).tolist()}
+
+
+# ---------------------------------------------------------------------------------------------
+# measurement
+
+
+@dataclass(frozen=True)
+class PointResult:
+    """What one commanded point of one pass measured."""
+
+    pass_name: str
+    index: int
+    nominal_mm: np.ndarray         # (3,) block coordinates
+    commanded_deg: np.ndarray      # (6,)
+    faces: tuple[FaceMeasurement, ...]   # by face 0, 1, 2
+    wrist_centre_mm: np.ndarray    # (3,) block coordinates
+    reached_mm: np.ndarray         # (3,) reached TCP, block coordinates
+    orientation_rms_deg: float
+
+    @property
+    def deviation_mm(self) -> np.ndarray:
+        return self.reached_mm - self.nominal_mm
+
+
+@dataclass
+class VerifyResult:
+    """Both passes: per-point results, statistics, counters."""
+
+    plan: VerifyPlan
+    points: list[PointResult]
+    moves: int
+    reads: int
+    offsets_estimate_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    def deviations(self, pass_name: str) -> np.ndarray:
+        """Deviations (n, 3) mm of one pass, by point index."""
+        rows = sorted((p for p in self.points if p.pass_name == pass_name), key=lambda p: p.index)
+        return np.array([p.deviation_mm for p in rows]).reshape(-1, 3)
+
+    def reached(self, pass_name: str) -> np.ndarray:
+        rows = sorted((p for p in self.points if p.pass_name == pass_name), key=lambda p: p.index)
+        return np.array([p.reached_mm for p in rows]).reshape(-1, 3)
+
+    def stats(self, pass_name: str) -> dict[str, list[float]]:
+        return deviation_stats(self.deviations(pass_name))
+
+    def to_json(self) -> dict:
+        """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
+        out: dict = {f"{p}_mm": self.stats(p) for p in PASSES}
+        out["points"] = self.plan.points
+        out["frame"] = "block"
+        out["height_mm"] = self.plan.height_mm
+        out["nominal_mm"] = self.plan.nominal_mm.tolist()
+        out["deviations_mm"] = {p: self.deviations(p).tolist() for p in PASSES}
+        out["reached_mm"] = {p: self.reached(p).tolist() for p in PASSES}
+        out["offsets_deg"] = {p: self.plan.offsets_deg[p].tolist() for p in PASSES}
+        out["moves"] = self.moves
+        out["pulser_reads"] = self.reads
+        return out
+
+
+def _estimate(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
+              corner_prior: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """Regularised fit of offsets (deg) and block corner (mm) to the measurements so far.
+
+    Used only to predict postures; weak priors (5°, 50 mm) keep unseen directions in place.
+    """
+    def fun(x: np.ndarray) -> np.ndarray:
+        r = residuals(geom, meas, x[:6], x[6:])
+        return np.concatenate([r, (x[:6] - prior) / 5.0, (x[6:] - corner_prior) / 50.0])
+
+    sol = least_squares(fun, x0, method="trf", xtol=1e-12, ftol=1e-12, max_nfev=400)
+    return sol.x
+
+
+class _Predictor:
+    """Running estimate of offsets and corner from every face measured so far."""
+
+    def __init__(self, geom: CellGeometry, prior_deg: np.ndarray, corner_mm: np.ndarray):
+        self.geom = geom
+        self.prior = np.asarray(prior_deg, float)
+        self.corner_prior = np.asarray(corner_mm, float)
+        self.x = np.concatenate([self.prior, self.corner_prior])
+        self.meas: list[FaceMeasurement] = []
+
+    @property
+    def offsets_deg(self) -> np.ndarray:
+        return self.x[:6]
+
+    def add(self, m: FaceMeasurement) -> None:
+        self.meas.append(m)
+        self.x = _estimate(self.geom, self.meas, self.prior, self.corner_prior, self.x)
+
+
+def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: str,
+                        radius: float, gain_db: float) -> np.ndarray:
+    """Raster outward from the prediction (widening up to 20°) and centre on the main lobe."""
+    while True:
+        found = search.acquire(q_pred, radius, gain_db, spacing_tilt_deg=2.0)
+        if found is not None:
+            return search.centre(found[0], 3.0, gain_db)
+        if radius >= 20.0:
+            raise HardwareError(f"{rig.pulser.endpoint}: no echo from {label} within "
+                                f"{radius:g} deg of the predicted posture")
+        radius = min(2 * radius, 20.0)
+
+
+def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
+               progress: Callable[[PointResult, int, int], None] | None = None) -> VerifyResult:
+    """Move to every planned point of both passes and measure where the robot really is.
+
+    The caller owns the connection, STOP and preflight. Never writes the profile.
+    """
+    geom = geometry(profile)
+    temp = profile.water_temperature_c
+    averages = max(profile.procedure.tof_averages, 1)
+    ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
+    v, lever = tool_lever(profile)
+    pred = _Predictor(geom, profile.joint_offsets_deg, profile.sample_position_mm)
+
+    # Noise floor with the beam in open water: the first point's posture with the wrist turned
+    # 25° away from the XY face's normal (far outside every lobe that matters).
+    first = plan.targets[0]
+    js0, _ = search_joints(geom, first.face_joints_deg[2], plan.offsets_deg["before"],
+                           face_basis(geom, 2))
+    away = first.joints_deg.copy()
+    away[js0[1]] += 25.0
+    rig.configure(gain_db=20.0, averages=1)
+    rig.move(rig.clip(away))
+    rig.measure_floor()
+    acq_gain = float(np.clip(20 * np.log10(0.05 / rig.floor_per_gain), 20.0, 80.0))
+
+    last_wrist: dict[int, np.ndarray] = {}
+    results: list[PointResult] = []
+    total = len(plan.targets)
+    for n_done, target in enumerate(plan.targets):
+        rig.move(target.joints_deg)  # the commanded point: TCP on the nominal point
+        faces: dict[int, FaceMeasurement] = {}
+        for k in FACE_ORDER:
+            label = f"{target.label}/{FACE_NAMES[k]}"
+            start = target.joints_deg.copy()
+            start[3:] = last_wrist.get(k, target.face_joints_deg[k])[3:]
+            q_pred = aim_wrist(geom, start, -geom.normal(k), pred.offsets_deg)
+            js, tilt_map = search_joints(geom, q_pred, pred.offsets_deg, face_basis(geom, k))
+            search = PeakSearch(rig, ka, js, tilt_map, temp)
+            q_c = search.quick_centre(q_pred) if len(pred.meas) >= 2 else None
+            if q_c is None:
+                q_c = _acquire_and_centre(search, rig, q_pred, label,
+                                          16.0 if not pred.meas else 8.0, acq_gain)
+
+            def tof() -> tuple[float, float]:
+                return read_distance(rig, temp, averages)
+
+            peak = search.fit(q_c, averages=8, distance=tof)
+            if peak.tilt_std_deg > 0.02:
+                log.info("%s: poor fit (σ %.3f°), centring again", label, peak.tilt_std_deg)
+                q_c = search.quick_centre(peak.joints_deg)
+                if q_c is None:
+                    q_c = _acquire_and_centre(search, rig, q_pred, label, 8.0, acq_gain)
+                peak = search.fit(q_c, averages=8, distance=tof)
+            assert peak.distance is not None
+            path, path_std = peak.distance
+            m = FaceMeasurement(f"{target.pass_name}/{target.index}", k, peak.joints_deg, path,
+                                distance_std_mm=max(path_std, 1e-4),
+                                tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
+                                amplitude=peak.amplitude,
+                                distance_joints_deg=peak.distance_joints_deg,
+                                meta={"gain_db": rig.settings.gain_db})
+            log.info("%s: water path %.4f ± %.4f mm, tilt σ %.4f°", label, path, path_std,
+                     peak.tilt_std_deg)
+            faces[k] = m
+            last_wrist[k] = peak.joints_deg
+            pred.add(m)
+        ordered = tuple(faces[k] for k in range(3))
+        w_local = wrist_centre_from_distances(np.array([m.distance_mm for m in ordered]), lever)
+        orient = estimate_orientation(geom, np.array([m.joints_deg for m in ordered]),
+                                      pred.offsets_deg)
+        tcp = reached_tcp_local(geom, w_local, orient, target.joints_deg, v)
+        res = PointResult(target.pass_name, target.index, plan.nominal_mm[target.index],
+                          target.joints_deg, ordered, w_local, tcp, orient.rms_deg)
+        results.append(res)
+        log.info("%s: deviation %s mm", target.label, np.round(res.deviation_mm, 4).tolist())
+        if progress:
+            progress(res, n_done + 1, total)
+    # Leave the robot at the last commanded point (beam down, clear of the block).
+    rig.move(plan.targets[-1].joints_deg)
+    return VerifyResult(plan, results, rig.counters.moves, rig.counters.reads,
+                        pred.offsets_deg.copy())
+
+
+# ---------------------------------------------------------------------------------------------
+# picture
+
+
+def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path:
+    """Save a before/after picture (PNG, or any format matplotlib knows by the suffix).
+
+    Left: the nominal points on the XY plane (block coordinates, mm) with the XY error vectors
+    of both passes, exaggerated by a stated factor, and the Z deviation written beside each
+    point. Right: per-axis mean and maximum of the absolute deviations, before vs after.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    nom = result.plan.nominal_mm
+    dev = {p: result.deviations(p) for p in PASSES}
+    colours = {"before": "tab:red", "after": "tab:green"}
+    markers = {"before": "o", "after": "^"}
+    span = np.ptp(nom[:, :2], axis=0)
+    ref = float(np.max(span)) if np.max(span) > 0 else 100.0
+    nx, ny = grid_shape(len(nom))
+    spacing = ref / max(nx - 1, ny - 1, 1)
+    biggest = max(float(np.max(np.linalg.norm(d[:, :2], axis=1))) for d in dev.values())
+    biggest = max(biggest, 1e-6)
+    # Round the exaggeration to 1, 2 or 5 × 10^k so the label reads easily.
+    raw = 0.4 * spacing / biggest
+    exp10 = 10 ** math.floor(math.log10(raw))
+    scale = max(m * exp10 for m in (1, 2, 5) if m * exp10 <= raw)
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1.2, 1]})
+    ax.plot(nom[:, 0], nom[:, 1], "ks", ms=6, label="nominal point")
+    for p in PASSES:
+        end = nom[:, :2] + scale * dev[p][:, :2]
+        for a, b in zip(nom[:, :2], end):
+            ax.annotate("", xy=b, xytext=a,
+                        arrowprops={"arrowstyle": "->", "color": colours[p], "lw": 1.4})
+        ax.plot(end[:, 0], end[:, 1], markers[p], color=colours[p], mfc="none",
+                label=f"reached, {p} calibration")
+    for i, pt in enumerate(nom):
+        ax.annotate(f"{i + 1}\nZ {dev['before'][i, 2]:+.2f} / {dev['after'][i, 2]:+.2f}",
+                    pt[:2], textcoords="offset points", xytext=(6, -22), fontsize=7,
+                    color="0.25")
+    ax.set_xlabel("block X (mm)")
+    ax.set_ylabel("block Y (mm)")
+    ax.set_title(f"XY errors, exaggerated ×{scale:g} (point no.; Z before / after, mm)\n"
+                 f"plane {result.plan.height_mm:g} mm above the XY face", fontsize=10)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.margins(0.15)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.8)
+
+    width = 0.2
+    axes = np.arange(3)
+    for j, (p, stat, hatch) in enumerate([("before", "mean", ""), ("before", "max", "//"),
+                                          ("after", "mean", ""), ("after", "max", "//")]):
+        vals = np.array(result.stats(p)[stat])
+        bars = bx.bar(axes + (j - 1.5) * width, vals, width, color=colours[p], hatch=hatch,
+                      alpha=0.85 if stat == "mean" else 0.5, edgecolor="k",
+                      label=f"{p}: {stat} |Δ|")
+        bx.bar_label(bars, fmt="%.3f", fontsize=7, rotation=90, padding=2)
+    bx.set_xticks(axes, ["ΔX", "ΔY", "ΔZ"])
+    bx.set_ylabel("absolute deviation (mm)")
+    bx.set_title(f"{result.plan.points} points: mean and max per axis", fontsize=10)
+    bx.legend(fontsize=8)
+    bx.margins(y=0.2)
+    bx.grid(True, axis="y", alpha=0.3)
+    fig.suptitle(title or "Positioning error before and after calibration (paper 000, §5.2)")
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
