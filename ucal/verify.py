@@ -48,20 +48,20 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ucal.calibration.exact import residuals
-from ucal.calibration.model import (FACE_NAMES, CellGeometry, FaceMeasurement, face_basis)
+from ucal.calibration.model import FACE_NAMES, CellGeometry, FaceMeasurement, face_basis
 from ucal.calibration.search import PeakSearch, Rig, ka_of, read_distance
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
-from ucal.cell import CellProfile
+from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, SafetyError, UnreachableError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik
@@ -450,15 +450,22 @@ class _Predictor:
 
 def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: str,
                         radius: float, gain_db: float) -> np.ndarray:
-    """Raster outward from the prediction (widening up to 20°) and centre on the main lobe."""
-    while True:
-        found = search.acquire(q_pred, radius, gain_db, spacing_tilt_deg=2.0)
-        if found is not None:
-            return search.centre(found[0], 3.0, gain_db)
-        if radius >= 20.0:
-            raise HardwareError(f"{rig.pulser.endpoint}: no echo from {label} within "
-                                f"{radius:g} deg of the predicted posture")
-        radius = min(2 * radius, 20.0)
+    """Raster outward from the prediction, then centre on the main lobe.
+
+    Lines 1.5° apart first (side lobes visible at acquisition gain), the radius widening up to
+    20°; if that finds nothing, lines 0.4° apart (as the calibration sequence does).
+    """
+    for spacing in (1.5, 0.4):
+        r = radius
+        while True:
+            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing)
+            if found is not None:
+                return search.centre(found[0], 3.0, gain_db)
+            if r >= 20.0:
+                break
+            r = min(2 * r, 20.0)
+    raise HardwareError(f"{rig.pulser.endpoint}: no echo from {label} within 20 deg of the "
+                        "predicted posture")
 
 
 def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
@@ -484,7 +491,9 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
     rig.configure(gain_db=20.0, averages=1)
     rig.move(rig.clip(away))
     rig.measure_floor()
-    acq_gain = float(np.clip(20 * np.log10(0.05 / rig.floor_per_gain), 20.0, 80.0))
+    # Acquisition gain: noise floor at 2.5 % of full screen, where the side lobes of a normal
+    # echo show a degree or more around normal.
+    acq_gain = float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
 
     last_wrist: dict[int, np.ndarray] = {}
     results: list[PointResult] = []
@@ -544,6 +553,16 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
                         pred.offsets_deg.copy())
 
 
+def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
+    """Simulation only: the TCP the true robot reaches at readings ``joints_deg`` in the
+    coordinates of the *true* block (mm): what the measurement should find."""
+    from ucal.sim.cell import SimulatedCell
+
+    tcp = SimulatedCell(truth).true_tcp(joints_deg)[:3, 3]
+    s_mat = truth.sample_matrix
+    return s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+
+
 # ---------------------------------------------------------------------------------------------
 # picture
 
@@ -585,7 +604,8 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
         ax.plot(end[:, 0], end[:, 1], markers[p], color=colours[p], mfc="none",
                 label=f"reached, {p} calibration")
     for i, pt in enumerate(nom):
-        ax.annotate(f"{i + 1}\nZ {dev['before'][i, 2]:+.2f} / {dev['after'][i, 2]:+.2f}",
+        zb, za = (round(float(dev[p][i, 2]), 2) + 0.0 for p in PASSES)  # no "-0.00"
+        ax.annotate(f"{i + 1}\nZ {zb:+.2f} / {za:+.2f}",
                     pt[:2], textcoords="offset points", xytext=(6, -22), fontsize=7,
                     color="0.25")
     ax.set_xlabel("block X (mm)")
@@ -595,7 +615,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     ax.set_aspect("equal", adjustable="datalim")
     ax.margins(0.15)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper left", fontsize=8, framealpha=0.8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=8)
 
     width = 0.2
     axes = np.arange(3)

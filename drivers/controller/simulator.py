@@ -159,6 +159,7 @@ class SimulatedController:
         self._in_error = False
         self._error_code = 0
         self.moves_executed = 0
+        self.stops_received = 0  # STOP_TRAJECTORY requests seen (tests check that STOP was sent)
         self.motion_port: int | None = None
         self.state_port: int | None = None
 
@@ -452,6 +453,8 @@ class SimulatedController:
             log.info("simulated controller ignores %s on the motion port", type(msg).__name__)
             return None
         if msg.sequence == SpecialSeq.STOP_TRAJECTORY:
+            with self._lock:
+                self.stops_received += 1
             self._freeze(time.monotonic(), "STOP_TRAJECTORY")
             ok = True
         elif msg.sequence < 0:

@@ -93,9 +93,9 @@ class Rig:
         return self.pulser.read_gate(fresh=True)
 
     def threshold(self) -> float:
-        """Detection level at the current gain: six times the measured noise floor."""
+        """Detection level at the current gain: four times the measured noise floor."""
         floor = (self.floor_per_gain or 1e-4) * 10 ** (self.settings.gain_db / 20)
-        return max(6.0 * floor, 0.02)
+        return max(4.0 * floor, 0.02)
 
     def measure_floor(self, n: int = 8) -> None:
         """Noise floor from readings without an echo (call with the beam in open water)."""
@@ -181,6 +181,7 @@ class PeakResult:
     residual_rms: float           # amplitude fit residual (FSH)
     distance: tuple[float, float] | None = None   # water path and its σ (mm), if read
     distance_joints_deg: np.ndarray | None = None  # readings where it was read
+    probes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (pts, amps, q) fitted
 
 
 def _run_centre(u: np.ndarray, amps: np.ndarray, level: float) -> float | None:
@@ -195,10 +196,19 @@ class PeakSearch:
     """Acquisition and peak-posture search for one face (see module docstring)."""
 
     def __init__(self, rig: Rig, ka: float, joints: tuple[int, int], tilt_map: np.ndarray,
-                 temperature_c: float):
+                 temperature_c: float,
+                 beam_components: Callable[[np.ndarray], np.ndarray] | None = None,
+                 absorption_np_per_mm: float = 0.0):
+        """``beam_components(q (n, 6)) -> (n, 3)``: the nominal beam's two components across
+        the face (sines of the tilt, rad) and the tool centre's coordinate along the face
+        normal (mm), from the forward kinematics; without it the fit uses the linear
+        ``tilt_map``. ``absorption_np_per_mm``: water absorption (one way) at the frequency."""
+        self.absorption = absorption_np_per_mm
+        self.beam_components = beam_components
         self.rig = rig
         self.ka = ka
         self.ja, self.jb = joints
+        self.ja_jb = tuple(joints)
         self.m = np.asarray(tilt_map, float)  # (2, 2): joint deg → tilt rad (nominal)
         self.per_deg = np.degrees(np.linalg.norm(self.m, axis=0))  # tilt deg per joint deg
         self.temperature_c = temperature_c
@@ -257,29 +267,61 @@ class PeakSearch:
         return q, peak
 
     def centre(self, q: np.ndarray, half_tilt_deg: float, gain_db: float) -> np.ndarray:
-        """Cross sweeps through ``q`` at acquisition gain, then a main-lobe cross at fit gain.
+        """Cross sweeps through ``q``, gain and length adapted, then main-lobe crosses.
 
         The side-lobe pattern along a sweep is symmetric about the sweep's point nearest to
         normal, so the middle of the run above half the sweep's maximum finds that point even
-        when the screen saturates and the line misses the main lobe.
+        when the line misses the main lobe. That holds only if the run lies inside the sweep
+        (else the sweep is lengthened) and is not a saturated plateau (else the gain drops
+        20 dB). Once the peak no longer saturates, the half-maximum run is the main lobe.
         """
-        self.rig.configure(gain_db=float(np.clip(gain_db, 0.0, 80.0)))
         q = np.array(q, float)
         half = half_tilt_deg
-        for _ in range(2):
-            q, _ = self._cross(q, self.jb, half)
-            q, _ = self._cross(q, self.ja, half)
-            half = max(0.5 * half, 1.0)
-        # Main lobe: at fit gain the side lobes sink below half the peak.
+        gain = float(np.clip(gain_db, 0.0, 80.0))
+        for _ in range(14):
+            self.rig.configure(gain_db=gain)
+            clipped = saturated = lost = False
+            peak = 0.0
+            for j in (self.jb, self.ja):
+                qs, amps = self._sweep_through(q, j, half)
+                peak = float(np.max(amps))
+                if peak < self.rig.threshold():
+                    lost = True
+                    continue
+                above = amps >= 0.5 * peak
+                clipped |= bool(above[0] or above[-1])
+                saturated |= bool(np.mean(amps >= 0.98) > 0.2)
+                c = _run_centre(qs[:, j], amps, 0.5 * peak)
+                if c is not None:
+                    q[j] = c
+            if lost or clipped:
+                half = min(half * 2.0, 12.0)
+            elif saturated and gain > 0.0:
+                gain = max(gain - 20.0, 0.0)
+            elif peak < 0.98 and half <= 1.2:
+                break
+            else:
+                half = max(half * 0.5, 1.0)
+        # Main lobe, finely: at fit gain the side lobes sink below half the peak.
         self.set_fit_gain(q, averages=1)
         for _ in range(3):
             before = q.copy()
             q, _ = self._cross(q, self.ja, 0.6, MAIN_LOBE_STEP_DEG)
             q, _ = self._cross(q, self.jb, 0.6, MAIN_LOBE_STEP_DEG)
-            if np.all(np.abs(q - before) * np.r_[np.ones(3), 1, 1, 1] < 0.01):
+            if np.all(np.abs(q - before) < 0.01):
                 break
             self.set_fit_gain(q, averages=1)
         return q
+
+    def _sweep_through(self, q: np.ndarray, j: int, half_tilt_deg: float,
+                       max_step_deg: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+        per = self.per_deg[0] if j == self.ja else self.per_deg[1]
+        h = half_tilt_deg / per
+        a, b = q.copy(), q.copy()
+        a[j] -= h
+        b[j] += h
+        qs, amps, _ = self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
+        return qs, amps
 
     def quick_centre(self, q_pred: np.ndarray) -> np.ndarray | None:
         """Main-lobe cross at fit gain straight from a good prediction; None if no echo."""
@@ -365,47 +407,81 @@ class PeakSearch:
                          np.round(np.array(amps) * 10 ** (self.rig.settings.gain_db / 20), 4).tolist())
             q = result.joints_deg
         assert result is not None
+        result = replace(result, probes=(np.array(pts), np.array(amps), np.array(q_centre, float)))
         if dist is not None:
             result = replace(result, distance=dist[0], distance_joints_deg=dist[1])
         return result
 
+    def refit(self, probes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> PeakResult:
+        """Fit recorded probes again (e.g. with better kinematics in ``beam_components``)."""
+        pts, amps, q = probes
+        res = self._fit_grid(pts, amps, q, self.m.T @ self.m)
+        return replace(res, probes=probes)
+
     def _fit_grid(self, pts: np.ndarray, amps: np.ndarray, q: np.ndarray,
                   g_init: np.ndarray) -> PeakResult:
+        """Fit ``A = A0·|2J1(x)/x|``, ``x = ka·sin 2θ`` to probes at joint pairs ``pts``.
+
+        The tilt θ at a probe is ``|Lᵀ·(f(u) − f(u*))|`` with f the nominal beam components
+        across the face (forward kinematics: exact to second order in the joint steps), u* the
+        unknown peak posture and L a free 2×2 lower-triangular matrix (identity for an exact
+        nominal model; it absorbs the first-order distortion that unknown offsets cause).
+        Without forward kinematics f is the linear map of ``tilt_map``.
+        """
         ka = self.ka
+        ja, jb = self.ja, self.jb
 
-        def model(p: np.ndarray, x: np.ndarray) -> np.ndarray:
+        if self.beam_components is not None:
+            def comps(u: np.ndarray) -> np.ndarray:
+                qq = np.tile(q, (len(u), 1))
+                qq[:, ja] = u[:, 0]
+                qq[:, jb] = u[:, 1]
+                return self.beam_components(qq)
+        else:
+            m = self.m  # rad per deg
+
+            def comps(u: np.ndarray) -> np.ndarray:
+                return np.column_stack([u @ m.T, np.zeros(len(u))])
+        l_init = np.eye(2)
+        c_pts = comps(pts)
+        f_pts, path_pts = c_pts[:, :2], c_pts[:, 2]
+        # Water absorption over the round trip: moving the wrist changes the path (an angled
+        # tool moves its centre), which tilts the amplitude hill and shifts its top off normal.
+        absorb = np.exp(-2.0 * self.absorption * (path_pts - path_pts.mean()))
+
+        def model(p: np.ndarray) -> np.ndarray:
             a0, ua, ub, l11, l21, l22 = p
-            chol = np.array([[l11, 0.0], [l21, l22]])
-            d = np.radians(x - [ua, ub])
-            t = np.linalg.norm(d @ chol, axis=1)  # tilt (rad) = |Lᵀ Δu|
-            return a0 * np.abs(piston_directivity(ka * np.sin(2 * t)))
+            lmat = np.array([[l11, 0.0], [l21, l22]])
+            d = (f_pts - comps(np.array([[ua, ub]]))[:, :2]) @ lmat
+            t = np.arcsin(np.clip(np.linalg.norm(d, axis=1), 0.0, 1.0))
+            return a0 * absorb * np.abs(piston_directivity(ka * np.sin(2 * t)))
 
-        lchol = np.linalg.cholesky(np.degrees(np.degrees(g_init)) + 1e-12 * np.eye(2))
         i = int(np.argmax(amps))
-        p0 = np.array([amps[i] * 1.05, pts[i, 0], pts[i, 1], lchol[0, 0], lchol[1, 0],
-                       lchol[1, 1]])
+        p0 = np.array([amps[i] * 1.05, pts[i, 0], pts[i, 1], l_init[0, 0], l_init[1, 0],
+                       l_init[1, 1]])
         span = np.ptp(pts, axis=0) + 1e-6
-        lo = np.array([0.0, pts[:, 0].min() - span[0], pts[:, 1].min() - span[1],
-                       1e-3 * lchol[0, 0], -np.inf, 1e-3 * abs(lchol[1, 1])])
-        hi = np.array([np.inf, pts[:, 0].max() + span[0], pts[:, 1].max() + span[1],
-                       1e3 * lchol[0, 0], np.inf, 1e3 * abs(lchol[1, 1])])
+        lo = np.array([0.0, pts[:, 0].min() - span[0], pts[:, 1].min() - span[1], 0.3, -0.7, 0.3])
+        hi = np.array([np.inf, pts[:, 0].max() + span[0], pts[:, 1].max() + span[1], 3.0, 0.7, 3.0])
         p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
-        sol = least_squares(lambda p: model(p, pts) - amps, p0, method="trf", bounds=(lo, hi),
+        sol = least_squares(lambda p: model(p) - amps, p0, method="trf", bounds=(lo, hi),
+                            x_scale=np.array([max(amps[i], 1e-9), 0.01, 0.01, 0.1, 0.1, 0.1]),
                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000)
         res = sol.fun
         dof = max(1, len(amps) - len(p0))
         sigma = max(float(np.sqrt(res @ res / dof)), 1e-6 * sol.x[0])
-        jac = sol.jac
-        cov = np.linalg.pinv(jac.T @ jac) * sigma ** 2
-        # Posture covariance (deg²) → tilt covariance via the fitted metric.
-        lfit = np.array([[sol.x[3], 0.0], [sol.x[4], sol.x[5]]])
-        cov_u = cov[1:3, 1:3]
-        cov_tilt_rad = lfit.T @ np.radians(np.radians(cov_u)) @ lfit
-        tilt_std_deg = float(np.degrees(np.sqrt(np.trace(cov_tilt_rad) / 2.0)))
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma ** 2
+        # Peak-posture covariance (deg²) → tilt covariance (rad²) through the local map.
+        cov_tilt = self._tilt_cov(cov[1:3, 1:3], sol.x)
+        tilt_std_deg = float(np.degrees(np.sqrt(max(np.trace(cov_tilt), 0.0) / 2.0)))
         out = self._with(q, sol.x[1], sol.x[2])
         gain = 10 ** (self.rig.settings.gain_db / 20)
         return PeakResult(out, float(sol.x[0]) * gain, tilt_std_deg,
                           float(np.sqrt(np.mean(res ** 2))) * gain)
+
+    def _tilt_cov(self, cov_u_deg2: np.ndarray, p: np.ndarray) -> np.ndarray:
+        lmat = np.array([[p[3], 0.0], [p[4], p[5]]])
+        jac = lmat.T @ self.m  # rad of tilt per deg of joint
+        return jac @ cov_u_deg2 @ jac.T
 
 
 def read_distance(rig: Rig, temperature_c: float, averages: int, repeats: int = 4

@@ -28,6 +28,7 @@ from ucal.calibration.model import (FACE_NAMES, CellGeometry, FaceMeasurement, b
 from ucal.calibration.paper import solve_paper
 from ucal.calibration.search import PeakSearch, Rig, ka_of, read_distance
 from ucal.calibration.wrist import aim_wrist, search_joints
+from ucal.sim.acoustics import water_absorption_np_per_mm
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError, SafetyError
 from ucal.kinematics.dh import wrist_centre
@@ -194,18 +195,75 @@ def _estimate(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray
     return sol.x[:6], sol.x[6:]
 
 
+def _make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarray, face: int,
+                 est: np.ndarray, ka: float, joints: tuple[int, int] | None = None
+                 ) -> PeakSearch:
+    """A peak search across ``face`` whose fit uses the kinematics with offsets ``est``."""
+    basis = face_basis(geom, face)
+    normal = geom.normal(face)
+    js, tilt_map = search_joints(geom, q, est, basis)
+    if joints is not None and tuple(joints) != js:
+        idx = [3, 4, 5]
+        from ucal.calibration.wrist import beam_jacobian
+
+        tilt_map = (basis @ beam_jacobian(geom, q, est))[:, [idx.index(j) for j in joints]]
+        js = tuple(joints)
+
+    def components(qq: np.ndarray) -> np.ndarray:
+        beam, tcp = beam_and_tcp(geom, qq, est)
+        return np.column_stack([beam @ basis.T, tcp @ normal])
+
+    return PeakSearch(rig, ka, js, tilt_map, profile.water_temperature_c, components,
+                      water_absorption_np_per_mm(profile.frequency_mhz))
+
+
+def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
+                meas: list[FaceMeasurement], ka: float, prior: np.ndarray,
+                rounds: int = 2) -> list[FaceMeasurement]:
+    """Fit every face's recorded probes again with the offsets of a full solution.
+
+    The first faces were fitted with kinematics whose offsets could be degrees off, which
+    distorts the fit model (beam direction and water path against the wrist joints) at the
+    1e-4 degree level. No motion: only the recorded probes are used.
+    """
+    from dataclasses import replace as dc_replace
+
+    for _ in range(rounds):
+        est = solve_exact(geom, meas, prior).offsets_deg
+        new = []
+        for m in meas:
+            probes = m.meta.get("probes")
+            if probes is None:
+                new.append(m)
+                continue
+            search = _make_search(rig, geom, profile, m.joints_deg, m.face, est, ka,
+                                  m.meta["search_joints"])
+            peak = search.refit(probes)
+            new.append(dc_replace(m, joints_deg=peak.joints_deg,
+                                  tilt_std_deg=max(peak.tilt_std_deg, 1e-4)))
+        meas = new
+    return meas
+
+
 def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray,
                         target: PlannedTarget, radius: float, gain_db: float) -> np.ndarray:
-    """Raster outward from the prediction (widening up to 20°) and centre on the main lobe."""
-    while True:
-        found = search.acquire(q_pred, radius, gain_db, spacing_tilt_deg=2.0)
-        if found is not None:
-            return search.centre(found[0], 3.0, gain_db)
-        if radius >= 20.0:
-            raise HardwareError(f"{rig.pulser.endpoint}: no echo from face "
-                                f"{FACE_NAMES[target.face]} ({target.label}) within "
-                                f"{radius:g} deg of the predicted posture")
-        radius = min(2 * radius, 20.0)
+    """Raster outward from the prediction, then centre on the main lobe.
+
+    Lines 2.5° apart first (at acquisition gain the side lobes show several degrees around
+    normal at the nominal water path), the radius widening up to 20°; if that finds nothing (a
+    long water path leaves little more than the main lobe above the noise), lines 0.5° apart.
+    """
+    for spacing in (2.5, 0.5):
+        r = radius
+        while True:
+            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing)
+            if found is not None:
+                return search.centre(found[0], 3.0, gain_db)
+            if r >= 20.0:
+                break
+            r = min(2 * r, 20.0)
+    raise HardwareError(f"{rig.pulser.endpoint}: no echo from face {FACE_NAMES[target.face]} "
+                        f"({target.label}) within 20 deg of the predicted posture")
 
 
 def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
@@ -228,8 +286,9 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
     rig.configure(gain_db=20.0, averages=1)
     rig.move(rig.clip(away))
     rig.measure_floor()
-    # Acquisition gain: noise floor at 5 % of full screen (threshold at 30 %).
-    acq_gain = float(np.clip(20 * np.log10(0.05 / rig.floor_per_gain), 20.0, 80.0))
+    # Acquisition gain: noise floor at 2.5 % of full screen (threshold at 10 %), where the
+    # side lobes of a normal echo show a degree or more around normal.
+    acq_gain = float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
 
     total = len(plan.targets)
     last_wrist: dict[int, np.ndarray] = {}
@@ -242,16 +301,33 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         start[5] = target.joints_deg[5]
         q_pred = aim_wrist(geom, start, -geom.normal(target.face), est)
         js, tilt_map = search_joints(geom, q_pred, est, face_basis(geom, target.face))
-        search = PeakSearch(rig, ka, js, tilt_map, temp)
-        q_c = search.quick_centre(q_pred) if len(meas) >= 2 else None
-        if q_c is None:
-            q_c = _acquire_and_centre(search, rig, q_pred, target, 16.0 if not meas else 8.0,
-                                      acq_gain)
+        basis = face_basis(geom, target.face)
 
+        normal = geom.normal(target.face)
+
+        def components(qq: np.ndarray, est=est, basis=basis, normal=normal) -> np.ndarray:
+            beam, tcp = beam_and_tcp(geom, qq, est)
+            return np.column_stack([beam @ basis.T, tcp @ normal])
+
+        search = PeakSearch(rig, ka, js, tilt_map, temp, components,
+                            water_absorption_np_per_mm(profile.frequency_mhz))
         def tof() -> tuple[float, float]:
             return read_distance(rig, temp, max(proc.tof_averages, 1))
 
-        peak = search.fit(q_c, averages=8, distance=tof)
+        peak = None
+        if len(meas) >= 3:
+            # Three faces pin the model down: predictions land within a few thousandths of a
+            # degree, inside the fit's first grid. The quality gate below catches a miss.
+            try:
+                peak = search.fit(q_pred, averages=8, distance=tof)
+            except HardwareError as e:
+                log.info("%s: direct fit failed (%s)", target.label, e)
+        if peak is None or peak.tilt_std_deg > 0.02:
+            q_c = search.quick_centre(q_pred) if len(meas) >= 2 else None
+            if q_c is None:
+                q_c = _acquire_and_centre(search, rig, q_pred, target,
+                                          16.0 if not meas else 8.0, acq_gain)
+            peak = search.fit(q_c, averages=8, distance=tof)
         if peak.tilt_std_deg > 0.02:
             log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
             q_c = search.quick_centre(peak.joints_deg)
@@ -262,13 +338,15 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         path, path_std = peak.distance
         pred_err = float(np.degrees(np.linalg.norm(
             tilt_map @ (peak.joints_deg[list(js)] - q_pred[list(js)]))))
-        log.info("%s: prediction was %.3f° of tilt off", target.label, pred_err)
+        log.info("%s: prediction was %.3f° of tilt off (%d moves so far)", target.label, pred_err,
+                 rig.counters.moves)
         m = FaceMeasurement(target.config, target.face, peak.joints_deg, path,
                             distance_std_mm=max(path_std, 1e-4),
                             tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
                             amplitude=peak.amplitude,
                             distance_joints_deg=peak.distance_joints_deg,
-                            meta={"gain_db": rig.settings.gain_db})
+                            meta={"gain_db": rig.settings.gain_db, "probes": peak.probes,
+                                  "search_joints": search.ja_jb})
         meas.append(m)
         last_wrist[target.face] = peak.joints_deg
         log.info("%s: posture %s, water path %.4f ± %.4f mm, tilt σ %.4f°", target.label,
@@ -276,6 +354,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         est, corner = _estimate(geom, meas, prior, corner)
     # Leave the robot at the calibration pose's XY posture.
     rig.move(plan.targets[0].joints_deg)
+    meas = refit_peaks(rig, geom, profile, meas, ka, prior)
     if progress:
         progress("done", total, total)
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)

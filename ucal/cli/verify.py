@@ -7,10 +7,18 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ucal.cli.options import (confirm_motion, controller_option, emit_json, json_option,
-                              pulser_option, sim_option, yes_option)
+from ucal.cli.options import (
+    confirm_motion,
+    controller_option,
+    emit_json,
+    json_option,
+    pulser_option,
+    sim_option,
+    yes_option,
+)
 
 if TYPE_CHECKING:
+    from ucal.cell import WorldTruth
     from ucal.verify import PointResult, VerifyPlan, VerifyResult
 
 
@@ -65,16 +73,40 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         confirm_motion(yes, _summary(plan, profile_path))
         progress = None if as_json else _progress
         result = run_verify(profile, plan, session.rig, progress)
+        truth = session.truth
     plot_verify(result, plot_path, title=f"{profile_path.name}: positioning error before and "
                                          "after calibration")
     if as_json:
         out = result.to_json()
         out["profile"] = str(profile_path)
         out["plot"] = str(plot_path)
+        if truth is not None:
+            out["truth"] = _truth_check(result, truth)
         emit_json(out)
         return
     _print_table(result)
+    if truth is not None:
+        err = _truth_check(result, truth)["measurement_error_max_mm"]
+        click.echo("simulation check: measured reached points within "
+                   + ", ".join(f"{a} {v:.4f}" for a, v in zip("XYZ", err))
+                   + " mm of the simulator's truth")
     click.echo(f"picture: {plot_path}")
+
+
+def _truth_check(result: VerifyResult, truth: WorldTruth) -> dict:
+    """Simulation only: the true reached TCPs and how far the measurement was from them."""
+    import numpy as np
+
+    from ucal.verify import true_reached_local
+
+    reached = {p.pass_name: [] for p in result.points}
+    err = []
+    for p in sorted(result.points, key=lambda r: (r.pass_name != "before", r.index)):
+        t = true_reached_local(truth, p.commanded_deg)
+        reached[p.pass_name].append(t.tolist())
+        err.append(np.abs(p.reached_mm - t))
+    return {"joint_offsets_deg": truth.joint_offsets_deg.tolist(), "reached_mm": reached,
+            "measurement_error_max_mm": np.max(err, axis=0).tolist()}
 
 
 def _check_plot_format(path: Path) -> None:

@@ -143,6 +143,11 @@ def gain_factor(gain_db: float, reference_gain_db: float = REFERENCE_GAIN_DB) ->
     return float(10.0 ** ((gain_db - reference_gain_db) / 20.0))
 
 
+def water_absorption_np_per_mm(frequency_mhz: float) -> float:
+    """Amplitude absorption coefficient of water (Np/mm, one way): ``α = 25.3e-15·f²`` Np/m."""
+    return WATER_ABSORPTION_NP_S2_PER_M * (frequency_mhz * 1e6) ** 2 * 1e-3
+
+
 def water_attenuation(water_path_mm: float | np.ndarray, frequency_mhz: float,
                       reference_path_mm: float = REFERENCE_WATER_PATH_MM) -> float | np.ndarray:
     """Amplitude factor of water absorption over the round trip, relative to the reference path.
@@ -150,7 +155,7 @@ def water_attenuation(water_path_mm: float | np.ndarray, frequency_mhz: float,
     ``exp(−α·2·(L − L_ref))`` with ``α = 25.3e-15·f²`` Np/m (classical absorption, ∝ f²):
     0.0158 Np/mm at 25 MHz, i.e. about −0.27 dB per mm of extra one-way path.
     """
-    alpha_np_per_mm = WATER_ABSORPTION_NP_S2_PER_M * (frequency_mhz * 1e6) ** 2 * 1e-3
+    alpha_np_per_mm = water_absorption_np_per_mm(frequency_mhz)
     a = np.exp(-alpha_np_per_mm * 2.0 * (np.asarray(water_path_mm, dtype=float) - reference_path_mm))
     return float(a) if np.ndim(a) == 0 else a
 

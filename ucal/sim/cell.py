@@ -32,8 +32,9 @@ from ucal.sim.geometry import Face, FaceHit, beam_ray, block_faces, intersect, r
 #: Default gate threshold (fraction of full screen): weaker echoes give no time of flight.
 DEFAULT_THRESHOLD = 0.02
 #: Peak of the receiver's electronic noise in the gate at the reference gain (fraction of FS):
-#: −64 dB below the reference echo, the dynamic range of a good 25 MHz pulser-receiver.
-DEFAULT_NOISE_FLOOR = 0.0005
+#: 78 dB below the reference echo, the dynamic range of a good 25 MHz pulser-receiver with a
+#: flat reflector in its near field.
+DEFAULT_NOISE_FLOOR = 0.0001
 #: Relative one-sigma fluctuation of the noise-floor peak of a single acquisition.
 _NOISE_FLOOR_SPREAD = 0.25
 #: Footprint share below which a face is considered missed.

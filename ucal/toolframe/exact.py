@@ -250,6 +250,19 @@ def offset_residuals(x: np.ndarray, beam: np.ndarray, tofs: list[TofRecord],
     return np.array(out)
 
 
+def along_beam_offset_mm(beam: np.ndarray, tofs: list[TofRecord], plane: Plane
+                         ) -> tuple[float, float]:
+    """``a_T·p_T`` (mm) and its one-sigma from normal-incidence water paths alone (eq. E2):
+    the weighted mean of ``n·p_E,i − Δl_i − h``."""
+    if not tofs:
+        raise ValueError("no water path: a_T·p_T is not determined")
+    vals = np.array([plane.normal @ t.flange[:3, 3] - t.path_mm - plane.offset_mm
+                     for t in tofs])
+    w = 1.0 / np.array([t.std_mm for t in tofs]) ** 2
+    mean = float(np.sum(w * vals) / w.sum())
+    return mean, float(np.sqrt(1.0 / w.sum()))
+
+
 def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[EdgeCrossing],
                   plane: Plane, position0_mm: np.ndarray) -> OffsetEstimate:
     """Tool centre p_T (flange frame) from water paths (E2) and edge crossings (E3).
@@ -275,7 +288,8 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
         d0.append(float(np.mean([e @ _ray_hit(c.flange, p0, a, plane)[0] for c in cs])))
     x0 = np.concatenate([p0, psi0, d0])
     sol = least_squares(offset_residuals, x0, args=(a, tofs, crossings, plane, n_edges),
-                        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+                        method="lm" if len(tofs) + len(crossings) >= len(x0) else "trf",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
     x = sol.x
     jac = sol.jac
     m, k = jac.shape
@@ -284,7 +298,7 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
     jtj = jac.T @ jac
     sv = np.linalg.svd(jac, compute_uv=False)
     notes: list[str] = []
-    if sv[-1] < 1e-9 * sv[0]:
+    if sv[-1] < 1e-6 * sv[0]:
         notes.append("the edge crossings do not determine every parameter (singular "
                      "design); the offsets across the beam are unreliable")
     inv = np.linalg.pinv(jtj)

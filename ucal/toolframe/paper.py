@@ -117,13 +117,15 @@ def _null_basis(v: np.ndarray) -> np.ndarray:
 def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.ndarray,
                 plane: Plane, position0_mm: np.ndarray, beam0: np.ndarray,
                 path_std_mm: float | None = None, max_iter: int = 50,
-                tol: float = 1e-12) -> PaperSolution:
+                tol: float = 1e-8) -> PaperSolution:
     """Solve paper 002, eqs. 12–13 by Newton's method on the KKT conditions (eq. 15).
 
     ``flange_rot`` (m, 3, 3) and ``flange_pos_mm`` (m, 3): flange poses at the incidence
     points; ``paths_mm`` (m,): water paths Δl_i; ``position0_mm``, ``beam0``: the starting tool
     (the profile's nominal). ``path_std_mm``: one-sigma of a water path, used for the standard
-    deviations when there are too few points to estimate it from the residuals.
+    deviations when there are too few points to estimate it from the residuals. Converged
+    when a Newton step moves no parameter by more than ``tol`` relative to the largest (the
+    KKT matrix of near-normal data is ill-conditioned, so steps stall at ~1e-9 of rounding).
     """
     jac, y = design(flange_rot, flange_pos_mm, paths_mm, plane)
     m = len(y)

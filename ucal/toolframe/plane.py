@@ -122,23 +122,27 @@ def fit_plane(points_mm: np.ndarray | None, path: str | Path | None = None,
     return Plane(n, h, centroid, e1, e2, rms, len(pts))
 
 
-def hull_radius_mm(plane: Plane, points_mm: np.ndarray, direction: np.ndarray) -> float:
-    """How far (mm) the touched points' convex hull reaches from the centroid along the
-    in-plane unit ``direction`` (the hull of points on a flat plate lies on the plate)."""
+def hull_reach_mm(plane: Plane, points_mm: np.ndarray, direction: np.ndarray,
+                  origin_mm: np.ndarray | None = None) -> float:
+    """How far (mm) a ray from ``origin_mm`` (default: the centroid; inside the hull) along the
+    in-plane unit ``direction`` stays inside the convex hull of the touched points; 0 if the
+    origin is outside. The hull of points touched on a flat convex plate lies on the plate."""
     uv = plane.to_plane(points_mm)
+    o = np.zeros(2) if origin_mm is None else plane.to_plane(origin_mm)
     d2 = np.array([direction @ plane.e1, direction @ plane.e2])
     d2 = d2 / np.linalg.norm(d2)
     # Every segment between two points lies in the hull and the hull's boundary edges are
     # among them, so the farthest crossing of the ray with any segment is where it leaves.
-    n = len(uv)
-    reach = 0.0
-    for i, j in combinations(range(n), 2):
-        a, b = uv[i], uv[j]
-        # ray t·d2 (t >= 0) against segment a + s (b − a), 0 <= s <= 1
+    reach, behind = -1.0, False
+    for i, j in combinations(range(len(uv)), 2):
+        a, b = uv[i] - o, uv[j] - o
         m = np.column_stack([d2, a - b])
         if abs(np.linalg.det(m)) < 1e-12:
             continue
         t, s = np.linalg.solve(m, a)
-        if t >= 0 and -1e-12 <= s <= 1 + 1e-12:
-            reach = max(reach, float(t))
-    return reach
+        if -1e-12 <= s <= 1 + 1e-12:
+            if t >= 0:
+                reach = max(reach, float(t))
+            else:
+                behind = True
+    return reach if (reach >= 0 and behind) else 0.0

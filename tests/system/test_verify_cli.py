@@ -1,0 +1,166 @@
+"""``ucal verify`` as a process against the loopback simulated cell (paper 000, §5.2)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomlkit
+
+from ucal.profile import create_profile, write_profile
+
+pytestmark = pytest.mark.system
+
+TRUE_OFFSETS_DEG = [0.4, -0.5, 0.6, -0.7, 0.5, 0.3]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run_ucal(*args: str, timeout: float = 280.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False, capture_output=True,
+                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+@pytest.fixture
+def world(tmp_path: Path) -> Path:
+    """Hidden joint offsets, everything else nominal, no noise."""
+    path = tmp_path / "world.toml"
+    path.write_text("[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG))
+                    + "]\n", encoding="utf-8")
+    return path
+
+
+def make_profile(tmp_path: Path, name: str, offsets_deg: list[float] | None) -> Path:
+    path = create_profile(tmp_path / name, "tx90l")
+    if offsets_deg is not None:
+        # as `ucal calibrate` would have written it
+        write_profile(path, {"calibration": {"joint_offsets_deg": offsets_deg}}, "calibrate")
+    return path
+
+
+def check_shape(out: dict, points: int) -> None:
+    assert out["points"] == points
+    for key in ("before_mm", "after_mm"):
+        for stat in ("mean", "max", "std"):
+            assert len(out[key][stat]) == 3
+            assert all(isinstance(v, float) and np.isfinite(v) for v in out[key][stat])
+    for p in ("before", "after"):
+        dev = np.array(out["deviations_mm"][p])
+        assert dev.shape == (points, 3)
+        st = out[f"{p}_mm"]
+        assert st["mean"] == pytest.approx(np.abs(dev).mean(0).tolist())
+        assert st["max"] == pytest.approx(np.abs(dev).max(0).tolist())
+        assert st["std"] == pytest.approx(np.abs(dev).std(0).tolist())
+    assert out["moves"] > 0 and out["pulser_reads"] > 0
+
+
+@pytest.mark.timeout(300)
+def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Path) -> None:
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    before_bytes = profile.read_bytes()
+    plot = tmp_path / "report.png"
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "4", "--plot",
+                 str(plot), "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    check_shape(out, 4)
+    before = np.array(out["before_mm"]["mean"])
+    after_max = np.array(out["after_mm"]["max"])
+    # hidden offsets of about half a degree: millimetres off before, micrometres after
+    assert np.max(before) > 1.0
+    assert np.all(after_max < 0.05), out["after_mm"]
+    assert np.linalg.norm(before) > 50 * np.linalg.norm(out["after_mm"]["mean"])
+    # the measured reached points agree with the simulator's truth
+    assert np.all(np.array(out["truth"]["measurement_error_max_mm"]) < 0.01), out["truth"]
+    assert plot.read_bytes()[:8] == PNG_MAGIC
+    assert profile.read_bytes() == before_bytes  # verify never writes the profile
+
+
+@pytest.mark.timeout(300)
+def test_uncalibrated_profile_before_equals_after(tmp_path: Path, world: Path) -> None:
+    profile = make_profile(tmp_path, "cell.toml", None)
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "2", "--yes",
+                 "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    check_shape(out, 2)
+    before = np.array(out["deviations_mm"]["before"])
+    after = np.array(out["deviations_mm"]["after"])
+    assert np.max(np.abs(before)) > 1.0
+    assert after == pytest.approx(before, abs=0.02)
+    # default picture next to the profile
+    assert (tmp_path / "cell.verify.png").read_bytes()[:8] == PNG_MAGIC
+
+
+@pytest.mark.timeout(60)
+def test_table_output_and_refusals(tmp_path: Path, world: Path) -> None:
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    # neither --sim nor URLs: usage error
+    r = run_ucal("verify", str(profile), "--yes")
+    assert r.returncode == 2 and "--sim" in r.stderr and "Traceback" not in r.stderr
+    # no terminal and no --yes: refused before moving
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "1")
+    assert r.returncode == 2 and "--yes" in r.stderr
+    # unknown picture format
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--plot", str(tmp_path / "x.xyz"),
+                 "--yes")
+    assert r.returncode == 2 and "x.xyz" in r.stderr
+
+
+@pytest.mark.timeout(60)
+def test_unreachable_points_refused_without_motion(tmp_path: Path) -> None:
+    profile = make_profile(tmp_path, "cell.toml", None)
+    # move the block 1.5 m away: no point can be reached; refused while planning
+    doc = tomlkit.parse(profile.read_text(encoding="utf-8"))
+    pos = [float(v) for v in doc["sample"]["position_mm"]]
+    write_profile(profile, {"sample": {"position_mm": [pos[0] + 1500.0, pos[1], pos[2]]}},
+                  "test")
+    r = run_ucal("verify", str(profile), "--sim", "--points", "4", "--yes", "--json")
+    assert r.returncode == 4, r.stderr
+    assert "plan" in r.stderr and r.stdout == ""
+    assert not (tmp_path / "cell.verify.png").exists()
+
+
+@pytest.mark.timeout(400)
+def test_calibrate_then_verify(tmp_path: Path, world: Path) -> None:
+    pytest.importorskip("ucal.cli.calibrate", reason="`ucal calibrate` not available")
+    profile = make_profile(tmp_path, "cell.toml", None)
+    r = run_ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "4", "--yes",
+                 "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    check_shape(out, 4)
+    assert np.max(out["before_mm"]["mean"]) > 1.0
+    assert np.max(out["after_mm"]["max"]) < 0.1, out["after_mm"]
+
+
+@pytest.mark.timeout(120)
+def test_ctrl_c_stops_and_exits_130(tmp_path: Path, world: Path) -> None:
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    before_bytes = profile.read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "ucal", "verify", str(profile), "--sim",
+                             str(world), "--points", "4", "--yes"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        # the first point's result line shows the robot is measuring
+        line = ""
+        while "[1/8]" not in line:
+            line = proc.stderr.readline()
+            assert line, "verify ended before measuring a point"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert not (tmp_path / "cell.verify.png").exists()
+    assert profile.read_bytes() == before_bytes

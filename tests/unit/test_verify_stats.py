@@ -1,0 +1,132 @@
+"""Verification maths: statistics, grid, and the reached TCP from three face measurements."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tomlkit
+
+from ucal.calibration.model import beam_and_tcp
+from ucal.calibration.sequence import geometry
+from ucal.calibration.wrist import aim_wrist
+from ucal.errors import SafetyError
+from ucal.profile import default_profile_text, profile_from_data
+from ucal.verify import (
+    deviation_stats,
+    estimate_orientation,
+    grid_shape,
+    nominal_points,
+    plan_verify,
+    reached_tcp_local,
+    tool_lever,
+    verify_region,
+    wrist_centre_from_distances,
+)
+
+
+@pytest.fixture(scope="module")
+def profile():
+    return profile_from_data(tomlkit.parse(default_profile_text("tx90l")), "cell.toml")
+
+
+def test_deviation_stats_exact_numbers() -> None:
+    dev = np.array([[1.0, -2.0, 0.5],
+                    [-3.0, 2.0, 0.5],
+                    [2.0, -2.0, -0.5],
+                    [-2.0, 4.0, 1.5]])
+    st = deviation_stats(dev)
+    # |Δ|: X 1, 3, 2, 2 → mean 2, max 3, std sqrt(0.5); Y 2, 2, 2, 4 → 2.5, 4, sqrt(0.75)
+    # Z 0.5, 0.5, 0.5, 1.5 → 0.75, 1.5, sqrt(0.1875)
+    assert st["mean"] == pytest.approx([2.0, 2.5, 0.75])
+    assert st["max"] == pytest.approx([3.0, 4.0, 1.5])
+    assert st["std"] == pytest.approx([np.sqrt(0.5), np.sqrt(0.75), np.sqrt(0.1875)])
+    assert st["signed_mean"] == pytest.approx([-0.5, 0.5, 0.5])
+    assert st["signed_std"] == pytest.approx([np.sqrt(4.25), np.sqrt(6.75), np.sqrt(0.5)])
+
+
+def test_wrist_centre_from_distances_adds_the_lever() -> None:
+    w = wrist_centre_from_distances(np.array([70.0, 95.5, 30.0]), 180.0)
+    assert w == pytest.approx([250.0, 275.5, 210.0])
+
+
+@pytest.mark.parametrize("n, shape", [(20, (5, 4)), (4, (2, 2)), (6, (3, 2)), (9, (3, 3)),
+                                      (7, (7, 1)), (1, (1, 1))])
+def test_grid_shape(n: int, shape: tuple[int, int]) -> None:
+    assert grid_shape(n) == shape
+
+
+def test_nominal_points_uniform_on_the_30mm_plane(profile) -> None:
+    pts = nominal_points(profile, 20)
+    lo, hi = verify_region(profile)
+    assert pts.shape == (20, 3)
+    assert np.all(pts[:, 2] == 30.0)
+    assert sorted(set(np.round(pts[:, 0], 6))) == pytest.approx(np.linspace(lo[0], hi[0], 5))
+    assert sorted(set(np.round(pts[:, 1], 6))) == pytest.approx(np.linspace(lo[1], hi[1], 4))
+    # W (180 mm above the TCP) keeps 50–150 mm of water to each wall
+    _, lever = tool_lever(profile)
+    assert lever == pytest.approx(180.0)
+    assert lo == pytest.approx([230.0, 230.0]) and hi == pytest.approx([330.0, 330.0])
+
+
+def test_reached_tcp_from_three_exact_face_measurements(profile) -> None:
+    """Synthetic measurements on a robot with hidden offsets give back its true TCP."""
+    geom = geometry(profile)
+    true = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+    plan = plan_verify(profile, 4)
+    v, lever = tool_lever(profile)
+    s_mat = profile.sample_matrix
+    for target in plan.targets:
+        q_cmd = target.joints_deg
+        # the true robot's normal-incidence postures, same arm joints
+        peaks = np.array([aim_wrist(geom, target.face_joints_deg[k], -geom.normal(k), true)
+                          for k in range(3)])
+        assert np.allclose(peaks[:, :3], q_cmd[:3])
+        dist = np.array([geom.normal(k) @ (beam_and_tcp(geom, peaks[k], true)[1] - s_mat[:3, 3])
+                         for k in range(3)])
+        w = wrist_centre_from_distances(dist, lever)
+        orient = estimate_orientation(geom, peaks, plan.offsets_deg[target.pass_name])
+        got = reached_tcp_local(geom, w, orient, q_cmd, v)
+        tcp_true = beam_and_tcp(geom, q_cmd, true)[1]
+        want = s_mat[:3, :3].T @ (tcp_true - s_mat[:3, 3])
+        assert got == pytest.approx(want, abs=1e-6)
+        # and the robot really is off the nominal point by millimetres
+        assert np.max(np.abs(want - plan.nominal_mm[target.index])) > 1.0
+
+
+def test_orientation_ignores_the_unseen_joint_6(profile) -> None:
+    """With the beam on the joint-6 axis a joint-6 offset changes neither beam nor TCP."""
+    geom = geometry(profile)
+    plan = plan_verify(profile, 1)
+    t = plan.targets[0]
+    v, _ = tool_lever(profile)
+    tcps = []
+    for j6 in (0.0, 3.0):
+        true = np.array([0.0, 0.0, 0.0, 0.0, 0.0, j6])
+        peaks = np.array([aim_wrist(geom, t.face_joints_deg[k], -geom.normal(k), true)
+                          for k in range(3)])
+        orient = estimate_orientation(geom, peaks, np.zeros(6))
+        assert orient.rms_deg < 1e-8
+        tcps.append(reached_tcp_local(geom, np.zeros(3), orient, t.joints_deg, v))
+    # W at the origin: the TCP is 180 mm straight below it in both cases
+    assert tcps[0] == pytest.approx([0.0, 0.0, -180.0], abs=1e-6)
+    assert tcps[1] == pytest.approx(tcps[0], abs=1e-6)
+
+
+def test_plan_refuses_an_unreachable_block(profile) -> None:
+    far = profile.replace(sample_position_mm=profile.sample_position_mm + [2000.0, 0.0, 0.0])
+    with pytest.raises(SafetyError, match="unreachable|range"):
+        plan_verify(far, 4)
+
+
+def test_plan_uses_the_offsets_in_the_after_pass_only(profile) -> None:
+    off = np.array([0.4, -0.5, 0.6, -0.7, 0.5, 0.3])
+    plan = plan_verify(profile.replace(joint_offsets_deg=off), 4)
+    before = [t for t in plan.targets if t.pass_name == "before"]
+    after = [t for t in plan.targets if t.pass_name == "after"]
+    assert len(before) == len(after) == 4
+    for b, a in zip(before, after):
+        # the commanded readings of "after" put the *offset* model's TCP on the point
+        tb = beam_and_tcp(geometry(profile), b.joints_deg, np.zeros(6))[1]
+        ta = beam_and_tcp(geometry(profile), a.joints_deg, off)[1]
+        assert ta == pytest.approx(tb, abs=1e-6)
+        assert not np.allclose(a.joints_deg, b.joints_deg, atol=0.1)

@@ -1,0 +1,696 @@
+"""The tool-frame calibration with the rig: plan and check every target, then measure and solve.
+
+Plate frame. The plane of the touched points (``ucal.toolframe.plane``) with its in-plane axes
+``e1, e2`` and normal ``n``; the nominal plate centre is the points' centroid. The beam is
+aimed along ``−n``; a tool orientation "φ" turns the tool frame's x axis from ``e1`` towards
+``e2`` by φ (a rotation about the beam). Targets are tool poses; joint readings come from the
+closed-form IK with the current tool estimate and the profile's joint offsets
+(actual = reading + offset), and every flange pose that enters the solution is the forward
+kinematics of the settled readings with those offsets.
+
+Plan (before the first motion; ``SafetyError``, exit 4, without any motion):
+
+* exact method (default): ``points`` normal-incidence postures at the plate centre, at
+  orientations spread evenly over a turn, water path ``[procedure] water_path_mm``; edge
+  scans along ``+e1`` and ``+e2`` (or ``−e1``/``−e2`` if those reach farther) at two lateral
+  positions each, in orientations φ0 and φ0 + 180°, with ``EDGE_WATER_PATH_MM`` of water.
+  The edge search starts inside the hull of the touched points and goes outward as far as the
+  arm can follow in both orientations (at most ``EDGE_SEARCH_MM``);
+* paper method: ``points`` incidence points (default 100, as paper 002) drawn inside the hull
+  of the touched points (shrunk by 15 % about the centroid), water paths 0.6–1.4 × the
+  profile's, orientations over ±150° (paper 002, §5: "scattered", "different distance",
+  "different angles");
+
+and every target is checked: inside the joint ranges (keeping ``WRIST_MARGIN_DEG`` on joints
+4–6 for the posture searches), ``|sin θ5| ≥ sin(singularity margin)``, and — for the incidence
+points — the beam meeting the plate inside the touched points' hull (the plate's edges are not
+in the profile; the hull of points on it is certainly plate).
+
+Measure (exact): noise floor with the beam off the plate; at each posture the peak search of
+``ucal.calibration.search`` (acquisition raster only for the first; later postures are
+predicted from the beam found so far), fitted, the water path read at the peak; the beam a_T
+from all peaks (``exact`` eq. E1), a_T·p_T from the paths (E2); then the edge scans with the
+tool estimate updated (the beam normal to the plate within the peak precision): a coarse search
+outward from the plate until the echo falls below half, a fine scan of static probes across the
+edge fitted with eq. E4, in both orientations; finally p_T from all paths and crossings (E3).
+
+Measure (paper): at each incidence point the quick main-lobe centring (or the acquisition
+raster if no echo at the prediction) and the water path there; the beam estimate is refined
+from the postures found so far to predict the next one (the solver uses only flange poses and
+water paths, eqs. 12–15).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ucal.calibration.model import CellGeometry
+from ucal.calibration.search import PeakResult, PeakSearch, Rig, ka_of, read_distance
+from ucal.calibration.wrist import search_joints
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import HardwareError, InputError, SafetyError
+from ucal.kinematics.dh import fk, transform
+from ucal.kinematics.ik import ik
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.toolframe.exact import (
+    BeamEstimate,
+    EdgeCrossing,
+    EdgeFit,
+    OffsetEstimate,
+    TofRecord,
+    along_beam_offset_mm,
+    beam_from_normal_incidence,
+    fit_edge_profile,
+    rotation_for_beam,
+    solve_offsets,
+)
+from ucal.toolframe.paper import PaperSolution, solve_paper
+from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
+
+log = logging.getLogger(__name__)
+
+METHODS = ("exact", "paper")
+DEFAULT_POINTS = {"exact": 4, "paper": 100}
+MIN_POINTS = {"exact": 2, "paper": 7}
+
+#: Room kept inside the ranges of joints 4–6 for the posture searches (deg).
+WRIST_MARGIN_DEG = 10.0
+#: Water path during edge scans (mm): short, so that a beam-direction error moves the axis
+#: hit point little (Δl·δa) — it would otherwise look like an offset across the beam.
+EDGE_WATER_PATH_MM = 50.0
+#: Farthest the edge search goes beyond its start (mm).
+EDGE_SEARCH_MM = 300.0
+#: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
+COARSE_STEP_MM = 2.0
+#: Fine scan: half width (mm) and number of static probes across the 50 % point.
+FINE_HALF_MM = 5.0
+FINE_PROBES = 21
+#: Pulser averages per amplitude reading on edge scans and per peak-fit probe.
+EDGE_AVERAGES = 16
+PEAK_AVERAGES = 8
+#: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max.
+ACQUIRE_RADIUS_DEG = 4.0
+ACQUIRE_MAX_DEG = 8.0
+#: Margin (mm) kept between an incidence point and the hull of the touched points.
+HULL_MARGIN_MM = 3.0
+#: Tolerance of the exact method: larger standard deviations mean "out of tolerance".
+TOLERANCE_POSITION_MM = 0.05
+TOLERANCE_BEAM_DEG = 0.01
+
+
+# ---------------------------------------------------------------------------------------------
+# plan
+
+
+@dataclass(frozen=True)
+class Target:
+    """One planned tool pose: the beam along −n meeting the plate at ``point_mm``."""
+
+    label: str
+    point_mm: np.ndarray      # (3,) on the plane
+    water_path_mm: float
+    phi_deg: float
+    joints_deg: np.ndarray    # planned readings (nominal tool)
+
+
+@dataclass(frozen=True)
+class EdgePlan:
+    """Scans across one plate edge: outward ``direction``, lines at ``lateral_mm`` along
+    ``along``, search from ``start_mm`` to ``start_mm + search_mm`` (from the centre)."""
+
+    index: int
+    name: str
+    direction: np.ndarray
+    along: np.ndarray
+    lateral_mm: tuple[float, float]
+    start_mm: float
+    search_mm: float
+
+
+@dataclass(frozen=True)
+class ToolFramePlan:
+    method: str
+    plane: Plane
+    centre_mm: np.ndarray
+    reference_deg: np.ndarray
+    phi0_deg: float
+    peaks: tuple[Target, ...]
+    edges: tuple[EdgePlan, ...]
+    incidence: tuple[Target, ...]
+    notes: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        """Human-readable plan (for the confirmation before the first motion)."""
+        c = np.round(self.centre_mm, 1).tolist()
+        lines = [(f"tool-frame calibration ({self.method}); plate plane n = "
+                 f"{np.round(self.plane.normal, 4).tolist()}, centre {c} mm "
+                 f"({self.plane.n_points} touched points, rms {self.plane.rms_mm:.3f} mm)")]
+        for t in self.peaks + self.incidence[:5]:
+            lines.append(f"  {t.label}: beam at {np.round(t.point_mm, 1).tolist()} mm, "
+                         f"water {t.water_path_mm:.0f} mm, phi {t.phi_deg:+.0f} deg, joints "
+                         f"{np.round(t.joints_deg, 1).tolist()}")
+        if len(self.incidence) > 5:
+            lines.append(f"  … {len(self.incidence) - 5} more incidence points")
+        for e in self.edges:
+            lines.append(f"  edge {e.name}: search {e.start_mm:.0f}–{e.start_mm + e.search_mm:.0f}"
+                         f" mm from the centre along {np.round(e.direction, 3).tolist()}, lines at"
+                         f" {e.lateral_mm[0]:+.0f}/{e.lateral_mm[1]:+.0f} mm, phi "
+                         f"{self.phi0_deg:+.0f}/{self.phi0_deg + 180:+.0f} deg, water "
+                         f"{EDGE_WATER_PATH_MM:.0f} mm")
+        lines.extend(f"  note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+
+def tcp_pose(plane: Plane, point_mm: np.ndarray, water_path_mm: float, phi_deg: float
+             ) -> np.ndarray:
+    """Tool pose (4, 4): beam (tool z) along −n meeting the plane at ``point_mm`` after
+    ``water_path_mm``; tool x turned by ``phi_deg`` from e1 towards e2 about the beam."""
+    z = -plane.normal
+    ph = np.radians(phi_deg)
+    x = np.cos(ph) * plane.e1 + np.sin(ph) * plane.e2
+    y = np.cross(z, x)
+    return transform(np.asarray(point_mm, float) + water_path_mm * plane.normal,
+                     np.column_stack([x, y, z]))
+
+
+def reference_joints(profile: CellProfile) -> np.ndarray:
+    """Reference configuration for the IK choice: the profile's calibration pose."""
+    pose = profile.procedure.calibration_pose_deg
+    return np.asarray(PAPER_CALIBRATION_POSE_DEG if pose is None else pose, float)
+
+
+def check_joints(profile: CellProfile, q: np.ndarray, label: str, wrist_margin: float) -> None:
+    """Joint ranges (with ``wrist_margin`` on joints 4–6) and the θ5 singularity margin."""
+    model = profile.model
+    lo = model.joint_min_deg.copy()
+    hi = model.joint_max_deg.copy()
+    lo[3:] += wrist_margin
+    hi[3:] -= wrist_margin
+    bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
+    if bad:
+        raise SafetyError(f"plan {label}: joint(s) {bad} at "
+                          f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
+                          f"range (keeping {wrist_margin:g} deg on joints 4-6)")
+    theta5 = q[4] + model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
+    margin = profile.procedure.singularity_margin_deg
+    if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
+        raise SafetyError(f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:g} deg "
+                          "of the wrist singularity")
+
+
+def solve_target(profile: CellProfile, plane: Plane, tool: np.ndarray, point: np.ndarray,
+                 path: float, phi: float, near: np.ndarray, label: str,
+                 wrist_margin: float) -> np.ndarray:
+    """Checked joint readings for a target (``SafetyError`` naming ``label``)."""
+    try:
+        q = ik(profile.model, tcp_pose(plane, point, path, phi), tool,
+               profile.joint_offsets_deg, near_deg=near)
+    except SafetyError as e:
+        raise SafetyError(f"plan {label}: {e}") from None
+    check_joints(profile, q, label, wrist_margin)
+    return q
+
+
+def _inside_hull(plane: Plane, points: np.ndarray, x: np.ndarray, margin: float) -> bool:
+    """``x`` (on the plane) lies inside the touched points' hull with ``margin`` (mm) to spare."""
+    for ang in np.radians(np.arange(0.0, 360.0, 30.0)):
+        d = np.cos(ang) * plane.e1 + np.sin(ang) * plane.e2
+        if hull_reach_mm(plane, points, d, x) < margin:
+            return False
+    return True
+
+
+def plan_tool_frame(profile: CellProfile, method: str = "exact",
+                    points: int | None = None) -> ToolFramePlan:
+    """Plan and check every target (see module docstring); nothing moves."""
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    n_pts = DEFAULT_POINTS[method] if points is None else int(points)
+    if n_pts < MIN_POINTS[method]:
+        raise InputError(f"--points must be at least {MIN_POINTS[method]} for the {method} "
+                         f"method, got {n_pts}")
+    plane = fit_plane(profile.reflector_points_mm, profile.path)
+    pts = np.asarray(profile.reflector_points_mm, float)
+    centre = plane.project(plane.centroid_mm)
+    tool = profile.tool_matrix
+    ref = reference_joints(profile)
+    path = profile.procedure.water_path_mm
+    notes: list[str] = []
+    if not _inside_hull(plane, pts, centre, HULL_MARGIN_MM):
+        raise SafetyError("plan: the touched points enclose no room for the beam (the plate's "
+                          "centre is within 3 mm of their hull)")
+    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre.
+    best = None
+    for phi in np.arange(-180.0, 180.0, 15.0):
+        try:
+            q = solve_target(profile, plane, tool, centre, path, phi, ref, "centre",
+                             WRIST_MARGIN_DEG)
+            q2 = solve_target(profile, plane, tool, centre, path, phi + 180.0, q, "centre",
+                              WRIST_MARGIN_DEG)
+        except SafetyError:
+            continue
+        mid = 0.5 * (profile.model.joint_min_deg[5] + profile.model.joint_max_deg[5])
+        cost = abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi)
+        if best is None or cost < best[0]:
+            best = (cost, float(phi))
+    if best is None:
+        # report the reason for φ = 0
+        solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG)
+        solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre",
+                     WRIST_MARGIN_DEG)
+        raise SafetyError("plan: no orientation about the beam reaches the plate centre in "
+                          "both senses")
+    phi0 = best[1]
+
+    peaks: list[Target] = []
+    edges: list[EdgePlan] = []
+    incidence: list[Target] = []
+    if method == "exact":
+        near = ref
+        for i in range(n_pts):
+            phi = phi0 + 360.0 * i / n_pts
+            phi = (phi + 180.0) % 360.0 - 180.0
+            label = f"peak {i + 1}"
+            q = solve_target(profile, plane, tool, centre, path, phi, near, label,
+                             WRIST_MARGIN_DEG)
+            peaks.append(Target(label, centre, path, phi, q))
+            near = q
+        edges = _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes)
+    else:
+        incidence = _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+    return ToolFramePlan(method, plane, centre, ref, phi0, tuple(peaks), tuple(edges),
+                         tuple(incidence), tuple(notes))
+
+
+def _plan_edges(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.ndarray,
+                tool: np.ndarray, phi0: float, ref: np.ndarray, notes: list[str]
+                ) -> list[EdgePlan]:
+    out: list[EdgePlan] = []
+    for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
+        candidates = []
+        for sign in (1.0, -1.0):
+            u = sign * e
+            w = np.cross(plane.normal, u)
+            lat = 0.5 * min(hull_reach_mm(plane, pts, w, centre),
+                            hull_reach_mm(plane, pts, -w, centre))
+            if lat < 5.0:
+                continue
+            starts = [hull_reach_mm(plane, pts, u, centre + s * lat * w) for s in (-1, 1)]
+            start = max(0.0, min(starts) - HULL_MARGIN_MM)
+            reach = 0.0
+            near = ref
+            ok = True
+            for dist in np.arange(0.0, EDGE_SEARCH_MM + 1e-9, 10.0):
+                for s in (-1.0, 1.0):
+                    for phi in (phi0, phi0 + 180.0):
+                        p = centre + (start + dist) * u + s * lat * w
+                        try:
+                            near = solve_target(profile, plane, tool, p, EDGE_WATER_PATH_MM,
+                                                phi, near, f"edge {name}", 0.0)
+                        except SafetyError:
+                            ok = False
+                            break
+                    if not ok:
+                        break
+                if not ok:
+                    break
+                reach = dist
+            candidates.append((reach, sign, u, w, lat, start))
+        if not candidates:
+            raise SafetyError(f"plan edge {name}: the touched points are too close to a line "
+                              "across this direction to place two scan lines")
+        reach, sign, u, w, lat, start = max(candidates, key=lambda c: (c[0], c[1]))
+        label = ("+" if sign > 0 else "-") + name
+        if reach < 20.0:
+            raise SafetyError(f"plan edge {label}: the arm cannot follow the edge search "
+                              f"beyond {reach:.0f} mm from the touched points' hull in both "
+                              "orientations")
+        if reach < EDGE_SEARCH_MM:
+            notes.append(f"edge search {label} limited to {reach:.0f} mm beyond the touched "
+                         "points by the arm's reach")
+        out.append(EdgePlan(axis, label, u, w, (-lat, lat), start, float(reach)))
+    return out
+
+
+def _plan_incidence(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.ndarray,
+                    tool: np.ndarray, phi0: float, ref: np.ndarray, n_pts: int,
+                    notes: list[str]) -> list[Target]:
+    rng = np.random.default_rng(2023)  # paper 002's year: a fixed, reproducible draw
+    path0 = profile.procedure.water_path_mm
+    uv = plane.to_plane(pts)
+    lo, hi = uv.min(0), uv.max(0)
+    out: list[Target] = []
+    skipped = 0
+    near = ref
+    for _ in range(50 * n_pts):
+        if len(out) == n_pts:
+            break
+        a, b = rng.uniform(lo, hi)
+        x = centre + 0.85 * (a * plane.e1 + b * plane.e2)
+        if not _inside_hull(plane, pts, x, HULL_MARGIN_MM):
+            continue
+        path = float(rng.uniform(0.6, 1.4) * path0)
+        phi = float(phi0 + rng.uniform(-150.0, 150.0))
+        label = f"point {len(out) + 1}"
+        try:
+            q = solve_target(profile, plane, tool, x, path, phi, near, label, WRIST_MARGIN_DEG)
+        except SafetyError:
+            skipped += 1
+            continue
+        out.append(Target(label, x, path, phi, q))
+        near = q
+    if len(out) < n_pts:
+        raise SafetyError(f"plan: only {len(out)} of {n_pts} incidence points inside the "
+                          "touched points' hull are reachable")
+    if skipped:
+        notes.append(f"{skipped} drawn incidence points were unreachable and drawn again")
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# run
+
+
+@dataclass
+class ToolFrameRun:
+    """What a run measured and concluded (tool frame relative to the flange)."""
+
+    method: str
+    position_mm: np.ndarray
+    rotation_deg: np.ndarray
+    beam: np.ndarray
+    std_position_mm: np.ndarray
+    std_beam_deg: float
+    rms_residual_mm: float
+    points: int
+    moves: int
+    reads: int
+    peaks: list[PeakResult] = field(default_factory=list)
+    tofs: list[TofRecord] = field(default_factory=list)
+    crossings: list[EdgeCrossing] = field(default_factory=list)
+    edge_fits: list[EdgeFit] = field(default_factory=list)
+    beam_estimate: BeamEstimate | None = None
+    offsets: OffsetEstimate | None = None
+    paper: PaperSolution | None = None
+    in_tolerance: bool = True
+    notes: list[str] = field(default_factory=list)
+
+
+class _Runner:
+    """Measurement helpers sharing the rig, the plane and the running tool estimate."""
+
+    def __init__(self, profile: CellProfile, plan: ToolFramePlan, rig: Rig,
+                 progress: Callable[[str, int, int], None] | None):
+        self.profile = profile
+        self.plan = plan
+        self.plane = plan.plane
+        self.rig = rig
+        self.progress = progress
+        self.offsets = np.asarray(profile.joint_offsets_deg, float)
+        self.temp = profile.water_temperature_c
+        self.ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, self.temp)
+        self.position = np.asarray(profile.tool_position_mm, float).copy()
+        self.beam = np.asarray(profile.tool_matrix[:3, 2], float).copy()
+        self.acq_gain = 40.0
+        self.q = np.asarray(plan.reference_deg, float)
+
+    # -- kinematics ------------------------------------------------------------------------------
+    def tool(self) -> np.ndarray:
+        rot = rpy_to_matrix(rotation_for_beam(self.beam, self.profile.tool_rotation_deg))
+        return transform(self.position, rot)
+
+    def flange(self, q: np.ndarray) -> np.ndarray:
+        return fk(self.profile.model, q, offsets_deg=self.offsets)
+
+    def joints(self, point: np.ndarray, path: float, phi: float, label: str,
+               wrist_margin: float = 0.0) -> np.ndarray:
+        return solve_target(self.profile, self.plane, self.tool(), point, path, phi, self.q,
+                            label, wrist_margin)
+
+    def move(self, q: np.ndarray) -> np.ndarray:
+        self.q = np.asarray(q, float)
+        return self.rig.move(q)
+
+    # -- pulser ----------------------------------------------------------------------------------
+    def amplitude(self, averages: int) -> float:
+        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
+        for _ in range(8):
+            a = self.rig.read(averages).amplitude
+            g = self.rig.settings.gain_db
+            if a < 0.98 or g <= 0.0:
+                return a / 10 ** (g / 20)
+            self.rig.configure(gain_db=max(g - 10.0, 0.0))
+        raise HardwareError(f"{self.rig.pulser.endpoint}: echo saturates at every gain")
+
+    def set_gain(self, averages: int) -> float:
+        """Gain for an echo at 40–85 % of full screen at the current posture; its amplitude
+        (0 dB normalised)."""
+        for _ in range(8):
+            a = self.rig.read(averages).amplitude
+            if 0.4 <= a <= 0.85:
+                break
+            g = self.rig.settings.gain_db
+            new = g - 12.0 if a >= 0.999 else g + 20 * np.log10(0.6 / max(a, 1e-4))
+            new = float(np.clip(new, 0.0, 80.0))
+            if abs(new - g) < 0.05:
+                break
+            self.rig.configure(gain_db=new)
+        return self.amplitude(averages)
+
+    def noise_floor(self, target: Target) -> None:
+        """Noise floor with the beam 25° off the plate's normal; sets the acquisition gain."""
+        away = target.joints_deg.copy()
+        away[4] += 25.0 if away[4] + 25.0 < self.profile.model.joint_max_deg[4] else -25.0
+        self.rig.configure(gain_db=20.0, averages=1)
+        self.move(self.rig.clip(away))
+        self.rig.measure_floor()
+        self.acq_gain = float(np.clip(20 * np.log10(0.05 / self.rig.floor_per_gain), 20.0,
+                                      80.0))
+
+    # -- posture search --------------------------------------------------------------------------
+    def _search(self, q_pred: np.ndarray) -> PeakSearch:
+        geom = CellGeometry(self.profile.model, self.tool(), self.plane.rotation)
+        js, tilt_map = search_joints(geom, q_pred, self.offsets, self.plane.rotation[:, :2].T)
+        return PeakSearch(self.rig, self.ka, js, tilt_map, self.temp)
+
+    def centred(self, target: Target, quick: bool) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
+        q_pred = self.joints(target.point_mm, target.water_path_mm, target.phi_deg,
+                             target.label, 0.0)
+        search = self._search(q_pred)
+        q_c = search.quick_centre(q_pred) if quick else None
+        radius = ACQUIRE_RADIUS_DEG
+        while q_c is None:
+            found = search.acquire(q_pred, radius, self.acq_gain, spacing_tilt_deg=1.5)
+            if found is not None:
+                q_c = search.centre(found[0], 3.0, self.acq_gain)
+                break
+            if radius >= ACQUIRE_MAX_DEG:
+                raise HardwareError(f"{self.rig.pulser.endpoint}: no echo from the reflector "
+                                    f"plate within {radius:g} deg of the predicted posture "
+                                    f"({target.label}); check [reflector] points_mm and "
+                                    "[tool] in the profile")
+            radius = min(2 * radius, ACQUIRE_MAX_DEG)
+        self.q = np.asarray(q_c, float)
+        return search, q_c
+
+    def update_beam(self, rots: list[np.ndarray], stds: list[float]) -> BeamEstimate:
+        est = beam_from_normal_incidence(np.array(rots), self.plane.normal, np.array(stds))
+        self.beam = est.direction
+        return est
+
+    # -- edge scans ------------------------------------------------------------------------------
+    def edge_scan(self, ep: EdgePlan, lateral: float, phi: float, guess: float | None
+                  ) -> tuple[EdgeCrossing, EdgeFit, float]:
+        """Coarse search and fine scan across edge ``ep`` on the line at ``lateral``; returns
+        the crossing, its profile fit and the coarse crossing (mm from the centre)."""
+        u, w = ep.direction, ep.along
+        origin = self.plan.centre_mm + lateral * w
+        tool = self.tool()
+        label = f"edge {ep.name}"
+        rows: list[tuple[float, float, np.ndarray]] = []
+
+        def probe(t: float, averages: int) -> float:
+            q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
+            settled = self.move(q)
+            a = self.amplitude(averages)
+            rows.append((t, a, np.asarray(settled, float)))
+            return a
+
+        hi = ep.start_mm + ep.search_mm
+        if guess is None:
+            t = ep.start_mm
+            step = COARSE_STEP_MM
+        else:
+            t = max(ep.start_mm, guess - 20.0)
+            step = 0.75 * COARSE_STEP_MM
+        # gain on the plate, then outward until the echo falls below half
+        self.move(self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label))
+        self.set_gain(EDGE_AVERAGES)
+        level = probe(t, EDGE_AVERAGES)
+        t_c = None
+        prev = t
+        while t < hi:
+            t = min(t + step, hi)
+            a = probe(t, EDGE_AVERAGES)
+            if a < 0.5 * level:
+                t_c = 0.5 * (prev + t)
+                break
+            prev = t
+        if t_c is None:
+            raise HardwareError(f"{self.rig.pulser.endpoint}: the echo did not fall at any "
+                                f"edge along {ep.name} within {hi:.0f} mm of the plate centre")
+        rows.clear()
+        for t in np.linspace(t_c - FINE_HALF_MM, t_c + FINE_HALF_MM, FINE_PROBES):
+            probe(float(t), EDGE_AVERAGES)
+        # scan coordinate of each probe from its actual flange pose (estimated tool centre)
+        ts, amps, flanges = [], [], []
+        for _, a, q in rows:
+            f = self.flange(q)
+            c = (f @ tool)[:3, 3]
+            ts.append(float(u @ (self.plane.project(c) - origin)))
+            amps.append(a)
+            flanges.append(f)
+        ts_arr = np.array(ts)
+        fit = fit_edge_profile(ts_arr, np.array(amps), outward=1.0)
+        i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
+        f = flanges[i].copy()
+        f[:3, 3] += (fit.crossing - ts_arr[i]) * u
+        log.info("edge %s lateral %+.1f phi %+.0f: crossing %.4f ± %.4f mm (σ %.3f mm, rms "
+                 "%.2g)", ep.name, lateral, phi, fit.crossing, fit.crossing_std, fit.width_mm,
+                 fit.rms)
+        return (EdgeCrossing(f, ep.index, max(fit.crossing_std, 1e-4), u.copy()), fit,
+                float(t_c))
+
+
+def _report(progress: Callable[[str, int, int], None] | None, what: str, i: int,
+            n: int) -> None:
+    if progress:
+        progress(what, i, n)
+
+
+def run_tool_frame(profile: CellProfile, plan: ToolFramePlan, rig: Rig,
+                   progress: Callable[[str, int, int], None] | None = None) -> ToolFrameRun:
+    """Measure and solve (see module docstring). The caller owns connection, STOP, profile."""
+    r = _Runner(profile, plan, rig, progress)
+    if plan.method == "paper":
+        return _run_paper(r)
+    return _run_exact(r)
+
+
+def _tof(r: _Runner) -> tuple[float, float]:
+    return read_distance(r.rig, r.temp, max(r.profile.procedure.tof_averages, 1))
+
+
+def _run_exact(r: _Runner) -> ToolFrameRun:
+    plan = r.plan
+    total = len(plan.peaks) + 4 * len(plan.edges)
+    r.noise_floor(plan.peaks[0])
+    rots: list[np.ndarray] = []
+    stds: list[float] = []
+    peaks: list[PeakResult] = []
+    tofs: list[TofRecord] = []
+    for i, target in enumerate(plan.peaks):
+        _report(r.progress, target.label, i, total)
+        search, q_c = r.centred(target, quick=i > 0)
+        peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
+        if peak.tilt_std_deg > 0.02:
+            log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
+            q_c = search.quick_centre(peak.joints_deg)
+            if q_c is not None:
+                peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
+        assert peak.distance is not None and peak.distance_joints_deg is not None
+        peaks.append(peak)
+        rots.append(r.flange(peak.joints_deg)[:3, :3])
+        stds.append(max(peak.tilt_std_deg, 1e-4))
+        path, path_std = peak.distance
+        tofs.append(TofRecord(r.flange(peak.distance_joints_deg), path, max(path_std, 1e-4)))
+        r.q = np.asarray(rig_joints(r), float)
+        beam_est = r.update_beam(rots, stds)
+        log.info("%s: beam %s (%d postures), water path %.4f mm", target.label,
+                 np.round(beam_est.direction, 6).tolist(), len(rots), path)
+    beam_est = r.update_beam(rots, stds)
+    # a_T·p_T from the water paths alone (E2) before the edge scans
+    s, _ = along_beam_offset_mm(beam_est.direction, tofs, r.plane)
+    r.position = r.position + (s - beam_est.direction @ r.position) * beam_est.direction
+    crossings: list[EdgeCrossing] = []
+    fits: list[EdgeFit] = []
+    guesses: dict[tuple[int, int], float] = {}
+    k = len(plan.peaks)
+    for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
+        for ep in plan.edges:
+            for j, lateral in enumerate(ep.lateral_mm):
+                _report(r.progress, f"edge {ep.name}", k, total)
+                k += 1
+                guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))
+                cr, fit, t_c = r.edge_scan(ep, lateral, phi, guess)
+                guesses.setdefault((ep.index, j), t_c)
+                crossings.append(cr)
+                fits.append(fit)
+    # leave the robot above the plate centre
+    r.move(r.joints(plan.centre_mm, plan.peaks[0].water_path_mm, plan.phi0_deg, "centre"))
+    offsets = solve_offsets(beam_est, tofs, crossings, r.plane, r.position)
+    _report(r.progress, "done", total, total)
+    rot = rotation_for_beam(beam_est.direction, r.profile.tool_rotation_deg)
+    notes = list(offsets.notes)
+    notes.append("a constant time-of-flight delay is indistinguishable from the tool offset "
+                 "along the beam (and an error of the touched plane's offset likewise): zero "
+                 "delay and the plane of [reflector] points_mm are assumed")
+    notes.append("the rotation about the beam is invisible to an echo: rotation_deg is the "
+                 "rotation closest to the profile's that maps tool z onto the measured beam")
+    ok = bool(np.all(offsets.std_mm <= TOLERANCE_POSITION_MM)
+              and beam_est.std_deg <= TOLERANCE_BEAM_DEG)
+    if not ok:
+        notes.append(f"out of tolerance: standard deviations above {TOLERANCE_POSITION_MM} mm "
+                     f"or {TOLERANCE_BEAM_DEG} deg")
+    return ToolFrameRun("exact", offsets.position_mm, rot, beam_est.direction, offsets.std_mm,
+                        beam_est.std_deg, offsets.rms_residual_mm,
+                        len(peaks) + len(crossings), r.rig.counters.moves,
+                        r.rig.counters.reads, peaks, tofs, crossings, fits, beam_est, offsets,
+                        None, ok, notes)
+
+
+def rig_joints(r: _Runner) -> np.ndarray:
+    """Current joint readings of the robot."""
+    return r.rig.controller.read_joints()
+
+
+def _run_paper(r: _Runner) -> ToolFrameRun:
+    plan = r.plan
+    total = len(plan.incidence)
+    r.noise_floor(plan.incidence[0])
+    rots: list[np.ndarray] = []
+    poss: list[np.ndarray] = []
+    paths: list[float] = []
+    path_stds: list[float] = []
+    for i, target in enumerate(plan.incidence):
+        _report(r.progress, target.label, i, total)
+        _, q_c = r.centred(target, quick=i > 0)
+        settled = r.move(q_c)
+        path, std = _tof(r)
+        f = r.flange(settled)
+        rots.append(f[:3, :3])
+        poss.append(f[:3, 3])
+        paths.append(path)
+        path_stds.append(std)
+        # predict the next incidence posture from the postures found so far (E1)
+        r.update_beam(rots, [0.01] * len(rots))
+    _report(r.progress, "done", total, total)
+    sol = solve_paper(np.array(rots), np.array(poss), np.array(paths), r.plane,
+                      np.asarray(r.profile.tool_position_mm, float),
+                      r.profile.tool_matrix[:3, 2], float(np.median(path_stds)))
+    rot = rotation_for_beam(sol.beam, r.profile.tool_rotation_deg)
+    notes = list(sol.notes)
+    ok = bool(sol.converged and sol.second_order_ok)
+    if not sol.converged:
+        notes.append("Newton's method on the KKT conditions did not converge")
+    return ToolFrameRun("paper", sol.position_mm, rot, sol.beam, sol.std_position_mm,
+                        sol.std_beam_deg, sol.rms_residual_mm, len(paths),
+                        r.rig.counters.moves, r.rig.counters.reads, tofs=[
+                            TofRecord(transform(p, R), d, s)
+                            for p, R, d, s in zip(poss, rots, paths, path_stds, strict=True)],
+                        paper=sol, in_tolerance=ok, notes=notes)
