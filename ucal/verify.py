@@ -37,7 +37,8 @@ passes (a tool-frame error does too); calibration removes the joint-offset part 
 
 **Predictions.** Every face measurement enters a running regularised fit of the joint offsets
 and the block corner (as in the calibration sequence), so the posture correction found at one
-point predicts the next: only the first faces of a run need a wide search.
+point predicts the next: only the first faces of a run need a wide search, and a face whose
+last prediction was within ``DIRECT_FIT_TILT_DEG`` goes straight to the directivity fit.
 
 **Statistics** (paper 000, Table 5): per axis, the mean, maximum and standard deviation
 (population, ddof = 0) of the absolute deviations; the signed mean and standard deviation are
@@ -81,6 +82,8 @@ MIN_CLEARANCE_MM = 20.0
 EDGE_MARGIN_MM = 20.0
 #: Room kept inside the wrist joints' ranges for the peak search (deg).
 SEARCH_MARGIN_DEG = 8.0
+#: A face whose last prediction missed by less than this (deg of beam tilt) is fitted directly.
+DIRECT_FIT_TILT_DEG = 0.12
 #: Faces in the order they are measured at each point: XY (beam straight down), YZ, XZ.
 FACE_ORDER = (2, 0, 1)
 PASSES = ("before", "after")
@@ -468,6 +471,13 @@ def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label:
                         "predicted posture")
 
 
+def _tilt_deg(tilt_map: np.ndarray, joints: tuple[int, int], q: np.ndarray,
+              ref: np.ndarray) -> float:
+    """Beam tilt (deg) between two postures differing in the search joints (map: deg → rad)."""
+    j = list(joints)
+    return float(np.degrees(np.linalg.norm(tilt_map @ (q[j] - ref[j]))))
+
+
 def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
                progress: Callable[[PointResult, int, int], None] | None = None) -> VerifyResult:
     """Move to every planned point of both passes and measure where the robot really is.
@@ -496,6 +506,7 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
     acq_gain = float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
 
     last_wrist: dict[int, np.ndarray] = {}
+    pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
     total = len(plan.targets)
     for n_done, target in enumerate(plan.targets):
@@ -508,7 +519,13 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
             q_pred = aim_wrist(geom, start, -geom.normal(k), pred.offsets_deg)
             js, tilt_map = search_joints(geom, q_pred, pred.offsets_deg, face_basis(geom, k))
             search = PeakSearch(rig, ka, js, tilt_map, temp)
-            q_c = search.quick_centre(q_pred) if len(pred.meas) >= 2 else None
+            # A face whose last prediction was within DIRECT_FIT_TILT_DEG goes straight to the
+            # fit (its 3×3 grid spans ±0.14° of tilt, the main lobe ±0.2°); otherwise the main
+            # lobe is centred first. A fit that lands far from its start or fits poorly is
+            # redone after centring.
+            direct = pred_err_deg.get(k, np.inf) < DIRECT_FIT_TILT_DEG
+            q_c = q_pred if direct else (search.quick_centre(q_pred) if len(pred.meas) >= 2
+                                         else None)
             if q_c is None:
                 q_c = _acquire_and_centre(search, rig, q_pred, label,
                                           16.0 if not pred.meas else 8.0, acq_gain)
@@ -517,12 +534,16 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
                 return read_distance(rig, temp, averages)
 
             peak = search.fit(q_c, averages=8, distance=tof)
-            if peak.tilt_std_deg > 0.02:
-                log.info("%s: poor fit (σ %.3f°), centring again", label, peak.tilt_std_deg)
+            moved = _tilt_deg(tilt_map, js, peak.joints_deg, q_pred)
+            if peak.tilt_std_deg > 0.02 or (direct and moved > 0.2):
+                log.info("%s: fit σ %.3f°, %.3f° from its start: centring again", label,
+                         peak.tilt_std_deg, _tilt_deg(tilt_map, js, peak.joints_deg, q_c))
                 q_c = search.quick_centre(peak.joints_deg)
                 if q_c is None:
                     q_c = _acquire_and_centre(search, rig, q_pred, label, 8.0, acq_gain)
                 peak = search.fit(q_c, averages=8, distance=tof)
+            pred_err_deg[k] = _tilt_deg(tilt_map, js, peak.joints_deg, q_pred)
+            log.info("%s: prediction was %.4f° of tilt off", label, pred_err_deg[k])
             assert peak.distance is not None
             path, path_std = peak.distance
             m = FaceMeasurement(f"{target.pass_name}/{target.index}", k, peak.joints_deg, path,
@@ -571,7 +592,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     """Save a before/after picture (PNG, or any format matplotlib knows by the suffix).
 
     Left: the nominal points on the XY plane (block coordinates, mm) with the XY error vectors
-    of both passes, exaggerated by a stated factor, and the Z deviation written beside each
+    of both passes, drawn at a stated scale (×1, 2, 5·10^k), and the Z deviation written beside each
     point. Right: per-axis mean and maximum of the absolute deviations, before vs after.
     """
     import matplotlib
@@ -589,7 +610,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     spacing = ref / max(nx - 1, ny - 1, 1)
     biggest = max(float(np.max(np.linalg.norm(d[:, :2], axis=1))) for d in dev.values())
     biggest = max(biggest, 1e-6)
-    # Round the exaggeration to 1, 2 or 5 × 10^k so the label reads easily.
+    # Longest vector at most 40 % of the grid spacing; the scale rounded down to 1, 2 or 5 × 10^k.
     raw = 0.4 * spacing / biggest
     exp10 = 10 ** math.floor(math.log10(raw))
     scale = max(m * exp10 for m in (1, 2, 5) if m * exp10 <= raw)
@@ -610,7 +631,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
                     color="0.25")
     ax.set_xlabel("block X (mm)")
     ax.set_ylabel("block Y (mm)")
-    ax.set_title(f"XY errors, exaggerated ×{scale:g} (point no.; Z before / after, mm)\n"
+    ax.set_title(f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)\n"
                  f"plane {result.plan.height_mm:g} mm above the XY face", fontsize=10)
     ax.set_aspect("equal", adjustable="datalim")
     ax.margins(0.15)

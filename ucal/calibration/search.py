@@ -386,12 +386,21 @@ class PeakSearch:
         dist = None
         result = None
         for pattern, half in ((grid, half_tilt_deg), (plus, 0.7 * half_tilt_deg)):
+            if (pattern is plus and result is not None and (distance is None or dist is not None)
+                    and self._settled_fit(result, q, half)):
+                break  # round 1 already centred and precise: no second grid needed
             self.set_fit_gain(q, averages)  # leaves the robot settled at q
             settled = self.rig.controller.read_joints()
             amps.append(self._unsaturated_read(averages))
             pts.append([settled[self.ja], settled[self.jb]])
-            if pattern is plus and distance is not None:
-                dist = (distance(), settled.copy())
+            if distance is not None:
+                # TOF at this round's centre (the last good one is kept); a first centre off the
+                # lobe may have no echo in the gate.
+                try:
+                    dist = (distance(), settled.copy())
+                except HardwareError:
+                    if pattern is plus:
+                        raise
             for d in pattern:
                 p = self._with(q, q[self.ja] + d[0] * half / self.per_deg[0],
                                q[self.jb] + d[1] * half / self.per_deg[1])
@@ -411,6 +420,13 @@ class PeakSearch:
         if dist is not None:
             result = replace(result, distance=dist[0], distance_joints_deg=dist[1])
         return result
+
+    def _settled_fit(self, result: PeakResult, q: np.ndarray, half_tilt_deg: float) -> bool:
+        """True if the fitted peak lies well inside the grid around ``q`` and is precise."""
+        off = np.array([(result.joints_deg[self.ja] - q[self.ja]) * self.per_deg[0],
+                        (result.joints_deg[self.jb] - q[self.jb]) * self.per_deg[1]])
+        return bool(np.max(np.abs(off)) < 0.15 * half_tilt_deg
+                    and result.tilt_std_deg < 0.002)
 
     def refit(self, probes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> PeakResult:
         """Fit recorded probes again (e.g. with better kinematics in ``beam_components``)."""

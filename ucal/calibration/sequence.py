@@ -195,6 +195,53 @@ def _estimate(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray
     return sol.x[:6], sol.x[6:]
 
 
+def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan, config: str,
+                est: np.ndarray, corner: np.ndarray, last_wrist: dict[int, np.ndarray]) -> float:
+    """Signed joint step for ``config`` that keeps every face at a safe water path.
+
+    With the offsets estimated from the faces measured so far, the water paths of the stepped
+    configuration are predictable: the step goes the way (+ or −) whose smallest predicted water
+    path is larger, provided all stay above ``MIN_WATER_PATH_MM`` and inside the joint ranges.
+    Large offsets can put the wrist centre tens of millimetres lower than nominal; stepping the
+    wrong way would then drive the tool into the block.
+    """
+    if config == "base":
+        return plan.step_deg
+    model = profile.model
+    best, best_path = None, -np.inf
+    for sign in (1.0, -1.0):
+        step = sign * plan.step_deg
+        arm = config_arm(plan.pose_deg, config, step)
+        paths = []
+        ok = True
+        for t in plan.targets:
+            if t.config != config:
+                continue
+            start = arm.copy()
+            start[3:] = last_wrist.get(t.face, t.joints_deg)[3:]
+            start[5] = t.joints_deg[5]
+            try:
+                q = aim_wrist(geom, start, -geom.normal(t.face), est)
+            except SafetyError:
+                ok = False
+                break
+            lo, hi = model.joint_min_deg.copy(), model.joint_max_deg.copy()
+            lo[3:] += SEARCH_MARGIN_DEG
+            hi[3:] -= SEARCH_MARGIN_DEG
+            ok &= bool(np.all((q >= lo) & (q <= hi)))
+            _, tcp = beam_and_tcp(geom, q, est)
+            paths.append(float(geom.normal(t.face) @ (tcp - corner)))
+        if ok and paths and min(paths) > best_path:
+            best, best_path = step, min(paths)
+    if best is None or best_path < MIN_WATER_PATH_MM:
+        raise SafetyError(f"configuration {config}: with the offsets measured so far no joint "
+                          f"step of ±{plan.step_deg:g} deg keeps the tool {MIN_WATER_PATH_MM:g} mm "
+                          f"from every face (best {best_path:.1f} mm); check the block position")
+    if best != plan.step_deg:
+        log.info("%s: stepping by %+g deg keeps the tool clear (%.1f mm)", config, best, best_path)
+    return best
+
+
 def _make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarray, face: int,
                  est: np.ndarray, ka: float, joints: tuple[int, int] | None = None
                  ) -> PeakSearch:
@@ -292,10 +339,15 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
 
     total = len(plan.targets)
     last_wrist: dict[int, np.ndarray] = {}
+    steps: dict[str, float] = {}
     for i, target in enumerate(plan.targets):
         if progress:
             progress(target.label, i, total)
-        arm = config_arm(plan.pose_deg, target.config, plan.step_deg)
+        if target.config not in steps:
+            steps[target.config] = choose_step(profile, geom, plan, target.config, est, corner,
+                                               last_wrist)
+        arm = config_arm(plan.pose_deg, target.config, steps[target.config])
+        arm[5] = target.joints_deg[5]
         start = arm.copy()
         start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
         start[5] = target.joints_deg[5]

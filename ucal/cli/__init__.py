@@ -12,7 +12,7 @@ import sys
 
 import click
 
-from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_USAGE, UcalError
+from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
 
 #: command name → module under ``ucal.cli`` exposing ``cli``
 COMMANDS = {
@@ -59,6 +59,8 @@ def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
     level = logging.DEBUG if (debug or verbose > 1) else logging.INFO if verbose else logging.WARNING
     logging.basicConfig(level=level, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # pymodbus logs its own retries and timeouts; ucal reports faults itself, in one line.
+    logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
 def _fail(message: str, code: int) -> None:
@@ -68,14 +70,14 @@ def _fail(message: str, code: int) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``ucal`` console script."""
-    from drivers.errors import DriverError
+    from drivers.errors import DriverError, MotionRejected
 
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
     try:
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
     except click.exceptions.Abort:
-        _fail("interrupted", EXIT_INTERRUPTED)
+        _fail("interrupted; any motion was stopped", EXIT_INTERRUPTED)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)
     except click.ClickException as e:
@@ -89,6 +91,10 @@ def main(argv: list[str] | None = None) -> None:
         if debug:
             raise
         _fail(str(e), e.exit_code)
+    except MotionRejected as e:  # the controller refused a target: a safety refusal
+        if debug:
+            raise
+        _fail(str(e), EXIT_SAFETY)
     except DriverError as e:
         if debug:
             raise

@@ -1,0 +1,196 @@
+"""``ucal calibrate`` against the simulated cell over loopback, through the real drivers."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.profile import create_profile, load_profile, write_profile
+
+pytestmark = pytest.mark.system
+
+
+def ucal(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ucal", *args], capture_output=True, text=True,
+                          timeout=timeout, stdin=subprocess.DEVNULL, **kw)
+
+
+def make_profile(tmp_path: Path, tool_rotation=(0.0, 0.0, 0.0), prior=None, **proc) -> Path:
+    path = tmp_path / "cell.toml"
+    create_profile(path, "tx90l")
+    updates = {"tool": {"rotation_deg": list(tool_rotation)}}
+    if prior is not None:
+        updates["calibration"] = {"joint_offsets_deg": list(prior)}
+    if proc:
+        updates["procedure"] = proc
+    write_profile(path, updates, "test setup")
+    return path
+
+
+def make_world(tmp_path: Path, offsets, noise=None) -> Path:
+    text = f"[robot]\njoint_offsets_deg = {list(map(float, offsets))}\n"
+    if noise:
+        text += f"[noise]\ntof_ns = {noise[0]}\namplitude = {noise[1]}\nseed = {noise[2]}\n"
+    path = tmp_path / "world.toml"
+    path.write_text(text)
+    return path
+
+
+def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
+    offsets = np.array([4.5, -3.0, 2.5, -5.0, 3.5, 1.0])
+    profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0))
+    world = make_world(tmp_path, offsets)
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert set(result) >= {"joint_offsets_deg", "std_deg", "unobservable_joints", "method",
+                           "moves", "pulser_reads", "profile", "written"}
+    assert result["method"] == "exact" and result["written"] is True
+    assert result["unobservable_joints"] == []          # the angled beam sees joint 6
+    np.testing.assert_allclose(result["joint_offsets_deg"], offsets, atol=0.002)
+    assert result["moves"] <= 300
+    written = load_profile(profile)
+    np.testing.assert_allclose(written.joint_offsets_deg, offsets, atol=0.002)
+    assert (tmp_path / "cell.toml.history").is_dir()  # what was replaced is kept
+
+
+def test_on_axis_beam_reports_joint6_unobservable_and_keeps_its_value(tmp_path):
+    offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+    profile = make_profile(tmp_path, prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25])
+    world = make_world(tmp_path, offsets)
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert result["unobservable_joints"] == [6]
+    assert result["std_deg"][5] is None
+    assert result["joint_offsets_deg"][5] == 0.25
+    np.testing.assert_allclose(result["joint_offsets_deg"][:5], offsets[:5], atol=0.002)
+
+
+def test_errors_under_noise_are_within_three_reported_sigmas(tmp_path):
+    offsets = np.array([-2.0, 1.5, -1.0, 3.0, -2.5, 2.0])
+    profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0))
+    world = make_world(tmp_path, offsets, noise=(0.5, 0.01, 7))
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
+    assert out.returncode in (0, 1), out.stderr
+    result = json.loads(out.stdout)
+    assert result["written"] is False                   # --dry-run writes nothing
+    err = np.abs(np.array(result["joint_offsets_deg"]) - offsets)
+    std = np.array(result["std_deg"], float)
+    assert np.all(err <= 3 * std), (err, std)
+
+
+def test_plan_leaving_the_joint_range_is_refused_before_any_motion(tmp_path):
+    pose = [30.53, 31.15, 144.0, 0.0, 39.36, 30.54]   # the joint-3 step would pass 145°
+    profile = make_profile(tmp_path, calibration_pose_deg=pose)
+    log = tmp_path / "motions.jsonl"
+    server = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
+                               str(profile), "--log", str(log)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        urls = json.loads(server.stdout.readline())
+        before = profile.read_bytes()
+        out = ucal("calibrate", str(profile), "--controller", urls["controller"], "--pulser",
+                   urls["pulser"], "--yes")
+        assert out.returncode == 4, out.stderr
+        assert "joint" in out.stderr and "Traceback" not in out.stderr
+        assert len(out.stderr.strip().splitlines()) == 1
+        assert profile.read_bytes() == before
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=10)
+    assert not log.exists() or log.read_text().strip() == ""  # no motion at all
+
+
+def test_ctrl_c_stops_the_robot_and_leaves_the_profile_untouched(tmp_path, monkeypatch):
+    from ucal.calibration.search import Rig
+    from ucal.cli import main
+    from ucal.sim.serve import SimulatedCellServer
+
+    profile = make_profile(tmp_path)
+    before = profile.read_bytes()
+    servers = []
+    start = SimulatedCellServer.start
+
+    def recording_start(self):
+        out = start(self)
+        servers.append(self.controller)  # the simulated controller, kept after stop()
+        return out
+
+    moves = {"n": 0}
+    move = Rig.move
+
+    def interrupted_move(self, q, speed=None):
+        moves["n"] += 1
+        if moves["n"] == 25:
+            raise KeyboardInterrupt
+        return move(self, q, speed)
+
+    monkeypatch.setattr(SimulatedCellServer, "start", recording_start)
+    monkeypatch.setattr(Rig, "move", interrupted_move)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["calibrate", str(profile), "--sim", "--yes"])
+    assert exit_info.value.code == 130
+    assert servers and servers[0].stops_received >= 1
+    assert profile.read_bytes() == before
+
+
+def test_killed_controller_is_a_hardware_fault_and_the_profile_is_kept(tmp_path):
+    profile = make_profile(tmp_path)
+    log = tmp_path / "motions.jsonl"
+    server = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
+                               str(profile), "--log", str(log)], stdout=subprocess.PIPE,
+                              text=True)
+    urls = json.loads(server.stdout.readline())
+    before = profile.read_bytes()
+    calib = subprocess.Popen([sys.executable, "-m", "ucal", "calibrate", str(profile),
+                              "--controller", urls["controller"], "--pulser", urls["pulser"],
+                              "--yes"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if log.exists() and len(log.read_text().splitlines()) >= 5:
+                break
+            time.sleep(0.05)
+        server.kill()  # the controller dies mid-run
+        server.wait(timeout=10)
+        _, err = calib.communicate(timeout=30)
+    finally:
+        for p in (server, calib):
+            if p.poll() is None:
+                p.kill()
+    assert calib.returncode == 3, err
+    assert "controller" in err or "pulser" in err
+    assert "Traceback" not in err
+    assert profile.read_bytes() == before
+
+
+def test_refuses_to_move_without_yes_when_stdin_is_not_a_terminal(tmp_path):
+    profile = make_profile(tmp_path)
+    before = profile.read_bytes()
+    out = ucal("calibrate", str(profile), "--sim")
+    assert out.returncode == 2
+    assert "--yes" in out.stderr
+    assert profile.read_bytes() == before
+
+
+def test_paper_method_runs_and_reports_its_half_step_bias(tmp_path):
+    offsets = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    profile = make_profile(tmp_path)
+    world = make_world(tmp_path, offsets)
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json",
+               "--method", "paper", "--dry-run")
+    result = json.loads(out.stdout)
+    assert result["method"] == "paper"
+    found = np.array(result["joint_offsets_deg"])
+    assert abs(found[0] - 1.0) < 0.01                              # θ1: a direction, exact
+    assert abs(found[1] + found[2] - 2.0 - 1.0) < 0.1              # θ2+θ3: half the 2° step
