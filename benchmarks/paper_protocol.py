@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from ucal.calibration.sequence import plan_calibration, run_calibration, solve
-from ucal.cell import Noise, PAPER_CALIBRATION_POSE_DEG, WorldTruth
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, Noise, WorldTruth
 from ucal.kinematics.dh import fk
-from ucal.profile import create_profile, load_profile
+from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import open_cell
 
 GROUPS = (-5.0, -4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0, 5.0)
@@ -49,7 +49,7 @@ def deviation(profile, true_offsets, estimated):
 
 def run_group(profile, value: float, noise: Noise):
     truth_offsets = np.full(6, value)
-    world = WorldTruth.nominal(profile).replace(joint_offsets_deg=truth_offsets, noise=noise)
+    WorldTruth.nominal(profile).replace(joint_offsets_deg=truth_offsets, noise=noise)
     plan = plan_calibration(profile)
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory() as d:
@@ -76,7 +76,7 @@ def report(title: str, rows: list[dict], groups) -> None:
     print(f"{'Δθ (deg)':>9} | {'before ΔX, ΔY, ΔZ (mm)':>26} | {'paper ΔX, ΔY, ΔZ (mm)':>26} | "
           f"{'exact ΔX, ΔY, ΔZ (mm)':>28} | moves  reads    s")
     for g, r in zip(groups, rows):
-        fmt = lambda v, p=2: " ".join(f"{x:+8.{p}f}" for x in v)  # noqa: E731
+        fmt = lambda v, p=2: " ".join(f"{x:+8.{p}f}" for x in v)
         print(f"{g:+9.1f} | {fmt(r['before'])} | {fmt(r['paper'])} | {fmt(r['exact'], 4)} | "
               f"{r['moves']:5d} {r['reads']:6d} {r['seconds']:4.0f}")
     before = np.sum([np.abs(r["before"]) for r in rows], 0)
@@ -100,6 +100,8 @@ def main() -> None:
     ap.add_argument("--groups", default=",".join(str(g) for g in GROUPS))
     ap.add_argument("--noise-only", action="store_true")
     ap.add_argument("--noise-free-only", action="store_true")
+    ap.add_argument("--step", type=float, default=2.0,
+                    help="joint steps δθ3, δθ2 (deg); paper 000 does not state its own")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -107,6 +109,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "cell.toml"
         create_profile(path, "tx90l")
+        write_profile(path, {"procedure": {"step_deg": args.step}}, "benchmark step")
         profile = load_profile(path)
     settings = []
     if not args.noise_only:
@@ -114,7 +117,8 @@ def main() -> None:
     if not args.noise_free_only:
         settings.append(("TOF σ 0.5 ns, amplitude 1 %", Noise(tof_ns=0.5, amplitude=0.01, seed=1)))
     print("Paper 000 protocol: TX90L, calibration pose", PAPER_CALIBRATION_POSE_DEG.tolist(),
-          "— identical offsets on all six joints; tool centre deviation at the calibration pose")
+          f"— identical offsets on all six joints; joint steps {args.step:g}°; tool centre "
+          "deviation at the calibration pose")
     for title, noise in settings:
         rows = [run_group(profile, g, noise) for g in groups]
         report(title, rows, groups)

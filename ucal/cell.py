@@ -59,7 +59,7 @@ class CellProfile:
         """Calibration-block frame in the base frame (4, 4); faces are its coordinate planes."""
         return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
 
-    def replace(self, **changes: object) -> "CellProfile":
+    def replace(self, **changes: object) -> CellProfile:
         return replace(self, **changes)
 
 
@@ -110,11 +110,11 @@ class WorldTruth:
     def sample_matrix(self) -> np.ndarray:
         return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
 
-    def replace(self, **changes: object) -> "WorldTruth":
+    def replace(self, **changes: object) -> WorldTruth:
         return replace(self, **changes)
 
     @classmethod
-    def nominal(cls, profile: CellProfile) -> "WorldTruth":
+    def nominal(cls, profile: CellProfile) -> WorldTruth:
         """A world equal to what the profile says: no hidden error, no noise."""
         refl = None
         if profile.reflector_points_mm is not None and len(profile.reflector_points_mm) >= 3:

@@ -57,13 +57,14 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.exact import residuals
+from ucal.calibration.faces import acquisition_gain, estimate_offsets, measure_face
 from ucal.calibration.model import FACE_NAMES, CellGeometry, FaceMeasurement, face_basis
-from ucal.calibration.search import PeakSearch, Rig, ka_of, read_distance
+from ucal.calibration.safety import check_joints
+from ucal.calibration.search import Rig, ka_of
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
-from ucal.errors import HardwareError, SafetyError, UnreachableError
+from ucal.errors import SafetyError, UnreachableError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik
 
@@ -196,24 +197,6 @@ class VerifyPlan:
         return len(self.nominal_mm)
 
 
-def _check_joints(profile: CellProfile, q: np.ndarray, label: str) -> None:
-    model = profile.model
-    lo = model.joint_min_deg.copy()
-    hi = model.joint_max_deg.copy()
-    lo[3:] += SEARCH_MARGIN_DEG
-    hi[3:] -= SEARCH_MARGIN_DEG
-    bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
-    if bad:
-        raise SafetyError(f"plan {label}: joint(s) {bad} at "
-                          f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
-                          f"range (keeping {SEARCH_MARGIN_DEG:g} deg for the wrist search)")
-    margin = profile.procedure.singularity_margin_deg
-    theta5 = q[4] + model.theta_offset_deg[4]
-    if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
-        raise SafetyError(f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:g} deg "
-                          "of the wrist singularity")
-
-
 def _check_face(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
                 offsets: np.ndarray, label: str) -> None:
     """The beam meets ``face`` inside its edges at a positive water path, TCP clear of it."""
@@ -265,7 +248,7 @@ def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
                        near_deg=prev)
             except UnreachableError as e:
                 raise SafetyError(f"plan {label}: {e}") from None
-            _check_joints(profile, q, label)
+            check_joints(profile, q, label)
             w = fk_frames(profile.model, q, off)[4, :3, 3]
             w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
             if np.min(w_local) - reach < MIN_CLEARANCE_MM:
@@ -275,7 +258,7 @@ def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
                 qf = aim_wrist(geom, q, -geom.normal(k), off)
-                _check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
+                check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
                 _check_face(profile, geom, qf, k, off, label)
                 faces[k] = qf
             targets.append(VerifyTarget(pass_name, i, q, faces))
@@ -418,20 +401,6 @@ class VerifyResult:
         return out
 
 
-def _estimate(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
-              corner_prior: np.ndarray, x0: np.ndarray) -> np.ndarray:
-    """Regularised fit of offsets (deg) and block corner (mm) to the measurements so far.
-
-    Used only to predict postures; weak priors (5°, 50 mm) keep unseen directions in place.
-    """
-    def fun(x: np.ndarray) -> np.ndarray:
-        r = residuals(geom, meas, x[:6], x[6:])
-        return np.concatenate([r, (x[:6] - prior) / 5.0, (x[6:] - corner_prior) / 50.0])
-
-    sol = least_squares(fun, x0, method="trf", xtol=1e-12, ftol=1e-12, max_nfev=400)
-    return sol.x
-
-
 class _Predictor:
     """Running estimate of offsets and corner from every face measured so far."""
 
@@ -448,27 +417,8 @@ class _Predictor:
 
     def add(self, m: FaceMeasurement) -> None:
         self.meas.append(m)
-        self.x = _estimate(self.geom, self.meas, self.prior, self.corner_prior, self.x)
-
-
-def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: str,
-                        radius: float, gain_db: float) -> np.ndarray:
-    """Raster outward from the prediction, then centre on the main lobe.
-
-    Lines 1.5° apart first (side lobes visible at acquisition gain), the radius widening up to
-    20°; if that finds nothing, lines 0.4° apart (as the calibration sequence does).
-    """
-    for spacing in (1.5, 0.4):
-        r = radius
-        while True:
-            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing)
-            if found is not None:
-                return search.centre(found[0], 3.0, gain_db)
-            if r >= 20.0:
-                break
-            r = min(2 * r, 20.0)
-    raise HardwareError(f"{rig.pulser.endpoint}: no echo from {label} within 20 deg of the "
-                        "predicted posture")
+        self.x = np.concatenate(estimate_offsets(self.geom, self.meas, self.prior,
+                                                 self.corner_prior, self.x))
 
 
 def _tilt_deg(tilt_map: np.ndarray, joints: tuple[int, int], q: np.ndarray,
@@ -486,7 +436,6 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
     """
     geom = geometry(profile)
     temp = profile.water_temperature_c
-    averages = max(profile.procedure.tof_averages, 1)
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
     v, lever = tool_lever(profile)
     pred = _Predictor(geom, profile.joint_offsets_deg, profile.sample_position_mm)
@@ -498,12 +447,7 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
                            face_basis(geom, 2))
     away = first.joints_deg.copy()
     away[js0[1]] += 25.0
-    rig.configure(gain_db=20.0, averages=1)
-    rig.move(rig.clip(away))
-    rig.measure_floor()
-    # Acquisition gain: noise floor at 2.5 % of full screen, where the side lobes of a normal
-    # echo show a degree or more around normal.
-    acq_gain = float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
+    acq_gain = acquisition_gain(rig, away)
 
     last_wrist: dict[int, np.ndarray] = {}
     pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
@@ -516,46 +460,19 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
             label = f"{target.label}/{FACE_NAMES[k]}"
             start = target.joints_deg.copy()
             start[3:] = last_wrist.get(k, target.face_joints_deg[k])[3:]
-            q_pred = aim_wrist(geom, start, -geom.normal(k), pred.offsets_deg)
-            js, tilt_map = search_joints(geom, q_pred, pred.offsets_deg, face_basis(geom, k))
-            search = PeakSearch(rig, ka, js, tilt_map, temp)
             # A face whose last prediction was within DIRECT_FIT_TILT_DEG goes straight to the
-            # fit (its 3×3 grid spans ±0.14° of tilt, the main lobe ±0.2°); otherwise the main
-            # lobe is centred first. A fit that lands far from its start or fits poorly is
-            # redone after centring.
-            direct = pred_err_deg.get(k, np.inf) < DIRECT_FIT_TILT_DEG
-            q_c = q_pred if direct else (search.quick_centre(q_pred) if len(pred.meas) >= 2
-                                         else None)
-            if q_c is None:
-                q_c = _acquire_and_centre(search, rig, q_pred, label,
-                                          16.0 if not pred.meas else 8.0, acq_gain)
-
-            def tof() -> tuple[float, float]:
-                return read_distance(rig, temp, averages)
-
-            peak = search.fit(q_c, averages=8, distance=tof)
-            moved = _tilt_deg(tilt_map, js, peak.joints_deg, q_pred)
-            if peak.tilt_std_deg > 0.02 or (direct and moved > 0.2):
-                log.info("%s: fit σ %.3f°, %.3f° from its start: centring again", label,
-                         peak.tilt_std_deg, _tilt_deg(tilt_map, js, peak.joints_deg, q_c))
-                q_c = search.quick_centre(peak.joints_deg)
-                if q_c is None:
-                    q_c = _acquire_and_centre(search, rig, q_pred, label, 8.0, acq_gain)
-                peak = search.fit(q_c, averages=8, distance=tof)
-            pred_err_deg[k] = _tilt_deg(tilt_map, js, peak.joints_deg, q_pred)
-            log.info("%s: prediction was %.4f° of tilt off", label, pred_err_deg[k])
-            assert peak.distance is not None
-            path, path_std = peak.distance
-            m = FaceMeasurement(f"{target.pass_name}/{target.index}", k, peak.joints_deg, path,
-                                distance_std_mm=max(path_std, 1e-4),
-                                tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
-                                amplitude=peak.amplitude,
-                                distance_joints_deg=peak.distance_joints_deg,
-                                meta={"gain_db": rig.settings.gain_db})
-            log.info("%s: water path %.4f ± %.4f mm, tilt σ %.4f°", label, path, path_std,
-                     peak.tilt_std_deg)
+            # fit (its 3×3 grid spans ±0.14° of tilt, the main lobe ±0.2°); one predicted less
+            # well is centred on its main lobe first; the first faces are acquired.
+            last = pred_err_deg.get(k, np.inf)
+            mode = ("direct" if last < DIRECT_FIT_TILT_DEG else
+                    "quick" if len(pred.meas) >= 2 else "acquire")
+            res = measure_face(rig, geom, profile, start, k, pred.offsets_deg, ka, acq_gain,
+                               label, f"{target.pass_name}/{target.index}", mode,
+                               16.0 if not pred.meas else 8.0)
+            m = res.measurement
+            pred_err_deg[k] = res.prediction_error_deg
             faces[k] = m
-            last_wrist[k] = peak.joints_deg
+            last_wrist[k] = m.joints_deg
             pred.add(m)
         ordered = tuple(faces[k] for k in range(3))
         w_local = wrist_centre_from_distances(np.array([m.distance_mm for m in ordered]), lever)

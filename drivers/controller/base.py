@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
@@ -88,7 +89,7 @@ class RobotController(abc.ABC):
     def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
         """Streamed joint positions received at or after ``since_t_s`` (host monotonic clock)."""
 
-    def __enter__(self) -> "RobotController":
+    def __enter__(self) -> Self:
         self.connect()
         return self
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
@@ -78,7 +79,7 @@ class PulserReceiver(abc.ABC):
         """Optional: A-scan samples (normalised, (n,)) and sample rate (Hz); None if unsupported."""
         return None
 
-    def __enter__(self) -> "PulserReceiver":
+    def __enter__(self) -> Self:
         self.connect()
         return self
 

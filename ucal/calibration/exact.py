@@ -36,8 +36,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.calibration.model import (CellGeometry, FaceMeasurement, beam_and_tcp, distance_joints,
-                                    tilt_components)
+from ucal.calibration.model import (
+    CellGeometry,
+    FaceMeasurement,
+    beam_and_tcp,
+    distance_joints,
+    tilt_components,
+)
 
 
 @dataclass(frozen=True)

@@ -81,7 +81,7 @@ def _by_config(meas: list[FaceMeasurement]) -> dict[str, dict[int, FaceMeasureme
 
 def arm_angles(geom: CellGeometry, meas: list[FaceMeasurement]) -> np.ndarray:
     """Kinematic θ1, θ2, θ3 (deg, reading convention) at the base configuration, eqs. 11–17."""
-    l2, l3 = arm_lengths(geom)
+    _l2, l3 = arm_lengths(geom)
     cfg = _by_config(meas)
     base = cfg["base"][2].joints_deg
     step3 = np.radians(cfg["j3"][2].joints_deg[2] - base[2])

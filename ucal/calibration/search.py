@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -91,6 +91,29 @@ class Rig:
         self.configure(averages=int(averages))
         self.counters.reads += 1
         return self.pulser.read_gate(fresh=True)
+
+    def normalised_amplitude(self, averages: int = 1) -> float:
+        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
+        for _ in range(8):
+            a = self.read(averages).amplitude
+            g = self.settings.gain_db
+            if a < 0.98 or g <= 0.0:
+                return a / 10 ** (g / 20)
+            self.configure(gain_db=max(g - 10.0, 0.0))
+        raise HardwareError(f"{self.pulser.endpoint}: echo saturates at every gain")
+
+    def level_gain(self, averages: int = 1) -> None:
+        """Lower (or raise) the gain until the echo here sits at 40–85 % of full screen."""
+        for _ in range(8):
+            a = self.read(averages).amplitude
+            if 0.4 <= a <= 0.85:
+                return
+            g = self.settings.gain_db
+            new = g - 12.0 if a >= 0.999 else g + 20 * np.log10(0.6 / max(a, 1e-4))
+            new = float(np.clip(new, 0.0, 80.0))
+            if abs(new - g) < 0.05:
+                return
+            self.configure(gain_db=new)
 
     def threshold(self) -> float:
         """Detection level at the current gain: four times the measured noise floor."""
@@ -252,12 +275,7 @@ class PeakSearch:
     def _cross(self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float = 0.04
                ) -> tuple[np.ndarray, float]:
         """Sweep joint ``j`` through ``q``; move ``q[j]`` to the middle of the half-max run."""
-        per = self.per_deg[0] if j == self.ja else self.per_deg[1]
-        h = half_tilt_deg / per
-        a, b = q.copy(), q.copy()
-        a[j] -= h
-        b[j] += h
-        qs, amps, _ = self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
+        qs, amps = self._sweep_through(q, j, half_tilt_deg, max_step_deg)
         peak = float(np.max(amps))
         q = q.copy()
         if peak >= self.rig.threshold():
@@ -342,31 +360,9 @@ class PeakSearch:
 
     # -- stage 3: fit ------------------------------------------------------------------------------
     def set_fit_gain(self, q: np.ndarray, averages: int) -> None:
-        """Lower (or raise) the gain until the peak sits at 40–85 % of full screen."""
+        """Move to ``q`` and level the gain there (``Rig.level_gain``)."""
         self.rig.move(q)
-        for _ in range(8):
-            a = self.rig.read(averages).amplitude
-            if 0.4 <= a <= 0.85:
-                return
-            g = self.rig.settings.gain_db
-            if a >= 0.999:
-                new = g - 12.0
-            else:
-                new = g + 20 * np.log10(0.6 / max(a, 1e-4))
-            new = float(np.clip(new, 0.0, 80.0))
-            if abs(new - g) < 0.05:
-                return
-            self.rig.configure(gain_db=new)
-
-    def _unsaturated_read(self, averages: int) -> float:
-        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
-        for _ in range(8):
-            a = self.rig.read(averages).amplitude
-            g = self.rig.settings.gain_db
-            if a < 0.98 or g <= 0.0:
-                return a / 10 ** (g / 20)
-            self.rig.configure(gain_db=max(g - 10.0, 0.0))
-        raise HardwareError(f"{self.rig.pulser.endpoint}: echo saturates at every gain")
+        self.rig.level_gain(averages)
 
     def fit(self, q_centre: np.ndarray, averages: int, half_tilt_deg: float = 0.14,
             distance: Callable[[], tuple[float, float]] | None = None) -> PeakResult:
@@ -391,7 +387,7 @@ class PeakSearch:
                 break  # round 1 already centred and precise: no second grid needed
             self.set_fit_gain(q, averages)  # leaves the robot settled at q
             settled = self.rig.controller.read_joints()
-            amps.append(self._unsaturated_read(averages))
+            amps.append(self.rig.normalised_amplitude(averages))
             pts.append([settled[self.ja], settled[self.jb]])
             if distance is not None:
                 # TOF at this round's centre (the last good one is kept); a first centre off the
@@ -405,7 +401,7 @@ class PeakSearch:
                 p = self._with(q, q[self.ja] + d[0] * half / self.per_deg[0],
                                q[self.jb] + d[1] * half / self.per_deg[1])
                 settled = self.rig.move(p)
-                amps.append(self._unsaturated_read(averages))
+                amps.append(self.rig.normalised_amplitude(averages))
                 pts.append([settled[self.ja], settled[self.jb]])
             result = self._fit_grid(np.array(pts), np.array(amps), q, g_init)
             log.info("peak fit: %s amp %.4g tilt σ %.2e° rms %.2e (gain %.1f dB)",

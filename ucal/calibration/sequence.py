@@ -1,9 +1,10 @@
 """The joint-offset calibration sequence of paper 000: plan, preflight, measure, solve.
 
 Configurations: the calibration pose ("base"), joint 3 stepped by δθ3 ("j3"), back, joint 2
-stepped by δθ2 ("j2"). In each, the beam is brought normal to the block's three faces (XY
-first: the beam straight down at the paper's pose), the normal-incidence posture found by the
-peak search and the water path read by time of flight: 9 face measurements. The arm stays
+stepped by δθ2 ("j2"). In each, the beam is brought normal to the block's three faces (XY:
+the beam straight down at the paper's pose), the normal-incidence posture found by the peak
+search and the water path read by time of flight: 9 face measurements (order: see
+``order_targets``). The arm stays
 still during a configuration; only the wrist moves, so W stays put (arm–wrist separation).
 
 Every target is planned and checked before the first motion (joint ranges with room for the
@@ -16,28 +17,31 @@ posture: the first face may need a wide search, the others are found near their 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from ucal.calibration.exact import OffsetSolution, beam_on_axis, residuals, solve_exact
-from ucal.calibration.model import (FACE_NAMES, CellGeometry, FaceMeasurement, beam_and_tcp,
-                                    face_basis)
+from ucal.calibration.exact import OffsetSolution, beam_on_axis, solve_exact
+from ucal.calibration.faces import acquisition_gain, estimate_offsets, make_search, measure_face
+from ucal.calibration.model import (
+    FACE_NAMES,
+    CellGeometry,
+    FaceMeasurement,
+    beam_and_tcp,
+    face_basis,
+)
 from ucal.calibration.paper import solve_paper
-from ucal.calibration.search import PeakSearch, Rig, ka_of, read_distance
+from ucal.calibration.safety import check_joints
+from ucal.calibration.search import Rig, ka_of
 from ucal.calibration.wrist import aim_wrist, search_joints
-from ucal.sim.acoustics import water_absorption_np_per_mm
 from ucal.cell import CellProfile
-from ucal.errors import HardwareError, SafetyError
-from ucal.kinematics.dh import wrist_centre
+from ucal.errors import SafetyError
 from ucal.kinematics.rotations import rpy_to_matrix
 
 log = logging.getLogger(__name__)
 
 FACE_ORDER = (2, 0, 1)             # XY, YZ, XZ
-SEARCH_MARGIN_DEG = 8.0            # room kept inside the joint ranges for the wrist search
 MIN_WATER_PATH_MM = 20.0
 EDGE_MARGIN_MM = 20.0
 
@@ -159,40 +163,25 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         for face in FACE_ORDER:
             label = f"{config}/{FACE_NAMES[face]}"
             q = aim_wrist(geom, arm, -geom.normal(face), offsets)
-            lo = model.joint_min_deg.copy()
-            hi = model.joint_max_deg.copy()
-            lo[3:] += SEARCH_MARGIN_DEG
-            hi[3:] -= SEARCH_MARGIN_DEG
-            bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
-            if bad:
-                raise SafetyError(f"plan {label}: joint(s) {bad} at "
-                                  f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the "
-                                  f"joint range (keeping {SEARCH_MARGIN_DEG:g} deg for the "
-                                  "wrist search)")
-            theta5 = q[4] + model.theta_offset_deg[4]
-            if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(proc.singularity_margin_deg)):
-                raise SafetyError(f"plan {label}: joint 5 at {theta5:.2f} deg is within "
-                                  f"{proc.singularity_margin_deg:g} deg of the wrist singularity")
+            check_joints(profile, q, label)
             path = _face_hit_check(profile, geom, q, face, offsets, label)
             js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
             targets.append(PlannedTarget(config, face, q, js, path))
-    return CalibrationPlan(pose, proc.step_deg, tuple(targets))
+    return CalibrationPlan(pose, proc.step_deg, tuple(order_targets(targets)))
 
 
-def _estimate(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
-              corner_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Regularised fit of offsets and block corner to the measurements so far (for prediction).
+def order_targets(targets: list[PlannedTarget]) -> list[PlannedTarget]:
+    """Execution order: XY and YZ in every configuration first, XZ last on the way back.
 
-    With fewer than the full set the problem is under-determined; weak priors (5° on the
-    offsets, 50 mm on the corner) keep the unseen directions at their prior.
+    After two faces two combinations of offsets are still free and a third face can be degrees
+    from its prediction, while the same face in a stepped configuration is predicted almost
+    exactly (the step is a known rotation). Measuring XY and YZ in all three configurations
+    first pins the model down, so the XZ faces are found at their predictions.
     """
-    def fun(x: np.ndarray) -> np.ndarray:
-        r = residuals(geom, meas, x[:6], x[6:])
-        return np.concatenate([r, (x[:6] - prior) / 5.0, (x[6:] - corner_prior) / 50.0])
-
-    sol = least_squares(fun, np.concatenate([prior, corner_prior]), method="trf",
-                        xtol=1e-12, ftol=1e-12, max_nfev=400)
-    return sol.x[:6], sol.x[6:]
+    by_key = {(t.config, t.face): t for t in targets}
+    first = [by_key[(c, f)] for c in CONFIGS for f in FACE_ORDER[:2]]
+    last = [by_key[(c, FACE_ORDER[2])] for c in reversed(CONFIGS)]
+    return first + last
 
 
 def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan, config: str,
@@ -209,6 +198,7 @@ def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
         return plan.step_deg
     model = profile.model
     best, best_path = None, -np.inf
+    why = []
     for sign in (1.0, -1.0):
         step = sign * plan.step_deg
         arm = config_arm(plan.pose_deg, config, step)
@@ -223,45 +213,27 @@ def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
             try:
                 q = aim_wrist(geom, start, -geom.normal(t.face), est)
             except SafetyError:
+                why.append(f"{step:+g}°: the wrist cannot face {FACE_NAMES[t.face]}")
                 ok = False
                 break
-            lo, hi = model.joint_min_deg.copy(), model.joint_max_deg.copy()
-            lo[3:] += SEARCH_MARGIN_DEG
-            hi[3:] -= SEARCH_MARGIN_DEG
-            ok &= bool(np.all((q >= lo) & (q <= hi)))
+            # The prediction is good to a fraction of a degree now: a small margin suffices.
+            if not np.all((q >= model.joint_min_deg + 1.0) & (q <= model.joint_max_deg - 1.0)):
+                why.append(f"{step:+g}°: face {FACE_NAMES[t.face]} needs joints "
+                           f"{np.round(q, 1).tolist()} at a range limit")
+                ok = False
+                break
             _, tcp = beam_and_tcp(geom, q, est)
             paths.append(float(geom.normal(t.face) @ (tcp - corner)))
-        if ok and paths and min(paths) > best_path:
+        if ok and min(paths) > best_path:
             best, best_path = step, min(paths)
+        elif ok:
+            why.append(f"{step:+g}°: {min(paths):.1f} mm of water")
     if best is None or best_path < MIN_WATER_PATH_MM:
         raise SafetyError(f"configuration {config}: with the offsets measured so far no joint "
-                          f"step of ±{plan.step_deg:g} deg keeps the tool {MIN_WATER_PATH_MM:g} mm "
-                          f"from every face (best {best_path:.1f} mm); check the block position")
+                          f"step of ±{plan.step_deg:g} deg is safe ({'; '.join(why)})")
     if best != plan.step_deg:
         log.info("%s: stepping by %+g deg keeps the tool clear (%.1f mm)", config, best, best_path)
     return best
-
-
-def _make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarray, face: int,
-                 est: np.ndarray, ka: float, joints: tuple[int, int] | None = None
-                 ) -> PeakSearch:
-    """A peak search across ``face`` whose fit uses the kinematics with offsets ``est``."""
-    basis = face_basis(geom, face)
-    normal = geom.normal(face)
-    js, tilt_map = search_joints(geom, q, est, basis)
-    if joints is not None and tuple(joints) != js:
-        idx = [3, 4, 5]
-        from ucal.calibration.wrist import beam_jacobian
-
-        tilt_map = (basis @ beam_jacobian(geom, q, est))[:, [idx.index(j) for j in joints]]
-        js = tuple(joints)
-
-    def components(qq: np.ndarray) -> np.ndarray:
-        beam, tcp = beam_and_tcp(geom, qq, est)
-        return np.column_stack([beam @ basis.T, tcp @ normal])
-
-    return PeakSearch(rig, ka, js, tilt_map, profile.water_temperature_c, components,
-                      water_absorption_np_per_mm(profile.frequency_mhz))
 
 
 def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
@@ -283,8 +255,8 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
             if probes is None:
                 new.append(m)
                 continue
-            search = _make_search(rig, geom, profile, m.joints_deg, m.face, est, ka,
-                                  m.meta["search_joints"])
+            search = make_search(rig, geom, profile, m.joints_deg, m.face, est, ka,
+                                 m.meta["search_joints"])
             peak = search.refit(probes)
             new.append(dc_replace(m, joints_deg=peak.joints_deg,
                                   tilt_std_deg=max(peak.tilt_std_deg, 1e-4)))
@@ -292,32 +264,10 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
     return meas
 
 
-def _acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray,
-                        target: PlannedTarget, radius: float, gain_db: float) -> np.ndarray:
-    """Raster outward from the prediction, then centre on the main lobe.
-
-    Lines 2.5° apart first (at acquisition gain the side lobes show several degrees around
-    normal at the nominal water path), the radius widening up to 20°; if that finds nothing (a
-    long water path leaves little more than the main lobe above the noise), lines 0.5° apart.
-    """
-    for spacing in (2.5, 0.5):
-        r = radius
-        while True:
-            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing)
-            if found is not None:
-                return search.centre(found[0], 3.0, gain_db)
-            if r >= 20.0:
-                break
-            r = min(2 * r, 20.0)
-    raise HardwareError(f"{rig.pulser.endpoint}: no echo from face {FACE_NAMES[target.face]} "
-                        f"({target.label}) within 20 deg of the predicted posture")
-
-
 def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
                     progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
     """Measure the nine faces and solve. The caller owns connection, STOP and the profile."""
     geom = geometry(profile)
-    proc = profile.procedure
     temp = profile.water_temperature_c
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
     est = np.array(profile.joint_offsets_deg, float)
@@ -330,12 +280,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
     first = plan.targets[0]
     away = first.joints_deg.copy()
     away[first.search_joints[1]] += 25.0
-    rig.configure(gain_db=20.0, averages=1)
-    rig.move(rig.clip(away))
-    rig.measure_floor()
-    # Acquisition gain: noise floor at 2.5 % of full screen (threshold at 10 %), where the
-    # side lobes of a normal echo show a degree or more around normal.
-    acq_gain = float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
+    acq_gain = acquisition_gain(rig, away)
 
     total = len(plan.targets)
     last_wrist: dict[int, np.ndarray] = {}
@@ -346,64 +291,18 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         if target.config not in steps:
             steps[target.config] = choose_step(profile, geom, plan, target.config, est, corner,
                                                last_wrist)
-        arm = config_arm(plan.pose_deg, target.config, steps[target.config])
-        arm[5] = target.joints_deg[5]
-        start = arm.copy()
+        start = config_arm(plan.pose_deg, target.config, steps[target.config])
         start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
         start[5] = target.joints_deg[5]
-        q_pred = aim_wrist(geom, start, -geom.normal(target.face), est)
-        js, tilt_map = search_joints(geom, q_pred, est, face_basis(geom, target.face))
-        basis = face_basis(geom, target.face)
-
-        normal = geom.normal(target.face)
-
-        def components(qq: np.ndarray, est=est, basis=basis, normal=normal) -> np.ndarray:
-            beam, tcp = beam_and_tcp(geom, qq, est)
-            return np.column_stack([beam @ basis.T, tcp @ normal])
-
-        search = PeakSearch(rig, ka, js, tilt_map, temp, components,
-                            water_absorption_np_per_mm(profile.frequency_mhz))
-        def tof() -> tuple[float, float]:
-            return read_distance(rig, temp, max(proc.tof_averages, 1))
-
-        peak = None
-        if len(meas) >= 3:
-            # Three faces pin the model down: predictions land within a few thousandths of a
-            # degree, inside the fit's first grid. The quality gate below catches a miss.
-            try:
-                peak = search.fit(q_pred, averages=8, distance=tof)
-            except HardwareError as e:
-                log.info("%s: direct fit failed (%s)", target.label, e)
-        if peak is None or peak.tilt_std_deg > 0.02:
-            q_c = search.quick_centre(q_pred) if len(meas) >= 2 else None
-            if q_c is None:
-                q_c = _acquire_and_centre(search, rig, q_pred, target,
-                                          16.0 if not meas else 8.0, acq_gain)
-            peak = search.fit(q_c, averages=8, distance=tof)
-        if peak.tilt_std_deg > 0.02:
-            log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
-            q_c = search.quick_centre(peak.joints_deg)
-            if q_c is None:
-                q_c = _acquire_and_centre(search, rig, q_pred, target, 8.0, acq_gain)
-            peak = search.fit(q_c, averages=8, distance=tof)
-        assert peak.distance is not None
-        path, path_std = peak.distance
-        pred_err = float(np.degrees(np.linalg.norm(
-            tilt_map @ (peak.joints_deg[list(js)] - q_pred[list(js)]))))
-        log.info("%s: prediction was %.3f° of tilt off (%d moves so far)", target.label, pred_err,
-                 rig.counters.moves)
-        m = FaceMeasurement(target.config, target.face, peak.joints_deg, path,
-                            distance_std_mm=max(path_std, 1e-4),
-                            tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
-                            amplitude=peak.amplitude,
-                            distance_joints_deg=peak.distance_joints_deg,
-                            meta={"gain_db": rig.settings.gain_db, "probes": peak.probes,
-                                  "search_joints": search.ja_jb})
-        meas.append(m)
-        last_wrist[target.face] = peak.joints_deg
-        log.info("%s: posture %s, water path %.4f ± %.4f mm, tilt σ %.4f°", target.label,
-                 np.round(peak.joints_deg, 4).tolist(), path, path_std, peak.tilt_std_deg)
-        est, corner = _estimate(geom, meas, prior, corner)
+        # Three faces pin the model down: later predictions land within a few thousandths of a
+        # degree, inside the fit's first grid; two faces leave a fraction of a degree.
+        mode = "direct" if len(meas) >= 3 else "quick" if len(meas) == 2 else "acquire"
+        res = measure_face(rig, geom, profile, start, target.face, est, ka, acq_gain,
+                           f"face {FACE_NAMES[target.face]} ({target.label})", target.config,
+                           mode, 16.0 if not meas else 8.0)
+        meas.append(res.measurement)
+        last_wrist[target.face] = res.measurement.joints_deg
+        est, corner = estimate_offsets(geom, meas, prior, corner)
     # Leave the robot at the calibration pose's XY posture.
     rig.move(plan.targets[0].joints_deg)
     meas = refit_peaks(rig, geom, profile, meas, ka, prior)

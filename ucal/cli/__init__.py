@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
         if debug:
             raise
         _fail(str(e), EXIT_HARDWARE)
-    except Exception as e:  # noqa: BLE001 — last line of defence: one line, no traceback
+    except Exception as e:
         if debug:
             raise
         _fail(f"internal error: {type(e).__name__}: {e} (run with --debug for details)", 1)

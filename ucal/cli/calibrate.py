@@ -9,8 +9,16 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ucal.cli.options import (confirm_motion, controller_option, dry_run_option, emit_json,
-                              json_option, pulser_option, sim_option, yes_option)
+from ucal.cli.options import (
+    confirm_motion,
+    controller_option,
+    dry_run_option,
+    emit_json,
+    json_option,
+    pulser_option,
+    sim_option,
+    yes_option,
+)
 
 #: A finished run whose observable offsets are less certain than this is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
@@ -121,7 +129,7 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
             "method": chosen.method,
             "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in std],
             "condition_number": round(float(chosen.condition_number), 3),
-            "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+            "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         }}, reason=f"calibrate --method {method}")
         written = True
     result = {
@@ -149,8 +157,8 @@ def plan_summary(plan, profile) -> str:
     """The plan as text for the confirmation prompt (stderr)."""
     from ucal.calibration.model import FACE_NAMES
 
-    lines = [f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
-             f"measurements, joint steps {plan.step_deg:g} deg",
+    lines = [(f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
+             f"measurements, joint steps {plan.step_deg:g} deg"),
              "  target      J1       J2       J3       J4       J5       J6    water path"]
     for t in plan.targets:
         lines.append(f"  {t.config:>4}/{FACE_NAMES[t.face]:<3}" +

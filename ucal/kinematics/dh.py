@@ -75,7 +75,7 @@ class RobotModel:
         j = np.asarray(joints_deg, dtype=float)
         return np.all((j >= self.joint_min_deg - tol_deg) & (j <= self.joint_max_deg + tol_deg), -1)
 
-    def with_dh(self, dh: np.ndarray) -> "RobotModel":
+    def with_dh(self, dh: np.ndarray) -> RobotModel:
         """Copy of this model with another DH table (e.g. a perturbed 'true' robot)."""
         return RobotModel(self.name, np.array(dh, float), self.joint_min_deg, self.joint_max_deg,
                           dict(self.meta))

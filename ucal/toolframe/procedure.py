@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.calibration.model import CellGeometry
+from ucal.calibration.safety import check_joints
 from ucal.calibration.search import PeakResult, PeakSearch, Rig, ka_of, read_distance
 from ucal.calibration.wrist import search_joints
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
@@ -181,25 +182,6 @@ def reference_joints(profile: CellProfile) -> np.ndarray:
     """Reference configuration for the IK choice: the profile's calibration pose."""
     pose = profile.procedure.calibration_pose_deg
     return np.asarray(PAPER_CALIBRATION_POSE_DEG if pose is None else pose, float)
-
-
-def check_joints(profile: CellProfile, q: np.ndarray, label: str, wrist_margin: float) -> None:
-    """Joint ranges (with ``wrist_margin`` on joints 4–6) and the θ5 singularity margin."""
-    model = profile.model
-    lo = model.joint_min_deg.copy()
-    hi = model.joint_max_deg.copy()
-    lo[3:] += wrist_margin
-    hi[3:] -= wrist_margin
-    bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
-    if bad:
-        raise SafetyError(f"plan {label}: joint(s) {bad} at "
-                          f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
-                          f"range (keeping {wrist_margin:g} deg on joints 4-6)")
-    theta5 = q[4] + model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
-    margin = profile.procedure.singularity_margin_deg
-    if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
-        raise SafetyError(f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:g} deg "
-                          "of the wrist singularity")
 
 
 def solve_target(profile: CellProfile, plane: Plane, tool: np.ndarray, point: np.ndarray,
@@ -436,30 +418,11 @@ class _Runner:
         return self.rig.move(q)
 
     # -- pulser ----------------------------------------------------------------------------------
-    def amplitude(self, averages: int) -> float:
-        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
-        for _ in range(8):
-            a = self.rig.read(averages).amplitude
-            g = self.rig.settings.gain_db
-            if a < 0.98 or g <= 0.0:
-                return a / 10 ** (g / 20)
-            self.rig.configure(gain_db=max(g - 10.0, 0.0))
-        raise HardwareError(f"{self.rig.pulser.endpoint}: echo saturates at every gain")
-
     def set_gain(self, averages: int) -> float:
         """Gain for an echo at 40–85 % of full screen at the current posture; its amplitude
         (0 dB normalised)."""
-        for _ in range(8):
-            a = self.rig.read(averages).amplitude
-            if 0.4 <= a <= 0.85:
-                break
-            g = self.rig.settings.gain_db
-            new = g - 12.0 if a >= 0.999 else g + 20 * np.log10(0.6 / max(a, 1e-4))
-            new = float(np.clip(new, 0.0, 80.0))
-            if abs(new - g) < 0.05:
-                break
-            self.rig.configure(gain_db=new)
-        return self.amplitude(averages)
+        self.rig.level_gain(averages)
+        return self.rig.normalised_amplitude(averages)
 
     def noise_floor(self, target: Target) -> None:
         """Noise floor with the beam 25° off the plate's normal; sets the acquisition gain."""
@@ -517,7 +480,7 @@ class _Runner:
         def probe(t: float, averages: int) -> float:
             q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
             settled = self.move(q)
-            a = self.amplitude(averages)
+            a = self.rig.normalised_amplitude(averages)
             rows.append((t, a, np.asarray(settled, float)))
             return a
 

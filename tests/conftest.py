@@ -1,0 +1,30 @@
+"""Test tiers: unit (no processes), system (loopback simulators), hardware (a real cell).
+
+Hardware tests run only when the cell's addresses are given, e.g.
+``pytest tests/hardware --controller-url tcp://10.0.0.5:11000 --pulser-url modbus-tcp://10.0.0.6:502``.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--controller-url", default=None, help="URL of a real robot controller")
+    parser.addoption("--pulser-url", default=None, help="URL of a real pulser-receiver")
+
+
+@pytest.fixture
+def controller_url(request: pytest.FixtureRequest) -> str:
+    url = request.config.getoption("--controller-url")
+    if not url:
+        pytest.skip("hardware test: give --controller-url")
+    return url
+
+
+@pytest.fixture
+def pulser_url(request: pytest.FixtureRequest) -> str:
+    url = request.config.getoption("--pulser-url")
+    if not url:
+        pytest.skip("hardware test: give --pulser-url")
+    return url
