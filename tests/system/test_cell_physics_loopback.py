@@ -28,15 +28,16 @@ def cell(request):
     corner = tcp - np.array([200.0, 200.0, 50.0])
     profile = CellProfile(model=model, sample_position_mm=corner)
     world = WorldTruth.nominal(profile)
-    with SimulatedCellServer(world, profile, time_scale=0.0, pulser_framing=request.param) as srv:
-        with SimpleMessageController.from_url(srv.urls["controller"]) as ctl, \
-                ModbusPulser.from_url(srv.urls["pulser"]) as pulser:
-            pulser.configure(PulserSettings(gain_db=20.0, averages=1))
-            yield profile, ctl, pulser
+    with (SimulatedCellServer(world, profile, time_scale=0.0,
+                              pulser_framing=request.param) as srv,
+          SimpleMessageController.from_url(srv.urls["controller"]) as ctl,
+          ModbusPulser.from_url(srv.urls["pulser"]) as pulser):
+        pulser.configure(PulserSettings(gain_db=20.0, averages=1))
+        yield profile, ctl, pulser
 
 
 def test_50_mm_water_path_at_20c_reads_67_46_us(cell):
-    profile, ctl, pulser = cell
+    _profile, ctl, pulser = cell
     ctl.move_joints(PAPER_CALIBRATION_POSE_DEG, timeout_s=10)
     reading = pulser.read_gate(fresh=True)
     assert reading.has_echo

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ucal.acoustics import water_absorption_np_per_mm
 from ucal.calibration.exact import residuals
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp, face_basis
 from ucal.calibration.search import PeakSearch, Rig, read_distance
 from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
-from ucal.sim.acoustics import water_absorption_np_per_mm
 
 log = logging.getLogger(__name__)
 

@@ -35,8 +35,8 @@ from scipy.optimize import least_squares
 
 from drivers.controller.base import RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal.acoustics import piston_directivity, water_path_mm, wavenumber_per_mm
 from ucal.errors import HardwareError
-from ucal.sim.acoustics import piston_directivity, water_path_mm, wavenumber_per_mm
 
 log = logging.getLogger(__name__)
 

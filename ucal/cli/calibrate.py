@@ -155,11 +155,18 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
 
 def plan_summary(plan, profile) -> str:
     """The plan as text for the confirmation prompt (stderr)."""
+    from ucal.acoustics import sound_speed_m_s
     from ucal.calibration.model import FACE_NAMES
 
-    lines = [(f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
-             f"measurements, joint steps {plan.step_deg:g} deg"),
-             "  target      J1       J2       J3       J4       J5       J6    water path"]
+    temp = profile.water_temperature_c
+    lines = [
+        (f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
+        f"measurements, joint steps ±{plan.step_deg:g} deg (the sign is chosen on the way for "
+        "clearance)"),
+        (f"Water {temp:g} °C: sound speed {sound_speed_m_s(temp):.2f} m/s (Marczak); transducer "
+        f"{profile.frequency_mhz:g} MHz, {profile.element_diameter_mm:g} mm"),
+        "  target      J1       J2       J3       J4       J5       J6    water path",
+    ]
     for t in plan.targets:
         lines.append(f"  {t.config:>4}/{FACE_NAMES[t.face]:<3}" +
                      "".join(f"{v:9.2f}" for v in t.joints_deg) + f"   {t.water_path_mm:6.1f} mm")

@@ -8,7 +8,7 @@
    facing it, with some of the footprint on it (``ucal.sim.geometry``); a face met from behind
    does not reflect, and where the beam axis crosses it, it hides the faces behind it;
 3. ``tof_ns = 2 L / c(T)`` with L the water path from the TCP to the axis hit point;
-   the amplitude is ``ucal.sim.acoustics.echo_amplitude`` (0.8 of full screen at normal
+   the amplitude is ``ucal.acoustics.echo_amplitude`` (0.8 of full screen at normal
    incidence, 50 mm path, 20 dB gain; × 10^(Δg/20); clipped at 1.0 = saturation);
 4. noise as the world says, divided by √averages, from a ``numpy.random.Generator`` seeded with
    ``world.noise.seed``.
@@ -25,8 +25,8 @@ import threading
 
 import numpy as np
 
+from ucal import acoustics
 from ucal.cell import WorldTruth
-from ucal.sim import acoustics
 from ucal.sim.geometry import Face, FaceHit, beam_ray, block_faces, intersect, reflector_face
 
 #: Default gate threshold (fraction of full screen): weaker echoes give no time of flight.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ucal.sim import acoustics as ac
+from ucal import acoustics as ac
 
 
 def test_sound_speed_at_20c_is_marczak_value() -> None:

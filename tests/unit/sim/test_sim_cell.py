@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from ucal import acoustics as ac
 from ucal.cell import CellProfile, Noise, Reflector, WorldTruth
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.models import load_model
-from ucal.sim import acoustics as ac
 from ucal.sim.cell import SimulatedCell, ideal_echo
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, demo_world
 from ucal.sim.geometry import block_faces, intersect
