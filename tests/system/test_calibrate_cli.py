@@ -194,3 +194,22 @@ def test_paper_method_runs_and_reports_its_half_step_bias(tmp_path):
     assert abs(found[0] - 1.0) < 0.01                              # θ1: a direction, exact
     # θ2+θ3 biased by half the step (the step goes + or −, whichever keeps the tool clear)
     assert abs(abs(found[1] + found[2] - 2.0) - 1.0) < 0.1
+
+
+def test_sigterm_interrupts_like_ctrl_c(tmp_path):
+    """A supervisor's SIGTERM stops the run: exit 130, robot told to stop, profile unchanged."""
+    profile = make_profile(tmp_path)
+    before = profile.read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "ucal", "calibrate", str(profile), "--sim",
+                             "--yes"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(4.0)  # well into the first face's search
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert profile.read_bytes() == before

@@ -227,6 +227,7 @@ class PeakSearch:
         normal (mm), from the forward kinematics; without it the fit uses the linear
         ``tilt_map``. ``absorption_np_per_mm``: water absorption (one way) at the frequency."""
         self.absorption = absorption_np_per_mm
+        self.amp_sigma_rel: float | None = None  # measured relative amplitude repeatability
         self.beam_components = beam_components
         self.rig = rig
         self.ka = ka
@@ -388,6 +389,11 @@ class PeakSearch:
             self.set_fit_gain(q, averages)  # leaves the robot settled at q
             settled = self.rig.controller.read_joints()
             amps.append(self.rig.normalised_amplitude(averages))
+            if self.amp_sigma_rel is None:
+                # Amplitude repeatability measured here, without moving: a floor under the
+                # fit's residual-based σ, which rests on a handful of degrees of freedom.
+                rep = [amps[-1]] + [self.rig.normalised_amplitude(averages) for _ in range(5)]
+                self.amp_sigma_rel = float(np.std(rep, ddof=1) / max(np.mean(rep), 1e-12))
             pts.append([settled[self.ja], settled[self.jb]])
             if distance is not None:
                 # TOF at this round's centre (the last good one is kept); a first centre off the
@@ -480,7 +486,8 @@ class PeakSearch:
                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000)
         res = sol.fun
         dof = max(1, len(amps) - len(p0))
-        sigma = max(float(np.sqrt(res @ res / dof)), 1e-6 * sol.x[0])
+        sigma = max(float(np.sqrt(res @ res / dof)), 1e-6 * sol.x[0],
+                    (self.amp_sigma_rel or 0.0) * float(np.mean(amps)))
         cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma ** 2
         # Peak-posture covariance (deg²) → tilt covariance (rad²) through the local map.
         cov_tilt = self._tilt_cov(cov[1:3, 1:3], sol.x)
@@ -496,7 +503,7 @@ class PeakSearch:
         return jac @ cov_u_deg2 @ jac.T
 
 
-def read_distance(rig: Rig, temperature_c: float, averages: int, repeats: int = 4
+def read_distance(rig: Rig, temperature_c: float, averages: int, repeats: int = 8
                   ) -> tuple[float, float]:
     """Water path (mm) from averaged TOF readings at the current posture, and its one-sigma."""
     tofs = []

@@ -68,10 +68,28 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def _interruptible() -> None:
+    """Ctrl-C and SIGTERM always interrupt: the robot is stopped and the profile kept.
+
+    A process started in the background by a non-interactive shell inherits SIGINT as ignored;
+    a supervisor stops a commissioning script with SIGTERM. Both must still stop the robot.
+    (``ucal sim serve`` installs its own handlers.)
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _terminate)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``ucal`` console script."""
     from drivers.errors import DriverError, MotionRejected
 
+    _interruptible()
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
     try:
