@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -75,7 +75,6 @@ class CalibrationRun:
     measurements: list[FaceMeasurement]
     moves: int
     reads: int
-    notes: list[str] = field(default_factory=list)
 
 
 def geometry(profile: CellProfile) -> CellGeometry:
@@ -266,7 +265,8 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
 
 def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
                     progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
-    """Measure the nine faces and solve. The caller owns connection, STOP and the profile."""
+    """Measure the nine faces (``solve`` turns them into offsets). The caller owns the
+    connection, STOP and the profile."""
     geom = geometry(profile)
     temp = profile.water_temperature_c
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
