@@ -8,6 +8,7 @@ nanoseconds (round trip, transmit to echo peak), amplitude as a fraction of full
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass
 from typing import Self
 
@@ -16,13 +17,53 @@ import numpy as np
 
 @dataclass(frozen=True)
 class PulserSettings:
-    """Acquisition settings of the pulser-receiver."""
+    """Acquisition settings of the pulser-receiver.
+
+    Receiver: ``gain_db`` (dB), gate start and width (µs of round-trip time), ``averages``
+    (acquisitions per reading), band-pass filter ``high_pass_mhz`` … ``low_pass_mhz`` (MHz;
+    a high-pass of 0 lets DC through). Pulser: ``prf_hz`` (Hz), ``pulse_voltage_v`` (V, the
+    spike or square-pulse amplitude that sets the pulse energy), ``damping_ohm`` (Ω across the
+    transducer: lower damps the ringing and shortens the pulse).
+
+    Construction checks what is physically meaningless (not a finite number, a negative or zero
+    rate, voltage or damping, a filter band that is empty) and raises ``ValueError`` naming the
+    field; a device's own ranges are checked by its driver before anything is written. Nothing
+    is clipped.
+    """
 
     gain_db: float = 20.0
     prf_hz: float = 1000.0
     gate_start_us: float = 5.0
     gate_width_us: float = 200.0
     averages: int = 1
+    pulse_voltage_v: float = 100.0
+    damping_ohm: float = 50.0
+    high_pass_mhz: float = 1.0
+    low_pass_mhz: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name in ("gain_db", "prf_hz", "gate_start_us", "gate_width_us", "pulse_voltage_v",
+                     "damping_ohm", "high_pass_mhz", "low_pass_mhz"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
+                                                                 np.floating)):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+        for name in ("prf_hz", "gate_width_us", "pulse_voltage_v", "damping_ohm"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        for name in ("gate_start_us", "high_pass_mhz"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must not be negative, got {getattr(self, name)!r}")
+        averages = self.averages
+        if (isinstance(averages, bool) or not isinstance(averages, (int, float, np.integer,
+                                                                    np.floating))
+                or not math.isfinite(averages) or averages != round(averages) or averages < 1):
+            raise ValueError(f"averages must be an integer >= 1, got {averages!r}")
+        if self.low_pass_mhz <= self.high_pass_mhz:
+            raise ValueError(f"low_pass_mhz = {self.low_pass_mhz!r} MHz must be above "
+                             f"high_pass_mhz = {self.high_pass_mhz!r} MHz (empty filter band)")
 
 
 @dataclass(frozen=True)
@@ -74,6 +115,10 @@ class PulserReceiver(abc.ABC):
     @abc.abstractmethod
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         """One gated reading. With ``fresh`` wait for a counter newer than the last one read."""
+
+    def identity(self) -> dict[str, object]:
+        """Optional: what the device tells about itself (model, firmware, serial, …)."""
+        return {}
 
     def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
         """Optional: A-scan samples (normalised, (n,)) and sample rate (Hz); None if unsupported."""

@@ -121,6 +121,8 @@ class ModbusPulser(PulserReceiver):
         self._rx = b""  # bytes received for the request in flight (cumulative)
         self._connected = False
         self._last_counter: int | None = None
+        self._map_version: int | None = None
+        self._front_end_written: list[int] | None = None  # last front-end block written
         self.last_status = reg.Status(0)  #: status bits of the last gate reading
         self._injected_port = port
         self._client = self._make_client(parsed)
@@ -225,14 +227,17 @@ class ModbusPulser(PulserReceiver):
                 self._client.close()
                 raise
             magic, version = ident
-            if magic != reg.DEVICE_MAGIC or version != reg.MAP_VERSION:
+            if magic != reg.DEVICE_MAGIC or version not in reg.SUPPORTED_MAP_VERSIONS:
                 self._client.close()
+                versions = "/".join(f"v{v}" for v in reg.SUPPORTED_MAP_VERSIONS)
                 raise ProtocolError(
                     self.device,
                     self._endpoint,
                     f"unexpected identity 0x{magic:04X} v{version} (expected "
-                    f"0x{reg.DEVICE_MAGIC:04X} v{reg.MAP_VERSION}): not this register map",
+                    f"0x{reg.DEVICE_MAGIC:04X} {versions}): not this register map",
                 )
+            self._map_version = version
+            self._front_end_written = None
             self._connected = True
             log.debug("pulser %s: connected, map version %d", self._endpoint, version)
 
@@ -242,25 +247,62 @@ class ModbusPulser(PulserReceiver):
             self._connected = False
             self._client.close()
 
+    @property
+    def map_version(self) -> int:
+        """The register-map version the device reported (connects first if needed)."""
+        self.connect()
+        assert self._map_version is not None
+        return self._map_version
+
     def configure(self, settings: PulserSettings) -> None:
-        """Validate and write gain, PRF, gate and averages in one request (FC 16).
+        """Validate and write the settings: gain, PRF, gate and averages in one request (FC 16),
+        then pulse voltage, damping and filters in a second one (map version 2) when they differ
+        from what this connection last wrote.
 
         Raises ``ValueError`` naming the setting for an out-of-range value (nothing is
-        written then); values are rounded to the register resolution (0.1 dB, 1 Hz, 1 ns).
+        written then), or for front-end settings other than the defaults on a map-version-1
+        device (which has no such registers); values are rounded to the register resolution
+        (0.1 dB, 1 Hz, 1 ns, 1 V, 1 Ω, 0.01 MHz).
         """
         registers = reg.encode_settings(settings)
+        front_end = reg.encode_front_end(settings)
+        if self.map_version < 2 and not reg.front_end_is_default(settings):
+            raise ValueError(
+                f"pulser at {self._endpoint}: pulse_voltage_v, damping_ohm, high_pass_mhz and "
+                f"low_pass_mhz cannot be set: the device's register map is version "
+                f"{self._map_version} (front-end registers need version 2)"
+            )
         self._write(reg.SETTINGS_ADDRESS, registers, "configure")
+        if self._map_version >= 2 and front_end != self._front_end_written:
+            self._write(reg.FRONT_END_ADDRESS, front_end, "configure front end")
+            self._front_end_written = front_end
         log.debug("pulser %s: configured %s", self._endpoint, settings)
 
     def settings(self) -> PulserSettings:
-        """Read gain, PRF, gate and averages back from the device."""
+        """Read the settings back from the device (one FC 03).
+
+        A map-version-1 device has no front-end registers: those fields read as the defaults.
+        """
+        count = reg.HOLDING_COUNT if self.map_version >= 2 else reg.SETTINGS_COUNT
         registers = self._read(
-            reg.FunctionCode.READ_HOLDING_REGISTERS,
-            reg.SETTINGS_ADDRESS,
-            reg.SETTINGS_COUNT,
-            "read settings",
+            reg.FunctionCode.READ_HOLDING_REGISTERS, reg.SETTINGS_ADDRESS, count, "read settings"
         )
         return reg.decode_settings(registers)
+
+    def identity(self) -> dict[str, object]:
+        """Map version, and model, firmware and serial number where the map has them (v2)."""
+        out: dict[str, object] = {"register_map_version": self.map_version}
+        if self.map_version >= 2:
+            info = reg.DeviceInfo.from_registers(
+                self._read(
+                    reg.FunctionCode.READ_INPUT_REGISTERS,
+                    reg.DEVICE_INFO_ADDRESS,
+                    reg.DEVICE_INFO_COUNT,
+                    "read device information",
+                )
+            )
+            out.update(model=info.model, firmware=info.firmware_version, serial=info.serial)
+        return out
 
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         """Read the gated peak amplitude and time of flight (ns, round trip).

@@ -42,7 +42,12 @@ MAX_WRITE_REGISTERS = 123
 
 #: Identity register contents: ASCII "UP" (ultrasonic pulser) and the version of this map.
 DEVICE_MAGIC = 0x5550
-MAP_VERSION = 1
+#: Version 2 adds the front-end settings (pulse voltage, damping, filters; holding registers
+#: 0x0009–0x000C) and the device information block (input registers 0x0002–0x000D) after the
+#: registers of version 1, whose addresses are unchanged.
+MAP_VERSION = 2
+#: Map versions the client talks to; a version-1 device has no front-end or device-info block.
+SUPPORTED_MAP_VERSIONS = (1, 2)
 
 #: Full-scale int16 A-scan sample (= 1.0 of full screen height).
 ASCAN_FULL_SCALE = 32767
@@ -116,13 +121,20 @@ class Holding(enum.IntEnum):
     AVERAGES = 0x0006  #: uint16, acquisitions averaged per reading
     THRESHOLD = 0x0007  #: uint16, 0.1 % of full screen height
     COMMAND = 0x0008  #: uint16, write-only, see :class:`Command`
+    PULSE_VOLTAGE = 0x0009  #: uint16, V (map version 2)
+    DAMPING = 0x000A  #: uint16, Ω (map version 2)
+    HIGH_PASS = 0x000B  #: uint16, 0.01 MHz (map version 2)
+    LOW_PASS = 0x000C  #: uint16, 0.01 MHz (map version 2)
 
 
-#: Number of holding registers (0x0000 … 0x0008).
-HOLDING_COUNT = 9
+#: Number of holding registers (0x0000 … 0x000C).
+HOLDING_COUNT = 13
 #: The registers :func:`encode_settings` writes in one FC 16 request (GAIN … AVERAGES).
 SETTINGS_ADDRESS = Holding.GAIN
 SETTINGS_COUNT = 7
+#: The registers :func:`encode_front_end` writes in one FC 16 request (map version 2).
+FRONT_END_ADDRESS = Holding.PULSE_VOLTAGE
+FRONT_END_COUNT = 4
 
 
 @dataclass(frozen=True)
@@ -244,10 +256,53 @@ COMMAND = Setting(
     doc="Write-only command, see Command.",
 )
 
-#: The settings of :class:`PulserSettings`, in register order.
+PULSE_VOLTAGE = Setting(
+    "pulse_voltage_v",
+    Holding.PULSE_VOLTAGE,
+    1,
+    1.0,
+    10.0,
+    500.0,
+    "V",
+    doc="Pulse voltage (sets the pulse energy), 1 V resolution.",
+)
+DAMPING = Setting(
+    "damping_ohm",
+    Holding.DAMPING,
+    1,
+    1.0,
+    10.0,
+    2000.0,
+    "Ω",
+    doc="Damping resistance across the transducer, 1 Ω resolution.",
+)
+HIGH_PASS = Setting(
+    "high_pass_mhz",
+    Holding.HIGH_PASS,
+    1,
+    100.0,
+    0.0,
+    100.0,
+    "MHz",
+    doc="Receiver high-pass cut-off (0 = DC coupled), 0.01 MHz resolution.",
+)
+LOW_PASS = Setting(
+    "low_pass_mhz",
+    Holding.LOW_PASS,
+    1,
+    100.0,
+    0.1,
+    500.0,
+    "MHz",
+    doc="Receiver low-pass cut-off, 0.01 MHz resolution.",
+)
+
+#: The settings of :class:`PulserSettings` in the first block (map version 1), register order.
 SETTINGS: tuple[Setting, ...] = (GAIN, PRF, GATE_START, GATE_WIDTH, AVERAGES)
+#: The front-end settings of :class:`PulserSettings` (map version 2), register order.
+FRONT_END_SETTINGS: tuple[Setting, ...] = (PULSE_VOLTAGE, DAMPING, HIGH_PASS, LOW_PASS)
 #: Every holding-register setting, in register order.
-HOLDING_SETTINGS: tuple[Setting, ...] = SETTINGS + (THRESHOLD, COMMAND)
+HOLDING_SETTINGS: tuple[Setting, ...] = SETTINGS + (THRESHOLD, COMMAND) + FRONT_END_SETTINGS
 #: Gate threshold of a freshly powered device, fraction of full screen height.
 DEFAULT_THRESHOLD = 0.02
 
@@ -279,17 +334,50 @@ def encode_settings(settings: PulserSettings) -> list[int]:
     return registers
 
 
+def encode_front_end(settings: PulserSettings) -> list[int]:
+    """Validate the front-end settings; return the :data:`FRONT_END_COUNT` registers from
+    ``PULSE_VOLTAGE`` (map version 2). Raises ``ValueError`` naming the first invalid one."""
+    registers: list[int] = []
+    for s in FRONT_END_SETTINGS:
+        registers += s.registers(s.to_raw(getattr(settings, s.name)))
+    if registers[-1] <= registers[-2]:  # the band after rounding to 0.01 MHz
+        raise ValueError(f"low_pass_mhz = {settings.low_pass_mhz:g} MHz must be above "
+                         f"high_pass_mhz = {settings.high_pass_mhz:g} MHz")
+    return registers
+
+
+def front_end_is_default(settings: PulserSettings) -> bool:
+    """Tell whether the front-end settings are the defaults (what a version-1 map implies)."""
+    default = PulserSettings()
+    return all(getattr(settings, s.name) == getattr(default, s.name) for s in FRONT_END_SETTINGS)
+
+
 def decode_settings(registers: Sequence[int]) -> PulserSettings:
-    """Decode the :data:`SETTINGS_COUNT` registers from ``GAIN`` into :class:`PulserSettings`."""
+    """Decode holding registers read from ``GAIN`` into :class:`PulserSettings`.
+
+    The first :data:`SETTINGS_COUNT` registers are required; the front-end settings are decoded
+    when the registers reach ``LOW_PASS`` (a map-version-2 read), else they keep their defaults.
+    """
     if len(registers) < SETTINGS_COUNT:
         raise ValueError(f"need {SETTINGS_COUNT} registers, got {len(registers)}")
     values: dict[str, float] = {}
-    for s in SETTINGS:
+    settings = SETTINGS
+    if len(registers) >= FRONT_END_ADDRESS + FRONT_END_COUNT - SETTINGS_ADDRESS:
+        settings = SETTINGS + FRONT_END_SETTINGS
+    for s in settings:
         i = s.address - SETTINGS_ADDRESS
         raw = registers[i] if s.words == 1 else decode_uint32(registers[i], registers[i + 1])
         values[s.name] = s.from_raw(raw)
     values["averages"] = int(values["averages"])
     return PulserSettings(**values)  # type: ignore[arg-type]
+
+
+def power_on_holding() -> list[int]:
+    """The :data:`HOLDING_COUNT` holding registers of a freshly powered device: the
+    :class:`PulserSettings` defaults, :data:`DEFAULT_THRESHOLD` and no command."""
+    defaults = PulserSettings()
+    return (encode_settings(defaults) + [THRESHOLD.to_raw(DEFAULT_THRESHOLD), int(Command.NONE)]
+            + encode_front_end(defaults))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -300,6 +388,9 @@ class Input(enum.IntEnum):
 
     MAGIC = 0x0000  #: uint16, :data:`DEVICE_MAGIC`
     MAP_VERSION = 0x0001  #: uint16, :data:`MAP_VERSION`
+    MODEL = 0x0002  #: 16 bytes ASCII, NUL padded (8 registers, map version 2)
+    FIRMWARE = 0x000A  #: uint16 major, uint16 minor (map version 2)
+    SERIAL = 0x000C  #: uint32 serial number (map version 2)
     COUNTER = 0x0010  #: uint32, reading counter (+1 per acquisition, wraps at 2**32)
     DEVICE_TIME = 0x0012  #: uint32, device clock at acquisition, ms (wraps after 49.7 days)
     STATUS = 0x0014  #: uint16, :class:`Status` bits
@@ -314,6 +405,10 @@ class Input(enum.IntEnum):
 
 IDENTITY_ADDRESS = Input.MAGIC
 IDENTITY_COUNT = 2
+DEVICE_INFO_ADDRESS = Input.MODEL
+DEVICE_INFO_COUNT = 12
+#: Bytes of the model name (2 per register).
+MODEL_BYTES = 16
 MEASUREMENT_ADDRESS = Input.COUNTER
 MEASUREMENT_COUNT = 10
 ASCAN_HEADER_ADDRESS = Input.ASCAN_COUNTER
@@ -322,6 +417,7 @@ ASCAN_HEADER_COUNT = 8
 #: Readable input-register ranges ``(first, count)``; a read must lie inside one of them.
 INPUT_RANGES: tuple[tuple[int, int], ...] = (
     (IDENTITY_ADDRESS, IDENTITY_COUNT),
+    (DEVICE_INFO_ADDRESS, DEVICE_INFO_COUNT),
     (MEASUREMENT_ADDRESS, MEASUREMENT_COUNT),
     (ASCAN_HEADER_ADDRESS, ASCAN_HEADER_COUNT),
     (Input.ASCAN_SAMPLES, ASCAN_MAX_SAMPLES),
@@ -364,6 +460,43 @@ class Measurement:
             amplitude=decode_float32(r[6], r[7]),
             tof_ns=decode_float32(r[8], r[9]),
         )
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """The device information block, ``DEVICE_INFO_COUNT`` input registers from ``MODEL``."""
+
+    model: str  #: ASCII, at most :data:`MODEL_BYTES` characters
+    firmware: tuple[int, int]  #: (major, minor)
+    serial: int  #: uint32
+
+    def to_registers(self) -> list[int]:
+        """Encode into registers: model (NUL padded, 2 bytes per register, high byte first),
+        firmware major, minor, serial (uint32)."""
+        raw = self.model.encode("ascii")
+        if len(raw) > MODEL_BYTES:
+            raise ValueError(f"model name {self.model!r} is longer than {MODEL_BYTES} bytes")
+        raw = raw.ljust(MODEL_BYTES, b"\0")
+        words = [int.from_bytes(raw[i : i + 2], "big") for i in range(0, MODEL_BYTES, 2)]
+        major, minor = self.firmware
+        return [*words, _check_register(major), _check_register(minor),
+                *encode_uint32(self.serial)]
+
+    @classmethod
+    def from_registers(cls, registers: Sequence[int]) -> DeviceInfo:
+        """Decode ``DEVICE_INFO_COUNT`` registers read from ``MODEL``."""
+        if len(registers) != DEVICE_INFO_COUNT:
+            raise ValueError(f"need {DEVICE_INFO_COUNT} registers, got {len(registers)}")
+        r = list(registers)
+        n = MODEL_BYTES // 2
+        raw = b"".join(_check_register(w).to_bytes(2, "big") for w in r[:n])
+        model = raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
+        return cls(model=model, firmware=(r[n], r[n + 1]), serial=decode_uint32(r[n + 2], r[n + 3]))
+
+    @property
+    def firmware_version(self) -> str:
+        """The firmware version as ``"major.minor"``."""
+        return f"{self.firmware[0]}.{self.firmware[1]}"
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,8 @@ PulserModel = Callable[[PulserSettings], tuple[float, float]]
 
 #: −6 dB bandwidth of the simulated transducer, as a fraction of its centre frequency.
 FRACTIONAL_BANDWIDTH = 0.6
+#: What the simulated device reports in its device information block.
+DEVICE_INFO = reg.DeviceInfo(model="ucal simulated", firmware=(reg.MAP_VERSION, 0), serial=1)
 #: Longest wait for the server thread to start listening or to stop, s.
 START_TIMEOUT_S = 5.0
 STOP_TIMEOUT_S = 5.0
@@ -272,16 +274,15 @@ class SimulatedPulser:
         return list(self._context.getValues(_FC_READ_HOLDING, 0, reg.HOLDING_COUNT))
 
     def _settings(self) -> PulserSettings:
-        return reg.decode_settings(self._holding()[: reg.SETTINGS_COUNT])
+        return reg.decode_settings(self._holding())
 
     def _reset_registers(self) -> None:
         """Power-on state: default settings and threshold, zeroed measurement, identity."""
-        defaults = reg.encode_settings(PulserSettings())
-        defaults += [reg.THRESHOLD.to_raw(reg.DEFAULT_THRESHOLD), int(reg.Command.NONE)]
-        self._context.setValues(_FC_READ_HOLDING, 0, defaults)
+        self._context.setValues(_FC_READ_HOLDING, 0, reg.power_on_holding())
         self._context.setValues(
             _FC_READ_INPUT, reg.IDENTITY_ADDRESS, [reg.DEVICE_MAGIC, reg.MAP_VERSION]
         )
+        self._context.setValues(_FC_READ_INPUT, reg.DEVICE_INFO_ADDRESS, DEVICE_INFO.to_registers())
         self._store_measurement(reg.Measurement(0, 0, reg.Status(0), 0.0, float("nan")))
 
     def _store_measurement(self, m: reg.Measurement) -> None:

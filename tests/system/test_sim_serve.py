@@ -112,11 +112,11 @@ def test_serve_prints_urls_answers_raw_protocols_and_logs_motions(
                 np.testing.assert_allclose(joints_rad, 0.0, atol=1e-6)
         assert JOINT_POSITION in seen or JOINT_FEEDBACK in seen
 
-    # pulser: Modbus TCP, FC 4 identity ("UP", map version 1), then one acquisition
+    # pulser: Modbus TCP, FC 4 identity ("UP", map version 2), then one acquisition
     with socket.create_connection(("127.0.0.1", puls.port), timeout=3.0) as mb:
         pdu = modbus_tcp(mb, 1, struct.pack(">BHH", 4, 0x0000, 2))
         assert pdu[:2] == bytes([4, 4])
-        assert struct.unpack(">HH", pdu[2:6]) == (0x5550, 1)
+        assert struct.unpack(">HH", pdu[2:6]) == (0x5550, 2)
         pdu = modbus_tcp(mb, 2, struct.pack(">BHH", 4, 0x0010, 10))
         regs = pdu[2:]
         counter = struct.unpack_from(">I", regs, 0)[0]
