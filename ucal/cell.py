@@ -42,6 +42,13 @@ class CellProfile:
     sample_face_size_mm: float = 500.0
     reflector_points_mm: np.ndarray | None = None  # (n, 3), n >= 3
     water_temperature_c: float = 20.0
+    # One-sigma tolerances of what the profile states (SPEC.md defaults: a tool from its drawing,
+    # a hand-placed block, a tank thermometer); solvers carry them as priors.
+    tool_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 1.0))
+    tool_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+    sample_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 5.0))
+    sample_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+    water_temperature_std_c: float = 2.0
     frequency_mhz: float = 25.0
     element_diameter_mm: float = 6.0
     joint_offsets_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -79,9 +86,33 @@ class Reflector:
 
 @dataclass(frozen=True)
 class Noise:
+    """Random errors of single readings (``[noise]``); every random source is seeded by ``seed``."""
+
     tof_ns: float = 0.0       # one-sigma TOF jitter of a single reading
     amplitude: float = 0.0    # one-sigma relative amplitude noise of a single reading
     seed: int = 0
+
+
+#: Fixed delay (ns) between the instrument's time zero and the pulse leaving the element, that
+#: every TOF reading carries: ~0.8 m of coaxial cable each way (≈ 5 ns/m) left after the
+#: instrument's own zero. Real probes and cables add 10–60 ns; 8 ns keeps the uncorrected
+#: reading of a 50 mm path at 20 °C at 67.46 µs to 0.01 µs.
+DEFAULT_PULSER_DELAY_NS = 8.0
+
+
+@dataclass(frozen=True)
+class PulserTruth:
+    """How the pulser-receiver reports what it receives (``[pulser]`` of a world file).
+
+    ``amplitude_bits``: amplitude quantised to 2^bits levels of full screen height, truncated
+    (a reading below one level reads 0); 0 = not quantised. ``gain_error_db``: one-sigma error
+    of the gain actually applied, drawn anew at each gain change. ``delay_ns``: fixed
+    electronic delay added to every time of flight (round trip, ns).
+    """
+
+    amplitude_bits: int = 0
+    gain_error_db: float = 0.0
+    delay_ns: float = DEFAULT_PULSER_DELAY_NS
 
 
 @dataclass(frozen=True)
@@ -101,6 +132,14 @@ class WorldTruth:
     element_diameter_mm: float
     noise: Noise = field(default_factory=Noise)
     initial_joints_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: Hayati twist of each link about its y axis (deg): A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β).
+    dh_beta_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: Lost motion per joint (deg): the link lags the encoder by half of it, against the
+    #: direction of the joint's last motion.
+    backlash_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: Linear drift of the water temperature with simulated time (°C per minute).
+    water_drift_c_per_min: float = 0.0
+    pulser: PulserTruth = field(default_factory=PulserTruth)
 
     @property
     def tool_matrix(self) -> np.ndarray:

@@ -2,7 +2,20 @@
 
 Every key is optional. A missing key means "as the profile says" (nominal = true), zero joint
 offsets, zero noise. Values use the profile's units (mm, deg, °C, MHz) and the same validators,
-so an error names the world file and the dotted key. Extra keys beyond SPEC.md:
+so an error names the world file and the dotted key. Keys the solvers do not model:
+
+* ``[robot] dh`` rows may carry ``beta_deg`` (Hayati's twist about the link's y axis,
+  ``A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``, |β| <= 30°; an array row may give it as a fifth
+  number); stored as ``WorldTruth.dh_beta_deg``;
+* ``[robot] backlash_deg = [6]`` — lost motion per joint (0…5°): the link lags the encoder by
+  half of it, against the direction of the joint's last motion;
+* ``[water] drift_c_per_min`` — the tank warms (+) or cools linearly in simulated time
+  (|drift| <= 10 °C/min; ``temperature_c`` is the temperature at the start of the run);
+* ``[pulser] amplitude_bits`` (0…24; 0 = not quantised), ``gain_error_db`` (one sigma, 0…6 dB)
+  and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
+  ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`.
+
+Extra keys beyond SPEC.md:
 
 * ``[robot] initial_joints_deg`` — joint readings (deg) the simulated robot starts at;
 * ``[sample] face_size_mm`` — edge length of the block faces (mm);
@@ -17,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ucal.cell import CellProfile, Noise, Reflector, WorldTruth
+from ucal.cell import CellProfile, Noise, PulserTruth, Reflector, WorldTruth
 from ucal.profile import read_robot, read_transducer, read_water
 from ucal.validation import Reader, read_toml, unknown_keys
 
@@ -25,14 +38,20 @@ from ucal.validation import Reader, read_toml, unknown_keys
 KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset(),
     "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "joint_offsets_deg",
-                        "initial_joints_deg"}),
+                        "initial_joints_deg", "backlash_deg"}),
     "tool": frozenset({"position_mm", "rotation_deg"}),
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
     "reflector": frozenset({"point_mm", "normal", "size_mm", "edge_direction"}),
-    "water": frozenset({"temperature_c"}),
+    "water": frozenset({"temperature_c", "drift_c_per_min"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
+    "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
 }
+
+#: Largest Hayati twist (deg), backlash (deg) and water drift (°C/min) a world file may state.
+MAX_BETA_DEG = 30.0
+MAX_BACKLASH_DEG = 5.0
+MAX_DRIFT_C_PER_MIN = 10.0
 
 
 def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
@@ -65,6 +84,9 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
 
     robot = r.table("robot")
     if robot is not None:
+        robot, beta = _split_beta(r, robot)
+        if beta is not None:
+            changes["dh_beta_deg"] = beta
         if "model" in robot or "dh" in robot:
             changes["model"] = read_robot(r, robot, "robot", ranges_from=profile.model)
         elif "joint_min_deg" in robot or "joint_max_deg" in robot:
@@ -78,6 +100,10 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         if v is not None:
             changes["initial_joints_deg"] = r.joints_within(
                 "robot.initial_joints_deg", v, model.joint_min_deg, model.joint_max_deg)
+        v = r.get(robot, "robot.backlash_deg")
+        if v is not None:
+            changes["backlash_deg"] = r.vector("robot.backlash_deg", v, 6, lo=0.0,
+                                               hi=MAX_BACKLASH_DEG, unit="deg")
 
     tool = r.table("tool")
     _vector(r, tool, "tool", "position_mm", 3, "mm", changes, "tool_position_mm")
@@ -95,14 +121,24 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
     if reflector is not None:
         changes["reflector"] = _reflector(r, reflector, world.reflector)
 
-    water_c = read_water(r, r.table("water"), "water", required=False)
+    water = r.table("water")
+    water_c = read_water(r, water, "water", required=False)
     if water_c is not None:
         changes["water_temperature_c"] = water_c
+    v = r.get(water, "water.drift_c_per_min")
+    if v is not None:
+        changes["water_drift_c_per_min"] = r.number(
+            "water.drift_c_per_min", v, lo=-MAX_DRIFT_C_PER_MIN, hi=MAX_DRIFT_C_PER_MIN,
+            unit="degC/min")
     freq, diam = read_transducer(r, r.table("transducer"), "transducer", required=False)
     if freq is not None:
         changes["frequency_mhz"] = freq
     if diam is not None:
         changes["element_diameter_mm"] = diam
+
+    pulser = r.table("pulser")
+    if pulser is not None:
+        changes["pulser"] = _pulser(r, pulser)
 
     noise = r.table("noise")
     if noise is not None:
@@ -118,6 +154,44 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
             seed=d.seed if seed is None else r.integer("noise.seed", seed, lo=0,
                                                        hi=2**63 - 1))
     return world.replace(**changes)
+
+
+def _split_beta(r: Reader, robot: Mapping[str, Any]
+                ) -> tuple[Mapping[str, Any], np.ndarray | None]:
+    """Take the optional Hayati ``beta_deg`` out of ``[robot] dh``: the table without it (for
+    the profile's DH reader) and the six twists (deg), or None when there is no ``dh``."""
+    raw = robot.get("dh")
+    if raw is None:
+        return robot, None
+    rows = r.array("robot.dh", raw, 6)
+    beta = np.zeros(6)
+    stripped: list[Any] = []
+    for i, row in enumerate(rows):
+        if isinstance(row, Mapping) and "beta_deg" in row:
+            beta[i] = r.number(f"robot.dh[{i}].beta_deg", row["beta_deg"], lo=-MAX_BETA_DEG,
+                               hi=MAX_BETA_DEG, unit="deg")
+            row = {k: v for k, v in row.items() if k != "beta_deg"}
+        elif isinstance(row, (list, tuple)) and len(row) == 5:
+            beta[i] = r.number(f"robot.dh[{i}][4]", row[4], lo=-MAX_BETA_DEG, hi=MAX_BETA_DEG,
+                               unit="deg")
+            row = list(row[:4])
+        stripped.append(row)
+    return {**robot, "dh": stripped}, beta
+
+
+def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
+    """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000)."""
+    d = PulserTruth()
+    bits = r.get(table, "pulser.amplitude_bits")
+    gain = r.get(table, "pulser.gain_error_db")
+    delay = r.get(table, "pulser.delay_ns")
+    return PulserTruth(
+        amplitude_bits=d.amplitude_bits if bits is None else r.integer(
+            "pulser.amplitude_bits", bits, lo=0, hi=24),
+        gain_error_db=d.gain_error_db if gain is None else r.number(
+            "pulser.gain_error_db", gain, lo=0.0, hi=6.0, unit="dB"),
+        delay_ns=d.delay_ns if delay is None else r.number(
+            "pulser.delay_ns", delay, lo=-1000.0, hi=10000.0, unit="ns"))
 
 
 def _vector(r: Reader, table: Mapping[str, Any] | None, tname: str, key: str, n: int,

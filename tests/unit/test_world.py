@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.cell import CellProfile, WorldTruth
+from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, PulserTruth, WorldTruth
 from ucal.errors import ProfileError
 from ucal.models import load_model
 from ucal.profile import default_profile_text, load_profile
@@ -142,6 +142,25 @@ BAD_WORLDS = [
     ("[reflector]\nsize_mm = [100, -1]\n", "reflector.size_mm[1]", "> 0"),
     ("[sample]\nface_size_mm = 0\n", "sample.face_size_mm", "> 0"),
     ("noise = 3\n", "noise", "must be a table"),
+    ("[robot]\nbacklash_deg = [0, 0, -0.1, 0, 0, 0]\n", "robot.backlash_deg[2]", ">= 0"),
+    ("[robot]\nbacklash_deg = [0, 0, 0]\n", "robot.backlash_deg", "must have 6"),
+    ("[robot]\nbacklash_deg = [0, 0, 0, 0, 0, 9]\n", "robot.backlash_deg[5]", "<= 5"),
+    ("[water]\ndrift_c_per_min = 11\n", "water.drift_c_per_min", "<= 10"),
+    ('[water]\ndrift_c_per_min = "warm"\n', "water.drift_c_per_min", "finite"),
+    ("[pulser]\namplitude_bits = 8.0\n", "pulser.amplitude_bits", "integer"),
+    ("[pulser]\namplitude_bits = 25\n", "pulser.amplitude_bits", "<= 24"),
+    ("[pulser]\ngain_error_db = -0.1\n", "pulser.gain_error_db", ">= 0"),
+    ("[pulser]\ndelay_ns = inf\n", "pulser.delay_ns", "finite"),
+    ("[pulser]\ndelay_ns = 20000\n", "pulser.delay_ns", "<= 10000"),
+    ("pulser = 1\n", "pulser", "must be a table"),
+    ("[robot]\ndh = [[0, 0, 50, -90, 31], [-90, 50, 500, 0], [90, 0, 0, 90], [0, 550, 0, -90],"
+     " [0, 0, 0, 90], [0, 100, 0, 0]]\n", "robot.dh[0][4]", "<= 30"),
+    ("[robot]\ndh = [[0, 0, 50, -90], {theta_offset_deg = -90, d_mm = 50, a_mm = 500, "
+     "alpha_deg = 0, beta_deg = \"x\"}, [90, 0, 0, 90], [0, 550, 0, -90], [0, 0, 0, 90], "
+     "[0, 100, 0, 0]]\n", "robot.dh[1].beta_deg", "finite"),
+    ("[robot]\ndh = [[0, 0, 50, -90], {theta_offset_deg = -90, d_mm = 50, a_mm = 500, "
+     "alpha_deg = 0, gamma_deg = 1}, [90, 0, 0, 90], [0, 550, 0, -90], [0, 0, 0, 90], "
+     "[0, 100, 0, 0]]\n", "robot.dh[1].gamma_deg", "unknown DH column"),
 ]
 
 
@@ -161,3 +180,57 @@ def test_world_unknown_keys_are_reported(tmp_path: Path) -> None:
     path = _world(tmp_path, "[noise]\ntof_ns = 1.0\nsigma = 2\n[wind]\nspeed = 1\n")
     assert world_warnings(path) == ["unknown key noise.sigma (ignored)",
                                     "unknown key wind (ignored)"]
+
+
+def test_new_effects_default_to_zero(profile: CellProfile, tmp_path: Path) -> None:
+    for w in (WorldTruth.nominal(profile), load_world(_world(tmp_path, "[pulser]\n"), profile)):
+        np.testing.assert_array_equal(w.backlash_deg, np.zeros(6))
+        np.testing.assert_array_equal(w.dh_beta_deg, np.zeros(6))
+        assert w.water_drift_c_per_min == 0.0
+        assert w.pulser == PulserTruth()
+        assert (w.pulser.amplitude_bits, w.pulser.gain_error_db) == (0, 0.0)
+        # what a real instrument does is always on: a fixed electronic delay
+        assert w.pulser.delay_ns == DEFAULT_PULSER_DELAY_NS > 0.0
+
+
+def test_world_effect_keys(profile: CellProfile, tmp_path: Path) -> None:
+    path = _world(tmp_path, """
+[robot]
+backlash_deg = [0.01, 0.02, 0.02, 0.03, 0.03, 0.04]
+[water]
+temperature_c = 21.0
+drift_c_per_min = -0.25
+[pulser]
+amplitude_bits = 8
+gain_error_db = 0.2
+delay_ns = 35.5
+""")
+    w = load_world(path, profile)
+    np.testing.assert_array_equal(w.backlash_deg, [0.01, 0.02, 0.02, 0.03, 0.03, 0.04])
+    assert (w.water_temperature_c, w.water_drift_c_per_min) == (21.0, -0.25)
+    assert w.pulser == PulserTruth(amplitude_bits=8, gain_error_db=0.2, delay_ns=35.5)
+    np.testing.assert_array_equal(w.model.dh, profile.model.dh)  # no dh: the profile's
+    np.testing.assert_array_equal(w.dh_beta_deg, np.zeros(6))
+    assert world_warnings(path) == []
+    # a partial [pulser] keeps the other defaults
+    w = load_world(_world(tmp_path, "[pulser]\namplitude_bits = 12\n"), profile)
+    assert w.pulser == PulserTruth(amplitude_bits=12)
+
+
+def test_world_dh_accepts_hayati_beta(profile: CellProfile, tmp_path: Path) -> None:
+    dh = profile.model.dh.copy()
+    rows = [dict(zip(DH_KEYS, map(float, row), strict=True)) for row in dh]
+    rows[1]["beta_deg"] = 0.05  # joints 2 and 3 nearly parallel: Hayati's twist
+    doc = tomlkit.document()
+    robot = tomlkit.table()
+    arr = tomlkit.array()
+    arr.extend(rows[:2])
+    arr.append([float(v) for v in dh[2]] + [-0.02])  # an array row: beta as a fifth number
+    arr.extend(rows[3:])
+    robot["dh"] = arr
+    doc["robot"] = robot
+    path = _world(tmp_path, tomlkit.dumps(doc))
+    w = load_world(path, profile)
+    np.testing.assert_array_equal(w.model.dh, dh)
+    np.testing.assert_array_equal(w.dh_beta_deg, [0.0, 0.05, -0.02, 0.0, 0.0, 0.0])
+    assert world_warnings(path) == []
