@@ -25,7 +25,7 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -398,6 +398,8 @@ def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
     p = Path(path)
     text = default_profile_text(model)
     profile_from_data(tomlkit.parse(text), p)  # the template must always validate
+    if p.is_symlink():  # write through the link: it stays a link
+        p = real_path(p)
     if p.exists():
         if not force:
             raise ProfileError(p, None, "already exists (use --force to replace it; the old "
@@ -506,9 +508,10 @@ def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]],
     bytes in the history with ``reason`` (e.g. ``"calibrate"``).
 
     The result is validated as a profile first. Any failure raises :class:`ProfileError`
-    (exit 2) and leaves the profile byte-for-byte unchanged.
+    (exit 2) and leaves the profile byte-for-byte unchanged. A symlinked profile is written
+    through the link (the link stays a link; the history sits beside the real file).
     """
-    p = Path(path)
+    p = real_path(path)
     try:
         before = p.read_bytes()
     except OSError as e:
@@ -539,6 +542,12 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
     On failure the temp file is removed and ``path`` is untouched; raises ProfileError.
     """
+    _commit(_stage(path, data), path)
+
+
+def _stage(path: Path, data: bytes) -> Path:
+    """Write ``data`` to a new fsync'ed temporary file beside ``path`` (with ``path``'s mode)
+    and return it: everything that needs disk space, before anything is replaced."""
     mode = None
     try:
         mode = path.stat().st_mode & 0o7777
@@ -553,16 +562,25 @@ def _atomic_write(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         if mode is not None:
             os.chmod(tmp, mode)
-        os.replace(tmp, path)
-        tmp = None
-        _fsync_dir(path.parent)
     except OSError as e:
-        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
-            from None
-    finally:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
+            from None
+    return Path(tmp)
+
+
+def _commit(tmp: Path, path: Path) -> None:
+    """Rename a staged file over ``path`` (atomic; needs no space); remove it on failure."""
+    try:
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
+            from None
+    _fsync_dir(path.parent)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -589,9 +607,15 @@ class HistoryEntry:
     after: str | None = None
 
 
+def real_path(path: str | Path) -> Path:
+    """The file a profile path names, symbolic links resolved (the path itself if none)."""
+    return Path(os.path.realpath(path))
+
+
 def history_dir(path: str | Path) -> Path:
-    """The history directory of a profile: ``cell.toml`` → ``cell.toml.history``."""
-    p = Path(path)
+    """The history directory of a profile: ``cell.toml`` → ``cell.toml.history``, beside the
+    real file when ``path`` is a symbolic link."""
+    p = real_path(path)
     return p.with_name(p.name + HISTORY_SUFFIX)
 
 
@@ -615,28 +639,76 @@ def profile_history(path: str | Path) -> list[HistoryEntry]:
         raise ProfileError(index, None, f"unreadable history index: {e}") from None
 
 
-def _save_history(path: Path, entries: list[HistoryEntry]) -> None:
+def _index_bytes(path: Path, entries: list[HistoryEntry]) -> bytes:
     data = {"profile": path.name, "entries": [asdict(e) for e in entries]}
-    _atomic_write(history_dir(path) / HISTORY_INDEX,
-                  (json.dumps(data, indent=1) + "\n").encode("utf-8"))
+    return (json.dumps(data, indent=1) + "\n").encode("utf-8")
+
+
+def _save_history(path: Path, entries: list[HistoryEntry]) -> None:
+    _atomic_write(history_dir(path) / HISTORY_INDEX, _index_bytes(path, entries))
+
+
+def _replace_both(path: Path, data: bytes, entries: list[HistoryEntry], copy: Path) -> None:
+    """Replace the history index (``entries``) and then the profile (``data``).
+
+    Both new files are written and fsync'ed before either is renamed into place, so a full
+    disk fails before anything changes: the staged files and the new history ``copy`` are
+    removed, and the index and the profile keep their bytes.
+    """
+    index = history_dir(path) / HISTORY_INDEX
+    staged: list[Path] = []
+    try:
+        staged.append(_stage(index, _index_bytes(path, entries)))
+        staged.append(_stage(path, data))
+        _commit(staged[0], index)
+    except ProfileError:
+        for tmp in staged:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        with contextlib.suppress(OSError):
+            copy.unlink()
+        raise
+    _commit(staged[1], path)
 
 
 def _write_new(path: Path, data: bytes) -> None:
-    """Write a history copy (fsync'ed); it is new, so no rename is needed."""
+    """Write a history copy (fsync'ed); it is new, so no rename is needed.
+
+    A copy that cannot be written whole (e.g. the disk is full) is removed again, so that no
+    empty or truncated ``NNNN-before.toml`` is left to collide with the next write.
+    """
+    created = False
     try:
         with open(path, "xb") as f:
+            created = True
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
     except OSError as e:
+        if created:
+            with contextlib.suppress(OSError):
+                path.unlink()
         raise ProfileError(path, None, f"cannot write history copy: {e.strerror or e}") \
             from None
+
+
+def _next_history_id(hdir: Path, entries: list[HistoryEntry]) -> int:
+    """The next free history id: past every indexed entry and every ``NNNN-*.toml`` present
+    (a copy left behind by an interrupted write must not block the next one)."""
+    ids = [e.id for e in entries]
+    with contextlib.suppress(OSError):
+        for f in hdir.iterdir():
+            head = f.name.split("-", 1)[0]
+            if f.suffix == ".toml" and head.isdigit():
+                ids.append(int(head))
+    return max(ids, default=0) + 1
 
 
 def _replace_with_history(path: Path, after: bytes, reason: str,
                           before: bytes | None = None) -> HistoryEntry:
     """Record ``before`` (default: the current bytes) in the history, then replace ``path``
     with ``after`` atomically; withdraw the entry if the replacement fails."""
+    path = real_path(path)
     if before is None:
         before = path.read_bytes()
     hdir = history_dir(path)
@@ -646,28 +718,33 @@ def _replace_with_history(path: Path, after: bytes, reason: str,
         raise ProfileError(hdir, None, f"cannot create history directory: {e.strerror or e}") \
             from None
     entries = profile_history(path)
-    new_id = max((e.id for e in entries), default=0) + 1
+    new_id = _next_history_id(hdir, entries)
     copy = hdir / f"{new_id:04d}-before.toml"
     _write_new(copy, before)
     entry = HistoryEntry(id=new_id, time=_now(), reason=reason, before=copy.name,
                          before_sha256=_sha(before), after_sha256=_sha(after))
     try:
-        _save_history(path, entries + [entry])
-        _atomic_write(path, after)
+        _replace_both(path, after, entries + [entry], copy)
     except ProfileError:
-        _withdraw(path, entries, copy)
+        _withdraw(path, entries, copy)  # only needed when the final rename failed
         raise
     log.info("%s: written (%s); previous version kept as %s", path, reason, copy)
     return entry
 
 
 def _withdraw(path: Path, entries: list[HistoryEntry], copy: Path) -> None:
-    """Best effort: put the index back as it was and remove the unused copy."""
+    """Best effort: put the index back as it was (if it lists ``copy``) and remove ``copy``."""
     try:
-        _save_history(path, entries)
-        copy.unlink()
-    except (ProfileError, OSError):
+        if any(e.before == copy.name for e in profile_history(path)):
+            _save_history(path, entries)
+    except ProfileError:
         log.warning("%s: could not withdraw history entry %s", path, copy.name)
+    try:
+        copy.unlink()
+    except FileNotFoundError:
+        pass
+    except OSError:
+        log.warning("%s: could not remove the unused history copy %s", path, copy.name)
 
 
 def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
@@ -677,7 +754,7 @@ def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
     write (its SHA-256 differs), unless ``force``. The bytes replaced by the undo are kept as
     ``NNNN-after.toml``. Returns the undone entry.
     """
-    p = Path(path)
+    p = real_path(path)
     entries = profile_history(p)
     pending = [e for e in entries if not e.undone]
     if not pending:
@@ -700,15 +777,139 @@ def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
         after_copy = hdir / f"{entry.id:04d}-after-{stamp}.toml"
     _write_new(after_copy, current)
     entry.undone, entry.undone_time, entry.after = True, _now(), after_copy.name
-    _save_history(p, entries)
     try:
-        _atomic_write(p, previous)
+        _replace_both(p, previous, entries, after_copy)
     except ProfileError:
         entry.undone, entry.undone_time, entry.after = False, None, None
         try:
-            _save_history(p, entries)
-            after_copy.unlink()
-        except (ProfileError, OSError):
+            if any(e.id == entry.id and e.undone for e in profile_history(p)):
+                _save_history(p, entries)  # only when the final rename failed
+        except ProfileError:
             log.warning("%s: could not withdraw the undo record", p)
+        with contextlib.suppress(OSError):
+            after_copy.unlink()
         raise
     return entry
+
+
+# ---------------------------------------------------------------------------------------------
+# one run at a time, and room to write
+
+
+LOCK_SUFFIX = ".lock"
+#: Free space a profile write needs besides the profile's own bytes (temporary file, history
+#: copy, index): the profile's size three times over plus this margin.
+MIN_FREE_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class LockHolder:
+    """Who holds a profile: process id, host, command line and UTC start time."""
+
+    pid: int
+    host: str
+    command: str
+    started: str
+
+    def describe(self) -> str:
+        """The holder in words, for the refusal message."""
+        return f"pid {self.pid} on {self.host}, started {self.started}: {self.command}"
+
+
+def lock_path(path: str | Path) -> Path:
+    """The lock file of a profile: ``cell.toml`` → ``cell.toml.lock``, beside the real file."""
+    p = real_path(path)
+    return p.with_name(p.name + LOCK_SUFFIX)
+
+
+def _read_holder(fd: int) -> LockHolder | None:
+    try:
+        raw = os.pread(fd, 65536, 0)
+        return LockHolder(**json.loads(raw.decode("utf-8")))
+    except (OSError, ValueError, TypeError):
+        return None  # the holder is still writing it, or it is not ours
+
+
+@contextlib.contextmanager
+def profile_lock(path: str | Path, command: str | None = None) -> Iterator[LockHolder]:
+    """Hold the profile for one run: a second run on the same profile refuses at once.
+
+    An advisory ``fcntl.flock`` on ``<profile>.lock`` beside the real file (symbolic links
+    resolved, so two links to one profile share the lock). The operating system releases it
+    when the process ends, however it ends: a crashed run never leaves a lock that blocks.
+    The file records the holder (pid, host, command, start time) for the refusal, which is an
+    ``InputError`` (exit 2) naming the profile and the holder. The file is removed on release.
+    """
+    import fcntl
+    import socket
+    import sys
+
+    lock = lock_path(path)
+    me = LockHolder(pid=os.getpid(), host=socket.gethostname(),
+                    command=command or " ".join(["ucal", *sys.argv[1:]]), started=_now())
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise ProfileError(lock.parent, None, f"cannot create the lock file {lock.name} "
+                                                  f"for {real_path(path).name}: "
+                                                  f"{e.strerror or e}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _read_holder(fd)
+            os.close(fd)
+            who = holder.describe() if holder else "another process"
+            raise InputError(f"{real_path(path)}: in use by another run ({who}); wait for it "
+                             f"to finish (the lock is {lock})") from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+        except OSError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder removed the file between our open and our lock: again
+    try:
+        data = json.dumps(asdict(me)).encode("utf-8")
+        with contextlib.suppress(OSError):  # the holder's name is a courtesy, the lock is not
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, data, 0)
+        log.debug("%s: locked (%s)", lock, me.describe())
+        yield me
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)  # while still held: a waiting opener then sees another inode
+        os.close(fd)
+
+
+def check_writable(path: str | Path, min_free_bytes: int = MIN_FREE_BYTES) -> None:
+    """Preflight before the first motion: the profile's directory and its history directory
+    must be writable and hold room for the write; else ``ProfileError`` (exit 2) naming the
+    directory. ``min_free_bytes`` is the margin over three times the profile's size."""
+    import shutil
+
+    p = real_path(path)
+    hdir = history_dir(p)
+    try:
+        size = p.stat().st_size
+    except OSError:
+        size = 0
+    need = 3 * size + int(min_free_bytes)
+    for directory, what in ((p.parent, "profile directory"), (hdir, "history directory")):
+        if not directory.exists():
+            if directory == hdir:
+                continue  # created by the first write, in the profile directory checked above
+            raise ProfileError(directory, None, f"{what} of {p.name} does not exist")
+        if not directory.is_dir():
+            raise ProfileError(directory, None, f"{what} of {p.name} is not a directory")
+        if not os.access(directory, os.W_OK | os.X_OK):
+            raise ProfileError(directory, None, f"{what} is not writable: the results for "
+                                                f"{p.name} could not be written after the run")
+        try:
+            free = shutil.disk_usage(directory).free
+        except OSError as e:
+            raise ProfileError(directory, None, f"cannot check free space: "
+                                                f"{e.strerror or e}") from None
+        if free < need:
+            raise ProfileError(directory, None, f"{what} has {free} bytes free, {need} needed "
+                                                f"to write {p.name} and its history")

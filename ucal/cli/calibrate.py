@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import tempfile
 from pathlib import Path
@@ -56,7 +57,13 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     to stop and the profile is left byte-for-byte unchanged.
     """
     from ucal.models import DEFAULT_MODEL
-    from ucal.profile import create_profile, default_profile_text, load_profile
+    from ucal.profile import (
+        check_writable,
+        create_profile,
+        default_profile_text,
+        load_profile,
+        profile_lock,
+    )
 
     if dry_run and sim_world is None:
         sim_world = ""  # --dry-run runs against the simulator
@@ -73,8 +80,12 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
             profile = load_profile(profile_path)
     else:
         profile = load_profile(profile_path)
-    result = run(profile, profile_path, sim_world, controller_url, pulser_url, method, beam,
-                 yes, dry_run, as_json)
+    # One run per profile, and room to write the result, checked before the first motion.
+    with contextlib.nullcontext() if dry_run else profile_lock(profile_path):
+        if not dry_run:
+            check_writable(profile_path)
+        result = run(profile, profile_path, sim_world, controller_url, pulser_url, method, beam,
+                     yes, dry_run, as_json)
     result["created"] = created
     if as_json:
         emit_json(result)

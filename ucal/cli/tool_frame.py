@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 from typing import Any
@@ -59,7 +60,7 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     tolerance (exit 1).
     """
     from ucal.errors import InputError, OutOfToleranceError
-    from ucal.profile import load_profile, write_profile
+    from ucal.profile import check_writable, load_profile, profile_lock, write_profile
     from ucal.session import check_status, open_cell
     from ucal.toolframe.procedure import plan_tool_frame, run_tool_frame
 
@@ -70,18 +71,22 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         sim_world = ""
     profile = load_profile(profile_path)
     plan = plan_tool_frame(profile, method, points)
-    with open_cell(profile, sim_world, controller_url, pulser_url) as session:
-        check_status(session.rig)
-        confirm_motion(yes, plan.summary())
-        run = run_tool_frame(profile, plan, session.rig, _progress(as_json))
-        truth = session.truth
-    written = False
-    if run.in_tolerance and not dry_run:
-        write_profile(profile_path, {"tool": {
-            "position_mm": [round(float(v), 6) for v in run.position_mm],
-            "rotation_deg": [round(float(v), 6) for v in run.rotation_deg]}},
-            reason=f"tool-frame ({run.method})")
-        written = True
+    # One run per profile, and room to write the result, checked before the first motion.
+    with contextlib.nullcontext() if dry_run else profile_lock(profile_path):
+        if not dry_run:
+            check_writable(profile_path)
+        with open_cell(profile, sim_world, controller_url, pulser_url) as session:
+            check_status(session.rig)
+            confirm_motion(yes, plan.summary())
+            run = run_tool_frame(profile, plan, session.rig, _progress(as_json))
+            truth = session.truth
+        written = False
+        if run.in_tolerance and not dry_run:
+            write_profile(profile_path, {"tool": {
+                "position_mm": [round(float(v), 6) for v in run.position_mm],
+                "rotation_deg": [round(float(v), 6) for v in run.rotation_deg]}},
+                reason=f"tool-frame ({run.method})")
+            written = True
     out = _result(run, profile_path, written, truth)
     if as_json:
         emit_json(out)
