@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import os
 from pathlib import Path
 
 import click
@@ -58,14 +60,33 @@ def _is_number(text: str) -> bool:
 
 
 def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
-    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header."""
+    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header.
+
+    Written to a temporary file beside ``path`` and renamed; raises ``InputError`` (exit 2)
+    naming the file when it cannot be written (missing or unwritable directory, full disk).
+    """
     tmp = Path(path).with_name(Path(path).name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(JOINT_HEADER)
-        for row in joints_deg:
-            w.writerow([f"{v:.9f}" for v in row])
-    tmp.replace(path)
+    try:
+        with open(tmp, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(JOINT_HEADER)
+            for row in joints_deg:
+                w.writerow([f"{v:.9f}" for v in row])
+        tmp.replace(path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
+
+
+def check_output(path: Path) -> None:
+    """Refuse (``InputError``, exit 2, naming the file) an output whose directory is missing or
+    not writable, before any computation."""
+    directory = Path(path).parent
+    if not directory.is_dir():
+        raise InputError(f"{path}: cannot write: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: cannot write: directory {directory} is not writable")
 
 
 @click.command("path", epilog="""\b
@@ -96,6 +117,7 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None,
     from ucal.profile import load_profile
 
     near_v = parse_floats(near, 6, "--near") if near is not None else None
+    check_output(out_path)
     profile = load_profile(profile_path)
     poses = read_pose_csv(in_path)
     joints, step = cartesian_path_to_joints(profile.model, poses, profile.tool_matrix,

@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from ucal.cell import CellProfile
+from ucal.errors import InputError
 
 
 @click.group("sim")
@@ -42,6 +43,8 @@ def serve(world_path: Path | None, profile_path: Path | None, log_path: Path | N
     """
     from ucal.sim.serve import SimulatedCellServer
 
+    if log_path is not None:
+        _check_log(log_path)
     profile = _load_profile(profile_path)
     world = None
     if world_path is not None:
@@ -65,6 +68,16 @@ def serve(world_path: Path | None, profile_path: Path | None, log_path: Path | N
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+def _check_log(path: Path) -> None:
+    """Open the motion log for appending once, so that a missing or unwritable directory is an
+    input error (exit 2) naming the file before anything is served."""
+    try:
+        with open(path, "a", encoding="utf-8"):
+            pass
+    except OSError as e:
+        raise InputError(f"{path}: cannot write the motion log: {e.strerror or e}") from None
 
 
 def _load_profile(path: Path | None) -> CellProfile:
