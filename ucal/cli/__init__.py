@@ -24,6 +24,7 @@ COMMANDS = {
     "calibrate": "calibrate",
     "tool-frame": "tool_frame",
     "verify": "verify",
+    "status": "status",
 }
 
 

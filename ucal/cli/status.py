@@ -1,0 +1,155 @@
+"""``ucal status``: connect, read joints, controller status and pulser identity; move nothing."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Any
+
+import click
+
+from ucal.cli.options import emit_json, json_option
+
+log = logging.getLogger(__name__)
+
+#: REP-I0006 RobotMode values of ``ControllerStatus.mode``.
+MODES = {0: "unknown", 1: "manual", 2: "auto"}
+
+
+@click.command("status", epilog="""\b
+Examples:
+  ucal status --controller tcp://192.168.0.254:11000
+  ucal status --controller tcp://192.168.0.254:11000 --pulser modbus-tcp://192.168.0.20:502 --json
+  UCAL_CONTROLLER=tcp://192.168.0.254:11000 ucal status
+""")
+@click.option("--controller", "controller_url", metavar="URL", envvar="UCAL_CONTROLLER",
+              show_envvar=True, help="Controller URL, tcp://HOST:PORT[?state=PORT].")
+@click.option("--pulser", "pulser_url", metavar="URL", envvar="UCAL_PULSER", show_envvar=True,
+              help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or "
+                   "modbus-rtu://DEVICE[?baud=N&unit=N] (optional).")
+@json_option
+def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> None:
+    """Show the joint readings, the controller's status and the pulser's identity.
+
+    Connects, reads and disconnects: nothing moves and no command is sent to the robot (not
+    even STOP). Joint readings in degrees as the controller reports them. Exit 0 when every
+    device given answered (whatever state it reports: drives off, e-stop and errors are shown,
+    not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
+    reached or answers wrongly (the message names it).
+    """
+    from ucal.errors import UcalError
+
+    try:
+        out = read_status(controller_url, pulser_url)
+    except UcalError as e:
+        if as_json:
+            emit_json({"error": str(e), "exit_code": e.exit_code})
+        raise
+    if as_json:
+        emit_json(out)
+    else:
+        show(out)
+
+
+def read_status(controller_url: str | None, pulser_url: str | None) -> dict[str, Any]:
+    """Read both devices; return ``{"joints_deg", "controller", "pulser"}`` (SPEC.md).
+
+    Raises ``InputError`` (exit 2) for a missing or malformed URL and ``HardwareError``
+    (exit 3, naming the device) for a device that cannot be reached or answers wrongly.
+    """
+    from drivers.registry import open_controller, open_pulser
+    from ucal.errors import InputError
+
+    if not controller_url:
+        raise InputError("give --controller URL (or set UCAL_CONTROLLER)")
+    try:
+        controller = open_controller(controller_url)
+        pulser = open_pulser(pulser_url) if pulser_url else None
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    joints_deg, ctrl = _guarded("controller", controller_url, _read_controller, controller)
+    pulse = None
+    if pulser is not None:
+        pulse = _guarded("pulser", pulser_url, _read_pulser, pulser)
+    return {"joints_deg": joints_deg, "controller": ctrl, "pulser": pulse}
+
+
+def _guarded(device: str, url: str | None, read: Any, arg: Any) -> Any:
+    """``read(arg)`` with every fault turned into a ``HardwareError`` naming the device."""
+    from drivers.errors import DriverError
+    from ucal.errors import HardwareError
+
+    try:
+        return read(arg)
+    except DriverError as e:
+        raise HardwareError(str(e)) from None
+    except (OSError, ValueError) as e:  # an answer that does not decode
+        raise HardwareError(f"{device} at {url}: {e}") from None
+
+
+def _read_controller(controller: Any) -> tuple[list[float], dict[str, Any]]:
+    """Joint readings (deg) and status; the connection is closed without sending anything."""
+    controller.connect()
+    try:
+        joints = [float(v) for v in controller.read_joints()]
+        st = controller.status()
+    finally:
+        controller.close()  # not the context manager's exit: that sends STOP
+    return joints, {
+        "endpoint": controller.endpoint,
+        "drives_powered": st.drives_powered,
+        "e_stopped": st.e_stopped,
+        "in_motion": st.in_motion,
+        "in_error": st.in_error,
+        "error_code": int(st.error_code),
+        "mode": MODES.get(int(st.mode), f"unknown ({st.mode})"),
+        "motion_possible": st.motion_possible,
+    }
+
+
+def _read_pulser(pulser: Any) -> dict[str, Any]:
+    """Identity (what the back-end exposes), settings and gate threshold."""
+    with pulser:
+        out: dict[str, Any] = {"endpoint": pulser.endpoint, **pulser.identity()}
+        out["settings"] = dataclasses.asdict(pulser.settings())
+        threshold = getattr(pulser, "gate_threshold", None)
+        if callable(threshold):
+            out["gate_threshold"] = float(threshold())
+    return out
+
+
+def _flag(value: bool | None, yes: str, no: str) -> str:
+    return "unknown" if value is None else yes if value else no
+
+
+def show(out: dict[str, Any]) -> None:
+    """The status as tables on stdout."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    c = out["controller"]
+    table = Table(title=f"controller {c['endpoint']}", show_header=False)
+    table.add_column("what")
+    table.add_column("value")
+    table.add_row("J1..J6 (deg)", " ".join(f"{v:+.4f}" for v in out["joints_deg"]))
+    table.add_row("drives", _flag(c["drives_powered"], "powered", "off"))
+    table.add_row("emergency stop", _flag(c["e_stopped"], "ENGAGED", "released"))
+    table.add_row("motion", _flag(c["in_motion"], "moving", "at rest"))
+    table.add_row("error", _flag(c["in_error"], f"IN ERROR (code {c['error_code']})", "none"))
+    table.add_row("mode", c["mode"])
+    console.print(table)
+    p = out["pulser"]
+    if p is None:
+        console.print("pulser: not given (--pulser URL or UCAL_PULSER)")
+        return
+    table = Table(title=f"pulser {p['endpoint']}", show_header=False)
+    table.add_column("what")
+    table.add_column("value")
+    for key, value in p.items():
+        if key in ("endpoint", "settings"):
+            continue
+        table.add_row(key.replace("_", " "), str(value))
+    for key, value in p["settings"].items():
+        table.add_row(key, f"{value:g}" if isinstance(value, float) else str(value))
+    console.print(table)
