@@ -1,33 +1,57 @@
 """The simulated cell: the echo a transducer on the true robot receives from the true reflectors.
 
-``SimulatedCell(world)`` turns joint readings into ``(amplitude, tof_ns)``:
+``SimulatedCell(world)`` turns joint readings into what the pulser reports, ``(amplitude,
+tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), on purpose:
 
 1. true joint angles = readings + ``world.joint_offsets_deg`` (SPEC.md: actual = reading +
-   offset) on the world's true DH table, with the true tool frame → TCP and beam (tool +Z);
+   offset) − ``motion_sign`` · ``world.backlash_deg`` / 2 (the link lags the encoder by half
+   the lost motion, against the direction of the joint's last motion; sign 0 or None = no
+   shift), on the world's true DH table with Hayati's twist ``dh_beta_deg`` after each link
+   (``A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``), with the true tool frame → TCP and beam (tool +Z);
 2. the echoing face is the nearest face whose plane the beam meets in front of the transducer,
    facing it, with some of the footprint on it (``ucal.sim.geometry``); a face met from behind
    does not reflect, and where the beam axis crosses it, it hides the faces behind it;
-3. ``tof_ns = 2 L / c(T)`` with L the water path from the TCP to the axis hit point;
-   the amplitude is ``ucal.acoustics.echo_amplitude`` (0.8 of full screen at normal
-   incidence, 50 mm path, 20 dB gain; × 10^(Δg/20); clipped at 1.0 = saturation);
-4. noise as the world says, divided by √averages, from a ``numpy.random.Generator`` seeded with
-   ``world.noise.seed``.
+3. the echo arrives at ``2 L / c(T(t)) + delay`` with L the water path from the TCP to the axis
+   hit point, ``T(t) = temperature_c + drift_c_per_min · t_s / 60`` (Marczak's c) at the
+   simulated time ``t_s`` of the reading, and the pulser's fixed electronic ``delay_ns``;
+4. the receiver (``ucal.sim.receiver``) synthesises the sampled broadband echo (piston
+   directivity and water absorption per frequency, so not the centre-frequency directivity
+   that the search fits), scaled by 0.8 of full screen at normal incidence, 50 mm and 20 dB
+   (``ucal.acoustics.REFERENCE_AMPLITUDE``) × 10^((gain + gain error − 20)/20) × the
+   footprint's share on the face; its peak-mode gate reports the envelope's peak and its time;
+5. noise as the world says, in the waveform: the trigger jitter ``noise.tof_ns`` shifts the
+   echo, ``noise.amplitude`` scales it, the receiver's white noise (its peak over a 200 µs
+   gate is ``noise_floor`` at 20 dB) is added to every sample, each divided by √averages;
+6. the reported amplitude saturates at 1.0 and is truncated to ``2^amplitude_bits`` levels of
+   full screen when ``[pulser] amplitude_bits`` > 0 (below one level it reads 0); the gain
+   error (one sigma ``gain_error_db``) is drawn anew whenever the requested gain changes.
 
-Below the gate threshold (``threshold``, fraction of full screen) or the receiver's noise floor
-no TOF is reported (NaN) and the amplitude is at least the noise floor. A pulser that applies its
-own gate and threshold (``drivers.pulser.simulator``) gets the raw echo with ``threshold=0``. ``echo`` is called from the pulser server thread at
-every acquisition: constant matrices are built once, and the generator is guarded by a lock.
+Every random source is a ``numpy.random.Generator`` seeded with ``(world.noise.seed, stream)``,
+one stream per effect, so the same world and seed give the same readings for the same calls,
+and adding an effect never shifts another's draws. Below the gate threshold (``threshold``,
+fraction of full screen) or the receiver's noise floor no TOF is reported (NaN) and the
+amplitude is at least the noise floor. A pulser that applies its own gate and threshold
+(``drivers.pulser.simulator``) gets the raw echo with ``threshold=0``. ``echo`` is called from
+the pulser server thread at every acquisition: constant matrices are built once, and the
+generators and the gain state are guarded by a lock.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import threading
+from enum import IntEnum
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ucal import acoustics
 from ucal.cell import WorldTruth
 from ucal.sim.geometry import Face, FaceHit, beam_ray, block_faces, intersect, reflector_face
+from ucal.sim.receiver import EchoReceiver
+
+log = logging.getLogger(__name__)
 
 #: Default gate threshold (fraction of full screen): weaker echoes give no time of flight.
 DEFAULT_THRESHOLD = 0.02
@@ -37,8 +61,21 @@ DEFAULT_THRESHOLD = 0.02
 DEFAULT_NOISE_FLOOR = 0.0001
 #: Relative one-sigma fluctuation of the noise-floor peak of a single acquisition.
 _NOISE_FLOOR_SPREAD = 0.25
+#: Expected peak of the noise envelope over a 200 µs gate at 200 MS/s (40 000 samples) in units
+#: of the per-component sigma of complex white noise: √(2 ln 40 000) ≈ 4.6.
+_FLOOR_PEAK_PER_SIGMA = 4.6
 #: Footprint share below which a face is considered missed.
 _MIN_SHARE = 1e-9
+
+
+class _Stream(IntEnum):
+    """One random stream per effect, seeded with ``(seed, stream)``."""
+
+    TOF_JITTER = 1
+    AMPLITUDE = 2
+    RECEIVER_NOISE = 3
+    NOISE_FLOOR = 4
+    GAIN_ERROR = 5
 
 
 class SimulatedCell:
@@ -53,11 +90,21 @@ class SimulatedCell:
         # constant parts of the DH chain
         self._angle_offset_deg = (np.asarray(model.theta_offset_deg, float)
                                   + np.asarray(world.joint_offsets_deg, float))
+        self._half_backlash_deg = 0.5 * np.asarray(world.backlash_deg, float)
         alpha = np.radians(model.alpha_deg)
         self._ca = np.cos(alpha)
         self._sa = np.sin(alpha)
         self._d_mm = np.asarray(model.d_mm, float).copy()
         self._a_mm = np.asarray(model.a_mm, float).copy()
+        # Hayati's twist about each link's y axis, appended to its DH transform
+        self._twists: list[np.ndarray | None] = []
+        for beta_deg in np.asarray(world.dh_beta_deg, float):
+            if beta_deg == 0.0:
+                self._twists.append(None)
+                continue
+            ry = np.eye(4)
+            ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
+            self._twists.append(ry)
         self._tool = world.tool_matrix
         faces: list[Face] = list(block_faces(world.sample_matrix, world.sample_face_size_mm))
         if world.reflector is not None:
@@ -65,13 +112,29 @@ class SimulatedCell:
         self.faces: tuple[Face, ...] = tuple(faces)
         self._sigma_mm = acoustics.footprint_sigma_mm(world.element_diameter_mm)
         self._c_m_s = acoustics.sound_speed_m_s(world.water_temperature_c)
-        self._rng = np.random.default_rng(world.noise.seed)
+        self._receiver = EchoReceiver(world.frequency_mhz, world.element_diameter_mm)
+        seed = int(world.noise.seed)
+        self._rng = {s: np.random.default_rng([seed, int(s)]) for s in _Stream}
+        self._gain_state: tuple[float, float] | None = None  # (requested dB, its error dB)
         self._lock = threading.Lock()
 
     # --- truth --------------------------------------------------------------------------------
-    def true_flange(self, joint_readings_deg: np.ndarray) -> np.ndarray:
+    def joint_angles_deg(self, joint_readings_deg: np.ndarray,
+                         motion_sign: np.ndarray | None = None) -> np.ndarray:
+        """True DH angles (deg, (6,)): reading + θ offset + joint offset − sign · backlash / 2.
+
+        ``motion_sign`` (6 values, sign taken) is the direction of each joint's last motion;
+        None or 0 leaves the link where the encoder says.
+        """
+        th = np.asarray(joint_readings_deg, float) + self._angle_offset_deg
+        if motion_sign is not None:
+            th = th - np.sign(np.asarray(motion_sign, float)) * self._half_backlash_deg
+        return th
+
+    def true_flange(self, joint_readings_deg: np.ndarray,
+                    motion_sign: np.ndarray | None = None) -> np.ndarray:
         """True flange frame (4, 4) in the base frame for joint readings (deg, (6,))."""
-        th = np.radians(np.asarray(joint_readings_deg, float) + self._angle_offset_deg)
+        th = np.radians(self.joint_angles_deg(joint_readings_deg, motion_sign))
         ct, st = np.cos(th), np.sin(th)
         t = np.eye(4)
         ca, sa, d, a = self._ca, self._sa, self._d_mm, self._a_mm
@@ -81,20 +144,30 @@ class SimulatedCell:
                              [0.0, sa[i], ca[i], d[i]],
                              [0.0, 0.0, 0.0, 1.0]])
             t = t @ link
+            twist = self._twists[i]
+            if twist is not None:
+                t = t @ twist
         return t
 
-    def true_tcp(self, joint_readings_deg: np.ndarray) -> np.ndarray:
+    def true_tcp(self, joint_readings_deg: np.ndarray,
+                 motion_sign: np.ndarray | None = None) -> np.ndarray:
         """True tool-centre-point frame (4, 4) in the base frame for joint readings (deg)."""
-        return self.true_flange(joint_readings_deg) @ self._tool
+        return self.true_flange(joint_readings_deg, motion_sign) @ self._tool
 
-    def true_beam(self, joint_readings_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def true_beam(self, joint_readings_deg: np.ndarray,
+                  motion_sign: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """True beam: origin (TCP, mm, (3,)) and unit direction (tool +Z, (3,)) in the base frame."""
-        return beam_ray(self.true_tcp(joint_readings_deg))
+        return beam_ray(self.true_tcp(joint_readings_deg, motion_sign))
 
-    def hit(self, joint_readings_deg: np.ndarray) -> FaceHit | None:
+    def hit(self, joint_readings_deg: np.ndarray,
+            motion_sign: np.ndarray | None = None) -> FaceHit | None:
         """The face that echoes at these readings (see module doc), or None."""
-        origin, direction = self.true_beam(joint_readings_deg)
+        origin, direction = self.true_beam(joint_readings_deg, motion_sign)
         return self._echoing_hit(origin, direction)
+
+    def water_temperature_c(self, t_s: float = 0.0) -> float:
+        """Water temperature (°C) ``t_s`` seconds of simulated time after the cell started."""
+        return self.world.water_temperature_c + self.world.water_drift_c_per_min * t_s / 60.0
 
     def _echoing_hit(self, origin: np.ndarray, direction: np.ndarray) -> FaceHit | None:
         hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
@@ -112,60 +185,103 @@ class SimulatedCell:
 
     # --- echoes -------------------------------------------------------------------------------
     def ideal_echo(self, joint_readings_deg: np.ndarray,
-                   gain_db: float = acoustics.REFERENCE_GAIN_DB) -> tuple[float, float]:
-        """Noise-free ``(amplitude, tof_ns)``: amplitude 0 without a face, TOF NaN below threshold."""
-        h = self.hit(joint_readings_deg)
+                   gain_db: float = acoustics.REFERENCE_GAIN_DB, t_s: float = 0.0,
+                   motion_sign: np.ndarray | None = None) -> tuple[float, float]:
+        """Noise-free reading ``(amplitude, tof_ns)``: no noise, jitter or gain error, the rest
+        as ``echo`` (delay, detection, quantisation); amplitude 0 without a face, TOF NaN below
+        the threshold."""
+        h = self.hit(joint_readings_deg, motion_sign)
         if h is None:
             return 0.0, float("nan")
-        amp = self._amplitude(h, gain_db)
-        tof = self._tof_ns(h.distance_mm) if amp >= self.threshold else float("nan")
-        return amp, tof
+        temperature_c = self.water_temperature_c(t_s)
+        scale = (acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(gain_db)
+                 * self._share(h))
+        amp, tof = self._detect(h, temperature_c, scale, 0.0, 0.0)
+        reading = self._report(amp)
+        if reading <= 0.0 or amp < self.threshold:
+            return reading, float("nan")
+        return reading, tof
 
     def echo(self, joint_readings_deg: np.ndarray, averages: int = 1,
-             gain_db: float = acoustics.REFERENCE_GAIN_DB,
+             gain_db: float = acoustics.REFERENCE_GAIN_DB, t_s: float = 0.0,
+             motion_sign: np.ndarray | None = None, *,
              gate_us: tuple[float, float] | None = None) -> tuple[float, float]:
-        """One pulser acquisition ``(amplitude, tof_ns)`` with the world's noise.
+        """One pulser acquisition ``(amplitude, tof_ns)`` with the world's noise and errors.
 
-        ``averages`` (≥ 1) divides both noise sigmas by √averages; ``gain_db`` scales the
-        amplitude by 10^((gain − 20)/20), saturating at 1.0; ``gate_us`` = (start, width) of the
-        round-trip gate in µs: an echo outside it is not seen. Without an echo above the
-        threshold the TOF is NaN and the amplitude is the noise floor.
+        ``averages`` (≥ 1) divides every noise sigma by √averages; ``gain_db`` is the requested
+        gain (amplitude × 10^((gain + error − 20)/20), saturating at 1.0; a new error is drawn
+        when it differs from the previous call's); ``t_s`` is the simulated time (s) since the
+        cell started (water drift); ``motion_sign`` the sign (−1, 0, +1) of each joint's last
+        motion (backlash; None = no shift); ``gate_us`` = (start, width) of the round-trip gate
+        in µs: an echo outside it is not seen. Without an echo above the threshold the TOF is
+        NaN and the amplitude is the noise floor.
         """
         n_avg = max(int(averages), 1)
-        root_n = np.sqrt(n_avg)
+        root_n = math.sqrt(n_avg)
         noise = self.world.noise
-        h = self.hit(joint_readings_deg)
+        h = self.hit(joint_readings_deg, motion_sign)
+        n = self._receiver.n
         with self._lock:
-            z_amp, z_tof, z_floor = self._rng.standard_normal(3)
-        g = acoustics.gain_factor(gain_db)
+            gain_error_db = self._gain_error_db(float(gain_db))
+            z_floor = float(self._rng[_Stream.NOISE_FLOOR].standard_normal())
+            if h is not None:
+                z_tof = float(self._rng[_Stream.TOF_JITTER].standard_normal())
+                z_amp = float(self._rng[_Stream.AMPLITUDE].standard_normal())
+                z_rx = self._rng[_Stream.RECEIVER_NOISE].standard_normal(2 * n)
+        g = acoustics.gain_factor(float(gain_db) + gain_error_db)
         floor = self.noise_floor * g * abs(1.0 + _NOISE_FLOOR_SPREAD * z_floor / root_n)
         floor = min(floor, 1.0)
         if h is None:
-            return floor, float("nan")
-        tof = self._tof_ns(h.distance_mm)
+            return self._report(floor), float("nan")
+        temperature_c = self.water_temperature_c(t_s)
         if gate_us is not None:
+            arrival_ns = self._arrival_ns(h.distance_mm, temperature_c)
             start_ns, width_ns = gate_us[0] * 1e3, gate_us[1] * 1e3
-            if not start_ns <= tof <= start_ns + width_ns:
-                return floor, float("nan")
-        # unclipped, so that noise acts on the echo before the screen saturates
-        amp = self._amplitude(h, gain_db, clip=False)
-        amp = amp * (1.0 + noise.amplitude * z_amp / root_n)
-        amp = float(np.clip(amp, 0.0, 1.0))
-        if amp < max(self.threshold, floor):  # below the threshold or lost in the noise
-            return max(amp, floor), float("nan")
-        return max(amp, floor), tof + noise.tof_ns * z_tof / root_n
+            if not start_ns <= arrival_ns <= start_ns + width_ns:
+                return self._report(floor), float("nan")
+        scale = (acoustics.REFERENCE_AMPLITUDE * g * self._share(h)
+                 * max(1.0 + noise.amplitude * z_amp / root_n, 0.0))
+        # receiver noise per quadrature component, scaled like the echo by the applied gain
+        sigma = self.noise_floor * g / _FLOOR_PEAK_PER_SIGMA / root_n
+        amp, tof = self._detect(h, temperature_c, scale, noise.tof_ns * z_tof / root_n,
+                                sigma, z_rx)
+        reading = self._report(max(amp, floor))
+        if reading <= 0.0 or amp < max(self.threshold, floor):  # lost in the noise
+            return reading, float("nan")
+        return reading, tof
 
-    def _tof_ns(self, water_path_mm: float) -> float:
-        return 2.0 * water_path_mm * 1e6 / self._c_m_s
+    def _gain_error_db(self, gain_db: float) -> float:
+        """Error (dB) of the gain applied for the requested ``gain_db``; call under the lock."""
+        if self._gain_state is None or self._gain_state[0] != gain_db:
+            z = float(self._rng[_Stream.GAIN_ERROR].standard_normal())
+            self._gain_state = (gain_db, self.world.pulser.gain_error_db * z)
+        return self._gain_state[1]
 
-    def _amplitude(self, h: FaceHit, gain_db: float, clip: bool = True) -> float:
-        w = self.world
-        a = (acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(gain_db)
-             * acoustics.water_attenuation(h.distance_mm, w.frequency_mhz)
-             * acoustics.directivity(h.tilt_deg, w.frequency_mhz, w.element_diameter_mm,
-                                     w.water_temperature_c)
-             * self._share(h))
-        return float(min(a, 1.0)) if clip else float(a)
+    def _arrival_ns(self, water_path_mm: float, temperature_c: float) -> float:
+        """When the echo reaches the instrument: round trip in the water plus the delay (ns)."""
+        c = (self._c_m_s if temperature_c == self.world.water_temperature_c
+             else acoustics.sound_speed_m_s(temperature_c))
+        return 2.0 * water_path_mm * 1e6 / c + self.world.pulser.delay_ns
+
+    def _detect(self, h: FaceHit, temperature_c: float, scale: float, jitter_ns: float,
+                sigma: float, z: np.ndarray | None = None) -> tuple[float, float]:
+        """Synthesise the echo of ``h`` (with jitter and receiver noise) and gate it."""
+        rx = self._receiver
+        spectrum = rx.spectrum(h.tilt_deg, h.distance_mm, temperature_c)
+        t0_ns, samples = rx.waveform(self._arrival_ns(h.distance_mm, temperature_c) + jitter_ns,
+                                     scale, spectrum)
+        if sigma > 0.0 and z is not None:
+            samples = samples + sigma * (z[: rx.n] + 1j * z[rx.n:])
+        return rx.detect(t0_ns, samples)
+
+    def _report(self, amplitude: float) -> float:
+        """What the amplitude register says: saturated at 1.0, truncated to 2^bits levels."""
+        a = min(max(float(amplitude), 0.0), 1.0)
+        bits = self.world.pulser.amplitude_bits
+        if bits > 0:
+            levels = float(1 << bits)
+            a = math.floor(a * levels) / levels
+        return a
 
 
 def ideal_echo(world: WorldTruth, joint_readings_deg: np.ndarray,

@@ -104,3 +104,39 @@ def test_water_attenuation_grows_with_path_and_frequency() -> None:
     per_mm_db = -20.0 * np.log10(ac.water_attenuation(51.0, 25.0))
     assert per_mm_db == pytest.approx(0.275, abs=0.01)
     assert ac.water_attenuation(60.0, 10.0) > ac.water_attenuation(60.0, 25.0)
+
+
+def test_pulse_spectrum_has_its_bandwidth() -> None:
+    assert ac.pulse_spectrum(25.0, 25.0) == 1.0
+    for edge in (25.0 * (1 - 0.3), 25.0 * (1 + 0.3)):  # −6 dB at f_c·(1 ± bw/2)
+        assert ac.pulse_spectrum(edge, 25.0, 0.6) == pytest.approx(0.5)
+
+
+def test_broadband_directivity_peaks_at_normal_incidence_and_is_not_the_fitted_one() -> None:
+    tilts = np.linspace(-1.0, 1.0, 401)
+    broadband = ac.broadband_directivity(tilts, 25.0, 6.0, 20.0)
+    assert tilts[np.argmax(broadband)] == 0.0
+    assert np.max(broadband) == pytest.approx(1.0)
+    np.testing.assert_allclose(broadband, broadband[::-1])
+    assert 0.45 <= ac.broadband_directivity(0.2, 25.0, 6.0, 20.0) <= 0.55
+    narrow = ac.directivity(tilts, 25.0, 6.0, 20.0)
+    assert np.max(np.abs(broadband - narrow)) > 0.03
+    assert ac.broadband_directivity(0.3, 25.0, 6.0, 20.0) == pytest.approx(0.167, abs=0.005)
+    assert ac.directivity(0.3, 25.0, 6.0, 20.0) == pytest.approx(0.125, abs=0.005)
+    # a narrow band tends to the centre frequency's function
+    np.testing.assert_allclose(ac.broadband_directivity(tilts, 25.0, 6.0, 20.0, 0.01),
+                               narrow, atol=2e-3)
+
+
+def test_broadband_absorption_downshifts_the_spectrum() -> None:
+    at_ref = ac.broadband_echo_factor(0.0, ac.REFERENCE_WATER_PATH_MM, 25.0, 6.0, 20.0)
+    assert at_ref == pytest.approx(1.0)
+    # the pulse's low frequencies carry further than its centre frequency
+    assert ac.broadband_echo_factor(0.0, 100.0, 25.0, 6.0, 20.0) > ac.water_attenuation(100.0,
+                                                                                      25.0)
+    assert ac.broadband_echo_factor(0.0, 40.0, 25.0, 6.0, 20.0) > 1.0
+    # so the main lobe widens with the path
+    half = [ac.broadband_echo_factor(0.2, p, 25.0, 6.0, 20.0)
+            / ac.broadband_echo_factor(0.0, p, 25.0, 6.0, 20.0) for p in (50.0, 100.0, 150.0)]
+    assert half[0] == pytest.approx(0.5, abs=0.01)
+    assert half[0] < half[1] < half[2]
