@@ -124,6 +124,16 @@ def test_world_needs_a_plate_if_the_profile_has_none(profile: CellProfile,
     np.testing.assert_array_equal(w.reflector.point_mm, [1, 2, 3])
 
 
+_ROW2 = "{theta_offset_deg = -90, d_mm = 50, a_mm = 500, alpha_deg = 0"
+
+
+def _dh_world(row: str) -> str:
+    """A world whose ``[robot] dh`` has ``row`` first or second, the other rows TX90L's."""
+    rest = "[90, 0, 0, 90], [0, 550, 0, -90], [0, 0, 0, 90], [0, 100, 0, 0]"
+    rows = f"{row}, [-90, 50, 500, 0]" if row.startswith("[") else f"[0, 0, 50, -90], {row}"
+    return f"[robot]\ndh = [{rows}, {rest}]\n"
+
+
 BAD_WORLDS = [
     ("[robot]\njoint_offsets_deg = [0, 0, 0]\n", "robot.joint_offsets_deg", "must have 6"),
     ("[robot]\njoint_offsets_deg = [0, nan, 0, 0, 0, 0]\n", "robot.joint_offsets_deg[1]",
@@ -153,14 +163,9 @@ BAD_WORLDS = [
     ("[pulser]\ndelay_ns = inf\n", "pulser.delay_ns", "finite"),
     ("[pulser]\ndelay_ns = 20000\n", "pulser.delay_ns", "<= 10000"),
     ("pulser = 1\n", "pulser", "must be a table"),
-    ("[robot]\ndh = [[0, 0, 50, -90, 31], [-90, 50, 500, 0], [90, 0, 0, 90], [0, 550, 0, -90],"
-     " [0, 0, 0, 90], [0, 100, 0, 0]]\n", "robot.dh[0][4]", "<= 30"),
-    ("[robot]\ndh = [[0, 0, 50, -90], {theta_offset_deg = -90, d_mm = 50, a_mm = 500, "
-     "alpha_deg = 0, beta_deg = \"x\"}, [90, 0, 0, 90], [0, 550, 0, -90], [0, 0, 0, 90], "
-     "[0, 100, 0, 0]]\n", "robot.dh[1].beta_deg", "finite"),
-    ("[robot]\ndh = [[0, 0, 50, -90], {theta_offset_deg = -90, d_mm = 50, a_mm = 500, "
-     "alpha_deg = 0, gamma_deg = 1}, [90, 0, 0, 90], [0, 550, 0, -90], [0, 0, 0, 90], "
-     "[0, 100, 0, 0]]\n", "robot.dh[1].gamma_deg", "unknown DH column"),
+    (_dh_world("[0, 0, 50, -90, 31]"), "robot.dh[0][4]", "<= 30"),
+    (_dh_world(_ROW2 + ", beta_deg = \"x\"}"), "robot.dh[1].beta_deg", "finite"),
+    (_dh_world(_ROW2 + ", gamma_deg = 1}"), "robot.dh[1].gamma_deg", "unknown DH column"),
 ]
 
 
