@@ -31,6 +31,13 @@ log = logging.getLogger(__name__)
 
 #: A fit whose peak posture is less certain than this (deg of tilt) is redone after centring.
 FIT_GATE_DEG = 0.02
+#: Largest beam tilt from the predicted posture the acquisition raster reaches (deg).
+ACQUIRE_MAX_DEG = 20.0
+#: Moves one acquisition (``acquire_and_centre``) may use before it gives up: the coarse raster
+#: to ACQUIRE_MAX_DEG and a fine raster about ±6° around the prediction. A block where the
+#: profile says is found within a few lines; without this bound a missing echo kept the robot
+#: sweeping for hundreds of moves.
+MAX_ACQUISITION_MOVES = 100
 
 
 def make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarray, face: int,
@@ -64,24 +71,39 @@ def acquisition_gain(rig: Rig, q_away: np.ndarray) -> float:
 
 
 def acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: str,
-                       radius_deg: float, gain_db: float) -> np.ndarray:
+                       radius_deg: float, gain_db: float,
+                       max_moves: int = MAX_ACQUISITION_MOVES) -> np.ndarray:
     """Raster outward from the prediction, then centre on the main lobe.
 
     Lines 2.5° apart first (at acquisition gain the side lobes show several degrees around
-    normal at the nominal water path), the radius widening up to 20°; if that finds nothing (a
-    long water path leaves little more than the main lobe above the noise), lines 0.5° apart.
+    normal at the nominal water path), the radius widening up to ``ACQUIRE_MAX_DEG``; if that
+    finds nothing (a long water path leaves little more than the main lobe above the noise),
+    lines 0.5° apart. After ``max_moves`` moves without an echo it gives up with a
+    ``HardwareError`` (exit 3) naming the pulser and the face: the block is not where
+    ``[sample]`` says, or the beam does not reach it (water, transducer, gate).
     """
+    first_move = rig.counters.moves
+    reached = 0.0
     for spacing in (2.5, 0.5):
-        r = radius_deg
+        r = min(radius_deg, ACQUIRE_MAX_DEG)
         while True:
-            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing)
+            left = max_moves - (rig.counters.moves - first_move)
+            if left <= 0:
+                break
+            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing,
+                                   max_moves=left)
             if found is not None:
                 return search.centre(found[0], 3.0, gain_db)
-            if r >= 20.0:
+            reached = max(reached, r)
+            if r >= ACQUIRE_MAX_DEG:
                 break
-            r = min(2 * r, 20.0)
-    raise HardwareError(f"{rig.pulser.endpoint}: no echo from {label} within 20 deg of the "
-                        "predicted posture")
+            r = min(2 * r, ACQUIRE_MAX_DEG)
+    config, _, face = label.rpartition("/")
+    where = f"face {face}" + (f" ({config})" if config else "")
+    moves = rig.counters.moves - first_move
+    raise HardwareError(f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
+                        f"±{reached:g}° of the predicted posture ({moves} moves): is the block "
+                        "where [sample] says?")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ wrist joints only (they turn the beam about W without moving it):
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -43,6 +44,33 @@ log = logging.getLogger(__name__)
 
 #: Joint travel between readings on main-lobe sweeps (deg): the −6 dB lobe is ~0.4° wide.
 MAIN_LOBE_STEP_DEG = 0.01
+#: Noise floor taken when an empty gate reads exactly 0 and no reading is above 0 (fraction of
+#: full screen height): one level of an 8-bit amplitude. A quantised instrument reports 0 below
+#: one level, so the true floor is under it; the threshold (four floors) stays above the noise.
+ZERO_FLOOR_FSH = 1.0 / 256
+
+
+def check_reading(endpoint: str, amplitude: float, tof_ns: float) -> None:
+    """Raise ``HardwareError`` (exit 3) naming the pulser for a reading no instrument gives:
+    an amplitude that is NaN, infinite or negative, or a time of flight that is negative or
+    infinite (an echo without a finite time). NaN time of flight is "no echo" and fine."""
+    if not math.isfinite(amplitude) or amplitude < 0.0:
+        raise HardwareError(f"pulser at {endpoint}: impossible reading: amplitude {amplitude!r} "
+                            "(expected a fraction of full screen height, 0 or more)")
+    if math.isinf(tof_ns) or tof_ns < 0.0:
+        raise HardwareError(f"pulser at {endpoint}: impossible reading: time of flight "
+                            f"{tof_ns!r} ns with amplitude {amplitude!r} (expected a positive "
+                            "round-trip time, or none without an echo)")
+
+
+def check_readings(endpoint: str, amplitudes: np.ndarray, tofs_ns: np.ndarray) -> None:
+    """:func:`check_reading` over the readings of a sweep; the first bad one is reported."""
+    amplitudes, tofs_ns = np.asarray(amplitudes, float), np.asarray(tofs_ns, float)
+    bad = (~np.isfinite(amplitudes) | (amplitudes < 0.0) | np.isinf(tofs_ns)
+           | (tofs_ns < 0.0))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        check_reading(endpoint, float(amplitudes[i]), float(tofs_ns[i]))
 
 
 @dataclass
@@ -88,9 +116,12 @@ class Rig:
         return self.controller.move_joints(q, speed or self.speed, self.move_timeout_s)
 
     def read(self, averages: int = 1) -> GateReading:
+        """One fresh reading, checked (:func:`check_reading`: exit 3 for an impossible one)."""
         self.configure(averages=int(averages))
         self.counters.reads += 1
-        return self.pulser.read_gate(fresh=True)
+        reading = self.pulser.read_gate(fresh=True)
+        check_reading(self.pulser.endpoint, reading.amplitude, reading.tof_ns)
+        return reading
 
     def normalised_amplitude(self, averages: int = 1) -> float:
         """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
@@ -121,10 +152,21 @@ class Rig:
         return max(4.0 * floor, 0.02)
 
     def measure_floor(self, n: int = 8) -> None:
-        """Noise floor from readings without an echo (call with the beam in open water)."""
+        """Noise floor from readings without an echo (call with the beam in open water).
+
+        The median of ``n`` readings; never 0, which the acquisition gain divides by: an empty
+        gate that reads exactly 0 (a quantised amplitude below one level) takes the smallest
+        reading above 0 (about one level), else :data:`ZERO_FLOOR_FSH`.
+        """
         vals = [self.read().amplitude for _ in range(n)]
-        self.floor_per_gain = float(np.median(vals)) / 10 ** (self.settings.gain_db / 20)
-        log.info("noise floor %.2e FSH at %.1f dB", float(np.median(vals)), self.settings.gain_db)
+        floor = float(np.median(vals))
+        if floor <= 0.0:
+            positive = [v for v in vals if v > 0.0]
+            floor = min(positive) if positive else ZERO_FLOOR_FSH
+            log.info("the empty gate reads 0 (quantised amplitude): floor taken as %.2e FSH",
+                     floor)
+        self.floor_per_gain = floor / 10 ** (self.settings.gain_db / 20)
+        log.info("noise floor %.2e FSH at %.1f dB", floor, self.settings.gain_db)
 
     def sweep(self, target: np.ndarray, max_step_deg: float = 0.08
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -188,6 +230,7 @@ class Rig:
         a, b = np.asarray(start, float), np.asarray(end, float)
         for _ in range(4):
             out = self.sweep(b, max_step_deg)
+            check_readings(self.pulser.endpoint, out[1], out[2])
             if self.last_sweep_step_deg <= 1.5 * max_step_deg:
                 return out
             a, b = b, a
@@ -246,8 +289,14 @@ class PeakSearch:
 
     # -- stage 1: acquisition ----------------------------------------------------------------------
     def acquire(self, q_pred: np.ndarray, radius_tilt_deg: float, gain_db: float,
-                spacing_tilt_deg: float = 1.5) -> tuple[np.ndarray, float] | None:
-        """Raster outward from ``q_pred`` until an echo is seen; returns (posture, level)."""
+                spacing_tilt_deg: float = 1.5, max_moves: int | None = None
+                ) -> tuple[np.ndarray, float] | None:
+        """Raster outward from ``q_pred`` until an echo is seen; returns (posture, level).
+
+        None when the raster ends without an echo, or when it has used ``max_moves`` moves
+        (the line in progress is finished first).
+        """
+        first_move = self.rig.counters.moves
         self.rig.configure(gain_db=gain_db)
         level = self.rig.threshold()
         half_a = radius_tilt_deg / self.per_deg[0]
@@ -257,6 +306,10 @@ class PeakSearch:
         ua0, ub0 = q_pred[self.ja], q_pred[self.jb]
         direction = 1.0
         for i in order:
+            if max_moves is not None and self.rig.counters.moves - first_move >= max_moves:
+                log.info("acquisition stopped after %d moves", self.rig.counters.moves
+                         - first_move)
+                return None
             ub = ub0 + i * step_b
             start = self._with(q_pred, ua0 - direction * half_a, ub)
             end = self._with(q_pred, ua0 + direction * half_a, ub)
