@@ -3,6 +3,11 @@
 ``open_cell`` is a context manager yielding a ``CellSession``: the ``Rig`` (controller + pulser
 through the same drivers a real cell uses) and, in simulation, the hidden truth for reporting.
 On exit — normal, error or Ctrl-C — the controller is told to STOP before anything closes.
+
+The simulated cell is served in this process on simulated time (``drivers.clock.SimClock``)
+shared with the drivers: a run goes as fast as it computes, gives the same readings for the
+same world whatever the machine's load, and its clock at the end is the run's duration on a
+real cell. The drivers' real-time timeouts are then only guards against a hung simulator.
 """
 
 from __future__ import annotations
@@ -13,17 +18,18 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.controller.client import SimpleMessageController
+from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.errors import DriverError
-from drivers.pulser.modbus import ModbusPulser
+from drivers.registry import open_controller, open_pulser
 from ucal.calibration.search import Rig
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, InputError, SafetyError
 
 log = logging.getLogger(__name__)
 
-#: Motion-time multiplier of the simulated controller (1 = real time).
-SIM_TIME_SCALE = 1.0
+#: Real-time guard on every request to the in-process simulated cell (s): it answers at once
+#: in simulated time, so only a hung simulator could make a request take this long.
+SIM_GUARD_TIMEOUT_S = 60.0
 
 
 @dataclass
@@ -31,6 +37,15 @@ class CellSession:
     rig: Rig
     truth: WorldTruth | None      # the simulator's hidden truth; None on a real cell
     simulated: bool
+    clock: Clock = HOST_CLOCK     # simulated time on the simulated cell
+
+    @property
+    def elapsed_s(self) -> float:
+        """Time since the cell was opened (simulated time on the simulated cell)."""
+        return self.clock.now() - self._t0
+
+    def __post_init__(self) -> None:
+        self._t0 = self.clock.now()
 
 
 def check_status(rig: Rig) -> None:
@@ -47,7 +62,7 @@ def check_status(rig: Rig) -> None:
 
 @contextlib.contextmanager
 def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str | None,
-              pulser_url: str | None, time_scale: float = SIM_TIME_SCALE) -> Iterator[CellSession]:
+              pulser_url: str | None) -> Iterator[CellSession]:
     """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs."""
     if sim_world is None and not (controller_url and pulser_url):
         raise InputError("give either --sim [WORLD] or both --controller URL and --pulser URL")
@@ -55,20 +70,28 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
         raise InputError("--sim cannot be combined with --controller/--pulser")
     with contextlib.ExitStack() as stack:
         truth = None
+        clock: Clock = HOST_CLOCK
+        controller_options: dict[str, float] = {}
+        pulser_options: dict[str, float] = {}
         if sim_world is not None:
             from ucal.sim.demo import demo_world
             from ucal.sim.serve import SimulatedCellServer
             from ucal.world import load_world
 
             truth = load_world(Path(sim_world), profile) if sim_world else demo_world(profile)
-            server = stack.enter_context(SimulatedCellServer(truth, profile,
-                                                             time_scale=time_scale))
+            clock = SimClock()
+            server = stack.enter_context(SimulatedCellServer(truth, profile, clock=clock))
+            stack.callback(clock.close)  # after the drivers have closed, before the server stops
             controller_url, pulser_url = server.urls["controller"], server.urls["pulser"]
+            controller_options = {"reply_timeout_s": SIM_GUARD_TIMEOUT_S,
+                                  "connect_timeout_s": SIM_GUARD_TIMEOUT_S}
+            pulser_options = {"timeout_s": SIM_GUARD_TIMEOUT_S}
         try:
-            controller = SimpleMessageController.from_url(controller_url)
-            pulser = ModbusPulser.from_url(pulser_url)
+            controller = open_controller(controller_url, **controller_options)
+            pulser = open_pulser(pulser_url, **pulser_options)
         except ValueError as e:
             raise InputError(str(e)) from e
+        controller.clock = pulser.clock = clock
         try:
             stack.enter_context(pulser)
             stack.enter_context(controller)  # exits first: STOP, then close
@@ -77,4 +100,4 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
         rig = Rig(controller, pulser, profile.model.joint_min_deg, profile.model.joint_max_deg,
                   speed=profile.procedure.speed)
         rig.pulser.configure(rig.settings)
-        yield CellSession(rig, truth, sim_world is not None)
+        yield CellSession(rig, truth, sim_world is not None, clock)

@@ -12,6 +12,8 @@ from typing import Self
 
 import numpy as np
 
+from drivers.clock import HOST_CLOCK, Clock
+
 
 @dataclass(frozen=True)
 class ControllerStatus:
@@ -38,6 +40,8 @@ class RobotController(abc.ABC):
     """A six-axis robot controller. Use as a context manager: exit sends STOP, then closes."""
 
     device = "controller"
+    #: Timestamps and waits on streamed state (``drivers.clock``).
+    clock: Clock = HOST_CLOCK
 
     @property
     @abc.abstractmethod

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from drivers.clock import HOST_CLOCK, Clock
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.controller.simple_message import (
     CommType,
@@ -95,13 +96,15 @@ class SimpleMessageController(RobotController):
     ``connect_timeout_s`` bounds each TCP connect; ``reply_timeout_s`` the wait for the reply to
     a JOINT_TRAJ_PT request; ``state_timeout_s`` how long the state stream may stay silent
     before the link is declared dead (the VAL3 server streams every few milliseconds).
-    ``history_size`` bounds the joint-sample history kept for ``joint_samples``.
+    ``history_size`` bounds the joint-sample history kept for ``joint_samples``. ``clock``
+    stamps the state frames and times the waits on them (``drivers.clock``: the host's
+    monotonic clock on a real cell, simulated time against an in-process simulated cell).
     """
 
     def __init__(self, host: str = "127.0.0.1", motion_port: int = DEFAULT_MOTION_PORT,
                  state_port: int = DEFAULT_STATE_PORT, *, connect_timeout_s: float = 2.0,
                  reply_timeout_s: float = 2.0, state_timeout_s: float = 1.0,
-                 history_size: int = 65536):
+                 history_size: int = 65536, clock: Clock = HOST_CLOCK):
         for name, value in (("connect_timeout_s", connect_timeout_s),
                             ("reply_timeout_s", reply_timeout_s),
                             ("state_timeout_s", state_timeout_s)):
@@ -114,6 +117,7 @@ class SimpleMessageController(RobotController):
         self.reply_timeout_s = reply_timeout_s
         self.state_timeout_s = state_timeout_s
         self._history_size = history_size
+        self.clock = clock
 
         self._motion_sock: socket.socket | None = None
         self._motion_reader: FrameReader | None = None
@@ -179,7 +183,7 @@ class SimpleMessageController(RobotController):
             self._status = None
             self._state_error = None
             self._samples.clear()
-            self._last_frame_t = time.monotonic()
+            self._last_frame_t = self.clock.now()
         self._motion_sock, self._state_sock = motion, state
         self._motion_reader = FrameReader(self.device, self.endpoint)
         self._motion_error = None
@@ -238,9 +242,12 @@ class SimpleMessageController(RobotController):
                 self._state_failed(e)
                 return
             if messages:
-                self._on_state_messages(messages, time.monotonic())
+                taken = self._on_state_messages(messages, self.clock.now())
+                self.clock.frames_taken(taken)
 
-    def _on_state_messages(self, messages: list[Message], now: float) -> None:
+    def _on_state_messages(self, messages: list[Message], now: float) -> int:
+        """Keep the latest joints and status; return how many joint frames there were."""
+        joint_frames = 0
         with self._cond:
             self._last_frame_t = now
             for msg in messages:
@@ -249,6 +256,7 @@ class SimpleMessageController(RobotController):
                     joints = np.degrees(np.asarray(rad[:N_JOINTS], dtype=float))
                     self._joints_deg, self._joints_t = joints, now
                     self._samples.append(JointSample(now, joints))
+                    joint_frames += 1
                 elif isinstance(msg, Status):
                     self._status, self._status_t = _status_from_message(msg), now
                 else:
@@ -256,6 +264,7 @@ class SimpleMessageController(RobotController):
                     log.warning("controller at %s: ignoring %s on the state port",
                                 self.endpoint, type(msg).__name__)
             self._cond.notify_all()
+        return joint_frames
 
     def _state_failed(self, error: DriverError) -> None:
         log.error("%s", error)
@@ -277,10 +286,10 @@ class SimpleMessageController(RobotController):
 
     def _wait_for(self, predicate, timeout_s: float, what: str):
         """Wait until ``predicate()`` (called with ``_cond`` held) returns non-None."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self.clock.now() + timeout_s
         with self._cond:
             while True:
-                now = time.monotonic()
+                now = self.clock.now()
                 self._check_state_locked(now)
                 value = predicate()
                 if value is not None:
@@ -290,7 +299,7 @@ class SimpleMessageController(RobotController):
                     raise DeviceTimeout(self.device, self.endpoint,
                                         f"no {what} within {timeout_s:g} s")
                 # Wake in time to notice a silent stream as well as the deadline.
-                self._cond.wait(min(remaining, self.state_timeout_s / 2))
+                self.clock.wait(self._cond, min(remaining, self.state_timeout_s / 2))
 
     def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
         """Latest joint readings (deg, (6,)), waiting at most ``timeout_s`` for a first one."""
@@ -302,7 +311,7 @@ class SimpleMessageController(RobotController):
         return self._wait_for(lambda: self._status, timeout_s, "status message")
 
     def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
-        """Streamed joint positions received at or after ``since_t_s`` (host monotonic, s)."""
+        """Streamed joint positions received at or after ``since_t_s`` (``clock`` time, s)."""
         with self._cond:
             return [s for s in self._samples if s.t_s >= since_t_s]
 
@@ -372,13 +381,13 @@ class SimpleMessageController(RobotController):
         if not (0.0 < speed <= 1.0):
             raise ValueError(f"speed must be in (0, 1], got {speed}")
         with self._cond:
-            self._check_state_locked(time.monotonic())
+            self._check_state_locked(self.clock.now())
         with self._motion_lock:
             seq = self._next_seq
             msg = JointTrajPt(seq, tuple(np.radians(target)), _velocity_on_wire(speed), 0.0)
             reply = self._request(msg, self.reply_timeout_s)
             self._next_seq = seq + 1
-        accepted_t = time.monotonic()
+        accepted_t = self.clock.now()
         if not reply.success:
             detail = ""
             with self._cond:

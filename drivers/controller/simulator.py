@@ -12,8 +12,15 @@ state port that streams joint state and STATUS to every connected client.
 
 Motion model: every joint moves linearly in time from start to target, all joints arriving
 together; duration = max over joints of |Δ| / (max_speed · velocity) · ``time_scale``
-(``time_scale`` 0 makes moves instantaneous). ``joints_deg()`` evaluates that model at the
-current instant without locking, so other simulated devices may call it at a high rate.
+(``time_scale`` 0 makes moves instantaneous), and STATUS reports the arm in motion for
+``settle_s`` more (the servo settling before the controller calls a move done).
+``joints_deg()`` evaluates that model at the current instant without locking, so other
+simulated devices may call it at a high rate; ``motion_sign()`` gives the direction of each
+joint's last motion (for lost motion in the joints).
+
+Time: ``clock`` (``drivers.clock``). On the host clock the state port streams at
+``state_rate_hz`` from a thread of its own. On a ``SimClock`` the stream is a ticker of that
+clock: a frame per period of simulated time, handed to the client in lock step.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from typing import Self
 
 import numpy as np
 
+from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.controller.simple_message import (
     CommType,
     FrameReader,
@@ -85,6 +93,8 @@ class _Plan:
 
     rest_deg: np.ndarray
     segments: tuple[_Segment, ...] = ()
+    rest_sign: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(N_JOINTS))
+    settle_s: float = 0.0
 
     def at(self, t: float) -> np.ndarray:
         for seg in reversed(self.segments):
@@ -93,7 +103,21 @@ class _Plan:
         return self.rest_deg.copy()
 
     def in_motion(self, t: float) -> bool:
-        return bool(self.segments) and t < self.segments[-1].t_end
+        return bool(self.segments) and t < self.segments[-1].t_end + self.settle_s
+
+    def sign_at(self, t: float) -> np.ndarray:
+        """Direction (-1, 0, +1) of each joint's last motion begun by ``t``."""
+        sign = self.rest_sign.copy()
+        for seg in self.segments:
+            if seg.t_start >= t:
+                break
+            step = np.sign(seg.target_deg - seg.start_deg)
+            sign = np.where(step != 0, step, sign)
+        return sign
+
+    def rest(self, t: float) -> _Plan:
+        """The plan of an arm stopped where it is at ``t``."""
+        return _Plan(self.at(t), (), self.sign_at(t), self.settle_s)
 
 
 class SimulatedController:
@@ -117,7 +141,8 @@ class SimulatedController:
                  max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
                  time_scale: float = 1.0, state_rate_hz: float = 50.0,
                  on_motion: Callable[[dict], None] | None = None,
-                 joint_message: int = MsgType.JOINT_POSITION):
+                 joint_message: int = MsgType.JOINT_POSITION, clock: Clock | None = None,
+                 settle_s: float = 0.0):
         self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
         self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
         self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
@@ -141,6 +166,8 @@ class SimulatedController:
             raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")
         if not (time_scale >= 0 and math.isfinite(time_scale)):
             raise ValueError(f"time_scale must be >= 0, got {time_scale}")
+        if not (settle_s >= 0 and math.isfinite(settle_s)):
+            raise ValueError(f"settle_s must be >= 0, got {settle_s}")
         if not (state_rate_hz > 0 and math.isfinite(state_rate_hz)):
             raise ValueError(f"state_rate_hz must be > 0, got {state_rate_hz}")
         if joint_message not in (MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK):
@@ -151,9 +178,11 @@ class SimulatedController:
         self.state_rate_hz = float(state_rate_hz)
         self.on_motion = on_motion
         self.joint_message = int(joint_message)
+        self.clock: Clock = clock if clock is not None else HOST_CLOCK
 
         self._lock = threading.Lock()  # guards plan changes, faults, client lists, counters
-        self._plan = _Plan(initial.copy())  # replaced whole, read without the lock
+        # replaced whole, read without the lock
+        self._plan = _Plan(initial.copy(), settle_s=float(settle_s))
         self._drives_powered = True
         self._e_stopped = False
         self._in_error = False
@@ -197,7 +226,10 @@ class SimulatedController:
         self._started = True
         self._spawn(self._accept_loop, (motion, self._serve_motion), "accept-motion")
         self._spawn(self._accept_loop, (state, self._add_state_client), "accept-state")
-        self._spawn(self._stream_loop, (), "stream")
+        if isinstance(self.clock, SimClock):
+            self.clock.add_ticker(1.0 / self.state_rate_hz, self._tick, self._has_state_clients)
+        else:
+            self._spawn(self._stream_loop, (), "stream")
         log.info("simulated controller serving at %s", self.url)
         return self
 
@@ -220,7 +252,9 @@ class SimulatedController:
             return
         self._started = False
         self._stop_evt.set()
-        self._freeze(time.monotonic(), "simulator killed" if abort else "simulator stopped")
+        if isinstance(self.clock, SimClock):
+            self.clock.remove_ticker(self._tick)
+        self._freeze(self.clock.now(), "simulator killed" if abort else "simulator stopped")
         self._close_all(abort)
         # Two passes: the accept threads may spawn a connection thread while they wind down.
         for _ in range(2):
@@ -284,11 +318,15 @@ class SimulatedController:
 
     def joints_deg(self) -> np.ndarray:
         """Joint readings (deg, (6,)) at this instant. Thread-safe, lock-free."""
-        return self._plan.at(time.monotonic())
+        return self._plan.at(self.clock.now())
+
+    def motion_sign(self) -> np.ndarray:
+        """Direction (-1, 0, +1) of each joint's last motion, at this instant."""
+        return self._plan.sign_at(self.clock.now())
 
     def in_motion(self) -> bool:
-        """Whether a move is executing at this instant."""
-        return self._plan.in_motion(time.monotonic())
+        """Whether a move is executing (or settling) at this instant."""
+        return self._plan.in_motion(self.clock.now())
 
     def set_fault(self, *, e_stopped: bool | None = None, drives_powered: bool | None = None,
                   in_error: bool | None = None, error_code: int | None = None) -> None:
@@ -304,7 +342,7 @@ class SimulatedController:
                 self._error_code = int(error_code)
             halt = self._e_stopped or not self._drives_powered or self._in_error
         if halt:
-            self._freeze(time.monotonic(), "fault")
+            self._freeze(self.clock.now(), "fault")
 
     def _in_range(self, joints: np.ndarray) -> bool:
         return bool(np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
@@ -320,7 +358,7 @@ class SimulatedController:
                       mode=RobotMode.AUTO, motion_possible=int(possible))
 
     def _record(self, seg: _Segment, end_deg: np.ndarray, stopped: bool) -> dict:
-        wall_start = time.time() - (time.monotonic() - seg.t_start)
+        wall_start = time.time() - (self.clock.now() - seg.t_start)
         return {"seq": seg.seq, "t_start": seg.t_start, "t_wall_start": wall_start,
                 "start_deg": [float(v) for v in seg.start_deg],
                 "target_deg": [float(v) for v in seg.target_deg],
@@ -341,10 +379,12 @@ class SimulatedController:
         """Drop finished segments from the plan and report them."""
         with self._lock:
             plan = self._plan
-            done = [s for s in plan.segments if s.t_end <= now]
+            # a move is done once it has settled (the last one is reported in motion until then)
+            done = [s for s in plan.segments if s.t_end + plan.settle_s <= now]
             if not done:
                 return
-            self._plan = _Plan(done[-1].target_deg.copy(), plan.segments[len(done):])
+            self._plan = _Plan(done[-1].target_deg.copy(), plan.segments[len(done):],
+                               plan.sign_at(done[-1].t_end), plan.settle_s)
         self._notify([self._record(s, s.target_deg, False) for s in done])
 
     def _freeze(self, now: float, why: str) -> None:
@@ -359,7 +399,7 @@ class SimulatedController:
             active = [s for s in plan.segments if s.t_start <= now < s.t_end]
             records += [self._record(s, here, True) for s in active]
             dropped = sum(1 for s in plan.segments if s.t_start > now)
-            self._plan = _Plan(here)
+            self._plan = plan.rest(now)
         if active or dropped:
             log.info("simulated controller stopped motion (%s) at %s deg; %d queued point(s) "
                      "dropped", why, np.round(here, 4).tolist(), dropped)
@@ -378,7 +418,7 @@ class SimulatedController:
                         msg.sequence, np.round(target, 4).tolist())
             return False
         target = np.clip(target, self.joint_min_deg, self.joint_max_deg)
-        now = time.monotonic()
+        now = self.clock.now()
         self._retire(now)
         with self._lock:
             if self._e_stopped or not self._drives_powered or self._in_error:
@@ -394,7 +434,7 @@ class SimulatedController:
             t0 = max(now, start_t)
             duration = float(np.max(np.abs(target - start) / (self.max_speed_deg_s * velocity)))
             seg = _Segment(msg.sequence, t0, t0 + duration * self.time_scale, start.copy(), target)
-            self._plan = _Plan(plan.rest_deg, plan.segments + (seg,))
+            self._plan = dataclasses.replace(plan, segments=plan.segments + (seg,))
             self.moves_executed += 1
         log.debug("simulated controller queued point %d: %s deg in %.3f s", msg.sequence,
                   np.round(target, 4).tolist(), seg.t_end - seg.t_start)
@@ -440,7 +480,7 @@ class SimulatedController:
                 conn.close()
             if not self._stop_evt.is_set():
                 # motionControl.pgx: no motion while the motion connection is down.
-                self._freeze(time.monotonic(), "motion client disconnected")
+                self._freeze(self.clock.now(), "motion client disconnected")
                 log.info("simulated controller: motion client %s disconnected", peer)
 
     def _handle(self, msg: Message) -> bytes | None:
@@ -455,7 +495,7 @@ class SimulatedController:
         if msg.sequence == SpecialSeq.STOP_TRAJECTORY:
             with self._lock:
                 self.stops_received += 1
-            self._freeze(time.monotonic(), "STOP_TRAJECTORY")
+            self._freeze(self.clock.now(), "STOP_TRAJECTORY")
             ok = True
         elif msg.sequence < 0:
             ok = True  # trajectory start/end markers: nothing to execute
@@ -485,24 +525,39 @@ class SimulatedController:
             joints = JointPosition(rad).pack()
         return joints + self._status(now).pack()
 
+    def _has_state_clients(self) -> bool:
+        return bool(self._state_clients)
+
+    def _send_state(self, now: float) -> int:
+        """Send the state frames of instant ``now`` to every state client; return how many."""
+        self._retire(now)
+        with self._lock:
+            clients = list(self._state_clients)
+        if not clients:
+            return 0
+        frames = self._state_frames(now)
+        sent = 0
+        for conn in clients:
+            try:
+                conn.sendall(frames)
+                sent += 1
+            except OSError as e:
+                log.info("simulated controller: dropping state client: %s", e)
+                with self._lock:
+                    self._state_clients.discard(conn)
+                conn.close()
+        return sent
+
+    def _tick(self, t: float) -> int:
+        """SimClock ticker: the state frames of simulated instant ``t``."""
+        if self._stop_evt.is_set():
+            return 0
+        return self._send_state(t)
+
     def _stream_loop(self) -> None:
         period = 1.0 / self.state_rate_hz
         next_t = time.monotonic()
         while not self._stop_evt.is_set():
-            now = time.monotonic()
-            self._retire(now)
-            with self._lock:
-                clients = list(self._state_clients)
-            if clients:
-                frames = self._state_frames(now)
-                for conn in clients:
-                    try:
-                        conn.sendall(frames)
-                    except OSError as e:
-                        log.info("simulated controller: dropping state client: %s", e)
-                        with self._lock:
-                            self._state_clients.discard(conn)
-                        conn.close()
+            self._send_state(self.clock.now())
             next_t = max(next_t + period, time.monotonic())
             self._stop_evt.wait(next_t - time.monotonic())
-

@@ -14,6 +14,8 @@ from typing import Self
 
 import numpy as np
 
+from drivers.clock import HOST_CLOCK, Clock
+
 
 @dataclass(frozen=True)
 class PulserSettings:
@@ -90,6 +92,8 @@ class PulserReceiver(abc.ABC):
     """An ultrasonic pulser-receiver. Use as a context manager."""
 
     device = "pulser"
+    #: Stamps ``GateReading.host_time_s`` (``drivers.clock``).
+    clock: Clock = HOST_CLOCK
 
     @property
     @abc.abstractmethod

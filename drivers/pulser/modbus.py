@@ -309,7 +309,7 @@ class ModbusPulser(PulserReceiver):
 
         With ``fresh`` poll the measurement block until its counter differs from the last one
         this object returned (the first call accepts any reading); ``timeout_s`` (s) bounds
-        the whole wait, then ``DeviceTimeout``. ``host_time_s`` is ``time.monotonic()`` when
+        the whole wait, then ``DeviceTimeout``. ``host_time_s`` is ``self.clock.now()`` when
         the answer arrived. A gate ending after the pulse period raises ``DeviceError``.
         """
         deadline = time.monotonic() + float(timeout_s)
@@ -321,7 +321,7 @@ class ModbusPulser(PulserReceiver):
                 "read gate",
                 deadline,
             )
-            host_time_s = time.monotonic()
+            host_time_s = self.clock.now()
             m = reg.Measurement.from_registers(registers)
             if not fresh or self._last_counter is None or m.counter != self._last_counter:
                 break

@@ -183,21 +183,22 @@ class Rig:
         self.counters.moves += 1
         if self.on_move:
             self.on_move(target)
-        t0 = time.monotonic()
+        clock = self.controller.clock
+        t0 = clock.now()
         self.controller.start_move(target, self.sweep_speed)
         readings: list[GateReading] = []
         sent: list[float] = []
         deadline = t0 + self.move_timeout_s
         while True:
-            sent.append(time.monotonic())
+            sent.append(clock.now())
             readings.append(self.pulser.read_gate(fresh=True))
             self.counters.reads += 1
-            if len(readings) % 4 == 0 or time.monotonic() > deadline:
+            if len(readings) % 4 == 0 or clock.now() > deadline:
                 st = self.controller.status()
                 here = self.controller.read_joints()
                 if not st.in_motion and np.max(np.abs(here - target)) < 1e-3:
                     break
-                if time.monotonic() > deadline:
+                if clock.now() > deadline:
                     raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
                                         f"within {self.move_timeout_s:.0f} s")
         samples = self.controller.joint_samples(t0 - 0.1)

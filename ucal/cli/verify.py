@@ -56,7 +56,7 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     """
     from ucal.errors import InputError
     from ucal.profile import load_profile
-    from ucal.session import SIM_TIME_SCALE, check_status, open_cell
+    from ucal.session import check_status, open_cell
     from ucal.verify import plan_verify, plot_verify, run_verify
 
     profile = load_profile(profile_path)
@@ -67,8 +67,7 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     _check_plot_format(plot_path)
 
     plan = plan_verify(profile, n_points)  # every target checked before any connection
-    with open_cell(profile, sim_world, controller_url, pulser_url,
-                   time_scale=SIM_TIME_SCALE) as session:
+    with open_cell(profile, sim_world, controller_url, pulser_url) as session:
         check_status(session.rig)
         confirm_motion(yes, _summary(plan, profile_path))
         progress = None if as_json else _progress

@@ -4,6 +4,12 @@ The controller (ROS-Industrial Simple Message, ``drivers.controller.simulator``)
 simulated robot; the pulser (Modbus, ``drivers.pulser.simulator``) answers every acquisition
 with ``SimulatedCell.echo`` at the controller's joint readings of that instant, so a reading
 taken while the robot moves sees the robot where it is. Both listen on free ports.
+
+Time (``drivers.clock``): with a ``SimClock`` (a client in the same process, ``ucal calibrate
+--sim``) both devices run on simulated time in lock step with the client — an acquisition
+takes its real-cell duration (``ucal.timing``: transport, pulses averaged) of simulated time,
+half before the echo is taken and half after, and moves and settling take theirs. On the host
+clock (``ucal sim serve``) the same durations pass in real time multiplied by ``time_scale``.
 """
 
 from __future__ import annotations
@@ -17,7 +23,9 @@ from typing import IO, Any, Self
 
 import numpy as np
 
+from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.pulser.base import PulserSettings
+from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import matrix_to_pose
 from ucal.sim.cell import SimulatedCell
@@ -32,13 +40,15 @@ class SimulatedCellServer:
     """The simulated controller and pulser of one world, served on 127.0.0.1 (context manager).
 
     ``world`` None means the demo truth of ``profile``. ``log_path`` receives one JSON line per
-    executed motion; ``time_scale`` multiplies every motion's duration (0 = instantaneous);
-    ``pulser_framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU over a TCP socket).
+    executed motion; ``time_scale`` multiplies every duration on the host clock (0 =
+    instantaneous); ``pulser_framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU over a
+    TCP socket); ``clock`` is the devices' clock (a ``SimClock`` for lock-step simulated time,
+    which ignores ``time_scale``).
     """
 
     def __init__(self, world: WorldTruth | None, profile: CellProfile,
                  log_path: str | Path | None = None, time_scale: float = 1.0,
-                 pulser_framing: str = "tcp", host: str = HOST):
+                 pulser_framing: str = "tcp", host: str = HOST, clock: Clock | None = None):
         if pulser_framing not in ("tcp", "rtu"):
             raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
         self.profile = profile
@@ -49,6 +59,9 @@ class SimulatedCellServer:
         self.time_scale = float(time_scale)
         self.pulser_framing = pulser_framing
         self.host = host
+        self.clock: Clock = clock if clock is not None else HOST_CLOCK
+        self.simulated_time = isinstance(self.clock, SimClock)
+        self._t0 = 0.0
         self.controller: Any = None
         self.pulser: Any = None
         self._log_file: IO[str] | None = None
@@ -71,13 +84,15 @@ class SimulatedCellServer:
             self.controller = SimulatedController(
                 np.asarray(model.joint_min_deg, float), np.asarray(model.joint_max_deg, float),
                 np.asarray(self.world.initial_joints_deg, float), self.host,
-                motion_port=0, state_port=0, time_scale=self.time_scale,
-                on_motion=self._on_motion)
+                motion_port=0, state_port=0,
+                time_scale=1.0 if self.simulated_time else self.time_scale,
+                on_motion=self._on_motion, clock=self.clock, settle_s=timing.SETTLE_S)
             self.controller.start()
             self.pulser = SimulatedPulser(self._acquire, framing=self.pulser_framing,
                                           host=self.host, port=0, unit=1,
                                           center_frequency_hz=self.world.frequency_mhz * 1e6)
             self.pulser.start()
+            self._t0 = self.clock.now()
         except BaseException:
             self.stop()
             raise
@@ -120,8 +135,21 @@ class SimulatedCellServer:
     # --- callbacks (server threads) -----------------------------------------------------------
     def _acquire(self, settings: PulserSettings) -> tuple[float, float]:
         """Pulser model: the raw echo at the controller's joint readings of this instant."""
+        half = 0.5 * timing.read_s(self.pulser_framing, settings.averages, settings.prf_hz)
+        self._let_pass(half)
         joints = self.controller.joints_deg()
-        return self.cell.echo(joints, averages=settings.averages, gain_db=settings.gain_db)
+        echo = self.cell.echo(joints, averages=settings.averages, gain_db=settings.gain_db,
+                              t_s=self.clock.now() - self._t0,
+                              motion_sign=self.controller.motion_sign())
+        self._let_pass(half)
+        return echo
+
+    def _let_pass(self, seconds: float) -> None:
+        """Let an acquisition's duration pass: simulated time, or host time × time_scale."""
+        if self.simulated_time:
+            self.clock.sleep(seconds)
+        elif self.time_scale > 0:
+            time.sleep(seconds * self.time_scale)
 
     def _on_motion(self, record: dict) -> None:
         """Controller callback at the end of each executed move: write one JSON line.

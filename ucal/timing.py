@@ -1,0 +1,75 @@
+"""How long a cell takes: pulser reads, moves and settling, for the simulator and the plan.
+
+One model serves two purposes, so that they agree: the simulated cell charges these durations
+to its clock (``ucal.sim.serve``), and a plan's estimate of the real-cell duration adds them up
+(``estimate_duration_s``).
+
+* A pulser read is one Modbus request for the measurement block plus the acquisition itself
+  (``averages`` pulses at the pulse repetition frequency). Over Modbus RTU the request is 8
+  bytes and the answer ``5 + 2·n`` bytes (n registers), 11 bits a character, with a 3.5
+  character silence before each frame: at 19,200 baud and n = 10 that is 22.9 ms, the figure
+  measured on serial pulser-receivers. Over Modbus TCP a request costs about a millisecond on a
+  cell network plus the instrument's own turnaround, ``TCP_READ_S`` in all.
+* A move lasts max |Δθ| / (maximum joint speed · speed fraction) (the simulated controller's
+  model), then the servo settles for ``SETTLE_S`` before the controller reports it done.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.controller.simulator import DEFAULT_MAX_SPEED_DEG_S
+from drivers.pulser.registers import MEASUREMENT_COUNT
+
+#: Modbus TCP request/response on a cell network plus instrument turnaround (s).
+TCP_READ_S = 0.002
+#: Instrument turnaround after a Modbus RTU request (s).
+RTU_TURNAROUND_S = 0.001
+#: Bits per character on the serial line (start, 8 data, parity, stop).
+RTU_BITS_PER_CHAR = 11
+#: Servo settling after a move, before the controller reports it done (s).
+SETTLE_S = 0.05
+#: Nominal maximum joint speeds (deg/s), J1..J6.
+MAX_SPEED_DEG_S = np.asarray(DEFAULT_MAX_SPEED_DEG_S, float)
+
+
+def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT) -> float:
+    """Time of one measurement-block request over ``framing`` ("tcp" or "rtu"), in s."""
+    if framing == "tcp":
+        return TCP_READ_S
+    if framing != "rtu":
+        raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
+    chars = 8 + 5 + 2 * registers + 2 * 3.5          # request, answer, two frame silences
+    return chars * RTU_BITS_PER_CHAR / baud + RTU_TURNAROUND_S
+
+
+def read_s(framing: str, averages: int = 1, prf_hz: float = 1000.0, baud: int = 19200) -> float:
+    """Time of one pulser read: the transport plus ``averages`` pulses at ``prf_hz`` (s)."""
+    return transport_s(framing, baud) + max(int(averages), 1) / float(prf_hz)
+
+
+def move_s(start_deg: np.ndarray, target_deg: np.ndarray, speed: float) -> float:
+    """Duration of a joint move at ``speed`` (fraction of maximum), settling included (s)."""
+    delta = np.abs(np.asarray(target_deg, float) - np.asarray(start_deg, float))
+    return float(np.max(delta / (MAX_SPEED_DEG_S * speed))) + SETTLE_S
+
+
+@dataclass(frozen=True)
+class DurationEstimate:
+    """A run's estimated duration on a real cell, by transport (s)."""
+
+    moves: int
+    reads: int
+    motion_s: float
+    tcp_s: float
+    rtu_s: float
+
+
+def estimate_duration_s(moves: int, reads: int, motion_s: float, averages: float = 1.0,
+                        prf_hz: float = 1000.0, baud: int = 19200) -> DurationEstimate:
+    """Real-cell duration of ``moves`` moves taking ``motion_s`` in all and ``reads`` reads."""
+    per_read = {f: read_s(f, 1, prf_hz, baud) + (averages - 1) / prf_hz for f in ("tcp", "rtu")}
+    return DurationEstimate(moves, reads, motion_s, motion_s + reads * per_read["tcp"],
+                            motion_s + reads * per_read["rtu"])
