@@ -1,4 +1,4 @@
-"""Back-ends chosen by URL scheme through the ``ucal.pulsers`` / ``ucal.controllers`` entry points."""
+"""Back-ends chosen by URL scheme through the ``ucal.pulsers``/``ucal.controllers`` entry points."""
 
 from __future__ import annotations
 
