@@ -17,6 +17,7 @@ import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.errors import DriverError
@@ -24,6 +25,15 @@ from drivers.registry import open_controller, open_pulser
 from ucal.calibration.search import Rig
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, InputError, SafetyError
+from ucal.record import (
+    Record,
+    Recorder,
+    RecordingController,
+    RecordingPulser,
+    Replay,
+    ReplayController,
+    ReplayPulser,
+)
 
 log = logging.getLogger(__name__)
 
@@ -60,10 +70,23 @@ def check_status(rig: Rig) -> None:
         raise SafetyError(f"controller at {where}: in error (code {st.error_code})")
 
 
+def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
+    """The rig of a cell: the profile's joint ranges and speed, the pulser configured."""
+    rig = Rig(controller, pulser, profile.model.joint_min_deg, profile.model.joint_max_deg,
+              speed=profile.procedure.speed)
+    rig.pulser.configure(rig.settings)
+    return rig
+
+
 @contextlib.contextmanager
 def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str | None,
-              pulser_url: str | None) -> Iterator[CellSession]:
-    """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs."""
+              pulser_url: str | None, recorder: Recorder | None = None
+              ) -> Iterator[CellSession]:
+    """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs.
+
+    With a ``recorder`` every call the procedure makes to the devices is recorded as it happens
+    (``ucal.record``).
+    """
     if sim_world is None and not (controller_url and pulser_url):
         raise InputError("give either --sim [WORLD] or both --controller URL and --pulser URL")
     if sim_world is not None and (controller_url or pulser_url):
@@ -92,12 +115,23 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
         except ValueError as e:
             raise InputError(str(e)) from e
         controller.clock = pulser.clock = clock
+        if recorder is not None:
+            controller = RecordingController(controller, recorder)
+            pulser = RecordingPulser(pulser, recorder)
         try:
             stack.enter_context(pulser)
             stack.enter_context(controller)  # exits first: STOP, then close
         except DriverError as e:
             raise HardwareError(str(e)) from e
-        rig = Rig(controller, pulser, profile.model.joint_min_deg, profile.model.joint_max_deg,
-                  speed=profile.procedure.speed)
-        rig.pulser.configure(rig.settings)
-        yield CellSession(rig, truth, sim_world is not None, clock)
+        yield CellSession(make_rig(profile, controller, pulser), truth, sim_world is not None,
+                          clock)
+
+
+@contextlib.contextmanager
+def replay_cell(profile: CellProfile, record: Record) -> Iterator[CellSession]:
+    """A cell that answers with a recorded run's device traffic (``ucal.record``): no motion."""
+    replay = Replay(record)
+    controller = ReplayController(replay, str(record.header.get("cell", "recorded cell")))
+    pulser = ReplayPulser(replay, "recorded pulser")
+    # the session's own clock stays the host's: the procedure's clock readings are the replay's
+    yield CellSession(make_rig(profile, controller, pulser), None, False)

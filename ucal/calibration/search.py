@@ -36,14 +36,45 @@ from scipy.optimize import least_squares
 
 from drivers.controller.base import RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal import timing
 from ucal.acoustics import piston_directivity, water_path_mm, wavenumber_per_mm
 from ucal.errors import HardwareError
 
 log = logging.getLogger(__name__)
 
 
-#: Joint travel between readings on main-lobe sweeps (deg): the −6 dB lobe is ~0.4° wide.
-MAIN_LOBE_STEP_DEG = 0.01
+@dataclass(frozen=True)
+class SweepSpacing:
+    """How far apart a sweep's readings may come (deg of joint travel), by purpose.
+
+    ``acquire_deg``: acquisition lines — at acquisition gain the echo shows over a degree or
+    more, so a few readings land on it even this far apart. Centring sweeps: their length over
+    ``centre_reads_per_half`` per half-width, at least ``centre_min_deg`` — a long sweep only
+    needs to locate the echo's span. ``main_lobe_deg``: main-lobe crosses — the −6 dB lobe is
+    ~0.4° wide and its half-maximum crossings are interpolated between readings. A sweep aims
+    at ``aim`` × its allowed spacing, from the measured time between readings.
+    """
+
+    acquire_deg: float = 0.25
+    centre_reads_per_half: float = 15.0
+    centre_min_deg: float = 0.04
+    main_lobe_deg: float = 0.03
+    aim: float = 0.9
+
+    def centre_deg(self, half_width_deg: float) -> float:
+        """Allowed spacing on a centring sweep of ± ``half_width_deg`` joint travel."""
+        return max(self.centre_min_deg, half_width_deg / self.centre_reads_per_half)
+
+
+#: The first build's spacing (every sweep read about as densely as the pulser answered): the
+#: baseline that benchmarks/paper_protocol.py compares the reads and accuracy against.
+DENSE_SPACING = SweepSpacing(acquire_deg=0.08, centre_reads_per_half=math.inf,
+                             centre_min_deg=0.04, main_lobe_deg=0.01, aim=0.5)
+#: Slowest sweep (fraction of maximum speed): the VAL3 server takes a wire velocity of 0.001
+#: (0.1 %) for "extrapolate from the previous points", so sweeps stay clear of it.
+MIN_SPEED = 0.002
+#: Time per reading assumed before the first sweep has measured it (s): Modbus TCP.
+_FIRST_READ_S = timing.read_s("tcp")
 #: Noise floor taken when an empty gate reads exactly 0 and no reading is above 0 (fraction of
 #: full screen height): one level of an 8-bit amplitude. A quantised instrument reports 0 below
 #: one level, so the true floor is under it; the threshold (four floors) stays above the noise.
@@ -91,6 +122,10 @@ class Rig:
         self.joint_max_deg = np.asarray(joint_max_deg, float)
         self.speed = speed
         self.sweep_speed = speed
+        # Time between readings during a sweep (s), measured by every sweep: sets the speed
+        # that spaces the readings as a sweep asks.
+        self.read_interval_s = _FIRST_READ_S
+        self.spacing = SweepSpacing()
         self.move_timeout_s = move_timeout_s
         self.counters = RigCounters()
         self.settings = settings or PulserSettings(gain_db=40.0, gate_start_us=5.0,
@@ -173,9 +208,10 @@ class Rig:
         """Move to ``target`` reading the pulser all the way.
 
         Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
-        (n,), readings paired with the streamed joints by interpolation at arrival time. If the
-        readings come further apart than ``max_step_deg`` the sweep speed is lowered for the
-        next sweeps.
+        (n,), readings paired with the streamed joints by interpolation at arrival time. The
+        speed is chosen from the measured time between readings so that they come ``spacing.aim`` ×
+        ``max_step_deg`` apart; reading stops when the joints reach the target (none is taken
+        while the servo settles).
         """
         target = np.asarray(target, float)
         start = self.controller.read_joints()
@@ -183,9 +219,10 @@ class Rig:
         self.counters.moves += 1
         if self.on_move:
             self.on_move(target)
+        speed = self._sweep_speed_for(start, target, max_step_deg)
         clock = self.controller.clock
         t0 = clock.now()
-        self.controller.start_move(target, self.sweep_speed)
+        self.controller.start_move(target, speed)
         readings: list[GateReading] = []
         sent: list[float] = []
         deadline = t0 + self.move_timeout_s
@@ -193,14 +230,15 @@ class Rig:
             sent.append(clock.now())
             readings.append(self.pulser.read_gate(fresh=True))
             self.counters.reads += 1
-            if len(readings) % 4 == 0 or clock.now() > deadline:
-                st = self.controller.status()
-                here = self.controller.read_joints()
-                if not st.in_motion and np.max(np.abs(here - target)) < 1e-3:
-                    break
-                if clock.now() > deadline:
-                    raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
-                                        f"within {self.move_timeout_s:.0f} s")
+            here = self.controller.read_joints()
+            if np.max(np.abs(here - target)) < 1e-3:
+                break
+            if clock.now() > deadline:
+                raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
+                                    f"within {self.move_timeout_s:.0f} s")
+        if len(readings) > 1:
+            self.read_interval_s = (sent[-1] - sent[0]) / (len(readings) - 1)
+        self.controller.wait_settled(target, self.move_timeout_s)
         samples = self.controller.joint_samples(t0 - 0.1)
         ts = np.array([s.t_s for s in samples])
         js = np.array([s.joints_deg for s in samples])
@@ -213,13 +251,25 @@ class Rig:
         amps = np.array([r.amplitude for r in readings])
         tofs = np.array([r.tof_ns for r in readings])
         travel = float(np.max(np.abs(target - start)))
-        step = travel / max(len(readings), 1)
-        self.last_sweep_step_deg = step
-        if step > max_step_deg:
-            self.sweep_speed = max(self.sweep_speed * max_step_deg / step * 0.7, 1e-4)
-        elif step < 0.25 * max_step_deg:
-            self.sweep_speed = min(self.sweep_speed * 2.0, self.speed)
+        self.last_sweep_step_deg = travel / max(len(readings), 1)
         return q, amps, tofs
+
+    def _sweep_speed_for(self, start: np.ndarray, target: np.ndarray, max_step_deg: float
+                         ) -> float:
+        """Speed fraction that spaces readings ``spacing.aim · max_step_deg`` apart on this move.
+
+        The move's rate is set by its slowest joint relative to its maximum speed (the
+        controller's joint-interpolated motion): travel per reading = speed · rate_max ·
+        interval, with rate_max = |Δ|_max over the move's duration at full speed.
+        """
+        delta = np.abs(np.asarray(target, float) - np.asarray(start, float))
+        full_speed_s = float(np.max(delta / timing.MAX_SPEED_DEG_S))
+        if full_speed_s <= 0.0:
+            return self.speed
+        rate_deg_s = float(np.max(delta)) / full_speed_s
+        speed = self.spacing.aim * max_step_deg / (rate_deg_s * self.read_interval_s)
+        self.sweep_speed = float(np.clip(speed, MIN_SPEED, self.speed))
+        return self.sweep_speed
 
     def line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -252,11 +302,28 @@ class PeakResult:
 
 
 def _run_centre(u: np.ndarray, amps: np.ndarray, level: float) -> float | None:
-    """Middle of the span of readings above ``level`` along a sweep coordinate ``u``."""
-    above = amps >= level
-    if not np.any(above):
+    """Middle of the span above ``level`` along a sweep coordinate ``u``.
+
+    Each end of the span is where the amplitude crosses ``level``, interpolated linearly
+    between the last reading below and the first above (the ends of the sweep where the span
+    reaches them).
+    """
+    above = np.flatnonzero(amps >= level)
+    if above.size == 0:
         return None
-    return float(0.5 * (u[above].min() + u[above].max()))
+    order = np.argsort(u)
+    u, amps = np.asarray(u, float)[order], np.asarray(amps, float)[order]
+    above = np.flatnonzero(amps >= level)
+    first, last = int(above[0]), int(above[-1])
+
+    def crossing(inside: int, outside: int) -> float:
+        a_in, a_out = amps[inside], amps[outside]
+        f = (a_in - level) / (a_in - a_out) if a_in > a_out else 0.0
+        return float(u[inside] + f * (u[outside] - u[inside]))
+
+    lo = crossing(first, first - 1) if first > 0 else float(u[first])
+    hi = crossing(last, last + 1) if last < len(u) - 1 else float(u[last])
+    return 0.5 * (lo + hi)
 
 
 class PeakSearch:
@@ -314,7 +381,7 @@ class PeakSearch:
             ub = ub0 + i * step_b
             start = self._with(q_pred, ua0 - direction * half_a, ub)
             end = self._with(q_pred, ua0 + direction * half_a, ub)
-            q, amps, _ = self.rig.line(start, end)
+            q, amps, _ = self.rig.line(start, end, self.rig.spacing.acquire_deg)
             direction = -direction
             if np.max(amps) >= level:
                 k = int(np.argmax(amps))
@@ -379,17 +446,23 @@ class PeakSearch:
         self.set_fit_gain(q, averages=1)
         for _ in range(3):
             before = q.copy()
-            q, _ = self._cross(q, self.ja, 0.6, MAIN_LOBE_STEP_DEG)
-            q, _ = self._cross(q, self.jb, 0.6, MAIN_LOBE_STEP_DEG)
+            q, _ = self._cross(q, self.ja, 0.6, self.rig.spacing.main_lobe_deg)
+            q, _ = self._cross(q, self.jb, 0.6, self.rig.spacing.main_lobe_deg)
             if np.all(np.abs(q - before) < 0.01):
                 break
             self.set_fit_gain(q, averages=1)
         return q
 
     def _sweep_through(self, q: np.ndarray, j: int, half_tilt_deg: float,
-                       max_step_deg: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+                       max_step_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Sweep joint ``j`` over ±``half_tilt_deg`` of beam tilt through ``q``.
+
+        Without ``max_step_deg`` the spacing is ``SweepSpacing.centre_deg``.
+        """
         per = self.per_deg[0] if j == self.ja else self.per_deg[1]
         h = half_tilt_deg / per
+        if max_step_deg is None:
+            max_step_deg = self.rig.spacing.centre_deg(h)
         a, b = q.copy(), q.copy()
         a[j] -= h
         b[j] += h
@@ -404,8 +477,8 @@ class PeakSearch:
         q = np.array(q_pred, float)
         for _ in range(3):
             before = q.copy()
-            q, pa = self._cross(q, self.ja, 0.6, MAIN_LOBE_STEP_DEG)
-            q, pb = self._cross(q, self.jb, 0.6, MAIN_LOBE_STEP_DEG)
+            q, pa = self._cross(q, self.ja, 0.6, self.rig.spacing.main_lobe_deg)
+            q, pb = self._cross(q, self.jb, 0.6, self.rig.spacing.main_lobe_deg)
             if max(pa, pb) < self.rig.threshold():
                 return None
             if np.all(np.abs(q - before) < 0.01):
