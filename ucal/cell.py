@@ -49,6 +49,8 @@ class CellProfile:
     sample_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 5.0))
     sample_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
     water_temperature_std_c: float = 2.0
+    dh_length_std_mm: float = 0.2     # how well the DH lengths and twists match this robot
+    dh_angle_std_deg: float = 0.02
     frequency_mhz: float = 25.0
     element_diameter_mm: float = 6.0
     joint_offsets_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))

@@ -50,11 +50,12 @@ SCHEMA = 1
 KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset({"schema"}),
     "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "upper_arm_mm",
-                        "forearm_mm"}),
-    "tool": frozenset({"position_mm", "rotation_deg"}),
-    "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
+                        "forearm_mm", "dh_length_std_mm", "dh_angle_std_deg"}),
+    "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"}),
+    "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm", "position_std_mm",
+                         "rotation_std_deg"}),
     "reflector": frozenset({"points_mm"}),
-    "water": frozenset({"temperature_c"}),
+    "water": frozenset({"temperature_c", "temperature_std_c"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
     "procedure": frozenset({"calibration_pose_deg", "water_path_mm", "step_deg", "speed",
@@ -118,6 +119,8 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
                           unit="mm")
     sample_rot = r.vector("sample.rotation_deg", r.get(sample, "sample.rotation_deg", True), 3,
                           unit="deg")
+    tolerances = read_tolerances(r, tool, sample, r.table("water", required=True),
+                                 r.table("robot", required=True))
     face = r.get(sample, "sample.face_size_mm")
     face_mm = (DEFAULT_FACE_MM if face is None else
                r.number("sample.face_size_mm", face, lo=0.0, lo_open=True, unit="mm"))
@@ -149,7 +152,39 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
                        sample_face_size_mm=face_mm, reflector_points_mm=points,
                        water_temperature_c=water_c, frequency_mhz=freq,
                        element_diameter_mm=diam, joint_offsets_deg=offsets,
-                       unobservable_joints=unobservable, procedure=procedure, path=Path(path))
+                       unobservable_joints=unobservable, procedure=procedure, path=Path(path),
+                       **tolerances)
+
+
+def read_tolerances(r: Reader, tool: Mapping[str, Any] | None,
+                    sample: Mapping[str, Any] | None, water: Mapping[str, Any] | None,
+                    robot: Mapping[str, Any] | None) -> dict[str, Any]:
+    """One-sigma tolerances: ``[tool]`` / ``[sample]`` ``position_std_mm`` and
+    ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[water] temperature_std_c``
+    (0–20 °C) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
+    missing keys keep ``CellProfile``'s defaults (SPEC.md)."""
+    fields = CellProfile.__dataclass_fields__
+    out: dict[str, Any] = {}
+    for table, tname, key, attr, hi, unit in (
+            (tool, "tool", "position_std_mm", "tool_position_std_mm", 100.0, "mm"),
+            (tool, "tool", "rotation_std_deg", "tool_rotation_std_deg", 10.0, "deg"),
+            (sample, "sample", "position_std_mm", "sample_position_std_mm", 100.0, "mm"),
+            (sample, "sample", "rotation_std_deg", "sample_rotation_std_deg", 10.0, "deg")):
+        v = r.get(table, f"{tname}.{key}")
+        if v is None:
+            out[attr] = fields[attr].default_factory()
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[attr] = np.full(3, r.number(f"{tname}.{key}", v, lo=0.0, hi=hi, unit=unit))
+        else:
+            out[attr] = r.vector(f"{tname}.{key}", v, 3, lo=0.0, hi=hi, unit=unit)
+    for table, key, attr, hi, unit in (
+            (water, "water.temperature_std_c", "water_temperature_std_c", 20.0, "degC"),
+            (robot, "robot.dh_length_std_mm", "dh_length_std_mm", 10.0, "mm"),
+            (robot, "robot.dh_angle_std_deg", "dh_angle_std_deg", 1.0, "deg")):
+        v = r.get(table, key)
+        out[attr] = (fields[attr].default if v is None else
+                     r.number(key, v, lo=0.0, hi=hi, unit=unit))
+    return out
 
 
 def read_robot(r: Reader, robot: Mapping[str, Any] | None, prefix: str,
@@ -346,6 +381,9 @@ joint_max_deg = {_vec(m.joint_max_deg)}
 # Tool centre point (transducer face) relative to the flange; the beam leaves it along +Z.
 position_mm = {_vec(DEFAULT_TOOL_MM)}
 rotation_deg = [0.0, 0.0, 0.0]
+# How well the tool frame is known (one sigma): from the drawing until `tool-frame` measures it.
+position_std_mm = [1.0, 1.0, 1.0]
+rotation_std_deg = [0.5, 0.5, 0.5]
 
 [sample]
 # Calibration block: the corner where its three reflecting faces meet (base frame).
@@ -356,6 +394,11 @@ rotation_deg = [0.0, 0.0, 0.0]
 position_mm = {_vec(corner)}
 rotation_deg = [0.0, 0.0, 0.0]
 face_size_mm = {_num(DEFAULT_FACE_MM)}
+# How well that pose is known (one sigma): a hand-placed block. Its yaw and joint 1 are one
+# rotation about the base axis, so joint 1 is calibrated only as well as the yaw is known: a
+# doweled, levelled fixture states its own (e.g. 0.5 mm, [0.01, 0.01, 0.01] deg).
+position_std_mm = 5.0
+rotation_std_deg = [0.5, 0.5, 0.5]
 
 [reflector]
 # Three or more points touched on a flat plate (tool-frame calibration). Nominal plate:
@@ -369,6 +412,7 @@ points_mm = [
 
 [water]
 temperature_c = 20.0
+temperature_std_c = 2.0   # thermometer tolerance; the sound speed is fitted within it
 
 [transducer]
 frequency_mhz = 25.0

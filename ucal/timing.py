@@ -56,9 +56,19 @@ def move_s(start_deg: np.ndarray, target_deg: np.ndarray, speed: float) -> float
     return float(np.max(delta / (MAX_SPEED_DEG_S * speed))) + SETTLE_S
 
 
+#: What the peak search costs per face beyond the moves between targets, measured on the
+#: built-in demo cell (benchmarks/run_time.py): moves, pulser reads, and motion time (s) at
+#: speed 0.3. The first face of a run adds an acquisition raster.
+SEARCH_MOVES_PER_FACE = 22
+SEARCH_READS_PER_FACE = 200
+SEARCH_MOTION_S_PER_FACE = 3.0
+FIRST_FACE_READS = 400
+FIRST_FACE_MOTION_S = 6.0
+
+
 @dataclass(frozen=True)
 class DurationEstimate:
-    """A run's estimated duration on a real cell, by transport (s)."""
+    """A run's estimated duration on a real cell (s), for Modbus TCP and for RTU."""
 
     moves: int
     reads: int
@@ -66,10 +76,30 @@ class DurationEstimate:
     tcp_s: float
     rtu_s: float
 
+    def describe(self) -> str:
+        """One line for a plan summary."""
+        return (f"Estimated time on a real cell: about {self.moves} moves and {self.reads} "
+                f"pulser reads: {_minutes(self.tcp_s)} over Modbus TCP, {_minutes(self.rtu_s)} "
+                f"over Modbus RTU at 19,200 baud")
 
-def estimate_duration_s(moves: int, reads: int, motion_s: float, averages: float = 1.0,
-                        prf_hz: float = 1000.0, baud: int = 19200) -> DurationEstimate:
-    """Real-cell duration of ``moves`` moves taking ``motion_s`` in all and ``reads`` reads."""
-    per_read = {f: read_s(f, 1, prf_hz, baud) + (averages - 1) / prf_hz for f in ("tcp", "rtu")}
-    return DurationEstimate(moves, reads, motion_s, motion_s + reads * per_read["tcp"],
-                            motion_s + reads * per_read["rtu"])
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
+
+
+def estimate_run(targets_deg: list[np.ndarray], start_deg: np.ndarray, speed: float,
+                 averages: int = 1, prf_hz: float = 1000.0, baud: int = 19200
+                 ) -> DurationEstimate:
+    """Estimate a run that visits ``targets_deg`` in order and searches the peak at each."""
+    motion = 0.0
+    here = np.asarray(start_deg, float)
+    for q in targets_deg:
+        motion += move_s(here, q, speed)
+        here = np.asarray(q, float)
+    n = len(targets_deg)
+    motion += n * SEARCH_MOTION_S_PER_FACE * 0.3 / speed + FIRST_FACE_MOTION_S * 0.3 / speed
+    moves = n * (1 + SEARCH_MOVES_PER_FACE)
+    reads = n * SEARCH_READS_PER_FACE + FIRST_FACE_READS
+    per_read = {f: read_s(f, averages, prf_hz, baud) for f in ("tcp", "rtu")}
+    return DurationEstimate(moves, reads, motion, motion + reads * per_read["tcp"],
+                            motion + reads * per_read["rtu"])

@@ -1,6 +1,13 @@
 """Exact joint-offset solution: nonlinear least squares over the full forward kinematics.
 
-Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame; the block's
+``solve_exact_with_priors`` is the solver ``ucal calibrate`` uses: it carries the block pose,
+the tool frame and the sound speed as unknowns with the profile's tolerances as priors
+(``ucal.calibration.fit``) and reports honest standard deviations, the fit quality and why a
+joint is unobservable. ``solve_exact`` below is the previous, offsets-only solver (block
+orientation, tool and sound speed taken as exact); it is kept for the comparison in
+``benchmarks/realistic.py`` and for predicting postures during a run.
+
+Previous solver. Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame; the block's
 orientation is taken as known, its position is not). Every face measurement contributes
 (see ``ucal.calibration.model``):
 
@@ -36,6 +43,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from ucal.calibration.fit import (
+    MAX_STD_DEG,
+    OFFSETS,
+    PRIOR_MEANING,
+    CellPrior,
+    FitQuality,
+    solve_cell,
+)
 from ucal.calibration.model import (
     CellGeometry,
     FaceMeasurement,
@@ -58,6 +73,60 @@ class OffsetSolution:
     rms_tilt_deg: float = float("nan")
     rms_distance_mm: float = float("nan")
     extra: dict = field(default_factory=dict)
+    fit: FitQuality | None = None
+    sound_speed_m_s: float = float("nan")
+    sound_speed_std_m_s: float = float("nan")
+    #: 1-based joint → why it is unobservable (the data do not see it, or which tolerance it
+    #: cannot be separated from).
+    unobservable_reasons: dict[int, str] = field(default_factory=dict)
+
+
+def solve_exact_with_priors(prior: CellPrior, meas: list[FaceMeasurement],
+                            max_std_deg: float = MAX_STD_DEG, fixed: tuple[str, ...] = ()
+                            ) -> OffsetSolution:
+    """Offsets with the cell's uncertain quantities as prior-constrained unknowns.
+
+    A joint whose std exceeds ``max_std_deg`` while less than half of its variance comes from
+    the measurements is reported unobservable (profile value kept) with the prior that
+    dominates it as the reason; a joint whose large std comes from the data stays observable
+    (the caller judges it out of tolerance).
+    """
+    cell = solve_cell(prior, meas, fixed=fixed, max_std_deg=max_std_deg)
+    offsets = np.array(prior.offsets_deg, float)
+    std = np.full(6, np.nan)
+    reasons: dict[int, str] = {}
+    for j, name in enumerate(OFFSETS):
+        sigma = cell.sigma(name)
+        shares = cell.variance_share[name]
+        if sigma > max_std_deg and shares["data"] < 0.5:
+            reasons[j + 1] = unobservable_reason(j + 1, sigma, shares)
+            continue
+        offsets[j] = cell.value(name)
+        std[j] = sigma
+    return OffsetSolution(
+        offsets_deg=offsets, std_deg=std, unobservable_joints=tuple(sorted(reasons)),
+        condition_number=cell.condition_number, method="exact",
+        corner_mm=np.array([cell.value(n) for n in ("block_x_mm", "block_y_mm", "block_z_mm")]),
+        rms_tilt_deg=cell.quality.rms_tilt_deg, rms_distance_mm=cell.quality.rms_distance_mm,
+        extra={"cell_fit": cell, "chi2_reduced": cell.quality.chi2_reduced},
+        fit=cell.quality, sound_speed_m_s=cell.value("sound_speed_m_s"),
+        sound_speed_std_m_s=cell.sigma("sound_speed_m_s"), unobservable_reasons=reasons)
+
+
+def unobservable_reason(joint: int, sigma_deg: float, shares: dict[str, float]) -> str:
+    """Why joint ``joint`` (1-based) cannot be calibrated, from the sources of its variance."""
+    source, share = max(((k, v) for k, v in shares.items() if k != "data"),
+                        key=lambda kv: kv[1])
+    if source == OFFSETS[joint - 1]:
+        return "the measurements do not move it (e.g. joint 6 with the beam on its axis)"
+    what = PRIOR_MEANING.get(source, source)
+    text = (f"cannot be separated from {what}: {100 * share:.0f} % of its variance, "
+            f"std {sigma_deg:.3g} deg")
+    if source == "block_rz_deg":
+        text += "; fixture the block (doweled and levelled to 0.01 deg) and state it"
+    elif source in ("block_rx_deg", "block_ry_deg"):
+        text += "; level the block or see it from a second J1 azimuth"
+    return text
 
 
 def _initial_corner(geom: CellGeometry, meas: list[FaceMeasurement],

@@ -44,12 +44,17 @@ known: the beam a_T (flange frame) is normal to face k at posture q^k, so R60(q^
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.model import CellGeometry, FaceMeasurement
+from ucal.calibration.fit import MAX_STD_DEG, PRIOR_MEANING, CellPrior
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.calibration.wrist import aim_wrist
 from ucal.errors import InputError
-from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.dh import fk_frames, transform
+from ucal.kinematics.rotations import matrix_to_rpy, rpy_to_matrix
 
 
 def arm_lengths(geom: CellGeometry) -> tuple[float, float]:
@@ -155,16 +160,29 @@ def paper_offsets(geom: CellGeometry, meas: list[FaceMeasurement]) -> np.ndarray
 
 
 def solve_paper(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_deg: np.ndarray,
-                unobservable: tuple[int, ...] = (), condition_number: float = float("nan")
-                ) -> OffsetSolution:
-    """Offsets by the paper's method with standard deviations by linear error propagation.
+                unobservable: tuple[int, ...] = (), condition_number: float = float("nan"),
+                prior: CellPrior | None = None, reasons: dict[int, str] | None = None,
+                max_std_deg: float = MAX_STD_DEG) -> OffsetSolution:
+    """Offsets by the paper's method with an honest standard deviation.
+
+    The variance of each offset is the sum of
+
+    * the measurements' noise: each distance σ and posture σ propagated through the
+      closed-form chain by central differences;
+    * the cell's tolerances (``prior``): the block orientation, the beam direction in the flange
+      (tool rx, ry) and the sound speed (a scale of every water path) propagated the same way —
+      the equations take them as exact, so their errors pass straight into the offsets;
+    * the first-order truncation error: ideal measurements are synthesised with the exact
+      kinematics at the paper's own solution, and the paper's chain applied to them; what it
+      returns minus that solution is its bias for this plan (about half the step on θ2 + θ3),
+      taken as a one-sigma term because the method cannot remove it.
 
     ``unobservable`` (1-based, from the exact model's observability analysis of the same data)
-    keep their prior values. The standard deviations propagate each measurement's distance σ
-    and posture σ through the closed-form chain by central differences.
+    keep their prior values; so does a joint whose std exceeds ``max_std_deg`` mainly because
+    of a tolerance (the paper's three configurations see the block from one J1 azimuth only).
     """
     offsets = paper_offsets(geom, meas)
-    var = np.zeros(6)
+    noise = np.zeros(6)
     for i, m in enumerate(meas):
         for what in ("distance", 3, 4, 5):
             h = 1e-4
@@ -180,17 +198,86 @@ def solve_paper(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
                 plus[i] = _with(m, joints_deg=m.joints_deg + dq)
                 minus[i] = _with(m, joints_deg=m.joints_deg - dq)
             deriv = _wrap(paper_offsets(geom, plus) - paper_offsets(geom, minus)) / (2 * h)
-            var += (deriv * sigma) ** 2
+            noise += (deriv * sigma) ** 2
+    nuisance = _nuisance_variances(geom, meas, prior) if prior is not None else {}
+    truncation = truncation_error(geom, meas, offsets)
+    var = noise + truncation ** 2 + sum(nuisance.values(), np.zeros(6))
     std = np.sqrt(var)
-    prior = np.asarray(prior_offsets_deg, float)
-    for j in unobservable:
-        offsets[j - 1] = prior[j - 1]
+    prior_off = np.asarray(prior_offsets_deg, float)
+    why = dict(reasons or {})
+    unobs = set(unobservable)
+    for j in range(6):
+        if j + 1 in unobs or std[j] <= max_std_deg or not nuisance:
+            continue
+        source, v = max(nuisance.items(), key=lambda kv: kv[1][j])
+        if v[j] > 0.5 * var[j]:
+            unobs.add(j + 1)
+            why[j + 1] = (f"cannot be separated from {PRIOR_MEANING.get(source, source)} by "
+                          f"the paper's equations: {100 * v[j] / var[j]:.0f} % of its "
+                          f"variance, std {std[j]:.3g} deg")
+    for j in unobs:
+        offsets[j - 1] = prior_off[j - 1]
         std[j - 1] = np.nan
-    return OffsetSolution(offsets_deg=offsets, std_deg=std, unobservable_joints=tuple(unobservable),
-                          condition_number=condition_number, method="paper")
+    return OffsetSolution(offsets_deg=offsets, std_deg=std,
+                          unobservable_joints=tuple(sorted(unobs)),
+                          condition_number=condition_number, method="paper",
+                          extra={"truncation_deg": truncation, "noise_std_deg": np.sqrt(noise)},
+                          unobservable_reasons={j: why[j] for j in unobs if j in why})
+
+
+def _nuisance_variances(geom: CellGeometry, meas: list[FaceMeasurement], prior: CellPrior
+                        ) -> dict[str, np.ndarray]:
+    """Variance (deg², per joint) that each tolerance of ``prior`` puts into the offsets."""
+    base = paper_offsets(geom, meas)
+    block_rpy = matrix_to_rpy(geom.block_rotation)
+    tool_pos = geom.tool_matrix[:3, 3]
+    tool_rpy = matrix_to_rpy(geom.tool_matrix[:3, :3])
+    out: dict[str, np.ndarray] = {}
+
+    def effect(g: CellGeometry, ms: list[FaceMeasurement]) -> np.ndarray:
+        return _wrap(paper_offsets(g, ms) - base)
+
+    for i, name in enumerate(("block_rx_deg", "block_ry_deg", "block_rz_deg")):
+        h = float(prior.block_rotation_std_deg[i])
+        if h > 0:
+            d = np.zeros(3)
+            d[i] = h
+            g = replace(geom, block_rotation=rpy_to_matrix(block_rpy + d))
+            out[name] = effect(g, meas) ** 2
+    for i, name in enumerate(("tool_rx_deg", "tool_ry_deg")):
+        h = float(prior.tool_rotation_std_deg[i])
+        if h > 0:
+            d = np.zeros(3)
+            d[i] = h
+            g = replace(geom, tool_matrix=transform(tool_pos, rpy_to_matrix(tool_rpy + d)))
+            out[name] = effect(g, meas) ** 2
+    rel = prior.sound_speed_std_m_s / prior.sound_speed_m_s
+    if rel > 0:
+        scaled = [_with(m, distance_mm=m.distance_mm * (1.0 + rel)) for m in meas]
+        out["sound_speed_m_s"] = effect(geom, scaled) ** 2
+    return out
+
+
+def truncation_error(geom: CellGeometry, meas: list[FaceMeasurement],
+                     offsets_deg: np.ndarray) -> np.ndarray:
+    """The paper chain's own error (deg, per joint) at ``offsets_deg`` for these postures.
+
+    Ideal measurements of a cell with offsets ``offsets_deg`` are synthesised with the exact
+    forward kinematics at the measured arm configurations (the wrist aimed normal to each face,
+    θ6 as measured), the water paths from a corner that reproduces the base configuration's;
+    the paper's equations applied to them return ``offsets_deg`` plus their truncation error.
+    """
+    synth = []
+    corner_local: dict[int, float] = {}
+    for m in sorted(meas, key=lambda x: x.config != "base"):
+        q = aim_wrist(geom, m.joints_deg, -geom.normal(m.face), offsets_deg)
+        _, tcp = beam_and_tcp(geom, q, offsets_deg)
+        proj = float(geom.normal(m.face) @ tcp)
+        corner_local.setdefault(m.face, proj - m.distance_mm)
+        synth.append(_with(m, joints_deg=q, distance_joints_deg=None,
+                           distance_mm=proj - corner_local[m.face]))
+    return np.abs(_wrap(paper_offsets(geom, synth) - offsets_deg))
 
 
 def _with(m: FaceMeasurement, **changes: object) -> FaceMeasurement:
-    from dataclasses import replace
-
     return replace(m, **changes)

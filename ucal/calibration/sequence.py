@@ -1,11 +1,22 @@
 """The joint-offset calibration sequence of paper 000: plan, preflight, measure, solve.
 
 Configurations: the calibration pose ("base"), joint 3 stepped by δθ3 ("j3"), back, joint 2
-stepped by δθ2 ("j2"). In each, the beam is brought normal to the block's three faces (XY:
+stepped by δθ2 ("j2") — paper 000's three — and, where the cell leaves room, joint 1 stepped
+("j1"): seen from a second J1 azimuth, a tilt of the block is no longer one rotation with δ2
+(``ucal.calibration.fit``). In each, the beam is brought normal to the block's three faces (XY:
 the beam straight down at the paper's pose), the normal-incidence posture found by the peak
-search and the water path read by time of flight: 9 face measurements (order: see
-``order_targets``). The arm stays
-still during a configuration; only the wrist moves, so W stays put (arm–wrist separation).
+search and the water path read by time of flight: 9 or 12 face measurements (order: see
+``order_targets``). The arm stays still during a configuration; only the wrist moves, so W
+stays put (arm–wrist separation).
+
+Step sizes come from the room the cell leaves: a joint step Δ displaces the wrist centre by
+about L·Δ, and a water-path error δ becomes an angle error of about δ/(L·Δ), so the largest
+step whose targets pass the checks is taken (``ARM_STEPS_DEG``, ``AZIMUTH_STEPS_DEG``, never
+below ``[procedure] step_deg``); the plan summary prints the amplification the plan implies.
+
+Backlash: every move ends with a short final approach from the negative side of each joint
+(``FinalApproachRig``), so the links always lag the encoders the same way; a constant lag is
+then part of the offset instead of a configuration-dependent error.
 
 Every target is planned and checked before the first motion (joint ranges with room for the
 wrist search, the θ5 singularity margin, the beam meeting each face inside its edges at a
@@ -18,12 +29,21 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.exact import OffsetSolution, beam_on_axis, solve_exact
-from ucal.calibration.faces import acquisition_gain, estimate_offsets, make_search, measure_face
+from ucal.calibration.exact import OffsetSolution, beam_on_axis, solve_exact_with_priors
+from ucal.calibration.faces import acquisition_gain, make_search, measure_face
+from ucal.calibration.fit import (
+    BLOCK,
+    DH,
+    OFFSETS,
+    TOOL,
+    CellPrior,
+    prior_from_profile,
+    solve_cell,
+)
 from ucal.calibration.model import (
     FACE_NAMES,
     CellGeometry,
@@ -44,6 +64,46 @@ log = logging.getLogger(__name__)
 FACE_ORDER = (2, 0, 1)             # XY, YZ, XZ
 MIN_WATER_PATH_MM = 20.0
 EDGE_MARGIN_MM = 20.0
+#: Candidate joint-2/3 steps (deg), largest first: bigger steps amplify distance errors less.
+ARM_STEPS_DEG = (5.0, 4.0, 3.0, 2.0)
+#: Candidate joint-1 steps (deg) of the second azimuth, largest first.
+AZIMUTH_STEPS_DEG = (10.0, 8.0, 6.0, 4.0)
+#: Water paths a stepped configuration must keep (mm): room for the offsets' uncertainty below,
+#: a strong enough echo above (water absorbs ~0.27 dB per mm at 25 MHz).
+STEPPED_PATH_RANGE_MM = (40.0, 160.0)
+#: Final approach of every move (deg below the target on each joint), larger than any backlash.
+APPROACH_DEG = 0.05
+
+
+class FinalApproachRig:
+    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
+
+    A joint with backlash leaves its link behind the encoder by half the lost motion, against
+    the direction of its last motion. If a move would bring any joint down onto its target, the
+    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
+    static postures are then reached from below. The two segments are one move in the counters.
+    Everything else is the wrapped rig's.
+    """
+
+    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
+        object.__setattr__(self, "_rig", rig)
+        object.__setattr__(self, "_approach_deg", approach_deg)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._rig, name)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        setattr(self._rig, name, value)
+
+    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
+        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
+        rig = self._rig
+        q = np.asarray(q, float)
+        here = rig.controller.read_joints()
+        if np.any(q < here - 1e-6):
+            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
+            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
+        return rig.move(q, speed)
 
 
 @dataclass(frozen=True)
@@ -64,8 +124,22 @@ class PlannedTarget:
 @dataclass(frozen=True)
 class CalibrationPlan:
     pose_deg: np.ndarray
-    step_deg: float
+    step_deg: float                       # joint-2/3 step (deg, sign chosen during the run)
     targets: tuple[PlannedTarget, ...]
+    azimuth_step_deg: float | None = None  # joint-1 step of the "j1" configuration, if any
+    min_step_deg: float = 2.0             # the run may step less than planned, not below this
+    #: Offset change (deg) per 1 m/s of sound speed if it were not fitted, per joint.
+    sound_speed_gain_deg_per_m_s: np.ndarray | None = None
+    #: Offset std (deg) per 1 µm of water-path noise on every measurement, per joint.
+    distance_noise_gain_deg_per_um: np.ndarray | None = None
+
+    @property
+    def configs(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(t.config for t in self.targets))
+
+    def step_of(self, config: str) -> float:
+        """Planned step (deg) of ``config`` (0 for the base)."""
+        return {"base": 0.0, "j1": self.azimuth_step_deg or 0.0}.get(config, self.step_deg)
 
 
 @dataclass
@@ -112,11 +186,13 @@ def config_arm(pose_deg: np.ndarray, config: str, step_deg: float) -> np.ndarray
         q[2] += step_deg
     elif config == "j2":
         q[1] += step_deg
+    elif config == "j1":
+        q[0] += step_deg
     return q
 
 
-CONFIGS = ("base", "j3", "j2")
-THETA6_SHIFT_DEG = {"base": 0.0, "j3": 90.0, "j2": -90.0}
+CONFIGS = ("base", "j3", "j2", "j1")
+THETA6_SHIFT_DEG = {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0}
 
 
 def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
@@ -138,35 +214,131 @@ def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, fac
     return path
 
 
+def _config_targets(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
+                    step_deg: float) -> list[PlannedTarget]:
+    """The three checked targets of one configuration (``SafetyError`` if one fails)."""
+    model = profile.model
+    offsets = profile.joint_offsets_deg
+    arm = config_arm(pose, config, step_deg)
+    if beam_on_axis(geom):
+        # θ6 does not aim an on-axis beam; turning it between configurations separates a
+        # joint-5 offset from a tilt of the beam in the flange (see ucal.calibration.exact).
+        shift = THETA6_SHIFT_DEG[config]
+        if not model.joint_min_deg[5] + 10 <= arm[5] + shift <= model.joint_max_deg[5] - 10:
+            shift = -shift
+        arm[5] += shift
+    out = []
+    for face in FACE_ORDER:
+        label = f"{config}/{FACE_NAMES[face]}"
+        q = aim_wrist(geom, arm, -geom.normal(face), offsets)
+        check_joints(profile, q, label)
+        path = _face_hit_check(profile, geom, q, face, offsets, label)
+        lo, hi = STEPPED_PATH_RANGE_MM
+        if config != "base" and not lo <= path <= hi:
+            raise SafetyError(f"plan {label}: a water path of {path:.1f} mm is outside "
+                              f"{lo:g}-{hi:g} mm for a stepped configuration")
+        js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
+        out.append(PlannedTarget(config, face, q, js, path))
+    return out
+
+
+def _largest_step(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
+                  candidates: tuple[float, ...]) -> tuple[float, list[PlannedTarget]]:
+    """The largest candidate step whose targets pass every check; the last failure if none."""
+    error: SafetyError | None = None
+    for step in candidates:
+        try:
+            return step, _config_targets(profile, geom, pose, config, step)
+        except SafetyError as e:
+            error = error or e
+    assert error is not None
+    raise error
+
+
 def plan_calibration(profile: CellProfile) -> CalibrationPlan:
-    """Plan and check every target before the first motion (``SafetyError``, exit 4)."""
+    """Plan and check every target before the first motion (``SafetyError``, exit 4).
+
+    The joint-2/3 step is the largest of ``ARM_STEPS_DEG`` (not below ``[procedure]
+    step_deg``) whose targets pass; the "j1" configuration is planned with the largest of
+    ``AZIMUTH_STEPS_DEG`` that passes, and left out (with a log line) if none does.
+    """
     geom = geometry(profile)
     proc = profile.procedure
     pose = calibration_pose(profile)
-    offsets = profile.joint_offsets_deg
     model = profile.model
     if not model.within_limits(pose):
         raise SafetyError(f"the calibration pose {np.round(pose, 2).tolist()} is outside the "
                           "joint ranges")
-    targets = []
-    on_axis = beam_on_axis(geom)
-    for config in CONFIGS:
-        arm = config_arm(pose, config, proc.step_deg)
-        if on_axis:
-            # θ6 does not aim an on-axis beam; turning it between configurations separates a
-            # joint-5 offset from a tilt of the beam in the flange (see ucal.calibration.exact).
-            shift = THETA6_SHIFT_DEG[config]
-            if not model.joint_min_deg[5] + 10 <= arm[5] + shift <= model.joint_max_deg[5] - 10:
-                shift = -shift
-            arm[5] += shift
-        for face in FACE_ORDER:
-            label = f"{config}/{FACE_NAMES[face]}"
-            q = aim_wrist(geom, arm, -geom.normal(face), offsets)
-            check_joints(profile, q, label)
-            path = _face_hit_check(profile, geom, q, face, offsets, label)
-            js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
-            targets.append(PlannedTarget(config, face, q, js, path))
-    return CalibrationPlan(pose, proc.step_deg, tuple(order_targets(targets)))
+    targets = _config_targets(profile, geom, pose, "base", 0.0)
+    arm_steps = tuple(sorted({s for s in ARM_STEPS_DEG if s >= proc.step_deg} | {proc.step_deg},
+                             reverse=True))
+    # One step for both arm joints: the run may reduce it for clearance, never below
+    # [procedure] step_deg.
+    step = None
+    error: SafetyError | None = None
+    for cand in arm_steps:
+        try:
+            stepped = (_config_targets(profile, geom, pose, "j3", cand)
+                       + _config_targets(profile, geom, pose, "j2", cand))
+        except SafetyError as e:
+            error = error or e
+            continue
+        step = cand
+        targets += stepped
+        break
+    if step is None:
+        assert error is not None
+        raise error
+    azimuth = None
+    try:
+        azimuth, j1 = _largest_step(profile, geom, pose, "j1", AZIMUTH_STEPS_DEG)
+        targets += j1
+    except SafetyError as e:
+        log.info("no second J1 azimuth (%s): J2 carries the block's tilt tolerance", e)
+    plan = CalibrationPlan(pose, step, tuple(order_targets(targets)), azimuth,
+                           min_step_deg=proc.step_deg)
+    gains = plan_amplification(profile, plan)
+    return replace(plan, sound_speed_gain_deg_per_m_s=gains[0],
+                   distance_noise_gain_deg_per_um=gains[1])
+
+
+def nominal_measurements(profile: CellProfile, targets: tuple[PlannedTarget, ...],
+                         distance_std_mm: float = 1e-3, tilt_std_deg: float = 1e-3
+                         ) -> list[FaceMeasurement]:
+    """Ideal measurements at the planned targets of a cell exactly as the profile says."""
+    geom = geometry(profile)
+    corner = np.asarray(profile.sample_position_mm, float)
+    out = []
+    for t in targets:
+        _, tcp = beam_and_tcp(geom, t.joints_deg, profile.joint_offsets_deg)
+        out.append(FaceMeasurement(t.config, t.face, t.joints_deg,
+                                   float(geom.normal(t.face) @ (tcp - corner)),
+                                   distance_std_mm, tilt_std_deg))
+    return out
+
+
+def plan_amplification(profile: CellProfile, plan: CalibrationPlan
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """What the plan does to errors: offsets (deg) per 1 m/s of sound speed left unfitted, and
+    offset std (deg) per 1 µm of water-path noise, per joint.
+
+    Linearised at the nominal cell: with ``K = Cov·Jᵀ`` of the prior-augmented problem (sound
+    speed held), a change ``Δr`` of the residuals moves the estimate by ``−K·Δr``; a sound
+    speed wrong by Δc scales every water path by Δc/c, i.e. ``Δr_i = −(Δc/c)·d_i/σ_d``.
+    """
+    meas = nominal_measurements(profile, plan.targets)
+    prior = prior_from_profile(profile)
+    cell = solve_cell(prior, meas, fixed=("sound_speed_m_s",))
+    assert cell.jac is not None
+    k = cell.cov @ cell.jac.T
+    free = cell.table.free_names
+    rows = np.arange(2, cell.n_data, 3)                  # the distance rows
+    d_over_sigma = np.array([m.distance_mm / m.distance_std_mm for m in meas])
+    c0 = prior.sound_speed_m_s
+    cols = [free.index(n) for n in OFFSETS]
+    speed_gain = np.abs(k[np.ix_(cols, rows)] @ d_over_sigma / c0)
+    noise_gain = np.sqrt(np.sum(k[np.ix_(cols, rows)] ** 2, axis=1))  # σ_d = 1 µm
+    return speed_gain, noise_gain
 
 
 def order_targets(targets: list[PlannedTarget]) -> list[PlannedTarget]:
@@ -178,9 +350,21 @@ def order_targets(targets: list[PlannedTarget]) -> list[PlannedTarget]:
     first pins the model down, so the XZ faces are found at their predictions.
     """
     by_key = {(t.config, t.face): t for t in targets}
-    first = [by_key[(c, f)] for c in CONFIGS for f in FACE_ORDER[:2]]
-    last = [by_key[(c, FACE_ORDER[2])] for c in reversed(CONFIGS)]
+    configs = [c for c in CONFIGS if (c, FACE_ORDER[0]) in by_key]
+    first = [by_key[(c, f)] for c in configs for f in FACE_ORDER[:2]]
+    last = [by_key[(c, FACE_ORDER[2])] for c in reversed(configs)]
     return first + last
+
+
+def _step_candidates(plan: CalibrationPlan, config: str) -> tuple[float, ...]:
+    """Step magnitudes to try for ``config``, the planned one first, then smaller ones."""
+    planned = plan.step_of(config)
+    if config == "j1":
+        pool = [s for s in AZIMUTH_STEPS_DEG if s <= planned]
+    else:
+        pool = [s for s in ARM_STEPS_DEG if plan.min_step_deg <= s <= planned]
+        pool.append(plan.min_step_deg)
+    return tuple(sorted(set(pool) | {planned}, reverse=True))
 
 
 def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan, config: str,
@@ -188,55 +372,93 @@ def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
     """Signed joint step for ``config`` that keeps every face at a safe water path.
 
     With the offsets estimated from the faces measured so far, the water paths of the stepped
-    configuration are predictable: the step goes the way (+ or −) whose smallest predicted water
-    path is larger, provided all stay above ``MIN_WATER_PATH_MM`` and inside the joint ranges.
+    configuration are predictable: for the largest step magnitude (the planned one first) the
+    step goes the way (+ or −) whose smallest predicted water path is larger, provided all stay
+    above ``MIN_WATER_PATH_MM``, inside the joint ranges and with the beam inside each face.
     Large offsets can put the wrist centre tens of millimetres lower than nominal; stepping the
     wrong way would then drive the tool into the block.
     """
     if config == "base":
-        return plan.step_deg
-    model = profile.model
-    best, best_path = None, -np.inf
+        return 0.0
     why = []
-    for sign in (1.0, -1.0):
-        step = sign * plan.step_deg
-        arm = config_arm(plan.pose_deg, config, step)
-        paths = []
-        ok = True
-        for t in plan.targets:
-            if t.config != config:
-                continue
-            start = arm.copy()
-            start[3:] = last_wrist.get(t.face, t.joints_deg)[3:]
-            start[5] = t.joints_deg[5]
-            try:
-                q = aim_wrist(geom, start, -geom.normal(t.face), est)
-            except SafetyError:
-                why.append(f"{step:+g}°: the wrist cannot face {FACE_NAMES[t.face]}")
-                ok = False
-                break
-            # The prediction is good to a fraction of a degree now: a small margin suffices.
-            if not np.all((q >= model.joint_min_deg + 1.0) & (q <= model.joint_max_deg - 1.0)):
-                why.append(f"{step:+g}°: face {FACE_NAMES[t.face]} needs joints "
-                           f"{np.round(q, 1).tolist()} at a range limit")
-                ok = False
-                break
-            _, tcp = beam_and_tcp(geom, q, est)
-            paths.append(float(geom.normal(t.face) @ (tcp - corner)))
-        if ok and min(paths) > best_path:
-            best, best_path = step, min(paths)
-        elif ok:
-            why.append(f"{step:+g}°: {min(paths):.1f} mm of water")
-    if best is None or best_path < MIN_WATER_PATH_MM:
-        raise SafetyError(f"configuration {config}: with the offsets measured so far no joint "
-                          f"step of ±{plan.step_deg:g} deg is safe ({'; '.join(why)})")
-    if best != plan.step_deg:
-        log.info("%s: stepping by %+g deg keeps the tool clear (%.1f mm)", config, best, best_path)
-    return best
+    for magnitude in _step_candidates(plan, config):
+        best, best_path = None, -np.inf
+        for sign in (1.0, -1.0):
+            step = sign * magnitude
+            path = _stepped_clearance(profile, geom, plan, config, step, est, corner,
+                                      last_wrist, why)
+            if path is not None and path > best_path:
+                best, best_path = step, path
+        if best is not None and best_path >= MIN_WATER_PATH_MM:
+            if best != plan.step_of(config):
+                log.info("%s: stepping by %+g deg keeps the tool clear (%.1f mm)", config, best,
+                         best_path)
+            return best
+    raise SafetyError(f"configuration {config}: with the offsets measured so far no joint "
+                      f"step of ±{plan.step_of(config):g} deg or less is safe "
+                      f"({'; '.join(why[-4:])})")
+
+
+def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
+                       config: str, step: float, est: np.ndarray, corner: np.ndarray,
+                       last_wrist: dict[int, np.ndarray], why: list[str]) -> float | None:
+    """Smallest predicted water path (mm) of ``config`` stepped by ``step``; None if a face
+    cannot be reached inside the joint ranges or its beam would leave the face."""
+    model = profile.model
+    arm = config_arm(plan.pose_deg, config, step)
+    paths = []
+    size = profile.sample_face_size_mm
+    for t in plan.targets:
+        if t.config != config:
+            continue
+        start = arm.copy()
+        start[3:] = last_wrist.get(t.face, t.joints_deg)[3:]
+        start[5] = t.joints_deg[5]
+        try:
+            q = aim_wrist(geom, start, -geom.normal(t.face), est)
+        except SafetyError:
+            why.append(f"{step:+g}°: the wrist cannot face {FACE_NAMES[t.face]}")
+            return None
+        # The prediction is good to a fraction of a degree now: a small margin suffices.
+        if not np.all((q >= model.joint_min_deg + 1.0) & (q <= model.joint_max_deg - 1.0)):
+            why.append(f"{step:+g}°: face {FACE_NAMES[t.face]} needs joints "
+                       f"{np.round(q, 1).tolist()} at a range limit")
+            return None
+        beam, tcp = beam_and_tcp(geom, q, est)
+        local = geom.block_rotation.T @ (tcp - corner)
+        path = float(local[t.face])
+        hit = local + path * (geom.block_rotation.T @ beam)
+        edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != t.face)
+        if edge < EDGE_MARGIN_MM:
+            why.append(f"{step:+g}°: the beam would meet face {FACE_NAMES[t.face]} "
+                       f"{edge:.0f} mm from its edge")
+            return None
+        paths.append(path)
+    if min(paths) < MIN_WATER_PATH_MM:
+        why.append(f"{step:+g}°: {min(paths):.1f} mm of water")
+    if max(paths) > STEPPED_PATH_RANGE_MM[1]:
+        why.append(f"{step:+g}°: {max(paths):.1f} mm of water (echo too weak)")
+        return None
+    return min(paths)
+
+
+def estimate_cell(prior: CellPrior, meas: list[FaceMeasurement],
+                  start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets (deg), block corner (mm) and the full parameter vector from the measurements so
+    far, to predict postures (``start``: the previous vector).
+
+    The prior-augmented fit of ``ucal.calibration.fit``: with fewer than the full set the
+    priors (broad on the offsets, the declared tolerances on the rest) hold the directions the
+    data do not see yet, and the sound speed is fitted as soon as a step shows it. The DH
+    table and the tool position are held (their tolerances move a prediction by micrometres).
+    """
+    cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-9)
+    return (np.array([cell.value(n) for n in OFFSETS]),
+            np.array([cell.value(n) for n in BLOCK[:3]]), cell.estimate)
 
 
 def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
-                meas: list[FaceMeasurement], ka: float, prior: np.ndarray,
+                meas: list[FaceMeasurement], ka: float, prior: CellPrior,
                 rounds: int = 2) -> list[FaceMeasurement]:
     """Fit every face's recorded probes again with the offsets of a full solution.
 
@@ -246,8 +468,9 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
     """
     from dataclasses import replace as dc_replace
 
+    vector = None
     for _ in range(rounds):
-        est = solve_exact(geom, meas, prior).offsets_deg
+        est, _, vector = estimate_cell(prior, meas, vector)
         new = []
         for m in meas:
             probes = m.meta.get("probes")
@@ -265,15 +488,16 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
 
 def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
                     progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
-    """Measure the nine faces (``solve`` turns them into offsets). The caller owns the
+    """Measure the planned faces (``solve`` turns them into offsets). The caller owns the
     connection, STOP and the profile."""
     geom = geometry(profile)
     temp = profile.water_temperature_c
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
+    prior = prior_from_profile(profile)
     est = np.array(profile.joint_offsets_deg, float)
     corner = np.array(profile.sample_position_mm, float)
-    prior = est.copy()
     meas: list[FaceMeasurement] = []
+    approach = FinalApproachRig(rig)
 
     # Noise floor with the beam in open water: the first target with the wrist turned 25°
     # away from normal (far outside every lobe that matters).
@@ -283,6 +507,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
     acq_gain = acquisition_gain(rig, away)
 
     total = len(plan.targets)
+    vector = None
     last_wrist: dict[int, np.ndarray] = {}
     steps: dict[str, float] = {}
     for i, target in enumerate(plan.targets):
@@ -297,15 +522,15 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         # Three faces pin the model down: later predictions land within a few thousandths of a
         # degree, inside the fit's first grid; two faces leave a fraction of a degree.
         mode = "direct" if len(meas) >= 3 else "quick" if len(meas) == 2 else "acquire"
-        res = measure_face(rig, geom, profile, start, target.face, est, ka, acq_gain,
+        res = measure_face(approach, geom, profile, start, target.face, est, ka, acq_gain,
                            f"face {FACE_NAMES[target.face]} ({target.label})", target.config,
                            mode, 16.0 if not meas else 8.0)
         meas.append(res.measurement)
         last_wrist[target.face] = res.measurement.joints_deg
-        est, corner = estimate_offsets(geom, meas, prior, corner)
+        est, corner, vector = estimate_cell(prior, meas, vector)
     # Leave the robot at the calibration pose's XY posture.
-    rig.move(plan.targets[0].joints_deg)
-    meas = refit_peaks(rig, geom, profile, meas, ka, prior)
+    approach.move(plan.targets[0].joints_deg)
+    meas = refit_peaks(approach, geom, profile, meas, ka, prior)
     if progress:
         progress("done", total, total)
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
@@ -313,14 +538,19 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
 
 def solve(profile: CellProfile, run: CalibrationRun, beam: str = "auto"
           ) -> tuple[OffsetSolution, OffsetSolution | None]:
-    """Both solutions from one run's measurements: exact, and paper 000's (None if it cannot
-    be applied, e.g. a DH table of another structure)."""
-    geom = geometry(profile)
-    prior = np.asarray(profile.joint_offsets_deg, float)
-    exact = solve_exact(geom, run.measurements, prior, beam=beam)
+    """Both solutions from one run's measurements: exact with the cell's tolerances as priors,
+    and paper 000's (None if it cannot be applied, e.g. a DH table of another structure).
+
+    ``beam``: "fixed" holds the tool orientation (and so the beam direction) at the profile's
+    value; otherwise it is an unknown with the profile's tolerance as prior.
+    """
+    prior = prior_from_profile(profile)
+    fixed = ("tool_rx_deg", "tool_ry_deg", "tool_rz_deg") if beam == "fixed" else ()
+    exact = solve_exact_with_priors(prior, run.measurements, fixed=fixed)
     try:
-        paper = solve_paper(geom, run.measurements, prior, exact.unobservable_joints,
-                            exact.condition_number)
+        paper = solve_paper(geometry(profile), run.measurements, profile.joint_offsets_deg,
+                            exact.unobservable_joints, exact.condition_number, prior=prior,
+                            reasons=exact.unobservable_reasons)
     except Exception as e:  # noqa: BLE001 — the paper method is a comparison, never fatal
         log.warning("paper method failed: %s", e)
         paper = None

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import logging
 import tempfile
 from pathlib import Path
 
 import click
 import numpy as np
 
+from ucal import __version__
 from ucal.cli.options import (
     confirm_motion,
     controller_option,
@@ -21,6 +23,8 @@ from ucal.cli.options import (
     yes_option,
 )
 
+log = logging.getLogger(__name__)
+
 #: A finished run whose observable offsets are less certain than this is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
 
@@ -30,6 +34,8 @@ Examples:
   ucal calibrate cell.toml --sim --yes
   ucal calibrate cell.toml --sim world.toml --method paper --json --yes
   ucal calibrate cell.toml --controller tcp://10.0.0.5:11000 --pulser modbus-tcp://10.0.0.6:502
+  ucal calibrate cell.toml --sim --yes --record run.jsonl
+  ucal calibrate cell.toml --replay run.jsonl --method paper --json
 """)
 @click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
 @sim_option
@@ -40,14 +46,23 @@ Examples:
                    "first-order equations 11-21.")
 @click.option("--beam", type=click.Choice(["auto", "fit", "fixed"]), default="auto",
               show_default=True,
-              help="Fit the beam direction in the flange frame with the offsets (auto: when the "
-                   "profile's beam lies on the joint-6 axis).")
+              help="auto/fit: the beam direction in the flange frame is an unknown with the "
+                   "profile's tool tolerance as prior; fixed: take the profile's tool as exact.")
+@click.option("--force", is_flag=True,
+              help="Write the result even when the fit is a misfit (the verdict is recorded in "
+                   "the profile history).")
+@click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write every device call of the run (joint readings, moves, gain, amplitude, "
+                   "TOF, times), the plan and the profile to FILE as JSON lines, as it goes.")
+@click.option("--replay", "replay_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Solve a recorded run again (any --method) without moving anything; "
+                   "writes nothing.")
 @yes_option
 @dry_run_option
 @json_option
 def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, method: str, beam: str, yes: bool, dry_run: bool,
-        as_json: bool) -> None:
+        pulser_url: str | None, method: str, beam: str, force: bool, record_path: Path | None,
+        replay_path: Path | None, yes: bool, dry_run: bool, as_json: bool) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
 
     The beam is brought normal to the three faces of the calibration block in three arm
@@ -65,6 +80,14 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         profile_lock,
     )
 
+    if replay_path is not None:
+        if sim_world is not None or controller_url or pulser_url or record_path is not None:
+            from ucal.errors import InputError
+
+            raise InputError("--replay solves a recorded run: it takes no --sim, --controller, "
+                             "--pulser or --record")
+        finish(replay(profile_path, replay_path, method, beam, as_json), as_json)
+        return
     if dry_run and sim_world is None:
         sim_world = ""  # --dry-run runs against the simulator
     created = False
@@ -85,78 +108,159 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         if not dry_run:
             check_writable(profile_path)
         result = run(profile, profile_path, sim_world, controller_url, pulser_url, method, beam,
-                     yes, dry_run, as_json)
+                     yes, dry_run, as_json, force, record_path)
     result["created"] = created
+    finish(result, as_json)
+
+
+def finish(result: dict, as_json: bool) -> None:
+    """Print the JSON result (with the error fields when out of tolerance); exit 1 then."""
+    message = result.pop("_message", None)
+    if result["out_of_tolerance"]:
+        from ucal.errors import EXIT_OUT_OF_TOLERANCE
+
+        result["error"] = message
+        result["exit_code"] = EXIT_OUT_OF_TOLERANCE
     if as_json:
         emit_json(result)
     if result["out_of_tolerance"]:
         from ucal.errors import OutOfToleranceError
 
-        raise OutOfToleranceError(
-            f"calibration out of tolerance: an observable offset has a standard deviation above "
-            f"{TOLERANCE_STD_DEG} deg; the profile was not written")
+        raise OutOfToleranceError(message)
+
+
+def replay(profile_path: Path, record_path: Path, method: str, beam: str, as_json: bool) -> dict:
+    """Solve a recorded run again: its profile, plan and device traffic; nothing moves."""
+    import tomlkit
+
+    from ucal.profile import profile_from_data
+    from ucal.record import read_record
+
+    record = read_record(record_path)
+    profile = profile_from_data(tomlkit.parse(record.profile_text),
+                                f"{record_path} (recorded profile)")
+    result = run(profile, profile_path, None, None, None, method, beam, True, True, as_json,
+                 record=record)
+    result["replayed"] = str(record_path)
+    if record.result is None:
+        log.warning("%s has no end line: the recorded run was cut off", record_path)
+    return result
 
 
 def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, method: str,
-        beam: str, yes: bool, dry_run: bool, as_json: bool) -> dict:
-    """Plan, confirm, measure, solve, write; returns the JSON result of SPEC.md (+ extras)."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        beam: str, yes: bool, dry_run: bool, as_json: bool, force: bool = False,
+        record_path: Path | None = None, record=None) -> dict:
+    """Plan, confirm, measure, solve, write; returns the JSON result of SPEC.md (+ extras).
 
-    from ucal.calibration.sequence import plan_calibration, run_calibration, solve
-    from ucal.profile import write_profile
-    from ucal.session import check_status, open_cell
+    ``record_path``: record the run's device traffic there (``ucal.record``); ``record``: a
+    recorded run to replay instead of opening a cell (nothing moves, nothing is written).
+    """
+    from rich.console import Console
+
+    from ucal.calibration.sequence import plan_calibration
+    from ucal.record import Recorder, sha256_text
+    from ucal.session import open_cell, replay_cell
 
     console = Console(stderr=True)
     plan = plan_calibration(profile)
-    confirm_motion(yes, plan_summary(plan, profile))
-    with open_cell(profile, sim_world, controller_url, pulser_url) as cell:
-        check_status(cell.rig)
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
-                      TimeElapsedColumn(), console=console, disable=as_json) as progress:
-            task = progress.add_task("calibrating", total=len(plan.targets), info="")
+    recorder = None
+    if record is None:
+        confirm_motion(yes, plan_summary(plan, profile))
+    if record_path is not None:
+        text = profile.path.read_text(encoding="utf-8")
+        recorder = Recorder(record_path).open({
+            "command": "calibrate", "ucal": __version__, "profile_path": str(profile.path),
+            "profile_sha256": sha256_text(text), "profile_text": text,
+            "cell": "simulated cell" if sim_world is not None else controller_url,
+            "options": {"method": method, "beam": beam, "level": "offsets"},
+            "plan": [{"label": t.label, "joints_deg": t.joints_deg.tolist(),
+                      "water_path_mm": t.water_path_mm} for t in plan.targets]})
+    with contextlib.ExitStack() as stack:
+        if recorder is not None:
+            stack.enter_context(recorder)
+        cell = stack.enter_context(
+            replay_cell(profile, record) if record is not None
+            else open_cell(profile, sim_world, controller_url, pulser_url, recorder))
+        result = _measure_and_solve(profile, profile_path, plan, cell, console, method, beam,
+                                    dry_run or record is not None, as_json, force)
+        if recorder is not None:
+            recorder.end({k: v for k, v in result.items() if not k.startswith("_")})
+    return result
 
-            def report(label: str, i: int, n: int) -> None:
-                progress.update(task, completed=i, description=f"face {label}",
-                                info=f"{cell.rig.counters.moves} moves")
 
-            measurements = run_calibration(profile, plan, cell.rig, progress=report)
-        truth = cell.truth
+def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method: str, beam: str,
+                       dry_run: bool, as_json: bool, force: bool) -> dict:
+    """Measure the plan on an open cell, solve, judge and write; the JSON result."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ucal.calibration.sequence import run_calibration, solve
+    from ucal.profile import write_profile
+    from ucal.session import check_status
+
+    check_status(cell.rig)
+    with Progress(TextColumn("{task.description}"), BarColumn(),
+                  TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
+                  disable=as_json) as progress:
+        task = progress.add_task("calibrating", total=len(plan.targets), info="")
+
+        def report(label: str, i: int, n: int) -> None:
+            progress.update(task, completed=i, description=f"face {label}",
+                            info=f"{cell.rig.counters.moves} moves")
+
+        measurements = run_calibration(profile, plan, cell.rig, progress=report)
+    truth = cell.truth
+    duration_s = cell.elapsed_s
     exact, paper = solve(profile, measurements, beam)
     chosen = exact if method == "exact" else paper
     if chosen is None:
         from ucal.errors import UcalError
 
         raise UcalError("the paper's method could not be applied to these measurements")
-    observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
-    std = chosen.std_deg
-    out_of_tol = bool(np.any(~np.isfinite(std[observable])) or
-                      np.any(std[observable] > TOLERANCE_STD_DEG))
+    fit = exact.fit
+    assert fit is not None
+    verdict = judge(chosen, fit)
+    write = not dry_run and (verdict.ok or force)
     written = False
-    if not dry_run and not out_of_tol:
+    if write:
+        reason = f"calibrate --method {method}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
+        if not verdict.ok:
+            reason += f", written with --force: {verdict.message}"
         write_profile(profile_path, {"calibration": {
             "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
             "unobservable_joints": list(chosen.unobservable_joints),
             "method": chosen.method,
-            "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in std],
+            "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in chosen.std_deg],
             "condition_number": round(float(chosen.condition_number), 3),
+            "sound_speed_m_s": round(float(exact.sound_speed_m_s), 3),
+            "fit_verdict": fit.verdict,
+            "chi2_reduced": round(float(fit.chi2_reduced), 4),
             "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        }}, reason=f"calibrate --method {method}")
+        }}, reason=reason)
         written = True
     result = {
         "joint_offsets_deg": chosen.offsets_deg,
-        "std_deg": [float(v) if np.isfinite(v) else None for v in std],
+        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
         "unobservable_joints": list(chosen.unobservable_joints),
+        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
         "method": chosen.method,
+        "level": "offsets",
         "moves": measurements.moves,
         "pulser_reads": measurements.reads,
+        # time the run took on the cell: simulated time on the simulated cell (what a real
+        # cell would take over Modbus TCP)
+        "duration_s": duration_s,
         "profile": str(profile_path),
         "written": written,
+        "sound_speed_m_s": exact.sound_speed_m_s,
+        "sound_speed_std_m_s": exact.sound_speed_std_m_s,
+        "fit": fit.to_json(),
+        "residuals": [{"label": r.label, "tilt": list(r.tilt), "distance": r.distance}
+                      for r in fit.residuals],
         "condition_number": chosen.condition_number,
-        "out_of_tolerance": out_of_tol,
+        "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
+        "out_of_tolerance": not verdict.ok,
+        "_message": verdict.message if not verdict.ok else None,
     }
-    if exact.extra.get("beam_fitted"):
-        result["beam_direction_flange"] = exact.extra["beam_flange"]
     if truth is not None:
         result["truth_offsets_deg"] = truth.joint_offsets_deg
     if not as_json:
@@ -164,28 +268,88 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
     return result
 
 
+class Verdict:
+    """Whether a solution may be written, and the one-line message when not."""
+
+    def __init__(self, ok: bool, misfit_only: bool, message: str):
+        self.ok = ok
+        self.misfit_only = misfit_only
+        self.message = message
+
+
+def judge(chosen, fit) -> Verdict:
+    """Judge a solution: a misfit, or an observable offset less certain than the tolerance.
+
+    A misfit names the worst measurement and the likely cause; a std above
+    ``TOLERANCE_STD_DEG`` names the joint and what its uncertainty comes from (noise, or the
+    method's truncation for the paper method).
+    """
+    observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
+    std = chosen.std_deg
+    loose = [j for j in observable if not np.isfinite(std[j]) or std[j] > TOLERANCE_STD_DEG]
+    if fit.verdict == "misfit":
+        msg = (f"calibration misfit: the measurements disagree with the model (χ²ᵣ "
+               f"{fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; worst: {fit.worst}); "
+               f"likely cause: {fit.cause}; the profile was not written (--force writes it)")
+        return Verdict(False, not loose, msg)
+    if loose:
+        j = max(loose, key=lambda k: std[k] if np.isfinite(std[k]) else np.inf)
+        why = ""
+        trunc = chosen.extra.get("truncation_deg")
+        if trunc is not None and trunc[j] > 0.5 * std[j]:
+            why = (f", mostly the paper method's first-order truncation error ({trunc[j]:.3g} "
+                   "deg, about half the joint step); use --method exact")
+        else:
+            why = ": measurement noise (check the water, the gain, the transducer)"
+        return Verdict(False, False,
+                       f"calibration out of tolerance: J{j + 1}'s std {std[j]:.3g} deg exceeds "
+                       f"{TOLERANCE_STD_DEG} deg{why}; the profile was not written")
+    return Verdict(True, False, "")
+
+
 def plan_summary(plan, profile) -> str:
     """The plan as text for the confirmation prompt (stderr)."""
     from ucal.acoustics import sound_speed_m_s
+    from ucal.calibration.fit import prior_from_profile
     from ucal.calibration.model import FACE_NAMES
 
     temp = profile.water_temperature_c
+    c_std = prior_from_profile(profile).sound_speed_std_m_s
+    azimuth = (f", joint 1 by ±{plan.azimuth_step_deg:g} deg (second azimuth)"
+               if plan.azimuth_step_deg else ", no room for a second J1 azimuth")
     lines = [
         (f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
-        f"measurements, joint steps ±{plan.step_deg:g} deg (the sign is chosen on the way for "
-        "clearance)"),
-        (f"Water {temp:g} °C: sound speed {sound_speed_m_s(temp):.2f} m/s (Marczak); transducer "
-        f"{profile.frequency_mhz:g} MHz, {profile.element_diameter_mm:g} mm"),
-        "  target      J1       J2       J3       J4       J5       J6    water path",
+         f"measurements; joints 2 and 3 stepped by ±{plan.step_deg:g} deg{azimuth} (the sign is "
+         "chosen on the way for clearance)"),
+        (f"Water {temp:g} ± {profile.water_temperature_std_c:g} °C: sound speed "
+         f"{sound_speed_m_s(temp):.2f} ± {c_std:.2f} m/s (Marczak), fitted with the offsets; "
+         f"transducer {profile.frequency_mhz:g} MHz, {profile.element_diameter_mm:g} mm"),
     ]
+    if plan.sound_speed_gain_deg_per_m_s is not None:
+        gain = plan.sound_speed_gain_deg_per_m_s
+        noise = plan.distance_noise_gain_deg_per_um
+        j = int(np.argmax(gain[1:5])) + 1
+        k = int(np.argmax(noise[1:5])) + 1
+        per_c = c_std / max(profile.water_temperature_std_c, 1e-9)  # m/s per °C
+        lines.append(
+            f"Amplification of this plan: 1 °C of water temperature ({per_c:.2f} m/s), if not "
+            f"fitted, would move J{j + 1} by {gain[j] * per_c:.3f} deg; 1 µm of water-path "
+            f"noise gives J{k + 1} a std of {noise[k]:.4f} deg")
+    lines.append("  target      J1       J2       J3       J4       J5       J6    water path")
     for t in plan.targets:
         lines.append(f"  {t.config:>4}/{FACE_NAMES[t.face]:<3}" +
                      "".join(f"{v:9.2f}" for v in t.joints_deg) + f"   {t.water_path_mm:6.1f} mm")
-    lines.append("The wrist searches around each target for the echo (joints 4-6 only).")
+    from ucal.timing import estimate_run
+
+    lines.append(estimate_run([t.joints_deg for t in plan.targets], plan.pose_deg,
+                              profile.procedure.speed).describe())
+    lines.append("The wrist searches around each target for the echo (joints 4-6 only); every "
+                 "move ends approaching from below on each joint (backlash).")
     return "\n".join(lines)
 
 
 def show_result(console, chosen, exact, paper, truth, result) -> None:
+    """The result as tables on stderr: offsets with σ, fit quality, residual per measurement."""
     from rich.table import Table
 
     table = Table(title=f"Joint offsets ({chosen.method} method)")
@@ -194,6 +358,7 @@ def show_result(console, chosen, exact, paper, truth, result) -> None:
     table.add_column("σ (deg)", justify="right")
     if paper is not None and chosen is exact:
         table.add_column("paper method", justify="right")
+        table.add_column("paper σ", justify="right")
     if truth is not None:
         table.add_column("simulator truth", justify="right")
         table.add_column("error", justify="right")
@@ -203,15 +368,28 @@ def show_result(console, chosen, exact, paper, truth, result) -> None:
                "unobservable" if unobs else f"{chosen.std_deg[j]:.4f}"]
         if paper is not None and chosen is exact:
             row.append(f"{paper.offsets_deg[j]:+.4f}")
+            row.append("—" if not np.isfinite(paper.std_deg[j]) else f"{paper.std_deg[j]:.4f}")
         if truth is not None:
             row.append(f"{truth.joint_offsets_deg[j]:+.4f}")
             row.append("—" if unobs else f"{chosen.offsets_deg[j] - truth.joint_offsets_deg[j]:+.4f}")
         table.add_row(*row)
     console.print(table)
-    console.print(f"condition number {chosen.condition_number:.1f}; {result['moves']} moves, "
+    fit = exact.fit
+    res = Table(title="Fit: normalised residual per measurement (residual / its σ)")
+    for col in ("measurement", "tilt a", "tilt b", "distance"):
+        res.add_column(col, justify="right")
+    for r in fit.residuals:
+        res.add_row(r.label, f"{r.tilt[0]:+.2f}", f"{r.tilt[1]:+.2f}", f"{r.distance:+.2f}")
+    console.print(res)
+    console.print(f"fit {fit.verdict}: χ²ᵣ {fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; "
+                  f"rms tilt {fit.rms_tilt_deg:.2e} deg, rms distance {fit.rms_distance_mm:.2e} mm; "
+                  f"worst {fit.worst}")
+    if fit.cause:
+        console.print(f"likely cause: {fit.cause}")
+    console.print(f"sound speed {result['sound_speed_m_s']:.2f} ± "
+                  f"{result['sound_speed_std_m_s']:.2f} m/s (fitted); condition number "
+                  f"{chosen.condition_number:.1f}; {result['moves']} moves, "
                   f"{result['pulser_reads']} pulser reads; profile "
                   f"{'written' if result['written'] else 'not written'}: {result['profile']}")
-    if chosen.unobservable_joints:
-        console.print(f"joints {list(chosen.unobservable_joints)} cannot be determined from "
-                      "these measurements (e.g. joint 6 with the beam on its axis) and keep "
-                      "their profile values")
+    for j, why in sorted(chosen.unobservable_reasons.items()):
+        console.print(f"J{j} unobservable, kept at its profile value: {why}")

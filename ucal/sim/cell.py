@@ -16,7 +16,9 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    simulated time ``t_s`` of the reading, and the pulser's fixed electronic ``delay_ns``;
 4. the receiver (``ucal.sim.receiver``) synthesises the sampled broadband echo (piston
    directivity and water absorption per frequency, so not the centre-frequency directivity
-   that the search fits), scaled by 0.8 of full screen at normal incidence, 50 mm and 20 dB
+   and absorption that the search fits: the main lobe widens with the water path, and the
+   echo's height falls with it more slowly, −0.023 instead of −0.032 Np/mm at 100 mm, as
+   absorption shifts the spectrum down), scaled by 0.8 of full screen at normal incidence, 50 mm and 20 dB
    (``ucal.acoustics.REFERENCE_AMPLITUDE``) × 10^((gain + gain error − 20)/20) × the
    footprint's share on the face; its peak-mode gate reports the envelope's peak and its time;
 5. noise as the world says, in the waveform: the trigger jitter ``noise.tof_ns`` shifts the
@@ -162,20 +164,32 @@ class SimulatedCell:
     def hit(self, joint_readings_deg: np.ndarray,
             motion_sign: np.ndarray | None = None) -> FaceHit | None:
         """The face that echoes at these readings (see module doc), or None."""
-        origin, direction = self.true_beam(joint_readings_deg, motion_sign)
-        return self._echoing_hit(origin, direction)
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
+        return None if found is None else found[0]
 
     def water_temperature_c(self, t_s: float = 0.0) -> float:
         """Water temperature (°C) ``t_s`` seconds of simulated time after the cell started."""
         return self.world.water_temperature_c + self.world.water_drift_c_per_min * t_s / 60.0
 
-    def _echoing_hit(self, origin: np.ndarray, direction: np.ndarray) -> FaceHit | None:
+    def sound_speed_m_s(self, t_s: float = 0.0) -> float:
+        """Speed of sound in the tank (m/s, Marczak) ``t_s`` seconds after the cell started."""
+        if self.world.water_drift_c_per_min == 0.0:
+            return self._c_m_s
+        c = 0.0
+        for coeff in reversed(acoustics.MARCZAK_COEFFS_M_S):  # Horner on a float: fast
+            c = c * self.water_temperature_c(t_s) + coeff
+        return c
+
+    def _echoing_hit(self, origin: np.ndarray, direction: np.ndarray
+                     ) -> tuple[FaceHit, float] | None:
+        """The echoing face's hit and the footprint's share on it, or None."""
         hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
         hits.sort(key=lambda h: h.distance_mm)
         for h in hits:
             if h.facing:
-                if self._share(h) > _MIN_SHARE:
-                    return h
+                share = self._share(h)
+                if share > _MIN_SHARE:
+                    return h, share
             elif h.inside:
                 return None  # a face seen from behind blocks the beam and does not reflect
         return None
@@ -190,13 +204,12 @@ class SimulatedCell:
         """Noise-free reading ``(amplitude, tof_ns)``: no noise, jitter or gain error, the rest
         as ``echo`` (delay, detection, quantisation); amplitude 0 without a face, TOF NaN below
         the threshold."""
-        h = self.hit(joint_readings_deg, motion_sign)
-        if h is None:
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
+        if found is None:
             return 0.0, float("nan")
-        temperature_c = self.water_temperature_c(t_s)
-        scale = (acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(gain_db)
-                 * self._share(h))
-        amp, tof = self._detect(h, temperature_c, scale, 0.0, 0.0)
+        h, share = found
+        scale = acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(gain_db) * share
+        amp, tof = self._detect(h, self.sound_speed_m_s(t_s), scale, 0.0, 0.0)
         reading = self._report(amp)
         if reading <= 0.0 or amp < self.threshold:
             return reading, float("nan")
@@ -219,32 +232,32 @@ class SimulatedCell:
         n_avg = max(int(averages), 1)
         root_n = math.sqrt(n_avg)
         noise = self.world.noise
-        h = self.hit(joint_readings_deg, motion_sign)
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
         n = self._receiver.n
         with self._lock:
             gain_error_db = self._gain_error_db(float(gain_db))
             z_floor = float(self._rng[_Stream.NOISE_FLOOR].standard_normal())
-            if h is not None:
+            if found is not None:
                 z_tof = float(self._rng[_Stream.TOF_JITTER].standard_normal())
                 z_amp = float(self._rng[_Stream.AMPLITUDE].standard_normal())
                 z_rx = self._rng[_Stream.RECEIVER_NOISE].standard_normal(2 * n)
         g = acoustics.gain_factor(float(gain_db) + gain_error_db)
         floor = self.noise_floor * g * abs(1.0 + _NOISE_FLOOR_SPREAD * z_floor / root_n)
         floor = min(floor, 1.0)
-        if h is None:
+        if found is None:
             return self._report(floor), float("nan")
-        temperature_c = self.water_temperature_c(t_s)
+        h, share = found
+        c_m_s = self.sound_speed_m_s(t_s)
         if gate_us is not None:
-            arrival_ns = self._arrival_ns(h.distance_mm, temperature_c)
+            arrival_ns = self._arrival_ns(h.distance_mm, c_m_s)
             start_ns, width_ns = gate_us[0] * 1e3, gate_us[1] * 1e3
             if not start_ns <= arrival_ns <= start_ns + width_ns:
                 return self._report(floor), float("nan")
-        scale = (acoustics.REFERENCE_AMPLITUDE * g * self._share(h)
+        scale = (acoustics.REFERENCE_AMPLITUDE * g * share
                  * max(1.0 + noise.amplitude * z_amp / root_n, 0.0))
         # receiver noise per quadrature component, scaled like the echo by the applied gain
         sigma = self.noise_floor * g / _FLOOR_PEAK_PER_SIGMA / root_n
-        amp, tof = self._detect(h, temperature_c, scale, noise.tof_ns * z_tof / root_n,
-                                sigma, z_rx)
+        amp, tof = self._detect(h, c_m_s, scale, noise.tof_ns * z_tof / root_n, sigma, z_rx)
         reading = self._report(max(amp, floor))
         if reading <= 0.0 or amp < max(self.threshold, floor):  # lost in the noise
             return reading, float("nan")
@@ -257,18 +270,16 @@ class SimulatedCell:
             self._gain_state = (gain_db, self.world.pulser.gain_error_db * z)
         return self._gain_state[1]
 
-    def _arrival_ns(self, water_path_mm: float, temperature_c: float) -> float:
+    def _arrival_ns(self, water_path_mm: float, c_m_s: float) -> float:
         """When the echo reaches the instrument: round trip in the water plus the delay (ns)."""
-        c = (self._c_m_s if temperature_c == self.world.water_temperature_c
-             else acoustics.sound_speed_m_s(temperature_c))
-        return 2.0 * water_path_mm * 1e6 / c + self.world.pulser.delay_ns
+        return 2.0 * water_path_mm * 1e6 / c_m_s + self.world.pulser.delay_ns
 
-    def _detect(self, h: FaceHit, temperature_c: float, scale: float, jitter_ns: float,
+    def _detect(self, h: FaceHit, c_m_s: float, scale: float, jitter_ns: float,
                 sigma: float, z: np.ndarray | None = None) -> tuple[float, float]:
         """Synthesise the echo of ``h`` (with jitter and receiver noise) and gate it."""
         rx = self._receiver
-        spectrum = rx.spectrum(h.tilt_deg, h.distance_mm, temperature_c)
-        t0_ns, samples = rx.waveform(self._arrival_ns(h.distance_mm, temperature_c) + jitter_ns,
+        spectrum = rx.spectrum(h.tilt_deg, h.distance_mm, c_m_s)
+        t0_ns, samples = rx.waveform(self._arrival_ns(h.distance_mm, c_m_s) + jitter_ns,
                                      scale, spectrum)
         if sigma > 0.0 and z is not None:
             samples = samples + sigma * (z[: rx.n] + 1j * z[rx.n:])

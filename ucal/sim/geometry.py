@@ -8,6 +8,7 @@ A face reflects only when the beam arrives from that side. Lengths in mm, angles
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,20 +96,29 @@ def reflector_face(reflector: Reflector) -> Face:
 
 def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceHit | None:
     """Intersect the beam ray with a face's plane; None if parallel or behind the transducer."""
-    d = np.asarray(direction, dtype=float)
-    cos_n = float(np.dot(d, face.normal))
+    # scalar arithmetic on Python floats: called for every face at every reading, where numpy's
+    # per-call overhead on 3-vectors dominates
+    dx, dy, dz = (float(v) for v in direction)
+    nx, ny, nz = face.normal.tolist()
+    cos_n = dx * nx + dy * ny + dz * nz
     if abs(cos_n) < _MIN_COS:
         return None
-    rel = face.origin_mm - np.asarray(origin_mm, dtype=float)
-    t = float(np.dot(rel, face.normal)) / cos_n
+    ox, oy, oz = (float(v) for v in origin_mm)
+    fx, fy, fz = face.origin_mm.tolist()
+    t = ((fx - ox) * nx + (fy - oy) * ny + (fz - oz) * nz) / cos_n
     if t <= 0.0:
         return None
-    p = origin_mm + t * d
-    q = p - face.origin_mm
-    u, v = float(np.dot(q, face.e1)), float(np.dot(q, face.e2))
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    qx, qy, qz = px - fx, py - fy, pz - fz
+    e1x, e1y, e1z = face.e1.tolist()
+    e2x, e2y, e2z = face.e2.tolist()
+    u = qx * e1x + qy * e1y + qz * e1z
+    v = qx * e2x + qy * e2y + qz * e2z
     edges = np.array([u - face.u_range_mm[0], face.u_range_mm[1] - u,
                       v - face.v_range_mm[0], face.v_range_mm[1] - v])
-    # tilt between beam and −n, via atan2 (accurate near 0)
-    sin_t = float(np.linalg.norm(np.cross(d, face.normal)))
-    tilt = float(np.degrees(np.arctan2(sin_t, -cos_n)))
-    return FaceHit(face, t, p, np.array([u, v]), tilt, edges, facing=cos_n < 0.0)
+    # tilt between beam and −n, via atan2 of |d × n| and −d·n (accurate near 0)
+    sin_t = math.sqrt((dy * nz - dz * ny) ** 2 + (dz * nx - dx * nz) ** 2
+                      + (dx * ny - dy * nx) ** 2)
+    tilt = math.degrees(math.atan2(sin_t, -cos_n))
+    return FaceHit(face, t, np.array([px, py, pz]), np.array([u, v]), tilt, edges,
+                   facing=cos_n < 0.0)

@@ -23,6 +23,11 @@ parabola's error on the 25 ns Gaussian envelope sampled every 5 ns is at most 0.
 and 1.1e-4 (relative) in height, periodic in the echo's sub-sample position. The digitiser is
 taken to have the echo's dynamic range: the screen saturates at 100 % of full screen height,
 the time measurement does not.
+
+Sources: the pulse-echo response of a circular piston to a tilted plane reflector, per
+frequency, and its spectral synthesis follow L. W. Schmerr, *Fundamentals of Ultrasonic
+Nondestructive Evaluation*, 2nd ed. (Springer 2016), ch. 8 and 10; water absorption ∝ f² after
+Pinkerton (1949); the sound speed after Marczak (1997) (``ucal.acoustics``).
 """
 
 from __future__ import annotations
@@ -63,19 +68,20 @@ class EchoReceiver:
         # s_k = Σ_m X_m·exp(iω_m·k·Δt): the inverse DFT restricted to the kept bins
         k = np.arange(self.n)
         self._synthesis = np.exp(1j * np.outer(k * self.sample_ns, self._omega_rad_per_ns))
-        # (temperature °C, wavenumbers rad/mm) of the last call, one tuple so that threads
+        # (sound speed m/s, wavenumbers rad/mm) of the last call, one tuple so that threads
         # never see one without the other
         self._k_cache: tuple[float, np.ndarray] = (float("nan"), self._omega_rad_per_ns)
 
-    def spectrum(self, tilt_deg: float, water_path_mm: float, temperature_c: float
+    def spectrum(self, tilt_deg: float, water_path_mm: float, sound_speed_m_s: float
                  ) -> np.ndarray:
         """Real amplitude spectrum (per kept bin) of the echo from a plane tilted ``tilt_deg``
-        at ``water_path_mm``, normalised so that its sum is the echo's centre height."""
-        cached_temperature_c, k_per_mm = self._k_cache
-        if temperature_c != cached_temperature_c:
+        at ``water_path_mm`` in water of ``sound_speed_m_s``, normalised so that its sum is the
+        echo's centre height."""
+        cached_c_m_s, k_per_mm = self._k_cache
+        if sound_speed_m_s != cached_c_m_s:
             # k = ω/c with c in mm/ns = 1e-6 · (m/s)
-            k_per_mm = self._omega_rad_per_ns * 1e6 / acoustics.sound_speed_m_s(temperature_c)
-            self._k_cache = (temperature_c, k_per_mm)
+            k_per_mm = self._omega_rad_per_ns * 1e6 / sound_speed_m_s
+            self._k_cache = (sound_speed_m_s, k_per_mm)
         s = self._p
         sin_2t = math.sin(2.0 * math.radians(tilt_deg))
         if sin_2t != 0.0:

@@ -8,6 +8,8 @@ import pytest
 from ucal import acoustics as ac
 from ucal.sim.receiver import EchoReceiver
 
+C_20 = ac.sound_speed_m_s(20.0)
+
 
 @pytest.fixture(scope="module")
 def rx() -> EchoReceiver:
@@ -15,7 +17,7 @@ def rx() -> EchoReceiver:
 
 
 def test_noise_free_detection_within_a_hundredth_of_a_ns(rx: EchoReceiver) -> None:
-    spectrum = rx.spectrum(0.0, 50.0, 20.0)
+    spectrum = rx.spectrum(0.0, 50.0, C_20)
     assert spectrum.sum() == pytest.approx(1.0)
     errors_ns, heights = [], []
     for arrival_ns in np.linspace(67_000.0, 67_010.0, 201):  # two samples, every sub-position
@@ -30,7 +32,7 @@ def test_noise_free_detection_within_a_hundredth_of_a_ns(rx: EchoReceiver) -> No
 
 
 def test_the_echo_is_a_25_mhz_pulse_with_a_25_ns_envelope(rx: EchoReceiver) -> None:
-    t0_ns, samples = rx.waveform(1000.0, 1.0, rx.spectrum(0.0, 50.0, 20.0))
+    t0_ns, samples = rx.waveform(1000.0, 1.0, rx.spectrum(0.0, 50.0, C_20))
     t_ns = t0_ns + np.arange(rx.n) * rx.sample_ns
     env = np.abs(samples)
     sigma_ns = np.sqrt(np.sum(env * (t_ns - 1000.0) ** 2) / np.sum(env))
@@ -44,7 +46,7 @@ def test_the_echo_is_a_25_mhz_pulse_with_a_25_ns_envelope(rx: EchoReceiver) -> N
 def test_the_peak_follows_the_broadband_echo_factor(rx: EchoReceiver) -> None:
     for tilt in (0.0, 0.05, 0.1, 0.2, 0.25):
         for path in (40.0, 50.0, 100.0, 150.0):
-            height, _ = rx.detect(*rx.waveform(67_003.3, 1.0, rx.spectrum(tilt, path, 20.0)))
+            height, _ = rx.detect(*rx.waveform(67_003.3, 1.0, rx.spectrum(tilt, path, C_20)))
             expected = ac.broadband_echo_factor(tilt, path, 25.0, 6.0, 20.0)
             # 1e-3 at 150 mm: the receiver has bins 3.125 MHz apart and no DC
             assert height == pytest.approx(expected, rel=1.5e-3)
@@ -52,21 +54,22 @@ def test_the_peak_follows_the_broadband_echo_factor(rx: EchoReceiver) -> None:
 
 def test_far_off_normal_the_echo_splits_into_edge_waves(rx: EchoReceiver) -> None:
     # 0.5°: the element's rim reflects ±a·sin 2θ / c = ±35 ns apart from its centre
-    t0_ns, samples = rx.waveform(67_003.3, 1.0, rx.spectrum(0.5, 50.0, 20.0))
+    t0_ns, samples = rx.waveform(67_003.3, 1.0, rx.spectrum(0.5, 50.0, C_20))
     height, tof_ns = rx.detect(t0_ns, samples)
     assert abs(tof_ns - 67_003.3) > 20.0
     assert height > ac.broadband_echo_factor(0.5, 50.0, 25.0, 6.0, 20.0)
 
 
 def test_warmer_water_widens_the_directivity(rx: EchoReceiver) -> None:
-    cold = rx.detect(*rx.waveform(0.0 + 500.0, 1.0, rx.spectrum(0.2, 50.0, 10.0)))[0]
-    warm = rx.detect(*rx.waveform(500.0, 1.0, rx.spectrum(0.2, 50.0, 30.0)))[0]
+    cold_c, warm_c = ac.sound_speed_m_s(10.0), ac.sound_speed_m_s(30.0)
+    cold = rx.detect(*rx.waveform(500.0, 1.0, rx.spectrum(0.2, 50.0, cold_c)))[0]
+    warm = rx.detect(*rx.waveform(500.0, 1.0, rx.spectrum(0.2, 50.0, warm_c)))[0]
     assert warm > cold  # faster sound, longer wavelength, wider beam
 
 
 def test_receiver_noise_moves_the_reading_by_its_share(rx: EchoReceiver) -> None:
     rng = np.random.default_rng(0)
-    spectrum = rx.spectrum(0.0, 50.0, 20.0)
+    spectrum = rx.spectrum(0.0, 50.0, C_20)
     sigma = 1e-3  # per quadrature component, for an echo of height 1: SNR 60 dB
     tofs, heights = [], []
     for _ in range(400):

@@ -1,0 +1,94 @@
+"""The main job's wall time, its determinism under load, and the real-cell duration estimate.
+
+1. ``ucal calibrate cell.toml --sim --yes --dry-run`` in a fresh directory: wall time, idle.
+2. The same with two CPU hogs (busy Python processes) running beside it: wall time, and
+   whether the offsets are the same bit for bit (simulated time, ``drivers.clock.SimClock``).
+3. The duration the plan estimates for a real cell (``ucal.timing.estimate_run``), beside the
+   run's own simulated duration (what it would take over Modbus TCP) and beside the wall time
+   of the same calibration against ``ucal sim serve --time-scale 1`` (real time, another
+   process, the drivers on the host clock) — unless ``--no-real-time``.
+
+Usage: python benchmarks/run_time.py [--no-real-time]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def hog(stop: mp.Event) -> None:
+    x = 0
+    while not stop.is_set():
+        x = (x * 31 + 7) % 1000003
+
+
+def calibrate(workdir: Path, *extra: str) -> tuple[float, dict, str]:
+    """Run the calibration (``--dry-run`` on the simulated cell); wall s, JSON, plan estimate."""
+    dry = ["--dry-run"] if "--sim" in extra else []
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-m", "ucal", "calibrate", "cell.toml", "--yes",
+                          "--json", *dry, *extra], cwd=workdir, capture_output=True,
+                         text=True, stdin=subprocess.DEVNULL)
+    wall = time.monotonic() - t0
+    if out.returncode not in (0, 1):
+        raise SystemExit(f"calibrate failed ({out.returncode}): {out.stderr[-500:]}")
+    estimate = next((ln for ln in out.stderr.splitlines() if "Estimated time" in ln), "")
+    return wall, json.loads(out.stdout), estimate
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--no-real-time", action="store_true")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        work = Path(d)
+        subprocess.run([sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
+                       cwd=work, check=True, capture_output=True)
+        calibrate(work, "--sim")  # warm the interpreter's caches (imports, bytecode)
+        idle_wall, idle, estimate = calibrate(work, "--sim")
+        stop = mp.Event()
+        hogs = [mp.Process(target=hog, args=(stop,)) for _ in range(2)]
+        for p in hogs:
+            p.start()
+        try:
+            busy_wall, busy, _ = calibrate(work, "--sim")
+        finally:
+            stop.set()
+            for p in hogs:
+                p.join()
+        same = (idle["joint_offsets_deg"] == busy["joint_offsets_deg"]
+                and idle["std_deg"] == busy["std_deg"])
+        print("ucal calibrate cell.toml --sim --yes (demo cell)")
+        print(f"  idle:             {idle_wall:6.1f} s wall, {idle['moves']} moves, "
+              f"{idle['pulser_reads']} pulser reads")
+        print(f"  two CPU hogs:     {busy_wall:6.1f} s wall; offsets and stds bit for bit the "
+              f"same as idle: {same}")
+        print(f"  plan: {estimate.strip()}")
+        print(f"  simulated duration of the run (a real cell over Modbus TCP): "
+              f"{idle['duration_s']:.1f} s")
+        if args.no_real_time:
+            return
+        serve = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
+                                  "cell.toml", "--time-scale", "1"], cwd=work,
+                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        try:
+            assert serve.stdout is not None
+            urls = json.loads(serve.stdout.readline())
+            real_wall, real, _ = calibrate(work, "--controller", urls["controller"],
+                                           "--pulser", urls["pulser"])
+        finally:
+            serve.terminate()
+            serve.wait(timeout=30)
+        print(f"  against `ucal sim serve --time-scale 1` (real time): {real_wall:.1f} s wall, "
+              f"{real['moves']} moves, {real['pulser_reads']} pulser reads")
+
+
+if __name__ == "__main__":
+    main()

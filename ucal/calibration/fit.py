@@ -1,0 +1,465 @@
+"""Joint offsets with the cell's uncertain quantities as prior-constrained unknowns.
+
+Unknowns (named, see ``PARAMETERS``): the six joint offsets δ (deg), the block pose (corner
+``c`` in mm, orientation ``[rx, ry, rz]`` in deg, Staubli convention), the tool frame in the
+flange (position mm, orientation deg), the speed of sound ``c_w`` (m/s) and the DH table's
+lengths and twists (``d``, ``a`` in mm, ``α`` in deg). Each has a prior: the profile's value
+with the profile's declared one-sigma tolerance (``[sample] position_std_mm``,
+``rotation_std_deg``; ``[tool]`` likewise; the sound speed from ``[water] temperature_c`` ±
+``temperature_std_c`` through Marczak's c(T); ``[robot] dh_length_std_mm``,
+``dh_angle_std_deg`` for a table that was not identified on this robot); the offsets get a broad
+prior (``OFFSET_PRIOR_STD_DEG``) that only regularises what the data cannot see. Each face
+measurement (``ucal.calibration.model``) contributes three rows
+
+    r_tilt = tilt_components(b(q+δ)) / σ_tilt                         model eq. (1), two rows
+    r_dist = (n_k·(p(q'+δ) − c)/cos θ − (c_w/c_0)·d) / σ_d           model eq. (2)
+
+with ``d`` the water path computed with the profile's sound speed ``c_0``, read at the
+readings ``q'`` (``distance_joints``), where the beam may be θ off normal (cos θ = −n_k·b); each prior one row
+``(x − x_prior)/σ_prior``. ``scipy.optimize.least_squares`` minimises the sum of squares and
+returns its own (forward-difference) Jacobian ``J`` of the whole augmented problem.
+
+Uncertainty: ``Cov = (JᵀJ)⁻¹`` of the augmented problem is the covariance of every unknown
+with the nuisance unknowns marginalised (their priors enter as rows, so the declared
+tolerances propagate into the offsets' std), multiplied by ``max(1, χ²ᵣ)`` when the data
+disagree with the model. Physics decides what that std carries:
+
+* the block's yaw and δ1 are one rotation about the base axis: no measurement separates them,
+  so ``std(δ1) ≥ rotation_std_deg[2]`` (a doweled, levelled fixture is needed for J1);
+* at one J1 azimuth, a block tilt about the joint-2 axis and δ2 are one rotation about that
+  axis (the corner takes up the translation): ``std(δ2)`` carries the tilt tolerance unless
+  the block is also seen from another J1 azimuth (configuration ``"j1"`` of the sequence);
+* a constant time-of-flight delay and the tool's offset along the beam shift every water path
+  alike: the block corner along the three normals absorbs them (they are not fitted apart);
+* with the beam on the joint-6 axis, δ6 turns nothing the data see (only the tool tilt's
+  azimuth, itself a tolerance).
+
+A joint whose std exceeds ``max_std_deg`` and whose variance comes mainly from a prior (its own
+broad prior: the data do not see it; a tolerance: it is confounded with that quantity) is
+reported unobservable with the reason, and keeps its profile value.
+
+Fit quality: ``χ²`` over all rows has ``dof`` = number of data rows (every unknown has a prior
+row); ``verdict`` is ``misfit`` when P(χ²_dof > χ²) < ``MISFIT_P``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.model import (
+    FACE_NAMES,
+    CellGeometry,
+    FaceMeasurement,
+    beam_and_tcp,
+    distance_joints,
+)
+from ucal.kinematics.dh import RobotModel, transform
+
+#: Broad prior on each offset (deg): keeps a direction the data cannot see finite, nothing more.
+OFFSET_PRIOR_STD_DEG = 10.0
+#: Probability below which the χ² of the fit is called a misfit.
+MISFIT_P = 1e-3
+#: A joint whose std exceeds this and comes mainly from a prior is reported unobservable.
+MAX_STD_DEG = 0.02
+
+OFFSETS = tuple(f"J{j}" for j in range(1, 7))
+BLOCK = ("block_x_mm", "block_y_mm", "block_z_mm", "block_rx_deg", "block_ry_deg",
+         "block_rz_deg")
+TOOL = ("tool_x_mm", "tool_y_mm", "tool_z_mm", "tool_rx_deg", "tool_ry_deg", "tool_rz_deg")
+SOUND = ("sound_speed_m_s",)
+#: The DH table's lengths and twists (the θ offsets are the joint offsets themselves).
+DH = tuple(f"dh{i}_{k}" for i in range(1, 7) for k in ("d_mm", "a_mm", "alpha_deg"))
+PARAMETERS = OFFSETS + BLOCK + TOOL + SOUND + DH
+
+#: What a prior stands for, in the words of a reason for a user.
+PRIOR_MEANING = {
+    "block_x_mm": "the block position tolerance", "block_y_mm": "the block position tolerance",
+    "block_z_mm": "the block position tolerance",
+    "block_rx_deg": "the block tilt tolerance ([sample] rotation_std_deg)",
+    "block_ry_deg": "the block tilt tolerance ([sample] rotation_std_deg)",
+    "block_rz_deg": "the block yaw tolerance ([sample] rotation_std_deg; block yaw and J1 are "
+                    "one rotation about the base axis)",
+    "tool_x_mm": "the tool position tolerance", "tool_y_mm": "the tool position tolerance",
+    "tool_z_mm": "the tool position tolerance",
+    "tool_rx_deg": "the tool orientation tolerance", "tool_ry_deg": "the tool orientation "
+                                                                     "tolerance",
+    "tool_rz_deg": "the tool orientation tolerance",
+    "sound_speed_m_s": "the water temperature tolerance",
+    **{n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
+       for n in DH},
+}
+
+
+@dataclass(frozen=True)
+class CellPrior:
+    """What the profile believes, with its one-sigma tolerances (mm, deg, °C)."""
+
+    model: RobotModel
+    offsets_deg: np.ndarray
+    tool_position_mm: np.ndarray
+    tool_rotation_deg: np.ndarray
+    block_position_mm: np.ndarray
+    block_rotation_deg: np.ndarray
+    water_temperature_c: float
+    tool_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 1.0))
+    tool_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+    block_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 5.0))
+    block_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+    water_temperature_std_c: float = 2.0
+    dh_length_std_mm: float = 0.2
+    dh_angle_std_deg: float = 0.02
+
+    @property
+    def sound_speed_m_s(self) -> float:
+        """Profile sound speed c_0 (m/s): the one the water paths were computed with."""
+        return float(sound_speed_m_s(self.water_temperature_c))
+
+    @property
+    def sound_speed_std_m_s(self) -> float:
+        """One sigma of c_0 from the temperature tolerance: |dc/dT|·σ_T (≈ 3 m/s/°C at 20 °C)."""
+        t = self.water_temperature_c
+        slope = (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
+        return float(abs(slope) * self.water_temperature_std_c)
+
+    def values(self) -> np.ndarray:
+        """Prior values in ``PARAMETERS`` order."""
+        dh = self.model.dh[:, 1:4].ravel()
+        return np.concatenate([self.offsets_deg, self.block_position_mm, self.block_rotation_deg,
+                               self.tool_position_mm, self.tool_rotation_deg,
+                               [self.sound_speed_m_s], dh]).astype(float)
+
+    def stds(self) -> np.ndarray:
+        """Prior one-sigmas in ``PARAMETERS`` order."""
+        return np.concatenate([np.full(6, OFFSET_PRIOR_STD_DEG), self.block_position_std_mm,
+                               self.block_rotation_std_deg, self.tool_position_std_mm,
+                               self.tool_rotation_std_deg,
+                               [self.sound_speed_std_m_s],
+                               np.tile([self.dh_length_std_mm, self.dh_length_std_mm,
+                                        self.dh_angle_std_deg], 6)]).astype(float)
+
+
+def prior_from_profile(profile: object) -> CellPrior:
+    """The ``CellPrior`` of a ``CellProfile`` (tolerances from its std keys)."""
+    p = profile
+    return CellPrior(
+        model=p.model, offsets_deg=np.asarray(p.joint_offsets_deg, float),
+        tool_position_mm=np.asarray(p.tool_position_mm, float),
+        tool_rotation_deg=np.asarray(p.tool_rotation_deg, float),
+        block_position_mm=np.asarray(p.sample_position_mm, float),
+        block_rotation_deg=np.asarray(p.sample_rotation_deg, float),
+        water_temperature_c=float(p.water_temperature_c),
+        tool_position_std_mm=np.broadcast_to(p.tool_position_std_mm, 3).astype(float),
+        tool_rotation_std_deg=np.broadcast_to(p.tool_rotation_std_deg, 3).astype(float),
+        block_position_std_mm=np.broadcast_to(p.sample_position_std_mm, 3).astype(float),
+        block_rotation_std_deg=np.broadcast_to(p.sample_rotation_std_deg, 3).astype(float),
+        water_temperature_std_c=float(p.water_temperature_std_c),
+        dh_length_std_mm=float(p.dh_length_std_mm), dh_angle_std_deg=float(p.dh_angle_std_deg))
+
+
+class ParameterTable:
+    """Named unknowns with a mask of the free ones (pybotics / robot_calibration style)."""
+
+    def __init__(self, names: tuple[str, ...], values: np.ndarray, prior_stds: np.ndarray,
+                 free: np.ndarray | None = None):
+        self.names = tuple(names)
+        self.values = np.array(values, float)
+        self.prior = self.values.copy()
+        self.prior_stds = np.array(prior_stds, float)
+        self.free = np.ones(len(names), bool) if free is None else np.array(free, bool)
+        self._index = {n: i for i, n in enumerate(self.names)}
+
+    def index(self, name: str) -> int:
+        return self._index[name]
+
+    def get(self, names: tuple[str, ...], values: np.ndarray | None = None) -> np.ndarray:
+        """Values of ``names`` (from ``values``, a full vector, or the table)."""
+        v = self.values if values is None else values
+        return np.array([v[self._index[n]] for n in names])
+
+    def expand(self, x_free: np.ndarray) -> np.ndarray:
+        """Full value vector with the free entries replaced by ``x_free``."""
+        v = self.values.copy()
+        v[self.free] = x_free
+        return v
+
+    @property
+    def free_names(self) -> tuple[str, ...]:
+        return tuple(n for n, f in zip(self.names, self.free) if f)
+
+
+@dataclass(frozen=True)
+class ResidualRow:
+    """One measurement's normalised residuals (dimensionless) and its label."""
+
+    label: str
+    tilt: tuple[float, float]
+    distance: float
+
+    @property
+    def norm(self) -> float:
+        return float(np.sqrt(self.tilt[0] ** 2 + self.tilt[1] ** 2 + self.distance ** 2))
+
+
+@dataclass(frozen=True)
+class FitQuality:
+    """The ``fit`` object of SPEC.md, plus per-measurement residuals and the likely cause."""
+
+    chi2_reduced: float
+    dof: int
+    rms_tilt_deg: float
+    rms_distance_mm: float
+    worst: str
+    verdict: str
+    cause: str = ""
+    residuals: tuple[ResidualRow, ...] = ()
+    prior_pulls: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"chi2_reduced": self.chi2_reduced, "dof": self.dof,
+                "rms_tilt_deg": self.rms_tilt_deg, "rms_distance_mm": self.rms_distance_mm,
+                "worst": self.worst, "verdict": self.verdict}
+
+
+@dataclass(frozen=True)
+class CellFit:
+    """Solution of the prior-augmented problem."""
+
+    table: ParameterTable
+    estimate: np.ndarray            # full parameter vector
+    cov: np.ndarray                 # (n_free, n_free), marginal over the nuisance unknowns
+    std: np.ndarray                 # full vector, NaN for fixed parameters
+    quality: FitQuality
+    variance_share: dict[str, dict[str, float]]  # joint → {source: share of its variance}
+    condition_number: float
+    jac: np.ndarray | None = None   # Jacobian of the augmented residuals at the solution
+    n_data: int = 0                 # its first n_data rows are the measurements'
+
+    def value(self, name: str) -> float:
+        return float(self.estimate[self.table.index(name)])
+
+    def sigma(self, name: str) -> float:
+        return float(self.std[self.table.index(name)])
+
+
+def measurement_label(m: FaceMeasurement) -> str:
+    return f"{m.config}/{FACE_NAMES[m.face]}"
+
+
+def _rpy_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
+    """``rpy_to_matrix`` for one triple, written out (it runs in the solver's inner loop)."""
+    cx, cy, cz = np.cos(np.radians(rxyz_deg))
+    sx, sy, sz = np.sin(np.radians(rxyz_deg))
+    # Rx·Ry·Rz (Staubli convention)
+    return np.array([[cy * cz, -cy * sz, sy],
+                     [sx * sy * cz + cx * sz, -sx * sy * sz + cx * cz, -sx * cy],
+                     [-cx * sy * cz + sx * sz, cx * sy * sz + sx * cz, cx * cy]])
+
+
+def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) -> CellGeometry:
+    """The geometry (tool, block orientation) that a parameter vector describes."""
+    tool = transform(table.get(TOOL[:3], values), _rpy_matrix(table.get(TOOL[3:], values)))
+    return CellGeometry(model, tool, _rpy_matrix(table.get(BLOCK[3:], values)))
+
+
+def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
+                   meas: list[FaceMeasurement], c0_m_s: float) -> np.ndarray:
+    """Normalised measurement residuals (n, 3): two tilt rows, one distance row each."""
+    dh = model.dh.copy()
+    dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
+    geom = cell_geometry(table, values, model.with_dh(dh))
+    offsets = table.get(OFFSETS, values)
+    corner = table.get(BLOCK[:3], values)
+    scale = table.get(SOUND, values)[0] / c0_m_s
+    q = np.array([m.joints_deg for m in meas])
+    qd = np.array([distance_joints(m) for m in meas])
+    faces = np.array([m.face for m in meas])
+    beam, _ = beam_and_tcp(geom, q, offsets)
+    beam_d, tcp = beam_and_tcp(geom, qd, offsets)
+    rot = geom.block_rotation
+    normal = rot[:, faces].T                                        # (n, 3)
+    basis = rot.T[np.array([[i for i in range(3) if i != f] for f in faces])]  # (n, 2, 3)
+    tilt_std_rad = np.radians([m.tilt_std_deg for m in meas])
+    dist_std = np.array([m.distance_std_mm for m in meas])
+    dist = np.array([m.distance_mm for m in meas])
+    out = np.empty((len(meas), 3))
+    out[:, :2] = np.einsum("nkj,nj->nk", basis, beam) / tilt_std_rad[:, None]   # tilt_components
+    # Along the beam to the face: the TOF may be read a few tenths of a degree off normal,
+    # where the path is n·(p − c)/cos θ (2 µm longer at 0.36° and 100 mm).
+    cos_t = np.maximum(-np.einsum("nj,nj->n", normal, beam_d), 0.5)
+    path = np.einsum("nj,nj->n", normal, tcp - corner) / cos_t
+    out[:, 2] = (path - scale * dist) / dist_std
+    return out
+
+
+def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
+               fixed: tuple[str, ...] = (), max_std_deg: float = MAX_STD_DEG,
+               misfit_p: float = MISFIT_P, start: np.ndarray | None = None,
+               tol: float = 1e-12) -> CellFit:
+    """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
+    docstring).
+
+    ``fixed`` names parameters held at their prior values (e.g. the DH table while predicting
+    postures during a run); ``start`` is a full parameter vector to start from (a previous
+    estimate), ``tol`` the solver's tolerances.
+    """
+    table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
+    for name in fixed:
+        table.free[table.index(name)] = False
+    table.free &= table.prior_stds > 0          # a zero tolerance means "known exactly"
+    c0 = prior.sound_speed_m_s
+    n_data = 3 * len(meas)
+    has_prior = np.isfinite(table.prior_stds) & table.free
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        v = table.expand(x)
+        r_data = data_residuals(table, v, prior.model, meas, c0).ravel()
+        r_prior = (v - table.prior)[has_prior] / table.prior_stds[has_prior]
+        return np.concatenate([r_data, r_prior])
+
+    if start is not None:
+        x0 = np.asarray(start, float)[table.free].copy()
+    else:
+        # Start the corner where eq. (2) puts it with the prior offsets (a hand-placed block
+        # can be centimetres off; the least-squares start should not depend on that).
+        x0 = _initial_corner(table, prior, meas, table.values[table.free].copy())
+    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
+    sol = least_squares(fun, x0, jac="2-point", method="trf", x_scale=x_scale[table.free],
+                        xtol=tol, ftol=tol, gtol=tol, max_nfev=200)
+    jac = sol.jac
+    res = sol.fun
+    estimate = table.expand(sol.x)
+    info = jac.T @ jac
+    cov = np.linalg.pinv(info)
+    chi2 = float(res @ res)
+    dof = max(1, n_data)
+    chi2_red = chi2 / dof
+    scale = max(1.0, chi2_red)
+    cov_scaled = cov * scale
+    std = np.full(len(table.names), np.nan)
+    std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
+
+    shares = _variance_shares(table, jac, cov, n_data)
+    quality = _quality(table, estimate, prior, meas, res, n_data, chi2, dof, misfit_p)
+    return CellFit(table, estimate, cov_scaled, std, quality, shares,
+                   _condition_number(table, jac[:n_data], std, max_std_deg), jac, n_data)
+
+
+def _initial_corner(table: ParameterTable, prior: CellPrior, meas: list[FaceMeasurement],
+                    x0: np.ndarray) -> np.ndarray:
+    """Corner from eq. (2), n_k·c = n_k·p − d, averaged per face (prior offsets and tool)."""
+    if not all(table.free[table.index(n)] for n in BLOCK[:3]):
+        return x0
+    geom = cell_geometry(table, table.values, prior.model)
+    coord = geom.block_rotation.T @ table.get(BLOCK[:3])
+    for k in range(3):
+        vals = [geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), prior.offsets_deg)[1]
+                - m.distance_mm for m in meas if m.face == k]
+        if vals:
+            coord[k] = float(np.mean(vals))
+    corner = geom.block_rotation @ coord
+    x = x0.copy()
+    free_names = table.free_names
+    for i, n in enumerate(BLOCK[:3]):
+        x[free_names.index(n)] = corner[i]
+    return x
+
+
+def _variance_shares(table: ParameterTable, jac: np.ndarray, cov: np.ndarray,
+                     n_data: int) -> dict[str, dict[str, float]]:
+    """Share of each offset's variance from the data and from each prior.
+
+    The estimate's sensitivity to the rows is ``K = Cov·Jᵀ``; with unit-variance rows the
+    variance of parameter j is Σ_rows K_jr², split here by row: the data rows together, and
+    each prior row by the parameter it constrains.
+    """
+    k = cov @ jac.T
+    free = table.free_names
+    prior_rows = [n for n in free if np.isfinite(table.prior_stds[table.index(n)])]
+    out: dict[str, dict[str, float]] = {}
+    for name in OFFSETS:
+        if name not in free:
+            continue
+        j = free.index(name)
+        contrib = k[j] ** 2
+        total = float(contrib.sum()) or 1.0
+        shares = {"data": float(contrib[:n_data].sum()) / total}
+        for r, pn in enumerate(prior_rows):
+            shares[pn] = float(contrib[n_data + r]) / total
+        out[name] = shares
+    return out
+
+
+def _condition_number(table: ParameterTable, jac_data: np.ndarray, std: np.ndarray,
+                      max_std_deg: float) -> float:
+    """Condition number of the column-scaled data Jacobian over the offsets the data determine,
+    the block corner and the sound speed (the unknowns the measurements are meant to fix)."""
+    free = table.free_names
+    cols = [free.index(n) for n in OFFSETS + BLOCK[:3] + SOUND
+            if n in free and (n not in OFFSETS or std[table.index(n)] <= max_std_deg)]
+    js = jac_data[:, cols]
+    js = js / np.maximum(np.linalg.norm(js, axis=0), 1e-300)
+    s = np.linalg.svd(js, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+def _quality(table: ParameterTable, estimate: np.ndarray, prior: CellPrior,
+             meas: list[FaceMeasurement], res: np.ndarray, n_data: int, chi2: float, dof: int,
+             misfit_p: float) -> FitQuality:
+    r = res[:n_data].reshape(-1, 3)
+    rows = tuple(ResidualRow(measurement_label(m), (float(r[i, 0]), float(r[i, 1])),
+                             float(r[i, 2])) for i, m in enumerate(meas))
+    tilt_deg = np.array([r[i, :2] * m.tilt_std_deg for i, m in enumerate(meas)])
+    dist_mm = np.array([r[i, 2] * m.distance_std_mm for i, m in enumerate(meas)])
+    free = table.free_names
+    prior_names = [n for n in free if np.isfinite(table.prior_stds[table.index(n)])]
+    pulls = {n: float(v) for n, v in zip(prior_names, res[n_data:])}
+    worst_row = max(rows, key=lambda x: x.norm)
+    worst_pull = max(((n, v) for n, v in pulls.items() if n not in OFFSETS),
+                     key=lambda kv: abs(kv[1]), default=("", 0.0))
+    worst = worst_row.label
+    if abs(worst_pull[1]) > worst_row.norm:
+        worst = f"prior {worst_pull[0]}"
+    p_value = float(chi2_dist.sf(chi2, dof))
+    verdict = "misfit" if p_value < misfit_p else "ok"
+    cause = likely_cause(rows, pulls, table, estimate, prior) if verdict == "misfit" else ""
+    return FitQuality(chi2_reduced=chi2 / dof, dof=dof,
+                      rms_tilt_deg=float(np.sqrt(np.mean(tilt_deg ** 2))),
+                      rms_distance_mm=float(np.sqrt(np.mean(dist_mm ** 2))),
+                      worst=worst, verdict=verdict, cause=cause, residuals=rows,
+                      prior_pulls=pulls)
+
+
+def likely_cause(rows: tuple[ResidualRow, ...], pulls: dict[str, float], table: ParameterTable,
+                 estimate: np.ndarray, prior: CellPrior) -> str:
+    """A sentence naming the most likely cause of a misfit, from where the misfit sits.
+
+    If the priors carry most of the χ² (the data fit, but only by moving a quantity beyond its
+    tolerance), the cell is outside its declared tolerance (block placed worse than stated,
+    water warmer, tool off). Otherwise the measurements themselves disagree with the model:
+    residuals mostly in the water paths point at the kinematic model (link lengths), mostly in
+    the tilts at the tool frame or the block's faces.
+    """
+    tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
+    dist2 = sum(r.distance ** 2 for r in rows)
+    nuisance = {n: p for n, p in pulls.items() if not n.startswith("J")}
+    prior2 = sum(p ** 2 for p in nuisance.values())
+    if nuisance and prior2 > tilt2 + dist2:
+        name, pull = max(nuisance.items(), key=lambda kv: abs(kv[1]))
+        value = estimate[table.index(name)]
+        prior_v = table.prior[table.index(name)]
+        what = PRIOR_MEANING.get(name, name)
+        return (f"{name} fitted at {value:.4g}, {abs(pull):.1f}σ from the profile's "
+                f"{prior_v:.4g}: the cell is outside {what}; correct the profile or widen "
+                "its tolerance")
+    if dist2 >= tilt2:
+        return ("the water paths disagree with the kinematic model across the stepped "
+                "configurations (link lengths or joint twists differ from the DH table): "
+                "calibrate with --level full, or check the sound speed and the block faces")
+    return ("the normal-incidence postures disagree with the model: check the tool frame "
+            "(run tool-frame) and that the block's faces are flat and perpendicular; a "
+            "kinematic model error (--level full) can also show here")
