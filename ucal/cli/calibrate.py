@@ -7,11 +7,16 @@ import datetime as dt
 import logging
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
 
 from ucal import __version__
+
+if TYPE_CHECKING:
+    from ucal.calibration.exact import OffsetSolution
+    from ucal.calibration.fit import FitQuality
 from ucal.cli.options import (
     confirm_motion,
     controller_option,
@@ -277,13 +282,15 @@ class Verdict:
         self.message = message
 
 
-def judge(chosen, fit) -> Verdict:
+def judge(chosen: OffsetSolution, fit: FitQuality) -> Verdict:
     """Judge a solution: a misfit, or an observable offset less certain than the tolerance.
 
     A misfit names the worst measurement and the likely cause; a std above
     ``TOLERANCE_STD_DEG`` names the joint and what its uncertainty comes from (noise, or the
     method's truncation for the paper method).
     """
+    from ucal.calibration.fit import PRIOR_MEANING
+
     observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
     std = chosen.std_deg
     loose = [j for j in observable if not np.isfinite(std[j]) or std[j] > TOLERANCE_STD_DEG]
@@ -296,11 +303,20 @@ def judge(chosen, fit) -> Verdict:
         j = max(loose, key=lambda k: std[k] if np.isfinite(std[k]) else np.inf)
         why = ""
         trunc = chosen.extra.get("truncation_deg")
+        cell = chosen.extra.get("cell_fit")
+        shares = cell.variance_share.get(f"J{j + 1}", {}) if cell is not None else {}
+        source = max(shares, key=shares.get) if shares else "data"
         if trunc is not None and trunc[j] > 0.5 * std[j]:
             why = (f", mostly the paper method's first-order truncation error ({trunc[j]:.3g} "
                    "deg, about half the joint step); use --method exact")
+        elif source != "data":
+            why = (f", mostly from {PRIOR_MEANING.get(source, source)} "
+                   f"({100 * shares[source]:.0f} % of its variance)")
         else:
-            why = ": measurement noise (check the water, the gain, the transducer)"
+            worst = max(fit.residuals, key=lambda r: r.norm).label if fit.residuals else "?"
+            why = (f": the measurements' own scatter ({100 * shares.get('data', 1.0):.0f} % of "
+                   f"its variance; the peak postures are uncertain, worst fitted {worst}); check "
+                   "the water, the gain and the transducer, or measure again")
         return Verdict(False, False,
                        f"calibration out of tolerance: J{j + 1}'s std {std[j]:.3g} deg exceeds "
                        f"{TOLERANCE_STD_DEG} deg{why}; the profile was not written")
@@ -350,6 +366,7 @@ def plan_summary(plan, profile) -> str:
 
 def show_result(console, chosen, exact, paper, truth, result) -> None:
     """The result as tables on stderr: offsets with σ, fit quality, residual per measurement."""
+    from rich.markup import escape
     from rich.table import Table
 
     table = Table(title=f"Joint offsets ({chosen.method} method)")
@@ -381,15 +398,15 @@ def show_result(console, chosen, exact, paper, truth, result) -> None:
     for r in fit.residuals:
         res.add_row(r.label, f"{r.tilt[0]:+.2f}", f"{r.tilt[1]:+.2f}", f"{r.distance:+.2f}")
     console.print(res)
-    console.print(f"fit {fit.verdict}: χ²ᵣ {fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; "
+    console.print(escape(f"fit {fit.verdict}: χ²ᵣ {fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; "
                   f"rms tilt {fit.rms_tilt_deg:.2e} deg, rms distance {fit.rms_distance_mm:.2e} mm; "
-                  f"worst {fit.worst}")
+                  f"worst {fit.worst}"))
     if fit.cause:
-        console.print(f"likely cause: {fit.cause}")
+        console.print(escape(f"likely cause: {fit.cause}"))
     console.print(f"sound speed {result['sound_speed_m_s']:.2f} ± "
                   f"{result['sound_speed_std_m_s']:.2f} m/s (fitted); condition number "
                   f"{chosen.condition_number:.1f}; {result['moves']} moves, "
                   f"{result['pulser_reads']} pulser reads; profile "
                   f"{'written' if result['written'] else 'not written'}: {result['profile']}")
     for j, why in sorted(chosen.unobservable_reasons.items()):
-        console.print(f"J{j} unobservable, kept at its profile value: {why}")
+        console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
