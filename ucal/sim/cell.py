@@ -98,6 +98,11 @@ class SimulatedCell:
         self._sa = np.sin(alpha)
         self._d_mm = np.asarray(model.d_mm, float).copy()
         self._a_mm = np.asarray(model.a_mm, float).copy()
+        self._links = np.zeros((6, 4, 4))
+        self._links[:, 2, 1] = self._sa
+        self._links[:, 2, 2] = self._ca
+        self._links[:, 2, 3] = self._d_mm
+        self._links[:, 3, 3] = 1.0
         # Hayati's twist about each link's y axis, appended to its DH transform
         self._twists: list[np.ndarray | None] = []
         for beta_deg in np.asarray(world.dh_beta_deg, float):
@@ -138,14 +143,21 @@ class SimulatedCell:
         """True flange frame (4, 4) in the base frame for joint readings (deg, (6,))."""
         th = np.radians(self.joint_angles_deg(joint_readings_deg, motion_sign))
         ct, st = np.cos(th), np.sin(th)
-        t = np.eye(4)
-        ca, sa, d, a = self._ca, self._sa, self._d_mm, self._a_mm
+        # the six DH links at once: rows 3 and 4 are constant, rows 1 and 2 turn with θ
+        links = self._links.copy()
+        ca, sa, a = self._ca, self._sa, self._a_mm
+        links[:, 0, 0] = ct
+        links[:, 0, 1] = -st * ca
+        links[:, 0, 2] = st * sa
+        links[:, 0, 3] = a * ct
+        links[:, 1, 0] = st
+        links[:, 1, 1] = ct * ca
+        links[:, 1, 2] = -ct * sa
+        links[:, 1, 3] = a * st
+        t = links[0]
         for i in range(6):
-            link = np.array([[ct[i], -st[i] * ca[i], st[i] * sa[i], a[i] * ct[i]],
-                             [st[i], ct[i] * ca[i], -ct[i] * sa[i], a[i] * st[i]],
-                             [0.0, sa[i], ca[i], d[i]],
-                             [0.0, 0.0, 0.0, 1.0]])
-            t = t @ link
+            if i:
+                t = t @ links[i]
             twist = self._twists[i]
             if twist is not None:
                 t = t @ twist
