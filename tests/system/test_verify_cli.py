@@ -36,6 +36,10 @@ def world(tmp_path: Path) -> Path:
 
 def make_profile(tmp_path: Path, name: str, offsets_deg: list[float] | None) -> Path:
     path = create_profile(tmp_path / name, "tx90l")
+    # a doweled, levelled block: with a hand-placed block's yaw tolerance joint 1 cannot be
+    # calibrated (one rotation about the base axis with the block's yaw)
+    write_profile(path, {"sample": {"position_std_mm": 0.5,
+                                    "rotation_std_deg": [0.01, 0.01, 0.01]}}, "fixtured block")
     if offsets_deg is not None:
         # as `ucal calibrate` would have written it
         write_profile(path, {"calibration": {"joint_offsets_deg": offsets_deg}}, "calibrate")
