@@ -150,7 +150,7 @@ class Recorder:
 
     def end(self, result: dict[str, Any]) -> None:
         """Write the end line with the run's result."""
-        self._write({"end": json.loads(json.dumps(result, default=_plain, allow_nan=False))})
+        self._write({"end": json.loads(json.dumps(result, default=jsonable, allow_nan=False))})
 
     def close(self) -> None:
         with self._lock:
@@ -165,12 +165,13 @@ class Recorder:
         self.close()
 
 
-def _plain(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """``json.dumps`` default for numpy values (anything else by its repr)."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
         return value.item()
-    return str(value)
+    return repr(value)
 
 
 class _RecordingProxy:

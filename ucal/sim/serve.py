@@ -28,6 +28,7 @@ from drivers.pulser.base import PulserSettings
 from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import matrix_to_pose
+from ucal.record import jsonable
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
 
@@ -167,19 +168,11 @@ class SimulatedCellServer:
         line_record: dict[str, Any] = {"motion": number, "t_wall_s": time.time(), **record}
         try:
             end = np.asarray(record["end_deg"], float)
-            line_record["true_tcp_pose"] = matrix_to_pose(self.cell.true_tcp(end))
+            line_record["true_tcp_pose"] = matrix_to_pose(self.cell.true_tcp(end, self.controller.motion_sign()))
         except Exception:  # the log must never break the controller thread
             log.debug("motion log: no end position in %r", record, exc_info=True)
-        line = json.dumps(line_record, default=_jsonable)
+        line = json.dumps(line_record, default=jsonable)
         with self._log_lock:
             if self._log_file is not None:
                 self._log_file.write(line + "\n")
                 self._log_file.flush()
-
-
-def _jsonable(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    return repr(o)
