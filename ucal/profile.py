@@ -436,6 +436,23 @@ unobservable_joints = []
 """
 
 
+#: Model of the shipped example cell and the lines written above its template.
+EXAMPLE_MODEL = "tx90l"
+EXAMPLE_HEADER = f"""\
+# Example cell profile: a Staubli TX90L carrying a 25 MHz immersion transducer, water tank
+# with the calibration block and a reflector plate, as written by `ucal profile init {EXAMPLE_MODEL}`.
+# Copy it (or run `ucal profile init MODEL cell.toml`), then enter the measured block pose and
+# the touched reflector points before calibrating.
+#
+"""
+
+
+def example_profile_text() -> str:
+    """``profiles/example_cell.toml``: the ``profile init`` template of ``EXAMPLE_MODEL`` under
+    ``EXAMPLE_HEADER`` (one source, so the example never drifts from what ``init`` writes)."""
+    return EXAMPLE_HEADER + default_profile_text(EXAMPLE_MODEL)
+
+
 def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
     """Write a new profile for ``model`` at ``path``; refuse (exit 2) if it exists unless
     ``force`` (the replaced file then goes to the history, so it can be undone)."""

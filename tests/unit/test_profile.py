@@ -19,8 +19,11 @@ from ucal.errors import ProfileError
 from ucal.kinematics.dh import fk, wrist_centre
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.profile import (
+    EXAMPLE_HEADER,
+    EXAMPLE_MODEL,
     create_profile,
     default_profile_text,
+    example_profile_text,
     history_dir,
     load_profile,
     profile_history,
@@ -125,6 +128,19 @@ def test_example_cell_profile_is_valid() -> None:
     prof = load_profile(REPO / "profiles" / "example_cell.toml")
     assert prof.model.name == "tx90l"
     assert prof.reflector_points_mm is not None
+
+
+def test_example_cell_profile_is_what_profile_init_writes(tmp_path: Path) -> None:
+    """One source: the shipped example is the init template under its header (regenerate with
+    ``python -c "from ucal.profile import *; print(example_profile_text(), end='')"``)."""
+    shipped = (REPO / "profiles" / "example_cell.toml").read_text()
+    assert shipped == example_profile_text()
+    created = create_profile(tmp_path / "cell.toml", EXAMPLE_MODEL).read_text()
+    assert shipped.endswith(created) and shipped.startswith(EXAMPLE_HEADER)
+    a = load_profile(REPO / "profiles" / "example_cell.toml")
+    b = load_profile(tmp_path / "cell.toml")
+    np.testing.assert_array_equal(a.reflector_points_mm, b.reflector_points_mm)
+    np.testing.assert_array_equal(a.sample_position_mm, b.sample_position_mm)
 
 
 # ------------------------------------------------------------------------------ loading
