@@ -17,8 +17,8 @@ pytestmark = pytest.mark.system
 
 
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ucal", *args], capture_output=True, text=True,
-                          cwd=cwd, stdin=subprocess.DEVNULL, timeout=300)
+    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False, capture_output=True,
+                          text=True, cwd=cwd, stdin=subprocess.DEVNULL, timeout=300)
 
 
 @pytest.fixture(scope="module")

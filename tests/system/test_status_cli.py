@@ -126,7 +126,7 @@ def test_silent_pulser_is_exit_3_naming_it(server: SimulatedCellServer,
 
 
 def test_unreachable_controller_is_exit_3_naming_it(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, err = _run(["status", "--controller", "tcp://127.0.0.1:1?state=2", "--json"],
+    code, out, _err = _run(["status", "--controller", "tcp://127.0.0.1:1?state=2", "--json"],
                           capsys)
     assert code == 3
     assert json.loads(out)["error"].startswith("controller at tcp://127.0.0.1:1?state=2: ")

@@ -73,9 +73,9 @@ def test_a_second_holder_is_refused_naming_the_first(cell: Path) -> None:
 
 
 def test_the_same_process_cannot_take_it_twice(cell: Path) -> None:
-    with profile_lock(cell, command="first"), pytest.raises(InputError, match="first"):
-        with profile_lock(cell):
-            pass
+    with (profile_lock(cell, command="first"), pytest.raises(InputError, match="first"),
+          profile_lock(cell)):
+        pass
 
 
 def test_a_crashed_run_leaves_no_lock_that_blocks(cell: Path) -> None:
@@ -90,9 +90,9 @@ def test_links_to_one_profile_share_its_lock(cell: Path, tmp_path: Path) -> None
     link = tmp_path / "other-name.toml"
     link.symlink_to(cell)
     assert lock_path(link) == lock_path(cell) == cell.with_name("cell.toml.lock")
-    with profile_lock(cell), pytest.raises(InputError, match="in use by another run"):
-        with profile_lock(link):
-            pass
+    with (profile_lock(cell), pytest.raises(InputError, match="in use by another run"),
+          profile_lock(link)):
+        pass
 
 
 def test_calibrate_refuses_a_profile_in_use_before_any_motion(

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import chdtrc
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import (
@@ -278,8 +278,8 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
     q = np.array([m.joints_deg for m in meas])
     qd = np.array([distance_joints(m) for m in meas])
     faces = np.array([m.face for m in meas])
-    beam, _ = beam_and_tcp(geom, q, offsets)
-    beam_d, tcp = beam_and_tcp(geom, qd, offsets)
+    both, tcp_both = beam_and_tcp(geom, np.concatenate([q, qd]), offsets)  # one FK call
+    beam, beam_d, tcp = both[:len(meas)], both[len(meas):], tcp_both[len(meas):]
     rot = geom.block_rotation
     normal = rot[:, faces].T                                        # (n, 3)
     basis = rot.T[np.array([[i for i in range(3) if i != f] for f in faces])]  # (n, 2, 3)
@@ -424,7 +424,7 @@ def _quality(table: ParameterTable, estimate: np.ndarray, prior: CellPrior,
     worst = worst_row.label
     if abs(worst_pull[1]) > worst_row.norm:
         worst = f"prior {worst_pull[0]}"
-    p_value = float(chi2_dist.sf(chi2, dof))
+    p_value = float(chdtrc(dof, chi2))  # χ² survival function (scipy.stats.chi2.sf)
     verdict = "misfit" if p_value < misfit_p else "ok"
     cause = likely_cause(rows, pulls, table, estimate, prior) if verdict == "misfit" else ""
     return FitQuality(chi2_reduced=chi2 / dof, dof=dof,

@@ -41,6 +41,7 @@ from ucal.calibration.fit import (
     OFFSETS,
     TOOL,
     CellPrior,
+    cell_geometry,
     prior_from_profile,
     solve_cell,
 )
@@ -192,7 +193,12 @@ def config_arm(pose_deg: np.ndarray, config: str, step_deg: float) -> np.ndarray
 
 
 CONFIGS = ("base", "j3", "j2", "j1")
-THETA6_SHIFT_DEG = {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0}
+#: Joint-6 turn per configuration (deg). An on-axis beam keeps its direction and tool centre
+#: when joint 6 turns, so the stepped configurations turn it; a tilted beam would swing the
+#: tool centre around the wrist (tens of mm, coupling the wrist-centre displacement with the
+#: tool's unknown pose), so only the second azimuth turns it.
+THETA6_SHIFT_DEG = {"on-axis": {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0},
+                    "tilted": {"base": 0.0, "j3": 0.0, "j2": 0.0, "j1": 90.0}}
 
 
 def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
@@ -216,30 +222,40 @@ def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, fac
 
 def _config_targets(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
                     step_deg: float) -> list[PlannedTarget]:
-    """The three checked targets of one configuration (``SafetyError`` if one fails)."""
-    model = profile.model
+    """The three checked targets of one configuration (``SafetyError`` if one fails).
+
+    Joint 6 turns between configurations (``THETA6_SHIFT_DEG``, the other way if that fails a
+    check): with joint 6 the same in every measurement, a joint-5 offset is one rotation with
+    the tool's orientation in the flange, which is itself an unknown (see
+    ``ucal.calibration.fit``); the wrist aims the beam with joints 4 and 5 around it. Without
+    the second azimuth a tilted beam's joint 5 may then be reported unobservable.
+    """
+    shift = THETA6_SHIFT_DEG["on-axis" if beam_on_axis(geom) else "tilted"][config]
+    error: SafetyError | None = None
+    for turn in dict.fromkeys((shift, -shift)):
+        arm = config_arm(pose, config, step_deg)
+        arm[5] += turn
+        try:
+            return [_checked_target(profile, geom, arm, config, face) for face in FACE_ORDER]
+        except SafetyError as e:
+            error = error or e
+    assert error is not None
+    raise error
+
+
+def _checked_target(profile: CellProfile, geom: CellGeometry, arm: np.ndarray, config: str,
+                    face: int) -> PlannedTarget:
     offsets = profile.joint_offsets_deg
-    arm = config_arm(pose, config, step_deg)
-    if beam_on_axis(geom):
-        # θ6 does not aim an on-axis beam; turning it between configurations separates a
-        # joint-5 offset from a tilt of the beam in the flange (see ucal.calibration.exact).
-        shift = THETA6_SHIFT_DEG[config]
-        if not model.joint_min_deg[5] + 10 <= arm[5] + shift <= model.joint_max_deg[5] - 10:
-            shift = -shift
-        arm[5] += shift
-    out = []
-    for face in FACE_ORDER:
-        label = f"{config}/{FACE_NAMES[face]}"
-        q = aim_wrist(geom, arm, -geom.normal(face), offsets)
-        check_joints(profile, q, label)
-        path = _face_hit_check(profile, geom, q, face, offsets, label)
-        lo, hi = STEPPED_PATH_RANGE_MM
-        if config != "base" and not lo <= path <= hi:
-            raise SafetyError(f"plan {label}: a water path of {path:.1f} mm is outside "
-                              f"{lo:g}-{hi:g} mm for a stepped configuration")
-        js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
-        out.append(PlannedTarget(config, face, q, js, path))
-    return out
+    label = f"{config}/{FACE_NAMES[face]}"
+    q = aim_wrist(geom, arm, -geom.normal(face), offsets)
+    check_joints(profile, q, label)
+    path = _face_hit_check(profile, geom, q, face, offsets, label)
+    lo, hi = STEPPED_PATH_RANGE_MM
+    if config != "base" and not lo <= path <= hi:
+        raise SafetyError(f"plan {label}: a water path of {path:.1f} mm is outside "
+                          f"{lo:g}-{hi:g} mm for a stepped configuration")
+    js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
+    return PlannedTarget(config, face, q, js, path)
 
 
 def _largest_step(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
@@ -442,24 +458,37 @@ def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: Calibrati
     return min(paths)
 
 
+@dataclass(frozen=True)
+class CellEstimate:
+    """What the measurements so far say about the cell, to predict the next posture."""
+
+    offsets_deg: np.ndarray       # (6,)
+    corner_mm: np.ndarray         # (3,) block corner
+    vector: np.ndarray            # the fit's full parameter vector (start of the next fit)
+    geometry: CellGeometry        # tool and block orientation as fitted
+
+
 def estimate_cell(prior: CellPrior, meas: list[FaceMeasurement],
-                  start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Offsets (deg), block corner (mm) and the full parameter vector from the measurements so
-    far, to predict postures (``start``: the previous vector).
+                  start: np.ndarray | None = None) -> CellEstimate:
+    """The cell as the measurements so far see it (``start``: the previous vector).
 
     The prior-augmented fit of ``ucal.calibration.fit``: with fewer than the full set the
     priors (broad on the offsets, the declared tolerances on the rest) hold the directions the
     data do not see yet, and the sound speed is fitted as soon as a step shows it. The DH
     table and the tool position are held (their tolerances move a prediction by micrometres).
+    The fitted tool and block orientations are part of the prediction: a block tilted by a
+    tenth of a degree moves the next face's normal-incidence posture by as much, which is
+    most of a fit grid.
     """
     cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-9)
-    return (np.array([cell.value(n) for n in OFFSETS]),
-            np.array([cell.value(n) for n in BLOCK[:3]]), cell.estimate)
+    return CellEstimate(np.array([cell.value(n) for n in OFFSETS]),
+                        np.array([cell.value(n) for n in BLOCK[:3]]), cell.estimate,
+                        cell_geometry(cell.table, cell.estimate, prior.model))
 
 
-def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
-                meas: list[FaceMeasurement], ka: float, prior: CellPrior,
-                rounds: int = 2) -> list[FaceMeasurement]:
+def refit_peaks(rig: Rig, profile: CellProfile, meas: list[FaceMeasurement], ka: float,
+                prior: CellPrior,
+                rounds: int = 1) -> list[FaceMeasurement]:
     """Fit every face's recorded probes again with the offsets of a full solution.
 
     The first faces were fitted with kinematics whose offsets could be degrees off, which
@@ -470,7 +499,8 @@ def refit_peaks(rig: Rig, geom: CellGeometry, profile: CellProfile,
 
     vector = None
     for _ in range(rounds):
-        est, _, vector = estimate_cell(prior, meas, vector)
+        cell = estimate_cell(prior, meas, vector)
+        vector, est, geom = cell.vector, cell.offsets_deg, cell.geometry
         new = []
         for m in meas:
             probes = m.meta.get("probes")
@@ -508,6 +538,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
 
     total = len(plan.targets)
     vector = None
+    fitted = geom
     last_wrist: dict[int, np.ndarray] = {}
     steps: dict[str, float] = {}
     for i, target in enumerate(plan.targets):
@@ -522,15 +553,16 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         # Three faces pin the model down: later predictions land within a few thousandths of a
         # degree, inside the fit's first grid; two faces leave a fraction of a degree.
         mode = "direct" if len(meas) >= 3 else "quick" if len(meas) == 2 else "acquire"
-        res = measure_face(approach, geom, profile, start, target.face, est, ka, acq_gain,
+        res = measure_face(approach, fitted, profile, start, target.face, est, ka, acq_gain,
                            f"face {FACE_NAMES[target.face]} ({target.label})", target.config,
                            mode, 16.0 if not meas else 8.0)
         meas.append(res.measurement)
         last_wrist[target.face] = res.measurement.joints_deg
-        est, corner, vector = estimate_cell(prior, meas, vector)
+        cell = estimate_cell(prior, meas, vector)
+        est, corner, vector, fitted = cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry
     # Leave the robot at the calibration pose's XY posture.
     approach.move(plan.targets[0].joints_deg)
-    meas = refit_peaks(approach, geom, profile, meas, ka, prior)
+    meas = refit_peaks(approach, profile, meas, ka, prior)
     if progress:
         progress("done", total, total)
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)

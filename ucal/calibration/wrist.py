@@ -12,6 +12,7 @@ from scipy.optimize import least_squares
 
 from ucal.calibration.model import CellGeometry, beam_and_tcp
 from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk_frames, model_angles_rad
 from ucal.kinematics.rotations import angle_between_deg
 
 WRIST = (3, 4, 5)  # 0-based indices of joints 4, 5, 6
@@ -22,13 +23,73 @@ def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
     """Joint readings (6,) with joints 1–3 from ``joints_deg`` and joints 4–6 chosen so that the
     beam (model ``geom`` with ``offsets_deg``) points along the unit ``direction``.
 
-    Solved by least squares started from ``joints_deg``'s wrist; a small ``keep_weight`` (per
-    degree) keeps the solution near that start, which picks the wrist branch without a flip and
-    fixes the free rotation about the beam when the beam is on the joint-6 axis.
+    Joint 6 is held at its reading in ``joints_deg`` (it fixes the free rotation about the beam
+    when the beam is on its axis) and joints 4 and 5 are solved in closed form
+    (``_aim_closed_form``), the branch nearest to the start; where joint 6 held cannot point
+    the beam, least squares over all three with a small ``keep_weight`` (per degree) pulling
+    them toward the start.
     """
     q0 = np.array(joints_deg, float)
     target = np.asarray(direction, float) / np.linalg.norm(direction)
+    q = _aim_closed_form(geom, q0, target, offsets_deg)
+    if q is None:
+        q = _aim_least_squares(geom, q0, target, offsets_deg, keep_weight)
+    beam, _ = beam_and_tcp(geom, q, offsets_deg)
+    err = float(angle_between_deg(beam, target))
+    if err > 1e-6:
+        raise SafetyError(f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "
+                          f"from arm joints {np.round(q0[:3], 3).tolist()} (best {err:.3f}° off)")
+    return q
 
+
+def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
+                     offsets_deg: np.ndarray) -> np.ndarray | None:
+    """Joints 4 and 5 pointing the beam along ``target`` with joints 1–3 and 6 from ``q0``.
+
+    With ``R_i = Rz(θ_i)·Rx(α_i)`` the beam in frame 3 is ``b = R_4·R_5·R_6·a_T``. Let
+    ``c = Rx(α_5)·R_6·a_T`` (known) and ``w = Rz(θ_5)·c``; the z row of ``Rz(θ_4)·Rx(α_4)·w = b``
+    does not involve θ_4: ``sin α_4·w_y + cos α_4·c_z = b_z``, and ``w_y = ρ·sin(θ_5 + φ)`` with
+    ``ρ = |c_xy|``, ``φ = atan2(c_y, c_x)``: two θ_5. Then θ_4 turns ``Rx(α_4)·w`` onto ``b`` about
+    z. None if no solution (|w_y| > ρ) or the wrist is degenerate (sin α_4 ≈ 0).
+    """
+    model = geom.model
+    frames = fk_frames(model, q0, offsets_deg)
+    theta = model_angles_rad(model, q0, offsets_deg)
+    alpha = np.radians(model.alpha_deg)
+    b = frames[3, :3, :3].T @ target
+    r6 = frames[5, :3, :3].T @ frames[6, :3, :3]
+    c = _rot_x(alpha[4]) @ r6 @ geom.beam_flange
+    s4, c4 = np.sin(alpha[3]), np.cos(alpha[3])
+    rho = float(np.hypot(c[0], c[1]))
+    if abs(s4) < 1e-6 or rho < 1e-9:
+        return None
+    wy = (b[2] - c4 * c[2]) / s4
+    if abs(wy) > rho:
+        return None
+    phi = np.arctan2(c[1], c[0])
+    best = None
+    for t5 in (np.arcsin(wy / rho) - phi, np.pi - np.arcsin(wy / rho) - phi):
+        w = np.array([np.cos(t5) * c[0] - np.sin(t5) * c[1],
+                      np.sin(t5) * c[0] + np.cos(t5) * c[1], c[2]])
+        v = np.array([w[0], c4 * w[1] - s4 * w[2]])
+        t4 = np.arctan2(b[1], b[0]) - np.arctan2(v[1], v[0])
+        q = q0.copy()
+        for j, t in ((3, t4), (4, t5)):
+            # A change of model angle is the same change of reading; the turn nearest q0.
+            q[j] = q0[j] + (np.degrees(t - theta[j]) + 180.0) % 360.0 - 180.0
+        dist = float(np.sum((q[3:5] - q0[3:5]) ** 2))
+        if best is None or dist < best[0]:
+            best = (dist, q)
+    return None if best is None else best[1]
+
+
+def _rot_x(a: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+def _aim_least_squares(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
+                       offsets_deg: np.ndarray, keep_weight: float) -> np.ndarray:
+    """Joints 4–6 by least squares from ``q0``'s wrist, regularised toward it, then polished."""
     def resid(w: np.ndarray) -> np.ndarray:
         q = q0.copy()
         q[3:] = w
@@ -45,11 +106,6 @@ def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
                         max_nfev=200)
     q = q0.copy()
     q[3:] = sol.x
-    beam, _ = beam_and_tcp(geom, q, offsets_deg)
-    err = float(angle_between_deg(beam, target))
-    if err > 1e-6:
-        raise SafetyError(f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "
-                          f"from arm joints {np.round(q0[:3], 3).tolist()} (best {err:.3f}° off)")
     return q
 
 

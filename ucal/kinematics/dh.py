@@ -113,15 +113,36 @@ def model_angles_rad(model: RobotModel, joints_deg: np.ndarray,
 
 def fk_frames(model: RobotModel, joints_deg: np.ndarray,
               offsets_deg: np.ndarray | None = None) -> np.ndarray:
-    """Frames 0…6 in the base frame for joint readings (…, 6) → (…, 7, 4, 4)."""
+    """Frames 0…6 in the base frame for joint readings (…, 6) → (…, 7, 4, 4).
+
+    The six link transforms (``dh_matrix``) are built at once and chained: the solvers call
+    this in their inner loops with a dozen postures at a time, where per-link array set-up
+    would cost more than the arithmetic.
+    """
     th = model_angles_rad(model, joints_deg, offsets_deg)
     shape = th.shape[:-1]
+    ct, st = np.cos(th), np.sin(th)
+    alpha = np.radians(model.alpha_deg)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    a, d = model.a_mm, model.d_mm
+    links = np.zeros(shape + (N_JOINTS, 4, 4))
+    links[..., 0, 0] = ct
+    links[..., 0, 1] = -st * ca
+    links[..., 0, 2] = st * sa
+    links[..., 0, 3] = a * ct
+    links[..., 1, 0] = st
+    links[..., 1, 1] = ct * ca
+    links[..., 1, 2] = -ct * sa
+    links[..., 1, 3] = a * st
+    links[..., 2, 1] = sa
+    links[..., 2, 2] = ca
+    links[..., 2, 3] = d
+    links[..., 3, 3] = 1.0
     frames = np.empty(shape + (N_JOINTS + 1, 4, 4))
     frames[..., 0, :, :] = np.eye(4)
-    alpha = np.radians(model.alpha_deg)
-    for i in range(N_JOINTS):
-        a_i = dh_matrix(th[..., i], model.d_mm[i], model.a_mm[i], alpha[i])
-        frames[..., i + 1, :, :] = frames[..., i, :, :] @ a_i
+    frames[..., 1, :, :] = links[..., 0, :, :]
+    for i in range(1, N_JOINTS):
+        np.matmul(frames[..., i, :, :], links[..., i, :, :], out=frames[..., i + 1, :, :])
     return frames
 
 

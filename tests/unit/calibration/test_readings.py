@@ -124,7 +124,7 @@ def test_impossible_reading_in_a_sweep_is_caught(reading: tuple[float, float],
 def test_no_echo_is_not_an_impossible_reading() -> None:
     rig = rig_with(lambda n: (0.0, float("nan")))
     assert rig.read().amplitude == 0.0
-    q, amps, tofs = rig.line(np.zeros(6), np.array([0, 0, 0, 1.0, 0, 0]))
+    _, amps, tofs = rig.line(np.zeros(6), np.array([0, 0, 0, 1.0, 0, 0]))
     assert np.all(amps == 0.0) and np.all(np.isnan(tofs))
 
 

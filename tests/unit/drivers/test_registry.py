@@ -78,7 +78,7 @@ def test_a_back_end_that_builds_something_else_is_refused(
         registry.open_pulser("odd://x")
 
 
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings  # noqa: E402
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 
 
 class FakePulser(PulserReceiver):
