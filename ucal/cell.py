@@ -171,4 +171,5 @@ class WorldTruth:
                    sample_face_size_mm=profile.sample_face_size_mm, reflector=refl,
                    water_temperature_c=profile.water_temperature_c,
                    frequency_mhz=profile.frequency_mhz,
-                   element_diameter_mm=profile.element_diameter_mm)
+                   element_diameter_mm=profile.element_diameter_mm,
+                   dh_beta_deg=np.array(profile.model.beta_deg, float))

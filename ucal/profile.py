@@ -66,6 +66,9 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
 FLANGE_MM = 100.0
 #: Tool frame of a new profile: transducer 80 mm beyond the flange, beam along flange z.
 DEFAULT_TOOL_MM = (0.0, 0.0, 80.0)
+#: Largest Hayati twist (deg) a calibrated table may hold: a calibration finds hundredths.
+MAX_CALIBRATED_BETA_DEG = 1.0
+
 #: Edge length of the calibration block's faces (mm): the ``CellProfile`` default.
 DEFAULT_FACE_MM = float(CellProfile.__dataclass_fields__["sample_face_size_mm"].default)
 #: Distance of the nominal reflector plate's centre behind the block's XZ face plane (mm).
@@ -144,6 +147,12 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
         v = r.get(cal, "calibration.unobservable_joints")
         if v is not None:
             unobservable = r.joint_numbers("calibration.unobservable_joints", v)
+        v = r.get(cal, "calibration.dh")
+        if v is not None:
+            # the table identified by `calibrate --level full` replaces [robot] dh everywhere
+            rows, beta = r.split_beta("calibration.dh", v, MAX_CALIBRATED_BETA_DEG)
+            model = model.with_dh(r.dh_table("calibration.dh", rows), beta)
+            model.meta["dh_source"] = "[calibration] dh"
 
     procedure = read_procedure(r, r.table("procedure"), model)
 

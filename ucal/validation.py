@@ -164,6 +164,26 @@ class Reader:
                 out[i] = self.vector(rkey, row, 4)
         return out
 
+    def split_beta(self, key: str, raw: Any, max_deg: float
+                   ) -> tuple[list[Any], np.ndarray]:
+        """Take the optional Hayati ``beta_deg`` (|β| <= ``max_deg``) out of six DH rows (tables
+        with a ``beta_deg`` key, or arrays with a fifth number): the rows without it (for
+        ``dh_table``) and the six twists (deg, 0 where absent)."""
+        rows = self.array(key, raw, 6)
+        beta = np.zeros(6)
+        stripped: list[Any] = []
+        for i, row in enumerate(rows):
+            if isinstance(row, Mapping) and "beta_deg" in row:
+                beta[i] = self.number(f"{key}[{i}].beta_deg", row["beta_deg"], lo=-max_deg,
+                                      hi=max_deg, unit="deg")
+                row = {k: v for k, v in row.items() if k != "beta_deg"}
+            elif isinstance(row, (list, tuple)) and len(row) == 5:
+                beta[i] = self.number(f"{key}[{i}][4]", row[4], lo=-max_deg, hi=max_deg,
+                                      unit="deg")
+                row = list(row[:4])
+            stripped.append(row)
+        return stripped, beta
+
     def joint_ranges(self, key_min: str, lo: Any, key_max: str, hi: Any) -> tuple[np.ndarray,
                                                                                   np.ndarray]:
         """Joint ranges (deg): 6 minima, 6 maxima, ``min < max`` for every joint."""

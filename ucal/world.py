@@ -163,19 +163,7 @@ def _split_beta(r: Reader, robot: Mapping[str, Any]
     raw = robot.get("dh")
     if raw is None:
         return robot, None
-    rows = r.array("robot.dh", raw, 6)
-    beta = np.zeros(6)
-    stripped: list[Any] = []
-    for i, row in enumerate(rows):
-        if isinstance(row, Mapping) and "beta_deg" in row:
-            beta[i] = r.number(f"robot.dh[{i}].beta_deg", row["beta_deg"], lo=-MAX_BETA_DEG,
-                               hi=MAX_BETA_DEG, unit="deg")
-            row = {k: v for k, v in row.items() if k != "beta_deg"}
-        elif isinstance(row, (list, tuple)) and len(row) == 5:
-            beta[i] = r.number(f"robot.dh[{i}][4]", row[4], lo=-MAX_BETA_DEG, hi=MAX_BETA_DEG,
-                               unit="deg")
-            row = list(row[:4])
-        stripped.append(row)
+    stripped, beta = r.split_beta("robot.dh", raw, MAX_BETA_DEG)
     return {**robot, "dh": stripped}, beta
 
 

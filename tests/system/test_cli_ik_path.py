@@ -143,3 +143,44 @@ def test_path_unreachable_exit_4_writes_nothing(profile_path: Path, tmp_path: Pa
     assert r.returncode == 4
     assert "path point 6" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
+
+
+CALIBRATED_DH = [
+    {"theta_offset_deg": 0.0, "d_mm": 0.0, "a_mm": 50.21, "alpha_deg": -90.03},
+    {"theta_offset_deg": -90.0, "d_mm": 49.83, "a_mm": 500.34, "alpha_deg": 0.02,
+     "beta_deg": 0.04},
+    {"theta_offset_deg": 90.0, "d_mm": 0.0, "a_mm": 0.12, "alpha_deg": 90.04},
+    {"theta_offset_deg": 0.0, "d_mm": 549.61, "a_mm": 0.0, "alpha_deg": -89.97},
+    {"theta_offset_deg": 0.0, "d_mm": 0.0, "a_mm": 0.0, "alpha_deg": 90.02},
+    {"theta_offset_deg": 0.0, "d_mm": 100.0, "a_mm": 0.0, "alpha_deg": 0.0},
+]
+
+
+def test_ik_and_path_on_a_calibrated_table_agree_with_fk(profile_path: Path,
+                                                         tmp_path: Path) -> None:
+    """``[calibration] dh`` (twists off ±90°, Hayati β₂) replaces the table; the closed form
+    seeds, the refinement lands every branch on the calibrated model's pose to 1e-6 mm."""
+    write_profile(profile_path, {"calibration": {"dh": CALIBRATED_DH}}, reason="test")
+    p = load_profile(profile_path)
+    assert p.model.beta_deg[1] == 0.04 and p.model.dh[1, 2] == 500.34
+    q = np.array([25.0, 30.0, 100.0, 15.0, 40.0, 20.0])
+    pose = _tool_pose(profile_path, q)
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all", "--json")
+    assert r.returncode == 0, r.stderr
+    sols = np.array(json.loads(r.stdout)["solutions"])
+    assert len(sols) >= 4
+    np.testing.assert_allclose(sols[0], q, atol=1e-7)
+    target = pose_to_matrix(pose)
+    for s in sols:
+        got = fk(p.model, s, p.tool_matrix, p.joint_offsets_deg)
+        assert np.linalg.norm(got[:3, 3] - target[:3, 3]) < 1e-6
+    path_in = tmp_path / "in.csv"
+    qs = q + np.linspace(0.0, 5.0, 4)[:, None]
+    path_in.write_text("\n".join(_csv(_tool_pose(profile_path, x)) for x in qs) + "\n")
+    r = ucal("path", str(profile_path), str(path_in), "-o", str(tmp_path / "out.csv"))
+    assert r.returncode == 0, r.stderr
+    rows = np.array([[float(v) for v in row] for row in csv.reader(
+        (tmp_path / "out.csv").open()) if row and not row[0].startswith(("#", "J", "j"))])
+    got = fk(p.model, rows[:, -6:], p.tool_matrix, p.joint_offsets_deg)[:, :3, 3]
+    want = np.array([pose_to_matrix(_tool_pose(profile_path, x))[:3, 3] for x in qs])
+    assert np.max(np.linalg.norm(got - want, axis=1)) < 1e-6

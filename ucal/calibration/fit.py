@@ -75,6 +75,9 @@ SOUND = ("sound_speed_m_s",)
 #: The DH table's lengths and twists (the θ offsets are the joint offsets themselves).
 DH = tuple(f"dh{i}_{k}" for i in range(1, 7) for k in ("d_mm", "a_mm", "alpha_deg"))
 PARAMETERS = OFFSETS + BLOCK + TOOL + SOUND + DH
+#: Hayati's twist of the parallel axes 2-3 (``calibrate --level full``; a table that holds it
+#: turns it into link 2's ``beta_deg``).
+BETA = ("dh2_beta_deg",)
 
 #: What a prior stands for, in the words of a reason for a user.
 PRIOR_MEANING = {
@@ -91,7 +94,7 @@ PRIOR_MEANING = {
     "tool_rz_deg": "the tool orientation tolerance",
     "sound_speed_m_s": "the water temperature tolerance",
     **{n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
-       for n in DH},
+       for n in DH + BETA},
 }
 
 
@@ -271,7 +274,11 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
     """Normalised measurement residuals (n, 3): two tilt rows, one distance row each."""
     dh = model.dh.copy()
     dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
-    geom = cell_geometry(table, values, model.with_dh(dh))
+    beta = None
+    if BETA[0] in table.names:
+        beta = model.beta_deg.copy()
+        beta[1] = table.get(BETA, values)[0]
+    geom = cell_geometry(table, values, model.with_dh(dh, beta))
     offsets = table.get(OFFSETS, values)
     corner = table.get(BLOCK[:3], values)
     scale = table.get(SOUND, values)[0] / c0_m_s
@@ -299,15 +306,17 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
 def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
                fixed: tuple[str, ...] = (), max_std_deg: float = MAX_STD_DEG,
                misfit_p: float = MISFIT_P, start: np.ndarray | None = None,
-               tol: float = 1e-12) -> CellFit:
+               tol: float = 1e-12, table: ParameterTable | None = None) -> CellFit:
     """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
     docstring).
 
     ``fixed`` names parameters held at their prior values (e.g. the DH table while predicting
     postures during a run); ``start`` is a full parameter vector to start from (a previous
-    estimate), ``tol`` the solver's tolerances.
+    estimate), ``tol`` the solver's tolerances; ``table`` the unknowns if not ``PARAMETERS``
+    with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist).
     """
-    table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
+    if table is None:
+        table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
     for name in fixed:
         table.free[table.index(name)] = False
     table.free &= table.prior_stds > 0          # a zero tolerance means "known exactly"

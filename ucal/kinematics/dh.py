@@ -3,7 +3,12 @@
 Convention (SPEC.md): one row per joint ``theta_offset_deg, d_mm, a_mm, alpha_deg``;
 the angle entering row *i* is ``reading_i + theta_offset_i + joint_offset_i`` and
 
-    A_i = Rot(z, θ_i) · Trans(0, 0, d_i) · Trans(a_i, 0, 0) · Rot(x, α_i).
+    A_i = Rot(z, θ_i) · Trans(0, 0, d_i) · Trans(a_i, 0, 0) · Rot(x, α_i) · Rot(y, β_i).
+
+``β_i`` is Hayati's twist about the link's y axis (``RobotModel.beta_deg``, zero in the shipped
+tables): for the nearly parallel axes 2 and 3 a small tilt of axis 3 about the common normal is
+``α_2``, a tilt in the plane of the two axes is ``β_2``, which standard DH could only express
+with an enormous ``d`` (``calibrate --level full`` identifies it).
 
 The TX90-family table shipped in ``profiles/`` (upper arm L2, forearm L3)::
 
@@ -41,16 +46,20 @@ N_JOINTS = 6
 
 @dataclass(frozen=True)
 class RobotModel:
-    """A 6R arm: DH table (6, 4) as ``theta_offset_deg, d_mm, a_mm, alpha_deg`` and joint ranges."""
+    """A 6R arm: DH table (6, 4) as ``theta_offset_deg, d_mm, a_mm, alpha_deg``, joint ranges and
+    Hayati twists ``beta_deg`` (6,; None = zeros)."""
 
     name: str
     dh: np.ndarray
     joint_min_deg: np.ndarray
     joint_max_deg: np.ndarray
     meta: dict = field(default_factory=dict, compare=False)
+    beta_deg: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dh", np.asarray(self.dh, dtype=float).reshape(N_JOINTS, 4))
+        beta = np.zeros(N_JOINTS) if self.beta_deg is None else self.beta_deg
+        object.__setattr__(self, "beta_deg", np.asarray(beta, dtype=float).reshape(N_JOINTS))
         object.__setattr__(self, "joint_min_deg", np.asarray(self.joint_min_deg, dtype=float))
         object.__setattr__(self, "joint_max_deg", np.asarray(self.joint_max_deg, dtype=float))
 
@@ -75,10 +84,17 @@ class RobotModel:
         j = np.asarray(joints_deg, dtype=float)
         return np.all((j >= self.joint_min_deg - tol_deg) & (j <= self.joint_max_deg + tol_deg), -1)
 
-    def with_dh(self, dh: np.ndarray) -> RobotModel:
-        """Copy of this model with another DH table (e.g. a perturbed 'true' robot)."""
+    def with_dh(self, dh: np.ndarray, beta_deg: np.ndarray | None = None) -> RobotModel:
+        """Copy of this model with another DH table (e.g. a perturbed 'true' robot); the Hayati
+        twists are kept unless ``beta_deg`` is given."""
+        beta = self.beta_deg if beta_deg is None else beta_deg
         return RobotModel(self.name, np.array(dh, float), self.joint_min_deg, self.joint_max_deg,
-                          dict(self.meta))
+                          dict(self.meta), np.array(beta, float))
+
+    @property
+    def has_twists(self) -> bool:
+        """True if any Hayati twist is non-zero."""
+        return bool(np.any(self.beta_deg != 0.0))
 
 
 def dh_matrix(theta_rad: np.ndarray, d_mm: float, a_mm: float, alpha_rad: float) -> np.ndarray:
@@ -100,6 +116,13 @@ def dh_matrix(theta_rad: np.ndarray, d_mm: float, a_mm: float, alpha_rad: float)
     t[..., 2, 3] = d_mm
     t[..., 3, 3] = 1.0
     return t
+
+
+def _rot_y4(beta_rad: float) -> np.ndarray:
+    """Hayati's twist ``Rot(y, β)`` as a 4×4 transform."""
+    c, s = np.cos(beta_rad), np.sin(beta_rad)
+    return np.array([[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0],
+                     [0.0, 0.0, 0.0, 1.0]])
 
 
 def model_angles_rad(model: RobotModel, joints_deg: np.ndarray,
@@ -140,6 +163,8 @@ def fk_frames(model: RobotModel, joints_deg: np.ndarray,
     links[..., 3, 3] = 1.0
     frames = np.empty(shape + (N_JOINTS + 1, 4, 4))
     frames[..., 0, :, :] = np.eye(4)
+    for i in np.flatnonzero(model.beta_deg):
+        links[..., i, :, :] = links[..., i, :, :] @ _rot_y4(np.radians(model.beta_deg[i]))
     frames[..., 1, :, :] = links[..., 0, :, :]
     for i in range(1, N_JOINTS):
         np.matmul(frames[..., i, :, :], links[..., i, :, :], out=frames[..., i + 1, :, :])

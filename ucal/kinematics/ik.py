@@ -95,6 +95,13 @@ distance to the reference configuration θ_ref::
     (16) E = Σ_i w_i |θ_i − θ_ref,i|,    default w = (6, 5, 4, 3, 2, 1)
 
 is returned (nearest first with ``all_solutions``).
+
+Calibrated tables. A table identified on a robot (``[calibration] dh``: twists a few
+hundredths of a degree off ±90°, Hayati's β₂, millimetre wrist offsets) has no closed form. Its
+solutions are those of the nearest ideal table (``ideal_structure``: twists snapped to the
+structure above, spherical wrist, no β), each refined by damped Newton (Levenberg–Marquardt)
+steps on the calibrated model's geometric Jacobian until the flange pose agrees to
+``REFINE_TOL_MM`` (and ``REFINE_TOL_RAD``): the same eight branches, chosen by the same rule.
 """
 
 from __future__ import annotations
@@ -102,9 +109,10 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ucal.errors import InputError, UnreachableError
-from ucal.kinematics.dh import N_JOINTS, RobotModel
+from ucal.kinematics.dh import N_JOINTS, RobotModel, fk, jacobian
 
 log = logging.getLogger(__name__)
 
@@ -123,6 +131,14 @@ _REACH_TOL = 1e-12
 
 # Slack on the joint limits (deg), as RobotModel.within_limits: rounding only, never clipped.
 _ANGLE_TOL_DEG = 1e-9
+
+
+#: Refined solutions of a calibrated table agree with its forward kinematics to this (mm, rad).
+REFINE_TOL_MM = 1e-9
+REFINE_TOL_RAD = 1e-12
+#: Largest deviation (deg, mm) of a calibrated table from the ideal structure that is refined.
+MAX_SNAP_DEG = 1.0
+MAX_SNAP_MM = 5.0
 
 
 def _sign90(alpha_deg: float, what: str, model: RobotModel) -> float:
@@ -175,9 +191,99 @@ def _rot_x(alpha_rad: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
+def ideal_structure(model: RobotModel) -> RobotModel:
+    """``model`` itself if the closed form applies, else the nearest table of the TX90 structure
+    (``check_structure``): twists rounded to 0/±90° (α5 = −α4), a4 = a5 = d5 = 0, no Hayati β.
+
+    Raises ``InputError`` if the table is further from that structure than a calibration
+    could make it (``MAX_SNAP_DEG``, ``MAX_SNAP_MM``).
+    """
+    if not model.has_twists:
+        try:
+            check_structure(model)
+            return model
+        except InputError:
+            pass
+    dh = model.dh.copy()
+    for i, target in ((0, None), (1, 0.0), (2, None), (3, None), (4, None)):
+        a = dh[i, 3]
+        snapped = 90.0 * np.round(a / 90.0) if target is None else target
+        if i == 4:
+            snapped = -dh[3, 3]
+        if abs(a - snapped) > MAX_SNAP_DEG:
+            raise InputError(f"model {model.name!r}: alpha_{i + 1} = {a}° is not within "
+                             f"{MAX_SNAP_DEG}° of the TX90 structure's {snapped}°")
+        dh[i, 3] = snapped
+    for (i, c) in ((3, 2), (4, 2), (4, 1)):
+        if abs(dh[i, c]) > MAX_SNAP_MM:
+            raise InputError(f"model {model.name!r}: the wrist is not spherical "
+                             f"({'da'[c - 1]}_{i + 1} = {dh[i, c]} mm)")
+        dh[i, c] = 0.0
+    if np.any(np.abs(model.beta_deg) > MAX_SNAP_DEG):
+        raise InputError(f"model {model.name!r}: a beta_deg above {MAX_SNAP_DEG}°")
+    ideal = model.with_dh(dh, np.zeros(N_JOINTS))
+    check_structure(ideal)
+    return ideal
+
+
+def refine(model: RobotModel, flange_T: np.ndarray, seeds_deg: np.ndarray,
+           offsets_deg: np.ndarray | None = None, max_iter: int = 20
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Refine joint readings (…, 6) so that ``model``'s flange reaches ``flange_T`` (…, 4, 4).
+
+    Damped Newton steps ``Δθ = Jᵀ(JJᵀ + λ²I)⁻¹·e`` on the geometric Jacobian, with ``e`` the
+    position error (mm) and the rotation vector of the orientation error (rad); λ is a hair
+    (1e-9) so that a wrist singularity does not blow the step up. Returns the readings and
+    whether each converged (``REFINE_TOL_MM``, ``REFINE_TOL_RAD``). NaN seeds stay NaN.
+    """
+    T = np.asarray(flange_T, float)
+    q = np.array(seeds_deg, float)
+    shape = q.shape[:-1]
+    finite = np.all(np.isfinite(q), -1)
+    qf = q[finite]
+    Tf = np.broadcast_to(T, shape + (4, 4))[finite]
+    ok = np.zeros(len(qf), bool)
+    for _ in range(max_iter):
+        cur = fk(model, qf, offsets_deg=offsets_deg)
+        e_p = Tf[:, :3, 3] - cur[:, :3, 3]
+        e_r = Rotation.from_matrix(Tf[:, :3, :3] @ np.swapaxes(cur[:, :3, :3], -1, -2)
+                                   ).as_rotvec()
+        ok = (np.linalg.norm(e_p, axis=-1) < REFINE_TOL_MM) & (
+            np.linalg.norm(e_r, axis=-1) < REFINE_TOL_RAD)
+        if ok.all():
+            break
+        jac = jacobian(model, qf, offsets_deg=offsets_deg)
+        e = np.concatenate([e_p, e_r], -1)
+        jjt = jac @ np.swapaxes(jac, -1, -2) + 1e-18 * np.eye(6)
+        step = np.swapaxes(jac, -1, -2) @ np.linalg.solve(jjt, e[..., None])
+        qf = qf + np.degrees(step[..., 0])
+    out = np.full(q.shape, np.nan)
+    out[finite] = qf
+    conv = np.zeros(shape, bool)
+    conv[finite] = ok
+    return out, conv
+
+
 def ik_all(model: RobotModel, flange_T: np.ndarray, offsets_deg: np.ndarray | None = None,
            wrist_ref_deg: np.ndarray | float | None = None,
            singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, np.ndarray]:
+    """All eight joint solutions for flange poses (…, 4, 4): closed form (``ik_closed_form``),
+    refined on ``model`` where it is a calibrated table (module docstring)."""
+    ideal = ideal_structure(model)
+    sols, valid = ik_closed_form(ideal, flange_T, offsets_deg, wrist_ref_deg, singular_eps)
+    if ideal is model:
+        return sols, valid
+    T = np.asarray(flange_T, float)[..., None, :, :]
+    refined, conv = refine(model, T, sols, offsets_deg)
+    valid = valid & conv
+    refined = np.where(valid[..., None], wrap_deg(refined), np.nan)
+    return refined, valid
+
+
+def ik_closed_form(model: RobotModel, flange_T: np.ndarray,
+                   offsets_deg: np.ndarray | None = None,
+                   wrist_ref_deg: np.ndarray | float | None = None,
+                   singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, np.ndarray]:
     """All eight closed-form joint solutions for flange poses (…, 4, 4) in the base frame (mm).
 
     Returns ``(solutions_deg (…, 8, 6), valid (…, 8))``: joint *readings* in degrees,

@@ -1,0 +1,118 @@
+"""Full kinematic identification on synthetic measurements (no simulator).
+
+The truth is a robot whose DH lengths and twists are off (Hayati's β₂ included), with joint
+offsets, a misplaced block and the water off its profile temperature; the measurements are its
+exact normal-incidence postures and water paths at the planned postures, with seeded noise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.fit import prior_from_profile
+from ucal.calibration.full import (
+    aligned_errors_mm,
+    ideal_measurements,
+    scanning_postures,
+    solve_full,
+)
+from ucal.calibration.full_plan import plan_full
+from ucal.calibration.model import CellGeometry, FaceMeasurement
+from ucal.calibration.sequence import calibration_pose
+from ucal.calibration.wrist import aim_wrist
+from ucal.kinematics.dh import fk
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.profile import load_profile
+
+REPO = Path(__file__).resolve().parents[3]
+SIGMA = 5e-4  # deg of posture, mm of water path
+
+
+@pytest.fixture(scope="module")
+def cell():
+    profile = load_profile(REPO / "profiles" / "example_cell.toml").replace(
+        dh_length_std_mm=0.3, dh_angle_std_deg=0.03, water_temperature_std_c=0.1)
+    return profile, plan_full(profile)
+
+
+def measure(profile, plan, model, offsets, block_rpy, corner, water_c, seed):
+    """Noisy measurements of the true cell at the plan's postures."""
+    rng = np.random.default_rng(seed)
+    truth = CellGeometry(model, profile.tool_matrix, rpy_to_matrix(block_rpy))
+    postures = []
+    for p in plan.postures:
+        q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), offsets)
+        q[3:5] += rng.normal(0.0, SIGMA, 2)
+        postures.append((p.label, p.face, q))
+    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(water_c)
+    return [FaceMeasurement(m.config, m.face, m.joints_deg,
+                            m.distance_mm + rng.normal(0.0, SIGMA), SIGMA, SIGMA)
+            for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)]
+
+
+def true_parameters(model) -> dict[str, float]:
+    out = {f"dh{i + 1}_{k}": model.dh[i, c + 1] for i in range(6)
+           for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))}
+    out["dh2_beta_deg"] = model.beta_deg[1]
+    return out
+
+
+def test_plan_is_d_optimal_and_spread(cell):
+    _, plan = cell
+    assert 15 <= len(plan.postures) <= 40
+    assert {p.face for p in plan.postures} == {0, 1, 2}
+    j = np.array([p.joints_deg for p in plan.postures])
+    assert np.ptp(j[:, 0]) > 20.0 and np.ptp(j[:, 1]) > 20.0 and np.ptp(j[:, 2]) > 20.0
+    assert plan.d_criterion > 3.0 and "D-optimality" in plan.describe()
+
+
+def test_dh_errors_identified_within_std_and_tcp_recovered(cell):
+    profile, plan = cell
+    rng = np.random.default_rng(7)
+    dh = profile.model.dh.copy()
+    dh[:5, 1:3] += np.where(dh[:5, 1:3] != 0, rng.uniform(-0.5, 0.5, (5, 2)), 0.0)
+    dh[:5, 3] += rng.uniform(-0.05, 0.05, 5)
+    model = profile.model.with_dh(dh, [0.0, 0.04, 0.0, 0.0, 0.0, 0.0])
+    offsets = rng.uniform(-0.3, 0.3, 6)
+    meas = measure(profile, plan, model, offsets, [0.3, -0.2, 0.4],
+                   profile.sample_position_mm + [3.0, -2.0, 4.0], 20.05, seed=1)
+    prior = prior_from_profile(profile)
+    sol = solve_full(prior, meas)
+    assert set(sol.ident.redundant) == {"dh1_d_mm", "dh3_d_mm", "dh6_d_mm", "dh6_a_mm",
+                                        "dh6_alpha_deg"}
+    assert "parallel" in sol.ident.redundant["dh3_d_mm"] and sol.ident.scale_note
+    assert sol.cell.quality.verdict == "ok"
+    truth = true_parameters(model)
+    z = [(v["value"] - truth[n]) / v["std"] for n, v in sol.parameters.items()
+         if v["status"] != "not identifiable"]
+    assert max(np.abs(z)) < 4.0 and np.mean(np.abs(np.array(z)) <= 3.0) >= 0.9
+    assert abs(sol.parameters["dh2_beta_deg"]["value"] - 0.04) < 0.005
+    assert sol.unobservable_joints == (1, 6)      # hand-placed block's yaw; beam on axis 6
+    assert np.all(np.abs(sol.offsets_deg - offsets)[1:5] < 3 * sol.std_deg[1:5] + 1e-9)
+    # TCP over the scanning region, after the best rigid alignment
+    qs = scanning_postures(calibration_pose(profile), 100, 3, profile.model)
+    true_p = fk(model, qs, profile.tool_matrix, offsets)[:, :3, 3]
+    full = aligned_errors_mm(fk(sol.model, qs, profile.tool_matrix, sol.offsets_deg)[:, :3, 3],
+                             true_p)
+    # even the true offsets on the nominal table leave the DH errors
+    offs = aligned_errors_mm(fk(profile.model, qs, profile.tool_matrix, offsets)[:, :3, 3],
+                             true_p)
+    assert full.mean() < 0.06 and full.max() < 0.15
+    assert offs.mean() > 3 * full.mean()
+
+
+def test_nominal_robot_gives_the_nominal_table_back(cell):
+    profile, plan = cell
+    meas = measure(profile, plan, profile.model, np.zeros(6), np.zeros(3),
+                   profile.sample_position_mm, profile.water_temperature_c, seed=2)
+    sol = solve_full(prior_from_profile(profile), meas)
+    truth = true_parameters(profile.model)
+    for name, v in sol.parameters.items():
+        if v["std"] is None:
+            assert v["value"] == truth[name]
+        else:
+            assert abs(v["value"] - truth[name]) <= 3 * v["std"], name

@@ -1,0 +1,309 @@
+"""Full kinematic identification (``calibrate --level full``): which parameters the
+measurements determine, and their values with honest standard deviations.
+
+Model. The unknowns of ``ucal.calibration.fit`` (joint offsets, block pose, tool frame, sound
+speed, the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
+of the nearly parallel axes 2 and 3 (``A₂ = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``): a modified DH
+model. Every unknown has the profile's value and tolerance as its prior; the measurements are
+the face measurements of ``ucal.calibration.model`` (normal-incidence postures and water
+paths), taken in many arm configurations (``ucal.calibration.full_plan``).
+
+Identifiability, from the data Jacobian ``J`` (rows in units of their σ, columns per prior σ)
+at the profile's values: the nuisance quantities (block pose, tool frame) and the joint offsets span
+what the cell itself can do; each kinematic parameter is then taken in table order and kept if
+its column adds a direction that span lacks (relative residual of its projection above
+``REDUNDANT_REL``), else it is *not identifiable*: it keeps its nominal value, and the
+parameters it duplicates absorb its effect. Physics says which (``redundancy_reason``):
+
+* ``d₁`` moves the whole arm along axis 1 like the block's height; the base frame is a gauge;
+* ``d₃`` and ``d₂`` both slide along the parallel axes 2 and 3: only their sum is seen (and
+  Hayati's ``β₂`` replaces what a ``d`` would do on that link);
+* link 6 and the tool are one rigid body: the tool frame absorbs ``d₆``, ``a₆``, ``α₆``.
+
+The sound speed is tested last, against everything: the water paths measure lengths in units
+of the sound speed, so a common scale of every length and of ``c`` is invisible to the data.
+It stays an unknown, and the scale comes from the declared tolerances of the DH lengths and
+the thermometer (``scale_note``): this is why a full calibration needs honest length
+tolerances, and why the std of each length carries the scale.
+
+A kinematic parameter that is independent but weakly seen (its data information below its
+prior's) is fitted with its prior and reported as prior-dominated: its value stays within its
+tolerance of the nominal one and its std says so. Joint offsets follow the offsets level:
+unobservable (kept) when their large std comes from a prior (J1 with a hand-placed block, J6
+with the beam on its axis).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import approx_fprime
+from scipy.spatial.transform import Rotation
+
+from ucal.calibration.exact import unobservable_reason
+from ucal.calibration.fit import (
+    BETA,
+    BLOCK,
+    DH,
+    MAX_STD_DEG,
+    OFFSETS,
+    PARAMETERS,
+    SOUND,
+    TOOL,
+    CellFit,
+    CellPrior,
+    ParameterTable,
+    data_residuals,
+    solve_cell,
+)
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.kinematics.dh import RobotModel
+
+#: The unknowns of the full level: the offsets level's and Hayati's twist of axes 2-3.
+FULL_PARAMETERS = PARAMETERS + BETA
+#: The kinematic parameters the full level identifies (besides the joint offsets), table order.
+KINEMATIC = DH + BETA
+#: A kinematic column whose residual after projection on the kept columns is below this share
+#: of its norm duplicates them (redundant or a gauge).
+REDUNDANT_REL = 1e-3
+
+_ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
+
+
+def full_table(prior: CellPrior) -> ParameterTable:
+    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one)."""
+    return ParameterTable(FULL_PARAMETERS, np.append(prior.values(), prior.model.beta_deg[1]),
+                          np.append(prior.stds(), prior.dh_angle_std_deg))
+
+
+def redundancy_reason(name: str, partners: list[str]) -> str:
+    """Why kinematic parameter ``name`` is not identifiable, given what it duplicates."""
+    if name == "dh1_d_mm":
+        return ("moves the whole arm along joint 1's axis, as the block's height does: the base "
+                "frame's height is a gauge")
+    if name in ("dh2_d_mm", "dh3_d_mm"):
+        return ("axes 2 and 3 are parallel: d2 and d3 both slide along them and only their sum "
+                "is seen (Hayati's beta_deg takes the place of a d on that link)")
+    if name.startswith("dh6_"):
+        return ("link 6 and the tool are one rigid body: the tool frame absorbs it "
+                "(tool-frame measures the tool with it)")
+    if name == "dh1_alpha_deg" or name == "dh1_a_mm":
+        return f"the block's pose absorbs it (the base frame is a gauge): same effect as {_join(partners)}"
+    return f"its effect on every measurement equals a combination of {_join(partners)}"
+
+
+def _join(names: list[str]) -> str:
+    return ", ".join(names) if names else "the others"
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What the measurements determine among the kinematic parameters."""
+
+    rank: int                        # numerical rank of the data Jacobian (all unknowns)
+    n_parameters: int                # columns it has (free unknowns)
+    identifiable: tuple[str, ...]    # kinematic parameters the data determine
+    redundant: dict[str, str]        # not identifiable → why (kept at nominal)
+    weak: tuple[str, ...]            # independent, but the prior dominates
+    scale_note: str = ""             # the common scale of lengths and sound speed
+
+
+def data_jacobian(prior: CellPrior, meas: list[FaceMeasurement],
+                  values: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Jacobian of the data residuals (rows per σ) against the unknowns of ``full_table`` that
+    have a tolerance, per prior σ, at ``values`` (default: the profile's); and their names."""
+    table = full_table(prior)
+    free = np.isfinite(table.prior_stds) & (table.prior_stds > 0)
+    table.free = free
+    v0 = table.values if values is None else np.asarray(values, float)
+    c0 = prior.sound_speed_m_s
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        v = v0.copy()
+        v[free] = x
+        return data_residuals(table, v, prior.model, meas, c0).ravel()
+
+    stds = table.prior_stds[free]
+    jac = approx_fprime(v0[free], fun, 1e-3 * stds)
+    return jac * stds, table.free_names
+
+
+def _residual_share(cols: np.ndarray, c: np.ndarray) -> tuple[float, np.ndarray]:
+    """Share of ``c`` outside the span of ``cols`` and its coefficients on them."""
+    norm = float(np.linalg.norm(c))
+    if norm == 0.0:
+        return 0.0, np.zeros(cols.shape[1])
+    if cols.shape[1] == 0:
+        return 1.0, np.zeros(0)
+    coef, *_ = np.linalg.lstsq(cols, c, rcond=None)
+    return float(np.linalg.norm(c - cols @ coef)) / norm, coef
+
+
+def identifiability(js: np.ndarray, names: tuple[str, ...],
+                    redundant_rel: float = REDUNDANT_REL) -> Identifiability:
+    """Classify the kinematic parameters (module docstring) from the data Jacobian ``js``
+    (``data_jacobian``) with columns ``names``."""
+    col = {n: js[:, i] for i, n in enumerate(names)}
+    kept = [n for n in OFFSETS + BLOCK + TOOL if n in col]
+    redundant: dict[str, str] = {}
+    identifiable: list[str] = []
+    weak: list[str] = []
+    for name in KINEMATIC:
+        if name not in col:
+            continue
+        cols = np.column_stack([col[n] for n in kept])
+        share, coef = _residual_share(cols, col[name])
+        if share < redundant_rel:
+            order = np.argsort(-np.abs(coef))
+            partners = [kept[i] for i in order[:2] if abs(coef[i]) > 0.1 * np.abs(coef).max()]
+            redundant[name] = redundancy_reason(name, partners)
+            continue
+        kept.append(name)
+        identifiable.append(name)
+        # information beyond the prior: the column's part the others cannot explain, in σ
+        if share * np.linalg.norm(col[name]) < 1.0:
+            weak.append(name)
+    note = ""
+    if SOUND[0] in col:
+        cols = np.column_stack([col[n] for n in kept])
+        share, _ = _residual_share(cols, col[SOUND[0]])
+        if share < redundant_rel:
+            note = ("the water paths measure lengths in units of the sound speed: a common scale "
+                    "of every length and of the sound speed is not seen, so the scale comes "
+                    "from the DH length tolerance and the thermometer")
+    s = np.linalg.svd(js / np.maximum(np.linalg.norm(js, axis=0), 1e-300), compute_uv=False)
+    rank = int(np.sum(s > redundant_rel * s[0]))
+    return Identifiability(rank, len(names), tuple(identifiable), redundant,
+                           tuple(n for n in identifiable if n in weak), note)
+
+
+@dataclass(frozen=True)
+class FullSolution:
+    """The identified kinematic model with the fit behind it."""
+
+    cell: CellFit
+    ident: Identifiability
+    offsets_deg: np.ndarray                  # kept from the profile where unobservable
+    std_deg: np.ndarray                      # NaN where unobservable
+    unobservable_reasons: dict[int, str]     # 1-based joint → why
+    model: RobotModel                        # the identified DH table (nominal where kept)
+    parameters: dict[str, dict] = field(default_factory=dict)
+
+    @property
+    def unobservable_joints(self) -> tuple[int, ...]:
+        return tuple(sorted(self.unobservable_reasons))
+
+    @property
+    def sound_speed_m_s(self) -> float:
+        return self.cell.value(SOUND[0])
+
+    @property
+    def sound_speed_std_m_s(self) -> float:
+        return self.cell.sigma(SOUND[0])
+
+    def dh_rows(self) -> list[dict[str, float]]:
+        """The identified table as ``[calibration] dh`` rows (SPEC.md), ``beta_deg`` where not 0."""
+        rows = []
+        for i, row in enumerate(self.model.dh):
+            r = {"theta_offset_deg": float(row[0]), "d_mm": round(float(row[1]), 6),
+                 "a_mm": round(float(row[2]), 6), "alpha_deg": round(float(row[3]), 7)}
+            if self.model.beta_deg[i] != 0.0:
+                r["beta_deg"] = round(float(self.model.beta_deg[i]), 7)
+            rows.append(r)
+        return rows
+
+    def to_json(self) -> dict:
+        """The ``identification`` object of ``calibrate --level full --json``."""
+        return {"rank": self.ident.rank, "unknowns": self.ident.n_parameters,
+                "parameters": self.parameters,
+                "not_identifiable": dict(self.ident.redundant),
+                "prior_dominated": list(self.ident.weak),
+                "scale": self.ident.scale_note}
+
+
+def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, ...] = (),
+               max_std_deg: float = MAX_STD_DEG) -> FullSolution:
+    """Identify the kinematic model from ``meas`` (module docstring).
+
+    The identifiability is judged on the data Jacobian at the profile's values (the errors a
+    calibration corrects are far too small to change it); the redundant parameters are held at
+    their nominal values in the fit. ``fixed`` names unknowns held at the profile's values too
+    (e.g. the tool orientation for ``--beam fixed``).
+    """
+    ident = identifiability(*data_jacobian(prior, meas))
+    cell = solve_cell(prior, meas, fixed=fixed + tuple(ident.redundant), max_std_deg=max_std_deg,
+                      table=full_table(prior))
+    offsets = np.array(prior.offsets_deg, float)
+    std = np.full(6, np.nan)
+    reasons: dict[int, str] = {}
+    for j, name in enumerate(OFFSETS):
+        sigma = cell.sigma(name)
+        shares = cell.variance_share.get(name, {"data": 0.0, name: 1.0})
+        if not np.isfinite(sigma) or (sigma > max_std_deg and shares["data"] < 0.5):
+            reasons[j + 1] = unobservable_reason(j + 1, sigma, shares)
+            continue
+        offsets[j] = cell.value(name)
+        std[j] = sigma
+    dh = prior.model.dh.copy()
+    beta = prior.model.beta_deg.copy()
+    params: dict[str, dict] = {}
+    for name in KINEMATIC:
+        i = cell.table.index(name)
+        nominal = float(cell.table.prior[i])
+        if name in ident.redundant:
+            params[name] = {"value": nominal, "std": None, "nominal": nominal,
+                            "status": "not identifiable"}
+            continue
+        value = cell.value(name)
+        params[name] = {"value": value, "std": cell.sigma(name), "nominal": nominal,
+                        "status": "prior-dominated" if name in ident.weak else "identified"}
+        if name in BETA:
+            beta[1] = value
+        else:
+            row, key = int(name[2]) - 1, name.split("_", 1)[1]
+            dh[row, 1 + _ROW_KEYS.index(key)] = value
+    model = prior.model.with_dh(dh, beta)
+    model.meta["dh_source"] = "calibrate --level full"
+    return FullSolution(cell, ident, offsets, std, reasons, model, params)
+
+
+def ideal_measurements(geom: CellGeometry, corner_mm: np.ndarray, postures: list[tuple],
+                       offsets_deg: np.ndarray, distance_std_mm: float = 1e-3,
+                       tilt_std_deg: float = 1e-3, path_scale: float = 1.0
+                       ) -> list[FaceMeasurement]:
+    """Measurements of a cell ``geom`` (block corner ``corner_mm``) at normal-incidence
+    ``postures`` ``(config label, face, joints (6,))``: the water path along the face normal,
+    times ``path_scale`` (the ratio of the assumed to the true sound speed)."""
+    out = []
+    for label, face, q in postures:
+        _, tcp = beam_and_tcp(geom, np.asarray(q, float), offsets_deg)
+        d = float(geom.normal(face) @ (tcp - np.asarray(corner_mm, float)))
+        out.append(FaceMeasurement(label, face, np.asarray(q, float), d * path_scale,
+                                   distance_std_mm, tilt_std_deg))
+    return out
+
+
+#: The scanning region around a calibration pose (deg, ±): the arm ±20°, the wrist ±90/30/90°.
+SCAN_HALF_RANGE_DEG = np.array([20.0, 20.0, 20.0, 90.0, 30.0, 90.0])
+
+
+def scanning_postures(pose_deg: np.ndarray, n: int, seed: int = 0,
+                      model: RobotModel | None = None) -> np.ndarray:
+    """``n`` joint readings (n, 6) drawn uniformly in the scanning region about ``pose_deg``
+    (``SCAN_HALF_RANGE_DEG``), inside ``model``'s joint ranges if given."""
+    rng = np.random.default_rng(seed)
+    q = np.asarray(pose_deg, float) + rng.uniform(-1.0, 1.0, (n, 6)) * SCAN_HALF_RANGE_DEG
+    if model is not None:
+        q = np.clip(q, model.joint_min_deg, model.joint_max_deg)
+    return q
+
+
+def aligned_errors_mm(points_mm: np.ndarray, truth_mm: np.ndarray) -> np.ndarray:
+    """Distances (n,) between ``points_mm`` and ``truth_mm`` (n, 3) after the rigid motion that
+    best aligns them (least squares; the base frame is a gauge the measurements cannot fix)."""
+    p = np.asarray(points_mm, float)
+    t = np.asarray(truth_mm, float)
+    pc, tc = p.mean(0), t.mean(0)
+    rot, _ = Rotation.align_vectors(t - tc, p - pc)
+    return np.linalg.norm(rot.apply(p - pc) + tc - t, axis=1)

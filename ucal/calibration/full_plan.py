@@ -1,0 +1,248 @@
+"""Postures for ``calibrate --level full``: candidates spread over what the block allows, chosen by
+D-optimality.
+
+Candidates. For each block face, beam normal to it (tool z = −n), the beam meeting the face on
+a grid of points inside its edges (``EDGE_MARGIN_MM``), at water paths across
+``STEPPED_PATH_RANGE_MM``, turned about the beam by several angles; every in-range branch of the
+inverse kinematics (shoulder, elbow, wrist flip) of each such tool pose is a candidate. So the
+candidates differ in J1 azimuth (where on a face), in J2/J3 (water path, height, elbow
+branch) and in the wrist (turn about the beam, flip). Each passes the checks of the offsets
+level before it is considered: joint ranges with room for the wrist search, the θ5 singularity
+margin, the beam inside the face, and a tool that keeps ``CLEARANCE_MM`` from every face's
+plane where the face is (no collision with the block).
+
+Criterion. A candidate contributes three rows to the data Jacobian ``J`` (two tilts and the
+water path, each in units of its σ; columns per prior σ, ``ucal.calibration.full``). The
+information of a plan is ``M = I + Σ JᵢᵀJᵢ`` (the identity: the priors); the D-criterion is
+``log det M`` over the unknowns, and its value per unknown, ``D = log det M / (2n)``, is the
+mean log of how many times the plan shrinks the prior's σ (geometric mean). Selection is
+greedy (Fedorov's exchange without the exchange): the candidate that raises ``log det M`` most,
+``log det(I₃ + Jᵢ M⁻¹ Jᵢᵀ)`` (matrix determinant lemma), is added until the next one adds less
+than ``MIN_GAIN`` (then more postures buy little: fewer moves for the same criterion).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ucal.calibration.fit import CellPrior, prior_from_profile
+from ucal.calibration.full import data_jacobian, ideal_measurements
+from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.safety import check_joints
+from ucal.calibration.sequence import (
+    EDGE_MARGIN_MM,
+    STEPPED_PATH_RANGE_MM,
+    calibration_pose,
+    geometry,
+)
+from ucal.cell import CellProfile
+from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik_solutions
+
+log = logging.getLogger(__name__)
+
+#: Grid of beam hit points across a face (per in-plane axis), water paths (mm), turns about the
+#: beam (deg) of the candidates.
+HIT_GRID = 4
+WATER_PATHS_MM = (60.0, 100.0, 140.0)
+TURNS_DEG = (-90.0, 0.0, 90.0, 180.0)
+#: Least distance (mm) of the tool centre and the flange from the plane of a face they are over.
+CLEARANCE_MM = 30.0
+#: Candidates keep joint 1 within this of the calibration pose's (the shoulder branch the
+#: block is set up for; the other would swing the arm over the robot's base).
+SHOULDER_SPAN_DEG = 60.0
+#: Selection stops when the next posture would raise log det M by less than this: it would
+#: shrink the volume of the uncertainty ellipsoid by less than a factor e (the knee: beyond it
+#: more postures mostly average noise).
+MIN_GAIN = 1.0
+#: At most this many postures (each is a face search: ~23 moves on a cell).
+MAX_POSTURES = 60
+#: σ assumed for planning: posture (deg) and water path (mm) of one measurement.
+PLAN_TILT_STD_DEG = 1e-3
+PLAN_DISTANCE_STD_MM = 1e-3
+
+
+@dataclass(frozen=True)
+class Posture:
+    """One planned normal-incidence posture."""
+
+    label: str
+    face: int
+    joints_deg: np.ndarray
+    water_path_mm: float
+
+    @property
+    def face_name(self) -> str:
+        return FACE_NAMES[self.face]
+
+
+@dataclass(frozen=True)
+class FullPlan:
+    """The chosen postures, in execution order, and what the criterion says of them."""
+
+    postures: tuple[Posture, ...]
+    candidates: int
+    d_criterion: float          # log det M / (2n): mean log-shrink of the prior σ
+    log_det: float
+    azimuths_deg: tuple[float, float]   # J1 range covered
+
+    def describe(self) -> str:
+        lo, hi = self.azimuths_deg
+        return (f"{len(self.postures)} postures chosen from {self.candidates} candidates by "
+                f"D-optimality: log det M = {self.log_det:.1f}, D = {self.d_criterion:.3f} "
+                f"(prior σ shrunk {np.exp(self.d_criterion):.1f}× on geometric mean); J1 from "
+                f"{lo:.1f} to {hi:.1f} deg")
+
+
+def _target_pose(s_rot: np.ndarray, corner: np.ndarray, face: int, u: float, v: float,
+                 path: float, turn_deg: float) -> np.ndarray:
+    """Tool pose with the beam normal to ``face`` hitting it at in-plane (u, v), ``path`` away."""
+    others = [i for i in range(3) if i != face]
+    n = s_rot[:, face]
+    hit = corner + u * s_rot[:, others[0]] + v * s_rot[:, others[1]]
+    z = -n
+    x0 = s_rot[:, others[0]]
+    t = np.radians(turn_deg)
+    x = np.cos(t) * x0 + np.sin(t) * np.cross(z, x0)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    pose[:3, 3] = hit + path * n
+    return pose
+
+
+def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Which postures (n, 6) keep the arm ``CLEARANCE_MM`` from the block and its table, with
+    the beam meeting its face (n,) inside the edges.
+
+    Checked points (block frame): the origins of frames 2-6, the midpoints of the links between
+    them and the tool centre. None may be below the XY face's plane plus the clearance (the
+    block stands on a table that extends beyond it), and none may be within the clearance of a
+    wall (YZ, XZ face) it is over.
+    """
+    s = profile.sample_matrix
+    frames = fk_frames(profile.model, q, profile.joint_offsets_deg)
+    tcp = frames[:, 6] @ profile.tool_matrix
+    size = profile.sample_face_size_mm
+    origins = np.concatenate([frames[:, 2:7, :3, 3], tcp[:, None, :3, 3]], 1)   # (n, 6, 3)
+    points = np.concatenate([origins, 0.5 * (origins[:, 1:] + origins[:, :-1])], 1)
+    local = (points - s[:3, 3]) @ s[:3, :3]
+    ok = np.all(local[..., 2] >= CLEARANCE_MM, 1)
+    for k in (0, 1):
+        others = [i for i in range(3) if i != k]
+        over = np.all((local[..., others] >= -CLEARANCE_MM)
+                      & (local[..., others] <= size + CLEARANCE_MM), -1)
+        ok &= ~np.any(over & (local[..., k] < CLEARANCE_MM), 1)
+    here = local[:, 5]
+    beam = tcp[:, :3, 2] @ s[:3, :3]
+    hit = here + here[np.arange(len(q)), faces][:, None] * beam
+    inside = (hit >= EDGE_MARGIN_MM) & (hit <= size - EDGE_MARGIN_MM)
+    inside[np.arange(len(q)), faces] = True
+    return ok & np.all(inside, 1)
+
+
+def candidate_postures(profile: CellProfile) -> list[Posture]:
+    """Every checked candidate (module docstring), labelled ``c<n>``."""
+    s = profile.sample_matrix
+    size = profile.sample_face_size_mm
+    grid = np.linspace(EDGE_MARGIN_MM + 30.0, size - EDGE_MARGIN_MM - 30.0, HIT_GRID)
+    lo, hi = STEPPED_PATH_RANGE_MM
+    paths = [p for p in WATER_PATHS_MM if lo <= p <= hi]
+    poses, keys = [], []
+    for face in range(3):
+        for u in grid:
+            for v in grid:
+                for path in paths:
+                    for turn in TURNS_DEG:
+                        poses.append(_target_pose(s[:3, :3], s[:3, 3], face, u, v, path, turn))
+                        keys.append((face, path))
+    near = calibration_pose(profile)
+    sols, ok, _ = ik_solutions(profile.model, np.array(poses), profile.tool_matrix,
+                               profile.joint_offsets_deg, near_deg=near)
+    # the other shoulder would swing the arm over the robot's base
+    ok &= np.abs(sols[..., 0] - near[0]) <= SHOULDER_SPAN_DEG
+    pose_i, branch = np.nonzero(ok)
+    q = sols[pose_i, branch]
+    faces = np.array([keys[i][0] for i in pose_i], int)
+    passed = _clear(profile, q, faces)
+    out: list[Posture] = []
+    for i in np.flatnonzero(passed):
+        try:
+            check_joints(profile, q[i], "candidate")
+        except SafetyError:
+            continue
+        out.append(Posture(f"c{len(out)}", int(faces[i]), q[i].copy(), keys[pose_i[i]][1]))
+    return out
+
+
+def posture_jacobians(prior: CellPrior, profile: CellProfile, postures: list[Posture]
+                      ) -> np.ndarray:
+    """Data Jacobian of each posture (n, 3, p): its three rows (tilts, water path, per σ)
+    against the unknowns of ``full_table`` (per prior σ), at the profile's values."""
+    meas = ideal_measurements(geometry(profile), profile.sample_position_mm,
+                              [(p.label, p.face, p.joints_deg) for p in postures],
+                              profile.joint_offsets_deg, PLAN_DISTANCE_STD_MM,
+                              PLAN_TILT_STD_DEG)
+    jac, _ = data_jacobian(prior, meas)
+    return jac.reshape(len(postures), 3, -1)
+
+
+def select_postures(jacs: np.ndarray, min_gain: float = MIN_GAIN,
+                    max_postures: int = MAX_POSTURES) -> tuple[list[int], float]:
+    """Greedy D-optimal choice (module docstring): indices in the order chosen, log det M."""
+    p = jacs.shape[-1]
+    m_inv = np.eye(p)
+    log_det = 0.0
+    chosen: list[int] = []
+    available = np.ones(len(jacs), bool)
+    while len(chosen) < max_postures and available.any():
+        # gain of each candidate: log det(I3 + J M⁻¹ Jᵀ)
+        s = (jacs @ m_inv) @ jacs.transpose(0, 2, 1) + np.eye(3)
+        gain = np.where(available, np.linalg.slogdet(s)[1], -np.inf)
+        best = int(np.argmax(gain))
+        if gain[best] < min_gain:
+            break
+        j = jacs[best]
+        # Woodbury: (M + JᵀJ)⁻¹ = M⁻¹ − M⁻¹Jᵀ (I + J M⁻¹ Jᵀ)⁻¹ J M⁻¹
+        mj = m_inv @ j.T
+        m_inv = m_inv - mj @ np.linalg.solve(s[best], mj.T)
+        log_det += float(gain[best])
+        chosen.append(best)
+        available[best] = False
+    return chosen, log_det
+
+
+def order_postures(postures: list[Posture]) -> list[Posture]:
+    """Visit order: nearest next in J1, then the other joints (fewer, shorter moves)."""
+    if not postures:
+        return []
+    left = list(postures)
+    left.sort(key=lambda p: p.joints_deg[0])
+    out = [left.pop(0)]
+    weights = np.array([3.0, 2.0, 2.0, 1.0, 1.0, 0.5])
+    while left:
+        here = out[-1].joints_deg
+        i = int(np.argmin([np.sum(weights * np.abs(p.joints_deg - here)) for p in left]))
+        out.append(left.pop(i))
+    return out
+
+
+def plan_full(profile: CellProfile, min_gain: float = MIN_GAIN,
+              max_postures: int = MAX_POSTURES) -> FullPlan:
+    """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
+    cands = candidate_postures(profile)
+    if not cands:
+        raise SafetyError("plan --level full: no posture normal to a block face passes the "
+                          "checks (joint ranges, singularity margin, clearance, face edges)")
+    prior = prior_from_profile(profile)
+    jacs = posture_jacobians(prior, profile, cands)
+    idx, log_det = select_postures(jacs, min_gain, max_postures)
+    chosen = order_postures([cands[i] for i in idx])
+    chosen = [Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
+              for i, p in enumerate(chosen)]
+    j1 = [p.joints_deg[0] for p in chosen]
+    return FullPlan(tuple(chosen), len(cands), log_det / (2 * jacs.shape[-1]), log_det,
+                    (float(min(j1)), float(max(j1))))
