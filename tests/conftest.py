@@ -6,6 +6,8 @@ Hardware tests run only when the cell's addresses are given, e.g.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 
 
@@ -28,3 +30,20 @@ def pulser_url(request: pytest.FixtureRequest) -> str:
     if not url:
         pytest.skip("hardware test: give --pulser-url")
     return url
+
+
+@pytest.fixture
+def run_main(capsys: pytest.CaptureFixture[str]) -> Callable[[list[str]], tuple[int, str, str]]:
+    """Run ``ucal ARGS`` in this process: ``(exit code, stdout, stderr)``."""
+    from ucal.cli import main
+
+    def run(args: list[str]) -> tuple[int, str, str]:
+        try:
+            main(args)
+            code = 0
+        except SystemExit as e:
+            code = 0 if e.code is None else int(e.code)
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run

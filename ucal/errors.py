@@ -49,6 +49,14 @@ class HardwareError(UcalError):
 
 
 class OutOfToleranceError(UcalError):
-    """The run finished but its result is outside tolerance."""
+    """The run finished but its result is outside tolerance.
+
+    ``result`` is the run's result object: with ``--json`` the CLI prints it with the error
+    fields added (SPEC.md: exit 1 is a result).
+    """
 
     exit_code = EXIT_OUT_OF_TOLERANCE
+
+    def __init__(self, message: str, result: dict | None = None):
+        super().__init__(message)
+        self.result = result

@@ -82,7 +82,8 @@ def test_ik_unreachable_exit_4(profile_path: Path) -> None:
     r = ucal("ik", str(profile_path), "--pose", "5000,0,0,0,0,0", "--json")
     assert r.returncode == 4
     assert "unreachable" in r.stderr and "Traceback" not in r.stderr
-    assert r.stdout == ""
+    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
+                                    "exit_code": 4}
 
 
 def test_ik_bad_pose_exit_2(profile_path: Path) -> None:

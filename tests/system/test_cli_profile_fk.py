@@ -108,7 +108,9 @@ def test_fk_bad_joints_exit_2(joints: str, tmp_path: Path) -> None:
     r = ucal("fk", str(path), "--joints", joints, "--json")
     assert r.returncode == 2
     assert "--joints" in r.stderr and "Traceback" not in r.stderr
-    assert r.stdout == ""
+    out = json.loads(r.stdout)  # the SPEC error object, nothing else
+    assert set(out) == {"error", "exit_code"} and out["exit_code"] == 2
+    assert "--joints" in out["error"] and out["error"] in r.stderr
 
 
 def test_fk_missing_profile_exit_2(tmp_path: Path) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -11,11 +11,12 @@ import pytest
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 from drivers.pulser.simulator import DEVICE_INFO
-from ucal.cli import main
 from ucal.profile import default_profile_text, load_profile
 from ucal.sim.serve import SimulatedCellServer
 
 pytestmark = pytest.mark.system
+
+RunMain = Callable[[list[str]], tuple[int, str, str]]
 
 
 @pytest.fixture(scope="module")
@@ -26,18 +27,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedCellSe
         yield cell
 
 
-def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    try:
-        main(args)
-        code = 0
-    except SystemExit as e:
-        code = 0 if e.code is None else int(e.code)
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
 def test_json_reports_joints_controller_and_pulser_and_moves_nothing(
-        server: SimulatedCellServer, capsys: pytest.CaptureFixture[str]) -> None:
+        server: SimulatedCellServer, run_main: RunMain) -> None:
     urls = server.urls
     wanted = PulserSettings(gain_db=33.0, pulse_voltage_v=200.0, low_pass_mhz=40.0)
     with ModbusPulser.from_url(urls["pulser"]) as pulser:
@@ -45,8 +36,8 @@ def test_json_reports_joints_controller_and_pulser_and_moves_nothing(
     moves, stops, motions = (server.controller.moves_executed,
                              server.controller.stops_received, server.motions)
 
-    code, out, err = _run(["status", "--controller", urls["controller"], "--pulser",
-                           urls["pulser"], "--json"], capsys)
+    code, out, err = run_main(["status", "--controller", urls["controller"], "--pulser",
+                           urls["pulser"], "--json"])
 
     assert code == 0, err
     result = json.loads(out)
@@ -73,10 +64,10 @@ def test_json_reports_joints_controller_and_pulser_and_moves_nothing(
 
 def test_urls_from_the_environment_and_human_output(
         server: SimulatedCellServer, monkeypatch: pytest.MonkeyPatch,
-        capsys: pytest.CaptureFixture[str]) -> None:
+        run_main: RunMain) -> None:
     monkeypatch.setenv("UCAL_CONTROLLER", server.urls["controller"])
     monkeypatch.setenv("UCAL_PULSER", server.urls["pulser"])
-    code, out, err = _run(["status"], capsys)
+    code, out, err = run_main(["status"])
     assert code == 0, err
     for text in (server.urls["controller"], "powered", "released", "at rest", "auto",
                  DEVICE_INFO.model, "pulse_voltage_v", "damping_ohm"):
@@ -84,17 +75,17 @@ def test_urls_from_the_environment_and_human_output(
 
 
 def test_without_a_pulser_the_pulser_is_null(server: SimulatedCellServer,
-                                             capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = _run(["status", "--controller", server.urls["controller"], "--json"], capsys)
+                                             run_main: RunMain) -> None:
+    code, out, _ = run_main(["status", "--controller", server.urls["controller"], "--json"])
     assert code == 0
     assert json.loads(out)["pulser"] is None
 
 
 def test_an_engaged_emergency_stop_is_shown_not_a_failure(
-        server: SimulatedCellServer, capsys: pytest.CaptureFixture[str]) -> None:
+        server: SimulatedCellServer, run_main: RunMain) -> None:
     server.controller.set_fault(e_stopped=True)
     try:
-        code, out, _ = _run(["status", "--controller", server.urls["controller"]], capsys)
+        code, out, _ = run_main(["status", "--controller", server.urls["controller"]])
     finally:
         server.controller.set_fault(e_stopped=False)
     assert code == 0
@@ -102,10 +93,10 @@ def test_an_engaged_emergency_stop_is_shown_not_a_failure(
 
 
 def test_unreachable_pulser_is_exit_3_naming_it(server: SimulatedCellServer, tmp_path: Path,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
+                                                run_main: RunMain) -> None:
     dead = "modbus-tcp://127.0.0.1:1?unit=1"
-    code, out, err = _run(["status", "--controller", server.urls["controller"], "--pulser",
-                           dead, "--json"], capsys)
+    code, out, err = run_main(["status", "--controller", server.urls["controller"], "--pulser",
+                           dead, "--json"])
     assert code == 3
     assert json.loads(out) == {"error": json.loads(out)["error"], "exit_code": 3}
     assert json.loads(out)["error"].startswith(f"pulser at {dead}: ")
@@ -113,11 +104,11 @@ def test_unreachable_pulser_is_exit_3_naming_it(server: SimulatedCellServer, tmp
 
 
 def test_silent_pulser_is_exit_3_naming_it(server: SimulatedCellServer,
-                                           capsys: pytest.CaptureFixture[str]) -> None:
+                                           run_main: RunMain) -> None:
     server.pulser.set_silent(True)
     try:
-        code, _, err = _run(["status", "--controller", server.urls["controller"], "--pulser",
-                             server.urls["pulser"]], capsys)
+        code, _, err = run_main(["status", "--controller", server.urls["controller"], "--pulser",
+                             server.urls["pulser"]])
     finally:
         server.pulser.set_silent(False)
     assert code == 3
@@ -125,9 +116,8 @@ def test_silent_pulser_is_exit_3_naming_it(server: SimulatedCellServer,
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
-def test_unreachable_controller_is_exit_3_naming_it(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _err = _run(["status", "--controller", "tcp://127.0.0.1:1?state=2", "--json"],
-                          capsys)
+def test_unreachable_controller_is_exit_3_naming_it(run_main: RunMain) -> None:
+    code, out, _ = run_main(["status", "--controller", "tcp://127.0.0.1:1?state=2", "--json"])
     assert code == 3
     assert json.loads(out)["error"].startswith("controller at tcp://127.0.0.1:1?state=2: ")
     assert json.loads(out)["exit_code"] == 3
@@ -142,10 +132,10 @@ def test_unreachable_controller_is_exit_3_naming_it(capsys: pytest.CaptureFixtur
 )
 def test_missing_or_malformed_urls_are_exit_2(args: list[str], message: str,
                                               monkeypatch: pytest.MonkeyPatch,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+                                              run_main: RunMain) -> None:
     monkeypatch.delenv("UCAL_CONTROLLER", raising=False)
     monkeypatch.delenv("UCAL_PULSER", raising=False)
-    code, out, err = _run(["status", *args, "--json"], capsys)
+    code, out, err = run_main(["status", *args, "--json"])
     assert code == 2
     assert message in json.loads(out)["error"] and json.loads(out)["exit_code"] == 2
     assert "Traceback" not in err

@@ -135,7 +135,9 @@ def test_bad_plate_points_exit_2(profile: Path, points: str, words: str) -> None
     r = ucal("tool-frame", str(profile), "--sim", "--yes", "--json")
     assert r.returncode == 2
     assert "reflector.points_mm" in r.stderr and words in r.stderr, r.stderr
-    assert "Traceback" not in r.stderr and r.stdout == ""
+    assert "Traceback" not in r.stderr
+    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
+                                    "exit_code": 2}
     assert profile.read_bytes() == before
 
 

@@ -125,7 +125,9 @@ def test_unreachable_points_refused_without_motion(tmp_path: Path) -> None:
                   "test")
     r = run_ucal("verify", str(profile), "--sim", "--points", "4", "--yes", "--json")
     assert r.returncode == 4, r.stderr
-    assert "plan" in r.stderr and r.stdout == ""
+    assert "plan" in r.stderr
+    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
+                                    "exit_code": 4}
     assert not (tmp_path / "cell.verify.png").exists()
 
 

@@ -1,17 +1,18 @@
 """The ``ucal`` command line: a thin click group; one module per command exposing ``cli``.
 
 Commands parse, build objects and call the domain layer. Errors become one line on stderr and
-the exit code of SPEC.md; a traceback only with ``--debug``.
+the exit code of SPEC.md (with ``--json`` also the error object on stdout); a traceback only
+with ``--debug``. ``-v``, ``-q`` and ``--debug`` are accepted before or after the subcommand.
 """
 
 from __future__ import annotations
 
 import importlib
-import logging
 import sys
 
 import click
 
+from ucal.cli.options import add_common_options, common_options, emit_json
 from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
 
 #: command name → module under ``ucal.cli`` exposing ``cli``
@@ -38,15 +39,14 @@ class LazyGroup(click.Group):
         module = COMMANDS.get(name)
         if module is None:
             return None
-        return importlib.import_module(f"ucal.cli.{module}").cli
+        command: click.Command = importlib.import_module(f"ucal.cli.{module}").cli
+        return add_common_options(command)
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("--debug", is_flag=True, help="Show tracebacks and debug logging.")
-@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@common_options
 @click.version_option(package_name="ucal")
-@click.pass_context
-def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
+def cli() -> None:
     """Calibrate a Staubli-class robot with the ultrasonic transducer it carries.
 
     \b
@@ -55,18 +55,20 @@ def cli(ctx: click.Context, debug: bool, verbose: int) -> None:
       ucal calibrate cell.toml --sim --yes
       ucal ik cell.toml --pose 600,300,100,180,0,0 --all --json
     """
-    ctx.ensure_object(dict)
-    ctx.obj["debug"] = debug
-    level = logging.DEBUG if (debug or verbose > 1) else logging.INFO if verbose else logging.WARNING
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    # pymodbus logs its own retries and timeouts; ucal reports faults itself, in one line.
-    logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
-def _fail(message: str, code: int) -> None:
+def _report(message: str, code: int, as_json: bool, result: dict | None = None) -> None:
+    """The one-line error on stderr; with ``--json`` the SPEC error object on stdout too (the
+    full result plus the error fields when the run finished out of tolerance)."""
     click.echo(f"error: {message}", err=True)
-    sys.exit(code)
+    if as_json:
+        emit_json({**(result or {}), "error": message, "exit_code": code})
+
+
+def _wants_json(args: list[str]) -> bool:
+    """Whether ``--json`` is among the options (not after ``--``)."""
+    options = args[:args.index("--")] if "--" in args else args
+    return "--json" in options
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -88,37 +90,41 @@ def _interruptible() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``ucal`` console script."""
-    from drivers.errors import DriverError, MotionRejected
-
     _interruptible()
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
+    as_json = _wants_json(args)
     try:
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
     except click.exceptions.Abort:
-        _fail("interrupted; any motion was stopped", EXIT_INTERRUPTED)
+        _report("interrupted; any motion was stopped", EXIT_INTERRUPTED, as_json)
+        sys.exit(EXIT_INTERRUPTED)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)
     except click.ClickException as e:
         e.show()
-        sys.exit(EXIT_USAGE if e.exit_code in (1, 2) else e.exit_code)
-    except KeyboardInterrupt:
+        code = EXIT_USAGE if e.exit_code in (1, 2) else e.exit_code
+        if as_json:
+            emit_json({"error": e.format_message(), "exit_code": code})
+        sys.exit(code)
+    except (KeyboardInterrupt, Exception) as e:
+        message, code = _classify(e)
+        _report(message, code, as_json, getattr(e, "result", None))
         if debug:
             raise
-        _fail("interrupted; the robot was told to stop", EXIT_INTERRUPTED)
-    except UcalError as e:
-        if debug:
-            raise
-        _fail(str(e), e.exit_code)
-    except MotionRejected as e:  # the controller refused a target: a safety refusal
-        if debug:
-            raise
-        _fail(str(e), EXIT_SAFETY)
-    except DriverError as e:
-        if debug:
-            raise
-        _fail(str(e), EXIT_HARDWARE)
-    except Exception as e:
-        if debug:
-            raise
-        _fail(f"internal error: {type(e).__name__}: {e} (run with --debug for details)", 1)
+        sys.exit(code)
+
+
+def _classify(e: BaseException) -> tuple[str, int]:
+    """The one-line message and the SPEC exit code of an error that ended a command."""
+    from drivers.errors import DriverError, MotionRejected
+
+    if isinstance(e, KeyboardInterrupt):
+        return "interrupted; the robot was told to stop", EXIT_INTERRUPTED
+    if isinstance(e, UcalError):
+        return str(e), e.exit_code
+    if isinstance(e, MotionRejected):  # the controller refused a target: a safety refusal
+        return str(e), EXIT_SAFETY
+    if isinstance(e, DriverError):
+        return str(e), EXIT_HARDWARE
+    return f"internal error: {type(e).__name__}: {e} (run with --debug for details)", 1

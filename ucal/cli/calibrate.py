@@ -18,10 +18,14 @@ if TYPE_CHECKING:
     from ucal.calibration.exact import OffsetSolution
     from ucal.calibration.fit import FitQuality
 from ucal.cli.options import (
+    CellChoice,
+    cell_from_options,
+    cell_options_typed,
     confirm_motion,
     controller_option,
     dry_run_option,
     emit_json,
+    info,
     json_option,
     pulser_option,
     sim_option,
@@ -86,15 +90,15 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     )
 
     if replay_path is not None:
-        if sim_world is not None or controller_url or pulser_url or record_path is not None:
+        if cell_options_typed(click.get_current_context()) or record_path is not None:
             from ucal.errors import InputError
 
             raise InputError("--replay solves a recorded run: it takes no --sim, --controller, "
                              "--pulser or --record")
         finish(replay(profile_path, replay_path, method, beam, as_json), as_json)
         return
-    if dry_run and sim_world is None:
-        sim_world = ""  # --dry-run runs against the simulator
+    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
+    sim_world, controller_url, pulser_url = cell.sim_world, cell.controller_url, cell.pulser_url
     created = False
     if not profile_path.exists() and sim_world is not None:
         if dry_run:
@@ -104,7 +108,7 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         else:
             create_profile(profile_path, DEFAULT_MODEL)
             created = True
-            click.echo(f"created {profile_path} for the default model {DEFAULT_MODEL}", err=True)
+            info(f"created {profile_path} for the default model {DEFAULT_MODEL}")
             profile = load_profile(profile_path)
     else:
         profile = load_profile(profile_path)
@@ -119,19 +123,15 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
 
 
 def finish(result: dict, as_json: bool) -> None:
-    """Print the JSON result (with the error fields when out of tolerance); exit 1 then."""
+    """Print the JSON result; out of tolerance, exit 1 (with ``--json`` the CLI prints the
+    result with the error fields)."""
     message = result.pop("_message", None)
-    if result["out_of_tolerance"]:
-        from ucal.errors import EXIT_OUT_OF_TOLERANCE
-
-        result["error"] = message
-        result["exit_code"] = EXIT_OUT_OF_TOLERANCE
-    if as_json:
-        emit_json(result)
     if result["out_of_tolerance"]:
         from ucal.errors import OutOfToleranceError
 
-        raise OutOfToleranceError(message)
+        raise OutOfToleranceError(message, result)
+    if as_json:
+        emit_json(result)
 
 
 def replay(profile_path: Path, record_path: Path, method: str, beam: str, as_json: bool) -> dict:
@@ -170,7 +170,8 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
     plan = plan_calibration(profile)
     recorder = None
     if record is None:
-        confirm_motion(yes, plan_summary(plan, profile))
+        confirm_motion(yes, plan_summary(plan, profile),
+                       CellChoice(sim_world, controller_url, pulser_url))
     if record_path is not None:
         text = profile.path.read_text(encoding="utf-8")
         recorder = Recorder(record_path).open({

@@ -1,12 +1,107 @@
-"""Options shared by several commands, defined once."""
+"""Options shared by several commands, defined once, and what they mean together.
+
+``-v``/``-q``/``--debug`` are added to every command (``add_common_options``), so they work
+before or after the subcommand. The cell a moving command talks to comes from ``--sim`` or
+``--controller``/``--pulser``, or from the environment (``UCAL_SIM``, ``UCAL_CONTROLLER``,
+``UCAL_PULSER``); options typed on the command line win over the environment
+(``cell_from_options``).
+"""
 
 from __future__ import annotations
 
 import json
-from typing import Any
+import logging
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import click
 import numpy as np
+from click.core import ParameterSource
+
+from ucal.errors import InputError
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: Environment variables naming the cell (SPEC.md); options win over them.
+ENV_SIM = "UCAL_SIM"
+ENV_CONTROLLER = "UCAL_CONTROLLER"
+ENV_PULSER = "UCAL_PULSER"
+#: ``UCAL_SIM`` values meaning "the simulated cell with the demo truth" / "no simulated cell".
+SIM_ENV_ON = frozenset({"1", "yes", "true", "on"})
+SIM_ENV_OFF = frozenset({"", "0", "no", "false", "off"})
+
+
+def _settings(ctx: click.Context) -> dict[str, Any]:
+    root = ctx.find_root()
+    root.ensure_object(dict)
+    settings: dict[str, Any] = root.obj
+    return settings
+
+
+def _count(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+    """Add ``-v``/``-q``/``--debug`` wherever they are typed, then set the log level."""
+    if not value:
+        return
+    settings = _settings(ctx)
+    settings[param.name or ""] = settings.get(param.name or "", 0) + int(value)
+    configure_logging(settings)
+
+
+def configure_logging(settings: dict[str, Any]) -> None:
+    """Log to stderr: warnings by default, ``-v`` info, ``-vv``/``--debug`` debug, ``-q``
+    errors only."""
+    debug = bool(settings.get("debug"))
+    level = settings.get("verbose", 0) - settings.get("quiet", 0)
+    logging.basicConfig(stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(
+        logging.DEBUG if debug or level > 1 else logging.INFO if level == 1
+        else logging.WARNING if level == 0 else logging.ERROR)
+    # pymodbus logs its own retries and timeouts; ucal reports faults itself, in one line.
+    logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
+
+
+COMMON_OPTIONS = (
+    click.Option(["--debug"], is_flag=True, expose_value=False, callback=_count,
+                 help="Show tracebacks and debug logging."),
+    click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_count,
+                 help="More log output (-v info, -vv debug)."),
+    click.Option(["-q", "--quiet"], count=True, expose_value=False, callback=_count,
+                 help="No progress or informational messages on stderr (errors and "
+                      "warnings still print)."),
+)
+
+
+def common_options(f: F) -> F:
+    """Decorator: ``--debug``, ``-v``, ``-q`` on a command."""
+    params = getattr(f, "__click_params__", [])
+    f.__click_params__ = params + list(COMMON_OPTIONS)  # type: ignore[attr-defined]
+    return f
+
+
+def add_common_options(command: click.Command) -> click.Command:
+    """Give ``command`` and every command under it ``--debug``, ``-v`` and ``-q``."""
+    names = {n for p in command.params for n in p.opts}
+    command.params.extend(o for o in COMMON_OPTIONS if not names.intersection(o.opts))
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            add_common_options(sub)
+    return command
+
+
+def quiet() -> bool:
+    """Whether ``-q`` was given (anywhere on the command line)."""
+    ctx = click.get_current_context(silent=True)
+    return ctx is not None and _settings(ctx).get("quiet", 0) > 0
+
+
+def info(message: str) -> None:
+    """An informational line on stderr, unless ``-q``."""
+    if not quiet():
+        click.echo(message, err=True)
+
 
 json_option = click.option("--json", "as_json", is_flag=True,
                            help="Print one JSON object on stdout and nothing else.")
@@ -15,15 +110,127 @@ yes_option = click.option("--yes", "-y", is_flag=True,
                                "(required when stdin is not a terminal).")
 dry_run_option = click.option("--dry-run", is_flag=True,
                               help="Run against the simulator and write nothing.")
+
+
+def _sim_from_env(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """``UCAL_SIM=1`` is ``--sim`` (demo truth), ``UCAL_SIM=WORLD`` is ``--sim WORLD``."""
+    if ctx.get_parameter_source(param.name or "") != ParameterSource.ENVIRONMENT:
+        return value
+    text = (value or "").strip()
+    if text.lower() in SIM_ENV_OFF:
+        return None
+    return "" if text.lower() in SIM_ENV_ON else text
+
+
 sim_option = click.option(
     "--sim", "sim_world", is_flag=False, flag_value="", default=None, metavar="[WORLD]",
+    envvar=ENV_SIM, show_envvar=True, callback=_sim_from_env,
     help="Run against the built-in simulated cell; WORLD is an optional world TOML file "
-         "(without it a demo truth with hidden offsets is used).")
+         "(without it a demo truth with hidden offsets is used; UCAL_SIM=1 means the same).")
 controller_option = click.option("--controller", "controller_url", metavar="URL",
+                                 envvar=ENV_CONTROLLER, show_envvar=True,
                                  help="Controller URL, tcp://HOST:PORT[?state=PORT].")
 pulser_option = click.option("--pulser", "pulser_url", metavar="URL",
+                             envvar=ENV_PULSER, show_envvar=True,
                              help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or "
                                   "modbus-rtu://DEVICE[?baud=N&unit=N].")
+
+
+@dataclass(frozen=True)
+class CellChoice:
+    """The cell a moving command will open: the simulated cell (``sim_world`` not None; ""
+    = demo truth) or the controller and pulser at their URLs."""
+
+    sim_world: str | None
+    controller_url: str | None
+    pulser_url: str | None
+
+    @property
+    def name(self) -> str:
+        """The cell in words, for the confirmation prompt."""
+        if self.sim_world is not None:
+            return "the simulated cell"
+        return f"the robot at {self.controller_url}"
+
+
+_SOURCES = {"sim_world": ("--sim", ENV_SIM), "controller_url": ("--controller", ENV_CONTROLLER),
+            "pulser_url": ("--pulser", ENV_PULSER)}
+
+
+def _typed(ctx: click.Context, name: str) -> bool:
+    return ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE
+
+
+def _origin(ctx: click.Context, name: str) -> str:
+    """How a cell option was given: its flag when typed, else its environment variable."""
+    flag, env = _SOURCES[name]
+    return flag if _typed(ctx, name) else env
+
+
+def cell_options_typed(ctx: click.Context) -> list[str]:
+    """The cell options typed on the command line (``--sim``, ``--controller``, ``--pulser``)."""
+    return [_SOURCES[n][0] for n in _SOURCES if n in ctx.params and _typed(ctx, n)]
+
+
+def cell_from_options(sim_world: str | None, controller_url: str | None,
+                      pulser_url: str | None, *, yes: bool, dry_run: bool = False
+                      ) -> CellChoice:
+    """Check a moving command's cell options before anything is planned or asked.
+
+    Options typed on the command line win over the environment: a typed ``--sim`` (or
+    ``--dry-run``) drops ``UCAL_CONTROLLER``/``UCAL_PULSER``, a typed ``--controller`` or
+    ``--pulser`` drops ``UCAL_SIM``. Raises ``InputError`` (exit 2) naming what is missing,
+    what cannot be combined, a malformed URL, a missing world file, or a confirmation that
+    cannot be asked (no ``--yes`` and stdin not a terminal).
+    """
+    ctx = click.get_current_context()
+    if _typed(ctx, "sim_world") or dry_run:
+        controller_url = controller_url if _typed(ctx, "controller_url") else None
+        pulser_url = pulser_url if _typed(ctx, "pulser_url") else None
+    if _typed(ctx, "controller_url") or _typed(ctx, "pulser_url"):
+        sim_world = sim_world if _typed(ctx, "sim_world") else None
+    real = [_origin(ctx, n) for n, v in (("controller_url", controller_url),
+                                         ("pulser_url", pulser_url)) if v]
+    if dry_run and real and sim_world is None:
+        raise InputError(f"--dry-run runs against the simulator: it cannot be combined with "
+                         f"{'/'.join(real)} (use --sim [WORLD], or drop --dry-run)")
+    if sim_world is not None and real:
+        raise InputError(f"{_origin(ctx, 'sim_world')} cannot be combined with "
+                         f"{'/'.join(real)}: give one cell")
+    if dry_run and sim_world is None:
+        sim_world = ""  # --dry-run runs against the simulator
+    if sim_world is None:
+        _check_urls(ctx, controller_url, pulser_url)
+    elif sim_world:
+        from pathlib import Path
+
+        if not Path(sim_world).is_file():
+            raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
+    cell = CellChoice(sim_world, controller_url, pulser_url)
+    if not yes and not sys.stdin.isatty():
+        raise InputError(f"refusing to move {cell.name} without confirmation: stdin is not a "
+                         "terminal; pass --yes")
+    return cell
+
+
+def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str | None) -> None:
+    """Both URLs given and well-formed (parsed by their back-ends; nothing is connected)."""
+    from drivers.registry import open_controller, open_pulser
+
+    if not controller_url and not pulser_url:
+        raise InputError("no cell given: use --sim [WORLD] for the simulated cell, or "
+                         "--controller URL and --pulser URL (or set UCAL_SIM, or "
+                         "UCAL_CONTROLLER and UCAL_PULSER)")
+    for name, url, other, opener in (
+            ("controller_url", controller_url, "pulser_url", open_controller),
+            ("pulser_url", pulser_url, "controller_url", open_pulser)):
+        if not url:
+            flag, env = _SOURCES[name]
+            raise InputError(f"{_origin(ctx, other)} given without {flag} URL (or {env})")
+        try:
+            opener(url)
+        except ValueError as e:
+            raise InputError(f"{_origin(ctx, name)}: {e}") from None
 
 
 def parse_floats(text: str, n: int, what: str) -> np.ndarray:
@@ -50,20 +257,18 @@ def _to_jsonable(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def confirm_motion(yes: bool, summary: str) -> None:
-    """Ask before the first motion; ``--yes`` skips; no terminal and no ``--yes`` → refuse (exit 2).
+def confirm_motion(yes: bool, summary: str, cell: CellChoice) -> None:
+    """Show the plan and ask before the first motion, naming the cell; ``--yes`` skips.
 
-    ``summary`` (the plan) goes to stderr so that ``--json`` keeps stdout clean.
+    ``summary`` (the plan) goes to stderr so that ``--json`` keeps stdout clean, and not at
+    all with ``-q`` (the question still names the cell). No terminal and no ``--yes`` →
+    refuse (exit 2); ``cell_from_options`` has already refused that before the plan.
     """
-    import sys
-
-    from ucal.errors import InputError
-
-    click.echo(summary, err=True)
+    info(summary)
     if yes:
         return
     if not sys.stdin.isatty():
-        raise InputError("refusing to move the robot without confirmation: stdin is not a "
+        raise InputError(f"refusing to move {cell.name} without confirmation: stdin is not a "
                          "terminal; pass --yes")
-    if not click.confirm("Move the robot now?", default=False, err=True):
+    if not click.confirm(f"Move {cell.name} now?", default=False, err=True):
         raise click.exceptions.Abort()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ucal.cli.options import emit_json, json_option
+from ucal.cli.options import emit_json, info, json_option
 from ucal.models import KNOWN_MODELS
 
 profile_arg = click.argument("path", metavar="PATH",
@@ -40,8 +40,8 @@ def init(model: str, path: Path, force: bool) -> None:
     from ucal.profile import create_profile
 
     create_profile(path, model.lower(), force=force)
-    click.echo(f"wrote {path} ({model.lower()}); measure the block and the reflector plate "
-               f"and edit [sample] and [reflector] before calibrating", err=True)
+    info(f"wrote {path} ({model.lower()}); measure the block and the reflector plate and edit "
+         "[sample] and [reflector] before calibrating")
 
 
 @cli.command("show")

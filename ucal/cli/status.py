@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from ucal.cli.options import emit_json, json_option
+from ucal.cli.options import controller_option, emit_json, json_option, pulser_option
 
 log = logging.getLogger(__name__)
 
@@ -22,29 +22,19 @@ Examples:
   ucal status --controller tcp://192.168.0.254:11000 --pulser modbus-tcp://192.168.0.20:502 --json
   UCAL_CONTROLLER=tcp://192.168.0.254:11000 ucal status
 """)
-@click.option("--controller", "controller_url", metavar="URL", envvar="UCAL_CONTROLLER",
-              show_envvar=True, help="Controller URL, tcp://HOST:PORT[?state=PORT].")
-@click.option("--pulser", "pulser_url", metavar="URL", envvar="UCAL_PULSER", show_envvar=True,
-              help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or "
-                   "modbus-rtu://DEVICE[?baud=N&unit=N] (optional).")
+@controller_option
+@pulser_option
 @json_option
 def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> None:
     """Show the joint readings, the controller's status and the pulser's identity.
 
     Connects, reads and disconnects: nothing moves and no command is sent to the robot (not
     even STOP). Joint readings in degrees as the controller reports them. Exit 0 when every
-    device given answered (whatever state it reports: drives off, e-stop and errors are shown,
+    device given answered (the pulser is optional) (whatever state it reports: drives off, e-stop and errors are shown,
     not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
     reached or answers wrongly (the message names it).
     """
-    from ucal.errors import UcalError
-
-    try:
-        out = read_status(controller_url, pulser_url)
-    except UcalError as e:
-        if as_json:
-            emit_json({"error": str(e), "exit_code": e.exit_code})
-        raise
+    out = read_status(controller_url, pulser_url)
     if as_json:
         emit_json(out)
     else:

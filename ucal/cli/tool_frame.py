@@ -11,6 +11,7 @@ import click
 import numpy as np
 
 from ucal.cli.options import (
+    cell_from_options,
     confirm_motion,
     controller_option,
     dry_run_option,
@@ -28,8 +29,9 @@ log = logging.getLogger(__name__)
 Examples:
   ucal tool-frame cell.toml --sim --yes
   ucal tool-frame cell.toml --sim world.toml --method paper --points 100 --yes --json
+  ucal tool-frame cell.toml --sim world.toml --dry-run
   ucal tool-frame cell.toml --controller tcp://192.168.0.254:11000 \\
-      --pulser modbus-tcp://192.168.0.20:502 --dry-run
+      --pulser modbus-tcp://192.168.0.20:502
 """)
 @click.argument("profile_path", metavar="PROFILE",
                 type=click.Path(dir_okay=False, path_type=Path))
@@ -59,25 +61,21 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     beam. Nothing is written with --dry-run, on failure, or when the result is out of
     tolerance (exit 1).
     """
-    from ucal.errors import InputError, OutOfToleranceError
+    from ucal.errors import OutOfToleranceError
     from ucal.profile import check_writable, load_profile, profile_lock, write_profile
     from ucal.session import check_status, open_cell
     from ucal.toolframe.procedure import plan_tool_frame, run_tool_frame
 
-    if dry_run and (controller_url or pulser_url):
-        raise InputError("--dry-run runs against the simulator: drop --controller/--pulser "
-                         "(or use --sim [WORLD])")
-    if dry_run and sim_world is None:
-        sim_world = ""
+    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
     profile = load_profile(profile_path)
     plan = plan_tool_frame(profile, method, points)
     # One run per profile, and room to write the result, checked before the first motion.
     with contextlib.nullcontext() if dry_run else profile_lock(profile_path):
         if not dry_run:
             check_writable(profile_path)
-        with open_cell(profile, sim_world, controller_url, pulser_url) as session:
+        confirm_motion(yes, plan.summary(), cell)
+        with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
             check_status(session.rig)
-            confirm_motion(yes, plan.summary())
             run = run_tool_frame(profile, plan, session.rig, _progress(as_json))
             truth = session.truth
         written = False
@@ -88,14 +86,14 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
                 reason=f"tool-frame ({run.method})")
             written = True
     out = _result(run, profile_path, written, truth)
-    if as_json:
-        emit_json(out)
-    else:
+    if not as_json:
         _print(out)
     if not run.in_tolerance:
         raise OutOfToleranceError("tool frame out of tolerance: " + "; ".join(
             n for n in run.notes if "tolerance" in n or "converge" in n or "second-order" in n)
-            + " (profile not written)")
+            + " (profile not written)", out)
+    if as_json:
+        emit_json(out)
 
 
 def _progress(quiet: bool) -> Any:

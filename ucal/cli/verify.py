@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ucal.cli.options import (
+    cell_from_options,
     confirm_motion,
     controller_option,
     emit_json,
@@ -59,6 +60,7 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     from ucal.session import check_status, open_cell
     from ucal.verify import plan_verify, plot_verify, run_verify
 
+    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes)
     profile = load_profile(profile_path)
     if plot_path is None:
         plot_path = profile_path.with_name(profile_path.stem + ".verify.png")
@@ -67,9 +69,9 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     _check_plot_format(plot_path)
 
     plan = plan_verify(profile, n_points)  # every target checked before any connection
-    with open_cell(profile, sim_world, controller_url, pulser_url) as session:
+    confirm_motion(yes, _summary(plan, profile_path), cell)
+    with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
         check_status(session.rig)
-        confirm_motion(yes, _summary(plan, profile_path))
         progress = None if as_json else _progress
         result = run_verify(profile, plan, session.rig, progress)
         truth = session.truth

@@ -1,0 +1,138 @@
+"""What scripts rely on: the JSON error object, the cell from the environment, ``-v``/``-q``
+anywhere, and usage errors refused before any plan or prompt (SPEC.md)."""
+
+from __future__ import annotations
+
+import io
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from ucal.profile import default_profile_text
+
+CONTROLLER = "tcp://192.0.2.7:11000"
+PULSER = "modbus-tcp://192.0.2.8:502"
+
+RunMain = Callable[[list[str]], tuple[int, str, str]]
+
+
+@pytest.fixture
+def profile(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A profile in a temporary directory; stdin is not a terminal; no cell in the environment."""
+    for name in ("UCAL_SIM", "UCAL_CONTROLLER", "UCAL_PULSER"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
+    return path
+
+
+def one_error(err: str) -> str:
+    """The single ``error:`` line of stderr (no plan, no prompt, no traceback)."""
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    return lines[0].removeprefix("error: ")
+
+
+@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify"])
+def test_no_cell_is_a_usage_error_before_any_plan(profile: Path, command: str,
+                                                   run_main: RunMain) -> None:
+    before = profile.read_bytes()
+    code, out, err = run_main([command, str(profile), "--json"])
+    message = one_error(err)
+    assert code == 2 and message.startswith("no cell given: use --sim [WORLD]")
+    assert json.loads(out) == {"error": message, "exit_code": 2}
+    assert profile.read_bytes() == before
+
+
+@pytest.mark.parametrize("args, words", [
+    (["tool-frame", "--controller", CONTROLLER, "--pulser", PULSER, "--dry-run"],
+     "--dry-run runs against the simulator: it cannot be combined with --controller/--pulser"),
+    (["calibrate", "--dry-run", "--controller", CONTROLLER],
+     "--dry-run runs against the simulator: it cannot be combined with --controller"),
+    (["calibrate", "--sim", "--controller", CONTROLLER],
+     "--sim cannot be combined with --controller"),
+    (["verify", "--controller", CONTROLLER], "--controller given without --pulser URL"),
+    (["verify", "--controller", "10.0.0.5", "--pulser", PULSER],
+     "--controller: not a controller URL: '10.0.0.5'"),
+    (["calibrate", "--sim", "no-such-world.toml"], "no-such-world.toml: world file not found"),
+    (["calibrate", "--sim"], "refusing to move the simulated cell without confirmation"),
+])
+def test_usage_errors_name_what_was_typed(profile: Path, args: list[str], words: str,
+                                          run_main: RunMain) -> None:
+    code, out, err = run_main([args[0], str(profile), *args[1:]])
+    assert code == 2 and one_error(err).startswith(words), err
+    assert out == ""  # no --json: nothing on stdout
+
+
+def test_the_cell_comes_from_the_environment(profile: Path, monkeypatch: pytest.MonkeyPatch,
+                                             run_main: RunMain) -> None:
+    monkeypatch.setenv("UCAL_CONTROLLER", CONTROLLER)
+    monkeypatch.setenv("UCAL_PULSER", PULSER)
+    code, _, err = run_main(["calibrate", str(profile)])
+    assert code == 2 and one_error(err).startswith(f"refusing to move the robot at {CONTROLLER} ")
+    # an option typed on the command line wins over the environment
+    code, _, err = run_main(["verify", str(profile), "--sim"])
+    assert code == 2 and one_error(err).startswith("refusing to move the simulated cell ")
+    code, _, err = run_main(["calibrate", str(profile), "--dry-run"])
+    assert code == 2 and one_error(err).startswith("refusing to move the simulated cell ")
+    monkeypatch.setenv("UCAL_SIM", "1")
+    code, _, err = run_main(["tool-frame", str(profile)])
+    assert code == 2 and one_error(err).startswith("UCAL_SIM cannot be combined with "
+                                                   "UCAL_CONTROLLER/UCAL_PULSER")
+    monkeypatch.delenv("UCAL_CONTROLLER")
+    code, _, err = run_main(["tool-frame", str(profile)])
+    assert code == 2 and one_error(err).startswith("UCAL_SIM cannot be combined with UCAL_PULSER")
+    code, _, err = run_main(["tool-frame", str(profile), "--controller", CONTROLLER])
+    assert code == 2 and one_error(err).startswith(f"refusing to move the robot at {CONTROLLER} ")
+
+
+def test_sim_from_the_environment(profile: Path, monkeypatch: pytest.MonkeyPatch,
+                                  run_main: RunMain) -> None:
+    monkeypatch.setenv("UCAL_SIM", str(profile.with_name("truth.toml")))
+    code, _, err = run_main(["verify", str(profile)])
+    assert code == 2 and one_error(err) == (f"{profile.with_name('truth.toml')}: world file not "
+                                            "found (UCAL_SIM)")
+    monkeypatch.setenv("UCAL_SIM", "0")
+    code, _, err = run_main(["verify", str(profile)])
+    assert code == 2 and one_error(err).startswith("no cell given")
+
+
+@pytest.mark.parametrize("args", [
+    ["fk", "{p}", "--joints", "1,2,3", "--json"],      # a bad option value (click)
+    ["fk", "{p}", "--bogus", "--json"],                # an unknown option (click)
+    ["ik", "{p}", "--pose", "5000,0,0,0,0,0", "--json"],  # unreachable: exit 4
+    ["profile", "show", "{p}.missing", "--json"],      # an unreadable file
+    ["status", "--json"],                              # no controller
+])
+def test_every_failure_prints_the_error_object(profile: Path, args: list[str],
+                                               run_main: RunMain) -> None:
+    code, out, err = run_main([a.format(p=profile) for a in args])
+    assert code in (2, 4) and "Traceback" not in err
+    obj = json.loads(out)
+    assert obj == {"error": obj["error"], "exit_code": code} and obj["error"] in err
+
+
+@pytest.mark.parametrize("args", [
+    ["-q", "profile", "init", "tx90", "{d}/a.toml"],
+    ["profile", "init", "tx90", "{d}/a.toml", "-q"],
+    ["profile", "-q", "init", "tx90", "{d}/a.toml"],
+])
+def test_quiet_anywhere(tmp_path: Path, args: list[str],
+                        run_main: RunMain) -> None:
+    code, out, err = run_main([a.format(d=tmp_path) for a in args])
+    assert (code, out, err) == (0, "", "")
+    code, _, err = run_main(["profile", "init", "tx90", f"{tmp_path}/b.toml"])
+    assert code == 0 and err.startswith(f"wrote {tmp_path}/b.toml (tx90)")
+    # errors still print with -q
+    code, _, err = run_main(["profile", "init", "tx90", f"{tmp_path}/a.toml", "-q"])
+    assert code == 2 and one_error(err).endswith("already exists (use --force to replace it; "
+                                                 "the old file is kept in the history)")
+
+
+def test_verbose_after_the_subcommand(profile: Path, run_main: RunMain) -> None:
+    code, out, _ = run_main(["fk", str(profile), "--joints", "0,0,90,0,90,0", "--json", "-vv"])
+    assert code == 0 and set(json.loads(out)) == {"joints_deg", "pose"}
