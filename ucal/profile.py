@@ -24,7 +24,6 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
@@ -35,6 +34,7 @@ import numpy as np
 import tomlkit
 from tomlkit.items import Array, InlineTable, Table
 
+from ucal import files
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, Procedure
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import RobotModel, wrist_centre
@@ -595,62 +595,32 @@ def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]],
     _replace_with_history(p, after, reason, before)
 
 
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return  # not supported on this platform: the rename itself is still atomic
-    try:
-        with contextlib.suppress(OSError):
-            os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
+def _atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:
     """Replace ``path`` with ``data``: temp file in the same directory, fsync, ``os.replace``.
 
-    On failure the temp file is removed and ``path`` is untouched; raises ProfileError.
+    The file keeps its mode (a new one: ``mode``, else the umask's). On failure the temp file
+    is removed and ``path`` is untouched; raises ProfileError.
     """
-    _commit(_stage(path, data), path)
+    _commit(_stage(path, data, mode), path)
 
 
-def _stage(path: Path, data: bytes) -> Path:
-    """Write ``data`` to a new fsync'ed temporary file beside ``path`` (with ``path``'s mode)
-    and return it: everything that needs disk space, before anything is replaced."""
-    mode = None
+def _stage(path: Path, data: bytes, mode: int | None = None) -> Path:
+    """Write ``data`` to a new fsync'ed temporary file beside ``path`` and return it: everything
+    that needs disk space, before anything is replaced (mode as ``files.stage``)."""
     try:
-        mode = path.stat().st_mode & 0o7777
-    except OSError:
-        pass
-    tmp: str | None = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        if mode is not None:
-            os.chmod(tmp, mode)
+        return files.stage(path, data, mode)
     except OSError as e:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
         raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
             from None
-    return Path(tmp)
 
 
 def _commit(tmp: Path, path: Path) -> None:
     """Rename a staged file over ``path`` (atomic; needs no space); remove it on failure."""
     try:
-        os.replace(tmp, path)
+        files.commit(tmp, path)
     except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
         raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
             from None
-    _fsync_dir(path.parent)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -715,7 +685,14 @@ def _index_bytes(path: Path, entries: list[HistoryEntry]) -> bytes:
 
 
 def _save_history(path: Path, entries: list[HistoryEntry]) -> None:
-    _atomic_write(history_dir(path) / HISTORY_INDEX, _index_bytes(path, entries))
+    _atomic_write(history_dir(path) / HISTORY_INDEX, _index_bytes(path, entries),
+                  _index_mode(path))
+
+
+def _index_mode(path: Path) -> int | None:
+    """The history holds copies of the profile: a new index takes the profile's mode (an
+    existing one keeps its own)."""
+    return None if (history_dir(path) / HISTORY_INDEX).exists() else files.existing_mode(path)
 
 
 def _replace_both(path: Path, data: bytes, entries: list[HistoryEntry], copy: Path) -> None:
@@ -728,7 +705,7 @@ def _replace_both(path: Path, data: bytes, entries: list[HistoryEntry], copy: Pa
     index = history_dir(path) / HISTORY_INDEX
     staged: list[Path] = []
     try:
-        staged.append(_stage(index, _index_bytes(path, entries)))
+        staged.append(_stage(index, _index_bytes(path, entries), _index_mode(path)))
         staged.append(_stage(path, data))
         _commit(staged[0], index)
     except ProfileError:
@@ -741,23 +718,16 @@ def _replace_both(path: Path, data: bytes, entries: list[HistoryEntry], copy: Pa
     _commit(staged[1], path)
 
 
-def _write_new(path: Path, data: bytes) -> None:
-    """Write a history copy (fsync'ed); it is new, so no rename is needed.
+def _write_new(path: Path, data: bytes, mode: int | None) -> None:
+    """Write a history copy (fsync'ed, with ``mode``: the profile's); it is new, so no rename
+    is needed.
 
     A copy that cannot be written whole (e.g. the disk is full) is removed again, so that no
     empty or truncated ``NNNN-before.toml`` is left to collide with the next write.
     """
-    created = False
     try:
-        with open(path, "xb") as f:
-            created = True
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+        files.write_new(path, data, mode)
     except OSError as e:
-        if created:
-            with contextlib.suppress(OSError):
-                path.unlink()
         raise ProfileError(path, None, f"cannot write history copy: {e.strerror or e}") \
             from None
 
@@ -790,7 +760,7 @@ def _replace_with_history(path: Path, after: bytes, reason: str,
     entries = profile_history(path)
     new_id = _next_history_id(hdir, entries)
     copy = hdir / f"{new_id:04d}-before.toml"
-    _write_new(copy, before)
+    _write_new(copy, before, files.existing_mode(path))
     entry = HistoryEntry(id=new_id, time=_now(), reason=reason, before=copy.name,
                          before_sha256=_sha(before), after_sha256=_sha(after))
     try:
@@ -845,7 +815,7 @@ def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
     if after_copy.exists():  # left over by an undo whose rename failed
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
         after_copy = hdir / f"{entry.id:04d}-after-{stamp}.toml"
-    _write_new(after_copy, current)
+    _write_new(after_copy, current, files.existing_mode(p))
     entry.undone, entry.undone_time, entry.after = True, _now(), after_copy.name
     try:
         _replace_both(p, previous, entries, after_copy)

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import contextlib
 import csv
+import io
 import math
 import os
 from pathlib import Path
@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ucal import files
 from ucal.cli.options import emit_json, json_option, parse_floats
 from ucal.errors import InputError
 
@@ -62,20 +63,18 @@ def _is_number(text: str) -> bool:
 def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
     """Write joint readings (n, 6) in degrees with a ``J1..J6`` header.
 
-    Written to a temporary file beside ``path`` and renamed; raises ``InputError`` (exit 2)
-    naming the file when it cannot be written (missing or unwritable directory, full disk).
+    Written to a temporary file beside ``path`` and renamed (a replaced file keeps its mode,
+    a new one gets the umask's); raises ``InputError`` (exit 2) naming the file when it cannot
+    be written (missing or unwritable directory, full disk).
     """
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
+    text = io.StringIO(newline="")
+    w = csv.writer(text)
+    w.writerow(JOINT_HEADER)
+    for row in joints_deg:
+        w.writerow([f"{v:.9f}" for v in row])
     try:
-        with open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(JOINT_HEADER)
-            for row in joints_deg:
-                w.writerow([f"{v:.9f}" for v in row])
-        tmp.replace(path)
+        files.commit(files.stage(Path(path), text.getvalue().encode("utf-8")), Path(path))
     except OSError as e:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
         raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
 
 

@@ -65,15 +65,13 @@ def test_path_output_failing_while_written_names_the_file(
         capsys: pytest.CaptureFixture[str]) -> None:
     import errno
 
-    from ucal.cli import path as path_cli
-
     profile, poses = inputs
     out = tmp_path / "joints.csv"
 
-    def full(*args: object, **kwargs: object) -> None:
+    def full(*args: object, **kwargs: object) -> None:  # a full disk fails the fsync
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(path_cli.Path, "replace", full)
+    monkeypatch.setattr(os, "fsync", full)
     assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
     line = _one_error_line(capsys.readouterr().err)
     assert line == f"error: {out}: cannot write: No space left on device"
