@@ -28,6 +28,7 @@ class Procedure:
     speed: float = 0.3               # fraction of the controller's maximum speed
     singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target
     tof_averages: int = 16           # pulser averaging for distance readings
+    verify_tolerance_mm: float = 0.5  # largest mean |deviation| per axis that `verify` passes
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,7 @@ class CellProfile:
     sample_rotation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sample_face_size_mm: float = 500.0
     reflector_points_mm: np.ndarray | None = None  # (n, 3), n >= 3
+    reflector_points_std_mm: float = 1.0  # one sigma of a touched point (an uncalibrated robot)
     water_temperature_c: float = 20.0
     # One-sigma tolerances of what the profile states (SPEC.md defaults: a tool from its drawing,
     # a hand-placed block, a tank thermometer); solvers carry them as priors.
@@ -54,6 +56,9 @@ class CellProfile:
     frequency_mhz: float = 25.0
     element_diameter_mm: float = 6.0
     joint_offsets_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: ``[calibration] std_deg`` as written with the offsets (NaN: not determined); None: never
+    #: calibrated.
+    joint_offsets_std_deg: np.ndarray | None = None
     unobservable_joints: tuple[int, ...] = ()
     procedure: Procedure = field(default_factory=Procedure)
     path: Path | None = None

@@ -54,12 +54,13 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"}),
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm", "position_std_mm",
                          "rotation_std_deg"}),
-    "reflector": frozenset({"points_mm"}),
+    "reflector": frozenset({"points_mm", "points_std_mm"}),
     "water": frozenset({"temperature_c", "temperature_std_c"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
     "procedure": frozenset({"calibration_pose_deg", "water_path_mm", "step_deg", "speed",
-                            "singularity_margin_deg", "tof_averages"}),
+                            "singularity_margin_deg", "tof_averages",
+                            "verify_tolerance_mm"}),
 }
 
 #: Flange length of the shipped models (mm): wrist centre to flange along z6.
@@ -130,9 +131,13 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
 
     reflector = r.table("reflector")
     points = None
+    points_std = CellProfile.__dataclass_fields__["reflector_points_std_mm"].default
     if reflector is not None:
         points = r.plane_points("reflector.points_mm",
                                 r.get(reflector, "reflector.points_mm", True))
+        v = r.get(reflector, "reflector.points_std_mm")
+        if v is not None:
+            points_std = r.number("reflector.points_std_mm", v, lo=0.0, hi=100.0, unit="mm")
 
     water_c = read_water(r, r.table("water", required=True), "water", required=True)
     freq, diam = read_transducer(r, r.table("transducer", required=True), "transducer", True)
@@ -140,10 +145,15 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
     cal = r.table("calibration")
     offsets = np.zeros(6)
     unobservable: tuple[int, ...] = ()
+    offsets_std = None
     if cal is not None:
         v = r.get(cal, "calibration.joint_offsets_deg")
         if v is not None:
             offsets = r.joint_offsets("calibration.joint_offsets_deg", v)
+        v = r.get(cal, "calibration.std_deg")
+        if v is not None:  # written by calibrate; a negative entry: not determined
+            offsets_std = r.vector("calibration.std_deg", v, 6, hi=360.0, unit="deg")
+            offsets_std = np.where(offsets_std < 0.0, np.nan, offsets_std)
         v = r.get(cal, "calibration.unobservable_joints")
         if v is not None:
             unobservable = r.joint_numbers("calibration.unobservable_joints", v)
@@ -159,6 +169,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
     return CellProfile(model=model, tool_position_mm=tool_pos, tool_rotation_deg=tool_rot,
                        sample_position_mm=sample_pos, sample_rotation_deg=sample_rot,
                        sample_face_size_mm=face_mm, reflector_points_mm=points,
+                       reflector_points_std_mm=points_std, joint_offsets_std_deg=offsets_std,
                        water_temperature_c=water_c, frequency_mhz=freq,
                        element_diameter_mm=diam, joint_offsets_deg=offsets,
                        unobservable_joints=unobservable, procedure=procedure, path=Path(path),
@@ -275,6 +286,8 @@ def read_procedure(r: Reader, table: Mapping[str, Any] | None,
                                    hi=90.0, hi_open=True, unit="deg"),
         tof_averages=(d.tof_averages if averages is None else
                       r.integer("procedure.tof_averages", averages, lo=1, hi=65535)),
+        verify_tolerance_mm=num("verify_tolerance_mm", d.verify_tolerance_mm, lo=0.0,
+                                lo_open=True, hi=100.0, unit="mm"),
     )
 
 
@@ -418,6 +431,7 @@ rotation_std_deg = [0.5, 0.5, 0.5]
 points_mm = [
 {pts}
 ]
+points_std_mm = 1.0   # one sigma of a touched point (a robot not yet calibrated touches mm off)
 
 [water]
 temperature_c = 20.0
@@ -436,6 +450,7 @@ step_deg = {_num(proc.step_deg)}         # joint step between measurements
 speed = {_num(proc.speed)}            # fraction of the controller's maximum speed
 singularity_margin_deg = {_num(proc.singularity_margin_deg)}   # |theta5| stays above this
 tof_averages = {proc.tof_averages}       # pulser averages per distance reading
+verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` passes when the mean |deviation| per axis is below
 
 [calibration]
 # Written by `ucal calibrate`: actual joint angle = encoder reading + offset (deg).

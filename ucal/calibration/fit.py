@@ -44,6 +44,7 @@ row); ``verdict`` is ``misfit`` when P(χ²_dof > χ²) < ``MISFIT_P``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,6 +79,14 @@ PARAMETERS = OFFSETS + BLOCK + TOOL + SOUND + DH
 #: Hayati's twist of the parallel axes 2-3 (``calibrate --level full``; a table that holds it
 #: turns it into link 2's ``beta_deg``).
 BETA = ("dh2_beta_deg",)
+#: The reflector plate relative to the plane of its touched points: height along that plane's
+#: normal at their centroid, tilts towards its in-plane axes e1, e2 (``ucal.toolframe.fit``).
+PLATE = ("plate_h_mm", "plate_t1_deg", "plate_t2_deg")
+#: A constant electronic delay in every time of flight (round trip, ns).
+DELAY = ("tof_delay_ns",)
+#: Prior of the delay when the cell states none (ns): probe, cable and pulser zero not
+#: measured; 50 ns ≈ 0.04 mm of water path.
+DELAY_PRIOR_STD_NS = 50.0
 
 #: What a prior stands for, in the words of a reason for a user.
 PRIOR_MEANING = {
@@ -95,6 +104,12 @@ PRIOR_MEANING = {
     "sound_speed_m_s": "the water temperature tolerance",
     **{n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
        for n in DH + BETA},
+    "plate_h_mm": "the plate height tolerance ([reflector] points_std_mm)",
+    "plate_t1_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
+    "plate_t2_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
+    "tof_delay_ns": f"the unmeasured electronic delay (0 ± {DELAY_PRIOR_STD_NS:g} ns)",
+    **{n: f"the prior of {n}'s offset ([calibration] std_deg; wide when not calibrated)"
+       for n in OFFSETS},
 }
 
 
@@ -162,6 +177,17 @@ def prior_from_profile(profile: object) -> CellPrior:
         block_rotation_std_deg=np.broadcast_to(p.sample_rotation_std_deg, 3).astype(float),
         water_temperature_std_c=float(p.water_temperature_std_c),
         dh_length_std_mm=float(p.dh_length_std_mm), dh_angle_std_deg=float(p.dh_angle_std_deg))
+
+
+def offsets_prior_std_deg(profile: object) -> np.ndarray:
+    """What a profile knows of its joint offsets (deg, one sigma): ``[calibration] std_deg``
+    where calibrate determined them, ``OFFSET_PRIOR_STD_DEG`` (wide) for a joint it did not
+    determine or a profile never calibrated."""
+    std = getattr(profile, "joint_offsets_std_deg", None)
+    if std is None:
+        return np.full(6, OFFSET_PRIOR_STD_DEG)
+    std = np.asarray(std, float)
+    return np.where(np.isfinite(std) & (std > 0), std, OFFSET_PRIOR_STD_DEG)
 
 
 class ParameterTable:
@@ -472,3 +498,98 @@ def likely_cause(rows: tuple[ResidualRow, ...], pulls: dict[str, float], table: 
     return ("the normal-incidence postures disagree with the model: check the tool frame "
             "(run tool-frame) and that the block's faces are flat and perpendicular; a "
             "kinematic model error (--level full) can also show here")
+
+
+# ---------------------------------------------------------------------------------------------
+# any measurement type: the prior-augmented fit and its uncertainty
+
+
+@dataclass(frozen=True)
+class AugmentedFit:
+    """Solution of a prior-augmented least-squares problem over a ``ParameterTable``.
+
+    ``cov`` (free × free) is ``(JᵀJ)⁻¹`` scaled by ``max(1, χ²ᵣ)``; ``gain`` = ``(JᵀJ)⁻¹·Jᵀ``
+    (unscaled) maps unit-variance rows to parameters, so a quantity's variance splits by row.
+    """
+
+    table: ParameterTable
+    estimate: np.ndarray
+    cov: np.ndarray
+    std: np.ndarray
+    jac: np.ndarray
+    res: np.ndarray
+    gain: np.ndarray
+    n_data: int
+    chi2: float
+
+    @property
+    def dof(self) -> int:
+        """Data rows less the free unknowns that have no prior row."""
+        t = self.table
+        no_prior = int(np.sum(t.free & ~np.isfinite(t.prior_stds)))
+        return max(1, self.n_data - no_prior)
+
+    @property
+    def prior_rows(self) -> list[str]:
+        """Names of the parameters whose prior rows follow the data rows, in order."""
+        t = self.table
+        return [n for n in t.free_names if np.isfinite(t.prior_stds[t.index(n)])]
+
+    def gradient(self, weights: dict[str, float | np.ndarray]) -> np.ndarray:
+        """Free-parameter gradient of ``Σ w·x`` (one row per entry of array weights)."""
+        free = self.table.free_names
+        rows = np.atleast_2d(np.column_stack([np.atleast_1d(np.asarray(w, float))
+                                              for w in weights.values()]))
+        g = np.zeros((rows.shape[0], len(free)))
+        for j, name in enumerate(weights):
+            if name in free:
+                g[:, free.index(name)] = rows[:, j]
+        return g
+
+    def shares(self, gradient: np.ndarray) -> dict[str, float]:
+        """Share of the variance of ``gradient·x`` (summed over its rows) from the data and
+        from each prior (by parameter name)."""
+        contrib = (np.atleast_2d(gradient) @ self.gain) ** 2
+        contrib = contrib.sum(0)
+        total = float(contrib.sum()) or 1.0
+        out = {"data": float(contrib[:self.n_data].sum()) / total}
+        for r, name in enumerate(self.prior_rows):
+            out[name] = float(contrib[self.n_data + r]) / total
+        return out
+
+
+def solve_augmented(table: ParameterTable, data_fn: Callable[[np.ndarray], np.ndarray],
+                    x0: np.ndarray, tol: float = 1e-12, max_nfev: int = 200,
+                    measured: tuple[str, ...] = ()) -> AugmentedFit:
+    """Minimise ``|data_fn(v)|² + Σ ((v − prior)/σ)²`` over the free parameters of ``table``
+    (``data_fn`` takes the full value vector and returns normalised data residuals).
+
+    ``measured`` names the quantities the run exists to measure: their priors (a drawing's
+    tolerance) still enter the solution, but their pulls are not counted in the χ² that
+    judges the fit and scales the covariance."""
+    has_prior = np.isfinite(table.prior_stds) & table.free
+    n_data = len(data_fn(table.expand(x0)))
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        v = table.expand(x)
+        return np.concatenate([data_fn(v), (v - table.prior)[has_prior]
+                               / table.prior_stds[has_prior]])
+
+    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
+    sol = least_squares(fun, x0, jac="2-point", method="trf", x_scale=x_scale[table.free],
+                        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev)
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac)
+    prior_names = [n for n, f in zip(table.names, has_prior, strict=True) if f]
+    counted = np.concatenate([np.ones(n_data, bool), [n not in measured for n in prior_names]])
+    chi2 = float(sol.fun[counted] @ sol.fun[counted])
+    no_prior = int(np.sum(table.free & ~np.isfinite(table.prior_stds)))
+    cov_scaled = cov * max(1.0, chi2 / max(1, n_data - no_prior))
+    std = np.full(len(table.names), np.nan)
+    std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
+    return AugmentedFit(table, table.expand(sol.x), cov_scaled, std, sol.jac, sol.fun,
+                        cov @ sol.jac.T, n_data, chi2)
+
+
+def verdict(chi2: float, dof: int, misfit_p: float = MISFIT_P) -> str:
+    """``misfit`` when P(χ²_dof > χ²) < ``misfit_p``, else ``ok``."""
+    return "misfit" if float(chdtrc(dof, chi2)) < misfit_p else "ok"

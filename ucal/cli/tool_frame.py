@@ -46,20 +46,28 @@ Examples:
 @click.option("--points", type=click.IntRange(min=1), default=None, metavar="N",
               help="exact: normal-incidence postures (default 4, at least 2); paper: "
                    "incidence points (default 100, at least 7).")
+@click.option("--force", is_flag=True,
+              help="Write the result even when it is out of tolerance or a misfit (the reason "
+                   "is recorded in the profile history).")
 @yes_option
 @dry_run_option
 @json_option
 def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, method: str, points: int | None, yes: bool, dry_run: bool,
-        as_json: bool) -> None:
+        pulser_url: str | None, method: str, points: int | None, force: bool, yes: bool,
+        dry_run: bool, as_json: bool) -> None:
     """Find the tool centre point and beam direction relative to the flange.
 
     Uses the reflector plate of [reflector] points_mm and the profile's [calibration] joint
-    offsets (actual = reading + offset); writes [tool] position_mm and rotation_deg (mm, deg;
-    the previous version is kept in the profile's history). The beam fixes only the tool's z
-    axis: rotation_deg is the rotation closest to the profile's that maps z onto the measured
-    beam. Nothing is written with --dry-run, on failure, or when the result is out of
-    tolerance (exit 1).
+    offsets (actual = reading + offset). The exact method fits the tool with the cell's other
+    uncertain quantities as unknowns with the profile's tolerances as priors (joint offsets
+    with [calibration] std_deg, or wide when not calibrated; the plate with [reflector]
+    points_std_mm; DH table, sound speed, an electronic delay), so it works before or after
+    `ucal calibrate`. Writes [tool] position_mm, rotation_deg and their position_std_mm,
+    rotation_std_deg (mm, deg; the previous version is kept in the profile's history). Time of
+    flight cannot tell the tool's length along the beam from the plate's height: that std
+    carries the plate's tolerance. The beam fixes only the tool's z axis: the rotation about it
+    keeps the profile's. Nothing is written with --dry-run, on failure, or when the result is
+    out of tolerance (exit 1) unless --force.
     """
     from ucal.errors import OutOfToleranceError
     from ucal.profile import check_writable, load_profile, profile_lock, write_profile
@@ -78,22 +86,45 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
             check_status(session.rig)
             run = run_tool_frame(profile, plan, session.rig, _progress(as_json))
             truth = session.truth
+        message = _refusal(run)
         written = False
-        if run.in_tolerance and not dry_run:
-            write_profile(profile_path, {"tool": {
-                "position_mm": [round(float(v), 6) for v in run.position_mm],
-                "rotation_deg": [round(float(v), 6) for v in run.rotation_deg]}},
-                reason=f"tool-frame ({run.method})")
+        if (run.in_tolerance or force) and not dry_run:
+            reason = f"tool-frame ({run.method})"
+            if not run.in_tolerance:
+                reason += f", written with --force: {message}"
+            write_profile(profile_path, {"tool": _tool_keys(run)}, reason=reason)
             written = True
-    out = _result(run, profile_path, written, truth)
+    out = _result(run, profile, profile_path, written, truth)
     if not as_json:
         _print(out)
     if not run.in_tolerance:
-        raise OutOfToleranceError("tool frame out of tolerance: " + "; ".join(
-            n for n in run.notes if "tolerance" in n or "converge" in n or "second-order" in n)
-            + " (profile not written)", out)
+        raise OutOfToleranceError(message, out)
     if as_json:
         emit_json(out)
+
+
+def _refusal(run: Any) -> str:
+    if run.in_tolerance:
+        return ""
+    if run.fit is not None:
+        cause = run.fit.refusal
+    else:
+        cause = "; ".join(n for n in run.notes if "tolerance" in n or "converge" in n
+                          or "second-order" in n)
+    return f"tool frame out of tolerance: {cause} (profile not written; --force writes it)"
+
+
+def _tool_keys(run: Any) -> dict[str, Any]:
+    """``[tool]`` keys to write: the frame and, from the exact fit, its stds."""
+    keys: dict[str, Any] = {
+        "position_mm": [round(float(v), 6) for v in run.position_mm],
+        "rotation_deg": [round(float(v), 6) for v in run.rotation_deg]}
+    if run.fit is not None:
+        keys["position_std_mm"] = [round(max(float(v), 1e-6), 6)
+                                   for v in run.fit.position_std_mm]
+        keys["rotation_std_deg"] = [round(max(float(v), 1e-6), 6)
+                                    for v in run.fit.rotation_std_deg]
+    return keys
 
 
 def _progress(quiet: bool) -> Any:
@@ -104,13 +135,18 @@ def _progress(quiet: bool) -> Any:
     return show
 
 
-def _result(run: Any, profile_path: Path, written: bool, truth: Any) -> dict[str, Any]:
+def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: Any
+            ) -> dict[str, Any]:
     from ucal.kinematics.rotations import angle_between_deg
 
+    tf = run.fit
     out: dict[str, Any] = {
         "position_mm": run.position_mm,
         "rotation_deg": run.rotation_deg,
         "beam_direction": run.beam,
+        "position_std_mm": run.std_position_mm,
+        "rotation_std_deg": None if tf is None else tf.rotation_std_deg,
+        "beam_std_deg": run.std_beam_deg,
         "rms_residual_mm": run.rms_residual_mm,
         "points": run.points,
         "written": written,
@@ -121,6 +157,15 @@ def _result(run: Any, profile_path: Path, written: bool, truth: Any) -> dict[str
         "profile": str(profile_path),
         "notes": run.notes,
     }
+    if tf is not None:
+        out["fit"] = tf.quality.to_json()
+        out["along_beam"] = {"position_mm": tf.along_beam_mm, "std_mm": tf.along_beam_std_mm,
+                             "limited_by": tf.along_beam_limited_by}
+        out["across_beam_std_mm"] = tf.across_beam_std_mm
+        out["plate_height_mm"] = {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm}
+        out["delay_ns"] = {"value": tf.delay_ns, "std": tf.delay_std_ns}
+        out["sound_speed_m_s"] = tf.sound_speed_m_s
+        out["sound_speed_std_m_s"] = tf.sound_speed_std_m_s
     if run.method == "exact":
         out["normal_incidence_postures"] = len(run.peaks)
         out["edge_crossings"] = len(run.crossings)
@@ -129,15 +174,33 @@ def _result(run: Any, profile_path: Path, written: bool, truth: Any) -> dict[str
                         "second_order_ok": run.paper.second_order_ok,
                         "multiplier": run.paper.multiplier, "condition": run.paper.condition}
     if truth is not None:  # the simulator's hidden truth: how far off the result is
+        from ucal.toolframe.exact import tangent_basis
+        from ucal.toolframe.fit import truth_in_profile_flange
+
+        true_tool = truth_in_profile_flange(profile, truth)
+        err = np.asarray(run.position_mm) - true_tool[:3, 3]
+        beam = np.asarray(run.beam)
         out["simulated_error"] = {
-            "position_mm": np.asarray(run.position_mm) - truth.tool_position_mm,
-            "beam_deg": float(angle_between_deg(run.beam, truth.tool_matrix[:3, 2]))}
+            "position_mm": err, "along_beam_mm": float(beam @ err),
+            "across_beam_mm": tangent_basis(beam) @ err,
+            "beam_deg": float(angle_between_deg(beam, true_tool[:3, 2])),
+            "frame": "flange of the profile's J6 offset and last DH link"}
     return out
 
 
 def _print(out: dict[str, Any]) -> None:
     fmt = ", ".join
     std = out["std"]
+    if "fit" in out:
+        f = out["fit"]
+        along = out["along_beam"]
+        limited = ", ".join(f"{k} {100 * v:.0f} %" for k, v in along["limited_by"].items())
+        click.echo(f"fit:             {f['verdict']}, chi2_r {f['chi2_reduced']:.3g} (dof "
+                   f"{f['dof']}), worst {f['worst']}")
+        click.echo(f"along the beam:  {along['position_mm']:.4f} ± {along['std_mm']:.4f} mm"
+                   + (f" (limited by {limited})" if limited else ""))
+        click.echo("across the beam: ± " + fmt(f"{v:.4f}" for v in out["across_beam_std_mm"])
+                   + " mm")
     click.echo(f"method:          {out['method']} ({out['points']} points, {out['moves']} moves, "
                f"{out['pulser_reads']} pulser reads)")
     click.echo("position (mm):   " + fmt(f"{v:.4f}" for v in out["position_mm"]) + "   ± "
@@ -149,7 +212,9 @@ def _print(out: dict[str, Any]) -> None:
     if "simulated_error" in out:
         se = out["simulated_error"]
         click.echo("simulated error: " + fmt(f"{v:+.4f}" for v in se["position_mm"])
-                   + f" mm, beam {se['beam_deg']:.4f} deg")
+                   + f" mm (along the beam {se['along_beam_mm']:+.4f}, across "
+                   + fmt(f"{v:+.4f}" for v in se["across_beam_mm"])
+                   + f"), beam {se['beam_deg']:.4f} deg")
     for n in out["notes"]:
         click.echo(f"note: {n}")
     click.echo(f"profile {out['profile']}: " + ("[tool] written" if out["written"]

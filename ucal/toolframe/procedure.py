@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
 from ucal.calibration.model import CellGeometry
 from ucal.calibration.safety import check_joints
 from ucal.calibration.search import PeakResult, PeakSearch, Rig, ka_of, read_distance
@@ -68,6 +69,13 @@ from ucal.toolframe.exact import (
     fit_edge_profile,
     rotation_for_beam,
     solve_offsets,
+)
+from ucal.toolframe.fit import (
+    PlateCrossing,
+    PlatePeak,
+    ToolFrameFit,
+    plate_prior,
+    solve_tool_frame,
 )
 from ucal.toolframe.paper import PaperSolution, solve_paper
 from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
@@ -96,11 +104,11 @@ PEAK_AVERAGES = 8
 #: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max.
 ACQUIRE_RADIUS_DEG = 4.0
 ACQUIRE_MAX_DEG = 8.0
+#: A peak below this share of the first posture's amplitude (same plate, same water path) is
+#: a side lobe: the piston's first side lobe is 17.6 dB (0.13) below the main lobe.
+MAIN_LOBE_SHARE = 0.5
 #: Margin (mm) kept between an incidence point and the hull of the touched points.
 HULL_MARGIN_MM = 3.0
-#: Tolerance of the exact method: larger standard deviations mean "out of tolerance".
-TOLERANCE_POSITION_MM = 0.05
-TOLERANCE_BEAM_DEG = 0.01
 
 
 # ---------------------------------------------------------------------------------------------
@@ -380,6 +388,7 @@ class ToolFrameRun:
     paper: PaperSolution | None = None
     in_tolerance: bool = True
     notes: list[str] = field(default_factory=list)
+    fit: ToolFrameFit | None = None
 
 
 class _Runner:
@@ -468,9 +477,10 @@ class _Runner:
 
     # -- edge scans ------------------------------------------------------------------------------
     def edge_scan(self, ep: EdgePlan, lateral: float, phi: float, guess: float | None
-                  ) -> tuple[EdgeCrossing, EdgeFit, float]:
+                  ) -> tuple[EdgeCrossing, EdgeFit, float, PlateCrossing]:
         """Coarse search and fine scan across edge ``ep`` on the line at ``lateral``; returns
-        the crossing, its profile fit and the coarse crossing (mm from the centre)."""
+        the crossing, its profile fit, the coarse crossing (mm from the centre) and the
+        crossing as readings (for the fit with the offsets as unknowns)."""
         u, w = ep.direction, ep.along
         origin = self.plan.centre_mm + lateral * w
         tool = self.tool()
@@ -522,12 +532,15 @@ class _Runner:
         fit = fit_edge_profile(ts_arr, np.array(amps), outward=1.0)
         i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
         f = flanges[i].copy()
-        f[:3, 3] += (fit.crossing - ts_arr[i]) * u
+        shift = (fit.crossing - ts_arr[i]) * u
+        f[:3, 3] += shift
         log.info("edge %s lateral %+.1f phi %+.0f: crossing %.4f ± %.4f mm (σ %.3f mm, rms "
                  "%.2g)", ep.name, lateral, phi, fit.crossing, fit.crossing_std, fit.width_mm,
                  fit.rms)
-        return (EdgeCrossing(f, ep.index, max(fit.crossing_std, 1e-4), u.copy()), fit,
-                float(t_c))
+        std = max(fit.crossing_std, 1e-4)
+        return (EdgeCrossing(f, ep.index, std, u.copy()), fit, float(t_c),
+                PlateCrossing(f"edge {ep.name} {lateral:+.0f} mm phi {phi:+.0f}",
+                              rows[i][2].copy(), shift, ep.index, std))
 
 
 def _report(progress: Callable[[str, int, int], None] | None, what: str, i: int,
@@ -566,6 +579,19 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
             q_c = search.quick_centre(peak.joints_deg)
             if q_c is not None:
                 peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
+        if peaks and _probe_level(peak) < MAIN_LOBE_SHARE * _probe_level(peaks[0]):
+            # A prediction off by degrees (joint offsets not yet calibrated turn the beam
+            # differently at each orientation) can centre on a side lobe (−17.6 dB and less):
+            # acquire and centre as for the first posture.
+            log.info("%s: %.2g of the first peak's echo, a side lobe: acquiring", target.label,
+                     _probe_level(peak) / _probe_level(peaks[0]))
+            search, q_c = r.centred(target, quick=False)
+            peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
+            level = _probe_level(peak) / _probe_level(peaks[0])
+            if level < MAIN_LOBE_SHARE:
+                raise HardwareError(f"{r.rig.pulser.endpoint}: {target.label}: only a side lobe "
+                                    f"of the plate's echo found ({level:.2g} of the first "
+                                    "posture's); is the plate flat and still?")
         assert peak.distance is not None and peak.distance_joints_deg is not None
         peaks.append(peak)
         rots.append(r.flange(peak.joints_deg)[:3, :3])
@@ -581,6 +607,7 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
     s, _ = along_beam_offset_mm(beam_est.direction, tofs, r.plane)
     r.position = r.position + (s - beam_est.direction @ r.position) * beam_est.direction
     crossings: list[EdgeCrossing] = []
+    plate_crossings: list[PlateCrossing] = []
     fits: list[EdgeFit] = []
     guesses: dict[tuple[int, int], float] = {}
     k = len(plan.peaks)
@@ -590,31 +617,52 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
                 _report(r.progress, f"edge {ep.name}", k, total)
                 k += 1
                 guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))
-                cr, fit, t_c = r.edge_scan(ep, lateral, phi, guess)
+                cr, fit, t_c, pc = r.edge_scan(ep, lateral, phi, guess)
                 guesses.setdefault((ep.index, j), t_c)
                 crossings.append(cr)
+                plate_crossings.append(pc)
                 fits.append(fit)
     # leave the robot above the plate centre
     r.move(r.joints(plan.centre_mm, plan.peaks[0].water_path_mm, plan.phi0_deg, "centre"))
+    # First estimate with the profile's offsets and the touched plane taken as exact (the
+    # formulation of ucal.toolframe.exact): the start of the fit with the priors.
     offsets = solve_offsets(beam_est, tofs, crossings, r.plane, r.position)
     _report(r.progress, "done", total, total)
-    rot = rotation_for_beam(beam_est.direction, r.profile.tool_rotation_deg)
-    notes = list(offsets.notes)
-    notes.append("a constant time-of-flight delay is indistinguishable from the tool offset "
-                 "along the beam (and an error of the touched plane's offset likewise): zero "
-                 "delay and the plane of [reflector] points_mm are assumed")
-    notes.append("the rotation about the beam is invisible to an echo: rotation_deg is the "
-                 "rotation closest to the profile's that maps tool z onto the measured beam")
-    ok = bool(np.all(offsets.std_mm <= TOLERANCE_POSITION_MM)
-              and beam_est.std_deg <= TOLERANCE_BEAM_DEG)
-    if not ok:
-        notes.append(f"out of tolerance: standard deviations above {TOLERANCE_POSITION_MM} mm "
-                     f"or {TOLERANCE_BEAM_DEG} deg")
-    return ToolFrameRun("exact", offsets.position_mm, rot, beam_est.direction, offsets.std_mm,
-                        beam_est.std_deg, offsets.rms_residual_mm,
+    first_rot = rotation_for_beam(beam_est.direction, r.profile.tool_rotation_deg)
+    tf = solve_plate_fit(r.profile, plan.plane, peaks, plate_crossings, offsets,
+                         np.concatenate([offsets.position_mm, first_rot]))
+    notes = list(offsets.notes) + list(tf.notes)
+    if tf.refusal:
+        notes.append(f"out of tolerance: {tf.refusal}")
+    return ToolFrameRun("exact", tf.position_mm, tf.rotation_deg, tf.beam, tf.position_std_mm,
+                        tf.beam_std_deg, tf.rms_residual_mm,
                         len(peaks) + len(crossings), r.rig.counters.moves,
                         r.rig.counters.reads, peaks, tofs, crossings, fits, beam_est, offsets,
-                        None, ok, notes)
+                        None, tf.in_tolerance, notes, fit=tf)
+
+
+def solve_plate_fit(profile: CellProfile, plane: Plane, peaks: list[PeakResult],
+                    crossings: list[PlateCrossing], first: OffsetEstimate,
+                    tool_start: np.ndarray) -> ToolFrameFit:
+    """The fit of ``ucal.toolframe.fit`` on a run's peaks and crossings (priors from the
+    profile; edges and tool started from the first estimate)."""
+    plate_peaks = []
+    for i, p in enumerate(peaks):
+        assert p.distance is not None and p.distance_joints_deg is not None
+        plate_peaks.append(PlatePeak(f"peak {i + 1}", p.joints_deg, max(p.tilt_std_deg, 1e-4),
+                                     p.distance_joints_deg, p.distance[0],
+                                     max(p.distance[1], 1e-4)))
+    edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()
+    return solve_tool_frame(prior_from_profile(profile),
+                            plate_prior(plane, profile.reflector_points_mm,
+                                        profile.reflector_points_std_mm),
+                            offsets_prior_std_deg(profile), plate_peaks, crossings, edge_start,
+                            tool_start)
+
+
+def _probe_level(peak: PeakResult) -> float:
+    """Strongest echo (normalised to 0 dB) among a peak fit's probes."""
+    return float(np.max(peak.probes[1])) if peak.probes is not None else peak.amplitude
 
 
 def rig_joints(r: _Runner) -> np.ndarray:
