@@ -89,6 +89,12 @@ class Reflector:
     normal: np.ndarray
     size_mm: np.ndarray = field(default_factory=lambda: np.array([200.0, 200.0]))
     edge_direction: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
+    #: Radius of the rounded edges (mm): the flat part ends this far inside ``size_mm``; the
+    #: rounded band turns its normal away from a beam aimed at the plate and echoes nothing.
+    edge_radius_mm: float = 0.0
+    #: Peak-to-valley flatness error (mm): a bow ``f·((2u/w)² + (2v/h)²)/2 − f/2`` along the
+    #: normal, so the water path and the local normal change across the plate.
+    flatness_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -147,10 +153,29 @@ class WorldTruth:
     #: Linear drift of the water temperature with simulated time (°C per minute).
     water_drift_c_per_min: float = 0.0
     pulser: PulserTruth = field(default_factory=PulserTruth)
+    #: Beam squint (deg): the acoustic axis leaves the tool centre tilted this much from the
+    #: housing's z axis (the tool frame of a drawing), towards ``beam_squint_azimuth_deg`` from
+    #: the housing's x axis about its z.
+    beam_squint_deg: float = 0.0
+    beam_squint_azimuth_deg: float = 0.0
+    #: Near-field directivity: the echo of a tilted plane returns displaced by 2L·tan 2θ and,
+    #: inside the near field, about as wide as the element (``ucal.sim.receiver``).
+    near_field: bool = False
 
     @property
     def tool_matrix(self) -> np.ndarray:
         return transform(self.tool_position_mm, rpy_to_matrix(self.tool_rotation_deg))
+
+    @property
+    def beam_matrix(self) -> np.ndarray:
+        """The frame whose +z is the acoustic axis (4, 4, flange frame): the tool frame turned
+        by the squint; what a tool-frame calibration measures."""
+        az = np.radians(self.beam_squint_azimuth_deg)
+        axis = np.array([-np.sin(az), np.cos(az), 0.0])   # tilts z towards the azimuth
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        t = np.radians(self.beam_squint_deg)
+        squint = np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
+        return self.tool_matrix @ transform(np.zeros(3), squint)
 
     @property
     def sample_matrix(self) -> np.ndarray:

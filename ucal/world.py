@@ -19,7 +19,12 @@ Extra keys beyond SPEC.md:
 
 * ``[robot] initial_joints_deg`` — joint readings (deg) the simulated robot starts at;
 * ``[sample] face_size_mm`` — edge length of the block faces (mm);
-* ``[reflector] size_mm = [w, h]`` and ``edge_direction = [x, y, z]`` — extent of the plate.
+* ``[reflector] size_mm = [w, h]`` and ``edge_direction = [x, y, z]`` — extent of the plate;
+  ``edge_radius_mm`` (0…20: rounded edges, the flat part ends that far inside) and
+  ``flatness_mm`` (0…5, peak to valley: a bow along the normal) — see ``ucal.cell.Reflector``;
+* ``[transducer] squint_deg`` (0…5) and ``squint_azimuth_deg`` — the acoustic axis tilted from
+  the housing's z axis (the tool frame of the drawing); ``near_field = true`` — near-field
+  directivity (``ucal.sim.receiver``).
 """
 
 from __future__ import annotations
@@ -41,9 +46,11 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
                         "initial_joints_deg", "backlash_deg"}),
     "tool": frozenset({"position_mm", "rotation_deg"}),
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
-    "reflector": frozenset({"point_mm", "normal", "size_mm", "edge_direction"}),
+    "reflector": frozenset({"point_mm", "normal", "size_mm", "edge_direction",
+                            "edge_radius_mm", "flatness_mm"}),
     "water": frozenset({"temperature_c", "drift_c_per_min"}),
-    "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
+    "transducer": frozenset({"frequency_mhz", "element_diameter_mm", "squint_deg",
+                             "squint_azimuth_deg", "near_field"}),
     "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
 }
@@ -52,6 +59,10 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
 MAX_BETA_DEG = 30.0
 MAX_BACKLASH_DEG = 5.0
 MAX_DRIFT_C_PER_MIN = 10.0
+#: Largest beam squint (deg), plate edge radius (mm) and flatness error (mm) a world may state.
+MAX_SQUINT_DEG = 5.0
+MAX_EDGE_RADIUS_MM = 20.0
+MAX_FLATNESS_MM = 5.0
 
 
 def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
@@ -130,11 +141,25 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         changes["water_drift_c_per_min"] = r.number(
             "water.drift_c_per_min", v, lo=-MAX_DRIFT_C_PER_MIN, hi=MAX_DRIFT_C_PER_MIN,
             unit="degC/min")
-    freq, diam = read_transducer(r, r.table("transducer"), "transducer", required=False)
+    transducer = r.table("transducer")
+    freq, diam = read_transducer(r, transducer, "transducer", required=False)
     if freq is not None:
         changes["frequency_mhz"] = freq
     if diam is not None:
         changes["element_diameter_mm"] = diam
+    v = r.get(transducer, "transducer.squint_deg")
+    if v is not None:
+        changes["beam_squint_deg"] = r.number("transducer.squint_deg", v, lo=0.0,
+                                              hi=MAX_SQUINT_DEG, unit="deg")
+    v = r.get(transducer, "transducer.squint_azimuth_deg")
+    if v is not None:
+        changes["beam_squint_azimuth_deg"] = r.number("transducer.squint_azimuth_deg", v,
+                                                      lo=-360.0, hi=360.0, unit="deg")
+    v = r.get(transducer, "transducer.near_field")
+    if v is not None:
+        if not isinstance(v, bool):
+            raise r.error("transducer.near_field", f"must be true or false, got {v!r}")
+        changes["near_field"] = v
 
     pulser = r.table("pulser")
     if pulser is not None:
@@ -209,5 +234,17 @@ def _reflector(r: Reader, table: Mapping[str, Any], nominal: Reflector | None) -
     if np.linalg.norm(np.cross(edge, normal)) < 1e-6:
         key = "reflector.edge_direction" if edge_raw is not None else "reflector.normal"
         raise r.error(key, "edge_direction must not be parallel to the normal")
+    radius_raw = r.get(table, "reflector.edge_radius_mm")
+    radius = (base.edge_radius_mm if radius_raw is None else
+              r.number("reflector.edge_radius_mm", radius_raw, lo=0.0, hi=MAX_EDGE_RADIUS_MM,
+                       unit="mm"))
+    if 2.0 * radius >= float(np.min(size)):
+        raise r.error("reflector.edge_radius_mm", "leaves no flat plate: it must be below half "
+                                                  "the plate's size")
+    flat_raw = r.get(table, "reflector.flatness_mm")
+    flatness = (base.flatness_mm if flat_raw is None else
+                r.number("reflector.flatness_mm", flat_raw, lo=0.0, hi=MAX_FLATNESS_MM,
+                         unit="mm"))
     return Reflector(point_mm=np.asarray(point, float), normal=np.asarray(normal, float),
-                     size_mm=np.asarray(size, float), edge_direction=np.asarray(edge, float))
+                     size_mm=np.asarray(size, float), edge_direction=np.asarray(edge, float),
+                     edge_radius_mm=float(radius), flatness_mm=float(flatness))

@@ -163,6 +163,12 @@ BAD_WORLDS = [
     ("[pulser]\ndelay_ns = inf\n", "pulser.delay_ns", "finite"),
     ("[pulser]\ndelay_ns = 20000\n", "pulser.delay_ns", "<= 10000"),
     ("pulser = 1\n", "pulser", "must be a table"),
+    ("[reflector]\nedge_radius_mm = -1\n", "reflector.edge_radius_mm", ">= 0"),
+    ("[reflector]\nsize_mm = [30, 30]\nedge_radius_mm = 15\n", "reflector.edge_radius_mm",
+     "no flat plate"),
+    ("[reflector]\nflatness_mm = 6\n", "reflector.flatness_mm", "<= 5"),
+    ("[transducer]\nsquint_deg = 6\n", "transducer.squint_deg", "<= 5"),
+    ("[transducer]\nnear_field = 1\n", "transducer.near_field", "true or false"),
     (_dh_world("[0, 0, 50, -90, 31]"), "robot.dh[0][4]", "<= 30"),
     (_dh_world(_ROW2 + ", beta_deg = \"x\"}"), "robot.dh[1].beta_deg", "finite"),
     (_dh_world(_ROW2 + ", gamma_deg = 1}"), "robot.dh[1].gamma_deg", "unknown DH column"),
@@ -220,6 +226,25 @@ delay_ns = 35.5
     # a partial [pulser] keeps the other defaults
     w = load_world(_world(tmp_path, "[pulser]\namplitude_bits = 12\n"), profile)
     assert w.pulser == PulserTruth(amplitude_bits=12)
+
+
+def test_plate_and_beam_keys(profile: CellProfile, tmp_path: Path) -> None:
+    path = _world(tmp_path, """
+[reflector]
+edge_radius_mm = 1.5
+flatness_mm = 0.05
+[transducer]
+squint_deg = 0.8
+squint_azimuth_deg = 120
+near_field = true
+""")
+    w = load_world(path, profile)
+    assert (w.reflector.edge_radius_mm, w.reflector.flatness_mm) == (1.5, 0.05)
+    assert (w.beam_squint_deg, w.beam_squint_azimuth_deg, w.near_field) == (0.8, 120.0, True)
+    assert world_warnings(path) == []
+    nominal = WorldTruth.nominal(profile)
+    assert (nominal.beam_squint_deg, nominal.near_field) == (0.0, False)
+    assert (nominal.reflector.edge_radius_mm, nominal.reflector.flatness_mm) == (0.0, 0.0)
 
 
 def test_world_dh_accepts_hayati_beta(profile: CellProfile, tmp_path: Path) -> None:

@@ -50,7 +50,15 @@ from scipy.spatial.transform import Rotation
 
 from ucal import acoustics
 from ucal.cell import WorldTruth
-from ucal.sim.geometry import Face, FaceHit, beam_ray, block_faces, intersect, reflector_face
+from ucal.sim.geometry import (
+    Face,
+    FaceHit,
+    beam_ray,
+    block_faces,
+    bowed_hit,
+    intersect,
+    reflector_face,
+)
 from ucal.sim.receiver import EchoReceiver
 
 log = logging.getLogger(__name__)
@@ -112,14 +120,17 @@ class SimulatedCell:
             ry = np.eye(4)
             ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
             self._twists.append(ry)
-        self._tool = world.tool_matrix
+        self._tool = world.beam_matrix   # tool centre, z along the acoustic axis (squint)
         faces: list[Face] = list(block_faces(world.sample_matrix, world.sample_face_size_mm))
+        self._plate: Face | None = None
         if world.reflector is not None:
-            faces.append(reflector_face(world.reflector))
+            self._plate = reflector_face(world.reflector)
+            faces.append(self._plate)
         self.faces: tuple[Face, ...] = tuple(faces)
         self._sigma_mm = acoustics.footprint_sigma_mm(world.element_diameter_mm)
         self._c_m_s = acoustics.sound_speed_m_s(world.water_temperature_c)
-        self._receiver = EchoReceiver(world.frequency_mhz, world.element_diameter_mm)
+        self._receiver = EchoReceiver(world.frequency_mhz, world.element_diameter_mm,
+                                      near_field=world.near_field)
         seed = int(world.noise.seed)
         self._rng = {s: np.random.default_rng([seed, int(s)]) for s in _Stream}
         self._gain_state: tuple[float, float] | None = None  # (requested dB, its error dB)
@@ -196,6 +207,10 @@ class SimulatedCell:
                      ) -> tuple[FaceHit, float] | None:
         """The echoing face's hit and the footprint's share on it, or None."""
         hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
+        refl = self.world.reflector
+        if refl is not None and refl.flatness_mm > 0.0:
+            hits = [bowed_hit(h, direction, refl.flatness_mm, refl.size_mm)
+                    if h.face is self._plate else h for h in hits]
         hits.sort(key=lambda h: h.distance_mm)
         for h in hits:
             if h.facing:

@@ -89,9 +89,32 @@ def reflector_face(reflector: Reflector) -> Face:
         e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 = e1 / np.linalg.norm(e1)
     e2 = np.cross(n, e1)
-    w, h = (float(s) for s in np.asarray(reflector.size_mm, dtype=float))
+    # the flat part: the rounded band of the edges reflects away from the transducer
+    w, h = (float(s) - 2.0 * float(reflector.edge_radius_mm)
+            for s in np.asarray(reflector.size_mm, dtype=float))
     return Face("reflector", np.asarray(reflector.point_mm, dtype=float), e1, e2, n,
                 (-w / 2.0, w / 2.0), (-h / 2.0, h / 2.0))
+
+
+def bowed_hit(hit: FaceHit, direction: np.ndarray, flatness_mm: float,
+              size_mm: np.ndarray) -> FaceHit:
+    """``hit`` on a plate bowed by ``flatness_mm`` peak to valley (``ucal.cell.Reflector``):
+    the surface lies ``s(u, v)`` along the normal, so the path is ``s/cos θ`` shorter, and the
+    beam's tilt is taken from the local normal ``n − s_u·e1 − s_v·e2`` (first order in the
+    slope, which is at most 2f/w)."""
+    face = hit.face
+    w, h = (float(x) for x in size_mm)
+    u, v = (float(x) for x in hit.uv_mm)
+    f = float(flatness_mm)
+    s = f * ((2 * u / w) ** 2 + (2 * v / h) ** 2) / 2.0 - f / 2.0
+    normal = face.normal - (4 * f * u / w ** 2) * face.e1 - (4 * f * v / h ** 2) * face.e2
+    normal = normal / np.linalg.norm(normal)
+    d = np.asarray(direction, float)
+    cos_n = float(d @ normal)
+    tilt = math.degrees(math.atan2(float(np.linalg.norm(np.cross(d, normal))), -cos_n))
+    path = hit.distance_mm - s / max(-float(d @ face.normal), 1e-9)
+    return FaceHit(face, path, hit.point_mm + (path - hit.distance_mm) * d, hit.uv_mm, tilt,
+                   hit.edge_distances_mm, hit.facing)
 
 
 def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceHit | None:

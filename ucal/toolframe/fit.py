@@ -410,4 +410,4 @@ def truth_in_profile_flange(profile: CellProfile, truth: WorldTruth) -> np.ndarr
     mine = link6(profile.model.dh[5], float(profile.joint_offsets_deg[5]), 0.0)
     true = link6(truth.model.dh[5], float(truth.joint_offsets_deg[5]),
                  float(truth.dh_beta_deg[5]))
-    return np.linalg.inv(mine) @ true @ truth.tool_matrix
+    return np.linalg.inv(mine) @ true @ truth.beam_matrix
