@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -84,6 +85,10 @@ def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
     # std is ten times the others'; the promise is its 3σ.
     assert abs(result["joint_offsets_deg"][5] - offsets[5]) <= min(3 * result["std_deg"][5], 0.01)
     assert result["moves"] <= 400                       # 12 faces (a second J1 azimuth)
+    # stderr is not a terminal: a plain progress line per face, then the solve
+    steps = re.findall(r"^calibrate \[(\d+)/12\] (face|solving)", out.stderr,
+                       re.MULTILINE)
+    assert steps == [(str(i), "face") for i in range(12)] + [("12", "solving")]
     written = load_profile(profile)
     np.testing.assert_allclose(written.joint_offsets_deg, result["joint_offsets_deg"], atol=1e-6)
     assert (tmp_path / "cell.toml.history").is_dir()  # what was replaced is kept

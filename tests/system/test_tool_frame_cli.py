@@ -4,6 +4,7 @@ loopback, with a hidden tool error in the world file."""
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -77,6 +78,9 @@ def test_exact_noise_free_recovers_hidden_tool_and_writes(tmp_path: Path, profil
     assert out["written"] is True and out["method"] == "exact"
     assert out["fit"]["verdict"] == "ok"
     assert out["points"] == 3 + 8  # three postures, two edges × two lines × two senses
+    # stderr is not a terminal: a plain progress line per step, --json or not
+    steps = re.findall(r"^tool-frame \[(\d+)/11\] ", r.stderr, re.MULTILINE)
+    assert steps == [str(i) for i in range(12)]
     # the plate and the water declared well known: along the beam too (the 8 ns electronic
     # delay is 6 µm of water, inside the delay's prior)
     assert out["along_beam"]["std_mm"] < 0.05

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -72,6 +73,9 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     check_shape(out, 4)
+    # stderr is not a terminal: a plain progress line per point and pass, --json or not
+    steps = re.findall(r"^verify \[(\d+)/8\] (?:before|after) point", r.stderr, re.MULTILINE)
+    assert steps == [str(i) for i in range(1, 9)]
     before = np.array(out["before_mm"]["mean"])
     after_max = np.array(out["after_mm"]["max"])
     # hidden offsets of about half a degree: millimetres off before, micrometres after
@@ -88,8 +92,9 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
 def test_uncalibrated_profile_before_equals_after(tmp_path: Path, world: Path) -> None:
     profile = make_profile(tmp_path, "cell.toml", None)
     r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "2", "--yes",
-                 "--json")
+                 "--json", "-q")
     assert r.returncode == 0, r.stderr
+    assert "verify [" not in r.stderr and "passes" not in r.stderr  # -q: no progress, no plan
     out = json.loads(r.stdout)
     check_shape(out, 2)
     before = np.array(out["deviations_mm"]["before"])

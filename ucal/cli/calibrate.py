@@ -31,6 +31,7 @@ from ucal.cli.options import (
     sim_option,
     yes_option,
 )
+from ucal.cli.progress import StepProgress
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +103,8 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     created = False
     if not profile_path.exists() and sim_world is not None:
         if dry_run:
-            tmp = Path(tempfile.mkdtemp(prefix="ucal-")) / profile_path.name
+            scratch = tempfile.TemporaryDirectory(prefix="ucal-")  # removed when the run ends
+            tmp = Path(scratch.name) / profile_path.name
             tmp.write_text(default_profile_text(DEFAULT_MODEL), encoding="utf-8")
             profile = load_profile(tmp)
         else:
@@ -197,21 +199,17 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
 def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method: str, beam: str,
                        dry_run: bool, as_json: bool, force: bool) -> dict:
     """Measure the plan on an open cell, solve, judge and write; the JSON result."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
     from ucal.calibration.sequence import run_calibration, solve
     from ucal.profile import write_profile
     from ucal.session import check_status
 
     check_status(cell.rig)
-    with Progress(TextColumn("{task.description}"), BarColumn(),
-                  TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
-                  disable=as_json) as progress:
-        task = progress.add_task("calibrating", total=len(plan.targets), info="")
+    with StepProgress("calibrate") as progress:
 
         def report(label: str, i: int, n: int) -> None:
-            progress.update(task, completed=i, description=f"face {label}",
-                            info=f"{cell.rig.counters.moves} moves")
+            counters = cell.rig.counters
+            progress.step(f"face {label}" if label != "done" else "solving", i, n,
+                          f"{counters.moves} moves, {counters.reads} reads")
 
         measurements = run_calibration(profile, plan, cell.rig, progress=report)
     truth = cell.truth

@@ -21,6 +21,7 @@ from ucal.cli.options import (
     sim_option,
     yes_option,
 )
+from ucal.cli.progress import StepProgress
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +85,13 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         confirm_motion(yes, plan.summary(), cell)
         with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
             check_status(session.rig)
-            run = run_tool_frame(profile, plan, session.rig, _progress(as_json))
+            with StepProgress("tool-frame") as progress:
+                def report(what: str, i: int, n: int) -> None:
+                    counters = session.rig.counters
+                    progress.step(what if what != "done" else "solving", i, n,
+                                  f"{counters.moves} moves, {counters.reads} reads")
+
+                run = run_tool_frame(profile, plan, session.rig, report)
             truth = session.truth
         message = _refusal(run)
         written = False
@@ -125,14 +132,6 @@ def _tool_keys(run: Any) -> dict[str, Any]:
         keys["rotation_std_deg"] = [round(max(float(v), 1e-6), 6)
                                     for v in run.fit.rotation_std_deg]
     return keys
-
-
-def _progress(quiet: bool) -> Any:
-    def show(what: str, i: int, n: int) -> None:
-        log.info("%s (%d/%d)", what, i, n)
-        if not quiet:
-            click.echo(f"[{i}/{n}] {what}", err=True)
-    return show
 
 
 def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: Any

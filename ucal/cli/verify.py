@@ -17,6 +17,7 @@ from ucal.cli.options import (
     sim_option,
     yes_option,
 )
+from ucal.cli.progress import StepProgress
 
 if TYPE_CHECKING:
     from ucal.cell import WorldTruth
@@ -72,8 +73,13 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     confirm_motion(yes, _summary(plan, profile_path), cell)
     with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
         check_status(session.rig)
-        progress = None if as_json else _progress
-        result = run_verify(profile, plan, session.rig, progress)
+        with StepProgress("verify") as progress:
+            def report(res: PointResult, done: int, total: int) -> None:
+                d = res.deviation_mm
+                progress.step(f"{res.pass_name} point {res.index + 1}", done, total,
+                              f"deviation X {d[0]:+.3f}  Y {d[1]:+.3f}  Z {d[2]:+.3f} mm")
+
+            result = run_verify(profile, plan, session.rig, report)
         truth = session.truth
     plot_verify(result, plot_path, title=f"{profile_path.name}: positioning error before and "
                                          "after calibration")
@@ -139,12 +145,6 @@ def _summary(plan: VerifyPlan, profile_path: Path) -> str:
             f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
             f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
             f"({6 * plan.points} in all).")
-
-
-def _progress(res: PointResult, done: int, total: int) -> None:
-    d = res.deviation_mm
-    click.echo(f"[{done}/{total}] {res.pass_name} point {res.index + 1}: deviation "
-               f"X {d[0]:+.3f}  Y {d[1]:+.3f}  Z {d[2]:+.3f} mm", err=True)
 
 
 def _print_table(result: VerifyResult) -> None:
