@@ -28,7 +28,7 @@ class Procedure:
     speed: float = 0.3               # fraction of the controller's maximum speed
     singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target
     tof_averages: int = 16           # pulser averaging for distance readings
-    verify_tolerance_mm: float = 0.5  # largest mean |deviation| per axis that `verify` passes
+    verify_tolerance_mm: float = 0.5  # largest deviation of a point on any axis `verify` passes
 
 
 @dataclass(frozen=True)

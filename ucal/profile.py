@@ -450,7 +450,7 @@ step_deg = {_num(proc.step_deg)}         # joint step between measurements
 speed = {_num(proc.speed)}            # fraction of the controller's maximum speed
 singularity_margin_deg = {_num(proc.singularity_margin_deg)}   # |theta5| stays above this
 tof_averages = {proc.tof_averages}       # pulser averages per distance reading
-verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` passes when the mean |deviation| per axis is below
+verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` fails (exit 1) when a point deviates more (mm)
 
 [calibration]
 # Written by `ucal calibrate`: actual joint angle = encoder reading + offset (deg).

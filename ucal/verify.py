@@ -61,7 +61,7 @@ from ucal.calibration.faces import acquisition_gain, estimate_offsets, measure_f
 from ucal.calibration.model import FACE_NAMES, CellGeometry, FaceMeasurement, face_basis
 from ucal.calibration.safety import check_joints
 from ucal.calibration.search import Rig, ka_of
-from ucal.calibration.sequence import calibration_pose, geometry
+from ucal.calibration.sequence import FinalApproachRig, calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import SafetyError, UnreachableError
@@ -166,6 +166,39 @@ def target_matrix(profile: CellProfile, point_local_mm: np.ndarray) -> np.ndarra
 
 
 # ---------------------------------------------------------------------------------------------
+# "before": the profile as it was before its last calibration
+
+
+@dataclass(frozen=True)
+class BeforeProfile:
+    """Offsets of the "before" pass and where they come from."""
+
+    offsets_deg: np.ndarray
+    source: str
+
+
+def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
+    """The joint offsets of the profile as it was before its last ``calibrate`` write (its
+    history); zero offsets when the history holds none (a profile calibrated by hand)."""
+    from ucal.profile import history_dir, load_profile, profile_history
+
+    for entry in reversed(profile_history(profile_path)):
+        if entry.reason.startswith("calibrate") and not entry.undone:
+            before = history_dir(profile_path) / entry.before
+            if before.exists():
+                old = load_profile(before)
+                return BeforeProfile(np.asarray(old.joint_offsets_deg, float),
+                                     f"history entry {entry.id} ({entry.time}): the profile "
+                                     "before its last calibration")
+    return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
+
+
+def passed(after_stats: dict[str, list[float]], tolerance_mm: float) -> bool:
+    """True when no point of the "after" pass deviates more than ``tolerance_mm`` on any axis."""
+    return bool(np.max(after_stats["max"]) <= tolerance_mm)
+
+
+# ---------------------------------------------------------------------------------------------
 # plan
 
 
@@ -221,7 +254,8 @@ def _check_face(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: i
 
 
 def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
-                height_mm: float = VERIFY_HEIGHT_MM) -> VerifyPlan:
+                height_mm: float = VERIFY_HEIGHT_MM,
+                before_offsets_deg: np.ndarray | None = None) -> VerifyPlan:
     """Plan and check every posture of both passes before the first motion.
 
     Checks (``SafetyError``, exit 4): IK reaches each point inside the joint ranges; every
@@ -234,7 +268,8 @@ def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
     nominal = nominal_points(profile, n_points, height_mm)
     v, _ = tool_lever(profile)
     reach = float(np.linalg.norm(v))
-    offsets = {"before": np.zeros(6), "after": np.array(profile.joint_offsets_deg, float)}
+    before = np.zeros(6) if before_offsets_deg is None else np.asarray(before_offsets_deg, float)
+    offsets = {"before": before, "after": np.array(profile.joint_offsets_deg, float)}
     near = calibration_pose(profile)
     s_mat = profile.sample_matrix
     targets: list[VerifyTarget] = []
@@ -386,10 +421,13 @@ class VerifyResult:
     def stats(self, pass_name: str) -> dict[str, list[float]]:
         return deviation_stats(self.deviations(pass_name))
 
-    def to_json(self) -> dict:
+    def to_json(self, tolerance_mm: float | None = None) -> dict:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
         out: dict = {f"{p}_mm": self.stats(p) for p in PASSES}
         out["points"] = self.plan.points
+        if tolerance_mm is not None:
+            out["tolerance_mm"] = float(tolerance_mm)
+            out["passed"] = passed(self.stats("after"), tolerance_mm)
         out["frame"] = "block"
         out["height_mm"] = self.plan.height_mm
         out["nominal_mm"] = self.plan.nominal_mm.tolist()
@@ -453,8 +491,11 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
     pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
     total = len(plan.targets)
+    approach = FinalApproachRig(rig)
     for n_done, target in enumerate(plan.targets):
-        rig.move(target.joints_deg)  # the commanded point: TCP on the nominal point
+        # the commanded point (TCP on the nominal point), reached from below on every joint
+        # as in the calibration: a joint with backlash lags the same way as when calibrated
+        approach.move(target.joints_deg)
         faces: dict[int, FaceMeasurement] = {}
         for k in FACE_ORDER:
             label = f"{target.label}/{FACE_NAMES[k]}"
@@ -493,10 +534,12 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
 
 def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
     """Simulation only: the TCP the true robot reaches at readings ``joints_deg`` in the
-    coordinates of the *true* block (mm): what the measurement should find."""
+    coordinates of the *true* block (mm): what the measurement should find. The commanded
+    points are reached from below on every joint, so a joint with backlash lags by half of it
+    against a positive motion."""
     from ucal.sim.cell import SimulatedCell
 
-    tcp = SimulatedCell(truth).true_tcp(joints_deg)[:3, 3]
+    tcp = SimulatedCell(truth).true_tcp(joints_deg, motion_sign=np.ones(6))[:3, 3]
     s_mat = truth.sample_matrix
     return s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
 

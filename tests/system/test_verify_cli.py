@@ -76,6 +76,8 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     # stderr is not a terminal: a plain progress line per point and pass, --json or not
     steps = re.findall(r"^verify \[(\d+)/8\] (?:before|after) point", r.stderr, re.MULTILINE)
     assert steps == [str(i) for i in range(1, 9)]
+    assert out["passed"] is True and out["tolerance_mm"] == 0.5   # [procedure] default
+    assert out["before_source"].startswith("history entry")
     before = np.array(out["before_mm"]["mean"])
     after_max = np.array(out["after_mm"]["max"])
     # hidden offsets of about half a degree: millimetres off before, micrometres after
@@ -89,14 +91,19 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
 
 
 @pytest.mark.timeout(300)
-def test_uncalibrated_profile_before_equals_after(tmp_path: Path, world: Path) -> None:
+def test_uncalibrated_profile_before_equals_after_and_fails(tmp_path: Path, world: Path) -> None:
+    """Half a degree of offsets the profile does not know: millimetres off after calibration
+    too, above the tolerance: a result (the full object with the error fields), exit 1."""
     profile = make_profile(tmp_path, "cell.toml", None)
     r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "2", "--yes",
-                 "--json", "-q")
-    assert r.returncode == 0, r.stderr
+                 "--json", "-q", "--tolerance-mm", "0.8")
+    assert r.returncode == 1, r.stderr
     assert "verify [" not in r.stderr and "passes" not in r.stderr  # -q: no progress, no plan
     out = json.loads(r.stdout)
     check_shape(out, 2)
+    assert out["passed"] is False and out["tolerance_mm"] == 0.8
+    assert out["exit_code"] == 1 and "above the tolerance of 0.8 mm" in out["error"]
+    assert "no calibration in the profile's history" in out["before_source"]
     before = np.array(out["deviations_mm"]["before"])
     after = np.array(out["deviations_mm"]["after"])
     assert np.max(np.abs(before)) > 1.0

@@ -130,3 +130,20 @@ def test_plan_uses_the_offsets_in_the_after_pass_only(profile) -> None:
         ta = beam_and_tcp(geometry(profile), a.joints_deg, off)[1]
         assert ta == pytest.approx(tb, abs=1e-6)
         assert not np.allclose(a.joints_deg, b.joints_deg, atol=0.1)
+
+
+def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
+    from ucal.profile import create_profile, write_profile
+    from ucal.verify import offsets_before_calibration, passed
+
+    path = create_profile(tmp_path / "cell.toml", "tx90l")
+    assert offsets_before_calibration(path).offsets_deg.tolist() == [0.0] * 6
+    first = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    write_profile(path, {"calibration": {"joint_offsets_deg": first}}, "calibrate --method exact")
+    write_profile(path, {"tool": {"position_mm": [1.0, 0.0, 80.0]}}, "tool-frame (exact)")
+    write_profile(path, {"calibration": {"joint_offsets_deg": [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}},
+                  "calibrate --method exact")
+    before = offsets_before_calibration(path)
+    assert before.offsets_deg.tolist() == first and "history entry 3" in before.source
+    stats = {"max": [0.1, 0.4, 0.2]}
+    assert passed(stats, 0.4) and not passed(stats, 0.39)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+import numpy as np
 
 from ucal.cli.options import (
     cell_from_options,
@@ -40,26 +41,32 @@ Examples:
               help="Number of nominal points (a grid, e.g. 20 = 5 x 4).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Before/after picture to write [default: PROFILE with .verify.png].")
+@click.option("--tolerance-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              metavar="MM",
+              help="Largest deviation of any point on any axis after calibration that passes "
+                   "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.")
 @yes_option
 @json_option
 def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, n_points: int, plot_path: Path | None, yes: bool,
-        as_json: bool) -> None:
+        pulser_url: str | None, n_points: int, plot_path: Path | None,
+        tolerance_mm: float | None, yes: bool, as_json: bool) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
     N nominal points on a grid 30 mm above the block's XY face, the tool pointing straight
-    down, are visited twice: "before" commanded without the profile's [calibration] joint
-    offsets, "after" with them. At each point the arm stays still while the wrist turns the
+    down, are visited twice: "before" commanded with the joint offsets the profile had before
+    its last calibration (from its history; zero without one), "after" with its [calibration]
+    offsets; every point is reached from below on each joint, as in the calibration. At each point the arm stays still while the wrist turns the
     beam normal to each of the block's three faces; the three water paths give the wrist
     centre, the three postures the flange orientation, hence the tool centre the robot really
     reached. Deviations are given per block axis X, Y, Z (mm): mean, max and standard deviation
     of the absolute values (paper 000, Table 5). A block-position error in the profile shows
-    as a common bias in both passes. The profile is never written.
+    as a common bias in both passes. The profile is never written. The run passes when no
+    point deviates more than the tolerance on any axis after calibration; otherwise exit 1.
     """
-    from ucal.errors import InputError
+    from ucal.errors import InputError, OutOfToleranceError
     from ucal.profile import load_profile
     from ucal.session import check_status, open_cell
-    from ucal.verify import plan_verify, plot_verify, run_verify
+    from ucal.verify import offsets_before_calibration, plan_verify, plot_verify, run_verify
 
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes)
     profile = load_profile(profile_path)
@@ -69,7 +76,10 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         raise InputError(f"--plot {plot_path}: directory {plot_path.parent} does not exist")
     _check_plot_format(plot_path)
 
-    plan = plan_verify(profile, n_points)  # every target checked before any connection
+    tolerance = profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
+    before = offsets_before_calibration(profile_path)
+    # every target checked before any connection
+    plan = plan_verify(profile, n_points, before_offsets_deg=before.offsets_deg)
     confirm_motion(yes, _summary(plan, profile_path), cell)
     with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
         check_status(session.rig)
@@ -83,15 +93,24 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         truth = session.truth
     plot_verify(result, plot_path, title=f"{profile_path.name}: positioning error before and "
                                          "after calibration")
+    out = result.to_json(tolerance)
+    out["before_source"] = before.source
+    out["profile"] = str(profile_path)
+    out["plot"] = str(plot_path)
+    worst = float(np.max(result.stats("after")["max"]))
+    message = (f"verify: a point deviates {worst:.3f} mm after calibration, above the "
+               f"tolerance of {tolerance:g} mm")
     if as_json:
-        out = result.to_json()
-        out["profile"] = str(profile_path)
-        out["plot"] = str(plot_path)
         if truth is not None:
             out["truth"] = _truth_check(result, truth)
+        if not out["passed"]:
+            raise OutOfToleranceError(message, out)
         emit_json(out)
         return
     _print_table(result)
+    click.echo(f"before: {before.source}")
+    click.echo(f"after: largest deviation {worst:.4f} mm, tolerance {tolerance:g} mm: "
+               + ("passed" if out["passed"] else "FAILED"))
     if truth is not None:
         chk = _truth_check(result, truth)
         click.echo("simulation check, measured minus true reached points: common bias "
@@ -100,6 +119,8 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
                    + ", ".join(f"{a} {v:.4f}" for a, v in
                                zip("XYZ", chk["measurement_scatter_max_mm"])) + " mm")
     click.echo(f"picture: {plot_path}")
+    if not out["passed"]:
+        raise OutOfToleranceError(message, out)
 
 
 def _truth_check(result: VerifyResult, truth: WorldTruth) -> dict:
@@ -108,7 +129,6 @@ def _truth_check(result: VerifyResult, truth: WorldTruth) -> dict:
     The error splits into a common bias (tool-frame errors the profile does not know) and
     what remains point by point.
     """
-    import numpy as np
 
     from ucal.verify import true_reached_local
 
@@ -148,7 +168,6 @@ def _summary(plan: VerifyPlan, profile_path: Path) -> str:
 
 
 def _print_table(result: VerifyResult) -> None:
-    import numpy as np
     from rich.console import Console
     from rich.table import Table
 
