@@ -147,12 +147,14 @@ def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     from an unrelated directory, with ucal imported from the install, not the source tree.
 
     Third-party dependencies come from this interpreter's environment (a ``.pth`` line) so the
-    test exercises ucal's own packaging without downloading numpy/scipy again; the build
-    backend (setuptools) is fetched by pip's build isolation.
+    test exercises ucal's own packaging without downloading numpy/scipy again; this
+    interpreter's pip builds and installs into the bare virtual environment, with the build
+    backend (setuptools, a test dependency) from this environment too.
     """
     src = _copy_source(tmp_path / "src")
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
+                   timeout=120)
     py = venv / "bin" / "python"
     code = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
     site = subprocess.run([str(py), "-c", code],
@@ -160,7 +162,8 @@ def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     deps = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
     (Path(site) / "zz_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    r = subprocess.run([str(py), "-m", "pip", "install", "--no-deps", "--quiet", str(src)],
+    r = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps",
+                        "--no-build-isolation", "--quiet", str(src)],
                        check=False, capture_output=True, text=True, timeout=600, env=env)
     assert r.returncode == 0, r.stdout + r.stderr
 
