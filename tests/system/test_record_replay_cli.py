@@ -21,15 +21,6 @@ def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           text=True, cwd=cwd, stdin=subprocess.DEVNULL, timeout=300)
 
 
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    d = tmp_path_factory.mktemp("record")
-    out = ucal("calibrate", "cell.toml", "--sim", "--yes", "--json", "--dry-run",
-               "--record", "run.jsonl", cwd=d)
-    assert out.returncode in (0, 1), out.stderr
-    return d, json.loads(out.stdout)
-
-
 def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
     d, result = recorded
     record = read_record(d / "run.jsonl")

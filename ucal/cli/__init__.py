@@ -96,8 +96,10 @@ def main(argv: list[str] | None = None) -> None:
     as_json = _wants_json(args)
     try:
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
-    except click.exceptions.Abort:
-        _report("interrupted; any motion was stopped", EXIT_INTERRUPTED, as_json)
+    except click.exceptions.Abort as e:
+        # click turns Ctrl-C into Abort; one without a cause is a confirmation declined
+        _report("interrupted; any motion was stopped" if e.__cause__ is not None
+                else "not confirmed: nothing moved", EXIT_INTERRUPTED, as_json)
         sys.exit(EXIT_INTERRUPTED)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)

@@ -18,6 +18,7 @@ Examples:
   ucal profile init tx90l cell.toml
   ucal profile show cell.toml --json
   ucal profile validate cell.toml
+  ucal profile init tx90l cell.toml --force
   ucal profile history cell.toml
   ucal profile undo cell.toml
 """)
