@@ -21,6 +21,7 @@ from ucal.cli.options import (
     CellChoice,
     cell_from_options,
     cell_options_typed,
+    check_output,
     confirm_motion,
     controller_option,
     dry_run_option,
@@ -99,6 +100,8 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         finish(replay(profile_path, replay_path, method, beam, as_json), as_json)
         return
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
+    if record_path is not None:
+        check_output(record_path)
     sim_world, controller_url, pulser_url = cell.sim_world, cell.controller_url, cell.pulser_url
     created = False
     if not profile_path.exists() and sim_world is not None:

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 import click
@@ -201,11 +203,8 @@ def cell_from_options(sim_world: str | None, controller_url: str | None,
         sim_world = ""  # --dry-run runs against the simulator
     if sim_world is None:
         _check_urls(ctx, controller_url, pulser_url)
-    elif sim_world:
-        from pathlib import Path
-
-        if not Path(sim_world).is_file():
-            raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
+    elif sim_world and not Path(sim_world).is_file():
+        raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
     cell = CellChoice(sim_world, controller_url, pulser_url)
     if not yes and not sys.stdin.isatty():
         raise InputError(f"refusing to move {cell.name} without confirmation: stdin is not a "
@@ -272,3 +271,13 @@ def confirm_motion(yes: bool, summary: str, cell: CellChoice) -> None:
                          "terminal; pass --yes")
     if not click.confirm(f"Move {cell.name} now?", default=False, err=True):
         raise click.exceptions.Abort()
+
+
+def check_output(path: Path) -> None:
+    """Refuse (``InputError``, exit 2, naming the file) an output whose directory is missing or
+    not writable, before any computation."""
+    directory = Path(path).parent
+    if not directory.is_dir():
+        raise InputError(f"{path}: cannot write: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise InputError(f"{path}: cannot write: directory {directory} is not writable")

@@ -5,14 +5,13 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 from pathlib import Path
 
 import click
 import numpy as np
 
 from ucal import files
-from ucal.cli.options import emit_json, json_option, parse_floats
+from ucal.cli.options import check_output, emit_json, json_option, parse_floats
 from ucal.errors import InputError
 
 #: Column names of the output file.
@@ -76,16 +75,6 @@ def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
         files.commit(files.stage(Path(path), text.getvalue().encode("utf-8")), Path(path))
     except OSError as e:
         raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
-
-
-def check_output(path: Path) -> None:
-    """Refuse (``InputError``, exit 2, naming the file) an output whose directory is missing or
-    not writable, before any computation."""
-    directory = Path(path).parent
-    if not directory.is_dir():
-        raise InputError(f"{path}: cannot write: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise InputError(f"{path}: cannot write: directory {directory} is not writable")
 
 
 @click.command("path", epilog="""\b

@@ -60,6 +60,8 @@ def test_no_cell_is_a_usage_error_before_any_plan(profile: Path, command: str,
      "--controller: not a controller URL: '10.0.0.5'"),
     (["calibrate", "--sim", "no-such-world.toml"], "no-such-world.toml: world file not found"),
     (["calibrate", "--sim"], "refusing to move the simulated cell without confirmation"),
+    (["calibrate", "--sim", "--yes", "--record", "no-such-dir/run.jsonl"],
+     "no-such-dir/run.jsonl: cannot write: directory no-such-dir does not exist"),
 ])
 def test_usage_errors_name_what_was_typed(profile: Path, args: list[str], words: str,
                                           run_main: RunMain) -> None:
