@@ -27,7 +27,9 @@ the thermometer (``scale_note``): this is why a full calibration needs honest le
 tolerances, and why the std of each length carries the scale.
 
 A kinematic parameter that is independent but weakly seen (its data information below its
-prior's) is fitted with its prior and reported as prior-dominated: its value stays within its
+prior's, or a std above ``PRIOR_DOMINATED`` of its tolerance) is fitted with its prior and
+reported as prior-dominated (e.g. ``d₅``, ``a₅``: they shift the flange across the beam,
+which a plane seen at normal incidence does not show): its value stays within its
 tolerance of the nominal one and its std says so. Joint offsets follow the offsets level:
 unobservable (kept) when their large std comes from a prior (J1 with a hand-placed block, J6
 with the beam on its axis).
@@ -68,6 +70,9 @@ KINEMATIC = DH + BETA
 #: of its norm duplicates them (redundant or a gauge).
 REDUNDANT_REL = 1e-3
 
+#: A parameter whose std is above this share of its tolerance is reported prior-dominated.
+PRIOR_DOMINATED = 0.5
+
 _ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
 
 
@@ -85,6 +90,9 @@ def redundancy_reason(name: str, partners: list[str]) -> str:
     if name in ("dh2_d_mm", "dh3_d_mm"):
         return ("axes 2 and 3 are parallel: d2 and d3 both slide along them and only their sum "
                 "is seen (Hayati's beta_deg takes the place of a d on that link)")
+    if name in ("dh5_d_mm", "dh5_a_mm"):
+        return ("moves the flange across the beam, which a plane seen at normal incidence does "
+                "not show (as the tool's position across the beam)")
     if name.startswith("dh6_"):
         return ("link 6 and the tool are one rigid body: the tool frame absorbs it "
                 "(tool-frame measures the tool with it)")
@@ -194,6 +202,13 @@ class FullSolution:
     def unobservable_joints(self) -> tuple[int, ...]:
         return tuple(sorted(self.unobservable_reasons))
 
+    method = "exact"
+
+    @property
+    def extra(self) -> dict:
+        """What ``ucal.cli.calibrate.judge`` reads of a solution: the fit behind it."""
+        return {"cell_fit": self.cell}
+
     @property
     def sound_speed_m_s(self) -> float:
         return self.cell.value(SOUND[0])
@@ -223,15 +238,19 @@ class FullSolution:
 
 
 def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, ...] = (),
-               max_std_deg: float = MAX_STD_DEG) -> FullSolution:
+               max_std_deg: float = MAX_STD_DEG,
+               structure: Identifiability | None = None) -> FullSolution:
     """Identify the kinematic model from ``meas`` (module docstring).
 
     The identifiability is judged on the data Jacobian at the profile's values (the errors a
-    calibration corrects are far too small to change it); the redundant parameters are held at
-    their nominal values in the fit. ``fixed`` names unknowns held at the profile's values too
-    (e.g. the tool orientation for ``--beam fixed``).
+    calibration corrects are far too small to change it): ``structure``, that of every posture
+    the block allows (``FullPlan.structure``), separates what no measurement can see from what
+    these few postures happen not to (those stay unknowns with their priors: prior-dominated);
+    without it, ``meas`` alone is judged. The redundant parameters are held at their nominal
+    values in the fit. ``fixed`` names unknowns held at the profile's values too (e.g. the tool
+    orientation for ``--beam fixed``).
     """
-    ident = identifiability(*data_jacobian(prior, meas))
+    ident = structure if structure is not None else identifiability(*data_jacobian(prior, meas))
     cell = solve_cell(prior, meas, fixed=fixed + tuple(ident.redundant), max_std_deg=max_std_deg,
                       table=full_table(prior))
     offsets = np.array(prior.offsets_deg, float)
@@ -255,9 +274,10 @@ def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, 
             params[name] = {"value": nominal, "std": None, "nominal": nominal,
                             "status": "not identifiable"}
             continue
-        value = cell.value(name)
-        params[name] = {"value": value, "std": cell.sigma(name), "nominal": nominal,
-                        "status": "prior-dominated" if name in ident.weak else "identified"}
+        value, sigma = cell.value(name), cell.sigma(name)
+        weak = name in ident.weak or sigma > PRIOR_DOMINATED * cell.table.prior_stds[i]
+        params[name] = {"value": value, "std": sigma, "nominal": nominal,
+                        "status": "prior-dominated" if weak else "identified"}
         if name in BETA:
             beta[1] = value
         else:

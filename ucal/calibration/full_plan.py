@@ -29,9 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ucal.calibration.fit import CellPrior, prior_from_profile
-from ucal.calibration.full import data_jacobian, ideal_measurements
+from ucal.calibration.full import (
+    Identifiability,
+    data_jacobian,
+    ideal_measurements,
+    identifiability,
+)
 from ucal.calibration.model import FACE_NAMES
-from ucal.calibration.safety import check_joints
+from ucal.calibration.safety import SEARCH_MARGIN_DEG, check_joints
 from ucal.calibration.sequence import (
     EDGE_MARGIN_MM,
     STEPPED_PATH_RANGE_MM,
@@ -61,6 +66,9 @@ SHOULDER_SPAN_DEG = 60.0
 MIN_GAIN = 1.0
 #: At most this many postures (each is a face search: ~23 moves on a cell).
 MAX_POSTURES = 60
+#: Room (deg) kept beyond the wrist search's on joints 4-6: the run predicts each posture with
+#: the cell as measured so far, which moves it by up to a few tenths of a degree.
+PLAN_MARGIN_DEG = 2.0
 #: σ assumed for planning: posture (deg) and water path (mm) of one measurement.
 PLAN_TILT_STD_DEG = 1e-3
 PLAN_DISTANCE_STD_MM = 1e-3
@@ -89,6 +97,9 @@ class FullPlan:
     d_criterion: float          # log det M / (2n): mean log-shrink of the prior σ
     log_det: float
     azimuths_deg: tuple[float, float]   # J1 range covered
+    #: What the data could identify from every candidate: what no posture the block allows
+    #: can see (``solve_full``'s ``structure``).
+    structure: Identifiability | None = None
 
     def describe(self) -> str:
         lo, hi = self.azimuths_deg
@@ -171,7 +182,7 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
     out: list[Posture] = []
     for i in np.flatnonzero(passed):
         try:
-            check_joints(profile, q[i], "candidate")
+            check_joints(profile, q[i], "candidate", SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG)
         except SafetyError:
             continue
         out.append(Posture(f"c{len(out)}", int(faces[i]), q[i].copy(), keys[pose_i[i]][1]))
@@ -179,15 +190,16 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
 
 
 def posture_jacobians(prior: CellPrior, profile: CellProfile, postures: list[Posture]
-                      ) -> np.ndarray:
+                      ) -> tuple[np.ndarray, tuple[str, ...]]:
     """Data Jacobian of each posture (n, 3, p): its three rows (tilts, water path, per σ)
-    against the unknowns of ``full_table`` (per prior σ), at the profile's values."""
+    against the unknowns of ``full_table`` (per prior σ), at the profile's values; and the
+    unknowns' names."""
     meas = ideal_measurements(geometry(profile), profile.sample_position_mm,
                               [(p.label, p.face, p.joints_deg) for p in postures],
                               profile.joint_offsets_deg, PLAN_DISTANCE_STD_MM,
                               PLAN_TILT_STD_DEG)
-    jac, _ = data_jacobian(prior, meas)
-    return jac.reshape(len(postures), 3, -1)
+    jac, names = data_jacobian(prior, meas)
+    return jac.reshape(len(postures), 3, -1), names
 
 
 def select_postures(jacs: np.ndarray, min_gain: float = MIN_GAIN,
@@ -238,11 +250,12 @@ def plan_full(profile: CellProfile, min_gain: float = MIN_GAIN,
         raise SafetyError("plan --level full: no posture normal to a block face passes the "
                           "checks (joint ranges, singularity margin, clearance, face edges)")
     prior = prior_from_profile(profile)
-    jacs = posture_jacobians(prior, profile, cands)
+    jacs, names = posture_jacobians(prior, profile, cands)
     idx, log_det = select_postures(jacs, min_gain, max_postures)
     chosen = order_postures([cands[i] for i in idx])
     chosen = [Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
               for i, p in enumerate(chosen)]
     j1 = [p.joints_deg[0] for p in chosen]
+    structure = identifiability(jacs.reshape(-1, jacs.shape[-1]), names)
     return FullPlan(tuple(chosen), len(cands), log_det / (2 * jacs.shape[-1]), log_det,
-                    (float(min(j1)), float(max(j1))))
+                    (float(min(j1)), float(max(j1))), structure)

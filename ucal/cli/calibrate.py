@@ -45,6 +45,7 @@ Examples:
   ucal calibrate cell.toml --sim --yes
   ucal calibrate cell.toml --sim world.toml --method paper --json --yes
   ucal calibrate cell.toml --controller tcp://10.0.0.5:11000 --pulser modbus-tcp://10.0.0.6:502
+  ucal calibrate cell.toml --sim --yes --level full
   ucal calibrate cell.toml --sim --yes --record run.jsonl
   ucal calibrate cell.toml --replay run.jsonl --method paper --json
 """)
@@ -59,6 +60,13 @@ Examples:
               show_default=True,
               help="auto/fit: the beam direction in the flange frame is an unknown with the "
                    "profile's tool tolerance as prior; fixed: take the profile's tool as exact.")
+@click.option("--level", type=click.Choice(["offsets", "full"]), default="offsets",
+              show_default=True,
+              help="offsets: the six joint offsets; full: the identifiable kinematic parameters "
+                   "as well, from many postures, written as [calibration] dh.")
+@click.option("--postures", type=click.IntRange(3, 200), default=None,
+              help="--level full: at most N postures (default: as many as the D-optimal "
+                   "criterion finds worth measuring).")
 @click.option("--force", is_flag=True,
               help="Write the result even when the fit is a misfit (the verdict is recorded in "
                    "the profile history).")
@@ -72,7 +80,9 @@ Examples:
 @dry_run_option
 @json_option
 def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, method: str, beam: str, force: bool, record_path: Path | None,
+        pulser_url: str | None, method: str, beam: str, level: str, postures: int | None,
+        force: bool,
+        record_path: Path | None,
         replay_path: Path | None, yes: bool, dry_run: bool, as_json: bool) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
 
@@ -91,6 +101,11 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         profile_lock,
     )
 
+    if level == "full" and method != "exact":
+        from ucal.errors import InputError
+
+        raise InputError("--level full identifies the kinematic model by least squares: it "
+                         "takes --method exact only")
     if replay_path is not None:
         if cell_options_typed(click.get_current_context()) or record_path is not None:
             from ucal.errors import InputError
@@ -121,8 +136,15 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     with contextlib.nullcontext() if dry_run else profile_lock(profile_path):
         if not dry_run:
             check_writable(profile_path)
-        result = run(profile, profile_path, sim_world, controller_url, pulser_url, method, beam,
-                     yes, dry_run, as_json, force, record_path)
+        if level == "full":
+            from ucal.cli import calibrate_full
+
+            result = calibrate_full.run(profile, profile_path, sim_world, controller_url,
+                                        pulser_url, beam, yes, dry_run, as_json, force,
+                                        record_path, max_postures=postures)
+        else:
+            result = run(profile, profile_path, sim_world, controller_url, pulser_url, method,
+                         beam, yes, dry_run, as_json, force, record_path)
     result["created"] = created
     finish(result, as_json)
 
@@ -149,8 +171,15 @@ def replay(profile_path: Path, record_path: Path, method: str, beam: str, as_jso
     record = read_record(record_path)
     profile = profile_from_data(tomlkit.parse(record.profile_text),
                                 f"{record_path} (recorded profile)")
-    result = run(profile, profile_path, None, None, None, method, beam, True, True, as_json,
-                 record=record)
+    if record.options.get("level") == "full":
+        from ucal.cli import calibrate_full
+
+        result = calibrate_full.run(profile, profile_path, None, None, None, beam, True, True,
+                                    as_json, record=record,
+                                    max_postures=record.options.get("max_postures"))
+    else:
+        result = run(profile, profile_path, None, None, None, method, beam, True, True, as_json,
+                     record=record)
     result["replayed"] = str(record_path)
     if record.result is None:
         log.warning("%s has no end line: the recorded run was cut off", record_path)
@@ -168,42 +197,51 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
     from rich.console import Console
 
     from ucal.calibration.sequence import plan_calibration
-    from ucal.record import Recorder, sha256_text
-    from ucal.session import open_cell, replay_cell
 
     console = Console(stderr=True)
     plan = plan_calibration(profile)
-    recorder = None
     if record is None:
         confirm_motion(yes, plan_summary(plan, profile),
                        CellChoice(sim_world, controller_url, pulser_url))
+    return in_session(
+        profile, sim_world, controller_url, pulser_url, record_path, record,
+        {"method": method, "beam": beam, "level": "offsets"},
+        [{"label": t.label, "joints_deg": t.joints_deg.tolist(),
+          "water_path_mm": t.water_path_mm} for t in plan.targets],
+        lambda cell: _measure_and_solve(profile, profile_path, plan, cell, console, method, beam,
+                                        dry_run or record is not None, as_json, force))
+
+
+def in_session(profile, sim_world, controller_url, pulser_url, record_path: Path | None, record,
+               options: dict, plan_rows: list[dict], body) -> dict:
+    """Open the cell (or the replayed one), record its traffic if asked, run ``body(cell)`` and
+    return its result (also the record's end line)."""
+    from ucal.record import Recorder, sha256_text
+    from ucal.session import open_cell, replay_cell
+
+    recorder = None
     if record_path is not None:
         text = profile.path.read_text(encoding="utf-8")
         recorder = Recorder(record_path).open({
             "command": "calibrate", "ucal": __version__, "profile_path": str(profile.path),
             "profile_sha256": sha256_text(text), "profile_text": text,
             "cell": "simulated cell" if sim_world is not None else controller_url,
-            "options": {"method": method, "beam": beam, "level": "offsets"},
-            "plan": [{"label": t.label, "joints_deg": t.joints_deg.tolist(),
-                      "water_path_mm": t.water_path_mm} for t in plan.targets]})
+            "options": options, "plan": plan_rows})
     with contextlib.ExitStack() as stack:
         if recorder is not None:
             stack.enter_context(recorder)
         cell = stack.enter_context(
             replay_cell(profile, record) if record is not None
             else open_cell(profile, sim_world, controller_url, pulser_url, recorder))
-        result = _measure_and_solve(profile, profile_path, plan, cell, console, method, beam,
-                                    dry_run or record is not None, as_json, force)
+        result = body(cell)
         if recorder is not None:
             recorder.end({k: v for k, v in result.items() if not k.startswith("_")})
     return result
 
 
-def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method: str, beam: str,
-                       dry_run: bool, as_json: bool, force: bool) -> dict:
-    """Measure the plan on an open cell, solve, judge and write; the JSON result."""
-    from ucal.calibration.sequence import run_calibration, solve
-    from ucal.profile import write_profile
+def measure_with_progress(cell, what: str, measure):
+    """``measure(report)`` with one progress line per step (``StepProgress``), after checking
+    the controller's status."""
     from ucal.session import check_status
 
     check_status(cell.rig)
@@ -211,10 +249,21 @@ def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method:
 
         def report(label: str, i: int, n: int) -> None:
             counters = cell.rig.counters
-            progress.step(f"face {label}" if label != "done" else "solving", i, n,
+            progress.step(f"{what} {label}" if label != "done" else "solving", i, n,
                           f"{counters.moves} moves, {counters.reads} reads")
 
-        measurements = run_calibration(profile, plan, cell.rig, progress=report)
+        return measure(report)
+
+
+def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method: str, beam: str,
+                       dry_run: bool, as_json: bool, force: bool) -> dict:
+    """Measure the plan on an open cell, solve, judge and write; the JSON result."""
+    from ucal.calibration.sequence import run_calibration, solve
+    from ucal.profile import write_profile
+
+    measurements = measure_with_progress(
+        cell, "face",
+        lambda report: run_calibration(profile, plan, cell.rig, progress=report))
     truth = cell.truth
     duration_s = cell.elapsed_s
     exact, paper = solve(profile, measurements, beam)
@@ -233,36 +282,13 @@ def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method:
         if not verdict.ok:
             reason += f", written with --force: {verdict.message}"
         write_profile(profile_path, {"calibration": {
-            "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
-            "unobservable_joints": list(chosen.unobservable_joints),
-            "method": chosen.method,
-            "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in chosen.std_deg],
+            **written_keys(chosen, exact.sound_speed_m_s, fit),
             "condition_number": round(float(chosen.condition_number), 3),
-            "sound_speed_m_s": round(float(exact.sound_speed_m_s), 3),
-            "fit_verdict": fit.verdict,
-            "chi2_reduced": round(float(fit.chi2_reduced), 4),
-            "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         }}, reason=reason)
         written = True
     result = {
-        "joint_offsets_deg": chosen.offsets_deg,
-        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
-        "unobservable_joints": list(chosen.unobservable_joints),
-        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
-        "method": chosen.method,
-        "level": "offsets",
-        "moves": measurements.moves,
-        "pulser_reads": measurements.reads,
-        # time the run took on the cell: simulated time on the simulated cell (what a real
-        # cell would take over Modbus TCP)
-        "duration_s": duration_s,
-        "profile": str(profile_path),
-        "written": written,
-        "sound_speed_m_s": exact.sound_speed_m_s,
-        "sound_speed_std_m_s": exact.sound_speed_std_m_s,
-        "fit": fit.to_json(),
-        "residuals": [{"label": r.label, "tilt": list(r.tilt), "distance": r.distance}
-                      for r in fit.residuals],
+        **result_fields(chosen, "offsets", measurements, duration_s, profile_path, written,
+                        exact, fit),
         "condition_number": chosen.condition_number,
         "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
         "out_of_tolerance": not verdict.ok,
@@ -273,6 +299,46 @@ def _measure_and_solve(profile, profile_path: Path, plan, cell, console, method:
     if not as_json:
         show_result(console, chosen, exact, paper, truth, result)
     return result
+
+
+def written_keys(chosen, sound_speed_m_s: float, fit: FitQuality) -> dict:
+    """The ``[calibration]`` keys every level writes: offsets, their std, the fit."""
+    return {
+        "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
+        "unobservable_joints": list(chosen.unobservable_joints),
+        "method": chosen.method,
+        "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in chosen.std_deg],
+        "sound_speed_m_s": round(float(sound_speed_m_s), 3),
+        "fit_verdict": fit.verdict,
+        "chi2_reduced": round(float(fit.chi2_reduced), 4),
+        "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+    }
+
+
+def result_fields(chosen, level: str, measurements, duration_s: float, profile_path: Path,
+                  written: bool, sound, fit: FitQuality) -> dict:
+    """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
+    solution that fitted the sound speed)."""
+    return {
+        "joint_offsets_deg": chosen.offsets_deg,
+        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
+        "unobservable_joints": list(chosen.unobservable_joints),
+        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
+        "method": chosen.method,
+        "level": level,
+        "moves": measurements.moves,
+        "pulser_reads": measurements.reads,
+        # time the run took on the cell: simulated time on the simulated cell (what a real
+        # cell would take over Modbus TCP)
+        "duration_s": duration_s,
+        "profile": str(profile_path),
+        "written": written,
+        "sound_speed_m_s": sound.sound_speed_m_s,
+        "sound_speed_std_m_s": sound.sound_speed_std_m_s,
+        "fit": fit.to_json(),
+        "residuals": [{"label": r.label, "tilt": list(r.tilt), "distance": r.distance}
+                      for r in fit.residuals],
+    }
 
 
 class Verdict:
@@ -393,18 +459,7 @@ def show_result(console, chosen, exact, paper, truth, result) -> None:
             row.append("—" if unobs else f"{chosen.offsets_deg[j] - truth.joint_offsets_deg[j]:+.4f}")
         table.add_row(*row)
     console.print(table)
-    fit = exact.fit
-    res = Table(title="Fit: normalised residual per measurement (residual / its σ)")
-    for col in ("measurement", "tilt a", "tilt b", "distance"):
-        res.add_column(col, justify="right")
-    for r in fit.residuals:
-        res.add_row(r.label, f"{r.tilt[0]:+.2f}", f"{r.tilt[1]:+.2f}", f"{r.distance:+.2f}")
-    console.print(res)
-    console.print(escape(f"fit {fit.verdict}: χ²ᵣ {fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; "
-                  f"rms tilt {fit.rms_tilt_deg:.2e} deg, rms distance {fit.rms_distance_mm:.2e} mm; "
-                  f"worst {fit.worst}"))
-    if fit.cause:
-        console.print(escape(f"likely cause: {fit.cause}"))
+    show_fit(console, exact.fit)
     console.print(f"sound speed {result['sound_speed_m_s']:.2f} ± "
                   f"{result['sound_speed_std_m_s']:.2f} m/s (fitted); condition number "
                   f"{chosen.condition_number:.1f}; {result['moves']} moves, "
@@ -412,3 +467,21 @@ def show_result(console, chosen, exact, paper, truth, result) -> None:
                   f"{'written' if result['written'] else 'not written'}: {result['profile']}")
     for j, why in sorted(chosen.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+
+
+def show_fit(console, fit) -> None:
+    """The fit's normalised residual per measurement, its verdict and the likely cause."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    res = Table(title="Fit: normalised residual per measurement (residual / its σ)")
+    for col in ("measurement", "tilt a", "tilt b", "distance"):
+        res.add_column(col, justify="right")
+    for r in fit.residuals:
+        res.add_row(r.label, f"{r.tilt[0]:+.2f}", f"{r.tilt[1]:+.2f}", f"{r.distance:+.2f}")
+    console.print(res)
+    console.print(escape(f"fit {fit.verdict}: χ²ᵣ {fit.chi2_reduced:.3g} on {fit.dof} degrees of "
+                         f"freedom; rms tilt {fit.rms_tilt_deg:.2e} deg, rms distance "
+                         f"{fit.rms_distance_mm:.2e} mm; worst {fit.worst}"))
+    if fit.cause:
+        console.print(escape(f"likely cause: {fit.cause}"))

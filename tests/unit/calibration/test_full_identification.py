@@ -81,9 +81,10 @@ def test_dh_errors_identified_within_std_and_tcp_recovered(cell):
     meas = measure(profile, plan, model, offsets, [0.3, -0.2, 0.4],
                    profile.sample_position_mm + [3.0, -2.0, 4.0], 20.05, seed=1)
     prior = prior_from_profile(profile)
-    sol = solve_full(prior, meas)
-    assert set(sol.ident.redundant) == {"dh1_d_mm", "dh3_d_mm", "dh6_d_mm", "dh6_a_mm",
-                                        "dh6_alpha_deg"}
+    sol = solve_full(prior, meas, structure=plan.structure)
+    assert set(sol.ident.redundant) == {"dh1_d_mm", "dh3_d_mm", "dh5_d_mm", "dh5_a_mm",
+                                        "dh6_d_mm", "dh6_a_mm", "dh6_alpha_deg"}
+    assert "across the beam" in sol.ident.redundant["dh5_a_mm"]
     assert "parallel" in sol.ident.redundant["dh3_d_mm"] and sol.ident.scale_note
     assert sol.cell.quality.verdict == "ok"
     truth = true_parameters(model)
@@ -109,7 +110,7 @@ def test_nominal_robot_gives_the_nominal_table_back(cell):
     profile, plan = cell
     meas = measure(profile, plan, profile.model, np.zeros(6), np.zeros(3),
                    profile.sample_position_mm, profile.water_temperature_c, seed=2)
-    sol = solve_full(prior_from_profile(profile), meas)
+    sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
     truth = true_parameters(profile.model)
     for name, v in sol.parameters.items():
         if v["std"] is None:

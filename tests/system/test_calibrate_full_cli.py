@@ -1,0 +1,63 @@
+"""``ucal calibrate --level full`` on the simulated cell, a short plan (a whole run is the
+benchmark's: ``benchmarks/full_calibration.py``)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ucal.profile import create_profile, load_profile
+
+pytestmark = pytest.mark.system
+
+WORLD = """
+[robot]
+joint_offsets_deg = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
+dh = [
+  { theta_offset_deg = 0.0, d_mm = 0.0, a_mm = 50.3, alpha_deg = -90.03 },
+  { theta_offset_deg = -90.0, d_mm = 50.2, a_mm = 500.4, alpha_deg = 0.02, beta_deg = 0.04 },
+  { theta_offset_deg = 90.0, d_mm = 0.0, a_mm = 0.0, alpha_deg = 90.04 },
+  { theta_offset_deg = 0.0, d_mm = 549.6, a_mm = 0.0, alpha_deg = -89.96 },
+  { theta_offset_deg = 0.0, d_mm = 0.0, a_mm = 0.0, alpha_deg = 90.03 },
+  { theta_offset_deg = 0.0, d_mm = 100.0, a_mm = 0.0, alpha_deg = 0.0 },
+]
+[noise]
+tof_ns = 0.5
+amplitude = 0.01
+seed = 3
+"""
+
+
+def test_full_level_writes_the_identified_table(tmp_path: Path) -> None:
+    profile = tmp_path / "cell.toml"
+    create_profile(profile, "tx90l")
+    world = tmp_path / "world.toml"
+    world.write_text(WORLD)
+    before = profile.read_bytes()
+    r = subprocess.run([sys.executable, "-m", "ucal", "calibrate", str(profile), "--sim",
+                        str(world), "--level", "full", "--postures", "5", "--yes", "--json"],
+                       capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
+                       check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    assert out["level"] == "full" and out["written"] and out["fit"]["verdict"] == "ok"
+    assert out["plan"]["postures"] == 5 and "D-optimality" in r.stderr
+    ident = out["identification"]
+    assert {"dh1_d_mm", "dh3_d_mm", "dh6_d_mm"} <= set(ident["not_identifiable"])
+    assert ident["rank"] < ident["unknowns"] and ident["scale"]
+    beta = ident["parameters"]["dh2_beta_deg"]
+    assert abs(beta["value"] - 0.04) < 3 * beta["std"]
+    assert profile.read_bytes() != before
+    p = load_profile(profile)
+    assert p.model.meta["dh_source"] == "[calibration] dh"
+    assert p.model.beta_deg[1] == pytest.approx(beta["value"], abs=1e-6)
+    assert p.model.dh[1, 2] == pytest.approx(ident["parameters"]["dh2_a_mm"]["value"], abs=1e-5)
+    true = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
+    for j, (v, sd) in enumerate(zip(out["joint_offsets_deg"], out["std_deg"], strict=True)):
+        assert p.joint_offsets_deg[j] == pytest.approx(v, abs=1e-6)
+        if sd is not None:                           # few postures: some stay unobservable
+            assert abs(v - true[j]) < 3 * sd

@@ -1,0 +1,102 @@
+"""The measuring run of ``calibrate --level full``: the planned postures, one face search each.
+
+Read top to bottom: noise floor and acquisition gain once; then for every planned posture
+(``ucal.calibration.full_plan``, visiting order) predict the normal-incidence posture with the
+cell as measured so far, check it (joint ranges with room for the wrist search, the θ5
+singularity margin, a safe water path) before moving, and measure the face there
+(``ucal.calibration.faces.measure_face``: peak search and water path); each measurement refines
+the estimate that predicts the next posture. Every move ends approaching from below on each
+joint (``FinalApproachRig``: backlash). At the end the early faces' probes are fitted again
+with the final estimate, and ``ucal.calibration.full.solve_full`` identifies the model.
+
+The prediction holds the DH table at the profile's (a few tenths of a millimetre move a posture
+by hundredths of a degree): the search around each prediction absorbs that. A prediction that
+landed within ``DIRECT_FIT_DEG`` lets the next face be fitted at once, otherwise the search
+centres first.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from ucal.calibration.faces import acquisition_gain, measure_face
+from ucal.calibration.fit import prior_from_profile
+from ucal.calibration.full_plan import FullPlan
+from ucal.calibration.model import FaceMeasurement, beam_and_tcp
+from ucal.calibration.safety import check_joints
+from ucal.calibration.search import Rig, ka_of
+from ucal.calibration.sequence import (
+    MIN_WATER_PATH_MM,
+    CalibrationRun,
+    FinalApproachRig,
+    estimate_cell,
+    geometry,
+    refit_peaks,
+)
+from ucal.calibration.wrist import aim_wrist
+from ucal.cell import CellProfile
+from ucal.errors import SafetyError
+
+log = logging.getLogger(__name__)
+
+#: A prediction this close (deg of beam tilt) to the posture found lets the next face be
+#: fitted without centring first.
+DIRECT_FIT_DEG = 0.02
+
+
+def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
+             progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
+    """Measure every planned posture (module docstring). The caller owns the connection, STOP
+    and the profile."""
+    geom = geometry(profile)
+    ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, profile.water_temperature_c)
+    prior = prior_from_profile(profile)
+    approach = FinalApproachRig(rig)
+    first = plan.postures[0]
+    away = first.joints_deg.copy()
+    away[4] += 25.0 if away[4] < 0 else -25.0      # the beam in open water: the noise floor
+    acq_gain = acquisition_gain(rig, away)
+
+    est = np.array(profile.joint_offsets_deg, float)
+    corner = np.array(profile.sample_position_mm, float)
+    fitted = geom
+    vector = None
+    last_error = np.inf
+    meas: list[FaceMeasurement] = []
+    total = len(plan.postures)
+    for i, posture in enumerate(plan.postures):
+        if progress:
+            progress(posture.label, i, total)
+        label = f"face {posture.face_name} ({posture.label})"
+        check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
+        mode = ("acquire" if not meas else "direct" if last_error < DIRECT_FIT_DEG
+                else "quick")
+        res = measure_face(approach, fitted, profile, posture.joints_deg, posture.face, est, ka,
+                           acq_gain, label, posture.label, mode, 16.0 if not meas else 8.0)
+        meas.append(res.measurement)
+        last_error = res.prediction_error_deg
+        cell = estimate_cell(prior, meas, vector)
+        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector,
+                                       cell.geometry)
+    approach.move(first.joints_deg)
+    meas = refit_peaks(approach, profile, meas, ka, prior)
+    if progress:
+        progress("done", total, total)
+    return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
+
+
+def check_prediction(profile: CellProfile, geom, joints_deg: np.ndarray, face: int,
+                     offsets_deg: np.ndarray, corner_mm: np.ndarray, label: str) -> None:
+    """Check the posture predicted for ``face`` from the planned one before moving there
+    (``SafetyError``, exit 4): joint ranges with room for the wrist search, the singularity
+    margin, and a water path of at least ``MIN_WATER_PATH_MM``."""
+    q = aim_wrist(geom, joints_deg, -geom.normal(face), offsets_deg)
+    check_joints(profile, q, label)
+    _, tcp = beam_and_tcp(geom, q, offsets_deg)
+    path = float(geom.normal(face) @ (tcp - corner_mm))
+    if path < MIN_WATER_PATH_MM:
+        raise SafetyError(f"{label}: with the cell as measured so far the tool centre would be "
+                          f"{path:.1f} mm from the face (minimum {MIN_WATER_PATH_MM:g} mm)")
