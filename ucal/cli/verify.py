@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 Examples:
   ucal verify cell.toml --sim --yes
   ucal verify cell.toml --sim world.toml --points 4 --json --yes
+  ucal verify cell.toml --sim --region 12 --yes
   ucal verify cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502 --plot report.png
 """)
@@ -45,11 +46,14 @@ Examples:
               metavar="MM",
               help="Largest deviation of any point on any axis after calibration that passes "
                    "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.")
+@click.option("--region", "region", type=click.IntRange(3, 100), default=None,
+              help="Instead: check the kinematic model against the block's faces from N "
+                   "postures spread like a full calibration's (ucal.verify_region).")
 @yes_option
 @json_option
 def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         pulser_url: str | None, n_points: int, plot_path: Path | None,
-        tolerance_mm: float | None, yes: bool, as_json: bool) -> None:
+        tolerance_mm: float | None, region: int | None, yes: bool, as_json: bool) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
     N nominal points on a grid 30 mm above the block's XY face, the tool pointing straight
@@ -69,6 +73,11 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     from ucal.verify import offsets_before_calibration, plan_verify, plot_verify, run_verify
 
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes)
+    if region is not None:
+        from ucal.cli import verify_region
+
+        verify_region.run(profile_path, cell, region, tolerance_mm, yes, as_json)
+        return
     profile = load_profile(profile_path)
     if plot_path is None:
         plot_path = profile_path.with_name(profile_path.stem + ".verify.png")

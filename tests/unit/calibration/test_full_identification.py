@@ -27,6 +27,7 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import load_profile
+from ucal.verify_region import judge_region, plan_region
 
 REPO = Path(__file__).resolve().parents[3]
 SIGMA = 5e-4  # deg of posture, mm of water path
@@ -117,3 +118,25 @@ def test_nominal_robot_gives_the_nominal_table_back(cell):
             assert v["value"] == truth[name]
         else:
             assert abs(v["value"] - truth[name]) <= 3 * v["std"], name
+
+
+def test_region_check_flags_a_table_that_is_wrong_away_from_the_calibration(cell):
+    """The model held, block and water fitted: a nominal table on a robot with DH errors leaves
+    residuals far above the noise over spread postures; the true table leaves noise."""
+    profile, plan = cell
+    region = plan_region(profile, 10, exclude=plan.postures)
+    assert len(region.postures) == 10
+    assert not any(np.allclose(r.joints_deg, p.joints_deg) for r in region.postures
+                   for p in plan.postures)
+    dh = profile.model.dh.copy()
+    dh[1, 2] += 0.3
+    dh[3, 1] -= 0.2
+    dh[2, 3] += 0.03
+    model = profile.model.with_dh(dh, [0.0, 0.03, 0.0, 0.0, 0.0, 0.0])
+    offsets = np.array([0.0, 0.1, -0.1, 0.05, 0.1, 0.0])
+    meas = measure(profile, region, model, offsets, [0.1, 0.0, -0.1],
+                   profile.sample_position_mm + [1.0, 2.0, -1.0], 20.3, seed=4)
+    wrong = judge_region(profile.replace(joint_offsets_deg=offsets), meas, 0.5)
+    assert wrong.verdict == "misfit" and not wrong.passed and wrong.max_distance_mm > 0.01
+    right = judge_region(profile.replace(model=model, joint_offsets_deg=offsets), meas, 0.5)
+    assert right.passed and right.max_distance_mm < 0.005 and right.max_tilt_deg < 0.005
