@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.controller.client import DEFAULT_TIMEOUTS
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
 
@@ -29,6 +30,30 @@ class Procedure:
     singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target
     tof_averages: int = 16           # pulser averaging for distance readings
     verify_tolerance_mm: float = 0.5  # largest deviation of a point on any axis `verify` passes
+
+
+@dataclass(frozen=True)
+class ControllerTimeouts:
+    """``[controller]`` in the profile: how long the controller link may take (s; every key
+    optional). The settle timeout bounds each move; the others are the driver's
+    (``drivers.controller.client.DEFAULT_TIMEOUTS``)."""
+
+    connect_timeout_s: float = DEFAULT_TIMEOUTS["connect_timeout_s"]
+    first_state_timeout_s: float = DEFAULT_TIMEOUTS["first_state_timeout_s"]
+    state_timeout_s: float = DEFAULT_TIMEOUTS["state_timeout_s"]
+    reply_timeout_s: float = DEFAULT_TIMEOUTS["reply_timeout_s"]
+    halt_timeout_s: float = DEFAULT_TIMEOUTS["halt_timeout_s"]
+    settle_timeout_s: float = 60.0
+
+    def driver_options(self) -> dict[str, float]:
+        """The driver's timeouts as ``open_controller`` keyword arguments."""
+        return {key: getattr(self, key) for key in DEFAULT_TIMEOUTS}
+
+
+#: Largest value of each ``[controller]`` timeout a profile may state (s).
+MAX_CONTROLLER_TIMEOUT_S = {"connect_timeout_s": 60.0, "first_state_timeout_s": 120.0,
+                            "state_timeout_s": 60.0, "reply_timeout_s": 60.0,
+                            "halt_timeout_s": 60.0, "settle_timeout_s": 3600.0}
 
 
 @dataclass(frozen=True)
@@ -61,6 +86,7 @@ class CellProfile:
     joint_offsets_std_deg: np.ndarray | None = None
     unobservable_joints: tuple[int, ...] = ()
     procedure: Procedure = field(default_factory=Procedure)
+    controller: ControllerTimeouts = field(default_factory=ControllerTimeouts)
     path: Path | None = None
 
     @property
@@ -161,6 +187,11 @@ class WorldTruth:
     #: Near-field directivity: the echo of a tilted plane returns displaced by 2L·tan 2θ and,
     #: inside the near field, about as wide as the element (``ucal.sim.receiver``).
     near_field: bool = False
+    #: The Simple Message server the controller behaves as
+    #: (``drivers.controller.simulator.SERVERS``) and its start-up silence (s; None: the
+    #: server's own).
+    controller_server: str = "simple"
+    controller_silence_s: float | None = None
 
     @property
     def tool_matrix(self) -> np.ndarray:

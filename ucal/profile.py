@@ -35,7 +35,13 @@ import tomlkit
 from tomlkit.items import Array, InlineTable, Table
 
 from ucal import files
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, Procedure
+from ucal.cell import (
+    MAX_CONTROLLER_TIMEOUT_S,
+    PAPER_CALIBRATION_POSE_DEG,
+    CellProfile,
+    ControllerTimeouts,
+    Procedure,
+)
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import RobotModel, wrist_centre
 from ucal.models import KNOWN_MODELS, load_model
@@ -61,6 +67,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "procedure": frozenset({"calibration_pose_deg", "water_path_mm", "step_deg", "speed",
                             "singularity_margin_deg", "tof_averages",
                             "verify_tolerance_mm"}),
+    "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
 }
 
 #: Flange length of the shipped models (mm): wrist centre to flange along z6.
@@ -165,6 +172,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
             model.meta["dh_source"] = "[calibration] dh"
 
     procedure = read_procedure(r, r.table("procedure"), model)
+    controller = read_controller(r, r.table("controller"))
 
     return CellProfile(model=model, tool_position_mm=tool_pos, tool_rotation_deg=tool_rot,
                        sample_position_mm=sample_pos, sample_rotation_deg=sample_rot,
@@ -172,7 +180,8 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
                        reflector_points_std_mm=points_std, joint_offsets_std_deg=offsets_std,
                        water_temperature_c=water_c, frequency_mhz=freq,
                        element_diameter_mm=diam, joint_offsets_deg=offsets,
-                       unobservable_joints=unobservable, procedure=procedure, path=Path(path),
+                       unobservable_joints=unobservable, procedure=procedure,
+                       controller=controller, path=Path(path),
                        **tolerances)
 
 
@@ -291,6 +300,19 @@ def read_procedure(r: Reader, table: Mapping[str, Any] | None,
     )
 
 
+def read_controller(r: Reader, table: Mapping[str, Any] | None) -> ControllerTimeouts:
+    """Optional ``[controller]`` timeouts (s, > 0, at most ``MAX_CONTROLLER_TIMEOUT_S``)."""
+    if table is None:
+        return ControllerTimeouts()
+    values = {}
+    for key, hi in MAX_CONTROLLER_TIMEOUT_S.items():
+        raw = r.get(table, f"controller.{key}")
+        if raw is not None:
+            values[key] = r.number(f"controller.{key}", raw, lo=0.0, lo_open=True, hi=hi,
+                                   unit="s")
+    return ControllerTimeouts(**values)
+
+
 def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
     """A profile as plain JSON-able data in the profile's own table/key layout."""
     m = profile.model
@@ -320,6 +342,7 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
             "water_path_mm": proc.water_path_mm, "step_deg": proc.step_deg,
             "speed": proc.speed, "singularity_margin_deg": proc.singularity_margin_deg,
             "tof_averages": proc.tof_averages},
+        "controller": asdict(profile.controller),
     }
 
 
@@ -373,6 +396,7 @@ def default_profile_text(model: str) -> str:
         raise InputError(f"unknown robot model {model!r} (known: {', '.join(KNOWN_MODELS)})")
     m = load_model(model)
     proc = Procedure()
+    ctl = ControllerTimeouts()
     corner, points = nominal_layout(m, proc.water_path_mm)
     w = wrist_centre(m, PAPER_CALIBRATION_POSE_DEG)
     s = FLANGE_MM + DEFAULT_TOOL_MM[2] + proc.water_path_mm
@@ -451,6 +475,16 @@ speed = {_num(proc.speed)}            # fraction of the controller's maximum spe
 singularity_margin_deg = {_num(proc.singularity_margin_deg)}   # |theta5| stays above this
 tof_averages = {proc.tof_averages}       # pulser averages per distance reading
 verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` fails (exit 1) when a point deviates more (mm)
+
+[controller]
+# How long the controller link may take (s). The VAL3 server sends nothing for 1 s after a
+# client connects, so the first state message needs well over that.
+connect_timeout_s = {_num(ctl.connect_timeout_s)}       # each TCP connection
+first_state_timeout_s = {_num(ctl.first_state_timeout_s)}   # first state message after connecting
+state_timeout_s = {_num(ctl.state_timeout_s)}         # longest silence of the running state stream
+reply_timeout_s = {_num(ctl.reply_timeout_s)}         # reply to a trajectory point
+halt_timeout_s = {_num(ctl.halt_timeout_s)}          # arm short of its target this long = halted
+settle_timeout_s = {_num(ctl.settle_timeout_s)}       # a move to finish and settle
 
 [calibration]
 # Written by `ucal calibrate`: actual joint angle = encoder reading + offset (deg).

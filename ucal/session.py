@@ -7,7 +7,9 @@ On exit — normal, error or Ctrl-C — the controller is told to STOP before an
 The simulated cell is served in this process on simulated time (``drivers.clock.SimClock``)
 shared with the drivers: a run goes as fast as it computes, gives the same readings for the
 same world whatever the machine's load, and its clock at the end is the run's duration on a
-real cell. The drivers' real-time timeouts are then only guards against a hung simulator.
+real cell. The controller's timeouts come from the profile's ``[controller]`` table; on the
+simulated cell those on the state stream (first state, silence, halt, settle) run in simulated
+time and the real-time ones (connect, reply) are only guards against a hung simulator.
 """
 
 from __future__ import annotations
@@ -73,7 +75,8 @@ def check_status(rig: Rig) -> None:
 def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
     """The rig of a cell: the profile's joint ranges and speed, the pulser configured."""
     rig = Rig(controller, pulser, profile.model.joint_min_deg, profile.model.joint_max_deg,
-              speed=profile.procedure.speed)
+              speed=profile.procedure.speed,
+              move_timeout_s=profile.controller.settle_timeout_s)
     rig.pulser.configure(rig.settings)
     return rig
 
@@ -94,7 +97,7 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
     with contextlib.ExitStack() as stack:
         truth = None
         clock: Clock = HOST_CLOCK
-        controller_options: dict[str, float] = {}
+        controller_options = profile.controller.driver_options()
         pulser_options: dict[str, float] = {}
         if sim_world is not None:
             from ucal.sim.demo import demo_world
@@ -106,8 +109,8 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
             server = stack.enter_context(SimulatedCellServer(truth, profile, clock=clock))
             stack.callback(clock.close)  # after the drivers have closed, before the server stops
             controller_url, pulser_url = server.urls["controller"], server.urls["pulser"]
-            controller_options = {"reply_timeout_s": SIM_GUARD_TIMEOUT_S,
-                                  "connect_timeout_s": SIM_GUARD_TIMEOUT_S}
+            controller_options.update(reply_timeout_s=SIM_GUARD_TIMEOUT_S,
+                                      connect_timeout_s=SIM_GUARD_TIMEOUT_S)
             pulser_options = {"timeout_s": SIM_GUARD_TIMEOUT_S}
         try:
             controller = open_controller(controller_url, **controller_options)

@@ -25,6 +25,10 @@ Extra keys beyond SPEC.md:
 * ``[transducer] squint_deg`` (0…5) and ``squint_azimuth_deg`` — the acoustic axis tilted from
   the housing's z axis (the tool frame of the drawing); ``near_field = true`` — near-field
   directivity (``ucal.sim.receiver``).
+* ``[controller] server`` — the Simple Message server the simulated controller behaves as
+  (``drivers.controller.simulator.SERVERS``: ``"simple"``, the default; ``"val3"``, the
+  released VAL3 server; ``"val3-feedback"``, its 250 Hz JOINT_FEEDBACK pull request), and
+  ``startup_silence_s`` to change that server's silence after a client connects (0…60 s).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.controller.simulator import SERVERS
 from ucal.cell import CellProfile, Noise, PulserTruth, Reflector, WorldTruth
 from ucal.profile import read_robot, read_transducer, read_water
 from ucal.validation import Reader, read_toml, unknown_keys
@@ -53,6 +58,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
                              "squint_azimuth_deg", "near_field"}),
     "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
+    "controller": frozenset({"server", "startup_silence_s"}),
 }
 
 #: Largest Hayati twist (deg), backlash (deg) and water drift (°C/min) a world file may state.
@@ -164,6 +170,19 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
     pulser = r.table("pulser")
     if pulser is not None:
         changes["pulser"] = _pulser(r, pulser)
+
+    controller = r.table("controller")
+    v = r.get(controller, "controller.server")
+    if v is not None:
+        server = r.string("controller.server", v)
+        if server not in SERVERS:
+            raise r.error("controller.server", f"unknown server {server!r} (known: "
+                                               f"{', '.join(SERVERS)})")
+        changes["controller_server"] = server
+    v = r.get(controller, "controller.startup_silence_s")
+    if v is not None:
+        changes["controller_silence_s"] = r.number("controller.startup_silence_s", v, lo=0.0,
+                                                   hi=60.0, unit="s")
 
     noise = r.table("noise")
     if noise is not None:

@@ -5,9 +5,20 @@ Two TCP connections, as the VAL3 server expects them (``val3/ros_server``):
 * motion port (default 11000): the client sends JOINT_TRAJ_PT as SERVICE_REQUEST, one request
   at a time, and reads the SERVICE_REPLY that acknowledges *enqueueing* the point (not its
   execution; REP-I0006).
-* state port (default 11002): the server streams joint state (JOINT_POSITION, or JOINT_FEEDBACK
-  on current VAL3 servers) and STATUS. A background thread keeps the latest of each and a
-  bounded history of timestamped joint samples.
+* state port (default 11002): the server streams joint state and STATUS. The released
+  ``master`` branch sends JOINT_POSITION at 50 Hz and a STATUS every 5th pass; the unmerged pull
+  request #36 sends JOINT_FEEDBACK at 250 Hz and a STATUS every 20th. Both servers stay silent
+  for 1 s after a client connects (``recvHeartbeat.pgx``: ``delay(1.0)``). A background thread
+  keeps the latest joints and STATUS and a bounded history of timestamped joint samples;
+  messages of other types are skipped (REP-I0006).
+
+Timeouts (seconds, constructor keywords; ``docs/protocols/simple_message.md``): each TCP
+connect (``connect_timeout_s``), the first state message after connecting
+(``first_state_timeout_s``, well above the server's 1 s of silence), the longest silence of the
+stream once it runs (``state_timeout_s``), the reply to a request (``reply_timeout_s``), and how
+long the arm may stand short of its target before the motion counts as halted by the controller
+(``halt_timeout_s``); the settle deadline is the caller's (``wait_settled``). Every timeout error
+names the timeout that ran out.
 
 Units at the interface are degrees and seconds; radians exist only on the wire.
 """
@@ -18,8 +29,11 @@ import collections
 import logging
 import math
 import socket
+import struct
 import threading
 import time
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -33,6 +47,7 @@ from drivers.controller.simple_message import (
     JointTrajPt,
     JointTrajPtReply,
     Message,
+    OtherMessage,
     SpecialSeq,
     Status,
 )
@@ -58,6 +73,57 @@ _RECV_SIZE = 4096
 # The reader thread wakes at least this often (s) to notice close().
 _POLL_S = 0.1
 
+#: Default timeouts (s). The VAL3 server sends nothing for 1 s after a client connects to its
+#: state port, so the first state message may take well over that.
+DEFAULT_TIMEOUTS: dict[str, float] = {
+    "connect_timeout_s": 2.0,
+    "first_state_timeout_s": 5.0,
+    "state_timeout_s": 1.0,
+    "reply_timeout_s": 2.0,
+    "halt_timeout_s": 1.5,
+}
+#: What each timeout bounds, for the message when it runs out.
+_TIMEOUT_LABELS = {
+    "connect_timeout_s": "connect timeout",
+    "first_state_timeout_s": "first-state timeout",
+    "state_timeout_s": "state timeout",
+    "reply_timeout_s": "reply timeout",
+    "halt_timeout_s": "halt timeout",
+    "settle_timeout_s": "settle timeout",
+}
+
+#: Slowest velocity sent (fraction of maximum speed). The VAL3 server turns the wire velocity
+#: into a percentage and rounds it to four decimals (``interpolateVel.pgx``): below 5e-7 that is
+#: 0, which ``movej`` refuses, and below 1e-4 the rounding alone changes the speed by more than
+#: 1 %. 1e-4 also keeps the slowest joint of a TX90 moving at 0.02 deg/s, which the halt
+#: detection (``PROGRESS_DEG`` per ``halt_timeout_s``) sees as progress.
+MIN_VELOCITY = 1e-4
+#: The rounded percentage that the master server's "smooth last point in traj" rule replaces by
+#: an extrapolation of the previous points' wire velocities (``interpolateVel.pgx``).
+VAL3_SMOOTHING_PERCENT = 0.1
+#: What is sent instead of a velocity that rounds to ``VAL3_SMOOTHING_PERCENT`` (0.101 %).
+VAL3_SMOOTHING_DODGE = 0.00101
+#: A move in progress gets at least this much closer to its target (deg, the largest joint
+#: distance) every ``halt_timeout_s``; otherwise the controller has halted it.
+PROGRESS_DEG = 1e-3
+
+
+class Connection(Protocol):
+    """What the client needs of a connected socket (``socket.socket`` has all of it)."""
+
+    def settimeout(self, value: float | None) -> None: ...
+    def recv(self, size: int) -> bytes: ...
+    def sendall(self, data: bytes) -> None: ...
+    def shutdown(self, how: int) -> None: ...
+    def close(self) -> None: ...
+
+
+def tcp_connect(host: str, port: int, timeout_s: float) -> socket.socket:
+    """Open a TCP connection with Nagle's algorithm off (each frame goes out at once)."""
+    sock = socket.create_connection((host, port), timeout=timeout_s)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
 
 def _tri(value: int) -> bool | None:
     """Map a REP-I0006 tri-state (-1 unknown, 0 off, 1 on) to ``None``/``False``/``True``."""
@@ -76,56 +142,84 @@ def _status_from_message(msg: Status) -> ControllerStatus:
     )
 
 
-def _velocity_on_wire(speed: float) -> float:
-    """The velocity fraction to send for ``speed``.
+def val3_percent(velocity: float) -> float:
+    """The percentage the VAL3 master server compares for a wire ``velocity``.
 
-    The VAL3 server rounds the received velocity to four decimals and, when the result is
-    exactly 0.1 and the sequence is not 0, replaces it by a linear extrapolation of the two
-    previous points' velocities (``val3/ros_server/decTrajPt.pgx``, "Smooth last point in
-    traj"). After a fast point that extrapolation can exceed what was asked for, so a request
-    for 10 % is sent as 10.01 %.
+    ``pushMotion.pgx`` multiplies the float32 it received by 100; ``interpolateVel.pgx`` rounds
+    the result to four decimals.
     """
-    if round(speed, 4) == 0.1:
-        return 0.1001
-    return speed
+    received = struct.unpack("<f", struct.pack("<f", velocity))[0]
+    return math.floor(received * 100.0 * 10000.0 + 0.5) / 10000.0
+
+
+def velocity_on_wire(speed: float) -> float:
+    """The velocity fraction to send for ``speed`` (fraction of maximum, (0, 1]).
+
+    Raised to ``MIN_VELOCITY``, the slowest the server runs as asked. And the released VAL3
+    server replaces a velocity whose rounded percentage is exactly 0.1 (wire 0.001, not 0.1)
+    by ``2·v[0] − v[1]`` of the last two wire velocities it received ("smooth last point in
+    traj", ``interpolateVel.pgx``): a fraction, not a percentage, so 100 times too slow or
+    negative. Such a velocity is sent as 0.00101 (0.101 %).
+    """
+    velocity = max(float(speed), MIN_VELOCITY)
+    if val3_percent(velocity) == VAL3_SMOOTHING_PERCENT:
+        return VAL3_SMOOTHING_DODGE
+    return velocity
 
 
 class SimpleMessageController(RobotController):
     """Six-axis controller driven through a Simple Message server (motion + state ports).
 
-    ``connect_timeout_s`` bounds each TCP connect; ``reply_timeout_s`` the wait for the reply to
-    a JOINT_TRAJ_PT request; ``state_timeout_s`` how long the state stream may stay silent
-    before the link is declared dead (the VAL3 server streams every few milliseconds).
-    ``history_size`` bounds the joint-sample history kept for ``joint_samples``. ``clock``
-    stamps the state frames and times the waits on them (``drivers.clock``: the host's
-    monotonic clock on a real cell, simulated time against an in-process simulated cell).
+    Timeouts (s; defaults in ``DEFAULT_TIMEOUTS``): ``connect_timeout_s`` bounds each TCP
+    connect; ``first_state_timeout_s`` the wait for the first state message after connecting
+    (every call that needs state waits that long for it); ``state_timeout_s`` how long the
+    running stream may stay silent before the link is declared dead; ``reply_timeout_s`` the
+    wait for the reply to a request; ``halt_timeout_s`` how long the arm may stand short of the
+    target of an accepted point (no progress of ``PROGRESS_DEG``, or STATUS "not in motion")
+    before the motion counts as halted by the controller. ``history_size`` bounds the
+    joint-sample history kept for ``joint_samples``. ``clock`` stamps the state frames and
+    times the waits on them (``drivers.clock``: the host's monotonic clock on a real cell,
+    simulated time against an in-process simulated cell). ``connect`` opens one connection
+    (``tcp_connect`` by default; tests pass scripted ones).
     """
 
     def __init__(self, host: str = "127.0.0.1", motion_port: int = DEFAULT_MOTION_PORT,
-                 state_port: int = DEFAULT_STATE_PORT, *, connect_timeout_s: float = 2.0,
-                 reply_timeout_s: float = 2.0, state_timeout_s: float = 1.0,
-                 history_size: int = 65536, clock: Clock = HOST_CLOCK):
+                 state_port: int = DEFAULT_STATE_PORT, *,
+                 connect_timeout_s: float = DEFAULT_TIMEOUTS["connect_timeout_s"],
+                 first_state_timeout_s: float = DEFAULT_TIMEOUTS["first_state_timeout_s"],
+                 state_timeout_s: float = DEFAULT_TIMEOUTS["state_timeout_s"],
+                 reply_timeout_s: float = DEFAULT_TIMEOUTS["reply_timeout_s"],
+                 halt_timeout_s: float = DEFAULT_TIMEOUTS["halt_timeout_s"],
+                 history_size: int = 65536, clock: Clock = HOST_CLOCK,
+                 connect: Callable[[str, int, float], Connection] = tcp_connect):
         for name, value in (("connect_timeout_s", connect_timeout_s),
+                            ("first_state_timeout_s", first_state_timeout_s),
+                            ("state_timeout_s", state_timeout_s),
                             ("reply_timeout_s", reply_timeout_s),
-                            ("state_timeout_s", state_timeout_s)):
+                            ("halt_timeout_s", halt_timeout_s)):
             if not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value}")
         if history_size < 1:
             raise ValueError(f"history_size must be at least 1, got {history_size}")
         self._address = ControllerAddress(host, int(motion_port), int(state_port))
         self.connect_timeout_s = connect_timeout_s
-        self.reply_timeout_s = reply_timeout_s
+        self.first_state_timeout_s = first_state_timeout_s
         self.state_timeout_s = state_timeout_s
+        self.reply_timeout_s = reply_timeout_s
+        self.halt_timeout_s = halt_timeout_s
         self._history_size = history_size
         self.clock = clock
+        self._connect = connect
 
-        self._motion_sock: socket.socket | None = None
+        self._motion_sock: Connection | None = None
         self._motion_reader: FrameReader | None = None
         self._motion_lock = threading.Lock()
         self._motion_error: DriverError | None = None
         self._next_seq = 0
+        # Sequences of requests whose reply timed out: their replies may still come.
+        self._late: list[int] = []
 
-        self._state_sock: socket.socket | None = None
+        self._state_sock: Connection | None = None
         self._state_thread: threading.Thread | None = None
         self._closing = threading.Event()
         # Guards everything below; notified on every state frame and when the link dies.
@@ -134,13 +228,22 @@ class SimpleMessageController(RobotController):
         self._joints_t = 0.0
         self._status: ControllerStatus | None = None
         self._status_t = 0.0
+        self._connected_t = 0.0
+        self._first_frame_t: float | None = None
         self._last_frame_t = 0.0
-        self._accepted_t = 0.0
         self._state_error: DriverError | None = None
+        self._skipped_types: set[int] = set()
         self._samples: collections.deque[JointSample] = collections.deque(maxlen=history_size)
+        # The point being executed: its target, when it was accepted, and its progress.
+        self._target: np.ndarray | None = None
+        self._target_tol_deg = 1e-3
+        self._accepted_t = 0.0
+        self._best_distance = math.inf
+        self._best_t = 0.0
+        self._idle_since: float | None = None  # STATUS "not in motion" since then
 
     @classmethod
-    def from_url(cls, url: str, **kwargs: float) -> SimpleMessageController:
+    def from_url(cls, url: str, **kwargs: Any) -> SimpleMessageController:
         """Build from ``tcp://HOST:PORT[?state=PORT]``; keyword arguments as the constructor."""
         address = parse_controller_url(url)
         return cls(address.host, address.motion_port, address.state_port, **kwargs)
@@ -149,25 +252,31 @@ class SimpleMessageController(RobotController):
     def endpoint(self) -> str:
         return self._address.url
 
+    def _ran_out(self, name: str, detail: str, value: float | None = None) -> DeviceTimeout:
+        """The error of timeout ``name`` (a key of ``DEFAULT_TIMEOUTS``) running out."""
+        value = getattr(self, name) if value is None else value
+        return DeviceTimeout(self.device, self.endpoint,
+                             f"{_TIMEOUT_LABELS[name]} ran out ({name} = {value:g} s): {detail}")
+
     # -- connection -------------------------------------------------------------------------
 
-    def _open(self, port: int, what: str) -> socket.socket:
+    def _open(self, port: int, what: str) -> Connection:
         try:
-            sock = socket.create_connection((self._address.host, port),
-                                            timeout=self.connect_timeout_s)
+            return self._connect(self._address.host, port, self.connect_timeout_s)
         except TimeoutError:
-            raise DeviceTimeout(self.device, self.endpoint,
-                                f"no answer connecting to the {what} port {port} within "
-                                f"{self.connect_timeout_s:g} s") from None
+            raise self._ran_out("connect_timeout_s",
+                                f"no answer connecting to the {what} port {port}") from None
         except OSError as e:
             raise ConnectionLost(self.device, self.endpoint,
                                  f"cannot connect to the {what} port {port}: "
                                  f"{e.strerror or e}") from None
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        return sock
 
     def connect(self) -> None:
-        """Open the motion and state connections and start the state reader thread."""
+        """Open the motion and state connections and start the state reader thread.
+
+        Returns once both are open; the first state message may come later (the VAL3 server
+        waits 1 s): every call that needs state waits up to ``first_state_timeout_s`` for it.
+        """
         if self._motion_sock is not None:
             return
         motion = self._open(self._address.motion_port, "motion")
@@ -183,11 +292,14 @@ class SimpleMessageController(RobotController):
             self._status = None
             self._state_error = None
             self._samples.clear()
-            self._last_frame_t = self.clock.now()
+            self._connected_t = self.clock.now()
+            self._first_frame_t = None
+            self._target = None
         self._motion_sock, self._state_sock = motion, state
         self._motion_reader = FrameReader(self.device, self.endpoint)
         self._motion_error = None
         self._next_seq = 0
+        self._late = []
         self._state_thread = threading.Thread(
             target=self._state_loop, args=(state, FrameReader(self.device, self.endpoint)),
             name=f"controller-state {self.endpoint}", daemon=True)
@@ -217,7 +329,7 @@ class SimpleMessageController(RobotController):
 
     # -- state stream -----------------------------------------------------------------------
 
-    def _state_loop(self, sock: socket.socket, reader: FrameReader) -> None:
+    def _state_loop(self, sock: Connection, reader: FrameReader) -> None:
         debug = log.isEnabledFor(logging.DEBUG)
         while not self._closing.is_set():
             try:
@@ -232,7 +344,7 @@ class SimpleMessageController(RobotController):
             if not data:
                 if not self._closing.is_set():
                     self._state_failed(ConnectionLost(
-                        self.device, self.endpoint, "state connection closed by the controller"))
+                        self.device, self.endpoint, self._closed_detail()))
                 return
             if debug:
                 log.debug("READ: state %s", data.hex())
@@ -245,10 +357,18 @@ class SimpleMessageController(RobotController):
                 taken = self._on_state_messages(messages, self.clock.now())
                 self.clock.frames_taken(taken)
 
+    def _closed_detail(self) -> str:
+        if self._first_frame_t is None:
+            return ("state connection closed by the controller before it sent anything (a "
+                    "VAL3 server serves one client per port: is another client connected?)")
+        return "state connection closed by the controller"
+
     def _on_state_messages(self, messages: list[Message], now: float) -> int:
         """Keep the latest joints and status; return how many joint frames there were."""
         joint_frames = 0
         with self._cond:
+            if self._first_frame_t is None:
+                self._first_frame_t = now
             self._last_frame_t = now
             for msg in messages:
                 if isinstance(msg, (JointPosition, JointFeedback)):
@@ -257,14 +377,31 @@ class SimpleMessageController(RobotController):
                     self._joints_deg, self._joints_t = joints, now
                     self._samples.append(JointSample(now, joints))
                     joint_frames += 1
+                    if self._target is not None:
+                        distance = float(np.max(np.abs(joints - self._target)))
+                        if distance < self._best_distance - PROGRESS_DEG:
+                            self._best_distance, self._best_t = distance, now
                 elif isinstance(msg, Status):
                     self._status, self._status_t = _status_from_message(msg), now
+                    if msg.in_motion != 0:
+                        self._idle_since = None
+                    elif self._idle_since is None:
+                        self._idle_since = now
                 else:
-                    # REP-I0006: receivers ignore topic messages they do not use.
-                    log.warning("controller at %s: ignoring %s on the state port",
-                                self.endpoint, type(msg).__name__)
+                    # REP-I0006: receivers ignore messages they do not use.
+                    self._skip(msg, "state")
             self._cond.notify_all()
         return joint_frames
+
+    def _skip(self, msg: Message, port: str) -> None:
+        """Log a message that is not used (once per type for topics, which repeat)."""
+        msg_type = int(getattr(msg, "msg_type", -1))
+        if isinstance(msg, OtherMessage) and msg.comm_type == CommType.TOPIC:
+            if msg_type in self._skipped_types:
+                return
+            self._skipped_types.add(msg_type)
+        log.warning("controller at %s: ignoring %s (type %d) on the %s port", self.endpoint,
+                    type(msg).__name__, msg_type, port)
 
     def _state_failed(self, error: DriverError) -> None:
         log.error("%s", error)
@@ -273,21 +410,66 @@ class SimpleMessageController(RobotController):
             self._cond.notify_all()
 
     def _check_state_locked(self, now: float) -> None:
-        """Raise if the state link is closed, broken or silent (caller holds ``_cond``)."""
+        """Raise if the state link is closed, broken or silent, or the motion was halted.
+
+        The caller holds ``_cond``.
+        """
         if self._state_error is not None:
             raise self._state_error
         if self._state_sock is None:
             raise ConnectionLost(self.device, self.endpoint, "not connected")
-        silent = now - self._last_frame_t
-        if silent > self.state_timeout_s:
-            raise DeviceTimeout(self.device, self.endpoint,
-                                f"no state message for {silent:.2f} s "
-                                f"(limit {self.state_timeout_s:g} s)")
+        if self._first_frame_t is None:
+            if now - self._connected_t > self.first_state_timeout_s:
+                raise self._ran_out(
+                    "first_state_timeout_s",
+                    f"no state message since connecting to the state port "
+                    f"{self._address.state_port} (a VAL3 server streams 1 s after a client "
+                    f"connects: is ros_server running?)")
+        elif now - self._last_frame_t > self.state_timeout_s:
+            raise self._ran_out("state_timeout_s", f"no state message for "
+                                                   f"{now - self._last_frame_t:.2f} s")
+        if self._target is not None:
+            self._check_halt_locked(now)
 
-    def _wait_for(self, predicate, timeout_s: float, what: str):
-        """Wait until ``predicate()`` (called with ``_cond`` held) returns non-None."""
-        deadline = self.clock.now() + timeout_s
+    def _check_halt_locked(self, now: float) -> None:
+        """Raise ``DeviceError`` if the controller halted the accepted point (see the class)."""
+        target, st = self._target, self._status
+        assert target is not None
+        if st is not None and self._status_t > self._accepted_t and (
+                st.e_stopped or st.in_error or st.drives_powered is False):
+            raise DeviceError(self.device, self.endpoint,
+                              f"controller stopped the motion to "
+                              f"{np.round(target, 4).tolist()} deg: it reports "
+                              f"{_describe(st)}")
+        joints = self._joints_deg
+        if joints is None or now - self._accepted_t < self.halt_timeout_s:
+            return
+        distance = float(np.max(np.abs(joints - target)))
+        if distance <= self._target_tol_deg:
+            return
+        stalled_s = now - self._best_t
+        idle_s = 0.0 if self._idle_since is None else now - max(self._idle_since,
+                                                                 self._accepted_t)
+        if stalled_s >= self.halt_timeout_s or idle_s >= self.halt_timeout_s:
+            said = "no status yet" if st is None else _describe(st)
+            raise DeviceError(self.device, self.endpoint,
+                              f"controller halted the motion {distance:.4g} deg short of "
+                              f"{np.round(target, 4).tolist()} deg: the joints have not "
+                              f"moved towards it for {stalled_s:.1f} s; it reports {said}")
+
+    def _wait_for(self, predicate, timeout_s: float, what: str,
+                  timeout_name: str | None = None):
+        """Wait until ``predicate()`` (called with ``_cond`` held) returns non-None.
+
+        Before the first state message the wait lasts at least until ``first_state_timeout_s``
+        after connecting. ``timeout_name`` names the timeout in the error (else the plain
+        ``timeout_s``).
+        """
+        start = self.clock.now()
+        deadline = start + timeout_s
         with self._cond:
+            if self._first_frame_t is None:
+                deadline = max(deadline, self._connected_t + self.first_state_timeout_s)
             while True:
                 now = self.clock.now()
                 self._check_state_locked(now)
@@ -296,13 +478,20 @@ class SimpleMessageController(RobotController):
                     return value
                 remaining = deadline - now
                 if remaining <= 0:
+                    if timeout_name is not None:
+                        raise self._ran_out(timeout_name, f"no {what}", timeout_s)
                     raise DeviceTimeout(self.device, self.endpoint,
-                                        f"no {what} within {timeout_s:g} s")
-                # Wake in time to notice a silent stream as well as the deadline.
-                self.clock.wait(self._cond, min(remaining, self.state_timeout_s / 2))
+                                        f"no {what} within {now - start:.3g} s")
+                # Wake in time to notice a silent stream and a halt as well as the deadline.
+                self.clock.wait(self._cond, min(remaining, self.state_timeout_s / 2,
+                                                self.halt_timeout_s / 2))
 
     def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
-        """Latest joint readings (deg, (6,)), waiting at most ``timeout_s`` for a first one."""
+        """Latest joint readings (deg, (6,)), waiting at most ``timeout_s`` for a first one.
+
+        While a point is being executed this also raises ``DeviceError`` as soon as the
+        controller has halted it (``halt_timeout_s``).
+        """
         joints = self._wait_for(lambda: self._joints_deg, timeout_s, "joint position")
         return joints.copy()
 
@@ -317,10 +506,36 @@ class SimpleMessageController(RobotController):
 
     # -- motion -----------------------------------------------------------------------------
 
-    def _send(self, sock: socket.socket, frame: bytes) -> None:
+    def _send(self, sock: Connection, frame: bytes) -> None:
         if log.isEnabledFor(logging.DEBUG):
             log.debug("WRITE: motion %s", frame.hex())
         sock.sendall(frame)
+
+    def _is_reply(self, reply: Message, seq: int) -> bool:
+        """Whether ``reply`` answers the request ``seq``; stale and other messages are logged.
+
+        REP-I0006: a reply with no outstanding request (the late answer to a request that
+        timed out) is ignored. A reply without a sequence is taken as the oldest late one
+        while any is due, so a late reply is never taken for a new point.
+        """
+        if not isinstance(reply, JointTrajPtReply):
+            self._skip(reply, "motion")
+            return False
+        if reply.sequence == seq:
+            return True
+        if reply.sequence is None:
+            if not self._late:
+                return True
+            late = self._late.pop(0)
+            why = f"taken as the late reply to point {late}"
+        elif reply.sequence in self._late:
+            self._late.remove(reply.sequence)
+            why = "the late reply to a request that timed out"
+        else:
+            why = "no such request outstanding"
+        log.warning("controller at %s: ignoring a reply (sequence %s) while waiting for the "
+                    "reply to point %d: %s", self.endpoint, reply.sequence, seq, why)
+        return False
 
     def _request(self, msg: JointTrajPt, timeout_s: float) -> JointTrajPtReply:
         """Send one JOINT_TRAJ_PT request and return its reply (caller holds the motion lock)."""
@@ -345,18 +560,14 @@ class SimpleMessageController(RobotController):
                 if log.isEnabledFor(logging.DEBUG):
                     log.debug("READ: motion %s", data.hex())
                 for reply in reader.feed(data):
-                    if isinstance(reply, JointTrajPtReply) and (
-                            reply.sequence is None or reply.sequence == msg.sequence):
+                    if self._is_reply(reply, msg.sequence):
+                        assert isinstance(reply, JointTrajPtReply)
                         return reply
-                    # REP-I0006: ignore replies with no outstanding request (e.g. the late
-                    # answer to a request that timed out) and topics we do not use.
-                    log.warning("controller at %s: ignoring %s on the motion port while "
-                                "waiting for the reply to sequence %d", self.endpoint, reply,
-                                msg.sequence)
         except TimeoutError:
-            raise DeviceTimeout(self.device, self.endpoint,
-                                f"no reply to trajectory point {msg.sequence} within "
-                                f"{timeout_s:g} s") from None
+            self._late = [*self._late, msg.sequence][-16:]
+            raise self._ran_out("reply_timeout_s",
+                                f"no reply to trajectory point {msg.sequence}",
+                                timeout_s) from None
         except ProtocolError as e:
             raise self._motion_failed(e) from None
         except OSError as e:
@@ -371,9 +582,11 @@ class SimpleMessageController(RobotController):
     def start_move(self, target_deg: np.ndarray, speed: float = 0.5) -> None:
         """Send a joint target (deg, (6,)) at ``speed`` (fraction of maximum, (0, 1]).
 
-        Returns once the controller accepted the point. Raises ``MotionRejected`` when it
-        answers FAILURE, ``ConnectionLost``/``DeviceTimeout``/``ProtocolError`` on link faults,
-        ``ValueError`` for a malformed target or speed.
+        Waits for the state stream first (the VAL3 server drops points received before it
+        streams). Returns once the controller accepted the point. Raises ``MotionRejected``
+        when it answers FAILURE, ``ConnectionLost``/``DeviceTimeout``/``ProtocolError`` on link
+        faults, ``ValueError`` for a malformed target or speed. The velocity sent is
+        ``velocity_on_wire(speed)``.
         """
         target = np.asarray(target_deg, dtype=float).reshape(-1)
         if target.shape != (N_JOINTS,) or not np.all(np.isfinite(target)):
@@ -381,26 +594,34 @@ class SimpleMessageController(RobotController):
         if not (0.0 < speed <= 1.0):
             raise ValueError(f"speed must be in (0, 1], got {speed}")
         with self._cond:
-            self._check_state_locked(self.clock.now())
+            self._target = None  # a new point replaces the one being executed
+        self.read_joints()
         with self._motion_lock:
+            # A sequence number is used once: the late reply to a request that timed out must
+            # not match the next one.
             seq = self._next_seq
-            msg = JointTrajPt(seq, tuple(np.radians(target)), _velocity_on_wire(speed), 0.0)
-            reply = self._request(msg, self.reply_timeout_s)
             self._next_seq = seq + 1
+            msg = JointTrajPt(seq, tuple(np.radians(target)), velocity_on_wire(speed), 0.0)
+            reply = self._request(msg, self.reply_timeout_s)
         accepted_t = self.clock.now()
         if not reply.success:
             detail = ""
             with self._cond:
                 st = self._status
             if st is not None:
-                detail = (f"; status: powered={st.drives_powered}, e-stopped={st.e_stopped}, "
-                          f"in error={st.in_error} (code {st.error_code})")
+                detail = f"; it reports {_describe(st)}"
             raise MotionRejected(self.device, self.endpoint,
                                  f"trajectory point {seq} to {np.round(target, 4).tolist()} deg "
                                  f"at speed {speed:g} refused (reply code {reply.reply_code})"
                                  f"{detail}")
         with self._cond:
             self._accepted_t = accepted_t
+            self._target = target.copy()
+            self._target_tol_deg = 1e-3
+            joints = self._joints_deg
+            self._best_distance = (math.inf if joints is None else
+                                   float(np.max(np.abs(joints - target))))
+            self._best_t = accepted_t
         log.info("controller accepted point %d: %s deg at speed %g", seq,
                  np.round(target, 4).tolist(), speed)
 
@@ -409,13 +630,17 @@ class SimpleMessageController(RobotController):
         """Block until STATUS says not in motion and every joint is within ``tol_deg`` of target.
 
         Only STATUS and joint messages received after the last accepted point count. Returns
-        the settled readings (deg). Raises ``DeviceTimeout`` after ``timeout_s``,
-        ``ConnectionLost`` as soon as the state stream dies, ``DeviceError`` as soon as the
-        controller reports an e-stop, an error or unpowered drives.
+        the settled readings (deg). Raises ``DeviceTimeout`` after ``timeout_s`` (the settle
+        timeout), ``ConnectionLost`` as soon as the state stream dies, ``DeviceError`` as soon
+        as the controller reports an e-stop, an error or unpowered drives, or has left the arm
+        short of the target for ``halt_timeout_s``.
         """
         target = np.asarray(target_deg, dtype=float).reshape(-1)
         if target.shape != (N_JOINTS,):
             raise ValueError(f"target_deg must have {N_JOINTS} elements, got {target_deg!r}")
+        with self._cond:
+            if self._target is not None:
+                self._target_tol_deg = tol_deg
 
         def settled() -> np.ndarray | None:
             st, joints = self._status, self._joints_deg
@@ -423,18 +648,15 @@ class SimpleMessageController(RobotController):
                 return None
             if self._status_t <= self._accepted_t or self._joints_t <= self._accepted_t:
                 return None
-            if st.e_stopped or st.in_error or st.drives_powered is False:
-                raise DeviceError(self.device, self.endpoint,
-                                  f"controller stopped the motion: e-stopped={st.e_stopped}, "
-                                  f"in error={st.in_error} (code {st.error_code}), "
-                                  f"powered={st.drives_powered}")
-            if st.in_motion is False and np.max(np.abs(joints - target)) <= tol_deg:
+            if st.in_motion is not True and np.max(np.abs(joints - target)) <= tol_deg:
+                self._target = None
                 return joints.copy()
             return None
 
         try:
-            return self._wait_for(settled, timeout_s, f"settling within {tol_deg:g} deg of "
-                                                      f"{np.round(target, 4).tolist()} deg")
+            return self._wait_for(settled, timeout_s,
+                                  f"settling within {tol_deg:g} deg of "
+                                  f"{np.round(target, 4).tolist()} deg", "settle_timeout_s")
         except DeviceTimeout:
             with self._cond:
                 last = None if self._joints_deg is None else np.round(self._joints_deg, 4)
@@ -444,24 +666,29 @@ class SimpleMessageController(RobotController):
             raise
 
     def stop(self) -> None:
-        """Send STOP_TRAJECTORY (sequence -4). Never raises; failures are logged."""
+        """Send STOP_TRAJECTORY (sequence -4). Never raises; failures are logged.
+
+        STOP goes out even when the motion link has failed before (a bad frame, a reset): its
+        reply is then not read, and the earlier fault is logged with it.
+        """
         sock = self._motion_sock
         if sock is None:
             log.debug("stop: not connected to %s", self.endpoint)
             return
+        with self._cond:
+            self._target = None
         msg = JointTrajPt(SpecialSeq.STOP_TRAJECTORY, (), 0.0, 0.0, CommType.SERVICE_REQUEST)
         if not self._motion_lock.acquire(timeout=self.reply_timeout_s):
             # Another thread is stuck waiting for a reply: send anyway, do not read its answer.
-            try:
-                self._send(sock, msg.pack())
-                log.warning("stop sent to %s without waiting for its reply", self.endpoint)
-            except OSError as e:
-                log.error("stop could not be sent to %s: %s", self.endpoint, e)
+            self._send_unanswered(sock, msg, "another request is waiting for its reply")
             return
         try:
+            if self._motion_error is not None:
+                self._send_unanswered(sock, msg, f"the motion link failed: {self._motion_error}")
+                return
             reply = self._request(msg, min(self.reply_timeout_s, 1.0))
-            # REP-I0006: a new trajectory starts at sequence 0.
-            self._next_seq = 0
+            # REP-I0006: a new trajectory starts at sequence 0 (after any late reply's).
+            self._next_seq = max((s for s in self._late if s >= 0), default=-1) + 1
             if reply.success:
                 log.info("controller at %s acknowledged STOP", self.endpoint)
             else:
@@ -472,3 +699,23 @@ class SimpleMessageController(RobotController):
             log.exception("stop failed at %s", self.endpoint)
         finally:
             self._motion_lock.release()
+
+    def _send_unanswered(self, sock: Connection, msg: JointTrajPt, why: str) -> None:
+        """Send ``msg`` without reading a reply (``why`` says why); log, never raise."""
+        try:
+            self._send(sock, msg.pack())
+            log.warning("STOP sent to %s without reading its reply: %s", self.endpoint, why)
+        except OSError as e:
+            log.error("STOP could not be sent to %s: %s (%s)", self.endpoint, e, why)
+
+
+def _describe(st: ControllerStatus) -> str:
+    """A STATUS in words, for messages."""
+    def tri(value: bool | None, yes: str, no: str) -> str:
+        return "unknown" if value is None else yes if value else no
+
+    return (f"{tri(st.in_motion, 'in motion', 'not in motion')}, drives "
+            f"{tri(st.drives_powered, 'powered', 'off')}, e-stop "
+            f"{tri(st.e_stopped, 'engaged', 'released')}, "
+            f"{tri(st.in_error, f'in error (code {st.error_code})', 'no error')}, motion "
+            f"{tri(st.motion_possible, 'possible', 'not possible')}")

@@ -5,13 +5,16 @@ header (``msg_type``, ``comm_type``, ``reply_code``, int32 each) and a message-s
 Every field is 4 bytes, **little-endian**: the VAL3 server (ros-industrial/staubli_val3_driver)
 encodes integers with ``toBinary(..., "-4l", ...)`` and reals with ``"4.0l"`` (signed 4-byte
 little-endian integer, 4-byte little-endian IEEE float); see ``val3/ros_server/decTrajPt.pgx``
-and ``val3/ros_libs/SimpleMessage/encPrefixHeader.pgx``. The byte layouts are tabulated in
+and ``val3/ros_server/encPrefixHeader.pgx``. The byte layouts are tabulated in
 ``docs/protocols/simple_message.md``.
 
 There are no sync bytes in the protocol, so a receiver that loses count can never recover; the
-``FrameReader`` therefore validates every header (known type, valid comm type and reply code,
-exact body size for the type) and raises ``ProtocolError`` at the first inconsistency rather
-than guessing. Joint values are radians on the wire (REP-103); conversion to degrees is the
+``FrameReader`` therefore validates every header (length within bounds, valid comm type and
+reply code, exact body size for a known type) and raises ``ProtocolError`` at the first
+inconsistency rather than guessing. A well-formed frame of a type this module does not decode
+(PING, JOINT_TRAJ_PT_FULL, a vendor message) is returned as ``OtherMessage`` with its raw body:
+REP-I0006 receivers (and industrial_core's) skip messages they do not use, and so do the
+clients of this module. Joint values are radians on the wire (REP-103); conversion to degrees is the
 client's job.
 """
 
@@ -44,11 +47,13 @@ _HEADER = struct.Struct(BYTE_ORDER + "3i")
 
 
 class MsgType(IntEnum):
-    """Assigned message identifiers (REP-I0004) that this driver decodes."""
+    """Assigned message identifiers (REP-I0004); PING and JOINT_TRAJ_PT_FULL are not decoded."""
 
+    PING = 1
     JOINT_POSITION = 10
     JOINT_TRAJ_PT = 11
     STATUS = 13
+    JOINT_TRAJ_PT_FULL = 14
     JOINT_FEEDBACK = 15
 
 
@@ -174,8 +179,8 @@ class JointTrajPtReply:
 
     REP-I0006 allows three body sizes: none (header only), 40 bytes (float32[10] dummy data) and
     the VAL3 form, 52 bytes, laid out like the request with the request's ``sequence`` echoed and
-    everything else zero (``initRosMsgs.pgx``: ack prefix length 64; ``decTrajPt.pgx`` copies the
-    sequence). ``sequence`` is ``None`` when the reply does not carry it.
+    everything else zero (``setupRosMsgs.pgx``: ack prefix length 64; ``decTrajPt.pgx`` copies
+    the sequence). ``sequence`` is ``None`` when the reply does not carry it.
     """
 
     reply_code: int
@@ -244,7 +249,7 @@ class Status:
 
 @dataclass(frozen=True)
 class JointFeedback:
-    """JOINT_FEEDBACK (15): joint state with velocities, as the current VAL3 server streams it.
+    """JOINT_FEEDBACK (15): joint state with velocities (VAL3 pull request #36 streams it).
 
     Body (132 bytes): int32 robot_id · int32 valid_fields (bit 0 time, 1 position, 2 velocity,
     3 acceleration) · 4-byte time · float32[10] positions (rad) · float32[10] velocities
@@ -290,7 +295,21 @@ class JointFeedback:
                    robot_id, valid, t_raw, comm_type, reply_code)
 
 
-Message = JointPosition | JointTrajPt | JointTrajPtReply | Status | JointFeedback
+@dataclass(frozen=True)
+class OtherMessage:
+    """A well-formed frame of a type this module does not decode, kept as its raw body."""
+
+    msg_type: int
+    comm_type: int = CommType.TOPIC
+    reply_code: int = ReplyCode.INVALID
+    body: bytes = b""
+
+    def pack(self) -> bytes:
+        """Serialise to a complete frame (length prefix included)."""
+        return _frame(self.msg_type, self.comm_type, self.reply_code, self.body)
+
+
+Message = JointPosition | JointTrajPt | JointTrajPtReply | Status | JointFeedback | OtherMessage
 
 
 _COMM_TYPES = frozenset(int(c) for c in CommType)
@@ -298,7 +317,7 @@ _REPLY_CODES = frozenset(int(c) for c in ReplyCode)
 
 
 def _allowed_body_sizes(msg_type: int, comm_type: int) -> tuple[int, ...] | None:
-    """Body sizes a (msg_type, comm_type) pair may have; ``None`` for an unknown type."""
+    """Body sizes a (msg_type, comm_type) pair may have; ``None`` (any) for another type."""
     if msg_type == MsgType.JOINT_POSITION:
         return (44,)
     if msg_type == MsgType.JOINT_TRAJ_PT:
@@ -312,10 +331,13 @@ def _allowed_body_sizes(msg_type: int, comm_type: int) -> tuple[int, ...] | None
 
 def _check_header(length: int, msg_type: int, comm_type: int, reply_code: int,
                   device: str, endpoint: str) -> None:
-    """Raise ``ProtocolError`` unless the header describes a frame this module can decode."""
+    """Raise ``ProtocolError`` unless the header describes a well-formed frame.
+
+    A type this module does not decode passes with any body size the length allows (the
+    length itself was checked against ``MAX_LENGTH``); its comm type and reply code must still
+    be valid, which rejects most garbage that happens to carry a plausible length.
+    """
     sizes = _allowed_body_sizes(msg_type, comm_type)
-    if sizes is None:
-        raise ProtocolError(device, endpoint, f"unknown message type {msg_type}")
     if comm_type not in _COMM_TYPES:
         raise ProtocolError(device, endpoint,
                             f"invalid comm_type {comm_type} in message type {msg_type}")
@@ -323,7 +345,7 @@ def _check_header(length: int, msg_type: int, comm_type: int, reply_code: int,
         raise ProtocolError(device, endpoint,
                             f"invalid reply_code {reply_code} in message type {msg_type}")
     body_size = length - HEADER_SIZE
-    if body_size not in sizes:
+    if sizes is not None and body_size not in sizes:
         raise ProtocolError(device, endpoint,
                             f"message type {msg_type} (comm_type {comm_type}) with a "
                             f"{body_size}-byte body; expected {' or '.join(map(str, sizes))}")
@@ -338,15 +360,17 @@ def _decode(msg_type: int, comm_type: int, reply_code: int, body: bytes) -> Mess
         return JointTrajPt._from_body(comm_type, reply_code, body)
     if msg_type == MsgType.STATUS:
         return Status._from_body(comm_type, reply_code, body)
-    return JointFeedback._from_body(comm_type, reply_code, body)
+    if msg_type == MsgType.JOINT_FEEDBACK:
+        return JointFeedback._from_body(comm_type, reply_code, body)
+    return OtherMessage(msg_type, comm_type, reply_code, body)
 
 
 def parse(frame: bytes, device: str = "controller",
           endpoint: str = "simple message frame") -> Message:
     """Decode exactly one complete frame (length prefix included).
 
-    Raises ``ProtocolError`` for a bad length, an unknown type, an invalid header field, a
-    wrong body size or trailing bytes.
+    Raises ``ProtocolError`` for a bad length, an invalid header field, a wrong body size or
+    trailing bytes; a well-formed frame of another type is an ``OtherMessage``.
     """
     reader = FrameReader(device, endpoint)
     messages = reader.feed(frame)
@@ -363,7 +387,7 @@ class FrameReader:
     Feed it whatever ``recv`` returned; it returns the complete messages and keeps the rest.
     The length prefix is checked as soon as its four bytes arrive (negative, shorter than a
     header or above ``MAX_LENGTH`` → ``ProtocolError``), the header as soon as it arrives
-    (unknown type, invalid comm type or reply code, body size that does not fit the type), so
+    (invalid comm type or reply code, body size that does not fit a known type), so
     garbage is rejected without waiting for, or allocating, the body it claims to have. After
     an error the reader stays broken: the stream has no sync marker to resume from.
     """

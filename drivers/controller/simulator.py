@@ -18,9 +18,28 @@ together; duration = max over joints of |Δ| / (max_speed · velocity) · ``time
 simulated devices may call it at a high rate; ``motion_sign()`` gives the direction of each
 joint's last motion (for lost motion in the joints).
 
+Server variants (``server``, ``SERVERS``): ``"simple"`` (the default) streams joint state and
+STATUS in every frame to any number of clients as soon as they connect. ``"val3"`` behaves as
+the released VAL3 server (``staubli_val3_driver`` branch ``master``): JOINT_POSITION at 50 Hz and
+a STATUS every 5th pass (first after the 6th), nothing for 1 s after a client connects to the
+state port (``recvHeartbeat.pgx``: ``delay(1.0)``), one client per port (a second connection is
+closed at once and the first is served on), points acknowledged SUCCESS but dropped while the
+state stream is not running or the arm is e-stopped, unpowered or in error, and motion stopped
+when either connection drops (``motionControl.pgx``). ``"val3-feedback"`` is the unmerged pull
+request #36: JOINT_FEEDBACK at 250 Hz, a STATUS every 20th pass (first after the 21st), FAILURE
+while motion is not possible (its ``pushMotion.pgx``), otherwise as ``"val3"``. Every variant
+answers a request it does not execute (PING, JOINT_TRAJ_PT_FULL, any other type) with a FAILURE
+reply of the request's type and body, and ignores topics it does not use.
+
+Fault hooks for tests: ``set_fault`` (e-stop, drives, error), ``hold`` (the arm stops and
+points are acknowledged but not executed, STATUS reporting in motion or not), ``on_point``
+(called with the count of accepted points), ``inject_reply`` / ``inject_state`` (raw bytes in
+place of the next reply / before the next state frame).
+
 Time: ``clock`` (``drivers.clock``). On the host clock the state port streams at
 ``state_rate_hz`` from a thread of its own. On a ``SimClock`` the stream is a ticker of that
-clock: a frame per period of simulated time, handed to the client in lock step.
+clock: a frame per period of simulated time, handed to the client in lock step; the start-up
+silence then passes in simulated time.
 """
 
 from __future__ import annotations
@@ -53,6 +72,31 @@ from drivers.controller.simple_message import (
     SpecialSeq,
     Status,
 )
+
+
+@dataclass(frozen=True)
+class ServerVariant:
+    """What a Simple Message server on a Staubli controller does that a client can see."""
+
+    name: str
+    joint_message: int          # MsgType.JOINT_POSITION or JOINT_FEEDBACK
+    state_rate_hz: float        # state passes per second
+    status_first: int           # first STATUS after this pass (1-based)
+    status_every: int           # then after every this many passes
+    startup_silence_s: float    # nothing on the state port this long after a client connects
+    one_client_per_port: bool   # a second connection to a port is closed at once
+    refuse_when_halted: bool    # FAILURE (else SUCCESS, point dropped) while e-stopped etc.
+    needs_state_stream: bool    # no motion while the state stream is not running
+
+
+#: The server variants of ``SimulatedController(server=...)`` and ``ucal sim serve --server``.
+SERVERS: dict[str, ServerVariant] = {
+    "simple": ServerVariant("simple", MsgType.JOINT_POSITION, 50.0, 1, 1, 0.0, False, True,
+                            False),
+    "val3": ServerVariant("val3", MsgType.JOINT_POSITION, 50.0, 6, 5, 1.0, True, False, True),
+    "val3-feedback": ServerVariant("val3-feedback", MsgType.JOINT_FEEDBACK, 250.0, 21, 20, 1.0,
+                                   True, True, True),
+}
 from drivers.errors import ProtocolError
 
 log = logging.getLogger(__name__)
@@ -66,6 +110,16 @@ RANGE_EPS_DEG = 1e-4
 _POLL_S = 0.1  # how often blocking loops look at the stop flag (s)
 _SEND_TIMEOUT_S = 0.5  # a state client that cannot take a frame within this is dropped
 _LOOPBACK = ("127.0.0.1", "localhost")
+
+
+@dataclass(eq=False)
+class _StateClient:
+    """A connected state client: served from ``serve_from_t`` (after the start-up silence)."""
+
+    sock: socket.socket
+    peer: str
+    serve_from_t: float
+    passes: int = 0
 
 
 @dataclass(frozen=True)
@@ -102,6 +156,13 @@ class _Plan:
                 return seg.at(t)
         return self.rest_deg.copy()
 
+    def velocity_at(self, t: float) -> np.ndarray:
+        """Joint velocities (deg/s) at ``t``: the moving segment's, else zero."""
+        for seg in self.segments:
+            if seg.t_start <= t < seg.t_end:
+                return (seg.target_deg - seg.start_deg) / (seg.t_end - seg.t_start)
+        return np.zeros(N_JOINTS)
+
     def in_motion(self, t: float) -> bool:
         return bool(self.segments) and t < self.segments[-1].t_end + self.settle_s
 
@@ -129,8 +190,12 @@ class SimulatedController:
     "target_deg", "end_deg", "duration_s", "stopped"}``; it runs on a simulator thread and must
     not block. ``moves_executed`` counts accepted trajectory points (STOP and the other special
     sequences excluded).
-    ``joint_message`` selects what the state port streams: ``MsgType.JOINT_POSITION`` (10) or
-    ``MsgType.JOINT_FEEDBACK`` (15, as current VAL3 servers do).
+    ``server`` names the server variant (``SERVERS``: ``"simple"``, ``"val3"``,
+    ``"val3-feedback"``); ``joint_message`` (``MsgType.JOINT_POSITION`` (10) or
+    ``MsgType.JOINT_FEEDBACK`` (15)), ``state_rate_hz`` and ``startup_silence_s`` override the
+    variant's. ``on_point(count)`` is called as each valid trajectory point is received, before
+    it is executed, with the number received so far (a fault hook; it runs on the motion
+    thread).
     """
 
     device = "controller"
@@ -139,10 +204,12 @@ class SimulatedController:
                  initial_deg: Sequence[float] | None = None, host: str = "127.0.0.1",
                  motion_port: int = 0, state_port: int = 0,
                  max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
-                 time_scale: float = 1.0, state_rate_hz: float = 50.0,
+                 time_scale: float = 1.0, state_rate_hz: float | None = None,
                  on_motion: Callable[[dict], None] | None = None,
-                 joint_message: int = MsgType.JOINT_POSITION, clock: Clock | None = None,
-                 settle_s: float = 0.0):
+                 joint_message: int | None = None, clock: Clock | None = None,
+                 settle_s: float = 0.0, server: str = "simple",
+                 startup_silence_s: float | None = None,
+                 on_point: Callable[[int], None] | None = None):
         self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
         self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
         self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
@@ -168,6 +235,17 @@ class SimulatedController:
             raise ValueError(f"time_scale must be >= 0, got {time_scale}")
         if not (settle_s >= 0 and math.isfinite(settle_s)):
             raise ValueError(f"settle_s must be >= 0, got {settle_s}")
+        if server not in SERVERS:
+            raise ValueError(f"server must be one of {', '.join(SERVERS)}, got {server!r}")
+        self.variant = SERVERS[server]
+        if state_rate_hz is None:
+            state_rate_hz = self.variant.state_rate_hz
+        if joint_message is None:
+            joint_message = self.variant.joint_message
+        if startup_silence_s is None:
+            startup_silence_s = self.variant.startup_silence_s
+        if not (startup_silence_s >= 0 and math.isfinite(startup_silence_s)):
+            raise ValueError(f"startup_silence_s must be >= 0, got {startup_silence_s}")
         if not (state_rate_hz > 0 and math.isfinite(state_rate_hz)):
             raise ValueError(f"state_rate_hz must be > 0, got {state_rate_hz}")
         if joint_message not in (MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK):
@@ -178,6 +256,8 @@ class SimulatedController:
         self.state_rate_hz = float(state_rate_hz)
         self.on_motion = on_motion
         self.joint_message = int(joint_message)
+        self.startup_silence_s = float(startup_silence_s)
+        self.on_point = on_point
         self.clock: Clock = clock if clock is not None else HOST_CLOCK
 
         self._lock = threading.Lock()  # guards plan changes, faults, client lists, counters
@@ -188,6 +268,7 @@ class SimulatedController:
         self._in_error = False
         self._error_code = 0
         self.moves_executed = 0
+        self.points_received = 0  # valid trajectory points received (on_point counts these)
         self.stops_received = 0  # STOP_TRAJECTORY requests seen (tests check that STOP was sent)
         self.motion_port: int | None = None
         self.state_port: int | None = None
@@ -195,7 +276,10 @@ class SimulatedController:
         self._stop_evt = threading.Event()
         self._listeners: list[socket.socket] = []
         self._motion_clients: set[socket.socket] = set()
-        self._state_clients: set[socket.socket] = set()
+        self._state_clients: list[_StateClient] = []
+        self._hold_in_motion: bool | None = None  # set by hold(): the arm is held
+        self._replies: list[bytes] = []           # inject_reply()
+        self._state_garbage = b""                 # inject_state()
         self._threads: list[threading.Thread] = []
         self._started = False
 
@@ -284,7 +368,8 @@ class SimulatedController:
 
     def _close_all(self, abort: bool) -> None:
         with self._lock:
-            socks = [*self._listeners, *self._motion_clients, *self._state_clients]
+            socks = [*self._listeners, *self._motion_clients,
+                     *(c.sock for c in self._state_clients)]
             self._listeners.clear()
             self._motion_clients.clear()
             self._state_clients.clear()
@@ -344,6 +429,26 @@ class SimulatedController:
         if halt:
             self._freeze(self.clock.now(), "fault")
 
+    def hold(self, in_motion: bool | None = False) -> None:
+        """Stop the arm where it is and execute no more points (they are still acknowledged),
+        the stream going on, STATUS reporting ``in_motion``: a halt the controller makes
+        without a fault (``False``) or an arm held while reporting motion (``True``).
+        ``None`` releases the hold."""
+        with self._lock:
+            self._hold_in_motion = in_motion
+        if in_motion is not None:
+            self._freeze(self.clock.now(), "held")
+
+    def inject_reply(self, raw: bytes) -> None:
+        """Send ``raw`` instead of the next reply on the motion port."""
+        with self._lock:
+            self._replies.append(bytes(raw))
+
+    def inject_state(self, raw: bytes) -> None:
+        """Send ``raw`` to the state clients before the next state frame."""
+        with self._lock:
+            self._state_garbage += bytes(raw)
+
     def _in_range(self, joints: np.ndarray) -> bool:
         return bool(np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
                     and np.all(joints <= self.joint_max_deg + RANGE_EPS_DEG))
@@ -352,9 +457,11 @@ class SimulatedController:
         with self._lock:
             powered, estop, err, code = (self._drives_powered, self._e_stopped,
                                          self._in_error, self._error_code)
+            held = self._hold_in_motion
         possible = powered and not estop and not err
+        moving = self._plan.in_motion(now) if held is None else held
         return Status(drives_powered=int(powered), e_stopped=int(estop), error_code=code,
-                      in_error=int(err), in_motion=int(self._plan.in_motion(now)),
+                      in_error=int(err), in_motion=int(moving),
                       mode=RobotMode.AUTO, motion_possible=int(possible))
 
     def _record(self, seg: _Segment, end_deg: np.ndarray, stopped: bool) -> dict:
@@ -418,14 +525,26 @@ class SimulatedController:
                         msg.sequence, np.round(target, 4).tolist())
             return False
         target = np.clip(target, self.joint_min_deg, self.joint_max_deg)
+        with self._lock:
+            self.points_received += 1
+            count = self.points_received
+        if self.on_point is not None:
+            self.on_point(count)  # a fault hook strikes before the point is executed
         now = self.clock.now()
         self._retire(now)
         with self._lock:
             if self._e_stopped or not self._drives_powered or self._in_error:
-                log.warning("simulated controller refuses point %d: e-stopped=%s powered=%s "
-                            "in error=%s", msg.sequence, self._e_stopped, self._drives_powered,
-                            self._in_error)
-                return False
+                refuse = self.variant.refuse_when_halted
+                log.warning("simulated controller %s point %d: e-stopped=%s powered=%s "
+                            "in error=%s", "refuses" if refuse else "drops", msg.sequence,
+                            self._e_stopped, self._drives_powered, self._in_error)
+                return not refuse
+            if self._hold_in_motion is not None or (
+                    self.variant.needs_state_stream and not self._streaming(now)):
+                log.warning("simulated controller drops point %d: %s", msg.sequence,
+                            "the arm is held" if self._hold_in_motion is not None else
+                            "the state stream is not running")
+                return True
             plan = self._plan
             if plan.segments:
                 start_t, start = plan.segments[-1].t_end, plan.segments[-1].target_deg
@@ -442,10 +561,21 @@ class SimulatedController:
 
     # -- motion port ------------------------------------------------------------------------
 
+    def _refuse_second(self, conn: socket.socket, peer: str, port: str, served: bool) -> bool:
+        """Close ``conn`` at once if the variant serves one client per port and one is served."""
+        if not (served and self.variant.one_client_per_port):
+            return False
+        log.warning("simulated controller: %s client %s not served: another client is "
+                    "connected (one client per port)", port, peer)
+        conn.close()
+        return True
+
     def _serve_motion(self, conn: socket.socket, peer: str) -> None:
         with self._lock:
             if self._stop_evt.is_set():
                 conn.close()
+                return
+            if self._refuse_second(conn, peer, "motion", bool(self._motion_clients)):
                 return
             self._motion_clients.add(conn)
         self._spawn(self._motion_loop, (conn, peer), f"motion {peer}")
@@ -466,6 +596,9 @@ class SimulatedController:
                 for msg in reader.feed(data):
                     reply = self._handle(msg)
                     if reply is not None:
+                        with self._lock:
+                            if self._replies:
+                                reply = self._replies.pop(0)
                         conn.sendall(reply)
         except ProtocolError as e:
             log.warning("%s; dropping the connection", e)
@@ -514,16 +647,40 @@ class SimulatedController:
             if self._stop_evt.is_set():
                 conn.close()
                 return
-            self._state_clients.add(conn)
+            if self._refuse_second(conn, peer, "state", bool(self._state_clients)):
+                return
+            client = _StateClient(conn, peer, self.clock.now() + self.startup_silence_s)
+            self._state_clients.append(client)
         log.info("simulated controller: state client %s connected", peer)
+        self._spawn(self._heartbeat_loop, (client,), f"state {peer}")
 
-    def _state_frames(self, now: float) -> bytes:
+    def _heartbeat_loop(self, client: _StateClient) -> None:
+        """Read (and ignore) what the state client sends, to notice it leave at once, as the
+        VAL3 server's heartbeat task does (``recvHeartbeat.pgx``)."""
+        while not self._stop_evt.is_set() and client in self._state_clients:
+            try:
+                if not client.sock.recv(64):
+                    break
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+        if not self._stop_evt.is_set():
+            self._drop_state_client(client, "disconnected")
+
+    def _streaming(self, now: float) -> bool:
+        """Whether a state client is connected and past the start-up silence."""
+        return any(c.serve_from_t <= now for c in self._state_clients)
+
+    def _joint_frame(self, now: float) -> bytes:
         rad = tuple(np.radians(self._plan.at(now)))
         if self.joint_message == MsgType.JOINT_FEEDBACK:
-            joints = JointFeedback(rad, robot_id=0, valid_fields=0x02).pack()
-        else:
-            joints = JointPosition(rad).pack()
-        return joints + self._status(now).pack()
+            # PR #36 encodeJFeedback.pgx: valid time | positions | velocities; the time is
+            # VAL3's clock() written as an int32.
+            velocity = tuple(np.radians(self._plan.velocity_at(now)))
+            return JointFeedback(rad, velocity, robot_id=0, valid_fields=0x07,
+                                 time_raw=struct.pack("<i", int(now))).pack()
+        return JointPosition(rad).pack()
 
     def _has_state_clients(self) -> bool:
         return bool(self._state_clients)
@@ -532,21 +689,37 @@ class SimulatedController:
         """Send the state frames of instant ``now`` to every state client; return how many."""
         self._retire(now)
         with self._lock:
-            clients = list(self._state_clients)
+            clients = [c for c in self._state_clients if c.serve_from_t <= now]
+            garbage, self._state_garbage = self._state_garbage, b""
         if not clients:
             return 0
-        frames = self._state_frames(now)
+        joints = self._joint_frame(now)
+        status = self._status(now).pack()
+        variant = self.variant
         sent = 0
-        for conn in clients:
+        for client in clients:
+            client.passes += 1
+            n = client.passes - variant.status_first
+            frames = garbage + joints
+            if n >= 0 and n % variant.status_every == 0:
+                frames += status
             try:
-                conn.sendall(frames)
+                client.sock.sendall(frames)
                 sent += 1
             except OSError as e:
-                log.info("simulated controller: dropping state client: %s", e)
-                with self._lock:
-                    self._state_clients.discard(conn)
-                conn.close()
+                self._drop_state_client(client, str(e))
         return sent
+
+    def _drop_state_client(self, client: _StateClient, why: str) -> None:
+        with self._lock:
+            if client not in self._state_clients:
+                return
+            self._state_clients.remove(client)
+        log.info("simulated controller: state client %s gone: %s", client.peer, why)
+        client.sock.close()
+        if self.variant.needs_state_stream:
+            # motionControl.pgx: no motion while the state connection is down.
+            self._freeze(self.clock.now(), "state client disconnected")
 
     def _tick(self, t: float) -> int:
         """SimClock ticker: the state frames of simulated instant ``t``."""

@@ -169,6 +169,8 @@ BAD_WORLDS = [
     ("[reflector]\nflatness_mm = 6\n", "reflector.flatness_mm", "<= 5"),
     ("[transducer]\nsquint_deg = 6\n", "transducer.squint_deg", "<= 5"),
     ("[transducer]\nnear_field = 1\n", "transducer.near_field", "true or false"),
+    ('[controller]\nserver = "val4"\n', "controller.server", "unknown server 'val4'"),
+    ("[controller]\nstartup_silence_s = -1\n", "controller.startup_silence_s", ">= 0"),
     (_dh_world("[0, 0, 50, -90, 31]"), "robot.dh[0][4]", "<= 30"),
     (_dh_world(_ROW2 + ", beta_deg = \"x\"}"), "robot.dh[1].beta_deg", "finite"),
     (_dh_world(_ROW2 + ", gamma_deg = 1}"), "robot.dh[1].gamma_deg", "unknown DH column"),
@@ -215,8 +217,12 @@ drift_c_per_min = -0.25
 amplitude_bits = 8
 gain_error_db = 0.2
 delay_ns = 35.5
+[controller]
+server = "val3-feedback"
+startup_silence_s = 2.5
 """)
     w = load_world(path, profile)
+    assert (w.controller_server, w.controller_silence_s) == ("val3-feedback", 2.5)
     np.testing.assert_array_equal(w.backlash_deg, [0.01, 0.02, 0.02, 0.03, 0.03, 0.04])
     assert (w.water_temperature_c, w.water_drift_c_per_min) == (21.0, -0.25)
     assert w.pulser == PulserTruth(amplitude_bits=8, gain_error_db=0.2, delay_ns=35.5)

@@ -44,12 +44,14 @@ class SimulatedCellServer:
     executed motion; ``time_scale`` multiplies every duration on the host clock (0 =
     instantaneous); ``pulser_framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU over a
     TCP socket); ``clock`` is the devices' clock (a ``SimClock`` for lock-step simulated time,
-    which ignores ``time_scale``).
+    which ignores ``time_scale``); ``server`` overrides the world's ``controller_server`` (the
+    Simple Message server the controller behaves as, ``drivers.controller.simulator.SERVERS``).
     """
 
     def __init__(self, world: WorldTruth | None, profile: CellProfile,
                  log_path: str | Path | None = None, time_scale: float = 1.0,
-                 pulser_framing: str = "tcp", host: str = HOST, clock: Clock | None = None):
+                 pulser_framing: str = "tcp", host: str = HOST, clock: Clock | None = None,
+                 server: str | None = None):
         if pulser_framing not in ("tcp", "rtu"):
             raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
         self.profile = profile
@@ -60,6 +62,7 @@ class SimulatedCellServer:
         self.time_scale = float(time_scale)
         self.pulser_framing = pulser_framing
         self.host = host
+        self.server = server if server is not None else self.world.controller_server
         self.clock: Clock = clock if clock is not None else HOST_CLOCK
         self.simulated_time = isinstance(self.clock, SimClock)
         self._t0 = 0.0
@@ -87,7 +90,8 @@ class SimulatedCellServer:
                 np.asarray(self.world.initial_joints_deg, float), self.host,
                 motion_port=0, state_port=0,
                 time_scale=1.0 if self.simulated_time else self.time_scale,
-                on_motion=self._on_motion, clock=self.clock, settle_s=timing.SETTLE_S)
+                on_motion=self._on_motion, clock=self.clock, settle_s=timing.SETTLE_S,
+                server=self.server, startup_silence_s=self.world.controller_silence_s)
             self.controller.start()
             self.pulser = SimulatedPulser(self._acquire, framing=self.pulser_framing,
                                           host=self.host, port=0, unit=1,

@@ -147,7 +147,7 @@ def test_status_round_trip_and_estop_refusal(sim_controller, controller_client):
     sim_controller.set_fault(e_stopped=True)
     assert _wait_until(lambda: controller_client.status().e_stopped is True)
     assert controller_client.status().motion_possible is False
-    with pytest.raises(MotionRejected, match="e-stopped=True"):
+    with pytest.raises(MotionRejected, match="e-stop engaged"):
         controller_client.start_move(TARGET)
     assert sim_controller.moves_executed == 0
 
@@ -175,7 +175,7 @@ def test_estop_during_motion_raises_device_error_promptly(make_sim_controller,
     client.start_move(target, speed=0.5)
     threading.Timer(0.1, sim.set_fault, kwargs={"e_stopped": True}).start()
     t0 = time.monotonic()
-    with pytest.raises(DeviceError, match="e-stopped=True"):
+    with pytest.raises(DeviceError, match="e-stop engaged"):
         client.wait_settled(target, timeout_s=5.0)
     assert time.monotonic() - t0 < 0.5
     assert not sim.in_motion()
@@ -302,11 +302,30 @@ def test_no_reply_is_a_timeout(fake_server, make_controller_client):
 
 def test_silent_state_stream_is_a_timeout(fake_server, make_controller_client):
     client = make_controller_client(fake_server.url, state_timeout_s=0.3)
+    _, state = fake_server.accept()
+    state.sendall(_healthy_state())
+    client.read_joints()
+    time.sleep(0.4)
+    with pytest.raises(DeviceTimeout, match=r"state timeout ran out \(state_timeout_s = 0.3 s\)"):
+        client.status(timeout_s=5.0)
+
+
+def test_first_state_waits_out_the_val3_silence_and_no_longer(fake_server,
+                                                             make_controller_client):
+    """The VAL3 server is silent for 1 s after connecting; the first-state timeout covers it."""
+    client = make_controller_client(fake_server.url, state_timeout_s=0.3,
+                                    first_state_timeout_s=1.5)
+    _, state = fake_server.accept()
+    threading.Timer(1.0, state.sendall, args=(_healthy_state(),)).start()
+    np.testing.assert_allclose(client.read_joints(timeout_s=0.1), HOME)
+    silent = make_controller_client(fake_server.url, first_state_timeout_s=0.4)
     fake_server.accept()
     t0 = time.monotonic()
-    with pytest.raises(DeviceTimeout):
-        client.read_joints(timeout_s=5.0)
-    assert time.monotonic() - t0 < 1.0
+    with pytest.raises(DeviceTimeout, match=r"first-state timeout ran out "
+                                            r"\(first_state_timeout_s = 0.4 s\)") as info:
+        silent.read_joints(timeout_s=0.1)
+    assert 0.35 < time.monotonic() - t0 < 1.0
+    assert info.value.endpoint == fake_server.url
 
 
 def test_request_bytes_and_reply_handling(fake_server, make_controller_client):
@@ -323,7 +342,7 @@ def test_request_bytes_and_reply_handling(fake_server, make_controller_client):
         except Exception as e:  # noqa: BLE001 — handed to the main thread to assert on
             errors.append(e)
 
-    worker = threading.Thread(target=move, args=(TARGET, 0.1))
+    worker = threading.Thread(target=move, args=(TARGET, 0.001))
     worker.start()
     reader = FrameReader()
     request = []
@@ -334,8 +353,8 @@ def test_request_bytes_and_reply_handling(fake_server, make_controller_client):
     assert req.sequence == 0
     np.testing.assert_allclose(np.degrees(req.joints_rad[:6]), TARGET, atol=1e-4)
     assert req.joints_rad[6:] == (0.0,) * 4
-    # A request for exactly 10 % goes out as 10.01 % (VAL3 decTrajPt.pgx smoothing quirk).
-    assert req.velocity == pytest.approx(0.1001, abs=1e-7)
+    # 0.001 (VAL3: 0.1 %, the "smooth last point" trigger of interpolateVel.pgx) goes as 0.00101.
+    assert req.velocity == pytest.approx(0.00101, rel=1e-6)
     # A stale reply (sequence 5) is ignored; the matching one completes the request.
     motion.sendall(JointTrajPtReply(ReplyCode.SUCCESS, 5).pack()
                    + JointTrajPtReply(ReplyCode.SUCCESS, 0).pack())

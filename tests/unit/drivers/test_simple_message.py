@@ -22,6 +22,8 @@ from drivers.controller.simple_message import (
     JointPosition,
     JointTrajPt,
     JointTrajPtReply,
+    MsgType,
+    OtherMessage,
     ReplyCode,
     SpecialSeq,
     Status,
@@ -171,7 +173,7 @@ def test_reader_any_split(cuts):
     (b"GET / HTTP/1.1\r\n\r\n", "length field"),
     (struct.pack("<i", -1) + bytes(12), "length field"),
     (struct.pack("<i", 4) + bytes(12), "length field"),
-    (struct.pack("<4i", 40, 99, 1, 0), "unknown message type 99"),
+    (struct.pack("<4i", 40, 99, 0, 0), "invalid comm_type 0 in message type 99"),
     (struct.pack("<4i", 40, 13, 0, 0), "invalid comm_type 0"),
     (struct.pack("<4i", 40, 13, 1, 7), "invalid reply_code 7"),
     (struct.pack("<4i", 44, 13, 1, 0), "32-byte body"),
@@ -186,6 +188,21 @@ def test_reader_rejects_garbage_from_the_header(garbage, reason):
     # The stream cannot be resynchronised: the reader stays broken.
     with pytest.raises(ProtocolError):
         reader.feed(REP_STATUS)
+
+
+@pytest.mark.parametrize("other", [
+    OtherMessage(MsgType.PING, CommType.SERVICE_REQUEST),                # header only
+    OtherMessage(MsgType.JOINT_TRAJ_PT_FULL, CommType.SERVICE_REPLY, ReplyCode.FAILURE,
+                 bytes(136)),
+    OtherMessage(4242, CommType.TOPIC, ReplyCode.INVALID, b"vendor data!"),
+])
+def test_well_formed_frame_of_another_type_is_kept_raw_between_known_ones(other):
+    frame = other.pack()
+    assert frame[:4] == struct.pack("<i", 12 + len(other.body))
+    reader = FrameReader()
+    out = reader.feed(REP_STATUS + frame + REP_JOINT_POSITION)
+    assert out == [parse(REP_STATUS), other, parse(REP_JOINT_POSITION)]
+    assert reader.buffered == 0
 
 
 def test_wrong_body_size_rejected_before_body_arrives():
