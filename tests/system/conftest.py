@@ -2,22 +2,39 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
+import re
+import shlex
+from collections.abc import Callable
 
 import pytest
 
+#: One ``--help`` example: the environment it sets and the arguments after ``ucal``.
+Example = tuple[dict[str, str], list[str]]
 
-@pytest.fixture(scope="session")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """A recorded ``calibrate --dry-run`` on the demo cell: its directory (``run.jsonl``) and
-    its JSON result."""
-    d = tmp_path_factory.mktemp("record")
-    out = subprocess.run([sys.executable, "-m", "ucal", "calibrate", "cell.toml", "--sim",
-                          "--yes", "--json", "--dry-run", "--record", "run.jsonl"],
-                         check=False, capture_output=True, text=True, cwd=d,
-                         stdin=subprocess.DEVNULL, timeout=300)
-    assert out.returncode in (0, 1), out.stderr
-    return d, json.loads(out.stdout)
+
+@pytest.fixture
+def help_examples(run_main: Callable[[list[str]], tuple[int, str, str]]
+                  ) -> Callable[[list[str]], list[Example]]:
+    """Read the ``Examples:`` block of ``ucal COMMAND --help``."""
+
+    def read(command: list[str]) -> list[Example]:
+        code, out, _ = run_main([*command, "--help"])
+        assert code == 0 and "Examples:" in out, out
+        block = re.sub(r"\\\n\s*", " ", out.split("Examples:", 1)[1])  # continued lines
+        found: list[Example] = []
+        for line in block.splitlines():
+            if not line.strip():
+                if found:
+                    break
+                continue
+            words = shlex.split(line)
+            env = {}
+            while "=" in words[0]:
+                name, value = words.pop(0).split("=", 1)
+                env[name] = value
+            assert words[0] == "ucal", line
+            found.append((env, words[1:]))
+        assert found
+        return found
+
+    return read

@@ -1,7 +1,7 @@
 """Every example in ``ucal --help`` and each command's ``--help`` runs as written.
 
 The examples are read from the help text itself, in a directory holding the files they name
-(``cell.toml``, ``world.toml``, ``scan.csv``, a recorded ``run.jsonl``); device URLs are those
+(``cell.toml``, ``world.toml``, ``scan.csv``); device URLs are those
 of a simulated cell on 127.0.0.1. A command that moves the robot runs up to its confirmation,
 asked on a terminal and answered "no": its options, files and plan are all checked, and it
 must name the cell it would move; nothing moves.
@@ -12,9 +12,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import re
-import shlex
-import shutil
 import signal
 import sys
 import threading
@@ -31,33 +28,11 @@ from ucal.sim.serve import SimulatedCellServer
 pytestmark = pytest.mark.system
 
 RunMain = Callable[[list[str]], tuple[int, str, str]]
-Example = tuple[dict[str, str], list[str]]
+Examples = Callable[[list[str]], list[tuple[dict[str, str], list[str]]]]
 
 COMMANDS = [["profile"], ["fk"], ["ik"], ["path"], ["status"], ["calibrate"], ["tool-frame"],
             ["verify"]]
 MOVING = {"calibrate", "tool-frame", "verify"}
-
-
-def examples(run_main: RunMain, command: list[str]) -> list[Example]:
-    """The ``Examples:`` block of ``ucal COMMAND --help``: (environment, arguments) each."""
-    code, out, _ = run_main([*command, "--help"])
-    assert code == 0 and "Examples:" in out, out
-    block = re.sub(r"\\\n\s*", " ", out.split("Examples:", 1)[1])  # continued lines
-    found: list[Example] = []
-    for line in block.splitlines():
-        if not line.strip():
-            if found:
-                break
-            continue
-        words = shlex.split(line)
-        env = {}
-        while "=" in words[0]:
-            name, value = words.pop(0).split("=", 1)
-            env[name] = value
-        assert words[0] == "ucal", line
-        found.append((env, words[1:]))
-    assert found
-    return found
 
 
 @pytest.fixture(scope="module")
@@ -86,15 +61,14 @@ def workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return tmp_path
 
 
-def add_files(d: Path, recorded: Path | None) -> None:
-    """The files the examples name."""
+def add_files(d: Path) -> None:
+    """The files the examples name (``run.jsonl``, a recorded run, is
+    ``test_record_replay_cli``'s)."""
     (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
     for world in ("world.toml", "truth.toml"):
         (d / world).write_text("[noise]\ntof_ns = 0.02\nseed = 3\n", encoding="utf-8")
     (d / "scan.csv").write_text("X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n",
                                 encoding="utf-8")
-    if recorded is not None:
-        shutil.copy(recorded, d / "run.jsonl")
 
 
 @contextlib.contextmanager
@@ -111,18 +85,18 @@ def terminal_typed(text: str) -> Iterator[TextIO]:
 
 @pytest.mark.parametrize("command", COMMANDS, ids=lambda c: " ".join(c) or "ucal")
 def test_help_examples_run_as_written(command: list[str], workdir: Path, cell: dict[str, str],
-                                      run_main: RunMain, monkeypatch: pytest.MonkeyPatch,
-                                      request: pytest.FixtureRequest) -> None:
+                                      run_main: RunMain, help_examples: Examples,
+                                      monkeypatch: pytest.MonkeyPatch) -> None:
     if command != ["profile"]:
-        replay = command == ["calibrate"]
-        add_files(workdir, request.getfixturevalue("recorded")[0] / "run.jsonl"
-                  if replay else None)
-    for env, args in examples(run_main, command):
+        add_files(workdir)
+    for env, args in help_examples(command):
+        if "--replay" in args:
+            continue  # solves a recorded run: test_record_replay_cli runs it beside its record
         for name, value in env.items():
             monkeypatch.setenv(name, local(value, cell))
         args = [local(a, cell) for a in args]
         shown = " ".join(args)
-        if args[0] in MOVING and "--replay" not in args:
+        if args[0] in MOVING:
             before = (workdir / "cell.toml").read_bytes()
             with monkeypatch.context() as m, terminal_typed("n\n") as tty:
                 m.setattr(sys, "stdin", tty)
@@ -135,26 +109,25 @@ def test_help_examples_run_as_written(command: list[str], workdir: Path, cell: d
             assert (workdir / "cell.toml").read_bytes() == before, shown
             continue
         code, out, err = run_main(args)
-        finished = (0, 1) if "--replay" in args else (0,)  # a replay's verdict is its result
-        assert code in finished, (shown, err)
+        assert code == 0, (shown, err)
         if "--json" in args:
             assert isinstance(json.loads(out), dict), shown
         for name in env:
             monkeypatch.delenv(name)
 
 
-def test_the_overview_examples_are_commands_examples(run_main: RunMain) -> None:
+def test_the_overview_examples_are_commands_examples(help_examples: Examples) -> None:
     """``ucal --help`` shows examples that each command's own help shows (and runs above)."""
-    for env, args in examples(run_main, []):
+    for env, args in help_examples([]):
         command = args[:2] if args[0] == "sim" else args[:1]
-        assert (env, args) in examples(run_main, command), args
+        assert (env, args) in help_examples(command), args
 
 
 def test_sim_serve_examples_serve_until_interrupted(workdir: Path, run_main: RunMain,
-                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+                                                   help_examples: Examples) -> None:
     """Each serves (its first stdout line gives the URLs) and ends at SIGINT with exit 0."""
-    add_files(workdir, None)
-    for _, args in examples(run_main, ["sim", "serve"]):
+    add_files(workdir)
+    for _, args in help_examples(["sim", "serve"]):
         interrupter = threading.Thread(target=interrupt_once_serving, daemon=True)
         interrupter.start()
         code, out, err = run_main(args)

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -19,6 +20,15 @@ pytestmark = pytest.mark.system
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "ucal", *args], check=False, capture_output=True,
                           text=True, cwd=cwd, stdin=subprocess.DEVNULL, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    d = tmp_path_factory.mktemp("record")
+    out = ucal("calibrate", "cell.toml", "--sim", "--yes", "--json", "--dry-run",
+               "--record", "run.jsonl", cwd=d)
+    assert out.returncode in (0, 1), out.stderr
+    return d, json.loads(out.stdout)
 
 
 def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
@@ -37,10 +47,14 @@ def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
 
 
 def test_replay_with_another_method_solves_the_same_measurements(
-        recorded: tuple[Path, dict]) -> None:
+        recorded: tuple[Path, dict],
+        help_examples: Callable[[list[str]], list[tuple[dict, list[str]]]]) -> None:
     d, result = recorded
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--method", "paper", "--json",
-               cwd=d)
+    # as `ucal calibrate --help` shows it (every other example runs in test_help_examples)
+    (args,) = [a for _, a in help_examples(["calibrate"]) if "--replay" in a]
+    assert args == ["calibrate", "cell.toml", "--replay", "run.jsonl", "--method", "paper",
+                    "--json"]
+    out = ucal(*args, cwd=d)
     assert out.returncode in (0, 1), out.stderr
     paper = json.loads(out.stdout)
     assert paper["method"] == "paper"
