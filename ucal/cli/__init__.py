@@ -12,7 +12,7 @@ import sys
 
 import click
 
-from ucal.cli.options import add_common_options, common_options, emit_json
+from ucal.cli.options import add_common_options, common_options, configure_logging, emit_json
 from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
 
 #: command name → module under ``ucal.cli`` exposing ``cli``
@@ -46,7 +46,8 @@ class LazyGroup(click.Group):
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @common_options
 @click.version_option(package_name="ucal")
-def cli() -> None:
+@click.pass_context
+def cli(ctx: click.Context) -> None:
     """Calibrate a Staubli-class robot with the ultrasonic transducer it carries.
 
     \b
@@ -55,6 +56,7 @@ def cli() -> None:
       ucal calibrate cell.toml --sim --yes
       ucal ik cell.toml --pose 600,300,100,180,0,0 --all --json
     """
+    configure_logging(ctx)  # -v/-q/--debug after the subcommand adjust it again
 
 
 def _report(message: str, code: int, as_json: bool, result: dict | None = None) -> None:

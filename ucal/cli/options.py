@@ -48,12 +48,13 @@ def _count(ctx: click.Context, param: click.Parameter, value: Any) -> None:
         return
     settings = _settings(ctx)
     settings[param.name or ""] = settings.get(param.name or "", 0) + int(value)
-    configure_logging(settings)
+    configure_logging(ctx)
 
 
-def configure_logging(settings: dict[str, Any]) -> None:
+def configure_logging(ctx: click.Context) -> None:
     """Log to stderr: warnings by default, ``-v`` info, ``-vv``/``--debug`` debug, ``-q``
-    errors only."""
+    errors only (as counted so far on the command line)."""
+    settings = _settings(ctx)
     debug = bool(settings.get("debug"))
     level = settings.get("verbose", 0) - settings.get("quiet", 0)
     logging.basicConfig(stream=sys.stderr,

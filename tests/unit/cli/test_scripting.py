@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -138,3 +139,14 @@ def test_quiet_anywhere(tmp_path: Path, args: list[str],
 def test_verbose_after_the_subcommand(profile: Path, run_main: RunMain) -> None:
     code, out, _ = run_main(["fk", str(profile), "--joints", "0,0,90,0,90,0", "--json", "-vv"])
     assert code == 0 and set(json.loads(out)) == {"joints_deg", "pose"}
+
+
+@pytest.mark.parametrize("flags, level", [([], logging.WARNING), (["-v"], logging.INFO),
+                                          (["-vv"], logging.DEBUG), (["-q"], logging.ERROR)])
+def test_log_level_from_flags_anywhere(profile: Path, run_main: RunMain, flags: list[str],
+                                       level: int) -> None:
+    for args in ([*flags, "fk", str(profile)], ["fk", str(profile), *flags]):
+        code, _, _ = run_main([*args, "--joints", "0,0,90,0,90,0"])
+        assert code == 0 and logging.getLogger().level == level
+        # pymodbus reports its own retries; ucal reports faults once, itself
+        assert logging.getLogger("pymodbus").level == logging.CRITICAL
