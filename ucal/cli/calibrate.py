@@ -198,7 +198,7 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, meth
 
     from ucal.calibration.sequence import plan_calibration
 
-    console = Console(stderr=True)
+    console = Console()  # the result on stdout; the plan and progress go to stderr
     plan = plan_calibration(profile)
     if record is None:
         confirm_motion(yes, plan_summary(plan, profile),
@@ -433,7 +433,7 @@ def plan_summary(plan, profile) -> str:
 
 
 def show_result(console, chosen, exact, paper, truth, result) -> None:
-    """The result as tables on stderr: offsets with σ, fit quality, residual per measurement."""
+    """The result as tables on stdout (without --json): offsets with σ, fit quality, residual per measurement."""
     from rich.markup import escape
     from rich.table import Table
 

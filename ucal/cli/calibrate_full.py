@@ -44,7 +44,7 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, beam
     from ucal.calibration.full_plan import plan_full
     from ucal.cli.calibrate import in_session
 
-    console = Console(stderr=True)
+    console = Console()  # the result on stdout; the plan and progress go to stderr
     plan = plan_full(profile) if max_postures is None else plan_full(profile,
                                                                       max_postures=max_postures)
     if record is None:
@@ -102,7 +102,7 @@ def _measure_and_identify(profile, profile_path: Path, plan, cell, console, beam
 
 
 def show_result(console, sol, result) -> None:
-    """The identified parameters, offsets and fit as tables on stderr."""
+    """The identified parameters, offsets and fit as tables on stdout (without --json)."""
     from rich.markup import escape
     from rich.table import Table
 
