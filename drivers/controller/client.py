@@ -47,6 +47,7 @@ from drivers.controller.simple_message import (
     JointTrajPt,
     JointTrajPtReply,
     Message,
+    MsgType,
     OtherMessage,
     SpecialSeq,
     Status,
@@ -233,6 +234,10 @@ class SimpleMessageController(RobotController):
         self._last_frame_t = 0.0
         self._state_error: DriverError | None = None
         self._skipped_types: set[int] = set()
+        self._joint_type = ""                      # the joint message the stream carries
+        self._joint_count = 0                      # joint frames since connecting
+        # (joint frames so far, time) at each STATUS: the stream's rate and STATUS cadence
+        self._status_marks: collections.deque[tuple[int, float]] = collections.deque(maxlen=64)
         self._samples: collections.deque[JointSample] = collections.deque(maxlen=history_size)
         # The point being executed: its target, when it was accepted, and its progress.
         self._target: np.ndarray | None = None
@@ -295,6 +300,8 @@ class SimpleMessageController(RobotController):
             self._connected_t = self.clock.now()
             self._first_frame_t = None
             self._target = None
+            self._joint_count = 0
+            self._status_marks.clear()
         self._motion_sock, self._state_sock = motion, state
         self._motion_reader = FrameReader(self.device, self.endpoint)
         self._motion_error = None
@@ -377,12 +384,15 @@ class SimpleMessageController(RobotController):
                     self._joints_deg, self._joints_t = joints, now
                     self._samples.append(JointSample(now, joints))
                     joint_frames += 1
+                    self._joint_count += 1
+                    self._joint_type = MsgType(msg.msg_type).name
                     if self._target is not None:
                         distance = float(np.max(np.abs(joints - self._target)))
                         if distance < self._best_distance - PROGRESS_DEG:
                             self._best_distance, self._best_t = distance, now
                 elif isinstance(msg, Status):
                     self._status, self._status_t = _status_from_message(msg), now
+                    self._status_marks.append((self._joint_count, now))
                     if msg.in_motion != 0:
                         self._idle_since = None
                     elif self._idle_since is None:
@@ -498,6 +508,27 @@ class SimpleMessageController(RobotController):
     def status(self, timeout_s: float = 2.0) -> ControllerStatus:
         """Latest STATUS, waiting at most ``timeout_s`` for a first one."""
         return self._wait_for(lambda: self._status, timeout_s, "status message")
+
+    def stream_info(self, timeout_s: float = 3.0) -> dict[str, Any]:
+        """What the state port streams, measured: ``joint_message`` (JOINT_POSITION or
+        JOINT_FEEDBACK), ``joint_rate_hz``, ``status_every`` (joint frames per STATUS) and
+        ``first_state_s`` (how long the first message took after connecting).
+
+        Waits for STATUS messages spanning 0.2 s at least (the released VAL3 server sends one
+        every 5th pass at 50 Hz, pull request #36 every 20th at 250 Hz).
+        """
+        def measured() -> dict[str, Any] | None:
+            marks = self._status_marks
+            if len(marks) < 3 or marks[-1][1] - marks[0][1] < 0.2:
+                return None
+            (c0, t0), (c1, _), (c2, t2) = marks[0], marks[-2], marks[-1]
+            return {"joint_message": self._joint_type,
+                    "joint_rate_hz": round((c2 - c0) / (t2 - t0), 1),
+                    "status_every": c2 - c1,
+                    "first_state_s": round((self._first_frame_t or 0.0) - self._connected_t,
+                                           3)}
+
+        return self._wait_for(measured, timeout_s, "STATUS messages spanning 0.2 s")
 
     def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
         """Streamed joint positions received at or after ``since_t_s`` (``clock`` time, s)."""

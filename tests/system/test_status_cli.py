@@ -12,6 +12,7 @@ from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 from drivers.pulser.simulator import DEVICE_INFO
 from ucal.profile import default_profile_text, load_profile
+from ucal.sim.demo import demo_world
 from ucal.sim.serve import SimulatedCellServer
 
 pytestmark = pytest.mark.system
@@ -43,10 +44,14 @@ def test_json_reports_joints_controller_and_pulser_and_moves_nothing(
     result = json.loads(out)
     assert set(result) == {"joints_deg", "controller", "pulser"}
     assert result["joints_deg"] == pytest.approx(list(server.world.initial_joints_deg), abs=1e-4)
+    stream = result["controller"].pop("stream")
     assert result["controller"] == {
         "endpoint": urls["controller"], "drives_powered": True, "e_stopped": False,
         "in_motion": False, "in_error": False, "error_code": 0, "mode": "auto",
         "motion_possible": True}
+    # the plain simulated server: STATUS with every frame, no VAL3 server
+    assert (stream["joint_message"], stream["status_every"], stream["server"]) == (
+        "JOINT_POSITION", 1, "unknown")
     pulser = result["pulser"]
     assert pulser["endpoint"] == urls["pulser"]
     assert pulser["register_map_version"] == 2
@@ -62,6 +67,22 @@ def test_json_reports_joints_controller_and_pulser_and_moves_nothing(
             server.motions) == (moves, stops, motions)
 
 
+def test_the_released_val3_server_is_recognised_by_its_stream(
+        tmp_path: Path, run_main: RunMain) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
+    profile = load_profile(path)
+    world = demo_world(profile).replace(controller_silence_s=0.3)
+    with SimulatedCellServer(world, profile, time_scale=0.0, server="val3") as cell:
+        code, out, err = run_main(["status", "--controller", cell.urls["controller"], "--json"])
+    assert code == 0, err
+    stream = json.loads(out)["controller"]["stream"]
+    assert (stream["joint_message"], stream["status_every"]) == ("JOINT_POSITION", 5)
+    assert stream["joint_rate_hz"] == pytest.approx(50.0, rel=0.2)
+    assert stream["first_state_s"] >= 0.3
+    assert stream["server"] == "VAL3 ros_server, released (staubli_val3_driver master)"
+
+
 def test_urls_from_the_environment_and_human_output(
         server: SimulatedCellServer, monkeypatch: pytest.MonkeyPatch,
         run_main: RunMain) -> None:
@@ -70,7 +91,7 @@ def test_urls_from_the_environment_and_human_output(
     code, out, err = run_main(["status"])
     assert code == 0, err
     for text in (server.urls["controller"], "powered", "released", "at rest", "auto",
-                 DEVICE_INFO.model, "pulse_voltage_v", "damping_ohm"):
+                 "JOINT_POSITION at", DEVICE_INFO.model, "pulse_voltage_v", "damping_ohm"):
         assert text in out
 
 

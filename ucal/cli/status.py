@@ -14,6 +14,20 @@ log = logging.getLogger(__name__)
 
 #: REP-I0006 RobotMode values of ``ControllerStatus.mode``.
 MODES = {0: "unknown", 1: "manual", 2: "auto"}
+#: Known Simple Message servers by what their state port streams: (joint message, rate (Hz),
+#: joint frames per STATUS) → name (``docs/protocols/simple_message.md``).
+SERVERS = {("JOINT_POSITION", 50.0, 5): "VAL3 ros_server, released (staubli_val3_driver master)",
+           ("JOINT_FEEDBACK", 250.0, 20): "VAL3 ros_server of staubli_val3_driver pull request "
+                                          "#36"}
+
+
+def server_name(stream: dict[str, Any]) -> str:
+    """The known server whose stream this is (rate within 20 %), or "unknown"."""
+    for (message, rate_hz, every), name in SERVERS.items():
+        if (stream["joint_message"] == message and stream["status_every"] == every
+                and abs(stream["joint_rate_hz"] - rate_hz) <= 0.2 * rate_hz):
+            return name
+    return "unknown"
 
 
 @click.command("status", epilog="""\b
@@ -27,6 +41,11 @@ Examples:
 @json_option
 def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> None:
     """Show the joint readings, the controller's status and the pulser's identity.
+
+    Also what the controller's state port streams (joint message, rate, STATUS cadence, how
+    long the first message took) and which known server that is: the released VAL3 server
+    streams JOINT_POSITION at 50 Hz with a STATUS every 5th, its pull request #36
+    JOINT_FEEDBACK at 250 Hz with a STATUS every 20th; both wait 1 s before the first.
 
     Connects, reads and disconnects: nothing moves and no command is sent to the robot (not
     even STOP). Joint readings in degrees as the controller reports them. Exit 0 when every
@@ -78,14 +97,20 @@ def _guarded(device: str, url: str | None, read: Any, arg: Any) -> Any:
 
 
 def _read_controller(controller: Any) -> tuple[list[float], dict[str, Any]]:
-    """Joint readings (deg) and status; the connection is closed without sending anything."""
+    """Joint readings (deg), status and what the state port streams (when the back-end says);
+    the connection is closed without sending anything."""
     controller.connect()
+    stream = None
     try:
         joints = [float(v) for v in controller.read_joints()]
         st = controller.status()
+        stream_info = getattr(controller, "stream_info", None)
+        if callable(stream_info):
+            stream = stream_info()
+            stream["server"] = server_name(stream)
     finally:
         controller.close()  # not the context manager's exit: that sends STOP
-    return joints, {
+    out = {
         "endpoint": controller.endpoint,
         "drives_powered": st.drives_powered,
         "e_stopped": st.e_stopped,
@@ -95,6 +120,9 @@ def _read_controller(controller: Any) -> tuple[list[float], dict[str, Any]]:
         "mode": MODES.get(int(st.mode), f"unknown ({st.mode})"),
         "motion_possible": st.motion_possible,
     }
+    if stream is not None:
+        out["stream"] = stream
+    return joints, out
 
 
 def _read_pulser(pulser: Any) -> dict[str, Any]:
@@ -128,6 +156,12 @@ def show(out: dict[str, Any]) -> None:
     table.add_row("motion", _flag(c["in_motion"], "moving", "at rest"))
     table.add_row("error", _flag(c["in_error"], f"IN ERROR (code {c['error_code']})", "none"))
     table.add_row("mode", c["mode"])
+    if "stream" in c:
+        s = c["stream"]
+        table.add_row("state stream", f"{s['joint_message']} at {s['joint_rate_hz']:g} Hz, "
+                                      f"STATUS every {s['status_every']}, first after "
+                                      f"{s['first_state_s']:.2f} s")
+        table.add_row("server", s["server"])
     console.print(table)
     p = out["pulser"]
     if p is None:

@@ -196,3 +196,15 @@ def test_status_of_the_refusing_variant(cell):
     assert client.status().drives_powered is False
     with pytest.raises(Exception, match="refused .* drives off"):
         client.start_move(TARGET, 0.5)  # PR #36 pushMotion.pgx: FAILURE when not possible
+
+
+@pytest.mark.parametrize("server, message, rate_hz, every", [
+    ("val3", "JOINT_POSITION", 50.0, 5), ("val3-feedback", "JOINT_FEEDBACK", 250.0, 20),
+    ("simple", "JOINT_POSITION", 50.0, 1)])
+def test_stream_info_tells_the_servers_apart(cell, server, message, rate_hz, every):
+    _, _, client = cell(server)
+    info = client.stream_info()
+    assert (info["joint_message"], info["joint_rate_hz"], info["status_every"]) == (
+        message, rate_hz, every)
+    assert info["first_state_s"] == pytest.approx(0.0 if server == "simple" else 1.0,
+                                                  abs=1.0 / rate_hz)
