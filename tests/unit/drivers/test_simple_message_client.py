@@ -228,6 +228,7 @@ def test_a_late_reply_without_a_sequence_is_never_taken_for_a_new_point():
 def test_well_formed_frames_of_other_types_are_skipped_on_both_ports(caplog):
     ping_reply = OtherMessage(MsgType.PING, CommType.SERVICE_REPLY, ReplyCode.SUCCESS).pack()
     vendor_topic = OtherMessage(4242, CommType.TOPIC, ReplyCode.INVALID, b"vendor data!").pack()
+    caplog.set_level(logging.WARNING, logger="drivers.controller.client")
     client, motion, state, _ = scripted([(MOVE, ping_reply + vendor_topic + MOVE_OK)])
     state.push(vendor_topic + JointPosition((0.0, 1.0)).pack() + vendor_topic)
     client.start_move(MOVE_TARGET_DEG, speed=0.5)
@@ -242,11 +243,11 @@ def test_well_formed_frames_of_other_types_are_skipped_on_both_ports(caplog):
     struct.pack("<4i", 12, 99, 0, 0),                # unknown type, comm type 0: no frame
 ])
 def test_stop_is_sent_after_a_bad_frame_on_the_motion_port(bad, caplog):
+    caplog.set_level(logging.WARNING, logger="drivers.controller.client")
     client, motion, _, _ = scripted([(MOVE, bad), (STOP, None)])
     with pytest.raises(ProtocolError) as info:
         client.start_move(MOVE_TARGET_DEG, speed=0.5)
     assert info.value.endpoint == URL
-    caplog.set_level(logging.WARNING, logger="drivers.controller.client")
     client.stop()  # STOP goes out (the dialogue expects it); the earlier fault is logged
     assert not motion.dialogue
     assert "STOP sent to" in caplog.text and "the motion link failed" in caplog.text
