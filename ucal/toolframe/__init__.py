@@ -3,5 +3,7 @@
 ``plane`` fits the reflector plate's plane to touched points; ``paper`` is paper 002's
 constrained least-squares formulation; ``exact`` is ours (beam from normal incidence, offset
 along the beam from time of flight, offsets across the beam from edge reversal);
-``procedure`` plans, checks and measures with the rig.
+``fit`` solves those measurements again with the joint offsets, the plate, the DH table, the
+sound speed and an electronic delay as unknowns with the profile's tolerances as priors (what a
+run reports and writes); ``procedure`` plans, checks and measures with the rig.
 """

@@ -26,8 +26,9 @@ Only ``a_T·p_T`` appears: a flat plate at normal incidence sees the tool centre
 the beam and nothing across it (turning the tool about the beam or shifting it across the
 beam changes neither the echo nor the distance). A constant time-of-flight delay ``δt`` (cable,
 pulser trigger) adds ``c·δt/2`` to every ``Δl_i`` and is indistinguishable from ``a_T·p_T``
-(and an error of ``h`` from the touched points likewise): ucal assumes zero delay and the
-plane of the touched points.
+(and an error of ``h`` from the touched points likewise): this first estimate assumes zero
+delay, the profile's offsets and the plane of the touched points; ``ucal.toolframe.fit`` then
+carries them as unknowns with their tolerances.
 
 (c) Offsets across the beam: edge reversal. With the beam normal to the plate, its axis
 meets the plate at ``N = c + Δl b``, and the echo falls to half where N crosses a straight
@@ -48,7 +49,11 @@ The 50 % point of a scan is located by fitting the footprint's edge profile: for
 footprint of width σ the share on the plate is ``Φ(s/σ)`` with s the signed distance of the
 axis from the edge, so the amplitude along the scan coordinate t is::
 
-    (E4)  A(t) = A0 · Φ((t_e − t)/σ)         (A0, t_e, σ fitted; t_e is the crossing)
+    (E4)  A(t) = (A0 + A1·(t − t_e)) · Φ((t_e − t)/σ)   (A0, A1, t_e, σ fitted; t_e is the
+                                                            crossing)
+
+(A1 takes up an echo that changes slowly along the scan on the plate: a beam drifting off
+normal, a bow of the plate.)
 
 Solution. With ``a_T`` from (a) held fixed, ``p_T`` (3), and ψ_k, d_k per edge are the
 weighted least-squares solution of all (E2) and (E3) equations, in their exact ray form
@@ -159,17 +164,18 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
     t0 = float(t[idx].max() if outward > 0 else t[idx].min())
 
     def model(p: np.ndarray) -> np.ndarray:
-        a0, te, sig = p
-        return a0 * ndtr(outward * (te - t) / sig)
+        a0, te, sig, slope = p
+        return (a0 + slope * (t - te)) * ndtr(outward * (te - t) / sig)
 
-    p0 = np.array([top, t0, 1.5])
-    lo = np.array([0.0, t.min(), 0.05])
-    hi = np.array([np.inf, t.max(), 0.5 * (t.max() - t.min()) + 1.0])
+    span = float(t.max() - t.min())
+    p0 = np.array([top, t0, 1.5, 0.0])
+    lo = np.array([0.0, t.min(), 0.05, -top / max(span, 1e-9)])
+    hi = np.array([np.inf, t.max(), 0.5 * span + 1.0, top / max(span, 1e-9)])
     p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
     sol = least_squares(lambda p: model(p) - a, p0, bounds=(lo, hi), xtol=1e-14, ftol=1e-14,
                         gtol=1e-14, max_nfev=2000)
     res = sol.fun
-    dof = max(1, len(a) - 3)
+    dof = max(1, len(a) - 4)
     s2 = float(res @ res / dof)
     s2 = max(s2, (1e-9 * sol.x[0]) ** 2)
     cov = np.linalg.pinv(sol.jac.T @ sol.jac) * s2

@@ -32,7 +32,11 @@ predicted from the beam found so far), fitted, the water path read at the peak; 
 from all peaks (``exact`` eq. E1), a_T·p_T from the paths (E2); then the edge scans with the
 tool estimate updated (the beam normal to the plate within the peak precision): a coarse search
 outward from the plate until the echo falls below half, a fine scan of static probes across the
-edge fitted with eq. E4, in both orientations; finally p_T from all paths and crossings (E3).
+edge fitted with eq. E4, in both orientations; p_T from all paths and crossings (E3) as a
+first estimate; finally the fit of ``ucal.toolframe.fit`` (offsets, plate, DH table, sound speed
+and delay as prior-constrained unknowns), which is what the run reports. A posture whose probes
+are below half of the first posture's echo is a side lobe (a prediction off by degrees when the
+offsets are not yet calibrated): it is acquired again as the first.
 
 Measure (paper): at each incidence point the quick main-lobe centring (or the acquisition
 raster if no echo at the prediction) and the water path there; the beam estimate is refined
@@ -95,6 +99,8 @@ EDGE_WATER_PATH_MM = 50.0
 EDGE_SEARCH_MM = 300.0
 #: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
 COARSE_STEP_MM = 2.0
+#: Probes (the last ones) whose largest echo the coarse search compares each new one with.
+COARSE_MEMORY = 4
 #: Fine scan: half width (mm) and number of static probes across the 50 % point.
 FINE_HALF_MM = 5.0
 FINE_PROBES = 21
@@ -453,6 +459,12 @@ class _Runner:
         """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
         q_pred = self.joints(target.point_mm, target.water_path_mm, target.phi_deg,
                              target.label, 0.0)
+        return self.normal_near(q_pred, target.label, quick)
+
+    def normal_near(self, q_pred: np.ndarray, label: str, quick: bool
+                    ) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture (wrist only) near ``q_pred``: a quick centring, else (or when
+        ``quick`` is False) the acquisition raster, widened up to ``ACQUIRE_MAX_DEG``."""
         search = self._search(q_pred)
         q_c = search.quick_centre(q_pred) if quick else None
         radius = ACQUIRE_RADIUS_DEG
@@ -464,7 +476,7 @@ class _Runner:
             if radius >= ACQUIRE_MAX_DEG:
                 raise HardwareError(f"{self.rig.pulser.endpoint}: no echo from the reflector "
                                     f"plate within {radius:g} deg of the predicted posture "
-                                    f"({target.label}); check [reflector] points_mm and "
+                                    f"({label}); check [reflector] points_mm and "
                                     "[tool] in the profile")
             radius = min(2 * radius, ACQUIRE_MAX_DEG)
         self.q = np.asarray(q_c, float)
@@ -486,9 +498,10 @@ class _Runner:
         tool = self.tool()
         label = f"edge {ep.name}"
         rows: list[tuple[float, float, np.ndarray]] = []
+        aim = np.zeros(6)   # wrist correction to normal incidence on this line
 
         def probe(t: float, averages: int) -> float:
-            q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
+            q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
             settled = self.move(q)
             a = self.rig.normalised_amplitude(averages)
             rows.append((t, a, np.asarray(settled, float)))
@@ -501,35 +514,62 @@ class _Runner:
         else:
             t = max(ep.start_mm, guess - 20.0)
             step = 0.75 * COARSE_STEP_MM
-        # gain on the plate, then outward until the echo falls below half
-        self.move(self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label))
+        # normal incidence at the line's start: with joint offsets not yet calibrated the
+        # beam turns differently in this arm configuration than at the plate centre (a few
+        # tenths of a degree can put it in the first null); the wrist correction found here
+        # holds along the short line. Then gain on the plate, and outward until the echo falls
+        # below half.
+        q0 = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
+        _, q_n = self.normal_near(q0, label, quick=True)
+        aim = np.asarray(q_n, float) - q0
+        self.move(q0 + aim)
         self.set_gain(EDGE_AVERAGES)
-        level = probe(t, EDGE_AVERAGES)
+        recent = [probe(t, EDGE_AVERAGES)]
         t_c = None
         prev = t
         while t < hi:
             t = min(t + step, hi)
             a = probe(t, EDGE_AVERAGES)
-            if a < 0.5 * level:
+            # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam
+            # that drifts off normal along the line (offsets not yet calibrated) fades slowly
+            if a < 0.5 * max(recent):
                 t_c = 0.5 * (prev + t)
                 break
+            recent = (recent + [a])[-COARSE_MEMORY:]
             prev = t
         if t_c is None:
             raise HardwareError(f"{self.rig.pulser.endpoint}: the echo did not fall at any "
                                 f"edge along {ep.name} within {hi:.0f} mm of the plate centre")
-        rows.clear()
-        for t in np.linspace(t_c - FINE_HALF_MM, t_c + FINE_HALF_MM, FINE_PROBES):
-            probe(float(t), EDGE_AVERAGES)
-        # scan coordinate of each probe from its actual flange pose (estimated tool centre)
-        ts, amps, flanges = [], [], []
-        for _, a, q in rows:
-            f = self.flange(q)
-            c = (f @ tool)[:3, 3]
-            ts.append(float(u @ (self.plane.project(c) - origin)))
-            amps.append(a)
-            flanges.append(f)
-        ts_arr = np.array(ts)
-        fit = fit_edge_profile(ts_arr, np.array(amps), outward=1.0)
+        # fine scan across the coarse crossing; once more twice as wide if it does not cross
+        # (the coarse fall was a dip of the echo on the plate, e.g. a bow or a scratch)
+        # normal incidence again just inside the edge, for the fine scan
+        q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi,
+                         label)
+        _, q_n = self.normal_near(q1, label, quick=True)
+        aim = np.asarray(q_n, float) - q1
+        for half in (FINE_HALF_MM, 2.0 * FINE_HALF_MM):
+            rows.clear()
+            for t in np.linspace(t_c - half, t_c + half, FINE_PROBES):
+                probe(float(t), EDGE_AVERAGES)
+            # scan coordinate of each probe from its actual flange pose (estimated tool centre)
+            ts, amps, flanges = [], [], []
+            for _, a, q in rows:
+                f = self.flange(q)
+                c = (f @ tool)[:3, 3]
+                ts.append(float(u @ (self.plane.project(c) - origin)))
+                amps.append(a)
+                flanges.append(f)
+            ts_arr = np.array(ts)
+            try:
+                fit = fit_edge_profile(ts_arr, np.array(amps), outward=1.0)
+                break
+            except ValueError as e:
+                log.info("edge %s: %s (±%.0f mm)", ep.name, e, half)
+        else:
+            raise HardwareError(f"{self.rig.pulser.endpoint}: the fine scan across edge "
+                                f"{ep.name} near {t_c:.0f} mm from the plate centre does not "
+                                "show the echo falling to half: is the edge straight and "
+                                "clean?")
         i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
         f = flanges[i].copy()
         shift = (fit.crossing - ts_arr[i]) * u

@@ -1,0 +1,212 @@
+"""Commissioning fresh cells: tool-frame and calibrate in both orders, against the hidden truth.
+
+Each world is a fresh cell that differs from its new profile (``ucal profile init tx90l``) as a
+real one does: joint offsets uniform in ±2° on every joint (never calibrated: the profile says
+0 with no ``[calibration] std_deg``), the tool up to 1.7 mm per axis and 0.85° per axis off its
+drawing, a beam squint of 0.5–1° at a random azimuth, the plate up to 2 mm above or below and
+0.3° tilted from the plane of its touched points, with rounded edges (0.5–2 mm) and a bow of up
+to 0.02 mm, the near-field directivity, the block placed by hand (2 mm, 0.2°), the water ±3 °C
+from the profile's temperature, TOF noise 0.5 ns and amplitude noise 1 %. The profile declares
+tolerances that cover these draws (tool 1.5 mm / 1°, touched points 1.2 mm, water 2 °C).
+
+Every cell is commissioned twice from the same fresh profile, once in each order (``ucal
+tool-frame`` then ``ucal calibrate``, and the reverse), as a user runs them (``--yes --json``,
+each a process against the simulated cell). Printed:
+
+* how many runs end with both written, and why the others did not (the commands' messages);
+* the tool frame against the truth in the flange frame the profile's J6 offset defines (J6's
+  offset and the tool's azimuth are one rotation): across the beam, along it, the beam angle;
+* the joint offsets against the truth (the joints calibrate reports with a std);
+* coverage: for every reported std (tool across the beam ×2, along it, the beam's two tilts,
+  each calibrated joint) the share of |error| ≤ 3·std, the share beyond 4·std, the largest |z|.
+
+Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ucal.profile import create_profile, load_profile, write_profile
+from ucal.toolframe.exact import tangent_basis
+from ucal.toolframe.fit import truth_in_profile_flange
+from ucal.toolframe.plane import fit_plane
+from ucal.world import load_world
+
+MODEL = "tx90l"
+ORDERS = (("tool-frame", "calibrate"), ("calibrate", "tool-frame"))
+
+
+def draw_world(rng: np.random.Generator, profile_path: Path, path: Path) -> None:
+    """A fresh cell's truth (module docstring) as a world file."""
+    prof = load_profile(profile_path)
+    plane = fit_plane(prof.reflector_points_mm)
+    tilt_axis = rng.normal(size=3)
+    tilt_axis -= (tilt_axis @ plane.normal) * plane.normal
+    tilt_axis /= np.linalg.norm(tilt_axis)
+    tilt = np.radians(rng.uniform(0.0, 0.3))
+    k = np.array([[0, -tilt_axis[2], tilt_axis[1]], [tilt_axis[2], 0, -tilt_axis[0]],
+                  [-tilt_axis[1], tilt_axis[0], 0]])
+    normal = (np.eye(3) + np.sin(tilt) * k + (1 - np.cos(tilt)) * k @ k) @ plane.normal
+    point = plane.centroid_mm + rng.uniform(-2.0, 2.0) * plane.normal
+    offsets = rng.uniform(-2.0, 2.0, 6)
+    tool = np.asarray(prof.tool_position_mm) + rng.uniform(-1.7, 1.7, 3)
+    rot = np.asarray(prof.tool_rotation_deg) + rng.uniform(-0.85, 0.85, 3)
+    block = np.asarray(prof.sample_position_mm) + rng.normal(0.0, 2.0, 3)
+    block_rot = np.asarray(prof.sample_rotation_deg) + rng.normal(0.0, 0.2, 3)
+    fmt = lambda v: "[" + ", ".join(f"{x:.6f}" for x in v) + "]"
+    path.write_text(f"""\
+[robot]
+joint_offsets_deg = {fmt(offsets)}
+[tool]
+position_mm = {fmt(tool)}
+rotation_deg = {fmt(rot)}
+[sample]
+position_mm = {fmt(block)}
+rotation_deg = {fmt(block_rot)}
+[reflector]
+point_mm = {fmt(point)}
+normal = {fmt(normal)}
+edge_radius_mm = {rng.uniform(0.5, 2.0):.3f}
+flatness_mm = {rng.uniform(0.0, 0.02):.4f}
+[water]
+temperature_c = {prof.water_temperature_c + rng.uniform(-3.0, 3.0):.3f}
+[transducer]
+squint_deg = {rng.uniform(0.5, 1.0):.3f}
+squint_azimuth_deg = {rng.uniform(-180.0, 180.0):.1f}
+near_field = true
+[noise]
+tof_ns = 0.5
+amplitude = 0.01
+seed = {int(rng.integers(1, 2**31))}
+""")
+
+
+def fresh_profile(path: Path) -> Path:
+    create_profile(path, MODEL)
+    write_profile(path, {"tool": {"position_std_mm": 1.5, "rotation_std_deg": 1.0},
+                         "reflector": {"points_std_mm": 1.2}}, "the drawing and the touch")
+    return path
+
+
+def run(cmd: str, profile: Path, world: Path) -> dict:
+    r = subprocess.run([sys.executable, "-m", "ucal", cmd, str(profile), "--sim", str(world),
+                        "--yes", "--json", "-q"], capture_output=True, text=True, check=False,
+                       stdin=subprocess.DEVNULL, timeout=1800)
+    try:
+        out = json.loads(r.stdout)
+    except ValueError:
+        out = {"error": r.stderr.strip()[-300:]}
+    out["returncode"] = r.returncode
+    return out
+
+
+def commission(index: int, seed: int) -> list[dict]:
+    """Both orders on one drawn world; per order the outcome, errors and z-scores."""
+    rng = np.random.default_rng([seed, index])
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        draw_world(rng, fresh_profile(d / "template.toml"), d / "world.toml")
+        for order in ORDERS:
+            name = "-".join("t" if c == "tool-frame" else "c" for c in order)
+            profile = fresh_profile(d / f"{name}.toml")
+            outs = {c: run(c, profile, d / "world.toml") for c in order}
+            final = load_profile(profile)
+            truth = load_world(d / "world.toml", final)
+            rows.append(evaluate(index, name, outs, final, truth))
+    return rows
+
+
+def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
+    tf, cal = outs["tool-frame"], outs["calibrate"]
+    row = {"world": index, "order": order,
+           "tool_written": bool(tf.get("written")), "cal_written": bool(cal.get("written")),
+           "why": [f"{c}: {o['error']}" for c, o in outs.items() if o.get("error")], "z": []}
+    # tool frame as the last tool-frame run reported it, in the flange frame of the final J6
+    if "position_mm" in tf:
+        true_tool = truth_in_profile_flange(final, truth)
+        beam = np.asarray(tf["beam_direction"])
+        err = np.asarray(tf["position_mm"]) - true_tool[:3, 3]
+        tb = tangent_basis(beam)
+        across = tb @ err
+        row["across_mm"] = np.abs(across).tolist()
+        row["along_mm"] = float(abs(beam @ err))
+        row["beam_deg"] = float(np.degrees(np.arccos(np.clip(beam @ true_tool[:3, 2], -1, 1))))
+        row["z"] += (across / np.asarray(tf["across_beam_std_mm"])).tolist()
+        row["z"].append(float(beam @ err / tf["along_beam"]["std_mm"]))
+        tilt = np.degrees(tb @ true_tool[:3, 2])
+        row["z"] += (tilt / tf["beam_std_deg"]).tolist()
+        row["tool_std_across_mm"] = max(tf["across_beam_std_mm"])
+    if "joint_offsets_deg" in cal:
+        est = np.asarray(cal["joint_offsets_deg"], float)
+        err = est - truth.joint_offsets_deg
+        std = [np.nan if s is None else s for s in cal["std_deg"]]
+        row["offset_err_deg"] = [float(e) if np.isfinite(s) else None
+                                 for e, s in zip(err, std, strict=True)]
+        row["z"] += [float(e / s) for e, s in zip(err, std, strict=True) if np.isfinite(s)]
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--worlds", type=int, default=20)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--out", type=Path, help="write every row as JSON lines")
+    args = ap.parse_args()
+    t0 = time.monotonic()
+    rows: list[dict] = []
+    with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+        for res in pool.map(commission, range(args.worlds), [args.seed] * args.worlds):
+            rows += res
+            for r in res:
+                print(f"world {r['world']:2d} {r['order']}: tool "
+                      f"{'written' if r['tool_written'] else 'not written'}, offsets "
+                      f"{'written' if r['cal_written'] else 'not written'}"
+                      + (f"; across {np.round(r.get('across_mm', []), 4).tolist()} mm, along "
+                         f"{r.get('along_mm', float('nan')):.3f} mm, beam "
+                         f"{r.get('beam_deg', float('nan')):.4f} deg" if "across_mm" in r
+                         else "") + "".join(f"\n    {w}" for w in r["why"]), flush=True)
+    if args.out:
+        args.out.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    print(f"\n{args.worlds} fresh cells × 2 orders, {time.monotonic() - t0:.0f} s")
+    for order in ("t-c", "c-t"):
+        rs = [r for r in rows if r["order"] == order]
+        both = sum(r["tool_written"] and r["cal_written"] for r in rs)
+        print(f"\norder {'tool-frame → calibrate' if order == 't-c' else 'calibrate → tool-frame'}"
+              f": both written {both}/{len(rs)}, tool written "
+              f"{sum(r['tool_written'] for r in rs)}, offsets written "
+              f"{sum(r['cal_written'] for r in rs)}")
+        tool = [r for r in rs if r["tool_written"] and "across_mm" in r]
+        if tool:
+            across = np.array([r["across_mm"] for r in tool]).ravel()
+            print(f"  tool across the beam (written): median {np.median(across):.4f}, max "
+                  f"{np.max(across):.4f} mm; along: median "
+                  f"{np.median([r['along_mm'] for r in tool]):.3f}, max "
+                  f"{np.max([r['along_mm'] for r in tool]):.3f} mm; beam: median "
+                  f"{np.median([r['beam_deg'] for r in tool]):.4f}, max "
+                  f"{np.max([r['beam_deg'] for r in tool]):.4f} deg")
+        offs = [r["offset_err_deg"] for r in rs if r["cal_written"] and "offset_err_deg" in r]
+        for j in range(6):
+            e = [abs(o[j]) for o in offs if o[j] is not None]
+            if e:
+                print(f"  J{j + 1} |error| (written, reported): median {np.median(e):.4f}, max "
+                      f"{np.max(e):.4f} deg over {len(e)}")
+        z = np.abs(np.concatenate([r["z"] for r in rs])) if rs else np.zeros(0)
+        if len(z):
+            print(f"  coverage of every reported std: {100 * np.mean(z <= 3):.1f} % within 3σ, "
+                  f"{100 * np.mean(z > 4):.1f} % beyond 4σ (of {len(z)}; max |z| {z.max():.2f})")
+
+
+if __name__ == "__main__":
+    main()
