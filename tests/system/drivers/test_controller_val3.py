@@ -9,6 +9,7 @@ from __future__ import annotations
 import socket
 import struct
 import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -75,6 +76,8 @@ class RawStateReader:
                 continue
             except OSError:
                 return
+            if not data:
+                return  # closed by the server
             messages = reader.feed(data)
             now = self.clock.now()
             self.frames += [(now, type(m).__name__) for m in messages]
@@ -93,10 +96,16 @@ class RawStateReader:
 def test_stream_silence_rate_and_status_cadence(cell, server, joint_type, rate_hz, first, every):
     clock, sim, client = cell(server)
     client.close()  # one client per port: make room for the raw reader
+    for _ in range(500):  # until the server has seen the client leave
+        if not sim._has_state_clients():
+            break
+        time.sleep(0.01)
     raw = RawStateReader(sim.url, clock)
     try:
         t0 = clock.now()
-        while not raw.frames:
+        for _ in range(300):
+            if raw.frames:
+                break
             clock.sleep(0.01)
         clock.sleep(1.0)
     finally:
