@@ -319,11 +319,16 @@ def scanning_postures(pose_deg: np.ndarray, n: int, seed: int = 0,
     return q
 
 
-def aligned_errors_mm(points_mm: np.ndarray, truth_mm: np.ndarray) -> np.ndarray:
+def aligned_errors_mm(points_mm: np.ndarray, truth_mm: np.ndarray,
+                      scale: bool = False) -> np.ndarray:
     """Distances (n,) between ``points_mm`` and ``truth_mm`` (n, 3) after the rigid motion that
-    best aligns them (least squares; the base frame is a gauge the measurements cannot fix)."""
+    best aligns them (least squares; the base frame is a gauge the measurements cannot fix);
+    with ``scale``, after the best similarity (what is left once the common scale of lengths,
+    which time of flight cannot see, is taken out)."""
     p = np.asarray(points_mm, float)
     t = np.asarray(truth_mm, float)
     pc, tc = p.mean(0), t.mean(0)
     rot, _ = Rotation.align_vectors(t - tc, p - pc)
-    return np.linalg.norm(rot.apply(p - pc) + tc - t, axis=1)
+    moved = rot.apply(p - pc)
+    k = float(np.sum(moved * (t - tc)) / np.sum(moved * moved)) if scale else 1.0
+    return np.linalg.norm(k * moved + tc - t, axis=1)

@@ -12,7 +12,8 @@ with the final estimate, and ``ucal.calibration.full.solve_full`` identifies the
 The prediction holds the DH table at the profile's (a few tenths of a millimetre move a posture
 by hundredths of a degree): the search around each prediction absorbs that. A prediction that
 landed within ``DIRECT_FIT_DEG`` lets the next face be fitted at once, otherwise the search
-centres first.
+centres first. A face whose peak came out uncertain is left out of the predictions and
+measured again at the end (``REMEASURE_TILT_DEG``).
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ log = logging.getLogger(__name__)
 #: A prediction this close (deg of beam tilt) to the posture found lets the next face be
 #: fitted without centring first.
 DIRECT_FIT_DEG = 0.02
+#: A face whose peak posture is less certain than this (deg of tilt) is left out of the
+#: predictions and measured again at the end (a good one is a few thousandths).
+REMEASURE_TILT_DEG = 0.01
 
 
 def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
@@ -78,7 +82,26 @@ def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
                            acq_gain, label, posture.label, mode, 16.0 if not meas else 8.0)
         meas.append(res.measurement)
         last_error = res.prediction_error_deg
-        cell = estimate_cell(prior, meas, vector)
+        good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
+        cell = estimate_cell(prior, good, vector)
+        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector,
+                                       cell.geometry)
+    # Faces whose peak came out uncertain (found from a poor early prediction, where side
+    # lobes and a neighbouring face's echo crowd the search) are measured again, now that the
+    # prediction is good to hundredths of a degree.
+    for i, m in enumerate(meas):
+        if m.tilt_std_deg <= REMEASURE_TILT_DEG:
+            continue
+        posture = plan.postures[i]
+        label = f"face {posture.face_name} ({posture.label}, again)"
+        log.info("%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg,
+                 REMEASURE_TILT_DEG)
+        check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
+        res = measure_face(approach, fitted, profile, posture.joints_deg, posture.face, est, ka,
+                           acq_gain, label, posture.label, "quick", 8.0)
+        meas[i] = res.measurement
+        good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
+        cell = estimate_cell(prior, good, vector)
         est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector,
                                        cell.geometry)
     approach.move(first.joints_deg)
