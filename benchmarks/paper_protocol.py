@@ -76,6 +76,7 @@ def run_group(profile, value: float, noise: Noise, spacing: SweepSpacing):
         "exact": deviation(profile, truth_offsets, exact.offsets_deg),
         "paper": deviation(profile, truth_offsets, paper_offsets),
         "exact_err": exact.offsets_deg - truth_offsets,
+        "exact_std": np.asarray(exact.std_deg, float),
         "paper_err": paper_offsets - truth_offsets,
         "unobservable": exact.unobservable_joints,
         "moves": run.moves, "reads": run.reads, "seconds": time.monotonic() - t0,
@@ -99,8 +100,11 @@ def report(title: str, rows: list[dict], groups) -> None:
         print(f"improvement {method:5}: X {imp[0]:8.4f} %  Y {imp[1]:8.4f} %  Z {imp[2]:8.4f} %   "
               f"largest TCP residual {worst:.4f} mm")
     errs = np.array([r["exact_err"] for r in rows])
+    stds = np.array([r["exact_std"] for r in rows])
     print(f"exact: largest joint-offset error {np.nanmax(np.abs(errs[:, :5])):.5f} deg on joints "
-          f"1-5 (joint 6 unobservable with the on-axis beam: {rows[0]['unobservable']})")
+          f"1-5 (joint 6 unobservable with the on-axis beam: {rows[0]['unobservable']}); "
+          f"largest |error|/std {np.nanmax(np.abs(errs[:, :5]) / stds[:, :5]):.2f}, "
+          f"largest std {np.nanmax(stds[:, :5]):.4f} deg")
     print(f"moves per calibration: max {max(r['moves'] for r in rows)}, "
           f"mean {np.mean([r['moves'] for r in rows]):.0f}; pulser reads max "
           f"{max(r['reads'] for r in rows)}, mean {np.mean([r['reads'] for r in rows]):.0f}; "

@@ -348,6 +348,9 @@ class ReplayClock:
     def now(self) -> float:
         return float(self._replay.next("clock.now", ()))
 
+    def sleep(self, seconds: float) -> None:
+        """Nothing to wait for: the next recorded reading says what time it was."""
+
 
 class _ReplayDevice:
     _prefix = ""

@@ -309,9 +309,16 @@ def test_sigterm_interrupts_like_ctrl_c(tmp_path):
                              "--yes"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(4.0)  # well into the first face's search
+        # Into the run: its plain progress line for the second face (simulated time runs
+        # as fast as the machine computes, so a fixed wait could see the run finished).
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if "[1/" in line:
+                break
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        _, rest = proc.communicate(timeout=30)
+        err = "".join(seen) + rest
     finally:
         if proc.poll() is None:
             proc.kill()

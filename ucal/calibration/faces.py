@@ -146,8 +146,8 @@ def measure_face(rig: Rig, geom: CellGeometry, profile: CellProfile, start: np.n
     js = list(search.ja_jb)
     err = float(np.degrees(np.linalg.norm(search.m @ (peak.joints_deg[js] - q_pred[js]))))
     log.info("%s: posture %s, water path %.4f ± %.4f mm, tilt σ %.4f°; prediction %.3f° off "
-             "(%d moves so far)", label, np.round(peak.joints_deg, 4).tolist(), path, path_std,
-             peak.tilt_std_deg, err, rig.counters.moves)
+             "(%d moves, %d reads so far)", label, np.round(peak.joints_deg, 4).tolist(), path,
+             path_std, peak.tilt_std_deg, err, rig.counters.moves, rig.counters.reads)
     m = FaceMeasurement(config, face, peak.joints_deg, path,
                         distance_std_mm=max(path_std, 1e-4),
                         tilt_std_deg=max(peak.tilt_std_deg, 1e-4),

@@ -201,6 +201,7 @@ class ParameterTable:
         self.prior_stds = np.array(prior_stds, float)
         self.free = np.ones(len(names), bool) if free is None else np.array(free, bool)
         self._index = {n: i for i, n in enumerate(self.names)}
+        self._positions: dict[tuple[str, ...], np.ndarray] = {}
 
     def index(self, name: str) -> int:
         return self._index[name]
@@ -208,7 +209,10 @@ class ParameterTable:
     def get(self, names: tuple[str, ...], values: np.ndarray | None = None) -> np.ndarray:
         """Values of ``names`` (from ``values``, a full vector, or the table)."""
         v = self.values if values is None else values
-        return np.array([v[self._index[n]] for n in names])
+        idx = self._positions.get(names)
+        if idx is None:  # the solvers ask for the same groups hundreds of times
+            idx = self._positions[names] = np.array([self._index[n] for n in names], int)
+        return v[idx]
 
     def expand(self, x_free: np.ndarray) -> np.ndarray:
         """Full value vector with the free entries replaced by ``x_free``."""
@@ -295,9 +299,34 @@ def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) 
     return CellGeometry(model, tool, _rpy_matrix(table.get(BLOCK[3:], values)))
 
 
+@dataclass(frozen=True)
+class MeasurementArrays:
+    """Face measurements as arrays, built once per fit (its residuals run hundreds of times)."""
+
+    postures: np.ndarray      # (2n, 6): the peak postures, then where each water path was read
+    faces: np.ndarray         # (n,)
+    in_plane: np.ndarray      # (n, 2): each face's two in-plane block axes
+    tilt_std_rad: np.ndarray  # (n,)
+    distance_mm: np.ndarray   # (n,)
+    distance_std_mm: np.ndarray
+
+    @classmethod
+    def of(cls, meas: list[FaceMeasurement]) -> MeasurementArrays:
+        faces = np.array([m.face for m in meas], int)
+        return cls(np.array([m.joints_deg for m in meas] + [distance_joints(m) for m in meas],
+                            float).reshape(-1, 6),
+                   faces, np.array([[i for i in range(3) if i != f] for f in faces], int),
+                   np.radians([m.tilt_std_deg for m in meas]),
+                   np.array([m.distance_mm for m in meas], float),
+                   np.array([m.distance_std_mm for m in meas], float))
+
+
 def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
-                   meas: list[FaceMeasurement], c0_m_s: float) -> np.ndarray:
+                   meas: list[FaceMeasurement] | MeasurementArrays, c0_m_s: float
+                   ) -> np.ndarray:
     """Normalised measurement residuals (n, 3): two tilt rows, one distance row each."""
+    arr = meas if isinstance(meas, MeasurementArrays) else MeasurementArrays.of(meas)
+    n = len(arr.faces)
     dh = model.dh.copy()
     dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
     beta = None
@@ -308,24 +337,18 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
     offsets = table.get(OFFSETS, values)
     corner = table.get(BLOCK[:3], values)
     scale = table.get(SOUND, values)[0] / c0_m_s
-    q = np.array([m.joints_deg for m in meas])
-    qd = np.array([distance_joints(m) for m in meas])
-    faces = np.array([m.face for m in meas])
-    both, tcp_both = beam_and_tcp(geom, np.concatenate([q, qd]), offsets)  # one FK call
-    beam, beam_d, tcp = both[:len(meas)], both[len(meas):], tcp_both[len(meas):]
+    both, tcp_both = beam_and_tcp(geom, arr.postures, offsets)  # one FK call
+    beam, beam_d, tcp = both[:n], both[n:], tcp_both[n:]
     rot = geom.block_rotation
-    normal = rot[:, faces].T                                        # (n, 3)
-    basis = rot.T[np.array([[i for i in range(3) if i != f] for f in faces])]  # (n, 2, 3)
-    tilt_std_rad = np.radians([m.tilt_std_deg for m in meas])
-    dist_std = np.array([m.distance_std_mm for m in meas])
-    dist = np.array([m.distance_mm for m in meas])
-    out = np.empty((len(meas), 3))
-    out[:, :2] = np.einsum("nkj,nj->nk", basis, beam) / tilt_std_rad[:, None]   # tilt_components
+    normal = rot[:, arr.faces].T                                    # (n, 3)
+    basis = rot.T[arr.in_plane]                                     # (n, 2, 3)
+    out = np.empty((n, 3))
+    out[:, :2] = np.einsum("nkj,nj->nk", basis, beam) / arr.tilt_std_rad[:, None]  # tilts
     # Along the beam to the face: the TOF may be read a few tenths of a degree off normal,
     # where the path is n·(p − c)/cos θ (2 µm longer at 0.36° and 100 mm).
     cos_t = np.maximum(-np.einsum("nj,nj->n", normal, beam_d), 0.5)
     path = np.einsum("nj,nj->n", normal, tcp - corner) / cos_t
-    out[:, 2] = (path - scale * dist) / dist_std
+    out[:, 2] = (path - scale * arr.distance_mm) / arr.distance_std_mm
     return out
 
 
@@ -350,9 +373,11 @@ def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
     n_data = 3 * len(meas)
     has_prior = np.isfinite(table.prior_stds) & table.free
 
+    arrays = MeasurementArrays.of(meas)
+
     def fun(x: np.ndarray) -> np.ndarray:
         v = table.expand(x)
-        r_data = data_residuals(table, v, prior.model, meas, c0).ravel()
+        r_data = data_residuals(table, v, prior.model, arrays, c0).ravel()
         r_prior = (v - table.prior)[has_prior] / table.prior_stds[has_prior]
         return np.concatenate([r_data, r_prior])
 

@@ -46,18 +46,19 @@ log = logging.getLogger(__name__)
 class SweepSpacing:
     """How far apart a sweep's readings may come (deg of joint travel), by purpose.
 
-    ``acquire_deg``: acquisition lines — at acquisition gain the echo shows over a degree or
-    more, so a few readings land on it even this far apart. Centring sweeps: their length over
+    ``acquire_deg``: acquisition lines, at most (and at most 0.4 × the spacing of the lines) —
+    at acquisition gain the echo shows over a few degrees, as wide as the lines are apart, so
+    a few readings land on it even this far apart. Centring sweeps: their length over
     ``centre_reads_per_half`` per half-width, at least ``centre_min_deg`` — a long sweep only
     needs to locate the echo's span. ``main_lobe_deg``: main-lobe crosses — the −6 dB lobe is
     ~0.4° wide and its half-maximum crossings are interpolated between readings. A sweep aims
     at ``aim`` × its allowed spacing, from the measured time between readings.
     """
 
-    acquire_deg: float = 0.25
-    centre_reads_per_half: float = 15.0
+    acquire_deg: float = 1.0
+    centre_reads_per_half: float = 10.0
     centre_min_deg: float = 0.04
-    main_lobe_deg: float = 0.03
+    main_lobe_deg: float = 0.06
     aim: float = 0.9
 
     def centre_deg(self, half_width_deg: float) -> float:
@@ -124,6 +125,7 @@ class Rig:
         # Time between readings during a sweep (s), measured by every sweep: sets the speed
         # that spaces the readings as a sweep asks.
         self.read_interval_s = _FIRST_READ_S
+        self.read_period_s = 0.0  # wait between a sweep's reads (s); 0: read back to back
         self.spacing = SweepSpacing()
         self.move_timeout_s = move_timeout_s
         self.counters = RigCounters()
@@ -224,19 +226,27 @@ class Rig:
         self.controller.start_move(target, speed)
         readings: list[GateReading] = []
         sent: list[float] = []
+        busy_s = 0.0  # time spent reading (without the waits), for the next sweep's speed
         deadline = t0 + self.move_timeout_s
         while True:
+            if sent and self.read_period_s > 0.0:
+                # At full speed the readings would come closer than needed: wait for the
+                # joints to travel the spacing (fewer pulser reads, the same motion).
+                idle = self.read_period_s - (clock.now() - sent[-1])
+                if idle > 0.0:
+                    clock.sleep(idle)
             sent.append(clock.now())
             readings.append(self.pulser.read_gate(fresh=True))
             self.counters.reads += 1
             here = self.controller.read_joints()
+            busy_s += clock.now() - sent[-1]
             if np.max(np.abs(here - target)) < 1e-3:
                 break
             if clock.now() > deadline:
                 raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
                                     f"within {self.move_timeout_s:.0f} s")
         if len(readings) > 1:
-            self.read_interval_s = (sent[-1] - sent[0]) / (len(readings) - 1)
+            self.read_interval_s = busy_s / len(readings)
         self.controller.wait_settled(target, self.move_timeout_s)
         samples = self.controller.joint_samples(t0 - 0.1)
         ts = np.array([s.t_s for s in samples])
@@ -268,6 +278,9 @@ class Rig:
         rate_deg_s = float(np.max(delta)) / full_speed_s
         speed = self.spacing.aim * max_step_deg / (rate_deg_s * self.read_interval_s)
         self.sweep_speed = float(np.clip(speed, MIN_SPEED, self.speed))
+        # Capped at the profile's speed: read no more often than the spacing needs.
+        self.read_period_s = (self.spacing.aim * max_step_deg / (rate_deg_s * self.sweep_speed)
+                              if speed > self.speed else 0.0)
         return self.sweep_speed
 
     def line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
@@ -380,7 +393,10 @@ class PeakSearch:
             ub = ub0 + i * step_b
             start = self._with(q_pred, ua0 - direction * half_a, ub)
             end = self._with(q_pred, ua0 + direction * half_a, ub)
-            q, amps, _ = self.rig.line(start, end, self.rig.spacing.acquire_deg)
+            # Reads along a line no farther apart than the lines: the echo the raster is
+            # meant to catch spans at least the line spacing.
+            along = min(self.rig.spacing.acquire_deg, 0.4 * spacing_tilt_deg / self.per_deg[0])
+            q, amps, _ = self.rig.line(start, end, along)
             direction = -direction
             if np.max(amps) >= level:
                 k = int(np.argmax(amps))

@@ -71,7 +71,7 @@ ARM_STEPS_DEG = (5.0, 4.0, 3.0, 2.0)
 AZIMUTH_STEPS_DEG = (10.0, 8.0, 6.0, 4.0)
 #: Water paths a stepped configuration must keep (mm): room for the offsets' uncertainty below,
 #: a strong enough echo above (water absorbs ~0.27 dB per mm at 25 MHz).
-STEPPED_PATH_RANGE_MM = (40.0, 160.0)
+STEPPED_PATH_RANGE_MM = (40.0, 180.0)
 #: Final approach of every move (deg below the target on each joint), larger than any backlash.
 APPROACH_DEG = 0.05
 
@@ -480,14 +480,14 @@ def estimate_cell(prior: CellPrior, meas: list[FaceMeasurement],
     tenth of a degree moves the next face's normal-incidence posture by as much, which is
     most of a fit grid.
     """
-    cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-9)
+    cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-7)
     return CellEstimate(np.array([cell.value(n) for n in OFFSETS]),
                         np.array([cell.value(n) for n in BLOCK[:3]]), cell.estimate,
                         cell_geometry(cell.table, cell.estimate, prior.model))
 
 
 def refit_peaks(rig: Rig, profile: CellProfile, meas: list[FaceMeasurement], ka: float,
-                prior: CellPrior,
+                prior: CellPrior, vector: np.ndarray | None = None,
                 rounds: int = 1) -> list[FaceMeasurement]:
     """Fit every face's recorded probes again with the offsets of a full solution.
 
@@ -497,7 +497,6 @@ def refit_peaks(rig: Rig, profile: CellProfile, meas: list[FaceMeasurement], ka:
     """
     from dataclasses import replace as dc_replace
 
-    vector = None
     for _ in range(rounds):
         cell = estimate_cell(prior, meas, vector)
         vector, est, geom = cell.vector, cell.offsets_deg, cell.geometry
@@ -541,12 +540,24 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
     fitted = geom
     last_wrist: dict[int, np.ndarray] = {}
     steps: dict[str, float] = {}
+    skipped: set[str] = set()
     for i, target in enumerate(plan.targets):
         if progress:
             progress(target.label, i, total)
+        if target.config in skipped:
+            continue
         if target.config not in steps:
-            steps[target.config] = choose_step(profile, geom, plan, target.config, est, corner,
-                                               last_wrist)
+            try:
+                steps[target.config] = choose_step(profile, fitted, plan, target.config, est,
+                                                   corner, last_wrist)
+            except SafetyError as e:
+                if target.config != "j1":
+                    raise
+                # The second azimuth is a bonus: without it the block's tilt tolerance stays
+                # in joints 2 and 3's stds (``ucal.calibration.fit``).
+                log.warning("second J1 azimuth skipped: %s", e)
+                skipped.add(target.config)
+                continue
         start = config_arm(plan.pose_deg, target.config, steps[target.config])
         start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
         start[5] = target.joints_deg[5]
@@ -562,7 +573,7 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         est, corner, vector, fitted = cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry
     # Leave the robot at the calibration pose's XY posture.
     approach.move(plan.targets[0].joints_deg)
-    meas = refit_peaks(approach, profile, meas, ka, prior)
+    meas = refit_peaks(approach, profile, meas, ka, prior, vector)
     if progress:
         progress("done", total, total)
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
