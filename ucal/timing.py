@@ -59,10 +59,10 @@ def move_s(start_deg: np.ndarray, target_deg: np.ndarray, speed: float) -> float
 #: What the peak search costs per face beyond the moves between targets, measured on the
 #: built-in demo cell (benchmarks/run_time.py): moves, pulser reads, and motion time (s) at
 #: speed 0.3. The first face of a run adds an acquisition raster.
-SEARCH_MOVES_PER_FACE = 22
-SEARCH_READS_PER_FACE = 200
-SEARCH_MOTION_S_PER_FACE = 3.0
-FIRST_FACE_READS = 400
+SEARCH_MOVES_PER_FACE = 15
+SEARCH_READS_PER_FACE = 60
+SEARCH_MOTION_S_PER_FACE = 1.5
+FIRST_FACE_READS = 700
 FIRST_FACE_MOTION_S = 6.0
 
 

