@@ -13,7 +13,7 @@ from scipy.optimize import least_squares
 from ucal.calibration.model import CellGeometry, beam_and_tcp
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames, model_angles_rad
-from ucal.kinematics.rotations import angle_between_deg
+from ucal.kinematics.rotations import angle_between_deg, rot_x
 
 WRIST = (3, 4, 5)  # 0-based indices of joints 4, 5, 6
 
@@ -31,11 +31,15 @@ def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
     """
     q0 = np.array(joints_deg, float)
     target = np.asarray(direction, float) / np.linalg.norm(direction)
+    def aim_error_deg(q: np.ndarray) -> float:
+        beam, _ = beam_and_tcp(geom, q, offsets_deg)
+        return float(angle_between_deg(beam, target))
+
     q = _aim_closed_form(geom, q0, target, offsets_deg)
-    if q is None:
+    # The closed form assumes the DH wrist (no Hayati twist on links 4-5): check it.
+    if q is None or aim_error_deg(q) > 1e-6:
         q = _aim_least_squares(geom, q0, target, offsets_deg, keep_weight)
-    beam, _ = beam_and_tcp(geom, q, offsets_deg)
-    err = float(angle_between_deg(beam, target))
+    err = aim_error_deg(q)
     if err > 1e-6:
         raise SafetyError(f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "
                           f"from arm joints {np.round(q0[:3], 3).tolist()} (best {err:.3f}° off)")
@@ -58,7 +62,7 @@ def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
     alpha = np.radians(model.alpha_deg)
     b = frames[3, :3, :3].T @ target
     r6 = frames[5, :3, :3].T @ frames[6, :3, :3]
-    c = _rot_x(alpha[4]) @ r6 @ geom.beam_flange
+    c = rot_x(alpha[4]) @ r6 @ geom.beam_flange
     s4, c4 = np.sin(alpha[3]), np.cos(alpha[3])
     rho = float(np.hypot(c[0], c[1]))
     if abs(s4) < 1e-6 or rho < 1e-9:
@@ -81,10 +85,6 @@ def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
         if best is None or dist < best[0]:
             best = (dist, q)
     return None if best is None else best[1]
-
-
-def _rot_x(a: float) -> np.ndarray:
-    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
 
 
 def _aim_least_squares(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
