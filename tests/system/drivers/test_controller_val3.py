@@ -101,6 +101,10 @@ def test_stream_silence_rate_and_status_cadence(cell, server, joint_type, rate_h
             break
         time.sleep(0.01)
     raw = RawStateReader(sim.url, clock)
+    for _ in range(500):  # until the server has accepted it: sleep() below advances simulated
+        if sim._has_state_clients():  # time whether or not anybody listens yet
+            break
+        time.sleep(0.01)
     try:
         t0 = clock.now()
         for _ in range(300):
