@@ -54,8 +54,13 @@ def draw_world(rng: np.random.Generator, profile_path: Path, path: Path) -> None
     tilt_axis -= (tilt_axis @ plane.normal) * plane.normal
     tilt_axis /= np.linalg.norm(tilt_axis)
     tilt = np.radians(rng.uniform(0.0, 0.3))
-    k = np.array([[0, -tilt_axis[2], tilt_axis[1]], [tilt_axis[2], 0, -tilt_axis[0]],
-                  [-tilt_axis[1], tilt_axis[0], 0]])
+    k = np.array(
+        [
+            [0, -tilt_axis[2], tilt_axis[1]],
+            [tilt_axis[2], 0, -tilt_axis[0]],
+            [-tilt_axis[1], tilt_axis[0], 0],
+        ]
+    )
     normal = (np.eye(3) + np.sin(tilt) * k + (1 - np.cos(tilt)) * k @ k) @ plane.normal
     point = plane.centroid_mm + rng.uniform(-2.0, 2.0) * plane.normal
     offsets = rng.uniform(-2.0, 2.0, 6)
@@ -63,7 +68,10 @@ def draw_world(rng: np.random.Generator, profile_path: Path, path: Path) -> None
     rot = np.asarray(prof.tool_rotation_deg) + rng.uniform(-0.85, 0.85, 3)
     block = np.asarray(prof.sample_position_mm) + rng.normal(0.0, 2.0, 3)
     block_rot = np.asarray(prof.sample_rotation_deg) + rng.normal(0.0, 0.2, 3)
-    fmt = lambda v: "[" + ", ".join(f"{x:.6f}" for x in v) + "]"
+
+    def fmt(v):
+        return "[" + ", ".join(f"{x:.6f}" for x in v) + "]"
+
     path.write_text(f"""\
 [robot]
 joint_offsets_deg = {fmt(offsets)}
@@ -93,15 +101,37 @@ seed = {int(rng.integers(1, 2**31))}
 
 def fresh_profile(path: Path) -> Path:
     create_profile(path, MODEL)
-    write_profile(path, {"tool": {"position_std_mm": 1.5, "rotation_std_deg": 1.0},
-                         "reflector": {"points_std_mm": 1.2}}, "the drawing and the touch")
+    write_profile(
+        path,
+        {
+            "tool": {"position_std_mm": 1.5, "rotation_std_deg": 1.0},
+            "reflector": {"points_std_mm": 1.2},
+        },
+        "the drawing and the touch",
+    )
     return path
 
 
 def run(cmd: str, profile: Path, world: Path) -> dict:
-    r = subprocess.run([sys.executable, "-m", "ucal", cmd, str(profile), "--sim", str(world),
-                        "--yes", "--json", "-q"], capture_output=True, text=True, check=False,
-                       stdin=subprocess.DEVNULL, timeout=1800)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            cmd,
+            str(profile),
+            "--sim",
+            str(world),
+            "--yes",
+            "--json",
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        stdin=subprocess.DEVNULL,
+        timeout=1800,
+    )
     try:
         out = json.loads(r.stdout)
     except ValueError:
@@ -129,9 +159,14 @@ def commission(index: int, seed: int) -> list[dict]:
 
 def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
     tf, cal = outs["tool-frame"], outs["calibrate"]
-    row = {"world": index, "order": order,
-           "tool_written": bool(tf.get("written")), "cal_written": bool(cal.get("written")),
-           "why": [f"{c}: {o['error']}" for c, o in outs.items() if o.get("error")], "z": []}
+    row = {
+        "world": index,
+        "order": order,
+        "tool_written": bool(tf.get("written")),
+        "cal_written": bool(cal.get("written")),
+        "why": [f"{c}: {o['error']}" for c, o in outs.items() if o.get("error")],
+        "z": [],
+    }
     # tool frame as the last tool-frame run reported it, in the flange frame of the final J6
     if "position_mm" in tf:
         true_tool = truth_in_profile_flange(final, truth)
@@ -151,8 +186,9 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
         est = np.asarray(cal["joint_offsets_deg"], float)
         err = est - truth.joint_offsets_deg
         std = [np.nan if s is None else s for s in cal["std_deg"]]
-        row["offset_err_deg"] = [float(e) if np.isfinite(s) else None
-                                 for e, s in zip(err, std, strict=True)]
+        row["offset_err_deg"] = [
+            float(e) if np.isfinite(s) else None for e, s in zip(err, std, strict=True)
+        ]
         row["z"] += [float(e / s) for e, s in zip(err, std, strict=True) if np.isfinite(s)]
     return row
 
@@ -170,42 +206,57 @@ def main() -> None:
         for res in pool.map(commission, range(args.worlds), [args.seed] * args.worlds):
             rows += res
             for r in res:
-                print(f"world {r['world']:2d} {r['order']}: tool "
-                      f"{'written' if r['tool_written'] else 'not written'}, offsets "
-                      f"{'written' if r['cal_written'] else 'not written'}"
-                      + (f"; across {np.round(r.get('across_mm', []), 4).tolist()} mm, along "
-                         f"{r.get('along_mm', float('nan')):.3f} mm, beam "
-                         f"{r.get('beam_deg', float('nan')):.4f} deg" if "across_mm" in r
-                         else "") + "".join(f"\n    {w}" for w in r["why"]), flush=True)
+                print(
+                    f"world {r['world']:2d} {r['order']}: tool "
+                    f"{'written' if r['tool_written'] else 'not written'}, offsets "
+                    f"{'written' if r['cal_written'] else 'not written'}"
+                    + (
+                        f"; across {np.round(r.get('across_mm', []), 4).tolist()} mm, along "
+                        f"{r.get('along_mm', float('nan')):.3f} mm, beam "
+                        f"{r.get('beam_deg', float('nan')):.4f} deg"
+                        if "across_mm" in r
+                        else ""
+                    )
+                    + "".join(f"\n    {w}" for w in r["why"]),
+                    flush=True,
+                )
     if args.out:
         args.out.write_text("".join(json.dumps(r) + "\n" for r in rows))
     print(f"\n{args.worlds} fresh cells × 2 orders, {time.monotonic() - t0:.0f} s")
     for order in ("t-c", "c-t"):
         rs = [r for r in rows if r["order"] == order]
         both = sum(r["tool_written"] and r["cal_written"] for r in rs)
-        print(f"\norder {'tool-frame → calibrate' if order == 't-c' else 'calibrate → tool-frame'}"
-              f": both written {both}/{len(rs)}, tool written "
-              f"{sum(r['tool_written'] for r in rs)}, offsets written "
-              f"{sum(r['cal_written'] for r in rs)}")
+        print(
+            f"\norder {'tool-frame → calibrate' if order == 't-c' else 'calibrate → tool-frame'}"
+            f": both written {both}/{len(rs)}, tool written "
+            f"{sum(r['tool_written'] for r in rs)}, offsets written "
+            f"{sum(r['cal_written'] for r in rs)}"
+        )
         tool = [r for r in rs if r["tool_written"] and "across_mm" in r]
         if tool:
             across = np.array([r["across_mm"] for r in tool]).ravel()
-            print(f"  tool across the beam (written): median {np.median(across):.4f}, max "
-                  f"{np.max(across):.4f} mm; along: median "
-                  f"{np.median([r['along_mm'] for r in tool]):.3f}, max "
-                  f"{np.max([r['along_mm'] for r in tool]):.3f} mm; beam: median "
-                  f"{np.median([r['beam_deg'] for r in tool]):.4f}, max "
-                  f"{np.max([r['beam_deg'] for r in tool]):.4f} deg")
+            print(
+                f"  tool across the beam (written): median {np.median(across):.4f}, max "
+                f"{np.max(across):.4f} mm; along: median "
+                f"{np.median([r['along_mm'] for r in tool]):.3f}, max "
+                f"{np.max([r['along_mm'] for r in tool]):.3f} mm; beam: median "
+                f"{np.median([r['beam_deg'] for r in tool]):.4f}, max "
+                f"{np.max([r['beam_deg'] for r in tool]):.4f} deg"
+            )
         offs = [r["offset_err_deg"] for r in rs if r["cal_written"] and "offset_err_deg" in r]
         for j in range(6):
             e = [abs(o[j]) for o in offs if o[j] is not None]
             if e:
-                print(f"  J{j + 1} |error| (written, reported): median {np.median(e):.4f}, max "
-                      f"{np.max(e):.4f} deg over {len(e)}")
+                print(
+                    f"  J{j + 1} |error| (written, reported): median {np.median(e):.4f}, max "
+                    f"{np.max(e):.4f} deg over {len(e)}"
+                )
         z = np.abs(np.concatenate([r["z"] for r in rs])) if rs else np.zeros(0)
         if len(z):
-            print(f"  coverage of every reported std: {100 * np.mean(z <= 3):.1f} % within 3σ, "
-                  f"{100 * np.mean(z > 4):.1f} % beyond 4σ (of {len(z)}; max |z| {z.max():.2f})")
+            print(
+                f"  coverage of every reported std: {100 * np.mean(z <= 3):.1f} % within 3σ, "
+                f"{100 * np.mean(z > 4):.1f} % beyond 4σ (of {len(z)}; max |z| {z.max():.2f})"
+            )
 
 
 if __name__ == "__main__":

@@ -56,8 +56,14 @@ MODEL = "tx90l"
 def make_profile(directory: Path, thermometer_c: float) -> Path:
     path = directory / "cell.toml"
     create_profile(path, MODEL, force=True)
-    write_profile(path, {"robot": {"dh_length_std_mm": 0.3, "dh_angle_std_deg": 0.03},
-                         "water": {"temperature_std_c": thermometer_c}}, "benchmark")
+    write_profile(
+        path,
+        {
+            "robot": {"dh_length_std_mm": 0.3, "dh_angle_std_deg": 0.03},
+            "water": {"temperature_std_c": thermometer_c},
+        },
+        "benchmark",
+    )
     return path
 
 
@@ -72,7 +78,8 @@ def draw_world(rng: np.random.Generator, profile, index: int, nominal: bool = Fa
     rows = ",\n".join(
         f"  {{ theta_offset_deg = {r[0]!r}, d_mm = {r[1]!r}, a_mm = {r[2]!r}, "
         f"alpha_deg = {r[3]!r}" + (f", beta_deg = {beta!r}" if i == 1 else "") + " }"
-        for i, r in enumerate(dh.tolist()))
+        for i, r in enumerate(dh.tolist())
+    )
     pos = profile.sample_position_mm + rng.normal(0.0, profile.sample_position_std_mm, 3)
     rot = profile.sample_rotation_deg + rng.normal(0.0, profile.sample_rotation_std_deg, 3)
     t_std = profile.water_temperature_std_c
@@ -109,37 +116,64 @@ def run_world(profile_path: Path, world_path: Path) -> dict:
     full = solve_full(prior, run.measurements, structure=plan.structure)
     level1 = solve_exact_with_priors(prior, run.measurements)
     true_model = world.model.with_dh(world.model.dh, world.dh_beta_deg)
-    true_offsets = world.joint_offsets_deg - 0.5 * world.backlash_deg   # reached from below
+    true_offsets = world.joint_offsets_deg - 0.5 * world.backlash_deg  # reached from below
     qs = scanning_postures(calibration_pose(profile), 200, 1, profile.model)
     tool = profile.tool_matrix
     truth = fk(true_model, qs, tool, true_offsets)[:, :3, 3]
     err_full = aligned_errors_mm(fk(full.model, qs, tool, full.offsets_deg)[:, :3, 3], truth)
-    err_sim = aligned_errors_mm(fk(full.model, qs, tool, full.offsets_deg)[:, :3, 3], truth,
-                                scale=True)
+    err_sim = aligned_errors_mm(
+        fk(full.model, qs, tool, full.offsets_deg)[:, :3, 3], truth, scale=True
+    )
     err_l1 = aligned_errors_mm(fk(profile.model, qs, tool, level1.offsets_deg)[:, :3, 3], truth)
-    z = [(full.offsets_deg[j] - true_offsets[j]) / full.std_deg[j] for j in range(6)
-         if np.isfinite(full.std_deg[j])]
-    true_p = {f"dh{i + 1}_{k}": true_model.dh[i, c + 1] for i in range(6)
-              for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))}
+    z = [
+        (full.offsets_deg[j] - true_offsets[j]) / full.std_deg[j]
+        for j in range(6)
+        if np.isfinite(full.std_deg[j])
+    ]
+    true_p = {
+        f"dh{i + 1}_{k}": true_model.dh[i, c + 1]
+        for i in range(6)
+        for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))
+    }
     true_p["dh2_beta_deg"] = true_model.beta_deg[1]
-    z += [(v["value"] - true_p[n]) / v["std"] for n, v in full.parameters.items()
-          if v["std"] is not None]
-    est = estimate_run([p.joints_deg for p in plan.postures], plan.postures[0].joints_deg,
-                       profile.procedure.speed)
-    return {"full": (err_full.mean(), err_full.max()), "offsets": (err_l1.mean(), err_l1.max()),
-            "full_similar": (err_sim.mean(), err_sim.max()),
-            "z": np.array(z), "moves": run.moves, "reads": run.reads, "duration_s": duration,
-            "wall_s": wall, "estimate": (est.tcp_s, est.rtu_s), "postures": len(plan.postures),
-            "verdict": full.cell.quality.verdict, "chi2": full.cell.quality.chi2_reduced,
-            "nominal_z": max(abs((v["value"] - v["nominal"]) / v["std"])
-                             for v in full.parameters.values() if v["std"] is not None)}
+    z += [
+        (v["value"] - true_p[n]) / v["std"]
+        for n, v in full.parameters.items()
+        if v["std"] is not None
+    ]
+    est = estimate_run(
+        [p.joints_deg for p in plan.postures], plan.postures[0].joints_deg, profile.procedure.speed
+    )
+    return {
+        "full": (err_full.mean(), err_full.max()),
+        "offsets": (err_l1.mean(), err_l1.max()),
+        "full_similar": (err_sim.mean(), err_sim.max()),
+        "z": np.array(z),
+        "moves": run.moves,
+        "reads": run.reads,
+        "duration_s": duration,
+        "wall_s": wall,
+        "estimate": (est.tcp_s, est.rtu_s),
+        "postures": len(plan.postures),
+        "verdict": full.cell.quality.verdict,
+        "chi2": full.cell.quality.chi2_reduced,
+        "nominal_z": max(
+            abs((v["value"] - v["nominal"]) / v["std"])
+            for v in full.parameters.values()
+            if v["std"] is not None
+        ),
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--worlds", type=int, default=10)
-    ap.add_argument("--thermometer", type=float, default=2.0,
-                    help="one sigma of the water thermometer (°C), declared and drawn within")
+    ap.add_argument(
+        "--thermometer",
+        type=float,
+        default=2.0,
+        help="one sigma of the water thermometer (°C), declared and drawn within",
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
@@ -153,38 +187,51 @@ def main() -> None:
         path.write_text(draw_world(rng, profile, i, nominal=(i == args.worlds)))
         worlds.append(path)
     plan = plan_full(profile)
-    print(f"profile {MODEL}, thermometer ±{args.thermometer:g} °C, DH tolerance 0.3 mm / "
-          f"0.03°; {plan.describe()}")
+    print(
+        f"profile {MODEL}, thermometer ±{args.thermometer:g} °C, DH tolerance 0.3 mm / "
+        f"0.03°; {plan.describe()}"
+    )
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_world, [profile_path] * len(worlds), worlds))
-    print("world  postures  moves  reads  sim min  est TCP/RTU min  verdict  χ²ᵣ   "
-          "offsets-only mean/max mm  full mean/max mm  (scale out)  max|z|")
+    print(
+        "world  postures  moves  reads  sim min  est TCP/RTU min  verdict  χ²ᵣ   "
+        "offsets-only mean/max mm  full mean/max mm  (scale out)  max|z|"
+    )
     for i, r in enumerate(rows):
         tag = "nominal" if i == args.worlds else f"{i:7d}"
-        print(f"{tag:>7} {r['postures']:6d} {r['moves']:7d} {r['reads']:6d} "
-              f"{r['duration_s'] / 60:7.1f} {r['estimate'][0] / 60:8.1f}/{r['estimate'][1] / 60:.1f}"
-              f"   {r['verdict']:>6} {r['chi2']:5.2f}   {r['offsets'][0]:8.3f} / "
-              f"{r['offsets'][1]:.3f}        {r['full'][0]:7.3f} / {r['full'][1]:.3f}"
-              f"  ({r['full_similar'][0]:.3f} / {r['full_similar'][1]:.3f})"
-              f"   {np.max(np.abs(r['z'])):.2f}")
-    drawn = rows[:args.worlds]
+        print(
+            f"{tag:>7} {r['postures']:6d} {r['moves']:7d} {r['reads']:6d} "
+            f"{r['duration_s'] / 60:7.1f} {r['estimate'][0] / 60:8.1f}/{r['estimate'][1] / 60:.1f}"
+            f"   {r['verdict']:>6} {r['chi2']:5.2f}   {r['offsets'][0]:8.3f} / "
+            f"{r['offsets'][1]:.3f}        {r['full'][0]:7.3f} / {r['full'][1]:.3f}"
+            f"  ({r['full_similar'][0]:.3f} / {r['full_similar'][1]:.3f})"
+            f"   {np.max(np.abs(r['z'])):.2f}"
+        )
+    drawn = rows[: args.worlds]
     z = np.concatenate([r["z"] for r in drawn])
     full = np.array([r["full"] for r in drawn])
     l1 = np.array([r["offsets"] for r in drawn])
     sim = np.array([r["full_similar"] for r in drawn])
-    print(f"TCP error over the scanning region after rigid alignment, over {len(drawn)} worlds "
-          f"(mean of means / max of maxima): offsets-only {l1[:, 0].mean():.3f} / "
-          f"{l1[:, 1].max():.3f} mm; full {full[:, 0].mean():.3f} / {full[:, 1].max():.3f} mm "
-          f"({sim[:, 0].mean():.3f} / {sim[:, 1].max():.3f} mm with the common scale taken out)")
+    print(
+        f"TCP error over the scanning region after rigid alignment, over {len(drawn)} worlds "
+        f"(mean of means / max of maxima): offsets-only {l1[:, 0].mean():.3f} / "
+        f"{l1[:, 1].max():.3f} mm; full {full[:, 0].mean():.3f} / {full[:, 1].max():.3f} mm "
+        f"({sim[:, 0].mean():.3f} / {sim[:, 1].max():.3f} mm with the common scale taken out)"
+    )
     written = [r for r in drawn if r["verdict"] == "ok"]
     print(f"fit verdict ok (would be written) in {len(written)} of {len(drawn)} worlds")
-    print(f"coverage of the full level's std: {100 * np.mean(np.abs(z) <= 3):.1f} % of {len(z)} "
-          f"reported quantities within 3σ (max |z| {np.max(np.abs(z)):.2f})")
-    print(f"moves {np.mean([r['moves'] for r in drawn]):.0f} on average; simulated duration "
-          f"{np.mean([r['duration_s'] for r in drawn]) / 60:.1f} min (Modbus TCP); wall "
-          f"{np.mean([r['wall_s'] for r in drawn]):.0f} s per world on this machine")
-    print(f"nominal robot: largest |found − nominal| / std over the table "
-          f"{rows[-1]['nominal_z']:.2f}")
+    print(
+        f"coverage of the full level's std: {100 * np.mean(np.abs(z) <= 3):.1f} % of {len(z)} "
+        f"reported quantities within 3σ (max |z| {np.max(np.abs(z)):.2f})"
+    )
+    print(
+        f"moves {np.mean([r['moves'] for r in drawn]):.0f} on average; simulated duration "
+        f"{np.mean([r['duration_s'] for r in drawn]) / 60:.1f} min (Modbus TCP); wall "
+        f"{np.mean([r['wall_s'] for r in drawn]):.0f} s per world on this machine"
+    )
+    print(
+        f"nominal robot: largest |found − nominal| / std over the table {rows[-1]['nominal_z']:.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -39,8 +39,9 @@ def random_poses(model: RobotModel, n: int, seed: int) -> tuple[np.ndarray, np.n
     return q, fk(model, q)
 
 
-def fk_errors(model: RobotModel, joints_deg: np.ndarray,
-              target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fk_errors(
+    model: RobotModel, joints_deg: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Position (mm) and orientation (deg) error of FK(joints) against target, (…,) each."""
     t = fk(model, joints_deg)
     pos = np.linalg.norm(t[..., :3, 3] - target[..., :3, 3], axis=-1)
@@ -48,8 +49,9 @@ def fk_errors(model: RobotModel, joints_deg: np.ndarray,
     return pos, ang
 
 
-def bench_closed_form(model: RobotModel, q: np.ndarray, poses: np.ndarray,
-                      repeats: int = 3) -> dict:
+def bench_closed_form(
+    model: RobotModel, q: np.ndarray, poses: np.ndarray, repeats: int = 3
+) -> dict:
     """Time ``ik_all`` on all poses (best of ``repeats``) and verify every valid solution."""
     best = np.inf
     for _ in range(repeats):
@@ -77,10 +79,18 @@ def rtb_robot(model: RobotModel) -> DHRobot:
     """The same DH table as a roboticstoolbox ``DHRobot`` (lengths in metres, angles in rad)."""
     import roboticstoolbox as rtb
 
-    links = [rtb.RevoluteDH(d=d / 1000.0, a=a / 1000.0, alpha=np.radians(al),
-                            offset=np.radians(th0), qlim=np.radians([lo, hi]))
-             for (th0, d, a, al), lo, hi in zip(model.dh, model.joint_min_deg,
-                                                model.joint_max_deg)]
+    links = [
+        rtb.RevoluteDH(
+            d=d / 1000.0,
+            a=a / 1000.0,
+            alpha=np.radians(al),
+            offset=np.radians(th0),
+            qlim=np.radians([lo, hi]),
+        )
+        for (th0, d, a, al), lo, hi in zip(
+            model.dh, model.joint_min_deg, model.joint_max_deg, strict=True
+        )
+    ]
     return rtb.DHRobot(links, name=model.name)
 
 
@@ -129,10 +139,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--poses", type=int, default=100_000, help="poses for the closed form")
     p.add_argument("--lm-poses", type=int, default=1000, help="subset of poses for ik_LM")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--lm-tol", type=float, action="append",
-                   help="ik_LM residual tolerance; repeat for several runs "
-                        "(default: 1e-6, its own default, and 1e-18, near the closed form's "
-                        "accuracy)")
+    p.add_argument(
+        "--lm-tol",
+        type=float,
+        action="append",
+        help="ik_LM residual tolerance; repeat for several runs "
+        "(default: 1e-6, its own default, and 1e-18, near the closed form's "
+        "accuracy)",
+    )
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = p.parse_args(argv)
 
@@ -146,8 +160,9 @@ def main(argv: list[str] | None = None) -> int:
         result["note"] = "roboticstoolbox-python not installed (pip install -e '.[bench]')"
     else:
         tols = args.lm_tol or [1e-6, 1e-18]
-        result["ik_LM"] = [bench_ik_lm(model, poses[: args.lm_poses], args.seed, tol)
-                           for tol in tols]
+        result["ik_LM"] = [
+            bench_ik_lm(model, poses[: args.lm_poses], args.seed, tol) for tol in tols
+        ]
         for lm in result["ik_LM"]:
             lm["ratio_per_pose"] = lm["us_per_pose"] / result["closed_form"]["us_per_pose"]
 
@@ -156,26 +171,36 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     cf = result["closed_form"]
     print(f"model {model.name}")
-    print(f"closed form (all 8): {cf['poses']} poses in {cf['seconds']:.3f} s = "
-          f"{cf['poses_per_second']:,.0f} poses/s ({cf['us_per_pose']:.2f} us/pose), "
-          f"{cf['solutions_per_pose']:.2f} real solutions/pose")
-    print(f"  FK check of every solution: max {cf['max_position_error_mm']:.2e} mm, "
-          f"{cf['max_orientation_error_deg']:.2e} deg; generating configuration among the "
-          f"eight for {100 * cf['generator_found_1e-6deg']:.3f} % of poses (1e-6 deg)")
+    print(
+        f"closed form (all 8): {cf['poses']} poses in {cf['seconds']:.3f} s = "
+        f"{cf['poses_per_second']:,.0f} poses/s ({cf['us_per_pose']:.2f} us/pose), "
+        f"{cf['solutions_per_pose']:.2f} real solutions/pose"
+    )
+    print(
+        f"  FK check of every solution: max {cf['max_position_error_mm']:.2e} mm, "
+        f"{cf['max_orientation_error_deg']:.2e} deg; generating configuration among the "
+        f"eight for {100 * cf['generator_found_1e-6deg']:.3f} % of poses (1e-6 deg)"
+    )
     if result["ik_LM"] is None:
         print(result["note"])
         return 0
     for lm in result["ik_LM"]:
-        print(f"roboticstoolbox ik_LM (1 solution, tol {lm['tol']:g}): {lm['poses']} poses in "
-              f"{lm['seconds']:.3f} s = {lm['poses_per_second']:,.0f} poses/s "
-              f"({lm['us_per_pose']:.1f} us/pose), success {100 * lm['success_rate']:.1f} %")
+        print(
+            f"roboticstoolbox ik_LM (1 solution, tol {lm['tol']:g}): {lm['poses']} poses in "
+            f"{lm['seconds']:.3f} s = {lm['poses_per_second']:,.0f} poses/s "
+            f"({lm['us_per_pose']:.1f} us/pose), success {100 * lm['success_rate']:.1f} %"
+        )
         if lm["max_position_error_mm_success"] is not None:
-            print(f"  FK check of successes: max {lm['max_position_error_mm_success']:.2e} mm "
-                  f"(median {lm['median_position_error_mm_success']:.2e}), "
-                  f"{lm['max_orientation_error_deg_success']:.2e} deg; "
-                  f"in joint range {100 * lm['in_range_success']:.1f} %")
-        print(f"  closed form is {lm['ratio_per_pose']:,.0f}x faster per pose "
-              "(and returns all eight solutions)")
+            print(
+                f"  FK check of successes: max {lm['max_position_error_mm_success']:.2e} mm "
+                f"(median {lm['median_position_error_mm_success']:.2e}), "
+                f"{lm['max_orientation_error_deg_success']:.2e} deg; "
+                f"in joint range {100 * lm['in_range_success']:.1f} %"
+            )
+        print(
+            f"  closed form is {lm['ratio_per_pose']:,.0f}x faster per pose "
+            "(and returns all eight solutions)"
+        )
     return 0
 
 

@@ -56,31 +56,43 @@ def main() -> None:
     args = ap.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     start = np.array([30.0, 30.0, 110.0, 0.0, 40.0, 30.0])
-    with SimulatedController(LIMITS_MIN, LIMITS_MAX, start, time_scale=1.0) as sim, \
-            SimpleMessageController.from_url(sim.url) as ctl:
+    with (
+        SimulatedController(LIMITS_MIN, LIMITS_MAX, start, time_scale=1.0) as sim,
+        SimpleMessageController.from_url(sim.url) as ctl,
+    ):
+
         def move(i: int) -> None:
             target = start.copy()
             target[4] += 0.1 * (i % 2)
             ctl.move_joints(target, speed=0.5, timeout_s=5.0)
 
         move_ms = show("move-and-settle 0.1° (Simple Message)", timed(move, args.calls))
-        read_joints_ms = show("read joints (latest streamed)", timed(lambda i: ctl.read_joints(),
-                                                                     args.calls))
+        read_joints_ms = show(
+            "read joints (latest streamed)", timed(lambda i: ctl.read_joints(), args.calls)
+        )
     del read_joints_ms
     read_ms = {}
     for framing in ("tcp", "rtu"):
-        with SimulatedPulser(lambda s: (0.5, 67459.0), framing=framing) as sim, \
-                ModbusPulser.from_url(sim.url, timeout_s=2.0) as pulser:
+        with (
+            SimulatedPulser(lambda s: (0.5, 67459.0), framing=framing) as sim,
+            ModbusPulser.from_url(sim.url, timeout_s=2.0) as pulser,
+        ):
             pulser.configure(PulserSettings())
             pulser.read_gate()
-            read_ms[framing] = show(f"pulser gate reading (Modbus {framing.upper()})",
-                                    timed(lambda i: pulser.read_gate(fresh=True), args.calls))
-    print(f"\nI/O budget of a calibration with {args.moves} moves and {args.reads} pulser reads "
-          "(sweep readings overlap motion; static probes do not):")
+            read_ms[framing] = show(
+                f"pulser gate reading (Modbus {framing.upper()})",
+                timed(lambda i: pulser.read_gate(fresh=True), args.calls),
+            )
+    print(
+        f"\nI/O budget of a calibration with {args.moves} moves and {args.reads} pulser reads "
+        "(sweep readings overlap motion; static probes do not):"
+    )
     for framing, ms in read_ms.items():
         total = (args.moves * move_ms + args.reads * ms) / 1e3
-        print(f"  Modbus {framing.upper()}: {total:6.1f} s  "
-              f"({args.moves} × {move_ms:.2f} ms + {args.reads} × {ms:.3f} ms)")
+        print(
+            f"  Modbus {framing.upper()}: {total:6.1f} s  "
+            f"({args.moves} × {move_ms:.2f} ms + {args.reads} × {ms:.3f} ms)"
+        )
 
 
 if __name__ == "__main__":

@@ -62,9 +62,11 @@ def run_group(profile, value: float, noise: Noise, spacing: SweepSpacing):
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory() as d:
         wpath = Path(d) / "world.toml"
-        wpath.write_text(f"[robot]\njoint_offsets_deg = {truth_offsets.tolist()}\n"
-                         f"[noise]\ntof_ns = {noise.tof_ns}\namplitude = {noise.amplitude}\n"
-                         f"seed = {noise.seed}\n")
+        wpath.write_text(
+            f"[robot]\njoint_offsets_deg = {truth_offsets.tolist()}\n"
+            f"[noise]\ntof_ns = {noise.tof_ns}\namplitude = {noise.amplitude}\n"
+            f"seed = {noise.seed}\n"
+        )
         with open_cell(profile, str(wpath), None, None) as cell:
             cell.rig.spacing = spacing
             run = run_calibration(profile, plan, cell.rig)
@@ -79,36 +81,51 @@ def run_group(profile, value: float, noise: Noise, spacing: SweepSpacing):
         "exact_std": np.asarray(exact.std_deg, float),
         "paper_err": paper_offsets - truth_offsets,
         "unobservable": exact.unobservable_joints,
-        "moves": run.moves, "reads": run.reads, "seconds": time.monotonic() - t0,
+        "moves": run.moves,
+        "reads": run.reads,
+        "seconds": time.monotonic() - t0,
         "sim_s": sim_s,
     }
 
 
 def report(title: str, rows: list[dict], groups) -> None:
     print(f"\n{title}")
-    print(f"{'Δθ (deg)':>9} | {'before ΔX, ΔY, ΔZ (mm)':>26} | {'paper ΔX, ΔY, ΔZ (mm)':>26} | "
-          f"{'exact ΔX, ΔY, ΔZ (mm)':>28} | moves  reads  cell s  wall s")
-    for g, r in zip(groups, rows):
-        fmt = lambda v, p=2: " ".join(f"{x:+8.{p}f}" for x in v)
-        print(f"{g:+9.1f} | {fmt(r['before'])} | {fmt(r['paper'])} | {fmt(r['exact'], 4)} | "
-              f"{r['moves']:5d} {r['reads']:6d} {r['sim_s']:7.1f} {r['seconds']:7.1f}")
+    print(
+        f"{'Δθ (deg)':>9} | {'before ΔX, ΔY, ΔZ (mm)':>26} | {'paper ΔX, ΔY, ΔZ (mm)':>26} | "
+        f"{'exact ΔX, ΔY, ΔZ (mm)':>28} | moves  reads  cell s  wall s"
+    )
+    for g, r in zip(groups, rows, strict=True):
+
+        def fmt(v, p=2):
+            return " ".join(f"{x:+8.{p}f}" for x in v)
+
+        print(
+            f"{g:+9.1f} | {fmt(r['before'])} | {fmt(r['paper'])} | {fmt(r['exact'], 4)} | "
+            f"{r['moves']:5d} {r['reads']:6d} {r['sim_s']:7.1f} {r['seconds']:7.1f}"
+        )
     before = np.sum([np.abs(r["before"]) for r in rows], 0)
     for method in ("paper", "exact"):
         after = np.sum([np.abs(r[method]) for r in rows], 0)
         imp = 100 * (1 - after / before)
         worst = np.nanmax([np.linalg.norm(r[method]) for r in rows])
-        print(f"improvement {method:5}: X {imp[0]:8.4f} %  Y {imp[1]:8.4f} %  Z {imp[2]:8.4f} %   "
-              f"largest TCP residual {worst:.4f} mm")
+        print(
+            f"improvement {method:5}: X {imp[0]:8.4f} %  Y {imp[1]:8.4f} %  Z {imp[2]:8.4f} %   "
+            f"largest TCP residual {worst:.4f} mm"
+        )
     errs = np.array([r["exact_err"] for r in rows])
     stds = np.array([r["exact_std"] for r in rows])
-    print(f"exact: largest joint-offset error {np.nanmax(np.abs(errs[:, :5])):.5f} deg on joints "
-          f"1-5 (joint 6 unobservable with the on-axis beam: {rows[0]['unobservable']}); "
-          f"largest |error|/std {np.nanmax(np.abs(errs[:, :5]) / stds[:, :5]):.2f}, "
-          f"largest std {np.nanmax(stds[:, :5]):.4f} deg")
-    print(f"moves per calibration: max {max(r['moves'] for r in rows)}, "
-          f"mean {np.mean([r['moves'] for r in rows]):.0f}; pulser reads max "
-          f"{max(r['reads'] for r in rows)}, mean {np.mean([r['reads'] for r in rows]):.0f}; "
-          f"real-cell time (Modbus TCP) mean {np.mean([r['sim_s'] for r in rows]):.0f} s")
+    print(
+        f"exact: largest joint-offset error {np.nanmax(np.abs(errs[:, :5])):.5f} deg on joints "
+        f"1-5 (joint 6 unobservable with the on-axis beam: {rows[0]['unobservable']}); "
+        f"largest |error|/std {np.nanmax(np.abs(errs[:, :5]) / stds[:, :5]):.2f}, "
+        f"largest std {np.nanmax(stds[:, :5]):.4f} deg"
+    )
+    print(
+        f"moves per calibration: max {max(r['moves'] for r in rows)}, "
+        f"mean {np.mean([r['moves'] for r in rows]):.0f}; pulser reads max "
+        f"{max(r['reads'] for r in rows)}, mean {np.mean([r['reads'] for r in rows]):.0f}; "
+        f"real-cell time (Modbus TCP) mean {np.mean([r['sim_s'] for r in rows]):.0f} s"
+    )
     print("paper 000, Table 3 (simulation): improvement X 96 %, Y 88 %, Z 94 %")
 
 
@@ -117,10 +134,15 @@ def main() -> None:
     ap.add_argument("--groups", default=",".join(str(g) for g in GROUPS))
     ap.add_argument("--noise-only", action="store_true")
     ap.add_argument("--noise-free-only", action="store_true")
-    ap.add_argument("--no-baseline", action="store_true",
-                    help="skip the dense-spacing baseline runs")
-    ap.add_argument("--step", type=float, default=2.0,
-                    help="joint steps δθ3, δθ2 (deg); paper 000 does not state its own")
+    ap.add_argument(
+        "--no-baseline", action="store_true", help="skip the dense-spacing baseline runs"
+    )
+    ap.add_argument(
+        "--step",
+        type=float,
+        default=2.0,
+        help="joint steps δθ3, δθ2 (deg); paper 000 does not state its own",
+    )
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -128,18 +150,26 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "cell.toml"
         create_profile(path, "tx90l")
-        write_profile(path, {"procedure": {"step_deg": args.step},
-                             "sample": {"rotation_std_deg": [0.01, 0.01, 0.01]}},
-                      "benchmark step, fixtured block")
+        write_profile(
+            path,
+            {
+                "procedure": {"step_deg": args.step},
+                "sample": {"rotation_std_deg": [0.01, 0.01, 0.01]},
+            },
+            "benchmark step, fixtured block",
+        )
         profile = load_profile(path)
     settings = []
     if not args.noise_only:
         settings.append(("noise-free", Noise()))
     if not args.noise_free_only:
         settings.append(("TOF σ 0.5 ns, amplitude 1 %", Noise(tof_ns=0.5, amplitude=0.01, seed=1)))
-    print("Paper 000 protocol: TX90L, calibration pose", PAPER_CALIBRATION_POSE_DEG.tolist(),
-          f"— identical offsets on all six joints; joint steps {args.step:g}°; tool centre "
-          "deviation at the calibration pose")
+    print(
+        "Paper 000 protocol: TX90L, calibration pose",
+        PAPER_CALIBRATION_POSE_DEG.tolist(),
+        f"— identical offsets on all six joints; joint steps {args.step:g}°; tool centre "
+        "deviation at the calibration pose",
+    )
     spacings = [("search spacing", SweepSpacing())]
     if not args.no_baseline:
         spacings.append(("first build's dense spacing (baseline)", DENSE_SPACING))

@@ -61,25 +61,35 @@ def make_profile(directory: Path, fixture: bool) -> Path:
     create_profile(path, MODEL, force=True)
     rot = 0.01 if fixture else 0.5
     pos = 0.5 if fixture else 5.0
-    write_profile(path, {"sample": {"position_std_mm": pos, "rotation_std_deg": [rot] * 3},
-                         "tool": {"position_std_mm": [1.0] * 3, "rotation_std_deg": [0.5] * 3},
-                         "water": {"temperature_std_c": 2.0}}, "benchmark tolerances")
+    write_profile(
+        path,
+        {
+            "sample": {"position_std_mm": pos, "rotation_std_deg": [rot] * 3},
+            "tool": {"position_std_mm": [1.0] * 3, "rotation_std_deg": [0.5] * 3},
+            "water": {"temperature_std_c": 2.0},
+        },
+        "benchmark tolerances",
+    )
     return path
 
 
 def draw_world(rng: np.random.Generator, profile: CellProfile, index: int) -> str:
     """World-file text of a cell drawn within ``profile``'s declared tolerances."""
     dh = profile.model.dh.copy()
-    dh[:, 1] += np.where(dh[:, 1] != 0, rng.uniform(-0.3, 0.3, 6), 0.0)   # d_mm
-    dh[:, 2] += np.where(dh[:, 2] != 0, rng.uniform(-0.3, 0.3, 6), 0.0)   # a_mm
-    dh[:, 3] += rng.uniform(-0.03, 0.03, 6)                                # alpha_deg
-    rows = ",\n".join(f"  {{ theta_offset_deg = {r[0]!r}, d_mm = {r[1]!r}, a_mm = {r[2]!r}, "
-                      f"alpha_deg = {r[3]!r} }}" for r in dh.tolist())
+    dh[:, 1] += np.where(dh[:, 1] != 0, rng.uniform(-0.3, 0.3, 6), 0.0)  # d_mm
+    dh[:, 2] += np.where(dh[:, 2] != 0, rng.uniform(-0.3, 0.3, 6), 0.0)  # a_mm
+    dh[:, 3] += rng.uniform(-0.03, 0.03, 6)  # alpha_deg
+    rows = ",\n".join(
+        f"  {{ theta_offset_deg = {r[0]!r}, d_mm = {r[1]!r}, a_mm = {r[2]!r}, "
+        f"alpha_deg = {r[3]!r} }}"
+        for r in dh.tolist()
+    )
     pos = profile.sample_position_mm + rng.normal(0.0, profile.sample_position_std_mm, 3)
     rot = profile.sample_rotation_deg + rng.normal(0.0, profile.sample_rotation_std_deg, 3)
     tpos = profile.tool_position_mm + rng.normal(0.0, profile.tool_position_std_mm, 3)
     trot = profile.tool_rotation_deg + np.append(
-        rng.normal(0.0, profile.tool_rotation_std_deg[:2], 2), 0.0)
+        rng.normal(0.0, profile.tool_rotation_std_deg[:2], 2), 0.0
+    )
     text = f"""[robot]
 dh = [
 {rows}
@@ -120,7 +130,7 @@ def measure_world(profile_path: Path, world_path: Path, cache: Path) -> Path:
         for m in run.measurements:
             m.meta.pop("probes", None)
         data = {"run": run, "error": None}
-    except Exception as e:  # noqa: BLE001 — a failed run is a result of the benchmark
+    except Exception as e:
         data = {"run": None, "error": f"{type(e).__name__}: {e}"}
     data["seconds"] = time.monotonic() - t0
     cache.write_bytes(pickle.dumps(data))
@@ -129,9 +139,9 @@ def measure_world(profile_path: Path, world_path: Path, cache: Path) -> Path:
 
 @dataclass
 class Outcome:
-    z: np.ndarray             # |error| / std of the reported joints
-    err: np.ndarray           # error per joint (deg)
-    std: np.ndarray           # std per joint (deg, NaN = unobservable)
+    z: np.ndarray  # |error| / std of the reported joints
+    err: np.ndarray  # error per joint (deg)
+    std: np.ndarray  # std per joint (deg, NaN = unobservable)
     written: bool
     refusal: str
     tcp_before_mm: np.ndarray
@@ -144,16 +154,23 @@ def effective_offsets_deg(truth: WorldTruth) -> np.ndarray:
     return truth.joint_offsets_deg - 0.5 * np.asarray(truth.backlash_deg, float)
 
 
-def tcp_errors_mm(truth: WorldTruth, profile: CellProfile, offsets_deg: np.ndarray,
-                  postures_deg: np.ndarray) -> np.ndarray:
+def tcp_errors_mm(
+    truth: WorldTruth, profile: CellProfile, offsets_deg: np.ndarray, postures_deg: np.ndarray
+) -> np.ndarray:
     """|TCP(true cell) − TCP(model with ``offsets_deg``)| (mm) at the postures."""
     true = fk_frames(truth.model, postures_deg, truth.joint_offsets_deg)[:, 6] @ truth.tool_matrix
     model = fk_frames(profile.model, postures_deg, offsets_deg)[:, 6] @ profile.tool_matrix
     return np.linalg.norm(true[:, :3, 3] - model[:, :3, 3], axis=1)
 
 
-def outcome(sol: OffsetSolution, fit, truth: WorldTruth, profile: CellProfile,
-            postures: np.ndarray, old: bool) -> Outcome:
+def outcome(
+    sol: OffsetSolution,
+    fit,
+    truth: WorldTruth,
+    profile: CellProfile,
+    postures: np.ndarray,
+    old: bool,
+) -> Outcome:
     ok = np.isfinite(sol.std_deg)
     z = np.abs(sol.offsets_deg[ok] - effective_offsets_deg(truth)[ok]) / sol.std_deg[ok]
     if old:
@@ -179,10 +196,12 @@ def summary(name: str, outs: list[Outcome]) -> str:
             reasons[o.refusal] = reasons.get(o.refusal, 0) + 1
     before = np.concatenate([o.tcp_before_mm for o in outs])
     after = np.concatenate([o.tcp_after_mm for o in outs])
-    return (f"| {name} | {np.mean(z <= 3.0) * 100:.1f} % of {len(z)} (max |z| {np.max(z):.1f}) "
-            f"| {len(written)} / {len(outs)} | "
-            f"{', '.join(f'{k} {v}' for k, v in sorted(reasons.items())) or '—'} | {bad} | "
-            f"{before.mean():.2f} / {before.max():.2f} | {after.mean():.3f} / {after.max():.3f} |")
+    return (
+        f"| {name} | {np.mean(z <= 3.0) * 100:.1f} % of {len(z)} (max |z| {np.max(z):.1f}) "
+        f"| {len(written)} / {len(outs)} | "
+        f"{', '.join(f'{k} {v}' for k, v in sorted(reasons.items())) or '—'} | {bad} | "
+        f"{before.mean():.2f} / {before.max():.2f} | {after.mean():.3f} / {after.max():.3f} |"
+    )
 
 
 def joint_errors(name: str, outs: list[Outcome]) -> str:
@@ -199,11 +218,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worlds", type=int, default=30)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--fixture", action="store_true",
-                    help="declare (and draw) a fixtured block: 0.5 mm, 0.01 deg")
+    ap.add_argument(
+        "--fixture",
+        action="store_true",
+        help="declare (and draw) a fixtured block: 0.5 mm, 0.01 deg",
+    )
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--cache", type=Path, default=None,
-                    help="directory for worlds and measurements (kept between runs)")
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="directory for worlds and measurements (kept between runs)",
+    )
     args = ap.parse_args()
     work = args.cache or Path(tempfile.mkdtemp(prefix="ucal-realistic-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -224,9 +250,10 @@ def main() -> None:
         list(pool.map(measure_world, [profile_path] * len(worlds), worlds, caches))
     print(f"measured {len(worlds)} worlds in {time.monotonic() - t0:.0f} s ({work})")
     postures = np.random.default_rng(1).uniform(
-        profile.model.joint_min_deg * 0.8, profile.model.joint_max_deg * 0.8, (200, 6))
+        profile.model.joint_min_deg * 0.8, profile.model.joint_max_deg * 0.8, (200, 6)
+    )
     new, old, failed = [], [], []
-    for w, c in zip(worlds, caches):
+    for w, c in zip(worlds, caches, strict=True):
         data = pickle.loads(c.read_bytes())
         if data["run"] is None:
             failed.append(f"{w.name}: {data['error']}")
@@ -240,14 +267,15 @@ def main() -> None:
     print(f"{len(new)} runs solved, {len(failed)} failed to measure")
     for f in failed:
         print("  ", f)
-    print("| solver | coverage (|err| ≤ 3σ) | written | refused (why) | written outside 4σ "
-          "| TCP error before, mean / max mm | after, mean / max mm |")
+    print(
+        "| solver | coverage (|err| ≤ 3σ) | written | refused (why) | written outside 4σ "
+        "| TCP error before, mean / max mm | after, mean / max mm |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     print(summary("current (priors, sound speed, fit test)", new))
     print(summary("previous (offsets + corner)", old))
     print()
-    print("| solver | " + " | ".join(f"J{j} median |err| / std (runs)" for j in range(1, 7))
-          + " |")
+    print("| solver | " + " | ".join(f"J{j} median |err| / std (runs)" for j in range(1, 7)) + " |")
     print("| --- " * 7 + "|")
     print(joint_errors("current", new))
     print(joint_errors("previous", old))

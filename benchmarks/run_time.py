@@ -33,9 +33,13 @@ def calibrate(workdir: Path, *extra: str) -> tuple[float, dict, str]:
     """Run the calibration (``--dry-run`` on the simulated cell); wall s, JSON, plan estimate."""
     dry = ["--dry-run"] if "--sim" in extra else []
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "ucal", "calibrate", "cell.toml", "--yes",
-                          "--json", *dry, *extra], cwd=workdir, capture_output=True,
-                         text=True, stdin=subprocess.DEVNULL)
+    out = subprocess.run(
+        [sys.executable, "-m", "ucal", "calibrate", "cell.toml", "--yes", "--json", *dry, *extra],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
     wall = time.monotonic() - t0
     if out.returncode not in (0, 1):
         raise SystemExit(f"calibrate failed ({out.returncode}): {out.stderr[-500:]}")
@@ -49,8 +53,12 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
-        subprocess.run([sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
-                       cwd=work, check=True, capture_output=True)
+        subprocess.run(
+            [sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
+            cwd=work,
+            check=True,
+            capture_output=True,
+        )
         calibrate(work, "--sim")  # warm the interpreter's caches (imports, bytecode)
         idle_wall, idle, estimate = calibrate(work, "--sim")
         stop = mp.Event()
@@ -63,31 +71,56 @@ def main() -> None:
             stop.set()
             for p in hogs:
                 p.join()
-        same = (idle["joint_offsets_deg"] == busy["joint_offsets_deg"]
-                and idle["std_deg"] == busy["std_deg"])
+        same = (
+            idle["joint_offsets_deg"] == busy["joint_offsets_deg"]
+            and idle["std_deg"] == busy["std_deg"]
+        )
         print("ucal calibrate cell.toml --sim --yes (demo cell)")
-        print(f"  idle:             {idle_wall:6.1f} s wall, {idle['moves']} moves, "
-              f"{idle['pulser_reads']} pulser reads")
-        print(f"  two CPU hogs:     {busy_wall:6.1f} s wall; offsets and stds bit for bit the "
-              f"same as idle: {same}")
+        print(
+            f"  idle:             {idle_wall:6.1f} s wall, {idle['moves']} moves, "
+            f"{idle['pulser_reads']} pulser reads"
+        )
+        print(
+            f"  two CPU hogs:     {busy_wall:6.1f} s wall; offsets and stds bit for bit the "
+            f"same as idle: {same}"
+        )
         print(f"  plan: {estimate.strip()}")
-        print(f"  simulated duration of the run (a real cell over Modbus TCP): "
-              f"{idle['duration_s']:.1f} s")
+        print(
+            f"  simulated duration of the run (a real cell over Modbus TCP): "
+            f"{idle['duration_s']:.1f} s"
+        )
         if args.no_real_time:
             return
-        serve = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
-                                  "cell.toml", "--time-scale", "1"], cwd=work,
-                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        serve = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "ucal",
+                "sim",
+                "serve",
+                "--profile",
+                "cell.toml",
+                "--time-scale",
+                "1",
+            ],
+            cwd=work,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
         try:
             assert serve.stdout is not None
             urls = json.loads(serve.stdout.readline())
-            real_wall, real, _ = calibrate(work, "--controller", urls["controller"],
-                                           "--pulser", urls["pulser"])
+            real_wall, real, _ = calibrate(
+                work, "--controller", urls["controller"], "--pulser", urls["pulser"]
+            )
         finally:
             serve.terminate()
             serve.wait(timeout=30)
-        print(f"  against `ucal sim serve --time-scale 1` (real time): {real_wall:.1f} s wall, "
-              f"{real['moves']} moves, {real['pulser_reads']} pulser reads")
+        print(
+            f"  against `ucal sim serve --time-scale 1` (real time): {real_wall:.1f} s wall, "
+            f"{real['moves']} moves, {real['pulser_reads']} pulser reads"
+        )
 
 
 if __name__ == "__main__":

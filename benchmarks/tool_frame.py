@@ -57,8 +57,10 @@ seed = {seed}
 
 def _row(label: str, k: int, pos: np.ndarray, beam: np.ndarray, true_beam: np.ndarray) -> str:
     err = np.abs(pos - TRUE_POSITION)
-    return (f"{label:<7} {k:>6}  {err[0]:>9.4f} {err[1]:>9.4f} {err[2]:>9.4f}  "
-            f"{float(angle_between_deg(beam, true_beam)):>10.5f}")
+    return (
+        f"{label:<7} {k:>6}  {err[0]:>9.4f} {err[1]:>9.4f} {err[2]:>9.4f}  "
+        f"{float(angle_between_deg(beam, true_beam)):>10.5f}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,11 +78,15 @@ def main(argv: list[str] | None = None) -> int:
         profile = load_profile(prof_path)
         world = str(_world(d, args.seed))
         true_beam = rpy_to_matrix(TRUE_ROTATION)[:, 2]
-        print("tool-frame benchmark: loopback simulated cell (real drivers), "
-              f"{args.model}, TOF σ 0.5 ns, amplitude noise 1 %, seed {args.seed}")
-        print(f"hidden tool {TRUE_POSITION.tolist()} mm, beam tilt "
-              f"{float(angle_between_deg(true_beam, [0, 0, 1])):.3f}°; subsets of one run per "
-              "method (as paper 002, Fig. 8)\n")
+        print(
+            "tool-frame benchmark: loopback simulated cell (real drivers), "
+            f"{args.model}, TOF σ 0.5 ns, amplitude noise 1 %, seed {args.seed}"
+        )
+        print(
+            f"hidden tool {TRUE_POSITION.tolist()} mm, beam tilt "
+            f"{float(angle_between_deg(true_beam, [0, 0, 1])):.3f}°; subsets of one run per "
+            "method (as paper 002, Fig. 8)\n"
+        )
 
         runs = {}
         plane = None
@@ -91,33 +97,47 @@ def main(argv: list[str] | None = None) -> int:
             with open_cell(profile, world, None, None) as session:
                 runs[method] = run_tool_frame(profile, plan, session.rig)
             r = runs[method]
-            print(f"{method}: measured in {time.monotonic() - t0:.0f} s, {r.moves} moves, "
-                  f"{r.reads} pulser reads")
+            print(
+                f"{method}: measured in {time.monotonic() - t0:.0f} s, {r.moves} moves, "
+                f"{r.reads} pulser reads"
+            )
 
-        print(f"\n{'method':<7} {'points':>6}  {'|dX| mm':>9} {'|dY| mm':>9} {'|dZ| mm':>9}  "
-              f"{'beam deg':>10}")
+        print(
+            f"\n{'method':<7} {'points':>6}  {'|dX| mm':>9} {'|dY| mm':>9} {'|dZ| mm':>9}  "
+            f"{'beam deg':>10}"
+        )
         ex = runs["exact"]
         rots = np.array([t.flange[:3, :3] for t in ex.tofs])
         stds = np.array([max(p.tilt_std_deg, 1e-4) for p in ex.peaks])
         for k in range(2, len(ex.peaks) + 1):
             beam = beam_from_normal_incidence(rots[:k], plane.normal, stds[:k])
-            off = solve_offsets(beam, ex.tofs[:k], ex.crossings, plane,
-                                np.asarray(profile.tool_position_mm, float))
-            print(_row("exact", k + len(ex.crossings), off.position_mm, beam.direction,
-                       true_beam))
+            off = solve_offsets(
+                beam, ex.tofs[:k], ex.crossings, plane, np.asarray(profile.tool_position_mm, float)
+            )
+            print(_row("exact", k + len(ex.crossings), off.position_mm, beam.direction, true_beam))
         pa = runs["paper"]
         rots = np.array([t.flange[:3, :3] for t in pa.tofs])
         poss = np.array([t.flange[:3, 3] for t in pa.tofs])
         paths = np.array([t.path_mm for t in pa.tofs])
         std = float(np.median([t.std_mm for t in pa.tofs]))
         for k in range(10, len(pa.tofs) + 1, 10):
-            sol = solve_paper(rots[:k], poss[:k], paths[:k], plane,
-                              np.asarray(profile.tool_position_mm, float),
-                              profile.tool_matrix[:3, 2], std)
-            print(_row("paper", k, sol.position_mm, sol.beam, true_beam)
-                  + ("" if sol.second_order_ok else "  (2nd-order condition fails)"))
-        print("\npaper 002, Table 3 (100 points, experiment): 0.48 / 1.48 / 4.45 mm, "
-              "0.12 / 1.22 / 0.13 deg")
+            sol = solve_paper(
+                rots[:k],
+                poss[:k],
+                paths[:k],
+                plane,
+                np.asarray(profile.tool_position_mm, float),
+                profile.tool_matrix[:3, 2],
+                std,
+            )
+            print(
+                _row("paper", k, sol.position_mm, sol.beam, true_beam)
+                + ("" if sol.second_order_ok else "  (2nd-order condition fails)")
+            )
+        print(
+            "\npaper 002, Table 3 (100 points, experiment): 0.48 / 1.48 / 4.45 mm, "
+            "0.12 / 1.22 / 0.13 deg"
+        )
     return 0
 
 

@@ -79,8 +79,8 @@ HOST_CLOCK = HostClock()
 @dataclass
 class _Ticker:
     period_s: float
-    fire: Callable[[float], int]      # send the frames of instant t; returns how many were sent
-    ready: Callable[[], bool]          # whether anybody listens (a client is connected)
+    fire: Callable[[float], int]  # send the frames of instant t; returns how many were sent
+    ready: Callable[[], bool]  # whether anybody listens (a client is connected)
     next_k: int = 1
 
     @property
@@ -100,9 +100,9 @@ class SimClock:
 
     def __init__(self, handoff_timeout_s: float = 30.0):
         self._t = 0.0
-        self._advancing = threading.RLock()        # one advance at a time
-        self._handoff = threading.Condition()      # guards _pending
-        self._pending = 0                          # frames sent and not yet taken
+        self._advancing = threading.RLock()  # one advance at a time
+        self._handoff = threading.Condition()  # guards _pending
+        self._pending = 0  # frames sent and not yet taken
         self._tickers: list[_Ticker] = []
         self._closed = False
         self.handoff_timeout_s = float(handoff_timeout_s)
@@ -110,8 +110,9 @@ class SimClock:
     def now(self) -> float:
         return self._t
 
-    def add_ticker(self, period_s: float, fire: Callable[[float], int],
-                   ready: Callable[[], bool]) -> None:
+    def add_ticker(
+        self, period_s: float, fire: Callable[[float], int], ready: Callable[[], bool]
+    ) -> None:
         """Call ``fire(t)`` at every multiple ``t`` of ``period_s`` that time reaches."""
         if not (period_s > 0 and math.isfinite(period_s)):
             raise ValueError(f"period_s must be positive, got {period_s}")
@@ -184,8 +185,11 @@ class SimClock:
             while self._pending > 0:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not self._listening():
-                    log.warning("simulated clock: %d state frame(s) not taken at t=%.3f s; "
-                                "going on", self._pending, self._t)
+                    log.warning(
+                        "simulated clock: %d state frame(s) not taken at t=%.3f s; going on",
+                        self._pending,
+                        self._t,
+                    )
                     self._pending = 0
                     break
                 self._handoff.wait(min(remaining, 0.05))

@@ -68,9 +68,11 @@ def _open(group: str, kind: str, url: str, options: dict[str, Any]) -> Any:
     scheme = _scheme(url, kind)
     known = backends(group)
     if scheme not in known:
-        raise ValueError(f"unknown {kind} URL scheme {scheme!r} in {url!r} (known: "
-                         f"{', '.join(sorted(known))}; a back-end adds its scheme as an "
-                         f"entry point in the group {group!r})")
+        raise ValueError(
+            f"unknown {kind} URL scheme {scheme!r} in {url!r} (known: "
+            f"{', '.join(sorted(known))}; a back-end adds its scheme as an "
+            f"entry point in the group {group!r})"
+        )
     factory: Any = _load(known[scheme])
     build: Callable[..., Any] = getattr(factory, "from_url", factory)
     log.debug("%s %s: back-end %s", kind, url, known[scheme])
@@ -85,8 +87,9 @@ def open_pulser(url: str, **options: Any) -> PulserReceiver:
     """
     device = _open(PULSER_GROUP, "pulser", url, options)
     if not isinstance(device, PulserReceiver):
-        raise TypeError(f"pulser back-end for {url!r} built a {type(device).__name__}, "
-                        "not a PulserReceiver")
+        raise TypeError(
+            f"pulser back-end for {url!r} built a {type(device).__name__}, not a PulserReceiver"
+        )
     return device
 
 
@@ -98,6 +101,8 @@ def open_controller(url: str, **options: Any) -> RobotController:
     """
     device = _open(CONTROLLER_GROUP, "controller", url, options)
     if not isinstance(device, RobotController):
-        raise TypeError(f"controller back-end for {url!r} built a {type(device).__name__}, "
-                        "not a RobotController")
+        raise TypeError(
+            f"controller back-end for {url!r} built a {type(device).__name__}, "
+            "not a RobotController"
+        )
     return device

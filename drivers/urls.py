@@ -74,8 +74,10 @@ def parse_controller_url(url: str) -> ControllerAddress:
         raise UrlError(f"{url!r}: malformed query {parts.query!r}") from None
     unknown = set(query) - {"state"}
     if unknown:
-        raise UrlError(f"{url!r}: unknown parameter(s) {', '.join(sorted(unknown))}; "
-                       "only 'state' is understood")
+        raise UrlError(
+            f"{url!r}: unknown parameter(s) {', '.join(sorted(unknown))}; "
+            "only 'state' is understood"
+        )
     state = DEFAULT_STATE_PORT
     if "state" in query:
         if len(query["state"]) != 1:

@@ -88,8 +88,12 @@ def piston_directivity(x: float | np.ndarray) -> float | np.ndarray:
     return float(d) if d.ndim == 0 else d
 
 
-def directivity(tilt_deg: float | np.ndarray, frequency_mhz: float, element_diameter_mm: float,
-                temperature_c: float) -> float | np.ndarray:
+def directivity(
+    tilt_deg: float | np.ndarray,
+    frequency_mhz: float,
+    element_diameter_mm: float,
+    temperature_c: float,
+) -> float | np.ndarray:
     """Pulse-echo amplitude factor (0…1) of a plane reflector tilted ``tilt_deg`` off normal.
 
     A reflector tilted by θ sends the echo back 2θ off the transducer axis, where the piston's
@@ -102,9 +106,10 @@ def directivity(tilt_deg: float | np.ndarray, frequency_mhz: float, element_diam
     return np.abs(piston_directivity(x))
 
 
-def directivity_half_angle_deg(level: float, frequency_mhz: float, element_diameter_mm: float,
-                               temperature_c: float) -> float:
-    """Tilt (deg) at which ``directivity`` falls to ``level`` (0 < level < 1) inside the main lobe."""
+def directivity_half_angle_deg(
+    level: float, frequency_mhz: float, element_diameter_mm: float, temperature_c: float
+) -> float:
+    """Tilt (deg) at which ``directivity`` falls to ``level`` (0 < level < 1) in the main lobe."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
     from scipy.optimize import brentq
@@ -126,8 +131,7 @@ def footprint_sigma_mm(element_diameter_mm: float) -> float:
     return element_diameter_mm / 4.0
 
 
-def edge_share(signed_distance_mm: float | np.ndarray,
-               sigma_mm: float) -> float | np.ndarray:
+def edge_share(signed_distance_mm: float | np.ndarray, sigma_mm: float) -> float | np.ndarray:
     """Share of a Gaussian footprint on the inner side of one straight edge: Φ(s/σ).
 
     ``signed_distance_mm`` is from the beam-axis hit point to the edge, positive inside the
@@ -165,42 +169,61 @@ def water_absorption_np_per_mm(frequency_mhz: float) -> float:
     return WATER_ABSORPTION_NP_S2_PER_M * (frequency_mhz * 1e6) ** 2 * 1e-3
 
 
-def water_attenuation(water_path_mm: float | np.ndarray, frequency_mhz: float,
-                      reference_path_mm: float = REFERENCE_WATER_PATH_MM) -> float | np.ndarray:
+def water_attenuation(
+    water_path_mm: float | np.ndarray,
+    frequency_mhz: float,
+    reference_path_mm: float = REFERENCE_WATER_PATH_MM,
+) -> float | np.ndarray:
     """Amplitude factor of water absorption over the round trip, relative to the reference path.
 
     ``exp(−α·2·(L − L_ref))`` with ``α = 25.3e-15·f²`` Np/m (classical absorption, ∝ f²):
     0.0158 Np/mm at 25 MHz, i.e. about −0.27 dB per mm of extra one-way path.
     """
     alpha_np_per_mm = water_absorption_np_per_mm(frequency_mhz)
-    a = np.exp(-alpha_np_per_mm * 2.0 * (np.asarray(water_path_mm, dtype=float) - reference_path_mm))
+    a = np.exp(
+        -alpha_np_per_mm * 2.0 * (np.asarray(water_path_mm, dtype=float) - reference_path_mm)
+    )
     return float(a) if np.ndim(a) == 0 else a
 
 
-def echo_amplitude(tilt_deg: float, share: float, water_path_mm: float, gain_db: float,
-                   frequency_mhz: float, element_diameter_mm: float, temperature_c: float) -> float:
+def echo_amplitude(
+    tilt_deg: float,
+    share: float,
+    water_path_mm: float,
+    gain_db: float,
+    frequency_mhz: float,
+    element_diameter_mm: float,
+    temperature_c: float,
+) -> float:
     """Noise-free echo amplitude (fraction of full screen, clipped at 1.0 = saturation).
 
     ``REFERENCE_AMPLITUDE`` (0.8 at normal incidence, whole footprint on the face, 50 mm path,
     20 dB gain) × ``gain_factor`` × ``water_attenuation`` × ``directivity`` × ``share``.
     """
-    a = (REFERENCE_AMPLITUDE * gain_factor(gain_db)
-         * water_attenuation(water_path_mm, frequency_mhz)
-         * directivity(tilt_deg, frequency_mhz, element_diameter_mm, temperature_c) * share)
+    a = (
+        REFERENCE_AMPLITUDE
+        * gain_factor(gain_db)
+        * water_attenuation(water_path_mm, frequency_mhz)
+        * directivity(tilt_deg, frequency_mhz, element_diameter_mm, temperature_c)
+        * share
+    )
     return float(min(a, 1.0))
 
 
-def pulse_spectrum(frequency_mhz: float | np.ndarray, centre_frequency_mhz: float,
-                   fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH
-                   ) -> float | np.ndarray:
+def pulse_spectrum(
+    frequency_mhz: float | np.ndarray,
+    centre_frequency_mhz: float,
+    fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH,
+) -> float | np.ndarray:
     """Gaussian amplitude spectrum (1 at the centre) of the pulse-echo response.
 
     Its −6 dB (0.5) full width is ``fractional_bandwidth · centre_frequency_mhz``: σ_f =
     bw·f_c / (2·√(2 ln 2)); in time the envelope's σ_t = 1 / (2π σ_f), 25 ns at 25 MHz and 0.6.
     """
     sigma_mhz = fractional_bandwidth * centre_frequency_mhz / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    p = np.exp(-0.5 * ((np.asarray(frequency_mhz, dtype=float) - centre_frequency_mhz)
-                       / sigma_mhz) ** 2)
+    p = np.exp(
+        -0.5 * ((np.asarray(frequency_mhz, dtype=float) - centre_frequency_mhz) / sigma_mhz) ** 2
+    )
     return float(p) if np.ndim(p) == 0 else p
 
 
@@ -209,12 +232,15 @@ def _band_mhz(frequency_mhz: float, fractional_bandwidth: float) -> np.ndarray:
     return np.linspace(0.0, frequency_mhz * (1.0 + 3.0 * fractional_bandwidth), 601)[1:]
 
 
-def broadband_echo_factor(tilt_deg: float | np.ndarray, water_path_mm: float,
-                          frequency_mhz: float, element_diameter_mm: float,
-                          temperature_c: float,
-                          fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH,
-                          reference_path_mm: float = REFERENCE_WATER_PATH_MM
-                          ) -> float | np.ndarray:
+def broadband_echo_factor(
+    tilt_deg: float | np.ndarray,
+    water_path_mm: float,
+    frequency_mhz: float,
+    element_diameter_mm: float,
+    temperature_c: float,
+    fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH,
+    reference_path_mm: float = REFERENCE_WATER_PATH_MM,
+) -> float | np.ndarray:
     """Peak of a broadband echo relative to normal incidence at the reference path (0…1+).
 
     ``|∫ P(f)·exp(−2α(f)(L − L_ref))·D(f, θ) df| / ∫ P(f) df`` with ``P`` =
@@ -227,8 +253,9 @@ def broadband_echo_factor(tilt_deg: float | np.ndarray, water_path_mm: float,
     """
     f = _band_mhz(frequency_mhz, fractional_bandwidth)
     p = pulse_spectrum(f, frequency_mhz, fractional_bandwidth)
-    att = np.exp(-2.0 * water_absorption_np_per_mm(1.0) * f ** 2
-                 * (float(water_path_mm) - reference_path_mm))
+    att = np.exp(
+        -2.0 * water_absorption_np_per_mm(1.0) * f**2 * (float(water_path_mm) - reference_path_mm)
+    )
     ka = (2.0 * np.pi * f * 1e3 / sound_speed_m_s(temperature_c)) * element_diameter_mm / 2.0
     s2 = np.sin(2.0 * np.radians(np.asarray(tilt_deg, dtype=float)))
     d = piston_directivity(np.multiply.outer(s2, ka))
@@ -236,10 +263,13 @@ def broadband_echo_factor(tilt_deg: float | np.ndarray, water_path_mm: float,
     return float(out) if np.ndim(out) == 0 else out
 
 
-def broadband_directivity(tilt_deg: float | np.ndarray, frequency_mhz: float,
-                          element_diameter_mm: float, temperature_c: float,
-                          fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH
-                          ) -> float | np.ndarray:
+def broadband_directivity(
+    tilt_deg: float | np.ndarray,
+    frequency_mhz: float,
+    element_diameter_mm: float,
+    temperature_c: float,
+    fractional_bandwidth: float = PULSE_FRACTIONAL_BANDWIDTH,
+) -> float | np.ndarray:
     """Pulse-echo directivity of a broadband pulse: ``2·J1(x)/x`` averaged over its spectrum.
 
     ``broadband_echo_factor`` at the reference path (no absorption weighting): 1 at normal
@@ -247,5 +277,11 @@ def broadband_directivity(tilt_deg: float | np.ndarray, frequency_mhz: float,
     centre-frequency ``directivity``, but 0.17 at 0.30° where the latter is 0.13, and its side
     lobes differ.
     """
-    return broadband_echo_factor(tilt_deg, REFERENCE_WATER_PATH_MM, frequency_mhz,
-                                 element_diameter_mm, temperature_c, fractional_bandwidth)
+    return broadband_echo_factor(
+        tilt_deg,
+        REFERENCE_WATER_PATH_MM,
+        frequency_mhz,
+        element_diameter_mm,
+        temperature_c,
+        fractional_bandwidth,
+    )

@@ -24,11 +24,11 @@ class Procedure:
     """Procedure settings (``[procedure]`` in the profile; every key optional)."""
 
     calibration_pose_deg: np.ndarray | None = None  # None: computed with IK from the block pose
-    water_path_mm: float = 100.0     # nominal TCP-to-face distance; ±5° offsets move W by ~90 mm
-    step_deg: float = 2.0            # δθ3 and δθ2 of paper 000
-    speed: float = 0.3               # fraction of the controller's maximum speed
+    water_path_mm: float = 100.0  # nominal TCP-to-face distance; ±5° offsets move W by ~90 mm
+    step_deg: float = 2.0  # δθ3 and δθ2 of paper 000
+    speed: float = 0.3  # fraction of the controller's maximum speed
     singularity_margin_deg: float = 10.0  # |θ5| must stay above this in every planned target
-    tof_averages: int = 16           # pulser averaging for distance readings
+    tof_averages: int = 16  # pulser averaging for distance readings
     verify_tolerance_mm: float = 0.5  # largest deviation of a point on any axis `verify` passes
 
 
@@ -51,9 +51,14 @@ class ControllerTimeouts:
 
 
 #: Largest value of each ``[controller]`` timeout a profile may state (s).
-MAX_CONTROLLER_TIMEOUT_S = {"connect_timeout_s": 60.0, "first_state_timeout_s": 120.0,
-                            "state_timeout_s": 60.0, "reply_timeout_s": 60.0,
-                            "halt_timeout_s": 60.0, "settle_timeout_s": 3600.0}
+MAX_CONTROLLER_TIMEOUT_S = {
+    "connect_timeout_s": 60.0,
+    "first_state_timeout_s": 120.0,
+    "state_timeout_s": 60.0,
+    "reply_timeout_s": 60.0,
+    "halt_timeout_s": 60.0,
+    "settle_timeout_s": 3600.0,
+}
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,7 @@ class CellProfile:
     sample_position_std_mm: np.ndarray = field(default_factory=lambda: np.full(3, 5.0))
     sample_rotation_std_deg: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
     water_temperature_std_c: float = 2.0
-    dh_length_std_mm: float = 0.2     # how well the DH lengths and twists match this robot
+    dh_length_std_mm: float = 0.2  # how well the DH lengths and twists match this robot
     dh_angle_std_deg: float = 0.02
     frequency_mhz: float = 25.0
     element_diameter_mm: float = 6.0
@@ -127,8 +132,8 @@ class Reflector:
 class Noise:
     """Random errors of single readings (``[noise]``); every random source is seeded by ``seed``."""
 
-    tof_ns: float = 0.0       # one-sigma TOF jitter of a single reading
-    amplitude: float = 0.0    # one-sigma relative amplitude noise of a single reading
+    tof_ns: float = 0.0  # one-sigma TOF jitter of a single reading
+    amplitude: float = 0.0  # one-sigma relative amplitude noise of a single reading
     seed: int = 0
 
 
@@ -158,8 +163,8 @@ class PulserTruth:
 class WorldTruth:
     """The truth a real cell hides (world file of SPEC.md, missing keys = as the profile says)."""
 
-    model: RobotModel                 # true DH table (nominal or with DH errors)
-    joint_offsets_deg: np.ndarray     # actual = reading + offset
+    model: RobotModel  # true DH table (nominal or with DH errors)
+    joint_offsets_deg: np.ndarray  # actual = reading + offset
     tool_position_mm: np.ndarray
     tool_rotation_deg: np.ndarray
     sample_position_mm: np.ndarray
@@ -202,7 +207,7 @@ class WorldTruth:
         """The frame whose +z is the acoustic axis (4, 4, flange frame): the tool frame turned
         by the squint; what a tool-frame calibration measures."""
         az = np.radians(self.beam_squint_azimuth_deg)
-        axis = np.array([-np.sin(az), np.cos(az), 0.0])   # tilts z towards the azimuth
+        axis = np.array([-np.sin(az), np.cos(az), 0.0])  # tilts z towards the azimuth
         k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
         t = np.radians(self.beam_squint_deg)
         squint = np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
@@ -224,13 +229,17 @@ class WorldTruth:
             n = np.cross(p[1] - p[0], p[2] - p[0])
             n = n / np.linalg.norm(n)
             refl = Reflector(point_mm=p.mean(0), normal=n if n[2] >= 0 else -n)
-        return cls(model=profile.model, joint_offsets_deg=np.zeros(6),
-                   tool_position_mm=np.array(profile.tool_position_mm, float),
-                   tool_rotation_deg=np.array(profile.tool_rotation_deg, float),
-                   sample_position_mm=np.array(profile.sample_position_mm, float),
-                   sample_rotation_deg=np.array(profile.sample_rotation_deg, float),
-                   sample_face_size_mm=profile.sample_face_size_mm, reflector=refl,
-                   water_temperature_c=profile.water_temperature_c,
-                   frequency_mhz=profile.frequency_mhz,
-                   element_diameter_mm=profile.element_diameter_mm,
-                   dh_beta_deg=np.array(profile.model.beta_deg, float))
+        return cls(
+            model=profile.model,
+            joint_offsets_deg=np.zeros(6),
+            tool_position_mm=np.array(profile.tool_position_mm, float),
+            tool_rotation_deg=np.array(profile.tool_rotation_deg, float),
+            sample_position_mm=np.array(profile.sample_position_mm, float),
+            sample_rotation_deg=np.array(profile.sample_rotation_deg, float),
+            sample_face_size_mm=profile.sample_face_size_mm,
+            reflector=refl,
+            water_temperature_c=profile.water_temperature_c,
+            frequency_mhz=profile.frequency_mhz,
+            element_diameter_mm=profile.element_diameter_mm,
+            dh_beta_deg=np.array(profile.model.beta_deg, float),
+        )

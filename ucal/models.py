@@ -25,6 +25,7 @@ def model_table_text(name: str) -> str:
 def load_model(name: str) -> RobotModel:
     """Robot model of a shipped name (``tx90``, ``tx90l``, ``tx90xl``)."""
     data = tomllib.loads(model_table_text(name))["robot"]
-    dh = np.array([[r["theta_offset_deg"], r["d_mm"], r["a_mm"], r["alpha_deg"]]
-                   for r in data["dh"]])
+    dh = np.array(
+        [[r["theta_offset_deg"], r["d_mm"], r["a_mm"], r["alpha_deg"]] for r in data["dh"]]
+    )
     return RobotModel(name, dh, data["joint_min_deg"], data["joint_max_deg"])

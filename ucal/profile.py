@@ -55,18 +55,37 @@ SCHEMA = 1
 #: Keys ucal knows in each table (others are allowed and reported as warnings).
 KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset({"schema"}),
-    "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "upper_arm_mm",
-                        "forearm_mm", "dh_length_std_mm", "dh_angle_std_deg"}),
+    "robot": frozenset(
+        {
+            "model",
+            "dh",
+            "joint_min_deg",
+            "joint_max_deg",
+            "upper_arm_mm",
+            "forearm_mm",
+            "dh_length_std_mm",
+            "dh_angle_std_deg",
+        }
+    ),
     "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"}),
-    "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm", "position_std_mm",
-                         "rotation_std_deg"}),
+    "sample": frozenset(
+        {"position_mm", "rotation_deg", "face_size_mm", "position_std_mm", "rotation_std_deg"}
+    ),
     "reflector": frozenset({"points_mm", "points_std_mm"}),
     "water": frozenset({"temperature_c", "temperature_std_c"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
-    "procedure": frozenset({"calibration_pose_deg", "water_path_mm", "step_deg", "speed",
-                            "singularity_margin_deg", "tof_averages",
-                            "verify_tolerance_mm"}),
+    "procedure": frozenset(
+        {
+            "calibration_pose_deg",
+            "water_path_mm",
+            "step_deg",
+            "speed",
+            "singularity_margin_deg",
+            "tof_averages",
+            "verify_tolerance_mm",
+        }
+    ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
 }
 
@@ -114,34 +133,41 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
     r = Reader(path, data)
     schema = r.get(data, "schema", required=True)
     if isinstance(schema, bool) or schema != SCHEMA:
-        raise r.error("schema", f"must be {SCHEMA} (this version of ucal reads schema "
-                                f"{SCHEMA}), got {schema!r}")
+        raise r.error(
+            "schema",
+            f"must be {SCHEMA} (this version of ucal reads schema {SCHEMA}), got {schema!r}",
+        )
 
     model = read_robot(r, r.table("robot", required=True), "robot")
 
     tool = r.table("tool", required=True)
-    tool_pos = r.vector("tool.position_mm", r.get(tool, "tool.position_mm", True), 3,
-                        unit="mm")
-    tool_rot = r.vector("tool.rotation_deg", r.get(tool, "tool.rotation_deg", True), 3,
-                        unit="deg")
+    tool_pos = r.vector("tool.position_mm", r.get(tool, "tool.position_mm", True), 3, unit="mm")
+    tool_rot = r.vector("tool.rotation_deg", r.get(tool, "tool.rotation_deg", True), 3, unit="deg")
 
     sample = r.table("sample", required=True)
-    sample_pos = r.vector("sample.position_mm", r.get(sample, "sample.position_mm", True), 3,
-                          unit="mm")
-    sample_rot = r.vector("sample.rotation_deg", r.get(sample, "sample.rotation_deg", True), 3,
-                          unit="deg")
-    tolerances = read_tolerances(r, tool, sample, r.table("water", required=True),
-                                 r.table("robot", required=True))
+    sample_pos = r.vector(
+        "sample.position_mm", r.get(sample, "sample.position_mm", True), 3, unit="mm"
+    )
+    sample_rot = r.vector(
+        "sample.rotation_deg", r.get(sample, "sample.rotation_deg", True), 3, unit="deg"
+    )
+    tolerances = read_tolerances(
+        r, tool, sample, r.table("water", required=True), r.table("robot", required=True)
+    )
     face = r.get(sample, "sample.face_size_mm")
-    face_mm = (DEFAULT_FACE_MM if face is None else
-               r.number("sample.face_size_mm", face, lo=0.0, lo_open=True, unit="mm"))
+    face_mm = (
+        DEFAULT_FACE_MM
+        if face is None
+        else r.number("sample.face_size_mm", face, lo=0.0, lo_open=True, unit="mm")
+    )
 
     reflector = r.table("reflector")
     points = None
     points_std = CellProfile.__dataclass_fields__["reflector_points_std_mm"].default
     if reflector is not None:
-        points = r.plane_points("reflector.points_mm",
-                                r.get(reflector, "reflector.points_mm", True))
+        points = r.plane_points(
+            "reflector.points_mm", r.get(reflector, "reflector.points_mm", True)
+        )
         v = r.get(reflector, "reflector.points_std_mm")
         if v is not None:
             points_std = r.number("reflector.points_std_mm", v, lo=0.0, hi=100.0, unit="mm")
@@ -174,20 +200,35 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
 
-    return CellProfile(model=model, tool_position_mm=tool_pos, tool_rotation_deg=tool_rot,
-                       sample_position_mm=sample_pos, sample_rotation_deg=sample_rot,
-                       sample_face_size_mm=face_mm, reflector_points_mm=points,
-                       reflector_points_std_mm=points_std, joint_offsets_std_deg=offsets_std,
-                       water_temperature_c=water_c, frequency_mhz=freq,
-                       element_diameter_mm=diam, joint_offsets_deg=offsets,
-                       unobservable_joints=unobservable, procedure=procedure,
-                       controller=controller, path=Path(path),
-                       **tolerances)
+    return CellProfile(
+        model=model,
+        tool_position_mm=tool_pos,
+        tool_rotation_deg=tool_rot,
+        sample_position_mm=sample_pos,
+        sample_rotation_deg=sample_rot,
+        sample_face_size_mm=face_mm,
+        reflector_points_mm=points,
+        reflector_points_std_mm=points_std,
+        joint_offsets_std_deg=offsets_std,
+        water_temperature_c=water_c,
+        frequency_mhz=freq,
+        element_diameter_mm=diam,
+        joint_offsets_deg=offsets,
+        unobservable_joints=unobservable,
+        procedure=procedure,
+        controller=controller,
+        path=Path(path),
+        **tolerances,
+    )
 
 
-def read_tolerances(r: Reader, tool: Mapping[str, Any] | None,
-                    sample: Mapping[str, Any] | None, water: Mapping[str, Any] | None,
-                    robot: Mapping[str, Any] | None) -> dict[str, Any]:
+def read_tolerances(
+    r: Reader,
+    tool: Mapping[str, Any] | None,
+    sample: Mapping[str, Any] | None,
+    water: Mapping[str, Any] | None,
+    robot: Mapping[str, Any] | None,
+) -> dict[str, Any]:
     """One-sigma tolerances: ``[tool]`` / ``[sample]`` ``position_std_mm`` and
     ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[water] temperature_std_c``
     (0–20 °C) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
@@ -195,10 +236,11 @@ def read_tolerances(r: Reader, tool: Mapping[str, Any] | None,
     fields = CellProfile.__dataclass_fields__
     out: dict[str, Any] = {}
     for table, tname, key, attr, hi, unit in (
-            (tool, "tool", "position_std_mm", "tool_position_std_mm", 100.0, "mm"),
-            (tool, "tool", "rotation_std_deg", "tool_rotation_std_deg", 10.0, "deg"),
-            (sample, "sample", "position_std_mm", "sample_position_std_mm", 100.0, "mm"),
-            (sample, "sample", "rotation_std_deg", "sample_rotation_std_deg", 10.0, "deg")):
+        (tool, "tool", "position_std_mm", "tool_position_std_mm", 100.0, "mm"),
+        (tool, "tool", "rotation_std_deg", "tool_rotation_std_deg", 10.0, "deg"),
+        (sample, "sample", "position_std_mm", "sample_position_std_mm", 100.0, "mm"),
+        (sample, "sample", "rotation_std_deg", "sample_rotation_std_deg", 10.0, "deg"),
+    ):
         v = r.get(table, f"{tname}.{key}")
         if v is None:
             out[attr] = fields[attr].default_factory()
@@ -207,17 +249,20 @@ def read_tolerances(r: Reader, tool: Mapping[str, Any] | None,
         else:
             out[attr] = r.vector(f"{tname}.{key}", v, 3, lo=0.0, hi=hi, unit=unit)
     for table, key, attr, hi, unit in (
-            (water, "water.temperature_std_c", "water_temperature_std_c", 20.0, "degC"),
-            (robot, "robot.dh_length_std_mm", "dh_length_std_mm", 10.0, "mm"),
-            (robot, "robot.dh_angle_std_deg", "dh_angle_std_deg", 1.0, "deg")):
+        (water, "water.temperature_std_c", "water_temperature_std_c", 20.0, "degC"),
+        (robot, "robot.dh_length_std_mm", "dh_length_std_mm", 10.0, "mm"),
+        (robot, "robot.dh_angle_std_deg", "dh_angle_std_deg", 1.0, "deg"),
+    ):
         v = r.get(table, key)
-        out[attr] = (fields[attr].default if v is None else
-                     r.number(key, v, lo=0.0, hi=hi, unit=unit))
+        out[attr] = (
+            fields[attr].default if v is None else r.number(key, v, lo=0.0, hi=hi, unit=unit)
+        )
     return out
 
 
-def read_robot(r: Reader, robot: Mapping[str, Any] | None, prefix: str,
-               ranges_from: RobotModel | None = None) -> RobotModel:
+def read_robot(
+    r: Reader, robot: Mapping[str, Any] | None, prefix: str, ranges_from: RobotModel | None = None
+) -> RobotModel:
     """``[robot]``: a shipped ``model`` name, or a full ``dh`` table (then ``model`` is just a
     name), plus joint ranges (deg). Ranges default to ``ranges_from``'s if given (a world
     file keeps the profile's), else to the shipped model's."""
@@ -226,11 +271,16 @@ def read_robot(r: Reader, robot: Mapping[str, Any] | None, prefix: str,
     name = None if name_raw is None else r.string(f"{prefix}.model", name_raw)
     if dh_raw is None:
         if name is None:
-            raise r.error(f"{prefix}.model", "missing key (a shipped model name or a full "
-                                             "dh table is required)")
+            raise r.error(
+                f"{prefix}.model",
+                "missing key (a shipped model name or a full dh table is required)",
+            )
         if name not in KNOWN_MODELS:
-            raise r.error(f"{prefix}.model", f"unknown robot model {name!r} (known: "
-                          f"{', '.join(KNOWN_MODELS)}; or give a full dh table)")
+            raise r.error(
+                f"{prefix}.model",
+                f"unknown robot model {name!r} (known: "
+                f"{', '.join(KNOWN_MODELS)}; or give a full dh table)",
+            )
     shipped = load_model(name) if name in KNOWN_MODELS else None
     base = ranges_from if ranges_from is not None else shipped
     dh = shipped.dh if dh_raw is None else r.dh_table(f"{prefix}.dh", dh_raw)
@@ -248,28 +298,36 @@ def read_robot(r: Reader, robot: Mapping[str, Any] | None, prefix: str,
     return RobotModel(name or "custom", dh, jmin, jmax, meta)
 
 
-def read_water(r: Reader, water: Mapping[str, Any] | None, prefix: str,
-               required: bool) -> float | None:
+def read_water(
+    r: Reader, water: Mapping[str, Any] | None, prefix: str, required: bool
+) -> float | None:
     """``[water] temperature_c`` in 0–60 °C (the range of the sound-speed formula)."""
     v = r.get(water, f"{prefix}.temperature_c", required)
-    return None if v is None else r.number(f"{prefix}.temperature_c", v, lo=0.0, hi=60.0,
-                                           unit="degC")
+    return (
+        None if v is None else r.number(f"{prefix}.temperature_c", v, lo=0.0, hi=60.0, unit="degC")
+    )
 
 
-def read_transducer(r: Reader, table: Mapping[str, Any] | None, prefix: str,
-                    required: bool) -> tuple[float | None, float | None]:
+def read_transducer(
+    r: Reader, table: Mapping[str, Any] | None, prefix: str, required: bool
+) -> tuple[float | None, float | None]:
     """``[transducer] frequency_mhz`` (> 0, <= 500 MHz), ``element_diameter_mm`` (> 0, <= 100)."""
     f = r.get(table, f"{prefix}.frequency_mhz", required)
     d = r.get(table, f"{prefix}.element_diameter_mm", required)
-    freq = None if f is None else r.number(f"{prefix}.frequency_mhz", f, lo=0.0, lo_open=True,
-                                           hi=500.0, unit="MHz")
-    diam = None if d is None else r.number(f"{prefix}.element_diameter_mm", d, lo=0.0,
-                                           lo_open=True, hi=100.0, unit="mm")
+    freq = (
+        None
+        if f is None
+        else r.number(f"{prefix}.frequency_mhz", f, lo=0.0, lo_open=True, hi=500.0, unit="MHz")
+    )
+    diam = (
+        None
+        if d is None
+        else r.number(f"{prefix}.element_diameter_mm", d, lo=0.0, lo_open=True, hi=100.0, unit="mm")
+    )
     return freq, diam
 
 
-def read_procedure(r: Reader, table: Mapping[str, Any] | None,
-                   model: RobotModel) -> Procedure:
+def read_procedure(r: Reader, table: Mapping[str, Any] | None, model: RobotModel) -> Procedure:
     """Optional ``[procedure]`` → :class:`Procedure` (missing keys keep its defaults)."""
     if table is None:
         return Procedure()
@@ -277,8 +335,9 @@ def read_procedure(r: Reader, table: Mapping[str, Any] | None,
     pose = None
     v = r.get(table, "procedure.calibration_pose_deg")
     if v is not None:
-        pose = r.joints_within("procedure.calibration_pose_deg", v, model.joint_min_deg,
-                               model.joint_max_deg)
+        pose = r.joints_within(
+            "procedure.calibration_pose_deg", v, model.joint_min_deg, model.joint_max_deg
+        )
 
     def num(key: str, default: float, **kw: Any) -> float:
         raw = r.get(table, f"procedure.{key}")
@@ -287,16 +346,27 @@ def read_procedure(r: Reader, table: Mapping[str, Any] | None,
     averages = r.get(table, "procedure.tof_averages")
     return Procedure(
         calibration_pose_deg=pose,
-        water_path_mm=num("water_path_mm", d.water_path_mm, lo=0.0, lo_open=True, hi=1000.0,
-                          unit="mm"),
+        water_path_mm=num(
+            "water_path_mm", d.water_path_mm, lo=0.0, lo_open=True, hi=1000.0, unit="mm"
+        ),
         step_deg=num("step_deg", d.step_deg, lo=0.0, lo_open=True, hi=30.0, unit="deg"),
         speed=num("speed", d.speed, lo=0.0, lo_open=True, hi=1.0),
-        singularity_margin_deg=num("singularity_margin_deg", d.singularity_margin_deg, lo=0.0,
-                                   hi=90.0, hi_open=True, unit="deg"),
-        tof_averages=(d.tof_averages if averages is None else
-                      r.integer("procedure.tof_averages", averages, lo=1, hi=65535)),
-        verify_tolerance_mm=num("verify_tolerance_mm", d.verify_tolerance_mm, lo=0.0,
-                                lo_open=True, hi=100.0, unit="mm"),
+        singularity_margin_deg=num(
+            "singularity_margin_deg",
+            d.singularity_margin_deg,
+            lo=0.0,
+            hi=90.0,
+            hi_open=True,
+            unit="deg",
+        ),
+        tof_averages=(
+            d.tof_averages
+            if averages is None
+            else r.integer("procedure.tof_averages", averages, lo=1, hi=65535)
+        ),
+        verify_tolerance_mm=num(
+            "verify_tolerance_mm", d.verify_tolerance_mm, lo=0.0, lo_open=True, hi=100.0, unit="mm"
+        ),
     )
 
 
@@ -308,8 +378,7 @@ def read_controller(r: Reader, table: Mapping[str, Any] | None) -> ControllerTim
     for key, hi in MAX_CONTROLLER_TIMEOUT_S.items():
         raw = r.get(table, f"controller.{key}")
         if raw is not None:
-            values[key] = r.number(f"controller.{key}", raw, lo=0.0, lo_open=True, hi=hi,
-                                   unit="s")
+            values[key] = r.number(f"controller.{key}", raw, lo=0.0, lo_open=True, hi=hi, unit="s")
     return ControllerTimeouts(**values)
 
 
@@ -320,28 +389,47 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
     return {
         "schema": SCHEMA,
         "path": None if profile.path is None else str(profile.path),
-        "robot": {"model": m.name,
-                  "dh": [dict(zip(DH_KEYS, map(float, row), strict=True)) for row in m.dh],
-                  "joint_min_deg": m.joint_min_deg.tolist(),
-                  "joint_max_deg": m.joint_max_deg.tolist()},
-        "tool": {"position_mm": profile.tool_position_mm.tolist(),
-                 "rotation_deg": profile.tool_rotation_deg.tolist()},
-        "sample": {"position_mm": profile.sample_position_mm.tolist(),
-                   "rotation_deg": profile.sample_rotation_deg.tolist(),
-                   "face_size_mm": profile.sample_face_size_mm},
-        "reflector": (None if profile.reflector_points_mm is None else
-                      {"points_mm": np.asarray(profile.reflector_points_mm).tolist()}),
+        "robot": {
+            "model": m.name,
+            "dh": [dict(zip(DH_KEYS, map(float, row), strict=True)) for row in m.dh],
+            "joint_min_deg": m.joint_min_deg.tolist(),
+            "joint_max_deg": m.joint_max_deg.tolist(),
+        },
+        "tool": {
+            "position_mm": profile.tool_position_mm.tolist(),
+            "rotation_deg": profile.tool_rotation_deg.tolist(),
+        },
+        "sample": {
+            "position_mm": profile.sample_position_mm.tolist(),
+            "rotation_deg": profile.sample_rotation_deg.tolist(),
+            "face_size_mm": profile.sample_face_size_mm,
+        },
+        "reflector": (
+            None
+            if profile.reflector_points_mm is None
+            else {"points_mm": np.asarray(profile.reflector_points_mm).tolist()}
+        ),
         "water": {"temperature_c": profile.water_temperature_c},
-        "transducer": {"frequency_mhz": profile.frequency_mhz,
-                       "element_diameter_mm": profile.element_diameter_mm},
-        "calibration": {"joint_offsets_deg": profile.joint_offsets_deg.tolist(),
-                        "unobservable_joints": list(profile.unobservable_joints)},
+        "transducer": {
+            "frequency_mhz": profile.frequency_mhz,
+            "element_diameter_mm": profile.element_diameter_mm,
+        },
+        "calibration": {
+            "joint_offsets_deg": profile.joint_offsets_deg.tolist(),
+            "unobservable_joints": list(profile.unobservable_joints),
+        },
         "procedure": {
-            "calibration_pose_deg": (None if proc.calibration_pose_deg is None else
-                                     np.asarray(proc.calibration_pose_deg).tolist()),
-            "water_path_mm": proc.water_path_mm, "step_deg": proc.step_deg,
-            "speed": proc.speed, "singularity_margin_deg": proc.singularity_margin_deg,
-            "tof_averages": proc.tof_averages},
+            "calibration_pose_deg": (
+                None
+                if proc.calibration_pose_deg is None
+                else np.asarray(proc.calibration_pose_deg).tolist()
+            ),
+            "water_path_mm": proc.water_path_mm,
+            "step_deg": proc.step_deg,
+            "speed": proc.speed,
+            "singularity_margin_deg": proc.singularity_margin_deg,
+            "tof_averages": proc.tof_averages,
+        },
         "controller": asdict(profile.controller),
     }
 
@@ -360,9 +448,12 @@ def _vec(values: Any) -> str:
     return "[" + ", ".join(_num(v) for v in values) + "]"
 
 
-def nominal_layout(model: RobotModel, water_path_mm: float | None = None,
-                   tool_z_mm: float = DEFAULT_TOOL_MM[2],
-                   face_mm: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def nominal_layout(
+    model: RobotModel,
+    water_path_mm: float | None = None,
+    tool_z_mm: float = DEFAULT_TOOL_MM[2],
+    face_mm: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Block corner and reflector points (mm, base frame) consistent with paper 000's pose.
 
     At the calibration pose the flange z axis points straight down from the wrist centre W.
@@ -402,7 +493,9 @@ def default_profile_text(model: str) -> str:
     s = FLANGE_MM + DEFAULT_TOOL_MM[2] + proc.water_path_mm
     rows = "\n".join(
         f"    {{ theta_offset_deg = {_num(t)}, d_mm = {_num(d)}, a_mm = {_num(a)}, "
-        f"alpha_deg = {_num(al)} }}," for t, d, a, al in m.dh)
+        f"alpha_deg = {_num(al)} }},"
+        for t, d, a, al in m.dh
+    )
     pts = "\n".join(f"    {_vec(p)}," for p in points)
     return f"""\
 # ucal cell profile: one robot cell, nominal geometry and calibration results.
@@ -474,7 +567,7 @@ step_deg = {_num(proc.step_deg)}         # joint step between measurements
 speed = {_num(proc.speed)}            # fraction of the controller's maximum speed
 singularity_margin_deg = {_num(proc.singularity_margin_deg)}   # |theta5| stays above this
 tof_averages = {proc.tof_averages}       # pulser averages per distance reading
-verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` fails (exit 1) when a point deviates more (mm)
+verify_tolerance_mm = {_num(proc.verify_tolerance_mm)}   # `verify` exits 1 beyond this (mm)
 
 [controller]
 # How long the controller link may take (s). The VAL3 server sends nothing for 1 s after a
@@ -498,7 +591,8 @@ unobservable_joints = []
 EXAMPLE_MODEL = "tx90l"
 EXAMPLE_HEADER = f"""\
 # Example cell profile: a Staubli TX90L carrying a 25 MHz immersion transducer, water tank
-# with the calibration block and a reflector plate, as written by `ucal profile init {EXAMPLE_MODEL}`.
+# with the calibration block and a reflector plate, as written by
+# `ucal profile init {EXAMPLE_MODEL}`.
 # Copy it (or run `ucal profile init MODEL cell.toml`), then enter the measured block pose and
 # the touched reflector points before calibrating.
 #
@@ -521,8 +615,11 @@ def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
         p = real_path(p)
     if p.exists():
         if not force:
-            raise ProfileError(p, None, "already exists (use --force to replace it; the old "
-                                        "file is kept in the history)")
+            raise ProfileError(
+                p,
+                None,
+                "already exists (use --force to replace it; the old file is kept in the history)",
+            )
         _replace_with_history(p, text.encode("utf-8"), f"init {model} --force")
     else:
         try:
@@ -570,8 +667,9 @@ def _toml_value(value: Any, old: Any) -> Any:
                 arr.append(it)
             else:
                 arr.append(v)
-        if _is_multiline(old) or (old is None and any(isinstance(v, (Mapping, list))
-                                                      for v in value)):
+        if _is_multiline(old) or (
+            old is None and any(isinstance(v, (Mapping, list)) for v in value)
+        ):
             arr.multiline(True)
         return arr
     if isinstance(value, Mapping) and isinstance(old, InlineTable):
@@ -620,8 +718,7 @@ def render_update(text: str, updates: Mapping[str, Mapping[str, Any]]) -> str:
     return tomlkit.dumps(doc)
 
 
-def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]],
-                  reason: str) -> None:
+def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]], reason: str) -> None:
     """Write ``updates`` (e.g. ``{"calibration": {"joint_offsets_deg": offsets}}``) into the
     profile at ``path``, atomically, keeping comments and key order, and record the replaced
     bytes in the history with ``reason`` (e.g. ``"calibrate"``).
@@ -659,8 +756,9 @@ def _stage(path: Path, data: bytes, mode: int | None = None) -> Path:
     try:
         return files.stage(path, data, mode)
     except OSError as e:
-        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
-            from None
+        raise ProfileError(
+            path, None, f"cannot write: {e.strerror or e} (file unchanged)"
+        ) from None
 
 
 def _commit(tmp: Path, path: Path) -> None:
@@ -668,8 +766,9 @@ def _commit(tmp: Path, path: Path) -> None:
     try:
         files.commit(tmp, path)
     except OSError as e:
-        raise ProfileError(path, None, f"cannot write: {e.strerror or e} (file unchanged)") \
-            from None
+        raise ProfileError(
+            path, None, f"cannot write: {e.strerror or e} (file unchanged)"
+        ) from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -734,8 +833,7 @@ def _index_bytes(path: Path, entries: list[HistoryEntry]) -> bytes:
 
 
 def _save_history(path: Path, entries: list[HistoryEntry]) -> None:
-    _atomic_write(history_dir(path) / HISTORY_INDEX, _index_bytes(path, entries),
-                  _index_mode(path))
+    _atomic_write(history_dir(path) / HISTORY_INDEX, _index_bytes(path, entries), _index_mode(path))
 
 
 def _index_mode(path: Path) -> int | None:
@@ -777,8 +875,7 @@ def _write_new(path: Path, data: bytes, mode: int | None) -> None:
     try:
         files.write_new(path, data, mode)
     except OSError as e:
-        raise ProfileError(path, None, f"cannot write history copy: {e.strerror or e}") \
-            from None
+        raise ProfileError(path, None, f"cannot write history copy: {e.strerror or e}") from None
 
 
 def _next_history_id(hdir: Path, entries: list[HistoryEntry]) -> int:
@@ -793,8 +890,9 @@ def _next_history_id(hdir: Path, entries: list[HistoryEntry]) -> int:
     return max(ids, default=0) + 1
 
 
-def _replace_with_history(path: Path, after: bytes, reason: str,
-                          before: bytes | None = None) -> HistoryEntry:
+def _replace_with_history(
+    path: Path, after: bytes, reason: str, before: bytes | None = None
+) -> HistoryEntry:
     """Record ``before`` (default: the current bytes) in the history, then replace ``path``
     with ``after`` atomically; withdraw the entry if the replacement fails."""
     path = real_path(path)
@@ -804,14 +902,21 @@ def _replace_with_history(path: Path, after: bytes, reason: str,
     try:
         hdir.mkdir(exist_ok=True)
     except OSError as e:
-        raise ProfileError(hdir, None, f"cannot create history directory: {e.strerror or e}") \
-            from None
+        raise ProfileError(
+            hdir, None, f"cannot create history directory: {e.strerror or e}"
+        ) from None
     entries = profile_history(path)
     new_id = _next_history_id(hdir, entries)
     copy = hdir / f"{new_id:04d}-before.toml"
     _write_new(copy, before, files.existing_mode(path))
-    entry = HistoryEntry(id=new_id, time=_now(), reason=reason, before=copy.name,
-                         before_sha256=_sha(before), after_sha256=_sha(after))
+    entry = HistoryEntry(
+        id=new_id,
+        time=_now(),
+        reason=reason,
+        before=copy.name,
+        before_sha256=_sha(before),
+        after_sha256=_sha(after),
+    )
     try:
         _replace_both(path, after, entries + [entry], copy)
     except ProfileError:
@@ -858,8 +963,12 @@ def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
     if _sha(previous) != entry.before_sha256:
         raise ProfileError(hdir / entry.before, None, "history copy is corrupt (hash mismatch)")
     if _sha(current) != entry.after_sha256 and not force:
-        raise ProfileError(p, None, f"changed since write {entry.id} ({entry.reason}, "
-                                    f"{entry.time}); use --force to undo anyway")
+        raise ProfileError(
+            p,
+            None,
+            f"changed since write {entry.id} ({entry.reason}, "
+            f"{entry.time}); use --force to undo anyway",
+        )
     after_copy = hdir / f"{entry.id:04d}-after.toml"
     if after_copy.exists():  # left over by an undo whose rename failed
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
@@ -934,23 +1043,33 @@ def profile_lock(path: str | Path, command: str | None = None) -> Iterator[LockH
     import sys
 
     lock = lock_path(path)
-    me = LockHolder(pid=os.getpid(), host=socket.gethostname(),
-                    command=command or " ".join(["ucal", *sys.argv[1:]]), started=_now())
+    me = LockHolder(
+        pid=os.getpid(),
+        host=socket.gethostname(),
+        command=command or " ".join(["ucal", *sys.argv[1:]]),
+        started=_now(),
+    )
     while True:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as e:
-            raise ProfileError(lock.parent, None, f"cannot create the lock file {lock.name} "
-                                                  f"for {real_path(path).name}: "
-                                                  f"{e.strerror or e}") from None
+            raise ProfileError(
+                lock.parent,
+                None,
+                f"cannot create the lock file {lock.name} "
+                f"for {real_path(path).name}: "
+                f"{e.strerror or e}",
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             holder = _read_holder(fd)
             os.close(fd)
             who = holder.describe() if holder else "another process"
-            raise InputError(f"{real_path(path)}: in use by another run ({who}); wait for it "
-                             f"to finish (the lock is {lock})") from None
+            raise InputError(
+                f"{real_path(path)}: in use by another run ({who}); wait for it "
+                f"to finish (the lock is {lock})"
+            ) from None
         try:
             same = os.fstat(fd).st_ino == os.stat(lock).st_ino
         except OSError:
@@ -992,13 +1111,21 @@ def check_writable(path: str | Path, min_free_bytes: int = MIN_FREE_BYTES) -> No
         if not directory.is_dir():
             raise ProfileError(directory, None, f"{what} of {p.name} is not a directory")
         if not os.access(directory, os.W_OK | os.X_OK):
-            raise ProfileError(directory, None, f"{what} is not writable: the results for "
-                                                f"{p.name} could not be written after the run")
+            raise ProfileError(
+                directory,
+                None,
+                f"{what} is not writable: the results for "
+                f"{p.name} could not be written after the run",
+            )
         try:
             free = shutil.disk_usage(directory).free
         except OSError as e:
-            raise ProfileError(directory, None, f"cannot check free space: "
-                                                f"{e.strerror or e}") from None
+            raise ProfileError(
+                directory, None, f"cannot check free space: {e.strerror or e}"
+            ) from None
         if free < need:
-            raise ProfileError(directory, None, f"{what} has {free} bytes free, {need} needed "
-                                                f"to write {p.name} and its history")
+            raise ProfileError(
+                directory,
+                None,
+                f"{what} has {free} bytes free, {need} needed to write {p.name} and its history",
+            )

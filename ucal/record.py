@@ -51,11 +51,11 @@ from ucal.errors import InputError
 log = logging.getLogger(__name__)
 
 RECORD_VERSION = 1
-_DATACLASSES = {c.__name__: c for c in (GateReading, ControllerStatus, JointSample,
-                                        PulserSettings)}
+_DATACLASSES = {c.__name__: c for c in (GateReading, ControllerStatus, JointSample, PulserSettings)}
 #: Device calls that are recorded (anything else is passed through unrecorded: attributes).
-CONTROLLER_CALLS = frozenset({"read_joints", "status", "start_move", "wait_settled",
-                              "move_joints", "joint_samples", "stop"})
+CONTROLLER_CALLS = frozenset(
+    {"read_joints", "status", "start_move", "wait_settled", "move_joints", "joint_samples", "stop"}
+)
 PULSER_CALLS = frozenset({"configure", "settings", "read_gate"})
 
 
@@ -64,6 +64,7 @@ class RecordError(InputError):
 
 
 # -- values ---------------------------------------------------------------------------------------
+
 
 def encode(value: Any) -> Any:
     """A JSON-able, tagged form of ``value`` (see the module docstring)."""
@@ -80,8 +81,10 @@ def encode(value: Any) -> Any:
         name = type(value).__name__
         if name not in _DATACLASSES:
             raise TypeError(f"cannot record a {name}")
-        return {"dc": name, "v": {f.name: encode(getattr(value, f.name))
-                                  for f in dataclasses.fields(value)}}
+        return {
+            "dc": name,
+            "v": {f.name: encode(getattr(value, f.name)) for f in dataclasses.fields(value)},
+        }
     if isinstance(value, (list, tuple)):
         return [encode(v) for v in value]
     raise TypeError(f"cannot record a {type(value).__name__}")
@@ -109,6 +112,7 @@ def sha256_text(text: str) -> str:
 
 # -- recording ------------------------------------------------------------------------------------
 
+
 class Recorder:
     """Append-only JSON-lines writer, flushed line by line (a context manager)."""
 
@@ -124,8 +128,14 @@ class Recorder:
             self._file = open(self.path, "w", encoding="utf-8")  # noqa: SIM115 — closed by close()
         except OSError as e:
             raise InputError(f"{self.path}: cannot write the record: {e.strerror or e}") from None
-        self._write({"record": "ucal", "version": RECORD_VERSION, **header,
-                     "started_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds")})
+        self._write(
+            {
+                "record": "ucal",
+                "version": RECORD_VERSION,
+                **header,
+                "started_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            }
+        )
         return self
 
     def _write(self, obj: dict[str, Any]) -> None:
@@ -135,8 +145,14 @@ class Recorder:
             self._file.write(json.dumps(obj, allow_nan=False) + "\n")
             self._file.flush()
 
-    def call(self, name: str, args: tuple[Any, ...], result: Any = None,
-             error: BaseException | None = None, kwargs: dict[str, Any] | None = None) -> None:
+    def call(
+        self,
+        name: str,
+        args: tuple[Any, ...],
+        result: Any = None,
+        error: BaseException | None = None,
+        kwargs: dict[str, Any] | None = None,
+    ) -> None:
         """Record one device call: its arguments and its result or error."""
         line: dict[str, Any] = {"n": self._n, "call": name, "args": encode(list(args))}
         if kwargs:
@@ -241,6 +257,7 @@ class RecordingPulser(_RecordingProxy):
 
 # -- replay ---------------------------------------------------------------------------------------
 
+
 @dataclasses.dataclass
 class Record:
     """A record file read back: header, calls in order, the end line's result (if any)."""
@@ -279,8 +296,7 @@ def read_record(path: str | Path) -> Record:
         raise RecordError(f"{p}: not a ucal record (no header line)")
     header = objs[0]
     if header.get("version") != RECORD_VERSION:
-        raise RecordError(f"{p}: record version {header.get('version')!r} is not "
-                          f"{RECORD_VERSION}")
+        raise RecordError(f"{p}: record version {header.get('version')!r} is not {RECORD_VERSION}")
     if sha256_text(str(header.get("profile_text", ""))) != header.get("profile_sha256"):
         raise RecordError(f"{p}: the recorded profile does not match its SHA-256")
     calls = [o for o in objs[1:] if "call" in o]
@@ -296,22 +312,28 @@ class Replay:
         self._calls: Iterator[dict[str, Any]] = iter(record.calls)
         self.served = 0
 
-    def next(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
-             ) -> Any:
+    def next(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any] | None = None) -> Any:
         """The recorded result of the next call, which must be ``name`` with these arguments."""
         try:
             line = next(self._calls)
         except StopIteration:
-            raise RecordError(f"{self.record.path}: the recording ends before {name} (call "
-                              f"{self.served + 1}): the run was cut off there") from None
+            raise RecordError(
+                f"{self.record.path}: the recording ends before {name} (call "
+                f"{self.served + 1}): the run was cut off there"
+            ) from None
         self.served += 1
         recorded_kwargs = decode(line.get("kwargs", {}))
-        if (line["call"] != name or not _same(decode(line["args"]), list(args))
-                or sorted(recorded_kwargs) != sorted(kwargs or {})
-                or not all(_same(recorded_kwargs[k], v) for k, v in (kwargs or {}).items())):
-            raise RecordError(f"{self.record.path}: call {self.served} was {line['call']}"
-                              f"{_brief(line['args'])}, the replay asks {name}{_brief(args)}: "
-                              "the recording does not cover this run")
+        if (
+            line["call"] != name
+            or not _same(decode(line["args"]), list(args))
+            or sorted(recorded_kwargs) != sorted(kwargs or {})
+            or not all(_same(recorded_kwargs[k], v) for k, v in (kwargs or {}).items())
+        ):
+            raise RecordError(
+                f"{self.record.path}: call {self.served} was {line['call']}"
+                f"{_brief(line['args'])}, the replay asks {name}{_brief(args)}: "
+                "the recording does not cover this run"
+            )
         if "error" in line:
             raise _replayed_error(line["error"])
         return decode(line["result"])

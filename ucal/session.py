@@ -47,9 +47,9 @@ SIM_GUARD_TIMEOUT_S = 60.0
 @dataclass
 class CellSession:
     rig: Rig
-    truth: WorldTruth | None      # the simulator's hidden truth; None on a real cell
+    truth: WorldTruth | None  # the simulator's hidden truth; None on a real cell
     simulated: bool
-    clock: Clock = HOST_CLOCK     # simulated time on the simulated cell
+    clock: Clock = HOST_CLOCK  # simulated time on the simulated cell
 
     @property
     def elapsed_s(self) -> float:
@@ -74,17 +74,26 @@ def check_status(rig: Rig) -> None:
 
 def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
     """The rig of a cell: the profile's joint ranges and speed, the pulser configured."""
-    rig = Rig(controller, pulser, profile.model.joint_min_deg, profile.model.joint_max_deg,
-              speed=profile.procedure.speed,
-              move_timeout_s=profile.controller.settle_timeout_s)
+    rig = Rig(
+        controller,
+        pulser,
+        profile.model.joint_min_deg,
+        profile.model.joint_max_deg,
+        speed=profile.procedure.speed,
+        move_timeout_s=profile.controller.settle_timeout_s,
+    )
     rig.pulser.configure(rig.settings)
     return rig
 
 
 @contextlib.contextmanager
-def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str | None,
-              pulser_url: str | None, recorder: Recorder | None = None
-              ) -> Iterator[CellSession]:
+def open_cell(
+    profile: CellProfile,
+    sim_world: str | None,
+    controller_url: str | None,
+    pulser_url: str | None,
+    recorder: Recorder | None = None,
+) -> Iterator[CellSession]:
     """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs.
 
     With a ``recorder`` every call the procedure makes to the devices is recorded as it happens
@@ -109,8 +118,9 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
             server = stack.enter_context(SimulatedCellServer(truth, profile, clock=clock))
             stack.callback(clock.close)  # after the drivers have closed, before the server stops
             controller_url, pulser_url = server.urls["controller"], server.urls["pulser"]
-            controller_options.update(reply_timeout_s=SIM_GUARD_TIMEOUT_S,
-                                      connect_timeout_s=SIM_GUARD_TIMEOUT_S)
+            controller_options.update(
+                reply_timeout_s=SIM_GUARD_TIMEOUT_S, connect_timeout_s=SIM_GUARD_TIMEOUT_S
+            )
             pulser_options = {"timeout_s": SIM_GUARD_TIMEOUT_S}
         try:
             controller = open_controller(controller_url, **controller_options)
@@ -126,8 +136,9 @@ def open_cell(profile: CellProfile, sim_world: str | None, controller_url: str |
             stack.enter_context(controller)  # exits first: STOP, then close
         except DriverError as e:
             raise HardwareError(str(e)) from e
-        yield CellSession(make_rig(profile, controller, pulser), truth, sim_world is not None,
-                          clock)
+        yield CellSession(
+            make_rig(profile, controller, pulser), truth, sim_world is not None, clock
+        )
 
 
 @contextlib.contextmanager

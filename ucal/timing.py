@@ -41,7 +41,7 @@ def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_CO
         return TCP_READ_S
     if framing != "rtu":
         raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
-    chars = 8 + 5 + 2 * registers + 2 * 3.5          # request, answer, two frame silences
+    chars = 8 + 5 + 2 * registers + 2 * 3.5  # request, answer, two frame silences
     return chars * RTU_BITS_PER_CHAR / baud + RTU_TURNAROUND_S
 
 
@@ -78,18 +78,25 @@ class DurationEstimate:
 
     def describe(self) -> str:
         """One line for a plan summary."""
-        return (f"Estimated time on a real cell: about {self.moves} moves and {self.reads} "
-                f"pulser reads: {_minutes(self.tcp_s)} over Modbus TCP, {_minutes(self.rtu_s)} "
-                f"over Modbus RTU at 19,200 baud")
+        return (
+            f"Estimated time on a real cell: about {self.moves} moves and {self.reads} "
+            f"pulser reads: {_minutes(self.tcp_s)} over Modbus TCP, {_minutes(self.rtu_s)} "
+            f"over Modbus RTU at 19,200 baud"
+        )
 
 
 def _minutes(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
 
 
-def estimate_run(targets_deg: list[np.ndarray], start_deg: np.ndarray, speed: float,
-                 averages: int = 1, prf_hz: float = 1000.0, baud: int = 19200
-                 ) -> DurationEstimate:
+def estimate_run(
+    targets_deg: list[np.ndarray],
+    start_deg: np.ndarray,
+    speed: float,
+    averages: int = 1,
+    prf_hz: float = 1000.0,
+    baud: int = 19200,
+) -> DurationEstimate:
     """Estimate a run that visits ``targets_deg`` in order and searches the peak at each."""
     motion = 0.0
     here = np.asarray(start_deg, float)
@@ -101,5 +108,6 @@ def estimate_run(targets_deg: list[np.ndarray], start_deg: np.ndarray, speed: fl
     moves = n * (1 + SEARCH_MOVES_PER_FACE)
     reads = n * SEARCH_READS_PER_FACE + FIRST_FACE_READS
     per_read = {f: read_s(f, averages, prf_hz, baud) for f in ("tcp", "rtu")}
-    return DurationEstimate(moves, reads, motion, motion + reads * per_read["tcp"],
-                            motion + reads * per_read["rtu"])
+    return DurationEstimate(
+        moves, reads, motion, motion + reads * per_read["tcp"], motion + reads * per_read["rtu"]
+    )

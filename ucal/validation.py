@@ -84,8 +84,17 @@ class Reader:
 
     # -- scalars -----------------------------------------------------------------------------
 
-    def number(self, key: str, value: Any, *, lo: float | None = None, hi: float | None = None,
-               lo_open: bool = False, hi_open: bool = False, unit: str = "") -> float:
+    def number(
+        self,
+        key: str,
+        value: Any,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+        hi_open: bool = False,
+        unit: str = "",
+    ) -> float:
         """A finite number (int or float, not bool) inside ``[lo, hi]`` (ends open if asked)."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(key, f"must be a finite number, got {describe(value)}")
@@ -99,8 +108,7 @@ class Reader:
             raise self.error(key, f"must be {'<' if hi_open else '<='} {hi:g}{u}, got {x:g}")
         return x
 
-    def integer(self, key: str, value: Any, *, lo: int | None = None,
-                hi: int | None = None) -> int:
+    def integer(self, key: str, value: Any, *, lo: int | None = None, hi: int | None = None) -> int:
         """An integer (not bool, not float) inside ``[lo, hi]``."""
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(key, f"must be an integer, got {describe(value)}")
@@ -129,12 +137,26 @@ class Reader:
             raise self.error(key, f"must have at least {min_len} values, got {len(value)}")
         return list(value)
 
-    def vector(self, key: str, value: Any, n: int, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False, unit: str = "") -> np.ndarray:
+    def vector(
+        self,
+        key: str,
+        value: Any,
+        n: int,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+        unit: str = "",
+    ) -> np.ndarray:
         """An array of ``n`` finite numbers, each inside ``[lo, hi]`` → float array (n,)."""
         items = self.array(key, value, n)
-        return np.array([self.number(f"{key}[{i}]", v, lo=lo, hi=hi, lo_open=lo_open, unit=unit)
-                         for i, v in enumerate(items)], dtype=float)
+        return np.array(
+            [
+                self.number(f"{key}[{i}]", v, lo=lo, hi=hi, lo_open=lo_open, unit=unit)
+                for i, v in enumerate(items)
+            ],
+            dtype=float,
+        )
 
     def direction(self, key: str, value: Any) -> np.ndarray:
         """A non-zero 3-vector → unit vector (3,)."""
@@ -158,14 +180,14 @@ class Reader:
                     out[i, j] = self.number(f"{rkey}.{name}", row[name])
                 extra = sorted(set(row) - set(DH_KEYS))
                 if extra:
-                    raise self.error(f"{rkey}.{extra[0]}",
-                                     f"unknown DH column (known: {', '.join(DH_KEYS)})")
+                    raise self.error(
+                        f"{rkey}.{extra[0]}", f"unknown DH column (known: {', '.join(DH_KEYS)})"
+                    )
             else:
                 out[i] = self.vector(rkey, row, 4)
         return out
 
-    def split_beta(self, key: str, raw: Any, max_deg: float
-                   ) -> tuple[list[Any], np.ndarray]:
+    def split_beta(self, key: str, raw: Any, max_deg: float) -> tuple[list[Any], np.ndarray]:
         """Take the optional Hayati ``beta_deg`` (|β| <= ``max_deg``) out of six DH rows (tables
         with a ``beta_deg`` key, or arrays with a fifth number): the rows without it (for
         ``dh_table``) and the six twists (deg, 0 where absent)."""
@@ -174,35 +196,40 @@ class Reader:
         stripped: list[Any] = []
         for i, row in enumerate(rows):
             if isinstance(row, Mapping) and "beta_deg" in row:
-                beta[i] = self.number(f"{key}[{i}].beta_deg", row["beta_deg"], lo=-max_deg,
-                                      hi=max_deg, unit="deg")
+                beta[i] = self.number(
+                    f"{key}[{i}].beta_deg", row["beta_deg"], lo=-max_deg, hi=max_deg, unit="deg"
+                )
                 row = {k: v for k, v in row.items() if k != "beta_deg"}
             elif isinstance(row, (list, tuple)) and len(row) == 5:
-                beta[i] = self.number(f"{key}[{i}][4]", row[4], lo=-max_deg, hi=max_deg,
-                                      unit="deg")
+                beta[i] = self.number(f"{key}[{i}][4]", row[4], lo=-max_deg, hi=max_deg, unit="deg")
                 row = list(row[:4])
             stripped.append(row)
         return stripped, beta
 
-    def joint_ranges(self, key_min: str, lo: Any, key_max: str, hi: Any) -> tuple[np.ndarray,
-                                                                                  np.ndarray]:
+    def joint_ranges(
+        self, key_min: str, lo: Any, key_max: str, hi: Any
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Joint ranges (deg): 6 minima, 6 maxima, ``min < max`` for every joint."""
         jmin = self.vector(key_min, lo, 6, lo=-720.0, hi=720.0, unit="deg")
         jmax = self.vector(key_max, hi, 6, lo=-720.0, hi=720.0, unit="deg")
         for i in range(6):
             if not jmin[i] < jmax[i]:
-                raise self.error(f"{key_min}[{i}]", f"joint {i + 1}: minimum {jmin[i]:g} deg "
-                                 f"must be below maximum {jmax[i]:g} deg")
+                raise self.error(
+                    f"{key_min}[{i}]",
+                    f"joint {i + 1}: minimum {jmin[i]:g} deg must be below maximum {jmax[i]:g} deg",
+                )
         return jmin, jmax
 
-    def joints_within(self, key: str, value: Any, jmin: np.ndarray,
-                      jmax: np.ndarray) -> np.ndarray:
+    def joints_within(self, key: str, value: Any, jmin: np.ndarray, jmax: np.ndarray) -> np.ndarray:
         """Six joint readings (deg), each inside its joint range."""
         j = self.vector(key, value, 6, unit="deg")
         for i in range(6):
             if not jmin[i] <= j[i] <= jmax[i]:
-                raise self.error(f"{key}[{i}]", f"joint {i + 1} at {j[i]:g} deg is outside its "
-                                 f"range [{jmin[i]:g}, {jmax[i]:g}] deg")
+                raise self.error(
+                    f"{key}[{i}]",
+                    f"joint {i + 1} at {j[i]:g} deg is outside its "
+                    f"range [{jmin[i]:g}, {jmax[i]:g}] deg",
+                )
         return j
 
     def joint_offsets(self, key: str, value: Any) -> np.ndarray:

@@ -121,8 +121,9 @@ def grid_shape(n: int) -> tuple[int, int]:
     return n // rows, rows
 
 
-def verify_region(profile: CellProfile, height_mm: float = VERIFY_HEIGHT_MM
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def verify_region(
+    profile: CellProfile, height_mm: float = VERIFY_HEIGHT_MM
+) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper corner (block X, Y of the TCP, mm) of the area the grid spans.
 
     The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``WALL_PATH_MM`` of
@@ -130,19 +131,20 @@ def verify_region(profile: CellProfile, height_mm: float = VERIFY_HEIGHT_MM
     """
     v, lever = tool_lever(profile)
     r_flange = down_rotation_local() @ profile.tool_matrix[:3, :3].T
-    w_from_tcp = -(r_flange @ v)                 # W − TCP in block coordinates
+    w_from_tcp = -(r_flange @ v)  # W − TCP in block coordinates
     size = profile.sample_face_size_mm
     lo = np.maximum(EDGE_MARGIN_MM, WALL_PATH_MM[0] + lever - w_from_tcp[:2])
     hi = np.minimum(size - EDGE_MARGIN_MM, WALL_PATH_MM[1] + lever - w_from_tcp[:2])
     if np.any(hi <= lo):
-        raise SafetyError(f"no room for verification points on the XY face of the block "
-                          f"({size:g} mm faces, tool lever {lever:.1f} mm, walls "
-                          f"{WALL_PATH_MM[0]:g}–{WALL_PATH_MM[1]:g} mm away)")
+        raise SafetyError(
+            f"no room for verification points on the XY face of the block "
+            f"({size:g} mm faces, tool lever {lever:.1f} mm, walls "
+            f"{WALL_PATH_MM[0]:g}–{WALL_PATH_MM[1]:g} mm away)"
+        )
     return lo, hi
 
 
-def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGHT_MM
-                   ) -> np.ndarray:
+def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGHT_MM) -> np.ndarray:
     """Nominal TCP positions (n, 3) in block coordinates (mm): a grid (``grid_shape``) over
     ``verify_region`` at ``height_mm`` above the XY face, in serpentine order (short moves)."""
     nx, ny = grid_shape(n)
@@ -187,9 +189,11 @@ def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
             before = history_dir(profile_path) / entry.before
             if before.exists():
                 old = load_profile(before)
-                return BeforeProfile(np.asarray(old.joint_offsets_deg, float),
-                                     f"history entry {entry.id} ({entry.time}): the profile "
-                                     "before its last calibration")
+                return BeforeProfile(
+                    np.asarray(old.joint_offsets_deg, float),
+                    f"history entry {entry.id} ({entry.time}): the profile "
+                    "before its last calibration",
+                )
     return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
 
 
@@ -206,10 +210,10 @@ def passed(after_stats: dict[str, list[float]], tolerance_mm: float) -> bool:
 class VerifyTarget:
     """One commanded point of one pass, with the planned face postures."""
 
-    pass_name: str                 # "before" or "after"
-    index: int                     # 0-based point number
-    joints_deg: np.ndarray         # (6,) commanded readings (TCP on the nominal point)
-    face_joints_deg: np.ndarray    # (3, 6) planned normal-incidence postures, by face 0, 1, 2
+    pass_name: str  # "before" or "after"
+    index: int  # 0-based point number
+    joints_deg: np.ndarray  # (6,) commanded readings (TCP on the nominal point)
+    face_joints_deg: np.ndarray  # (3, 6) planned normal-incidence postures, by face 0, 1, 2
 
     @property
     def label(self) -> str:
@@ -220,18 +224,24 @@ class VerifyTarget:
 class VerifyPlan:
     """Nominal points and the commanded postures of both passes."""
 
-    nominal_mm: np.ndarray                     # (n, 3) block coordinates
+    nominal_mm: np.ndarray  # (n, 3) block coordinates
     height_mm: float
-    offsets_deg: dict[str, np.ndarray]         # offsets the IK of each pass used
-    targets: tuple[VerifyTarget, ...]          # all "before" targets, then all "after"
+    offsets_deg: dict[str, np.ndarray]  # offsets the IK of each pass used
+    targets: tuple[VerifyTarget, ...]  # all "before" targets, then all "after"
 
     @property
     def points(self) -> int:
         return len(self.nominal_mm)
 
 
-def _check_face(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
-                offsets: np.ndarray, label: str) -> None:
+def _check_face(
+    profile: CellProfile,
+    geom: CellGeometry,
+    q: np.ndarray,
+    face: int,
+    offsets: np.ndarray,
+    label: str,
+) -> None:
     """The beam meets ``face`` inside its edges at a positive water path, TCP clear of it."""
     frames = fk_frames(geom.model, q, offsets)
     flange = frames[6]
@@ -241,21 +251,28 @@ def _check_face(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: i
     local_tcp = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
     path = float(local_tcp[face])
     if path < MIN_CLEARANCE_MM:
-        raise SafetyError(f"plan {label}/{FACE_NAMES[face]}: the tool centre would be "
-                          f"{path:.1f} mm from face {FACE_NAMES[face]} (minimum "
-                          f"{MIN_CLEARANCE_MM:g} mm)")
+        raise SafetyError(
+            f"plan {label}/{FACE_NAMES[face]}: the tool centre would be "
+            f"{path:.1f} mm from face {FACE_NAMES[face]} (minimum "
+            f"{MIN_CLEARANCE_MM:g} mm)"
+        )
     hit = local_tcp + path * (s_mat[:3, :3].T @ beam)
     size = profile.sample_face_size_mm
     edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != face)
     if edge < EDGE_MARGIN_MM:
-        raise SafetyError(f"plan {label}/{FACE_NAMES[face]}: the beam would meet face "
-                          f"{FACE_NAMES[face]} {edge:.1f} mm from its edge (minimum "
-                          f"{EDGE_MARGIN_MM:g} mm)")
+        raise SafetyError(
+            f"plan {label}/{FACE_NAMES[face]}: the beam would meet face "
+            f"{FACE_NAMES[face]} {edge:.1f} mm from its edge (minimum "
+            f"{EDGE_MARGIN_MM:g} mm)"
+        )
 
 
-def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
-                height_mm: float = VERIFY_HEIGHT_MM,
-                before_offsets_deg: np.ndarray | None = None) -> VerifyPlan:
+def plan_verify(
+    profile: CellProfile,
+    n_points: int = DEFAULT_POINTS,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    before_offsets_deg: np.ndarray | None = None,
+) -> VerifyPlan:
     """Plan and check every posture of both passes before the first motion.
 
     Checks (``SafetyError``, exit 4): IK reaches each point inside the joint ranges; every
@@ -279,17 +296,24 @@ def plan_verify(profile: CellProfile, n_points: int = DEFAULT_POINTS,
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
             try:
-                q = ik(profile.model, target_matrix(profile, p), profile.tool_matrix, off,
-                       near_deg=prev)
+                q = ik(
+                    profile.model,
+                    target_matrix(profile, p),
+                    profile.tool_matrix,
+                    off,
+                    near_deg=prev,
+                )
             except UnreachableError as e:
                 raise SafetyError(f"plan {label}: {e}") from None
             check_joints(profile, q, label)
             w = fk_frames(profile.model, q, off)[4, :3, 3]
             w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
             if np.min(w_local) - reach < MIN_CLEARANCE_MM:
-                raise SafetyError(f"plan {label}: the wrist centre would be "
-                                  f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
-                                  f"mm from it) needs {MIN_CLEARANCE_MM:g} mm more")
+                raise SafetyError(
+                    f"plan {label}: the wrist centre would be "
+                    f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
+                    f"mm from it) needs {MIN_CLEARANCE_MM:g} mm more"
+                )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
                 qf = aim_wrist(geom, q, -geom.normal(k), off)
@@ -317,9 +341,9 @@ def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np
 class WristOrientation:
     """True flange orientation at a fixed arm: ``R(q) = Exp(ω)·R06(q, offsets_deg)``."""
 
-    correction: np.ndarray        # (3, 3) Exp(ω), base frame
-    offsets_deg: np.ndarray       # (6,) model offsets incl. the fitted wrist residuals
-    rms_deg: float                # residual beam misfit (deg)
+    correction: np.ndarray  # (3, 3) Exp(ω), base frame
+    offsets_deg: np.ndarray  # (6,) model offsets incl. the fitted wrist residuals
+    rms_deg: float  # residual beam misfit (deg)
 
     def rotation(self, geom: CellGeometry, joints_deg: np.ndarray) -> np.ndarray:
         """True flange rotation (3, 3) at readings with this arm."""
@@ -327,8 +351,9 @@ class WristOrientation:
         return self.correction @ r06
 
 
-def estimate_orientation(geom: CellGeometry, peak_joints_deg: np.ndarray,
-                         offsets_deg: np.ndarray) -> WristOrientation:
+def estimate_orientation(
+    geom: CellGeometry, peak_joints_deg: np.ndarray, offsets_deg: np.ndarray
+) -> WristOrientation:
     """Fit ω (rad) and the joint-5/6 residuals (deg) to three normal-incidence postures.
 
     ``peak_joints_deg`` (3, 6): the postures at which the true beam is −n_k, k = 0, 1, 2 (same
@@ -351,15 +376,21 @@ def estimate_orientation(geom: CellGeometry, peak_joints_deg: np.ndarray,
         _, _, beams = model(x)
         return np.concatenate([(beams + normals).ravel(), [1e-3 * np.radians(x[4])]])
 
-    sol = least_squares(fun, np.zeros(5), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                        max_nfev=2000)
+    sol = least_squares(
+        fun, np.zeros(5), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000
+    )
     corr, off, beams = model(sol.x)
     rms = float(np.degrees(np.sqrt(np.mean(np.sum((beams + normals) ** 2, axis=1)))))
     return WristOrientation(corr, off, rms)
 
 
-def reached_tcp_local(geom: CellGeometry, w_local_mm: np.ndarray, orientation: WristOrientation,
-                      commanded_deg: np.ndarray, v_flange_mm: np.ndarray) -> np.ndarray:
+def reached_tcp_local(
+    geom: CellGeometry,
+    w_local_mm: np.ndarray,
+    orientation: WristOrientation,
+    commanded_deg: np.ndarray,
+    v_flange_mm: np.ndarray,
+) -> np.ndarray:
     """Reached TCP at the commanded posture in block coordinates (mm): W + R(q_cmd)·v."""
     r = orientation.rotation(geom, commanded_deg)
     return np.asarray(w_local_mm, float) + geom.block_rotation.T @ (r @ v_flange_mm)
@@ -373,8 +404,13 @@ def deviation_stats(deviations_mm: np.ndarray) -> dict[str, list[float]]:
     """
     d = np.asarray(deviations_mm, float).reshape(-1, 3)
     a = np.abs(d)
-    return {"mean": a.mean(0).tolist(), "max": a.max(0).tolist(), "std": a.std(0).tolist(),
-            "signed_mean": d.mean(0).tolist(), "signed_std": d.std(0).tolist()}
+    return {
+        "mean": a.mean(0).tolist(),
+        "max": a.max(0).tolist(),
+        "std": a.std(0).tolist(),
+        "signed_mean": d.mean(0).tolist(),
+        "signed_std": d.std(0).tolist(),
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -387,11 +423,11 @@ class PointResult:
 
     pass_name: str
     index: int
-    nominal_mm: np.ndarray         # (3,) block coordinates
-    commanded_deg: np.ndarray      # (6,)
-    faces: tuple[FaceMeasurement, ...]   # by face 0, 1, 2
-    wrist_centre_mm: np.ndarray    # (3,) block coordinates
-    reached_mm: np.ndarray         # (3,) reached TCP, block coordinates
+    nominal_mm: np.ndarray  # (3,) block coordinates
+    commanded_deg: np.ndarray  # (6,)
+    faces: tuple[FaceMeasurement, ...]  # by face 0, 1, 2
+    wrist_centre_mm: np.ndarray  # (3,) block coordinates
+    reached_mm: np.ndarray  # (3,) reached TCP, block coordinates
     orientation_rms_deg: float
 
     @property
@@ -455,19 +491,25 @@ class _Predictor:
 
     def add(self, m: FaceMeasurement) -> None:
         self.meas.append(m)
-        self.x = np.concatenate(estimate_offsets(self.geom, self.meas, self.prior,
-                                                 self.corner_prior, self.x))
+        self.x = np.concatenate(
+            estimate_offsets(self.geom, self.meas, self.prior, self.corner_prior, self.x)
+        )
 
 
-def _tilt_deg(tilt_map: np.ndarray, joints: tuple[int, int], q: np.ndarray,
-              ref: np.ndarray) -> float:
+def _tilt_deg(
+    tilt_map: np.ndarray, joints: tuple[int, int], q: np.ndarray, ref: np.ndarray
+) -> float:
     """Beam tilt (deg) between two postures differing in the search joints (map: deg → rad)."""
     j = list(joints)
     return float(np.degrees(np.linalg.norm(tilt_map @ (q[j] - ref[j]))))
 
 
-def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
-               progress: Callable[[PointResult, int, int], None] | None = None) -> VerifyResult:
+def run_verify(
+    profile: CellProfile,
+    plan: VerifyPlan,
+    rig: Rig,
+    progress: Callable[[PointResult, int, int], None] | None = None,
+) -> VerifyResult:
     """Move to every planned point of both passes and measure where the robot really is.
 
     The caller owns the connection, STOP and preflight. Never writes the profile.
@@ -481,8 +523,9 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
     # Noise floor with the beam in open water: the first point's posture with the wrist turned
     # 25° away from the XY face's normal (far outside every lobe that matters).
     first = plan.targets[0]
-    js0, _ = search_joints(geom, first.face_joints_deg[2], plan.offsets_deg["before"],
-                           face_basis(geom, 2))
+    js0, _ = search_joints(
+        geom, first.face_joints_deg[2], plan.offsets_deg["before"], face_basis(geom, 2)
+    )
     away = first.joints_deg.copy()
     away[js0[1]] += 25.0
     acq_gain = acquisition_gain(rig, away)
@@ -505,11 +548,27 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
             # fit (its 3×3 grid spans ±0.14° of tilt, the main lobe ±0.2°); one predicted less
             # well is centred on its main lobe first; the first faces are acquired.
             last = pred_err_deg.get(k, np.inf)
-            mode = ("direct" if last < DIRECT_FIT_TILT_DEG else
-                    "quick" if len(pred.meas) >= 2 else "acquire")
-            res = measure_face(rig, geom, profile, start, k, pred.offsets_deg, ka, acq_gain,
-                               label, f"{target.pass_name}/{target.index}", mode,
-                               16.0 if not pred.meas else 8.0)
+            mode = (
+                "direct"
+                if last < DIRECT_FIT_TILT_DEG
+                else "quick"
+                if len(pred.meas) >= 2
+                else "acquire"
+            )
+            res = measure_face(
+                rig,
+                geom,
+                profile,
+                start,
+                k,
+                pred.offsets_deg,
+                ka,
+                acq_gain,
+                label,
+                f"{target.pass_name}/{target.index}",
+                mode,
+                16.0 if not pred.meas else 8.0,
+            )
             m = res.measurement
             pred_err_deg[k] = res.prediction_error_deg
             faces[k] = m
@@ -517,19 +576,29 @@ def run_verify(profile: CellProfile, plan: VerifyPlan, rig: Rig,
             pred.add(m)
         ordered = tuple(faces[k] for k in range(3))
         w_local = wrist_centre_from_distances(np.array([m.distance_mm for m in ordered]), lever)
-        orient = estimate_orientation(geom, np.array([m.joints_deg for m in ordered]),
-                                      pred.offsets_deg)
+        orient = estimate_orientation(
+            geom, np.array([m.joints_deg for m in ordered]), pred.offsets_deg
+        )
         tcp = reached_tcp_local(geom, w_local, orient, target.joints_deg, v)
-        res = PointResult(target.pass_name, target.index, plan.nominal_mm[target.index],
-                          target.joints_deg, ordered, w_local, tcp, orient.rms_deg)
+        res = PointResult(
+            target.pass_name,
+            target.index,
+            plan.nominal_mm[target.index],
+            target.joints_deg,
+            ordered,
+            w_local,
+            tcp,
+            orient.rms_deg,
+        )
         results.append(res)
         log.info("%s: deviation %s mm", target.label, np.round(res.deviation_mm, 4).tolist())
         if progress:
             progress(res, n_done + 1, total)
     # Leave the robot at the last commanded point (beam down, clear of the block).
     rig.move(plan.targets[-1].joints_deg)
-    return VerifyResult(plan, results, rig.counters.moves, rig.counters.reads,
-                        pred.offsets_deg.copy())
+    return VerifyResult(
+        plan, results, rig.counters.moves, rig.counters.reads, pred.offsets_deg.copy()
+    )
 
 
 def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
@@ -579,20 +648,35 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     ax.plot(nom[:, 0], nom[:, 1], "ks", ms=6, label="nominal point")
     for p in PASSES:
         end = nom[:, :2] + scale * dev[p][:, :2]
-        for a, b in zip(nom[:, :2], end):
-            ax.annotate("", xy=b, xytext=a,
-                        arrowprops={"arrowstyle": "->", "color": colours[p], "lw": 1.4})
-        ax.plot(end[:, 0], end[:, 1], markers[p], color=colours[p], mfc="none",
-                label=f"reached, {p} calibration")
+        for a, b in zip(nom[:, :2], end, strict=True):
+            ax.annotate(
+                "", xy=b, xytext=a, arrowprops={"arrowstyle": "->", "color": colours[p], "lw": 1.4}
+            )
+        ax.plot(
+            end[:, 0],
+            end[:, 1],
+            markers[p],
+            color=colours[p],
+            mfc="none",
+            label=f"reached, {p} calibration",
+        )
     for i, pt in enumerate(nom):
         zb, za = (round(float(dev[p][i, 2]), 2) + 0.0 for p in PASSES)  # no "-0.00"
-        ax.annotate(f"{i + 1}\nZ {zb:+.2f} / {za:+.2f}",
-                    pt[:2], textcoords="offset points", xytext=(6, -22), fontsize=7,
-                    color="0.25")
+        ax.annotate(
+            f"{i + 1}\nZ {zb:+.2f} / {za:+.2f}",
+            pt[:2],
+            textcoords="offset points",
+            xytext=(6, -22),
+            fontsize=7,
+            color="0.25",
+        )
     ax.set_xlabel("block X (mm)")
     ax.set_ylabel("block Y (mm)")
-    ax.set_title(f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)\n"
-                 f"plane {result.plan.height_mm:g} mm above the XY face", fontsize=10)
+    ax.set_title(
+        f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)\n"
+        f"plane {result.plan.height_mm:g} mm above the XY face",
+        fontsize=10,
+    )
     ax.set_aspect("equal", adjustable="datalim")
     ax.margins(0.15)
     ax.grid(True, alpha=0.3)
@@ -600,12 +684,25 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
 
     width = 0.2
     axes = np.arange(3)
-    for j, (p, stat, hatch) in enumerate([("before", "mean", ""), ("before", "max", "//"),
-                                          ("after", "mean", ""), ("after", "max", "//")]):
+    for j, (p, stat, hatch) in enumerate(
+        [
+            ("before", "mean", ""),
+            ("before", "max", "//"),
+            ("after", "mean", ""),
+            ("after", "max", "//"),
+        ]
+    ):
         vals = np.array(result.stats(p)[stat])
-        bars = bx.bar(axes + (j - 1.5) * width, vals, width, color=colours[p], hatch=hatch,
-                      alpha=0.85 if stat == "mean" else 0.5, edgecolor="k",
-                      label=f"{p}: {stat} |Δ|")
+        bars = bx.bar(
+            axes + (j - 1.5) * width,
+            vals,
+            width,
+            color=colours[p],
+            hatch=hatch,
+            alpha=0.85 if stat == "mean" else 0.5,
+            edgecolor="k",
+            label=f"{p}: {stat} |Δ|",
+        )
         bx.bar_label(bars, fmt="%.3f", fontsize=7, rotation=90, padding=2)
     bx.set_xticks(axes, ["ΔX", "ΔY", "ΔZ"])
     bx.set_ylabel("absolute deviation (mm)")

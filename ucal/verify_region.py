@@ -31,12 +31,16 @@ from ucal.cell import CellProfile
 _SPREAD_FACE_DEG = 30.0
 
 
-def plan_region(profile: CellProfile, n: int, seed: int = 0,
-                exclude: tuple[Posture, ...] = ()) -> FullPlan:
+def plan_region(
+    profile: CellProfile, n: int, seed: int = 0, exclude: tuple[Posture, ...] = ()
+) -> FullPlan:
     """``n`` checked postures spread farthest apart (J1-J3 and face) over the candidates,
     starting from a seeded random one, none within 1° of an ``exclude`` posture."""
-    cands = [c for c in candidate_postures(profile)
-             if all(np.max(np.abs(c.joints_deg - e.joints_deg)) > 1.0 for e in exclude)]
+    cands = [
+        c
+        for c in candidate_postures(profile)
+        if all(np.max(np.abs(c.joints_deg - e.joints_deg)) > 1.0 for e in exclude)
+    ]
     key = np.array([np.append(c.joints_deg[:3], _SPREAD_FACE_DEG * c.face) for c in cands])
     rng = np.random.default_rng(seed)
     chosen = [int(rng.integers(len(cands)))]
@@ -46,11 +50,14 @@ def plan_region(profile: CellProfile, n: int, seed: int = 0,
         chosen.append(i)
         dist = np.minimum(dist, np.linalg.norm(key - key[i], axis=1))
     postures = order_postures([cands[i] for i in chosen])
-    postures = [Posture(f"r{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
-                for i, p in enumerate(postures)]
+    postures = [
+        Posture(f"r{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
+        for i, p in enumerate(postures)
+    ]
     j1 = [p.joints_deg[0] for p in postures]
-    return FullPlan(tuple(postures), len(cands), float("nan"), float("nan"),
-                    (float(min(j1)), float(max(j1))))
+    return FullPlan(
+        tuple(postures), len(cands), float("nan"), float("nan"), (float(min(j1)), float(max(j1)))
+    )
 
 
 @dataclass(frozen=True)
@@ -72,16 +79,25 @@ class RegionResult:
         return self.verdict == "ok" and self.max_distance_mm <= self.tolerance_mm
 
     def to_json(self) -> dict:
-        return {"region": {"postures": self.postures, "rms_distance_mm": self.rms_distance_mm,
-                           "max_distance_mm": self.max_distance_mm,
-                           "rms_tilt_deg": self.rms_tilt_deg, "max_tilt_deg": self.max_tilt_deg,
-                           "chi2_reduced": self.chi2_reduced, "verdict": self.verdict,
-                           "worst": self.worst},
-                "tolerance_mm": self.tolerance_mm, "passed": self.passed}
+        return {
+            "region": {
+                "postures": self.postures,
+                "rms_distance_mm": self.rms_distance_mm,
+                "max_distance_mm": self.max_distance_mm,
+                "rms_tilt_deg": self.rms_tilt_deg,
+                "max_tilt_deg": self.max_tilt_deg,
+                "chi2_reduced": self.chi2_reduced,
+                "verdict": self.verdict,
+                "worst": self.worst,
+            },
+            "tolerance_mm": self.tolerance_mm,
+            "passed": self.passed,
+        }
 
 
-def judge_region(profile: CellProfile, meas: list[FaceMeasurement],
-                 tolerance_mm: float) -> RegionResult:
+def judge_region(
+    profile: CellProfile, meas: list[FaceMeasurement], tolerance_mm: float
+) -> RegionResult:
     """Fit only the block pose and the sound speed to ``meas`` with the profile's model held;
     the residuals are the model's (module docstring)."""
     prior = prior_from_profile(profile)
@@ -89,15 +105,28 @@ def judge_region(profile: CellProfile, meas: list[FaceMeasurement],
     # (tool-frame's, and invisible to the kinematics of the TCP) are the cell's
     cell = solve_cell(prior, meas, fixed=OFFSETS + DH + TOOL[:3])
     q = cell.quality
-    dist = np.array([r.distance * m.distance_std_mm for r, m in zip(q.residuals, meas)])
-    tilt = np.array([np.hypot(*r.tilt) * m.tilt_std_deg for r, m in zip(q.residuals, meas)])
-    return RegionResult(len(meas), float(np.sqrt(np.mean(dist ** 2))),
-                        float(np.max(np.abs(dist))), float(np.sqrt(np.mean(tilt ** 2))),
-                        float(np.max(tilt)), q.chi2_reduced, q.verdict, q.worst, tolerance_mm)
+    dist = np.array(
+        [r.distance * m.distance_std_mm for r, m in zip(q.residuals, meas, strict=True)]
+    )
+    tilt = np.array(
+        [np.hypot(*r.tilt) * m.tilt_std_deg for r, m in zip(q.residuals, meas, strict=True)]
+    )
+    return RegionResult(
+        len(meas),
+        float(np.sqrt(np.mean(dist**2))),
+        float(np.max(np.abs(dist))),
+        float(np.sqrt(np.mean(tilt**2))),
+        float(np.max(tilt)),
+        q.chi2_reduced,
+        q.verdict,
+        q.worst,
+        tolerance_mm,
+    )
 
 
-def run_region(profile: CellProfile, plan: FullPlan, rig: Rig, tolerance_mm: float,
-               progress=None) -> RegionResult:
+def run_region(
+    profile: CellProfile, plan: FullPlan, rig: Rig, tolerance_mm: float, progress=None
+) -> RegionResult:
     """Measure the region's postures (as ``calibrate --level full`` does) and judge them."""
     run = run_full(profile, plan, rig, progress)
     return judge_region(profile, run.measurements, tolerance_mm)

@@ -47,15 +47,26 @@ from ucal.validation import Reader, read_toml, unknown_keys
 #: Keys a world file may hold (others are reported by :func:`world_warnings`).
 KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset(),
-    "robot": frozenset({"model", "dh", "joint_min_deg", "joint_max_deg", "joint_offsets_deg",
-                        "initial_joints_deg", "backlash_deg"}),
+    "robot": frozenset(
+        {
+            "model",
+            "dh",
+            "joint_min_deg",
+            "joint_max_deg",
+            "joint_offsets_deg",
+            "initial_joints_deg",
+            "backlash_deg",
+        }
+    ),
     "tool": frozenset({"position_mm", "rotation_deg"}),
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
-    "reflector": frozenset({"point_mm", "normal", "size_mm", "edge_direction",
-                            "edge_radius_mm", "flatness_mm"}),
+    "reflector": frozenset(
+        {"point_mm", "normal", "size_mm", "edge_direction", "edge_radius_mm", "flatness_mm"}
+    ),
     "water": frozenset({"temperature_c", "drift_c_per_min"}),
-    "transducer": frozenset({"frequency_mhz", "element_diameter_mm", "squint_deg",
-                             "squint_azimuth_deg", "near_field"}),
+    "transducer": frozenset(
+        {"frequency_mhz", "element_diameter_mm", "squint_deg", "squint_azimuth_deg", "near_field"}
+    ),
     "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
     "controller": frozenset({"server", "startup_silence_s"}),
@@ -90,8 +101,7 @@ def world_warnings(path: str | Path) -> list[str]:
     return [f"unknown key {k} (ignored)" for k in unknown_keys(data, KNOWN_WORLD_KEYS)]
 
 
-def world_from_data(data: Mapping[str, Any], path: str | Path,
-                    profile: CellProfile) -> WorldTruth:
+def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProfile) -> WorldTruth:
     """Validate parsed world data (tomlkit document or dict) over the profile's nominal world."""
     if hasattr(data, "unwrap"):
         data = data.unwrap()
@@ -107,8 +117,11 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         if "model" in robot or "dh" in robot:
             changes["model"] = read_robot(r, robot, "robot", ranges_from=profile.model)
         elif "joint_min_deg" in robot or "joint_max_deg" in robot:
-            raise r.error("robot.joint_min_deg", "joint ranges need a model or dh table here "
-                                                 "(they are taken from the profile otherwise)")
+            raise r.error(
+                "robot.joint_min_deg",
+                "joint ranges need a model or dh table here "
+                "(they are taken from the profile otherwise)",
+            )
         model = changes.get("model", world.model)
         v = r.get(robot, "robot.joint_offsets_deg")
         if v is not None:
@@ -116,11 +129,13 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         v = r.get(robot, "robot.initial_joints_deg")
         if v is not None:
             changes["initial_joints_deg"] = r.joints_within(
-                "robot.initial_joints_deg", v, model.joint_min_deg, model.joint_max_deg)
+                "robot.initial_joints_deg", v, model.joint_min_deg, model.joint_max_deg
+            )
         v = r.get(robot, "robot.backlash_deg")
         if v is not None:
-            changes["backlash_deg"] = r.vector("robot.backlash_deg", v, 6, lo=0.0,
-                                               hi=MAX_BACKLASH_DEG, unit="deg")
+            changes["backlash_deg"] = r.vector(
+                "robot.backlash_deg", v, 6, lo=0.0, hi=MAX_BACKLASH_DEG, unit="deg"
+            )
 
     tool = r.table("tool")
     _vector(r, tool, "tool", "position_mm", 3, "mm", changes, "tool_position_mm")
@@ -131,8 +146,9 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
     _vector(r, sample, "sample", "rotation_deg", 3, "deg", changes, "sample_rotation_deg")
     v = r.get(sample, "sample.face_size_mm")
     if v is not None:
-        changes["sample_face_size_mm"] = r.number("sample.face_size_mm", v, lo=0.0,
-                                                  lo_open=True, unit="mm")
+        changes["sample_face_size_mm"] = r.number(
+            "sample.face_size_mm", v, lo=0.0, lo_open=True, unit="mm"
+        )
 
     reflector = r.table("reflector")
     if reflector is not None:
@@ -145,8 +161,12 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
     v = r.get(water, "water.drift_c_per_min")
     if v is not None:
         changes["water_drift_c_per_min"] = r.number(
-            "water.drift_c_per_min", v, lo=-MAX_DRIFT_C_PER_MIN, hi=MAX_DRIFT_C_PER_MIN,
-            unit="degC/min")
+            "water.drift_c_per_min",
+            v,
+            lo=-MAX_DRIFT_C_PER_MIN,
+            hi=MAX_DRIFT_C_PER_MIN,
+            unit="degC/min",
+        )
     transducer = r.table("transducer")
     freq, diam = read_transducer(r, transducer, "transducer", required=False)
     if freq is not None:
@@ -155,12 +175,14 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         changes["element_diameter_mm"] = diam
     v = r.get(transducer, "transducer.squint_deg")
     if v is not None:
-        changes["beam_squint_deg"] = r.number("transducer.squint_deg", v, lo=0.0,
-                                              hi=MAX_SQUINT_DEG, unit="deg")
+        changes["beam_squint_deg"] = r.number(
+            "transducer.squint_deg", v, lo=0.0, hi=MAX_SQUINT_DEG, unit="deg"
+        )
     v = r.get(transducer, "transducer.squint_azimuth_deg")
     if v is not None:
-        changes["beam_squint_azimuth_deg"] = r.number("transducer.squint_azimuth_deg", v,
-                                                      lo=-360.0, hi=360.0, unit="deg")
+        changes["beam_squint_azimuth_deg"] = r.number(
+            "transducer.squint_azimuth_deg", v, lo=-360.0, hi=360.0, unit="deg"
+        )
     v = r.get(transducer, "transducer.near_field")
     if v is not None:
         if not isinstance(v, bool):
@@ -176,13 +198,15 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
     if v is not None:
         server = r.string("controller.server", v)
         if server not in SERVERS:
-            raise r.error("controller.server", f"unknown server {server!r} (known: "
-                                               f"{', '.join(SERVERS)})")
+            raise r.error(
+                "controller.server", f"unknown server {server!r} (known: {', '.join(SERVERS)})"
+            )
         changes["controller_server"] = server
     v = r.get(controller, "controller.startup_silence_s")
     if v is not None:
-        changes["controller_silence_s"] = r.number("controller.startup_silence_s", v, lo=0.0,
-                                                   hi=60.0, unit="s")
+        changes["controller_silence_s"] = r.number(
+            "controller.startup_silence_s", v, lo=0.0, hi=60.0, unit="s"
+        )
 
     noise = r.table("noise")
     if noise is not None:
@@ -191,17 +215,18 @@ def world_from_data(data: Mapping[str, Any], path: str | Path,
         amp = r.get(noise, "noise.amplitude")
         seed = r.get(noise, "noise.seed")
         changes["noise"] = Noise(
-            tof_ns=d.tof_ns if tof is None else r.number("noise.tof_ns", tof, lo=0.0,
-                                                         hi=1000.0, unit="ns"),
-            amplitude=d.amplitude if amp is None else r.number("noise.amplitude", amp,
-                                                               lo=0.0, hi=10.0),
-            seed=d.seed if seed is None else r.integer("noise.seed", seed, lo=0,
-                                                       hi=2**63 - 1))
+            tof_ns=d.tof_ns
+            if tof is None
+            else r.number("noise.tof_ns", tof, lo=0.0, hi=1000.0, unit="ns"),
+            amplitude=d.amplitude
+            if amp is None
+            else r.number("noise.amplitude", amp, lo=0.0, hi=10.0),
+            seed=d.seed if seed is None else r.integer("noise.seed", seed, lo=0, hi=2**63 - 1),
+        )
     return world.replace(**changes)
 
 
-def _split_beta(r: Reader, robot: Mapping[str, Any]
-                ) -> tuple[Mapping[str, Any], np.ndarray | None]:
+def _split_beta(r: Reader, robot: Mapping[str, Any]) -> tuple[Mapping[str, Any], np.ndarray | None]:
     """Take the optional Hayati ``beta_deg`` out of ``[robot] dh``: the table without it (for
     the profile's DH reader) and the six twists (deg), or None when there is no ``dh``."""
     raw = robot.get("dh")
@@ -218,16 +243,28 @@ def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
     return PulserTruth(
-        amplitude_bits=d.amplitude_bits if bits is None else r.integer(
-            "pulser.amplitude_bits", bits, lo=0, hi=24),
-        gain_error_db=d.gain_error_db if gain is None else r.number(
-            "pulser.gain_error_db", gain, lo=0.0, hi=6.0, unit="dB"),
-        delay_ns=d.delay_ns if delay is None else r.number(
-            "pulser.delay_ns", delay, lo=-1000.0, hi=10000.0, unit="ns"))
+        amplitude_bits=d.amplitude_bits
+        if bits is None
+        else r.integer("pulser.amplitude_bits", bits, lo=0, hi=24),
+        gain_error_db=d.gain_error_db
+        if gain is None
+        else r.number("pulser.gain_error_db", gain, lo=0.0, hi=6.0, unit="dB"),
+        delay_ns=d.delay_ns
+        if delay is None
+        else r.number("pulser.delay_ns", delay, lo=-1000.0, hi=10000.0, unit="ns"),
+    )
 
 
-def _vector(r: Reader, table: Mapping[str, Any] | None, tname: str, key: str, n: int,
-            unit: str, changes: dict[str, Any], field_name: str) -> None:
+def _vector(
+    r: Reader,
+    table: Mapping[str, Any] | None,
+    tname: str,
+    key: str,
+    n: int,
+    unit: str,
+    changes: dict[str, Any],
+    field_name: str,
+) -> None:
     v = r.get(table, f"{tname}.{key}")
     if v is not None:
         changes[field_name] = r.vector(f"{tname}.{key}", v, n, unit=unit)
@@ -239,31 +276,52 @@ def _reflector(r: Reader, table: Mapping[str, Any], nominal: Reflector | None) -
     required = nominal is None  # no plate in the profile: the world must define one
     point_raw = r.get(table, "reflector.point_mm", required)
     normal_raw = r.get(table, "reflector.normal", required)
-    point = (nominal.point_mm if point_raw is None else
-             r.vector("reflector.point_mm", point_raw, 3, unit="mm"))
-    normal = (nominal.normal if normal_raw is None else
-              r.direction("reflector.normal", normal_raw))
+    point = (
+        nominal.point_mm
+        if point_raw is None
+        else r.vector("reflector.point_mm", point_raw, 3, unit="mm")
+    )
+    normal = nominal.normal if normal_raw is None else r.direction("reflector.normal", normal_raw)
     base = nominal if nominal is not None else Reflector(point_mm=point, normal=normal)
     size_raw = r.get(table, "reflector.size_mm")
-    size = (base.size_mm if size_raw is None else
-            r.vector("reflector.size_mm", size_raw, 2, lo=0.0, lo_open=True, unit="mm"))
+    size = (
+        base.size_mm
+        if size_raw is None
+        else r.vector("reflector.size_mm", size_raw, 2, lo=0.0, lo_open=True, unit="mm")
+    )
     edge_raw = r.get(table, "reflector.edge_direction")
-    edge = base.edge_direction if edge_raw is None else r.direction("reflector.edge_direction",
-                                                                    edge_raw)
+    edge = (
+        base.edge_direction
+        if edge_raw is None
+        else r.direction("reflector.edge_direction", edge_raw)
+    )
     if np.linalg.norm(np.cross(edge, normal)) < 1e-6:
         key = "reflector.edge_direction" if edge_raw is not None else "reflector.normal"
         raise r.error(key, "edge_direction must not be parallel to the normal")
     radius_raw = r.get(table, "reflector.edge_radius_mm")
-    radius = (base.edge_radius_mm if radius_raw is None else
-              r.number("reflector.edge_radius_mm", radius_raw, lo=0.0, hi=MAX_EDGE_RADIUS_MM,
-                       unit="mm"))
+    radius = (
+        base.edge_radius_mm
+        if radius_raw is None
+        else r.number(
+            "reflector.edge_radius_mm", radius_raw, lo=0.0, hi=MAX_EDGE_RADIUS_MM, unit="mm"
+        )
+    )
     if 2.0 * radius >= float(np.min(size)):
-        raise r.error("reflector.edge_radius_mm", "leaves no flat plate: it must be below half "
-                                                  "the plate's size")
+        raise r.error(
+            "reflector.edge_radius_mm",
+            "leaves no flat plate: it must be below half the plate's size",
+        )
     flat_raw = r.get(table, "reflector.flatness_mm")
-    flatness = (base.flatness_mm if flat_raw is None else
-                r.number("reflector.flatness_mm", flat_raw, lo=0.0, hi=MAX_FLATNESS_MM,
-                         unit="mm"))
-    return Reflector(point_mm=np.asarray(point, float), normal=np.asarray(normal, float),
-                     size_mm=np.asarray(size, float), edge_direction=np.asarray(edge, float),
-                     edge_radius_mm=float(radius), flatness_mm=float(flatness))
+    flatness = (
+        base.flatness_mm
+        if flat_raw is None
+        else r.number("reflector.flatness_mm", flat_raw, lo=0.0, hi=MAX_FLATNESS_MM, unit="mm")
+    )
+    return Reflector(
+        point_mm=np.asarray(point, float),
+        normal=np.asarray(normal, float),
+        size_mm=np.asarray(size, float),
+        edge_direction=np.asarray(edge, float),
+        edge_radius_mm=float(radius),
+        flatness_mm=float(flatness),
+    )

@@ -72,15 +72,21 @@ class RobotController(abc.ABC):
         """
 
     @abc.abstractmethod
-    def wait_settled(self, target_deg: np.ndarray, timeout_s: float,
-                     tol_deg: float = 1e-3) -> np.ndarray:
+    def wait_settled(
+        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
+    ) -> np.ndarray:
         """Block until not in motion and the readings are within ``tol_deg`` of the target.
 
         Returns the settled readings; raises ``DeviceTimeout`` after ``timeout_s``.
         """
 
-    def move_joints(self, target_deg: np.ndarray, speed: float = 0.5, timeout_s: float = 60.0,
-                    tol_deg: float = 1e-3) -> np.ndarray:
+    def move_joints(
+        self,
+        target_deg: np.ndarray,
+        speed: float = 0.5,
+        timeout_s: float = 60.0,
+        tol_deg: float = 1e-3,
+    ) -> np.ndarray:
         """Move in joint space and wait until settled; returns the settled readings (deg)."""
         self.start_move(target_deg, speed)
         return self.wait_settled(target_deg, timeout_s, tol_deg)

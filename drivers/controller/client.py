@@ -26,6 +26,7 @@ Units at the interface are degrees and seconds; radians exist only on the wire.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import math
 import socket
@@ -184,20 +185,28 @@ class SimpleMessageController(RobotController):
     (``tcp_connect`` by default; tests pass scripted ones).
     """
 
-    def __init__(self, host: str = "127.0.0.1", motion_port: int = DEFAULT_MOTION_PORT,
-                 state_port: int = DEFAULT_STATE_PORT, *,
-                 connect_timeout_s: float = DEFAULT_TIMEOUTS["connect_timeout_s"],
-                 first_state_timeout_s: float = DEFAULT_TIMEOUTS["first_state_timeout_s"],
-                 state_timeout_s: float = DEFAULT_TIMEOUTS["state_timeout_s"],
-                 reply_timeout_s: float = DEFAULT_TIMEOUTS["reply_timeout_s"],
-                 halt_timeout_s: float = DEFAULT_TIMEOUTS["halt_timeout_s"],
-                 history_size: int = 65536, clock: Clock = HOST_CLOCK,
-                 connect: Callable[[str, int, float], Connection] = tcp_connect):
-        for name, value in (("connect_timeout_s", connect_timeout_s),
-                            ("first_state_timeout_s", first_state_timeout_s),
-                            ("state_timeout_s", state_timeout_s),
-                            ("reply_timeout_s", reply_timeout_s),
-                            ("halt_timeout_s", halt_timeout_s)):
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        motion_port: int = DEFAULT_MOTION_PORT,
+        state_port: int = DEFAULT_STATE_PORT,
+        *,
+        connect_timeout_s: float = DEFAULT_TIMEOUTS["connect_timeout_s"],
+        first_state_timeout_s: float = DEFAULT_TIMEOUTS["first_state_timeout_s"],
+        state_timeout_s: float = DEFAULT_TIMEOUTS["state_timeout_s"],
+        reply_timeout_s: float = DEFAULT_TIMEOUTS["reply_timeout_s"],
+        halt_timeout_s: float = DEFAULT_TIMEOUTS["halt_timeout_s"],
+        history_size: int = 65536,
+        clock: Clock = HOST_CLOCK,
+        connect: Callable[[str, int, float], Connection] = tcp_connect,
+    ):
+        for name, value in (
+            ("connect_timeout_s", connect_timeout_s),
+            ("first_state_timeout_s", first_state_timeout_s),
+            ("state_timeout_s", state_timeout_s),
+            ("reply_timeout_s", reply_timeout_s),
+            ("halt_timeout_s", halt_timeout_s),
+        ):
             if not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value}")
         if history_size < 1:
@@ -234,8 +243,8 @@ class SimpleMessageController(RobotController):
         self._last_frame_t = 0.0
         self._state_error: DriverError | None = None
         self._skipped_types: set[int] = set()
-        self._joint_type = ""                      # the joint message the stream carries
-        self._joint_count = 0                      # joint frames since connecting
+        self._joint_type = ""  # the joint message the stream carries
+        self._joint_count = 0  # joint frames since connecting
         # (joint frames so far, time) at each STATUS: the stream's rate and STATUS cadence
         self._status_marks: collections.deque[tuple[int, float]] = collections.deque(maxlen=64)
         self._samples: collections.deque[JointSample] = collections.deque(maxlen=history_size)
@@ -260,8 +269,11 @@ class SimpleMessageController(RobotController):
     def _ran_out(self, name: str, detail: str, value: float | None = None) -> DeviceTimeout:
         """The error of timeout ``name`` (a key of ``DEFAULT_TIMEOUTS``) running out."""
         value = getattr(self, name) if value is None else value
-        return DeviceTimeout(self.device, self.endpoint,
-                             f"{_TIMEOUT_LABELS[name]} ran out ({name} = {value:g} s): {detail}")
+        return DeviceTimeout(
+            self.device,
+            self.endpoint,
+            f"{_TIMEOUT_LABELS[name]} ran out ({name} = {value:g} s): {detail}",
+        )
 
     # -- connection -------------------------------------------------------------------------
 
@@ -269,12 +281,15 @@ class SimpleMessageController(RobotController):
         try:
             return self._connect(self._address.host, port, self.connect_timeout_s)
         except TimeoutError:
-            raise self._ran_out("connect_timeout_s",
-                                f"no answer connecting to the {what} port {port}") from None
+            raise self._ran_out(
+                "connect_timeout_s", f"no answer connecting to the {what} port {port}"
+            ) from None
         except OSError as e:
-            raise ConnectionLost(self.device, self.endpoint,
-                                 f"cannot connect to the {what} port {port}: "
-                                 f"{e.strerror or e}") from None
+            raise ConnectionLost(
+                self.device,
+                self.endpoint,
+                f"cannot connect to the {what} port {port}: {e.strerror or e}",
+            ) from None
 
     def connect(self) -> None:
         """Open the motion and state connections and start the state reader thread.
@@ -308,8 +323,11 @@ class SimpleMessageController(RobotController):
         self._next_seq = 0
         self._late = []
         self._state_thread = threading.Thread(
-            target=self._state_loop, args=(state, FrameReader(self.device, self.endpoint)),
-            name=f"controller-state {self.endpoint}", daemon=True)
+            target=self._state_loop,
+            args=(state, FrameReader(self.device, self.endpoint)),
+            name=f"controller-state {self.endpoint}",
+            daemon=True,
+        )
         self._state_thread.start()
         log.info("connected to controller at %s", self.endpoint)
 
@@ -318,10 +336,8 @@ class SimpleMessageController(RobotController):
         self._closing.set()
         for sock in (self._motion_sock, self._state_sock):
             if sock is not None:
-                try:
+                with contextlib.suppress(OSError):  # already reset by the peer
                     sock.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass  # already reset by the peer
                 sock.close()
         thread = self._state_thread
         if thread is not None and thread is not threading.current_thread():
@@ -345,13 +361,15 @@ class SimpleMessageController(RobotController):
                 continue
             except OSError as e:
                 if not self._closing.is_set():
-                    self._state_failed(ConnectionLost(
-                        self.device, self.endpoint, f"state connection failed: {e}"))
+                    self._state_failed(
+                        ConnectionLost(self.device, self.endpoint, f"state connection failed: {e}")
+                    )
                 return
             if not data:
                 if not self._closing.is_set():
-                    self._state_failed(ConnectionLost(
-                        self.device, self.endpoint, self._closed_detail()))
+                    self._state_failed(
+                        ConnectionLost(self.device, self.endpoint, self._closed_detail())
+                    )
                 return
             if debug:
                 log.debug("READ: state %s", data.hex())
@@ -366,8 +384,10 @@ class SimpleMessageController(RobotController):
 
     def _closed_detail(self) -> str:
         if self._first_frame_t is None:
-            return ("state connection closed by the controller before it sent anything (a "
-                    "VAL3 server serves one client per port: is another client connected?)")
+            return (
+                "state connection closed by the controller before it sent anything (a "
+                "VAL3 server serves one client per port: is another client connected?)"
+            )
         return "state connection closed by the controller"
 
     def _on_state_messages(self, messages: list[Message], now: float) -> int:
@@ -410,8 +430,13 @@ class SimpleMessageController(RobotController):
             if msg_type in self._skipped_types:
                 return
             self._skipped_types.add(msg_type)
-        log.warning("controller at %s: ignoring %s (type %d) on the %s port", self.endpoint,
-                    type(msg).__name__, msg_type, port)
+        log.warning(
+            "controller at %s: ignoring %s (type %d) on the %s port",
+            self.endpoint,
+            type(msg).__name__,
+            msg_type,
+            port,
+        )
 
     def _state_failed(self, error: DriverError) -> None:
         log.error("%s", error)
@@ -434,10 +459,12 @@ class SimpleMessageController(RobotController):
                     "first_state_timeout_s",
                     f"no state message since connecting to the state port "
                     f"{self._address.state_port} (a VAL3 server streams 1 s after a client "
-                    f"connects: is ros_server running?)")
+                    f"connects: is ros_server running?)",
+                )
         elif now - self._last_frame_t > self.state_timeout_s:
-            raise self._ran_out("state_timeout_s", f"no state message for "
-                                                   f"{now - self._last_frame_t:.2f} s")
+            raise self._ran_out(
+                "state_timeout_s", f"no state message for {now - self._last_frame_t:.2f} s"
+            )
         if self._target is not None:
             self._check_halt_locked(now)
 
@@ -445,12 +472,18 @@ class SimpleMessageController(RobotController):
         """Raise ``DeviceError`` if the controller halted the accepted point (see the class)."""
         target, st = self._target, self._status
         assert target is not None
-        if st is not None and self._status_t > self._accepted_t and (
-                st.e_stopped or st.in_error or st.drives_powered is False):
-            raise DeviceError(self.device, self.endpoint,
-                              f"controller stopped the motion to "
-                              f"{np.round(target, 4).tolist()} deg: it reports "
-                              f"{_describe(st)}")
+        if (
+            st is not None
+            and self._status_t > self._accepted_t
+            and (st.e_stopped or st.in_error or st.drives_powered is False)
+        ):
+            raise DeviceError(
+                self.device,
+                self.endpoint,
+                f"controller stopped the motion to "
+                f"{np.round(target, 4).tolist()} deg: it reports "
+                f"{_describe(st)}",
+            )
         joints = self._joints_deg
         if joints is None or now - self._accepted_t < self.halt_timeout_s:
             return
@@ -458,17 +491,18 @@ class SimpleMessageController(RobotController):
         if distance <= self._target_tol_deg:
             return
         stalled_s = now - self._best_t
-        idle_s = 0.0 if self._idle_since is None else now - max(self._idle_since,
-                                                                 self._accepted_t)
+        idle_s = 0.0 if self._idle_since is None else now - max(self._idle_since, self._accepted_t)
         if stalled_s >= self.halt_timeout_s or idle_s >= self.halt_timeout_s:
             said = "no status yet" if st is None else _describe(st)
-            raise DeviceError(self.device, self.endpoint,
-                              f"controller halted the motion {distance:.4g} deg short of "
-                              f"{np.round(target, 4).tolist()} deg: the joints have not "
-                              f"moved towards it for {stalled_s:.1f} s; it reports {said}")
+            raise DeviceError(
+                self.device,
+                self.endpoint,
+                f"controller halted the motion {distance:.4g} deg short of "
+                f"{np.round(target, 4).tolist()} deg: the joints have not "
+                f"moved towards it for {stalled_s:.1f} s; it reports {said}",
+            )
 
-    def _wait_for(self, predicate, timeout_s: float, what: str,
-                  timeout_name: str | None = None):
+    def _wait_for(self, predicate, timeout_s: float, what: str, timeout_name: str | None = None):
         """Wait until ``predicate()`` (called with ``_cond`` held) returns non-None.
 
         Before the first state message the wait lasts at least until ``first_state_timeout_s``
@@ -490,11 +524,13 @@ class SimpleMessageController(RobotController):
                 if remaining <= 0:
                     if timeout_name is not None:
                         raise self._ran_out(timeout_name, f"no {what}", timeout_s)
-                    raise DeviceTimeout(self.device, self.endpoint,
-                                        f"no {what} within {now - start:.3g} s")
+                    raise DeviceTimeout(
+                        self.device, self.endpoint, f"no {what} within {now - start:.3g} s"
+                    )
                 # Wake in time to notice a silent stream and a halt as well as the deadline.
-                self.clock.wait(self._cond, min(remaining, self.state_timeout_s / 2,
-                                                self.halt_timeout_s / 2))
+                self.clock.wait(
+                    self._cond, min(remaining, self.state_timeout_s / 2, self.halt_timeout_s / 2)
+                )
 
     def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
         """Latest joint readings (deg, (6,)), waiting at most ``timeout_s`` for a first one.
@@ -517,16 +553,18 @@ class SimpleMessageController(RobotController):
         Waits for STATUS messages spanning 0.2 s at least (the released VAL3 server sends one
         every 5th pass at 50 Hz, pull request #36 every 20th at 250 Hz).
         """
+
         def measured() -> dict[str, Any] | None:
             marks = self._status_marks
             if len(marks) < 3 or marks[-1][1] - marks[0][1] < 0.2:
                 return None
             (c0, t0), (c1, _), (c2, t2) = marks[0], marks[-2], marks[-1]
-            return {"joint_message": self._joint_type,
-                    "joint_rate_hz": round((c2 - c0) / (t2 - t0), 1),
-                    "status_every": c2 - c1,
-                    "first_state_s": round((self._first_frame_t or 0.0) - self._connected_t,
-                                           3)}
+            return {
+                "joint_message": self._joint_type,
+                "joint_rate_hz": round((c2 - c0) / (t2 - t0), 1),
+                "status_every": c2 - c1,
+                "first_state_s": round((self._first_frame_t or 0.0) - self._connected_t, 3),
+            }
 
         return self._wait_for(measured, timeout_s, "STATUS messages spanning 0.2 s")
 
@@ -564,8 +602,14 @@ class SimpleMessageController(RobotController):
             why = "the late reply to a request that timed out"
         else:
             why = "no such request outstanding"
-        log.warning("controller at %s: ignoring a reply (sequence %s) while waiting for the "
-                    "reply to point %d: %s", self.endpoint, reply.sequence, seq, why)
+        log.warning(
+            "controller at %s: ignoring a reply (sequence %s) while waiting for the "
+            "reply to point %d: %s",
+            self.endpoint,
+            reply.sequence,
+            seq,
+            why,
+        )
         return False
 
     def _request(self, msg: JointTrajPt, timeout_s: float) -> JointTrajPtReply:
@@ -586,8 +630,11 @@ class SimpleMessageController(RobotController):
                 sock.settimeout(remaining)
                 data = sock.recv(_RECV_SIZE)
                 if not data:
-                    raise self._motion_failed(ConnectionLost(
-                        self.device, self.endpoint, "motion connection closed by the controller"))
+                    raise self._motion_failed(
+                        ConnectionLost(
+                            self.device, self.endpoint, "motion connection closed by the controller"
+                        )
+                    )
                 if log.isEnabledFor(logging.DEBUG):
                     log.debug("READ: motion %s", data.hex())
                 for reply in reader.feed(data):
@@ -596,14 +643,15 @@ class SimpleMessageController(RobotController):
                         return reply
         except TimeoutError:
             self._late = [*self._late, msg.sequence][-16:]
-            raise self._ran_out("reply_timeout_s",
-                                f"no reply to trajectory point {msg.sequence}",
-                                timeout_s) from None
+            raise self._ran_out(
+                "reply_timeout_s", f"no reply to trajectory point {msg.sequence}", timeout_s
+            ) from None
         except ProtocolError as e:
             raise self._motion_failed(e) from None
         except OSError as e:
-            raise self._motion_failed(ConnectionLost(
-                self.device, self.endpoint, f"motion connection failed: {e}")) from None
+            raise self._motion_failed(
+                ConnectionLost(self.device, self.endpoint, f"motion connection failed: {e}")
+            ) from None
 
     def _motion_failed(self, error: DriverError) -> DriverError:
         log.error("%s", error)
@@ -641,23 +689,32 @@ class SimpleMessageController(RobotController):
                 st = self._status
             if st is not None:
                 detail = f"; it reports {_describe(st)}"
-            raise MotionRejected(self.device, self.endpoint,
-                                 f"trajectory point {seq} to {np.round(target, 4).tolist()} deg "
-                                 f"at speed {speed:g} refused (reply code {reply.reply_code})"
-                                 f"{detail}")
+            raise MotionRejected(
+                self.device,
+                self.endpoint,
+                f"trajectory point {seq} to {np.round(target, 4).tolist()} deg "
+                f"at speed {speed:g} refused (reply code {reply.reply_code})"
+                f"{detail}",
+            )
         with self._cond:
             self._accepted_t = accepted_t
             self._target = target.copy()
             self._target_tol_deg = 1e-3
             joints = self._joints_deg
-            self._best_distance = (math.inf if joints is None else
-                                   float(np.max(np.abs(joints - target))))
+            self._best_distance = (
+                math.inf if joints is None else float(np.max(np.abs(joints - target)))
+            )
             self._best_t = accepted_t
-        log.info("controller accepted point %d: %s deg at speed %g", seq,
-                 np.round(target, 4).tolist(), speed)
+        log.info(
+            "controller accepted point %d: %s deg at speed %g",
+            seq,
+            np.round(target, 4).tolist(),
+            speed,
+        )
 
-    def wait_settled(self, target_deg: np.ndarray, timeout_s: float,
-                     tol_deg: float = 1e-3) -> np.ndarray:
+    def wait_settled(
+        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
+    ) -> np.ndarray:
         """Block until STATUS says not in motion and every joint is within ``tol_deg`` of target.
 
         Only STATUS and joint messages received after the last accepted point count. Returns
@@ -685,15 +742,21 @@ class SimpleMessageController(RobotController):
             return None
 
         try:
-            return self._wait_for(settled, timeout_s,
-                                  f"settling within {tol_deg:g} deg of "
-                                  f"{np.round(target, 4).tolist()} deg", "settle_timeout_s")
+            return self._wait_for(
+                settled,
+                timeout_s,
+                f"settling within {tol_deg:g} deg of {np.round(target, 4).tolist()} deg",
+                "settle_timeout_s",
+            )
         except DeviceTimeout:
             with self._cond:
                 last = None if self._joints_deg is None else np.round(self._joints_deg, 4)
             if last is not None:
-                log.error("controller at %s did not settle; last readings %s deg",
-                          self.endpoint, last.tolist())
+                log.error(
+                    "controller at %s did not settle; last readings %s deg",
+                    self.endpoint,
+                    last.tolist(),
+                )
             raise
 
     def stop(self) -> None:
@@ -742,11 +805,14 @@ class SimpleMessageController(RobotController):
 
 def _describe(st: ControllerStatus) -> str:
     """A STATUS in words, for messages."""
+
     def tri(value: bool | None, yes: str, no: str) -> str:
         return "unknown" if value is None else yes if value else no
 
-    return (f"{tri(st.in_motion, 'in motion', 'not in motion')}, drives "
-            f"{tri(st.drives_powered, 'powered', 'off')}, e-stop "
-            f"{tri(st.e_stopped, 'engaged', 'released')}, "
-            f"{tri(st.in_error, f'in error (code {st.error_code})', 'no error')}, motion "
-            f"{tri(st.motion_possible, 'possible', 'not possible')}")
+    return (
+        f"{tri(st.in_motion, 'in motion', 'not in motion')}, drives "
+        f"{tri(st.drives_powered, 'powered', 'off')}, e-stop "
+        f"{tri(st.e_stopped, 'engaged', 'released')}, "
+        f"{tri(st.in_error, f'in error (code {st.error_code})', 'no error')}, motion "
+        f"{tri(st.motion_possible, 'possible', 'not possible')}"
+    )

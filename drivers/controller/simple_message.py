@@ -107,8 +107,9 @@ def _joint_array(values: Iterable[float], name: str) -> tuple[float, ...]:
 
 
 def _frame(msg_type: int, comm_type: int, reply_code: int, body: bytes) -> bytes:
-    return _LENGTH.pack(HEADER_SIZE + len(body)) + _HEADER.pack(msg_type, comm_type,
-                                                                 reply_code) + body
+    return (
+        _LENGTH.pack(HEADER_SIZE + len(body)) + _HEADER.pack(msg_type, comm_type, reply_code) + body
+    )
 
 
 @dataclass(frozen=True)
@@ -238,8 +239,15 @@ class Status:
 
     def pack(self) -> bytes:
         """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(self.drives_powered, self.e_stopped, self.error_code,
-                               self.in_error, self.in_motion, self.mode, self.motion_possible)
+        body = self._BODY.pack(
+            self.drives_powered,
+            self.e_stopped,
+            self.error_code,
+            self.in_error,
+            self.in_motion,
+            self.mode,
+            self.motion_possible,
+        )
         return _frame(self.msg_type, self.comm_type, self.reply_code, body)
 
     @classmethod
@@ -283,16 +291,29 @@ class JointFeedback:
 
     def pack(self) -> bytes:
         """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(self.robot_id, self.valid_fields, self.time_raw,
-                               *self.positions_rad, *self.velocities_rad_s,
-                               *self.accelerations_rad_s2)
+        body = self._BODY.pack(
+            self.robot_id,
+            self.valid_fields,
+            self.time_raw,
+            *self.positions_rad,
+            *self.velocities_rad_s,
+            *self.accelerations_rad_s2,
+        )
         return _frame(self.msg_type, self.comm_type, self.reply_code, body)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> JointFeedback:
         robot_id, valid, t_raw, *reals = cls._BODY.unpack(body)
-        return cls(tuple(reals[0:10]), tuple(reals[10:20]), tuple(reals[20:30]),
-                   robot_id, valid, t_raw, comm_type, reply_code)
+        return cls(
+            tuple(reals[0:10]),
+            tuple(reals[10:20]),
+            tuple(reals[20:30]),
+            robot_id,
+            valid,
+            t_raw,
+            comm_type,
+            reply_code,
+        )
 
 
 @dataclass(frozen=True)
@@ -329,8 +350,9 @@ def _allowed_body_sizes(msg_type: int, comm_type: int) -> tuple[int, ...] | None
     return None
 
 
-def _check_header(length: int, msg_type: int, comm_type: int, reply_code: int,
-                  device: str, endpoint: str) -> None:
+def _check_header(
+    length: int, msg_type: int, comm_type: int, reply_code: int, device: str, endpoint: str
+) -> None:
     """Raise ``ProtocolError`` unless the header describes a well-formed frame.
 
     A type this module does not decode passes with any body size the length allows (the
@@ -339,16 +361,21 @@ def _check_header(length: int, msg_type: int, comm_type: int, reply_code: int,
     """
     sizes = _allowed_body_sizes(msg_type, comm_type)
     if comm_type not in _COMM_TYPES:
-        raise ProtocolError(device, endpoint,
-                            f"invalid comm_type {comm_type} in message type {msg_type}")
+        raise ProtocolError(
+            device, endpoint, f"invalid comm_type {comm_type} in message type {msg_type}"
+        )
     if reply_code not in _REPLY_CODES:
-        raise ProtocolError(device, endpoint,
-                            f"invalid reply_code {reply_code} in message type {msg_type}")
+        raise ProtocolError(
+            device, endpoint, f"invalid reply_code {reply_code} in message type {msg_type}"
+        )
     body_size = length - HEADER_SIZE
     if sizes is not None and body_size not in sizes:
-        raise ProtocolError(device, endpoint,
-                            f"message type {msg_type} (comm_type {comm_type}) with a "
-                            f"{body_size}-byte body; expected {' or '.join(map(str, sizes))}")
+        raise ProtocolError(
+            device,
+            endpoint,
+            f"message type {msg_type} (comm_type {comm_type}) with a "
+            f"{body_size}-byte body; expected {' or '.join(map(str, sizes))}",
+        )
 
 
 def _decode(msg_type: int, comm_type: int, reply_code: int, body: bytes) -> Message:
@@ -365,8 +392,9 @@ def _decode(msg_type: int, comm_type: int, reply_code: int, body: bytes) -> Mess
     return OtherMessage(msg_type, comm_type, reply_code, body)
 
 
-def parse(frame: bytes, device: str = "controller",
-          endpoint: str = "simple message frame") -> Message:
+def parse(
+    frame: bytes, device: str = "controller", endpoint: str = "simple message frame"
+) -> Message:
     """Decode exactly one complete frame (length prefix included).
 
     Raises ``ProtocolError`` for a bad length, an invalid header field, a wrong body size or
@@ -375,9 +403,12 @@ def parse(frame: bytes, device: str = "controller",
     reader = FrameReader(device, endpoint)
     messages = reader.feed(frame)
     if len(messages) != 1 or reader.buffered:
-        raise ProtocolError(device, endpoint,
-                            f"expected exactly one frame in {len(frame)} bytes, found "
-                            f"{len(messages)} and {reader.buffered} bytes left over")
+        raise ProtocolError(
+            device,
+            endpoint,
+            f"expected exactly one frame in {len(frame)} bytes, found "
+            f"{len(messages)} and {reader.buffered} bytes left over",
+        )
     return messages[0]
 
 
@@ -392,8 +423,12 @@ class FrameReader:
     an error the reader stays broken: the stream has no sync marker to resume from.
     """
 
-    def __init__(self, device: str = "controller", endpoint: str = "simple message stream",
-                 max_length: int = MAX_LENGTH):
+    def __init__(
+        self,
+        device: str = "controller",
+        endpoint: str = "simple message stream",
+        max_length: int = MAX_LENGTH,
+    ):
         self.device = device
         self.endpoint = endpoint
         self.max_length = max_length
@@ -415,19 +450,21 @@ class FrameReader:
             while len(self._buf) >= LENGTH_SIZE:
                 (length,) = _LENGTH.unpack_from(self._buf)
                 if length < HEADER_SIZE or length > self.max_length:
-                    raise ProtocolError(self.device, self.endpoint,
-                                        f"length field {length} outside "
-                                        f"[{HEADER_SIZE}, {self.max_length}] "
-                                        f"(bytes {bytes(self._buf[:16]).hex()})")
+                    raise ProtocolError(
+                        self.device,
+                        self.endpoint,
+                        f"length field {length} outside "
+                        f"[{HEADER_SIZE}, {self.max_length}] "
+                        f"(bytes {bytes(self._buf[:16]).hex()})",
+                    )
                 if len(self._buf) < LENGTH_SIZE + HEADER_SIZE:
                     break
                 msg_type, comm_type, reply_code = _HEADER.unpack_from(self._buf, LENGTH_SIZE)
-                _check_header(length, msg_type, comm_type, reply_code, self.device,
-                              self.endpoint)
+                _check_header(length, msg_type, comm_type, reply_code, self.device, self.endpoint)
                 end = LENGTH_SIZE + length
                 if len(self._buf) < end:
                     break
-                body = bytes(self._buf[LENGTH_SIZE + HEADER_SIZE:end])
+                body = bytes(self._buf[LENGTH_SIZE + HEADER_SIZE : end])
                 del self._buf[:end]
                 out.append(_decode(msg_type, comm_type, reply_code, body))
         except ProtocolError as e:
@@ -435,4 +472,3 @@ class FrameReader:
             self._buf.clear()
             raise
         return out
-

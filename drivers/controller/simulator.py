@@ -44,6 +44,7 @@ silence then passes in simulated time.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -72,6 +73,7 @@ from drivers.controller.simple_message import (
     SpecialSeq,
     Status,
 )
+from drivers.errors import ProtocolError
 
 
 @dataclass(frozen=True)
@@ -79,25 +81,24 @@ class ServerVariant:
     """What a Simple Message server on a Staubli controller does that a client can see."""
 
     name: str
-    joint_message: int          # MsgType.JOINT_POSITION or JOINT_FEEDBACK
-    state_rate_hz: float        # state passes per second
-    status_first: int           # first STATUS after this pass (1-based)
-    status_every: int           # then after every this many passes
-    startup_silence_s: float    # nothing on the state port this long after a client connects
-    one_client_per_port: bool   # a second connection to a port is closed at once
-    refuse_when_halted: bool    # FAILURE (else SUCCESS, point dropped) while e-stopped etc.
-    needs_state_stream: bool    # no motion while the state stream is not running
+    joint_message: int  # MsgType.JOINT_POSITION or JOINT_FEEDBACK
+    state_rate_hz: float  # state passes per second
+    status_first: int  # first STATUS after this pass (1-based)
+    status_every: int  # then after every this many passes
+    startup_silence_s: float  # nothing on the state port this long after a client connects
+    one_client_per_port: bool  # a second connection to a port is closed at once
+    refuse_when_halted: bool  # FAILURE (else SUCCESS, point dropped) while e-stopped etc.
+    needs_state_stream: bool  # no motion while the state stream is not running
 
 
 #: The server variants of ``SimulatedController(server=...)`` and ``ucal sim serve --server``.
 SERVERS: dict[str, ServerVariant] = {
-    "simple": ServerVariant("simple", MsgType.JOINT_POSITION, 50.0, 1, 1, 0.0, False, True,
-                            False),
+    "simple": ServerVariant("simple", MsgType.JOINT_POSITION, 50.0, 1, 1, 0.0, False, True, False),
     "val3": ServerVariant("val3", MsgType.JOINT_POSITION, 50.0, 6, 5, 1.0, True, False, True),
-    "val3-feedback": ServerVariant("val3-feedback", MsgType.JOINT_FEEDBACK, 250.0, 21, 20, 1.0,
-                                   True, True, True),
+    "val3-feedback": ServerVariant(
+        "val3-feedback", MsgType.JOINT_FEEDBACK, 250.0, 21, 20, 1.0, True, True, True
+    ),
 }
-from drivers.errors import ProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -200,22 +201,33 @@ class SimulatedController:
 
     device = "controller"
 
-    def __init__(self, joint_min_deg: Sequence[float], joint_max_deg: Sequence[float],
-                 initial_deg: Sequence[float] | None = None, host: str = "127.0.0.1",
-                 motion_port: int = 0, state_port: int = 0,
-                 max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
-                 time_scale: float = 1.0, state_rate_hz: float | None = None,
-                 on_motion: Callable[[dict], None] | None = None,
-                 joint_message: int | None = None, clock: Clock | None = None,
-                 settle_s: float = 0.0, server: str = "simple",
-                 startup_silence_s: float | None = None,
-                 on_point: Callable[[int], None] | None = None):
+    def __init__(
+        self,
+        joint_min_deg: Sequence[float],
+        joint_max_deg: Sequence[float],
+        initial_deg: Sequence[float] | None = None,
+        host: str = "127.0.0.1",
+        motion_port: int = 0,
+        state_port: int = 0,
+        max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
+        time_scale: float = 1.0,
+        state_rate_hz: float | None = None,
+        on_motion: Callable[[dict], None] | None = None,
+        joint_message: int | None = None,
+        clock: Clock | None = None,
+        settle_s: float = 0.0,
+        server: str = "simple",
+        startup_silence_s: float | None = None,
+        on_point: Callable[[int], None] | None = None,
+    ):
         self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
         self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
         self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
-        for name, arr in (("joint_min_deg", self.joint_min_deg),
-                          ("joint_max_deg", self.joint_max_deg),
-                          ("max_speed_deg_s", self.max_speed_deg_s)):
+        for name, arr in (
+            ("joint_min_deg", self.joint_min_deg),
+            ("joint_max_deg", self.joint_max_deg),
+            ("max_speed_deg_s", self.max_speed_deg_s),
+        ):
             if arr.shape != (N_JOINTS,) or not np.all(np.isfinite(arr)):
                 raise ValueError(f"{name} must be {N_JOINTS} finite numbers, got {arr.tolist()}")
         if np.any(self.joint_min_deg >= self.joint_max_deg):
@@ -227,8 +239,10 @@ class SimulatedController:
         else:
             initial = np.asarray(initial_deg, dtype=float)
             if initial.shape != (N_JOINTS,) or not self._in_range(initial):
-                raise ValueError(f"initial_deg {initial.tolist()} is not {N_JOINTS} values "
-                                 "inside the joint ranges")
+                raise ValueError(
+                    f"initial_deg {initial.tolist()} is not {N_JOINTS} values "
+                    "inside the joint ranges"
+                )
         if host not in _LOOPBACK:
             raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")
         if not (time_scale >= 0 and math.isfinite(time_scale)):
@@ -278,8 +292,8 @@ class SimulatedController:
         self._motion_clients: set[socket.socket] = set()
         self._state_clients: list[_StateClient] = []
         self._hold_in_motion: bool | None = None  # set by hold(): the arm is held
-        self._replies: list[bytes] = []           # inject_reply()
-        self._state_garbage = b""                 # inject_state()
+        self._replies: list[bytes] = []  # inject_reply()
+        self._state_garbage = b""  # inject_state()
         self._threads: list[threading.Thread] = []
         self._started = False
 
@@ -360,35 +374,36 @@ class SimulatedController:
         return sock
 
     def _spawn(self, target: Callable, args: tuple, name: str) -> None:
-        thread = threading.Thread(target=target, args=args, daemon=True,
-                                  name=f"sim-controller-{name}")
+        thread = threading.Thread(
+            target=target, args=args, daemon=True, name=f"sim-controller-{name}"
+        )
         with self._lock:
             self._threads.append(thread)
         thread.start()
 
     def _close_all(self, abort: bool) -> None:
         with self._lock:
-            socks = [*self._listeners, *self._motion_clients,
-                     *(c.sock for c in self._state_clients)]
+            socks = [
+                *self._listeners,
+                *self._motion_clients,
+                *(c.sock for c in self._state_clients),
+            ]
             self._listeners.clear()
             self._motion_clients.clear()
             self._state_clients.clear()
         for sock in socks:
             if abort:
                 # SO_LINGER with zero timeout: close() sends RST, as a crashed controller would.
-                try:
+                with contextlib.suppress(OSError):
                     sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-                except OSError:
-                    pass
             else:
-                try:
+                with contextlib.suppress(OSError):  # listener, or peer already gone
                     sock.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass  # listener, or peer already gone
             sock.close()
 
-    def _accept_loop(self, listener: socket.socket,
-                     handler: Callable[[socket.socket, str], None]) -> None:
+    def _accept_loop(
+        self, listener: socket.socket, handler: Callable[[socket.socket, str], None]
+    ) -> None:
         while not self._stop_evt.is_set():
             try:
                 conn, addr = listener.accept()
@@ -413,8 +428,14 @@ class SimulatedController:
         """Whether a move is executing (or settling) at this instant."""
         return self._plan.in_motion(self.clock.now())
 
-    def set_fault(self, *, e_stopped: bool | None = None, drives_powered: bool | None = None,
-                  in_error: bool | None = None, error_code: int | None = None) -> None:
+    def set_fault(
+        self,
+        *,
+        e_stopped: bool | None = None,
+        drives_powered: bool | None = None,
+        in_error: bool | None = None,
+        error_code: int | None = None,
+    ) -> None:
         """Change the reported fault state; an e-stop, power loss or error freezes motion."""
         with self._lock:
             if e_stopped is not None:
@@ -450,27 +471,44 @@ class SimulatedController:
             self._state_garbage += bytes(raw)
 
     def _in_range(self, joints: np.ndarray) -> bool:
-        return bool(np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
-                    and np.all(joints <= self.joint_max_deg + RANGE_EPS_DEG))
+        return bool(
+            np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
+            and np.all(joints <= self.joint_max_deg + RANGE_EPS_DEG)
+        )
 
     def _status(self, now: float) -> Status:
         with self._lock:
-            powered, estop, err, code = (self._drives_powered, self._e_stopped,
-                                         self._in_error, self._error_code)
+            powered, estop, err, code = (
+                self._drives_powered,
+                self._e_stopped,
+                self._in_error,
+                self._error_code,
+            )
             held = self._hold_in_motion
         possible = powered and not estop and not err
         moving = self._plan.in_motion(now) if held is None else held
-        return Status(drives_powered=int(powered), e_stopped=int(estop), error_code=code,
-                      in_error=int(err), in_motion=int(moving),
-                      mode=RobotMode.AUTO, motion_possible=int(possible))
+        return Status(
+            drives_powered=int(powered),
+            e_stopped=int(estop),
+            error_code=code,
+            in_error=int(err),
+            in_motion=int(moving),
+            mode=RobotMode.AUTO,
+            motion_possible=int(possible),
+        )
 
     def _record(self, seg: _Segment, end_deg: np.ndarray, stopped: bool) -> dict:
         wall_start = time.time() - (self.clock.now() - seg.t_start)
-        return {"seq": seg.seq, "t_start": seg.t_start, "t_wall_start": wall_start,
-                "start_deg": [float(v) for v in seg.start_deg],
-                "target_deg": [float(v) for v in seg.target_deg],
-                "end_deg": [float(v) for v in end_deg],
-                "duration_s": seg.t_end - seg.t_start, "stopped": stopped}
+        return {
+            "seq": seg.seq,
+            "t_start": seg.t_start,
+            "t_wall_start": wall_start,
+            "start_deg": [float(v) for v in seg.start_deg],
+            "target_deg": [float(v) for v in seg.target_deg],
+            "end_deg": [float(v) for v in end_deg],
+            "duration_s": seg.t_end - seg.t_start,
+            "stopped": stopped,
+        }
 
     def _notify(self, records: list[dict]) -> None:
         callback = self.on_motion
@@ -490,8 +528,12 @@ class SimulatedController:
             done = [s for s in plan.segments if s.t_end + plan.settle_s <= now]
             if not done:
                 return
-            self._plan = _Plan(done[-1].target_deg.copy(), plan.segments[len(done):],
-                               plan.sign_at(done[-1].t_end), plan.settle_s)
+            self._plan = _Plan(
+                done[-1].target_deg.copy(),
+                plan.segments[len(done) :],
+                plan.sign_at(done[-1].t_end),
+                plan.settle_s,
+            )
         self._notify([self._record(s, s.target_deg, False) for s in done])
 
     def _freeze(self, now: float, why: str) -> None:
@@ -501,15 +543,20 @@ class SimulatedController:
             if not plan.segments:
                 return
             here = plan.at(now)
-            records = [self._record(s, s.target_deg, False)
-                       for s in plan.segments if s.t_end <= now]
+            records = [
+                self._record(s, s.target_deg, False) for s in plan.segments if s.t_end <= now
+            ]
             active = [s for s in plan.segments if s.t_start <= now < s.t_end]
             records += [self._record(s, here, True) for s in active]
             dropped = sum(1 for s in plan.segments if s.t_start > now)
             self._plan = plan.rest(now)
         if active or dropped:
-            log.info("simulated controller stopped motion (%s) at %s deg; %d queued point(s) "
-                     "dropped", why, np.round(here, 4).tolist(), dropped)
+            log.info(
+                "simulated controller stopped motion (%s) at %s deg; %d queued point(s) dropped",
+                why,
+                np.round(here, 4).tolist(),
+                dropped,
+            )
         self._notify(records)
 
     def _enqueue(self, msg: JointTrajPt) -> bool:
@@ -517,12 +564,18 @@ class SimulatedController:
         target = np.degrees(np.asarray(msg.joints_rad[:N_JOINTS], dtype=float))
         velocity = min(float(msg.velocity), 1.0)  # VAL3: limit(velocity * 100, 0, 100) %
         if not (np.all(np.isfinite(target)) and math.isfinite(velocity) and velocity > 0):
-            log.warning("simulated controller refuses point %d: bad target or velocity %r",
-                        msg.sequence, msg.velocity)
+            log.warning(
+                "simulated controller refuses point %d: bad target or velocity %r",
+                msg.sequence,
+                msg.velocity,
+            )
             return False
         if not self._in_range(target):
-            log.warning("simulated controller refuses point %d: %s deg outside the joint ranges",
-                        msg.sequence, np.round(target, 4).tolist())
+            log.warning(
+                "simulated controller refuses point %d: %s deg outside the joint ranges",
+                msg.sequence,
+                np.round(target, 4).tolist(),
+            )
             return False
         target = np.clip(target, self.joint_min_deg, self.joint_max_deg)
         with self._lock:
@@ -535,15 +588,25 @@ class SimulatedController:
         with self._lock:
             if self._e_stopped or not self._drives_powered or self._in_error:
                 refuse = self.variant.refuse_when_halted
-                log.warning("simulated controller %s point %d: e-stopped=%s powered=%s "
-                            "in error=%s", "refuses" if refuse else "drops", msg.sequence,
-                            self._e_stopped, self._drives_powered, self._in_error)
+                log.warning(
+                    "simulated controller %s point %d: e-stopped=%s powered=%s in error=%s",
+                    "refuses" if refuse else "drops",
+                    msg.sequence,
+                    self._e_stopped,
+                    self._drives_powered,
+                    self._in_error,
+                )
                 return not refuse
             if self._hold_in_motion is not None or (
-                    self.variant.needs_state_stream and not self._streaming(now)):
-                log.warning("simulated controller drops point %d: %s", msg.sequence,
-                            "the arm is held" if self._hold_in_motion is not None else
-                            "the state stream is not running")
+                self.variant.needs_state_stream and not self._streaming(now)
+            ):
+                log.warning(
+                    "simulated controller drops point %d: %s",
+                    msg.sequence,
+                    "the arm is held"
+                    if self._hold_in_motion is not None
+                    else "the state stream is not running",
+                )
                 return True
             plan = self._plan
             if plan.segments:
@@ -555,8 +618,12 @@ class SimulatedController:
             seg = _Segment(msg.sequence, t0, t0 + duration * self.time_scale, start.copy(), target)
             self._plan = dataclasses.replace(plan, segments=plan.segments + (seg,))
             self.moves_executed += 1
-        log.debug("simulated controller queued point %d: %s deg in %.3f s", msg.sequence,
-                  np.round(target, 4).tolist(), seg.t_end - seg.t_start)
+        log.debug(
+            "simulated controller queued point %d: %s deg in %.3f s",
+            msg.sequence,
+            np.round(target, 4).tolist(),
+            seg.t_end - seg.t_start,
+        )
         return True
 
     # -- motion port ------------------------------------------------------------------------
@@ -565,8 +632,12 @@ class SimulatedController:
         """Close ``conn`` at once if the variant serves one client per port and one is served."""
         if not (served and self.variant.one_client_per_port):
             return False
-        log.warning("simulated controller: %s client %s not served: another client is "
-                    "connected (one client per port)", port, peer)
+        log.warning(
+            "simulated controller: %s client %s not served: another client is "
+            "connected (one client per port)",
+            port,
+            peer,
+        )
         conn.close()
         return True
 
@@ -621,8 +692,9 @@ class SimulatedController:
         if not isinstance(msg, JointTrajPt):
             # REP-I0006: unsupported service requests get a FAILURE reply, topics are ignored.
             if msg.comm_type == CommType.SERVICE_REQUEST:
-                return dataclasses.replace(msg, comm_type=CommType.SERVICE_REPLY,
-                                           reply_code=ReplyCode.FAILURE).pack()
+                return dataclasses.replace(
+                    msg, comm_type=CommType.SERVICE_REPLY, reply_code=ReplyCode.FAILURE
+                ).pack()
             log.info("simulated controller ignores %s on the motion port", type(msg).__name__)
             return None
         if msg.sequence == SpecialSeq.STOP_TRAJECTORY:
@@ -678,8 +750,9 @@ class SimulatedController:
             # PR #36 encodeJFeedback.pgx: valid time | positions | velocities; the time is
             # VAL3's clock() written as an int32.
             velocity = tuple(np.radians(self._plan.velocity_at(now)))
-            return JointFeedback(rad, velocity, robot_id=0, valid_fields=0x07,
-                                 time_raw=struct.pack("<i", int(now))).pack()
+            return JointFeedback(
+                rad, velocity, robot_id=0, valid_fields=0x07, time_raw=struct.pack("<i", int(now))
+            ).pack()
         return JointPosition(rad).pack()
 
     def _has_state_clients(self) -> bool:

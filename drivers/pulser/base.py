@@ -44,11 +44,20 @@ class PulserSettings:
     low_pass_mhz: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in ("gain_db", "prf_hz", "gate_start_us", "gate_width_us", "pulse_voltage_v",
-                     "damping_ohm", "high_pass_mhz", "low_pass_mhz"):
+        for name in (
+            "gain_db",
+            "prf_hz",
+            "gate_start_us",
+            "gate_width_us",
+            "pulse_voltage_v",
+            "damping_ohm",
+            "high_pass_mhz",
+            "low_pass_mhz",
+        ):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
-                                                                 np.floating)):
+            if isinstance(value, bool) or not isinstance(
+                value, (int, float, np.integer, np.floating)
+            ):
                 raise ValueError(f"{name} must be a number, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value!r}")
@@ -59,13 +68,19 @@ class PulserSettings:
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must not be negative, got {getattr(self, name)!r}")
         averages = self.averages
-        if (isinstance(averages, bool) or not isinstance(averages, (int, float, np.integer,
-                                                                    np.floating))
-                or not math.isfinite(averages) or averages != round(averages) or averages < 1):
+        if (
+            isinstance(averages, bool)
+            or not isinstance(averages, (int, float, np.integer, np.floating))
+            or not math.isfinite(averages)
+            or averages != round(averages)
+            or averages < 1
+        ):
             raise ValueError(f"averages must be an integer >= 1, got {averages!r}")
         if self.low_pass_mhz <= self.high_pass_mhz:
-            raise ValueError(f"low_pass_mhz = {self.low_pass_mhz!r} MHz must be above "
-                             f"high_pass_mhz = {self.high_pass_mhz!r} MHz (empty filter band)")
+            raise ValueError(
+                f"low_pass_mhz = {self.low_pass_mhz!r} MHz must be above "
+                f"high_pass_mhz = {self.high_pass_mhz!r} MHz (empty filter band)"
+            )
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ Fault mapping (every message names the device ``pulser`` and its URL):
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import select
@@ -87,10 +88,8 @@ class _SocketPort(_PyserialSocket):
     def close(self) -> None:
         """Close the TCP stream."""
         if self.is_open and self._socket is not None:
-            try:
+            with contextlib.suppress(OSError):
                 self._socket.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
             self._socket.close()
             self._socket = None
         self.is_open = False

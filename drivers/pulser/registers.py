@@ -164,7 +164,7 @@ class Setting:
         """
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
             # ValueError like every other invalid setting: callers catch one type
-            raise ValueError(f"{self.name} must be a number, got {value!r}")  # noqa: TRY004
+            raise ValueError(f"{self.name} must be a number, got {value!r}")
         v = float(value)
         if not math.isfinite(v):
             raise ValueError(f"{self.name} must be finite, got {value!r}")
@@ -341,8 +341,10 @@ def encode_front_end(settings: PulserSettings) -> list[int]:
     for s in FRONT_END_SETTINGS:
         registers += s.registers(s.to_raw(getattr(settings, s.name)))
     if registers[-1] <= registers[-2]:  # the band after rounding to 0.01 MHz
-        raise ValueError(f"low_pass_mhz = {settings.low_pass_mhz:g} MHz must be above "
-                         f"high_pass_mhz = {settings.high_pass_mhz:g} MHz")
+        raise ValueError(
+            f"low_pass_mhz = {settings.low_pass_mhz:g} MHz must be above "
+            f"high_pass_mhz = {settings.high_pass_mhz:g} MHz"
+        )
     return registers
 
 
@@ -376,8 +378,11 @@ def power_on_holding() -> list[int]:
     """The :data:`HOLDING_COUNT` holding registers of a freshly powered device: the
     :class:`PulserSettings` defaults, :data:`DEFAULT_THRESHOLD` and no command."""
     defaults = PulserSettings()
-    return (encode_settings(defaults) + [THRESHOLD.to_raw(DEFAULT_THRESHOLD), int(Command.NONE)]
-            + encode_front_end(defaults))
+    return (
+        encode_settings(defaults)
+        + [THRESHOLD.to_raw(DEFAULT_THRESHOLD), int(Command.NONE)]
+        + encode_front_end(defaults)
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -479,8 +484,7 @@ class DeviceInfo:
         raw = raw.ljust(MODEL_BYTES, b"\0")
         words = [int.from_bytes(raw[i : i + 2], "big") for i in range(0, MODEL_BYTES, 2)]
         major, minor = self.firmware
-        return [*words, _check_register(major), _check_register(minor),
-                *encode_uint32(self.serial)]
+        return [*words, _check_register(major), _check_register(minor), *encode_uint32(self.serial)]
 
     @classmethod
     def from_registers(cls, registers: Sequence[int]) -> DeviceInfo:

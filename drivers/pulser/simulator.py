@@ -20,6 +20,7 @@ background thread with its own asyncio loop. Faults for tests: :meth:`SimulatedP
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import logging
 import math
@@ -102,7 +103,7 @@ class _PulserContext(ModbusDeviceContext):
 
     async def async_setValues(
         self, func_code: int, address: int, values: list[int] | list[bool]
-    ) -> None | ExcCodes:
+    ) -> ExcCodes | None:
         return self._device._set(func_code, address, values)
 
 
@@ -194,10 +195,8 @@ class SimulatedPulser:
         if thread is None:
             return
         if loop is not None and stopping is not None:
-            try:
+            with contextlib.suppress(RuntimeError):  # loop closed: the thread is ending
                 loop.call_soon_threadsafe(stopping.set)
-            except RuntimeError:  # loop already closed: the thread is ending by itself
-                pass
         thread.join(STOP_TIMEOUT_S)
         if thread.is_alive():
             log.warning("simulated pulser thread did not stop within %g s", STOP_TIMEOUT_S)
@@ -311,7 +310,7 @@ class SimulatedPulser:
                 return ExcCodes.DEVICE_FAILURE
             return self._context.getValues(func_code, address, count)
 
-    def _set(self, func_code: int, address: int, values: list[int] | list[bool]) -> None | ExcCodes:
+    def _set(self, func_code: int, address: int, values: list[int] | list[bool]) -> ExcCodes | None:
         """Serve a write (protocol address, server thread): validate, store, run commands."""
         with self._lock:
             if self._exception is not None:
@@ -432,7 +431,7 @@ class SimulatedPulser:
         self._loop = loop
         try:
             loop.run_until_complete(self._serve())
-        except BaseException as exc:  # noqa: BLE001 — reported to start()
+        except BaseException as exc:
             self._error = exc
         finally:
             self._ready.set()

@@ -13,8 +13,9 @@ Example = tuple[dict[str, str], list[str]]
 
 
 @pytest.fixture
-def help_examples(run_main: Callable[[list[str]], tuple[int, str, str]]
-                  ) -> Callable[[list[str]], list[Example]]:
+def help_examples(
+    run_main: Callable[[list[str]], tuple[int, str, str]],
+) -> Callable[[list[str]], list[Example]]:
     """Read the ``Examples:`` block of ``ucal COMMAND --help``."""
 
     def read(command: list[str]) -> list[Example]:

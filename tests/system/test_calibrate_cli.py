@@ -19,12 +19,27 @@ pytestmark = pytest.mark.system
 
 
 def ucal(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ucal", *args], capture_output=True, text=True, check=False,
-                          timeout=timeout, stdin=subprocess.DEVNULL, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+        **kw,
+    )
 
 
-def make_profile(tmp_path: Path, tool_rotation=(0.0, 0.0, 0.0), prior=None, fixture=True,
-                 robot=None, tool_rotation_std=None, water_std=None, **proc) -> Path:
+def make_profile(
+    tmp_path: Path,
+    tool_rotation=(0.0, 0.0, 0.0),
+    prior=None,
+    fixture=True,
+    robot=None,
+    tool_rotation_std=None,
+    water_std=None,
+    **proc,
+) -> Path:
     """A tx90l profile; ``fixture``: the block declared doweled and levelled (0.01 deg), so
     that joint 1 can be calibrated (a hand-placed block's yaw tolerance hides it);
     ``tool_rotation_std``: how well the tool's orientation is known (deg)."""
@@ -62,20 +77,41 @@ def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
     # tolerance on it is one rotation with joint 6 through the angled beam's azimuth (0.002°
     # leaves joint 6 a std of 0.01°); and the table identified on this robot (a 0.02° wrist
     # twist tolerance hides joint 6 too).
-    profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0), tool_rotation_std=0.0,
-                           robot={"dh_length_std_mm": 0.01, "dh_angle_std_deg": 0.001})
+    profile = make_profile(
+        tmp_path,
+        tool_rotation=(0.0, 12.0, 0.0),
+        tool_rotation_std=0.0,
+        robot={"dh_length_std_mm": 0.01, "dh_angle_std_deg": 0.001},
+    )
     world = make_world(tmp_path, offsets)
     out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
-    assert set(result) >= {"joint_offsets_deg", "std_deg", "unobservable_joints", "method",
-                           "level", "moves", "pulser_reads", "profile", "written",
-                           "sound_speed_m_s", "sound_speed_std_m_s", "fit"}
-    assert set(result["fit"]) == {"chi2_reduced", "dof", "rms_tilt_deg", "rms_distance_mm",
-                                  "worst", "verdict"}
+    assert set(result) >= {
+        "joint_offsets_deg",
+        "std_deg",
+        "unobservable_joints",
+        "method",
+        "level",
+        "moves",
+        "pulser_reads",
+        "profile",
+        "written",
+        "sound_speed_m_s",
+        "sound_speed_std_m_s",
+        "fit",
+    }
+    assert set(result["fit"]) == {
+        "chi2_reduced",
+        "dof",
+        "rms_tilt_deg",
+        "rms_distance_mm",
+        "worst",
+        "verdict",
+    }
     assert result["fit"]["verdict"] == "ok"
     assert result["method"] == "exact" and result["written"] is True
-    assert result["unobservable_joints"] == []          # the angled, known beam sees joint 6
+    assert result["unobservable_joints"] == []  # the angled, known beam sees joint 6
     err = np.abs(np.array(result["joint_offsets_deg"]) - offsets)
     std = np.array(result["std_deg"])
     # The simulated cell is richer than the solver (broadband beam, sampled echoes): the
@@ -84,10 +120,9 @@ def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
     # Joint 6 is seen only through the azimuth of the 12° beam about the flange axis: its
     # std is ten times the others'; the promise is its 3σ.
     assert abs(result["joint_offsets_deg"][5] - offsets[5]) <= min(3 * result["std_deg"][5], 0.01)
-    assert result["moves"] <= 400                       # 12 faces (a second J1 azimuth)
+    assert result["moves"] <= 400  # 12 faces (a second J1 azimuth)
     # stderr is not a terminal: a plain progress line per face, then the solve
-    steps = re.findall(r"^calibrate \[(\d+)/12\] (face|solving)", out.stderr,
-                       re.MULTILINE)
+    steps = re.findall(r"^calibrate \[(\d+)/12\] (face|solving)", out.stderr, re.MULTILINE)
     assert steps == [(str(i), "face") for i in range(12)] + [("12", "solving")]
     written = load_profile(profile)
     np.testing.assert_allclose(written.joint_offsets_deg, result["joint_offsets_deg"], atol=1e-6)
@@ -114,27 +149,46 @@ def test_errors_under_noise_are_within_three_reported_sigmas(tmp_path):
     out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
     assert out.returncode in (0, 1), out.stderr
     result = json.loads(out.stdout)
-    assert result["written"] is False                   # --dry-run writes nothing
+    assert result["written"] is False  # --dry-run writes nothing
     err = np.abs(np.array(result["joint_offsets_deg"]) - offsets)
     std = np.array([np.nan if v is None else v for v in result["std_deg"]])
     reported = np.isfinite(std)
     assert list(np.flatnonzero(~reported) + 1) == result["unobservable_joints"]
-    assert set(result["unobservable_joints"]) <= {1, 6}   # block yaw; tool azimuth about z6
+    assert set(result["unobservable_joints"]) <= {1, 6}  # block yaw; tool azimuth about z6
     assert np.all(err[reported] <= 3 * std[reported]), (err, std)
 
 
 def test_plan_leaving_the_joint_range_is_refused_before_any_motion(tmp_path):
-    pose = [30.53, 31.15, 144.0, 0.0, 39.36, 30.54]   # the joint-3 step would pass 145°
+    pose = [30.53, 31.15, 144.0, 0.0, 39.36, 30.54]  # the joint-3 step would pass 145°
     profile = make_profile(tmp_path, calibration_pose_deg=pose)
     log = tmp_path / "motions.jsonl"
-    server = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
-                               str(profile), "--log", str(log)], stdout=subprocess.PIPE,
-                              text=True)
+    server = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "sim",
+            "serve",
+            "--profile",
+            str(profile),
+            "--log",
+            str(log),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         urls = json.loads(server.stdout.readline())
         before = profile.read_bytes()
-        out = ucal("calibrate", str(profile), "--controller", urls["controller"], "--pulser",
-                   urls["pulser"], "--yes")
+        out = ucal(
+            "calibrate",
+            str(profile),
+            "--controller",
+            urls["controller"],
+            "--pulser",
+            urls["pulser"],
+            "--yes",
+        )
         assert out.returncode == 4, out.stderr
         assert "joint" in out.stderr and "Traceback" not in out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
@@ -181,15 +235,41 @@ def test_ctrl_c_stops_the_robot_and_leaves_the_profile_untouched(tmp_path, monke
 def test_killed_controller_is_a_hardware_fault_and_the_profile_is_kept(tmp_path):
     profile = make_profile(tmp_path)
     log = tmp_path / "motions.jsonl"
-    server = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", "--profile",
-                               str(profile), "--log", str(log)], stdout=subprocess.PIPE,
-                              text=True)
+    server = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "sim",
+            "serve",
+            "--profile",
+            str(profile),
+            "--log",
+            str(log),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     urls = json.loads(server.stdout.readline())
     before = profile.read_bytes()
-    calib = subprocess.Popen([sys.executable, "-m", "ucal", "calibrate", str(profile),
-                              "--controller", urls["controller"], "--pulser", urls["pulser"],
-                              "--yes"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+    calib = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "calibrate",
+            str(profile),
+            "--controller",
+            urls["controller"],
+            "--pulser",
+            urls["pulser"],
+            "--yes",
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -224,31 +304,45 @@ def test_paper_method_reports_its_half_step_bias_in_its_std_and_refuses(tmp_path
     # sound speed as exact, cannot separate joint 3 from it.
     profile = make_profile(tmp_path, water_std=0.1)
     world = make_world(tmp_path, offsets)
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json",
-               "--method", "paper", "--dry-run")
+    out = ucal(
+        "calibrate",
+        str(profile),
+        "--sim",
+        str(world),
+        "--yes",
+        "--json",
+        "--method",
+        "paper",
+        "--dry-run",
+    )
     assert out.returncode == 1, out.stderr
     result = json.loads(out.stdout)
     assert result["method"] == "paper" and result["written"] is False
     assert result["exit_code"] == 1 and "truncation" in result["error"]
     found = np.array(result["joint_offsets_deg"])
     std = np.array([np.inf if v is None else v for v in result["std_deg"]])
-    assert abs(found[0] - 1.0) < 0.03                              # θ1: a direction
+    assert abs(found[0] - 1.0) < 0.03  # θ1: a direction
     # θ2+θ3 biased by half the step (the step goes + or −, whichever keeps the tool clear)
     half = result["joint_steps_deg"]["arm"] / 2
     assert abs(abs(found[1] + found[2] - 2.0) - half) < 0.1 * half
     err = np.abs(found - offsets)
-    assert np.all(err[:5] <= 3 * std[:5]), (err, std)              # and its std says so
+    assert np.all(err[:5] <= 3 * std[:5]), (err, std)  # and its std says so
 
 
 def misfit_cell(tmp_path: Path) -> tuple[Path, Path]:
     """A robot whose upper arm is 0.6 mm longer than a table declared exact to 0.01 mm."""
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
-    profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0),
-                           robot={"dh_length_std_mm": 0.01, "dh_angle_std_deg": 0.001})
+    profile = make_profile(
+        tmp_path,
+        tool_rotation=(0.0, 12.0, 0.0),
+        robot={"dh_length_std_mm": 0.01, "dh_angle_std_deg": 0.001},
+    )
     dh = load_profile(profile).model.dh.copy()
     dh[1, 2] += 0.6
-    rows = ", ".join(f"{{ theta_offset_deg = {r[0]}, d_mm = {r[1]}, a_mm = {r[2]}, "
-                     f"alpha_deg = {r[3]} }}" for r in dh.tolist())
+    rows = ", ".join(
+        f"{{ theta_offset_deg = {r[0]}, d_mm = {r[1]}, a_mm = {r[2]}, alpha_deg = {r[3]} }}"
+        for r in dh.tolist()
+    )
     return profile, make_world(tmp_path, offsets, extra=f"dh = [{rows}]\n")
 
 
@@ -284,15 +378,20 @@ def test_warm_water_and_a_yawed_hand_placed_block(tmp_path):
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0), fixture=False)
     corner = load_profile(profile).sample_position_mm
-    world = make_world(tmp_path, offsets, extra=(
-        f"[sample]\nposition_mm = {corner.tolist()}\nrotation_deg = [0.0, 0.0, 0.3]\n"
-        "[water]\ntemperature_c = 24.0\n"))
+    world = make_world(
+        tmp_path,
+        offsets,
+        extra=(
+            f"[sample]\nposition_mm = {corner.tolist()}\nrotation_deg = [0.0, 0.0, 0.3]\n"
+            "[water]\ntemperature_c = 24.0\n"
+        ),
+    )
     out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
     assert out.returncode in (0, 1), out.stderr
     result = json.loads(out.stdout)
     c = sound_speed_m_s(24.0)
     assert abs(result["sound_speed_m_s"] - c) <= 3 * result["sound_speed_std_m_s"]
-    assert result["sound_speed_std_m_s"] < 1.0             # the 2 °C prior is 6 m/s
+    assert result["sound_speed_std_m_s"] < 1.0  # the 2 °C prior is 6 m/s
     assert 1 in result["unobservable_joints"] and result["std_deg"][0] is None
     assert "yaw" in result["unobservable_reasons"]["1"]
     found = np.array(result["joint_offsets_deg"])
@@ -305,9 +404,13 @@ def test_sigterm_interrupts_like_ctrl_c(tmp_path):
     """A supervisor's SIGTERM stops the run: exit 130, robot told to stop, profile unchanged."""
     profile = make_profile(tmp_path)
     before = profile.read_bytes()
-    proc = subprocess.Popen([sys.executable, "-m", "ucal", "calibrate", str(profile), "--sim",
-                             "--yes"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ucal", "calibrate", str(profile), "--sim", "--yes"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         # Into the run: its plain progress line for the second face (simulated time runs
         # as fast as the machine computes, so a fixed wait could see the run finished).

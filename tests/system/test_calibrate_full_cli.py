@@ -38,10 +38,28 @@ def test_full_level_writes_the_identified_table(tmp_path: Path) -> None:
     world = tmp_path / "world.toml"
     world.write_text(WORLD)
     before = profile.read_bytes()
-    r = subprocess.run([sys.executable, "-m", "ucal", "calibrate", str(profile), "--sim",
-                        str(world), "--level", "full", "--postures", "5", "--yes", "--json"],
-                       capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
-                       check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "calibrate",
+            str(profile),
+            "--sim",
+            str(world),
+            "--level",
+            "full",
+            "--postures",
+            "5",
+            "--yes",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     assert out["level"] == "full" and out["written"] and out["fit"]["verdict"] == "ok"
@@ -59,5 +77,5 @@ def test_full_level_writes_the_identified_table(tmp_path: Path) -> None:
     true = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
     for j, (v, sd) in enumerate(zip(out["joint_offsets_deg"], out["std_deg"], strict=True)):
         assert p.joint_offsets_deg[j] == pytest.approx(v, abs=1e-6)
-        if sd is not None:                           # few postures: some stay unobservable
+        if sd is not None:  # few postures: some stay unobservable
             assert abs(v - true[j]) < 3 * sd

@@ -28,10 +28,11 @@ def cell(request):
     corner = tcp - np.array([200.0, 200.0, 50.0])
     profile = CellProfile(model=model, sample_position_mm=corner)
     world = WorldTruth.nominal(profile)
-    with (SimulatedCellServer(world, profile, time_scale=0.0,
-                              pulser_framing=request.param) as srv,
-          SimpleMessageController.from_url(srv.urls["controller"]) as ctl,
-          ModbusPulser.from_url(srv.urls["pulser"]) as pulser):
+    with (
+        SimulatedCellServer(world, profile, time_scale=0.0, pulser_framing=request.param) as srv,
+        SimpleMessageController.from_url(srv.urls["controller"]) as ctl,
+        ModbusPulser.from_url(srv.urls["pulser"]) as pulser,
+    ):
         pulser.configure(PulserSettings(gain_db=20.0, averages=1))
         yield profile, ctl, pulser
 
@@ -51,8 +52,9 @@ def test_amplitude_at_0_2_degree_tilt_is_about_half(cell):
     geom = CellGeometry(profile.model, profile.tool_matrix, rpy_to_matrix(np.zeros(3)))
     tilted_dir = rpy_to_matrix(np.array([0.2, 0.0, 0.0])) @ np.array([0.0, 0.0, -1.0])
     q = aim_wrist(geom, PAPER_CALIBRATION_POSE_DEG, tilted_dir, np.zeros(6))
-    np.testing.assert_allclose(wrist_centre(profile.model, q),
-                               wrist_centre(profile.model, PAPER_CALIBRATION_POSE_DEG))
+    np.testing.assert_allclose(
+        wrist_centre(profile.model, q), wrist_centre(profile.model, PAPER_CALIBRATION_POSE_DEG)
+    )
     ctl.move_joints(q, timeout_s=10)
     tilted = pulser.read_gate(fresh=True).amplitude
     assert 0.45 < tilted / normal < 0.55

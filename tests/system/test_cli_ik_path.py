@@ -21,8 +21,13 @@ OFFSETS = [0.4, -0.3, 0.2, 0.5, -0.25, 0.1]
 
 def ucal(*args: str) -> subprocess.CompletedProcess[str]:
     """Run ``python -m ucal ARGS`` in a separate process."""
-    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False,
-                          capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
 
 
 @pytest.fixture
@@ -30,9 +35,14 @@ def profile_path(tmp_path: Path) -> Path:
     """A TX90L cell profile with non-zero joint offsets and a tilted tool."""
     path = tmp_path / "cell.toml"
     create_profile(path, "tx90l")
-    write_profile(path, {"calibration": {"joint_offsets_deg": OFFSETS},
-                         "tool": {"position_mm": [2.0, -1.0, 85.0],
-                                  "rotation_deg": [0.0, 5.0, 0.0]}}, reason="test")
+    write_profile(
+        path,
+        {
+            "calibration": {"joint_offsets_deg": OFFSETS},
+            "tool": {"position_mm": [2.0, -1.0, 85.0], "rotation_deg": [0.0, 5.0, 0.0]},
+        },
+        reason="test",
+    )
     return path
 
 
@@ -58,14 +68,14 @@ def test_ik_json_nearest_and_all(profile_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     sols = np.array(json.loads(r.stdout)["solutions"])
     p = load_profile(profile_path)
-    expected = ik(p.model, pose_to_matrix(pose), p.tool_matrix, p.joint_offsets_deg,
-                  all_solutions=True)
+    expected = ik(
+        p.model, pose_to_matrix(pose), p.tool_matrix, p.joint_offsets_deg, all_solutions=True
+    )
     assert 1 < len(sols) <= 8 and sols.shape == expected.shape
     np.testing.assert_allclose(sols, expected, atol=1e-9)
     assert np.all(p.model.within_limits(sols))
     back = matrix_to_pose(fk(p.model, sols, p.tool_matrix, p.joint_offsets_deg))
-    np.testing.assert_allclose(back[:, :3], np.broadcast_to(pose[:3], (len(sols), 3)),
-                               atol=1e-8)
+    np.testing.assert_allclose(back[:, :3], np.broadcast_to(pose[:3], (len(sols), 3)), atol=1e-8)
     # nearest first: weighted distance to the default reference (zeros) never decreases
     cost = np.sum(np.array([6, 5, 4, 3, 2, 1]) * np.abs(sols), -1)
     assert np.all(np.diff(cost) >= 0)
@@ -82,8 +92,10 @@ def test_ik_unreachable_exit_4(profile_path: Path) -> None:
     r = ucal("ik", str(profile_path), "--pose", "5000,0,0,0,0,0", "--json")
     assert r.returncode == 4
     assert "unreachable" in r.stderr and "Traceback" not in r.stderr
-    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
-                                    "exit_code": 4}
+    assert json.loads(r.stdout) == {
+        "error": r.stderr.strip().removeprefix("error: "),
+        "exit_code": 4,
+    }
 
 
 def test_ik_bad_pose_exit_2(profile_path: Path) -> None:
@@ -106,8 +118,7 @@ def test_path_through_wrist_singularity(profile_path: Path, tmp_path: Path) -> N
     q, poses = _singular_path(profile_path)
     src, out = tmp_path / "scan.csv", tmp_path / "joints.csv"
     src.write_text("X,Y,Z,RX,RY,RZ\n" + "\n".join(_csv(p) for p in poses) + "\n")
-    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]),
-             "--json")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]), "--json")
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["points"] == 41
@@ -148,8 +159,7 @@ def test_path_unreachable_exit_4_writes_nothing(profile_path: Path, tmp_path: Pa
 
 CALIBRATED_DH = [
     {"theta_offset_deg": 0.0, "d_mm": 0.0, "a_mm": 50.21, "alpha_deg": -90.03},
-    {"theta_offset_deg": -90.0, "d_mm": 49.83, "a_mm": 500.34, "alpha_deg": 0.02,
-     "beta_deg": 0.04},
+    {"theta_offset_deg": -90.0, "d_mm": 49.83, "a_mm": 500.34, "alpha_deg": 0.02, "beta_deg": 0.04},
     {"theta_offset_deg": 90.0, "d_mm": 0.0, "a_mm": 0.12, "alpha_deg": 90.04},
     {"theta_offset_deg": 0.0, "d_mm": 549.61, "a_mm": 0.0, "alpha_deg": -89.97},
     {"theta_offset_deg": 0.0, "d_mm": 0.0, "a_mm": 0.0, "alpha_deg": 90.02},
@@ -157,8 +167,9 @@ CALIBRATED_DH = [
 ]
 
 
-def test_ik_and_path_on_a_calibrated_table_agree_with_fk(profile_path: Path,
-                                                         tmp_path: Path) -> None:
+def test_ik_and_path_on_a_calibrated_table_agree_with_fk(
+    profile_path: Path, tmp_path: Path
+) -> None:
     """``[calibration] dh`` (twists off ±90°, Hayati β₂) replaces the table; the closed form
     seeds, the refinement lands every branch on the calibrated model's pose to 1e-6 mm."""
     write_profile(profile_path, {"calibration": {"dh": CALIBRATED_DH}}, reason="test")
@@ -180,8 +191,13 @@ def test_ik_and_path_on_a_calibrated_table_agree_with_fk(profile_path: Path,
     path_in.write_text("\n".join(_csv(_tool_pose(profile_path, x)) for x in qs) + "\n")
     r = ucal("path", str(profile_path), str(path_in), "-o", str(tmp_path / "out.csv"))
     assert r.returncode == 0, r.stderr
-    rows = np.array([[float(v) for v in row] for row in csv.reader(
-        (tmp_path / "out.csv").open()) if row and not row[0].startswith(("#", "J", "j"))])
+    rows = np.array(
+        [
+            [float(v) for v in row]
+            for row in csv.reader((tmp_path / "out.csv").open())
+            if row and not row[0].startswith(("#", "J", "j"))
+        ]
+    )
     got = fk(p.model, rows[:, -6:], p.tool_matrix, p.joint_offsets_deg)[:, :3, 3]
     want = np.array([pose_to_matrix(_tool_pose(profile_path, x))[:3, 3] for x in qs])
     assert np.max(np.linalg.norm(got - want, axis=1)) < 1e-6

@@ -25,8 +25,14 @@ pytestmark = pytest.mark.system
 
 def ucal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     """Run ``python -m ucal ARGS`` in a separate process."""
-    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False,
-                          capture_output=True, text=True, cwd=cwd, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=60,
+    )
 
 
 def test_init_validate_show(tmp_path: Path) -> None:
@@ -66,9 +72,14 @@ def test_fk_json_applies_offsets_and_tool(tmp_path: Path) -> None:
     assert ucal("profile", "init", "tx90l", str(path)).returncode == 0
     offsets = np.array([0.3, -0.5, 0.7, 0.2, -0.4, 1.1])
     tool_pos, tool_rot = np.array([1.5, -2.0, 82.0]), np.array([2.0, -1.0, 30.0])
-    write_profile(path, {"calibration": {"joint_offsets_deg": offsets},
-                         "tool": {"position_mm": tool_pos, "rotation_deg": tool_rot}},
-                  reason="test")
+    write_profile(
+        path,
+        {
+            "calibration": {"joint_offsets_deg": offsets},
+            "tool": {"position_mm": tool_pos, "rotation_deg": tool_rot},
+        },
+        reason="test",
+    )
     joints = np.array([30.53, 31.15, 109.49, 5.0, 39.36, 30.54])
     r = ucal("fk", str(path), "--joints", ",".join(map(str, joints)), "--json")
     assert r.returncode == 0, r.stderr
@@ -84,8 +95,8 @@ def test_fk_json_applies_offsets_and_tool(tmp_path: Path) -> None:
     np.testing.assert_allclose(pose_to_matrix(np.array(out["pose"])), expected, atol=1e-9)
     tool = transform(tool_pos, rpy_to_matrix(tool_rot))
     np.testing.assert_allclose(
-        out["pose"], matrix_to_pose(fk(model, joints, tool=tool, offsets_deg=offsets)),
-        atol=1e-9)
+        out["pose"], matrix_to_pose(fk(model, joints, tool=tool, offsets_deg=offsets)), atol=1e-9
+    )
     # the offsets matter: without them the TCP is millimetres away
     without = fk_frames(model, joints)[-1] @ transform(tool_pos, rpy_to_matrix(tool_rot))
     assert np.linalg.norm(without[:3, 3] - np.array(out["pose"][:3])) > 1.0
@@ -97,8 +108,7 @@ def test_fk_at_zero_is_the_arm_straight_up(tmp_path: Path) -> None:
     r = ucal("fk", str(path), "--joints", "0,0,0,0,0,0", "--json")
     assert r.returncode == 0, r.stderr
     # SPEC.md: at zero the TX90XL flange is at (50, 50, 650 + 650 + 100) mm, z up; tool +80 z.
-    np.testing.assert_allclose(json.loads(r.stdout)["pose"], [50, 50, 1480, 0, 0, 0],
-                               atol=1e-9)
+    np.testing.assert_allclose(json.loads(r.stdout)["pose"], [50, 50, 1480, 0, 0, 0], atol=1e-9)
 
 
 @pytest.mark.parametrize("joints", ["1,2,3", "a,0,0,0,0,0", "0,0,0,0,0,nan"])
@@ -136,8 +146,17 @@ def test_history_and_undo_commands(tmp_path: Path) -> None:
 
 
 def _copy_source(dst: Path) -> Path:
-    ignore = shutil.ignore_patterns(".git", "build", "dist", "*.egg-info", "__pycache__",
-                                    ".pytest_cache", "*.history", ".venv", "venv")
+    ignore = shutil.ignore_patterns(
+        ".git",
+        "build",
+        "dist",
+        "*.egg-info",
+        "__pycache__",
+        ".pytest_cache",
+        "*.history",
+        ".venv",
+        "venv",
+    )
     shutil.copytree(REPO, dst, ignore=ignore)
     return dst
 
@@ -153,27 +172,54 @@ def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     """
     src = _copy_source(tmp_path / "src")
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
-                   timeout=120)
+    subprocess.run(
+        [sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120
+    )
     py = venv / "bin" / "python"
     code = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
-    site = subprocess.run([str(py), "-c", code],
-                          check=True, capture_output=True, text=True).stdout.strip()
+    site = subprocess.run(
+        [str(py), "-c", code], check=True, capture_output=True, text=True
+    ).stdout.strip()
     deps = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
     (Path(site) / "zz_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    r = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps",
-                        "--no-build-isolation", "--quiet", str(src)],
-                       check=False, capture_output=True, text=True, timeout=600, env=env)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            str(py),
+            "install",
+            "--no-deps",
+            "--no-build-isolation",
+            "--quiet",
+            str(src),
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    code = ("import json, ucal, ucal.models; from importlib import resources; "
-            "print(ucal.__file__); print(json.dumps(sorted(p.name for p in "
-            "resources.files('ucal.profiles').iterdir() if p.name.endswith('.toml'))))")
-    r = subprocess.run([str(py), "-c", code], check=False,
-                       capture_output=True, text=True, cwd=elsewhere, env=env, timeout=60)
+    code = (
+        "import json, ucal, ucal.models; from importlib import resources; "
+        "print(ucal.__file__); print(json.dumps(sorted(p.name for p in "
+        "resources.files('ucal.profiles').iterdir() if p.name.endswith('.toml'))))"
+    )
+    r = subprocess.run(
+        [str(py), "-c", code],
+        check=False,
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
+        env=env,
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     where, names = r.stdout.splitlines()
     assert Path(where).resolve().is_relative_to(Path(site).resolve())
@@ -183,6 +229,13 @@ def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     ucal_bin = str(venv / "bin" / "ucal")
     for model in ("tx90", "tx90l", "tx90xl"):
         for cmd in (["init", model, f"{model}.toml"], ["validate", f"{model}.toml"]):
-            r = subprocess.run([ucal_bin, "profile", *cmd], check=False, capture_output=True,
-                               text=True, cwd=elsewhere, env=env, timeout=60)
+            r = subprocess.run(
+                [ucal_bin, "profile", *cmd],
+                check=False,
+                capture_output=True,
+                text=True,
+                cwd=elsewhere,
+                env=env,
+                timeout=60,
+            )
             assert r.returncode == 0, r.stderr

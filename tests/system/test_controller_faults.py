@@ -30,8 +30,14 @@ from ucal.sim.serve import SimulatedCellServer
 
 pytestmark = pytest.mark.system
 
-TIMEOUTS = {"connect_timeout_s": 1.0, "first_state_timeout_s": 0.6, "state_timeout_s": 0.5,
-            "reply_timeout_s": 0.3, "halt_timeout_s": 0.3, "settle_timeout_s": 10.0}
+TIMEOUTS = {
+    "connect_timeout_s": 1.0,
+    "first_state_timeout_s": 0.6,
+    "state_timeout_s": 0.5,
+    "reply_timeout_s": 0.3,
+    "halt_timeout_s": 0.3,
+    "settle_timeout_s": 10.0,
+}
 
 
 @pytest.fixture(scope="module")
@@ -50,16 +56,19 @@ def profile(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 
 def at_point(n: int, act: Callable[[SimulatedCellServer], None]):
     """A fault that strikes as the controller receives its ``n``-th point."""
+
     def arm(cell: SimulatedCellServer) -> None:
         cell.controller.on_point = lambda count: act(cell) if count == n else None
+
     return arm
 
 
 def other_clients(cell: SimulatedCellServer) -> None:
     """Another client holds both ports (served until the case ends)."""
     ctl = cell.controller
-    cell.held = [socket.create_connection(("127.0.0.1", port))
-                 for port in (ctl.motion_port, ctl.state_port)]
+    cell.held = [
+        socket.create_connection(("127.0.0.1", port)) for port in (ctl.motion_port, ctl.state_port)
+    ]
     deadline = time.monotonic() + 2.0
     while not (ctl._motion_clients and ctl._state_clients) and time.monotonic() < deadline:
         time.sleep(0.005)
@@ -71,39 +80,111 @@ UNKNOWN = OtherMessage(77, CommType.SERVICE_REPLY, ReplyCode.SUCCESS, b"????").p
 
 # id, fault, start-up silence (s), exit code, message, STOP expected on the wire
 CASES = [
-    ("e-stop", at_point(2, lambda c: c.controller.set_fault(e_stopped=True)), 0.05, 3,
-     r"controller stopped the motion .* e-stop engaged", True),
-    ("drives off", at_point(2, lambda c: c.controller.set_fault(drives_powered=False)), 0.05,
-     3, r"controller stopped the motion .* drives off", True),
-    ("halt", at_point(2, lambda c: c.controller.hold(in_motion=False)), 0.05, 3,
-     r"controller halted the motion .* it reports not in motion", True),
-    ("held in motion", at_point(2, lambda c: c.controller.hold(in_motion=True)), 0.05, 3,
-     r"controller halted the motion .* it reports in motion", True),
-    ("garbage reply", at_point(2, lambda c: c.controller.inject_reply(GARBAGE)), 0.05, 3,
-     r"length field", True),
-    ("length 0x7fffffff", at_point(2, lambda c: c.controller.inject_reply(LONG)), 0.05, 3,
-     r"length field 2147483647", True),
-    ("unknown reply type", at_point(2, lambda c: c.controller.inject_reply(UNKNOWN)), 0.05, 3,
-     r"reply timeout ran out \(reply_timeout_s = 0.3 s\): no reply to trajectory point 1",
-     True),
-    ("garbage on the state port", at_point(2, lambda c: c.controller.inject_state(GARBAGE)),
-     0.05, 3, r"length field", True),
-    ("VAL3 silence beyond the first-state timeout", lambda c: None, 1.0, 3,
-     r"first-state timeout ran out \(first_state_timeout_s = 0.6 s\)", True),
+    (
+        "e-stop",
+        at_point(2, lambda c: c.controller.set_fault(e_stopped=True)),
+        0.05,
+        3,
+        r"controller stopped the motion .* e-stop engaged",
+        True,
+    ),
+    (
+        "drives off",
+        at_point(2, lambda c: c.controller.set_fault(drives_powered=False)),
+        0.05,
+        3,
+        r"controller stopped the motion .* drives off",
+        True,
+    ),
+    (
+        "halt",
+        at_point(2, lambda c: c.controller.hold(in_motion=False)),
+        0.05,
+        3,
+        r"controller halted the motion .* it reports not in motion",
+        True,
+    ),
+    (
+        "held in motion",
+        at_point(2, lambda c: c.controller.hold(in_motion=True)),
+        0.05,
+        3,
+        r"controller halted the motion .* it reports in motion",
+        True,
+    ),
+    (
+        "garbage reply",
+        at_point(2, lambda c: c.controller.inject_reply(GARBAGE)),
+        0.05,
+        3,
+        r"length field",
+        True,
+    ),
+    (
+        "length 0x7fffffff",
+        at_point(2, lambda c: c.controller.inject_reply(LONG)),
+        0.05,
+        3,
+        r"length field 2147483647",
+        True,
+    ),
+    (
+        "unknown reply type",
+        at_point(2, lambda c: c.controller.inject_reply(UNKNOWN)),
+        0.05,
+        3,
+        r"reply timeout ran out \(reply_timeout_s = 0.3 s\): no reply to trajectory point 1",
+        True,
+    ),
+    (
+        "garbage on the state port",
+        at_point(2, lambda c: c.controller.inject_state(GARBAGE)),
+        0.05,
+        3,
+        r"length field",
+        True,
+    ),
+    (
+        "VAL3 silence beyond the first-state timeout",
+        lambda c: None,
+        1.0,
+        3,
+        r"first-state timeout ran out \(first_state_timeout_s = 0.6 s\)",
+        True,
+    ),
     ("second client", other_clients, 0.05, 3, r"one client per port", False),
-    ("killed", at_point(2, lambda c: threading.Thread(target=c.controller.kill).start()), 0.05,
-     3, r"connection|reply timeout", False),
-    ("e-stop before the first motion", lambda c: c.controller.set_fault(e_stopped=True), 0.05,
-     4, r"emergency stop is engaged", True),
+    (
+        "killed",
+        at_point(2, lambda c: threading.Thread(target=c.controller.kill).start()),
+        0.05,
+        3,
+        r"connection|reply timeout",
+        False,
+    ),
+    (
+        "e-stop before the first motion",
+        lambda c: c.controller.set_fault(e_stopped=True),
+        0.05,
+        4,
+        r"emergency stop is engaged",
+        True,
+    ),
 ]
 
 
-@pytest.mark.parametrize("case, fault, silence_s, code, message, stop",
-                         CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize(
+    "case, fault, silence_s, code, message, stop", CASES, ids=[c[0] for c in CASES]
+)
 def test_fault_gives_its_exit_code_a_one_line_message_stop_and_an_untouched_profile(
-        profile: Path, capsys: pytest.CaptureFixture[str], case: str,
-        fault: Callable[[SimulatedCellServer], None], silence_s: float, code: int,
-        message: str, stop: bool) -> None:
+    profile: Path,
+    capsys: pytest.CaptureFixture[str],
+    case: str,
+    fault: Callable[[SimulatedCellServer], None],
+    silence_s: float,
+    code: int,
+    message: str,
+    stop: bool,
+) -> None:
     before = profile.read_bytes()
     prof = load_profile(profile)
     world = demo_world(prof).replace(controller_silence_s=silence_s)
@@ -112,8 +193,17 @@ def test_fault_gives_its_exit_code_a_one_line_message_stop_and_an_untouched_prof
         fault(cell)
         urls = cell.urls
         try:
-            main(["calibrate", str(profile), "--controller", urls["controller"], "--pulser",
-                  urls["pulser"], "--yes"])
+            main(
+                [
+                    "calibrate",
+                    str(profile),
+                    "--controller",
+                    urls["controller"],
+                    "--pulser",
+                    urls["pulser"],
+                    "--yes",
+                ]
+            )
             exit_code = 0
         except SystemExit as e:
             exit_code = e.code
@@ -142,12 +232,24 @@ def test_the_val3_silence_costs_simulated_time_in_process(tmp_path: Path) -> Non
 
     path = tmp_path / "cell.toml"
     create_profile(path, "tx90l")
-    write_profile(path, {"controller": {"first_state_timeout_s": 3.0, "halt_timeout_s": 0.8,
-                                        "settle_timeout_s": 20.0}}, "test")
+    write_profile(
+        path,
+        {
+            "controller": {
+                "first_state_timeout_s": 3.0,
+                "halt_timeout_s": 0.8,
+                "settle_timeout_s": 20.0,
+            }
+        },
+        "test",
+    )
     world = tmp_path / "world.toml"
     world.write_text('[controller]\nserver = "val3"\n')
     with open_cell(load_profile(path), str(world), None, None) as cell:
         cell.rig.controller.status()
         assert 1.0 <= cell.elapsed_s <= 1.2
-        assert (cell.rig.controller.first_state_timeout_s,
-                cell.rig.controller.halt_timeout_s, cell.rig.move_timeout_s) == (3.0, 0.8, 20.0)
+        assert (
+            cell.rig.controller.first_state_timeout_s,
+            cell.rig.controller.halt_timeout_s,
+            cell.rig.move_timeout_s,
+        ) == (3.0, 0.8, 20.0)

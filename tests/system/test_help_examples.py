@@ -30,8 +30,16 @@ pytestmark = pytest.mark.system
 RunMain = Callable[[list[str]], tuple[int, str, str]]
 Examples = Callable[[list[str]], list[tuple[dict[str, str], list[str]]]]
 
-COMMANDS = [["profile"], ["fk"], ["ik"], ["path"], ["status"], ["calibrate"], ["tool-frame"],
-            ["verify"]]
+COMMANDS = [
+    ["profile"],
+    ["fk"],
+    ["ik"],
+    ["path"],
+    ["status"],
+    ["calibrate"],
+    ["tool-frame"],
+    ["verify"],
+]
 MOVING = {"calibrate", "tool-frame", "verify"}
 
 
@@ -67,8 +75,9 @@ def add_files(d: Path) -> None:
     (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
     for world in ("world.toml", "truth.toml"):
         (d / world).write_text("[noise]\ntof_ns = 0.02\nseed = 3\n", encoding="utf-8")
-    (d / "scan.csv").write_text("X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n",
-                                encoding="utf-8")
+    (d / "scan.csv").write_text(
+        "X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n", encoding="utf-8"
+    )
 
 
 @contextlib.contextmanager
@@ -84,9 +93,14 @@ def terminal_typed(text: str) -> Iterator[TextIO]:
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=lambda c: " ".join(c) or "ucal")
-def test_help_examples_run_as_written(command: list[str], workdir: Path, cell: dict[str, str],
-                                      run_main: RunMain, help_examples: Examples,
-                                      monkeypatch: pytest.MonkeyPatch) -> None:
+def test_help_examples_run_as_written(
+    command: list[str],
+    workdir: Path,
+    cell: dict[str, str],
+    run_main: RunMain,
+    help_examples: Examples,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     if command != ["profile"]:
         add_files(workdir)
     for env, args in help_examples(command):
@@ -101,8 +115,9 @@ def test_help_examples_run_as_written(command: list[str], workdir: Path, cell: d
             with monkeypatch.context() as m, terminal_typed("n\n") as tty:
                 m.setattr(sys, "stdin", tty)
                 code, out, err = run_main([a for a in args if a != "--yes"])
-            where = ("the simulated cell" if "--sim" in args
-                     else f"the robot at {cell['controller']}")
+            where = (
+                "the simulated cell" if "--sim" in args else f"the robot at {cell['controller']}"
+            )
             assert code == 130 and f"Move {where} now?" in err, (shown, err)
             assert err.split(f"Move {where} now?")[0].strip(), err  # the plan was shown first
             assert "not confirmed: nothing moved" in err
@@ -123,8 +138,9 @@ def test_the_overview_examples_are_commands_examples(help_examples: Examples) ->
         assert (env, args) in help_examples(command), args
 
 
-def test_sim_serve_examples_serve_until_interrupted(workdir: Path, run_main: RunMain,
-                                                   help_examples: Examples) -> None:
+def test_sim_serve_examples_serve_until_interrupted(
+    workdir: Path, run_main: RunMain, help_examples: Examples
+) -> None:
     """Each serves (its first stdout line gives the URLs) and ends at SIGINT with exit 0."""
     add_files(workdir)
     for _, args in help_examples(["sim", "serve"]):
@@ -140,7 +156,8 @@ def test_sim_serve_examples_serve_until_interrupted(workdir: Path, run_main: Run
 
 def interrupt_once_serving() -> None:
     """Send SIGINT once ``sim serve`` has installed its handler (it then stops serving)."""
-    while getattr(signal.getsignal(signal.SIGINT), "__qualname__", "") != \
-            "serve.<locals>._on_signal":
+    while (
+        getattr(signal.getsignal(signal.SIGINT), "__qualname__", "") != "serve.<locals>._on_signal"
+    ):
         time.sleep(0.01)
     os.kill(os.getpid(), signal.SIGINT)

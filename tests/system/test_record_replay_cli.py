@@ -18,15 +18,31 @@ pytestmark = pytest.mark.system
 
 
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False, capture_output=True,
-                          text=True, cwd=cwd, stdin=subprocess.DEVNULL, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        timeout=300,
+    )
 
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     d = tmp_path_factory.mktemp("record")
-    out = ucal("calibrate", "cell.toml", "--sim", "--yes", "--json", "--dry-run",
-               "--record", "run.jsonl", cwd=d)
+    out = ucal(
+        "calibrate",
+        "cell.toml",
+        "--sim",
+        "--yes",
+        "--json",
+        "--dry-run",
+        "--record",
+        "run.jsonl",
+        cwd=d,
+    )
     assert out.returncode in (0, 1), out.stderr
     return d, json.loads(out.stdout)
 
@@ -36,24 +52,31 @@ def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
     record = read_record(d / "run.jsonl")
     assert record.result is not None
     assert record.result["joint_offsets_deg"] == result["joint_offsets_deg"]
-    assert len(record.calls) > result["pulser_reads"]        # every reading, and more
+    assert len(record.calls) > result["pulser_reads"]  # every reading, and more
     out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--json", cwd=d)
     assert out.returncode in (0, 1), out.stderr
     again = json.loads(out.stdout)
-    assert again["joint_offsets_deg"] == result["joint_offsets_deg"]   # bit for bit
+    assert again["joint_offsets_deg"] == result["joint_offsets_deg"]  # bit for bit
     assert again["std_deg"] == result["std_deg"]
     assert again["pulser_reads"] == result["pulser_reads"]
     assert again["written"] is False
 
 
 def test_replay_with_another_method_solves_the_same_measurements(
-        recorded: tuple[Path, dict],
-        help_examples: Callable[[list[str]], list[tuple[dict, list[str]]]]) -> None:
+    recorded: tuple[Path, dict], help_examples: Callable[[list[str]], list[tuple[dict, list[str]]]]
+) -> None:
     d, result = recorded
     # as `ucal calibrate --help` shows it (every other example runs in test_help_examples)
     (args,) = [a for _, a in help_examples(["calibrate"]) if "--replay" in a]
-    assert args == ["calibrate", "cell.toml", "--replay", "run.jsonl", "--method", "paper",
-                    "--json"]
+    assert args == [
+        "calibrate",
+        "cell.toml",
+        "--replay",
+        "run.jsonl",
+        "--method",
+        "paper",
+        "--json",
+    ]
     out = ucal(*args, cwd=d)
     assert out.returncode in (0, 1), out.stderr
     paper = json.loads(out.stdout)
@@ -69,10 +92,25 @@ def test_replay_takes_no_cell(recorded: tuple[Path, dict]) -> None:
 
 
 def test_a_run_killed_mid_way_leaves_a_readable_record(tmp_path: Path) -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "ucal", "calibrate", "cell.toml", "--sim",
-                             "--yes", "--dry-run", "--record", "run.jsonl"], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "calibrate",
+            "cell.toml",
+            "--sim",
+            "--yes",
+            "--dry-run",
+            "--record",
+            "run.jsonl",
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
     record = tmp_path / "run.jsonl"
     try:
         deadline = time.monotonic() + 120

@@ -1,4 +1,5 @@
-"""``ucal sim serve`` as a process: the URLs it prints answer on 127.0.0.1 with the real protocols."""
+"""``ucal sim serve`` as a process: the URLs it prints answer on 127.0.0.1 with the real
+protocols."""
 
 from __future__ import annotations
 
@@ -31,8 +32,12 @@ class Served:
     """A running ``ucal sim serve`` process and the URLs of its first stdout line."""
 
     def __init__(self, args: list[str]):
-        self.proc = subprocess.Popen([sys.executable, "-m", "ucal", "sim", "serve", *args],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "ucal", "sim", "serve", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         ready, _, _ = select.select([self.proc.stdout], [], [], 20.0)
         if not ready:
             self.proc.kill()
@@ -52,7 +57,7 @@ class Served:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.communicate()
-            raise AssertionError(f"no exit within 5 s of signal {signum}")
+            raise AssertionError(f"no exit within 5 s of signal {signum}") from None
         return self.proc.returncode, time.monotonic() - t0, err
 
 
@@ -80,7 +85,7 @@ def recv_frame(sock: socket.socket) -> tuple[int, int, int, bytes]:
     (length,) = _LEN.unpack(recv_exact(sock, 4))
     frame = recv_exact(sock, length)
     msg_type, comm_type, reply = _HDR.unpack_from(frame)
-    return msg_type, comm_type, reply, frame[_HDR.size:]
+    return msg_type, comm_type, reply, frame[_HDR.size :]
 
 
 def modbus_tcp(sock: socket.socket, tid: int, pdu: bytes, unit: int = 1) -> bytes:
@@ -92,7 +97,8 @@ def modbus_tcp(sock: socket.socket, tid: int, pdu: bytes, unit: int = 1) -> byte
 
 
 def test_serve_prints_urls_answers_raw_protocols_and_logs_motions(
-        serve_demo: tuple[Served, Path]) -> None:
+    serve_demo: tuple[Served, Path],
+) -> None:
     served, log_path = serve_demo
     assert set(served.urls) == {"controller", "pulser"}
     ctrl = urlsplit(served.urls["controller"])
@@ -129,8 +135,9 @@ def test_serve_prints_urls_answers_raw_protocols_and_logs_motions(
     rad = np.radians(np.concatenate([target_deg, np.zeros(4)]))
     body = struct.pack("<i12f", 0, *rad, 0.5, 0.0)
     with socket.create_connection(("127.0.0.1", ctrl.port), timeout=3.0) as mo:
-        mo.sendall(_LEN.pack(_HDR.size + len(body))
-                   + _HDR.pack(JOINT_TRAJ_PT, SERVICE_REQUEST, 0) + body)
+        mo.sendall(
+            _LEN.pack(_HDR.size + len(body)) + _HDR.pack(JOINT_TRAJ_PT, SERVICE_REQUEST, 0) + body
+        )
         msg_type, _, reply, _ = recv_frame(mo)
         assert (msg_type, reply) == (JOINT_TRAJ_PT, SUCCESS)
         deadline = time.monotonic() + 5.0
@@ -153,8 +160,9 @@ def test_serve_prints_urls_answers_raw_protocols_and_logs_motions(
 
 def test_sigint_exits_cleanly() -> None:
     served = Served(["--time-scale", "0"])
-    with socket.create_connection(("127.0.0.1", urlsplit(served.urls["controller"]).port),
-                                  timeout=3.0):
+    with socket.create_connection(
+        ("127.0.0.1", urlsplit(served.urls["controller"]).port), timeout=3.0
+    ):
         pass
     code, seconds, err = served.terminate(signal.SIGINT)
     assert code == 0 and seconds < 5.0
@@ -174,23 +182,29 @@ def test_world_and_profile_files_drive_the_echo_through_the_drivers(tmp_path: Pa
     profile_path = tmp_path / "cell.toml"
     profile_path.write_text(default_profile_text("tx90l"), encoding="utf-8")
     world_path = tmp_path / "truth.toml"
-    world_path.write_text("[robot]\njoint_offsets_deg = [0.0, 0.0, 0.0, 0.0, 0.3, 0.0]\n"
-                          "[noise]\ntof_ns = 0.0\namplitude = 0.0\nseed = 5\n", encoding="utf-8")
+    world_path.write_text(
+        "[robot]\njoint_offsets_deg = [0.0, 0.0, 0.0, 0.0, 0.3, 0.0]\n"
+        "[noise]\ntof_ns = 0.0\namplitude = 0.0\nseed = 5\n",
+        encoding="utf-8",
+    )
     cell = SimulatedCell(load_world(world_path, load_profile(profile_path)))
     offset_deg = np.array([0.0, 0.0, 0.0, 0.0, 0.3, 0.0])
 
-    served = Served(["--profile", str(profile_path), "--world", str(world_path), "--rtu",
-                     "--time-scale", "0"])
+    served = Served(
+        ["--profile", str(profile_path), "--world", str(world_path), "--rtu", "--time-scale", "0"]
+    )
     try:
         assert served.urls["pulser"].startswith("modbus-rtu://socket://127.0.0.1:")
         target = PAPER_CALIBRATION_POSE_DEG - offset_deg  # undoes the hidden joint-5 offset
-        with SimpleMessageController.from_url(served.urls["controller"]) as robot, \
-                ModbusPulser.from_url(served.urls["pulser"]) as pulser:
-            pulser.configure(PulserSettings(gain_db=20.0, gate_start_us=5.0,
-                                            gate_width_us=200.0, averages=1))
+        with (
+            SimpleMessageController.from_url(served.urls["controller"]) as robot,
+            ModbusPulser.from_url(served.urls["pulser"]) as pulser,
+        ):
+            pulser.configure(
+                PulserSettings(gain_db=20.0, gate_start_us=5.0, gate_width_us=200.0, averages=1)
+            )
             readings = {}
-            for name, joints in (("corrected", target),
-                                 ("nominal", PAPER_CALIBRATION_POSE_DEG)):
+            for name, joints in (("corrected", target), ("nominal", PAPER_CALIBRATION_POSE_DEG)):
                 reached = robot.move_joints(joints, speed=1.0, timeout_s=5.0)
                 readings[name] = (reached, pulser.read_gate(fresh=True))
         reached, gate = readings["corrected"]

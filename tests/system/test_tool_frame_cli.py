@@ -29,9 +29,14 @@ TRUE_BEAM = rpy_to_matrix(TRUE_ROTATION)[:, 2]
 
 
 def ucal(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False,
-                          capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def world(tmp_path: Path, noise: bool, offsets: list[float] = OFFSETS) -> Path:
@@ -54,11 +59,16 @@ def profile(tmp_path: Path) -> Path:
     """A cell after a joint calibration, with its plate and water well known."""
     path = tmp_path / "cell.toml"
     assert ucal("profile", "init", "tx90xl", str(path)).returncode == 0
-    write_profile(path, {"calibration": {"joint_offsets_deg": OFFSETS, "std_deg": [0.001] * 6},
-                         "reflector": {"points_std_mm": 0.005},
-                         "water": {"temperature_std_c": 0.01},
-                         "robot": {"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0}},
-                  reason="joint cal")
+    write_profile(
+        path,
+        {
+            "calibration": {"joint_offsets_deg": OFFSETS, "std_deg": [0.001] * 6},
+            "reflector": {"points_std_mm": 0.005},
+            "water": {"temperature_std_c": 0.01},
+            "robot": {"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0},
+        },
+        reason="joint cal",
+    )
     return path
 
 
@@ -68,13 +78,30 @@ def beam_errors_deg(beam: np.ndarray) -> np.ndarray:
 
 
 def test_exact_noise_free_recovers_hidden_tool_and_writes(tmp_path: Path, profile: Path) -> None:
-    r = ucal("tool-frame", str(profile), "--sim", str(world(tmp_path, noise=False)),
-             "--points", "3", "--yes", "--json")
+    r = ucal(
+        "tool-frame",
+        str(profile),
+        "--sim",
+        str(world(tmp_path, noise=False)),
+        "--points",
+        "3",
+        "--yes",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert {"position_mm", "rotation_deg", "beam_direction", "position_std_mm",
-            "rotation_std_deg", "beam_std_deg", "rms_residual_mm", "points", "written",
-            "fit"} <= set(out)
+    assert {
+        "position_mm",
+        "rotation_deg",
+        "beam_direction",
+        "position_std_mm",
+        "rotation_std_deg",
+        "beam_std_deg",
+        "rms_residual_mm",
+        "points",
+        "written",
+        "fit",
+    } <= set(out)
     assert out["written"] is True and out["method"] == "exact"
     assert out["fit"]["verdict"] == "ok"
     assert out["points"] == 3 + 8  # three postures, two edges × two lines × two senses
@@ -110,8 +137,15 @@ def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Pa
     write_profile(profile, {"tool": {"position_std_mm": 3.0, "rotation_std_deg": 1.5}}, "drawing")
     before = profile.read_bytes()
     fresh = [0.9, -0.7, 1.1, -1.5, 0.6, 0.8]
-    r = ucal("tool-frame", str(profile), "--sim", str(world(tmp_path, True, fresh)),
-             "--yes", "--dry-run", "--json")
+    r = ucal(
+        "tool-frame",
+        str(profile),
+        "--sim",
+        str(world(tmp_path, True, fresh)),
+        "--yes",
+        "--dry-run",
+        "--json",
+    )
     assert r.returncode in (0, 1), r.stderr
     assert profile.read_bytes() == before
     out = json.loads(r.stdout)
@@ -129,8 +163,19 @@ def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Pa
 
 
 def test_paper_method_json(tmp_path: Path, profile: Path) -> None:
-    r = ucal("tool-frame", str(profile), "--sim", str(world(tmp_path, noise=False)),
-             "--method", "paper", "--points", "8", "--yes", "--json", "--dry-run")
+    r = ucal(
+        "tool-frame",
+        str(profile),
+        "--sim",
+        str(world(tmp_path, noise=False)),
+        "--method",
+        "paper",
+        "--points",
+        "8",
+        "--yes",
+        "--json",
+        "--dry-run",
+    )
     assert r.returncode in (0, 1), r.stderr
     out = json.loads(r.stdout)
     assert out["method"] == "paper" and out["points"] == 8 and out["written"] is False
@@ -141,11 +186,16 @@ def test_paper_method_json(tmp_path: Path, profile: Path) -> None:
     assert out["rms_residual_mm"] < 0.01
 
 
-@pytest.mark.parametrize("points, words", [
-    ("[[600.0, -100.0, -226.0], [650.0, -100.0, -226.0], [700.0, -100.0, -226.0]]",
-     "collinear"),
-    ("[[600.0, -100.0, -226.0], [650.0, -100.0, -226.0]]", "at least 3"),
-])
+@pytest.mark.parametrize(
+    "points, words",
+    [
+        (
+            "[[600.0, -100.0, -226.0], [650.0, -100.0, -226.0], [700.0, -100.0, -226.0]]",
+            "collinear",
+        ),
+        ("[[600.0, -100.0, -226.0], [650.0, -100.0, -226.0]]", "at least 3"),
+    ],
+)
 def test_bad_plate_points_exit_2(profile: Path, points: str, words: str) -> None:
     text = profile.read_text()
     start = text.index("points_mm = [")
@@ -156,8 +206,10 @@ def test_bad_plate_points_exit_2(profile: Path, points: str, words: str) -> None
     assert r.returncode == 2
     assert "reflector.points_mm" in r.stderr and words in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
-    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
-                                    "exit_code": 2}
+    assert json.loads(r.stdout) == {
+        "error": r.stderr.strip().removeprefix("error: "),
+        "exit_code": 2,
+    }
     assert profile.read_bytes() == before
 
 
@@ -171,9 +223,15 @@ def test_missing_plate_exit_2(profile: Path) -> None:
 
 
 def test_unreachable_plate_refused_exit_4(profile: Path) -> None:
-    write_profile(profile, {"reflector": {"points_mm": [[3000.0, 0.0, -200.0],
-                                                        [3100.0, 0.0, -200.0],
-                                                        [3000.0, 100.0, -200.0]]}}, "test")
+    write_profile(
+        profile,
+        {
+            "reflector": {
+                "points_mm": [[3000.0, 0.0, -200.0], [3100.0, 0.0, -200.0], [3000.0, 100.0, -200.0]]
+            }
+        },
+        "test",
+    )
     before = profile.read_bytes()
     r = ucal("tool-frame", str(profile), "--sim", "--yes")
     assert r.returncode == 4, r.stderr
@@ -188,10 +246,22 @@ def test_no_confirmation_without_terminal_exit_2(profile: Path) -> None:
 
 def test_ctrl_c_stops_and_leaves_profile(tmp_path: Path, profile: Path) -> None:
     before = profile.read_bytes()
-    proc = subprocess.Popen([sys.executable, "-m", "ucal", "tool-frame", str(profile), "--sim",
-                             str(world(tmp_path, noise=False)), "--yes"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "tool-frame",
+            str(profile),
+            "--sim",
+            str(world(tmp_path, noise=False)),
+            "--yes",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
     try:
         # wait for the first motion (the progress line of the first posture)
         deadline = time.monotonic() + 30

@@ -22,16 +22,24 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def run_ucal(*args: str, timeout: float = 280.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ucal", *args], check=False, capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 @pytest.fixture
 def world(tmp_path: Path) -> Path:
     """Hidden joint offsets, everything else nominal, no noise."""
     path = tmp_path / "world.toml"
-    path.write_text("[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG))
-                    + "]\n", encoding="utf-8")
+    path.write_text(
+        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n",
+        encoding="utf-8",
+    )
     return path
 
 
@@ -39,8 +47,11 @@ def make_profile(tmp_path: Path, name: str, offsets_deg: list[float] | None) -> 
     path = create_profile(tmp_path / name, "tx90l")
     # a doweled, levelled block: with a hand-placed block's yaw tolerance joint 1 cannot be
     # calibrated (one rotation about the base axis with the block's yaw)
-    write_profile(path, {"sample": {"position_std_mm": 0.5,
-                                    "rotation_std_deg": [0.01, 0.01, 0.01]}}, "fixtured block")
+    write_profile(
+        path,
+        {"sample": {"position_std_mm": 0.5, "rotation_std_deg": [0.01, 0.01, 0.01]}},
+        "fixtured block",
+    )
     if offsets_deg is not None:
         # as `ucal calibrate` would have written it
         write_profile(path, {"calibration": {"joint_offsets_deg": offsets_deg}}, "calibrate")
@@ -68,15 +79,25 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
     before_bytes = profile.read_bytes()
     plot = tmp_path / "report.png"
-    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "4", "--plot",
-                 str(plot), "--yes", "--json")
+    r = run_ucal(
+        "verify",
+        str(profile),
+        "--sim",
+        str(world),
+        "--points",
+        "4",
+        "--plot",
+        str(plot),
+        "--yes",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     check_shape(out, 4)
     # stderr is not a terminal: a plain progress line per point and pass, --json or not
     steps = re.findall(r"^verify \[(\d+)/8\] (?:before|after) point", r.stderr, re.MULTILINE)
     assert steps == [str(i) for i in range(1, 9)]
-    assert out["passed"] is True and out["tolerance_mm"] == 0.5   # [procedure] default
+    assert out["passed"] is True and out["tolerance_mm"] == 0.5  # [procedure] default
     assert out["before_source"].startswith("history entry")
     before = np.array(out["before_mm"]["mean"])
     after_max = np.array(out["after_mm"]["max"])
@@ -95,8 +116,19 @@ def test_uncalibrated_profile_before_equals_after_and_fails(tmp_path: Path, worl
     """Half a degree of offsets the profile does not know: millimetres off after calibration
     too, above the tolerance: a result (the full object with the error fields), exit 1."""
     profile = make_profile(tmp_path, "cell.toml", None)
-    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "2", "--yes",
-                 "--json", "-q", "--tolerance-mm", "0.8")
+    r = run_ucal(
+        "verify",
+        str(profile),
+        "--sim",
+        str(world),
+        "--points",
+        "2",
+        "--yes",
+        "--json",
+        "-q",
+        "--tolerance-mm",
+        "0.8",
+    )
     assert r.returncode == 1, r.stderr
     assert "verify [" not in r.stderr and "passes" not in r.stderr  # -q: no progress, no plan
     out = json.loads(r.stdout)
@@ -122,8 +154,9 @@ def test_table_output_and_refusals(tmp_path: Path, world: Path) -> None:
     r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "1")
     assert r.returncode == 2 and "--yes" in r.stderr
     # unknown picture format
-    r = run_ucal("verify", str(profile), "--sim", str(world), "--plot", str(tmp_path / "x.xyz"),
-                 "--yes")
+    r = run_ucal(
+        "verify", str(profile), "--sim", str(world), "--plot", str(tmp_path / "x.xyz"), "--yes"
+    )
     assert r.returncode == 2 and "x.xyz" in r.stderr
 
 
@@ -133,13 +166,14 @@ def test_unreachable_points_refused_without_motion(tmp_path: Path) -> None:
     # move the block 1.5 m away: no point can be reached; refused while planning
     doc = tomlkit.parse(profile.read_text(encoding="utf-8"))
     pos = [float(v) for v in doc["sample"]["position_mm"]]
-    write_profile(profile, {"sample": {"position_mm": [pos[0] + 1500.0, pos[1], pos[2]]}},
-                  "test")
+    write_profile(profile, {"sample": {"position_mm": [pos[0] + 1500.0, pos[1], pos[2]]}}, "test")
     r = run_ucal("verify", str(profile), "--sim", "--points", "4", "--yes", "--json")
     assert r.returncode == 4, r.stderr
     assert "plan" in r.stderr
-    assert json.loads(r.stdout) == {"error": r.stderr.strip().removeprefix("error: "),
-                                    "exit_code": 4}
+    assert json.loads(r.stdout) == {
+        "error": r.stderr.strip().removeprefix("error: "),
+        "exit_code": 4,
+    }
     assert not (tmp_path / "cell.verify.png").exists()
 
 
@@ -149,8 +183,7 @@ def test_calibrate_then_verify(tmp_path: Path, world: Path) -> None:
     profile = make_profile(tmp_path, "cell.toml", None)
     r = run_ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert r.returncode == 0, r.stderr
-    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "4", "--yes",
-                 "--json")
+    r = run_ucal("verify", str(profile), "--sim", str(world), "--points", "4", "--yes", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     check_shape(out, 4)
@@ -162,10 +195,24 @@ def test_calibrate_then_verify(tmp_path: Path, world: Path) -> None:
 def test_ctrl_c_stops_and_exits_130(tmp_path: Path, world: Path) -> None:
     profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
     before_bytes = profile.read_bytes()
-    proc = subprocess.Popen([sys.executable, "-m", "ucal", "verify", str(profile), "--sim",
-                             str(world), "--points", "4", "--yes"],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ucal",
+            "verify",
+            str(profile),
+            "--sim",
+            str(world),
+            "--points",
+            "4",
+            "--yes",
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         # the first point's result line shows the robot is measuring
         line = ""

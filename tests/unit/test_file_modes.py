@@ -27,8 +27,9 @@ def umask() -> Iterator[Callable[[int], None]]:
 
 
 @pytest.mark.parametrize("mask, expected", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
-def test_a_new_profile_follows_the_umask(tmp_path: Path, umask: Callable[[int], None],
-                                         run_main: RunMain, mask: int, expected: int) -> None:
+def test_a_new_profile_follows_the_umask(
+    tmp_path: Path, umask: Callable[[int], None], run_main: RunMain, mask: int, expected: int
+) -> None:
     umask(mask)
     path = tmp_path / "cell.toml"
     assert run_main(["profile", "init", "tx90l", str(path), "-q"])[0] == 0
@@ -36,29 +37,34 @@ def test_a_new_profile_follows_the_umask(tmp_path: Path, umask: Callable[[int], 
 
 
 @pytest.mark.parametrize("kept", [0o640, 0o604, 0o600])
-def test_rewrites_keep_the_mode_and_history_copies_share_it(tmp_path: Path,
-                                                            umask: Callable[[int], None],
-                                                            run_main: RunMain,
-                                                            kept: int) -> None:
+def test_rewrites_keep_the_mode_and_history_copies_share_it(
+    tmp_path: Path, umask: Callable[[int], None], run_main: RunMain, kept: int
+) -> None:
     path = tmp_path / "cell.toml"
     assert run_main(["profile", "init", "tx90l", str(path)])[0] == 0
     path.chmod(kept)
     write_profile(path, {"water": {"temperature_c": 21.0}}, reason="test")
     assert mode(path) == kept
     hdir = history_dir(path)
-    assert {f.name: mode(f) for f in hdir.iterdir()} == {"0001-before.toml": kept,
-                                                         "history.json": kept}
+    assert {f.name: mode(f) for f in hdir.iterdir()} == {
+        "0001-before.toml": kept,
+        "history.json": kept,
+    }
     assert run_main(["profile", "init", "tx90l", str(path), "--force"])[0] == 0
     undo_profile(path)
     assert mode(path) == kept
     assert {mode(f) for f in hdir.iterdir()} == {kept}
-    assert sorted(f.name for f in hdir.iterdir()) == ["0001-before.toml", "0002-after.toml",
-                                                      "0002-before.toml", "history.json"]
+    assert sorted(f.name for f in hdir.iterdir()) == [
+        "0001-before.toml",
+        "0002-after.toml",
+        "0002-before.toml",
+        "history.json",
+    ]
 
 
-def test_path_output_keeps_its_mode_or_follows_the_umask(tmp_path: Path,
-                                                         umask: Callable[[int], None],
-                                                         run_main: RunMain) -> None:
+def test_path_output_keeps_its_mode_or_follows_the_umask(
+    tmp_path: Path, umask: Callable[[int], None], run_main: RunMain
+) -> None:
     profile = tmp_path / "cell.toml"
     assert run_main(["profile", "init", "tx90l", str(profile)])[0] == 0
     poses = tmp_path / "scan.csv"

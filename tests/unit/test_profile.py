@@ -56,7 +56,7 @@ def _run(args: list[str]) -> int:
 
 
 def _comments(text: str) -> list[str]:
-    return [line[line.index("#"):] for line in text.splitlines() if "#" in line]
+    return [line[line.index("#") :] for line in text.splitlines() if "#" in line]
 
 
 def _keys_in_order(text: str) -> list[str]:
@@ -73,8 +73,9 @@ def _keys_in_order(text: str) -> list[str]:
 
 
 @pytest.mark.parametrize("model", KNOWN_MODELS)
-def test_default_profile_is_valid_and_consistent_with_the_calibration_pose(model: str,
-                                                                         tmp_path: Path) -> None:
+def test_default_profile_is_valid_and_consistent_with_the_calibration_pose(
+    model: str, tmp_path: Path
+) -> None:
     path = tmp_path / f"{model}.toml"
     create_profile(path, model)
     prof = load_profile(path)
@@ -208,6 +209,7 @@ Mutation = Callable[[tomlkit.TOMLDocument], None]
 def _set(table: str, key: str, value: object) -> Mutation:
     def f(doc: tomlkit.TOMLDocument) -> None:
         doc[table][key] = value
+
     return f
 
 
@@ -217,12 +219,14 @@ def _del(table: str, key: str | None = None) -> Mutation:
             del doc[table]
         else:
             del doc[table][key]
+
     return f
 
 
 def _dh(row: int, col: str, value: object) -> Mutation:
     def f(doc: tomlkit.TOMLDocument) -> None:
         doc["robot"]["dh"][row][col] = value
+
     return f
 
 
@@ -238,59 +242,128 @@ def _schema(doc: tomlkit.TOMLDocument) -> None:
 MALFORMED: list[tuple[str, Mutation, str, str]] = [
     ("missing key", _del("tool", "position_mm"), "tool.position_mm", "missing key"),
     ("missing table", _del("water"), "water", "missing table"),
-    ("missing model and dh", lambda d: (_del("robot", "model")(d), _del("robot", "dh")(d)),
-     "robot.model", "missing key"),
-    ("wrong length", _set("tool", "position_mm", [0.0, 0.0]), "tool.position_mm",
-     "must have 3 values, got 2"),
+    (
+        "missing model and dh",
+        lambda d: (_del("robot", "model")(d), _del("robot", "dh")(d)),
+        "robot.model",
+        "missing key",
+    ),
+    (
+        "wrong length",
+        _set("tool", "position_mm", [0.0, 0.0]),
+        "tool.position_mm",
+        "must have 3 values, got 2",
+    ),
     ("dh wrong length", lambda d: d["robot"]["dh"].pop(), "robot.dh", "must have 6 values"),
-    ("nan", _set("sample", "position_mm", [float("nan"), 0.0, 0.0]), "sample.position_mm[0]",
-     "must be a finite number, got nan"),
-    ("inf", _set("transducer", "element_diameter_mm", float("inf")),
-     "transducer.element_diameter_mm", "finite"),
-    ("text for number", _dh(2, "a_mm", "abc"), "robot.dh[2].a_mm",
-     "must be a finite number, got 'abc'"),
-    ("bool for number", _set("water", "temperature_c", True), "water.temperature_c",
-     "must be a finite number"),
+    (
+        "nan",
+        _set("sample", "position_mm", [float("nan"), 0.0, 0.0]),
+        "sample.position_mm[0]",
+        "must be a finite number, got nan",
+    ),
+    (
+        "inf",
+        _set("transducer", "element_diameter_mm", float("inf")),
+        "transducer.element_diameter_mm",
+        "finite",
+    ),
+    (
+        "text for number",
+        _dh(2, "a_mm", "abc"),
+        "robot.dh[2].a_mm",
+        "must be a finite number, got 'abc'",
+    ),
+    (
+        "bool for number",
+        _set("water", "temperature_c", True),
+        "water.temperature_c",
+        "must be a finite number",
+    ),
     ("unknown model", _unknown_model, "robot.model", "unknown robot model 'tx200'"),
     ("schema", _schema, "schema", "must be 1"),
     ("hot water", _set("water", "temperature_c", 80.0), "water.temperature_c", "<= 60"),
-    ("zero frequency", _set("transducer", "frequency_mhz", 0.0), "transducer.frequency_mhz",
-     "> 0"),
+    ("zero frequency", _set("transducer", "frequency_mhz", 0.0), "transducer.frequency_mhz", "> 0"),
     ("negative face", _set("sample", "face_size_mm", -1.0), "sample.face_size_mm", "> 0"),
-    ("joint range", _set("robot", "joint_min_deg", [-180.0, -130.0, 150.0, -270.0, -115.0,
-                                                    -270.0]),
-     "robot.joint_min_deg[2]", "must be below maximum"),
-    ("big offset", _set("calibration", "joint_offsets_deg", [0, 45, 0, 0, 0, 0]),
-     "calibration.joint_offsets_deg[1]", "<= 30"),
-    ("joint number", _set("calibration", "unobservable_joints", [7]),
-     "calibration.unobservable_joints[0]", "<= 6"),
-    ("joint number type", _set("calibration", "unobservable_joints", [1.0]),
-     "calibration.unobservable_joints[0]", "must be an integer"),
-    ("two points", _set("reflector", "points_mm", [[0, 0, 0], [1, 0, 0]]),
-     "reflector.points_mm", "at least 3"),
-    ("collinear", _set("reflector", "points_mm", [[0, 0, 0], [100, 0, 0], [200, 0, 0]]),
-     "reflector.points_mm", "collinear"),
-    ("duplicate", _set("reflector", "points_mm", [[0, 0, 0], [100, 0, 0], [100, 0, 0]]),
-     "reflector.points_mm[2]", "duplicates point 1"),
+    (
+        "joint range",
+        _set("robot", "joint_min_deg", [-180.0, -130.0, 150.0, -270.0, -115.0, -270.0]),
+        "robot.joint_min_deg[2]",
+        "must be below maximum",
+    ),
+    (
+        "big offset",
+        _set("calibration", "joint_offsets_deg", [0, 45, 0, 0, 0, 0]),
+        "calibration.joint_offsets_deg[1]",
+        "<= 30",
+    ),
+    (
+        "joint number",
+        _set("calibration", "unobservable_joints", [7]),
+        "calibration.unobservable_joints[0]",
+        "<= 6",
+    ),
+    (
+        "joint number type",
+        _set("calibration", "unobservable_joints", [1.0]),
+        "calibration.unobservable_joints[0]",
+        "must be an integer",
+    ),
+    (
+        "two points",
+        _set("reflector", "points_mm", [[0, 0, 0], [1, 0, 0]]),
+        "reflector.points_mm",
+        "at least 3",
+    ),
+    (
+        "collinear",
+        _set("reflector", "points_mm", [[0, 0, 0], [100, 0, 0], [200, 0, 0]]),
+        "reflector.points_mm",
+        "collinear",
+    ),
+    (
+        "duplicate",
+        _set("reflector", "points_mm", [[0, 0, 0], [100, 0, 0], [100, 0, 0]]),
+        "reflector.points_mm[2]",
+        "duplicates point 1",
+    ),
     ("speed", _set("procedure", "speed", 1.5), "procedure.speed", "<= 1"),
-    ("first-state timeout", _set("controller", "first_state_timeout_s", 0.0),
-     "controller.first_state_timeout_s", "> 0"),
-    ("settle timeout", _set("controller", "settle_timeout_s", "long"),
-     "controller.settle_timeout_s", "finite"),
-    ("averages", _set("procedure", "tof_averages", 2.5), "procedure.tof_averages",
-     "must be an integer"),
-    ("pose out of range", _set("procedure", "calibration_pose_deg", [0, 150, 0, 0, 45, 0]),
-     "procedure.calibration_pose_deg[1]", "outside its range"),
-    ("not a table", _set("tool", "position_mm", {"x": 1}), "tool.position_mm",
-     "must be an array"),
+    (
+        "first-state timeout",
+        _set("controller", "first_state_timeout_s", 0.0),
+        "controller.first_state_timeout_s",
+        "> 0",
+    ),
+    (
+        "settle timeout",
+        _set("controller", "settle_timeout_s", "long"),
+        "controller.settle_timeout_s",
+        "finite",
+    ),
+    (
+        "averages",
+        _set("procedure", "tof_averages", 2.5),
+        "procedure.tof_averages",
+        "must be an integer",
+    ),
+    (
+        "pose out of range",
+        _set("procedure", "calibration_pose_deg", [0, 150, 0, 0, 45, 0]),
+        "procedure.calibration_pose_deg[1]",
+        "outside its range",
+    ),
+    ("not a table", _set("tool", "position_mm", {"x": 1}), "tool.position_mm", "must be an array"),
 ]
 
 
-@pytest.mark.parametrize("case, mutate, key, message", MALFORMED,
-                         ids=[c[0] for c in MALFORMED])
+@pytest.mark.parametrize("case, mutate, key, message", MALFORMED, ids=[c[0] for c in MALFORMED])
 def test_malformed_profile_exits_2_naming_file_and_key(
-        case: str, mutate: Mutation, key: str, message: str, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
+    case: str,
+    mutate: Mutation,
+    key: str,
+    message: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     doc = tomlkit.parse(default_profile_text("tx90l"))
     mutate(doc)
     path = tmp_path / "bad.toml"
@@ -311,8 +384,9 @@ def test_malformed_profile_exits_2_naming_file_and_key(
         assert "Traceback" not in out.err
 
 
-def test_fk_with_malformed_profile_exits_2(tmp_path: Path,
-                                           capsys: pytest.CaptureFixture[str]) -> None:
+def test_fk_with_malformed_profile_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     doc = tomlkit.parse(default_profile_text("tx90l"))
     doc["tool"]["rotation_deg"] = [0.0, "x", 0.0]
     path = tmp_path / "bad.toml"
@@ -320,8 +394,9 @@ def test_fk_with_malformed_profile_exits_2(tmp_path: Path,
     with pytest.raises(SystemExit) as exc:
         main(["fk", str(path), "--joints", "0,0,0,0,0,0"])
     assert exc.value.code == 2
-    assert f"{path}: tool.rotation_deg[1]: must be a finite number, got 'x'" in \
-        capsys.readouterr().err
+    assert (
+        f"{path}: tool.rotation_deg[1]: must be a finite number, got 'x'" in capsys.readouterr().err
+    )
 
 
 def test_unknown_keys_are_warnings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -341,13 +416,20 @@ def test_unknown_keys_are_warnings(tmp_path: Path, capsys: pytest.CaptureFixture
 def test_write_keeps_comments_and_key_order(cell: Path) -> None:
     before = cell.read_text()
     offsets = np.array([0.12, -0.25, 0.5, 0.0, -1.75, 0.3])
-    write_profile(cell, {"calibration": {"joint_offsets_deg": offsets,
-                                         "unobservable_joints": np.array([4]),
-                                         "method": "exact"},
-                         "tool": {"position_mm": np.array([0.5, -0.25, 81.0])},
-                         "reflector": {"plate": "steel"},
-                         "water": {"temperature_c": np.float64(21.5)}},
-                  reason="calibrate")
+    write_profile(
+        cell,
+        {
+            "calibration": {
+                "joint_offsets_deg": offsets,
+                "unobservable_joints": np.array([4]),
+                "method": "exact",
+            },
+            "tool": {"position_mm": np.array([0.5, -0.25, 81.0])},
+            "reflector": {"plate": "steel"},
+            "water": {"temperature_c": np.float64(21.5)},
+        },
+        reason="calibrate",
+    )
     after = cell.read_text()
     assert _comments(after) == _comments(before)
     keys_before = _keys_in_order(before)
@@ -372,8 +454,14 @@ def test_write_keeps_comments_and_key_order(cell: Path) -> None:
     # only the lines of the written keys differ
     diff = difflib.ndiff(before.splitlines(), after.splitlines())
     changed = {line[2:].split(" =")[0] for line in diff if line[:2] in ("- ", "+ ")}
-    assert changed == {"joint_offsets_deg", "unobservable_joints", "method", "position_mm",
-                       "plate", "temperature_c"}
+    assert changed == {
+        "joint_offsets_deg",
+        "unobservable_joints",
+        "method",
+        "position_mm",
+        "plate",
+        "temperature_c",
+    }
 
 
 def test_write_adds_a_missing_table(cell: Path) -> None:
@@ -387,15 +475,17 @@ def test_write_adds_a_missing_table(cell: Path) -> None:
 def test_write_that_would_invalidate_the_profile_is_refused(cell: Path) -> None:
     before = cell.read_bytes()
     with pytest.raises(ProfileError) as err:
-        write_profile(cell, {"calibration": {"joint_offsets_deg": [0, 0, 99.0, 0, 0, 0]}},
-                      reason="calibrate")
+        write_profile(
+            cell, {"calibration": {"joint_offsets_deg": [0, 0, 99.0, 0, 0, 0]}}, reason="calibrate"
+        )
     assert err.value.key == "calibration.joint_offsets_deg[2]"
     assert cell.read_bytes() == before
     assert profile_history(cell) == []
 
 
-def test_failed_replace_leaves_the_profile_unchanged(cell: Path,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_replace_leaves_the_profile_unchanged(
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     before = cell.read_bytes()
     real_replace = os.replace
 
@@ -406,8 +496,7 @@ def test_failed_replace_leaves_the_profile_unchanged(cell: Path,
 
     monkeypatch.setattr(profile_mod.os, "replace", failing_replace)
     with pytest.raises(ProfileError, match="cannot write: No space left on device"):
-        write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}},
-                      reason="calibrate")
+        write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}}, reason="calibrate")
     assert cell.read_bytes() == before
     # no temporary file left behind, no history entry or copy for the failed write
     assert sorted(p.name for p in cell.parent.iterdir()) == ["cell.toml", "cell.toml.history"]
@@ -415,8 +504,9 @@ def test_failed_replace_leaves_the_profile_unchanged(cell: Path,
     assert not (history_dir(cell) / "0001-before.toml").exists()
 
 
-def test_failed_temp_write_leaves_the_profile_unchanged(cell: Path,
-                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_temp_write_leaves_the_profile_unchanged(
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     before = cell.read_bytes()
 
     def failing_fsync(fd: int) -> None:
@@ -424,8 +514,7 @@ def test_failed_temp_write_leaves_the_profile_unchanged(cell: Path,
 
     monkeypatch.setattr(profile_mod.os, "fsync", failing_fsync)
     with pytest.raises(ProfileError):
-        write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}},
-                      reason="calibrate")
+        write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}}, reason="calibrate")
     assert cell.read_bytes() == before
     assert not [p for p in cell.parent.iterdir() if p.name.endswith(".tmp")]
 
@@ -446,8 +535,10 @@ def test_undo_restores_the_previous_bytes(cell: Path) -> None:
     v2 = cell.read_bytes()
     assert len({v0, v1, v2}) == 3
     entries = profile_history(cell)
-    assert [(e.id, e.reason, e.undone) for e in entries] == [(1, "calibrate", False),
-                                                             (2, "tool-frame", False)]
+    assert [(e.id, e.reason, e.undone) for e in entries] == [
+        (1, "calibrate", False),
+        (2, "tool-frame", False),
+    ]
 
     undone = undo_profile(cell)
     assert undone.id == 2
@@ -489,8 +580,9 @@ def test_undo_via_cli(cell: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "nothing to undo" in capsys.readouterr().err
 
 
-def test_failed_undo_leaves_the_profile_unchanged(cell: Path,
-                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_undo_leaves_the_profile_unchanged(
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     write_profile(cell, {"calibration": {"joint_offsets_deg": [0.1] * 6}}, reason="calibrate")
     v1 = cell.read_bytes()
     real_replace = os.replace

@@ -39,8 +39,13 @@ def cell(tmp_path: Path) -> Path:
 
 def _hold(cell: Path, mode: str = "hold") -> subprocess.Popen[str]:
     """Another process holding the profile (it says so before returning)."""
-    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(cell), mode], cwd=REPO, text=True,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(cell), mode],
+        cwd=REPO,
+        text=True,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+    )
     assert proc.stdout is not None
     assert proc.stdout.readline().strip() == "locked"
     return proc
@@ -73,8 +78,11 @@ def test_a_second_holder_is_refused_naming_the_first(cell: Path) -> None:
 
 
 def test_the_same_process_cannot_take_it_twice(cell: Path) -> None:
-    with (profile_lock(cell, command="first"), pytest.raises(InputError, match="first"),
-          profile_lock(cell)):
+    with (
+        profile_lock(cell, command="first"),
+        pytest.raises(InputError, match="first"),
+        profile_lock(cell),
+    ):
         pass
 
 
@@ -90,13 +98,17 @@ def test_links_to_one_profile_share_its_lock(cell: Path, tmp_path: Path) -> None
     link = tmp_path / "other-name.toml"
     link.symlink_to(cell)
     assert lock_path(link) == lock_path(cell) == cell.with_name("cell.toml.lock")
-    with (profile_lock(cell), pytest.raises(InputError, match="in use by another run"),
-          profile_lock(link)):
+    with (
+        profile_lock(cell),
+        pytest.raises(InputError, match="in use by another run"),
+        profile_lock(link),
+    ):
         pass
 
 
 def test_calibrate_refuses_a_profile_in_use_before_any_motion(
-        cell: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cell: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     before = cell.read_bytes()
     proc = _hold(cell)
     try:
@@ -117,35 +129,40 @@ def test_writable_directory_with_room_passes(cell: Path) -> None:
     check_writable(cell)
 
 
-def test_unwritable_profile_directory_is_named(cell: Path, monkeypatch: pytest.MonkeyPatch
-                                               ) -> None:
+def test_unwritable_profile_directory_is_named(cell: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     real_access = os.access
-    monkeypatch.setattr(profile_mod.os, "access",
-                        lambda p, mode: False if Path(p) == cell.parent else real_access(p, mode))
-    with pytest.raises(ProfileError, match=rf"^{cell.parent}: profile directory is not "
-                                           "writable") as err:
+    monkeypatch.setattr(
+        profile_mod.os,
+        "access",
+        lambda p, mode: False if Path(p) == cell.parent else real_access(p, mode),
+    )
+    with pytest.raises(
+        ProfileError,
+        match=rf"^{cell.parent}: profile directory is not "
+        "writable",
+    ) as err:
         check_writable(cell)
     assert err.value.exit_code == EXIT_USAGE
 
 
-def test_unwritable_history_directory_is_named(cell: Path, monkeypatch: pytest.MonkeyPatch
-                                               ) -> None:
+def test_unwritable_history_directory_is_named(cell: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     hdir = cell.with_name("cell.toml.history")
     hdir.mkdir()
     real_access = os.access
-    monkeypatch.setattr(profile_mod.os, "access",
-                        lambda p, mode: False if Path(p) == hdir else real_access(p, mode))
+    monkeypatch.setattr(
+        profile_mod.os, "access", lambda p, mode: False if Path(p) == hdir else real_access(p, mode)
+    )
     with pytest.raises(ProfileError, match=rf"^{hdir}: history directory is not writable"):
         check_writable(cell)
 
 
-def test_full_disk_is_refused_before_the_run(cell: Path, monkeypatch: pytest.MonkeyPatch,
-                                             capsys: pytest.CaptureFixture[str]) -> None:
+def test_full_disk_is_refused_before_the_run(
+    cell: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     import shutil
 
     usage = shutil.disk_usage(cell.parent)
-    monkeypatch.setattr(shutil, "disk_usage",
-                        lambda p: usage._replace(free=4096))
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=4096))
     before = cell.read_bytes()
     with pytest.raises(ProfileError, match=r"4096 bytes free"):
         check_writable(cell)

@@ -74,7 +74,8 @@ def _full_disk(monkeypatch: pytest.MonkeyPatch, fail_from_call: int = 1) -> list
 
 @pytest.mark.parametrize("fail_from_call", [1, 2, 3], ids=["history-copy", "index", "profile"])
 def test_full_disk_leaves_the_profile_and_history_as_they_were(
-        cell: Path, monkeypatch: pytest.MonkeyPatch, fail_from_call: int) -> None:
+    cell: Path, monkeypatch: pytest.MonkeyPatch, fail_from_call: int
+) -> None:
     write_profile(cell, {"water": {"temperature_c": 21.0}}, reason="first")  # history exists
     before = cell.read_bytes()
     hdir = history_dir(cell)
@@ -97,8 +98,9 @@ def test_full_disk_leaves_the_profile_and_history_as_they_were(
     assert [e.before for e in profile_history(cell)] == ["0001-before.toml", "0002-before.toml"]
 
 
-def test_failed_history_copy_does_not_block_later_writes(cell: Path,
-                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_history_copy_does_not_block_later_writes(
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     before = cell.read_bytes()
     with monkeypatch.context() as m:
         _full_disk(m)
@@ -123,7 +125,8 @@ def test_a_copy_left_by_an_older_interrupted_write_is_skipped(cell: Path) -> Non
 
 
 def test_undo_on_a_full_disk_leaves_everything_as_it_was(
-        cell: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     write_profile(cell, UPDATE, reason="calibrate")
     after = cell.read_bytes()
     hdir = history_dir(cell)
@@ -138,7 +141,8 @@ def test_undo_on_a_full_disk_leaves_everything_as_it_was(
 
 
 def test_a_failed_final_rename_withdraws_the_history_entry(
-        cell: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cell: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     before = cell.read_bytes()
     real_replace = os.replace
 

@@ -38,10 +38,12 @@ def test_floats_round_trip_bit_for_bit_through_json(values: list[float]) -> None
 
 
 def test_driver_dataclasses_round_trip() -> None:
-    values = [GateReading(0.5, float("nan"), 7, 1.25, 3.0e-3),
-              ControllerStatus(True, False, None, False, 0, 2, True),
-              JointSample(0.02, np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])),
-              PulserSettings(gain_db=31.5, averages=4)]
+    values = [
+        GateReading(0.5, float("nan"), 7, 1.25, 3.0e-3),
+        ControllerStatus(True, False, None, False, 0, 2, True),
+        JointSample(0.02, np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])),
+        PulserSettings(gain_db=31.5, averages=4),
+    ]
     for v in values:
         back = decode(json.loads(json.dumps(encode(v), allow_nan=False)))
         assert type(back) is type(v)
@@ -50,8 +52,14 @@ def test_driver_dataclasses_round_trip() -> None:
 
 def _write(path: Path, calls: list[tuple[str, tuple, object]], end: dict | None) -> None:
     with Recorder(path) as rec:
-        rec.open({"command": "calibrate", "profile_text": PROFILE_TEXT,
-                  "profile_sha256": sha256_text(PROFILE_TEXT), "cell": "test"})
+        rec.open(
+            {
+                "command": "calibrate",
+                "profile_text": PROFILE_TEXT,
+                "profile_sha256": sha256_text(PROFILE_TEXT),
+                "cell": "test",
+            }
+        )
         for name, args, result in calls:
             rec.call(name, args, result)
         if end is not None:
@@ -61,8 +69,15 @@ def _write(path: Path, calls: list[tuple[str, tuple, object]], end: dict | None)
 def test_replay_serves_the_recorded_results_in_order(tmp_path: Path) -> None:
     path = tmp_path / "run.jsonl"
     reading = GateReading(0.25, 6.7e4, 1, 0.0, 0.5)
-    _write(path, [("clock.now", (), 0.5), ("controller.read_joints", (), np.arange(6.0)),
-                  ("pulser.read_gate", (), reading)], {"joint_offsets_deg": [0.0] * 6})
+    _write(
+        path,
+        [
+            ("clock.now", (), 0.5),
+            ("controller.read_joints", (), np.arange(6.0)),
+            ("pulser.read_gate", (), reading),
+        ],
+        {"joint_offsets_deg": [0.0] * 6},
+    )
     record = read_record(path)
     replay = Replay(record)
     controller, pulser = ReplayController(replay, "x"), ReplayPulser(replay, "y")
@@ -84,7 +99,7 @@ def test_a_run_cut_off_mid_line_leaves_a_readable_record(tmp_path: Path) -> None
     path = tmp_path / "run.jsonl"
     _write(path, [("clock.now", (), float(i)) for i in range(5)], None)
     text = path.read_text()
-    path.write_text(text[:-7])          # the last line is cut in the middle
+    path.write_text(text[:-7])  # the last line is cut in the middle
     record = read_record(path)
     assert isinstance(record, Record)
     assert [c["result"] for c in record.calls] == [0.0, 1.0, 2.0, 3.0]

@@ -30,10 +30,7 @@ def profile():
 
 
 def test_deviation_stats_exact_numbers() -> None:
-    dev = np.array([[1.0, -2.0, 0.5],
-                    [-3.0, 2.0, 0.5],
-                    [2.0, -2.0, -0.5],
-                    [-2.0, 4.0, 1.5]])
+    dev = np.array([[1.0, -2.0, 0.5], [-3.0, 2.0, 0.5], [2.0, -2.0, -0.5], [-2.0, 4.0, 1.5]])
     st = deviation_stats(dev)
     # |Δ|: X 1, 3, 2, 2 → mean 2, max 3, std sqrt(0.5); Y 2, 2, 2, 4 → 2.5, 4, sqrt(0.75)
     # Z 0.5, 0.5, 0.5, 1.5 → 0.75, 1.5, sqrt(0.1875)
@@ -49,8 +46,9 @@ def test_wrist_centre_from_distances_adds_the_lever() -> None:
     assert w == pytest.approx([250.0, 275.5, 210.0])
 
 
-@pytest.mark.parametrize("n, shape", [(20, (5, 4)), (4, (2, 2)), (6, (3, 2)), (9, (3, 3)),
-                                      (7, (7, 1)), (1, (1, 1))])
+@pytest.mark.parametrize(
+    "n, shape", [(20, (5, 4)), (4, (2, 2)), (6, (3, 2)), (9, (3, 3)), (7, (7, 1)), (1, (1, 1))]
+)
 def test_grid_shape(n: int, shape: tuple[int, int]) -> None:
     assert grid_shape(n) == shape
 
@@ -78,11 +76,16 @@ def test_reached_tcp_from_three_exact_face_measurements(profile) -> None:
     for target in plan.targets:
         q_cmd = target.joints_deg
         # the true robot's normal-incidence postures, same arm joints
-        peaks = np.array([aim_wrist(geom, target.face_joints_deg[k], -geom.normal(k), true)
-                          for k in range(3)])
+        peaks = np.array(
+            [aim_wrist(geom, target.face_joints_deg[k], -geom.normal(k), true) for k in range(3)]
+        )
         assert np.allclose(peaks[:, :3], q_cmd[:3])
-        dist = np.array([geom.normal(k) @ (beam_and_tcp(geom, peaks[k], true)[1] - s_mat[:3, 3])
-                         for k in range(3)])
+        dist = np.array(
+            [
+                geom.normal(k) @ (beam_and_tcp(geom, peaks[k], true)[1] - s_mat[:3, 3])
+                for k in range(3)
+            ]
+        )
         w = wrist_centre_from_distances(dist, lever)
         orient = estimate_orientation(geom, peaks, plan.offsets_deg[target.pass_name])
         got = reached_tcp_local(geom, w, orient, q_cmd, v)
@@ -102,8 +105,9 @@ def test_orientation_ignores_the_unseen_joint_6(profile) -> None:
     tcps = []
     for j6 in (0.0, 3.0):
         true = np.array([0.0, 0.0, 0.0, 0.0, 0.0, j6])
-        peaks = np.array([aim_wrist(geom, t.face_joints_deg[k], -geom.normal(k), true)
-                          for k in range(3)])
+        peaks = np.array(
+            [aim_wrist(geom, t.face_joints_deg[k], -geom.normal(k), true) for k in range(3)]
+        )
         orient = estimate_orientation(geom, peaks, np.zeros(6))
         assert orient.rms_deg < 1e-8
         tcps.append(reached_tcp_local(geom, np.zeros(3), orient, t.joints_deg, v))
@@ -114,7 +118,7 @@ def test_orientation_ignores_the_unseen_joint_6(profile) -> None:
 
 def test_plan_refuses_an_unreachable_block(profile) -> None:
     far = profile.replace(sample_position_mm=profile.sample_position_mm + [2000.0, 0.0, 0.0])
-    with pytest.raises(SafetyError, match="unreachable|range"):
+    with pytest.raises(SafetyError, match=r"unreachable|range"):
         plan_verify(far, 4)
 
 
@@ -124,7 +128,7 @@ def test_plan_uses_the_offsets_in_the_after_pass_only(profile) -> None:
     before = [t for t in plan.targets if t.pass_name == "before"]
     after = [t for t in plan.targets if t.pass_name == "after"]
     assert len(before) == len(after) == 4
-    for b, a in zip(before, after):
+    for b, a in zip(before, after, strict=True):
         # the commanded readings of "after" put the *offset* model's TCP on the point
         tb = beam_and_tcp(geometry(profile), b.joints_deg, np.zeros(6))[1]
         ta = beam_and_tcp(geometry(profile), a.joints_deg, off)[1]
@@ -141,8 +145,11 @@ def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
     first = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     write_profile(path, {"calibration": {"joint_offsets_deg": first}}, "calibrate --method exact")
     write_profile(path, {"tool": {"position_mm": [1.0, 0.0, 80.0]}}, "tool-frame (exact)")
-    write_profile(path, {"calibration": {"joint_offsets_deg": [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}},
-                  "calibrate --method exact")
+    write_profile(
+        path,
+        {"calibration": {"joint_offsets_deg": [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}},
+        "calibrate --method exact",
+    )
     before = offsets_before_calibration(path)
     assert before.offsets_deg.tolist() == first and "history entry 3" in before.source
     stats = {"max": [0.1, 0.4, 0.2]}

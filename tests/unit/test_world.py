@@ -31,11 +31,22 @@ def _world(tmp_path: Path, text: str) -> Path:
 
 def _assert_same(a: WorldTruth, b: WorldTruth) -> None:
     np.testing.assert_array_equal(a.model.dh, b.model.dh)
-    for name in ("joint_offsets_deg", "tool_position_mm", "tool_rotation_deg",
-                 "sample_position_mm", "sample_rotation_deg", "initial_joints_deg"):
+    for name in (
+        "joint_offsets_deg",
+        "tool_position_mm",
+        "tool_rotation_deg",
+        "sample_position_mm",
+        "sample_rotation_deg",
+        "initial_joints_deg",
+    ):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
-    for name in ("sample_face_size_mm", "water_temperature_c", "frequency_mhz",
-                 "element_diameter_mm", "noise"):
+    for name in (
+        "sample_face_size_mm",
+        "water_temperature_c",
+        "frequency_mhz",
+        "element_diameter_mm",
+        "noise",
+    ):
         assert getattr(a, name) == getattr(b, name), name
     np.testing.assert_allclose(a.reflector.point_mm, b.reflector.point_mm)
     np.testing.assert_allclose(a.reflector.normal, b.reflector.normal)
@@ -50,7 +61,9 @@ def test_no_world_and_empty_world_are_nominal(profile: CellProfile, tmp_path: Pa
 
 
 def test_world_overrides(profile: CellProfile, tmp_path: Path) -> None:
-    path = _world(tmp_path, """
+    path = _world(
+        tmp_path,
+        """
 [robot]
 joint_offsets_deg = [0.5, -0.3, 0.25, 0.1, -0.4, 0.2]
 initial_joints_deg = [0, 10, 90, 0, 45, 0]
@@ -71,7 +84,8 @@ frequency_mhz = 10
 tof_ns = 0.5
 amplitude = 0.02
 seed = 7
-""")
+""",
+    )
     w = load_world(path, profile)
     np.testing.assert_array_equal(w.joint_offsets_deg, [0.5, -0.3, 0.25, 0.1, -0.4, 0.2])
     np.testing.assert_array_equal(w.initial_joints_deg, [0, 10, 90, 0, 45, 0])
@@ -90,8 +104,9 @@ seed = 7
     np.testing.assert_array_equal(w.model.dh, profile.model.dh)
 
 
-def test_world_partial_reflector_keeps_the_profile_plate(profile: CellProfile,
-                                                         tmp_path: Path) -> None:
+def test_world_partial_reflector_keeps_the_profile_plate(
+    profile: CellProfile, tmp_path: Path
+) -> None:
     w = load_world(_world(tmp_path, "[reflector]\nnormal = [0.01, 0, 1]\n"), profile)
     np.testing.assert_allclose(w.reflector.point_mm, profile.reflector_points_mm.mean(0))
     assert w.reflector.normal[0] == pytest.approx(0.01 / np.hypot(0.01, 1))
@@ -113,14 +128,14 @@ def test_world_model_and_dh(profile: CellProfile, tmp_path: Path) -> None:
     np.testing.assert_array_equal(w.tool_position_mm, profile.tool_position_mm)
 
 
-def test_world_needs_a_plate_if_the_profile_has_none(profile: CellProfile,
-                                                     tmp_path: Path) -> None:
+def test_world_needs_a_plate_if_the_profile_has_none(profile: CellProfile, tmp_path: Path) -> None:
     bare = profile.replace(reflector_points_mm=None)
     with pytest.raises(ProfileError) as err:
         load_world(_world(tmp_path, "[reflector]\npoint_mm = [0, 0, 0]\n"), bare)
     assert err.value.key == "reflector.normal"
-    w = load_world(_world(tmp_path, "[reflector]\npoint_mm = [1, 2, 3]\nnormal = [0, 0, 1]\n"),
-                   bare)
+    w = load_world(
+        _world(tmp_path, "[reflector]\npoint_mm = [1, 2, 3]\nnormal = [0, 0, 1]\n"), bare
+    )
     np.testing.assert_array_equal(w.reflector.point_mm, [1, 2, 3])
 
 
@@ -136,19 +151,24 @@ def _dh_world(row: str) -> str:
 
 BAD_WORLDS = [
     ("[robot]\njoint_offsets_deg = [0, 0, 0]\n", "robot.joint_offsets_deg", "must have 6"),
-    ("[robot]\njoint_offsets_deg = [0, nan, 0, 0, 0, 0]\n", "robot.joint_offsets_deg[1]",
-     "finite"),
+    ("[robot]\njoint_offsets_deg = [0, nan, 0, 0, 0, 0]\n", "robot.joint_offsets_deg[1]", "finite"),
     ('[robot]\nmodel = "kr16"\n', "robot.model", "unknown robot model"),
-    ("[robot]\ninitial_joints_deg = [0, 0, 0, 0, 200, 0]\n", "robot.initial_joints_deg[4]",
-     "outside its range"),
+    (
+        "[robot]\ninitial_joints_deg = [0, 0, 0, 0, 200, 0]\n",
+        "robot.initial_joints_deg[4]",
+        "outside its range",
+    ),
     ('[tool]\nposition_mm = [0, 0, "80"]\n', "tool.position_mm[2]", "got '80'"),
     ("[noise]\ntof_ns = -1\n", "noise.tof_ns", ">= 0"),
     ("[noise]\nseed = 1.5\n", "noise.seed", "integer"),
     ("[water]\ntemperature_c = -5\n", "water.temperature_c", ">= 0"),
     ("[transducer]\nelement_diameter_mm = 0\n", "transducer.element_diameter_mm", "> 0"),
     ("[reflector]\nnormal = [0, 0, 0]\n", "reflector.normal", "non-zero"),
-    ("[reflector]\nnormal = [0, 0, 1]\nedge_direction = [0, 0, 2]\n",
-     "reflector.edge_direction", "parallel"),
+    (
+        "[reflector]\nnormal = [0, 0, 1]\nedge_direction = [0, 0, 2]\n",
+        "reflector.edge_direction",
+        "parallel",
+    ),
     ("[reflector]\nsize_mm = [100, -1]\n", "reflector.size_mm[1]", "> 0"),
     ("[sample]\nface_size_mm = 0\n", "sample.face_size_mm", "> 0"),
     ("noise = 3\n", "noise", "must be a table"),
@@ -164,22 +184,26 @@ BAD_WORLDS = [
     ("[pulser]\ndelay_ns = 20000\n", "pulser.delay_ns", "<= 10000"),
     ("pulser = 1\n", "pulser", "must be a table"),
     ("[reflector]\nedge_radius_mm = -1\n", "reflector.edge_radius_mm", ">= 0"),
-    ("[reflector]\nsize_mm = [30, 30]\nedge_radius_mm = 15\n", "reflector.edge_radius_mm",
-     "no flat plate"),
+    (
+        "[reflector]\nsize_mm = [30, 30]\nedge_radius_mm = 15\n",
+        "reflector.edge_radius_mm",
+        "no flat plate",
+    ),
     ("[reflector]\nflatness_mm = 6\n", "reflector.flatness_mm", "<= 5"),
     ("[transducer]\nsquint_deg = 6\n", "transducer.squint_deg", "<= 5"),
     ("[transducer]\nnear_field = 1\n", "transducer.near_field", "true or false"),
     ('[controller]\nserver = "val4"\n', "controller.server", "unknown server 'val4'"),
     ("[controller]\nstartup_silence_s = -1\n", "controller.startup_silence_s", ">= 0"),
     (_dh_world("[0, 0, 50, -90, 31]"), "robot.dh[0][4]", "<= 30"),
-    (_dh_world(_ROW2 + ", beta_deg = \"x\"}"), "robot.dh[1].beta_deg", "finite"),
+    (_dh_world(_ROW2 + ', beta_deg = "x"}'), "robot.dh[1].beta_deg", "finite"),
     (_dh_world(_ROW2 + ", gamma_deg = 1}"), "robot.dh[1].gamma_deg", "unknown DH column"),
 ]
 
 
 @pytest.mark.parametrize("text, key, message", BAD_WORLDS, ids=[b[1] for b in BAD_WORLDS])
-def test_bad_world_names_file_and_key(text: str, key: str, message: str,
-                                      profile: CellProfile, tmp_path: Path) -> None:
+def test_bad_world_names_file_and_key(
+    text: str, key: str, message: str, profile: CellProfile, tmp_path: Path
+) -> None:
     path = _world(tmp_path, text)
     with pytest.raises(ProfileError) as err:
         load_world(path, profile)
@@ -191,8 +215,10 @@ def test_bad_world_names_file_and_key(text: str, key: str, message: str,
 
 def test_world_unknown_keys_are_reported(tmp_path: Path) -> None:
     path = _world(tmp_path, "[noise]\ntof_ns = 1.0\nsigma = 2\n[wind]\nspeed = 1\n")
-    assert world_warnings(path) == ["unknown key noise.sigma (ignored)",
-                                    "unknown key wind (ignored)"]
+    assert world_warnings(path) == [
+        "unknown key noise.sigma (ignored)",
+        "unknown key wind (ignored)",
+    ]
 
 
 def test_new_effects_default_to_zero(profile: CellProfile, tmp_path: Path) -> None:
@@ -207,7 +233,9 @@ def test_new_effects_default_to_zero(profile: CellProfile, tmp_path: Path) -> No
 
 
 def test_world_effect_keys(profile: CellProfile, tmp_path: Path) -> None:
-    path = _world(tmp_path, """
+    path = _world(
+        tmp_path,
+        """
 [robot]
 backlash_deg = [0.01, 0.02, 0.02, 0.03, 0.03, 0.04]
 [water]
@@ -220,7 +248,8 @@ delay_ns = 35.5
 [controller]
 server = "val3-feedback"
 startup_silence_s = 2.5
-""")
+""",
+    )
     w = load_world(path, profile)
     assert (w.controller_server, w.controller_silence_s) == ("val3-feedback", 2.5)
     np.testing.assert_array_equal(w.backlash_deg, [0.01, 0.02, 0.02, 0.03, 0.03, 0.04])
@@ -235,7 +264,9 @@ startup_silence_s = 2.5
 
 
 def test_plate_and_beam_keys(profile: CellProfile, tmp_path: Path) -> None:
-    path = _world(tmp_path, """
+    path = _world(
+        tmp_path,
+        """
 [reflector]
 edge_radius_mm = 1.5
 flatness_mm = 0.05
@@ -243,7 +274,8 @@ flatness_mm = 0.05
 squint_deg = 0.8
 squint_azimuth_deg = 120
 near_field = true
-""")
+""",
+    )
     w = load_world(path, profile)
     assert (w.reflector.edge_radius_mm, w.reflector.flatness_mm) == (1.5, 0.05)
     assert (w.beam_squint_deg, w.beam_squint_azimuth_deg, w.near_field) == (0.8, 120.0, True)

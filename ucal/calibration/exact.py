@@ -7,8 +7,8 @@ joint is unobservable. ``solve_exact`` below is the previous, offsets-only solve
 orientation, tool and sound speed taken as exact); it is kept for the comparison in
 ``benchmarks/realistic.py`` and for predicting postures during a run.
 
-Previous solver. Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame; the block's
-orientation is taken as known, its position is not). Every face measurement contributes
+Previous solver. Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame;
+the block's orientation is taken as known, its position is not). Every face measurement contributes
 (see ``ucal.calibration.model``):
 
     r_tilt = tilt_components(b(q+δ)) / σ_tilt            two residuals, eq. (1)
@@ -66,7 +66,7 @@ class OffsetSolution:
 
     offsets_deg: np.ndarray
     std_deg: np.ndarray
-    unobservable_joints: tuple[int, ...]     # 1-based
+    unobservable_joints: tuple[int, ...]  # 1-based
     condition_number: float
     method: str
     corner_mm: np.ndarray | None = None
@@ -81,9 +81,12 @@ class OffsetSolution:
     unobservable_reasons: dict[int, str] = field(default_factory=dict)
 
 
-def solve_exact_with_priors(prior: CellPrior, meas: list[FaceMeasurement],
-                            max_std_deg: float = MAX_STD_DEG, fixed: tuple[str, ...] = ()
-                            ) -> OffsetSolution:
+def solve_exact_with_priors(
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    max_std_deg: float = MAX_STD_DEG,
+    fixed: tuple[str, ...] = (),
+) -> OffsetSolution:
     """Offsets with the cell's uncertain quantities as prior-constrained unknowns.
 
     A joint whose std exceeds ``max_std_deg`` while less than half of its variance comes from
@@ -104,24 +107,32 @@ def solve_exact_with_priors(prior: CellPrior, meas: list[FaceMeasurement],
         offsets[j] = cell.value(name)
         std[j] = sigma
     return OffsetSolution(
-        offsets_deg=offsets, std_deg=std, unobservable_joints=tuple(sorted(reasons)),
-        condition_number=cell.condition_number, method="exact",
+        offsets_deg=offsets,
+        std_deg=std,
+        unobservable_joints=tuple(sorted(reasons)),
+        condition_number=cell.condition_number,
+        method="exact",
         corner_mm=np.array([cell.value(n) for n in ("block_x_mm", "block_y_mm", "block_z_mm")]),
-        rms_tilt_deg=cell.quality.rms_tilt_deg, rms_distance_mm=cell.quality.rms_distance_mm,
+        rms_tilt_deg=cell.quality.rms_tilt_deg,
+        rms_distance_mm=cell.quality.rms_distance_mm,
         extra={"cell_fit": cell, "chi2_reduced": cell.quality.chi2_reduced},
-        fit=cell.quality, sound_speed_m_s=cell.value("sound_speed_m_s"),
-        sound_speed_std_m_s=cell.sigma("sound_speed_m_s"), unobservable_reasons=reasons)
+        fit=cell.quality,
+        sound_speed_m_s=cell.value("sound_speed_m_s"),
+        sound_speed_std_m_s=cell.sigma("sound_speed_m_s"),
+        unobservable_reasons=reasons,
+    )
 
 
 def unobservable_reason(joint: int, sigma_deg: float, shares: dict[str, float]) -> str:
     """Why joint ``joint`` (1-based) cannot be calibrated, from the sources of its variance."""
-    source, share = max(((k, v) for k, v in shares.items() if k != "data"),
-                        key=lambda kv: kv[1])
+    source, share = max(((k, v) for k, v in shares.items() if k != "data"), key=lambda kv: kv[1])
     if source == OFFSETS[joint - 1]:
         return "the measurements do not move it (e.g. joint 6 with the beam on its axis)"
     what = PRIOR_MEANING.get(source, source)
-    text = (f"cannot be separated from {what}: {100 * share:.0f} % of its variance, "
-            f"std {sigma_deg:.3g} deg")
+    text = (
+        f"cannot be separated from {what}: {100 * share:.0f} % of its variance, "
+        f"std {sigma_deg:.3g} deg"
+    )
     if source == "block_rz_deg":
         text += "; fixture the block (doweled and levelled to 0.01 deg) and state it"
     elif source in ("block_rx_deg", "block_ry_deg"):
@@ -129,14 +140,17 @@ def unobservable_reason(joint: int, sigma_deg: float, shares: dict[str, float]) 
     return text
 
 
-def _initial_corner(geom: CellGeometry, meas: list[FaceMeasurement],
-                    offsets_deg: np.ndarray) -> np.ndarray:
+def _initial_corner(
+    geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.ndarray
+) -> np.ndarray:
     """Corner estimate from eq. (2): n_k·c = n_k·p − d, averaged per face."""
     coord = np.zeros(3)
     for k in range(3):
-        vals = [geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), offsets_deg)[1]
-                - m.distance_mm
-                for m in meas if m.face == k]
+        vals = [
+            geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), offsets_deg)[1] - m.distance_mm
+            for m in meas
+            if m.face == k
+        ]
         coord[k] = np.mean(vals) if vals else 0.0
     return geom.block_rotation @ coord
 
@@ -153,8 +167,13 @@ def tilted_beam(geom: CellGeometry, tilt_rad: np.ndarray | None) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def residuals(geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.ndarray,
-              corner_mm: np.ndarray, beam_flange: np.ndarray | None = None) -> np.ndarray:
+def residuals(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    offsets_deg: np.ndarray,
+    corner_mm: np.ndarray,
+    beam_flange: np.ndarray | None = None,
+) -> np.ndarray:
     """Weighted residual vector (3 per measurement)."""
     q = np.array([m.joints_deg for m in meas])
     beam, _ = beam_and_tcp(geom, q, offsets_deg, beam_flange)
@@ -172,9 +191,14 @@ def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:
     return bool(np.degrees(np.arccos(np.clip(geom.beam_flange[2], -1, 1))) < tol_deg)
 
 
-def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_deg: np.ndarray,
-                rank_tol: float = 1e-6, max_std_deg: float = 0.5, beam: str = "auto"
-                ) -> OffsetSolution:
+def solve_exact(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    prior_offsets_deg: np.ndarray,
+    rank_tol: float = 1e-6,
+    max_std_deg: float = 0.5,
+    beam: str = "auto",
+) -> OffsetSolution:
     """Joint offsets from face measurements by nonlinear least squares (see module docstring).
 
     ``beam``: "fixed" (the profile's tool), "fit" (fit the beam direction too) or "auto".
@@ -187,10 +211,11 @@ def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
         js = jac / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
         _, s, vt = np.linalg.svd(js, full_matrices=False)
         weak = set()
-        for sv, v in zip(s, vt):
+        for sv, v in zip(s, vt, strict=True):
             if sv < rank_tol * s[0]:
-                # One joint per null direction: the one it moves most. Several joints can share a
-                # direction (e.g. θ5, θ6 and the beam azimuth); fixing the main one may free the rest.
+                # One joint per null direction: the one it moves most. Several joints can share
+                # a direction (e.g. θ5, θ6 and the beam azimuth); fixing the main one may free
+                # the rest.
                 i = int(np.argmax(np.abs(v[: len(free)])))
                 if abs(v[i]) > 0.2:
                     weak.add(free[i])
@@ -198,8 +223,11 @@ def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
         cov, scale = _covariance(jac, res)
         std_free = np.sqrt(np.clip(np.diag(cov)[: len(free)], 0, None)) * scale
         if not weak:
-            weak = {j for i, j in enumerate(free) if not np.isfinite(std_free[i])
-                    or std_free[i] > max_std_deg}
+            weak = {
+                j
+                for i, j in enumerate(free)
+                if not np.isfinite(std_free[i]) or std_free[i] > max_std_deg
+            }
         if not weak:
             break
         free = [j for j in free if j not in weak]
@@ -210,38 +238,54 @@ def solve_exact(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
     for i, j in enumerate(free):
         offsets[j] = x[i]
         std[j] = std_free[i]
-    corner = x[len(free):len(free) + 3]
-    beam_vec = tilted_beam(geom, x[len(free) + 3:] if fit_beam else None)
+    corner = x[len(free) : len(free) + 3]
+    beam_vec = tilted_beam(geom, x[len(free) + 3 :] if fit_beam else None)
     r = residuals(geom, meas, offsets, corner, beam_vec).reshape(-1, 3)
-    tilt_rms = float(np.sqrt(np.mean([(r[i, :2] * np.radians(m.tilt_std_deg)) ** 2
-                                      for i, m in enumerate(meas)])))
-    dist_rms = float(np.sqrt(np.mean([(r[i, 2] * m.distance_std_mm) ** 2
-                                      for i, m in enumerate(meas)])))
+    tilt_rms = float(
+        np.sqrt(np.mean([(r[i, :2] * np.radians(m.tilt_std_deg)) ** 2 for i, m in enumerate(meas)]))
+    )
+    dist_rms = float(
+        np.sqrt(np.mean([(r[i, 2] * m.distance_std_mm) ** 2 for i, m in enumerate(meas)]))
+    )
     return OffsetSolution(
-        offsets_deg=offsets, std_deg=std,
+        offsets_deg=offsets,
+        std_deg=std,
         unobservable_joints=tuple(sorted(j + 1 for j in range(6) if j not in free)),
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
-        method="exact", corner_mm=corner, rms_tilt_deg=float(np.degrees(tilt_rms)),
+        method="exact",
+        corner_mm=corner,
+        rms_tilt_deg=float(np.degrees(tilt_rms)),
         rms_distance_mm=dist_rms,
-        extra={"chi2_reduced": float(res @ res / max(1, len(res) - len(x))),
-               "beam_flange": beam_vec, "beam_fitted": fit_beam})
+        extra={
+            "chi2_reduced": float(res @ res / max(1, len(res) - len(x))),
+            "beam_flange": beam_vec,
+            "beam_fitted": fit_beam,
+        },
+    )
 
 
-def _fit(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
-         free: list[int], fit_beam: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fit(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    prior: np.ndarray,
+    free: list[int],
+    fit_beam: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = len(free)
 
     def fun(x: np.ndarray) -> np.ndarray:
         off = prior.copy()
         off[free] = x[:n]
-        beam_vec = tilted_beam(geom, x[n + 3:n + 5]) if fit_beam else None
-        return residuals(geom, meas, off, x[n:n + 3], beam_vec)
+        beam_vec = tilted_beam(geom, x[n + 3 : n + 5]) if fit_beam else None
+        return residuals(geom, meas, off, x[n : n + 3], beam_vec)
 
-    x0 = np.concatenate([prior[free], _initial_corner(geom, meas, prior),
-                         np.zeros(2) if fit_beam else np.zeros(0)])
+    x0 = np.concatenate(
+        [prior[free], _initial_corner(geom, meas, prior), np.zeros(2) if fit_beam else np.zeros(0)]
+    )
     scale = np.concatenate([np.full(n, 1.0), np.full(3, 10.0), np.full(2 if fit_beam else 0, 0.01)])
-    sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                        x_scale=scale, max_nfev=4000)
+    sol = least_squares(
+        fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, x_scale=scale, max_nfev=4000
+    )
     jac = _jacobian(fun, sol.x)
     return sol.x, jac, fun(sol.x)
 

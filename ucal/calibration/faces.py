@@ -40,9 +40,16 @@ ACQUIRE_MAX_DEG = 20.0
 MAX_ACQUISITION_MOVES = 100
 
 
-def make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarray, face: int,
-                est: np.ndarray, ka: float, joints: tuple[int, int] | None = None
-                ) -> PeakSearch:
+def make_search(
+    rig: Rig,
+    geom: CellGeometry,
+    profile: CellProfile,
+    q: np.ndarray,
+    face: int,
+    est: np.ndarray,
+    ka: float,
+    joints: tuple[int, int] | None = None,
+) -> PeakSearch:
     """A peak search across ``face`` whose fit uses the kinematics with offsets ``est``."""
     basis = face_basis(geom, face)
     normal = geom.normal(face)
@@ -56,8 +63,15 @@ def make_search(rig: Rig, geom: CellGeometry, profile: CellProfile, q: np.ndarra
         beam, tcp = beam_and_tcp(geom, qq, est)
         return np.column_stack([beam @ basis.T, tcp @ normal])
 
-    return PeakSearch(rig, ka, js, tilt_map, profile.water_temperature_c, components,
-                      water_absorption_np_per_mm(profile.frequency_mhz))
+    return PeakSearch(
+        rig,
+        ka,
+        js,
+        tilt_map,
+        profile.water_temperature_c,
+        components,
+        water_absorption_np_per_mm(profile.frequency_mhz),
+    )
 
 
 def acquisition_gain(rig: Rig, q_away: np.ndarray) -> float:
@@ -70,9 +84,15 @@ def acquisition_gain(rig: Rig, q_away: np.ndarray) -> float:
     return float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
 
 
-def acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: str,
-                       radius_deg: float, gain_db: float,
-                       max_moves: int = MAX_ACQUISITION_MOVES) -> np.ndarray:
+def acquire_and_centre(
+    search: PeakSearch,
+    rig: Rig,
+    q_pred: np.ndarray,
+    label: str,
+    radius_deg: float,
+    gain_db: float,
+    max_moves: int = MAX_ACQUISITION_MOVES,
+) -> np.ndarray:
     """Raster outward from the prediction, then centre on the main lobe.
 
     Lines 2.5° apart first (at acquisition gain the side lobes show several degrees around
@@ -90,8 +110,7 @@ def acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: 
             left = max_moves - (rig.counters.moves - first_move)
             if left <= 0:
                 break
-            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing,
-                                   max_moves=left)
+            found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing, max_moves=left)
             if found is not None:
                 return search.centre(found[0], 3.0, gain_db)
             reached = max(reached, r)
@@ -101,20 +120,33 @@ def acquire_and_centre(search: PeakSearch, rig: Rig, q_pred: np.ndarray, label: 
     config, _, face = label.rpartition("/")
     where = f"face {face}" + (f" ({config})" if config else "")
     moves = rig.counters.moves - first_move
-    raise HardwareError(f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
-                        f"±{reached:g}° of the predicted posture ({moves} moves): is the block "
-                        "where [sample] says?")
+    raise HardwareError(
+        f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
+        f"±{reached:g}° of the predicted posture ({moves} moves): is the block "
+        "where [sample] says?"
+    )
 
 
 @dataclass(frozen=True)
 class FaceResult:
     measurement: FaceMeasurement
-    prediction_error_deg: float   # beam tilt between the predicted and the found posture
+    prediction_error_deg: float  # beam tilt between the predicted and the found posture
 
 
-def measure_face(rig: Rig, geom: CellGeometry, profile: CellProfile, start: np.ndarray,
-                 face: int, est: np.ndarray, ka: float, acq_gain: float, label: str,
-                 config: str, mode: str = "acquire", radius_deg: float = 16.0) -> FaceResult:
+def measure_face(
+    rig: Rig,
+    geom: CellGeometry,
+    profile: CellProfile,
+    start: np.ndarray,
+    face: int,
+    est: np.ndarray,
+    ka: float,
+    acq_gain: float,
+    label: str,
+    config: str,
+    mode: str = "acquire",
+    radius_deg: float = 16.0,
+) -> FaceResult:
     """Find normal incidence on ``face`` near the posture predicted from ``start`` and read the
     water path; ``mode`` is "direct", "quick" or "acquire" (see module docstring)."""
     q_pred = aim_wrist(geom, start, -geom.normal(face), est)
@@ -145,26 +177,49 @@ def measure_face(rig: Rig, geom: CellGeometry, profile: CellProfile, start: np.n
     path, path_std = peak.distance
     js = list(search.ja_jb)
     err = float(np.degrees(np.linalg.norm(search.m @ (peak.joints_deg[js] - q_pred[js]))))
-    log.info("%s: posture %s, water path %.4f ± %.4f mm, tilt σ %.4f°; prediction %.3f° off "
-             "(%d moves, %d reads so far)", label, np.round(peak.joints_deg, 4).tolist(), path,
-             path_std, peak.tilt_std_deg, err, rig.counters.moves, rig.counters.reads)
-    m = FaceMeasurement(config, face, peak.joints_deg, path,
-                        distance_std_mm=max(path_std, 1e-4),
-                        tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
-                        amplitude=peak.amplitude, distance_joints_deg=peak.distance_joints_deg,
-                        meta={"gain_db": rig.settings.gain_db, "probes": peak.probes,
-                              "search_joints": search.ja_jb})
+    log.info(
+        "%s: posture %s, water path %.4f ± %.4f mm, tilt σ %.4f°; prediction %.3f° off "
+        "(%d moves, %d reads so far)",
+        label,
+        np.round(peak.joints_deg, 4).tolist(),
+        path,
+        path_std,
+        peak.tilt_std_deg,
+        err,
+        rig.counters.moves,
+        rig.counters.reads,
+    )
+    m = FaceMeasurement(
+        config,
+        face,
+        peak.joints_deg,
+        path,
+        distance_std_mm=max(path_std, 1e-4),
+        tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
+        amplitude=peak.amplitude,
+        distance_joints_deg=peak.distance_joints_deg,
+        meta={
+            "gain_db": rig.settings.gain_db,
+            "probes": peak.probes,
+            "search_joints": search.ja_jb,
+        },
+    )
     return FaceResult(m, err)
 
 
-def estimate_offsets(geom: CellGeometry, meas: list[FaceMeasurement], prior: np.ndarray,
-                     corner_prior: np.ndarray, x0: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def estimate_offsets(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    prior: np.ndarray,
+    corner_prior: np.ndarray,
+    x0: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Regularised fit of offsets (deg) and block corner (mm) to the measurements so far.
 
     Used to predict postures. With fewer than the full set the problem is under-determined;
     weak priors (5° on the offsets, 50 mm on the corner) keep the unseen directions in place.
     """
+
     def fun(x: np.ndarray) -> np.ndarray:
         r = residuals(geom, meas, x[:6], x[6:])
         return np.concatenate([r, (x[:6] - prior) / 5.0, (x[6:] - corner_prior) / 50.0])

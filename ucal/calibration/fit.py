@@ -15,7 +15,8 @@ measurement (``ucal.calibration.model``) contributes three rows
     r_dist = (n_k·(p(q'+δ) − c)/cos θ − (c_w/c_0)·d) / σ_d           model eq. (2)
 
 with ``d`` the water path computed with the profile's sound speed ``c_0``, read at the
-readings ``q'`` (``distance_joints``), where the beam may be θ off normal (cos θ = −n_k·b); each prior one row
+readings ``q'`` (``distance_joints``), where the beam may be θ off normal (cos θ = −n_k·b); each
+prior one row
 ``(x − x_prior)/σ_prior``. ``scipy.optimize.least_squares`` minimises the sum of squares and
 returns its own (forward-difference) Jacobian ``J`` of the whole augmented problem.
 
@@ -69,8 +70,7 @@ MISFIT_P = 1e-3
 MAX_STD_DEG = 0.02
 
 OFFSETS = tuple(f"J{j}" for j in range(1, 7))
-BLOCK = ("block_x_mm", "block_y_mm", "block_z_mm", "block_rx_deg", "block_ry_deg",
-         "block_rz_deg")
+BLOCK = ("block_x_mm", "block_y_mm", "block_z_mm", "block_rx_deg", "block_ry_deg", "block_rz_deg")
 TOOL = ("tool_x_mm", "tool_y_mm", "tool_z_mm", "tool_rx_deg", "tool_ry_deg", "tool_rz_deg")
 SOUND = ("sound_speed_m_s",)
 #: The DH table's lengths and twists (the θ offsets are the joint offsets themselves).
@@ -90,26 +90,32 @@ DELAY_PRIOR_STD_NS = 50.0
 
 #: What a prior stands for, in the words of a reason for a user.
 PRIOR_MEANING = {
-    "block_x_mm": "the block position tolerance", "block_y_mm": "the block position tolerance",
+    "block_x_mm": "the block position tolerance",
+    "block_y_mm": "the block position tolerance",
     "block_z_mm": "the block position tolerance",
     "block_rx_deg": "the block tilt tolerance ([sample] rotation_std_deg)",
     "block_ry_deg": "the block tilt tolerance ([sample] rotation_std_deg)",
     "block_rz_deg": "the block yaw tolerance ([sample] rotation_std_deg; block yaw and J1 are "
-                    "one rotation about the base axis)",
-    "tool_x_mm": "the tool position tolerance", "tool_y_mm": "the tool position tolerance",
+    "one rotation about the base axis)",
+    "tool_x_mm": "the tool position tolerance",
+    "tool_y_mm": "the tool position tolerance",
     "tool_z_mm": "the tool position tolerance",
-    "tool_rx_deg": "the tool orientation tolerance", "tool_ry_deg": "the tool orientation "
-                                                                     "tolerance",
+    "tool_rx_deg": "the tool orientation tolerance",
+    "tool_ry_deg": "the tool orientation tolerance",
     "tool_rz_deg": "the tool orientation tolerance",
     "sound_speed_m_s": "the water temperature tolerance",
-    **{n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
-       for n in DH + BETA},
+    **{
+        n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
+        for n in DH + BETA
+    },
     "plate_h_mm": "the plate height tolerance ([reflector] points_std_mm)",
     "plate_t1_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
     "plate_t2_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
     "tof_delay_ns": f"the unmeasured electronic delay (0 ± {DELAY_PRIOR_STD_NS:g} ns)",
-    **{n: f"the prior of {n}'s offset ([calibration] std_deg; wide when not calibrated)"
-       for n in OFFSETS},
+    **{
+        n: f"the prior of {n}'s offset ([calibration] std_deg; wide when not calibrated)"
+        for n in OFFSETS
+    },
 }
 
 
@@ -147,25 +153,39 @@ class CellPrior:
     def values(self) -> np.ndarray:
         """Prior values in ``PARAMETERS`` order."""
         dh = self.model.dh[:, 1:4].ravel()
-        return np.concatenate([self.offsets_deg, self.block_position_mm, self.block_rotation_deg,
-                               self.tool_position_mm, self.tool_rotation_deg,
-                               [self.sound_speed_m_s], dh]).astype(float)
+        return np.concatenate(
+            [
+                self.offsets_deg,
+                self.block_position_mm,
+                self.block_rotation_deg,
+                self.tool_position_mm,
+                self.tool_rotation_deg,
+                [self.sound_speed_m_s],
+                dh,
+            ]
+        ).astype(float)
 
     def stds(self) -> np.ndarray:
         """Prior one-sigmas in ``PARAMETERS`` order."""
-        return np.concatenate([np.full(6, OFFSET_PRIOR_STD_DEG), self.block_position_std_mm,
-                               self.block_rotation_std_deg, self.tool_position_std_mm,
-                               self.tool_rotation_std_deg,
-                               [self.sound_speed_std_m_s],
-                               np.tile([self.dh_length_std_mm, self.dh_length_std_mm,
-                                        self.dh_angle_std_deg], 6)]).astype(float)
+        return np.concatenate(
+            [
+                np.full(6, OFFSET_PRIOR_STD_DEG),
+                self.block_position_std_mm,
+                self.block_rotation_std_deg,
+                self.tool_position_std_mm,
+                self.tool_rotation_std_deg,
+                [self.sound_speed_std_m_s],
+                np.tile([self.dh_length_std_mm, self.dh_length_std_mm, self.dh_angle_std_deg], 6),
+            ]
+        ).astype(float)
 
 
 def prior_from_profile(profile: object) -> CellPrior:
     """The ``CellPrior`` of a ``CellProfile`` (tolerances from its std keys)."""
     p = profile
     return CellPrior(
-        model=p.model, offsets_deg=np.asarray(p.joint_offsets_deg, float),
+        model=p.model,
+        offsets_deg=np.asarray(p.joint_offsets_deg, float),
         tool_position_mm=np.asarray(p.tool_position_mm, float),
         tool_rotation_deg=np.asarray(p.tool_rotation_deg, float),
         block_position_mm=np.asarray(p.sample_position_mm, float),
@@ -176,7 +196,9 @@ def prior_from_profile(profile: object) -> CellPrior:
         block_position_std_mm=np.broadcast_to(p.sample_position_std_mm, 3).astype(float),
         block_rotation_std_deg=np.broadcast_to(p.sample_rotation_std_deg, 3).astype(float),
         water_temperature_std_c=float(p.water_temperature_std_c),
-        dh_length_std_mm=float(p.dh_length_std_mm), dh_angle_std_deg=float(p.dh_angle_std_deg))
+        dh_length_std_mm=float(p.dh_length_std_mm),
+        dh_angle_std_deg=float(p.dh_angle_std_deg),
+    )
 
 
 def offsets_prior_std_deg(profile: object) -> np.ndarray:
@@ -193,8 +215,13 @@ def offsets_prior_std_deg(profile: object) -> np.ndarray:
 class ParameterTable:
     """Named unknowns with a mask of the free ones (pybotics / robot_calibration style)."""
 
-    def __init__(self, names: tuple[str, ...], values: np.ndarray, prior_stds: np.ndarray,
-                 free: np.ndarray | None = None):
+    def __init__(
+        self,
+        names: tuple[str, ...],
+        values: np.ndarray,
+        prior_stds: np.ndarray,
+        free: np.ndarray | None = None,
+    ):
         self.names = tuple(names)
         self.values = np.array(values, float)
         self.prior = self.values.copy()
@@ -222,7 +249,7 @@ class ParameterTable:
 
     @property
     def free_names(self) -> tuple[str, ...]:
-        return tuple(n for n, f in zip(self.names, self.free) if f)
+        return tuple(n for n, f in zip(self.names, self.free, strict=True) if f)
 
 
 @dataclass(frozen=True)
@@ -235,7 +262,7 @@ class ResidualRow:
 
     @property
     def norm(self) -> float:
-        return float(np.sqrt(self.tilt[0] ** 2 + self.tilt[1] ** 2 + self.distance ** 2))
+        return float(np.sqrt(self.tilt[0] ** 2 + self.tilt[1] ** 2 + self.distance**2))
 
 
 @dataclass(frozen=True)
@@ -253,9 +280,14 @@ class FitQuality:
     prior_pulls: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        return {"chi2_reduced": self.chi2_reduced, "dof": self.dof,
-                "rms_tilt_deg": self.rms_tilt_deg, "rms_distance_mm": self.rms_distance_mm,
-                "worst": self.worst, "verdict": self.verdict}
+        return {
+            "chi2_reduced": self.chi2_reduced,
+            "dof": self.dof,
+            "rms_tilt_deg": self.rms_tilt_deg,
+            "rms_distance_mm": self.rms_distance_mm,
+            "worst": self.worst,
+            "verdict": self.verdict,
+        }
 
 
 @dataclass(frozen=True)
@@ -263,14 +295,14 @@ class CellFit:
     """Solution of the prior-augmented problem."""
 
     table: ParameterTable
-    estimate: np.ndarray            # full parameter vector
-    cov: np.ndarray                 # (n_free, n_free), marginal over the nuisance unknowns
-    std: np.ndarray                 # full vector, NaN for fixed parameters
+    estimate: np.ndarray  # full parameter vector
+    cov: np.ndarray  # (n_free, n_free), marginal over the nuisance unknowns
+    std: np.ndarray  # full vector, NaN for fixed parameters
     quality: FitQuality
     variance_share: dict[str, dict[str, float]]  # joint → {source: share of its variance}
     condition_number: float
-    jac: np.ndarray | None = None   # Jacobian of the augmented residuals at the solution
-    n_data: int = 0                 # its first n_data rows are the measurements'
+    jac: np.ndarray | None = None  # Jacobian of the augmented residuals at the solution
+    n_data: int = 0  # its first n_data rows are the measurements'
 
     def value(self, name: str) -> float:
         return float(self.estimate[self.table.index(name)])
@@ -288,9 +320,13 @@ def _rpy_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
     cx, cy, cz = np.cos(np.radians(rxyz_deg))
     sx, sy, sz = np.sin(np.radians(rxyz_deg))
     # Rx·Ry·Rz (Staubli convention)
-    return np.array([[cy * cz, -cy * sz, sy],
-                     [sx * sy * cz + cx * sz, -sx * sy * sz + cx * cz, -sx * cy],
-                     [-cx * sy * cz + sx * sz, cx * sy * sz + sx * cz, cx * cy]])
+    return np.array(
+        [
+            [cy * cz, -cy * sz, sy],
+            [sx * sy * cz + cx * sz, -sx * sy * sz + cx * cz, -sx * cy],
+            [-cx * sy * cz + sx * sz, cx * sy * sz + sx * cz, cx * cy],
+        ]
+    )
 
 
 def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) -> CellGeometry:
@@ -303,27 +339,35 @@ def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) 
 class MeasurementArrays:
     """Face measurements as arrays, built once per fit (its residuals run hundreds of times)."""
 
-    postures: np.ndarray      # (2n, 6): the peak postures, then where each water path was read
-    faces: np.ndarray         # (n,)
-    in_plane: np.ndarray      # (n, 2): each face's two in-plane block axes
+    postures: np.ndarray  # (2n, 6): the peak postures, then where each water path was read
+    faces: np.ndarray  # (n,)
+    in_plane: np.ndarray  # (n, 2): each face's two in-plane block axes
     tilt_std_rad: np.ndarray  # (n,)
-    distance_mm: np.ndarray   # (n,)
+    distance_mm: np.ndarray  # (n,)
     distance_std_mm: np.ndarray
 
     @classmethod
     def of(cls, meas: list[FaceMeasurement]) -> MeasurementArrays:
         faces = np.array([m.face for m in meas], int)
-        return cls(np.array([m.joints_deg for m in meas] + [distance_joints(m) for m in meas],
-                            float).reshape(-1, 6),
-                   faces, np.array([[i for i in range(3) if i != f] for f in faces], int),
-                   np.radians([m.tilt_std_deg for m in meas]),
-                   np.array([m.distance_mm for m in meas], float),
-                   np.array([m.distance_std_mm for m in meas], float))
+        return cls(
+            np.array(
+                [m.joints_deg for m in meas] + [distance_joints(m) for m in meas], float
+            ).reshape(-1, 6),
+            faces,
+            np.array([[i for i in range(3) if i != f] for f in faces], int),
+            np.radians([m.tilt_std_deg for m in meas]),
+            np.array([m.distance_mm for m in meas], float),
+            np.array([m.distance_std_mm for m in meas], float),
+        )
 
 
-def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
-                   meas: list[FaceMeasurement] | MeasurementArrays, c0_m_s: float
-                   ) -> np.ndarray:
+def data_residuals(
+    table: ParameterTable,
+    values: np.ndarray,
+    model: RobotModel,
+    meas: list[FaceMeasurement] | MeasurementArrays,
+    c0_m_s: float,
+) -> np.ndarray:
     """Normalised measurement residuals (n, 3): two tilt rows, one distance row each."""
     arr = meas if isinstance(meas, MeasurementArrays) else MeasurementArrays.of(meas)
     n = len(arr.faces)
@@ -340,8 +384,8 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
     both, tcp_both = beam_and_tcp(geom, arr.postures, offsets)  # one FK call
     beam, beam_d, tcp = both[:n], both[n:], tcp_both[n:]
     rot = geom.block_rotation
-    normal = rot[:, arr.faces].T                                    # (n, 3)
-    basis = rot.T[arr.in_plane]                                     # (n, 2, 3)
+    normal = rot[:, arr.faces].T  # (n, 3)
+    basis = rot.T[arr.in_plane]  # (n, 2, 3)
     out = np.empty((n, 3))
     out[:, :2] = np.einsum("nkj,nj->nk", basis, beam) / arr.tilt_std_rad[:, None]  # tilts
     # Along the beam to the face: the TOF may be read a few tenths of a degree off normal,
@@ -352,10 +396,16 @@ def data_residuals(table: ParameterTable, values: np.ndarray, model: RobotModel,
     return out
 
 
-def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
-               fixed: tuple[str, ...] = (), max_std_deg: float = MAX_STD_DEG,
-               misfit_p: float = MISFIT_P, start: np.ndarray | None = None,
-               tol: float = 1e-12, table: ParameterTable | None = None) -> CellFit:
+def solve_cell(
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    fixed: tuple[str, ...] = (),
+    max_std_deg: float = MAX_STD_DEG,
+    misfit_p: float = MISFIT_P,
+    start: np.ndarray | None = None,
+    tol: float = 1e-12,
+    table: ParameterTable | None = None,
+) -> CellFit:
     """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
     docstring).
 
@@ -368,7 +418,7 @@ def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
         table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
     for name in fixed:
         table.free[table.index(name)] = False
-    table.free &= table.prior_stds > 0          # a zero tolerance means "known exactly"
+    table.free &= table.prior_stds > 0  # a zero tolerance means "known exactly"
     c0 = prior.sound_speed_m_s
     n_data = 3 * len(meas)
     has_prior = np.isfinite(table.prior_stds) & table.free
@@ -388,8 +438,17 @@ def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
         # can be centimetres off; the least-squares start should not depend on that).
         x0 = _initial_corner(table, prior, meas, table.values[table.free].copy())
     x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
-    sol = least_squares(fun, x0, jac="2-point", method="trf", x_scale=x_scale[table.free],
-                        xtol=tol, ftol=tol, gtol=tol, max_nfev=200)
+    sol = least_squares(
+        fun,
+        x0,
+        jac="2-point",
+        method="trf",
+        x_scale=x_scale[table.free],
+        xtol=tol,
+        ftol=tol,
+        gtol=tol,
+        max_nfev=200,
+    )
     jac = sol.jac
     res = sol.fun
     estimate = table.expand(sol.x)
@@ -405,20 +464,34 @@ def solve_cell(prior: CellPrior, meas: list[FaceMeasurement],
 
     shares = _variance_shares(table, jac, cov, n_data)
     quality = _quality(table, estimate, prior, meas, res, n_data, chi2, dof, misfit_p)
-    return CellFit(table, estimate, cov_scaled, std, quality, shares,
-                   _condition_number(table, jac[:n_data], std, max_std_deg), jac, n_data)
+    return CellFit(
+        table,
+        estimate,
+        cov_scaled,
+        std,
+        quality,
+        shares,
+        _condition_number(table, jac[:n_data], std, max_std_deg),
+        jac,
+        n_data,
+    )
 
 
-def _initial_corner(table: ParameterTable, prior: CellPrior, meas: list[FaceMeasurement],
-                    x0: np.ndarray) -> np.ndarray:
+def _initial_corner(
+    table: ParameterTable, prior: CellPrior, meas: list[FaceMeasurement], x0: np.ndarray
+) -> np.ndarray:
     """Corner from eq. (2), n_k·c = n_k·p − d, averaged per face (prior offsets and tool)."""
     if not all(table.free[table.index(n)] for n in BLOCK[:3]):
         return x0
     geom = cell_geometry(table, table.values, prior.model)
     coord = geom.block_rotation.T @ table.get(BLOCK[:3])
     for k in range(3):
-        vals = [geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), prior.offsets_deg)[1]
-                - m.distance_mm for m in meas if m.face == k]
+        vals = [
+            geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), prior.offsets_deg)[1]
+            - m.distance_mm
+            for m in meas
+            if m.face == k
+        ]
         if vals:
             coord[k] = float(np.mean(vals))
     corner = geom.block_rotation @ coord
@@ -429,8 +502,9 @@ def _initial_corner(table: ParameterTable, prior: CellPrior, meas: list[FaceMeas
     return x
 
 
-def _variance_shares(table: ParameterTable, jac: np.ndarray, cov: np.ndarray,
-                     n_data: int) -> dict[str, dict[str, float]]:
+def _variance_shares(
+    table: ParameterTable, jac: np.ndarray, cov: np.ndarray, n_data: int
+) -> dict[str, dict[str, float]]:
     """Share of each offset's variance from the data and from each prior.
 
     The estimate's sensitivity to the rows is ``K = Cov·Jᵀ``; with unit-variance rows the
@@ -454,48 +528,76 @@ def _variance_shares(table: ParameterTable, jac: np.ndarray, cov: np.ndarray,
     return out
 
 
-def _condition_number(table: ParameterTable, jac_data: np.ndarray, std: np.ndarray,
-                      max_std_deg: float) -> float:
+def _condition_number(
+    table: ParameterTable, jac_data: np.ndarray, std: np.ndarray, max_std_deg: float
+) -> float:
     """Condition number of the column-scaled data Jacobian over the offsets the data determine,
     the block corner and the sound speed (the unknowns the measurements are meant to fix)."""
     free = table.free_names
-    cols = [free.index(n) for n in OFFSETS + BLOCK[:3] + SOUND
-            if n in free and (n not in OFFSETS or std[table.index(n)] <= max_std_deg)]
+    cols = [
+        free.index(n)
+        for n in OFFSETS + BLOCK[:3] + SOUND
+        if n in free and (n not in OFFSETS or std[table.index(n)] <= max_std_deg)
+    ]
     js = jac_data[:, cols]
     js = js / np.maximum(np.linalg.norm(js, axis=0), 1e-300)
     s = np.linalg.svd(js, compute_uv=False)
     return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
 
 
-def _quality(table: ParameterTable, estimate: np.ndarray, prior: CellPrior,
-             meas: list[FaceMeasurement], res: np.ndarray, n_data: int, chi2: float, dof: int,
-             misfit_p: float) -> FitQuality:
+def _quality(
+    table: ParameterTable,
+    estimate: np.ndarray,
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    res: np.ndarray,
+    n_data: int,
+    chi2: float,
+    dof: int,
+    misfit_p: float,
+) -> FitQuality:
     r = res[:n_data].reshape(-1, 3)
-    rows = tuple(ResidualRow(measurement_label(m), (float(r[i, 0]), float(r[i, 1])),
-                             float(r[i, 2])) for i, m in enumerate(meas))
+    rows = tuple(
+        ResidualRow(measurement_label(m), (float(r[i, 0]), float(r[i, 1])), float(r[i, 2]))
+        for i, m in enumerate(meas)
+    )
     tilt_deg = np.array([r[i, :2] * m.tilt_std_deg for i, m in enumerate(meas)])
     dist_mm = np.array([r[i, 2] * m.distance_std_mm for i, m in enumerate(meas)])
     free = table.free_names
     prior_names = [n for n in free if np.isfinite(table.prior_stds[table.index(n)])]
-    pulls = {n: float(v) for n, v in zip(prior_names, res[n_data:])}
+    pulls = {n: float(v) for n, v in zip(prior_names, res[n_data:], strict=True)}
     worst_row = max(rows, key=lambda x: x.norm)
-    worst_pull = max(((n, v) for n, v in pulls.items() if n not in OFFSETS),
-                     key=lambda kv: abs(kv[1]), default=("", 0.0))
+    worst_pull = max(
+        ((n, v) for n, v in pulls.items() if n not in OFFSETS),
+        key=lambda kv: abs(kv[1]),
+        default=("", 0.0),
+    )
     worst = worst_row.label
     if abs(worst_pull[1]) > worst_row.norm:
         worst = f"prior {worst_pull[0]}"
     p_value = float(chdtrc(dof, chi2))  # χ² survival function (scipy.stats.chi2.sf)
     verdict = "misfit" if p_value < misfit_p else "ok"
     cause = likely_cause(rows, pulls, table, estimate, prior) if verdict == "misfit" else ""
-    return FitQuality(chi2_reduced=chi2 / dof, dof=dof,
-                      rms_tilt_deg=float(np.sqrt(np.mean(tilt_deg ** 2))),
-                      rms_distance_mm=float(np.sqrt(np.mean(dist_mm ** 2))),
-                      worst=worst, verdict=verdict, cause=cause, residuals=rows,
-                      prior_pulls=pulls)
+    return FitQuality(
+        chi2_reduced=chi2 / dof,
+        dof=dof,
+        rms_tilt_deg=float(np.sqrt(np.mean(tilt_deg**2))),
+        rms_distance_mm=float(np.sqrt(np.mean(dist_mm**2))),
+        worst=worst,
+        verdict=verdict,
+        cause=cause,
+        residuals=rows,
+        prior_pulls=pulls,
+    )
 
 
-def likely_cause(rows: tuple[ResidualRow, ...], pulls: dict[str, float], table: ParameterTable,
-                 estimate: np.ndarray, prior: CellPrior) -> str:
+def likely_cause(
+    rows: tuple[ResidualRow, ...],
+    pulls: dict[str, float],
+    table: ParameterTable,
+    estimate: np.ndarray,
+    prior: CellPrior,
+) -> str:
     """A sentence naming the most likely cause of a misfit, from where the misfit sits.
 
     If the priors carry most of the χ² (the data fit, but only by moving a quantity beyond its
@@ -505,24 +607,30 @@ def likely_cause(rows: tuple[ResidualRow, ...], pulls: dict[str, float], table: 
     the tilts at the tool frame or the block's faces.
     """
     tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
-    dist2 = sum(r.distance ** 2 for r in rows)
+    dist2 = sum(r.distance**2 for r in rows)
     nuisance = {n: p for n, p in pulls.items() if not n.startswith("J")}
-    prior2 = sum(p ** 2 for p in nuisance.values())
+    prior2 = sum(p**2 for p in nuisance.values())
     if nuisance and prior2 > tilt2 + dist2:
         name, pull = max(nuisance.items(), key=lambda kv: abs(kv[1]))
         value = estimate[table.index(name)]
         prior_v = table.prior[table.index(name)]
         what = PRIOR_MEANING.get(name, name)
-        return (f"{name} fitted at {value:.4g}, {abs(pull):.1f}σ from the profile's "
-                f"{prior_v:.4g}: the cell is outside {what}; correct the profile or widen "
-                "its tolerance")
+        return (
+            f"{name} fitted at {value:.4g}, {abs(pull):.1f}σ from the profile's "
+            f"{prior_v:.4g}: the cell is outside {what}; correct the profile or widen "
+            "its tolerance"
+        )
     if dist2 >= tilt2:
-        return ("the water paths disagree with the kinematic model across the stepped "
-                "configurations (link lengths or joint twists differ from the DH table): "
-                "calibrate with --level full, or check the sound speed and the block faces")
-    return ("the normal-incidence postures disagree with the model: check the tool frame "
-            "(run tool-frame) and that the block's faces are flat and perpendicular; a "
-            "kinematic model error (--level full) can also show here")
+        return (
+            "the water paths disagree with the kinematic model across the stepped "
+            "configurations (link lengths or joint twists differ from the DH table): "
+            "calibrate with --level full, or check the sound speed and the block faces"
+        )
+    return (
+        "the normal-incidence postures disagree with the model: check the tool frame "
+        "(run tool-frame) and that the block's faces are flat and perpendicular; a "
+        "kinematic model error (--level full) can also show here"
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -563,8 +671,9 @@ class AugmentedFit:
     def gradient(self, weights: dict[str, float | np.ndarray]) -> np.ndarray:
         """Free-parameter gradient of ``Σ w·x`` (one row per entry of array weights)."""
         free = self.table.free_names
-        rows = np.atleast_2d(np.column_stack([np.atleast_1d(np.asarray(w, float))
-                                              for w in weights.values()]))
+        rows = np.atleast_2d(
+            np.column_stack([np.atleast_1d(np.asarray(w, float)) for w in weights.values()])
+        )
         g = np.zeros((rows.shape[0], len(free)))
         for j, name in enumerate(weights):
             if name in free:
@@ -577,15 +686,20 @@ class AugmentedFit:
         contrib = (np.atleast_2d(gradient) @ self.gain) ** 2
         contrib = contrib.sum(0)
         total = float(contrib.sum()) or 1.0
-        out = {"data": float(contrib[:self.n_data].sum()) / total}
+        out = {"data": float(contrib[: self.n_data].sum()) / total}
         for r, name in enumerate(self.prior_rows):
             out[name] = float(contrib[self.n_data + r]) / total
         return out
 
 
-def solve_augmented(table: ParameterTable, data_fn: Callable[[np.ndarray], np.ndarray],
-                    x0: np.ndarray, tol: float = 1e-12, max_nfev: int = 200,
-                    measured: tuple[str, ...] = ()) -> AugmentedFit:
+def solve_augmented(
+    table: ParameterTable,
+    data_fn: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    tol: float = 1e-12,
+    max_nfev: int = 200,
+    measured: tuple[str, ...] = (),
+) -> AugmentedFit:
     """Minimise ``|data_fn(v)|² + Σ ((v − prior)/σ)²`` over the free parameters of ``table``
     (``data_fn`` takes the full value vector and returns normalised data residuals).
 
@@ -597,12 +711,22 @@ def solve_augmented(table: ParameterTable, data_fn: Callable[[np.ndarray], np.nd
 
     def fun(x: np.ndarray) -> np.ndarray:
         v = table.expand(x)
-        return np.concatenate([data_fn(v), (v - table.prior)[has_prior]
-                               / table.prior_stds[has_prior]])
+        return np.concatenate(
+            [data_fn(v), (v - table.prior)[has_prior] / table.prior_stds[has_prior]]
+        )
 
     x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
-    sol = least_squares(fun, x0, jac="2-point", method="trf", x_scale=x_scale[table.free],
-                        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev)
+    sol = least_squares(
+        fun,
+        x0,
+        jac="2-point",
+        method="trf",
+        x_scale=x_scale[table.free],
+        xtol=tol,
+        ftol=tol,
+        gtol=tol,
+        max_nfev=max_nfev,
+    )
     cov = np.linalg.pinv(sol.jac.T @ sol.jac)
     prior_names = [n for n, f in zip(table.names, has_prior, strict=True) if f]
     counted = np.concatenate([np.ones(n_data, bool), [n not in measured for n in prior_names]])
@@ -611,8 +735,9 @@ def solve_augmented(table: ParameterTable, data_fn: Callable[[np.ndarray], np.nd
     cov_scaled = cov * max(1.0, chi2 / max(1, n_data - no_prior))
     std = np.full(len(table.names), np.nan)
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
-    return AugmentedFit(table, table.expand(sol.x), cov_scaled, std, sol.jac, sol.fun,
-                        cov @ sol.jac.T, n_data, chi2)
+    return AugmentedFit(
+        table, table.expand(sol.x), cov_scaled, std, sol.jac, sol.fun, cov @ sol.jac.T, n_data, chi2
+    )
 
 
 def verdict(chi2: float, dof: int, misfit_p: float = MISFIT_P) -> str:

@@ -78,26 +78,40 @@ _ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
 
 def full_table(prior: CellPrior) -> ParameterTable:
     """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one)."""
-    return ParameterTable(FULL_PARAMETERS, np.append(prior.values(), prior.model.beta_deg[1]),
-                          np.append(prior.stds(), prior.dh_angle_std_deg))
+    return ParameterTable(
+        FULL_PARAMETERS,
+        np.append(prior.values(), prior.model.beta_deg[1]),
+        np.append(prior.stds(), prior.dh_angle_std_deg),
+    )
 
 
 def redundancy_reason(name: str, partners: list[str]) -> str:
     """Why kinematic parameter ``name`` is not identifiable, given what it duplicates."""
     if name == "dh1_d_mm":
-        return ("moves the whole arm along joint 1's axis, as the block's height does: the base "
-                "frame's height is a gauge")
+        return (
+            "moves the whole arm along joint 1's axis, as the block's height does: the base "
+            "frame's height is a gauge"
+        )
     if name in ("dh2_d_mm", "dh3_d_mm"):
-        return ("axes 2 and 3 are parallel: d2 and d3 both slide along them and only their sum "
-                "is seen (Hayati's beta_deg takes the place of a d on that link)")
+        return (
+            "axes 2 and 3 are parallel: d2 and d3 both slide along them and only their sum "
+            "is seen (Hayati's beta_deg takes the place of a d on that link)"
+        )
     if name in ("dh5_d_mm", "dh5_a_mm"):
-        return ("moves the flange across the beam, which a plane seen at normal incidence does "
-                "not show (as the tool's position across the beam)")
+        return (
+            "moves the flange across the beam, which a plane seen at normal incidence does "
+            "not show (as the tool's position across the beam)"
+        )
     if name.startswith("dh6_"):
-        return ("link 6 and the tool are one rigid body: the tool frame absorbs it "
-                "(tool-frame measures the tool with it)")
+        return (
+            "link 6 and the tool are one rigid body: the tool frame absorbs it "
+            "(tool-frame measures the tool with it)"
+        )
     if name == "dh1_alpha_deg" or name == "dh1_a_mm":
-        return f"the block's pose absorbs it (the base frame is a gauge): same effect as {_join(partners)}"
+        return (
+            "the block's pose absorbs it (the base frame is a gauge): same effect as "
+            f"{_join(partners)}"
+        )
     return f"its effect on every measurement equals a combination of {_join(partners)}"
 
 
@@ -109,16 +123,17 @@ def _join(names: list[str]) -> str:
 class Identifiability:
     """What the measurements determine among the kinematic parameters."""
 
-    rank: int                        # numerical rank of the data Jacobian (all unknowns)
-    n_parameters: int                # columns it has (free unknowns)
-    identifiable: tuple[str, ...]    # kinematic parameters the data determine
-    redundant: dict[str, str]        # not identifiable → why (kept at nominal)
-    weak: tuple[str, ...]            # independent, but the prior dominates
-    scale_note: str = ""             # the common scale of lengths and sound speed
+    rank: int  # numerical rank of the data Jacobian (all unknowns)
+    n_parameters: int  # columns it has (free unknowns)
+    identifiable: tuple[str, ...]  # kinematic parameters the data determine
+    redundant: dict[str, str]  # not identifiable → why (kept at nominal)
+    weak: tuple[str, ...]  # independent, but the prior dominates
+    scale_note: str = ""  # the common scale of lengths and sound speed
 
 
-def data_jacobian(prior: CellPrior, meas: list[FaceMeasurement],
-                  values: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...]]:
+def data_jacobian(
+    prior: CellPrior, meas: list[FaceMeasurement], values: np.ndarray | None = None
+) -> tuple[np.ndarray, tuple[str, ...]]:
     """Jacobian of the data residuals (rows per σ) against the unknowns of ``full_table`` that
     have a tolerance, per prior σ, at ``values`` (default: the profile's); and their names."""
     table = full_table(prior)
@@ -148,8 +163,9 @@ def _residual_share(cols: np.ndarray, c: np.ndarray) -> tuple[float, np.ndarray]
     return float(np.linalg.norm(c - cols @ coef)) / norm, coef
 
 
-def identifiability(js: np.ndarray, names: tuple[str, ...],
-                    redundant_rel: float = REDUNDANT_REL) -> Identifiability:
+def identifiability(
+    js: np.ndarray, names: tuple[str, ...], redundant_rel: float = REDUNDANT_REL
+) -> Identifiability:
     """Classify the kinematic parameters (module docstring) from the data Jacobian ``js``
     (``data_jacobian``) with columns ``names``."""
     col = {n: js[:, i] for i, n in enumerate(names)}
@@ -177,13 +193,21 @@ def identifiability(js: np.ndarray, names: tuple[str, ...],
         cols = np.column_stack([col[n] for n in kept])
         share, _ = _residual_share(cols, col[SOUND[0]])
         if share < redundant_rel:
-            note = ("the water paths measure lengths in units of the sound speed: a common scale "
-                    "of every length and of the sound speed is not seen, so the scale comes "
-                    "from the DH length tolerance and the thermometer")
+            note = (
+                "the water paths measure lengths in units of the sound speed: a common scale "
+                "of every length and of the sound speed is not seen, so the scale comes "
+                "from the DH length tolerance and the thermometer"
+            )
     s = np.linalg.svd(js / np.maximum(np.linalg.norm(js, axis=0), 1e-300), compute_uv=False)
     rank = int(np.sum(s > redundant_rel * s[0]))
-    return Identifiability(rank, len(names), tuple(identifiable), redundant,
-                           tuple(n for n in identifiable if n in weak), note)
+    return Identifiability(
+        rank,
+        len(names),
+        tuple(identifiable),
+        redundant,
+        tuple(n for n in identifiable if n in weak),
+        note,
+    )
 
 
 @dataclass(frozen=True)
@@ -192,10 +216,10 @@ class FullSolution:
 
     cell: CellFit
     ident: Identifiability
-    offsets_deg: np.ndarray                  # kept from the profile where unobservable
-    std_deg: np.ndarray                      # NaN where unobservable
-    unobservable_reasons: dict[int, str]     # 1-based joint → why
-    model: RobotModel                        # the identified DH table (nominal where kept)
+    offsets_deg: np.ndarray  # kept from the profile where unobservable
+    std_deg: np.ndarray  # NaN where unobservable
+    unobservable_reasons: dict[int, str]  # 1-based joint → why
+    model: RobotModel  # the identified DH table (nominal where kept)
     parameters: dict[str, dict] = field(default_factory=dict)
 
     @property
@@ -221,8 +245,12 @@ class FullSolution:
         """The identified table as ``[calibration] dh`` rows (SPEC.md), ``beta_deg`` where not 0."""
         rows = []
         for i, row in enumerate(self.model.dh):
-            r = {"theta_offset_deg": float(row[0]), "d_mm": round(float(row[1]), 6),
-                 "a_mm": round(float(row[2]), 6), "alpha_deg": round(float(row[3]), 7)}
+            r = {
+                "theta_offset_deg": float(row[0]),
+                "d_mm": round(float(row[1]), 6),
+                "a_mm": round(float(row[2]), 6),
+                "alpha_deg": round(float(row[3]), 7),
+            }
             if self.model.beta_deg[i] != 0.0:
                 r["beta_deg"] = round(float(self.model.beta_deg[i]), 7)
             rows.append(r)
@@ -230,16 +258,23 @@ class FullSolution:
 
     def to_json(self) -> dict:
         """The ``identification`` object of ``calibrate --level full --json``."""
-        return {"rank": self.ident.rank, "unknowns": self.ident.n_parameters,
-                "parameters": self.parameters,
-                "not_identifiable": dict(self.ident.redundant),
-                "prior_dominated": list(self.ident.weak),
-                "scale": self.ident.scale_note}
+        return {
+            "rank": self.ident.rank,
+            "unknowns": self.ident.n_parameters,
+            "parameters": self.parameters,
+            "not_identifiable": dict(self.ident.redundant),
+            "prior_dominated": list(self.ident.weak),
+            "scale": self.ident.scale_note,
+        }
 
 
-def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, ...] = (),
-               max_std_deg: float = MAX_STD_DEG,
-               structure: Identifiability | None = None) -> FullSolution:
+def solve_full(
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    fixed: tuple[str, ...] = (),
+    max_std_deg: float = MAX_STD_DEG,
+    structure: Identifiability | None = None,
+) -> FullSolution:
     """Identify the kinematic model from ``meas`` (module docstring).
 
     The identifiability is judged on the data Jacobian at the profile's values (the errors a
@@ -251,8 +286,13 @@ def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, 
     orientation for ``--beam fixed``).
     """
     ident = structure if structure is not None else identifiability(*data_jacobian(prior, meas))
-    cell = solve_cell(prior, meas, fixed=fixed + tuple(ident.redundant), max_std_deg=max_std_deg,
-                      table=full_table(prior))
+    cell = solve_cell(
+        prior,
+        meas,
+        fixed=fixed + tuple(ident.redundant),
+        max_std_deg=max_std_deg,
+        table=full_table(prior),
+    )
     offsets = np.array(prior.offsets_deg, float)
     std = np.full(6, np.nan)
     reasons: dict[int, str] = {}
@@ -271,13 +311,21 @@ def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, 
         i = cell.table.index(name)
         nominal = float(cell.table.prior[i])
         if name in ident.redundant:
-            params[name] = {"value": nominal, "std": None, "nominal": nominal,
-                            "status": "not identifiable"}
+            params[name] = {
+                "value": nominal,
+                "std": None,
+                "nominal": nominal,
+                "status": "not identifiable",
+            }
             continue
         value, sigma = cell.value(name), cell.sigma(name)
         weak = name in ident.weak or sigma > PRIOR_DOMINATED * cell.table.prior_stds[i]
-        params[name] = {"value": value, "std": sigma, "nominal": nominal,
-                        "status": "prior-dominated" if weak else "identified"}
+        params[name] = {
+            "value": value,
+            "std": sigma,
+            "nominal": nominal,
+            "status": "prior-dominated" if weak else "identified",
+        }
         if name in BETA:
             beta[1] = value
         else:
@@ -288,10 +336,15 @@ def solve_full(prior: CellPrior, meas: list[FaceMeasurement], fixed: tuple[str, 
     return FullSolution(cell, ident, offsets, std, reasons, model, params)
 
 
-def ideal_measurements(geom: CellGeometry, corner_mm: np.ndarray, postures: list[tuple],
-                       offsets_deg: np.ndarray, distance_std_mm: float = 1e-3,
-                       tilt_std_deg: float = 1e-3, path_scale: float = 1.0
-                       ) -> list[FaceMeasurement]:
+def ideal_measurements(
+    geom: CellGeometry,
+    corner_mm: np.ndarray,
+    postures: list[tuple],
+    offsets_deg: np.ndarray,
+    distance_std_mm: float = 1e-3,
+    tilt_std_deg: float = 1e-3,
+    path_scale: float = 1.0,
+) -> list[FaceMeasurement]:
     """Measurements of a cell ``geom`` (block corner ``corner_mm``) at normal-incidence
     ``postures`` ``(config label, face, joints (6,))``: the water path along the face normal,
     times ``path_scale`` (the ratio of the assumed to the true sound speed)."""
@@ -299,8 +352,11 @@ def ideal_measurements(geom: CellGeometry, corner_mm: np.ndarray, postures: list
     for label, face, q in postures:
         _, tcp = beam_and_tcp(geom, np.asarray(q, float), offsets_deg)
         d = float(geom.normal(face) @ (tcp - np.asarray(corner_mm, float)))
-        out.append(FaceMeasurement(label, face, np.asarray(q, float), d * path_scale,
-                                   distance_std_mm, tilt_std_deg))
+        out.append(
+            FaceMeasurement(
+                label, face, np.asarray(q, float), d * path_scale, distance_std_mm, tilt_std_deg
+            )
+        )
     return out
 
 
@@ -308,8 +364,9 @@ def ideal_measurements(geom: CellGeometry, corner_mm: np.ndarray, postures: list
 SCAN_HALF_RANGE_DEG = np.array([20.0, 20.0, 20.0, 90.0, 30.0, 90.0])
 
 
-def scanning_postures(pose_deg: np.ndarray, n: int, seed: int = 0,
-                      model: RobotModel | None = None) -> np.ndarray:
+def scanning_postures(
+    pose_deg: np.ndarray, n: int, seed: int = 0, model: RobotModel | None = None
+) -> np.ndarray:
     """``n`` joint readings (n, 6) drawn uniformly in the scanning region about ``pose_deg``
     (``SCAN_HALF_RANGE_DEG``), inside ``model``'s joint ranges if given."""
     rng = np.random.default_rng(seed)
@@ -319,8 +376,9 @@ def scanning_postures(pose_deg: np.ndarray, n: int, seed: int = 0,
     return q
 
 
-def aligned_errors_mm(points_mm: np.ndarray, truth_mm: np.ndarray,
-                      scale: bool = False) -> np.ndarray:
+def aligned_errors_mm(
+    points_mm: np.ndarray, truth_mm: np.ndarray, scale: bool = False
+) -> np.ndarray:
     """Distances (n,) between ``points_mm`` and ``truth_mm`` (n, 3) after the rigid motion that
     best aligns them (least squares; the base frame is a gauge the measurements cannot fix);
     with ``scale``, after the best similarity (what is left once the common scale of lengths,

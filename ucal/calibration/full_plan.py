@@ -94,23 +94,32 @@ class FullPlan:
 
     postures: tuple[Posture, ...]
     candidates: int
-    d_criterion: float          # log det M / (2n): mean log-shrink of the prior σ
+    d_criterion: float  # log det M / (2n): mean log-shrink of the prior σ
     log_det: float
-    azimuths_deg: tuple[float, float]   # J1 range covered
+    azimuths_deg: tuple[float, float]  # J1 range covered
     #: What the data could identify from every candidate: what no posture the block allows
     #: can see (``solve_full``'s ``structure``).
     structure: Identifiability | None = None
 
     def describe(self) -> str:
         lo, hi = self.azimuths_deg
-        return (f"{len(self.postures)} postures chosen from {self.candidates} candidates by "
-                f"D-optimality: log det M = {self.log_det:.1f}, D = {self.d_criterion:.3f} "
-                f"(prior σ shrunk {np.exp(self.d_criterion):.1f}× on geometric mean); J1 from "
-                f"{lo:.1f} to {hi:.1f} deg")
+        return (
+            f"{len(self.postures)} postures chosen from {self.candidates} candidates by "
+            f"D-optimality: log det M = {self.log_det:.1f}, D = {self.d_criterion:.3f} "
+            f"(prior σ shrunk {np.exp(self.d_criterion):.1f}× on geometric mean); J1 from "
+            f"{lo:.1f} to {hi:.1f} deg"
+        )
 
 
-def _target_pose(s_rot: np.ndarray, corner: np.ndarray, face: int, u: float, v: float,
-                 path: float, turn_deg: float) -> np.ndarray:
+def _target_pose(
+    s_rot: np.ndarray,
+    corner: np.ndarray,
+    face: int,
+    u: float,
+    v: float,
+    path: float,
+    turn_deg: float,
+) -> np.ndarray:
     """Tool pose with the beam normal to ``face`` hitting it at in-plane (u, v), ``path`` away."""
     others = [i for i in range(3) if i != face]
     n = s_rot[:, face]
@@ -138,14 +147,15 @@ def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray
     frames = fk_frames(profile.model, q, profile.joint_offsets_deg)
     tcp = frames[:, 6] @ profile.tool_matrix
     size = profile.sample_face_size_mm
-    origins = np.concatenate([frames[:, 2:7, :3, 3], tcp[:, None, :3, 3]], 1)   # (n, 6, 3)
+    origins = np.concatenate([frames[:, 2:7, :3, 3], tcp[:, None, :3, 3]], 1)  # (n, 6, 3)
     points = np.concatenate([origins, 0.5 * (origins[:, 1:] + origins[:, :-1])], 1)
     local = (points - s[:3, 3]) @ s[:3, :3]
     ok = np.all(local[..., 2] >= CLEARANCE_MM, 1)
     for k in (0, 1):
         others = [i for i in range(3) if i != k]
-        over = np.all((local[..., others] >= -CLEARANCE_MM)
-                      & (local[..., others] <= size + CLEARANCE_MM), -1)
+        over = np.all(
+            (local[..., others] >= -CLEARANCE_MM) & (local[..., others] <= size + CLEARANCE_MM), -1
+        )
         ok &= ~np.any(over & (local[..., k] < CLEARANCE_MM), 1)
     here = local[:, 5]
     beam = tcp[:, :3, 2] @ s[:3, :3]
@@ -171,8 +181,13 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
                         poses.append(_target_pose(s[:3, :3], s[:3, 3], face, u, v, path, turn))
                         keys.append((face, path))
     near = calibration_pose(profile)
-    sols, ok, _ = ik_solutions(profile.model, np.array(poses), profile.tool_matrix,
-                               profile.joint_offsets_deg, near_deg=near)
+    sols, ok, _ = ik_solutions(
+        profile.model,
+        np.array(poses),
+        profile.tool_matrix,
+        profile.joint_offsets_deg,
+        near_deg=near,
+    )
     # the other shoulder would swing the arm over the robot's base
     ok &= np.abs(sols[..., 0] - near[0]) <= SHOULDER_SPAN_DEG
     pose_i, branch = np.nonzero(ok)
@@ -189,21 +204,27 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
     return out
 
 
-def posture_jacobians(prior: CellPrior, profile: CellProfile, postures: list[Posture]
-                      ) -> tuple[np.ndarray, tuple[str, ...]]:
+def posture_jacobians(
+    prior: CellPrior, profile: CellProfile, postures: list[Posture]
+) -> tuple[np.ndarray, tuple[str, ...]]:
     """Data Jacobian of each posture (n, 3, p): its three rows (tilts, water path, per σ)
     against the unknowns of ``full_table`` (per prior σ), at the profile's values; and the
     unknowns' names."""
-    meas = ideal_measurements(geometry(profile), profile.sample_position_mm,
-                              [(p.label, p.face, p.joints_deg) for p in postures],
-                              profile.joint_offsets_deg, PLAN_DISTANCE_STD_MM,
-                              PLAN_TILT_STD_DEG)
+    meas = ideal_measurements(
+        geometry(profile),
+        profile.sample_position_mm,
+        [(p.label, p.face, p.joints_deg) for p in postures],
+        profile.joint_offsets_deg,
+        PLAN_DISTANCE_STD_MM,
+        PLAN_TILT_STD_DEG,
+    )
     jac, names = data_jacobian(prior, meas)
     return jac.reshape(len(postures), 3, -1), names
 
 
-def select_postures(jacs: np.ndarray, min_gain: float = MIN_GAIN,
-                    max_postures: int = MAX_POSTURES) -> tuple[list[int], float]:
+def select_postures(
+    jacs: np.ndarray, min_gain: float = MIN_GAIN, max_postures: int = MAX_POSTURES
+) -> tuple[list[int], float]:
     """Greedy D-optimal choice (module docstring): indices in the order chosen, log det M."""
     p = jacs.shape[-1]
     m_inv = np.eye(p)
@@ -242,20 +263,31 @@ def order_postures(postures: list[Posture]) -> list[Posture]:
     return out
 
 
-def plan_full(profile: CellProfile, min_gain: float = MIN_GAIN,
-              max_postures: int = MAX_POSTURES) -> FullPlan:
+def plan_full(
+    profile: CellProfile, min_gain: float = MIN_GAIN, max_postures: int = MAX_POSTURES
+) -> FullPlan:
     """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
     cands = candidate_postures(profile)
     if not cands:
-        raise SafetyError("plan --level full: no posture normal to a block face passes the "
-                          "checks (joint ranges, singularity margin, clearance, face edges)")
+        raise SafetyError(
+            "plan --level full: no posture normal to a block face passes the "
+            "checks (joint ranges, singularity margin, clearance, face edges)"
+        )
     prior = prior_from_profile(profile)
     jacs, names = posture_jacobians(prior, profile, cands)
     idx, log_det = select_postures(jacs, min_gain, max_postures)
     chosen = order_postures([cands[i] for i in idx])
-    chosen = [Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
-              for i, p in enumerate(chosen)]
+    chosen = [
+        Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
+        for i, p in enumerate(chosen)
+    ]
     j1 = [p.joints_deg[0] for p in chosen]
     structure = identifiability(jacs.reshape(-1, jacs.shape[-1]), names)
-    return FullPlan(tuple(chosen), len(cands), log_det / (2 * jacs.shape[-1]), log_det,
-                    (float(min(j1)), float(max(j1))), structure)
+    return FullPlan(
+        tuple(chosen),
+        len(cands),
+        log_det / (2 * jacs.shape[-1]),
+        log_det,
+        (float(min(j1)), float(max(j1))),
+        structure,
+    )

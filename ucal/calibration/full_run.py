@@ -51,8 +51,12 @@ DIRECT_FIT_DEG = 0.02
 REMEASURE_TILT_DEG = 0.01
 
 
-def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
-             progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
+def run_full(
+    profile: CellProfile,
+    plan: FullPlan,
+    rig: Rig,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> CalibrationRun:
     """Measure every planned posture (module docstring). The caller owns the connection, STOP
     and the profile."""
     geom = geometry(profile)
@@ -61,7 +65,7 @@ def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
     approach = FinalApproachRig(rig)
     first = plan.postures[0]
     away = first.joints_deg.copy()
-    away[4] += 25.0 if away[4] < 0 else -25.0      # the beam in open water: the noise floor
+    away[4] += 25.0 if away[4] < 0 else -25.0  # the beam in open water: the noise floor
     acq_gain = acquisition_gain(rig, away)
 
     est = np.array(profile.joint_offsets_deg, float)
@@ -76,16 +80,26 @@ def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
             progress(posture.label, i, total)
         label = f"face {posture.face_name} ({posture.label})"
         check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
-        mode = ("acquire" if not meas else "direct" if last_error < DIRECT_FIT_DEG
-                else "quick")
-        res = measure_face(approach, fitted, profile, posture.joints_deg, posture.face, est, ka,
-                           acq_gain, label, posture.label, mode, 16.0 if not meas else 8.0)
+        mode = "acquire" if not meas else "direct" if last_error < DIRECT_FIT_DEG else "quick"
+        res = measure_face(
+            approach,
+            fitted,
+            profile,
+            posture.joints_deg,
+            posture.face,
+            est,
+            ka,
+            acq_gain,
+            label,
+            posture.label,
+            mode,
+            16.0 if not meas else 8.0,
+        )
         meas.append(res.measurement)
         last_error = res.prediction_error_deg
         good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
         cell = estimate_cell(prior, good, vector)
-        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector,
-                                       cell.geometry)
+        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry)
     # Faces whose peak came out uncertain (found from a poor early prediction, where side
     # lobes and a neighbouring face's echo crowd the search) are measured again, now that the
     # prediction is good to hundredths of a degree.
@@ -94,16 +108,28 @@ def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
             continue
         posture = plan.postures[i]
         label = f"face {posture.face_name} ({posture.label}, again)"
-        log.info("%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg,
-                 REMEASURE_TILT_DEG)
+        log.info(
+            "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, REMEASURE_TILT_DEG
+        )
         check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
-        res = measure_face(approach, fitted, profile, posture.joints_deg, posture.face, est, ka,
-                           acq_gain, label, posture.label, "quick", 8.0)
+        res = measure_face(
+            approach,
+            fitted,
+            profile,
+            posture.joints_deg,
+            posture.face,
+            est,
+            ka,
+            acq_gain,
+            label,
+            posture.label,
+            "quick",
+            8.0,
+        )
         meas[i] = res.measurement
         good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
         cell = estimate_cell(prior, good, vector)
-        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector,
-                                       cell.geometry)
+        est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry)
     approach.move(first.joints_deg)
     meas = refit_peaks(approach, profile, meas, ka, prior)
     if progress:
@@ -111,8 +137,15 @@ def run_full(profile: CellProfile, plan: FullPlan, rig: Rig,
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
 
 
-def check_prediction(profile: CellProfile, geom, joints_deg: np.ndarray, face: int,
-                     offsets_deg: np.ndarray, corner_mm: np.ndarray, label: str) -> None:
+def check_prediction(
+    profile: CellProfile,
+    geom,
+    joints_deg: np.ndarray,
+    face: int,
+    offsets_deg: np.ndarray,
+    corner_mm: np.ndarray,
+    label: str,
+) -> None:
     """Check the posture predicted for ``face`` from the planned one before moving there
     (``SafetyError``, exit 4): joint ranges with room for the wrist search, the singularity
     margin, and a water path of at least ``MIN_WATER_PATH_MM``."""
@@ -121,5 +154,7 @@ def check_prediction(profile: CellProfile, geom, joints_deg: np.ndarray, face: i
     _, tcp = beam_and_tcp(geom, q, offsets_deg)
     path = float(geom.normal(face) @ (tcp - corner_mm))
     if path < MIN_WATER_PATH_MM:
-        raise SafetyError(f"{label}: with the cell as measured so far the tool centre would be "
-                          f"{path:.1f} mm from the face (minimum {MIN_WATER_PATH_MM:g} mm)")
+        raise SafetyError(
+            f"{label}: with the cell as measured so far the tool centre would be "
+            f"{path:.1f} mm from the face (minimum {MIN_WATER_PATH_MM:g} mm)"
+        )

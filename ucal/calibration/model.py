@@ -39,12 +39,12 @@ FACE_NAMES = ("YZ", "XZ", "XY")  # face k has normal +axis k of the block frame
 class FaceMeasurement:
     """One normal-incidence measurement (see module docstring)."""
 
-    config: str                    # arm configuration label: "base", "j3", "j2", …
-    face: int                      # 0, 1, 2: normal along block x, y, z
-    joints_deg: np.ndarray         # (6,) readings at normal incidence
-    distance_mm: float             # water path from TOF
+    config: str  # arm configuration label: "base", "j3", "j2", …
+    face: int  # 0, 1, 2: normal along block x, y, z
+    joints_deg: np.ndarray  # (6,) readings at normal incidence
+    distance_mm: float  # water path from TOF
     distance_std_mm: float = 0.01  # one-sigma of distance_mm (from repeated TOF readings)
-    tilt_std_deg: float = 0.002    # one-sigma of the normal-incidence posture, as beam tilt
+    tilt_std_deg: float = 0.002  # one-sigma of the normal-incidence posture, as beam tilt
     amplitude: float = float("nan")
     #: Readings where the TOF was read, if not ``joints_deg`` (the last probe at the peak).
     distance_joints_deg: np.ndarray | None = None
@@ -56,8 +56,8 @@ class CellGeometry:
     """What the solvers assume known: the kinematic model, the tool, the block orientation."""
 
     model: RobotModel
-    tool_matrix: np.ndarray        # (4, 4) tool frame in the flange frame
-    block_rotation: np.ndarray     # (3, 3) R_S: block axes in the base frame
+    tool_matrix: np.ndarray  # (4, 4) tool frame in the flange frame
+    block_rotation: np.ndarray  # (3, 3) R_S: block axes in the base frame
 
     @property
     def beam_flange(self) -> np.ndarray:
@@ -69,8 +69,12 @@ class CellGeometry:
         return self.block_rotation[:, face]
 
 
-def beam_and_tcp(geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.ndarray,
-                 beam_flange: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def beam_and_tcp(
+    geom: CellGeometry,
+    joints_deg: np.ndarray,
+    offsets_deg: np.ndarray,
+    beam_flange: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Beam direction (…, 3) and tool centre (…, 3, mm) in the base frame."""
     frames = fk_frames(geom.model, joints_deg, offsets_deg)
     flange = frames[..., 6, :, :]

@@ -62,13 +62,15 @@ def arm_lengths(geom: CellGeometry) -> tuple[float, float]:
     dh = geom.model.dh
     expected = np.array([[0, -90], [-90, 0], [90, 90], [0, -90], [0, 90], [0, 0]], float)
     if not np.allclose(dh[:, [0, 3]], expected) or abs(dh[2, 1]) > 0 or abs(dh[2, 2]) > 0:
-        raise InputError("the paper's closed-form method needs a TX90-family DH structure; "
-                         "use --method exact")
+        raise InputError(
+            "the paper's closed-form method needs a TX90-family DH structure; use --method exact"
+        )
     return float(dh[1, 2]), float(dh[3, 1])
 
 
-def wrist_centre_shift(geom: CellGeometry, before: dict[int, FaceMeasurement],
-                       after: dict[int, FaceMeasurement]) -> np.ndarray:
+def wrist_centre_shift(
+    geom: CellGeometry, before: dict[int, FaceMeasurement], after: dict[int, FaceMeasurement]
+) -> np.ndarray:
     """δW (3,) in the base frame from the distance changes to the three faces."""
     delta_block = np.array([after[k].distance_mm - before[k].distance_mm for k in range(3)])
     return geom.block_rotation @ delta_block
@@ -99,17 +101,18 @@ def arm_angles(geom: CellGeometry, meas: list[FaceMeasurement]) -> np.ndarray:
     th1 = np.arctan2(sigma * dw3[1], sigma * dw3[0])
     c1, s1 = np.cos(th1), np.sin(th1)
     h3 = dw3[0] * c1 + dw3[1] * s1
-    th23 = np.arctan2(-dw3[2] / step3, h3 / step3)                      # (16)
+    th23 = np.arctan2(-dw3[2] / step3, h3 / step3)  # (16)
     h2 = dw2[0] * c1 + dw2[1] * s1
-    l2c2 = h2 / step2 - l3 * np.cos(th23)                               # (14)
+    l2c2 = h2 / step2 - l3 * np.cos(th23)  # (14)
     l2s2 = -dw2[2] / step2 - l3 * np.sin(th23)
-    th2 = np.arctan2(l2s2, l2c2)                                        # (15)
-    th3 = th23 - th2                                                    # (17)
+    th2 = np.arctan2(l2s2, l2c2)  # (15)
+    th3 = th23 - th2  # (17)
     return np.degrees([th1, th2, th3])
 
 
 def _triad(u1: np.ndarray, u2: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
     """Rotation R with R·u1 = w1 exactly and R·u2 as close to w2 as possible."""
+
     def frame(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         e1 = a / np.linalg.norm(a)
         e2 = np.cross(a, b)
@@ -119,8 +122,13 @@ def _triad(u1: np.ndarray, u2: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np
     return frame(w1, w2) @ frame(u1, u2).T
 
 
-def wrist_angles(geom: CellGeometry, meas: list[FaceMeasurement], arm_deg: np.ndarray,
-                 ref_face: int = 2, other_face: int = 0) -> np.ndarray:
+def wrist_angles(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    arm_deg: np.ndarray,
+    ref_face: int = 2,
+    other_face: int = 0,
+) -> np.ndarray:
     """Kinematic θ4, θ5, θ6 (deg, reading convention) at the reference posture, eqs. 18–21."""
     cfg = _by_config(meas)["base"]
     q_ref = cfg[ref_face].joints_deg
@@ -137,11 +145,11 @@ def wrist_angles(geom: CellGeometry, meas: list[FaceMeasurement], arm_deg: np.nd
     q_arm = q_ref.copy()
     q_arm[:3] = arm_deg
     r30 = fk_frames(model, q_arm)[3, :3, :3]
-    r63 = r30.T @ r60                                                   # (18)
+    r63 = r30.T @ r60  # (18)
     # Remove the constant DH θ offsets of rows 4–6 (zero for the TX90 table).
     s5_sign = np.sign(np.sin(np.radians(q_ref[4] + model.theta_offset_deg[4]))) or 1.0
-    th5 = np.arctan2(s5_sign * np.hypot(r63[0, 2], r63[1, 2]), r63[2, 2])          # (20)
-    th4 = np.arctan2(s5_sign * r63[1, 2], s5_sign * r63[0, 2])                     # (21)
+    th5 = np.arctan2(s5_sign * np.hypot(r63[0, 2], r63[1, 2]), r63[2, 2])  # (20)
+    th4 = np.arctan2(s5_sign * r63[1, 2], s5_sign * r63[0, 2])  # (21)
     th6 = np.arctan2(s5_sign * r63[2, 1], -s5_sign * r63[2, 0])
     return np.degrees([th4, th5, th6]) - model.theta_offset_deg[3:]
 
@@ -159,10 +167,16 @@ def paper_offsets(geom: CellGeometry, meas: list[FaceMeasurement]) -> np.ndarray
     return _wrap(np.concatenate([arm - base[:3], wrist - base[3:]]))
 
 
-def solve_paper(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_deg: np.ndarray,
-                unobservable: tuple[int, ...] = (), condition_number: float = float("nan"),
-                prior: CellPrior | None = None, reasons: dict[int, str] | None = None,
-                max_std_deg: float = MAX_STD_DEG) -> OffsetSolution:
+def solve_paper(
+    geom: CellGeometry,
+    meas: list[FaceMeasurement],
+    prior_offsets_deg: np.ndarray,
+    unobservable: tuple[int, ...] = (),
+    condition_number: float = float("nan"),
+    prior: CellPrior | None = None,
+    reasons: dict[int, str] | None = None,
+    max_std_deg: float = MAX_STD_DEG,
+) -> OffsetSolution:
     """Offsets by the paper's method with an honest standard deviation.
 
     The variance of each offset is the sum of
@@ -201,7 +215,7 @@ def solve_paper(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
             noise += (deriv * sigma) ** 2
     nuisance = _nuisance_variances(geom, meas, prior) if prior is not None else {}
     truncation = truncation_error(geom, meas, offsets)
-    var = noise + truncation ** 2 + sum(nuisance.values(), np.zeros(6))
+    var = noise + truncation**2 + sum(nuisance.values(), np.zeros(6))
     std = np.sqrt(var)
     prior_off = np.asarray(prior_offsets_deg, float)
     why = dict(reasons or {})
@@ -212,21 +226,28 @@ def solve_paper(geom: CellGeometry, meas: list[FaceMeasurement], prior_offsets_d
         source, v = max(nuisance.items(), key=lambda kv: kv[1][j])
         if v[j] > 0.5 * var[j]:
             unobs.add(j + 1)
-            why[j + 1] = (f"cannot be separated from {PRIOR_MEANING.get(source, source)} by "
-                          f"the paper's equations: {100 * v[j] / var[j]:.0f} % of its "
-                          f"variance, std {std[j]:.3g} deg")
+            why[j + 1] = (
+                f"cannot be separated from {PRIOR_MEANING.get(source, source)} by "
+                f"the paper's equations: {100 * v[j] / var[j]:.0f} % of its "
+                f"variance, std {std[j]:.3g} deg"
+            )
     for j in unobs:
         offsets[j - 1] = prior_off[j - 1]
         std[j - 1] = np.nan
-    return OffsetSolution(offsets_deg=offsets, std_deg=std,
-                          unobservable_joints=tuple(sorted(unobs)),
-                          condition_number=condition_number, method="paper",
-                          extra={"truncation_deg": truncation, "noise_std_deg": np.sqrt(noise)},
-                          unobservable_reasons={j: why[j] for j in unobs if j in why})
+    return OffsetSolution(
+        offsets_deg=offsets,
+        std_deg=std,
+        unobservable_joints=tuple(sorted(unobs)),
+        condition_number=condition_number,
+        method="paper",
+        extra={"truncation_deg": truncation, "noise_std_deg": np.sqrt(noise)},
+        unobservable_reasons={j: why[j] for j in unobs if j in why},
+    )
 
 
-def _nuisance_variances(geom: CellGeometry, meas: list[FaceMeasurement], prior: CellPrior
-                        ) -> dict[str, np.ndarray]:
+def _nuisance_variances(
+    geom: CellGeometry, meas: list[FaceMeasurement], prior: CellPrior
+) -> dict[str, np.ndarray]:
     """Variance (deg², per joint) that each tolerance of ``prior`` puts into the offsets."""
     base = paper_offsets(geom, meas)
     block_rpy = matrix_to_rpy(geom.block_rotation)
@@ -258,8 +279,9 @@ def _nuisance_variances(geom: CellGeometry, meas: list[FaceMeasurement], prior: 
     return out
 
 
-def truncation_error(geom: CellGeometry, meas: list[FaceMeasurement],
-                     offsets_deg: np.ndarray) -> np.ndarray:
+def truncation_error(
+    geom: CellGeometry, meas: list[FaceMeasurement], offsets_deg: np.ndarray
+) -> np.ndarray:
     """The paper chain's own error (deg, per joint) at ``offsets_deg`` for these postures.
 
     Ideal measurements of a cell with offsets ``offsets_deg`` are synthesised with the exact
@@ -274,8 +296,11 @@ def truncation_error(geom: CellGeometry, meas: list[FaceMeasurement],
         _, tcp = beam_and_tcp(geom, q, offsets_deg)
         proj = float(geom.normal(m.face) @ tcp)
         corner_local.setdefault(m.face, proj - m.distance_mm)
-        synth.append(_with(m, joints_deg=q, distance_joints_deg=None,
-                           distance_mm=proj - corner_local[m.face]))
+        synth.append(
+            _with(
+                m, joints_deg=q, distance_joints_deg=None, distance_mm=proj - corner_local[m.face]
+            )
+        )
     return np.abs(_wrap(paper_offsets(geom, synth) - offsets_deg))
 
 

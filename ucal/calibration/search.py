@@ -68,8 +68,13 @@ class SweepSpacing:
 
 #: The first build's spacing (every sweep read about as densely as the pulser answered): the
 #: baseline that benchmarks/paper_protocol.py compares the reads and accuracy against.
-DENSE_SPACING = SweepSpacing(acquire_deg=0.08, centre_reads_per_half=math.inf,
-                             centre_min_deg=0.04, main_lobe_deg=0.01, aim=0.5)
+DENSE_SPACING = SweepSpacing(
+    acquire_deg=0.08,
+    centre_reads_per_half=math.inf,
+    centre_min_deg=0.04,
+    main_lobe_deg=0.01,
+    aim=0.5,
+)
 #: Slowest sweep (fraction of maximum speed): the VAL3 server takes a wire velocity of 0.001
 #: (0.1 %) for "extrapolate from the previous points", so sweeps stay clear of it.
 MIN_SPEED = 0.002
@@ -86,19 +91,22 @@ def check_reading(endpoint: str, amplitude: float, tof_ns: float) -> None:
     an amplitude that is NaN, infinite or negative, or a time of flight that is negative or
     infinite (an echo without a finite time). NaN time of flight is "no echo" and fine."""
     if not math.isfinite(amplitude) or amplitude < 0.0:
-        raise HardwareError(f"pulser at {endpoint}: impossible reading: amplitude {amplitude!r} "
-                            "(expected a fraction of full screen height, 0 or more)")
+        raise HardwareError(
+            f"pulser at {endpoint}: impossible reading: amplitude {amplitude!r} "
+            "(expected a fraction of full screen height, 0 or more)"
+        )
     if math.isinf(tof_ns) or tof_ns < 0.0:
-        raise HardwareError(f"pulser at {endpoint}: impossible reading: time of flight "
-                            f"{tof_ns!r} ns with amplitude {amplitude!r} (expected a positive "
-                            "round-trip time, or none without an echo)")
+        raise HardwareError(
+            f"pulser at {endpoint}: impossible reading: time of flight "
+            f"{tof_ns!r} ns with amplitude {amplitude!r} (expected a positive "
+            "round-trip time, or none without an echo)"
+        )
 
 
 def check_readings(endpoint: str, amplitudes: np.ndarray, tofs_ns: np.ndarray) -> None:
     """:func:`check_reading` over the readings of a sweep; the first bad one is reported."""
     amplitudes, tofs_ns = np.asarray(amplitudes, float), np.asarray(tofs_ns, float)
-    bad = (~np.isfinite(amplitudes) | (amplitudes < 0.0) | np.isinf(tofs_ns)
-           | (tofs_ns < 0.0))
+    bad = ~np.isfinite(amplitudes) | (amplitudes < 0.0) | np.isinf(tofs_ns) | (tofs_ns < 0.0)
     if np.any(bad):
         i = int(np.argmax(bad))
         check_reading(endpoint, float(amplitudes[i]), float(tofs_ns[i]))
@@ -113,9 +121,16 @@ class RigCounters:
 class Rig:
     """The robot and the pulser as the procedures use them: counted moves and reads, gain."""
 
-    def __init__(self, controller: RobotController, pulser: PulserReceiver,
-                 joint_min_deg: np.ndarray, joint_max_deg: np.ndarray, speed: float = 0.3,
-                 move_timeout_s: float = 60.0, settings: PulserSettings | None = None):
+    def __init__(
+        self,
+        controller: RobotController,
+        pulser: PulserReceiver,
+        joint_min_deg: np.ndarray,
+        joint_max_deg: np.ndarray,
+        speed: float = 0.3,
+        move_timeout_s: float = 60.0,
+        settings: PulserSettings | None = None,
+    ):
         self.controller = controller
         self.pulser = pulser
         self.joint_min_deg = np.asarray(joint_min_deg, float)
@@ -129,8 +144,9 @@ class Rig:
         self.spacing = SweepSpacing()
         self.move_timeout_s = move_timeout_s
         self.counters = RigCounters()
-        self.settings = settings or PulserSettings(gain_db=40.0, gate_start_us=5.0,
-                                                   gate_width_us=400.0, averages=1)
+        self.settings = settings or PulserSettings(
+            gain_db=40.0, gate_start_us=5.0, gate_width_us=400.0, averages=1
+        )
         self.floor_per_gain: float | None = None  # noise-floor amplitude at 0 dB gain
         self.on_move = None  # optional callback(target) for progress display
         self.last_sweep_step_deg = 0.0
@@ -199,13 +215,13 @@ class Rig:
         if floor <= 0.0:
             positive = [v for v in vals if v > 0.0]
             floor = min(positive) if positive else ZERO_FLOOR_FSH
-            log.info("the empty gate reads 0 (quantised amplitude): floor taken as %.2e FSH",
-                     floor)
+            log.info("the empty gate reads 0 (quantised amplitude): floor taken as %.2e FSH", floor)
         self.floor_per_gain = floor / 10 ** (self.settings.gain_db / 20)
         log.info("noise floor %.2e FSH at %.1f dB", floor, self.settings.gain_db)
 
-    def sweep(self, target: np.ndarray, max_step_deg: float = 0.08
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sweep(
+        self, target: np.ndarray, max_step_deg: float = 0.08
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Move to ``target`` reading the pulser all the way.
 
         Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
@@ -243,8 +259,10 @@ class Rig:
             if np.max(np.abs(here - target)) < 1e-3:
                 break
             if clock.now() > deadline:
-                raise HardwareError(f"{self.controller.endpoint}: sweep did not settle "
-                                    f"within {self.move_timeout_s:.0f} s")
+                raise HardwareError(
+                    f"{self.controller.endpoint}: sweep did not settle "
+                    f"within {self.move_timeout_s:.0f} s"
+                )
         if len(readings) > 1:
             self.read_interval_s = busy_s / len(readings)
         self.controller.wait_settled(target, self.move_timeout_s)
@@ -263,8 +281,7 @@ class Rig:
         self.last_sweep_step_deg = travel / max(len(readings), 1)
         return q, amps, tofs
 
-    def _sweep_speed_for(self, start: np.ndarray, target: np.ndarray, max_step_deg: float
-                         ) -> float:
+    def _sweep_speed_for(self, start: np.ndarray, target: np.ndarray, max_step_deg: float) -> float:
         """Speed fraction that spaces readings ``spacing.aim · max_step_deg`` apart on this move.
 
         The move's rate is set by its slowest joint relative to its maximum speed (the
@@ -279,12 +296,16 @@ class Rig:
         speed = self.spacing.aim * max_step_deg / (rate_deg_s * self.read_interval_s)
         self.sweep_speed = float(np.clip(speed, MIN_SPEED, self.speed))
         # Capped at the profile's speed: read no more often than the spacing needs.
-        self.read_period_s = (self.spacing.aim * max_step_deg / (rate_deg_s * self.sweep_speed)
-                              if speed > self.speed else 0.0)
+        self.read_period_s = (
+            self.spacing.aim * max_step_deg / (rate_deg_s * self.sweep_speed)
+            if speed > self.speed
+            else 0.0
+        )
         return self.sweep_speed
 
-    def line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def line(
+        self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
         readings came too far apart is swept again, back, at the lowered speed."""
         here = self.controller.read_joints()
@@ -304,11 +325,11 @@ class Rig:
 class PeakResult:
     """Normal-incidence posture found by the fit, with its quality."""
 
-    joints_deg: np.ndarray        # (6,) readings at the fitted peak
-    amplitude: float              # fitted peak amplitude (FSH)
-    tilt_std_deg: float           # one-sigma of the peak posture, as beam tilt
-    residual_rms: float           # amplitude fit residual (FSH)
-    distance: tuple[float, float] | None = None   # water path and its σ (mm), if read
+    joints_deg: np.ndarray  # (6,) readings at the fitted peak
+    amplitude: float  # fitted peak amplitude (FSH)
+    tilt_std_deg: float  # one-sigma of the peak posture, as beam tilt
+    residual_rms: float  # amplitude fit residual (FSH)
+    distance: tuple[float, float] | None = None  # water path and its σ (mm), if read
     distance_joints_deg: np.ndarray | None = None  # readings where it was read
     probes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (pts, amps, q) fitted
 
@@ -341,10 +362,16 @@ def _run_centre(u: np.ndarray, amps: np.ndarray, level: float) -> float | None:
 class PeakSearch:
     """Acquisition and peak-posture search for one face (see module docstring)."""
 
-    def __init__(self, rig: Rig, ka: float, joints: tuple[int, int], tilt_map: np.ndarray,
-                 temperature_c: float,
-                 beam_components: Callable[[np.ndarray], np.ndarray] | None = None,
-                 absorption_np_per_mm: float = 0.0):
+    def __init__(
+        self,
+        rig: Rig,
+        ka: float,
+        joints: tuple[int, int],
+        tilt_map: np.ndarray,
+        temperature_c: float,
+        beam_components: Callable[[np.ndarray], np.ndarray] | None = None,
+        absorption_np_per_mm: float = 0.0,
+    ):
         """``beam_components(q (n, 6)) -> (n, 3)``: the nominal beam's two components across
         the face (sines of the tilt, rad) and the tool centre's coordinate along the face
         normal (mm), from the forward kinematics; without it the fit uses the linear
@@ -368,9 +395,14 @@ class PeakSearch:
         return self.rig.clip(out)
 
     # -- stage 1: acquisition ----------------------------------------------------------------------
-    def acquire(self, q_pred: np.ndarray, radius_tilt_deg: float, gain_db: float,
-                spacing_tilt_deg: float = 1.5, max_moves: int | None = None
-                ) -> tuple[np.ndarray, float] | None:
+    def acquire(
+        self,
+        q_pred: np.ndarray,
+        radius_tilt_deg: float,
+        gain_db: float,
+        spacing_tilt_deg: float = 1.5,
+        max_moves: int | None = None,
+    ) -> tuple[np.ndarray, float] | None:
         """Raster outward from ``q_pred`` until an echo is seen; returns (posture, level).
 
         None when the raster ends without an echo, or when it has used ``max_moves`` moves
@@ -387,8 +419,7 @@ class PeakSearch:
         direction = 1.0
         for i in order:
             if max_moves is not None and self.rig.counters.moves - first_move >= max_moves:
-                log.info("acquisition stopped after %d moves", self.rig.counters.moves
-                         - first_move)
+                log.info("acquisition stopped after %d moves", self.rig.counters.moves - first_move)
                 return None
             ub = ub0 + i * step_b
             start = self._with(q_pred, ua0 - direction * half_a, ub)
@@ -409,8 +440,9 @@ class PeakSearch:
         return None
 
     # -- stage 2: centring -------------------------------------------------------------------------
-    def _cross(self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float = 0.04
-               ) -> tuple[np.ndarray, float]:
+    def _cross(
+        self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float = 0.04
+    ) -> tuple[np.ndarray, float]:
         """Sweep joint ``j`` through ``q``; move ``q[j]`` to the middle of the half-max run."""
         qs, amps = self._sweep_through(q, j, half_tilt_deg, max_step_deg)
         peak = float(np.max(amps))
@@ -468,8 +500,9 @@ class PeakSearch:
             self.set_fit_gain(q, averages=1)
         return q
 
-    def _sweep_through(self, q: np.ndarray, j: int, half_tilt_deg: float,
-                       max_step_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _sweep_through(
+        self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Sweep joint ``j`` over ±``half_tilt_deg`` of beam tilt through ``q``.
 
         Without ``max_step_deg`` the spacing is ``SweepSpacing.centre_deg``.
@@ -507,8 +540,13 @@ class PeakSearch:
         self.rig.move(q)
         self.rig.level_gain(averages)
 
-    def fit(self, q_centre: np.ndarray, averages: int, half_tilt_deg: float = 0.14,
-            distance: Callable[[], tuple[float, float]] | None = None) -> PeakResult:
+    def fit(
+        self,
+        q_centre: np.ndarray,
+        averages: int,
+        half_tilt_deg: float = 0.14,
+        distance: Callable[[], tuple[float, float]] | None = None,
+    ) -> PeakResult:
         """Static probes around the peak, fitted with the piston directivity.
 
         Round 1: a 3×3 grid (the centre and eight neighbours); round 2: a plus pattern, tighter,
@@ -525,8 +563,12 @@ class PeakSearch:
         dist = None
         result = None
         for pattern, half in ((grid, half_tilt_deg), (plus, 0.7 * half_tilt_deg)):
-            if (pattern is plus and result is not None and (distance is None or dist is not None)
-                    and self._settled_fit(result, q, half)):
+            if (
+                pattern is plus
+                and result is not None
+                and (distance is None or dist is not None)
+                and self._settled_fit(result, q, half)
+            ):
                 break  # round 1 already centred and precise: no second grid needed
             self.set_fit_gain(q, averages)  # leaves the robot settled at q
             settled = self.rig.controller.read_joints()
@@ -546,18 +588,29 @@ class PeakSearch:
                     if pattern is plus:
                         raise
             for d in pattern:
-                p = self._with(q, q[self.ja] + d[0] * half / self.per_deg[0],
-                               q[self.jb] + d[1] * half / self.per_deg[1])
+                p = self._with(
+                    q,
+                    q[self.ja] + d[0] * half / self.per_deg[0],
+                    q[self.jb] + d[1] * half / self.per_deg[1],
+                )
                 settled = self.rig.move(p)
                 amps.append(self.rig.normalised_amplitude(averages))
                 pts.append([settled[self.ja], settled[self.jb]])
             result = self._fit_grid(np.array(pts), np.array(amps), q, g_init)
-            log.info("peak fit: %s amp %.4g tilt σ %.2e° rms %.2e (gain %.1f dB)",
-                     np.round(result.joints_deg[3:], 5).tolist(), result.amplitude,
-                     result.tilt_std_deg, result.residual_rms, self.rig.settings.gain_db)
+            log.info(
+                "peak fit: %s amp %.4g tilt σ %.2e° rms %.2e (gain %.1f dB)",
+                np.round(result.joints_deg[3:], 5).tolist(),
+                result.amplitude,
+                result.tilt_std_deg,
+                result.residual_rms,
+                self.rig.settings.gain_db,
+            )
             if result.tilt_std_deg > 0.02:
-                log.info("poor fit data: pts %s amps %s", np.round(np.array(pts), 4).tolist(),
-                         np.round(np.array(amps) * 10 ** (self.rig.settings.gain_db / 20), 4).tolist())
+                log.info(
+                    "poor fit data: pts %s amps %s",
+                    np.round(np.array(pts), 4).tolist(),
+                    np.round(np.array(amps) * 10 ** (self.rig.settings.gain_db / 20), 4).tolist(),
+                )
             q = result.joints_deg
         assert result is not None
         result = replace(result, probes=(np.array(pts), np.array(amps), np.array(q_centre, float)))
@@ -567,10 +620,13 @@ class PeakSearch:
 
     def _settled_fit(self, result: PeakResult, q: np.ndarray, half_tilt_deg: float) -> bool:
         """True if the fitted peak lies well inside the grid around ``q`` and is precise."""
-        off = np.array([(result.joints_deg[self.ja] - q[self.ja]) * self.per_deg[0],
-                        (result.joints_deg[self.jb] - q[self.jb]) * self.per_deg[1]])
-        return bool(np.max(np.abs(off)) < 0.15 * half_tilt_deg
-                    and result.tilt_std_deg < 0.002)
+        off = np.array(
+            [
+                (result.joints_deg[self.ja] - q[self.ja]) * self.per_deg[0],
+                (result.joints_deg[self.jb] - q[self.jb]) * self.per_deg[1],
+            ]
+        )
+        return bool(np.max(np.abs(off)) < 0.15 * half_tilt_deg and result.tilt_std_deg < 0.002)
 
     def refit(self, probes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> PeakResult:
         """Fit recorded probes again (e.g. with better kinematics in ``beam_components``)."""
@@ -578,8 +634,9 @@ class PeakSearch:
         res = self._fit_grid(pts, amps, q, self.m.T @ self.m)
         return replace(res, probes=probes)
 
-    def _fit_grid(self, pts: np.ndarray, amps: np.ndarray, q: np.ndarray,
-                  g_init: np.ndarray) -> PeakResult:
+    def _fit_grid(
+        self, pts: np.ndarray, amps: np.ndarray, q: np.ndarray, g_init: np.ndarray
+    ) -> PeakResult:
         """Fit ``A = A0·|2J1(x)/x|``, ``x = ka·sin 2θ`` to probes at joint pairs ``pts``.
 
         The tilt θ at a probe is ``|Lᵀ·(f(u) − f(u*))|`` with f the nominal beam components
@@ -592,6 +649,7 @@ class PeakSearch:
         ja, jb = self.ja, self.jb
 
         if self.beam_components is not None:
+
             def comps(u: np.ndarray) -> np.ndarray:
                 qq = np.tile(q, (len(u), 1))
                 qq[:, ja] = u[:, 0]
@@ -602,6 +660,7 @@ class PeakSearch:
 
             def comps(u: np.ndarray) -> np.ndarray:
                 return np.column_stack([u @ m.T, np.zeros(len(u))])
+
         l_init = np.eye(2)
         c_pts = comps(pts)
         f_pts, path_pts = c_pts[:, :2], c_pts[:, 2]
@@ -617,27 +676,40 @@ class PeakSearch:
             return a0 * absorb * np.abs(piston_directivity(ka * np.sin(2 * t)))
 
         i = int(np.argmax(amps))
-        p0 = np.array([amps[i] * 1.05, pts[i, 0], pts[i, 1], l_init[0, 0], l_init[1, 0],
-                       l_init[1, 1]])
+        p0 = np.array(
+            [amps[i] * 1.05, pts[i, 0], pts[i, 1], l_init[0, 0], l_init[1, 0], l_init[1, 1]]
+        )
         span = np.ptp(pts, axis=0) + 1e-6
         lo = np.array([0.0, pts[:, 0].min() - span[0], pts[:, 1].min() - span[1], 0.3, -0.7, 0.3])
         hi = np.array([np.inf, pts[:, 0].max() + span[0], pts[:, 1].max() + span[1], 3.0, 0.7, 3.0])
         p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
-        sol = least_squares(lambda p: model(p) - amps, p0, method="trf", bounds=(lo, hi),
-                            x_scale=np.array([max(amps[i], 1e-9), 0.01, 0.01, 0.1, 0.1, 0.1]),
-                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=5000)
+        sol = least_squares(
+            lambda p: model(p) - amps,
+            p0,
+            method="trf",
+            bounds=(lo, hi),
+            x_scale=np.array([max(amps[i], 1e-9), 0.01, 0.01, 0.1, 0.1, 0.1]),
+            xtol=1e-15,
+            ftol=1e-15,
+            gtol=1e-15,
+            max_nfev=5000,
+        )
         res = sol.fun
         dof = max(1, len(amps) - len(p0))
-        sigma = max(float(np.sqrt(res @ res / dof)), 1e-6 * sol.x[0],
-                    (self.amp_sigma_rel or 0.0) * float(np.mean(amps)))
-        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma ** 2
+        sigma = max(
+            float(np.sqrt(res @ res / dof)),
+            1e-6 * sol.x[0],
+            (self.amp_sigma_rel or 0.0) * float(np.mean(amps)),
+        )
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma**2
         # Peak-posture covariance (deg²) → tilt covariance (rad²) through the local map.
         cov_tilt = self._tilt_cov(cov[1:3, 1:3], sol.x)
         tilt_std_deg = float(np.degrees(np.sqrt(max(np.trace(cov_tilt), 0.0) / 2.0)))
         out = self._with(q, sol.x[1], sol.x[2])
         gain = 10 ** (self.rig.settings.gain_db / 20)
-        return PeakResult(out, float(sol.x[0]) * gain, tilt_std_deg,
-                          float(np.sqrt(np.mean(res ** 2))) * gain)
+        return PeakResult(
+            out, float(sol.x[0]) * gain, tilt_std_deg, float(np.sqrt(np.mean(res**2))) * gain
+        )
 
     def _tilt_cov(self, cov_u_deg2: np.ndarray, p: np.ndarray) -> np.ndarray:
         lmat = np.array([[p[3], 0.0], [p[4], p[5]]])
@@ -645,8 +717,9 @@ class PeakSearch:
         return jac @ cov_u_deg2 @ jac.T
 
 
-def read_distance(rig: Rig, temperature_c: float, averages: int, repeats: int = 8
-                  ) -> tuple[float, float]:
+def read_distance(
+    rig: Rig, temperature_c: float, averages: int, repeats: int = 8
+) -> tuple[float, float]:
     """Water path (mm) from averaged TOF readings at the current posture, and its one-sigma."""
     tofs = []
     for _ in range(repeats):

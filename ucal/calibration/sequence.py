@@ -62,7 +62,7 @@ from ucal.kinematics.rotations import rpy_to_matrix
 
 log = logging.getLogger(__name__)
 
-FACE_ORDER = (2, 0, 1)             # XY, YZ, XZ
+FACE_ORDER = (2, 0, 1)  # XY, YZ, XZ
 MIN_WATER_PATH_MM = 20.0
 EDGE_MARGIN_MM = 20.0
 #: Candidate joint-2/3 steps (deg), largest first: bigger steps amplify distance errors less.
@@ -125,10 +125,10 @@ class PlannedTarget:
 @dataclass(frozen=True)
 class CalibrationPlan:
     pose_deg: np.ndarray
-    step_deg: float                       # joint-2/3 step (deg, sign chosen during the run)
+    step_deg: float  # joint-2/3 step (deg, sign chosen during the run)
     targets: tuple[PlannedTarget, ...]
     azimuth_step_deg: float | None = None  # joint-1 step of the "j1" configuration, if any
-    min_step_deg: float = 2.0             # the run may step less than planned, not below this
+    min_step_deg: float = 2.0  # the run may step less than planned, not below this
     #: Offset change (deg) per 1 m/s of sound speed if it were not fitted, per joint.
     sound_speed_gain_deg_per_m_s: np.ndarray | None = None
     #: Offset std (deg) per 1 µm of water-path noise on every measurement, per joint.
@@ -154,8 +154,9 @@ class CalibrationRun:
 
 def geometry(profile: CellProfile) -> CellGeometry:
     """Known geometry for the solvers: model, tool, block orientation."""
-    return CellGeometry(profile.model, profile.tool_matrix,
-                        rpy_to_matrix(profile.sample_rotation_deg))
+    return CellGeometry(
+        profile.model, profile.tool_matrix, rpy_to_matrix(profile.sample_rotation_deg)
+    )
 
 
 def calibration_pose(profile: CellProfile) -> np.ndarray:
@@ -176,8 +177,13 @@ def calibration_pose(profile: CellProfile) -> np.ndarray:
     target[:3, 3] = s_mat[:3, :3] @ np.array([reach, reach, proc.water_path_mm]) + s_mat[:3, 3]
     from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 
-    return ik(profile.model, target, profile.tool_matrix, profile.joint_offsets_deg,
-              near_deg=PAPER_CALIBRATION_POSE_DEG)
+    return ik(
+        profile.model,
+        target,
+        profile.tool_matrix,
+        profile.joint_offsets_deg,
+        near_deg=PAPER_CALIBRATION_POSE_DEG,
+    )
 
 
 def config_arm(pose_deg: np.ndarray, config: str, step_deg: float) -> np.ndarray:
@@ -197,31 +203,44 @@ CONFIGS = ("base", "j3", "j2", "j1")
 #: when joint 6 turns, so the stepped configurations turn it; a tilted beam would swing the
 #: tool centre around the wrist (tens of mm, coupling the wrist-centre displacement with the
 #: tool's unknown pose), so only the second azimuth turns it.
-THETA6_SHIFT_DEG = {"on-axis": {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0},
-                    "tilted": {"base": 0.0, "j3": 0.0, "j2": 0.0, "j1": 90.0}}
+THETA6_SHIFT_DEG = {
+    "on-axis": {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0},
+    "tilted": {"base": 0.0, "j3": 0.0, "j2": 0.0, "j1": 90.0},
+}
 
 
-def _face_hit_check(profile: CellProfile, geom: CellGeometry, q: np.ndarray, face: int,
-                    offsets: np.ndarray, label: str) -> float:
+def _face_hit_check(
+    profile: CellProfile,
+    geom: CellGeometry,
+    q: np.ndarray,
+    face: int,
+    offsets: np.ndarray,
+    label: str,
+) -> float:
     beam, tcp = beam_and_tcp(geom, q, offsets)
     s_mat = profile.sample_matrix
     local_tcp = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
     path = float(local_tcp[face])
     if path < MIN_WATER_PATH_MM:
-        raise SafetyError(f"plan {label}: the tool centre would be {path:.1f} mm from face "
-                          f"{FACE_NAMES[face]} (minimum {MIN_WATER_PATH_MM:g} mm)")
+        raise SafetyError(
+            f"plan {label}: the tool centre would be {path:.1f} mm from face "
+            f"{FACE_NAMES[face]} (minimum {MIN_WATER_PATH_MM:g} mm)"
+        )
     hit = local_tcp + path * (s_mat[:3, :3].T @ beam)
     size = profile.sample_face_size_mm
     inplane = [hit[i] for i in range(3) if i != face]
     edge = min(min(v, size - v) for v in inplane)
     if edge < EDGE_MARGIN_MM:
-        raise SafetyError(f"plan {label}: the beam would meet face {FACE_NAMES[face]} "
-                          f"{edge:.1f} mm from its edge (minimum {EDGE_MARGIN_MM:g} mm)")
+        raise SafetyError(
+            f"plan {label}: the beam would meet face {FACE_NAMES[face]} "
+            f"{edge:.1f} mm from its edge (minimum {EDGE_MARGIN_MM:g} mm)"
+        )
     return path
 
 
-def _config_targets(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
-                    step_deg: float) -> list[PlannedTarget]:
+def _config_targets(
+    profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str, step_deg: float
+) -> list[PlannedTarget]:
     """The three checked targets of one configuration (``SafetyError`` if one fails).
 
     Joint 6 turns between configurations (``THETA6_SHIFT_DEG``, the other way if that fails a
@@ -243,8 +262,9 @@ def _config_targets(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, 
     raise error
 
 
-def _checked_target(profile: CellProfile, geom: CellGeometry, arm: np.ndarray, config: str,
-                    face: int) -> PlannedTarget:
+def _checked_target(
+    profile: CellProfile, geom: CellGeometry, arm: np.ndarray, config: str, face: int
+) -> PlannedTarget:
     offsets = profile.joint_offsets_deg
     label = f"{config}/{FACE_NAMES[face]}"
     q = aim_wrist(geom, arm, -geom.normal(face), offsets)
@@ -252,14 +272,21 @@ def _checked_target(profile: CellProfile, geom: CellGeometry, arm: np.ndarray, c
     path = _face_hit_check(profile, geom, q, face, offsets, label)
     lo, hi = STEPPED_PATH_RANGE_MM
     if config != "base" and not lo <= path <= hi:
-        raise SafetyError(f"plan {label}: a water path of {path:.1f} mm is outside "
-                          f"{lo:g}-{hi:g} mm for a stepped configuration")
+        raise SafetyError(
+            f"plan {label}: a water path of {path:.1f} mm is outside "
+            f"{lo:g}-{hi:g} mm for a stepped configuration"
+        )
     js, _ = search_joints(geom, q, offsets, face_basis(geom, face))
     return PlannedTarget(config, face, q, js, path)
 
 
-def _largest_step(profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str,
-                  candidates: tuple[float, ...]) -> tuple[float, list[PlannedTarget]]:
+def _largest_step(
+    profile: CellProfile,
+    geom: CellGeometry,
+    pose: np.ndarray,
+    config: str,
+    candidates: tuple[float, ...],
+) -> tuple[float, list[PlannedTarget]]:
     """The largest candidate step whose targets pass every check; the last failure if none."""
     error: SafetyError | None = None
     for step in candidates:
@@ -283,19 +310,22 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
     pose = calibration_pose(profile)
     model = profile.model
     if not model.within_limits(pose):
-        raise SafetyError(f"the calibration pose {np.round(pose, 2).tolist()} is outside the "
-                          "joint ranges")
+        raise SafetyError(
+            f"the calibration pose {np.round(pose, 2).tolist()} is outside the joint ranges"
+        )
     targets = _config_targets(profile, geom, pose, "base", 0.0)
-    arm_steps = tuple(sorted({s for s in ARM_STEPS_DEG if s >= proc.step_deg} | {proc.step_deg},
-                             reverse=True))
+    arm_steps = tuple(
+        sorted({s for s in ARM_STEPS_DEG if s >= proc.step_deg} | {proc.step_deg}, reverse=True)
+    )
     # One step for both arm joints: the run may reduce it for clearance, never below
     # [procedure] step_deg.
     step = None
     error: SafetyError | None = None
     for cand in arm_steps:
         try:
-            stepped = (_config_targets(profile, geom, pose, "j3", cand)
-                       + _config_targets(profile, geom, pose, "j2", cand))
+            stepped = _config_targets(profile, geom, pose, "j3", cand) + _config_targets(
+                profile, geom, pose, "j2", cand
+            )
         except SafetyError as e:
             error = error or e
             continue
@@ -311,30 +341,43 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         targets += j1
     except SafetyError as e:
         log.info("no second J1 azimuth (%s): J2 carries the block's tilt tolerance", e)
-    plan = CalibrationPlan(pose, step, tuple(order_targets(targets)), azimuth,
-                           min_step_deg=proc.step_deg)
+    plan = CalibrationPlan(
+        pose, step, tuple(order_targets(targets)), azimuth, min_step_deg=proc.step_deg
+    )
     gains = plan_amplification(profile, plan)
-    return replace(plan, sound_speed_gain_deg_per_m_s=gains[0],
-                   distance_noise_gain_deg_per_um=gains[1])
+    return replace(
+        plan, sound_speed_gain_deg_per_m_s=gains[0], distance_noise_gain_deg_per_um=gains[1]
+    )
 
 
-def nominal_measurements(profile: CellProfile, targets: tuple[PlannedTarget, ...],
-                         distance_std_mm: float = 1e-3, tilt_std_deg: float = 1e-3
-                         ) -> list[FaceMeasurement]:
+def nominal_measurements(
+    profile: CellProfile,
+    targets: tuple[PlannedTarget, ...],
+    distance_std_mm: float = 1e-3,
+    tilt_std_deg: float = 1e-3,
+) -> list[FaceMeasurement]:
     """Ideal measurements at the planned targets of a cell exactly as the profile says."""
     geom = geometry(profile)
     corner = np.asarray(profile.sample_position_mm, float)
     out = []
     for t in targets:
         _, tcp = beam_and_tcp(geom, t.joints_deg, profile.joint_offsets_deg)
-        out.append(FaceMeasurement(t.config, t.face, t.joints_deg,
-                                   float(geom.normal(t.face) @ (tcp - corner)),
-                                   distance_std_mm, tilt_std_deg))
+        out.append(
+            FaceMeasurement(
+                t.config,
+                t.face,
+                t.joints_deg,
+                float(geom.normal(t.face) @ (tcp - corner)),
+                distance_std_mm,
+                tilt_std_deg,
+            )
+        )
     return out
 
 
-def plan_amplification(profile: CellProfile, plan: CalibrationPlan
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def plan_amplification(
+    profile: CellProfile, plan: CalibrationPlan
+) -> tuple[np.ndarray, np.ndarray]:
     """What the plan does to errors: offsets (deg) per 1 m/s of sound speed left unfitted, and
     offset std (deg) per 1 µm of water-path noise, per joint.
 
@@ -348,7 +391,7 @@ def plan_amplification(profile: CellProfile, plan: CalibrationPlan
     assert cell.jac is not None
     k = cell.cov @ cell.jac.T
     free = cell.table.free_names
-    rows = np.arange(2, cell.n_data, 3)                  # the distance rows
+    rows = np.arange(2, cell.n_data, 3)  # the distance rows
     d_over_sigma = np.array([m.distance_mm / m.distance_std_mm for m in meas])
     c0 = prior.sound_speed_m_s
     cols = [free.index(n) for n in OFFSETS]
@@ -383,8 +426,15 @@ def _step_candidates(plan: CalibrationPlan, config: str) -> tuple[float, ...]:
     return tuple(sorted(set(pool) | {planned}, reverse=True))
 
 
-def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan, config: str,
-                est: np.ndarray, corner: np.ndarray, last_wrist: dict[int, np.ndarray]) -> float:
+def choose_step(
+    profile: CellProfile,
+    geom: CellGeometry,
+    plan: CalibrationPlan,
+    config: str,
+    est: np.ndarray,
+    corner: np.ndarray,
+    last_wrist: dict[int, np.ndarray],
+) -> float:
     """Signed joint step for ``config`` that keeps every face at a safe water path.
 
     With the offsets estimated from the faces measured so far, the water paths of the stepped
@@ -401,23 +451,38 @@ def choose_step(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
         best, best_path = None, -np.inf
         for sign in (1.0, -1.0):
             step = sign * magnitude
-            path = _stepped_clearance(profile, geom, plan, config, step, est, corner,
-                                      last_wrist, why)
+            path = _stepped_clearance(
+                profile, geom, plan, config, step, est, corner, last_wrist, why
+            )
             if path is not None and path > best_path:
                 best, best_path = step, path
         if best is not None and best_path >= MIN_WATER_PATH_MM:
             if best != plan.step_of(config):
-                log.info("%s: stepping by %+g deg keeps the tool clear (%.1f mm)", config, best,
-                         best_path)
+                log.info(
+                    "%s: stepping by %+g deg keeps the tool clear (%.1f mm)",
+                    config,
+                    best,
+                    best_path,
+                )
             return best
-    raise SafetyError(f"configuration {config}: with the offsets measured so far no joint "
-                      f"step of ±{plan.step_of(config):g} deg or less is safe "
-                      f"({'; '.join(why[-4:])})")
+    raise SafetyError(
+        f"configuration {config}: with the offsets measured so far no joint "
+        f"step of ±{plan.step_of(config):g} deg or less is safe "
+        f"({'; '.join(why[-4:])})"
+    )
 
 
-def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan,
-                       config: str, step: float, est: np.ndarray, corner: np.ndarray,
-                       last_wrist: dict[int, np.ndarray], why: list[str]) -> float | None:
+def _stepped_clearance(
+    profile: CellProfile,
+    geom: CellGeometry,
+    plan: CalibrationPlan,
+    config: str,
+    step: float,
+    est: np.ndarray,
+    corner: np.ndarray,
+    last_wrist: dict[int, np.ndarray],
+    why: list[str],
+) -> float | None:
     """Smallest predicted water path (mm) of ``config`` stepped by ``step``; None if a face
     cannot be reached inside the joint ranges or its beam would leave the face."""
     model = profile.model
@@ -437,8 +502,10 @@ def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: Calibrati
             return None
         # The prediction is good to a fraction of a degree now: a small margin suffices.
         if not np.all((q >= model.joint_min_deg + 1.0) & (q <= model.joint_max_deg - 1.0)):
-            why.append(f"{step:+g}°: face {FACE_NAMES[t.face]} needs joints "
-                       f"{np.round(q, 1).tolist()} at a range limit")
+            why.append(
+                f"{step:+g}°: face {FACE_NAMES[t.face]} needs joints "
+                f"{np.round(q, 1).tolist()} at a range limit"
+            )
             return None
         beam, tcp = beam_and_tcp(geom, q, est)
         local = geom.block_rotation.T @ (tcp - corner)
@@ -446,8 +513,10 @@ def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: Calibrati
         hit = local + path * (geom.block_rotation.T @ beam)
         edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != t.face)
         if edge < EDGE_MARGIN_MM:
-            why.append(f"{step:+g}°: the beam would meet face {FACE_NAMES[t.face]} "
-                       f"{edge:.0f} mm from its edge")
+            why.append(
+                f"{step:+g}°: the beam would meet face {FACE_NAMES[t.face]} "
+                f"{edge:.0f} mm from its edge"
+            )
             return None
         paths.append(path)
     if min(paths) < MIN_WATER_PATH_MM:
@@ -462,14 +531,15 @@ def _stepped_clearance(profile: CellProfile, geom: CellGeometry, plan: Calibrati
 class CellEstimate:
     """What the measurements so far say about the cell, to predict the next posture."""
 
-    offsets_deg: np.ndarray       # (6,)
-    corner_mm: np.ndarray         # (3,) block corner
-    vector: np.ndarray            # the fit's full parameter vector (start of the next fit)
-    geometry: CellGeometry        # tool and block orientation as fitted
+    offsets_deg: np.ndarray  # (6,)
+    corner_mm: np.ndarray  # (3,) block corner
+    vector: np.ndarray  # the fit's full parameter vector (start of the next fit)
+    geometry: CellGeometry  # tool and block orientation as fitted
 
 
-def estimate_cell(prior: CellPrior, meas: list[FaceMeasurement],
-                  start: np.ndarray | None = None) -> CellEstimate:
+def estimate_cell(
+    prior: CellPrior, meas: list[FaceMeasurement], start: np.ndarray | None = None
+) -> CellEstimate:
     """The cell as the measurements so far see it (``start``: the previous vector).
 
     The prior-augmented fit of ``ucal.calibration.fit``: with fewer than the full set the
@@ -481,14 +551,23 @@ def estimate_cell(prior: CellPrior, meas: list[FaceMeasurement],
     most of a fit grid.
     """
     cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-7)
-    return CellEstimate(np.array([cell.value(n) for n in OFFSETS]),
-                        np.array([cell.value(n) for n in BLOCK[:3]]), cell.estimate,
-                        cell_geometry(cell.table, cell.estimate, prior.model))
+    return CellEstimate(
+        np.array([cell.value(n) for n in OFFSETS]),
+        np.array([cell.value(n) for n in BLOCK[:3]]),
+        cell.estimate,
+        cell_geometry(cell.table, cell.estimate, prior.model),
+    )
 
 
-def refit_peaks(rig: Rig, profile: CellProfile, meas: list[FaceMeasurement], ka: float,
-                prior: CellPrior, vector: np.ndarray | None = None,
-                rounds: int = 1) -> list[FaceMeasurement]:
+def refit_peaks(
+    rig: Rig,
+    profile: CellProfile,
+    meas: list[FaceMeasurement],
+    ka: float,
+    prior: CellPrior,
+    vector: np.ndarray | None = None,
+    rounds: int = 1,
+) -> list[FaceMeasurement]:
     """Fit every face's recorded probes again with the offsets of a full solution.
 
     The first faces were fitted with kinematics whose offsets could be degrees off, which
@@ -506,17 +585,23 @@ def refit_peaks(rig: Rig, profile: CellProfile, meas: list[FaceMeasurement], ka:
             if probes is None:
                 new.append(m)
                 continue
-            search = make_search(rig, geom, profile, m.joints_deg, m.face, est, ka,
-                                 m.meta["search_joints"])
+            search = make_search(
+                rig, geom, profile, m.joints_deg, m.face, est, ka, m.meta["search_joints"]
+            )
             peak = search.refit(probes)
-            new.append(dc_replace(m, joints_deg=peak.joints_deg,
-                                  tilt_std_deg=max(peak.tilt_std_deg, 1e-4)))
+            new.append(
+                dc_replace(m, joints_deg=peak.joints_deg, tilt_std_deg=max(peak.tilt_std_deg, 1e-4))
+            )
         meas = new
     return meas
 
 
-def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
-                    progress: Callable[[str, int, int], None] | None = None) -> CalibrationRun:
+def run_calibration(
+    profile: CellProfile,
+    plan: CalibrationPlan,
+    rig: Rig,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> CalibrationRun:
     """Measure the planned faces (``solve`` turns them into offsets). The caller owns the
     connection, STOP and the profile."""
     geom = geometry(profile)
@@ -548,8 +633,9 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
             continue
         if target.config not in steps:
             try:
-                steps[target.config] = choose_step(profile, fitted, plan, target.config, est,
-                                                   corner, last_wrist)
+                steps[target.config] = choose_step(
+                    profile, fitted, plan, target.config, est, corner, last_wrist
+                )
             except SafetyError as e:
                 if target.config != "j1":
                     raise
@@ -564,9 +650,20 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
         # Three faces pin the model down: later predictions land within a few thousandths of a
         # degree, inside the fit's first grid; two faces leave a fraction of a degree.
         mode = "direct" if len(meas) >= 3 else "quick" if len(meas) == 2 else "acquire"
-        res = measure_face(approach, fitted, profile, start, target.face, est, ka, acq_gain,
-                           f"face {FACE_NAMES[target.face]} ({target.label})", target.config,
-                           mode, 16.0 if not meas else 8.0)
+        res = measure_face(
+            approach,
+            fitted,
+            profile,
+            start,
+            target.face,
+            est,
+            ka,
+            acq_gain,
+            f"face {FACE_NAMES[target.face]} ({target.label})",
+            target.config,
+            mode,
+            16.0 if not meas else 8.0,
+        )
         meas.append(res.measurement)
         last_wrist[target.face] = res.measurement.joints_deg
         cell = estimate_cell(prior, meas, vector)
@@ -579,8 +676,9 @@ def run_calibration(profile: CellProfile, plan: CalibrationPlan, rig: Rig,
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
 
 
-def solve(profile: CellProfile, run: CalibrationRun, beam: str = "auto"
-          ) -> tuple[OffsetSolution, OffsetSolution | None]:
+def solve(
+    profile: CellProfile, run: CalibrationRun, beam: str = "auto"
+) -> tuple[OffsetSolution, OffsetSolution | None]:
     """Both solutions from one run's measurements: exact with the cell's tolerances as priors,
     and paper 000's (None if it cannot be applied, e.g. a DH table of another structure).
 
@@ -591,10 +689,16 @@ def solve(profile: CellProfile, run: CalibrationRun, beam: str = "auto"
     fixed = ("tool_rx_deg", "tool_ry_deg", "tool_rz_deg") if beam == "fixed" else ()
     exact = solve_exact_with_priors(prior, run.measurements, fixed=fixed)
     try:
-        paper = solve_paper(geometry(profile), run.measurements, profile.joint_offsets_deg,
-                            exact.unobservable_joints, exact.condition_number, prior=prior,
-                            reasons=exact.unobservable_reasons)
-    except Exception as e:  # noqa: BLE001 — the paper method is a comparison, never fatal
+        paper = solve_paper(
+            geometry(profile),
+            run.measurements,
+            profile.joint_offsets_deg,
+            exact.unobservable_joints,
+            exact.condition_number,
+            prior=prior,
+            reasons=exact.unobservable_reasons,
+        )
+    except Exception as e:
         log.warning("paper method failed: %s", e)
         paper = None
     return exact, paper

@@ -18,8 +18,13 @@ from ucal.kinematics.rotations import angle_between_deg, rot_x
 WRIST = (3, 4, 5)  # 0-based indices of joints 4, 5, 6
 
 
-def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
-              offsets_deg: np.ndarray, keep_weight: float = 1e-3) -> np.ndarray:
+def aim_wrist(
+    geom: CellGeometry,
+    joints_deg: np.ndarray,
+    direction: np.ndarray,
+    offsets_deg: np.ndarray,
+    keep_weight: float = 1e-3,
+) -> np.ndarray:
     """Joint readings (6,) with joints 1–3 from ``joints_deg`` and joints 4–6 chosen so that the
     beam (model ``geom`` with ``offsets_deg``) points along the unit ``direction``.
 
@@ -31,6 +36,7 @@ def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
     """
     q0 = np.array(joints_deg, float)
     target = np.asarray(direction, float) / np.linalg.norm(direction)
+
     def aim_error_deg(q: np.ndarray) -> float:
         beam, _ = beam_and_tcp(geom, q, offsets_deg)
         return float(angle_between_deg(beam, target))
@@ -41,13 +47,16 @@ def aim_wrist(geom: CellGeometry, joints_deg: np.ndarray, direction: np.ndarray,
         q = _aim_least_squares(geom, q0, target, offsets_deg, keep_weight)
     err = aim_error_deg(q)
     if err > 1e-6:
-        raise SafetyError(f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "
-                          f"from arm joints {np.round(q0[:3], 3).tolist()} (best {err:.3f}° off)")
+        raise SafetyError(
+            f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "
+            f"from arm joints {np.round(q0[:3], 3).tolist()} (best {err:.3f}° off)"
+        )
     return q
 
 
-def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
-                     offsets_deg: np.ndarray) -> np.ndarray | None:
+def _aim_closed_form(
+    geom: CellGeometry, q0: np.ndarray, target: np.ndarray, offsets_deg: np.ndarray
+) -> np.ndarray | None:
     """Joints 4 and 5 pointing the beam along ``target`` with joints 1–3 and 6 from ``q0``.
 
     With ``R_i = Rz(θ_i)·Rx(α_i)`` the beam in frame 3 is ``b = R_4·R_5·R_6·a_T``. Let
@@ -73,8 +82,9 @@ def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
     phi = np.arctan2(c[1], c[0])
     best = None
     for t5 in (np.arcsin(wy / rho) - phi, np.pi - np.arcsin(wy / rho) - phi):
-        w = np.array([np.cos(t5) * c[0] - np.sin(t5) * c[1],
-                      np.sin(t5) * c[0] + np.cos(t5) * c[1], c[2]])
+        w = np.array(
+            [np.cos(t5) * c[0] - np.sin(t5) * c[1], np.sin(t5) * c[0] + np.cos(t5) * c[1], c[2]]
+        )
         v = np.array([w[0], c4 * w[1] - s4 * w[2]])
         t4 = np.arctan2(b[1], b[0]) - np.arctan2(v[1], v[0])
         q = q0.copy()
@@ -87,9 +97,15 @@ def _aim_closed_form(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
     return None if best is None else best[1]
 
 
-def _aim_least_squares(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
-                       offsets_deg: np.ndarray, keep_weight: float) -> np.ndarray:
+def _aim_least_squares(
+    geom: CellGeometry,
+    q0: np.ndarray,
+    target: np.ndarray,
+    offsets_deg: np.ndarray,
+    keep_weight: float,
+) -> np.ndarray:
     """Joints 4–6 by least squares from ``q0``'s wrist, regularised toward it, then polished."""
+
     def resid(w: np.ndarray) -> np.ndarray:
         q = q0.copy()
         q[3:] = w
@@ -102,15 +118,21 @@ def _aim_least_squares(geom: CellGeometry, q0: np.ndarray, target: np.ndarray,
         return resid(w)[:3]
 
     # The regularised optimum trades a hair of aim for closeness; polish the aim alone from it.
-    sol = least_squares(aim_only, sol.x, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                        max_nfev=200)
+    sol = least_squares(
+        aim_only, sol.x, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200
+    )
     q = q0.copy()
     q[3:] = sol.x
     return q
 
 
-def beam_jacobian(geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.ndarray,
-                  joints: tuple[int, ...] = WRIST, h_deg: float = 1e-4) -> np.ndarray:
+def beam_jacobian(
+    geom: CellGeometry,
+    joints_deg: np.ndarray,
+    offsets_deg: np.ndarray,
+    joints: tuple[int, ...] = WRIST,
+    h_deg: float = 1e-4,
+) -> np.ndarray:
     """d(beam)/d(joint) (3, len(joints)) in 1/deg by central differences."""
     cols = []
     for j in joints:
@@ -122,8 +144,9 @@ def beam_jacobian(geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.nd
     return np.array(cols).T
 
 
-def search_joints(geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.ndarray,
-                  basis: np.ndarray) -> tuple[tuple[int, int], np.ndarray]:
+def search_joints(
+    geom: CellGeometry, joints_deg: np.ndarray, offsets_deg: np.ndarray, basis: np.ndarray
+) -> tuple[tuple[int, int], np.ndarray]:
     """The two wrist joints that steer the beam best across a face, and their 2×2 map.
 
     ``basis`` (2, 3) holds the face's in-plane axes; the map M (2, 2) takes joint steps (deg) to

@@ -69,7 +69,7 @@ def _report(message: str, code: int, as_json: bool, result: dict | None = None) 
 
 def _wants_json(args: list[str]) -> bool:
     """Whether ``--json`` is among the options (not after ``--``)."""
-    options = args[:args.index("--")] if "--" in args else args
+    options = args[: args.index("--")] if "--" in args else args
     return "--json" in options
 
 
@@ -100,8 +100,13 @@ def main(argv: list[str] | None = None) -> None:
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
     except click.exceptions.Abort as e:
         # click turns Ctrl-C into Abort; one without a cause is a confirmation declined
-        _report("interrupted; any motion was stopped" if e.__cause__ is not None
-                else "not confirmed: nothing moved", EXIT_INTERRUPTED, as_json)
+        _report(
+            "interrupted; any motion was stopped"
+            if e.__cause__ is not None
+            else "not confirmed: nothing moved",
+            EXIT_INTERRUPTED,
+            as_json,
+        )
         sys.exit(EXIT_INTERRUPTED)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)

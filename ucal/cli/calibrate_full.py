@@ -18,24 +18,50 @@ def plan_summary(plan, profile) -> str:
     from ucal.timing import estimate_run
 
     c_std = prior_from_profile(profile).sound_speed_std_m_s
-    lines = [f"Full kinematic calibration plan for {profile.model.name}: {plan.describe()}",
-             (f"Water {profile.water_temperature_c:g} ± {profile.water_temperature_std_c:g} °C "
-              f"(sound speed ± {c_std:.2f} m/s): with the DH length tolerance "
-              f"({profile.dh_length_std_mm:g} mm) it sets the scale of every length"),
-             "  posture face     J1       J2       J3       J4       J5       J6    water path"]
+    lines = [
+        f"Full kinematic calibration plan for {profile.model.name}: {plan.describe()}",
+        (
+            f"Water {profile.water_temperature_c:g} ± {profile.water_temperature_std_c:g} °C "
+            f"(sound speed ± {c_std:.2f} m/s): with the DH length tolerance "
+            f"({profile.dh_length_std_mm:g} mm) it sets the scale of every length"
+        ),
+        "  posture face     J1       J2       J3       J4       J5       J6    water path",
+    ]
     for p in plan.postures:
-        lines.append(f"  {p.label:>7} {p.face_name:<3}" + "".join(f"{v:9.2f}" for v in p.joints_deg)
-                     + f"   {p.water_path_mm:6.1f} mm")
-    lines.append(estimate_run([p.joints_deg for p in plan.postures], plan.postures[0].joints_deg,
-                              profile.procedure.speed).describe())
-    lines.append("Each posture: the wrist searches for the echo (joints 4-6 only); every move "
-                 "ends approaching from below on each joint (backlash).")
+        lines.append(
+            f"  {p.label:>7} {p.face_name:<3}"
+            + "".join(f"{v:9.2f}" for v in p.joints_deg)
+            + f"   {p.water_path_mm:6.1f} mm"
+        )
+    lines.append(
+        estimate_run(
+            [p.joints_deg for p in plan.postures],
+            plan.postures[0].joints_deg,
+            profile.procedure.speed,
+        ).describe()
+    )
+    lines.append(
+        "Each posture: the wrist searches for the echo (joints 4-6 only); every move "
+        "ends approaching from below on each joint (backlash)."
+    )
     return "\n".join(lines)
 
 
-def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, beam: str,
-        yes: bool, dry_run: bool, as_json: bool, force: bool = False,
-        record_path: Path | None = None, record=None, max_postures: int | None = None) -> dict:
+def run(
+    profile,
+    profile_path: Path,
+    sim_world,
+    controller_url,
+    pulser_url,
+    beam: str,
+    yes: bool,
+    dry_run: bool,
+    as_json: bool,
+    force: bool = False,
+    record_path: Path | None = None,
+    record=None,
+    max_postures: int | None = None,
+) -> dict:
     """Plan, confirm, measure, identify, write; the JSON result of SPEC.md (+ extras).
 
     ``max_postures`` caps the plan (default: the D-optimal criterion's knee)."""
@@ -45,22 +71,56 @@ def run(profile, profile_path: Path, sim_world, controller_url, pulser_url, beam
     from ucal.cli.calibrate import in_session
 
     console = Console()  # the result on stdout; the plan and progress go to stderr
-    plan = plan_full(profile) if max_postures is None else plan_full(profile,
-                                                                      max_postures=max_postures)
+    plan = (
+        plan_full(profile)
+        if max_postures is None
+        else plan_full(profile, max_postures=max_postures)
+    )
     if record is None:
-        confirm_motion(yes, plan_summary(plan, profile),
-                       CellChoice(sim_world, controller_url, pulser_url))
+        confirm_motion(
+            yes, plan_summary(plan, profile), CellChoice(sim_world, controller_url, pulser_url)
+        )
     return in_session(
-        profile, sim_world, controller_url, pulser_url, record_path, record,
+        profile,
+        sim_world,
+        controller_url,
+        pulser_url,
+        record_path,
+        record,
         {"method": "exact", "beam": beam, "level": "full", "max_postures": max_postures},
-        [{"label": p.label, "joints_deg": p.joints_deg.tolist(),
-          "water_path_mm": p.water_path_mm} for p in plan.postures],
-        lambda cell: _measure_and_identify(profile, profile_path, plan, cell, console, beam,
-                                           dry_run or record is not None, as_json, force))
+        [
+            {
+                "label": p.label,
+                "joints_deg": p.joints_deg.tolist(),
+                "water_path_mm": p.water_path_mm,
+            }
+            for p in plan.postures
+        ],
+        lambda cell: _measure_and_identify(
+            profile,
+            profile_path,
+            plan,
+            cell,
+            console,
+            beam,
+            dry_run or record is not None,
+            as_json,
+            force,
+        ),
+    )
 
 
-def _measure_and_identify(profile, profile_path: Path, plan, cell, console, beam: str,
-                          dry_run: bool, as_json: bool, force: bool) -> dict:
+def _measure_and_identify(
+    profile,
+    profile_path: Path,
+    plan,
+    cell,
+    console,
+    beam: str,
+    dry_run: bool,
+    as_json: bool,
+    force: bool,
+) -> dict:
     from ucal.calibration.fit import prior_from_profile
     from ucal.calibration.full import solve_full
     from ucal.calibration.full_run import run_full
@@ -68,11 +128,15 @@ def _measure_and_identify(profile, profile_path: Path, plan, cell, console, beam
     from ucal.profile import write_profile
 
     measurements = measure_with_progress(
-        cell, "posture",
-        lambda report: run_full(profile, plan, cell.rig, progress=report))
+        cell, "posture", lambda report: run_full(profile, plan, cell.rig, progress=report)
+    )
     fixed = ("tool_rx_deg", "tool_ry_deg", "tool_rz_deg") if beam == "fixed" else ()
-    sol = solve_full(prior_from_profile(profile), measurements.measurements, fixed=fixed,
-                     structure=plan.structure)
+    sol = solve_full(
+        prior_from_profile(profile),
+        measurements.measurements,
+        fixed=fixed,
+        structure=plan.structure,
+    )
     fit = sol.cell.quality
     verdict = judge(sol, fit)
     written = False
@@ -80,17 +144,28 @@ def _measure_and_identify(profile, profile_path: Path, plan, cell, console, beam
         reason = f"calibrate --level full: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
         if not verdict.ok:
             reason += f", written with --force: {verdict.message}"
-        write_profile(profile_path, {"calibration": {
-            **written_keys(sol, sol.sound_speed_m_s, fit), "level": "full", "dh": sol.dh_rows(),
-        }}, reason=reason)
+        write_profile(
+            profile_path,
+            {
+                "calibration": {
+                    **written_keys(sol, sol.sound_speed_m_s, fit),
+                    "level": "full",
+                    "dh": sol.dh_rows(),
+                }
+            },
+            reason=reason,
+        )
         written = True
     result = {
-        **result_fields(sol, "full", measurements, cell.elapsed_s, profile_path, written, sol,
-                        fit),
+        **result_fields(sol, "full", measurements, cell.elapsed_s, profile_path, written, sol, fit),
         "dh": sol.dh_rows(),
         "identification": sol.to_json(),
-        "plan": {"postures": len(plan.postures), "candidates": plan.candidates,
-                 "log_det": plan.log_det, "d_criterion": plan.d_criterion},
+        "plan": {
+            "postures": len(plan.postures),
+            "candidates": plan.candidates,
+            "log_det": plan.log_det,
+            "d_criterion": plan.d_criterion,
+        },
         "out_of_tolerance": not verdict.ok,
         "_message": verdict.message if not verdict.ok else None,
     }
@@ -113,12 +188,21 @@ def show_result(console, sol, result) -> None:
         table.add_column(col, justify="right" if col != "status" else "left")
     for j in range(6):
         unobs = j + 1 in sol.unobservable_joints
-        table.add_row(f"J{j + 1} offset (deg)", f"{sol.offsets_deg[j]:+.5f}",
-                      "—" if unobs else f"{sol.std_deg[j]:.5f}", "", 
-                      "unobservable (kept)" if unobs else "identified")
+        table.add_row(
+            f"J{j + 1} offset (deg)",
+            f"{sol.offsets_deg[j]:+.5f}",
+            "—" if unobs else f"{sol.std_deg[j]:.5f}",
+            "",
+            "unobservable (kept)" if unobs else "identified",
+        )
     for name, p in sol.parameters.items():
-        table.add_row(name, f"{p['value']:.5f}", "—" if p["std"] is None else f"{p['std']:.5f}",
-                      f"{p['nominal']:.5f}", p["status"])
+        table.add_row(
+            name,
+            f"{p['value']:.5f}",
+            "—" if p["std"] is None else f"{p['std']:.5f}",
+            f"{p['nominal']:.5f}",
+            p["status"],
+        )
     console.print(table)
     ident = sol.ident
     console.print(f"rank {ident.rank} of {ident.n_parameters} unknowns")
@@ -129,7 +213,9 @@ def show_result(console, sol, result) -> None:
     for j, why in sorted(sol.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
     show_fit(console, sol.cell.quality)
-    console.print(f"sound speed {result['sound_speed_m_s']:.2f} ± "
-                  f"{result['sound_speed_std_m_s']:.2f} m/s; {result['moves']} moves, "
-                  f"{result['pulser_reads']} pulser reads; profile "
-                  f"{'written' if result['written'] else 'not written'}: {result['profile']}")
+    console.print(
+        f"sound speed {result['sound_speed_m_s']:.2f} ± "
+        f"{result['sound_speed_std_m_s']:.2f} m/s; {result['moves']} moves, "
+        f"{result['pulser_reads']} pulser reads; profile "
+        f"{'written' if result['written'] else 'not written'}: {result['profile']}"
+    )

@@ -14,15 +14,21 @@ if TYPE_CHECKING:
     from ucal.cell import CellProfile
 
 
-@click.command("fk", epilog="""\b
+@click.command(
+    "fk",
+    epilog="""\b
 Examples:
   ucal fk cell.toml --joints 30.53,31.15,109.49,0,39.36,30.54
   ucal fk cell.toml --joints 0,0,90,0,90,0 --json
-""")
-@click.argument("profile_path", metavar="PROFILE",
-                type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--joints", required=True, metavar="J1,...,J6",
-              help="Joint readings as the controller shows them (deg).")
+""",
+)
+@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--joints",
+    required=True,
+    metavar="J1,...,J6",
+    help="Joint readings as the controller shows them (deg).",
+)
 @json_option
 def cli(profile_path: Path, joints: str, as_json: bool) -> None:
     """Tool centre point X,Y,Z (mm), RX,RY,RZ (deg, Staubli) in the base frame.
@@ -37,8 +43,10 @@ def cli(profile_path: Path, joints: str, as_json: bool) -> None:
     profile = load_profile(profile_path)
     pose = tool_pose(profile, joints_deg)
     if not profile.model.within_limits(joints_deg):
-        click.echo(f"warning: --joints {joints} is outside the joint ranges of "
-                   f"{profile.model.name}", err=True)
+        click.echo(
+            f"warning: --joints {joints} is outside the joint ranges of {profile.model.name}",
+            err=True,
+        )
     if as_json:
         emit_json({"joints_deg": joints_deg, "pose": pose})
         return
@@ -51,6 +59,7 @@ def tool_pose(profile: CellProfile, joints_deg: np.ndarray) -> np.ndarray:
     from ucal.kinematics.dh import fk
     from ucal.kinematics.rotations import matrix_to_pose
 
-    t = fk(profile.model, joints_deg, tool=profile.tool_matrix,
-           offsets_deg=profile.joint_offsets_deg)
+    t = fk(
+        profile.model, joints_deg, tool=profile.tool_matrix, offsets_deg=profile.joint_offsets_deg
+    )
     return matrix_to_pose(t)

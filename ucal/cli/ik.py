@@ -10,24 +10,39 @@ import numpy as np
 from ucal.cli.options import emit_json, json_option, parse_floats
 
 
-@click.command("ik", epilog="""\b
+@click.command(
+    "ik",
+    epilog="""\b
 Examples:
   ucal ik cell.toml --pose 600,300,100,180,0,0
   ucal ik cell.toml --pose 600,300,100,180,0,0 --near 30,30,110,0,40,30
   ucal ik cell.toml --pose 600,300,100,180,0,0 --all --json
-""")
-@click.argument("profile_path", metavar="PROFILE",
-                type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--pose", required=True, metavar="X,Y,Z,RX,RY,RZ",
-              help="Tool centre point in the base frame (mm, deg; Staubli rx, ry, rz).")
-@click.option("--near", metavar="J1,...,J6",
-              help="Reference joint readings (deg); the nearest solution comes first "
-                   "(default all zeros).")
-@click.option("--all", "all_solutions", is_flag=True,
-              help="Every solution inside the joint ranges (up to 8), nearest first.")
+""",
+)
+@click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+@click.option(
+    "--pose",
+    required=True,
+    metavar="X,Y,Z,RX,RY,RZ",
+    help="Tool centre point in the base frame (mm, deg; Staubli rx, ry, rz).",
+)
+@click.option(
+    "--near",
+    metavar="J1,...,J6",
+    help="Reference joint readings (deg); the nearest solution comes first (default all zeros).",
+)
+@click.option(
+    "--all",
+    "all_solutions",
+    is_flag=True,
+    help="Every solution inside the joint ranges (up to 8), nearest first.",
+)
 @json_option
-def cli(profile_path: Path, pose: str, near: str | None, all_solutions: bool,
-        as_json: bool) -> None:
+def cli(
+    profile_path: Path, pose: str, near: str | None, all_solutions: bool, as_json: bool
+) -> None:
     """Joint readings (deg) that put the tool at a pose, with the profile's offsets taken out.
 
     Solutions are ranked by paper 004's weighted shortest distance to --near.
@@ -40,9 +55,14 @@ def cli(profile_path: Path, pose: str, near: str | None, all_solutions: bool,
     pose_v = parse_floats(pose, 6, "--pose")
     near_v = parse_floats(near, 6, "--near") if near is not None else None
     profile = load_profile(profile_path)
-    sols = ik(profile.model, pose_to_matrix(pose_v), tool_T=profile.tool_matrix,
-              offsets_deg=profile.joint_offsets_deg, near_deg=near_v,
-              all_solutions=all_solutions)
+    sols = ik(
+        profile.model,
+        pose_to_matrix(pose_v),
+        tool_T=profile.tool_matrix,
+        offsets_deg=profile.joint_offsets_deg,
+        near_deg=near_v,
+        all_solutions=all_solutions,
+    )
     sols = np.atleast_2d(sols)
     if as_json:
         emit_json({"solutions": sols})
@@ -54,8 +74,13 @@ def _print_table(sols: np.ndarray, pose: np.ndarray, model_name: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    title = (f"{model_name}: " + ", ".join(f"{v:g}" for v in pose[:3]) + " mm, "
-             + ", ".join(f"{v:g}" for v in pose[3:]) + " deg")
+    title = (
+        f"{model_name}: "
+        + ", ".join(f"{v:g}" for v in pose[:3])
+        + " mm, "
+        + ", ".join(f"{v:g}" for v in pose[3:])
+        + " deg"
+    )
     table = Table(title=title)
     table.add_column("#", justify="right")
     for j in range(1, 7):

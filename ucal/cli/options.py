@@ -57,23 +57,42 @@ def configure_logging(ctx: click.Context) -> None:
     settings = _settings(ctx)
     debug = bool(settings.get("debug"))
     level = settings.get("verbose", 0) - settings.get("quiet", 0)
-    logging.basicConfig(stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(
-        logging.DEBUG if debug or level > 1 else logging.INFO if level == 1
-        else logging.WARNING if level == 0 else logging.ERROR)
+        logging.DEBUG
+        if debug or level > 1
+        else logging.INFO
+        if level == 1
+        else logging.WARNING
+        if level == 0
+        else logging.ERROR
+    )
     # pymodbus logs its own retries and timeouts; ucal reports faults itself, in one line.
     logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
 COMMON_OPTIONS = (
-    click.Option(["--debug"], is_flag=True, expose_value=False, callback=_count,
-                 help="Show tracebacks and debug logging."),
-    click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_count,
-                 help="More log output (-v info, -vv debug)."),
-    click.Option(["-q", "--quiet"], count=True, expose_value=False, callback=_count,
-                 help="No progress or informational messages on stderr (errors and "
-                      "warnings still print)."),
+    click.Option(
+        ["--debug"],
+        is_flag=True,
+        expose_value=False,
+        callback=_count,
+        help="Show tracebacks and debug logging.",
+    ),
+    click.Option(
+        ["-v", "--verbose"],
+        count=True,
+        expose_value=False,
+        callback=_count,
+        help="More log output (-v info, -vv debug).",
+    ),
+    click.Option(
+        ["-q", "--quiet"],
+        count=True,
+        expose_value=False,
+        callback=_count,
+        help="No progress or informational messages on stderr (errors and warnings still print).",
+    ),
 )
 
 
@@ -106,13 +125,18 @@ def info(message: str) -> None:
         click.echo(message, err=True)
 
 
-json_option = click.option("--json", "as_json", is_flag=True,
-                           help="Print one JSON object on stdout and nothing else.")
-yes_option = click.option("--yes", "-y", is_flag=True,
-                          help="Skip the confirmation before the first motion "
-                               "(required when stdin is not a terminal).")
-dry_run_option = click.option("--dry-run", is_flag=True,
-                              help="Run against the simulator and write nothing.")
+json_option = click.option(
+    "--json", "as_json", is_flag=True, help="Print one JSON object on stdout and nothing else."
+)
+yes_option = click.option(
+    "--yes",
+    "-y",
+    is_flag=True,
+    help="Skip the confirmation before the first motion (required when stdin is not a terminal).",
+)
+dry_run_option = click.option(
+    "--dry-run", is_flag=True, help="Run against the simulator and write nothing."
+)
 
 
 def _sim_from_env(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
@@ -126,17 +150,34 @@ def _sim_from_env(ctx: click.Context, param: click.Parameter, value: str | None)
 
 
 sim_option = click.option(
-    "--sim", "sim_world", is_flag=False, flag_value="", default=None, metavar="[WORLD]",
-    envvar=ENV_SIM, show_envvar=True, callback=_sim_from_env,
+    "--sim",
+    "sim_world",
+    is_flag=False,
+    flag_value="",
+    default=None,
+    metavar="[WORLD]",
+    envvar=ENV_SIM,
+    show_envvar=True,
+    callback=_sim_from_env,
     help="Run against the built-in simulated cell; WORLD is an optional world TOML file "
-         "(without it a demo truth with hidden offsets is used; UCAL_SIM=1 means the same).")
-controller_option = click.option("--controller", "controller_url", metavar="URL",
-                                 envvar=ENV_CONTROLLER, show_envvar=True,
-                                 help="Controller URL, tcp://HOST:PORT[?state=PORT].")
-pulser_option = click.option("--pulser", "pulser_url", metavar="URL",
-                             envvar=ENV_PULSER, show_envvar=True,
-                             help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or "
-                                  "modbus-rtu://DEVICE[?baud=N&unit=N].")
+    "(without it a demo truth with hidden offsets is used; UCAL_SIM=1 means the same).",
+)
+controller_option = click.option(
+    "--controller",
+    "controller_url",
+    metavar="URL",
+    envvar=ENV_CONTROLLER,
+    show_envvar=True,
+    help="Controller URL, tcp://HOST:PORT[?state=PORT].",
+)
+pulser_option = click.option(
+    "--pulser",
+    "pulser_url",
+    metavar="URL",
+    envvar=ENV_PULSER,
+    show_envvar=True,
+    help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or modbus-rtu://DEVICE[?baud=N&unit=N].",
+)
 
 
 @dataclass(frozen=True)
@@ -156,8 +197,11 @@ class CellChoice:
         return f"the robot at {self.controller_url}"
 
 
-_SOURCES = {"sim_world": ("--sim", ENV_SIM), "controller_url": ("--controller", ENV_CONTROLLER),
-            "pulser_url": ("--pulser", ENV_PULSER)}
+_SOURCES = {
+    "sim_world": ("--sim", ENV_SIM),
+    "controller_url": ("--controller", ENV_CONTROLLER),
+    "pulser_url": ("--pulser", ENV_PULSER),
+}
 
 
 def _typed(ctx: click.Context, name: str) -> bool:
@@ -175,9 +219,14 @@ def cell_options_typed(ctx: click.Context) -> list[str]:
     return [_SOURCES[n][0] for n in _SOURCES if n in ctx.params and _typed(ctx, n)]
 
 
-def cell_from_options(sim_world: str | None, controller_url: str | None,
-                      pulser_url: str | None, *, yes: bool, dry_run: bool = False
-                      ) -> CellChoice:
+def cell_from_options(
+    sim_world: str | None,
+    controller_url: str | None,
+    pulser_url: str | None,
+    *,
+    yes: bool,
+    dry_run: bool = False,
+) -> CellChoice:
     """Check a moving command's cell options before anything is planned or asked.
 
     Options typed on the command line win over the environment: a typed ``--sim`` (or
@@ -192,14 +241,20 @@ def cell_from_options(sim_world: str | None, controller_url: str | None,
         pulser_url = pulser_url if _typed(ctx, "pulser_url") else None
     if _typed(ctx, "controller_url") or _typed(ctx, "pulser_url"):
         sim_world = sim_world if _typed(ctx, "sim_world") else None
-    real = [_origin(ctx, n) for n, v in (("controller_url", controller_url),
-                                         ("pulser_url", pulser_url)) if v]
+    real = [
+        _origin(ctx, n)
+        for n, v in (("controller_url", controller_url), ("pulser_url", pulser_url))
+        if v
+    ]
     if dry_run and real and sim_world is None:
-        raise InputError(f"--dry-run runs against the simulator: it cannot be combined with "
-                         f"{'/'.join(real)} (use --sim [WORLD], or drop --dry-run)")
+        raise InputError(
+            f"--dry-run runs against the simulator: it cannot be combined with "
+            f"{'/'.join(real)} (use --sim [WORLD], or drop --dry-run)"
+        )
     if sim_world is not None and real:
-        raise InputError(f"{_origin(ctx, 'sim_world')} cannot be combined with "
-                         f"{'/'.join(real)}: give one cell")
+        raise InputError(
+            f"{_origin(ctx, 'sim_world')} cannot be combined with {'/'.join(real)}: give one cell"
+        )
     if dry_run and sim_world is None:
         sim_world = ""  # --dry-run runs against the simulator
     if sim_world is None:
@@ -208,8 +263,10 @@ def cell_from_options(sim_world: str | None, controller_url: str | None,
         raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
     cell = CellChoice(sim_world, controller_url, pulser_url)
     if not yes and not sys.stdin.isatty():
-        raise InputError(f"refusing to move {cell.name} without confirmation: stdin is not a "
-                         "terminal; pass --yes")
+        raise InputError(
+            f"refusing to move {cell.name} without confirmation: stdin is not a "
+            "terminal; pass --yes"
+        )
     return cell
 
 
@@ -218,12 +275,15 @@ def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str 
     from drivers.registry import open_controller, open_pulser
 
     if not controller_url and not pulser_url:
-        raise InputError("no cell given: use --sim [WORLD] for the simulated cell, or "
-                         "--controller URL and --pulser URL (or set UCAL_SIM, or "
-                         "UCAL_CONTROLLER and UCAL_PULSER)")
+        raise InputError(
+            "no cell given: use --sim [WORLD] for the simulated cell, or "
+            "--controller URL and --pulser URL (or set UCAL_SIM, or "
+            "UCAL_CONTROLLER and UCAL_PULSER)"
+        )
     for name, url, other, opener in (
-            ("controller_url", controller_url, "pulser_url", open_controller),
-            ("pulser_url", pulser_url, "controller_url", open_pulser)):
+        ("controller_url", controller_url, "pulser_url", open_controller),
+        ("pulser_url", pulser_url, "controller_url", open_pulser),
+    ):
         if not url:
             flag, env = _SOURCES[name]
             raise InputError(f"{_origin(ctx, other)} given without {flag} URL (or {env})")
@@ -238,7 +298,9 @@ def parse_floats(text: str, n: int, what: str) -> np.ndarray:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise click.BadParameter(f"{what} must be {n} comma-separated numbers, got {text!r}")
+        raise click.BadParameter(
+            f"{what} must be {n} comma-separated numbers, got {text!r}"
+        ) from None
     if len(values) != n or not np.all(np.isfinite(values)):
         raise click.BadParameter(f"{what} must be {n} finite comma-separated numbers, got {text!r}")
     return np.array(values)
@@ -268,8 +330,10 @@ def confirm_motion(yes: bool, summary: str, cell: CellChoice) -> None:
     if yes:
         return
     if not sys.stdin.isatty():
-        raise InputError(f"refusing to move {cell.name} without confirmation: stdin is not a "
-                         "terminal; pass --yes")
+        raise InputError(
+            f"refusing to move {cell.name} without confirmation: stdin is not a "
+            "terminal; pass --yes"
+        )
     if not click.confirm(f"Move {cell.name} now?", default=False, err=True):
         raise click.exceptions.Abort()
 

@@ -39,12 +39,15 @@ def read_pose_csv(path: Path) -> np.ndarray:
             if first and not any(_is_number(f) for f in fields):
                 first = False  # a header line
                 continue
-            raise InputError(f"{path}: row {lineno}: expected 6 numbers X,Y,Z,RX,RY,RZ, "
-                             f"got {','.join(fields)!r}") from None
+            raise InputError(
+                f"{path}: row {lineno}: expected 6 numbers X,Y,Z,RX,RY,RZ, got {','.join(fields)!r}"
+            ) from None
         first = False
         if len(values) != 6 or not all(math.isfinite(v) for v in values):
-            raise InputError(f"{path}: row {lineno}: expected 6 finite numbers X,Y,Z,RX,RY,RZ, "
-                             f"got {len(values)} value(s)")
+            raise InputError(
+                f"{path}: row {lineno}: expected 6 finite numbers X,Y,Z,RX,RY,RZ, "
+                f"got {len(values)} value(s)"
+            )
         rows.append(values)
     if not rows:
         raise InputError(f"{path}: no pose rows (expected X,Y,Z,RX,RY,RZ per line)")
@@ -77,24 +80,37 @@ def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
         raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
 
 
-@click.command("path", epilog="""\b
+@click.command(
+    "path",
+    epilog="""\b
 Examples:
   ucal path cell.toml scan.csv -o scan_joints.csv
   ucal path cell.toml scan.csv -o scan_joints.csv --near 0,30,110,0,40,0 --json
-""")
-@click.argument("profile_path", metavar="PROFILE",
-                type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.argument("in_path", metavar="IN.csv",
-                type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("-o", "--output", "out_path", required=True, metavar="OUT.csv",
-              type=click.Path(dir_okay=False, writable=True, path_type=Path),
-              help="Joint path to write: J1..J6 readings (deg), one row per pose.")
-@click.option("--near", metavar="J1,...,J6",
-              help="Joint readings (deg) the robot starts from; the first point takes the "
-                   "solution nearest them (default all zeros).")
+""",
+)
+@click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+@click.argument(
+    "in_path", metavar="IN.csv", type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+@click.option(
+    "-o",
+    "--output",
+    "out_path",
+    required=True,
+    metavar="OUT.csv",
+    type=click.Path(dir_okay=False, writable=True, path_type=Path),
+    help="Joint path to write: J1..J6 readings (deg), one row per pose.",
+)
+@click.option(
+    "--near",
+    metavar="J1,...,J6",
+    help="Joint readings (deg) the robot starts from; the first point takes the "
+    "solution nearest them (default all zeros).",
+)
 @json_option
-def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None,
-        as_json: bool) -> None:
+def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None, as_json: bool) -> None:
     """Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a continuous joint path.
 
     Each point takes the solution nearest the previous one (paper 004's weighted shortest
@@ -108,8 +124,9 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None,
     check_output(out_path)
     profile = load_profile(profile_path)
     poses = read_pose_csv(in_path)
-    joints, step = cartesian_path_to_joints(profile.model, poses, profile.tool_matrix,
-                                            profile.joint_offsets_deg, start_deg=near_v)
+    joints, step = cartesian_path_to_joints(
+        profile.model, poses, profile.tool_matrix, profile.joint_offsets_deg, start_deg=near_v
+    )
     write_joint_csv(out_path, joints)
     if len(joints) > 1:
         d = np.abs(np.diff(joints, axis=0))
@@ -118,13 +135,20 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None,
     else:
         where = {"joint": None, "row": None}
     if as_json:
-        emit_json({"points": len(joints), "max_step_deg": step,
-                   "max_step_joint": where["joint"], "max_step_row": where["row"],
-                   "output": str(out_path)})
+        emit_json(
+            {
+                "points": len(joints),
+                "max_step_deg": step,
+                "max_step_joint": where["joint"],
+                "max_step_row": where["row"],
+                "output": str(out_path),
+            }
+        )
         return
     click.echo(f"wrote {len(joints)} joint rows to {out_path}")
     if where["joint"] is None:
         click.echo("largest joint step: 0 deg (one point)")
     else:
-        click.echo(f"largest joint step: {step:.4f} deg (J{where['joint']}, "
-                   f"into point {where['row']})")
+        click.echo(
+            f"largest joint step: {step:.4f} deg (J{where['joint']}, into point {where['row']})"
+        )

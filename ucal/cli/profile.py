@@ -9,11 +9,14 @@ import click
 from ucal.cli.options import emit_json, info, json_option
 from ucal.models import KNOWN_MODELS
 
-profile_arg = click.argument("path", metavar="PATH",
-                             type=click.Path(dir_okay=False, path_type=Path))
+profile_arg = click.argument(
+    "path", metavar="PATH", type=click.Path(dir_okay=False, path_type=Path)
+)
 
 
-@click.group("profile", epilog="""\b
+@click.group(
+    "profile",
+    epilog="""\b
 Examples:
   ucal profile init tx90l cell.toml
   ucal profile show cell.toml --json
@@ -21,7 +24,8 @@ Examples:
   ucal profile init tx90l cell.toml --force
   ucal profile history cell.toml
   ucal profile undo cell.toml
-""")
+""",
+)
 def cli() -> None:
     """Cell profiles (TOML): nominal geometry of the cell and calibration results."""
 
@@ -29,8 +33,9 @@ def cli() -> None:
 @cli.command("init")
 @click.argument("model", type=click.Choice(KNOWN_MODELS, case_sensitive=False))
 @profile_arg
-@click.option("--force", is_flag=True,
-              help="Replace an existing file (the old one is kept in PATH.history/).")
+@click.option(
+    "--force", is_flag=True, help="Replace an existing file (the old one is kept in PATH.history/)."
+)
 def init(model: str, path: Path, force: bool) -> None:
     """Write a new commented profile for a shipped MODEL at PATH.
 
@@ -41,8 +46,10 @@ def init(model: str, path: Path, force: bool) -> None:
     from ucal.profile import create_profile
 
     create_profile(path, model.lower(), force=force)
-    info(f"wrote {path} ({model.lower()}); measure the block and the reflector plate and edit "
-         "[sample] and [reflector] before calibrating")
+    info(
+        f"wrote {path} ({model.lower()}); measure the block and the reflector plate and edit "
+        "[sample] and [reflector] before calibrating"
+    )
 
 
 @cli.command("show")
@@ -72,8 +79,9 @@ def validate(path: Path, as_json: bool) -> None:
     profile = load_profile(path)
     warnings = profile_warnings(path)
     if as_json:
-        emit_json({"valid": True, "path": str(path), "model": profile.model.name,
-                   "warnings": warnings})
+        emit_json(
+            {"valid": True, "path": str(path), "model": profile.model.name, "warnings": warnings}
+        )
         return
     for w in warnings:
         click.echo(f"warning: {path}: {w}", err=True)
@@ -91,8 +99,7 @@ def history(path: Path, as_json: bool) -> None:
 
     entries = profile_history(path)
     if as_json:
-        emit_json({"history_dir": str(history_dir(path)),
-                   "entries": [asdict(e) for e in entries]})
+        emit_json({"history_dir": str(history_dir(path)), "entries": [asdict(e) for e in entries]})
         return
     from rich.console import Console
     from rich.table import Table
@@ -101,15 +108,23 @@ def history(path: Path, as_json: bool) -> None:
     for col in ("#", "time (UTC)", "reason", "replaced version", "state"):
         table.add_column(col)
     for e in entries:
-        table.add_row(str(e.id), e.time, e.reason, e.before,
-                      f"undone {e.undone_time}" if e.undone else "applied")
+        table.add_row(
+            str(e.id),
+            e.time,
+            e.reason,
+            e.before,
+            f"undone {e.undone_time}" if e.undone else "applied",
+        )
     Console().print(table)
 
 
 @cli.command("undo")
 @profile_arg
-@click.option("--force", is_flag=True,
-              help="Undo even if the profile was edited since the last recorded write.")
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Undo even if the profile was edited since the last recorded write.",
+)
 @json_option
 def undo(path: Path, force: bool, as_json: bool) -> None:
     """Restore the version the last recorded write replaced (atomically).
@@ -120,11 +135,20 @@ def undo(path: Path, force: bool, as_json: bool) -> None:
 
     entry = undo_profile(path, force=force)
     if as_json:
-        emit_json({"undone": entry.id, "reason": entry.reason, "time": entry.time,
-                   "restored": entry.before, "kept": entry.after})
+        emit_json(
+            {
+                "undone": entry.id,
+                "reason": entry.reason,
+                "time": entry.time,
+                "restored": entry.before,
+                "kept": entry.after,
+            }
+        )
         return
-    click.echo(f"{path}: undid write {entry.id} ({entry.reason}, {entry.time}); "
-               f"the replaced version is kept as {entry.after}")
+    click.echo(
+        f"{path}: undid write {entry.id} ({entry.reason}, {entry.time}); "
+        f"the replaced version is kept as {entry.after}"
+    )
 
 
 def _fmt(values: object) -> str:
@@ -144,16 +168,27 @@ def _print_profile(data: dict) -> None:
     console = Console()
     robot = data["robot"]
     dh = Table(title=f"{data['path']}: robot {robot['model']}")
-    for col in ("joint", "θ offset (deg)", "d (mm)", "a (mm)", "α (deg)", "min (deg)",
-                "max (deg)", "offset (deg)"):
+    for col in (
+        "joint",
+        "θ offset (deg)",
+        "d (mm)",
+        "a (mm)",
+        "α (deg)",
+        "min (deg)",
+        "max (deg)",
+        "offset (deg)",
+    ):
         dh.add_column(col, justify="right")
     offsets = data["calibration"]["joint_offsets_deg"]
     unobs = set(data["calibration"]["unobservable_joints"])
     for i, row in enumerate(robot["dh"]):
-        dh.add_row(str(i + 1), *(f"{row[k]:g}" for k in
-                                 ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg")),
-                   f"{robot['joint_min_deg'][i]:g}", f"{robot['joint_max_deg'][i]:g}",
-                   f"{offsets[i]:.4f}" + (" (unobservable)" if i + 1 in unobs else ""))
+        dh.add_row(
+            str(i + 1),
+            *(f"{row[k]:g}" for k in ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg")),
+            f"{robot['joint_min_deg'][i]:g}",
+            f"{robot['joint_max_deg'][i]:g}",
+            f"{offsets[i]:.4f}" + (" (unobservable)" if i + 1 in unobs else ""),
+        )
     console.print(dh)
 
     cell = Table(title="cell")

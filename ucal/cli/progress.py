@@ -16,7 +16,7 @@ from ucal.cli.options import quiet
 
 
 class StepProgress:
-    """``with StepProgress("calibrate") as p: p.step("face XY (base)", done, total, "12 moves")``."""
+    """``with StepProgress("calibrate") as p: p.step("face XY", done, total, "12 moves")``."""
 
     def __init__(self, title: str) -> None:
         self.title = title
@@ -29,10 +29,15 @@ class StepProgress:
             from rich.console import Console
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-            self._bar = Progress(TextColumn("{task.description}"), BarColumn(),
-                                 TextColumn("{task.completed}/{task.total}"),
-                                 TextColumn("{task.fields[detail]}"), TimeElapsedColumn(),
-                                 console=Console(stderr=True), transient=False)
+            self._bar = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed}/{task.total}"),
+                TextColumn("{task.fields[detail]}"),
+                TimeElapsedColumn(),
+                console=Console(stderr=True),
+                transient=False,
+            )
             self._bar.start()
             self._task = self._bar.add_task(self.title, total=None, detail="")
         return self
@@ -42,13 +47,23 @@ class StepProgress:
         if self._silent:
             return
         if self._bar is not None:
-            self._bar.update(self._task, description=f"{self.title}: {what}", completed=done,
-                             total=total, detail=detail)
+            self._bar.update(
+                self._task,
+                description=f"{self.title}: {what}",
+                completed=done,
+                total=total,
+                detail=detail,
+            )
             return
-        click.echo(f"{self.title} [{done}/{total}] {what}" + (f" ({detail})" if detail else ""),
-                   err=True)
+        click.echo(
+            f"{self.title} [{done}/{total}] {what}" + (f" ({detail})" if detail else ""), err=True
+        )
 
-    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         if self._bar is not None:
             self._bar.stop()

@@ -20,30 +20,59 @@ def cli() -> None:
     """The simulated cell (controller and pulser speaking the real protocols)."""
 
 
-@cli.command("serve", epilog="""\b
+@cli.command(
+    "serve",
+    epilog="""\b
 Examples:
   ucal sim serve
   ucal sim serve --profile cell.toml --world truth.toml --log motions.jsonl
   ucal sim serve --rtu --time-scale 0.1
   ucal sim serve --server val3
-""")
-@click.option("--world", "world_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="World TOML with the truth (default: the demo truth of the profile).")
-@click.option("--profile", "profile_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="Cell profile TOML (default: a new profile of the default model).")
-@click.option("--log", "log_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="Append one JSON line per executed motion to this file.")
-@click.option("--time-scale", type=click.FloatRange(min=0.0), default=1.0, show_default=True,
-              help="Multiply motion durations (0.1 = ten times faster, 0 = instantaneous).")
+""",
+)
+@click.option(
+    "--world",
+    "world_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="World TOML with the truth (default: the demo truth of the profile).",
+)
+@click.option(
+    "--profile",
+    "profile_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Cell profile TOML (default: a new profile of the default model).",
+)
+@click.option(
+    "--log",
+    "log_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Append one JSON line per executed motion to this file.",
+)
+@click.option(
+    "--time-scale",
+    type=click.FloatRange(min=0.0),
+    default=1.0,
+    show_default=True,
+    help="Multiply motion durations (0.1 = ten times faster, 0 = instantaneous).",
+)
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
-@click.option("--server", type=click.Choice(["simple", "val3", "val3-feedback"]),
-              help="Simple Message server the controller behaves as: val3 = the released VAL3 "
-                   "server (JOINT_POSITION at 50 Hz, STATUS every 5th, 1 s of silence after "
-                   "a client connects, one client per port), val3-feedback = its JOINT_FEEDBACK "
-                   "pull request (250 Hz, STATUS every 20th), simple = state and STATUS in every "
-                   "frame at once. Default: the world's [controller] server, else simple.")
-def serve(world_path: Path | None, profile_path: Path | None, log_path: Path | None,
-          time_scale: float, rtu: bool, server: str | None) -> None:
+@click.option(
+    "--server",
+    type=click.Choice(["simple", "val3", "val3-feedback"]),
+    help="Simple Message server the controller behaves as: val3 = the released VAL3 "
+    "server (JOINT_POSITION at 50 Hz, STATUS every 5th, 1 s of silence after "
+    "a client connects, one client per port), val3-feedback = its JOINT_FEEDBACK "
+    "pull request (250 Hz, STATUS every 20th), simple = state and STATUS in every "
+    "frame at once. Default: the world's [controller] server, else simple.",
+)
+def serve(
+    world_path: Path | None,
+    profile_path: Path | None,
+    log_path: Path | None,
+    time_scale: float,
+    rtu: bool,
+    server: str | None,
+) -> None:
     """Serve the simulated cell until SIGINT or SIGTERM.
 
     Prints one JSON line {"controller": URL, "pulser": URL} on stdout, then serves.
@@ -66,9 +95,14 @@ def serve(world_path: Path | None, profile_path: Path | None, log_path: Path | N
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with SimulatedCellServer(world, profile, log_path=log_path, time_scale=time_scale,
-                                 pulser_framing="rtu" if rtu else "tcp",
-                                 server=server) as cell:
+        with SimulatedCellServer(
+            world,
+            profile,
+            log_path=log_path,
+            time_scale=time_scale,
+            pulser_framing="rtu" if rtu else "tcp",
+            server=server,
+        ) as cell:
             sys.stdout.write(json.dumps(cell.urls) + "\n")
             sys.stdout.flush()
             while not stop.wait(0.2):

@@ -16,26 +16,33 @@ log = logging.getLogger(__name__)
 MODES = {0: "unknown", 1: "manual", 2: "auto"}
 #: Known Simple Message servers by what their state port streams: (joint message, rate (Hz),
 #: joint frames per STATUS) → name (``docs/protocols/simple_message.md``).
-SERVERS = {("JOINT_POSITION", 50.0, 5): "VAL3 ros_server, released (staubli_val3_driver master)",
-           ("JOINT_FEEDBACK", 250.0, 20): "VAL3 ros_server of staubli_val3_driver pull request "
-                                          "#36"}
+SERVERS = {
+    ("JOINT_POSITION", 50.0, 5): "VAL3 ros_server, released (staubli_val3_driver master)",
+    ("JOINT_FEEDBACK", 250.0, 20): "VAL3 ros_server of staubli_val3_driver pull request #36",
+}
 
 
 def server_name(stream: dict[str, Any]) -> str:
     """The known server whose stream this is (rate within 20 %), or "unknown"."""
     for (message, rate_hz, every), name in SERVERS.items():
-        if (stream["joint_message"] == message and stream["status_every"] == every
-                and abs(stream["joint_rate_hz"] - rate_hz) <= 0.2 * rate_hz):
+        if (
+            stream["joint_message"] == message
+            and stream["status_every"] == every
+            and abs(stream["joint_rate_hz"] - rate_hz) <= 0.2 * rate_hz
+        ):
             return name
     return "unknown"
 
 
-@click.command("status", epilog="""\b
+@click.command(
+    "status",
+    epilog="""\b
 Examples:
   ucal status --controller tcp://192.168.0.254:11000
   ucal status --controller tcp://192.168.0.254:11000 --pulser modbus-tcp://192.168.0.20:502 --json
   UCAL_CONTROLLER=tcp://192.168.0.254:11000 ucal status
-""")
+""",
+)
 @controller_option
 @pulser_option
 @json_option
@@ -47,10 +54,10 @@ def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> No
     streams JOINT_POSITION at 50 Hz with a STATUS every 5th, its pull request #36
     JOINT_FEEDBACK at 250 Hz with a STATUS every 20th; both wait 1 s before the first.
 
-    Connects, reads and disconnects: nothing moves and no command is sent to the robot (not
-    even STOP). Joint readings in degrees as the controller reports them. Exit 0 when every
-    device given answered (the pulser is optional) (whatever state it reports: drives off, e-stop and errors are shown,
-    not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
+    Connects, reads and disconnects: nothing moves and no command is sent to the robot (not even
+    STOP). Joint readings in degrees as the controller reports them. Exit 0 when every device given
+    answered (the pulser is optional), whatever state it reports (drives off, e-stop and errors are
+    shown, not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
     reached or answers wrongly (the message names it).
     """
     out = read_status(controller_url, pulser_url)
@@ -158,9 +165,12 @@ def show(out: dict[str, Any]) -> None:
     table.add_row("mode", c["mode"])
     if "stream" in c:
         s = c["stream"]
-        table.add_row("state stream", f"{s['joint_message']} at {s['joint_rate_hz']:g} Hz, "
-                                      f"STATUS every {s['status_every']}, first after "
-                                      f"{s['first_state_s']:.2f} s")
+        table.add_row(
+            "state stream",
+            f"{s['joint_message']} at {s['joint_rate_hz']:g} Hz, "
+            f"STATUS every {s['status_every']}, first after "
+            f"{s['first_state_s']:.2f} s",
+        )
         table.add_row("server", s["server"])
     console.print(table)
     p = out["pulser"]

@@ -26,36 +26,59 @@ from ucal.cli.progress import StepProgress
 log = logging.getLogger(__name__)
 
 
-@click.command("tool-frame", epilog="""\b
+@click.command(
+    "tool-frame",
+    epilog="""\b
 Examples:
   ucal tool-frame cell.toml --sim --yes
   ucal tool-frame cell.toml --sim world.toml --method paper --points 100 --yes --json
   ucal tool-frame cell.toml --sim world.toml --dry-run
   ucal tool-frame cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502
-""")
-@click.argument("profile_path", metavar="PROFILE",
-                type=click.Path(dir_okay=False, path_type=Path))
+""",
+)
+@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
 @sim_option
 @controller_option
 @pulser_option
-@click.option("--method", type=click.Choice(["exact", "paper"]), default="exact",
-              show_default=True,
-              help="exact: beam from normal-incidence postures, offset along the beam from "
-                   "time of flight, offsets across it from edge reversal; paper: paper 002's "
-                   "constrained least squares over incidence points.")
-@click.option("--points", type=click.IntRange(min=1), default=None, metavar="N",
-              help="exact: normal-incidence postures (default 4, at least 2); paper: "
-                   "incidence points (default 100, at least 7).")
-@click.option("--force", is_flag=True,
-              help="Write the result even when it is out of tolerance or a misfit (the reason "
-                   "is recorded in the profile history).")
+@click.option(
+    "--method",
+    type=click.Choice(["exact", "paper"]),
+    default="exact",
+    show_default=True,
+    help="exact: beam from normal-incidence postures, offset along the beam from "
+    "time of flight, offsets across it from edge reversal; paper: paper 002's "
+    "constrained least squares over incidence points.",
+)
+@click.option(
+    "--points",
+    type=click.IntRange(min=1),
+    default=None,
+    metavar="N",
+    help="exact: normal-incidence postures (default 4, at least 2); paper: "
+    "incidence points (default 100, at least 7).",
+)
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Write the result even when it is out of tolerance or a misfit (the reason "
+    "is recorded in the profile history).",
+)
 @yes_option
 @dry_run_option
 @json_option
-def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, method: str, points: int | None, force: bool, yes: bool,
-        dry_run: bool, as_json: bool) -> None:
+def cli(
+    profile_path: Path,
+    sim_world: str | None,
+    controller_url: str | None,
+    pulser_url: str | None,
+    method: str,
+    points: int | None,
+    force: bool,
+    yes: bool,
+    dry_run: bool,
+    as_json: bool,
+) -> None:
     """Find the tool centre point and beam direction relative to the flange.
 
     Uses the reflector plate of [reflector] points_mm and the profile's [calibration] joint
@@ -86,10 +109,15 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
             check_status(session.rig)
             with StepProgress("tool-frame") as progress:
+
                 def report(what: str, i: int, n: int) -> None:
                     counters = session.rig.counters
-                    progress.step(what if what != "done" else "solving", i, n,
-                                  f"{counters.moves} moves, {counters.reads} reads")
+                    progress.step(
+                        what if what != "done" else "solving",
+                        i,
+                        n,
+                        f"{counters.moves} moves, {counters.reads} reads",
+                    )
 
                 run = run_tool_frame(profile, plan, session.rig, report)
             truth = session.truth
@@ -116,8 +144,9 @@ def _refusal(run: Any) -> str:
     if run.fit is not None:
         cause = run.fit.refusal
     else:
-        cause = "; ".join(n for n in run.notes if "tolerance" in n or "converge" in n
-                          or "second-order" in n)
+        cause = "; ".join(
+            n for n in run.notes if "tolerance" in n or "converge" in n or "second-order" in n
+        )
     return f"tool frame out of tolerance: {cause} (profile not written; --force writes it)"
 
 
@@ -125,17 +154,17 @@ def _tool_keys(run: Any) -> dict[str, Any]:
     """``[tool]`` keys to write: the frame and, from the exact fit, its stds."""
     keys: dict[str, Any] = {
         "position_mm": [round(float(v), 6) for v in run.position_mm],
-        "rotation_deg": [round(float(v), 6) for v in run.rotation_deg]}
+        "rotation_deg": [round(float(v), 6) for v in run.rotation_deg],
+    }
     if run.fit is not None:
-        keys["position_std_mm"] = [round(max(float(v), 1e-6), 6)
-                                   for v in run.fit.position_std_mm]
-        keys["rotation_std_deg"] = [round(max(float(v), 1e-6), 6)
-                                    for v in run.fit.rotation_std_deg]
+        keys["position_std_mm"] = [round(max(float(v), 1e-6), 6) for v in run.fit.position_std_mm]
+        keys["rotation_std_deg"] = [round(max(float(v), 1e-6), 6) for v in run.fit.rotation_std_deg]
     return keys
 
 
-def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: Any
-            ) -> dict[str, Any]:
+def _result(
+    run: Any, profile: Any, profile_path: Path, written: bool, truth: Any
+) -> dict[str, Any]:
     from ucal.kinematics.rotations import angle_between_deg
 
     tf = run.fit
@@ -158,8 +187,11 @@ def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: An
     }
     if tf is not None:
         out["fit"] = tf.quality.to_json()
-        out["along_beam"] = {"position_mm": tf.along_beam_mm, "std_mm": tf.along_beam_std_mm,
-                             "limited_by": tf.along_beam_limited_by}
+        out["along_beam"] = {
+            "position_mm": tf.along_beam_mm,
+            "std_mm": tf.along_beam_std_mm,
+            "limited_by": tf.along_beam_limited_by,
+        }
         out["across_beam_std_mm"] = tf.across_beam_std_mm
         out["plate_height_mm"] = {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm}
         out["delay_ns"] = {"value": tf.delay_ns, "std": tf.delay_std_ns}
@@ -169,9 +201,13 @@ def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: An
         out["normal_incidence_postures"] = len(run.peaks)
         out["edge_crossings"] = len(run.crossings)
     if run.paper is not None:
-        out["paper"] = {"iterations": run.paper.iterations, "converged": run.paper.converged,
-                        "second_order_ok": run.paper.second_order_ok,
-                        "multiplier": run.paper.multiplier, "condition": run.paper.condition}
+        out["paper"] = {
+            "iterations": run.paper.iterations,
+            "converged": run.paper.converged,
+            "second_order_ok": run.paper.second_order_ok,
+            "multiplier": run.paper.multiplier,
+            "condition": run.paper.condition,
+        }
     if truth is not None:  # the simulator's hidden truth: how far off the result is
         from ucal.toolframe.exact import tangent_basis
         from ucal.toolframe.fit import truth_in_profile_flange
@@ -180,10 +216,12 @@ def _result(run: Any, profile: Any, profile_path: Path, written: bool, truth: An
         err = np.asarray(run.position_mm) - true_tool[:3, 3]
         beam = np.asarray(run.beam)
         out["simulated_error"] = {
-            "position_mm": err, "along_beam_mm": float(beam @ err),
+            "position_mm": err,
+            "along_beam_mm": float(beam @ err),
             "across_beam_mm": tangent_basis(beam) @ err,
             "beam_deg": float(angle_between_deg(beam, true_tool[:3, 2])),
-            "frame": "flange of the profile's J6 offset and last DH link"}
+            "frame": "flange of the profile's J6 offset and last DH link",
+        }
     return out
 
 
@@ -194,27 +232,45 @@ def _print(out: dict[str, Any]) -> None:
         f = out["fit"]
         along = out["along_beam"]
         limited = ", ".join(f"{k} {100 * v:.0f} %" for k, v in along["limited_by"].items())
-        click.echo(f"fit:             {f['verdict']}, chi2_r {f['chi2_reduced']:.3g} (dof "
-                   f"{f['dof']}), worst {f['worst']}")
-        click.echo(f"along the beam:  {along['position_mm']:.4f} ± {along['std_mm']:.4f} mm"
-                   + (f" (limited by {limited})" if limited else ""))
-        click.echo("across the beam: ± " + fmt(f"{v:.4f}" for v in out["across_beam_std_mm"])
-                   + " mm")
-    click.echo(f"method:          {out['method']} ({out['points']} points, {out['moves']} moves, "
-               f"{out['pulser_reads']} pulser reads)")
-    click.echo("position (mm):   " + fmt(f"{v:.4f}" for v in out["position_mm"]) + "   ± "
-               + fmt(f"{v:.4f}" for v in std["position_mm"]))
+        click.echo(
+            f"fit:             {f['verdict']}, chi2_r {f['chi2_reduced']:.3g} (dof "
+            f"{f['dof']}), worst {f['worst']}"
+        )
+        click.echo(
+            f"along the beam:  {along['position_mm']:.4f} ± {along['std_mm']:.4f} mm"
+            + (f" (limited by {limited})" if limited else "")
+        )
+        click.echo(
+            "across the beam: ± " + fmt(f"{v:.4f}" for v in out["across_beam_std_mm"]) + " mm"
+        )
+    click.echo(
+        f"method:          {out['method']} ({out['points']} points, {out['moves']} moves, "
+        f"{out['pulser_reads']} pulser reads)"
+    )
+    click.echo(
+        "position (mm):   "
+        + fmt(f"{v:.4f}" for v in out["position_mm"])
+        + "   ± "
+        + fmt(f"{v:.4f}" for v in std["position_mm"])
+    )
     click.echo("rotation (deg):  " + fmt(f"{v:.4f}" for v in out["rotation_deg"]))
-    click.echo("beam (flange):   " + fmt(f"{v:.6f}" for v in out["beam_direction"])
-               + f"   ± {std['beam_deg']:.4f} deg")
+    click.echo(
+        "beam (flange):   "
+        + fmt(f"{v:.6f}" for v in out["beam_direction"])
+        + f"   ± {std['beam_deg']:.4f} deg"
+    )
     click.echo(f"rms residual:    {out['rms_residual_mm']:.4f} mm")
     if "simulated_error" in out:
         se = out["simulated_error"]
-        click.echo("simulated error: " + fmt(f"{v:+.4f}" for v in se["position_mm"])
-                   + f" mm (along the beam {se['along_beam_mm']:+.4f}, across "
-                   + fmt(f"{v:+.4f}" for v in se["across_beam_mm"])
-                   + f"), beam {se['beam_deg']:.4f} deg")
+        click.echo(
+            "simulated error: "
+            + fmt(f"{v:+.4f}" for v in se["position_mm"])
+            + f" mm (along the beam {se['along_beam_mm']:+.4f}, across "
+            + fmt(f"{v:+.4f}" for v in se["across_beam_mm"])
+            + f"), beam {se['beam_deg']:.4f} deg"
+        )
     for n in out["notes"]:
         click.echo(f"note: {n}")
-    click.echo(f"profile {out['profile']}: " + ("[tool] written" if out["written"]
-                                                 else "not written"))
+    click.echo(
+        f"profile {out['profile']}: " + ("[tool] written" if out["written"] else "not written")
+    )

@@ -25,47 +25,77 @@ if TYPE_CHECKING:
     from ucal.verify import PointResult, VerifyPlan, VerifyResult
 
 
-@click.command("verify", epilog="""\b
+@click.command(
+    "verify",
+    epilog="""\b
 Examples:
   ucal verify cell.toml --sim --yes
   ucal verify cell.toml --sim world.toml --points 4 --json --yes
   ucal verify cell.toml --sim --region 12 --yes
   ucal verify cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502 --plot report.png
-""")
-@click.argument("profile_path", metavar="PROFILE",
-                type=click.Path(dir_okay=False, path_type=Path))
+""",
+)
+@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
 @sim_option
 @controller_option
 @pulser_option
-@click.option("--points", "n_points", type=click.IntRange(1, 100), default=20, show_default=True,
-              help="Number of nominal points (a grid, e.g. 20 = 5 x 4).")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="Before/after picture to write [default: PROFILE with .verify.png].")
-@click.option("--tolerance-mm", type=click.FloatRange(min=0.0, min_open=True), default=None,
-              metavar="MM",
-              help="Largest deviation of any point on any axis after calibration that passes "
-                   "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.")
-@click.option("--region", "region", type=click.IntRange(3, 100), default=None,
-              help="Instead: check the kinematic model against the block's faces from N "
-                   "postures spread like a full calibration's (ucal.verify_region).")
+@click.option(
+    "--points",
+    "n_points",
+    type=click.IntRange(1, 100),
+    default=20,
+    show_default=True,
+    help="Number of nominal points (a grid, e.g. 20 = 5 x 4).",
+)
+@click.option(
+    "--plot",
+    "plot_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Before/after picture to write [default: PROFILE with .verify.png].",
+)
+@click.option(
+    "--tolerance-mm",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    metavar="MM",
+    help="Largest deviation of any point on any axis after calibration that passes "
+    "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.",
+)
+@click.option(
+    "--region",
+    "region",
+    type=click.IntRange(3, 100),
+    default=None,
+    help="Instead: check the kinematic model against the block's faces from N "
+    "postures spread like a full calibration's (ucal.verify_region).",
+)
 @yes_option
 @json_option
-def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
-        pulser_url: str | None, n_points: int, plot_path: Path | None,
-        tolerance_mm: float | None, region: int | None, yes: bool, as_json: bool) -> None:
+def cli(
+    profile_path: Path,
+    sim_world: str | None,
+    controller_url: str | None,
+    pulser_url: str | None,
+    n_points: int,
+    plot_path: Path | None,
+    tolerance_mm: float | None,
+    region: int | None,
+    yes: bool,
+    as_json: bool,
+) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
-    N nominal points on a grid 30 mm above the block's XY face, the tool pointing straight
-    down, are visited twice: "before" commanded with the joint offsets the profile had before
-    its last calibration (from its history; zero without one), "after" with its [calibration]
-    offsets; every point is reached from below on each joint, as in the calibration. At each point the arm stays still while the wrist turns the
-    beam normal to each of the block's three faces; the three water paths give the wrist
-    centre, the three postures the flange orientation, hence the tool centre the robot really
-    reached. Deviations are given per block axis X, Y, Z (mm): mean, max and standard deviation
-    of the absolute values (paper 000, Table 5). A block-position error in the profile shows
-    as a common bias in both passes. The profile is never written. The run passes when no
-    point deviates more than the tolerance on any axis after calibration; otherwise exit 1.
+    N nominal points on a grid 30 mm above the block's XY face, the tool pointing straight down,
+    are visited twice: "before" commanded with the joint offsets the profile had before its last
+    calibration (from its history; zero without one), "after" with its [calibration] offsets; every
+    point is reached from below on each joint, as in the calibration. At each point the arm stays
+    still while the wrist turns the beam normal to each of the block's three faces; the three water
+    paths give the wrist centre, the three postures the flange orientation, hence the tool centre
+    the robot really reached. Deviations are given per block axis X, Y, Z (mm): mean, max and
+    standard deviation of the absolute values (paper 000, Table 5). A block-position error in the
+    profile shows as a common bias in both passes. The profile is never written. The run passes
+    when no point deviates more than the tolerance on any axis after calibration; otherwise exit 1.
     """
     from ucal.errors import InputError, OutOfToleranceError
     from ucal.profile import load_profile
@@ -93,22 +123,32 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
     with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
         check_status(session.rig)
         with StepProgress("verify") as progress:
+
             def report(res: PointResult, done: int, total: int) -> None:
                 d = res.deviation_mm
-                progress.step(f"{res.pass_name} point {res.index + 1}", done, total,
-                              f"deviation X {d[0]:+.3f}  Y {d[1]:+.3f}  Z {d[2]:+.3f} mm")
+                progress.step(
+                    f"{res.pass_name} point {res.index + 1}",
+                    done,
+                    total,
+                    f"deviation X {d[0]:+.3f}  Y {d[1]:+.3f}  Z {d[2]:+.3f} mm",
+                )
 
             result = run_verify(profile, plan, session.rig, report)
         truth = session.truth
-    plot_verify(result, plot_path, title=f"{profile_path.name}: positioning error before and "
-                                         "after calibration")
+    plot_verify(
+        result,
+        plot_path,
+        title=f"{profile_path.name}: positioning error before and after calibration",
+    )
     out = result.to_json(tolerance)
     out["before_source"] = before.source
     out["profile"] = str(profile_path)
     out["plot"] = str(plot_path)
     worst = float(np.max(result.stats("after")["max"]))
-    message = (f"verify: a point deviates {worst:.3f} mm after calibration, above the "
-               f"tolerance of {tolerance:g} mm")
+    message = (
+        f"verify: a point deviates {worst:.3f} mm after calibration, above the "
+        f"tolerance of {tolerance:g} mm"
+    )
     if as_json:
         if truth is not None:
             out["truth"] = _truth_check(result, truth)
@@ -118,15 +158,24 @@ def cli(profile_path: Path, sim_world: str | None, controller_url: str | None,
         return
     _print_table(result)
     click.echo(f"before: {before.source}")
-    click.echo(f"after: largest deviation {worst:.4f} mm, tolerance {tolerance:g} mm: "
-               + ("passed" if out["passed"] else "FAILED"))
+    click.echo(
+        f"after: largest deviation {worst:.4f} mm, tolerance {tolerance:g} mm: "
+        + ("passed" if out["passed"] else "FAILED")
+    )
     if truth is not None:
         chk = _truth_check(result, truth)
-        click.echo("simulation check, measured minus true reached points: common bias "
-                   + ", ".join(f"{a} {v:+.4f}" for a, v in zip("XYZ", chk["measurement_bias_mm"]))
-                   + " mm (tool-frame errors the profile does not know), then within "
-                   + ", ".join(f"{a} {v:.4f}" for a, v in
-                               zip("XYZ", chk["measurement_scatter_max_mm"])) + " mm")
+        click.echo(
+            "simulation check, measured minus true reached points: common bias "
+            + ", ".join(
+                f"{a} {v:+.4f}" for a, v in zip("XYZ", chk["measurement_bias_mm"], strict=True)
+            )
+            + " mm (tool-frame errors the profile does not know), then within "
+            + ", ".join(
+                f"{a} {v:.4f}"
+                for a, v in zip("XYZ", chk["measurement_scatter_max_mm"], strict=True)
+            )
+            + " mm"
+        )
     click.echo(f"picture: {plot_path}")
     if not out["passed"]:
         raise OutOfToleranceError(message, out)
@@ -149,10 +198,13 @@ def _truth_check(result: VerifyResult, truth: WorldTruth) -> dict:
         err.append(p.reached_mm - t)
     err_arr = np.array(err)
     bias = err_arr.mean(0)
-    return {"joint_offsets_deg": truth.joint_offsets_deg.tolist(), "reached_mm": reached,
-            "measurement_error_max_mm": np.abs(err_arr).max(0).tolist(),
-            "measurement_bias_mm": bias.tolist(),
-            "measurement_scatter_max_mm": np.abs(err_arr - bias).max(0).tolist()}
+    return {
+        "joint_offsets_deg": truth.joint_offsets_deg.tolist(),
+        "reached_mm": reached,
+        "measurement_error_max_mm": np.abs(err_arr).max(0).tolist(),
+        "measurement_bias_mm": bias.tolist(),
+        "measurement_scatter_max_mm": np.abs(err_arr - bias).max(0).tolist(),
+    }
 
 
 def _check_plot_format(path: Path) -> None:
@@ -163,38 +215,50 @@ def _check_plot_format(path: Path) -> None:
     fmt = path.suffix.lstrip(".").lower()
     known = FigureCanvasBase.get_supported_filetypes()
     if fmt not in known:
-        raise InputError(f"--plot {path}: unknown picture format {path.suffix or '(none)'!r} "
-                         f"(use one of {', '.join('.' + k for k in sorted(known))})")
+        raise InputError(
+            f"--plot {path}: unknown picture format {path.suffix or '(none)'!r} "
+            f"(use one of {', '.join('.' + k for k in sorted(known))})"
+        )
 
 
 def _summary(plan: VerifyPlan, profile_path: Path) -> str:
     lo = plan.nominal_mm.min(0)
     hi = plan.nominal_mm.max(0)
-    return (f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
-            f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
-            f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
-            f"({6 * plan.points} in all).")
+    return (
+        f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
+        f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
+        f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
+        f"({6 * plan.points} in all)."
+    )
 
 
 def _print_table(result: VerifyResult) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"Deviation from the nominal points, {result.plan.points} points (mm, "
-                        "block axes; paper 000, Table 5)")
+    table = Table(
+        title=f"Deviation from the nominal points, {result.plan.points} points (mm, "
+        "block axes; paper 000, Table 5)"
+    )
     table.add_column("")
     table.add_column("statistic")
     for axis in ("ΔX", "ΔY", "ΔZ"):
         table.add_column(axis, justify="right")
     for p in ("before", "after"):
         st = result.stats(p)
-        for key, name in (("mean", "mean |Δ|"), ("max", "max |Δ|"), ("std", "std |Δ|"),
-                          ("signed_mean", "mean Δ (bias)")):
+        for key, name in (
+            ("mean", "mean |Δ|"),
+            ("max", "max |Δ|"),
+            ("std", "std |Δ|"),
+            ("signed_mean", "mean Δ (bias)"),
+        ):
             table.add_row(p if key == "mean" else "", name, *[f"{v:.4f}" for v in st[key]])
         table.add_section()
     before = np.array(result.stats("before")["mean"])
     after = np.array(result.stats("after")["mean"])
-    gain = [f"{100 * (1 - a / b):.1f} %" if b > 0 else "-" for a, b in zip(after, before)]
+    gain = [
+        f"{100 * (1 - a / b):.1f} %" if b > 0 else "-" for a, b in zip(after, before, strict=True)
+    ]
     table.add_row("", "mean improved by", *gain)
     Console().print(table)
     click.echo(f"{result.moves} moves, {result.reads} pulser readings")

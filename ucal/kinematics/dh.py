@@ -88,8 +88,14 @@ class RobotModel:
         """Copy of this model with another DH table (e.g. a perturbed 'true' robot); the Hayati
         twists are kept unless ``beta_deg`` is given."""
         beta = self.beta_deg if beta_deg is None else beta_deg
-        return RobotModel(self.name, np.array(dh, float), self.joint_min_deg, self.joint_max_deg,
-                          dict(self.meta), np.array(beta, float))
+        return RobotModel(
+            self.name,
+            np.array(dh, float),
+            self.joint_min_deg,
+            self.joint_max_deg,
+            dict(self.meta),
+            np.array(beta, float),
+        )
 
     @property
     def has_twists(self) -> bool:
@@ -121,12 +127,14 @@ def dh_matrix(theta_rad: np.ndarray, d_mm: float, a_mm: float, alpha_rad: float)
 def _rot_y4(beta_rad: float) -> np.ndarray:
     """Hayati's twist ``Rot(y, β)`` as a 4×4 transform."""
     c, s = np.cos(beta_rad), np.sin(beta_rad)
-    return np.array([[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0],
-                     [0.0, 0.0, 0.0, 1.0]])
+    return np.array(
+        [[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    )
 
 
-def model_angles_rad(model: RobotModel, joints_deg: np.ndarray,
-                     offsets_deg: np.ndarray | None = None) -> np.ndarray:
+def model_angles_rad(
+    model: RobotModel, joints_deg: np.ndarray, offsets_deg: np.ndarray | None = None
+) -> np.ndarray:
     """Joint readings (…, 6) → DH angles in radians: reading + θ offset + joint offset."""
     q = np.asarray(joints_deg, dtype=float) + model.theta_offset_deg
     if offsets_deg is not None:
@@ -134,8 +142,9 @@ def model_angles_rad(model: RobotModel, joints_deg: np.ndarray,
     return np.radians(q)
 
 
-def fk_frames(model: RobotModel, joints_deg: np.ndarray,
-              offsets_deg: np.ndarray | None = None) -> np.ndarray:
+def fk_frames(
+    model: RobotModel, joints_deg: np.ndarray, offsets_deg: np.ndarray | None = None
+) -> np.ndarray:
     """Frames 0…6 in the base frame for joint readings (…, 6) → (…, 7, 4, 4).
 
     The six link transforms (``dh_matrix``) are built at once and chained: the solvers call
@@ -171,8 +180,12 @@ def fk_frames(model: RobotModel, joints_deg: np.ndarray,
     return frames
 
 
-def fk(model: RobotModel, joints_deg: np.ndarray, tool: np.ndarray | None = None,
-       offsets_deg: np.ndarray | None = None) -> np.ndarray:
+def fk(
+    model: RobotModel,
+    joints_deg: np.ndarray,
+    tool: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+) -> np.ndarray:
     """Flange (or tool, if a 4×4 ``tool`` transform is given) in the base frame → (…, 4, 4)."""
     t = fk_frames(model, joints_deg, offsets_deg)[..., N_JOINTS, :, :]
     if tool is not None:
@@ -180,8 +193,9 @@ def fk(model: RobotModel, joints_deg: np.ndarray, tool: np.ndarray | None = None
     return t
 
 
-def wrist_centre(model: RobotModel, joints_deg: np.ndarray,
-                 offsets_deg: np.ndarray | None = None) -> np.ndarray:
+def wrist_centre(
+    model: RobotModel, joints_deg: np.ndarray, offsets_deg: np.ndarray | None = None
+) -> np.ndarray:
     """Wrist centre W (origin of frame 4, = frame 5 for a spherical wrist) (…, 3) in mm.
 
     W depends on joints 1–3 only (paper 000 §4.2, paper 004 §2): the basis of arm–wrist
@@ -190,8 +204,12 @@ def wrist_centre(model: RobotModel, joints_deg: np.ndarray,
     return fk_frames(model, joints_deg, offsets_deg)[..., 4, :3, 3]
 
 
-def jacobian(model: RobotModel, joints_deg: np.ndarray, tool: np.ndarray | None = None,
-             offsets_deg: np.ndarray | None = None) -> np.ndarray:
+def jacobian(
+    model: RobotModel,
+    joints_deg: np.ndarray,
+    tool: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+) -> np.ndarray:
     """Geometric Jacobian (…, 6, 6) of the flange/tool point: rows vx, vy, vz (mm/rad), wx, wy, wz.
 
     Column i is ``[z_{i-1} × (p - o_{i-1}); z_{i-1}]`` in the base frame.

@@ -61,7 +61,8 @@ the triangle onto (r, u)::
     (10) θ_2 = atan2(u, r) − atan2(L sin(θ_3 − γ), a_2 + L cos(θ_3 − γ))
 
 Wrist. With α_2 = 0 the arm's orientation is ``R_03 = Rz(θ_1)·Rx(α_1)·Rz(θ_2 + θ_3)·Rx(α_3)``
-(translations do not rotate), and ``R_36 = R_03ᵀ · R_06 · Rx(α_6)ᵀ = Rz(θ_4)·Rx(α_4)·Rz(θ_5)·Rx(−α_4)·Rz(θ_6)``, and
+(translations do not rotate), and
+``R_36 = R_03ᵀ · R_06 · Rx(α_6)ᵀ = Rz(θ_4)·Rx(α_4)·Rz(θ_5)·Rx(−α_4)·Rz(θ_6)``, and
 ``Rx(α_4)·Rz(θ_5)·Rx(−α_4)`` is a rotation by θ_5 about ``Rx(α_4)·e_z = (0, −sin α_4, 0)``,
 i.e. ``Ry(σ_4 θ_5)``. So R_36 = M is a z-y-z Euler matrix with b = σ_4 θ_5::
 
@@ -144,8 +145,9 @@ MAX_SNAP_MM = 5.0
 def _sign90(alpha_deg: float, what: str, model: RobotModel) -> float:
     s = np.sin(np.radians(alpha_deg))
     if abs(abs(s) - 1.0) > 1e-12:
-        raise InputError(f"model {model.name!r}: {what} must be ±90° for closed-form IK, "
-                         f"got {alpha_deg}°")
+        raise InputError(
+            f"model {model.name!r}: {what} must be ±90° for closed-form IK, got {alpha_deg}°"
+        )
     return float(np.sign(s))
 
 
@@ -160,16 +162,19 @@ def check_structure(model: RobotModel) -> None:
     _sign90(al[2], "alpha_3", model)
     s4 = _sign90(al[3], "alpha_4", model)
     if abs(np.sin(np.radians(al[1]))) > 1e-12 or np.cos(np.radians(al[1])) < 0:
-        raise InputError(f"model {model.name!r}: alpha_2 must be 0° for closed-form IK, "
-                         f"got {al[1]}°")
+        raise InputError(
+            f"model {model.name!r}: alpha_2 must be 0° for closed-form IK, got {al[1]}°"
+        )
     if abs(np.sin(np.radians(al[4])) + s4) > 1e-12:
         raise InputError(f"model {model.name!r}: alpha_5 must be -alpha_4 for closed-form IK")
     if abs(model.a_mm[3]) > 0 or abs(model.a_mm[4]) > 0 or abs(model.d_mm[4]) > 0:
-        raise InputError(f"model {model.name!r}: the wrist is not spherical "
-                         "(a_4, a_5 and d_5 must be 0 mm)")
+        raise InputError(
+            f"model {model.name!r}: the wrist is not spherical (a_4, a_5 and d_5 must be 0 mm)"
+        )
     if model.a_mm[1] == 0 or (model.a_mm[2] == 0 and model.d_mm[3] == 0):
-        raise InputError(f"model {model.name!r}: upper arm a_2 and forearm (a_3, d_4) must be "
-                         "non-zero")
+        raise InputError(
+            f"model {model.name!r}: upper arm a_2 and forearm (a_3, d_4) must be non-zero"
+        )
 
 
 def wrap_deg(angle_deg: np.ndarray) -> np.ndarray:
@@ -182,8 +187,9 @@ def wrap_deg(angle_deg: np.ndarray) -> np.ndarray:
 def _rot_z(th: np.ndarray) -> np.ndarray:
     c, s = np.cos(th), np.sin(th)
     o, z = np.ones_like(th), np.zeros_like(th)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def _rot_x(alpha_rad: float) -> np.ndarray:
@@ -211,13 +217,17 @@ def ideal_structure(model: RobotModel) -> RobotModel:
         if i == 4:
             snapped = -dh[3, 3]
         if abs(a - snapped) > MAX_SNAP_DEG:
-            raise InputError(f"model {model.name!r}: alpha_{i + 1} = {a}° is not within "
-                             f"{MAX_SNAP_DEG}° of the TX90 structure's {snapped}°")
+            raise InputError(
+                f"model {model.name!r}: alpha_{i + 1} = {a}° is not within "
+                f"{MAX_SNAP_DEG}° of the TX90 structure's {snapped}°"
+            )
         dh[i, 3] = snapped
-    for (i, c) in ((3, 2), (4, 2), (4, 1)):
+    for i, c in ((3, 2), (4, 2), (4, 1)):
         if abs(dh[i, c]) > MAX_SNAP_MM:
-            raise InputError(f"model {model.name!r}: the wrist is not spherical "
-                             f"({'da'[c - 1]}_{i + 1} = {dh[i, c]} mm)")
+            raise InputError(
+                f"model {model.name!r}: the wrist is not spherical "
+                f"({'da'[c - 1]}_{i + 1} = {dh[i, c]} mm)"
+            )
         dh[i, c] = 0.0
     if np.any(np.abs(model.beta_deg) > MAX_SNAP_DEG):
         raise InputError(f"model {model.name!r}: a beta_deg above {MAX_SNAP_DEG}°")
@@ -226,9 +236,13 @@ def ideal_structure(model: RobotModel) -> RobotModel:
     return ideal
 
 
-def refine(model: RobotModel, flange_T: np.ndarray, seeds_deg: np.ndarray,
-           offsets_deg: np.ndarray | None = None, max_iter: int = 20
-           ) -> tuple[np.ndarray, np.ndarray]:
+def refine(
+    model: RobotModel,
+    flange_T: np.ndarray,
+    seeds_deg: np.ndarray,
+    offsets_deg: np.ndarray | None = None,
+    max_iter: int = 20,
+) -> tuple[np.ndarray, np.ndarray]:
     """Refine joint readings (…, 6) so that ``model``'s flange reaches ``flange_T`` (…, 4, 4).
 
     Damped Newton steps ``Δθ = Jᵀ(JJᵀ + λ²I)⁻¹·e`` on the geometric Jacobian, with ``e`` the
@@ -246,10 +260,10 @@ def refine(model: RobotModel, flange_T: np.ndarray, seeds_deg: np.ndarray,
     for _ in range(max_iter):
         cur = fk(model, qf, offsets_deg=offsets_deg)
         e_p = Tf[:, :3, 3] - cur[:, :3, 3]
-        e_r = Rotation.from_matrix(Tf[:, :3, :3] @ np.swapaxes(cur[:, :3, :3], -1, -2)
-                                   ).as_rotvec()
+        e_r = Rotation.from_matrix(Tf[:, :3, :3] @ np.swapaxes(cur[:, :3, :3], -1, -2)).as_rotvec()
         ok = (np.linalg.norm(e_p, axis=-1) < REFINE_TOL_MM) & (
-            np.linalg.norm(e_r, axis=-1) < REFINE_TOL_RAD)
+            np.linalg.norm(e_r, axis=-1) < REFINE_TOL_RAD
+        )
         if ok.all():
             break
         jac = jacobian(model, qf, offsets_deg=offsets_deg)
@@ -264,9 +278,13 @@ def refine(model: RobotModel, flange_T: np.ndarray, seeds_deg: np.ndarray,
     return out, conv
 
 
-def ik_all(model: RobotModel, flange_T: np.ndarray, offsets_deg: np.ndarray | None = None,
-           wrist_ref_deg: np.ndarray | float | None = None,
-           singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, np.ndarray]:
+def ik_all(
+    model: RobotModel,
+    flange_T: np.ndarray,
+    offsets_deg: np.ndarray | None = None,
+    wrist_ref_deg: np.ndarray | float | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> tuple[np.ndarray, np.ndarray]:
     """All eight joint solutions for flange poses (…, 4, 4): closed form (``ik_closed_form``),
     refined on ``model`` where it is a calibrated table (module docstring)."""
     ideal = ideal_structure(model)
@@ -280,10 +298,13 @@ def ik_all(model: RobotModel, flange_T: np.ndarray, offsets_deg: np.ndarray | No
     return refined, valid
 
 
-def ik_closed_form(model: RobotModel, flange_T: np.ndarray,
-                   offsets_deg: np.ndarray | None = None,
-                   wrist_ref_deg: np.ndarray | float | None = None,
-                   singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, np.ndarray]:
+def ik_closed_form(
+    model: RobotModel,
+    flange_T: np.ndarray,
+    offsets_deg: np.ndarray | None = None,
+    wrist_ref_deg: np.ndarray | float | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> tuple[np.ndarray, np.ndarray]:
     """All eight closed-form joint solutions for flange poses (…, 4, 4) in the base frame (mm).
 
     Returns ``(solutions_deg (…, 8, 6), valid (…, 8))``: joint *readings* in degrees,
@@ -338,8 +359,7 @@ def ik_closed_form(model: RobotModel, flange_T: np.ndarray,
     e = np.arctan2(np.stack([sq, -sq], -1), kc[..., None])  # θ3 − γ
     th3 = gam + e
     # (10) joint 2
-    th2 = (np.arctan2(u, r)[..., None]
-           - np.arctan2(L * np.sin(e), a[1] + L * np.cos(e)))
+    th2 = np.arctan2(u, r)[..., None] - np.arctan2(L * np.sin(e), a[1] + L * np.cos(e))
     th1b = np.broadcast_to(th1[..., None], th2.shape)
     arm_ok = ok1[..., None, None] & ok3[..., None]  # (…, 2, 2)
 
@@ -348,16 +368,16 @@ def ik_closed_form(model: RobotModel, flange_T: np.ndarray,
     R = R06 @ _rot_x(al[5]).T
     r0, r1, r2 = R[..., None, 0, :], R[..., None, 1, :], R[..., None, 2, :]
     c1v, s1v = c1[..., None], s1[..., None]
-    n0 = c1v * r0 + s1v * r1                       # Rz(θ1)ᵀ
+    n0 = c1v * r0 + s1v * r1  # Rz(θ1)ᵀ
     n1 = -s1v * r0 + c1v * r1
-    ca, sa = np.cos(al[0]), np.sin(al[0])          # Rx(α1)ᵀ
+    ca, sa = np.cos(al[0]), np.sin(al[0])  # Rx(α1)ᵀ
     n1, n2 = ca * n1 + sa * r2, -sa * n1 + ca * r2
     th23 = th2 + th3
     c23, s23 = np.cos(th23)[..., None], np.sin(th23)[..., None]
     n0, n1, n2 = n0[..., None, :], n1[..., None, :], n2[..., None, :]
-    m0 = c23 * n0 + s23 * n1                       # Rz(θ2 + θ3)ᵀ
+    m0 = c23 * n0 + s23 * n1  # Rz(θ2 + θ3)ᵀ
     m1 = -s23 * n0 + c23 * n1
-    ca, sa = np.cos(al[2]), np.sin(al[2])          # Rx(α3)ᵀ
+    ca, sa = np.cos(al[2]), np.sin(al[2])  # Rx(α3)ᵀ
     M = np.stack([m0, ca * m1 + sa * n2, -sa * m1 + ca * n2], -2)  # (…, 2, 2, 3, 3)
 
     # (12)–(13) wrist, no-flip root; flipped root = (θ4 + π, −b, θ6 + π)
@@ -371,16 +391,16 @@ def ik_closed_form(model: RobotModel, flange_T: np.ndarray,
         if wrist_ref_deg is None:
             ref4 = np.zeros(shape)
         else:
-            ref4 = np.broadcast_to(np.radians(np.asarray(wrist_ref_deg, float) + th_off[3]),
-                                   shape)
+            ref4 = np.broadcast_to(np.radians(np.asarray(wrist_ref_deg, float) + th_off[3]), shape)
         ref4 = np.broadcast_to(ref4[..., None, None], singular.shape)
         Mp = np.swapaxes(_rot_z(ref4), -1, -2) @ M
         th4 = np.where(singular, ref4, th4)
         b = np.where(singular, np.arctan2(Mp[..., 0, 2], Mp[..., 2, 2]), b)
         th6 = np.where(singular, np.arctan2(Mp[..., 1, 0], Mp[..., 1, 1]), th6)
     th5 = b / sg4
-    wrist = np.stack([np.stack([th4, th5, th6], -1),
-                      np.stack([th4 + np.pi, -th5, th6 + np.pi], -1)], -2)  # (…,2,2,2,3)
+    wrist = np.stack(
+        [np.stack([th4, th5, th6], -1), np.stack([th4 + np.pi, -th5, th6 + np.pi], -1)], -2
+    )  # (…,2,2,2,3)
 
     arm = np.stack([th1b, th2, th3], -1)  # (…, 2, 2, 3)
     arm = np.broadcast_to(arm[..., None, :], wrist.shape)
@@ -399,8 +419,9 @@ def _as_weights(weights: np.ndarray | None) -> np.ndarray:
     return w
 
 
-def select_in_range(model: RobotModel, solutions_deg: np.ndarray, valid: np.ndarray,
-                    ref_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def select_in_range(
+    model: RobotModel, solutions_deg: np.ndarray, valid: np.ndarray, ref_deg: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Move each joint reading to its in-range ±360° equivalent nearest the reference.
 
     ``solutions_deg`` (…, m, 6), ``valid`` (…, m), ``ref_deg`` broadcastable to (…, 6).
@@ -419,8 +440,9 @@ def select_in_range(model: RobotModel, solutions_deg: np.ndarray, valid: np.ndar
     return np.where(ok[..., None], chosen, np.nan), ok
 
 
-def weighted_distance(solutions_deg: np.ndarray, ref_deg: np.ndarray,
-                      weights: np.ndarray | None = None) -> np.ndarray:
+def weighted_distance(
+    solutions_deg: np.ndarray, ref_deg: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
     """Paper 004's shortest-distance measure Σ wᵢ|θᵢ − θᵢ_ref| (deg) (…, m, 6) → (…, m) (eq. 16)."""
     w = _as_weights(weights)
     ref = np.asarray(ref_deg, dtype=float)[..., None, :]
@@ -435,11 +457,15 @@ def flange_from_tool(target_T: np.ndarray, tool_T: np.ndarray | None) -> np.ndar
     return T @ np.linalg.inv(np.asarray(tool_T, dtype=float))
 
 
-def ik_solutions(model: RobotModel, target_T: np.ndarray, tool_T: np.ndarray | None = None,
-                 offsets_deg: np.ndarray | None = None, near_deg: np.ndarray | None = None,
-                 weights: np.ndarray | None = None,
-                 singular_eps: float = SINGULAR_EPS
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ik_solutions(
+    model: RobotModel,
+    target_T: np.ndarray,
+    tool_T: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+    near_deg: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """In-range solutions for many tool poses (…, 4, 4), sorted nearest first (vectorised).
 
     Returns ``(solutions_deg (…, 8, 6), in_range (…, 8), cost (…, 8))``: joint readings
@@ -451,8 +477,9 @@ def ik_solutions(model: RobotModel, target_T: np.ndarray, tool_T: np.ndarray | N
     shape = flange.shape[:-2]
     ref = np.zeros(N_JOINTS) if near_deg is None else np.asarray(near_deg, dtype=float)
     ref = np.broadcast_to(ref, shape + (N_JOINTS,))
-    sols, real = ik_all(model, flange, offsets_deg, wrist_ref_deg=ref[..., 3],
-                        singular_eps=singular_eps)
+    sols, real = ik_all(
+        model, flange, offsets_deg, wrist_ref_deg=ref[..., 3], singular_eps=singular_eps
+    )
     sols, ok = select_in_range(model, sols, real, ref)
     cost = np.where(ok, weighted_distance(np.nan_to_num(sols), ref, weights), np.inf)
     order = np.argsort(cost, -1, kind="stable")
@@ -460,24 +487,36 @@ def ik_solutions(model: RobotModel, target_T: np.ndarray, tool_T: np.ndarray | N
     return sols, np.take_along_axis(ok, order, -1), np.take_along_axis(cost, order, -1)
 
 
-def ik_many(model: RobotModel, target_T: np.ndarray, tool_T: np.ndarray | None = None,
-            offsets_deg: np.ndarray | None = None, near_deg: np.ndarray | None = None,
-            weights: np.ndarray | None = None,
-            singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, np.ndarray]:
+def ik_many(
+    model: RobotModel,
+    target_T: np.ndarray,
+    tool_T: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+    near_deg: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> tuple[np.ndarray, np.ndarray]:
     """Nearest in-range solution for each of many tool poses (…, 4, 4); never raises.
 
     Returns ``(joints_deg (…, 6), ok (…,))``; rows with ``ok`` False (unreachable or out of
     range) are NaN. ``near_deg`` is the reference (…, 6) or (6,), default zeros.
     """
-    sols, ok, _ = ik_solutions(model, target_T, tool_T, offsets_deg, near_deg, weights,
-                               singular_eps)
+    sols, ok, _ = ik_solutions(
+        model, target_T, tool_T, offsets_deg, near_deg, weights, singular_eps
+    )
     return sols[..., 0, :], ok[..., 0]
 
 
-def ik(model: RobotModel, target_T: np.ndarray, tool_T: np.ndarray | None = None,
-       offsets_deg: np.ndarray | None = None, near_deg: np.ndarray | None = None,
-       weights: np.ndarray | None = None, all_solutions: bool = False,
-       singular_eps: float = SINGULAR_EPS) -> np.ndarray:
+def ik(
+    model: RobotModel,
+    target_T: np.ndarray,
+    tool_T: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+    near_deg: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    all_solutions: bool = False,
+    singular_eps: float = SINGULAR_EPS,
+) -> np.ndarray:
     """Joint readings (deg) that put the tool at ``target_T`` (4, 4, base frame, mm).
 
     ``tool_T`` is the tool frame relative to the flange (4, 4; default none), ``offsets_deg``

@@ -37,12 +37,15 @@ def max_joint_step_deg(joints_deg: np.ndarray) -> float:
     return float(np.max(np.abs(np.diff(j, axis=0))))
 
 
-def cartesian_path_to_joints(model: RobotModel, poses: np.ndarray,
-                             tool_T: np.ndarray | None = None,
-                             offsets_deg: np.ndarray | None = None,
-                             start_deg: np.ndarray | None = None,
-                             weights: np.ndarray | None = None,
-                             singular_eps: float = SINGULAR_EPS) -> tuple[np.ndarray, float]:
+def cartesian_path_to_joints(
+    model: RobotModel,
+    poses: np.ndarray,
+    tool_T: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+    start_deg: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> tuple[np.ndarray, float]:
     """Joint readings for a tool path of poses (n, 6) ``X, Y, Z, RX, RY, RZ`` (mm, deg).
 
     ``tool_T`` is the tool frame relative to the flange (4, 4), ``offsets_deg`` the joint
@@ -74,15 +77,21 @@ def cartesian_path_to_joints(model: RobotModel, poses: np.ndarray,
         s_i, r_i = sols[i], real[i]
         if singular[i]:
             # paper 004 §2.2: joint 4 keeps its current value, joint 6 takes the rest
-            s_i, r_i = ik_all(model, flange[i], offsets_deg, wrist_ref_deg=prev[3],
-                              singular_eps=singular_eps)
+            s_i, r_i = ik_all(
+                model, flange[i], offsets_deg, wrist_ref_deg=prev[3], singular_eps=singular_eps
+            )
         cand, ok = select_in_range(model, s_i, r_i, prev)
         if not ok.any():
             x, y, z = poses[i, :3]
-            why = ("outside the workspace of the arm" if not r_i.any()
-                   else "every solution is outside the joint ranges")
-            raise UnreachableError(f"path point {i + 1} at ({x:.3f}, {y:.3f}, {z:.3f}) mm is "
-                                   f"unreachable for {model.name}: {why}")
+            why = (
+                "outside the workspace of the arm"
+                if not r_i.any()
+                else "every solution is outside the joint ranges"
+            )
+            raise UnreachableError(
+                f"path point {i + 1} at ({x:.3f}, {y:.3f}, {z:.3f}) mm is "
+                f"unreachable for {model.name}: {why}"
+            )
         cost = np.where(ok, weighted_distance(np.nan_to_num(cand), prev, weights), np.inf)
         prev = cand[int(np.argmin(cost))]
         out[i] = prev

@@ -15,7 +15,9 @@ def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
 
 
 def rot_y(angle_rad: np.ndarray | float) -> np.ndarray:
@@ -23,7 +25,9 @@ def rot_y(angle_rad: np.ndarray | float) -> np.ndarray:
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+    return np.stack(
+        [np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2
+    )
 
 
 def rot_z(angle_rad: np.ndarray | float) -> np.ndarray:
@@ -31,7 +35,9 @@ def rot_z(angle_rad: np.ndarray | float) -> np.ndarray:
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def rpy_to_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
@@ -52,8 +58,11 @@ def matrix_to_rpy(rot: np.ndarray) -> np.ndarray:
     cy = np.hypot(rot[..., 0, 0], rot[..., 0, 1])
     ry = np.arctan2(sy, cy)
     locked = cy < 1e-12
-    rx = np.where(locked, np.arctan2(rot[..., 2, 1], rot[..., 1, 1]),
-                  np.arctan2(-rot[..., 1, 2], rot[..., 2, 2]))
+    rx = np.where(
+        locked,
+        np.arctan2(rot[..., 2, 1], rot[..., 1, 1]),
+        np.arctan2(-rot[..., 1, 2], rot[..., 2, 2]),
+    )
     rz = np.where(locked, 0.0, np.arctan2(-rot[..., 0, 1], rot[..., 0, 0]))
     return np.degrees(np.stack([rx, ry, rz], -1))
 
@@ -79,8 +88,9 @@ def rotation_angle_deg(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray:
     r = np.swapaxes(r_a, -1, -2) @ r_b
     c = (np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0
     # acos loses precision near 0; use the skew part too.
-    skew = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
-                     r[..., 1, 0] - r[..., 0, 1]], -1)
+    skew = np.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1
+    )
     s = np.linalg.norm(skew, axis=-1) / 2.0
     return np.degrees(np.arctan2(s, c))
 

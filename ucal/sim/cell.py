@@ -18,7 +18,8 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    directivity and water absorption per frequency, so not the centre-frequency directivity
    and absorption that the search fits: the main lobe widens with the water path, and the
    echo's height falls with it more slowly, −0.023 instead of −0.032 Np/mm at 100 mm, as
-   absorption shifts the spectrum down), scaled by 0.8 of full screen at normal incidence, 50 mm and 20 dB
+   absorption shifts the spectrum down), scaled by 0.8 of full screen at normal incidence,
+   50 mm and 20 dB
    (``ucal.acoustics.REFERENCE_AMPLITUDE``) × 10^((gain + gain error − 20)/20) × the
    footprint's share on the face; its peak-mode gate reports the envelope's peak and its time;
 5. noise as the world says, in the waveform: the trigger jitter ``noise.tof_ns`` shifts the
@@ -91,15 +92,20 @@ class _Stream(IntEnum):
 class SimulatedCell:
     """The physics of a cell's truth: echoes at joint readings, true TCP and beam."""
 
-    def __init__(self, world: WorldTruth, threshold: float = DEFAULT_THRESHOLD,
-                 noise_floor: float = DEFAULT_NOISE_FLOOR):
+    def __init__(
+        self,
+        world: WorldTruth,
+        threshold: float = DEFAULT_THRESHOLD,
+        noise_floor: float = DEFAULT_NOISE_FLOOR,
+    ):
         self.world = world
         self.threshold = float(threshold)
         self.noise_floor = float(noise_floor)
         model = world.model
         # constant parts of the DH chain
-        self._angle_offset_deg = (np.asarray(model.theta_offset_deg, float)
-                                  + np.asarray(world.joint_offsets_deg, float))
+        self._angle_offset_deg = np.asarray(model.theta_offset_deg, float) + np.asarray(
+            world.joint_offsets_deg, float
+        )
         self._half_backlash_deg = 0.5 * np.asarray(world.backlash_deg, float)
         alpha = np.radians(model.alpha_deg)
         self._ca = np.cos(alpha)
@@ -120,7 +126,7 @@ class SimulatedCell:
             ry = np.eye(4)
             ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
             self._twists.append(ry)
-        self._tool = world.beam_matrix   # tool centre, z along the acoustic axis (squint)
+        self._tool = world.beam_matrix  # tool centre, z along the acoustic axis (squint)
         faces: list[Face] = list(block_faces(world.sample_matrix, world.sample_face_size_mm))
         self._plate: Face | None = None
         if world.reflector is not None:
@@ -129,16 +135,18 @@ class SimulatedCell:
         self.faces: tuple[Face, ...] = tuple(faces)
         self._sigma_mm = acoustics.footprint_sigma_mm(world.element_diameter_mm)
         self._c_m_s = acoustics.sound_speed_m_s(world.water_temperature_c)
-        self._receiver = EchoReceiver(world.frequency_mhz, world.element_diameter_mm,
-                                      near_field=world.near_field)
+        self._receiver = EchoReceiver(
+            world.frequency_mhz, world.element_diameter_mm, near_field=world.near_field
+        )
         seed = int(world.noise.seed)
         self._rng = {s: np.random.default_rng([seed, int(s)]) for s in _Stream}
         self._gain_state: tuple[float, float] | None = None  # (requested dB, its error dB)
         self._lock = threading.Lock()
 
     # --- truth --------------------------------------------------------------------------------
-    def joint_angles_deg(self, joint_readings_deg: np.ndarray,
-                         motion_sign: np.ndarray | None = None) -> np.ndarray:
+    def joint_angles_deg(
+        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+    ) -> np.ndarray:
         """True DH angles (deg, (6,)): reading + θ offset + joint offset − sign · backlash / 2.
 
         ``motion_sign`` (6 values, sign taken) is the direction of each joint's last motion;
@@ -149,8 +157,9 @@ class SimulatedCell:
             th = th - np.sign(np.asarray(motion_sign, float)) * self._half_backlash_deg
         return th
 
-    def true_flange(self, joint_readings_deg: np.ndarray,
-                    motion_sign: np.ndarray | None = None) -> np.ndarray:
+    def true_flange(
+        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+    ) -> np.ndarray:
         """True flange frame (4, 4) in the base frame for joint readings (deg, (6,))."""
         th = np.radians(self.joint_angles_deg(joint_readings_deg, motion_sign))
         ct, st = np.cos(th), np.sin(th)
@@ -174,18 +183,21 @@ class SimulatedCell:
                 t = t @ twist
         return t
 
-    def true_tcp(self, joint_readings_deg: np.ndarray,
-                 motion_sign: np.ndarray | None = None) -> np.ndarray:
+    def true_tcp(
+        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+    ) -> np.ndarray:
         """True tool-centre-point frame (4, 4) in the base frame for joint readings (deg)."""
         return self.true_flange(joint_readings_deg, motion_sign) @ self._tool
 
-    def true_beam(self, joint_readings_deg: np.ndarray,
-                  motion_sign: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """True beam: origin (TCP, mm, (3,)) and unit direction (tool +Z, (3,)) in the base frame."""
+    def true_beam(
+        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """True beam: origin (TCP, mm, (3,)) and unit direction (tool +Z, (3,)), base frame."""
         return beam_ray(self.true_tcp(joint_readings_deg, motion_sign))
 
-    def hit(self, joint_readings_deg: np.ndarray,
-            motion_sign: np.ndarray | None = None) -> FaceHit | None:
+    def hit(
+        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+    ) -> FaceHit | None:
         """The face that echoes at these readings (see module doc), or None."""
         found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
         return None if found is None else found[0]
@@ -203,14 +215,19 @@ class SimulatedCell:
             c = c * self.water_temperature_c(t_s) + coeff
         return c
 
-    def _echoing_hit(self, origin: np.ndarray, direction: np.ndarray
-                     ) -> tuple[FaceHit, float] | None:
+    def _echoing_hit(
+        self, origin: np.ndarray, direction: np.ndarray
+    ) -> tuple[FaceHit, float] | None:
         """The echoing face's hit and the footprint's share on it, or None."""
         hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
         refl = self.world.reflector
         if refl is not None and refl.flatness_mm > 0.0:
-            hits = [bowed_hit(h, direction, refl.flatness_mm, refl.size_mm)
-                    if h.face is self._plate else h for h in hits]
+            hits = [
+                bowed_hit(h, direction, refl.flatness_mm, refl.size_mm)
+                if h.face is self._plate
+                else h
+                for h in hits
+            ]
         hits.sort(key=lambda h: h.distance_mm)
         for h in hits:
             if h.facing:
@@ -225,9 +242,13 @@ class SimulatedCell:
         return acoustics.rectangle_share(h.edge_distances_mm, self._sigma_mm)
 
     # --- echoes -------------------------------------------------------------------------------
-    def ideal_echo(self, joint_readings_deg: np.ndarray,
-                   gain_db: float = acoustics.REFERENCE_GAIN_DB, t_s: float = 0.0,
-                   motion_sign: np.ndarray | None = None) -> tuple[float, float]:
+    def ideal_echo(
+        self,
+        joint_readings_deg: np.ndarray,
+        gain_db: float = acoustics.REFERENCE_GAIN_DB,
+        t_s: float = 0.0,
+        motion_sign: np.ndarray | None = None,
+    ) -> tuple[float, float]:
         """Noise-free reading ``(amplitude, tof_ns)``: no noise, jitter or gain error, the rest
         as ``echo`` (delay, detection, quantisation); amplitude 0 without a face, TOF NaN below
         the threshold."""
@@ -242,10 +263,16 @@ class SimulatedCell:
             return reading, float("nan")
         return reading, tof
 
-    def echo(self, joint_readings_deg: np.ndarray, averages: int = 1,
-             gain_db: float = acoustics.REFERENCE_GAIN_DB, t_s: float = 0.0,
-             motion_sign: np.ndarray | None = None, *,
-             gate_us: tuple[float, float] | None = None) -> tuple[float, float]:
+    def echo(
+        self,
+        joint_readings_deg: np.ndarray,
+        averages: int = 1,
+        gain_db: float = acoustics.REFERENCE_GAIN_DB,
+        t_s: float = 0.0,
+        motion_sign: np.ndarray | None = None,
+        *,
+        gate_us: tuple[float, float] | None = None,
+    ) -> tuple[float, float]:
         """One pulser acquisition ``(amplitude, tof_ns)`` with the world's noise and errors.
 
         ``averages`` (≥ 1) divides every noise sigma by √averages; ``gain_db`` is the requested
@@ -280,8 +307,12 @@ class SimulatedCell:
             start_ns, width_ns = gate_us[0] * 1e3, gate_us[1] * 1e3
             if not start_ns <= arrival_ns <= start_ns + width_ns:
                 return self._report(floor), float("nan")
-        scale = (acoustics.REFERENCE_AMPLITUDE * g * share
-                 * max(1.0 + noise.amplitude * z_amp / root_n, 0.0))
+        scale = (
+            acoustics.REFERENCE_AMPLITUDE
+            * g
+            * share
+            * max(1.0 + noise.amplitude * z_amp / root_n, 0.0)
+        )
         # receiver noise per quadrature component, scaled like the echo by the applied gain
         sigma = self.noise_floor * g / _FLOOR_PEAK_PER_SIGMA / root_n
         amp, tof = self._detect(h, c_m_s, scale, noise.tof_ns * z_tof / root_n, sigma, z_rx)
@@ -301,15 +332,23 @@ class SimulatedCell:
         """When the echo reaches the instrument: round trip in the water plus the delay (ns)."""
         return 2.0 * water_path_mm * 1e6 / c_m_s + self.world.pulser.delay_ns
 
-    def _detect(self, h: FaceHit, c_m_s: float, scale: float, jitter_ns: float,
-                sigma: float, z: np.ndarray | None = None) -> tuple[float, float]:
+    def _detect(
+        self,
+        h: FaceHit,
+        c_m_s: float,
+        scale: float,
+        jitter_ns: float,
+        sigma: float,
+        z: np.ndarray | None = None,
+    ) -> tuple[float, float]:
         """Synthesise the echo of ``h`` (with jitter and receiver noise) and gate it."""
         rx = self._receiver
         spectrum = rx.spectrum(h.tilt_deg, h.distance_mm, c_m_s)
-        t0_ns, samples = rx.waveform(self._arrival_ns(h.distance_mm, c_m_s) + jitter_ns,
-                                     scale, spectrum)
+        t0_ns, samples = rx.waveform(
+            self._arrival_ns(h.distance_mm, c_m_s) + jitter_ns, scale, spectrum
+        )
         if sigma > 0.0 and z is not None:
-            samples = samples + sigma * (z[: rx.n] + 1j * z[rx.n:])
+            samples = samples + sigma * (z[: rx.n] + 1j * z[rx.n :])
         return rx.detect(t0_ns, samples)
 
     def _report(self, amplitude: float) -> float:
@@ -322,7 +361,8 @@ class SimulatedCell:
         return a
 
 
-def ideal_echo(world: WorldTruth, joint_readings_deg: np.ndarray,
-               gain_db: float = acoustics.REFERENCE_GAIN_DB) -> tuple[float, float]:
+def ideal_echo(
+    world: WorldTruth, joint_readings_deg: np.ndarray, gain_db: float = acoustics.REFERENCE_GAIN_DB
+) -> tuple[float, float]:
     """Noise-free ``(amplitude, tof_ns)`` of ``world`` at joint readings (see ``SimulatedCell``)."""
     return SimulatedCell(world).ideal_echo(joint_readings_deg, gain_db)

@@ -74,9 +74,11 @@ def block_faces(sample_matrix: np.ndarray, face_size_mm: float) -> tuple[Face, F
     corner = m[:3, 3].copy()
     ax = [m[:3, i].copy() for i in range(3)]
     span = (0.0, float(face_size_mm))
-    return (Face("x", corner, ax[1], ax[2], ax[0], span, span),
-            Face("y", corner, ax[2], ax[0], ax[1], span, span),
-            Face("z", corner, ax[0], ax[1], ax[2], span, span))
+    return (
+        Face("x", corner, ax[1], ax[2], ax[0], span, span),
+        Face("y", corner, ax[2], ax[0], ax[1], span, span),
+        Face("z", corner, ax[0], ax[1], ax[2], span, span),
+    )
 
 
 def reflector_face(reflector: Reflector) -> Face:
@@ -90,14 +92,24 @@ def reflector_face(reflector: Reflector) -> Face:
     e1 = e1 / np.linalg.norm(e1)
     e2 = np.cross(n, e1)
     # the flat part: the rounded band of the edges reflects away from the transducer
-    w, h = (float(s) - 2.0 * float(reflector.edge_radius_mm)
-            for s in np.asarray(reflector.size_mm, dtype=float))
-    return Face("reflector", np.asarray(reflector.point_mm, dtype=float), e1, e2, n,
-                (-w / 2.0, w / 2.0), (-h / 2.0, h / 2.0))
+    w, h = (
+        float(s) - 2.0 * float(reflector.edge_radius_mm)
+        for s in np.asarray(reflector.size_mm, dtype=float)
+    )
+    return Face(
+        "reflector",
+        np.asarray(reflector.point_mm, dtype=float),
+        e1,
+        e2,
+        n,
+        (-w / 2.0, w / 2.0),
+        (-h / 2.0, h / 2.0),
+    )
 
 
-def bowed_hit(hit: FaceHit, direction: np.ndarray, flatness_mm: float,
-              size_mm: np.ndarray) -> FaceHit:
+def bowed_hit(
+    hit: FaceHit, direction: np.ndarray, flatness_mm: float, size_mm: np.ndarray
+) -> FaceHit:
     """``hit`` on a plate bowed by ``flatness_mm`` peak to valley (``ucal.cell.Reflector``):
     the surface lies ``s(u, v)`` along the normal, so the path is ``s/cos θ`` shorter, and the
     beam's tilt is taken from the local normal ``n − s_u·e1 − s_v·e2`` (first order in the
@@ -107,14 +119,21 @@ def bowed_hit(hit: FaceHit, direction: np.ndarray, flatness_mm: float,
     u, v = (float(x) for x in hit.uv_mm)
     f = float(flatness_mm)
     s = f * ((2 * u / w) ** 2 + (2 * v / h) ** 2) / 2.0 - f / 2.0
-    normal = face.normal - (4 * f * u / w ** 2) * face.e1 - (4 * f * v / h ** 2) * face.e2
+    normal = face.normal - (4 * f * u / w**2) * face.e1 - (4 * f * v / h**2) * face.e2
     normal = normal / np.linalg.norm(normal)
     d = np.asarray(direction, float)
     cos_n = float(d @ normal)
     tilt = math.degrees(math.atan2(float(np.linalg.norm(np.cross(d, normal))), -cos_n))
     path = hit.distance_mm - s / max(-float(d @ face.normal), 1e-9)
-    return FaceHit(face, path, hit.point_mm + (path - hit.distance_mm) * d, hit.uv_mm, tilt,
-                   hit.edge_distances_mm, hit.facing)
+    return FaceHit(
+        face,
+        path,
+        hit.point_mm + (path - hit.distance_mm) * d,
+        hit.uv_mm,
+        tilt,
+        hit.edge_distances_mm,
+        hit.facing,
+    )
 
 
 def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceHit | None:
@@ -137,11 +156,19 @@ def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceH
     e2x, e2y, e2z = face.e2.tolist()
     u = qx * e1x + qy * e1y + qz * e1z
     v = qx * e2x + qy * e2y + qz * e2z
-    edges = np.array([u - face.u_range_mm[0], face.u_range_mm[1] - u,
-                      v - face.v_range_mm[0], face.v_range_mm[1] - v])
+    edges = np.array(
+        [
+            u - face.u_range_mm[0],
+            face.u_range_mm[1] - u,
+            v - face.v_range_mm[0],
+            face.v_range_mm[1] - v,
+        ]
+    )
     # tilt between beam and −n, via atan2 of |d × n| and −d·n (accurate near 0)
-    sin_t = math.sqrt((dy * nz - dz * ny) ** 2 + (dz * nx - dx * nz) ** 2
-                      + (dx * ny - dy * nx) ** 2)
+    sin_t = math.sqrt(
+        (dy * nz - dz * ny) ** 2 + (dz * nx - dx * nz) ** 2 + (dx * ny - dy * nx) ** 2
+    )
     tilt = math.degrees(math.atan2(sin_t, -cos_n))
-    return FaceHit(face, t, np.array([px, py, pz]), np.array([u, v]), tilt, edges,
-                   facing=cos_n < 0.0)
+    return FaceHit(
+        face, t, np.array([px, py, pz]), np.array([u, v]), tilt, edges, facing=cos_n < 0.0
+    )

@@ -56,10 +56,15 @@ WINDOW_SAMPLES = 64
 class EchoReceiver:
     """Sampled broadband echoes of one transducer and their peak-mode detection."""
 
-    def __init__(self, frequency_mhz: float, element_diameter_mm: float,
-                 fractional_bandwidth: float = acoustics.PULSE_FRACTIONAL_BANDWIDTH,
-                 sample_rate_hz: float = SAMPLE_RATE_HZ, window_samples: int = WINDOW_SAMPLES,
-                 near_field: bool = False):
+    def __init__(
+        self,
+        frequency_mhz: float,
+        element_diameter_mm: float,
+        fractional_bandwidth: float = acoustics.PULSE_FRACTIONAL_BANDWIDTH,
+        sample_rate_hz: float = SAMPLE_RATE_HZ,
+        window_samples: int = WINDOW_SAMPLES,
+        near_field: bool = False,
+    ):
         self.sample_ns = 1e9 / float(sample_rate_hz)
         self.near_field = bool(near_field)
         # near-field length N = a²/λ at the centre frequency (mm), 20 °C
@@ -73,7 +78,7 @@ class EchoReceiver:
         keep = p > 1e-9 * p.max()
         self._f_mhz = f_mhz[keep]
         self._p = p[keep] / p[keep].sum()  # s(τ) = 1 at normal incidence on the reference path
-        self._alpha_np_per_mm = acoustics.water_absorption_np_per_mm(1.0) * self._f_mhz ** 2
+        self._alpha_np_per_mm = acoustics.water_absorption_np_per_mm(1.0) * self._f_mhz**2
         self._radius_mm = element_diameter_mm / 2.0
         self._omega_rad_per_ns = 2.0 * np.pi * self._f_mhz * 1e-3
         # s_k = Σ_m X_m·exp(iω_m·k·Δt): the inverse DFT restricted to the kept bins
@@ -83,8 +88,7 @@ class EchoReceiver:
         # never see one without the other
         self._k_cache: tuple[float, np.ndarray] = (float("nan"), self._omega_rad_per_ns)
 
-    def spectrum(self, tilt_deg: float, water_path_mm: float, sound_speed_m_s: float
-                 ) -> np.ndarray:
+    def spectrum(self, tilt_deg: float, water_path_mm: float, sound_speed_m_s: float) -> np.ndarray:
         """Real amplitude spectrum (per kept bin) of the echo from a plane tilted ``tilt_deg``
         at ``water_path_mm`` in water of ``sound_speed_m_s``, normalised so that its sum is the
         echo's centre height."""
@@ -101,8 +105,9 @@ class EchoReceiver:
         if self.near_field and sin_2t != 0.0:
             s = s * self.near_field_factor(tilt_deg, water_path_mm)
         if water_path_mm != acoustics.REFERENCE_WATER_PATH_MM:
-            s = s * np.exp(-2.0 * (water_path_mm - acoustics.REFERENCE_WATER_PATH_MM)
-                           * self._alpha_np_per_mm)
+            s = s * np.exp(
+                -2.0 * (water_path_mm - acoustics.REFERENCE_WATER_PATH_MM) * self._alpha_np_per_mm
+            )
         return s
 
     def near_field_factor(self, tilt_deg: float, water_path_mm: float) -> float:
@@ -114,10 +119,11 @@ class EchoReceiver:
         delta = 2.0 * water_path_mm * math.tan(2.0 * math.radians(tilt_deg))
         sigma = self._radius_mm / 2.0
         g = 1.0 / (1.0 + (2.0 * water_path_mm / self._near_field_mm) ** 2) ** 2
-        return math.exp(-delta ** 2 / (4.0 * sigma ** 2) * g)
+        return math.exp(-(delta**2) / (4.0 * sigma**2) * g)
 
-    def waveform(self, arrival_ns: float, scale: float, spectrum: np.ndarray
-                 ) -> tuple[float, np.ndarray]:
+    def waveform(
+        self, arrival_ns: float, scale: float, spectrum: np.ndarray
+    ) -> tuple[float, np.ndarray]:
         """Analytic echo ``(t0_ns, samples)``: ``scale``·echo arriving at ``arrival_ns``, sampled
         at ``t0_ns + k·sample_ns`` (k = 0…n−1) on the digitiser's clock, centred on the echo."""
         centre = round(arrival_ns / self.sample_ns)

@@ -48,10 +48,17 @@ class SimulatedCellServer:
     Simple Message server the controller behaves as, ``drivers.controller.simulator.SERVERS``).
     """
 
-    def __init__(self, world: WorldTruth | None, profile: CellProfile,
-                 log_path: str | Path | None = None, time_scale: float = 1.0,
-                 pulser_framing: str = "tcp", host: str = HOST, clock: Clock | None = None,
-                 server: str | None = None):
+    def __init__(
+        self,
+        world: WorldTruth | None,
+        profile: CellProfile,
+        log_path: str | Path | None = None,
+        time_scale: float = 1.0,
+        pulser_framing: str = "tcp",
+        host: str = HOST,
+        clock: Clock | None = None,
+        server: str | None = None,
+    ):
         if pulser_framing not in ("tcp", "rtu"):
             raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
         self.profile = profile
@@ -86,16 +93,28 @@ class SimulatedCellServer:
         model = self.world.model
         try:
             self.controller = SimulatedController(
-                np.asarray(model.joint_min_deg, float), np.asarray(model.joint_max_deg, float),
-                np.asarray(self.world.initial_joints_deg, float), self.host,
-                motion_port=0, state_port=0,
+                np.asarray(model.joint_min_deg, float),
+                np.asarray(model.joint_max_deg, float),
+                np.asarray(self.world.initial_joints_deg, float),
+                self.host,
+                motion_port=0,
+                state_port=0,
                 time_scale=1.0 if self.simulated_time else self.time_scale,
-                on_motion=self._on_motion, clock=self.clock, settle_s=timing.SETTLE_S,
-                server=self.server, startup_silence_s=self.world.controller_silence_s)
+                on_motion=self._on_motion,
+                clock=self.clock,
+                settle_s=timing.SETTLE_S,
+                server=self.server,
+                startup_silence_s=self.world.controller_silence_s,
+            )
             self.controller.start()
-            self.pulser = SimulatedPulser(self._acquire, framing=self.pulser_framing,
-                                          host=self.host, port=0, unit=1,
-                                          center_frequency_hz=self.world.frequency_mhz * 1e6)
+            self.pulser = SimulatedPulser(
+                self._acquire,
+                framing=self.pulser_framing,
+                host=self.host,
+                port=0,
+                unit=1,
+                center_frequency_hz=self.world.frequency_mhz * 1e6,
+            )
             self.pulser.start()
             self._t0 = self.clock.now()
         except BaseException:
@@ -143,9 +162,13 @@ class SimulatedCellServer:
         half = 0.5 * timing.read_s(self.pulser_framing, settings.averages, settings.prf_hz)
         self._let_pass(half)
         joints = self.controller.joints_deg()
-        echo = self.cell.echo(joints, averages=settings.averages, gain_db=settings.gain_db,
-                              t_s=self.clock.now() - self._t0,
-                              motion_sign=self.controller.motion_sign())
+        echo = self.cell.echo(
+            joints,
+            averages=settings.averages,
+            gain_db=settings.gain_db,
+            t_s=self.clock.now() - self._t0,
+            motion_sign=self.controller.motion_sign(),
+        )
         self._let_pass(half)
         return echo
 
@@ -172,7 +195,9 @@ class SimulatedCellServer:
         line_record: dict[str, Any] = {"motion": number, "t_wall_s": time.time(), **record}
         try:
             end = np.asarray(record["end_deg"], float)
-            line_record["true_tcp_pose"] = matrix_to_pose(self.cell.true_tcp(end, self.controller.motion_sign()))
+            line_record["true_tcp_pose"] = matrix_to_pose(
+                self.cell.true_tcp(end, self.controller.motion_sign())
+            )
         except Exception:  # the log must never break the controller thread
             log.debug("motion log: no end position in %r", record, exc_info=True)
         line = json.dumps(line_record, default=jsonable)

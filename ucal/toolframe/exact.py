@@ -88,11 +88,11 @@ log = logging.getLogger(__name__)
 class BeamEstimate:
     """Beam direction a_T in the flange frame with its uncertainty."""
 
-    direction: np.ndarray      # (3,) unit
-    cov: np.ndarray            # (3, 3) covariance of the direction (rad², tangent plane)
-    std_deg: float             # one-sigma per tilt axis (deg)
-    scatter_deg: float         # rms angle of the single estimates from the mean (deg)
-    estimates: np.ndarray      # (k, 3) single estimates −R_E,iᵀ n
+    direction: np.ndarray  # (3,) unit
+    cov: np.ndarray  # (3, 3) covariance of the direction (rad², tangent plane)
+    std_deg: float  # one-sigma per tilt axis (deg)
+    scatter_deg: float  # rms angle of the single estimates from the mean (deg)
+    estimates: np.ndarray  # (k, 3) single estimates −R_E,iᵀ n
 
 
 def tangent_basis(a: np.ndarray) -> np.ndarray:
@@ -104,8 +104,9 @@ def tangent_basis(a: np.ndarray) -> np.ndarray:
     return np.array([t1, np.cross(a, t1)])
 
 
-def beam_from_normal_incidence(flange_rot: np.ndarray, normal: np.ndarray,
-                               tilt_std_deg: np.ndarray) -> BeamEstimate:
+def beam_from_normal_incidence(
+    flange_rot: np.ndarray, normal: np.ndarray, tilt_std_deg: np.ndarray
+) -> BeamEstimate:
     """Combine normal-incidence postures into the beam direction (eq. E1).
 
     ``flange_rot`` (k, 3, 3): flange orientations at the peaks; ``normal``: plate normal;
@@ -114,16 +115,16 @@ def beam_from_normal_incidence(flange_rot: np.ndarray, normal: np.ndarray,
     rot = np.asarray(flange_rot, float)
     est = -np.einsum("kji,j->ki", rot, np.asarray(normal, float))  # −R_Eᵀ n
     sig = np.radians(np.maximum(np.asarray(tilt_std_deg, float), 1e-6))
-    w = 1.0 / sig ** 2
+    w = 1.0 / sig**2
     mean = (w[:, None] * est).sum(0)
     a = mean / np.linalg.norm(mean)
     tb = tangent_basis(a)
     comp = est @ tb.T  # (k, 2) small angles (rad)
     var = 1.0 / w.sum()
     k = len(est)
-    scatter = float(np.degrees(np.sqrt(np.mean(np.sum(comp ** 2, 1)))))
+    scatter = float(np.degrees(np.sqrt(np.mean(np.sum(comp**2, 1)))))
     if k >= 2:
-        chi2 = float(np.sum(w[:, None] * comp ** 2) / (2 * (k - 1)))
+        chi2 = float(np.sum(w[:, None] * comp**2) / (2 * (k - 1)))
         var *= max(1.0, chi2)
     cov = var * tb.T @ tb
     return BeamEstimate(a, cov, float(np.degrees(np.sqrt(var))), scatter, est)
@@ -137,11 +138,11 @@ def beam_from_normal_incidence(flange_rot: np.ndarray, normal: np.ndarray,
 class EdgeFit:
     """Fitted edge profile along one scan (eq. E4)."""
 
-    crossing: float        # t_e, scan coordinate (mm) of the 50 % point
-    crossing_std: float    # one-sigma of t_e (mm)
-    amplitude: float       # A0 (any amplitude unit)
-    width_mm: float        # σ of the footprint (mm)
-    rms: float             # fit residual rms (amplitude units)
+    crossing: float  # t_e, scan coordinate (mm) of the 50 % point
+    crossing_std: float  # one-sigma of t_e (mm)
+    amplitude: float  # A0 (any amplitude unit)
+    width_mm: float  # σ of the footprint (mm)
+    rms: float  # fit residual rms (amplitude units)
 
 
 def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -> EdgeFit:
@@ -172,15 +173,27 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
     lo = np.array([0.0, t.min(), 0.05, -top / max(span, 1e-9)])
     hi = np.array([np.inf, t.max(), 0.5 * span + 1.0, top / max(span, 1e-9)])
     p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
-    sol = least_squares(lambda p: model(p) - a, p0, bounds=(lo, hi), xtol=1e-14, ftol=1e-14,
-                        gtol=1e-14, max_nfev=2000)
+    sol = least_squares(
+        lambda p: model(p) - a,
+        p0,
+        bounds=(lo, hi),
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+        max_nfev=2000,
+    )
     res = sol.fun
     dof = max(1, len(a) - 4)
     s2 = float(res @ res / dof)
     s2 = max(s2, (1e-9 * sol.x[0]) ** 2)
     cov = np.linalg.pinv(sol.jac.T @ sol.jac) * s2
-    return EdgeFit(float(sol.x[1]), float(np.sqrt(max(cov[1, 1], 0.0))), float(sol.x[0]),
-                   float(sol.x[2]), float(np.sqrt(np.mean(res ** 2))))
+    return EdgeFit(
+        float(sol.x[1]),
+        float(np.sqrt(max(cov[1, 1], 0.0))),
+        float(sol.x[0]),
+        float(sol.x[2]),
+        float(np.sqrt(np.mean(res**2))),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -191,30 +204,30 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
 class TofRecord:
     """A water path read at (near) normal incidence."""
 
-    flange: np.ndarray     # (4, 4) flange pose (FK of the readings, profile offsets)
-    path_mm: float         # Δl from the time of flight
-    std_mm: float          # its one-sigma
+    flange: np.ndarray  # (4, 4) flange pose (FK of the readings, profile offsets)
+    path_mm: float  # Δl from the time of flight
+    std_mm: float  # its one-sigma
 
 
 @dataclass(frozen=True)
 class EdgeCrossing:
     """The flange pose at which the beam axis crossed a plate edge (the 50 % point)."""
 
-    flange: np.ndarray     # (4, 4) flange pose at the crossing
-    edge: int              # which edge (0, 1, …)
-    std_mm: float          # one-sigma of the crossing along the scan (mm)
-    scan_dir: np.ndarray   # (3,) unit scan direction (in the plane, outward)
+    flange: np.ndarray  # (4, 4) flange pose at the crossing
+    edge: int  # which edge (0, 1, …)
+    std_mm: float  # one-sigma of the crossing along the scan (mm)
+    scan_dir: np.ndarray  # (3,) unit scan direction (in the plane, outward)
 
 
 @dataclass(frozen=True)
 class OffsetEstimate:
     """Tool centre in the flange frame from (E2) and (E3)."""
 
-    position_mm: np.ndarray          # (3,)
-    cov_mm2: np.ndarray              # (3, 3)
-    std_mm: np.ndarray               # (3,)
-    edge_angles_deg: np.ndarray      # ψ_k (deg) from e1 towards e2
-    edge_offsets_mm: np.ndarray      # d_k
+    position_mm: np.ndarray  # (3,)
+    cov_mm2: np.ndarray  # (3, 3)
+    std_mm: np.ndarray  # (3,)
+    edge_angles_deg: np.ndarray  # ψ_k (deg) from e1 towards e2
+    edge_offsets_mm: np.ndarray  # d_k
     tof_residual_rms_mm: float
     edge_residual_rms_mm: float
     rms_residual_mm: float
@@ -222,8 +235,9 @@ class OffsetEstimate:
     notes: list[str] = field(default_factory=list)
 
 
-def _ray_hit(flange: np.ndarray, p: np.ndarray, a: np.ndarray, plane: Plane
-             ) -> tuple[np.ndarray, float]:
+def _ray_hit(
+    flange: np.ndarray, p: np.ndarray, a: np.ndarray, plane: Plane
+) -> tuple[np.ndarray, float]:
     """Axis hit point on the plane and the water path along the beam."""
     r, pe = flange[:3, :3], flange[:3, 3]
     c = pe + r @ p
@@ -236,13 +250,19 @@ def _edge_normal(psi: float, plane: Plane) -> np.ndarray:
     return np.cos(psi) * plane.e1 + np.sin(psi) * plane.e2
 
 
-def offset_residuals(x: np.ndarray, beam: np.ndarray, tofs: list[TofRecord],
-                     crossings: list[EdgeCrossing], plane: Plane, n_edges: int,
-                     weighted: bool = True) -> np.ndarray:
+def offset_residuals(
+    x: np.ndarray,
+    beam: np.ndarray,
+    tofs: list[TofRecord],
+    crossings: list[EdgeCrossing],
+    plane: Plane,
+    n_edges: int,
+    weighted: bool = True,
+) -> np.ndarray:
     """Residuals of (E2) (path along the beam − Δl) and (E3) (e·N − d), in mm or in sigmas."""
     p = x[:3]
-    psi = x[3:3 + n_edges]
-    d = x[3 + n_edges:3 + 2 * n_edges]
+    psi = x[3 : 3 + n_edges]
+    d = x[3 + n_edges : 3 + 2 * n_edges]
     out = []
     for rec in tofs:
         _, path = _ray_hit(rec.flange, p, beam, plane)
@@ -256,21 +276,26 @@ def offset_residuals(x: np.ndarray, beam: np.ndarray, tofs: list[TofRecord],
     return np.array(out)
 
 
-def along_beam_offset_mm(beam: np.ndarray, tofs: list[TofRecord], plane: Plane
-                         ) -> tuple[float, float]:
+def along_beam_offset_mm(
+    beam: np.ndarray, tofs: list[TofRecord], plane: Plane
+) -> tuple[float, float]:
     """``a_T·p_T`` (mm) and its one-sigma from normal-incidence water paths alone (eq. E2):
     the weighted mean of ``n·p_E,i − Δl_i − h``."""
     if not tofs:
         raise ValueError("no water path: a_T·p_T is not determined")
-    vals = np.array([plane.normal @ t.flange[:3, 3] - t.path_mm - plane.offset_mm
-                     for t in tofs])
+    vals = np.array([plane.normal @ t.flange[:3, 3] - t.path_mm - plane.offset_mm for t in tofs])
     w = 1.0 / np.array([t.std_mm for t in tofs]) ** 2
     mean = float(np.sum(w * vals) / w.sum())
     return mean, float(np.sqrt(1.0 / w.sum()))
 
 
-def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[EdgeCrossing],
-                  plane: Plane, position0_mm: np.ndarray) -> OffsetEstimate:
+def solve_offsets(
+    beam: BeamEstimate,
+    tofs: list[TofRecord],
+    crossings: list[EdgeCrossing],
+    plane: Plane,
+    position0_mm: np.ndarray,
+) -> OffsetEstimate:
     """Tool centre p_T (flange frame) from water paths (E2) and edge crossings (E3).
 
     Needs at least one water path, and per edge crossings at two points along it in both
@@ -293,9 +318,16 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
         psi0.append(psi)
         d0.append(float(np.mean([e @ _ray_hit(c.flange, p0, a, plane)[0] for c in cs])))
     x0 = np.concatenate([p0, psi0, d0])
-    sol = least_squares(offset_residuals, x0, args=(a, tofs, crossings, plane, n_edges),
-                        method="lm" if len(tofs) + len(crossings) >= len(x0) else "trf",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+    sol = least_squares(
+        offset_residuals,
+        x0,
+        args=(a, tofs, crossings, plane, n_edges),
+        method="lm" if len(tofs) + len(crossings) >= len(x0) else "trf",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+        max_nfev=2000,
+    )
     x = sol.x
     jac = sol.jac
     m, k = jac.shape
@@ -305,8 +337,10 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
     sv = np.linalg.svd(jac, compute_uv=False)
     notes: list[str] = []
     if sv[-1] < 1e-6 * sv[0]:
-        notes.append("the edge crossings do not determine every parameter (singular "
-                     "design); the offsets across the beam are unreliable")
+        notes.append(
+            "the edge crossings do not determine every parameter (singular "
+            "design); the offsets across the beam are unreliable"
+        )
     inv = np.linalg.pinv(jtj)
     cov = inv * max(1.0, chi2)
     # propagate the beam direction's uncertainty: x depends on a through the residuals
@@ -316,10 +350,10 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
     for i in range(2):
         ap = a + h * tb[i]
         am = a - h * tb[i]
-        ja[:, i] = (offset_residuals(x, ap / np.linalg.norm(ap), tofs, crossings, plane,
-                                     n_edges)
-                    - offset_residuals(x, am / np.linalg.norm(am), tofs, crossings, plane,
-                                       n_edges)) / (2 * h)
+        ja[:, i] = (
+            offset_residuals(x, ap / np.linalg.norm(ap), tofs, crossings, plane, n_edges)
+            - offset_residuals(x, am / np.linalg.norm(am), tofs, crossings, plane, n_edges)
+        ) / (2 * h)
     dxda = -inv @ jac.T @ ja
     cov_a2 = tb @ beam.cov @ tb.T
     cov = cov + dxda @ cov_a2 @ dxda.T
@@ -328,9 +362,18 @@ def solve_offsets(beam: BeamEstimate, tofs: list[TofRecord], crossings: list[Edg
     n_t = len(tofs)
     tof_rms = float(np.sqrt(np.mean(raw[:n_t] ** 2)))
     edge_rms = float(np.sqrt(np.mean(raw[n_t:] ** 2))) if len(raw) > n_t else 0.0
-    return OffsetEstimate(x[:3].copy(), cov_p, np.sqrt(np.maximum(np.diag(cov_p), 0.0)),
-                          np.degrees(x[3:3 + n_edges]), x[3 + n_edges:].copy(), tof_rms,
-                          edge_rms, float(np.sqrt(np.mean(raw ** 2))), chi2, notes)
+    return OffsetEstimate(
+        x[:3].copy(),
+        cov_p,
+        np.sqrt(np.maximum(np.diag(cov_p), 0.0)),
+        np.degrees(x[3 : 3 + n_edges]),
+        x[3 + n_edges :].copy(),
+        tof_rms,
+        edge_rms,
+        float(np.sqrt(np.mean(raw**2))),
+        chi2,
+        notes,
+    )
 
 
 # ---------------------------------------------------------------------------------------------

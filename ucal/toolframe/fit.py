@@ -84,10 +84,10 @@ class PlatePeak:
     """A normal-incidence posture on the plate and the water path read there."""
 
     label: str
-    joints_deg: np.ndarray          # (6,) readings at the peak
+    joints_deg: np.ndarray  # (6,) readings at the peak
     tilt_std_deg: float
     distance_joints_deg: np.ndarray  # (6,) readings where the TOF was read
-    path_mm: float                  # water path from the TOF with the profile's sound speed
+    path_mm: float  # water path from the TOF with the profile's sound speed
     path_std_mm: float
 
 
@@ -109,13 +109,13 @@ class PlatePrior:
 
     plane: Plane
     height_std_mm: float
-    tilt_std_deg: np.ndarray       # (2,) towards e1, e2
+    tilt_std_deg: np.ndarray  # (2,) towards e1, e2
 
 
 def plate_prior(plane: Plane, points_mm: np.ndarray, points_std_mm: float) -> PlatePrior:
     """Height ± ``points_std_mm``, tilts ± ``points_std_mm`` / rms spread along e1, e2."""
     uv = plane.to_plane(np.asarray(points_mm, float))
-    spread = np.sqrt(np.mean(uv ** 2, axis=0))
+    spread = np.sqrt(np.mean(uv**2, axis=0))
     tilt = np.degrees(np.arctan(points_std_mm / np.maximum(spread, 1e-9)))
     return PlatePrior(plane, float(points_std_mm), tilt)
 
@@ -126,14 +126,18 @@ def edge_names(n_edges: int) -> tuple[str, ...]:
 
 def _plane(v: dict[str, float], plane: Plane) -> tuple[np.ndarray, float, np.ndarray]:
     """Unit normal, offset ``n·x = h`` and in-plane axes (2, 3) of the fitted plate."""
-    n = (plane.normal + np.tan(np.radians(v["plate_t1_deg"])) * plane.e1
-         + np.tan(np.radians(v["plate_t2_deg"])) * plane.e2)
+    n = (
+        plane.normal
+        + np.tan(np.radians(v["plate_t1_deg"])) * plane.e1
+        + np.tan(np.radians(v["plate_t2_deg"])) * plane.e2
+    )
     n = n / np.linalg.norm(n)
     point = plane.centroid_mm + v["plate_h_mm"] * plane.normal
     e1 = plane.e1 - (plane.e1 @ n) * n
     e1 = e1 / np.linalg.norm(e1)
-    e2 = np.array([n[1] * e1[2] - n[2] * e1[1], n[2] * e1[0] - n[0] * e1[2],
-                   n[0] * e1[1] - n[1] * e1[0]])
+    e2 = np.array(
+        [n[1] * e1[2] - n[2] * e1[1], n[2] * e1[0] - n[0] * e1[2], n[0] * e1[1] - n[1] * e1[0]]
+    )
     return n, float(n @ point), np.array([e1, e2])
 
 
@@ -161,14 +165,17 @@ def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np
     tool = transform(table.get(TOOL[:3], values), _rpy_matrix(table.get(TOOL[3:], values)))
     n, h, axes = _plane(v, data.plate.plane)
     peaks, cross = data.peaks, data.crossings
-    q = np.array([p.joints_deg for p in peaks] + [p.distance_joints_deg for p in peaks]
-                 + [c.joints_deg for c in cross]).reshape(-1, 6)
+    q = np.array(
+        [p.joints_deg for p in peaks]
+        + [p.distance_joints_deg for p in peaks]
+        + [c.joints_deg for c in cross]
+    ).reshape(-1, 6)
     flange = fk_frames(model, q, offsets)[:, 6]
     beam = flange[:, :3, :3] @ tool[:3, 2]
     tcp = flange[:, :3, :3] @ tool[:3, 3] + flange[:, :3, 3]
     k = len(peaks)
     if cross:
-        tcp[2 * k:] += np.array([c.shift_mm for c in cross])
+        tcp[2 * k :] += np.array([c.shift_mm for c in cross])
     path = (tcp @ n - h) / np.maximum(-(beam @ n), 0.5)
     out = []
     tilt_std = np.radians([p.tilt_std_deg for p in peaks])
@@ -176,17 +183,17 @@ def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np
     c_m_s = v[SOUND[0]]
     d = np.array([p.path_mm for p in peaks])
     model_path = (c_m_s / prior.sound_speed_m_s) * d - c_m_s * 1e-6 * v[DELAY[0]] / 2.0
-    out.append((path[k:2 * k] - model_path) / np.array([p.path_std_mm for p in peaks]))
+    out.append((path[k : 2 * k] - model_path) / np.array([p.path_std_mm for p in peaks]))
     if cross:
-        hit = tcp[2 * k:] + path[2 * k:, None] * beam[2 * k:]
+        hit = tcp[2 * k :] + path[2 * k :, None] * beam[2 * k :]
         psi = np.radians([v[f"edge{c.edge + 1}_psi_deg"] for c in cross])
         e = np.cos(psi)[:, None] * axes[0] + np.sin(psi)[:, None] * axes[1]
         dk = np.array([v[f"edge{c.edge + 1}_d_mm"] for c in cross])
         out.append((np.einsum("ij,ij->i", e, hit) - dk) / np.array([c.std_mm for c in cross]))
     rows = np.concatenate(out)
     # order rows per peak (tilt, tilt, path), then the crossings
-    per_peak = np.column_stack([rows[:2 * k].reshape(k, 2), rows[2 * k:3 * k]]).ravel()
-    return np.concatenate([per_peak, rows[3 * k:]])
+    per_peak = np.column_stack([rows[: 2 * k].reshape(k, 2), rows[2 * k : 3 * k]]).ravel()
+    return np.concatenate([per_peak, rows[3 * k :]])
 
 
 @dataclass(frozen=True)
@@ -196,13 +203,13 @@ class ToolFrameFit:
     position_mm: np.ndarray
     rotation_deg: np.ndarray
     beam: np.ndarray
-    position_std_mm: np.ndarray       # flange x, y, z
+    position_std_mm: np.ndarray  # flange x, y, z
     rotation_std_deg: np.ndarray
-    beam_std_deg: float               # per tilt axis
-    along_beam_mm: float              # a_T·p_T
+    beam_std_deg: float  # per tilt axis
+    along_beam_mm: float  # a_T·p_T
     along_beam_std_mm: float
-    across_beam_std_mm: np.ndarray    # (2,) along tangent_basis(beam)
-    along_beam_limited_by: dict[str, float]   # prior → share of the along-beam variance
+    across_beam_std_mm: np.ndarray  # (2,) along tangent_basis(beam)
+    along_beam_limited_by: dict[str, float]  # prior → share of the along-beam variance
     plate_height_mm: float
     plate_height_std_mm: float
     delay_ns: float
@@ -217,19 +224,37 @@ class ToolFrameFit:
     solution: AugmentedFit | None = field(default=None, repr=False, compare=False)
 
 
-def _table(prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.ndarray,
-           edge_start: np.ndarray) -> ParameterTable:
+def _table(
+    prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.ndarray, edge_start: np.ndarray
+) -> ParameterTable:
     n_edges = len(edge_start) // 2
     names = OFFSETS + TOOL + SOUND + DH + PLATE + DELAY + edge_names(n_edges)
     dh = prior.model.dh[:, 1:4].ravel()
-    values = np.concatenate([prior.offsets_deg, prior.tool_position_mm, prior.tool_rotation_deg,
-                             [prior.sound_speed_m_s], dh, np.zeros(3), [0.0], edge_start])
-    stds = np.concatenate([offsets_std_deg, prior.tool_position_std_mm,
-                           prior.tool_rotation_std_deg, [prior.sound_speed_std_m_s],
-                           np.tile([prior.dh_length_std_mm, prior.dh_length_std_mm,
-                                    prior.dh_angle_std_deg], 6),
-                           [plate.height_std_mm], plate.tilt_std_deg, [DELAY_PRIOR_STD_NS],
-                           np.full(2 * n_edges, np.inf)])
+    values = np.concatenate(
+        [
+            prior.offsets_deg,
+            prior.tool_position_mm,
+            prior.tool_rotation_deg,
+            [prior.sound_speed_m_s],
+            dh,
+            np.zeros(3),
+            [0.0],
+            edge_start,
+        ]
+    )
+    stds = np.concatenate(
+        [
+            offsets_std_deg,
+            prior.tool_position_std_mm,
+            prior.tool_rotation_std_deg,
+            [prior.sound_speed_std_m_s],
+            np.tile([prior.dh_length_std_mm, prior.dh_length_std_mm, prior.dh_angle_std_deg], 6),
+            [plate.height_std_mm],
+            plate.tilt_std_deg,
+            [DELAY_PRIOR_STD_NS],
+            np.full(2 * n_edges, np.inf),
+        ]
+    )
     table = ParameterTable(names, values, stds)
     for name in GAUGE:
         table.free[table.index(name)] = False
@@ -237,10 +262,16 @@ def _table(prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.ndarray,
     return table
 
 
-def solve_tool_frame(prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.ndarray,
-                     peaks: list[PlatePeak], crossings: list[PlateCrossing],
-                     edge_start: np.ndarray, tool_start: np.ndarray | None = None,
-                     misfit_p: float = MISFIT_P) -> ToolFrameFit:
+def solve_tool_frame(
+    prior: CellPrior,
+    plate: PlatePrior,
+    offsets_std_deg: np.ndarray,
+    peaks: list[PlatePeak],
+    crossings: list[PlateCrossing],
+    edge_start: np.ndarray,
+    tool_start: np.ndarray | None = None,
+    misfit_p: float = MISFIT_P,
+) -> ToolFrameFit:
     """Fit the tool frame with the cell's other quantities as unknowns (module docstring).
 
     ``edge_start``: ψ_k (deg, from the touched plane's e1) and d_k (mm) per edge to start from,
@@ -249,14 +280,19 @@ def solve_tool_frame(prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.nd
     """
     n_edges = len(edge_start) // 2
     data = _Data(prior, plate, tuple(peaks), tuple(crossings), n_edges)
-    table = _table(prior, plate, np.asarray(offsets_std_deg, float),
-                   np.asarray(edge_start, float))
+    table = _table(prior, plate, np.asarray(offsets_std_deg, float), np.asarray(edge_start, float))
     start = table.values.copy()
     if tool_start is not None:
         for name, val in zip(TOOL, tool_start, strict=True):
             start[table.index(name)] = val
-    sol = solve_augmented(table, lambda v: data_residuals(table, v, data),
-                          start[table.free].copy(), tol=1e-10, max_nfev=100, measured=TOOL)
+    sol = solve_augmented(
+        table,
+        lambda v: data_residuals(table, v, data),
+        start[table.free].copy(),
+        tol=1e-10,
+        max_nfev=100,
+        measured=TOOL,
+    )
     return _conclude(sol, data, misfit_p)
 
 
@@ -279,7 +315,7 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
         r2 = rot.copy()
         r2[TOOL[3:].index(name)] += 1e-6
         jac_a[:, j] = (rpy_to_matrix(r2)[:, 2] - beam) / 1e-6
-    cov_tilt = tb @ jac_a @ sol.cov[np.ix_(idx_r, idx_r)] @ jac_a.T @ tb.T   # rad²
+    cov_tilt = tb @ jac_a @ sol.cov[np.ix_(idx_r, idx_r)] @ jac_a.T @ tb.T  # rad²
     beam_std = float(np.degrees(np.sqrt(max(np.trace(cov_tilt), 0.0) / 2.0)))
     g_along = sol.gradient(dict(zip(TOOL[:3], beam, strict=True)))
     along_shares = sol.shares(g_along)
@@ -287,49 +323,76 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
 
     quality = _quality(sol, data, misfit_p)
     notes = (
-        ("time of flight sees the tool's length along the beam, the plate's height and the "
-         "electronic delay as one quantity: the offset along the beam carries the plate and "
-         "delay tolerances ([reflector] points_std_mm) and the sound speed's"),
-        ("J6's offset and the tool's azimuth about the flange axis are one rotation: the tool "
-         "is measured in the flange frame of the profile's J6 offset"),
-        ("the rotation about the beam is invisible to an echo: rotation_deg keeps the "
-         "profile's azimuth within its tolerance"),
+        (
+            "time of flight sees the tool's length along the beam, the plate's height and the "
+            "electronic delay as one quantity: the offset along the beam carries the plate and "
+            "delay tolerances ([reflector] points_std_mm) and the sound speed's"
+        ),
+        (
+            "J6's offset and the tool's azimuth about the flange axis are one rotation: the tool "
+            "is measured in the flange frame of the profile's J6 offset"
+        ),
+        (
+            "the rotation about the beam is invisible to an echo: rotation_deg keeps the "
+            "profile's azimuth within its tolerance"
+        ),
     )
     refusal = ""
     if quality.verdict == "misfit":
-        refusal = f"the measurements disagree with the model (χ²ᵣ {quality.chi2_reduced:.3g}, " \
-                  f"worst {quality.worst}): {quality.cause}"
+        refusal = (
+            f"the measurements disagree with the model (χ²ᵣ {quality.chi2_reduced:.3g}, "
+            f"worst {quality.worst}): {quality.cause}"
+        )
     elif np.max(across_std) > TOLERANCE_POSITION_MM or beam_std > TOLERANCE_BEAM_DEG:
         if np.max(across_std) > TOLERANCE_POSITION_MM:
-            what = (f"the tool centre across the beam is known to ± {np.max(across_std):.3f} mm "
-                    f"(tolerance {TOLERANCE_POSITION_MM} mm)")
+            what = (
+                f"the tool centre across the beam is known to ± {np.max(across_std):.3f} mm "
+                f"(tolerance {TOLERANCE_POSITION_MM} mm)"
+            )
             shares = sol.shares(sol.gradient(dict(zip(TOOL[:3], tb.T, strict=True))))
         else:
-            what = (f"the beam direction is known to ± {beam_std:.4f} deg (tolerance "
-                    f"{TOLERANCE_BEAM_DEG} deg)")
+            what = (
+                f"the beam direction is known to ± {beam_std:.4f} deg (tolerance "
+                f"{TOLERANCE_BEAM_DEG} deg)"
+            )
             shares = sol.shares(sol.gradient({n: np.ones(1) for n in TOOL[3:5]}))
         refusal = what + ": " + _cause(shares)
     rms = _rms_mm(sol, data)
     v = dict(zip(table.names, est, strict=True))
     return ToolFrameFit(
-        position_mm=pos, rotation_deg=rot, beam=beam,
-        position_std_mm=table.get(TOOL[:3], sol.std), rotation_std_deg=np.nan_to_num(
-            table.get(TOOL[3:], sol.std), nan=0.0),
-        beam_std_deg=beam_std, along_beam_mm=float(beam @ pos), along_beam_std_mm=along_std,
-        across_beam_std_mm=across_std, along_beam_limited_by=limited,
-        plate_height_mm=v["plate_h_mm"], plate_height_std_mm=sol.std[table.index("plate_h_mm")],
-        delay_ns=v[DELAY[0]], delay_std_ns=sol.std[table.index(DELAY[0])],
-        sound_speed_m_s=v[SOUND[0]], sound_speed_std_m_s=sol.std[table.index(SOUND[0])],
-        rms_residual_mm=rms, quality=quality, in_tolerance=not refusal, refusal=refusal,
-        notes=notes, solution=sol)
+        position_mm=pos,
+        rotation_deg=rot,
+        beam=beam,
+        position_std_mm=table.get(TOOL[:3], sol.std),
+        rotation_std_deg=np.nan_to_num(table.get(TOOL[3:], sol.std), nan=0.0),
+        beam_std_deg=beam_std,
+        along_beam_mm=float(beam @ pos),
+        along_beam_std_mm=along_std,
+        across_beam_std_mm=across_std,
+        along_beam_limited_by=limited,
+        plate_height_mm=v["plate_h_mm"],
+        plate_height_std_mm=sol.std[table.index("plate_h_mm")],
+        delay_ns=v[DELAY[0]],
+        delay_std_ns=sol.std[table.index(DELAY[0])],
+        sound_speed_m_s=v[SOUND[0]],
+        sound_speed_std_m_s=sol.std[table.index(SOUND[0])],
+        rms_residual_mm=rms,
+        quality=quality,
+        in_tolerance=not refusal,
+        refusal=refusal,
+        notes=notes,
+        solution=sol,
+    )
 
 
 def _cause(shares: dict[str, float]) -> str:
     """Name what a std comes from: the data's noise, or the priors that carry most of it."""
     priors = sorted(((n, v) for n, v in shares.items() if n != "data"), key=lambda kv: -kv[1])
     if shares.get("data", 0.0) >= 0.5 or not priors:
-        return (f"{100 * shares.get('data', 0.0):.0f} % of its variance is measurement noise: "
-                "more postures (--points) or more averaging")
+        return (
+            f"{100 * shares.get('data', 0.0):.0f} % of its variance is measurement noise: "
+            "more postures (--points) or more averaging"
+        )
     top, total = [], 0.0
     for name, share in priors:
         if total >= 0.5 or share < 0.05:
@@ -337,10 +400,12 @@ def _cause(shares: dict[str, float]) -> str:
         top.append(f"{PRIOR_MEANING.get(name, name)} {100 * share:.0f} %")
         total += share
     hint = ""
-    if any(n in OFFSETS for n, _ in priors[:len(top)]):
-        hint = ("; calibrate the joint offsets first (ucal calibrate), or state them with "
-                "[calibration] std_deg")
-    if any(n.startswith("plate_") for n, _ in priors[:len(top)]):
+    if any(n in OFFSETS for n, _ in priors[: len(top)]):
+        hint = (
+            "; calibrate the joint offsets first (ucal calibrate), or state them with "
+            "[calibration] std_deg"
+        )
+    if any(n.startswith("plate_") for n, _ in priors[: len(top)]):
         hint += "; a plate touched more precisely ([reflector] points_std_mm) helps"
     return "its variance comes from " + ", ".join(top) + hint
 
@@ -348,23 +413,29 @@ def _cause(shares: dict[str, float]) -> str:
 def _rms_mm(sol: AugmentedFit, data: _Data) -> float:
     """Rms of the path and edge residuals in mm."""
     k = len(data.peaks)
-    r = sol.res[:data.n_rows]
-    path = r[2:3 * k:3] * np.array([p.path_std_mm for p in data.peaks])
-    edge = r[3 * k:] * np.array([c.std_mm for c in data.crossings])
+    r = sol.res[: data.n_rows]
+    path = r[2 : 3 * k : 3] * np.array([p.path_std_mm for p in data.peaks])
+    edge = r[3 * k :] * np.array([c.std_mm for c in data.crossings])
     both = np.concatenate([path, edge])
-    return float(np.sqrt(np.mean(both ** 2))) if len(both) else 0.0
+    return float(np.sqrt(np.mean(both**2))) if len(both) else 0.0
 
 
 def _quality(sol: AugmentedFit, data: _Data, misfit_p: float) -> FitQuality:
     k = len(data.peaks)
-    r = sol.res[:data.n_rows]
-    rows = [ResidualRow(p.label, (float(r[3 * i]), float(r[3 * i + 1])), float(r[3 * i + 2]))
-            for i, p in enumerate(data.peaks)]
-    rows += [ResidualRow(c.label, (0.0, 0.0), float(r[3 * k + j]))
-             for j, c in enumerate(data.crossings)]
-    tilt_deg = np.concatenate([r[3 * i:3 * i + 2] * p.tilt_std_deg
-                               for i, p in enumerate(data.peaks)]) if k else np.zeros(1)
-    pulls = dict(zip(sol.prior_rows, sol.res[data.n_rows:], strict=True))
+    r = sol.res[: data.n_rows]
+    rows = [
+        ResidualRow(p.label, (float(r[3 * i]), float(r[3 * i + 1])), float(r[3 * i + 2]))
+        for i, p in enumerate(data.peaks)
+    ]
+    rows += [
+        ResidualRow(c.label, (0.0, 0.0), float(r[3 * k + j])) for j, c in enumerate(data.crossings)
+    ]
+    tilt_deg = (
+        np.concatenate([r[3 * i : 3 * i + 2] * p.tilt_std_deg for i, p in enumerate(data.peaks)])
+        if k
+        else np.zeros(1)
+    )
+    pulls = dict(zip(sol.prior_rows, sol.res[data.n_rows :], strict=True))
     worst_row = max(rows, key=lambda x: x.norm)
     worst = worst_row.label
     nuisance = {n: p for n, p in pulls.items() if n not in TOOL}
@@ -373,41 +444,54 @@ def _quality(sol: AugmentedFit, data: _Data, misfit_p: float) -> FitQuality:
         worst = f"prior {worst_pull[0]}"
     result = verdict(sol.chi2, sol.dof, misfit_p)
     cause = _misfit_cause(rows, pulls, sol) if result == "misfit" else ""
-    return FitQuality(chi2_reduced=sol.chi2 / sol.dof, dof=sol.dof,
-                      rms_tilt_deg=float(np.sqrt(np.mean(tilt_deg ** 2))),
-                      rms_distance_mm=_rms_mm(sol, data), worst=worst, verdict=result,
-                      cause=cause, residuals=tuple(rows), prior_pulls=pulls)
+    return FitQuality(
+        chi2_reduced=sol.chi2 / sol.dof,
+        dof=sol.dof,
+        rms_tilt_deg=float(np.sqrt(np.mean(tilt_deg**2))),
+        rms_distance_mm=_rms_mm(sol, data),
+        worst=worst,
+        verdict=result,
+        cause=cause,
+        residuals=tuple(rows),
+        prior_pulls=pulls,
+    )
 
 
 def _misfit_cause(rows: list[ResidualRow], pulls: dict[str, float], sol: AugmentedFit) -> str:
     """Where the misfit sits: a prior pulled beyond its tolerance, the edges or the peaks."""
     pulls = {n: p for n, p in pulls.items() if n not in TOOL}
-    prior2 = sum(p ** 2 for p in pulls.values())
+    prior2 = sum(p**2 for p in pulls.values())
     tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
-    path2 = sum(r.distance ** 2 for r in rows if not r.label.startswith("edge"))
-    edge2 = sum(r.distance ** 2 for r in rows if r.label.startswith("edge"))
+    path2 = sum(r.distance**2 for r in rows if not r.label.startswith("edge"))
+    edge2 = sum(r.distance**2 for r in rows if r.label.startswith("edge"))
     if prior2 > tilt2 + path2 + edge2:
         name, pull = max(pulls.items(), key=lambda kv: abs(kv[1]))
         t = sol.table
-        return (f"{name} fitted at {sol.estimate[t.index(name)]:.4g}, {abs(pull):.1f}σ from the "
-                f"profile's {t.prior[t.index(name)]:.4g}: the cell is outside "
-                f"{PRIOR_MEANING.get(name, name)}; correct the profile or widen its tolerance")
+        return (
+            f"{name} fitted at {sol.estimate[t.index(name)]:.4g}, {abs(pull):.1f}σ from the "
+            f"profile's {t.prior[t.index(name)]:.4g}: the cell is outside "
+            f"{PRIOR_MEANING.get(name, name)}; correct the profile or widen its tolerance"
+        )
     if edge2 >= tilt2 + path2:
-        return ("the edge crossings disagree between the two orientations about the beam: "
-                "check that the plate's edges are straight and clean, and the joint offsets")
-    return ("the normal-incidence postures or water paths disagree with the model: check that "
-            "the plate is flat and still, and the joint offsets (run calibrate)")
+        return (
+            "the edge crossings disagree between the two orientations about the beam: "
+            "check that the plate's edges are straight and clean, and the joint offsets"
+        )
+    return (
+        "the normal-incidence postures or water paths disagree with the model: check that "
+        "the plate is flat and still, and the joint offsets (run calibrate)"
+    )
 
 
 def truth_in_profile_flange(profile: CellProfile, truth: WorldTruth) -> np.ndarray:
     """Simulation only: the true tool frame (4, 4) in the flange frame the profile's J6 offset
     and last DH link define (``GAUGE``), i.e. what the tool-frame fit should find:
     ``A6(profile)⁻¹ · A6(truth) · tool`` at the same joint-6 reading."""
+
     def link6(row: np.ndarray, offset_deg: float, beta_deg: float) -> np.ndarray:
         a6 = dh_matrix(np.radians(row[0] + offset_deg), row[1], row[2], np.radians(row[3]))
         return a6 @ transform(np.zeros(3), rpy_to_matrix([0.0, beta_deg, 0.0]))
 
     mine = link6(profile.model.dh[5], float(profile.joint_offsets_deg[5]), 0.0)
-    true = link6(truth.model.dh[5], float(truth.joint_offsets_deg[5]),
-                 float(truth.dh_beta_deg[5]))
+    true = link6(truth.model.dh[5], float(truth.joint_offsets_deg[5]), float(truth.dh_beta_deg[5]))
     return np.linalg.inv(mine) @ true @ truth.beam_matrix

@@ -77,22 +77,23 @@ _D = np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
 class PaperSolution:
     """Result of the KKT solution of paper 002, eqs. 12–15."""
 
-    position_mm: np.ndarray       # p_T (3,), flange frame
-    beam: np.ndarray              # a_T (3,), unit, flange frame
-    multiplier: float             # λ*
+    position_mm: np.ndarray  # p_T (3,), flange frame
+    beam: np.ndarray  # a_T (3,), unit, flange frame
+    multiplier: float  # λ*
     iterations: int
     converged: bool
-    second_order_ok: bool         # reduced Hessian positive definite
+    second_order_ok: bool  # reduced Hessian positive definite
     reduced_hessian_eig: np.ndarray  # (5,) eigenvalues of Zᵀ ∇²L Z (mm⁻⁰, relative units)
-    rms_residual_mm: float        # rms of n·(N_i − A)
-    std_position_mm: np.ndarray   # (3,) one-sigma from the Jacobian and the residual scatter
-    std_beam_deg: float           # one-sigma of the beam direction per tilt axis
-    condition: float              # condition number of Zᵀ JᵀJ Z
+    rms_residual_mm: float  # rms of n·(N_i − A)
+    std_position_mm: np.ndarray  # (3,) one-sigma from the Jacobian and the residual scatter
+    std_beam_deg: float  # one-sigma of the beam direction per tilt axis
+    condition: float  # condition number of Zᵀ JᵀJ Z
     notes: list[str] = field(default_factory=list)
 
 
-def design(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.ndarray,
-           plane: Plane) -> tuple[np.ndarray, np.ndarray]:
+def design(
+    flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.ndarray, plane: Plane
+) -> tuple[np.ndarray, np.ndarray]:
     """J (m, 6) and y (m,) of the residuals ``r = J t − y`` (paper 002, eqs. 7, 11, 12)."""
     g = np.einsum("mji,j->mi", np.asarray(flange_rot, float), plane.normal)  # R_Eᵀ n
     paths = np.asarray(paths_mm, float)
@@ -101,8 +102,13 @@ def design(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.ndarr
     return jac, y
 
 
-def residuals_mm(t: np.ndarray, flange_rot: np.ndarray, flange_pos_mm: np.ndarray,
-                 paths_mm: np.ndarray, plane: Plane) -> np.ndarray:
+def residuals_mm(
+    t: np.ndarray,
+    flange_rot: np.ndarray,
+    flange_pos_mm: np.ndarray,
+    paths_mm: np.ndarray,
+    plane: Plane,
+) -> np.ndarray:
     """``n·(N_i − A)`` (mm) for ``t = (p_T, a_T)`` (paper 002, eqs. 7 and 11)."""
     jac, y = design(flange_rot, flange_pos_mm, paths_mm, plane)
     return jac @ np.asarray(t, float) - y
@@ -114,10 +120,17 @@ def _null_basis(v: np.ndarray) -> np.ndarray:
     return vt[1:].T
 
 
-def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.ndarray,
-                plane: Plane, position0_mm: np.ndarray, beam0: np.ndarray,
-                path_std_mm: float | None = None, max_iter: int = 50,
-                tol: float = 1e-8) -> PaperSolution:
+def solve_paper(
+    flange_rot: np.ndarray,
+    flange_pos_mm: np.ndarray,
+    paths_mm: np.ndarray,
+    plane: Plane,
+    position0_mm: np.ndarray,
+    beam0: np.ndarray,
+    path_std_mm: float | None = None,
+    max_iter: int = 50,
+    tol: float = 1e-8,
+) -> PaperSolution:
     """Solve paper 002, eqs. 12–13 by Newton's method on the KKT conditions (eq. 15).
 
     ``flange_rot`` (m, 3, 3) and ``flange_pos_mm`` (m, 3): flange poses at the incidence
@@ -138,7 +151,7 @@ def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.
     lam = float(-(dc @ grad) / (dc @ dc))
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 (reported after the loop)
         dt_ = _D @ t
         f_vec = np.concatenate([2.0 * (jtj @ t - jty) + 2.0 * lam * dt_, [t @ dt_ - 1.0]])
         kkt = np.zeros((7, 7))
@@ -158,7 +171,7 @@ def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.
     scale = max(float(np.max(np.abs(eig))), 1e-300)
     second_order_ok = bool(eig[0] > 1e-10 * scale)
     r = jac @ t - y
-    rms = float(np.sqrt(np.mean(r ** 2)))
+    rms = float(np.sqrt(np.mean(r**2)))
     dof = m - 5
     if dof > 0:
         sigma = float(np.sqrt(r @ r / dof))
@@ -169,7 +182,7 @@ def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.
     jz = z.T @ jtj @ z
     ev = np.linalg.eigvalsh(0.5 * (jz + jz.T))
     condition = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
-    cov = z @ np.linalg.pinv(jz, rcond=1e-15) @ z.T * sigma ** 2
+    cov = z @ np.linalg.pinv(jz, rcond=1e-15) @ z.T * sigma**2
     std_p = np.sqrt(np.maximum(np.diag(cov)[:3], 0.0))
     a = t[3:] / np.linalg.norm(t[3:])
     # beam tilt one-sigma: rms of the two components of cov(a) across a
@@ -178,14 +191,31 @@ def solve_paper(flange_rot: np.ndarray, flange_pos_mm: np.ndarray, paths_mm: np.
     std_beam = float(np.degrees(np.sqrt(max(np.trace(cov_a), 0.0) / 2.0)))
     notes = []
     if not second_order_ok:
-        notes.append("second-order condition fails: the reduced Hessian of the Lagrange "
-                     f"function is not positive definite (smallest eigenvalue {eig[0]:.3g}); "
-                     "the points do not determine every tool parameter")
+        notes.append(
+            "second-order condition fails: the reduced Hessian of the Lagrange "
+            f"function is not positive definite (smallest eigenvalue {eig[0]:.3g}); "
+            "the points do not determine every tool parameter"
+        )
     if condition > 1e8:
-        notes.append(f"ill-conditioned (condition number {condition:.3g}): at normal incidence "
-                     "the distances to a flat plate see only a_T·p_T; the offsets across the "
-                     "beam rest on the scatter of the incidence angles")
-    log.info("paper 002 KKT: %d iterations, λ %.4g, rms %.4g mm, cond %.3g", it, lam, rms,
-             condition)
-    return PaperSolution(t[:3].copy(), a, lam, it, converged, second_order_ok, eig, rms,
-                         std_p, std_beam, condition, notes)
+        notes.append(
+            f"ill-conditioned (condition number {condition:.3g}): at normal incidence "
+            "the distances to a flat plate see only a_T·p_T; the offsets across the "
+            "beam rest on the scatter of the incidence angles"
+        )
+    log.info(
+        "paper 002 KKT: %d iterations, λ %.4g, rms %.4g mm, cond %.3g", it, lam, rms, condition
+    )
+    return PaperSolution(
+        t[:3].copy(),
+        a,
+        lam,
+        it,
+        converged,
+        second_order_ok,
+        eig,
+        rms,
+        std_p,
+        std_beam,
+        condition,
+        notes,
+    )

@@ -38,12 +38,12 @@ COLLINEAR_RATIO = 1e-3
 class Plane:
     """A plane ``n·x = offset_mm`` with in-plane axes; see the module docstring."""
 
-    normal: np.ndarray       # (3,) unit, towards the water side
-    offset_mm: float         # h in n·x = h
+    normal: np.ndarray  # (3,) unit, towards the water side
+    offset_mm: float  # h in n·x = h
     centroid_mm: np.ndarray  # (3,) centroid of the touched points (on the plane)
-    e1: np.ndarray           # (3,) unit, in the plane
-    e2: np.ndarray           # (3,) unit, n × e1
-    rms_mm: float            # rms distance of the points from the fitted plane
+    e1: np.ndarray  # (3,) unit, in the plane
+    e2: np.ndarray  # (3,) unit, n × e1
+    rms_mm: float  # rms distance of the points from the fitted plane
     n_points: int
 
     def distance_mm(self, x_mm: np.ndarray) -> np.ndarray:
@@ -72,8 +72,11 @@ def _error(path: str | Path | None, message: str) -> InputError:
     return InputError(f"{POINTS_KEY}: {message}")
 
 
-def fit_plane(points_mm: np.ndarray | None, path: str | Path | None = None,
-              towards_mm: np.ndarray | None = None) -> Plane:
+def fit_plane(
+    points_mm: np.ndarray | None,
+    path: str | Path | None = None,
+    towards_mm: np.ndarray | None = None,
+) -> Plane:
     """Fit the plate's plane to three or more touched points (n, 3) in mm.
 
     ``towards_mm`` is a point on the water side (default: the robot base origin) used to
@@ -82,8 +85,11 @@ def fit_plane(points_mm: np.ndarray | None, path: str | Path | None = None,
     non-finite values, duplicate points or collinear points.
     """
     if points_mm is None:
-        raise _error(path, "missing: touch three or more points on the reflector plate and "
-                           "enter them (mm, base frame)")
+        raise _error(
+            path,
+            "missing: touch three or more points on the reflector plate and "
+            "enter them (mm, base frame)",
+        )
     try:
         pts = np.asarray(points_mm, float)
     except (TypeError, ValueError):
@@ -91,20 +97,25 @@ def fit_plane(points_mm: np.ndarray | None, path: str | Path | None = None,
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise _error(path, f"must be a list of [x, y, z] points (mm), got shape {pts.shape}")
     if len(pts) < 3:
-        raise _error(path, f"needs at least three points to define the plate's plane, got "
-                           f"{len(pts)}")
+        raise _error(
+            path, f"needs at least three points to define the plate's plane, got {len(pts)}"
+        )
     if not np.all(np.isfinite(pts)):
         raise _error(path, "points must be finite numbers (mm)")
     for i in range(len(pts)):
         for j in range(i + 1, len(pts)):
             if np.linalg.norm(pts[i] - pts[j]) < DUPLICATE_MM:
-                raise _error(path, f"point {j} duplicates point {i}: the points do not define "
-                                   "a plane")
+                raise _error(
+                    path, f"point {j} duplicates point {i}: the points do not define a plane"
+                )
     centroid = pts.mean(0)
     _, sv, vt = np.linalg.svd(pts - centroid)
     if sv[1] < COLLINEAR_RATIO * sv[0]:
-        raise _error(path, "points are collinear: they do not define a plane (touch a third "
-                           "point away from the line through the others)")
+        raise _error(
+            path,
+            "points are collinear: they do not define a plane (touch a third "
+            "point away from the line through the others)",
+        )
     n = vt[2] / np.linalg.norm(vt[2])
     towards = np.zeros(3) if towards_mm is None else np.asarray(towards_mm, float)
     side = float(n @ (towards - centroid))
@@ -122,8 +133,9 @@ def fit_plane(points_mm: np.ndarray | None, path: str | Path | None = None,
     return Plane(n, h, centroid, e1, e2, rms, len(pts))
 
 
-def hull_reach_mm(plane: Plane, points_mm: np.ndarray, direction: np.ndarray,
-                  origin_mm: np.ndarray | None = None) -> float:
+def hull_reach_mm(
+    plane: Plane, points_mm: np.ndarray, direction: np.ndarray, origin_mm: np.ndarray | None = None
+) -> float:
     """How far (mm) a ray from ``origin_mm`` (default: the centroid; inside the hull) along the
     in-plane unit ``direction`` stays inside the convex hull of the touched points; 0 if the
     origin is outside. The hull of points touched on a flat convex plate lies on the plate."""

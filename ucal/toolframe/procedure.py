@@ -126,10 +126,10 @@ class Target:
     """One planned tool pose: the beam along −n meeting the plate at ``point_mm``."""
 
     label: str
-    point_mm: np.ndarray      # (3,) on the plane
+    point_mm: np.ndarray  # (3,) on the plane
     water_path_mm: float
     phi_deg: float
-    joints_deg: np.ndarray    # planned readings (nominal tool)
+    joints_deg: np.ndarray  # planned readings (nominal tool)
 
 
 @dataclass(frozen=True)
@@ -161,35 +161,45 @@ class ToolFramePlan:
     def summary(self) -> str:
         """Human-readable plan (for the confirmation before the first motion)."""
         c = np.round(self.centre_mm, 1).tolist()
-        lines = [(f"tool-frame calibration ({self.method}); plate plane n = "
-                 f"{np.round(self.plane.normal, 4).tolist()}, centre {c} mm "
-                 f"({self.plane.n_points} touched points, rms {self.plane.rms_mm:.3f} mm)")]
+        lines = [
+            (
+                f"tool-frame calibration ({self.method}); plate plane n = "
+                f"{np.round(self.plane.normal, 4).tolist()}, centre {c} mm "
+                f"({self.plane.n_points} touched points, rms {self.plane.rms_mm:.3f} mm)"
+            )
+        ]
         for t in self.peaks + self.incidence[:5]:
-            lines.append(f"  {t.label}: beam at {np.round(t.point_mm, 1).tolist()} mm, "
-                         f"water {t.water_path_mm:.0f} mm, phi {t.phi_deg:+.0f} deg, joints "
-                         f"{np.round(t.joints_deg, 1).tolist()}")
+            lines.append(
+                f"  {t.label}: beam at {np.round(t.point_mm, 1).tolist()} mm, "
+                f"water {t.water_path_mm:.0f} mm, phi {t.phi_deg:+.0f} deg, joints "
+                f"{np.round(t.joints_deg, 1).tolist()}"
+            )
         if len(self.incidence) > 5:
             lines.append(f"  … {len(self.incidence) - 5} more incidence points")
         for e in self.edges:
-            lines.append(f"  edge {e.name}: search {e.start_mm:.0f}–{e.start_mm + e.search_mm:.0f}"
-                         f" mm from the centre along {np.round(e.direction, 3).tolist()}, lines at"
-                         f" {e.lateral_mm[0]:+.0f}/{e.lateral_mm[1]:+.0f} mm, phi "
-                         f"{self.phi0_deg:+.0f}/{self.phi0_deg + 180:+.0f} deg, water "
-                         f"{EDGE_WATER_PATH_MM:.0f} mm")
+            lines.append(
+                f"  edge {e.name}: search {e.start_mm:.0f}–{e.start_mm + e.search_mm:.0f}"
+                f" mm from the centre along {np.round(e.direction, 3).tolist()}, lines at"
+                f" {e.lateral_mm[0]:+.0f}/{e.lateral_mm[1]:+.0f} mm, phi "
+                f"{self.phi0_deg:+.0f}/{self.phi0_deg + 180:+.0f} deg, water "
+                f"{EDGE_WATER_PATH_MM:.0f} mm"
+            )
         lines.extend(f"  note: {n}" for n in self.notes)
         return "\n".join(lines)
 
 
-def tcp_pose(plane: Plane, point_mm: np.ndarray, water_path_mm: float, phi_deg: float
-             ) -> np.ndarray:
+def tcp_pose(
+    plane: Plane, point_mm: np.ndarray, water_path_mm: float, phi_deg: float
+) -> np.ndarray:
     """Tool pose (4, 4): beam (tool z) along −n meeting the plane at ``point_mm`` after
     ``water_path_mm``; tool x turned by ``phi_deg`` from e1 towards e2 about the beam."""
     z = -plane.normal
     ph = np.radians(phi_deg)
     x = np.cos(ph) * plane.e1 + np.sin(ph) * plane.e2
     y = np.cross(z, x)
-    return transform(np.asarray(point_mm, float) + water_path_mm * plane.normal,
-                     np.column_stack([x, y, z]))
+    return transform(
+        np.asarray(point_mm, float) + water_path_mm * plane.normal, np.column_stack([x, y, z])
+    )
 
 
 def reference_joints(profile: CellProfile) -> np.ndarray:
@@ -198,13 +208,26 @@ def reference_joints(profile: CellProfile) -> np.ndarray:
     return np.asarray(PAPER_CALIBRATION_POSE_DEG if pose is None else pose, float)
 
 
-def solve_target(profile: CellProfile, plane: Plane, tool: np.ndarray, point: np.ndarray,
-                 path: float, phi: float, near: np.ndarray, label: str,
-                 wrist_margin: float) -> np.ndarray:
+def solve_target(
+    profile: CellProfile,
+    plane: Plane,
+    tool: np.ndarray,
+    point: np.ndarray,
+    path: float,
+    phi: float,
+    near: np.ndarray,
+    label: str,
+    wrist_margin: float,
+) -> np.ndarray:
     """Checked joint readings for a target (``SafetyError`` naming ``label``)."""
     try:
-        q = ik(profile.model, tcp_pose(plane, point, path, phi), tool,
-               profile.joint_offsets_deg, near_deg=near)
+        q = ik(
+            profile.model,
+            tcp_pose(plane, point, path, phi),
+            tool,
+            profile.joint_offsets_deg,
+            near_deg=near,
+        )
     except SafetyError as e:
         raise SafetyError(f"plan {label}: {e}") from None
     check_joints(profile, q, label, wrist_margin)
@@ -220,15 +243,17 @@ def _inside_hull(plane: Plane, points: np.ndarray, x: np.ndarray, margin: float)
     return True
 
 
-def plan_tool_frame(profile: CellProfile, method: str = "exact",
-                    points: int | None = None) -> ToolFramePlan:
+def plan_tool_frame(
+    profile: CellProfile, method: str = "exact", points: int | None = None
+) -> ToolFramePlan:
     """Plan and check every target (see module docstring); nothing moves."""
     if method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     n_pts = DEFAULT_POINTS[method] if points is None else int(points)
     if n_pts < MIN_POINTS[method]:
-        raise InputError(f"--points must be at least {MIN_POINTS[method]} for the {method} "
-                         f"method, got {n_pts}")
+        raise InputError(
+            f"--points must be at least {MIN_POINTS[method]} for the {method} method, got {n_pts}"
+        )
     plane = fit_plane(profile.reflector_points_mm, profile.path)
     pts = np.asarray(profile.reflector_points_mm, float)
     centre = plane.project(plane.centroid_mm)
@@ -237,16 +262,20 @@ def plan_tool_frame(profile: CellProfile, method: str = "exact",
     path = profile.procedure.water_path_mm
     notes: list[str] = []
     if not _inside_hull(plane, pts, centre, HULL_MARGIN_MM):
-        raise SafetyError("plan: the touched points enclose no room for the beam (the plate's "
-                          "centre is within 3 mm of their hull)")
+        raise SafetyError(
+            "plan: the touched points enclose no room for the beam (the plate's "
+            "centre is within 3 mm of their hull)"
+        )
     # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre.
     best = None
     for phi in np.arange(-180.0, 180.0, 15.0):
         try:
-            q = solve_target(profile, plane, tool, centre, path, phi, ref, "centre",
-                             WRIST_MARGIN_DEG)
-            q2 = solve_target(profile, plane, tool, centre, path, phi + 180.0, q, "centre",
-                              WRIST_MARGIN_DEG)
+            q = solve_target(
+                profile, plane, tool, centre, path, phi, ref, "centre", WRIST_MARGIN_DEG
+            )
+            q2 = solve_target(
+                profile, plane, tool, centre, path, phi + 180.0, q, "centre", WRIST_MARGIN_DEG
+            )
         except SafetyError:
             continue
         mid = 0.5 * (profile.model.joint_min_deg[5] + profile.model.joint_max_deg[5])
@@ -256,10 +285,10 @@ def plan_tool_frame(profile: CellProfile, method: str = "exact",
     if best is None:
         # report the reason for φ = 0
         solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG)
-        solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre",
-                     WRIST_MARGIN_DEG)
-        raise SafetyError("plan: no orientation about the beam reaches the plate centre in "
-                          "both senses")
+        solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre", WRIST_MARGIN_DEG)
+        raise SafetyError(
+            "plan: no orientation about the beam reaches the plate centre in both senses"
+        )
     phi0 = best[1]
 
     peaks: list[Target] = []
@@ -271,28 +300,36 @@ def plan_tool_frame(profile: CellProfile, method: str = "exact",
             phi = phi0 + 360.0 * i / n_pts
             phi = (phi + 180.0) % 360.0 - 180.0
             label = f"peak {i + 1}"
-            q = solve_target(profile, plane, tool, centre, path, phi, near, label,
-                             WRIST_MARGIN_DEG)
+            q = solve_target(profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG)
             peaks.append(Target(label, centre, path, phi, q))
             near = q
         edges = _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes)
     else:
         incidence = _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
-    return ToolFramePlan(method, plane, centre, ref, phi0, tuple(peaks), tuple(edges),
-                         tuple(incidence), tuple(notes))
+    return ToolFramePlan(
+        method, plane, centre, ref, phi0, tuple(peaks), tuple(edges), tuple(incidence), tuple(notes)
+    )
 
 
-def _plan_edges(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.ndarray,
-                tool: np.ndarray, phi0: float, ref: np.ndarray, notes: list[str]
-                ) -> list[EdgePlan]:
+def _plan_edges(
+    profile: CellProfile,
+    plane: Plane,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    tool: np.ndarray,
+    phi0: float,
+    ref: np.ndarray,
+    notes: list[str],
+) -> list[EdgePlan]:
     out: list[EdgePlan] = []
     for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
         candidates = []
         for sign in (1.0, -1.0):
             u = sign * e
             w = np.cross(plane.normal, u)
-            lat = 0.5 * min(hull_reach_mm(plane, pts, w, centre),
-                            hull_reach_mm(plane, pts, -w, centre))
+            lat = 0.5 * min(
+                hull_reach_mm(plane, pts, w, centre), hull_reach_mm(plane, pts, -w, centre)
+            )
             if lat < 5.0:
                 continue
             starts = [hull_reach_mm(plane, pts, u, centre + s * lat * w) for s in (-1, 1)]
@@ -305,8 +342,17 @@ def _plan_edges(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.
                     for phi in (phi0, phi0 + 180.0):
                         p = centre + (start + dist) * u + s * lat * w
                         try:
-                            near = solve_target(profile, plane, tool, p, EDGE_WATER_PATH_MM,
-                                                phi, near, f"edge {name}", 0.0)
+                            near = solve_target(
+                                profile,
+                                plane,
+                                tool,
+                                p,
+                                EDGE_WATER_PATH_MM,
+                                phi,
+                                near,
+                                f"edge {name}",
+                                0.0,
+                            )
                         except SafetyError:
                             ok = False
                             break
@@ -317,24 +363,38 @@ def _plan_edges(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.
                 reach = dist
             candidates.append((reach, sign, u, w, lat, start))
         if not candidates:
-            raise SafetyError(f"plan edge {name}: the touched points are too close to a line "
-                              "across this direction to place two scan lines")
+            raise SafetyError(
+                f"plan edge {name}: the touched points are too close to a line "
+                "across this direction to place two scan lines"
+            )
         reach, sign, u, w, lat, start = max(candidates, key=lambda c: (c[0], c[1]))
         label = ("+" if sign > 0 else "-") + name
         if reach < 20.0:
-            raise SafetyError(f"plan edge {label}: the arm cannot follow the edge search "
-                              f"beyond {reach:.0f} mm from the touched points' hull in both "
-                              "orientations")
+            raise SafetyError(
+                f"plan edge {label}: the arm cannot follow the edge search "
+                f"beyond {reach:.0f} mm from the touched points' hull in both "
+                "orientations"
+            )
         if reach < EDGE_SEARCH_MM:
-            notes.append(f"edge search {label} limited to {reach:.0f} mm beyond the touched "
-                         "points by the arm's reach")
+            notes.append(
+                f"edge search {label} limited to {reach:.0f} mm beyond the touched "
+                "points by the arm's reach"
+            )
         out.append(EdgePlan(axis, label, u, w, (-lat, lat), start, float(reach)))
     return out
 
 
-def _plan_incidence(profile: CellProfile, plane: Plane, pts: np.ndarray, centre: np.ndarray,
-                    tool: np.ndarray, phi0: float, ref: np.ndarray, n_pts: int,
-                    notes: list[str]) -> list[Target]:
+def _plan_incidence(
+    profile: CellProfile,
+    plane: Plane,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    tool: np.ndarray,
+    phi0: float,
+    ref: np.ndarray,
+    n_pts: int,
+    notes: list[str],
+) -> list[Target]:
     rng = np.random.default_rng(2023)  # paper 002's year: a fixed, reproducible draw
     path0 = profile.procedure.water_path_mm
     uv = plane.to_plane(pts)
@@ -360,8 +420,10 @@ def _plan_incidence(profile: CellProfile, plane: Plane, pts: np.ndarray, centre:
         out.append(Target(label, x, path, phi, q))
         near = q
     if len(out) < n_pts:
-        raise SafetyError(f"plan: only {len(out)} of {n_pts} incidence points inside the "
-                          "touched points' hull are reachable")
+        raise SafetyError(
+            f"plan: only {len(out)} of {n_pts} incidence points inside the "
+            "touched points' hull are reachable"
+        )
     if skipped:
         notes.append(f"{skipped} drawn incidence points were unreachable and drawn again")
     return out
@@ -400,8 +462,13 @@ class ToolFrameRun:
 class _Runner:
     """Measurement helpers sharing the rig, the plane and the running tool estimate."""
 
-    def __init__(self, profile: CellProfile, plan: ToolFramePlan, rig: Rig,
-                 progress: Callable[[str, int, int], None] | None):
+    def __init__(
+        self,
+        profile: CellProfile,
+        plan: ToolFramePlan,
+        rig: Rig,
+        progress: Callable[[str, int, int], None] | None,
+    ):
         self.profile = profile
         self.plan = plan
         self.plane = plan.plane
@@ -423,10 +490,12 @@ class _Runner:
     def flange(self, q: np.ndarray) -> np.ndarray:
         return fk(self.profile.model, q, offsets_deg=self.offsets)
 
-    def joints(self, point: np.ndarray, path: float, phi: float, label: str,
-               wrist_margin: float = 0.0) -> np.ndarray:
-        return solve_target(self.profile, self.plane, self.tool(), point, path, phi, self.q,
-                            label, wrist_margin)
+    def joints(
+        self, point: np.ndarray, path: float, phi: float, label: str, wrist_margin: float = 0.0
+    ) -> np.ndarray:
+        return solve_target(
+            self.profile, self.plane, self.tool(), point, path, phi, self.q, label, wrist_margin
+        )
 
     def move(self, q: np.ndarray) -> np.ndarray:
         self.q = np.asarray(q, float)
@@ -446,8 +515,7 @@ class _Runner:
         self.rig.configure(gain_db=20.0, averages=1)
         self.move(self.rig.clip(away))
         self.rig.measure_floor()
-        self.acq_gain = float(np.clip(20 * np.log10(0.05 / self.rig.floor_per_gain), 20.0,
-                                      80.0))
+        self.acq_gain = float(np.clip(20 * np.log10(0.05 / self.rig.floor_per_gain), 20.0, 80.0))
 
     # -- posture search --------------------------------------------------------------------------
     def _search(self, q_pred: np.ndarray) -> PeakSearch:
@@ -457,12 +525,14 @@ class _Runner:
 
     def centred(self, target: Target, quick: bool) -> tuple[PeakSearch, np.ndarray]:
         """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
-        q_pred = self.joints(target.point_mm, target.water_path_mm, target.phi_deg,
-                             target.label, 0.0)
+        q_pred = self.joints(
+            target.point_mm, target.water_path_mm, target.phi_deg, target.label, 0.0
+        )
         return self.normal_near(q_pred, target.label, quick)
 
-    def normal_near(self, q_pred: np.ndarray, label: str, quick: bool
-                    ) -> tuple[PeakSearch, np.ndarray]:
+    def normal_near(
+        self, q_pred: np.ndarray, label: str, quick: bool
+    ) -> tuple[PeakSearch, np.ndarray]:
         """Main-lobe posture (wrist only) near ``q_pred``: a quick centring, else (or when
         ``quick`` is False) the acquisition raster, widened up to ``ACQUIRE_MAX_DEG``."""
         search = self._search(q_pred)
@@ -474,10 +544,12 @@ class _Runner:
                 q_c = search.centre(found[0], 3.0, self.acq_gain)
                 break
             if radius >= ACQUIRE_MAX_DEG:
-                raise HardwareError(f"{self.rig.pulser.endpoint}: no echo from the reflector "
-                                    f"plate within {radius:g} deg of the predicted posture "
-                                    f"({label}); check [reflector] points_mm and "
-                                    "[tool] in the profile")
+                raise HardwareError(
+                    f"{self.rig.pulser.endpoint}: no echo from the reflector "
+                    f"plate within {radius:g} deg of the predicted posture "
+                    f"({label}); check [reflector] points_mm and "
+                    "[tool] in the profile"
+                )
             radius = min(2 * radius, ACQUIRE_MAX_DEG)
         self.q = np.asarray(q_c, float)
         return search, q_c
@@ -488,8 +560,9 @@ class _Runner:
         return est
 
     # -- edge scans ------------------------------------------------------------------------------
-    def edge_scan(self, ep: EdgePlan, lateral: float, phi: float, guess: float | None
-                  ) -> tuple[EdgeCrossing, EdgeFit, float, PlateCrossing]:
+    def edge_scan(
+        self, ep: EdgePlan, lateral: float, phi: float, guess: float | None
+    ) -> tuple[EdgeCrossing, EdgeFit, float, PlateCrossing]:
         """Coarse search and fine scan across edge ``ep`` on the line at ``lateral``; returns
         the crossing, its profile fit, the coarse crossing (mm from the centre) and the
         crossing as readings (for the fit with the offsets as unknowns)."""
@@ -498,7 +571,7 @@ class _Runner:
         tool = self.tool()
         label = f"edge {ep.name}"
         rows: list[tuple[float, float, np.ndarray]] = []
-        aim = np.zeros(6)   # wrist correction to normal incidence on this line
+        aim = np.zeros(6)  # wrist correction to normal incidence on this line
 
         def probe(t: float, averages: int) -> float:
             q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
@@ -538,13 +611,14 @@ class _Runner:
             recent = (recent + [a])[-COARSE_MEMORY:]
             prev = t
         if t_c is None:
-            raise HardwareError(f"{self.rig.pulser.endpoint}: the echo did not fall at any "
-                                f"edge along {ep.name} within {hi:.0f} mm of the plate centre")
+            raise HardwareError(
+                f"{self.rig.pulser.endpoint}: the echo did not fall at any "
+                f"edge along {ep.name} within {hi:.0f} mm of the plate centre"
+            )
         # fine scan across the coarse crossing; once more twice as wide if it does not cross
         # (the coarse fall was a dip of the echo on the plate, e.g. a bow or a scratch)
         # normal incidence again just inside the edge, for the fine scan
-        q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi,
-                         label)
+        q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi, label)
         _, q_n = self.normal_near(q1, label, quick=True)
         aim = np.asarray(q_n, float) - q1
         for half in (FINE_HALF_MM, 2.0 * FINE_HALF_MM):
@@ -566,31 +640,52 @@ class _Runner:
             except ValueError as e:
                 log.info("edge %s: %s (±%.0f mm)", ep.name, e, half)
         else:
-            raise HardwareError(f"{self.rig.pulser.endpoint}: the fine scan across edge "
-                                f"{ep.name} near {t_c:.0f} mm from the plate centre does not "
-                                "show the echo falling to half: is the edge straight and "
-                                "clean?")
+            raise HardwareError(
+                f"{self.rig.pulser.endpoint}: the fine scan across edge "
+                f"{ep.name} near {t_c:.0f} mm from the plate centre does not "
+                "show the echo falling to half: is the edge straight and "
+                "clean?"
+            )
         i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
         f = flanges[i].copy()
         shift = (fit.crossing - ts_arr[i]) * u
         f[:3, 3] += shift
-        log.info("edge %s lateral %+.1f phi %+.0f: crossing %.4f ± %.4f mm (σ %.3f mm, rms "
-                 "%.2g)", ep.name, lateral, phi, fit.crossing, fit.crossing_std, fit.width_mm,
-                 fit.rms)
+        log.info(
+            "edge %s lateral %+.1f phi %+.0f: crossing %.4f ± %.4f mm (σ %.3f mm, rms %.2g)",
+            ep.name,
+            lateral,
+            phi,
+            fit.crossing,
+            fit.crossing_std,
+            fit.width_mm,
+            fit.rms,
+        )
         std = max(fit.crossing_std, 1e-4)
-        return (EdgeCrossing(f, ep.index, std, u.copy()), fit, float(t_c),
-                PlateCrossing(f"edge {ep.name} {lateral:+.0f} mm phi {phi:+.0f}",
-                              rows[i][2].copy(), shift, ep.index, std))
+        return (
+            EdgeCrossing(f, ep.index, std, u.copy()),
+            fit,
+            float(t_c),
+            PlateCrossing(
+                f"edge {ep.name} {lateral:+.0f} mm phi {phi:+.0f}",
+                rows[i][2].copy(),
+                shift,
+                ep.index,
+                std,
+            ),
+        )
 
 
-def _report(progress: Callable[[str, int, int], None] | None, what: str, i: int,
-            n: int) -> None:
+def _report(progress: Callable[[str, int, int], None] | None, what: str, i: int, n: int) -> None:
     if progress:
         progress(what, i, n)
 
 
-def run_tool_frame(profile: CellProfile, plan: ToolFramePlan, rig: Rig,
-                   progress: Callable[[str, int, int], None] | None = None) -> ToolFrameRun:
+def run_tool_frame(
+    profile: CellProfile,
+    plan: ToolFramePlan,
+    rig: Rig,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> ToolFrameRun:
     """Measure and solve (see module docstring). The caller owns connection, STOP, profile."""
     r = _Runner(profile, plan, rig, progress)
     if plan.method == "paper":
@@ -623,15 +718,20 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
             # A prediction off by degrees (joint offsets not yet calibrated turn the beam
             # differently at each orientation) can centre on a side lobe (−17.6 dB and less):
             # acquire and centre as for the first posture.
-            log.info("%s: %.2g of the first peak's echo, a side lobe: acquiring", target.label,
-                     _probe_level(peak) / _probe_level(peaks[0]))
+            log.info(
+                "%s: %.2g of the first peak's echo, a side lobe: acquiring",
+                target.label,
+                _probe_level(peak) / _probe_level(peaks[0]),
+            )
             search, q_c = r.centred(target, quick=False)
             peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
             level = _probe_level(peak) / _probe_level(peaks[0])
             if level < MAIN_LOBE_SHARE:
-                raise HardwareError(f"{r.rig.pulser.endpoint}: {target.label}: only a side lobe "
-                                    f"of the plate's echo found ({level:.2g} of the first "
-                                    "posture's); is the plate flat and still?")
+                raise HardwareError(
+                    f"{r.rig.pulser.endpoint}: {target.label}: only a side lobe "
+                    f"of the plate's echo found ({level:.2g} of the first "
+                    "posture's); is the plate flat and still?"
+                )
         assert peak.distance is not None and peak.distance_joints_deg is not None
         peaks.append(peak)
         rots.append(r.flange(peak.joints_deg)[:3, :3])
@@ -640,8 +740,13 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
         tofs.append(TofRecord(r.flange(peak.distance_joints_deg), path, max(path_std, 1e-4)))
         r.q = np.asarray(rig_joints(r), float)
         beam_est = r.update_beam(rots, stds)
-        log.info("%s: beam %s (%d postures), water path %.4f mm", target.label,
-                 np.round(beam_est.direction, 6).tolist(), len(rots), path)
+        log.info(
+            "%s: beam %s (%d postures), water path %.4f mm",
+            target.label,
+            np.round(beam_est.direction, 6).tolist(),
+            len(rots),
+            path,
+        )
     beam_est = r.update_beam(rots, stds)
     # a_T·p_T from the water paths alone (E2) before the edge scans
     s, _ = along_beam_offset_mm(beam_est.direction, tofs, r.plane)
@@ -669,35 +774,74 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
     offsets = solve_offsets(beam_est, tofs, crossings, r.plane, r.position)
     _report(r.progress, "done", total, total)
     first_rot = rotation_for_beam(beam_est.direction, r.profile.tool_rotation_deg)
-    tf = solve_plate_fit(r.profile, plan.plane, peaks, plate_crossings, offsets,
-                         np.concatenate([offsets.position_mm, first_rot]))
+    tf = solve_plate_fit(
+        r.profile,
+        plan.plane,
+        peaks,
+        plate_crossings,
+        offsets,
+        np.concatenate([offsets.position_mm, first_rot]),
+    )
     notes = list(offsets.notes) + list(tf.notes)
     if tf.refusal:
         notes.append(f"out of tolerance: {tf.refusal}")
-    return ToolFrameRun("exact", tf.position_mm, tf.rotation_deg, tf.beam, tf.position_std_mm,
-                        tf.beam_std_deg, tf.rms_residual_mm,
-                        len(peaks) + len(crossings), r.rig.counters.moves,
-                        r.rig.counters.reads, peaks, tofs, crossings, fits, beam_est, offsets,
-                        None, tf.in_tolerance, notes, fit=tf)
+    return ToolFrameRun(
+        "exact",
+        tf.position_mm,
+        tf.rotation_deg,
+        tf.beam,
+        tf.position_std_mm,
+        tf.beam_std_deg,
+        tf.rms_residual_mm,
+        len(peaks) + len(crossings),
+        r.rig.counters.moves,
+        r.rig.counters.reads,
+        peaks,
+        tofs,
+        crossings,
+        fits,
+        beam_est,
+        offsets,
+        None,
+        tf.in_tolerance,
+        notes,
+        fit=tf,
+    )
 
 
-def solve_plate_fit(profile: CellProfile, plane: Plane, peaks: list[PeakResult],
-                    crossings: list[PlateCrossing], first: OffsetEstimate,
-                    tool_start: np.ndarray) -> ToolFrameFit:
+def solve_plate_fit(
+    profile: CellProfile,
+    plane: Plane,
+    peaks: list[PeakResult],
+    crossings: list[PlateCrossing],
+    first: OffsetEstimate,
+    tool_start: np.ndarray,
+) -> ToolFrameFit:
     """The fit of ``ucal.toolframe.fit`` on a run's peaks and crossings (priors from the
     profile; edges and tool started from the first estimate)."""
     plate_peaks = []
     for i, p in enumerate(peaks):
         assert p.distance is not None and p.distance_joints_deg is not None
-        plate_peaks.append(PlatePeak(f"peak {i + 1}", p.joints_deg, max(p.tilt_std_deg, 1e-4),
-                                     p.distance_joints_deg, p.distance[0],
-                                     max(p.distance[1], 1e-4)))
+        plate_peaks.append(
+            PlatePeak(
+                f"peak {i + 1}",
+                p.joints_deg,
+                max(p.tilt_std_deg, 1e-4),
+                p.distance_joints_deg,
+                p.distance[0],
+                max(p.distance[1], 1e-4),
+            )
+        )
     edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()
-    return solve_tool_frame(prior_from_profile(profile),
-                            plate_prior(plane, profile.reflector_points_mm,
-                                        profile.reflector_points_std_mm),
-                            offsets_prior_std_deg(profile), plate_peaks, crossings, edge_start,
-                            tool_start)
+    return solve_tool_frame(
+        prior_from_profile(profile),
+        plate_prior(plane, profile.reflector_points_mm, profile.reflector_points_std_mm),
+        offsets_prior_std_deg(profile),
+        plate_peaks,
+        crossings,
+        edge_start,
+        tool_start,
+    )
 
 
 def _probe_level(peak: PeakResult) -> float:
@@ -731,17 +875,36 @@ def _run_paper(r: _Runner) -> ToolFrameRun:
         # predict the next incidence posture from the postures found so far (E1)
         r.update_beam(rots, [0.01] * len(rots))
     _report(r.progress, "done", total, total)
-    sol = solve_paper(np.array(rots), np.array(poss), np.array(paths), r.plane,
-                      np.asarray(r.profile.tool_position_mm, float),
-                      r.profile.tool_matrix[:3, 2], float(np.median(path_stds)))
+    sol = solve_paper(
+        np.array(rots),
+        np.array(poss),
+        np.array(paths),
+        r.plane,
+        np.asarray(r.profile.tool_position_mm, float),
+        r.profile.tool_matrix[:3, 2],
+        float(np.median(path_stds)),
+    )
     rot = rotation_for_beam(sol.beam, r.profile.tool_rotation_deg)
     notes = list(sol.notes)
     ok = bool(sol.converged and sol.second_order_ok)
     if not sol.converged:
         notes.append("Newton's method on the KKT conditions did not converge")
-    return ToolFrameRun("paper", sol.position_mm, rot, sol.beam, sol.std_position_mm,
-                        sol.std_beam_deg, sol.rms_residual_mm, len(paths),
-                        r.rig.counters.moves, r.rig.counters.reads, tofs=[
-                            TofRecord(transform(p, R), d, s)
-                            for p, R, d, s in zip(poss, rots, paths, path_stds, strict=True)],
-                        paper=sol, in_tolerance=ok, notes=notes)
+    return ToolFrameRun(
+        "paper",
+        sol.position_mm,
+        rot,
+        sol.beam,
+        sol.std_position_mm,
+        sol.std_beam_deg,
+        sol.rms_residual_mm,
+        len(paths),
+        r.rig.counters.moves,
+        r.rig.counters.reads,
+        tofs=[
+            TofRecord(transform(p, R), d, s)
+            for p, R, d, s in zip(poss, rots, paths, path_stds, strict=True)
+        ],
+        paper=sol,
+        in_tolerance=ok,
+        notes=notes,
+    )

@@ -127,8 +127,9 @@ def test_stop_mid_motion_stops_short(make_sim_controller, make_controller_client
     assert records[0]["end_deg"][0] == pytest.approx(stopped_at[0], abs=1e-3)
 
 
-def test_sequence_numbers_increase_and_restart_after_stop(make_sim_controller,
-                                                          make_controller_client):
+def test_sequence_numbers_increase_and_restart_after_stop(
+    make_sim_controller, make_controller_client
+):
     records = []
     sim = make_sim_controller(on_motion=records.append)
     client = make_controller_client(sim.url)
@@ -167,8 +168,9 @@ def test_status_round_trip_and_estop_refusal(sim_controller, controller_client):
     assert sim_controller.moves_executed == 1
 
 
-def test_estop_during_motion_raises_device_error_promptly(make_sim_controller,
-                                                          make_controller_client):
+def test_estop_during_motion_raises_device_error_promptly(
+    make_sim_controller, make_controller_client
+):
     sim = make_sim_controller(time_scale=1.0)
     client = make_controller_client(sim.url)
     target = np.array([120.0, 0, 0, 0, 0, 0])  # about 1 s at speed 0.5
@@ -253,14 +255,18 @@ def test_calls_before_connect_raise_connection_lost(make_controller_client, fake
 
 # -- raw fake servers -----------------------------------------------------------------------
 
+
 def _healthy_state() -> bytes:
     return JointPosition(()).pack() + Status(1, 0, 0, 0, 0, 2, 1).pack()
 
 
-@pytest.mark.parametrize("garbage", [
-    b"\x00garbage bytes that are not a frame at all" * 3,
-    b"\xff\xff\xff\x7f" + bytes(12),  # length 0x7fffffff
-])
+@pytest.mark.parametrize(
+    "garbage",
+    [
+        b"\x00garbage bytes that are not a frame at all" * 3,
+        b"\xff\xff\xff\x7f" + bytes(12),  # length 0x7fffffff
+    ],
+)
 def test_garbage_on_state_port_is_a_protocol_error(fake_server, make_controller_client, garbage):
     client = make_controller_client(fake_server.url)
     _, state = fake_server.accept()
@@ -310,19 +316,20 @@ def test_silent_state_stream_is_a_timeout(fake_server, make_controller_client):
         client.status(timeout_s=5.0)
 
 
-def test_first_state_waits_out_the_val3_silence_and_no_longer(fake_server,
-                                                             make_controller_client):
+def test_first_state_waits_out_the_val3_silence_and_no_longer(fake_server, make_controller_client):
     """The VAL3 server is silent for 1 s after connecting; the first-state timeout covers it."""
-    client = make_controller_client(fake_server.url, state_timeout_s=0.3,
-                                    first_state_timeout_s=1.5)
+    client = make_controller_client(fake_server.url, state_timeout_s=0.3, first_state_timeout_s=1.5)
     _, state = fake_server.accept()
     threading.Timer(1.0, state.sendall, args=(_healthy_state(),)).start()
     np.testing.assert_allclose(client.read_joints(timeout_s=0.1), HOME)
     silent = make_controller_client(fake_server.url, first_state_timeout_s=0.4)
     fake_server.accept()
     t0 = time.monotonic()
-    with pytest.raises(DeviceTimeout, match=r"first-state timeout ran out "
-                                            r"\(first_state_timeout_s = 0.4 s\)") as info:
+    with pytest.raises(
+        DeviceTimeout,
+        match=r"first-state timeout ran out "
+        r"\(first_state_timeout_s = 0.4 s\)",
+    ) as info:
         silent.read_joints(timeout_s=0.1)
     assert 0.35 < time.monotonic() - t0 < 1.0
     assert info.value.endpoint == fake_server.url
@@ -339,7 +346,7 @@ def test_request_bytes_and_reply_handling(fake_server, make_controller_client):
     def move(target, speed):
         try:
             client.start_move(target, speed)
-        except Exception as e:  # noqa: BLE001 — handed to the main thread to assert on
+        except Exception as e:
             errors.append(e)
 
     worker = threading.Thread(target=move, args=(TARGET, 0.001))
@@ -356,8 +363,10 @@ def test_request_bytes_and_reply_handling(fake_server, make_controller_client):
     # 0.001 (VAL3: 0.1 %, the "smooth last point" trigger of interpolateVel.pgx) goes as 0.00101.
     assert req.velocity == pytest.approx(0.00101, rel=1e-6)
     # A stale reply (sequence 5) is ignored; the matching one completes the request.
-    motion.sendall(JointTrajPtReply(ReplyCode.SUCCESS, 5).pack()
-                   + JointTrajPtReply(ReplyCode.SUCCESS, 0).pack())
+    motion.sendall(
+        JointTrajPtReply(ReplyCode.SUCCESS, 5).pack()
+        + JointTrajPtReply(ReplyCode.SUCCESS, 0).pack()
+    )
     worker.join(timeout=2.0)
     assert not worker.is_alive() and not errors
 

@@ -81,18 +81,22 @@ class RawStateReader:
             messages = reader.feed(data)
             now = self.clock.now()
             self.frames += [(now, type(m).__name__) for m in messages]
-            self.clock.frames_taken(sum(isinstance(m, (JointPosition, JointFeedback))
-                                        for m in messages))
+            self.clock.frames_taken(
+                sum(isinstance(m, (JointPosition, JointFeedback)) for m in messages)
+            )
 
     def close(self) -> None:
         self.done.set()
         self.sock.close()
 
 
-@pytest.mark.parametrize("server, joint_type, rate_hz, first, every", [
-    ("val3", "JointPosition", 50.0, 6, 5),
-    ("val3-feedback", "JointFeedback", 250.0, 21, 20),
-])
+@pytest.mark.parametrize(
+    "server, joint_type, rate_hz, first, every",
+    [
+        ("val3", "JointPosition", 50.0, 6, 5),
+        ("val3-feedback", "JointFeedback", 250.0, 21, 20),
+    ],
+)
 def test_stream_silence_rate_and_status_cadence(cell, server, joint_type, rate_hz, first, every):
     clock, sim, client = cell(server)
     client.close()  # one client per port: make room for the raw reader
@@ -116,7 +120,7 @@ def test_stream_silence_rate_and_status_cadence(cell, server, joint_type, rate_h
         raw.close()
     times = [t for t, kind in raw.frames if kind == joint_type]
     kinds = [kind for _, kind in raw.frames]
-    assert times[0] - t0 >= 1.0                             # recvHeartbeat.pgx: delay(1.0)
+    assert times[0] - t0 >= 1.0  # recvHeartbeat.pgx: delay(1.0)
     assert np.median(np.diff(times)) == pytest.approx(1.0 / rate_hz)
     assert set(kinds) == {joint_type, "Status"}
     status_after = [kinds[:i].count(joint_type) for i, k in enumerate(kinds) if k == "Status"]
@@ -159,8 +163,9 @@ def test_requests_it_does_not_execute_get_a_failure_reply(make_sim_controller):
     assert ping == OtherMessage(MsgType.PING, CommType.SERVICE_REPLY, ReplyCode.FAILURE)
     body = struct.pack("<3if", 0, 7, 0x3, 0.0) + bytes(120)
     full = ask(OtherMessage(MsgType.JOINT_TRAJ_PT_FULL, CommType.SERVICE_REQUEST, 0, body).pack())
-    assert full == OtherMessage(MsgType.JOINT_TRAJ_PT_FULL, CommType.SERVICE_REPLY,
-                                ReplyCode.FAILURE, body)
+    assert full == OtherMessage(
+        MsgType.JOINT_TRAJ_PT_FULL, CommType.SERVICE_REPLY, ReplyCode.FAILURE, body
+    )
     # the connection stays up; no state client: the point is acknowledged and dropped
     assert ask(JointTrajPt(3, (0.1,), 0.5).pack()) == JointTrajPtReply(ReplyCode.SUCCESS, 3)
     motion.close()
@@ -207,17 +212,26 @@ def test_status_of_the_refusing_variant(cell):
     sim.set_fault(drives_powered=False)
     clock.sleep(0.2)
     assert client.status().drives_powered is False
-    with pytest.raises(Exception, match="refused .* drives off"):
+    with pytest.raises(Exception, match=r"refused .* drives off"):
         client.start_move(TARGET, 0.5)  # PR #36 pushMotion.pgx: FAILURE when not possible
 
 
-@pytest.mark.parametrize("server, message, rate_hz, every", [
-    ("val3", "JOINT_POSITION", 50.0, 5), ("val3-feedback", "JOINT_FEEDBACK", 250.0, 20),
-    ("simple", "JOINT_POSITION", 50.0, 1)])
+@pytest.mark.parametrize(
+    "server, message, rate_hz, every",
+    [
+        ("val3", "JOINT_POSITION", 50.0, 5),
+        ("val3-feedback", "JOINT_FEEDBACK", 250.0, 20),
+        ("simple", "JOINT_POSITION", 50.0, 1),
+    ],
+)
 def test_stream_info_tells_the_servers_apart(cell, server, message, rate_hz, every):
     _, _, client = cell(server)
     info = client.stream_info()
     assert (info["joint_message"], info["joint_rate_hz"], info["status_every"]) == (
-        message, rate_hz, every)
-    assert info["first_state_s"] == pytest.approx(0.0 if server == "simple" else 1.0,
-                                                  abs=1.0 / rate_hz)
+        message,
+        rate_hz,
+        every,
+    )
+    assert info["first_state_s"] == pytest.approx(
+        0.0 if server == "simple" else 1.0, abs=1.0 / rate_hz
+    )

@@ -26,11 +26,13 @@ def pulser(sim: SimulatedPulser) -> Iterator[ModbusPulser]:
         yield client
 
 
-def test_front_end_settings_are_stored_and_read_back(pulser: ModbusPulser,
-                                                     sim: SimulatedPulser) -> None:
+def test_front_end_settings_are_stored_and_read_back(
+    pulser: ModbusPulser, sim: SimulatedPulser
+) -> None:
     assert pulser.settings() == PulserSettings()
-    wanted = PulserSettings(gain_db=30.0, pulse_voltage_v=250.0, damping_ohm=200.0,
-                            high_pass_mhz=2.5, low_pass_mhz=30.0)
+    wanted = PulserSettings(
+        gain_db=30.0, pulse_voltage_v=250.0, damping_ohm=200.0, high_pass_mhz=2.5, low_pass_mhz=30.0
+    )
     pulser.configure(wanted)
     assert pulser.settings() == wanted
     assert sim.settings == wanted
@@ -47,7 +49,9 @@ def test_device_refuses_an_out_of_range_front_end_register(pulser: ModbusPulser)
 
 
 def test_identity_names_the_simulated_device(pulser: ModbusPulser) -> None:
-    assert pulser.identity() == {"register_map_version": reg.MAP_VERSION,
-                                 "model": DEVICE_INFO.model,
-                                 "firmware": DEVICE_INFO.firmware_version,
-                                 "serial": DEVICE_INFO.serial}
+    assert pulser.identity() == {
+        "register_map_version": reg.MAP_VERSION,
+        "model": DEVICE_INFO.model,
+        "firmware": DEVICE_INFO.firmware_version,
+        "serial": DEVICE_INFO.serial,
+    }

@@ -1,9 +1,9 @@
 """The prior-augmented solver on synthetic measurements of perturbed cells (no simulator).
 
-Each cell differs from its profile within the declared tolerances (block pose, tool frame,
-water temperature, DH lengths and twists); the measurements are computed from that truth with the exact kinematics
-and seeded noise. The reported std must cover the error: |error| <= 3·std for at least 95 % of
-the reported joints over many seeds.
+Each cell differs from its profile within the declared tolerances (block pose, tool frame, water
+temperature, DH lengths and twists); the measurements are computed from that truth with the exact
+kinematics and seeded noise. The reported std must cover the error: |error| <= 3·std for at least
+95 % of the reported joints over many seeds.
 """
 
 from __future__ import annotations
@@ -28,22 +28,43 @@ MODEL = load_model("tx90l")
 TOOL_MM = np.array([0.0, 0.0, 80.0])
 CORNER_MM = wrist_centre(MODEL, PAPER_CALIBRATION_POSE_DEG) - 280.0
 #: (config, joint index, step deg, θ6 turn deg): paper 000's three plus a second J1 azimuth.
-CONFIGS = (("base", None, 0.0, 0.0), ("j3", 2, 5.0, 90.0), ("j2", 1, 5.0, -90.0),
-           ("j1", 0, 6.0, 0.0))
+CONFIGS = (
+    ("base", None, 0.0, 0.0),
+    ("j3", 2, 5.0, 90.0),
+    ("j2", 1, 5.0, -90.0),
+    ("j1", 0, 6.0, 0.0),
+)
 
 
-def prior(block_rot_std_deg: float = 0.5, temp_std_c: float = 2.0,
-          offsets_deg: np.ndarray | None = None) -> CellPrior:
-    return CellPrior(MODEL, np.zeros(6) if offsets_deg is None else offsets_deg, TOOL_MM,
-                     np.zeros(3), CORNER_MM, np.zeros(3), 20.0,
-                     block_rotation_std_deg=np.full(3, block_rot_std_deg),
-                     water_temperature_std_c=temp_std_c)
+def prior(
+    block_rot_std_deg: float = 0.5, temp_std_c: float = 2.0, offsets_deg: np.ndarray | None = None
+) -> CellPrior:
+    return CellPrior(
+        MODEL,
+        np.zeros(6) if offsets_deg is None else offsets_deg,
+        TOOL_MM,
+        np.zeros(3),
+        CORNER_MM,
+        np.zeros(3),
+        20.0,
+        block_rotation_std_deg=np.full(3, block_rot_std_deg),
+        water_temperature_std_c=temp_std_c,
+    )
 
 
-def measure(offsets_deg, block_rpy=(0.0, 0.0, 0.0), corner_shift_mm=(0.0, 0.0, 0.0),
-            tool_shift_mm=(0.0, 0.0, 0.0), tool_rpy=(0.0, 0.0, 0.0), water_c=20.0,
-            configs=CONFIGS, sigma_tilt_deg=5e-4, sigma_dist_mm=5e-4, seed=0, model=MODEL
-            ) -> list[FaceMeasurement]:
+def measure(
+    offsets_deg,
+    block_rpy=(0.0, 0.0, 0.0),
+    corner_shift_mm=(0.0, 0.0, 0.0),
+    tool_shift_mm=(0.0, 0.0, 0.0),
+    tool_rpy=(0.0, 0.0, 0.0),
+    water_c=20.0,
+    configs=CONFIGS,
+    sigma_tilt_deg=5e-4,
+    sigma_dist_mm=5e-4,
+    seed=0,
+    model=MODEL,
+) -> list[FaceMeasurement]:
     """Face measurements of a true cell, water paths converted with the profile's 20 °C."""
     tool = transform(TOOL_MM + np.asarray(tool_shift_mm), rpy_to_matrix(np.asarray(tool_rpy)))
     truth = CellGeometry(model, tool, rpy_to_matrix(np.asarray(block_rpy, float)))
@@ -62,9 +83,16 @@ def measure(offsets_deg, block_rpy=(0.0, 0.0, 0.0), corner_shift_mm=(0.0, 0.0, 0
             d = truth.normal(face) @ (tcp - corner)
             q_read = q.copy()
             q_read[3:5] += rng.normal(0.0, sigma_tilt_deg, 2)
-            out.append(FaceMeasurement(cfg, face, q_read,
-                                       d * scale + rng.normal(0.0, sigma_dist_mm),
-                                       sigma_dist_mm, sigma_tilt_deg))
+            out.append(
+                FaceMeasurement(
+                    cfg,
+                    face,
+                    q_read,
+                    d * scale + rng.normal(0.0, sigma_dist_mm),
+                    sigma_dist_mm,
+                    sigma_tilt_deg,
+                )
+            )
     return out
 
 
@@ -73,12 +101,15 @@ def random_cell(rng: np.random.Generator, block_rot_std_deg: float) -> dict:
     dh = MODEL.dh.copy()
     dh[:, 1:3] += np.where(dh[:, 1:3] != 0, rng.uniform(-0.3, 0.3, (6, 2)), 0.0)
     dh[:, 3] += rng.uniform(-0.03, 0.03, 6)
-    return {"model": MODEL.with_dh(dh), "offsets_deg": rng.uniform(-3.0, 3.0, 6),
-            "block_rpy": rng.normal(0.0, block_rot_std_deg, 3),
-            "corner_shift_mm": rng.normal(0.0, 5.0, 3),
-            "tool_shift_mm": rng.normal(0.0, 1.0, 3),
-            "tool_rpy": np.append(rng.normal(0.0, 0.5, 2), 0.0),
-            "water_c": 20.0 + rng.normal(0.0, 2.0)}
+    return {
+        "model": MODEL.with_dh(dh),
+        "offsets_deg": rng.uniform(-3.0, 3.0, 6),
+        "block_rpy": rng.normal(0.0, block_rot_std_deg, 3),
+        "corner_shift_mm": rng.normal(0.0, 5.0, 3),
+        "tool_shift_mm": rng.normal(0.0, 1.0, 3),
+        "tool_rpy": np.append(rng.normal(0.0, 0.5, 2), 0.0),
+        "water_c": 20.0 + rng.normal(0.0, 2.0),
+    }
 
 
 @pytest.mark.parametrize("block_rot_std_deg", [0.5, 0.01])
@@ -100,8 +131,11 @@ def test_std_covers_the_error_on_random_cells_within_tolerance(block_rot_std_deg
 
 def test_previous_solver_claims_too_much_on_the_same_cells():
     """Why the priors: without them, a tilted block and warm water hide inside a tight std."""
-    cell = {"offsets_deg": np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6]),
-            "block_rpy": (0.1, -0.1, 0.3), "water_c": 24.0}
+    cell = {
+        "offsets_deg": np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6]),
+        "block_rpy": (0.1, -0.1, 0.3),
+        "water_c": 24.0,
+    }
     meas = measure(**cell)
     geom = CellGeometry(MODEL, transform(TOOL_MM, np.eye(3)), np.eye(3))
     old = solve_exact(geom, meas, np.zeros(6))
@@ -118,7 +152,7 @@ def test_sound_speed_is_recovered_from_the_steps():
     sol = solve_exact_with_priors(prior(block_rot_std_deg=0.01), meas)
     true_c = sound_speed_m_s(24.0)
     assert abs(sol.sound_speed_m_s - true_c) <= 3 * sol.sound_speed_std_m_s
-    assert sol.sound_speed_std_m_s < 0.5     # far tighter than the 2 °C prior (≈ 6 m/s)
+    assert sol.sound_speed_std_m_s < 0.5  # far tighter than the 2 °C prior (≈ 6 m/s)
     ok = np.isfinite(sol.std_deg)
     assert np.all(np.abs(sol.offsets_deg[ok] - offsets[ok]) < 0.01)
 
@@ -127,13 +161,14 @@ def test_block_yaw_goes_into_joint1_std_or_makes_it_unobservable():
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     meas = measure(offsets, block_rpy=(0.0, 0.0, 0.4))
     hand = solve_exact_with_priors(prior(block_rot_std_deg=0.5), meas)
-    assert 1 in hand.unobservable_joints                   # yaw and J1: one rotation
+    assert 1 in hand.unobservable_joints  # yaw and J1: one rotation
     assert "yaw" in hand.unobservable_reasons[1]
-    assert hand.offsets_deg[0] == 0.0                      # kept, never fabricated
-    fixture = solve_exact_with_priors(prior(block_rot_std_deg=0.01), measure(
-        offsets, block_rpy=(0.0, 0.0, 0.008)))
+    assert hand.offsets_deg[0] == 0.0  # kept, never fabricated
+    fixture = solve_exact_with_priors(
+        prior(block_rot_std_deg=0.01), measure(offsets, block_rpy=(0.0, 0.0, 0.008))
+    )
     assert 1 not in fixture.unobservable_joints
-    assert fixture.std_deg[0] >= 0.01 * 0.99               # the fixture's tolerance, no less
+    assert fixture.std_deg[0] >= 0.01 * 0.99  # the fixture's tolerance, no less
     assert abs(fixture.offsets_deg[0] - offsets[0]) <= 3 * fixture.std_deg[0]
 
 
@@ -151,7 +186,7 @@ def test_block_tilt_needs_a_second_azimuth_for_joint2():
 def test_kinematic_error_beyond_the_declared_tolerance_is_a_misfit_naming_a_cause():
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     dh = MODEL.dh.copy()
-    dh[1, 2] += 0.4                                        # true upper arm 0.4 mm longer
+    dh[1, 2] += 0.4  # true upper arm 0.4 mm longer
     true_model = MODEL.with_dh(dh)
     meas = measure(offsets, model=true_model)
     # Within a 0.2 mm table tolerance (2σ): the table's lengths are nuisance unknowns.
@@ -173,7 +208,7 @@ def test_paper_std_carries_its_truncation_error():
     geom = CellGeometry(MODEL, transform(TOOL_MM, np.eye(3)), np.eye(3))
     sol = solve_paper(geom, meas, np.zeros(6), unobservable=(6,), prior=prior(0.01, 0.1))
     trunc = sol.extra["truncation_deg"]
-    assert trunc[1] + trunc[2] > 1.0                       # half of the 5° step on θ2 + θ3
+    assert trunc[1] + trunc[2] > 1.0  # half of the 5° step on θ2 + θ3
     ok = np.isfinite(sol.std_deg)
     err = np.abs(sol.offsets_deg[ok] - offsets[ok])
     assert np.all(err <= 3 * sol.std_deg[ok]), (err, sol.std_deg)

@@ -36,7 +36,8 @@ SIGMA = 5e-4  # deg of posture, mm of water path
 @pytest.fixture(scope="module")
 def cell():
     profile = load_profile(REPO / "profiles" / "example_cell.toml").replace(
-        dh_length_std_mm=0.3, dh_angle_std_deg=0.03, water_temperature_std_c=0.1)
+        dh_length_std_mm=0.3, dh_angle_std_deg=0.03, water_temperature_std_c=0.1
+    )
     return profile, plan_full(profile)
 
 
@@ -50,14 +51,20 @@ def measure(profile, plan, model, offsets, block_rpy, corner, water_c, seed):
         q[3:5] += rng.normal(0.0, SIGMA, 2)
         postures.append((p.label, p.face, q))
     scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(water_c)
-    return [FaceMeasurement(m.config, m.face, m.joints_deg,
-                            m.distance_mm + rng.normal(0.0, SIGMA), SIGMA, SIGMA)
-            for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)]
+    return [
+        FaceMeasurement(
+            m.config, m.face, m.joints_deg, m.distance_mm + rng.normal(0.0, SIGMA), SIGMA, SIGMA
+        )
+        for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)
+    ]
 
 
 def true_parameters(model) -> dict[str, float]:
-    out = {f"dh{i + 1}_{k}": model.dh[i, c + 1] for i in range(6)
-           for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))}
+    out = {
+        f"dh{i + 1}_{k}": model.dh[i, c + 1]
+        for i in range(6)
+        for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))
+    }
     out["dh2_beta_deg"] = model.beta_deg[1]
     return out
 
@@ -79,38 +86,64 @@ def test_dh_errors_identified_within_std_and_tcp_recovered(cell):
     dh[:5, 3] += rng.uniform(-0.05, 0.05, 5)
     model = profile.model.with_dh(dh, [0.0, 0.04, 0.0, 0.0, 0.0, 0.0])
     offsets = rng.uniform(-0.3, 0.3, 6)
-    meas = measure(profile, plan, model, offsets, [0.3, -0.2, 0.4],
-                   profile.sample_position_mm + [3.0, -2.0, 4.0], 20.05, seed=1)
+    meas = measure(
+        profile,
+        plan,
+        model,
+        offsets,
+        [0.3, -0.2, 0.4],
+        profile.sample_position_mm + [3.0, -2.0, 4.0],
+        20.05,
+        seed=1,
+    )
     prior = prior_from_profile(profile)
     sol = solve_full(prior, meas, structure=plan.structure)
-    assert set(sol.ident.redundant) == {"dh1_d_mm", "dh3_d_mm", "dh5_d_mm", "dh5_a_mm",
-                                        "dh6_d_mm", "dh6_a_mm", "dh6_alpha_deg"}
+    assert set(sol.ident.redundant) == {
+        "dh1_d_mm",
+        "dh3_d_mm",
+        "dh5_d_mm",
+        "dh5_a_mm",
+        "dh6_d_mm",
+        "dh6_a_mm",
+        "dh6_alpha_deg",
+    }
     assert "across the beam" in sol.ident.redundant["dh5_a_mm"]
     assert "parallel" in sol.ident.redundant["dh3_d_mm"] and sol.ident.scale_note
     assert sol.cell.quality.verdict == "ok"
     truth = true_parameters(model)
-    z = [(v["value"] - truth[n]) / v["std"] for n, v in sol.parameters.items()
-         if v["status"] != "not identifiable"]
+    z = [
+        (v["value"] - truth[n]) / v["std"]
+        for n, v in sol.parameters.items()
+        if v["status"] != "not identifiable"
+    ]
     assert max(np.abs(z)) < 4.0 and np.mean(np.abs(np.array(z)) <= 3.0) >= 0.9
     assert abs(sol.parameters["dh2_beta_deg"]["value"] - 0.04) < 0.005
-    assert sol.unobservable_joints == (1, 6)      # hand-placed block's yaw; beam on axis 6
+    assert sol.unobservable_joints == (1, 6)  # hand-placed block's yaw; beam on axis 6
     assert np.all(np.abs(sol.offsets_deg - offsets)[1:5] < 3 * sol.std_deg[1:5] + 1e-9)
     # TCP over the scanning region, after the best rigid alignment
     qs = scanning_postures(calibration_pose(profile), 100, 3, profile.model)
     true_p = fk(model, qs, profile.tool_matrix, offsets)[:, :3, 3]
-    full = aligned_errors_mm(fk(sol.model, qs, profile.tool_matrix, sol.offsets_deg)[:, :3, 3],
-                             true_p)
+    full = aligned_errors_mm(
+        fk(sol.model, qs, profile.tool_matrix, sol.offsets_deg)[:, :3, 3], true_p
+    )
     # even the true offsets on the nominal table leave the DH errors
-    offs = aligned_errors_mm(fk(profile.model, qs, profile.tool_matrix, offsets)[:, :3, 3],
-                             true_p)
+    offs = aligned_errors_mm(fk(profile.model, qs, profile.tool_matrix, offsets)[:, :3, 3], true_p)
     assert full.mean() < 0.06 and full.max() < 0.15
     assert offs.mean() > 3 * full.mean()
 
 
 def test_nominal_robot_gives_the_nominal_table_back(cell):
     profile, plan = cell
-    meas = measure(profile, plan, profile.model, np.zeros(6), np.zeros(3),
-                   profile.sample_position_mm, profile.water_temperature_c, seed=2)
+    meas = measure(
+        profile,
+        plan,
+        profile.model,
+        np.zeros(6),
+        np.zeros(3),
+        profile.sample_position_mm,
+        profile.water_temperature_c,
+        seed=2,
+    )
     sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
     truth = true_parameters(profile.model)
     for name, v in sol.parameters.items():
@@ -126,16 +159,25 @@ def test_region_check_flags_a_table_that_is_wrong_away_from_the_calibration(cell
     profile, plan = cell
     region = plan_region(profile, 10, exclude=plan.postures)
     assert len(region.postures) == 10
-    assert not any(np.allclose(r.joints_deg, p.joints_deg) for r in region.postures
-                   for p in plan.postures)
+    assert not any(
+        np.allclose(r.joints_deg, p.joints_deg) for r in region.postures for p in plan.postures
+    )
     dh = profile.model.dh.copy()
     dh[1, 2] += 0.3
     dh[3, 1] -= 0.2
     dh[2, 3] += 0.03
     model = profile.model.with_dh(dh, [0.0, 0.03, 0.0, 0.0, 0.0, 0.0])
     offsets = np.array([0.0, 0.1, -0.1, 0.05, 0.1, 0.0])
-    meas = measure(profile, region, model, offsets, [0.1, 0.0, -0.1],
-                   profile.sample_position_mm + [1.0, 2.0, -1.0], 20.3, seed=4)
+    meas = measure(
+        profile,
+        region,
+        model,
+        offsets,
+        [0.1, 0.0, -0.1],
+        profile.sample_position_mm + [1.0, 2.0, -1.0],
+        20.3,
+        seed=4,
+    )
     wrong = judge_region(profile.replace(joint_offsets_deg=offsets), meas, 0.5)
     assert wrong.verdict == "misfit" and not wrong.passed and wrong.max_distance_mm > 0.01
     right = judge_region(profile.replace(model=model, joint_offsets_deg=offsets), meas, 0.5)

@@ -19,18 +19,31 @@ from ucal.models import load_model
 MODEL = load_model("tx90l")
 
 
-def synthesise(offsets, tool_rpy=(0.0, 0.0, 0.0), true_tool_rpy=None, step=2.0, turn6=True,
-               noise_tilt_deg=0.0, noise_dist_mm=0.0, seed=0):
+def synthesise(
+    offsets,
+    tool_rpy=(0.0, 0.0, 0.0),
+    true_tool_rpy=None,
+    step=2.0,
+    turn6=True,
+    noise_tilt_deg=0.0,
+    noise_dist_mm=0.0,
+    seed=0,
+):
     """Nine ideal face measurements of a robot with hidden ``offsets`` (deg)."""
     tool = transform(np.array([0.0, 0.0, 80.0]), rpy_to_matrix(np.array(tool_rpy, float)))
-    true_tool = tool if true_tool_rpy is None else transform(
-        np.array([0.0, 0.0, 80.0]), rpy_to_matrix(np.array(true_tool_rpy, float)))
+    true_tool = (
+        tool
+        if true_tool_rpy is None
+        else transform(np.array([0.0, 0.0, 80.0]), rpy_to_matrix(np.array(true_tool_rpy, float)))
+    )
     geom = CellGeometry(MODEL, tool, np.eye(3))
     truth = CellGeometry(MODEL, true_tool, np.eye(3))
     corner = wrist_centre(MODEL, PAPER_CALIBRATION_POSE_DEG) - 280.0
     rng = np.random.default_rng(seed)
     meas = []
-    shifts = {"base": 0.0, "j3": 90.0, "j2": -90.0} if turn6 else {"base": 0.0, "j3": 0.0, "j2": 0.0}
+    shifts = (
+        {"base": 0.0, "j3": 90.0, "j2": -90.0} if turn6 else {"base": 0.0, "j3": 0.0, "j2": 0.0}
+    )
     for cfg, joint in (("base", None), ("j3", 2), ("j2", 1)):
         arm = PAPER_CALIBRATION_POSE_DEG.copy()
         if joint is not None:
@@ -42,9 +55,16 @@ def synthesise(offsets, tool_rpy=(0.0, 0.0, 0.0), true_tool_rpy=None, step=2.0, 
             d = truth.normal(face) @ (tcp - corner)
             q_noisy = q.copy()
             q_noisy[3:5] += rng.normal(0.0, noise_tilt_deg, 2)
-            meas.append(FaceMeasurement(cfg, face, q_noisy, d + rng.normal(0.0, noise_dist_mm),
-                                        distance_std_mm=max(noise_dist_mm, 1e-4),
-                                        tilt_std_deg=max(noise_tilt_deg, 1e-4)))
+            meas.append(
+                FaceMeasurement(
+                    cfg,
+                    face,
+                    q_noisy,
+                    d + rng.normal(0.0, noise_dist_mm),
+                    distance_std_mm=max(noise_dist_mm, 1e-4),
+                    tilt_std_deg=max(noise_tilt_deg, 1e-4),
+                )
+            )
     return geom, meas
 
 
@@ -97,7 +117,7 @@ def test_paper_method_bias_is_half_the_step_on_theta23():
     for step in (2.0, 0.5):
         geom, meas = synthesise(offsets, step=step)
         off = paper_offsets(geom, meas)
-        assert abs(off[0] - 1.0) < 1e-3                           # θ1 exact: a direction
+        assert abs(off[0] - 1.0) < 1e-3  # θ1 exact: a direction
         assert abs((off[1] + off[2]) - 2.0 - step / 2) < 0.05 * step  # θ2+θ3 by half the step
 
 
@@ -112,8 +132,9 @@ def test_exact_errors_within_three_sigma_under_noise():
     offsets = np.array([2.0, -3.0, 1.0, 4.0, -2.0, 3.0])
     z = []
     for seed in range(8):
-        geom, meas = synthesise(offsets, tool_rpy=(0.0, 12.0, 0.0), noise_tilt_deg=0.003,
-                                noise_dist_mm=0.002, seed=seed)
+        geom, meas = synthesise(
+            offsets, tool_rpy=(0.0, 12.0, 0.0), noise_tilt_deg=0.003, noise_dist_mm=0.002, seed=seed
+        )
         sol = solve_exact(geom, meas, np.zeros(6))
         z.append((sol.offsets_deg - offsets) / sol.std_deg)
     z = np.abs(np.array(z))

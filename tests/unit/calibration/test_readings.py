@@ -45,8 +45,9 @@ class FakeController(RobotController):
         self.moves += 1
         self.q = np.asarray(target_deg, float).copy()
 
-    def wait_settled(self, target_deg: np.ndarray, timeout_s: float,
-                     tol_deg: float = 1e-3) -> np.ndarray:
+    def wait_settled(
+        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
+    ) -> np.ndarray:
         return self.q.copy()
 
     def stop(self) -> None:
@@ -102,20 +103,27 @@ BAD = [
 
 @pytest.mark.parametrize(("reading", "what"), BAD)
 def test_impossible_reading_is_a_hardware_fault_naming_the_pulser(
-        reading: tuple[float, float], what: str) -> None:
+    reading: tuple[float, float], what: str
+) -> None:
     rig = rig_with(lambda n: reading)
-    for take in (rig.read, rig.normalised_amplitude, rig.measure_floor,
-                 lambda: read_distance(rig, 20.0, averages=1)):
-        with pytest.raises(HardwareError, match=rf"^pulser at {ENDPOINT}: impossible reading: "
-                                                rf".*{what}") as err:
+    for take in (
+        rig.read,
+        rig.normalised_amplitude,
+        rig.measure_floor,
+        lambda: read_distance(rig, 20.0, averages=1),
+    ):
+        with pytest.raises(
+            HardwareError,
+            match=rf"^pulser at {ENDPOINT}: impossible reading: "
+            rf".*{what}",
+        ) as err:
             take()
         assert err.value.exit_code == EXIT_HARDWARE
         assert "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize(("reading", "what"), BAD[:1] + BAD[3:4])
-def test_impossible_reading_in_a_sweep_is_caught(reading: tuple[float, float],
-                                                 what: str) -> None:
+def test_impossible_reading_in_a_sweep_is_caught(reading: tuple[float, float], what: str) -> None:
     rig = rig_with(lambda n: (0.1, float("nan")) if n < 3 else reading)
     with pytest.raises(HardwareError, match=what):
         rig.line(np.zeros(6), np.array([0, 0, 0, 1.0, 0, 0]))
@@ -159,8 +167,9 @@ def test_search_without_any_echo_gives_up_after_a_bounded_number_of_moves() -> N
         acquire_and_centre(_search(rig), rig, q_pred, "base/XY", 16.0, 40.0)
     message = str(err.value)
     assert message.startswith(f"pulser at {ENDPOINT}: no echo from face XY (base) within ±")
-    assert message.endswith("of the predicted posture "
-                            f"({rig.counters.moves} moves): is the block where [sample] says?")
+    assert message.endswith(
+        f"of the predicted posture ({rig.counters.moves} moves): is the block where [sample] says?"
+    )
     assert err.value.exit_code == EXIT_HARDWARE
     # the line in progress is finished: at most one line (a move and four sweeps) over
     assert MAX_ACQUISITION_MOVES <= rig.counters.moves <= MAX_ACQUISITION_MOVES + 5

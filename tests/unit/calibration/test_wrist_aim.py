@@ -23,9 +23,11 @@ def _geom(model, tilt_deg) -> CellGeometry:
 
 
 @settings(max_examples=40, deadline=None)
-@given(tilt=st.lists(st.floats(-15, 15), min_size=3, max_size=3),
-       offsets=st.lists(st.floats(-3, 3), min_size=6, max_size=6),
-       wrist=st.lists(st.floats(-20, 20), min_size=3, max_size=3))
+@given(
+    tilt=st.lists(st.floats(-15, 15), min_size=3, max_size=3),
+    offsets=st.lists(st.floats(-3, 3), min_size=6, max_size=6),
+    wrist=st.lists(st.floats(-20, 20), min_size=3, max_size=3),
+)
 def test_aims_exactly_holding_the_arm_and_joint_6(tilt, offsets, wrist) -> None:
     geom = _geom(MODEL, tilt)
     q0 = POSE.copy()

@@ -35,8 +35,9 @@ def _one_error_line(err: str) -> str:
     return lines[0]
 
 
-def test_path_output_into_a_missing_directory(inputs: tuple[Path, Path], tmp_path: Path,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_path_output_into_a_missing_directory(
+    inputs: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     profile, poses = inputs
     out = tmp_path / "no-such-dir" / "joints.csv"
     assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
@@ -45,24 +46,31 @@ def test_path_output_into_a_missing_directory(inputs: tuple[Path, Path], tmp_pat
     assert not out.parent.exists()
 
 
-def test_path_output_into_an_unwritable_directory(inputs: tuple[Path, Path], tmp_path: Path,
-                                                  monkeypatch: pytest.MonkeyPatch,
-                                                  capsys: pytest.CaptureFixture[str]) -> None:
+def test_path_output_into_an_unwritable_directory(
+    inputs: tuple[Path, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     profile, poses = inputs
     locked = tmp_path / "read-only"
     locked.mkdir()
     out = locked / "joints.csv"
     real_access = os.access
-    monkeypatch.setattr(os, "access",
-                        lambda p, mode: False if Path(p) == locked else real_access(p, mode))
+    monkeypatch.setattr(
+        os, "access", lambda p, mode: False if Path(p) == locked else real_access(p, mode)
+    )
     assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
     line = _one_error_line(capsys.readouterr().err)
     assert line.startswith(f"error: {out}: cannot write") and "not writable" in line
 
 
 def test_path_output_failing_while_written_names_the_file(
-        inputs: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-        capsys: pytest.CaptureFixture[str]) -> None:
+    inputs: tuple[Path, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     import errno
 
     profile, poses = inputs
@@ -85,8 +93,9 @@ def test_path_output_still_written(inputs: tuple[Path, Path], tmp_path: Path) ->
     assert out.read_text(encoding="utf-8").splitlines()[0] == "J1,J2,J3,J4,J5,J6"
 
 
-def test_sim_serve_log_into_a_missing_directory(tmp_path: Path,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_sim_serve_log_into_a_missing_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     log = tmp_path / "missing" / "motions.jsonl"
     assert _run(["sim", "serve", "--log", str(log)]) == EXIT_USAGE
     captured = capsys.readouterr()
@@ -95,8 +104,9 @@ def test_sim_serve_log_into_a_missing_directory(tmp_path: Path,
     assert captured.out == ""  # nothing served, no URL line
 
 
-def test_sim_serve_log_that_is_a_directory(tmp_path: Path,
-                                           capsys: pytest.CaptureFixture[str]) -> None:
+def test_sim_serve_log_that_is_a_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert _run(["sim", "serve", "--log", str(tmp_path)]) == EXIT_USAGE
     err = capsys.readouterr().err
     assert str(tmp_path) in err and "is a directory" in err and "Traceback" not in err

@@ -39,8 +39,9 @@ def one_error(err: str) -> str:
 
 
 @pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify"])
-def test_no_cell_is_a_usage_error_before_any_plan(profile: Path, command: str,
-                                                   run_main: RunMain) -> None:
+def test_no_cell_is_a_usage_error_before_any_plan(
+    profile: Path, command: str, run_main: RunMain
+) -> None:
     before = profile.read_bytes()
     code, out, err = run_main([command, str(profile), "--json"])
     message = one_error(err)
@@ -49,30 +50,46 @@ def test_no_cell_is_a_usage_error_before_any_plan(profile: Path, command: str,
     assert profile.read_bytes() == before
 
 
-@pytest.mark.parametrize("args, words", [
-    (["tool-frame", "--controller", CONTROLLER, "--pulser", PULSER, "--dry-run"],
-     "--dry-run runs against the simulator: it cannot be combined with --controller/--pulser"),
-    (["calibrate", "--dry-run", "--controller", CONTROLLER],
-     "--dry-run runs against the simulator: it cannot be combined with --controller"),
-    (["calibrate", "--sim", "--controller", CONTROLLER],
-     "--sim cannot be combined with --controller"),
-    (["verify", "--controller", CONTROLLER], "--controller given without --pulser URL"),
-    (["verify", "--controller", "10.0.0.5", "--pulser", PULSER],
-     "--controller: not a controller URL: '10.0.0.5'"),
-    (["calibrate", "--sim", "no-such-world.toml"], "no-such-world.toml: world file not found"),
-    (["calibrate", "--sim"], "refusing to move the simulated cell without confirmation"),
-    (["calibrate", "--sim", "--yes", "--record", "no-such-dir/run.jsonl"],
-     "no-such-dir/run.jsonl: cannot write: directory no-such-dir does not exist"),
-])
-def test_usage_errors_name_what_was_typed(profile: Path, args: list[str], words: str,
-                                          run_main: RunMain) -> None:
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (
+            ["tool-frame", "--controller", CONTROLLER, "--pulser", PULSER, "--dry-run"],
+            "--dry-run runs against the simulator: it cannot be combined with "
+            "--controller/--pulser",
+        ),
+        (
+            ["calibrate", "--dry-run", "--controller", CONTROLLER],
+            "--dry-run runs against the simulator: it cannot be combined with --controller",
+        ),
+        (
+            ["calibrate", "--sim", "--controller", CONTROLLER],
+            "--sim cannot be combined with --controller",
+        ),
+        (["verify", "--controller", CONTROLLER], "--controller given without --pulser URL"),
+        (
+            ["verify", "--controller", "10.0.0.5", "--pulser", PULSER],
+            "--controller: not a controller URL: '10.0.0.5'",
+        ),
+        (["calibrate", "--sim", "no-such-world.toml"], "no-such-world.toml: world file not found"),
+        (["calibrate", "--sim"], "refusing to move the simulated cell without confirmation"),
+        (
+            ["calibrate", "--sim", "--yes", "--record", "no-such-dir/run.jsonl"],
+            "no-such-dir/run.jsonl: cannot write: directory no-such-dir does not exist",
+        ),
+    ],
+)
+def test_usage_errors_name_what_was_typed(
+    profile: Path, args: list[str], words: str, run_main: RunMain
+) -> None:
     code, out, err = run_main([args[0], str(profile), *args[1:]])
     assert code == 2 and one_error(err).startswith(words), err
     assert out == ""  # no --json: nothing on stdout
 
 
-def test_the_cell_comes_from_the_environment(profile: Path, monkeypatch: pytest.MonkeyPatch,
-                                             run_main: RunMain) -> None:
+def test_the_cell_comes_from_the_environment(
+    profile: Path, monkeypatch: pytest.MonkeyPatch, run_main: RunMain
+) -> None:
     monkeypatch.setenv("UCAL_CONTROLLER", CONTROLLER)
     monkeypatch.setenv("UCAL_PULSER", PULSER)
     code, _, err = run_main(["calibrate", str(profile)])
@@ -84,8 +101,9 @@ def test_the_cell_comes_from_the_environment(profile: Path, monkeypatch: pytest.
     assert code == 2 and one_error(err).startswith("refusing to move the simulated cell ")
     monkeypatch.setenv("UCAL_SIM", "1")
     code, _, err = run_main(["tool-frame", str(profile)])
-    assert code == 2 and one_error(err).startswith("UCAL_SIM cannot be combined with "
-                                                   "UCAL_CONTROLLER/UCAL_PULSER")
+    assert code == 2 and one_error(err).startswith(
+        "UCAL_SIM cannot be combined with UCAL_CONTROLLER/UCAL_PULSER"
+    )
     monkeypatch.delenv("UCAL_CONTROLLER")
     code, _, err = run_main(["tool-frame", str(profile)])
     assert code == 2 and one_error(err).startswith("UCAL_SIM cannot be combined with UCAL_PULSER")
@@ -93,47 +111,56 @@ def test_the_cell_comes_from_the_environment(profile: Path, monkeypatch: pytest.
     assert code == 2 and one_error(err).startswith(f"refusing to move the robot at {CONTROLLER} ")
 
 
-def test_sim_from_the_environment(profile: Path, monkeypatch: pytest.MonkeyPatch,
-                                  run_main: RunMain) -> None:
+def test_sim_from_the_environment(
+    profile: Path, monkeypatch: pytest.MonkeyPatch, run_main: RunMain
+) -> None:
     monkeypatch.setenv("UCAL_SIM", str(profile.with_name("truth.toml")))
     code, _, err = run_main(["verify", str(profile)])
-    assert code == 2 and one_error(err) == (f"{profile.with_name('truth.toml')}: world file not "
-                                            "found (UCAL_SIM)")
+    assert code == 2 and one_error(err) == (
+        f"{profile.with_name('truth.toml')}: world file not found (UCAL_SIM)"
+    )
     monkeypatch.setenv("UCAL_SIM", "0")
     code, _, err = run_main(["verify", str(profile)])
     assert code == 2 and one_error(err).startswith("no cell given")
 
 
-@pytest.mark.parametrize("args", [
-    ["fk", "{p}", "--joints", "1,2,3", "--json"],      # a bad option value (click)
-    ["fk", "{p}", "--bogus", "--json"],                # an unknown option (click)
-    ["ik", "{p}", "--pose", "5000,0,0,0,0,0", "--json"],  # unreachable: exit 4
-    ["profile", "show", "{p}.missing", "--json"],      # an unreadable file
-    ["status", "--json"],                              # no controller
-])
-def test_every_failure_prints_the_error_object(profile: Path, args: list[str],
-                                               run_main: RunMain) -> None:
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["fk", "{p}", "--joints", "1,2,3", "--json"],  # a bad option value (click)
+        ["fk", "{p}", "--bogus", "--json"],  # an unknown option (click)
+        ["ik", "{p}", "--pose", "5000,0,0,0,0,0", "--json"],  # unreachable: exit 4
+        ["profile", "show", "{p}.missing", "--json"],  # an unreadable file
+        ["status", "--json"],  # no controller
+    ],
+)
+def test_every_failure_prints_the_error_object(
+    profile: Path, args: list[str], run_main: RunMain
+) -> None:
     code, out, err = run_main([a.format(p=profile) for a in args])
     assert code in (2, 4) and "Traceback" not in err
     obj = json.loads(out)
     assert obj == {"error": obj["error"], "exit_code": code} and obj["error"] in err
 
 
-@pytest.mark.parametrize("args", [
-    ["-q", "profile", "init", "tx90", "{d}/a.toml"],
-    ["profile", "init", "tx90", "{d}/a.toml", "-q"],
-    ["profile", "-q", "init", "tx90", "{d}/a.toml"],
-])
-def test_quiet_anywhere(tmp_path: Path, args: list[str],
-                        run_main: RunMain) -> None:
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["-q", "profile", "init", "tx90", "{d}/a.toml"],
+        ["profile", "init", "tx90", "{d}/a.toml", "-q"],
+        ["profile", "-q", "init", "tx90", "{d}/a.toml"],
+    ],
+)
+def test_quiet_anywhere(tmp_path: Path, args: list[str], run_main: RunMain) -> None:
     code, out, err = run_main([a.format(d=tmp_path) for a in args])
     assert (code, out, err) == (0, "", "")
     code, _, err = run_main(["profile", "init", "tx90", f"{tmp_path}/b.toml"])
     assert code == 0 and err.startswith(f"wrote {tmp_path}/b.toml (tx90)")
     # errors still print with -q
     code, _, err = run_main(["profile", "init", "tx90", f"{tmp_path}/a.toml", "-q"])
-    assert code == 2 and one_error(err).endswith("already exists (use --force to replace it; "
-                                                 "the old file is kept in the history)")
+    assert code == 2 and one_error(err).endswith(
+        "already exists (use --force to replace it; the old file is kept in the history)"
+    )
 
 
 def test_verbose_after_the_subcommand(profile: Path, run_main: RunMain) -> None:
@@ -141,10 +168,18 @@ def test_verbose_after_the_subcommand(profile: Path, run_main: RunMain) -> None:
     assert code == 0 and set(json.loads(out)) == {"joints_deg", "pose"}
 
 
-@pytest.mark.parametrize("flags, level", [([], logging.WARNING), (["-v"], logging.INFO),
-                                          (["-vv"], logging.DEBUG), (["-q"], logging.ERROR)])
-def test_log_level_from_flags_anywhere(profile: Path, run_main: RunMain, flags: list[str],
-                                       level: int) -> None:
+@pytest.mark.parametrize(
+    "flags, level",
+    [
+        ([], logging.WARNING),
+        (["-v"], logging.INFO),
+        (["-vv"], logging.DEBUG),
+        (["-q"], logging.ERROR),
+    ],
+)
+def test_log_level_from_flags_anywhere(
+    profile: Path, run_main: RunMain, flags: list[str], level: int
+) -> None:
     for args in ([*flags, "fk", str(profile)], ["fk", str(profile), *flags]):
         code, _, _ = run_main([*args, "--joints", "0,0,90,0,90,0"])
         assert code == 0 and logging.getLogger().level == level

@@ -31,15 +31,24 @@ WRITE_FRONT_END = h("01 10 00 09 00 04 08 00 64 00 32 00 64 13 88 FA ED")
 WRITE_FRONT_END_REPLY = h("01 10 00 09 00 04 11 C8")
 READ_ALL_HOLDING = h("01 03 00 00 00 0D 84 0F")
 # defaults, threshold 2 %, command 0, then 200 V, 100 ohm, 5.00 MHz, 35.50 MHz
-ALL_HOLDING_REPLY = h("01 03 1A 00 C8 03 E8 00 00 13 88 00 03 0D 40 00 01 00 14 00 00 "
-                      "00 C8 00 64 01 F4 0D DE 43 5B")
+ALL_HOLDING_REPLY = h(
+    "01 03 1A 00 C8 03 E8 00 00 13 88 00 03 0D 40 00 01 00 14 00 00 00 C8 00 64 01 F4 0D DE 43 5B"
+)
 READ_DEVICE_INFO = h("01 04 00 02 00 0C 51 CF")
 # "UP-1000", firmware 2.3, serial 4242
-DEVICE_INFO_REPLY = h("01 04 18 55 50 2D 31 30 30 30 00 00 00 00 00 00 00 00 00 00 02 00 03 "
-                      "00 00 10 92 5E 45")
+DEVICE_INFO_REPLY = h(
+    "01 04 18 55 50 2D 31 30 30 30 00 00 00 00 00 00 00 00 00 00 02 00 03 00 00 10 92 5E 45"
+)
 
-FRAMES = [IDENTIFY_V2, WRITE_FRONT_END, WRITE_FRONT_END_REPLY, READ_ALL_HOLDING,
-          ALL_HOLDING_REPLY, READ_DEVICE_INFO, DEVICE_INFO_REPLY]
+FRAMES = [
+    IDENTIFY_V2,
+    WRITE_FRONT_END,
+    WRITE_FRONT_END_REPLY,
+    READ_ALL_HOLDING,
+    ALL_HOLDING_REPLY,
+    READ_DEVICE_INFO,
+    DEVICE_INFO_REPLY,
+]
 
 
 class ScriptedPort:
@@ -75,8 +84,9 @@ class ScriptedPort:
         assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
 
 
-def scripted(identity: bytes, dialogue: list[tuple[bytes, bytes]]
-             ) -> tuple[ModbusPulser, ScriptedPort]:
+def scripted(
+    identity: bytes, dialogue: list[tuple[bytes, bytes]]
+) -> tuple[ModbusPulser, ScriptedPort]:
     port = ScriptedPort([(IDENTIFY, identity), *dialogue])
     return ModbusPulser("modbus-rtu:///dev/ttyPULSER0?unit=1", timeout_s=0.2, port=port), port
 
@@ -85,14 +95,26 @@ def scripted(identity: bytes, dialogue: list[tuple[bytes, bytes]]
 def test_defaults_are_those_of_a_broadband_contact_setup() -> None:
     s = PulserSettings()
     assert (s.pulse_voltage_v, s.damping_ohm, s.high_pass_mhz, s.low_pass_mhz) == (
-        100.0, 50.0, 1.0, 50.0)
+        100.0,
+        50.0,
+        1.0,
+        50.0,
+    )
 
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("pulse_voltage_v", 0.0), ("pulse_voltage_v", -100.0), ("damping_ohm", 0.0),
-     ("high_pass_mhz", -1.0), ("low_pass_mhz", float("nan")), ("pulse_voltage_v", "100"),
-     ("damping_ohm", float("inf")), ("averages", 0), ("averages", 1.5)],
+    [
+        ("pulse_voltage_v", 0.0),
+        ("pulse_voltage_v", -100.0),
+        ("damping_ohm", 0.0),
+        ("high_pass_mhz", -1.0),
+        ("low_pass_mhz", float("nan")),
+        ("pulse_voltage_v", "100"),
+        ("damping_ohm", float("inf")),
+        ("averages", 0),
+        ("averages", 1.5),
+    ],
 )
 def test_meaningless_settings_raise_naming_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):
@@ -100,17 +122,19 @@ def test_meaningless_settings_raise_naming_the_field(field: str, value: object) 
 
 
 def test_an_empty_filter_band_raises() -> None:
-    with pytest.raises(ValueError, match="low_pass_mhz = 5.*above high_pass_mhz = 10"):
+    with pytest.raises(ValueError, match=r"low_pass_mhz = 5.*above high_pass_mhz = 10"):
         PulserSettings(high_pass_mhz=10.0, low_pass_mhz=5.0)
 
 
 @pytest.mark.parametrize(
     ("field", "value", "message"),
-    [("pulse_voltage_v", 501.0, r"pulse_voltage_v = 501.0 V is out of range \[10, 500\] V"),
-     ("pulse_voltage_v", 5.0, "pulse_voltage_v"),
-     ("damping_ohm", 2001.0, "damping_ohm"),
-     ("high_pass_mhz", 100.5, "high_pass_mhz"),
-     ("low_pass_mhz", 600.0, r"low_pass_mhz = 600.0 MHz is out of range \[0.1, 500\] MHz")],
+    [
+        ("pulse_voltage_v", 501.0, r"pulse_voltage_v = 501.0 V is out of range \[10, 500\] V"),
+        ("pulse_voltage_v", 5.0, "pulse_voltage_v"),
+        ("damping_ohm", 2001.0, "damping_ohm"),
+        ("high_pass_mhz", 100.5, "high_pass_mhz"),
+        ("low_pass_mhz", 600.0, r"low_pass_mhz = 600.0 MHz is out of range \[0.1, 500\] MHz"),
+    ],
 )
 def test_register_ranges_raise_and_never_clip(field: str, value: float, message: str) -> None:
     with pytest.raises(ValueError, match=message):
@@ -124,18 +148,35 @@ def test_a_band_that_rounds_to_nothing_raises() -> None:
 
 # --- register map -------------------------------------------------------------------------------
 def test_existing_addresses_are_unchanged_and_new_ones_follow() -> None:
-    assert [int(a) for a in (reg.Holding.GAIN, reg.Holding.PRF, reg.Holding.GATE_START,
-                             reg.Holding.GATE_WIDTH, reg.Holding.AVERAGES, reg.Holding.THRESHOLD,
-                             reg.Holding.COMMAND)] == [0, 1, 2, 4, 6, 7, 8]
-    assert [int(a) for a in (reg.Holding.PULSE_VOLTAGE, reg.Holding.DAMPING,
-                             reg.Holding.HIGH_PASS, reg.Holding.LOW_PASS)] == [9, 10, 11, 12]
+    assert [
+        int(a)
+        for a in (
+            reg.Holding.GAIN,
+            reg.Holding.PRF,
+            reg.Holding.GATE_START,
+            reg.Holding.GATE_WIDTH,
+            reg.Holding.AVERAGES,
+            reg.Holding.THRESHOLD,
+            reg.Holding.COMMAND,
+        )
+    ] == [0, 1, 2, 4, 6, 7, 8]
+    assert [
+        int(a)
+        for a in (
+            reg.Holding.PULSE_VOLTAGE,
+            reg.Holding.DAMPING,
+            reg.Holding.HIGH_PASS,
+            reg.Holding.LOW_PASS,
+        )
+    ] == [9, 10, 11, 12]
     assert reg.SETTINGS_COUNT == 7 and reg.HOLDING_COUNT == 13
     assert int(reg.Input.MODEL) == 2 and int(reg.Input.COUNTER) == 0x10
 
 
 def test_front_end_registers_round_trip() -> None:
-    wanted = PulserSettings(pulse_voltage_v=200.0, damping_ohm=100.0, high_pass_mhz=5.0,
-                            low_pass_mhz=35.5)
+    wanted = PulserSettings(
+        pulse_voltage_v=200.0, damping_ohm=100.0, high_pass_mhz=5.0, low_pass_mhz=35.5
+    )
     regs = reg.power_on_holding()[: reg.FRONT_END_ADDRESS] + reg.encode_front_end(wanted)
     assert reg.encode_front_end(wanted) == [200, 100, 500, 3550]
     assert reg.decode_settings(regs) == wanted
@@ -160,11 +201,14 @@ def test_hand_written_frames_carry_the_crc(frame: bytes) -> None:
 
 # --- the client against a v2 and a v1 device ----------------------------------------------------
 def test_v2_configure_writes_the_front_end_once_per_connection() -> None:
-    pulser, port = scripted(IDENTIFY_V2, [
-        (WRITE_SETTINGS, WRITE_SETTINGS_REPLY),
-        (WRITE_FRONT_END, WRITE_FRONT_END_REPLY),
-        (WRITE_SETTINGS, WRITE_SETTINGS_REPLY),  # same front end: not written again
-    ])
+    pulser, port = scripted(
+        IDENTIFY_V2,
+        [
+            (WRITE_SETTINGS, WRITE_SETTINGS_REPLY),
+            (WRITE_FRONT_END, WRITE_FRONT_END_REPLY),
+            (WRITE_SETTINGS, WRITE_SETTINGS_REPLY),  # same front end: not written again
+        ],
+    )
     with pulser:
         pulser.configure(PulserSettings())
         pulser.configure(PulserSettings())
@@ -172,13 +216,19 @@ def test_v2_configure_writes_the_front_end_once_per_connection() -> None:
 
 
 def test_v2_settings_and_identity_read_back() -> None:
-    pulser, port = scripted(IDENTIFY_V2, [(READ_ALL_HOLDING, ALL_HOLDING_REPLY),
-                                          (READ_DEVICE_INFO, DEVICE_INFO_REPLY)])
+    pulser, port = scripted(
+        IDENTIFY_V2, [(READ_ALL_HOLDING, ALL_HOLDING_REPLY), (READ_DEVICE_INFO, DEVICE_INFO_REPLY)]
+    )
     with pulser:
-        assert pulser.settings() == PulserSettings(pulse_voltage_v=200.0, damping_ohm=100.0,
-                                                   high_pass_mhz=5.0, low_pass_mhz=35.5)
-        assert pulser.identity() == {"register_map_version": 2, "model": "UP-1000",
-                                     "firmware": "2.3", "serial": 4242}
+        assert pulser.settings() == PulserSettings(
+            pulse_voltage_v=200.0, damping_ohm=100.0, high_pass_mhz=5.0, low_pass_mhz=35.5
+        )
+        assert pulser.identity() == {
+            "register_map_version": 2,
+            "model": "UP-1000",
+            "firmware": "2.3",
+            "serial": 4242,
+        }
     port.assert_done()
 
 

@@ -152,7 +152,7 @@ def test_non_number_setting_raises() -> None:
 
 def test_gate_ending_after_the_pulse_period_raises() -> None:
     settings = PulserSettings(prf_hz=20000, gate_start_us=5.0, gate_width_us=46.0)
-    with pytest.raises(ValueError, match="gate_width_us.*51 µs.*50 µs"):
+    with pytest.raises(ValueError, match=r"gate_width_us.*51 µs.*50 µs"):
         reg.encode_settings(settings)
     reg.encode_settings(PulserSettings(prf_hz=20000, gate_start_us=5.0, gate_width_us=45.0))
 

@@ -8,6 +8,7 @@ import pytest
 
 from drivers import registry
 from drivers.controller.client import SimpleMessageController
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 
 
@@ -36,8 +37,11 @@ def test_open_controller_builds_the_simple_message_client() -> None:
 
 
 def test_unknown_scheme_names_it_and_lists_the_known_ones() -> None:
-    with pytest.raises(ValueError, match=r"unknown pulser URL scheme 'gpib'.*modbus-rtu, "
-                                         r"modbus-tcp"):
+    with pytest.raises(
+        ValueError,
+        match=r"unknown pulser URL scheme 'gpib'.*modbus-rtu, "
+        r"modbus-tcp",
+    ):
         registry.open_pulser("gpib://0/3")
     with pytest.raises(ValueError, match=r"unknown controller URL scheme 'udp'.*known: tcp"):
         registry.open_controller("udp://10.0.0.1:11000")
@@ -70,15 +74,10 @@ def test_a_back_end_declared_by_another_package_is_used(monkeypatch: pytest.Monk
     assert pulser.endpoint == "fake://bench" and pulser.answer == 42
 
 
-def test_a_back_end_that_builds_something_else_is_refused(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(registry.BUILTIN[registry.PULSER_GROUP], "odd",
-                        "builtins:str")
+def test_a_back_end_that_builds_something_else_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(registry.BUILTIN[registry.PULSER_GROUP], "odd", "builtins:str")
     with pytest.raises(TypeError, match="not a PulserReceiver"):
         registry.open_pulser("odd://x")
-
-
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 
 
 class FakePulser(PulserReceiver):

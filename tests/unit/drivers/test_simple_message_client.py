@@ -45,11 +45,15 @@ Z12 = "00000000 " * 12
 # JOINT_POSITION, TOPIC: sequence 0, J1 = pi/2 (0x3fc90fdb), the other nine zero.
 JOINT_POSITION = h("38000000 0a000000 01000000 00000000 00000000 db0fc93f" + " 00000000" * 9)
 # STATUS (REP-I0006 appendix A): powered, e-stop unknown, no error, idle, auto, motion possible.
-STATUS = h("28000000 0d000000 01000000 00000000 01000000 ffffffff 00000000 00000000 00000000 "
-           "02000000 01000000")
+STATUS = h(
+    "28000000 0d000000 01000000 00000000 01000000 ffffffff 00000000 00000000 00000000 "
+    "02000000 01000000"
+)
 # JOINT_TRAJ_PT request, sequence 0, to 90, -45, 45, 0, 90, -180 deg at velocity 0.5.
-MOVE = h("40000000 0b000000 02000000 00000000 00000000 db0fc93f db0f49bf db0f493f 00000000 "
-         "db0fc93f db0f49c0 00000000 00000000 00000000 00000000 0000003f 00000000")
+MOVE = h(
+    "40000000 0b000000 02000000 00000000 00000000 db0fc93f db0f49bf db0f493f 00000000 "
+    "db0fc93f db0f49c0 00000000 00000000 00000000 00000000 0000003f 00000000"
+)
 MOVE_TARGET_DEG = np.array([90.0, -45.0, 45.0, 0.0, 90.0, -180.0])
 # The VAL3 reply: the request's layout, its sequence echoed, SUCCESS (encTrajPtAck.pgx).
 MOVE_OK = h("40000000 0b000000 03000000 01000000 00000000 " + Z12)
@@ -74,8 +78,7 @@ class ScriptedMotion:
     def sendall(self, data: bytes) -> None:
         assert self.dialogue, f"unexpected write {bytes(data).hex(' ')}"
         expected, reply = self.dialogue.pop(0)
-        assert bytes(data) == expected, (f"sent {bytes(data).hex(' ')}, "
-                                         f"expected {expected.hex(' ')}")
+        assert bytes(data) == expected, f"sent {bytes(data).hex(' ')}, expected {expected.hex(' ')}"
         self.rx += reply or b""
 
     def recv(self, size: int) -> bytes:
@@ -135,8 +138,9 @@ class ScriptedState:
             self._cond.notify_all()
 
 
-def scripted(dialogue: list[tuple[bytes, bytes | None]], **options: float
-             ) -> tuple[SimpleMessageController, ScriptedMotion, ScriptedState, list]:
+def scripted(
+    dialogue: list[tuple[bytes, bytes | None]], **options: float
+) -> tuple[SimpleMessageController, ScriptedMotion, ScriptedState, list]:
     """A client connected to scripted connections; the state stream already holds a frame."""
     motion, state, opened = ScriptedMotion(dialogue), ScriptedState(), []
 
@@ -162,8 +166,14 @@ def test_byte_dialogue_connect_state_move_stop():
     joints = client.read_joints()
     assert joints[0] == pytest.approx(90.0, abs=3e-6) and not np.any(joints[1:])
     st = client.status()
-    assert (st.drives_powered, st.e_stopped, st.in_error, st.in_motion, st.mode,
-            st.motion_possible) == (True, None, False, False, 2, True)
+    assert (
+        st.drives_powered,
+        st.e_stopped,
+        st.in_error,
+        st.in_motion,
+        st.mode,
+        st.motion_possible,
+    ) == (True, None, False, False, 2, True)
     # move: the exact request, the VAL3 reply
     client.start_move(MOVE_TARGET_DEG, speed=0.5)
     # stop: sequence -4, acknowledged
@@ -173,13 +183,16 @@ def test_byte_dialogue_connect_state_move_stop():
     assert motion.closed and state.closed
 
 
-@pytest.mark.parametrize("speed, wire_hex", [
-    (0.5, "0000003f"),
-    (0.1, "cdcccc3d"),        # 0.1 is 10 %: sent as asked
-    (0.001, "fa61843a"),      # 0.1 %: VAL3's "smooth last point" trigger, sent as 0.00101
-    (0.0010004, "fa61843a"),  # rounds to 0.1 % as well
-    (1e-6, "17b7d138"),       # below what the server runs as asked: 1e-4
-])
+@pytest.mark.parametrize(
+    "speed, wire_hex",
+    [
+        (0.5, "0000003f"),
+        (0.1, "cdcccc3d"),  # 0.1 is 10 %: sent as asked
+        (0.001, "fa61843a"),  # 0.1 %: VAL3's "smooth last point" trigger, sent as 0.00101
+        (0.0010004, "fa61843a"),  # rounds to 0.1 % as well
+        (1e-6, "17b7d138"),  # below what the server runs as asked: 1e-4
+    ],
+)
 def test_velocity_on_the_wire(speed, wire_hex):
     req = bytearray(request(0))
     req[60:64] = h(wire_hex)
@@ -198,24 +211,33 @@ def test_val3_velocity_rules():
 
 
 def test_after_a_reply_timeout_the_sequence_moves_on_and_the_late_reply_is_skipped():
-    client, motion, _, _ = scripted([
-        (request(0), None),
-        (request(1), JointTrajPtReply(ReplyCode.SUCCESS, 0).pack()       # late, for point 0
-         + JointTrajPtReply(ReplyCode.FAILURE, 1).pack()),
-    ])
-    with pytest.raises(DeviceTimeout, match=r"reply timeout ran out \(reply_timeout_s = 2 s\): "
-                                            r"no reply to trajectory point 0"):
+    client, motion, _, _ = scripted(
+        [
+            (request(0), None),
+            (
+                request(1),
+                JointTrajPtReply(ReplyCode.SUCCESS, 0).pack()  # late, for point 0
+                + JointTrajPtReply(ReplyCode.FAILURE, 1).pack(),
+            ),
+        ]
+    )
+    with pytest.raises(
+        DeviceTimeout,
+        match=r"reply timeout ran out \(reply_timeout_s = 2 s\): "
+        r"no reply to trajectory point 0",
+    ):
         client.start_move(MOVE_TARGET_DEG)
     # point 1's own answer (FAILURE), not the late SUCCESS of point 0
-    with pytest.raises(MotionRejected, match="trajectory point 1 .* refused"):
+    with pytest.raises(MotionRejected, match=r"trajectory point 1 .* refused"):
         client.start_move(MOVE_TARGET_DEG)
     motion.assert_done()
 
 
 def test_a_late_reply_without_a_sequence_is_never_taken_for_a_new_point():
     header_only_ok = JointTrajPtReply(ReplyCode.SUCCESS, None, 0).pack()
-    client, motion, _, _ = scripted([(request(0), None), (request(1), header_only_ok),
-                                     (request(2), header_only_ok)])
+    client, motion, _, _ = scripted(
+        [(request(0), None), (request(1), header_only_ok), (request(2), header_only_ok)]
+    )
     with pytest.raises(DeviceTimeout, match="point 0"):
         client.start_move(MOVE_TARGET_DEG)
     with pytest.raises(DeviceTimeout, match="point 1"):  # that reply may be point 0's
@@ -237,11 +259,14 @@ def test_well_formed_frames_of_other_types_are_skipped_on_both_ports(caplog):
     assert "ignoring OtherMessage (type 4242) on the state port" in caplog.text
 
 
-@pytest.mark.parametrize("bad", [
-    b"\x00garbage bytes that are not a frame at all",
-    struct.pack("<4i", 0x7FFFFFFF, 11, 3, 1),        # length 0x7fffffff
-    struct.pack("<4i", 12, 99, 0, 0),                # unknown type, comm type 0: no frame
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        b"\x00garbage bytes that are not a frame at all",
+        struct.pack("<4i", 0x7FFFFFFF, 11, 3, 1),  # length 0x7fffffff
+        struct.pack("<4i", 12, 99, 0, 0),  # unknown type, comm type 0: no frame
+    ],
+)
 def test_stop_is_sent_after_a_bad_frame_on_the_motion_port(bad, caplog):
     caplog.set_level(logging.WARNING, logger="drivers.controller.client")
     client, motion, _, _ = scripted([(MOVE, bad), (STOP, None)])
@@ -267,11 +292,14 @@ def test_a_refused_connection_names_the_port_and_a_silent_one_the_connect_timeou
         raise TimeoutError("timed out")
 
     client = SimpleMessageController.from_url(URL, connect=hang, connect_timeout_s=3.5)
-    with pytest.raises(DeviceTimeout, match=r"connect timeout ran out \(connect_timeout_s = "
-                                            r"3.5 s\): no answer connecting to the motion port"):
+    with pytest.raises(
+        DeviceTimeout,
+        match=r"connect timeout ran out \(connect_timeout_s = "
+        r"3.5 s\): no answer connecting to the motion port",
+    ):
         client.connect()
 
 
 def test_status_frame_constants_match_the_message_classes():
-    assert STATUS == Status(1, -1, 0, 0, 0, 2, 1).pack()
-    assert MOVE_OK == JointTrajPtReply(ReplyCode.SUCCESS, 0).pack()
+    assert Status(1, -1, 0, 0, 0, 2, 1).pack() == STATUS
+    assert JointTrajPtReply(ReplyCode.SUCCESS, 0).pack() == MOVE_OK

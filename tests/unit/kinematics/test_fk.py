@@ -17,12 +17,24 @@ from ucal.models import KNOWN_MODELS, load_model
 def _link(theta_deg: float, d: float, a: float, alpha_deg: float) -> np.ndarray:
     """Rz(θ)·Tz(d)·Tx(a)·Rx(α), written out as four separate matrices."""
     t, al = math.radians(theta_deg), math.radians(alpha_deg)
-    rz = np.array([[math.cos(t), -math.sin(t), 0, 0], [math.sin(t), math.cos(t), 0, 0],
-                   [0, 0, 1, 0], [0, 0, 0, 1]])
+    rz = np.array(
+        [
+            [math.cos(t), -math.sin(t), 0, 0],
+            [math.sin(t), math.cos(t), 0, 0],
+            [0, 0, 1, 0],
+            [0, 0, 0, 1],
+        ]
+    )
     tz = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, d], [0, 0, 0, 1]], dtype=float)
     tx = np.array([[1, 0, 0, a], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
-    rx = np.array([[1, 0, 0, 0], [0, math.cos(al), -math.sin(al), 0],
-                   [0, math.sin(al), math.cos(al), 0], [0, 0, 0, 1]])
+    rx = np.array(
+        [
+            [1, 0, 0, 0],
+            [0, math.cos(al), -math.sin(al), 0],
+            [0, math.sin(al), math.cos(al), 0],
+            [0, 0, 0, 1],
+        ]
+    )
     return rz @ tz @ tx @ rx
 
 
@@ -43,15 +55,14 @@ def test_zero_pose_flange_is_straight_up(name: str) -> None:
     t = fk(model, np.zeros(6))
     upper, fore = LENGTHS[name]
     np.testing.assert_allclose(t[:3, 3], [50.0, 50.0, upper + fore + 100.0], atol=1e-9)
-    np.testing.assert_allclose(t[:3, 2], [0, 0, 1], atol=1e-12)   # flange z up
-    np.testing.assert_allclose(t[:3, 0], [1, 0, 0], atol=1e-12)   # flange x along base X
+    np.testing.assert_allclose(t[:3, 2], [0, 0, 1], atol=1e-12)  # flange z up
+    np.testing.assert_allclose(t[:3, 0], [1, 0, 0], atol=1e-12)  # flange x along base X
 
 
 def test_pinned_zero_positions() -> None:
     expected = {"tx90": 950.0, "tx90l": 1150.0, "tx90xl": 1400.0}
     for name, z in expected.items():
-        np.testing.assert_allclose(fk(load_model(name), np.zeros(6))[:3, 3], [50, 50, z],
-                                   atol=1e-9)
+        np.testing.assert_allclose(fk(load_model(name), np.zeros(6))[:3, 3], [50, 50, z], atol=1e-9)
 
 
 @pytest.mark.parametrize("name", KNOWN_MODELS)
@@ -62,12 +73,15 @@ def test_paper_000_calibration_pose_points_flange_down(name: str) -> None:
 
 @pytest.mark.parametrize("name", KNOWN_MODELS)
 @settings(max_examples=60, deadline=None)
-@given(q=st.lists(st.floats(-270, 270, allow_nan=False), min_size=6, max_size=6),
-       off=st.lists(st.floats(-5, 5, allow_nan=False), min_size=6, max_size=6))
+@given(
+    q=st.lists(st.floats(-270, 270, allow_nan=False), min_size=6, max_size=6),
+    off=st.lists(st.floats(-5, 5, allow_nan=False), min_size=6, max_size=6),
+)
 def test_fk_equals_product_of_dh_matrices(name: str, q: list[float], off: list[float]) -> None:
     model = load_model(name)
-    np.testing.assert_allclose(fk(model, np.array(q), offsets_deg=np.array(off)),
-                               _reference_fk(model, q, off), atol=1e-9)
+    np.testing.assert_allclose(
+        fk(model, np.array(q), offsets_deg=np.array(off)), _reference_fk(model, q, off), atol=1e-9
+    )
 
 
 def test_fk_broadcasts_and_applies_tool() -> None:

@@ -24,16 +24,19 @@ from ucal.models import KNOWN_MODELS, load_model
 TOOL = transform([3.0, -4.0, 80.0], rpy_to_matrix([5.0, -10.0, 30.0]))
 
 
-def _away_from_singularities(model: RobotModel, q: np.ndarray,
-                             offsets: np.ndarray | None = None) -> np.ndarray:
+def _away_from_singularities(
+    model: RobotModel, q: np.ndarray, offsets: np.ndarray | None = None
+) -> np.ndarray:
     """Mask of configurations (n, 6) at least ~1° / 1 mm from the wrist, elbow, shoulder
     singularities (where the generating configuration is only recoverable to rounding)."""
     kin = q + model.theta_offset_deg + (0 if offsets is None else offsets)
     w = wrist_centre(model, q, offsets)
     lateral = abs(model.d_mm[1] + model.d_mm[2])
-    return ((np.abs(np.sin(np.radians(kin[:, 4]))) > 0.02)
-            & (np.abs(np.sin(np.radians(q[:, 2]))) > 0.02)   # elbow straight at θ3 = 0 here
-            & (np.hypot(w[:, 0], w[:, 1]) > lateral + 1.0))
+    return (
+        (np.abs(np.sin(np.radians(kin[:, 4]))) > 0.02)
+        & (np.abs(np.sin(np.radians(q[:, 2]))) > 0.02)  # elbow straight at θ3 = 0 here
+        & (np.hypot(w[:, 0], w[:, 1]) > lateral + 1.0)
+    )
 
 
 def _max_angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -86,8 +89,7 @@ def test_round_trip_with_tool_and_offsets() -> None:
 
 
 @settings(max_examples=300, deadline=None)
-@given(name=st.sampled_from(KNOWN_MODELS),
-       u=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6))
+@given(name=st.sampled_from(KNOWN_MODELS), u=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6))
 def test_hypothesis_every_solution_exact_and_generator_found(name: str, u: list[float]) -> None:
     model = load_model(name)
     q = model.joint_min_deg + np.array(u) * (model.joint_max_deg - model.joint_min_deg)
@@ -110,8 +112,9 @@ def test_eight_distinct_solutions_and_branch_layout() -> None:
     for k in range(0, 8, 2):
         np.testing.assert_allclose(sols[k, :3], sols[k + 1, :3], atol=1e-12)
         np.testing.assert_allclose(sols[k + 1, 4], -sols[k, 4], atol=1e-9)
-        np.testing.assert_allclose(wrap_deg(sols[k + 1, [3, 5]] - sols[k, [3, 5]] - 180.0), 0,
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            wrap_deg(sols[k + 1, [3, 5]] - sols[k, [3, 5]] - 180.0), 0, atol=1e-9
+        )
     # shoulder front/back differ in joint 1; elbow roots differ in joint 3
     assert abs(wrap_deg(sols[0, 0] - sols[4, 0])) > 90.0
     assert abs(sols[0, 2] - sols[2, 2]) > 10.0
@@ -133,8 +136,9 @@ def test_unreachable_far_pose() -> None:
 
 def test_unreachable_inside_workspace_but_outside_joint_ranges() -> None:
     base = load_model("tx90l")
-    narrow = RobotModel("narrow", base.dh, [0, -130, -145, -270, -115, -270],
-                        [10, 147.5, 145, 270, 140, 270])
+    narrow = RobotModel(
+        "narrow", base.dh, [0, -130, -145, -270, -115, -270], [10, 147.5, 145, 270, 140, 270]
+    )
     target = fk(base, np.array([90.0, 10.0, 60.0, 0.0, 30.0, 0.0]))
     with pytest.raises(UnreachableError, match="outside the joint ranges"):
         ik(narrow, target)
@@ -144,8 +148,9 @@ def test_joints_4_and_6_use_their_360_equivalents_nearest_reference() -> None:
     model = load_model("tx90l")
     q = np.array([10.0, 20.0, 80.0, 250.0, 35.0, -230.0])
     target = fk(model, q)
-    np.testing.assert_allclose(ik(model, target, near_deg=[10, 20, 80, 240, 35, -220]), q,
-                               atol=1e-7)
+    np.testing.assert_allclose(
+        ik(model, target, near_deg=[10, 20, 80, 240, 35, -220]), q, atol=1e-7
+    )
     got = ik(model, target, near_deg=[10, 20, 80, -100, 35, 100])
     np.testing.assert_allclose(got, [10, 20, 80, -110, 35, 130], atol=1e-7)
     for s in ik(model, target, all_solutions=True):
@@ -175,8 +180,11 @@ def test_selection_uses_weighted_shortest_distance() -> None:
     cost = np.sum(DEFAULT_WEIGHTS * np.abs(sols - near), -1)
     assert np.all(np.diff(cost) >= 0)
     np.testing.assert_allclose(ik(model, target, near_deg=near), sols[0])
-    np.testing.assert_allclose(ik(model, target, near_deg=PAPER_CALIBRATION_POSE_DEG),
-                               PAPER_CALIBRATION_POSE_DEG, atol=1e-9)
+    np.testing.assert_allclose(
+        ik(model, target, near_deg=PAPER_CALIBRATION_POSE_DEG),
+        PAPER_CALIBRATION_POSE_DEG,
+        atol=1e-9,
+    )
     # weights decide: all weight on joint 6 picks the solution with the smallest |Δθ6|
     w6 = np.array([0, 0, 0, 0, 0, 1.0])
     got = ik(model, target, near_deg=near, weights=w6)
@@ -194,8 +202,9 @@ def test_ik_many_matches_ik() -> None:
     joints, ok = ik_many(model, fk(model, q, TOOL), TOOL, near_deg=near)
     assert ok.all()
     for i in range(len(q)):
-        np.testing.assert_allclose(joints[i], ik(model, fk(model, q[i], TOOL), TOOL,
-                                                 near_deg=near[i]), atol=1e-9)
+        np.testing.assert_allclose(
+            joints[i], ik(model, fk(model, q[i], TOOL), TOOL, near_deg=near[i]), atol=1e-9
+        )
 
 
 def test_rejects_dh_table_without_the_tx90_structure() -> None:
@@ -212,14 +221,19 @@ def test_rejects_dh_table_without_the_tx90_structure() -> None:
 
 def test_other_table_of_the_same_structure() -> None:
     """Lengths are read from the table: a made-up arm with d1, a3, d3, a6 and flipped signs."""
-    dh = np.array([[10.0, 300.0, 80.0, 90.0],
-                   [-90.0, 30.0, 400.0, 0.0],
-                   [90.0, 20.0, 35.0, -90.0],
-                   [0.0, 420.0, 0.0, 90.0],
-                   [0.0, 0.0, 0.0, -90.0],
-                   [5.0, 90.0, 12.0, 20.0]])
-    model = RobotModel("odd", dh, [-180, -130, -145, -270, -115, -270],
-                       [180, 147.5, 145, 270, 140, 270])
+    dh = np.array(
+        [
+            [10.0, 300.0, 80.0, 90.0],
+            [-90.0, 30.0, 400.0, 0.0],
+            [90.0, 20.0, 35.0, -90.0],
+            [0.0, 420.0, 0.0, 90.0],
+            [0.0, 0.0, 0.0, -90.0],
+            [5.0, 90.0, 12.0, 20.0],
+        ]
+    )
+    model = RobotModel(
+        "odd", dh, [-180, -130, -145, -270, -115, -270], [180, 147.5, 145, 270, 140, 270]
+    )
     rng = np.random.default_rng(5)
     q = rng.uniform(model.joint_min_deg, model.joint_max_deg, (3000, 6))
     kin = q + model.theta_offset_deg

@@ -22,8 +22,14 @@ def _axis_rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle_rad) * k + (1 - np.cos(angle_rad)) * k @ k
 
 
-def cylinder_arc(model, q_mid: np.ndarray, radius_mm: float = 300.0, n: int = 100,
-                 step_deg: float = 0.3, mid_index: int = 33) -> np.ndarray:
+def cylinder_arc(
+    model,
+    q_mid: np.ndarray,
+    radius_mm: float = 300.0,
+    n: int = 100,
+    step_deg: float = 0.3,
+    mid_index: int = 33,
+) -> np.ndarray:
     """Poses (n, 6) of a cylinder scan: the tool moves on a circle, its beam (+z) always
     towards the centre, its x axis tangential; point ``mid_index`` is FK(q_mid) exactly."""
     t_mid = fk(model, q_mid, TOOL)

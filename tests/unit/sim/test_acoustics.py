@@ -24,8 +24,9 @@ def test_tof_of_50mm_path_at_20c() -> None:
 def test_water_path_inverts_tof() -> None:
     paths = np.array([1.0, 37.5, 50.0, 180.0])
     for temp in (5.0, 20.0, 35.0):
-        np.testing.assert_allclose(ac.water_path_mm(ac.tof_ns(paths, temp), temp), paths,
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            ac.water_path_mm(ac.tof_ns(paths, temp), temp), paths, rtol=1e-12
+        )
     # warmer water is faster: a shorter TOF for the same path
     assert ac.tof_ns(50.0, 30.0) < ac.tof_ns(50.0, 20.0)
 
@@ -95,7 +96,8 @@ def test_gain_and_saturation() -> None:
     base = ac.echo_amplitude(0.0, 1.0, 50.0, 20.0, 25.0, 6.0, 20.0)
     assert base == pytest.approx(ac.REFERENCE_AMPLITUDE)
     assert ac.echo_amplitude(0.0, 1.0, 50.0, 14.0, 25.0, 6.0, 20.0) == pytest.approx(
-        base / 1.9953, rel=1e-4)
+        base / 1.9953, rel=1e-4
+    )
     assert ac.echo_amplitude(0.0, 1.0, 50.0, 26.0, 25.0, 6.0, 20.0) == 1.0
 
 
@@ -124,19 +126,22 @@ def test_broadband_directivity_peaks_at_normal_incidence_and_is_not_the_fitted_o
     assert ac.broadband_directivity(0.3, 25.0, 6.0, 20.0) == pytest.approx(0.167, abs=0.005)
     assert ac.directivity(0.3, 25.0, 6.0, 20.0) == pytest.approx(0.125, abs=0.005)
     # a narrow band tends to the centre frequency's function
-    np.testing.assert_allclose(ac.broadband_directivity(tilts, 25.0, 6.0, 20.0, 0.01),
-                               narrow, atol=2e-3)
+    np.testing.assert_allclose(
+        ac.broadband_directivity(tilts, 25.0, 6.0, 20.0, 0.01), narrow, atol=2e-3
+    )
 
 
 def test_broadband_absorption_downshifts_the_spectrum() -> None:
     at_ref = ac.broadband_echo_factor(0.0, ac.REFERENCE_WATER_PATH_MM, 25.0, 6.0, 20.0)
     assert at_ref == pytest.approx(1.0)
     # the pulse's low frequencies carry further than its centre frequency
-    assert ac.broadband_echo_factor(0.0, 100.0, 25.0, 6.0, 20.0) > ac.water_attenuation(100.0,
-                                                                                      25.0)
+    assert ac.broadband_echo_factor(0.0, 100.0, 25.0, 6.0, 20.0) > ac.water_attenuation(100.0, 25.0)
     assert ac.broadband_echo_factor(0.0, 40.0, 25.0, 6.0, 20.0) > 1.0
     # so the main lobe widens with the path
-    half = [ac.broadband_echo_factor(0.2, p, 25.0, 6.0, 20.0)
-            / ac.broadband_echo_factor(0.0, p, 25.0, 6.0, 20.0) for p in (50.0, 100.0, 150.0)]
+    half = [
+        ac.broadband_echo_factor(0.2, p, 25.0, 6.0, 20.0)
+        / ac.broadband_echo_factor(0.0, p, 25.0, 6.0, 20.0)
+        for p in (50.0, 100.0, 150.0)
+    ]
     assert half[0] == pytest.approx(0.5, abs=0.01)
     assert half[0] < half[1] < half[2]

@@ -29,6 +29,7 @@ def world() -> WorldTruth:
 
 def pose(cell: SimulatedCell, tcp_mm: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
     """Readings with the true acoustic axis straight down from ``tcp_mm``."""
+
     def residual(q: np.ndarray) -> np.ndarray:
         origin, beam = cell.true_beam(q)
         return np.concatenate([origin - tcp_mm, 100.0 * (beam - DOWN)])
@@ -64,8 +65,9 @@ def edge_crossing_mm(cell: SimulatedCell) -> float:
 
 def test_rounded_edges_move_the_half_echo_inward_by_the_radius(world: WorldTruth) -> None:
     sharp = edge_crossing_mm(SimulatedCell(world))
-    rounded = edge_crossing_mm(SimulatedCell(world.replace(
-        reflector=Reflector(CENTRE, PLATE.normal, edge_radius_mm=3.0))))
+    rounded = edge_crossing_mm(
+        SimulatedCell(world.replace(reflector=Reflector(CENTRE, PLATE.normal, edge_radius_mm=3.0)))
+    )
     assert sharp == pytest.approx(100.0, abs=0.05)
     assert sharp - rounded == pytest.approx(3.0, abs=0.05)
 
@@ -73,8 +75,7 @@ def test_rounded_edges_move_the_half_echo_inward_by_the_radius(world: WorldTruth
 def test_a_bowed_plate_changes_path_and_normal_across_it(world: WorldTruth) -> None:
     f = 0.4
     flat = SimulatedCell(world)
-    bowed = SimulatedCell(world.replace(reflector=Reflector(CENTRE, PLATE.normal,
-                                                            flatness_mm=f)))
+    bowed = SimulatedCell(world.replace(reflector=Reflector(CENTRE, PLATE.normal, flatness_mm=f)))
     q = pose(flat, CENTRE + [0.0, 0.0, 60.0])
     # at the centre the surface lies f/2 below the plane of the plate's point
     assert bowed.hit(q).distance_mm - flat.hit(q).distance_mm == pytest.approx(f / 2, abs=1e-9)
@@ -83,8 +84,9 @@ def test_a_bowed_plate_changes_path_and_normal_across_it(world: WorldTruth) -> N
     assert dt == pytest.approx(2 * (f / 2) * 1e6 / c, abs=0.02)
     # 50 mm out along u the local normal leans by the slope 4f·u/w² (w = 200 mm)
     q = pose(flat, CENTRE + [50.0, 0.0, 60.0], q)
-    assert bowed.hit(q).tilt_deg == pytest.approx(np.degrees(np.arctan(4 * f * 50 / 200 ** 2)),
-                                                  rel=1e-3)
+    assert bowed.hit(q).tilt_deg == pytest.approx(
+        np.degrees(np.arctan(4 * f * 50 / 200**2)), rel=1e-3
+    )
     assert flat.hit(q).tilt_deg == pytest.approx(0.0, abs=1e-6)
 
 
@@ -93,19 +95,24 @@ def test_near_field_narrows_the_lobe_more_at_short_water_paths() -> None:
     near = EchoReceiver(25.0, 6.0, near_field=True)
     c = ac.sound_speed_m_s(20.0)
     for path in (50.0, 100.0):
-        assert near.spectrum(0.0, path, c).sum() == pytest.approx(plain.spectrum(0.0, path, c).sum())
-    ratio = {path: near.spectrum(0.15, path, c).sum() / plain.spectrum(0.15, path, c).sum()
-             for path in (50.0, 100.0, 1000.0)}
+        assert near.spectrum(0.0, path, c).sum() == pytest.approx(
+            plain.spectrum(0.0, path, c).sum()
+        )
+    ratio = {
+        path: near.spectrum(0.15, path, c).sum() / plain.spectrum(0.15, path, c).sum()
+        for path in (50.0, 100.0, 1000.0)
+    }
     assert ratio[50.0] < 0.99 and ratio[100.0] < ratio[50.0]
-    assert ratio[1000.0] > 0.99   # far field: the piston directivity alone
+    assert ratio[1000.0] > 0.99  # far field: the piston directivity alone
 
 
-def test_same_world_and_seed_give_the_same_readings_with_the_new_effects(world: WorldTruth
-                                                                        ) -> None:
-    w = world.replace(beam_squint_deg=0.7, near_field=True,
-                      reflector=Reflector(CENTRE, PLATE.normal, edge_radius_mm=2.0,
-                                          flatness_mm=0.05),
-                      noise=Noise(tof_ns=0.5, amplitude=0.01, seed=5))
+def test_same_world_and_seed_give_the_same_readings_with_the_new_effects(world: WorldTruth) -> None:
+    w = world.replace(
+        beam_squint_deg=0.7,
+        near_field=True,
+        reflector=Reflector(CENTRE, PLATE.normal, edge_radius_mm=2.0, flatness_mm=0.05),
+        noise=Noise(tof_ns=0.5, amplitude=0.01, seed=5),
+    )
     q = pose(SimulatedCell(w), CENTRE + [20.0, 10.0, 60.0])
     a, b = SimulatedCell(w), SimulatedCell(w)
     assert [a.echo(q, 4) for _ in range(5)] == [b.echo(q, 4) for _ in range(5)]

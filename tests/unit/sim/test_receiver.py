@@ -75,7 +75,7 @@ def test_receiver_noise_moves_the_reading_by_its_share(rx: EchoReceiver) -> None
     for _ in range(400):
         t0_ns, samples = rx.waveform(5000.0, 1.0, spectrum)
         z = rng.standard_normal(2 * rx.n)
-        h, t = rx.detect(t0_ns, samples + sigma * (z[: rx.n] + 1j * z[rx.n:]))
+        h, t = rx.detect(t0_ns, samples + sigma * (z[: rx.n] + 1j * z[rx.n :]))
         tofs.append(t)
         heights.append(h)
     assert np.std(heights) == pytest.approx(sigma, rel=0.3)

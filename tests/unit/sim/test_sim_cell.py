@@ -32,8 +32,9 @@ def reading_tof_ns(path_mm: float, c_m_s: float = C_20) -> float:
 
 @pytest.fixture(scope="module")
 def profile() -> CellProfile:
-    return CellProfile(model=load_model("tx90l"), sample_position_mm=CORNER_MM.copy(),
-                       sample_face_size_mm=SIZE_MM)
+    return CellProfile(
+        model=load_model("tx90l"), sample_position_mm=CORNER_MM.copy(), sample_face_size_mm=SIZE_MM
+    )
 
 
 @pytest.fixture(scope="module")
@@ -46,8 +47,9 @@ def cell(world: WorldTruth) -> SimulatedCell:
     return SimulatedCell(world)
 
 
-def solve_pose(cell: SimulatedCell, tcp_mm: np.ndarray, beam: np.ndarray,
-               guess_deg: np.ndarray) -> np.ndarray:
+def solve_pose(
+    cell: SimulatedCell, tcp_mm: np.ndarray, beam: np.ndarray, guess_deg: np.ndarray
+) -> np.ndarray:
     """Joint readings that put the true TCP at ``tcp_mm`` with the beam along ``beam``."""
 
     def residual(q: np.ndarray) -> np.ndarray:
@@ -69,14 +71,18 @@ FACE_POSES = {
 
 def normal_pose(cell: SimulatedCell, face: str) -> np.ndarray:
     tcp, beam, guess = FACE_POSES[face]
-    return solve_pose(cell, np.asarray(tcp, float), np.asarray(beam, float),
-                      np.asarray(guess, float))
+    return solve_pose(
+        cell, np.asarray(tcp, float), np.asarray(beam, float), np.asarray(guess, float)
+    )
 
 
 def test_true_flange_matches_dh_fk_with_offsets(profile: CellProfile, world: WorldTruth) -> None:
     offsets = np.array([0.3, -0.7, 1.1, 2.0, -0.4, 0.9])
-    w = world.replace(joint_offsets_deg=offsets, tool_position_mm=np.array([1.0, -2.0, 90.0]),
-                      tool_rotation_deg=np.array([0.5, -0.3, 10.0]))
+    w = world.replace(
+        joint_offsets_deg=offsets,
+        tool_position_mm=np.array([1.0, -2.0, 90.0]),
+        tool_rotation_deg=np.array([0.5, -0.3, 10.0]),
+    )
     c = SimulatedCell(w)
     q = np.array([30.53, 31.15, 109.49, 0.0, 39.36, 30.54])
     np.testing.assert_allclose(c.true_tcp(q), fk(w.model, q, w.tool_matrix, offsets), atol=1e-9)
@@ -125,8 +131,9 @@ def test_hidden_offset_follows_the_spec_sign(world: WorldTruth, cell: SimulatedC
     assert hidden.ideal_echo(q)[0] < 0.01  # the uncorrected reading is degrees off normal
 
 
-def test_joint1_offset_keeps_a_vertical_beam_and_its_tof(world: WorldTruth,
-                                                        cell: SimulatedCell) -> None:
+def test_joint1_offset_keeps_a_vertical_beam_and_its_tof(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     # joint 1 turns about the vertical: the beam stays normal to face z, at the same height
     q = normal_pose(cell, "z")
     hidden = SimulatedCell(world.replace(joint_offsets_deg=np.array([1.0, 0, 0, 0, 0, 0])))
@@ -153,13 +160,18 @@ def test_joint2_offset_changes_the_water_path(world: WorldTruth, cell: Simulated
 
 def test_half_echo_with_the_beam_axis_on_an_edge(cell: SimulatedCell) -> None:
     # the far edge u = S of face z (not shared with another face)
-    q = solve_pose(cell, CORNER_MM + [SIZE_MM, 150.0, PATH_MM], np.array([0.0, 0.0, -1.0]),
-                   np.array([0, 30, 110, 0, 40, 0], float))
+    q = solve_pose(
+        cell,
+        CORNER_MM + [SIZE_MM, 150.0, PATH_MM],
+        np.array([0.0, 0.0, -1.0]),
+        np.array([0, 30, 110, 0, 40, 0], float),
+    )
     amp, tof = cell.ideal_echo(q)
     assert amp == pytest.approx(0.5 * ac.REFERENCE_AMPLITUDE, rel=DETECT_REL)
     assert np.isfinite(tof)
-    q_off = solve_pose(cell, CORNER_MM + [SIZE_MM + 10.0, 150.0, PATH_MM],
-                       np.array([0.0, 0.0, -1.0]), q)
+    q_off = solve_pose(
+        cell, CORNER_MM + [SIZE_MM + 10.0, 150.0, PATH_MM], np.array([0.0, 0.0, -1.0]), q
+    )
     amp_off, tof_off = cell.ideal_echo(q_off)
     assert amp_off < 1e-6 and np.isnan(tof_off)
 
@@ -186,22 +198,28 @@ def test_a_face_seen_from_behind_does_not_reflect(cell: SimulatedCell) -> None:
 def test_reflector_plate_echo(world: WorldTruth, cell: SimulatedCell) -> None:
     plate = Reflector(point_mm=np.array([700.0, 300.0, -300.0]), normal=np.array([0.0, 0.0, 1.0]))
     c = SimulatedCell(world.replace(reflector=plate))
-    q = solve_pose(c, np.array([700.0, 300.0, -240.0]), np.array([0.0, 0.0, -1.0]),
-                   np.array([30, 30, 110, 0, 40, 0], float))
+    q = solve_pose(
+        c,
+        np.array([700.0, 300.0, -240.0]),
+        np.array([0.0, 0.0, -1.0]),
+        np.array([30, 30, 110, 0, 40, 0], float),
+    )
     hit = c.hit(q)
     assert hit.face.name == "reflector"
     amp, tof = c.ideal_echo(q)
     assert tof == pytest.approx(reading_tof_ns(60.0), abs=DETECT_NS)
     assert amp == pytest.approx(
         ac.REFERENCE_AMPLITUDE * ac.broadband_echo_factor(0.0, 60.0, 25.0, 6.0, 20.0),
-        rel=DETECT_REL)
+        rel=DETECT_REL,
+    )
     assert np.isnan(cell.ideal_echo(q)[1])  # no plate in the plain world
 
 
 def test_gain_scales_and_saturates(cell: SimulatedCell) -> None:
     q = normal_pose(cell, "z")
-    assert cell.ideal_echo(q, gain_db=14.0)[0] == pytest.approx(0.8 / ac.gain_factor(26.0),
-                                                                rel=DETECT_REL)
+    assert cell.ideal_echo(q, gain_db=14.0)[0] == pytest.approx(
+        0.8 / ac.gain_factor(26.0), rel=DETECT_REL
+    )
     assert cell.ideal_echo(q, gain_db=26.0)[0] == 1.0
     assert cell.echo(q, gain_db=40.0)[0] == 1.0
 
@@ -277,8 +295,9 @@ def test_demo_world_hides_non_trivial_errors(profile: CellProfile) -> None:
 E5 = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])  # joint 5: at the z pose it tilts the beam
 
 
-def test_backlash_lags_the_link_against_the_last_motion(world: WorldTruth,
-                                                        cell: SimulatedCell) -> None:
+def test_backlash_lags_the_link_against_the_last_motion(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     q = normal_pose(cell, "z")
     slack = SimulatedCell(world.replace(backlash_deg=np.array([0, 0, 0, 0, 0.2, 0])))
     # no motion known (None or 0): the link is where the encoder says
@@ -287,8 +306,9 @@ def test_backlash_lags_the_link_against_the_last_motion(world: WorldTruth,
     # after a positive motion the link lags: it is half the backlash behind the reading
     np.testing.assert_allclose(slack.true_tcp(q, E5), cell.true_tcp(q - 0.1 * E5), atol=1e-12)
     np.testing.assert_allclose(slack.true_tcp(q, -E5), cell.true_tcp(q + 0.1 * E5), atol=1e-12)
-    np.testing.assert_allclose(slack.joint_angles_deg(q, -3.0 * E5) - slack.joint_angles_deg(q),
-                               0.1 * E5)  # only the sign counts
+    np.testing.assert_allclose(
+        slack.joint_angles_deg(q, -3.0 * E5) - slack.joint_angles_deg(q), 0.1 * E5
+    )  # only the sign counts
     # approached from either side the beam differs by the whole lost motion
     up, down = slack.true_beam(q, E5)[1], slack.true_beam(q, -E5)[1]
     assert angle_between_deg(up, down) == pytest.approx(0.2, abs=1e-9)
@@ -296,9 +316,11 @@ def test_backlash_lags_the_link_against_the_last_motion(world: WorldTruth,
     # and so does the echo: normal incidence is found 0.1° past the reading on either side
     assert slack.ideal_echo(q, motion_sign=E5) == pytest.approx(cell.ideal_echo(q - 0.1 * E5))
     assert slack.ideal_echo(q + 0.1 * E5, motion_sign=E5)[0] == pytest.approx(
-        cell.ideal_echo(q)[0], rel=1e-9)
+        cell.ideal_echo(q)[0], rel=1e-9
+    )
     assert slack.ideal_echo(q - 0.1 * E5, motion_sign=-E5)[0] == pytest.approx(
-        cell.ideal_echo(q)[0], rel=1e-9)
+        cell.ideal_echo(q)[0], rel=1e-9
+    )
     assert slack.echo(q, motion_sign=E5)[0] < 0.9 * slack.echo(q)[0]
 
 
@@ -325,8 +347,9 @@ def test_hayati_twist_follows_its_link(world: WorldTruth, cell: SimulatedCell) -
     np.testing.assert_array_equal(zero.true_flange(q), cell.true_flange(q))
 
 
-def test_one_degree_warmer_shortens_the_tof_by_the_sound_speed_ratio(world: WorldTruth,
-                                                                      cell: SimulatedCell) -> None:
+def test_one_degree_warmer_shortens_the_tof_by_the_sound_speed_ratio(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     q = normal_pose(cell, "z")
     warm = SimulatedCell(world.replace(water_temperature_c=21.0))
     c20, c21 = ac.sound_speed_m_s(20.0), ac.sound_speed_m_s(21.0)
@@ -336,8 +359,9 @@ def test_one_degree_warmer_shortens_the_tof_by_the_sound_speed_ratio(world: Worl
     assert flight_20 - flight_21 == pytest.approx(135.0, abs=5.0)  # ~0.2 % of 67.5 µs
 
 
-def test_water_drift_changes_the_tof_over_simulated_time(world: WorldTruth,
-                                                        cell: SimulatedCell) -> None:
+def test_water_drift_changes_the_tof_over_simulated_time(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     q = normal_pose(cell, "z")
     drifting = SimulatedCell(world.replace(water_drift_c_per_min=0.5))
     assert drifting.water_temperature_c(120.0) == pytest.approx(21.0)
@@ -351,8 +375,9 @@ def test_water_drift_changes_the_tof_over_simulated_time(world: WorldTruth,
     assert cooling.ideal_echo(q, t_s=60.0)[1] > cell.ideal_echo(q)[1]
 
 
-def test_amplitude_is_quantised_to_levels_of_full_screen(world: WorldTruth,
-                                                         cell: SimulatedCell) -> None:
+def test_amplitude_is_quantised_to_levels_of_full_screen(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     from ucal.cell import PulserTruth
 
     q = normal_pose(cell, "z")
@@ -371,17 +396,20 @@ def test_amplitude_is_quantised_to_levels_of_full_screen(world: WorldTruth,
     assert fine.echo(np.zeros(6))[0] > 0.0  # the noise floor, unquantised
     assert coarse.echo(np.zeros(6)) == (0.0, pytest.approx(np.nan, nan_ok=True))
     weak = 0.5 * level / ac.gain_factor(0.0)  # the echo at 0 dB below half a level
-    edge = solve_pose(cell, CORNER_MM + [SIZE_MM + 6.5, 150.0, PATH_MM],
-                      np.array([0.0, 0.0, -1.0]), q)  # the footprint's tail on the face
+    edge = solve_pose(
+        cell, CORNER_MM + [SIZE_MM + 6.5, 150.0, PATH_MM], np.array([0.0, 0.0, -1.0]), q
+    )  # the footprint's tail on the face
     raw = fine.ideal_echo(edge, gain_db=0.0)[0]
     assert 0.0 < raw < weak
-    amp, tof = SimulatedCell(world.replace(pulser=PulserTruth(amplitude_bits=8)),
-                             threshold=0.0).ideal_echo(edge, gain_db=0.0)
+    amp, tof = SimulatedCell(
+        world.replace(pulser=PulserTruth(amplitude_bits=8)), threshold=0.0
+    ).ideal_echo(edge, gain_db=0.0)
     assert amp == 0.0 and np.isnan(tof)
 
 
-def test_gain_error_changes_the_amplitude_at_gain_changes_only(world: WorldTruth,
-                                                               cell: SimulatedCell) -> None:
+def test_gain_error_changes_the_amplitude_at_gain_changes_only(
+    world: WorldTruth, cell: SimulatedCell
+) -> None:
     from ucal.cell import PulserTruth
 
     q = normal_pose(cell, "z") + 0.1 * E5  # an echo at half screen: no saturation
@@ -389,8 +417,9 @@ def test_gain_error_changes_the_amplitude_at_gain_changes_only(world: WorldTruth
     erring = SimulatedCell(world.replace(pulser=PulserTruth(gain_error_db=0.5)))
 
     def ratio_db(gain_db: float) -> float:
-        return 20.0 * np.log10(erring.echo(q, gain_db=gain_db)[0]
-                               / exact.echo(q, gain_db=gain_db)[0])
+        return 20.0 * np.log10(
+            erring.echo(q, gain_db=gain_db)[0] / exact.echo(q, gain_db=gain_db)[0]
+        )
 
     first = [ratio_db(20.0) for _ in range(5)]
     np.testing.assert_allclose(first, first[0], atol=1e-3)  # one gain, one error
@@ -419,18 +448,24 @@ def test_the_electronic_delay_adds_a_constant(world: WorldTruth, cell: Simulated
         assert tof1 - tof0 == pytest.approx(45.0, abs=1e-6)
         assert amp1 == pytest.approx(amp0, rel=1e-9)
     assert cell.ideal_echo(q)[1] - bare.ideal_echo(q)[1] == pytest.approx(
-        DEFAULT_PULSER_DELAY_NS, abs=2 * DETECT_NS)
+        DEFAULT_PULSER_DELAY_NS, abs=2 * DETECT_NS
+    )
 
 
 def test_gate_reads_geometry_plus_delay_within_a_fraction_of_a_ns(world: WorldTruth) -> None:
     q = normal_pose(SimulatedCell(world), "z")
     worst_ns = 0.0
     for dz in np.linspace(0.0, 0.04, 41):  # the TOF sweeps 54 ns, every sub-sample position
-        c = SimulatedCell(world.replace(noise=Noise(seed=4),  # receiver noise only
-                                        sample_position_mm=CORNER_MM - [0.0, 0.0, dz]))
+        c = SimulatedCell(
+            world.replace(
+                noise=Noise(seed=4),  # receiver noise only
+                sample_position_mm=CORNER_MM - [0.0, 0.0, dz],
+            )
+        )
         geometry_ns = reading_tof_ns(c.hit(q).distance_mm)
-        worst_ns = max(worst_ns, abs(c.ideal_echo(q)[1] - geometry_ns),
-                       abs(c.echo(q)[1] - geometry_ns))
+        worst_ns = max(
+            worst_ns, abs(c.ideal_echo(q)[1] - geometry_ns), abs(c.echo(q)[1] - geometry_ns)
+        )
     assert worst_ns < DETECT_NS
 
 
@@ -448,17 +483,27 @@ def test_broadband_echo_is_not_the_fitted_directivity(cell: SimulatedCell) -> No
     assert amps[np.isclose(tilts, 0.3)][0] > 1.25 * fitted[np.isclose(tilts, 0.3)][0]
 
 
-def test_same_world_and_seed_give_the_same_readings(world: WorldTruth,
-                                                    cell: SimulatedCell) -> None:
+def test_same_world_and_seed_give_the_same_readings(world: WorldTruth, cell: SimulatedCell) -> None:
     from ucal.cell import PulserTruth
 
-    rich = world.replace(noise=Noise(tof_ns=0.5, amplitude=0.01, seed=17),
-                         backlash_deg=np.full(6, 0.02), water_drift_c_per_min=0.2,
-                         pulser=PulserTruth(amplitude_bits=10, gain_error_db=0.3))
+    rich = world.replace(
+        noise=Noise(tof_ns=0.5, amplitude=0.01, seed=17),
+        backlash_deg=np.full(6, 0.02),
+        water_drift_c_per_min=0.2,
+        pulser=PulserTruth(amplitude_bits=10, gain_error_db=0.3),
+    )
     q = normal_pose(cell, "z")
     rng = np.random.default_rng(1)
-    calls = [(q + rng.normal(0.0, 0.05, 6), float(rng.choice([14.0, 20.0, 26.0])),
-              int(rng.integers(1, 17)), 3.0 * i, rng.integers(-1, 2, 6)) for i in range(40)]
+    calls = [
+        (
+            q + rng.normal(0.0, 0.05, 6),
+            float(rng.choice([14.0, 20.0, 26.0])),
+            int(rng.integers(1, 17)),
+            3.0 * i,
+            rng.integers(-1, 2, 6),
+        )
+        for i in range(40)
+    ]
 
     def run(w: WorldTruth) -> list[tuple[float, float]]:
         c = SimulatedCell(w)

@@ -44,8 +44,9 @@ def fresh_profile() -> CellProfile:
     return profile_from_data(tomlkit.parse(default_profile_text("tx90l")), "cell.toml")
 
 
-def synthetic_run(profile, plate_h_mm: float, plate_tilt_deg: float, water_c: float,
-                  seed: int = 1) -> tuple[list[PlatePeak], list[PlateCrossing], np.ndarray]:
+def synthetic_run(
+    profile, plate_h_mm: float, plate_tilt_deg: float, water_c: float, seed: int = 1
+) -> tuple[list[PlatePeak], list[PlateCrossing], np.ndarray]:
     """Peaks and edge crossings the true cell gives for the profile's plan, with noise."""
     rng = np.random.default_rng(seed)
     plan = _plan(profile.reflector_points_mm.tobytes())
@@ -76,21 +77,29 @@ def synthetic_run(profile, plate_h_mm: float, plate_tilt_deg: float, water_c: fl
     nominal = np.zeros(6)
     for ep in plan.edges:
         u, w = ep.direction, ep.along
-        e = np.cos(np.radians(1.0)) * u + np.sin(np.radians(1.0)) * w   # edge 1° off the scan
+        e = np.cos(np.radians(1.0)) * u + np.sin(np.radians(1.0)) * w  # edge 1° off the scan
         edge_d = float(e @ (plan.centre_mm + 100.0 * u))
         starts += [float(np.degrees(np.arctan2(u @ plane.e2, u @ plane.e1))), edge_d]
         for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
             for lat in ep.lateral_mm:
                 p = plan.centre_mm + 100.0 * u + lat * w
                 # as the procedure scans: the tool centre (as far as it is known) on the line
-                q = ik(profile.model, tcp_pose(plane, p, 50.0, phi), tool, TRUE_OFFSETS,
-                       near_deg=plan.peaks[0].joints_deg)
+                q = ik(
+                    profile.model,
+                    tcp_pose(plane, p, 50.0, phi),
+                    tool,
+                    TRUE_OFFSETS,
+                    near_deg=plan.peaks[0].joints_deg,
+                )
                 q = aim_wrist(geom, q, -n, TRUE_OFFSETS)
                 b, tcp, path = ray(q)
                 hit = tcp + path * b
                 shift = (edge_d - e @ hit) / (e @ u) * u + rng.normal(0.0, 0.003) * u
-                crossings.append(PlateCrossing(f"edge {ep.name} {lat:+.0f} {phi:+.0f}", q,
-                                               shift, ep.index, 0.003))
+                crossings.append(
+                    PlateCrossing(
+                        f"edge {ep.name} {lat:+.0f} {phi:+.0f}", q, shift, ep.index, 0.003
+                    )
+                )
                 nominal = q
     assert nominal.any()
     return peaks, crossings, np.array(starts)
@@ -102,28 +111,36 @@ def profile() -> CellProfile:
 
 
 def truth(profile) -> WorldTruth:
-    return WorldTruth.nominal(profile).replace(joint_offsets_deg=TRUE_OFFSETS,
-                                               tool_position_mm=TRUE_TOOL_MM,
-                                               tool_rotation_deg=TRUE_TOOL_DEG)
+    return WorldTruth.nominal(profile).replace(
+        joint_offsets_deg=TRUE_OFFSETS,
+        tool_position_mm=TRUE_TOOL_MM,
+        tool_rotation_deg=TRUE_TOOL_DEG,
+    )
 
 
 def solve(profile, peaks, crossings, starts):
     plane = fit_plane(profile.reflector_points_mm)
-    return solve_tool_frame(prior_from_profile(profile),
-                            plate_prior(plane, profile.reflector_points_mm,
-                                        profile.reflector_points_std_mm),
-                            offsets_prior_std_deg(profile), peaks, crossings, starts)
+    return solve_tool_frame(
+        prior_from_profile(profile),
+        plate_prior(plane, profile.reflector_points_mm, profile.reflector_points_std_mm),
+        offsets_prior_std_deg(profile),
+        peaks,
+        crossings,
+        starts,
+    )
 
 
 @pytest.mark.parametrize("calibrated", [False, True])
-def test_tool_across_the_beam_within_its_std_before_and_after_calibrate(profile, calibrated: bool
-                                                                       ) -> None:
+def test_tool_across_the_beam_within_its_std_before_and_after_calibrate(
+    profile, calibrated: bool
+) -> None:
     """A fresh cell (offsets up to 1.2° and never calibrated: wide priors) and the same cell
     after calibrate (offsets known to 0.01°); the plate 1.5 mm high and tilted 0.2°, the water
     1.5 °C warmer, an 8 ns delay."""
     if calibrated:
-        profile = profile.replace(joint_offsets_deg=TRUE_OFFSETS + 0.005,
-                                  joint_offsets_std_deg=np.full(6, 0.01))
+        profile = profile.replace(
+            joint_offsets_deg=TRUE_OFFSETS + 0.005, joint_offsets_std_deg=np.full(6, 0.01)
+        )
     peaks, crossings, starts = synthetic_run(profile, 1.5, 0.2, 21.5)
     tf = solve(profile, peaks, crossings, starts)
     true_tool = truth_in_profile_flange(profile, truth(profile))
@@ -148,12 +165,12 @@ def test_tool_across_the_beam_within_its_std_before_and_after_calibrate(profile,
         assert np.all(np.abs(est - TRUE_OFFSETS[1:5]) <= 3 * std)
 
 
-def test_plate_above_its_touched_plane_is_carried_in_the_std_not_written_as_tool(profile
-                                                                                  ) -> None:
+def test_plate_above_its_touched_plane_is_carried_in_the_std_not_written_as_tool(profile) -> None:
     """The plate 2 mm above where it was touched: the tool length along the beam is 2 mm off at
     most as the declared plate tolerance (1 mm) says, never with a 0.0001 mm std."""
-    profile = profile.replace(joint_offsets_deg=TRUE_OFFSETS,
-                              joint_offsets_std_deg=np.full(6, 0.001))
+    profile = profile.replace(
+        joint_offsets_deg=TRUE_OFFSETS, joint_offsets_std_deg=np.full(6, 0.001)
+    )
     peaks, crossings, starts = synthetic_run(profile, 2.0, 0.0, 20.0)
     tf = solve(profile, peaks, crossings, starts)
     err = tf.position_mm - TRUE_TOOL_MM
@@ -162,8 +179,12 @@ def test_plate_above_its_touched_plane_is_carried_in_the_std_not_written_as_tool
     assert "plate_h_mm" in tf.along_beam_limited_by
     # with the plate declared exactly known (points touched by a calibrated robot), the same
     # readings would place it: the tolerance is what the std carries
-    tight = profile.replace(reflector_points_std_mm=0.01, water_temperature_std_c=0.01,
-                            dh_length_std_mm=0.0, dh_angle_std_deg=0.0)
+    tight = profile.replace(
+        reflector_points_std_mm=0.01,
+        water_temperature_std_c=0.01,
+        dh_length_std_mm=0.0,
+        dh_angle_std_deg=0.0,
+    )
     peaks, crossings, starts = synthetic_run(tight, 0.0, 0.0, 20.0)
     tf = solve(tight, peaks, crossings, starts)
     err = tf.position_mm - TRUE_TOOL_MM

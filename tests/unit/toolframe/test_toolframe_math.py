@@ -36,8 +36,14 @@ def tilted_points() -> np.ndarray:
     return uv @ rot.T + np.array([600.0, -50.0, -220.0])
 
 
-def flange_for(tool_p: np.ndarray, tool_a: np.ndarray, hit: np.ndarray, beam: np.ndarray,
-               path: float, phi_deg: float) -> np.ndarray:
+def flange_for(
+    tool_p: np.ndarray,
+    tool_a: np.ndarray,
+    hit: np.ndarray,
+    beam: np.ndarray,
+    path: float,
+    phi_deg: float,
+) -> np.ndarray:
     """Flange pose whose tool (p, a) sends the beam along ``beam`` to ``hit`` after ``path``;
     ``phi_deg`` turns the flange about the beam."""
     z = beam / np.linalg.norm(beam)
@@ -81,12 +87,15 @@ def test_plane_least_squares_beyond_three_points() -> None:
     assert plane.n_points == 4
 
 
-@pytest.mark.parametrize("points, words", [
-    (SQUARE[:2], "at least three points"),
-    ([[0, 0, 0], [10, 0, 0], [20, 0, 0]], "collinear"),
-    ([[0, 0, 0], [10, 0, 0], [0.001, 0, 0], [0, 10, 0]], "duplicates"),
-    (None, "missing"),
-])
+@pytest.mark.parametrize(
+    "points, words",
+    [
+        (SQUARE[:2], "at least three points"),
+        ([[0, 0, 0], [10, 0, 0], [20, 0, 0]], "collinear"),
+        ([[0, 0, 0], [10, 0, 0], [0.001, 0, 0], [0, 10, 0]], "duplicates"),
+        (None, "missing"),
+    ],
+)
 def test_plane_bad_points_name_the_key(points: object, words: str) -> None:
     with pytest.raises(InputError) as err:
         fit_plane(points)
@@ -131,8 +140,9 @@ def test_paper_kkt_recovers_tool_with_tilted_incidence() -> None:
     plane, rots, poss, paths = paper_data(tilt_deg=10.0, m=30, seed=1)
     t_true = np.concatenate([TRUE_P, TRUE_A])
     np.testing.assert_allclose(residuals_mm(t_true, rots, poss, paths, plane), 0.0, atol=1e-9)
-    sol = solve_paper(rots, poss, paths, plane, np.array([0.0, 0.0, 80.0]),
-                      np.array([0.0, 0.0, 1.0]), 1e-4)
+    sol = solve_paper(
+        rots, poss, paths, plane, np.array([0.0, 0.0, 80.0]), np.array([0.0, 0.0, 1.0]), 1e-4
+    )
     assert sol.converged and sol.second_order_ok
     np.testing.assert_allclose(sol.position_mm, TRUE_P, atol=1e-7)
     assert angle_between_deg(sol.beam, TRUE_A) < 1e-7
@@ -146,8 +156,9 @@ def test_paper_near_normal_incidence_is_ill_conditioned() -> None:
     plane, rots, poss, paths = paper_data(tilt_deg=0.02, m=30, seed=2)
     rng = np.random.default_rng(5)
     noisy = paths + rng.normal(0.0, 0.0004, paths.shape)  # 0.5 ns of TOF
-    sol = solve_paper(rots, poss, noisy, plane, np.array([0.0, 0.0, 80.0]),
-                      np.array([0.0, 0.0, 1.0]), 0.0004)
+    sol = solve_paper(
+        rots, poss, noisy, plane, np.array([0.0, 0.0, 80.0]), np.array([0.0, 0.0, 1.0]), 0.0004
+    )
     assert sol.condition > 1e8
     assert any("ill-conditioned" in n for n in sol.notes)
     # what it does see: the offset along the beam
@@ -161,8 +172,10 @@ def test_paper_near_normal_incidence_is_ill_conditioned() -> None:
 
 def test_beam_from_normal_incidence_is_exact() -> None:
     plane = fit_plane(tilted_points())
-    rots = [flange_for(TRUE_P, TRUE_A, plane.centroid_mm, -plane.normal, 100.0, phi)[:3, :3]
-            for phi in (0.0, 90.0, 180.0, 270.0)]
+    rots = [
+        flange_for(TRUE_P, TRUE_A, plane.centroid_mm, -plane.normal, 100.0, phi)[:3, :3]
+        for phi in (0.0, 90.0, 180.0, 270.0)
+    ]
     est = beam_from_normal_incidence(np.array(rots), plane.normal, np.full(4, 0.002))
     assert angle_between_deg(est.direction, TRUE_A) < 1e-10
     assert est.scatter_deg < 1e-10
@@ -235,8 +248,9 @@ def exact_data(edge_turn_deg: float) -> tuple:
 
 def test_exact_offsets_recover_tool_with_turned_edges() -> None:
     plane, tofs, crossings = exact_data(edge_turn_deg=2.0)
-    beam = beam_from_normal_incidence(np.array([t.flange[:3, :3] for t in tofs]),
-                                      plane.normal, np.full(4, 0.001))
+    beam = beam_from_normal_incidence(
+        np.array([t.flange[:3, :3] for t in tofs]), plane.normal, np.full(4, 0.001)
+    )
     s, _ = along_beam_offset_mm(beam.direction, tofs, plane)
     assert s == pytest.approx(TRUE_A @ TRUE_P, abs=1e-9)
     est = solve_offsets(beam, tofs, crossings, plane, np.array([0.0, 0.0, 80.0]))
@@ -250,10 +264,12 @@ def test_exact_offsets_recover_tool_with_turned_edges() -> None:
 def test_exact_offsets_need_both_edges() -> None:
     """One edge sees one component across the beam: the design is singular, and said so."""
     plane, tofs, crossings = exact_data(edge_turn_deg=0.0)
-    beam = beam_from_normal_incidence(np.array([t.flange[:3, :3] for t in tofs]),
-                                      plane.normal, np.full(4, 0.001))
-    est = solve_offsets(beam, tofs, [c for c in crossings if c.edge == 0], plane,
-                        np.array([0.0, 0.0, 80.0]))
+    beam = beam_from_normal_incidence(
+        np.array([t.flange[:3, :3] for t in tofs]), plane.normal, np.full(4, 0.001)
+    )
+    est = solve_offsets(
+        beam, tofs, [c for c in crossings if c.edge == 0], plane, np.array([0.0, 0.0, 80.0])
+    )
     assert est.notes and "do not determine" in est.notes[0]
 
 
