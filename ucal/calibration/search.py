@@ -84,6 +84,13 @@ _FIRST_READ_S = timing.read_s("tcp")
 #: full screen height): one level of an 8-bit amplitude. A quantised instrument reports 0 below
 #: one level, so the true floor is under it; the threshold (four floors) stays above the noise.
 ZERO_FLOOR_FSH = 1.0 / 256
+#: Pulser averages of the peak fit's probes, multiplied by this once the amplitude has shown
+#: itself quantised: the fit's precision then rests on fewer effective levels, and four times
+#: the averages halve the noise the levels add to (a pulse costs microseconds, a read a Modbus
+#: round trip, so the run takes as many reads and hardly longer).
+QUANTISED_FIT_AVERAGES = 4
+#: Gain step (dB) while an empty gate reads 0 (``Rig.measure_floor``).
+FLOOR_GAIN_STEP_DB = 12.0
 
 
 def check_reading(endpoint: str, amplitude: float, tof_ns: float) -> None:
@@ -148,6 +155,9 @@ class Rig:
             gain_db=40.0, gate_start_us=5.0, gate_width_us=400.0, averages=1
         )
         self.floor_per_gain: float | None = None  # noise-floor amplitude at 0 dB gain
+        # One level of a quantised amplitude register (fraction of full screen height), seen
+        # when an empty gate reads exactly 0; 0 while no quantisation has shown.
+        self.amplitude_step_fsh = 0.0
         self.on_move = None  # optional callback(target) for progress display
         self.last_sweep_step_deg = 0.0
 
@@ -206,16 +216,28 @@ class Rig:
     def measure_floor(self, n: int = 8) -> None:
         """Noise floor from readings without an echo (call with the beam in open water).
 
-        The median of ``n`` readings; never 0, which the acquisition gain divides by: an empty
-        gate that reads exactly 0 (a quantised amplitude below one level) takes the smallest
-        reading above 0 (about one level), else :data:`ZERO_FLOOR_FSH`.
+        The median of ``n`` readings; never 0, which the acquisition gain divides by. An empty
+        gate that reads exactly 0 is a quantised amplitude below one level: the smallest
+        reading above 0 bounds that level (``amplitude_step_fsh``), and the floor is measured
+        again ``FLOOR_GAIN_STEP_DB`` higher until it shows (up to 80 dB; then one level,
+        at most :data:`ZERO_FLOOR_FSH`, is taken). A floor taken as one level would be
+        overestimated tenfold, and the acquisition gain set too low to show the side lobes.
         """
-        vals = [self.read().amplitude for _ in range(n)]
-        floor = float(np.median(vals))
-        if floor <= 0.0:
+        while True:
+            vals = [self.read().amplitude for _ in range(n)]
+            floor = float(np.median(vals))
+            if floor > 0.0:
+                break
             positive = [v for v in vals if v > 0.0]
-            floor = min(positive) if positive else ZERO_FLOOR_FSH
-            log.info("the empty gate reads 0 (quantised amplitude): floor taken as %.2e FSH", floor)
+            step = min(positive) if positive else ZERO_FLOOR_FSH
+            if self.amplitude_step_fsh == 0.0 or step < self.amplitude_step_fsh:
+                self.amplitude_step_fsh = step
+            gain = self.settings.gain_db
+            log.info("the empty gate reads 0 at %.1f dB (quantised amplitude)", gain)
+            if gain >= 80.0:
+                floor = step
+                break
+            self.configure(gain_db=min(gain + FLOOR_GAIN_STEP_DB, 80.0))
         self.floor_per_gain = floor / 10 ** (self.settings.gain_db / 20)
         log.info("noise floor %.2e FSH at %.1f dB", floor, self.settings.gain_db)
 
@@ -555,6 +577,8 @@ class PeakSearch:
         saving a move); its result is returned in ``PeakResult.distance``.
         """
         q = np.array(q_centre, float)
+        if self.rig.amplitude_step_fsh > 0.0:
+            averages *= QUANTISED_FIT_AVERAGES
         g_init = self.m.T @ self.m  # nominal metric, rad² per deg²
         grid = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (0, 0)], float)
         plus = np.array([(1, 0), (-1, 0), (0, 1), (0, -1)], float)
@@ -696,10 +720,20 @@ class PeakSearch:
         )
         res = sol.fun
         dof = max(1, len(amps) - len(p0))
-        sigma = max(
-            float(np.sqrt(res @ res / dof)),
-            1e-6 * sol.x[0],
-            (self.amp_sigma_rel or 0.0) * float(np.mean(amps)),
+        # A quantised register rounds every reading by up to one level: with little noise to
+        # dither it, the error repeats from probe to probe instead of averaging out, and the
+        # few residual degrees of freedom (or six identical repeats) can hide it. Its variance
+        # (a uniform level, step²/12, at the fit's gain) is added to the measured one.
+        step = self.rig.amplitude_step_fsh / 10 ** (self.rig.settings.gain_db / 20)
+        sigma = float(
+            np.hypot(
+                max(
+                    float(np.sqrt(res @ res / dof)),
+                    1e-6 * sol.x[0],
+                    (self.amp_sigma_rel or 0.0) * float(np.mean(amps)),
+                ),
+                step / np.sqrt(12.0),
+            )
         )
         cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma**2
         # Peak-posture covariance (deg²) → tilt covariance (rad²) through the local map.

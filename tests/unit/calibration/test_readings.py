@@ -11,6 +11,7 @@ import pytest
 
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal.acoustics import piston_directivity
 from ucal.calibration.faces import MAX_ACQUISITION_MOVES, acquire_and_centre, acquisition_gain
 from ucal.calibration.search import ZERO_FLOOR_FSH, PeakSearch, Rig, read_distance
 from ucal.errors import EXIT_HARDWARE, HardwareError
@@ -136,22 +137,51 @@ def test_no_echo_is_not_an_impossible_reading() -> None:
     assert np.all(amps == 0.0) and np.all(np.isnan(tofs))
 
 
-def test_empty_gate_reading_exactly_zero_gives_a_usable_floor() -> None:
+def test_empty_gate_reading_zero_at_every_gain_gives_a_usable_floor() -> None:
     rig = rig_with(lambda n: (0.0, float("nan")))  # 8-bit amplitude below one level
     rig.configure(gain_db=20.0)
     rig.measure_floor()
-    assert rig.floor_per_gain == pytest.approx(ZERO_FLOOR_FSH / 10.0)
+    # below one level even at 80 dB: one level there bounds it
+    assert rig.settings.gain_db == 80.0
+    assert rig.floor_per_gain == pytest.approx(ZERO_FLOOR_FSH / 1e4)
+    assert rig.amplitude_step_fsh == ZERO_FLOOR_FSH
     gain = acquisition_gain(rig, np.zeros(6))
     assert math.isfinite(gain) and 20.0 <= gain <= 80.0
     assert math.isfinite(rig.threshold()) and rig.threshold() > 0
 
 
-def test_mostly_zero_floor_takes_the_quantisation_level_seen() -> None:
-    level = 1.0 / 256
-    rig = rig_with(lambda n: (level if n % 4 == 0 else 0.0, float("nan")))
+def quantised_floor(rig_ref: list[Rig], floor_at_0db: float, bits: int = 8):
+    """An empty gate read through a ``bits``-bit register: the floor scales with the gain and
+    is truncated to whole levels; a little noise from read to read (deterministic)."""
+    levels = float(1 << bits)
+
+    def reading(n: int) -> tuple[float, float]:
+        g = rig_ref[0].settings.gain_db
+        true = floor_at_0db * 10 ** (g / 20) * (1.0 + 0.2 * math.sin(n))
+        return math.floor(true * levels) / levels, float("nan")
+
+    return reading
+
+
+def test_a_floor_below_one_level_is_measured_at_a_higher_gain() -> None:
+    ref: list[Rig] = []
+    true_floor = 2e-4  # FSH at 0 dB: 0.5 level at 20 dB, 2 levels at 32 dB, 8 at 44 dB
+    rig = rig_with(quantised_floor(ref, true_floor))
+    ref.append(rig)
     rig.configure(gain_db=20.0)
     rig.measure_floor()
-    assert rig.floor_per_gain == pytest.approx(level / 10.0)
+    assert rig.settings.gain_db == 32.0
+    assert rig.amplitude_step_fsh == pytest.approx(1.0 / 256)  # the level seen at 20 dB
+    # measured within the quantisation and the read-to-read spread, not 1 level at 20 dB (5×)
+    assert rig.floor_per_gain == pytest.approx(true_floor, rel=0.35)
+
+
+def test_an_unquantised_floor_is_taken_where_it_is_read() -> None:
+    rig = rig_with(lambda n: (1e-3 * (1.0 + 0.01 * math.sin(n)), float("nan")))
+    rig.configure(gain_db=20.0)
+    rig.measure_floor()
+    assert rig.settings.gain_db == 20.0 and rig.amplitude_step_fsh == 0.0
+    assert rig.floor_per_gain == pytest.approx(1e-4, rel=0.02)
 
 
 def _search(rig: Rig) -> PeakSearch:
@@ -199,3 +229,35 @@ def test_raster_stops_at_the_first_echo() -> None:
     posture, _ = found
     assert posture[4] == pytest.approx(2.5)
     assert rig.counters.moves < 15
+
+
+def _peak_reading(rig_ref: list[Rig], averages_seen: list[int]):
+    """A main lobe at joints 4, 5 = (0.3, −0.2) deg (1° of joint = 1° of tilt), 0.6 FSH."""
+
+    def reading(n: int) -> tuple[float, float]:
+        rig = rig_ref[0]
+        averages_seen.append(rig.settings.averages)
+        q = rig.controller.read_joints()
+        tilt = math.radians(math.hypot(q[3] - 0.3, q[4] + 0.2))
+        amp = 0.6 * abs(float(piston_directivity(300.0 * math.sin(2 * tilt))))
+        return amp * 10 ** ((rig.settings.gain_db - 20.0) / 20), 40_000.0
+
+    return reading
+
+
+@pytest.mark.parametrize(("step", "averages"), [(0.0, 8), (1.0 / 256, 32)])
+def test_the_peak_fit_averages_more_once_the_amplitude_shows_levels(
+    step: float, averages: int
+) -> None:
+    ref: list[Rig] = []
+    seen: list[int] = []
+    rig = rig_with(_peak_reading(ref, seen))
+    ref.append(rig)
+    rig.amplitude_step_fsh = step
+    rig.configure(gain_db=20.0)
+    peak = _search(rig).fit(np.array([0.0, 30.0, 100.0, 0.25, -0.15, 0.0]), averages=8)
+    assert set(seen) == {averages}
+    np.testing.assert_allclose(peak.joints_deg[3:5], [0.3, -0.2], atol=1e-4)
+    if step:
+        # the levels' variance is in the tilt σ even where the readings fit exactly
+        assert peak.tilt_std_deg > 1e-4
