@@ -31,6 +31,8 @@ from ucal.profile import (
     write_profile,
 )
 
+from doubles import exit_code
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -44,15 +46,6 @@ def cell(tmp_path: Path) -> Path:
     text = text.replace("temperature_c = 20.0", "temperature_c = 20.0  # checked weekly")
     p.write_text(text, encoding="utf-8")
     return p
-
-
-def _run(args: list[str]) -> int:
-    """Exit code of the ``ucal`` entry point for ``args``."""
-    try:
-        main(args)
-    except SystemExit as e:
-        return 0 if e.code is None else int(e.code)
-    return 0
 
 
 def _comments(text: str) -> list[str]:
@@ -404,7 +397,7 @@ def test_unknown_keys_are_warnings(tmp_path: Path, capsys: pytest.CaptureFixture
     doc["water"]["temprature_c"] = 21.0
     path = tmp_path / "c.toml"
     path.write_text(tomlkit.dumps(doc))
-    assert _run(["profile", "validate", str(path), "--json"]) == 0
+    assert exit_code(["profile", "validate", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["valid"] is True
     assert out["warnings"] == ["unknown key water.temprature_c (ignored)"]
@@ -570,7 +563,7 @@ def test_undo_refuses_after_a_hand_edit_unless_forced(cell: Path) -> None:
 def test_undo_via_cli(cell: Path, capsys: pytest.CaptureFixture[str]) -> None:
     v0 = cell.read_bytes()
     write_profile(cell, {"calibration": {"joint_offsets_deg": [0.2] * 6}}, reason="calibrate")
-    assert _run(["profile", "undo", str(cell), "--json"]) == 0
+    assert exit_code(["profile", "undo", str(cell), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["undone"] == 1 and out["reason"] == "calibrate"
     assert cell.read_bytes() == v0

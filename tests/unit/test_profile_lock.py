@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 
 import ucal.profile as profile_mod
-from ucal.cli import main
 from ucal.errors import EXIT_USAGE, InputError, ProfileError
 from ucal.profile import check_writable, default_profile_text, lock_path, profile_lock
+
+from doubles import exit_code
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -49,14 +50,6 @@ def _hold(cell: Path, mode: str = "hold") -> subprocess.Popen[str]:
     assert proc.stdout is not None
     assert proc.stdout.readline().strip() == "locked"
     return proc
-
-
-def _run(args: list[str]) -> int:
-    try:
-        main(args)
-    except SystemExit as e:
-        return 0 if e.code is None else int(e.code)
-    return 0
 
 
 def test_a_second_holder_is_refused_naming_the_first(cell: Path) -> None:
@@ -112,8 +105,8 @@ def test_calibrate_refuses_a_profile_in_use_before_any_motion(
     before = cell.read_bytes()
     proc = _hold(cell)
     try:
-        code = _run(["calibrate", str(cell), "--sim", "--yes"])
-        code_tf = _run(["tool-frame", str(cell), "--sim", "--yes"])
+        code = exit_code(["calibrate", str(cell), "--sim", "--yes"])
+        code_tf = exit_code(["tool-frame", str(cell), "--sim", "--yes"])
     finally:
         proc.communicate("")
     err = capsys.readouterr().err
@@ -166,7 +159,7 @@ def test_full_disk_is_refused_before_the_run(
     before = cell.read_bytes()
     with pytest.raises(ProfileError, match=r"4096 bytes free"):
         check_writable(cell)
-    code = _run(["calibrate", str(cell), "--sim", "--yes"])
+    code = exit_code(["calibrate", str(cell), "--sim", "--yes"])
     err = capsys.readouterr().err.strip()
     assert code == EXIT_USAGE
     assert err.startswith(f"error: {cell.parent}: profile directory has 4096 bytes free")

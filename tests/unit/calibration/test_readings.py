@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
 from ucal.calibration.faces import MAX_ACQUISITION_MOVES, acquire_and_centre, acquisition_gain
 from ucal.calibration.search import ZERO_FLOOR_FSH, PeakSearch, Rig, read_distance
 from ucal.errors import EXIT_HARDWARE, HardwareError
+
+from doubles import QuietPulser
 
 ENDPOINT = "fake-pulser://bench"
 
@@ -58,28 +60,13 @@ class FakeController(RobotController):
         return []
 
 
-class FakePulser(PulserReceiver):
+class FakePulser(QuietPulser):
     """Answers ``reading(n)`` for the n-th read (amplitude, tof_ns)."""
 
     def __init__(self, reading: Callable[[int], tuple[float, float]]):
+        super().__init__(ENDPOINT)
         self.reading = reading
         self.n = 0
-
-    @property
-    def endpoint(self) -> str:
-        return ENDPOINT
-
-    def connect(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def configure(self, settings: PulserSettings) -> None:
-        pass
-
-    def settings(self) -> PulserSettings:
-        return PulserSettings()
 
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         self.n += 1

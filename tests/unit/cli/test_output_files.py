@@ -7,17 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from ucal.cli import main
 from ucal.errors import EXIT_USAGE
 from ucal.profile import default_profile_text
 
-
-def _run(args: list[str]) -> int:
-    try:
-        main(args)
-    except SystemExit as e:
-        return 0 if e.code is None else int(e.code)
-    return 0
+from doubles import exit_code
 
 
 @pytest.fixture
@@ -40,7 +33,7 @@ def test_path_output_into_a_missing_directory(
 ) -> None:
     profile, poses = inputs
     out = tmp_path / "no-such-dir" / "joints.csv"
-    assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
+    assert exit_code(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
     line = _one_error_line(capsys.readouterr().err)
     assert line.startswith(f"error: {out}: cannot write") and "does not exist" in line
     assert not out.parent.exists()
@@ -60,7 +53,7 @@ def test_path_output_into_an_unwritable_directory(
     monkeypatch.setattr(
         os, "access", lambda p, mode: False if Path(p) == locked else real_access(p, mode)
     )
-    assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
+    assert exit_code(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
     line = _one_error_line(capsys.readouterr().err)
     assert line.startswith(f"error: {out}: cannot write") and "not writable" in line
 
@@ -80,7 +73,7 @@ def test_path_output_failing_while_written_names_the_file(
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(os, "fsync", full)
-    assert _run(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
+    assert exit_code(["path", str(profile), str(poses), "-o", str(out)]) == EXIT_USAGE
     line = _one_error_line(capsys.readouterr().err)
     assert line == f"error: {out}: cannot write: No space left on device"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cell.toml", "scan.csv"]
@@ -89,7 +82,7 @@ def test_path_output_failing_while_written_names_the_file(
 def test_path_output_still_written(inputs: tuple[Path, Path], tmp_path: Path) -> None:
     profile, poses = inputs
     out = tmp_path / "joints.csv"
-    assert _run(["path", str(profile), str(poses), "-o", str(out)]) == 0
+    assert exit_code(["path", str(profile), str(poses), "-o", str(out)]) == 0
     assert out.read_text(encoding="utf-8").splitlines()[0] == "J1,J2,J3,J4,J5,J6"
 
 
@@ -97,7 +90,7 @@ def test_sim_serve_log_into_a_missing_directory(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     log = tmp_path / "missing" / "motions.jsonl"
-    assert _run(["sim", "serve", "--log", str(log)]) == EXIT_USAGE
+    assert exit_code(["sim", "serve", "--log", str(log)]) == EXIT_USAGE
     captured = capsys.readouterr()
     line = _one_error_line(captured.err)
     assert line.startswith(f"error: {log}: cannot write the motion log")
@@ -107,6 +100,6 @@ def test_sim_serve_log_into_a_missing_directory(
 def test_sim_serve_log_that_is_a_directory(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert _run(["sim", "serve", "--log", str(tmp_path)]) == EXIT_USAGE
+    assert exit_code(["sim", "serve", "--log", str(tmp_path)]) == EXIT_USAGE
     err = capsys.readouterr().err
     assert str(tmp_path) in err and "is a directory" in err and "Traceback" not in err

@@ -22,15 +22,7 @@ from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 
-
-def crc16_modbus(data: bytes) -> bytes:
-    """Reference CRC-16/MODBUS, bit by bit (poly 0xA001 reflected, init 0xFFFF), low byte first."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
+from doubles import ScriptedPort, crc16_modbus
 
 
 def h(text: str) -> bytes:
@@ -55,39 +47,6 @@ WRITE_THRESHOLD_5PCT = h("01 10 00 07 00 01 02 00 32 26 32")
 WRITE_THRESHOLD_REPLY = h("01 10 00 07 00 01 B0 08")
 WRITE_TRIGGER = h("01 10 00 08 00 01 02 00 01 66 D8")
 WRITE_TRIGGER_REPLY = h("01 10 00 08 00 01 80 0B")
-
-
-class ScriptedPort:
-    """A serial port double: a dialogue of (expected request, reply or None) pairs."""
-
-    def __init__(self, dialogue: list[tuple[bytes, bytes | None]]):
-        self.dialogue = list(dialogue)
-        self.rx = bytearray()
-        self.is_open = True
-        self.inter_byte_timeout: float | None = None
-
-    @property
-    def in_waiting(self) -> int:
-        return len(self.rx)
-
-    def write(self, data: bytes) -> int:
-        assert self.dialogue, f"unexpected write {bytes(data).hex(' ')}"
-        expected, reply = self.dialogue.pop(0)
-        assert bytes(data) == expected, f"sent {bytes(data).hex(' ')}, expected {expected.hex(' ')}"
-        self.rx += reply or b""
-        return len(data)
-
-    def read(self, size: int = 1) -> bytes:
-        out = bytes(self.rx[:size])
-        del self.rx[:size]
-        return out
-
-    def close(self) -> None:
-        self.is_open = False
-
-    def assert_done(self) -> None:
-        assert not self.dialogue, f"unused pairs: {self.dialogue}"
-        assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
 
 
 URL = "modbus-rtu:///dev/ttyPULSER0?unit=1&baud=115200"

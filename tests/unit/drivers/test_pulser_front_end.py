@@ -9,15 +9,7 @@ from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 
-
-def crc16_modbus(data: bytes) -> bytes:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
-
+from doubles import ScriptedPort, crc16_modbus
 
 h = bytes.fromhex
 
@@ -49,39 +41,6 @@ FRAMES = [
     READ_DEVICE_INFO,
     DEVICE_INFO_REPLY,
 ]
-
-
-class ScriptedPort:
-    """A serial port double: (expected request, reply) pairs, all of them used, nothing left."""
-
-    def __init__(self, dialogue: list[tuple[bytes, bytes]]):
-        self.dialogue = list(dialogue)
-        self.rx = bytearray()
-        self.is_open = True
-        self.inter_byte_timeout: float | None = None
-
-    @property
-    def in_waiting(self) -> int:
-        return len(self.rx)
-
-    def write(self, data: bytes) -> int:
-        assert self.dialogue, f"unexpected write {bytes(data).hex(' ')}"
-        expected, reply = self.dialogue.pop(0)
-        assert bytes(data) == expected, f"sent {bytes(data).hex(' ')}, expected {expected.hex(' ')}"
-        self.rx += reply
-        return len(data)
-
-    def read(self, size: int = 1) -> bytes:
-        out = bytes(self.rx[:size])
-        del self.rx[:size]
-        return out
-
-    def close(self) -> None:
-        self.is_open = False
-
-    def assert_done(self) -> None:
-        assert not self.dialogue, f"unused pairs: {self.dialogue}"
-        assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
 
 
 def scripted(

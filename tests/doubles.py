@@ -1,0 +1,98 @@
+"""Test doubles and helpers shared by the test tiers (importable as ``doubles``: pytest puts the
+directory of the root ``conftest.py`` on ``sys.path``).
+
+* :func:`exit_code` — the ``ucal`` entry point run in this process, its exit code;
+* :func:`crc16_modbus` — the reference CRC of a Modbus RTU frame, bit by bit;
+* :class:`ScriptedPort` — a serial port that plays a dialogue of expected requests and replies,
+  in the style of pymeasure's ``expected_protocol``;
+* :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
+  gate reads.
+"""
+
+from __future__ import annotations
+
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal.cli import main
+
+
+def exit_code(args: list[str]) -> int:
+    """Exit code of ``ucal ARGS`` run in this process (output goes to pytest's capture)."""
+    try:
+        main(args)
+    except SystemExit as e:
+        return 0 if e.code is None else int(e.code)
+    return 0
+
+
+def crc16_modbus(data: bytes) -> bytes:
+    """Reference CRC-16/MODBUS, bit by bit (poly 0xA001 reflected, init 0xFFFF), low byte first."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes([crc & 0xFF, crc >> 8])
+
+
+class ScriptedPort:
+    """A serial port double: a dialogue of (expected request, reply or None) pairs.
+
+    Every write must equal the next expected request; its reply then becomes readable.
+    :meth:`assert_done` fails if a pair is left unused or bytes are left unread.
+    """
+
+    def __init__(self, dialogue: list[tuple[bytes, bytes | None]]):
+        self.dialogue = list(dialogue)
+        self.rx = bytearray()
+        self.is_open = True
+        self.inter_byte_timeout: float | None = None
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.rx)
+
+    def write(self, data: bytes) -> int:
+        assert self.dialogue, f"unexpected write {bytes(data).hex(' ')}"
+        expected, reply = self.dialogue.pop(0)
+        assert bytes(data) == expected, f"sent {bytes(data).hex(' ')}, expected {expected.hex(' ')}"
+        self.rx += reply or b""
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        out = bytes(self.rx[:size])
+        del self.rx[:size]
+        return out
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def assert_done(self) -> None:
+        assert not self.dialogue, f"unused pairs: {self.dialogue}"
+        assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
+
+
+class QuietPulser(PulserReceiver):
+    """A pulser-receiver at ``endpoint`` that takes every setting and reports the defaults;
+    :meth:`read_gate` is the subclass's."""
+
+    def __init__(self, endpoint: str):
+        self._endpoint = endpoint
+
+    @property
+    def endpoint(self) -> str:
+        return self._endpoint
+
+    def connect(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def configure(self, settings: PulserSettings) -> None:
+        pass
+
+    def settings(self) -> PulserSettings:
+        return PulserSettings()
+
+    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+        raise NotImplementedError
