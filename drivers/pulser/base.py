@@ -132,8 +132,9 @@ class PulserReceiver(abc.ABC):
         """Read the settings back from the device."""
 
     @abc.abstractmethod
-    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
-        """One gated reading. With ``fresh`` wait for a counter newer than the last one read."""
+    def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
+        """One gated reading. With ``fresh`` wait for a counter newer than the last one read;
+        ``timeout_s`` bounds the wait (None: the back-end's own request timeout)."""
 
     def identity(self) -> dict[str, object]:
         """Optional: what the device tells about itself (model, firmware, serial, …)."""

@@ -303,14 +303,18 @@ class ModbusPulser(PulserReceiver):
             out.update(model=info.model, firmware=info.firmware_version, serial=info.serial)
         return out
 
-    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+    def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
         """Read the gated peak amplitude and time of flight (ns, round trip).
 
         With ``fresh`` poll the measurement block until its counter differs from the last one
         this object returned (the first call accepts any reading); ``timeout_s`` (s) bounds
-        the whole wait, then ``DeviceTimeout``. ``host_time_s`` is ``self.clock.now()`` when
-        the answer arrived. A gate ending after the pulse period raises ``DeviceError``.
+        the whole wait, then ``DeviceTimeout`` (None: the pulser's ``timeout_s``, so that a
+        simulated cell's generous guard is not cut short by a busy machine). ``host_time_s``
+        is ``self.clock.now()`` when the answer arrived. A gate ending after the pulse period
+        raises ``DeviceError``.
         """
+        if timeout_s is None:
+            timeout_s = self._timeout_s
         deadline = time.monotonic() + float(timeout_s)
         while True:
             registers = self._read(

@@ -173,6 +173,20 @@ def test_read_gate_fresh_polls_until_the_counter_advances() -> None:
     port.assert_done()
 
 
+@pytest.mark.parametrize(("pulser_timeout_s", "read_timeout_s"), [(0.3, None), (5.0, 0.3)])
+def test_a_stale_counter_times_out_after_the_read_or_else_the_pulser_timeout(
+    pulser_timeout_s: float, read_timeout_s: float | None
+) -> None:
+    port = ScriptedPort([(IDENTIFY, IDENTIFY_REPLY)] + [(READ_GATE, GATE_REPLY)] * 100_000)
+    pulser = ModbusPulser(URL, timeout_s=pulser_timeout_s, port=port)
+    with pulser:
+        pulser.read_gate()
+        with pytest.raises(
+            DeviceTimeout, match=r"no new reading within 0.3 s \(counter stays at 7\)"
+        ):
+            pulser.read_gate(fresh=True, timeout_s=read_timeout_s)
+
+
 def test_gate_threshold_and_trigger_frames() -> None:
     pulser, port = scripted(
         [(WRITE_THRESHOLD_5PCT, WRITE_THRESHOLD_REPLY), (WRITE_TRIGGER, WRITE_TRIGGER_REPLY)]
