@@ -8,9 +8,10 @@ is ``WALL_PATH_MM`` (50–150 mm of water path) from the two walls (the YZ and X
 each wall can be measured from every point. Coordinates are block coordinates (mm): origin at
 the block corner of the profile, axes along the block's edges.
 
-**Two passes.** *before*: every point is commanded with joint readings from IK *without* the
-profile's ``[calibration]`` offsets (the uncalibrated robot); *after*: with them
-(``ik(..., offsets_deg=profile offsets)``, readings = kinematic angle − offset).
+**Two passes.** *before*: every point is commanded with joint readings from IK with the
+offsets the profile had before its last calibration (``offsets_before_calibration``); *after*:
+with its current ones (``ik(..., offsets_deg=profile offsets)``, readings = kinematic angle −
+offset).
 
 **What is measured, and how.** At each commanded point the arm (joints 1–3) stays still and the
 wrist turns the beam onto each of the three faces in turn; the wrist turns the beam about W
@@ -27,13 +28,50 @@ known wrist postures at which the true beam is −n_k. With the arm still, the t
 rotation is ``R(q) = Exp(ω)·R06(q, δ + (0, 0, 0, 0, ε5, ε6))`` for an unknown small rotation ω
 (it absorbs the arm offsets and joint 4) and wrist residuals ε5, ε6: five unknowns, six
 equations (joint 6 is held at its prior where the beam lies on the joint-6 axis: it then moves
-neither beam nor TCP). The **reached tool centre** is the TCP of the *commanded* posture,
-``TCP = W + R(q_cmd)·v``: the point the robot really reached, in block coordinates. Its
-deviation from the nominal point, per block axis X, Y, Z, is what the statistics describe.
+neither beam nor TCP). The wrist-centre estimate of the tool centre is the TCP of the
+*commanded* posture, ``T̂ = W + R(q_cmd)·v``, in block coordinates.
+
+**Why the tool needs a measurement of its own.** Let the real tool be ``v' = v + Δ`` (flange
+frame; the real beam a_T' along it). A water path at normal incidence sees only the TCP's
+component along the beam: ``d_k = n_k·(W − c) − a_T'·v'``, whatever Δ does across the beam
+(a plane moved across itself is the same plane; turning the tool about the profile's TCP only
+moves the real TCP across the beam at normal incidence, where no water path sees it). So the
+reached TCP ``T = W + R·v'`` and its estimate differ by
+
+    T − T̂ = (a_T'·v' − a_T·v)·(1, 1, 1) + R(q_cmd)·Δ        (block coordinates)
+
+and at the nominal orientation (the profile's beam along −z, so ``R·Δ`` has z component
+−a_T·Δ) the z component is ``(a_T' − a_T)·v'``, the beam's direction error times the lever
+(a micrometre after ``tool-frame``), while x and y carry the tool's error across the beam
+plus its error along it: one bias ``b = (b_x, b_y, 0)`` for all points of a pass, since all
+are commanded in the same orientation; it is invisible to water paths and is what a tool
+error does to every TCP the profile computes.
+
+**Tool check: the edges of the XY face.** A knife edge is a reflector whose echo sees the beam
+across its axis: with the beam at normal incidence to the XY face, the echo falls to half
+where the beam axis — the real TCP's x (or y) — crosses the face's far edge, x = S (y = S; S
+the face size). After both passes, from the "after" point nearest each far edge, the robot
+moves the profile's TCP along +x (+y) in the nominal orientation, with the wrist correction to
+normal incidence that the XY face's peak posture gave at that point, 30 mm above the face:
+coarse steps until the echo falls below half, then ``EDGE_FINE_PROBES`` static probes across
+the fall, fitted with the edge profile ``A0·Φ((t_e − t)/σ)`` (``ucal.toolframe.exact``, eq. E4).
+The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)`` — the point's measured W
+moved with the model (``W + W_model(q) − W_model(q_i)``) plus ``R(q)·v`` — so the crossing
+``t_e`` is what the estimate says where the real TCP is at x = S, and
+
+    b_x = S − t_e,   b_y = S − t_e(y)
+
+is the tool's error in block axes at the nominal orientation (the arm's error between the
+point and the edge, 20–40 mm away, is its gradient times that distance: micrometres after
+calibration). Every reached point of both passes is ``T̂ + b`` (the "before" pass, commanded
+with other offsets, turns the tool by up to their difference: a few hundredths of a mm per
+mm of tool error per degree). That is the "after" figure: the real TCP against the nominal
+point, tool and kinematics together; a tool 1 mm off across the beam makes it ~1 mm and the
+run fails its tolerance. Two edge scans of about 40 probes each.
 
 Because W is measured against the true block while the nominal points are placed from the
 profile's block corner, an error in the block's position shows as a *common bias* in both
-passes (a tool-frame error does too); calibration removes the joint-offset part only.
+passes; calibration removes the joint-offset part only.
 
 **Predictions.** Every face measurement enters a running regularised fit of the joint offsets
 and the block corner (as in the calibration sequence), so the posture correction found at one
@@ -50,7 +88,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,9 +102,10 @@ from ucal.calibration.search import Rig, ka_of
 from ucal.calibration.sequence import FinalApproachRig, calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
-from ucal.errors import SafetyError, UnreachableError
+from ucal.errors import HardwareError, SafetyError, UnreachableError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik
+from ucal.toolframe.exact import fit_edge_profile
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +127,18 @@ DIRECT_FIT_TILT_DEG = 0.12
 #: Faces in the order they are measured at each point: XY (beam straight down), YZ, XZ.
 FACE_ORDER = (2, 0, 1)
 PASSES = ("before", "after")
+#: Tool check: the edge scans run this far beyond the XY face's far edge at most (mm).
+EDGE_OVERSHOOT_MM = 15.0
+#: Tool check: the coarse search starts this far before the edge the profile predicts (mm).
+EDGE_APPROACH_MM = 12.0
+#: Tool check: coarse step of the TCP towards the edge (mm; the footprint's σ is ~1.5 mm).
+EDGE_COARSE_STEP_MM = 2.0
+#: Tool check: the fine scan spans ± this about the coarse crossing (mm) ...
+EDGE_FINE_HALF_MM = 5.0
+#: ... with this many static probes.
+EDGE_FINE_PROBES = 21
+#: Pulser readings averaged per probe of an edge scan.
+EDGE_AVERAGES = 16
 
 
 # ---------------------------------------------------------------------------------------------
@@ -151,7 +202,7 @@ def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGH
     lo, hi = verify_region(profile, height_mm)
     xs = np.linspace(lo[0], hi[0], nx) if nx > 1 else np.array([0.5 * (lo[0] + hi[0])])
     ys = np.linspace(lo[1], hi[1], ny) if ny > 1 else np.array([0.5 * (lo[1] + hi[1])])
-    pts = []
+    pts: list[list[float]] = []
     for j, y in enumerate(ys):
         row = xs if j % 2 == 0 else xs[::-1]
         pts.extend([x, y, height_mm] for x in row)
@@ -228,10 +279,29 @@ class VerifyPlan:
     height_mm: float
     offsets_deg: dict[str, np.ndarray]  # offsets the IK of each pass used
     targets: tuple[VerifyTarget, ...]  # all "before" targets, then all "after"
+    #: tool check: the point whose "after" posture each edge scan (block X, Y) starts from
+    edge_points: tuple[int, int] = (0, 0)
 
     @property
     def points(self) -> int:
         return len(self.nominal_mm)
+
+
+def joints_for(
+    profile: CellProfile,
+    pose: np.ndarray,
+    offsets_deg: np.ndarray,
+    near_deg: np.ndarray,
+    label: str,
+) -> np.ndarray:
+    """Joint readings (deg) that put the profile's tool at ``pose`` (4, 4, base frame), nearest
+    ``near_deg``, checked against the ranges (``SafetyError`` naming ``label`` otherwise)."""
+    try:
+        q = ik(profile.model, pose, profile.tool_matrix, offsets_deg, near_deg=near_deg)
+    except UnreachableError as e:
+        raise SafetyError(f"{label}: {e}") from None
+    check_joints(profile, q, label)
+    return q
 
 
 def _check_face(
@@ -295,17 +365,7 @@ def plan_verify(
         prev = near
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
-            try:
-                q = ik(
-                    profile.model,
-                    target_matrix(profile, p),
-                    profile.tool_matrix,
-                    off,
-                    near_deg=prev,
-                )
-            except UnreachableError as e:
-                raise SafetyError(f"plan {label}: {e}") from None
-            check_joints(profile, q, label)
+            q = joints_for(profile, target_matrix(profile, p), off, prev, f"plan {label}")
             w = fk_frames(profile.model, q, off)[4, :3, 3]
             w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
             if np.min(w_local) - reach < MIN_CLEARANCE_MM:
@@ -322,7 +382,17 @@ def plan_verify(
                 faces[k] = qf
             targets.append(VerifyTarget(pass_name, i, q, faces))
             prev = q
-    return VerifyPlan(nominal, float(height_mm), offsets, tuple(targets))
+    # tool check: each scan line, from the point nearest the far edge to beyond it
+    edge_points = (int(np.argmax(nominal[:, 0])), int(np.argmax(nominal[:, 1])))
+    after = [t for t in targets if t.pass_name == "after"]
+    for axis, i in enumerate(edge_points):
+        end = nominal[i].copy()
+        end[axis] = profile.sample_face_size_mm + EDGE_OVERSHOOT_MM
+        label = f"plan tool check along block {'XY'[axis]}"
+        joints_for(
+            profile, target_matrix(profile, end), offsets["after"], after[i].joints_deg, label
+        )
+    return VerifyPlan(nominal, float(height_mm), offsets, tuple(targets), edge_points)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -365,7 +435,7 @@ def estimate_orientation(
     a_t = geom.beam_flange
     normals = np.array([geom.normal(k) for k in range(3)])
 
-    def model(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def model(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         off = base.copy()
         off[4:] += x[3:]
         corr = Rotation.from_rotvec(x[:3]).as_matrix()
@@ -435,6 +505,31 @@ class PointResult:
         return self.reached_mm - self.nominal_mm
 
 
+@dataclass(frozen=True)
+class EdgeCheck:
+    """One edge scan of the tool check (module doc): where the real TCP crosses x = S (y = S)."""
+
+    axis: int  # 0: block X, 1: block Y
+    point: int  # 0-based "after" point the scan started from
+    edge_mm: float  # S: the far edge's coordinate
+    crossing_mm: float  # t_e: the wrist-centre estimate of the TCP there
+    crossing_std_mm: float  # one sigma of t_e from the edge-profile fit
+    probes: int  # probes of the scan (coarse and fine)
+
+    @property
+    def offset_mm(self) -> float:
+        """b: real minus estimated TCP coordinate on this axis (mm)."""
+        return self.edge_mm - self.crossing_mm
+
+
+def tool_offset(checks: tuple[EdgeCheck, ...]) -> np.ndarray:
+    """The bias b (3,) the tool check adds to every wrist-centre estimate (block axes, mm)."""
+    b = np.zeros(3)
+    for c in checks:
+        b[c.axis] = c.offset_mm
+    return b
+
+
 @dataclass
 class VerifyResult:
     """Both passes: per-point results, statistics, counters."""
@@ -444,6 +539,7 @@ class VerifyResult:
     moves: int
     reads: int
     offsets_estimate_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    edge_checks: tuple[EdgeCheck, ...] = ()
 
     def deviations(self, pass_name: str) -> np.ndarray:
         """Deviations (n, 3) mm of one pass, by point index."""
@@ -470,6 +566,21 @@ class VerifyResult:
         out["deviations_mm"] = {p: self.deviations(p).tolist() for p in PASSES}
         out["reached_mm"] = {p: self.reached(p).tolist() for p in PASSES}
         out["offsets_deg"] = {p: self.plan.offsets_deg[p].tolist() for p in PASSES}
+        out["tool_check"] = {
+            "offset_mm": tool_offset(self.edge_checks).tolist(),
+            "edges": [
+                {
+                    "axis": "XY"[c.axis],
+                    "point": c.point + 1,
+                    "edge_mm": c.edge_mm,
+                    "crossing_mm": c.crossing_mm,
+                    "crossing_std_mm": c.crossing_std_mm,
+                    "offset_mm": c.offset_mm,
+                    "probes": c.probes,
+                }
+                for c in self.edge_checks
+            ],
+        }
         out["moves"] = self.moves
         out["pulser_reads"] = self.reads
         return out
@@ -533,6 +644,7 @@ def run_verify(
     last_wrist: dict[int, np.ndarray] = {}
     pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
+    orientations: dict[int, WristOrientation] = {}  # of the "after" points
     total = len(plan.targets)
     approach = FinalApproachRig(rig)
     for n_done, target in enumerate(plan.targets):
@@ -555,7 +667,7 @@ def run_verify(
                 if len(pred.meas) >= 2
                 else "acquire"
             )
-            res = measure_face(
+            found = measure_face(
                 rig,
                 geom,
                 profile,
@@ -569,8 +681,8 @@ def run_verify(
                 mode,
                 16.0 if not pred.meas else 8.0,
             )
-            m = res.measurement
-            pred_err_deg[k] = res.prediction_error_deg
+            m = found.measurement
+            pred_err_deg[k] = found.prediction_error_deg
             faces[k] = m
             last_wrist[k] = m.joints_deg
             pred.add(m)
@@ -580,6 +692,8 @@ def run_verify(
             geom, np.array([m.joints_deg for m in ordered]), pred.offsets_deg
         )
         tcp = reached_tcp_local(geom, w_local, orient, target.joints_deg, v)
+        if target.pass_name == "after":
+            orientations[target.index] = orient
         res = PointResult(
             target.pass_name,
             target.index,
@@ -594,11 +708,140 @@ def run_verify(
         log.info("%s: deviation %s mm", target.label, np.round(res.deviation_mm, 4).tolist())
         if progress:
             progress(res, n_done + 1, total)
-    # Leave the robot at the last commanded point (beam down, clear of the block).
-    rig.move(plan.targets[-1].joints_deg)
-    return VerifyResult(
-        plan, results, rig.counters.moves, rig.counters.reads, pred.offsets_deg.copy()
+    # tool check: the real TCP against the estimate at the XY face's far edges
+    after = {p.index: p for p in results if p.pass_name == "after"}
+    checks = tuple(
+        scan_edge(rig, approach.move, geom, profile, plan, after[i], orientations[i], axis, v)
+        for axis, i in enumerate(plan.edge_points)
     )
+    b = tool_offset(checks)
+    log.info("tool check: real minus estimated TCP %s mm", np.round(b, 4).tolist())
+    results = [replace(p, reached_mm=p.reached_mm + b) for p in results]
+    # Leave the robot at the last commanded point (beam down, clear of the block).
+    approach.move(plan.targets[-1].joints_deg)
+    return VerifyResult(
+        plan, results, rig.counters.moves, rig.counters.reads, pred.offsets_deg.copy(), checks
+    )
+
+
+def scan_edge(
+    rig: Rig,
+    move: Callable[[np.ndarray], np.ndarray],
+    geom: CellGeometry,
+    profile: CellProfile,
+    plan: VerifyPlan,
+    point: PointResult,
+    orient: WristOrientation,
+    axis: int,
+    v_flange_mm: np.ndarray,
+) -> EdgeCheck:
+    """Scan the TCP from an "after" point across the XY face's far edge on ``axis`` (module doc).
+
+    The profile's TCP moves along +``axis``, 30 mm above the face, in the nominal orientation
+    tilted by the least rotation that brings the beam normal to the face (the beam the point's
+    three peak postures give, ``orient``; no turn about the beam, which would move a real TCP
+    that is off the profile's across the beam); each
+    probe's scan coordinate is the wrist-centre estimate of the TCP at its settled readings
+    (the point's measured W moved with the model, plus ``R(q)·v``). Coarse steps until the echo
+    falls below half, then a fine scan across the fall fitted with the edge profile. ``move``
+    moves the robot (reaching each probe from below on every joint) and returns the readings.
+    """
+    off = plan.offsets_deg["after"]
+    size = float(profile.sample_face_size_mm)
+    nominal = plan.nominal_mm[point.index]
+    q_i = np.asarray(point.commanded_deg, float)
+    b_rot = geom.block_rotation
+    # the point's measured W and true flange rotation, moved with the profile's kinematics
+    # (its offsets; the running estimate has absorbed whatever the profile's tool hides)
+    frames_i = fk_frames(geom.model, q_i, off)
+    w_i = frames_i[4, :3, 3]
+    r_true = orient.rotation(geom, q_i)
+    r_i = r_true @ frames_i[6, :3, :3].T  # true = r_i · model, base frame
+    # the least tilt of the true beam onto the face's normal, as a model flange rotation
+    beam = r_true @ geom.beam_flange
+    cross = np.cross(beam, -geom.normal(2))
+    tilt = Rotation.from_rotvec(
+        np.arctan2(np.linalg.norm(cross), beam @ -geom.normal(2))
+        * cross
+        / max(float(np.linalg.norm(cross)), 1e-300)
+    ).as_matrix()
+    flange_rot = r_i.T @ tilt @ r_true
+    tool_rot = flange_rot @ profile.tool_matrix[:3, :3]
+    unit = np.eye(3)[axis]
+    label = f"tool check along block {'XY'[axis]}"
+    rows: list[tuple[float, float]] = []
+    near = q_i.copy()
+    n_probes = 0
+
+    def posture(t: float) -> np.ndarray:
+        nonlocal near
+        pose = target_matrix(profile, nominal + t * unit)
+        pose[:3, :3] = tool_rot
+        near = joints_for(profile, pose, off, near, label)
+        return near
+
+    def probe(t: float) -> float:
+        nonlocal n_probes
+        settled = np.asarray(move(posture(t)), float)
+        a = rig.normalised_amplitude(EDGE_AVERAGES)
+        frames = fk_frames(geom.model, settled, off)
+        w = point.wrist_centre_mm + b_rot.T @ (frames[4, :3, 3] - w_i)
+        tcp = w + b_rot.T @ (r_i @ frames[6, :3, :3] @ v_flange_mm)
+        rows.append((float(tcp[axis]), a))
+        log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)
+        n_probes += 1
+        return a
+
+    t_max = size + EDGE_OVERSHOOT_MM - float(nominal[axis])
+    # the echo's level on the face at the point, then the coarse search from
+    # EDGE_APPROACH_MM before the edge the profile predicts (stepping back while the echo
+    # there is already below half: a tool or a block further off than that)
+    move(posture(0.0))
+    rig.level_gain(EDGE_AVERAGES)
+    level = rig.normalised_amplitude(EDGE_AVERAGES)
+    t = max(0.0, size - float(nominal[axis]) - EDGE_APPROACH_MM)
+    while (a := probe(t)) < 0.5 * level and t > 0.0:
+        t = max(0.0, t - EDGE_APPROACH_MM)
+    recent = [a]
+    prev = t
+    t_c = None
+    while t < t_max:
+        t = min(t + EDGE_COARSE_STEP_MM, t_max)
+        a = probe(t)
+        if a < 0.5 * max(recent):
+            t_c = 0.5 * (prev + t)
+            break
+        recent = (recent + [a])[-4:]
+        prev = t
+    if t_c is None:
+        raise HardwareError(
+            f"{rig.pulser.endpoint}: {label}: the echo did not fall at the block's edge "
+            f"within {t_max:.0f} mm of point {point.index + 1}: is [sample] face_size_mm "
+            "right and the edge clean?"
+        )
+    rows.clear()
+    for t in np.linspace(
+        t_c - EDGE_FINE_HALF_MM, min(t_c + EDGE_FINE_HALF_MM, t_max), EDGE_FINE_PROBES
+    ):
+        probe(float(t))
+    ts, amps = (np.array(c) for c in zip(*rows, strict=True))
+    try:
+        fit = fit_edge_profile(ts, amps, outward=1.0)
+    except ValueError as e:
+        raise HardwareError(
+            f"{rig.pulser.endpoint}: {label}: the fine scan near point {point.index + 1} "
+            f"does not show the echo falling to half at the block's edge ({e})"
+        ) from None
+    log.info(
+        "%s: crossing %.4f ± %.4f mm, edge %.1f mm (σ %.2f mm, rms %.2g)",
+        label,
+        fit.crossing,
+        fit.crossing_std,
+        size,
+        fit.width_mm,
+        fit.rms,
+    )
+    return EdgeCheck(axis, point.index, size, fit.crossing, fit.crossing_std, n_probes)
 
 
 def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:

@@ -107,8 +107,42 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     assert np.linalg.norm(before) > 50 * np.linalg.norm(out["after_mm"]["mean"])
     # the measured reached points agree with the simulator's truth
     assert np.all(np.array(out["truth"]["measurement_error_max_mm"]) < 0.01), out["truth"]
+    # the right tool: the edges find the real TCP where the profile's is (up to the 8 ns
+    # electronic delay, 6 µm of water path)
+    assert [e["axis"] for e in out["tool_check"]["edges"]] == ["X", "Y"]
+    assert np.max(np.abs(out["tool_check"]["offset_mm"])) < 0.01, out["tool_check"]
     assert plot.read_bytes()[:8] == PNG_MAGIC
     assert profile.read_bytes() == before_bytes  # verify never writes the profile
+
+
+@pytest.mark.timeout(120)
+def test_tool_off_across_the_beam_fails(tmp_path: Path) -> None:
+    """The real tool 1 mm off the profile's across the beam (flange x; the beam is flange z):
+    water paths at normal incidence cannot see it, the edges of the XY face do: ~1 mm after
+    calibration on one block axis, as the truth has it, above the tolerance: exit 1."""
+    world = tmp_path / "world.toml"
+    world.write_text(
+        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
+        "[tool]\nposition_mm = [1.0, 0.0, 80.0]\n",
+        encoding="utf-8",
+    )
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    r = run_ucal(
+        "verify", str(profile), "--sim", str(world), "--points", "1", "--yes", "--json", "-q"
+    )
+    assert r.returncode == 1, r.stderr
+    out = json.loads(r.stdout)
+    assert out["passed"] is False and "above the tolerance of 0.5 mm" in out["error"]
+    after = np.abs(np.array(out["deviations_mm"]["after"][0]))
+    true_after = np.abs(
+        np.array(out["truth"]["reached_mm"]["after"][0]) - np.array(out["nominal_mm"][0])
+    )
+    # the tool's millimetre shows on one axis across the beam, none on the others
+    assert sorted(after) == pytest.approx([0.0, 0.0, 1.0], abs=0.02), after
+    assert np.max(np.abs(out["tool_check"]["offset_mm"])) == pytest.approx(1.0, abs=0.02)
+    # and agrees with the truth of the same point
+    assert after == pytest.approx(true_after, abs=0.01)
+    assert np.all(np.array(out["truth"]["after_error_max_mm"]) < 0.01), out["truth"]
 
 
 @pytest.mark.timeout(300)
