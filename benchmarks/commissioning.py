@@ -18,7 +18,11 @@ each a process against the simulated cell). Printed:
   offset and the tool's azimuth are one rotation): across the beam, along it, the beam angle;
 * the joint offsets against the truth (the joints calibrate reports with a std);
 * coverage: for every reported std (tool across the beam ×2, along it, the beam's two tilts,
-  each calibrated joint) the share of |error| ≤ 3·std, the share beyond 4·std, the largest |z|.
+  each calibrated joint) the share of |error| ≤ 3·std, the share beyond 4·std, the largest |z|;
+* then ``ucal verify`` on the commissioned profile (``--points 6``): its "after" figure (the
+  largest deviation on any axis), the true one of the same points (the simulator's kinematics
+  and tool), and how far the measured reached TCPs are from the true ones, with how many
+  runs pass the profile's tolerance and how many should (the true error within it).
 
 Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1]``.
 """
@@ -44,6 +48,7 @@ from ucal.world import load_world
 
 MODEL = "tx90l"
 ORDERS = (("tool-frame", "calibrate"), ("calibrate", "tool-frame"))
+VERIFY_POINTS = 6
 
 
 def draw_world(rng: np.random.Generator, profile_path: Path, path: Path) -> None:
@@ -112,7 +117,7 @@ def fresh_profile(path: Path) -> Path:
     return path
 
 
-def run(cmd: str, profile: Path, world: Path) -> dict:
+def run(cmd: str, profile: Path, world: Path, *extra: str) -> dict:
     r = subprocess.run(
         [
             sys.executable,
@@ -125,6 +130,7 @@ def run(cmd: str, profile: Path, world: Path) -> dict:
             "--yes",
             "--json",
             "-q",
+            *extra,
         ],
         capture_output=True,
         text=True,
@@ -151,6 +157,15 @@ def commission(index: int, seed: int) -> list[dict]:
             name = "-".join("t" if c == "tool-frame" else "c" for c in order)
             profile = fresh_profile(d / f"{name}.toml")
             outs = {c: run(c, profile, d / "world.toml") for c in order}
+            outs["verify"] = run(
+                "verify",
+                profile,
+                d / "world.toml",
+                "--points",
+                str(VERIFY_POINTS),
+                "--plot",
+                str(d / f"{name}.png"),
+            )
             final = load_profile(profile)
             truth = load_world(d / "world.toml", final)
             rows.append(evaluate(index, name, outs, final, truth))
@@ -190,6 +205,20 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
             float(e) if np.isfinite(s) else None for e, s in zip(err, std, strict=True)
         ]
         row["z"] += [float(e / s) for e, s in zip(err, std, strict=True) if np.isfinite(s)]
+    ver = outs["verify"]
+    if "truth" in ver:
+        nominal = np.asarray(ver["nominal_mm"])
+        true_after = np.abs(np.asarray(ver["truth"]["reached_mm"]["after"]) - nominal)
+        row["verify"] = {
+            "after_max_mm": float(np.max(ver["after_mm"]["max"])),
+            "true_after_max_mm": float(np.max(true_after)),
+            "agreement_mm": float(np.max(ver["truth"]["after_error_max_mm"])),
+            "tool_check_mm": ver["tool_check"]["offset_mm"][:2],
+            "passed": bool(ver["passed"]),
+            "should_pass": bool(np.max(true_after) <= ver["tolerance_mm"]),
+        }
+    elif ver.get("error"):
+        row["why"].append(f"verify: {ver['error']}")
     return row
 
 
@@ -215,6 +244,14 @@ def main() -> None:
                         f"{r.get('along_mm', float('nan')):.3f} mm, beam "
                         f"{r.get('beam_deg', float('nan')):.4f} deg"
                         if "across_mm" in r
+                        else ""
+                    )
+                    + (
+                        f"; verify after {r['verify']['after_max_mm']:.3f} mm (true "
+                        f"{r['verify']['true_after_max_mm']:.3f}, measured − true "
+                        f"{r['verify']['agreement_mm']:.4f} mm), "
+                        f"{'passed' if r['verify']['passed'] else 'failed'}"
+                        if "verify" in r
                         else ""
                     )
                     + "".join(f"\n    {w}" for w in r["why"]),
@@ -251,6 +288,18 @@ def main() -> None:
                     f"  J{j + 1} |error| (written, reported): median {np.median(e):.4f}, max "
                     f"{np.max(e):.4f} deg over {len(e)}"
                 )
+        ver = [r["verify"] for r in rs if "verify" in r]
+        if ver:
+            agree = np.array([v["agreement_mm"] for v in ver])
+            both = [r["verify"]["agreement_mm"] for r in rs if "verify" in r and r["tool_written"]]
+            print(
+                f"  verify ({len(ver)} runs): after figure minus the true reached TCP, max over "
+                f"the points: median {np.median(agree):.4f}, max {np.max(agree):.4f} mm"
+                + (f" (tool written: max {np.max(both):.4f} mm)" if both else "")
+                + f"; passed {sum(v['passed'] for v in ver)}, true error within the "
+                f"tolerance {sum(v['should_pass'] for v in ver)}, verdicts agree "
+                f"{sum(v['passed'] == v['should_pass'] for v in ver)}/{len(ver)}"
+            )
         z = np.abs(np.concatenate([r["z"] for r in rs])) if rs else np.zeros(0)
         if len(z):
             print(
