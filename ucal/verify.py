@@ -51,23 +51,29 @@ error does to every TCP the profile computes.
 across its axis: with the beam at normal incidence to the XY face, the echo falls to half
 where the beam axis — the real TCP's x (or y) — crosses the face's far edge, x = S (y = S; S
 the face size). After both passes, from the "after" point nearest each far edge, the robot
-moves the profile's TCP along +x (+y) in the nominal orientation, with the wrist correction to
-normal incidence that the XY face's peak posture gave at that point, 30 mm above the face:
-coarse steps until the echo falls below half, then ``EDGE_FINE_PROBES`` static probes across
-the fall, fitted with the edge profile ``A0·Φ((t_e − t)/σ)`` (``ucal.toolframe.exact``, eq. E4).
-The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)`` — the point's measured W
-moved with the model (``W + W_model(q) − W_model(q_i)``) plus ``R(q)·v`` — so the crossing
-``t_e`` is what the estimate says where the real TCP is at x = S, and
+moves the profile's TCP along +x (+y), 30 mm above the face, in the nominal orientation tilted
+by the least rotation that makes the beam normal to the face (the true beam the point's three
+peak postures give; no turn about the beam, which would move a real TCP that is off the
+profile's across it): from ``EDGE_APPROACH_MM`` before the edge the point's estimate predicts,
+coarse steps until the echo falls below half, then ``EDGE_FINE_PROBES`` static probes across the
+fall, fitted with the edge profile ``A0·Φ((t_e − t)/σ)`` (``ucal.toolframe.exact``, eq. E4).
+The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)``: the model's W at its
+readings carried by ``WristMap`` — the small rigid motion that takes the model's wrist centres
+to the measured ones over the "after" points (an offset left in joint 1, unobservable with a
+hand-placed block, turns every displacement of the arm, and the edges are 100–200 mm from
+the points) — plus the point's true flange rotation moved with the model, times v. So the
+crossing ``t_e`` is what the estimate says where the real TCP is at x = S, and
 
     b_x = S − t_e,   b_y = S − t_e(y)
 
-is the tool's error in block axes at the nominal orientation (the arm's error between the
-point and the edge, 20–40 mm away, is its gradient times that distance: micrometres after
-calibration). Every reached point of both passes is ``T̂ + b`` (the "before" pass, commanded
-with other offsets, turns the tool by up to their difference: a few hundredths of a mm per
-mm of tool error per degree). That is the "after" figure: the real TCP against the nominal
-point, tool and kinematics together; a tool 1 mm off across the beam makes it ~1 mm and the
-run fails its tolerance. Two edge scans of about 40 probes each.
+is the tool's error in block axes at the nominal orientation. Every reached point of both
+passes is ``T̂ + b`` (the "before" pass, commanded with other offsets, turns the tool by up to
+their difference: a few hundredths of a mm per mm of tool error per degree). That is the
+"after" figure: the real TCP against the nominal point, tool and kinematics together; a tool
+1 mm off across the beam makes it ~1 mm and the run fails its tolerance. What the check does
+not see: the beam's tilt onto the normal times the tool's error (second order: 0.05 mm for a
+tool 2 mm and 1.5° off, a profile whose tool has not been measured). Two edge scans of about
+30 probes each.
 
 Because W is measured against the true block while the nominal points are placed from the
 profile's block corner, an error in the block's position shows as a *common bias* in both
@@ -246,6 +252,48 @@ def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
                     "before its last calibration",
                 )
     return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
+
+
+@dataclass(frozen=True)
+class SoundSpeed:
+    """The sound speed verify converts times of flight with, and where it comes from."""
+
+    m_s: float
+    temperature_c: float  # the water temperature Marczak's c(T) gives it at
+    source: str
+
+
+def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> SoundSpeed:
+    """The sound speed ``calibrate`` measured with the offsets (``[calibration]
+    sound_speed_m_s``), else Marczak's at the profile's ``[water] temperature_c``.
+
+    The thermometer's tolerance (±2 °C, 6 m/s) is 0.4 % of every water path: 0.6 mm at the
+    150 mm of a wall, different at every point; the calibration's fitted speed is known to
+    tenths of a m/s.
+    """
+    import tomllib
+
+    from scipy.optimize import brentq
+
+    from ucal.acoustics import sound_speed_m_s
+
+    temp = float(profile.water_temperature_c)
+    try:
+        with open(profile_path, "rb") as f:
+            measured = tomllib.load(f).get("calibration", {}).get("sound_speed_m_s")
+    except (OSError, tomllib.TOMLDecodeError):
+        measured = None
+    if isinstance(measured, int | float) and np.isfinite(measured):
+        c = float(measured)
+        lo, hi = 0.0, 70.0  # c(T) rises monotonically here
+        c_lo, c_hi = (float(sound_speed_m_s(t)) for t in (lo, hi))
+        if c_lo < c < c_hi:
+            t_eq = float(brentq(lambda t: float(sound_speed_m_s(t)) - c, lo, hi, xtol=1e-9))
+            return SoundSpeed(
+                c, t_eq, f"[calibration] sound_speed_m_s, measured with the offsets ({c:.2f} m/s)"
+            )
+    c = float(sound_speed_m_s(temp))
+    return SoundSpeed(c, temp, f"[water] temperature_c = {temp:g} °C ({c:.2f} m/s, Marczak)")
 
 
 def passed(after_stats: dict[str, list[float]], tolerance_mm: float) -> bool:
@@ -710,8 +758,15 @@ def run_verify(
             progress(res, n_done + 1, total)
     # tool check: the real TCP against the estimate at the XY face's far edges
     after = {p.index: p for p in results if p.pass_name == "after"}
+    p_off = plan.offsets_deg["after"]
+    wrist = WristMap.fit(
+        np.array([model_wrist_local(profile, p.commanded_deg, p_off) for p in after.values()]),
+        np.array([p.wrist_centre_mm for p in after.values()]),
+    )
     checks = tuple(
-        scan_edge(rig, approach.move, geom, profile, plan, after[i], orientations[i], axis, v)
+        scan_edge(
+            rig, approach.move, geom, profile, plan, after[i], orientations[i], wrist, axis, v
+        )
         for axis, i in enumerate(plan.edge_points)
     )
     b = tool_offset(checks)
@@ -724,6 +779,53 @@ def run_verify(
     )
 
 
+def model_wrist_local(
+    profile: CellProfile, joints_deg: np.ndarray, offsets_deg: np.ndarray
+) -> np.ndarray:
+    """The profile's wrist centre (3,) at readings ``joints_deg``, in its block's coordinates."""
+    s_mat = profile.sample_matrix
+    w = fk_frames(profile.model, joints_deg, offsets_deg)[4, :3, 3]
+    return s_mat[:3, :3].T @ (w - s_mat[:3, 3])
+
+
+@dataclass(frozen=True)
+class WristMap:
+    """Where the wrist centre really is for a model position: a small rigid motion, rotation
+    ω (rad) about ``centre_mm`` and translation (block coordinates), fitted to the "after"
+    points. It carries the measured W from the points to the edge scans 100–200 mm away: an
+    offset left in joint 1 (unobservable with a hand-placed block) turns every displacement
+    of the arm by its error, which moving W with the model alone would miss."""
+
+    centre_mm: np.ndarray
+    rotation_rad: np.ndarray
+    translation_mm: np.ndarray
+
+    @classmethod
+    def fit(cls, model_mm: np.ndarray, measured_mm: np.ndarray) -> WristMap:
+        """Least squares over the points (n, 3 each); minimum norm where they do not fix the
+        rotation (one point: the translation only; two: no turn about their line). The
+        rotation is exact, not linearised: 2° of joint 1 over the 200 mm to an edge is 0.1 mm
+        of second order."""
+        model = np.asarray(model_mm, float).reshape(-1, 3)
+        measured = np.asarray(measured_mm, float).reshape(-1, 3)
+        centre = model.mean(0)
+        arms = model - centre
+
+        def fun(x: np.ndarray) -> np.ndarray:
+            moved = Rotation.from_rotvec(x[:3]).apply(arms) + centre + x[3:]
+            return np.concatenate([(moved - measured).ravel(), 1e-9 * x[:3]])
+
+        x0 = np.concatenate([np.zeros(3), (measured - model).mean(0)])
+        sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        return cls(centre, sol.x[:3], sol.x[3:])
+
+    def __call__(self, model_mm: np.ndarray) -> np.ndarray:
+        p = np.asarray(model_mm, float) - self.centre_mm
+        return (
+            Rotation.from_rotvec(self.rotation_rad).apply(p) + self.centre_mm + self.translation_mm
+        )
+
+
 def scan_edge(
     rig: Rig,
     move: Callable[[np.ndarray], np.ndarray],
@@ -732,6 +834,7 @@ def scan_edge(
     plan: VerifyPlan,
     point: PointResult,
     orient: WristOrientation,
+    wrist: WristMap,
     axis: int,
     v_flange_mm: np.ndarray,
 ) -> EdgeCheck:
@@ -751,12 +854,12 @@ def scan_edge(
     nominal = plan.nominal_mm[point.index]
     q_i = np.asarray(point.commanded_deg, float)
     b_rot = geom.block_rotation
-    # the point's measured W and true flange rotation, moved with the profile's kinematics
-    # (its offsets; the running estimate has absorbed whatever the profile's tool hides)
+    # the point's true flange rotation, moved with the profile's kinematics (its offsets; the
+    # running estimate has absorbed whatever the profile's tool hides)
     frames_i = fk_frames(geom.model, q_i, off)
-    w_i = frames_i[4, :3, 3]
     r_true = orient.rotation(geom, q_i)
     r_i = r_true @ frames_i[6, :3, :3].T  # true = r_i · model, base frame
+    corner = profile.sample_matrix[:3, 3]
     # the least tilt of the true beam onto the face's normal, as a model flange rotation
     beam = r_true @ geom.beam_flange
     cross = np.cross(beam, -geom.normal(2))
@@ -785,21 +888,24 @@ def scan_edge(
         settled = np.asarray(move(posture(t)), float)
         a = rig.normalised_amplitude(EDGE_AVERAGES)
         frames = fk_frames(geom.model, settled, off)
-        w = point.wrist_centre_mm + b_rot.T @ (frames[4, :3, 3] - w_i)
+        w = wrist(b_rot.T @ (frames[4, :3, 3] - corner))
         tcp = w + b_rot.T @ (r_i @ frames[6, :3, :3] @ v_flange_mm)
         rows.append((float(tcp[axis]), a))
         log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)
         n_probes += 1
         return a
 
-    t_max = size + EDGE_OVERSHOOT_MM - float(nominal[axis])
+    # where the edge is along the line: the point's own estimate of its TCP says how far the
+    # robot is from where the profile puts it (a joint-1 offset the block's yaw hides: mm)
+    t_edge = size - float(point.reached_mm[axis])
+    t_max = t_edge + EDGE_OVERSHOOT_MM
     # the echo's level on the face at the point, then the coarse search from
-    # EDGE_APPROACH_MM before the edge the profile predicts (stepping back while the echo
+    # EDGE_APPROACH_MM before that edge (stepping back while the echo
     # there is already below half: a tool or a block further off than that)
     move(posture(0.0))
     rig.level_gain(EDGE_AVERAGES)
     level = rig.normalised_amplitude(EDGE_AVERAGES)
-    t = max(0.0, size - float(nominal[axis]) - EDGE_APPROACH_MM)
+    t = max(0.0, t_edge - EDGE_APPROACH_MM)
     while (a := probe(t)) < 0.5 * level and t > 0.0:
         t = max(0.0, t - EDGE_APPROACH_MM)
     recent = [a]

@@ -5,19 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tomlkit
+from scipy.spatial.transform import Rotation
 
+from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import beam_and_tcp
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import aim_wrist
 from ucal.errors import SafetyError
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify import (
+    WristMap,
     deviation_stats,
     estimate_orientation,
     grid_shape,
     nominal_points,
     plan_verify,
     reached_tcp_local,
+    sound_speed_for_verify,
     tool_lever,
     verify_region,
     wrist_centre_from_distances,
@@ -154,3 +158,37 @@ def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
     assert before.offsets_deg.tolist() == first and "history entry 3" in before.source
     stats = {"max": [0.1, 0.4, 0.2]}
     assert passed(stats, 0.4) and not passed(stats, 0.39)
+
+
+def test_wrist_map_carries_a_joint_1_error_to_the_edges_exactly() -> None:
+    """2° about the base axis fitted over a 100 mm grid and carried 200 mm beyond it: the
+    second order a linearised rotation would miss (0.1 mm) is not missed."""
+    rot = Rotation.from_euler("z", 2.0, degrees=True)
+    base = np.array([-260.0, -97.0, 277.0])  # the base axis in block coordinates
+    grid = np.array([[x, y, 30.0] for x in (230.0, 280.0, 330.0) for y in (230.0, 330.0)])
+    shift = np.array([0.3, -0.2, 0.05])
+
+    def true(p: np.ndarray) -> np.ndarray:
+        return rot.apply(p - base) + base + shift
+
+    wmap = WristMap.fit(grid, true(grid))
+    far = np.array([530.0, 280.0, 30.0])
+    assert wmap(far) == pytest.approx(true(far), abs=1e-6)
+    # one point: the translation only
+    one = WristMap.fit(grid[:1], true(grid[:1]))
+    assert one(grid[0]) == pytest.approx(true(grid[0]), abs=1e-9)
+    assert one.rotation_rad == pytest.approx(np.zeros(3), abs=1e-12)
+
+
+def test_sound_speed_from_the_calibration_else_the_thermometer(tmp_path, profile) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
+    s = sound_speed_for_verify(profile, path)
+    assert s.m_s == pytest.approx(sound_speed_m_s(profile.water_temperature_c))
+    assert "temperature_c" in s.source
+    doc = tomlkit.parse(path.read_text(encoding="utf-8"))
+    doc["calibration"]["sound_speed_m_s"] = 1486.422
+    path.write_text(tomlkit.dumps(doc), encoding="utf-8")
+    s = sound_speed_for_verify(profile, path)
+    assert s.m_s == 1486.422 and "measured with the offsets" in s.source
+    assert sound_speed_m_s(s.temperature_c) == pytest.approx(1486.422, abs=1e-6)

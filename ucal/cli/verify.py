@@ -104,7 +104,13 @@ def cli(
     from ucal.errors import InputError, OutOfToleranceError
     from ucal.profile import load_profile
     from ucal.session import check_status, open_cell
-    from ucal.verify import offsets_before_calibration, plan_verify, plot_verify, run_verify
+    from ucal.verify import (
+        offsets_before_calibration,
+        plan_verify,
+        plot_verify,
+        run_verify,
+        sound_speed_for_verify,
+    )
 
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes)
     if region is not None:
@@ -121,6 +127,7 @@ def cli(
 
     tolerance = profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
     before = offsets_before_calibration(profile_path)
+    sound = sound_speed_for_verify(profile, profile_path)
     # every target checked before any connection
     plan = plan_verify(profile, n_points, before_offsets_deg=before.offsets_deg)
     confirm_motion(yes, _summary(plan, profile_path), cell)
@@ -138,7 +145,9 @@ def cli(
                     "profile's tool",
                 )
 
-            result = run_verify(profile, plan, session.rig, report)
+            # times of flight converted with the measured sound speed (as a water temperature)
+            measuring = profile.replace(water_temperature_c=sound.temperature_c)
+            result = run_verify(measuring, plan, session.rig, report)
         truth = session.truth
     plot_verify(
         result,
@@ -147,6 +156,8 @@ def cli(
     )
     out = result.to_json(tolerance)
     out["before_source"] = before.source
+    out["sound_speed_m_s"] = sound.m_s
+    out["sound_speed_source"] = sound.source
     out["profile"] = str(profile_path)
     out["plot"] = str(plot_path)
     worst = float(np.max(result.stats("after")["max"]))
@@ -168,6 +179,7 @@ def cli(
         f"Y {b[1]:+.4f} mm, included above"
     )
     click.echo(f"before: {before.source}")
+    click.echo(f"sound speed: {sound.source}")
     click.echo(
         f"after: largest deviation {worst:.4f} mm, tolerance {tolerance:g} mm: "
         + ("passed" if out["passed"] else "FAILED")
