@@ -252,7 +252,26 @@ class Status:
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> Status:
-        return cls(*cls._BODY.unpack(body), comm_type=comm_type, reply_code=reply_code)
+        (
+            drives_powered,
+            e_stopped,
+            error_code,
+            in_error,
+            in_motion,
+            mode,
+            motion_possible,
+        ) = cls._BODY.unpack(body)
+        return cls(
+            drives_powered=drives_powered,
+            e_stopped=e_stopped,
+            error_code=error_code,
+            in_error=in_error,
+            in_motion=in_motion,
+            mode=mode,
+            motion_possible=motion_possible,
+            comm_type=comm_type,
+            reply_code=reply_code,
+        )
 
 
 @dataclass(frozen=True)

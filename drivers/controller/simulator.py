@@ -203,9 +203,9 @@ class SimulatedController:
 
     def __init__(
         self,
-        joint_min_deg: Sequence[float],
-        joint_max_deg: Sequence[float],
-        initial_deg: Sequence[float] | None = None,
+        joint_min_deg: Sequence[float] | np.ndarray,
+        joint_max_deg: Sequence[float] | np.ndarray,
+        initial_deg: Sequence[float] | np.ndarray | None = None,
         host: str = "127.0.0.1",
         motion_port: int = 0,
         state_port: int = 0,

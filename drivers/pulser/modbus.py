@@ -71,6 +71,10 @@ class _SocketPort(_PyserialSocket):
     0.3 s in ``close()``; a closed TCP stream needs no such pause.
     """
 
+    # Set by pyserial's ``open()``/``close()``; declared for the overrides below.
+    is_open: bool
+    _socket: socket.socket | None
+
     @property
     def in_waiting(self) -> int:
         """Return the number of bytes received and not yet read."""
@@ -265,14 +269,15 @@ class ModbusPulser(PulserReceiver):
         """
         registers = reg.encode_settings(settings)
         front_end = reg.encode_front_end(settings)
-        if self.map_version < 2 and not reg.front_end_is_default(settings):
+        map_version = self.map_version
+        if map_version < 2 and not reg.front_end_is_default(settings):
             raise ValueError(
                 f"pulser at {self._endpoint}: pulse_voltage_v, damping_ohm, high_pass_mhz and "
                 f"low_pass_mhz cannot be set: the device's register map is version "
-                f"{self._map_version} (front-end registers need version 2)"
+                f"{map_version} (front-end registers need version 2)"
             )
         self._write(reg.SETTINGS_ADDRESS, registers, "configure")
-        if self._map_version >= 2 and front_end != self._front_end_written:
+        if map_version >= 2 and front_end != self._front_end_written:
             self._write(reg.FRONT_END_ADDRESS, front_end, "configure front end")
             self._front_end_written = front_end
         log.debug("pulser %s: configured %s", self._endpoint, settings)

@@ -270,7 +270,9 @@ class SimulatedPulser:
 
     # --- the device -------------------------------------------------------------------------
     def _holding(self) -> list[int]:
-        return list(self._context.getValues(_FC_READ_HOLDING, 0, reg.HOLDING_COUNT))
+        values = self._context.getValues(_FC_READ_HOLDING, 0, reg.HOLDING_COUNT)
+        assert isinstance(values, list)  # the whole holding block: never an exception code
+        return list(values)
 
     def _settings(self) -> PulserSettings:
         return reg.decode_settings(self._holding())
@@ -287,7 +289,7 @@ class SimulatedPulser:
     def _store_measurement(self, m: reg.Measurement) -> None:
         self._context.setValues(_FC_READ_INPUT, reg.MEASUREMENT_ADDRESS, m.to_registers())
 
-    def _get(self, func_code: int, address: int, count: int) -> list[int] | ExcCodes:
+    def _get(self, func_code: int, address: int, count: int) -> list[int] | list[bool] | ExcCodes:
         """Serve a read (protocol address, server thread)."""
         with self._lock:
             if self._exception is not None:
