@@ -27,6 +27,8 @@ the same ``2·J1(x)/x`` at each frequency, so the per-frequency function holds a
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 from scipy.special import j1, ndtr
 
@@ -47,6 +49,10 @@ PULSE_FRACTIONAL_BANDWIDTH = 0.6
 WATER_ABSORPTION_NP_S2_PER_M = 25.3e-15
 
 
+@overload
+def sound_speed_m_s(temperature_c: float) -> float: ...
+@overload
+def sound_speed_m_s(temperature_c: np.ndarray) -> np.ndarray: ...
 def sound_speed_m_s(temperature_c: float | np.ndarray) -> float | np.ndarray:
     """Speed of sound in pure water (m/s) at ``temperature_c`` (°C, 0…95), after Marczak (1997).
 
@@ -210,6 +216,14 @@ def echo_amplitude(
     return float(min(a, 1.0))
 
 
+@overload
+def pulse_spectrum(
+    frequency_mhz: float, centre_frequency_mhz: float, fractional_bandwidth: float = ...
+) -> float: ...
+@overload
+def pulse_spectrum(
+    frequency_mhz: np.ndarray, centre_frequency_mhz: float, fractional_bandwidth: float = ...
+) -> np.ndarray: ...
 def pulse_spectrum(
     frequency_mhz: float | np.ndarray,
     centre_frequency_mhz: float,

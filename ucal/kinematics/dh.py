@@ -47,19 +47,20 @@ N_JOINTS = 6
 @dataclass(frozen=True)
 class RobotModel:
     """A 6R arm: DH table (6, 4) as ``theta_offset_deg, d_mm, a_mm, alpha_deg``, joint ranges and
-    Hayati twists ``beta_deg`` (6,; None = zeros)."""
+    Hayati twists ``beta_deg`` (6,; zeros by default)."""
 
     name: str
     dh: np.ndarray
     joint_min_deg: np.ndarray
     joint_max_deg: np.ndarray
     meta: dict = field(default_factory=dict, compare=False)
-    beta_deg: np.ndarray | None = None
+    beta_deg: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dh", np.asarray(self.dh, dtype=float).reshape(N_JOINTS, 4))
-        beta = np.zeros(N_JOINTS) if self.beta_deg is None else self.beta_deg
-        object.__setattr__(self, "beta_deg", np.asarray(beta, dtype=float).reshape(N_JOINTS))
+        object.__setattr__(
+            self, "beta_deg", np.asarray(self.beta_deg, dtype=float).reshape(N_JOINTS)
+        )
         object.__setattr__(self, "joint_min_deg", np.asarray(self.joint_min_deg, dtype=float))
         object.__setattr__(self, "joint_max_deg", np.asarray(self.joint_max_deg, dtype=float))
 
@@ -172,8 +173,8 @@ def fk_frames(
     links[..., 3, 3] = 1.0
     frames = np.empty(shape + (N_JOINTS + 1, 4, 4))
     frames[..., 0, :, :] = np.eye(4)
-    for i in np.flatnonzero(model.beta_deg):
-        links[..., i, :, :] = links[..., i, :, :] @ _rot_y4(np.radians(model.beta_deg[i]))
+    for k in np.flatnonzero(model.beta_deg):  # the twisted links
+        links[..., k, :, :] = links[..., k, :, :] @ _rot_y4(np.radians(model.beta_deg[k]))
     frames[..., 1, :, :] = links[..., 0, :, :]
     for i in range(1, N_JOINTS):
         np.matmul(frames[..., i, :, :], links[..., i, :, :], out=frames[..., i + 1, :, :])

@@ -239,7 +239,8 @@ class SimulatedCell:
         return None
 
     def _share(self, h: FaceHit) -> float:
-        return acoustics.rectangle_share(h.edge_distances_mm, self._sigma_mm)
+        # one hit's (4,) edge distances: a single share
+        return float(acoustics.rectangle_share(h.edge_distances_mm, self._sigma_mm))
 
     # --- echoes -------------------------------------------------------------------------------
     def ideal_echo(
