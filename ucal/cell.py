@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +105,7 @@ class CellProfile:
         """Calibration-block frame in the base frame (4, 4); faces are its coordinate planes."""
         return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
 
-    def replace(self, **changes: object) -> CellProfile:
+    def replace(self, **changes: Any) -> CellProfile:
         return replace(self, **changes)
 
 
@@ -217,7 +218,7 @@ class WorldTruth:
     def sample_matrix(self) -> np.ndarray:
         return transform(self.sample_position_mm, rpy_to_matrix(self.sample_rotation_deg))
 
-    def replace(self, **changes: object) -> WorldTruth:
+    def replace(self, **changes: Any) -> WorldTruth:
         return replace(self, **changes)
 
     @classmethod

@@ -25,10 +25,10 @@ import json
 import logging
 import os
 from collections.abc import Iterator, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import tomlkit
@@ -96,8 +96,15 @@ DEFAULT_TOOL_MM = (0.0, 0.0, 80.0)
 #: Largest Hayati twist (deg) a calibrated table may hold: a calibration finds hundredths.
 MAX_CALIBRATED_BETA_DEG = 1.0
 
+
+def _profile_default(name: str) -> Any:
+    """``CellProfile``'s default for the field ``name`` (built anew where a factory makes it)."""
+    f = CellProfile.__dataclass_fields__[name]
+    return f.default if f.default_factory is MISSING else f.default_factory()
+
+
 #: Edge length of the calibration block's faces (mm): the ``CellProfile`` default.
-DEFAULT_FACE_MM = float(CellProfile.__dataclass_fields__["sample_face_size_mm"].default)
+DEFAULT_FACE_MM = float(_profile_default("sample_face_size_mm"))
 #: Distance of the nominal reflector plate's centre behind the block's XZ face plane (mm).
 REFLECTOR_BEHIND_MM = 200.0
 
@@ -163,7 +170,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
 
     reflector = r.table("reflector")
     points = None
-    points_std = CellProfile.__dataclass_fields__["reflector_points_std_mm"].default
+    points_std = _profile_default("reflector_points_std_mm")
     if reflector is not None:
         points = r.plane_points(
             "reflector.points_mm", r.get(reflector, "reflector.points_mm", True)
@@ -233,7 +240,6 @@ def read_tolerances(
     ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[water] temperature_std_c``
     (0–20 °C) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
     missing keys keep ``CellProfile``'s defaults (SPEC.md)."""
-    fields = CellProfile.__dataclass_fields__
     out: dict[str, Any] = {}
     for table, tname, key, attr, hi, unit in (
         (tool, "tool", "position_std_mm", "tool_position_std_mm", 100.0, "mm"),
@@ -243,7 +249,7 @@ def read_tolerances(
     ):
         v = r.get(table, f"{tname}.{key}")
         if v is None:
-            out[attr] = fields[attr].default_factory()
+            out[attr] = _profile_default(attr)
         elif isinstance(v, (int, float)) and not isinstance(v, bool):
             out[attr] = np.full(3, r.number(f"{tname}.{key}", v, lo=0.0, hi=hi, unit=unit))
         else:
@@ -255,7 +261,7 @@ def read_tolerances(
     ):
         v = r.get(table, key)
         out[attr] = (
-            fields[attr].default if v is None else r.number(key, v, lo=0.0, hi=hi, unit=unit)
+            _profile_default(attr) if v is None else r.number(key, v, lo=0.0, hi=hi, unit=unit)
         )
     return out
 
@@ -283,7 +289,11 @@ def read_robot(
             )
     shipped = load_model(name) if name in KNOWN_MODELS else None
     base = ranges_from if ranges_from is not None else shipped
-    dh = shipped.dh if dh_raw is None else r.dh_table(f"{prefix}.dh", dh_raw)
+    if dh_raw is None:
+        assert shipped is not None  # a shipped model name, checked above
+        dh = shipped.dh
+    else:
+        dh = r.dh_table(f"{prefix}.dh", dh_raw)
 
     lo, hi = r.get(robot, f"{prefix}.joint_min_deg"), r.get(robot, f"{prefix}.joint_max_deg")
     if lo is None and hi is None and base is not None:
@@ -298,6 +308,14 @@ def read_robot(
     return RobotModel(name or "custom", dh, jmin, jmax, meta)
 
 
+@overload
+def read_water(
+    r: Reader, water: Mapping[str, Any] | None, prefix: str, required: Literal[True]
+) -> float: ...
+@overload
+def read_water(
+    r: Reader, water: Mapping[str, Any] | None, prefix: str, required: bool
+) -> float | None: ...
 def read_water(
     r: Reader, water: Mapping[str, Any] | None, prefix: str, required: bool
 ) -> float | None:
@@ -308,6 +326,14 @@ def read_water(
     )
 
 
+@overload
+def read_transducer(
+    r: Reader, table: Mapping[str, Any] | None, prefix: str, required: Literal[True]
+) -> tuple[float, float]: ...
+@overload
+def read_transducer(
+    r: Reader, table: Mapping[str, Any] | None, prefix: str, required: bool
+) -> tuple[float | None, float | None]: ...
 def read_transducer(
     r: Reader, table: Mapping[str, Any] | None, prefix: str, required: bool
 ) -> tuple[float | None, float | None]:
@@ -691,13 +717,12 @@ def _set_key(table: Any, key: str, value: Any) -> None:
     if old is not None:
         table[key] = item
         return
-    container = getattr(table, "value", None)
     keys = list(table)
     # tomlkit appends after the table's trailing comments, i.e. below the comment that
     # introduces the next table; Container._insert_after (no public equivalent) avoids that.
     # If a tomlkit release drops it, the key is appended (still valid TOML).
-    if isinstance(table, Table) and keys and hasattr(container, "_insert_after"):
-        container._insert_after(keys[-1], key, item)
+    if isinstance(table, Table) and keys and hasattr(table.value, "_insert_after"):
+        table.value._insert_after(keys[-1], key, item)
     else:
         table[key] = item
 

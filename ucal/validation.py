@@ -269,10 +269,12 @@ def unknown_keys(data: Mapping[str, Any], known: Mapping[str, frozenset[str] | N
     out: list[str] = []
     top = known.get("", frozenset())
     for name, value in data.items():
-        if name not in top and name not in known:
+        if name in known:
+            keys = known[name]
+            if isinstance(value, Mapping) and keys is not None:
+                out.extend(f"{name}.{k}" for k in value if k not in keys)
+        elif top is not None and name not in top:
             out.append(name)
-        elif isinstance(value, Mapping) and name in known and known[name] is not None:
-            out.extend(f"{name}.{k}" for k in value if k not in known[name])
     return out
 
 

@@ -276,12 +276,17 @@ def _reflector(r: Reader, table: Mapping[str, Any], nominal: Reflector | None) -
     required = nominal is None  # no plate in the profile: the world must define one
     point_raw = r.get(table, "reflector.point_mm", required)
     normal_raw = r.get(table, "reflector.normal", required)
+    # with no nominal plate both keys were required above: the nominal is read only if it exists
     point = (
-        nominal.point_mm
-        if point_raw is None
-        else r.vector("reflector.point_mm", point_raw, 3, unit="mm")
+        r.vector("reflector.point_mm", point_raw, 3, unit="mm")
+        if point_raw is not None or nominal is None
+        else nominal.point_mm
     )
-    normal = nominal.normal if normal_raw is None else r.direction("reflector.normal", normal_raw)
+    normal = (
+        r.direction("reflector.normal", normal_raw)
+        if normal_raw is not None or nominal is None
+        else nominal.normal
+    )
     base = nominal if nominal is not None else Reflector(point_mm=point, normal=normal)
     size_raw = r.get(table, "reflector.size_mm")
     size = (

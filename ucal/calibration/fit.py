@@ -60,6 +60,7 @@ from ucal.calibration.model import (
     beam_and_tcp,
     distance_joints,
 )
+from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel, transform
 
 #: Broad prior on each offset (deg): keeps a direction the data cannot see finite, nothing more.
@@ -180,7 +181,7 @@ class CellPrior:
         ).astype(float)
 
 
-def prior_from_profile(profile: object) -> CellPrior:
+def prior_from_profile(profile: CellProfile) -> CellPrior:
     """The ``CellPrior`` of a ``CellProfile`` (tolerances from its std keys)."""
     p = profile
     return CellPrior(

@@ -45,6 +45,7 @@ known: the beam a_T (flange frame) is normal to face k at posture q^k, so R60(q^
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -198,17 +199,17 @@ def solve_paper(
     offsets = paper_offsets(geom, meas)
     noise = np.zeros(6)
     for i, m in enumerate(meas):
-        for what in ("distance", 3, 4, 5):
+        for joint in (None, 3, 4, 5):  # None: the distance reading; else a wrist joint's
             h = 1e-4
             plus, minus = list(meas), list(meas)
-            if what == "distance":
+            if joint is None:
                 sigma = m.distance_std_mm
                 plus[i] = _with(m, distance_mm=m.distance_mm + h)
                 minus[i] = _with(m, distance_mm=m.distance_mm - h)
             else:
                 sigma = m.tilt_std_deg
                 dq = np.zeros(6)
-                dq[what] = h
+                dq[joint] = h
                 plus[i] = _with(m, joints_deg=m.joints_deg + dq)
                 minus[i] = _with(m, joints_deg=m.joints_deg - dq)
             deriv = _wrap(paper_offsets(geom, plus) - paper_offsets(geom, minus)) / (2 * h)
@@ -304,5 +305,5 @@ def truncation_error(
     return np.abs(_wrap(paper_offsets(geom, synth) - offsets_deg))
 
 
-def _with(m: FaceMeasurement, **changes: object) -> FaceMeasurement:
+def _with(m: FaceMeasurement, **changes: Any) -> FaceMeasurement:
     return replace(m, **changes)

@@ -153,11 +153,13 @@ def search_joints(
     tilt components (rad). The pair with the largest |det M| is chosen (best conditioned).
     """
     jac = basis @ beam_jacobian(geom, joints_deg, offsets_deg)  # (2, 3)
-    best, best_det = None, -1.0
+    best: tuple[int, int] | None = None
+    best_det = -1.0
     for a, b in ((0, 1), (0, 2), (1, 2)):
         m = jac[:, [a, b]]
         det = abs(np.linalg.det(m))
         if det > best_det:
             best, best_det = (WRIST[a], WRIST[b]), det
+    assert best is not None, "the beam Jacobian is not finite"  # any |det| beats -1 otherwise
     m = jac[:, [WRIST.index(best[0]), WRIST.index(best[1])]]
     return best, m

@@ -131,7 +131,7 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None, as_
     if len(joints) > 1:
         d = np.abs(np.diff(joints, axis=0))
         row, joint = np.unravel_index(int(np.argmax(d)), d.shape)
-        where = {"joint": int(joint) + 1, "row": int(row) + 2}
+        where: dict[str, int | None] = {"joint": int(joint) + 1, "row": int(row) + 2}
     else:
         where = {"joint": None, "row": None}
     if as_json:

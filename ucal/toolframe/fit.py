@@ -490,7 +490,7 @@ def truth_in_profile_flange(profile: CellProfile, truth: WorldTruth) -> np.ndarr
 
     def link6(row: np.ndarray, offset_deg: float, beta_deg: float) -> np.ndarray:
         a6 = dh_matrix(np.radians(row[0] + offset_deg), row[1], row[2], np.radians(row[3]))
-        return a6 @ transform(np.zeros(3), rpy_to_matrix([0.0, beta_deg, 0.0]))
+        return a6 @ transform(np.zeros(3), rpy_to_matrix(np.array([0.0, beta_deg, 0.0])))
 
     mine = link6(profile.model.dh[5], float(profile.joint_offsets_deg[5]), 0.0)
     true = link6(truth.model.dh[5], float(truth.joint_offsets_deg[5]), float(truth.dh_beta_deg[5]))
