@@ -39,6 +39,11 @@ def ucal(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     )
 
 
+def tool_frame(profile: Path, world_path: Path, *flags: str) -> subprocess.CompletedProcess[str]:
+    """``ucal tool-frame PROFILE --sim WORLD --yes --json`` with ``flags``."""
+    return ucal("tool-frame", str(profile), "--sim", str(world_path), "--yes", "--json", *flags)
+
+
 def world(tmp_path: Path, noise: bool, offsets: list[float] = OFFSETS) -> Path:
     text = f"""\
 [robot]
@@ -137,15 +142,7 @@ def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Pa
     write_profile(profile, {"tool": {"position_std_mm": 3.0, "rotation_std_deg": 1.5}}, "drawing")
     before = profile.read_bytes()
     fresh = [0.9, -0.7, 1.1, -1.5, 0.6, 0.8]
-    r = ucal(
-        "tool-frame",
-        str(profile),
-        "--sim",
-        str(world(tmp_path, True, fresh)),
-        "--yes",
-        "--dry-run",
-        "--json",
-    )
+    r = tool_frame(profile, world(tmp_path, True, fresh), "--dry-run")
     assert r.returncode in (0, 1), r.stderr
     assert profile.read_bytes() == before
     out = json.loads(r.stdout)
@@ -160,6 +157,37 @@ def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Pa
         assert out["error"].startswith("tool frame out of tolerance") and out["exit_code"] == 1
     else:
         assert np.all(np.array(out["across_beam_std_mm"]) <= 0.05)
+
+
+def test_force_writes_a_refused_result_and_records_the_verdict(
+    tmp_path: Path, profile: Path
+) -> None:
+    """SPEC.md: --force writes a result that would otherwise be refused (exit 1 all the same)
+    and the verdict goes into the profile history. Joint 4 is 1° off what the profile claims
+    to 0.001°: the postures disagree with the model, a misfit."""
+    offsets = list(OFFSETS)
+    offsets[3] += 1.0
+    before = profile.read_bytes()
+    r = tool_frame(profile, world(tmp_path, False, offsets), "--force")
+    assert r.returncode == 1, r.stderr
+    out = json.loads(r.stdout)
+    assert out["written"] is True and out["exit_code"] == 1
+    assert out["fit"]["verdict"] == "misfit"
+    assert out["error"].startswith("tool frame out of tolerance")
+    assert out["error"].endswith("(written with --force)")
+    assert profile.read_bytes() != before
+    prof = load_profile(profile)
+    assert prof.tool_position_mm == pytest.approx(out["position_mm"], abs=1e-6)
+    entry = json.loads((profile.parent / "cell.toml.history" / "history.json").read_text())[
+        "entries"
+    ][-1]
+    assert entry["reason"].startswith("tool-frame (exact), written with --force: ")
+    assert "disagree with the model" in entry["reason"]
+    # the misfit's √χ²ᵣ inflates the stds beyond what a profile holds: written at its limit,
+    # and said so
+    if max(out["rotation_std_deg"]) > 10.0:
+        assert np.max(prof.tool_rotation_std_deg) == 10.0
+        assert "rotation_std_deg" in entry["reason"] and "the profile's limit" in entry["reason"]
 
 
 def test_paper_method_json(tmp_path: Path, profile: Path) -> None:

@@ -125,9 +125,14 @@ def cli(
         written = False
         if (run.in_tolerance or force) and not dry_run:
             reason = f"tool-frame ({run.method})"
+            keys, capped = _tool_keys(run)
             if not run.in_tolerance:
+                message = message.replace(" (profile not written; --force writes it)", "")
                 reason += f", written with --force: {message}"
-            write_profile(profile_path, {"tool": _tool_keys(run)}, reason=reason)
+                message += " (written with --force)"
+            if capped:
+                reason += f"; {capped}"
+            write_profile(profile_path, {"tool": keys}, reason=reason)
             written = True
     out = _result(run, profile, profile_path, written, truth)
     if not as_json:
@@ -150,16 +155,29 @@ def _refusal(run: Any) -> str:
     return f"tool frame out of tolerance: {cause} (profile not written; --force writes it)"
 
 
-def _tool_keys(run: Any) -> dict[str, Any]:
-    """``[tool]`` keys to write: the frame and, from the exact fit, its stds."""
+#: The largest tool tolerances a profile holds (``ucal.profile.read_tolerances``): mm, deg.
+TOOL_STD_LIMITS = {"position_std_mm": 100.0, "rotation_std_deg": 10.0}
+
+
+def _tool_keys(run: Any) -> tuple[dict[str, Any], str]:
+    """``[tool]`` keys to write: the frame and, from the exact fit, its stds; and a note when a
+    std beyond what a profile holds (a result written with --force, its stds scaled by a
+    misfit's √χ²ᵣ) is written at that limit."""
     keys: dict[str, Any] = {
         "position_mm": [round(float(v), 6) for v in run.position_mm],
         "rotation_deg": [round(float(v), 6) for v in run.rotation_deg],
     }
+    notes = []
     if run.fit is not None:
-        keys["position_std_mm"] = [round(max(float(v), 1e-6), 6) for v in run.fit.position_std_mm]
-        keys["rotation_std_deg"] = [round(max(float(v), 1e-6), 6) for v in run.fit.rotation_std_deg]
-    return keys
+        for key, std in (
+            ("position_std_mm", run.fit.position_std_mm),
+            ("rotation_std_deg", run.fit.rotation_std_deg),
+        ):
+            limit = TOOL_STD_LIMITS[key]
+            if max(std) > limit:
+                notes.append(f"{key} {max(std):.3g} written as {limit:g}, the profile's limit")
+            keys[key] = [round(min(max(float(v), 1e-6), limit), 6) for v in std]
+    return keys, "; ".join(notes)
 
 
 def _result(
