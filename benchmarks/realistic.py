@@ -31,6 +31,7 @@ import pickle
 import tempfile
 import time
 from dataclasses import dataclass
+from dataclasses import replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -127,8 +128,7 @@ def measure_world(profile_path: Path, world_path: Path, cache: Path) -> Path:
         with open_cell(profile, str(world_path), None, None) as cell:
             check_status(cell.rig)
             run = run_calibration(profile, plan, cell.rig)
-        for m in run.measurements:
-            m.meta.pop("probes", None)
+        run.measurements[:] = [dc_replace(m, probes=None) for m in run.measurements]
         data = {"run": run, "error": None}
     except Exception as e:
         data = {"run": None, "error": f"{type(e).__name__}: {e}"}

@@ -24,7 +24,6 @@ from typing import Any
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.errors import DriverError
 from drivers.registry import open_controller, open_pulser
-from ucal.calibration.search import Rig
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.record import (
@@ -36,6 +35,7 @@ from ucal.record import (
     ReplayController,
     ReplayPulser,
 )
+from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,7 @@ def open_cell(
         controller_options = profile.controller.driver_options()
         pulser_options: dict[str, float] = {}
         if sim_world is not None:
+            # The simulated cell (its physics pulls in scipy.spatial) only for a --sim run.
             from ucal.sim.demo import demo_world
             from ucal.sim.serve import SimulatedCellServer
             from ucal.world import load_world
@@ -122,6 +123,9 @@ def open_cell(
                 reply_timeout_s=SIM_GUARD_TIMEOUT_S, connect_timeout_s=SIM_GUARD_TIMEOUT_S
             )
             pulser_options = {"timeout_s": SIM_GUARD_TIMEOUT_S}
+        assert controller_url and pulser_url
+        controller: Any
+        pulser: Any
         try:
             controller = open_controller(controller_url, **controller_options)
             pulser = open_pulser(pulser_url, **pulser_options)

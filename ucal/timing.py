@@ -56,14 +56,26 @@ def move_s(start_deg: np.ndarray, target_deg: np.ndarray, speed: float) -> float
     return float(np.max(delta / (MAX_SPEED_DEG_S * speed))) + SETTLE_S
 
 
-#: What the peak search costs per face beyond the moves between targets, measured on the
-#: built-in demo cell (benchmarks/run_time.py): moves, pulser reads, and motion time (s) at
-#: speed 0.3. The first face of a run adds an acquisition raster.
-SEARCH_MOVES_PER_FACE = 15
-SEARCH_READS_PER_FACE = 60
-SEARCH_MOTION_S_PER_FACE = 1.5
-FIRST_FACE_READS = 700
-FIRST_FACE_MOTION_S = 6.0
+@dataclass(frozen=True)
+class SearchCost:
+    """What a search costs at each target beyond the move to it: moves, pulser reads and
+    motion time at speed 0.3 (s)."""
+
+    moves: int
+    reads: int
+    motion_s: float
+
+
+#: The peak search on a block face, measured on the built-in demo cell
+#: (benchmarks/run_time.py); the first face of a run adds an acquisition raster.
+FACE_SEARCH = SearchCost(moves=15, reads=60, motion_s=1.5)
+FIRST_FACE = SearchCost(moves=0, reads=700, motion_s=6.0)
+#: The tool-frame run on the built-in demo cell, its profile not yet calibrated: a
+#: normal-incidence posture on the plate (fits with 8 averages, a side lobe acquired again
+#: where the uncalibrated offsets predict it degrees off), and a coarse and fine edge scan.
+PLATE_PEAK = SearchCost(moves=85, reads=800, motion_s=6.0)
+EDGE_SCAN = SearchCost(moves=75, reads=500, motion_s=6.0)
+NO_SEARCH = SearchCost(moves=0, reads=0, motion_s=0.0)
 
 
 @dataclass(frozen=True)
@@ -75,6 +87,16 @@ class DurationEstimate:
     motion_s: float
     tcp_s: float
     rtu_s: float
+
+    def __add__(self, other: DurationEstimate) -> DurationEstimate:
+        """Two parts of one run."""
+        return DurationEstimate(
+            self.moves + other.moves,
+            self.reads + other.reads,
+            self.motion_s + other.motion_s,
+            self.tcp_s + other.tcp_s,
+            self.rtu_s + other.rtu_s,
+        )
 
     def describe(self) -> str:
         """One line for a plan summary."""
@@ -96,17 +118,20 @@ def estimate_run(
     averages: int = 1,
     prf_hz: float = 1000.0,
     baud: int = 19200,
+    search: SearchCost = FACE_SEARCH,
+    first: SearchCost = FIRST_FACE,
 ) -> DurationEstimate:
-    """Estimate a run that visits ``targets_deg`` in order and searches the peak at each."""
+    """Estimate a run that visits ``targets_deg`` in order and searches at each (``search``;
+    ``first``: what the first target adds)."""
     motion = 0.0
     here = np.asarray(start_deg, float)
     for q in targets_deg:
         motion += move_s(here, q, speed)
         here = np.asarray(q, float)
     n = len(targets_deg)
-    motion += n * SEARCH_MOTION_S_PER_FACE * 0.3 / speed + FIRST_FACE_MOTION_S * 0.3 / speed
-    moves = n * (1 + SEARCH_MOVES_PER_FACE)
-    reads = n * SEARCH_READS_PER_FACE + FIRST_FACE_READS
+    motion += n * search.motion_s * 0.3 / speed + first.motion_s * 0.3 / speed
+    moves = n * (1 + search.moves) + first.moves
+    reads = n * search.reads + first.reads
     per_read = {f: read_s(f, averages, prf_hz, baud) for f in ("tcp", "rtu")}
     return DurationEstimate(
         moves, reads, motion, motion + reads * per_read["tcp"], motion + reads * per_read["rtu"]

@@ -4,28 +4,42 @@ A face measurement starts from a predicted posture (the kinematics with the offs
 so far), finds the echo and its peak posture with ``ucal.calibration.search`` and reads the water
 path there. How hard it searches depends on how good the prediction is expected to be:
 
-* ``direct``: the prediction is trusted to a few hundredths of a degree; fit at once;
-* ``quick``: within about half a degree; centre on the main lobe first;
-* otherwise acquire from scratch within ``radius_deg``.
+* ``SearchMode.DIRECT``: the prediction is trusted to a few hundredths of a degree; fit at once;
+* ``SearchMode.QUICK``: within about half a degree; centre on the main lobe first;
+* ``SearchMode.ACQUIRE``: acquire from scratch within ``radius_deg``.
 
-A fit that comes out imprecise is redone after centring (the quality gate).
+A fit that comes out imprecise is redone after centring (the quality gate). What a run's faces
+share (the profile, k·a, the acquisition gain) is a ``FaceSetup``; what one face needs (the
+face, where to start, the kinematics to predict with) a ``FaceRequest``.
+
+The noise floor (``acquisition_gain``) and the acquisition raster (``acquire_and_centre``)
+serve every procedure that searches an echo: the block's faces and the tool-frame plate.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from ucal.acoustics import water_absorption_np_per_mm
 from ucal.calibration.exact import residuals
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp, face_basis
-from ucal.calibration.search import PeakSearch, Rig, read_distance
+from ucal.calibration.model import (
+    CellGeometry,
+    Face,
+    FaceMeasurement,
+    beam_and_tcp,
+    face_basis,
+)
+from ucal.calibration.search import PeakSearch, read_distance
 from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
+from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +52,42 @@ ACQUIRE_MAX_DEG = 20.0
 #: profile says is found within a few lines; without this bound a missing echo kept the robot
 #: sweeping for hundreds of moves.
 MAX_ACQUISITION_MOVES = 100
+#: Raster line spacings of the block's faces (deg of beam tilt): 2.5° at acquisition gain,
+#: 0.5° where a long water path leaves little more than the main lobe above the noise.
+FACE_LINE_SPACINGS_DEG = (2.5, 0.5)
+#: Noise floor the acquisition gain puts the empty gate at (fraction of full screen height).
+ACQUISITION_FLOOR_FSH = 0.025
+
+
+class SearchMode(StrEnum):
+    """How far a face's predicted posture is trusted (module docstring)."""
+
+    DIRECT = "direct"
+    QUICK = "quick"
+    ACQUIRE = "acquire"
+
+
+@dataclass(frozen=True)
+class FaceSetup:
+    """What every face measurement of a run shares."""
+
+    profile: CellProfile
+    ka: float  # k·a of the transducer in the profile's water
+    acquisition_gain_db: float  # from ``acquisition_gain``
+
+
+@dataclass(frozen=True)
+class FaceRequest:
+    """One face to measure: where to start and the kinematics that predict its posture."""
+
+    face: Face
+    start_deg: np.ndarray  # (6,) arm as planned, wrist where the last search of this face ended
+    geometry: CellGeometry  # tool and block orientation as estimated so far
+    offsets_deg: np.ndarray  # (6,) joint offsets as estimated so far
+    label: str  # for log lines and errors, e.g. "face XY (j3/XY)"
+    config: str  # the measurement's configuration or posture label
+    mode: SearchMode = SearchMode.ACQUIRE
+    radius_deg: float = 16.0  # acquisition radius (deg of beam tilt)
 
 
 def make_search(
@@ -57,7 +107,7 @@ def make_search(
     if joints is not None and tuple(joints) != js:
         cols = [(3, 4, 5).index(j) for j in joints]
         tilt_map = (basis @ beam_jacobian(geom, q, est))[:, cols]
-        js = tuple(joints)
+        js = (joints[0], joints[1])
 
     def components(qq: np.ndarray) -> np.ndarray:
         beam, tcp = beam_and_tcp(geom, qq, est)
@@ -74,14 +124,27 @@ def make_search(
     )
 
 
-def acquisition_gain(rig: Rig, q_away: np.ndarray) -> float:
+def acquisition_gain(
+    rig: Rig, q_away: np.ndarray, floor_fsh: float = ACQUISITION_FLOOR_FSH
+) -> float:
     """Measure the noise floor with the beam in open water at ``q_away``; return the gain (dB)
-    that puts the floor at 2.5 % of full screen (threshold 10 %), where the side lobes of a
-    normal echo show a degree or more around normal."""
+    that puts the floor at ``floor_fsh`` of full screen (2.5 %: threshold 10 %), where the side
+    lobes of a normal echo show a degree or more around normal."""
     rig.configure(gain_db=20.0, averages=1)
     rig.move(rig.clip(q_away))
     rig.measure_floor()
-    return float(np.clip(20 * np.log10(0.025 / rig.floor_per_gain), 20.0, 80.0))
+    assert rig.floor_per_gain is not None
+    return float(np.clip(20 * np.log10(floor_fsh / rig.floor_per_gain), 20.0, 80.0))
+
+
+def _no_face_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> HardwareError:
+    config, _, face = label.rpartition("/")
+    where = f"face {face}" + (f" ({config})" if config else "")
+    return HardwareError(
+        f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
+        f"±{reached_deg:g}° of the predicted posture ({moves} moves): is the block "
+        "where [sample] says?"
+    )
 
 
 def acquire_and_centre(
@@ -91,40 +154,36 @@ def acquire_and_centre(
     label: str,
     radius_deg: float,
     gain_db: float,
-    max_moves: int = MAX_ACQUISITION_MOVES,
+    max_moves: int | None = MAX_ACQUISITION_MOVES,
+    spacings_deg: tuple[float, ...] = FACE_LINE_SPACINGS_DEG,
+    max_radius_deg: float = ACQUIRE_MAX_DEG,
+    no_echo: Callable[[Rig, str, float, int], HardwareError] = _no_face_echo,
 ) -> np.ndarray:
     """Raster outward from the prediction, then centre on the main lobe.
 
-    Lines 2.5° apart first (at acquisition gain the side lobes show several degrees around
-    normal at the nominal water path), the radius widening up to ``ACQUIRE_MAX_DEG``; if that
-    finds nothing (a long water path leaves little more than the main lobe above the noise),
-    lines 0.5° apart. After ``max_moves`` moves without an echo it gives up with a
-    ``HardwareError`` (exit 3) naming the pulser and the face: the block is not where
-    ``[sample]`` says, or the beam does not reach it (water, transducer, gate).
+    For each line spacing in turn (for a face: 2.5° first — at acquisition gain the side lobes
+    show several degrees around normal at the nominal water path — then 0.5°), the radius
+    widens from ``radius_deg`` up to ``max_radius_deg``. After ``max_moves`` moves (None: no
+    bound) without an echo it gives up with the ``HardwareError`` (exit 3) of ``no_echo(rig,
+    label, radius reached, moves)``: for a face it names the pulser and the face — the block is
+    not where ``[sample]`` says, or the beam does not reach it (water, transducer, gate).
     """
     first_move = rig.counters.moves
     reached = 0.0
-    for spacing in (2.5, 0.5):
-        r = min(radius_deg, ACQUIRE_MAX_DEG)
+    for spacing in spacings_deg:
+        r = min(radius_deg, max_radius_deg)
         while True:
-            left = max_moves - (rig.counters.moves - first_move)
-            if left <= 0:
+            left = None if max_moves is None else max_moves - (rig.counters.moves - first_move)
+            if left is not None and left <= 0:
                 break
             found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing, max_moves=left)
             if found is not None:
                 return search.centre(found[0], 3.0, gain_db)
             reached = max(reached, r)
-            if r >= ACQUIRE_MAX_DEG:
+            if r >= max_radius_deg:
                 break
-            r = min(2 * r, ACQUIRE_MAX_DEG)
-    config, _, face = label.rpartition("/")
-    where = f"face {face}" + (f" ({config})" if config else "")
-    moves = rig.counters.moves - first_move
-    raise HardwareError(
-        f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
-        f"±{reached:g}° of the predicted posture ({moves} moves): is the block "
-        "where [sample] says?"
-    )
+            r = min(2 * r, max_radius_deg)
+    raise no_echo(rig, label, reached, rig.counters.moves - first_move)
 
 
 @dataclass(frozen=True)
@@ -133,23 +192,13 @@ class FaceResult:
     prediction_error_deg: float  # beam tilt between the predicted and the found posture
 
 
-def measure_face(
-    rig: Rig,
-    geom: CellGeometry,
-    profile: CellProfile,
-    start: np.ndarray,
-    face: int,
-    est: np.ndarray,
-    ka: float,
-    acq_gain: float,
-    label: str,
-    config: str,
-    mode: str = "acquire",
-    radius_deg: float = 16.0,
-) -> FaceResult:
-    """Find normal incidence on ``face`` near the posture predicted from ``start`` and read the
-    water path; ``mode`` is "direct", "quick" or "acquire" (see module docstring)."""
-    q_pred = aim_wrist(geom, start, -geom.normal(face), est)
+def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
+    """Find normal incidence on the requested face near the posture predicted from its start
+    and read the water path there (module docstring)."""
+    profile, ka, acq_gain = setup.profile, setup.ka, setup.acquisition_gain_db
+    geom, face, est = request.geometry, request.face, request.offsets_deg
+    label, mode, radius_deg = request.label, request.mode, request.radius_deg
+    q_pred = aim_wrist(geom, request.start_deg, -geom.normal(face), est)
     search = make_search(rig, geom, profile, q_pred, face, est, ka)
     averages = max(profile.procedure.tof_averages, 1)
 
@@ -157,13 +206,13 @@ def measure_face(
         return read_distance(rig, profile.water_temperature_c, averages)
 
     peak = None
-    if mode == "direct":
+    if mode == SearchMode.DIRECT:
         try:
             peak = search.fit(q_pred, averages=8, distance=tof)
         except HardwareError as e:
             log.info("%s: direct fit failed (%s)", label, e)
     if peak is None or peak.tilt_std_deg > FIT_GATE_DEG:
-        q_c = search.quick_centre(q_pred) if mode in ("direct", "quick") else None
+        q_c = search.quick_centre(q_pred) if mode != SearchMode.ACQUIRE else None
         if q_c is None:
             q_c = acquire_and_centre(search, rig, q_pred, label, radius_deg, acq_gain)
         peak = search.fit(q_c, averages=8, distance=tof)
@@ -190,7 +239,7 @@ def measure_face(
         rig.counters.reads,
     )
     m = FaceMeasurement(
-        config,
+        request.config,
         face,
         peak.joints_deg,
         path,
@@ -198,13 +247,34 @@ def measure_face(
         tilt_std_deg=max(peak.tilt_std_deg, 1e-4),
         amplitude=peak.amplitude,
         distance_joints_deg=peak.distance_joints_deg,
-        meta={
-            "gain_db": rig.settings.gain_db,
-            "probes": peak.probes,
-            "search_joints": search.ja_jb,
-        },
+        gain_db=rig.settings.gain_db,
+        probes=peak.probes,
+        search_joints=(search.ja, search.jb),
     )
     return FaceResult(m, err)
+
+
+def measure_face(
+    rig: Rig,
+    geom: CellGeometry,
+    profile: CellProfile,
+    start: np.ndarray,
+    face: int,
+    est: np.ndarray,
+    ka: float,
+    acq_gain: float,
+    label: str,
+    config: str,
+    mode: str = "acquire",
+    radius_deg: float = 16.0,
+) -> FaceResult:
+    """``measure`` with its setup and request spelt out, in the order
+    ``ucal.calibration.full_run`` passes them."""
+    return measure(
+        rig,
+        FaceSetup(profile, ka, acq_gain),
+        FaceRequest(Face(face), start, geom, est, label, config, SearchMode(mode), radius_deg),
+    )
 
 
 def estimate_offsets(

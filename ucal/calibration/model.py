@@ -27,20 +27,49 @@ the displacement of the wrist centre W along that face's normal (paper 000, §4.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum, StrEnum
 
 import numpy as np
 
 from ucal.kinematics.dh import RobotModel, fk_frames
 
-FACE_NAMES = ("YZ", "XZ", "XY")  # face k has normal +axis k of the block frame
+
+class Face(IntEnum):
+    """A face of the calibration block, by the block axis of its normal (0: +X, 1: +Y, 2: +Z).
+
+    An ``int``: it indexes block coordinates and serialises as the number it always was."""
+
+    YZ = 0
+    XZ = 1
+    XY = 2
+
+
+FACE_NAMES = tuple(f.name for f in Face)  # ("YZ", "XZ", "XY"): face k has normal +axis k
+#: Faces in the order a posture measures them: XY (the beam straight down at the calibration
+#: pose), YZ, XZ.
+FACE_ORDER = (Face.XY, Face.YZ, Face.XZ)
+
+
+class Configuration(StrEnum):
+    """An arm configuration of the joint-offset calibration (paper 000): the calibration pose,
+    joint 3 stepped, joint 2 stepped, and joint 1 stepped (the second azimuth)."""
+
+    BASE = "base"
+    J3 = "j3"
+    J2 = "j2"
+    J1 = "j1"
+
+
+#: The recorded probes of a peak fit: joint pairs (n, 2), amplitudes (n,), the grid's centre (6,).
+Probes = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True)
 class FaceMeasurement:
     """One normal-incidence measurement (see module docstring)."""
 
-    config: str  # arm configuration label: "base", "j3", "j2", …
-    face: int  # 0, 1, 2: normal along block x, y, z
+    config: str  # arm configuration (``Configuration``) or another procedure's posture label
+    face: int  # a ``Face`` (an int given here is made one): normal along block x, y, z
     joints_deg: np.ndarray  # (6,) readings at normal incidence
     distance_mm: float  # water path from TOF
     distance_std_mm: float = 0.01  # one-sigma of distance_mm (from repeated TOF readings)
@@ -48,7 +77,14 @@ class FaceMeasurement:
     amplitude: float = float("nan")
     #: Readings where the TOF was read, if not ``joints_deg`` (the last probe at the peak).
     distance_joints_deg: np.ndarray | None = None
-    meta: dict = field(default_factory=dict, compare=False)
+    #: The pulser gain of the fit (dB), its probes and the two wrist joints it searched: a fit
+    #: with better kinematics later re-uses them without motion (``refit_peaks``).
+    gain_db: float | None = field(default=None, compare=False)
+    probes: Probes | None = field(default=None, compare=False)
+    search_joints: tuple[int, int] | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "face", Face(self.face))
 
 
 @dataclass(frozen=True)

@@ -28,13 +28,19 @@ posture: the first face may need a wide search, the others are found near their 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution, beam_on_axis, solve_exact_with_priors
-from ucal.calibration.faces import acquisition_gain, make_search, measure_face
+from ucal.calibration.faces import (
+    FaceRequest,
+    FaceSetup,
+    SearchMode,
+    acquisition_gain,
+    make_search,
+    measure,
+)
 from ucal.calibration.fit import (
     BLOCK,
     DH,
@@ -47,24 +53,33 @@ from ucal.calibration.fit import (
 )
 from ucal.calibration.model import (
     FACE_NAMES,
+    FACE_ORDER,
     CellGeometry,
+    Configuration,
+    Face,
     FaceMeasurement,
     beam_and_tcp,
     face_basis,
 )
 from ucal.calibration.paper import solve_paper
-from ucal.calibration.safety import check_joints
-from ucal.calibration.search import Rig, ka_of
+from ucal.calibration.safety import (
+    EDGE_MARGIN_MM,
+    MIN_WATER_PATH_MM,
+    check_face,
+    check_joints,
+    face_hit,
+)
+from ucal.calibration.search import ka_of
 from ucal.calibration.wrist import aim_wrist, search_joints
-from ucal.cell import CellProfile
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError
+from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.progress import MeasureStep, Report
+from ucal.rig import FinalApproachRig, Rig
 
 log = logging.getLogger(__name__)
 
-FACE_ORDER = (2, 0, 1)  # XY, YZ, XZ
-MIN_WATER_PATH_MM = 20.0
-EDGE_MARGIN_MM = 20.0
 #: Candidate joint-2/3 steps (deg), largest first: bigger steps amplify distance errors less.
 ARM_STEPS_DEG = (5.0, 4.0, 3.0, 2.0)
 #: Candidate joint-1 steps (deg) of the second azimuth, largest first.
@@ -72,47 +87,14 @@ AZIMUTH_STEPS_DEG = (10.0, 8.0, 6.0, 4.0)
 #: Water paths a stepped configuration must keep (mm): room for the offsets' uncertainty below,
 #: a strong enough echo above (water absorbs ~0.27 dB per mm at 25 MHz).
 STEPPED_PATH_RANGE_MM = (40.0, 180.0)
-#: Final approach of every move (deg below the target on each joint), larger than any backlash.
-APPROACH_DEG = 0.05
-
-
-class FinalApproachRig:
-    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
-
-    A joint with backlash leaves its link behind the encoder by half the lost motion, against
-    the direction of its last motion. If a move would bring any joint down onto its target, the
-    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
-    static postures are then reached from below. The two segments are one move in the counters.
-    Everything else is the wrapped rig's.
-    """
-
-    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
-        object.__setattr__(self, "_rig", rig)
-        object.__setattr__(self, "_approach_deg", approach_deg)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._rig, name)
-
-    def __setattr__(self, name: str, value: object) -> None:
-        setattr(self._rig, name, value)
-
-    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
-        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
-        rig = self._rig
-        q = np.asarray(q, float)
-        here = rig.controller.read_joints()
-        if np.any(q < here - 1e-6):
-            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
-            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
-        return rig.move(q, speed)
 
 
 @dataclass(frozen=True)
 class PlannedTarget:
     """One nominal normal-incidence posture of the plan."""
 
-    config: str
-    face: int
+    config: Configuration
+    face: Face
     joints_deg: np.ndarray
     search_joints: tuple[int, int]
     water_path_mm: float
@@ -135,12 +117,16 @@ class CalibrationPlan:
     distance_noise_gain_deg_per_um: np.ndarray | None = None
 
     @property
-    def configs(self) -> tuple[str, ...]:
+    def configs(self) -> tuple[Configuration, ...]:
         return tuple(dict.fromkeys(t.config for t in self.targets))
 
-    def step_of(self, config: str) -> float:
+    def step_of(self, config: Configuration) -> float:
         """Planned step (deg) of ``config`` (0 for the base)."""
-        return {"base": 0.0, "j1": self.azimuth_step_deg or 0.0}.get(config, self.step_deg)
+        if config == Configuration.BASE:
+            return 0.0
+        if config == Configuration.J1:
+            return self.azimuth_step_deg or 0.0
+        return self.step_deg
 
 
 @dataclass
@@ -168,15 +154,11 @@ def calibration_pose(profile: CellProfile) -> np.ndarray:
     proc = profile.procedure
     if proc.calibration_pose_deg is not None:
         return np.asarray(proc.calibration_pose_deg, float)
-    from ucal.kinematics.ik import ik
-
     s_mat = profile.sample_matrix
     reach = profile.model.d_mm[5] + profile.tool_position_mm[2] + proc.water_path_mm
     target = np.eye(4)
     target[:3, :3] = s_mat[:3, :3] @ np.diag([-1.0, 1.0, -1.0])  # tool z = −block z
     target[:3, 3] = s_mat[:3, :3] @ np.array([reach, reach, proc.water_path_mm]) + s_mat[:3, 3]
-    from ucal.cell import PAPER_CALIBRATION_POSE_DEG
-
     return ik(
         profile.model,
         target,
@@ -186,60 +168,45 @@ def calibration_pose(profile: CellProfile) -> np.ndarray:
     )
 
 
-def config_arm(pose_deg: np.ndarray, config: str, step_deg: float) -> np.ndarray:
+#: The joint each stepped configuration steps (0-based).
+STEPPED_JOINT = {Configuration.J3: 2, Configuration.J2: 1, Configuration.J1: 0}
+
+
+def config_arm(pose_deg: np.ndarray, config: Configuration, step_deg: float) -> np.ndarray:
     """Joint readings of a configuration's arm (wrist as in ``pose_deg``)."""
     q = np.array(pose_deg, float)
-    if config == "j3":
-        q[2] += step_deg
-    elif config == "j2":
-        q[1] += step_deg
-    elif config == "j1":
-        q[0] += step_deg
+    if config in STEPPED_JOINT:
+        q[STEPPED_JOINT[config]] += step_deg
     return q
 
 
-CONFIGS = ("base", "j3", "j2", "j1")
+CONFIGS = tuple(Configuration)
 #: Joint-6 turn per configuration (deg). An on-axis beam keeps its direction and tool centre
 #: when joint 6 turns, so the stepped configurations turn it; a tilted beam would swing the
 #: tool centre around the wrist (tens of mm, coupling the wrist-centre displacement with the
 #: tool's unknown pose), so only the second azimuth turns it.
 THETA6_SHIFT_DEG = {
-    "on-axis": {"base": 0.0, "j3": 90.0, "j2": -90.0, "j1": 0.0},
-    "tilted": {"base": 0.0, "j3": 0.0, "j2": 0.0, "j1": 90.0},
+    "on-axis": {
+        Configuration.BASE: 0.0,
+        Configuration.J3: 90.0,
+        Configuration.J2: -90.0,
+        Configuration.J1: 0.0,
+    },
+    "tilted": {
+        Configuration.BASE: 0.0,
+        Configuration.J3: 0.0,
+        Configuration.J2: 0.0,
+        Configuration.J1: 90.0,
+    },
 }
 
 
-def _face_hit_check(
+def _config_targets(
     profile: CellProfile,
     geom: CellGeometry,
-    q: np.ndarray,
-    face: int,
-    offsets: np.ndarray,
-    label: str,
-) -> float:
-    beam, tcp = beam_and_tcp(geom, q, offsets)
-    s_mat = profile.sample_matrix
-    local_tcp = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
-    path = float(local_tcp[face])
-    if path < MIN_WATER_PATH_MM:
-        raise SafetyError(
-            f"plan {label}: the tool centre would be {path:.1f} mm from face "
-            f"{FACE_NAMES[face]} (minimum {MIN_WATER_PATH_MM:g} mm)"
-        )
-    hit = local_tcp + path * (s_mat[:3, :3].T @ beam)
-    size = profile.sample_face_size_mm
-    inplane = [hit[i] for i in range(3) if i != face]
-    edge = min(min(v, size - v) for v in inplane)
-    if edge < EDGE_MARGIN_MM:
-        raise SafetyError(
-            f"plan {label}: the beam would meet face {FACE_NAMES[face]} "
-            f"{edge:.1f} mm from its edge (minimum {EDGE_MARGIN_MM:g} mm)"
-        )
-    return path
-
-
-def _config_targets(
-    profile: CellProfile, geom: CellGeometry, pose: np.ndarray, config: str, step_deg: float
+    pose: np.ndarray,
+    config: Configuration,
+    step_deg: float,
 ) -> list[PlannedTarget]:
     """The three checked targets of one configuration (``SafetyError`` if one fails).
 
@@ -263,15 +230,15 @@ def _config_targets(
 
 
 def _checked_target(
-    profile: CellProfile, geom: CellGeometry, arm: np.ndarray, config: str, face: int
+    profile: CellProfile, geom: CellGeometry, arm: np.ndarray, config: Configuration, face: Face
 ) -> PlannedTarget:
     offsets = profile.joint_offsets_deg
     label = f"{config}/{FACE_NAMES[face]}"
     q = aim_wrist(geom, arm, -geom.normal(face), offsets)
     check_joints(profile, q, label)
-    path = _face_hit_check(profile, geom, q, face, offsets, label)
+    path = check_face(profile, geom, q, face, offsets, label)
     lo, hi = STEPPED_PATH_RANGE_MM
-    if config != "base" and not lo <= path <= hi:
+    if config != Configuration.BASE and not lo <= path <= hi:
         raise SafetyError(
             f"plan {label}: a water path of {path:.1f} mm is outside "
             f"{lo:g}-{hi:g} mm for a stepped configuration"
@@ -284,7 +251,7 @@ def _largest_step(
     profile: CellProfile,
     geom: CellGeometry,
     pose: np.ndarray,
-    config: str,
+    config: Configuration,
     candidates: tuple[float, ...],
 ) -> tuple[float, list[PlannedTarget]]:
     """The largest candidate step whose targets pass every check; the last failure if none."""
@@ -313,7 +280,7 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         raise SafetyError(
             f"the calibration pose {np.round(pose, 2).tolist()} is outside the joint ranges"
         )
-    targets = _config_targets(profile, geom, pose, "base", 0.0)
+    targets = _config_targets(profile, geom, pose, Configuration.BASE, 0.0)
     arm_steps = tuple(
         sorted({s for s in ARM_STEPS_DEG if s >= proc.step_deg} | {proc.step_deg}, reverse=True)
     )
@@ -323,9 +290,9 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
     error: SafetyError | None = None
     for cand in arm_steps:
         try:
-            stepped = _config_targets(profile, geom, pose, "j3", cand) + _config_targets(
-                profile, geom, pose, "j2", cand
-            )
+            stepped = _config_targets(
+                profile, geom, pose, Configuration.J3, cand
+            ) + _config_targets(profile, geom, pose, Configuration.J2, cand)
         except SafetyError as e:
             error = error or e
             continue
@@ -337,7 +304,7 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         raise error
     azimuth = None
     try:
-        azimuth, j1 = _largest_step(profile, geom, pose, "j1", AZIMUTH_STEPS_DEG)
+        azimuth, j1 = _largest_step(profile, geom, pose, Configuration.J1, AZIMUTH_STEPS_DEG)
         targets += j1
     except SafetyError as e:
         log.info("no second J1 azimuth (%s): J2 carries the block's tilt tolerance", e)
@@ -394,7 +361,7 @@ def plan_amplification(
     rows = np.arange(2, cell.n_data, 3)  # the distance rows
     d_over_sigma = np.array([m.distance_mm / m.distance_std_mm for m in meas])
     c0 = prior.sound_speed_m_s
-    cols = [free.index(n) for n in OFFSETS]
+    cols = np.array([free.index(n) for n in OFFSETS])
     speed_gain = np.abs(k[np.ix_(cols, rows)] @ d_over_sigma / c0)
     noise_gain = np.sqrt(np.sum(k[np.ix_(cols, rows)] ** 2, axis=1))  # σ_d = 1 µm
     return speed_gain, noise_gain
@@ -415,10 +382,10 @@ def order_targets(targets: list[PlannedTarget]) -> list[PlannedTarget]:
     return first + last
 
 
-def _step_candidates(plan: CalibrationPlan, config: str) -> tuple[float, ...]:
+def _step_candidates(plan: CalibrationPlan, config: Configuration) -> tuple[float, ...]:
     """Step magnitudes to try for ``config``, the planned one first, then smaller ones."""
     planned = plan.step_of(config)
-    if config == "j1":
+    if config == Configuration.J1:
         pool = [s for s in AZIMUTH_STEPS_DEG if s <= planned]
     else:
         pool = [s for s in ARM_STEPS_DEG if plan.min_step_deg <= s <= planned]
@@ -430,7 +397,7 @@ def choose_step(
     profile: CellProfile,
     geom: CellGeometry,
     plan: CalibrationPlan,
-    config: str,
+    config: Configuration,
     est: np.ndarray,
     corner: np.ndarray,
     last_wrist: dict[int, np.ndarray],
@@ -444,9 +411,9 @@ def choose_step(
     Large offsets can put the wrist centre tens of millimetres lower than nominal; stepping the
     wrong way would then drive the tool into the block.
     """
-    if config == "base":
+    if config == Configuration.BASE:
         return 0.0
-    why = []
+    why: list[str] = []
     for magnitude in _step_candidates(plan, config):
         best, best_path = None, -np.inf
         for sign in (1.0, -1.0):
@@ -476,7 +443,7 @@ def _stepped_clearance(
     profile: CellProfile,
     geom: CellGeometry,
     plan: CalibrationPlan,
-    config: str,
+    config: Configuration,
     step: float,
     est: np.ndarray,
     corner: np.ndarray,
@@ -507,11 +474,7 @@ def _stepped_clearance(
                 f"{np.round(q, 1).tolist()} at a range limit"
             )
             return None
-        beam, tcp = beam_and_tcp(geom, q, est)
-        local = geom.block_rotation.T @ (tcp - corner)
-        path = float(local[t.face])
-        hit = local + path * (geom.block_rotation.T @ beam)
-        edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != t.face)
+        path, edge = face_hit(geom, q, est, corner, t.face, size)
         if edge < EDGE_MARGIN_MM:
             why.append(
                 f"{step:+g}°: the beam would meet face {FACE_NAMES[t.face]} "
@@ -574,23 +537,18 @@ def refit_peaks(
     distorts the fit model (beam direction and water path against the wrist joints) at the
     1e-4 degree level. No motion: only the recorded probes are used.
     """
-    from dataclasses import replace as dc_replace
-
     for _ in range(rounds):
         cell = estimate_cell(prior, meas, vector)
         vector, est, geom = cell.vector, cell.offsets_deg, cell.geometry
         new = []
         for m in meas:
-            probes = m.meta.get("probes")
-            if probes is None:
+            if m.probes is None:
                 new.append(m)
                 continue
-            search = make_search(
-                rig, geom, profile, m.joints_deg, m.face, est, ka, m.meta["search_joints"]
-            )
-            peak = search.refit(probes)
+            search = make_search(rig, geom, profile, m.joints_deg, m.face, est, ka, m.search_joints)
+            peak = search.refit(m.probes)
             new.append(
-                dc_replace(m, joints_deg=peak.joints_deg, tilt_std_deg=max(peak.tilt_std_deg, 1e-4))
+                replace(m, joints_deg=peak.joints_deg, tilt_std_deg=max(peak.tilt_std_deg, 1e-4))
             )
         meas = new
     return meas
@@ -600,10 +558,10 @@ def run_calibration(
     profile: CellProfile,
     plan: CalibrationPlan,
     rig: Rig,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Report | None = None,
 ) -> CalibrationRun:
-    """Measure the planned faces (``solve`` turns them into offsets). The caller owns the
-    connection, STOP and the profile."""
+    """Measure the planned faces (``solve`` turns them into offsets), reporting each face as it
+    starts and the final refit. The caller owns the connection, STOP and the profile."""
     geom = geometry(profile)
     temp = profile.water_temperature_c
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
@@ -618,17 +576,21 @@ def run_calibration(
     first = plan.targets[0]
     away = first.joints_deg.copy()
     away[first.search_joints[1]] += 25.0
-    acq_gain = acquisition_gain(rig, away)
+    setup = FaceSetup(profile, ka, acquisition_gain(rig, away))
 
     total = len(plan.targets)
     vector = None
     fitted = geom
     last_wrist: dict[int, np.ndarray] = {}
-    steps: dict[str, float] = {}
-    skipped: set[str] = set()
+    steps: dict[Configuration, float] = {}
+    skipped: set[Configuration] = set()
     for i, target in enumerate(plan.targets):
         if progress:
-            progress(target.label, i, total)
+            progress(
+                MeasureStep(
+                    f"face {target.label}", i, total, target.config, FACE_NAMES[target.face]
+                )
+            )
         if target.config in skipped:
             continue
         if target.config not in steps:
@@ -637,7 +599,7 @@ def run_calibration(
                     profile, fitted, plan, target.config, est, corner, last_wrist
                 )
             except SafetyError as e:
-                if target.config != "j1":
+                if target.config != Configuration.J1:
                     raise
                 # The second azimuth is a bonus: without it the block's tilt tolerance stays
                 # in joints 2 and 3's stds (``ucal.calibration.fit``).
@@ -649,21 +611,24 @@ def run_calibration(
         start[5] = target.joints_deg[5]
         # Three faces pin the model down: later predictions land within a few thousandths of a
         # degree, inside the fit's first grid; two faces leave a fraction of a degree.
-        mode = "direct" if len(meas) >= 3 else "quick" if len(meas) == 2 else "acquire"
-        res = measure_face(
-            approach,
-            fitted,
-            profile,
-            start,
-            target.face,
-            est,
-            ka,
-            acq_gain,
-            f"face {FACE_NAMES[target.face]} ({target.label})",
-            target.config,
-            mode,
-            16.0 if not meas else 8.0,
+        mode = (
+            SearchMode.DIRECT
+            if len(meas) >= 3
+            else SearchMode.QUICK
+            if len(meas) == 2
+            else SearchMode.ACQUIRE
         )
+        request = FaceRequest(
+            face=target.face,
+            start_deg=start,
+            geometry=fitted,
+            offsets_deg=est,
+            label=f"face {FACE_NAMES[target.face]} ({target.label})",
+            config=target.config,
+            mode=mode,
+            radius_deg=16.0 if not meas else 8.0,
+        )
+        res = measure(approach, setup, request)
         meas.append(res.measurement)
         last_wrist[target.face] = res.measurement.joints_deg
         cell = estimate_cell(prior, meas, vector)
@@ -672,7 +637,7 @@ def run_calibration(
     approach.move(plan.targets[0].joints_deg)
     meas = refit_peaks(approach, profile, meas, ka, prior, vector)
     if progress:
-        progress("done", total, total)
+        progress(MeasureStep("solving", total, total))
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
 
 

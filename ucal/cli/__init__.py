@@ -8,10 +8,12 @@ with ``--debug``. ``-v``, ``-q`` and ``--debug`` are accepted before or after th
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 import click
 
+from drivers.errors import DriverError, MotionRejected
 from ucal.cli.options import add_common_options, common_options, configure_logging, emit_json
 from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
 
@@ -84,7 +86,6 @@ def _interruptible() -> None:
     a supervisor stops a commissioning script with SIGTERM. Both must still stop the robot.
     (``ucal sim serve`` installs its own handlers.)
     """
-    import signal
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _terminate)
@@ -126,7 +127,6 @@ def main(argv: list[str] | None = None) -> None:
 
 def _classify(e: BaseException) -> tuple[str, int]:
     """The one-line message and the SPEC exit code of an error that ended a command."""
-    from drivers.errors import DriverError, MotionRejected
 
     if isinstance(e, KeyboardInterrupt):
         return "interrupted; the robot was told to stop", EXIT_INTERRUPTED

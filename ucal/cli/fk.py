@@ -9,6 +9,9 @@ import click
 import numpy as np
 
 from ucal.cli.options import emit_json, json_option, parse_floats
+from ucal.kinematics.dh import fk
+from ucal.kinematics.rotations import matrix_to_pose
+from ucal.profile import load_profile
 
 if TYPE_CHECKING:
     from ucal.cell import CellProfile
@@ -37,7 +40,6 @@ def cli(profile_path: Path, joints: str, as_json: bool) -> None:
     (actual = reading + offset) and its [tool] frame is applied. Readings outside the joint
     ranges are computed but flagged on stderr.
     """
-    from ucal.profile import load_profile
 
     joints_deg = parse_floats(joints, 6, "--joints")
     profile = load_profile(profile_path)
@@ -56,8 +58,6 @@ def cli(profile_path: Path, joints: str, as_json: bool) -> None:
 
 def tool_pose(profile: CellProfile, joints_deg: np.ndarray) -> np.ndarray:
     """Pose ``[X, Y, Z, RX, RY, RZ]`` (mm, deg) of the TCP for joint readings (deg)."""
-    from ucal.kinematics.dh import fk
-    from ucal.kinematics.rotations import matrix_to_pose
 
     t = fk(
         profile.model, joints_deg, tool=profile.tool_matrix, offsets_deg=profile.joint_offsets_deg

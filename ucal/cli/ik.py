@@ -6,8 +6,13 @@ from pathlib import Path
 
 import click
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
 from ucal.cli.options import emit_json, json_option, parse_floats
+from ucal.kinematics.ik import ik
+from ucal.kinematics.rotations import pose_to_matrix
+from ucal.profile import load_profile
 
 
 @click.command(
@@ -48,9 +53,6 @@ def cli(
     Solutions are ranked by paper 004's weighted shortest distance to --near.
     Exit 4 if the pose is unreachable inside the joint ranges.
     """
-    from ucal.kinematics.ik import ik
-    from ucal.kinematics.rotations import pose_to_matrix
-    from ucal.profile import load_profile
 
     pose_v = parse_floats(pose, 6, "--pose")
     near_v = parse_floats(near, 6, "--near") if near is not None else None
@@ -71,8 +73,6 @@ def cli(
 
 
 def _print_table(sols: np.ndarray, pose: np.ndarray, model_name: str) -> None:
-    from rich.console import Console
-    from rich.table import Table
 
     title = (
         f"{model_name}: "

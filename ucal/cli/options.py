@@ -14,7 +14,6 @@ import logging
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -22,6 +21,8 @@ import click
 import numpy as np
 from click.core import ParameterSource
 
+from drivers.registry import open_controller, open_pulser
+from ucal.cell_choice import CellChoice
 from ucal.errors import InputError
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -180,23 +181,6 @@ pulser_option = click.option(
 )
 
 
-@dataclass(frozen=True)
-class CellChoice:
-    """The cell a moving command will open: the simulated cell (``sim_world`` not None; ""
-    = demo truth) or the controller and pulser at their URLs."""
-
-    sim_world: str | None
-    controller_url: str | None
-    pulser_url: str | None
-
-    @property
-    def name(self) -> str:
-        """The cell in words, for the confirmation prompt."""
-        if self.sim_world is not None:
-            return "the simulated cell"
-        return f"the robot at {self.controller_url}"
-
-
 _SOURCES = {
     "sim_world": ("--sim", ENV_SIM),
     "controller_url": ("--controller", ENV_CONTROLLER),
@@ -272,7 +256,6 @@ def cell_from_options(
 
 def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str | None) -> None:
     """Both URLs given and well-formed (parsed by their back-ends; nothing is connected)."""
-    from drivers.registry import open_controller, open_pulser
 
     if not controller_url and not pulser_url:
         raise InputError(
@@ -327,8 +310,12 @@ def confirm_motion(yes: bool, summary: str, cell: CellChoice) -> None:
     refuse (exit 2); ``cell_from_options`` has already refused that before the plan.
     """
     info(summary)
-    if yes:
-        return
+    if not yes:
+        ask_to_move(cell)
+
+
+def ask_to_move(cell: CellChoice) -> None:
+    """Ask on the terminal whether to move ``cell``; no terminal → refuse (exit 2), no → abort."""
     if not sys.stdin.isatty():
         raise InputError(
             f"refusing to move {cell.name} without confirmation: stdin is not a "

@@ -13,6 +13,8 @@ import numpy as np
 from ucal import files
 from ucal.cli.options import check_output, emit_json, json_option, parse_floats
 from ucal.errors import InputError
+from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.profile import load_profile
 
 #: Column names of the output file.
 JOINT_HEADER = ("J1", "J2", "J3", "J4", "J5", "J6")
@@ -117,8 +119,6 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None, as_
     distance), so a path through a wrist singularity does not flip joint 4 by 180 deg.
     Prints the largest joint step. Exit 2 for a bad CSV row, 4 if a point is unreachable.
     """
-    from ucal.kinematics.path import cartesian_path_to_joints
-    from ucal.profile import load_profile
 
     near_v = parse_floats(near, 6, "--near") if near is not None else None
     check_output(out_path)

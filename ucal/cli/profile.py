@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 
 import click
+from rich.console import Console
+from rich.table import Table
 
 from ucal.cli.options import emit_json, info, json_option
 from ucal.models import KNOWN_MODELS
+from ucal.profile import (
+    create_profile,
+    history_dir,
+    load_profile,
+    profile_history,
+    profile_to_dict,
+    profile_warnings,
+    undo_profile,
+)
 
 profile_arg = click.argument(
     "path", metavar="PATH", type=click.Path(dir_okay=False, path_type=Path)
@@ -43,7 +55,6 @@ def init(model: str, path: Path, force: bool) -> None:
     reflector plate are placed for paper 000's calibration pose. Exit 2 if PATH exists and
     --force is not given.
     """
-    from ucal.profile import create_profile
 
     create_profile(path, model.lower(), force=force)
     info(
@@ -57,7 +68,6 @@ def init(model: str, path: Path, force: bool) -> None:
 @json_option
 def show(path: Path, as_json: bool) -> None:
     """Print the profile as ucal reads it (validated; mm, deg)."""
-    from ucal.profile import load_profile, profile_to_dict
 
     data = profile_to_dict(load_profile(path))
     if as_json:
@@ -74,7 +84,6 @@ def validate(path: Path, as_json: bool) -> None:
 
     Keys ucal does not know are reported as warnings (they are allowed, but often typos).
     """
-    from ucal.profile import load_profile, profile_warnings
 
     profile = load_profile(path)
     warnings = profile_warnings(path)
@@ -93,16 +102,11 @@ def validate(path: Path, as_json: bool) -> None:
 @json_option
 def history(path: Path, as_json: bool) -> None:
     """List the recorded writes of a profile (kept in PATH.history/), oldest first."""
-    from dataclasses import asdict
-
-    from ucal.profile import history_dir, profile_history
 
     entries = profile_history(path)
     if as_json:
         emit_json({"history_dir": str(history_dir(path)), "entries": [asdict(e) for e in entries]})
         return
-    from rich.console import Console
-    from rich.table import Table
 
     table = Table(title=f"{path}: writes (copies in {history_dir(path)})")
     for col in ("#", "time (UTC)", "reason", "replaced version", "state"):
@@ -131,7 +135,6 @@ def undo(path: Path, force: bool, as_json: bool) -> None:
 
     The version being replaced is kept in PATH.history/ too, so an undo loses nothing.
     """
-    from ucal.profile import undo_profile
 
     entry = undo_profile(path, force=force)
     if as_json:
@@ -162,8 +165,6 @@ def _fmt(values: object) -> str:
 
 
 def _print_profile(data: dict) -> None:
-    from rich.console import Console
-    from rich.table import Table
 
     console = Console()
     robot = data["robot"]

@@ -1,7 +1,11 @@
 """Progress of a moving command, on stderr (stdout stays for the result and ``--json``).
 
 On a terminal a live bar; otherwise (a script, a log file, a pipe) one plain line per step, so
-a scripted run shows it is alive; nothing with ``-q``.
+a scripted run shows it is alive; nothing with ``-q``. A step of a measuring procedure
+(``ucal.progress.Progress``) shows what is measured (configuration and face, posture or point),
+the moves and pulser reads so far and the estimated time left::
+
+    calibrate [1/12] face base/YZ (45 moves, 515 reads, about 30 s left)
 """
 
 from __future__ import annotations
@@ -11,7 +15,10 @@ from types import TracebackType
 from typing import Any, Self
 
 import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from ucal import progress
 from ucal.cli.options import quiet
 
 
@@ -26,9 +33,6 @@ class StepProgress:
 
     def __enter__(self) -> Self:
         if not self._silent and sys.stderr.isatty():
-            from rich.console import Console
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
             self._bar = Progress(
                 TextColumn("{task.description}"),
                 BarColumn(),
@@ -58,6 +62,10 @@ class StepProgress:
         click.echo(
             f"{self.title} [{done}/{total}] {what}" + (f" ({detail})" if detail else ""), err=True
         )
+
+    def show(self, p: progress.Progress) -> None:
+        """Show a step of a measuring procedure with its counters and the time left."""
+        self.step(p.step.what, p.step.done, p.step.total, p.detail)
 
     def __exit__(
         self,

@@ -13,6 +13,10 @@ import click
 
 from ucal.cell import CellProfile
 from ucal.errors import InputError
+from ucal.models import DEFAULT_MODEL
+from ucal.profile import default_profile_text, load_profile
+from ucal.sim.serve import SimulatedCellServer
+from ucal.world import load_world
 
 
 @click.group("sim")
@@ -77,15 +81,12 @@ def serve(
 
     Prints one JSON line {"controller": URL, "pulser": URL} on stdout, then serves.
     """
-    from ucal.sim.serve import SimulatedCellServer
 
     if log_path is not None:
         _check_log(log_path)
     profile = _load_profile(profile_path)
     world = None
     if world_path is not None:
-        from ucal.world import load_world
-
         world = load_world(world_path, profile)
 
     stop = threading.Event()
@@ -124,12 +125,9 @@ def _check_log(path: Path) -> None:
 
 def _load_profile(path: Path | None) -> CellProfile:
     """The profile at ``path``, or a new profile of the default model."""
-    from ucal.profile import load_profile
 
     if path is not None:
         return load_profile(path)
-    from ucal.models import DEFAULT_MODEL
-    from ucal.profile import default_profile_text
 
     with tempfile.TemporaryDirectory(prefix="ucal-sim-") as tmp:
         tmp_path = Path(tmp) / f"{DEFAULT_MODEL}.toml"

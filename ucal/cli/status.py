@@ -7,8 +7,13 @@ import logging
 from typing import Any
 
 import click
+from rich.console import Console
+from rich.table import Table
 
+from drivers.errors import DriverError
+from drivers.registry import open_controller, open_pulser
 from ucal.cli.options import controller_option, emit_json, json_option, pulser_option
+from ucal.errors import HardwareError, InputError
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +78,6 @@ def read_status(controller_url: str | None, pulser_url: str | None) -> dict[str,
     Raises ``InputError`` (exit 2) for a missing or malformed URL and ``HardwareError``
     (exit 3, naming the device) for a device that cannot be reached or answers wrongly.
     """
-    from drivers.registry import open_controller, open_pulser
-    from ucal.errors import InputError
 
     if not controller_url:
         raise InputError("give --controller URL (or set UCAL_CONTROLLER)")
@@ -92,8 +95,6 @@ def read_status(controller_url: str | None, pulser_url: str | None) -> dict[str,
 
 def _guarded(device: str, url: str | None, read: Any, arg: Any) -> Any:
     """``read(arg)`` with every fault turned into a ``HardwareError`` naming the device."""
-    from drivers.errors import DriverError
-    from ucal.errors import HardwareError
 
     try:
         return read(arg)
@@ -149,8 +150,6 @@ def _flag(value: bool | None, yes: str, no: str) -> str:
 
 def show(out: dict[str, Any]) -> None:
     """The status as tables on stdout."""
-    from rich.console import Console
-    from rich.table import Table
 
     console = Console()
     c = out["controller"]

@@ -2,26 +2,25 @@
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
 from ucal.cli.options import (
     cell_from_options,
-    confirm_motion,
     controller_option,
     dry_run_option,
-    emit_json,
     json_option,
     pulser_option,
     sim_option,
     yes_option,
 )
-from ucal.cli.progress import StepProgress
+from ucal.cli.procedure import finish, run_job
+from ucal.procedure import Outcome, RunOptions
+from ucal.profile import load_profile
+from ucal.toolframe.procedure import ToolFrameCalibration
 
 log = logging.getLogger(__name__)
 
@@ -93,154 +92,15 @@ def cli(
     keeps the profile's. Nothing is written with --dry-run, on failure, or when the result is
     out of tolerance (exit 1) unless --force.
     """
-    from ucal.errors import OutOfToleranceError
-    from ucal.profile import check_writable, load_profile, profile_lock, write_profile
-    from ucal.session import check_status, open_cell
-    from ucal.toolframe.procedure import plan_tool_frame, run_tool_frame
-
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
     profile = load_profile(profile_path)
-    plan = plan_tool_frame(profile, method, points)
-    # One run per profile, and room to write the result, checked before the first motion.
-    with contextlib.nullcontext() if dry_run else profile_lock(profile_path):
-        if not dry_run:
-            check_writable(profile_path)
-        confirm_motion(yes, plan.summary(), cell)
-        with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
-            check_status(session.rig)
-            with StepProgress("tool-frame") as progress:
-
-                def report(what: str, i: int, n: int) -> None:
-                    counters = session.rig.counters
-                    progress.step(
-                        what if what != "done" else "solving",
-                        i,
-                        n,
-                        f"{counters.moves} moves, {counters.reads} reads",
-                    )
-
-                run = run_tool_frame(profile, plan, session.rig, report)
-            truth = session.truth
-        message = _refusal(run)
-        written = False
-        if (run.in_tolerance or force) and not dry_run:
-            reason = f"tool-frame ({run.method})"
-            keys, capped = _tool_keys(run)
-            if not run.in_tolerance:
-                message = message.replace(" (profile not written; --force writes it)", "")
-                reason += f", written with --force: {message}"
-                message += " (written with --force)"
-            if capped:
-                reason += f"; {capped}"
-            write_profile(profile_path, {"tool": keys}, reason=reason)
-            written = True
-    out = _result(run, profile, profile_path, written, truth)
-    if not as_json:
-        _print(out)
-    if not run.in_tolerance:
-        raise OutOfToleranceError(message, out)
-    if as_json:
-        emit_json(out)
+    job = ToolFrameCalibration(profile, profile_path, method, points, force)
+    finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)
 
 
-def _refusal(run: Any) -> str:
-    if run.in_tolerance:
-        return ""
-    if run.fit is not None:
-        cause = run.fit.refusal
-    else:
-        cause = "; ".join(
-            n for n in run.notes if "tolerance" in n or "converge" in n or "second-order" in n
-        )
-    return f"tool frame out of tolerance: {cause} (profile not written; --force writes it)"
-
-
-#: The largest tool tolerances a profile holds (``ucal.profile.read_tolerances``): mm, deg.
-TOOL_STD_LIMITS = {"position_std_mm": 100.0, "rotation_std_deg": 10.0}
-
-
-def _tool_keys(run: Any) -> tuple[dict[str, Any], str]:
-    """``[tool]`` keys to write: the frame and, from the exact fit, its stds; and a note when a
-    std beyond what a profile holds (a result written with --force, its stds scaled by a
-    misfit's √χ²ᵣ) is written at that limit."""
-    keys: dict[str, Any] = {
-        "position_mm": [round(float(v), 6) for v in run.position_mm],
-        "rotation_deg": [round(float(v), 6) for v in run.rotation_deg],
-    }
-    notes = []
-    if run.fit is not None:
-        for key, std in (
-            ("position_std_mm", run.fit.position_std_mm),
-            ("rotation_std_deg", run.fit.rotation_std_deg),
-        ):
-            limit = TOOL_STD_LIMITS[key]
-            if max(std) > limit:
-                notes.append(f"{key} {max(std):.3g} written as {limit:g}, the profile's limit")
-            keys[key] = [round(min(max(float(v), 1e-6), limit), 6) for v in std]
-    return keys, "; ".join(notes)
-
-
-def _result(
-    run: Any, profile: Any, profile_path: Path, written: bool, truth: Any
-) -> dict[str, Any]:
-    from ucal.kinematics.rotations import angle_between_deg
-
-    tf = run.fit
-    out: dict[str, Any] = {
-        "position_mm": run.position_mm,
-        "rotation_deg": run.rotation_deg,
-        "beam_direction": run.beam,
-        "position_std_mm": run.std_position_mm,
-        "rotation_std_deg": None if tf is None else tf.rotation_std_deg,
-        "beam_std_deg": run.std_beam_deg,
-        "rms_residual_mm": run.rms_residual_mm,
-        "points": run.points,
-        "written": written,
-        "method": run.method,
-        "std": {"position_mm": run.std_position_mm, "beam_deg": run.std_beam_deg},
-        "moves": run.moves,
-        "pulser_reads": run.reads,
-        "profile": str(profile_path),
-        "notes": run.notes,
-    }
-    if tf is not None:
-        out["fit"] = tf.quality.to_json()
-        out["along_beam"] = {
-            "position_mm": tf.along_beam_mm,
-            "std_mm": tf.along_beam_std_mm,
-            "limited_by": tf.along_beam_limited_by,
-        }
-        out["across_beam_std_mm"] = tf.across_beam_std_mm
-        out["plate_height_mm"] = {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm}
-        out["delay_ns"] = {"value": tf.delay_ns, "std": tf.delay_std_ns}
-        out["sound_speed_m_s"] = tf.sound_speed_m_s
-        out["sound_speed_std_m_s"] = tf.sound_speed_std_m_s
-    if run.method == "exact":
-        out["normal_incidence_postures"] = len(run.peaks)
-        out["edge_crossings"] = len(run.crossings)
-    if run.paper is not None:
-        out["paper"] = {
-            "iterations": run.paper.iterations,
-            "converged": run.paper.converged,
-            "second_order_ok": run.paper.second_order_ok,
-            "multiplier": run.paper.multiplier,
-            "condition": run.paper.condition,
-        }
-    if truth is not None:  # the simulator's hidden truth: how far off the result is
-        from ucal.toolframe.exact import tangent_basis
-        from ucal.toolframe.fit import truth_in_profile_flange
-
-        true_tool = truth_in_profile_flange(profile, truth)
-        err = np.asarray(run.position_mm) - true_tool[:3, 3]
-        beam = np.asarray(run.beam)
-        out["simulated_error"] = {
-            "position_mm": err,
-            "along_beam_mm": float(beam @ err),
-            "across_beam_mm": tangent_basis(beam) @ err,
-            "beam_deg": float(angle_between_deg(beam, true_tool[:3, 2])),
-            "frame": "flange of the profile's J6 offset and last DH link",
-        }
-    return out
+def show_outcome(outcome: Outcome) -> None:
+    """The tool frame and its fit on stdout."""
+    _print(outcome.result)
 
 
 def _print(out: dict[str, Any]) -> None:

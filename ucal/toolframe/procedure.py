@@ -47,21 +47,29 @@ water paths, eqs. 12–15).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from ucal.calibration.faces import acquire_and_centre, acquisition_gain
 from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
 from ucal.calibration.model import CellGeometry
 from ucal.calibration.safety import check_joints
-from ucal.calibration.search import PeakResult, PeakSearch, Rig, ka_of, read_distance
+from ucal.calibration.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.calibration.wrist import search_joints
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, WorldTruth
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik
-from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.profile import write_profile
+from ucal.progress import MeasureStep, Report
+from ucal.rig import Rig
+from ucal.session import CellSession
+from ucal.timing import EDGE_SCAN, NO_SEARCH, PLATE_PEAK, DurationEstimate, estimate_run
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,
@@ -73,6 +81,7 @@ from ucal.toolframe.exact import (
     fit_edge_profile,
     rotation_for_beam,
     solve_offsets,
+    tangent_basis,
 )
 from ucal.toolframe.fit import (
     PlateCrossing,
@@ -80,6 +89,7 @@ from ucal.toolframe.fit import (
     ToolFrameFit,
     plate_prior,
     solve_tool_frame,
+    truth_in_profile_flange,
 )
 from ucal.toolframe.paper import PaperSolution, solve_paper
 from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
@@ -107,9 +117,13 @@ FINE_PROBES = 21
 #: Pulser averages per amplitude reading on edge scans and per peak-fit probe.
 EDGE_AVERAGES = 16
 PEAK_AVERAGES = 8
-#: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max.
+#: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max;
+#: its lines 1.5° apart (the plate is met at the planned water path).
 ACQUIRE_RADIUS_DEG = 4.0
 ACQUIRE_MAX_DEG = 8.0
+ACQUIRE_LINE_SPACING_DEG = 1.5
+#: Noise floor the acquisition gain puts the empty gate at (fraction of full screen height).
+ACQUISITION_FLOOR_FSH = 0.05
 #: A peak below this share of the first posture's amplitude (same plate, same water path) is
 #: a side lobe: the piston's first side lobe is 17.6 dB (0.13) below the main lobe.
 MAIN_LOBE_SHARE = 0.5
@@ -467,7 +481,7 @@ class _Runner:
         profile: CellProfile,
         plan: ToolFramePlan,
         rig: Rig,
-        progress: Callable[[str, int, int], None] | None,
+        progress: Report | None,
     ):
         self.profile = profile
         self.plan = plan
@@ -512,10 +526,8 @@ class _Runner:
         """Noise floor with the beam 25° off the plate's normal; sets the acquisition gain."""
         away = target.joints_deg.copy()
         away[4] += 25.0 if away[4] + 25.0 < self.profile.model.joint_max_deg[4] else -25.0
-        self.rig.configure(gain_db=20.0, averages=1)
-        self.move(self.rig.clip(away))
-        self.rig.measure_floor()
-        self.acq_gain = float(np.clip(20 * np.log10(0.05 / self.rig.floor_per_gain), 20.0, 80.0))
+        self.acq_gain = acquisition_gain(self.rig, away, ACQUISITION_FLOOR_FSH)
+        self.q = self.rig.clip(away)
 
     # -- posture search --------------------------------------------------------------------------
     def _search(self, q_pred: np.ndarray) -> PeakSearch:
@@ -537,20 +549,19 @@ class _Runner:
         ``quick`` is False) the acquisition raster, widened up to ``ACQUIRE_MAX_DEG``."""
         search = self._search(q_pred)
         q_c = search.quick_centre(q_pred) if quick else None
-        radius = ACQUIRE_RADIUS_DEG
-        while q_c is None:
-            found = search.acquire(q_pred, radius, self.acq_gain, spacing_tilt_deg=1.5)
-            if found is not None:
-                q_c = search.centre(found[0], 3.0, self.acq_gain)
-                break
-            if radius >= ACQUIRE_MAX_DEG:
-                raise HardwareError(
-                    f"{self.rig.pulser.endpoint}: no echo from the reflector "
-                    f"plate within {radius:g} deg of the predicted posture "
-                    f"({label}); check [reflector] points_mm and "
-                    "[tool] in the profile"
-                )
-            radius = min(2 * radius, ACQUIRE_MAX_DEG)
+        if q_c is None:
+            q_c = acquire_and_centre(
+                search,
+                self.rig,
+                q_pred,
+                label,
+                ACQUIRE_RADIUS_DEG,
+                self.acq_gain,
+                max_moves=None,
+                spacings_deg=(ACQUIRE_LINE_SPACING_DEG,),
+                max_radius_deg=ACQUIRE_MAX_DEG,
+                no_echo=_no_plate_echo,
+            )
         self.q = np.asarray(q_c, float)
         return search, q_c
 
@@ -675,29 +686,82 @@ class _Runner:
         )
 
 
-def _report(progress: Callable[[str, int, int], None] | None, what: str, i: int, n: int) -> None:
-    if progress:
-        progress(what, i, n)
+def _no_plate_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> HardwareError:
+    return HardwareError(
+        f"{rig.pulser.endpoint}: no echo from the reflector plate within {reached_deg:g} deg "
+        f"of the predicted posture ({label}); check [reflector] points_mm and [tool] in the "
+        "profile"
+    )
+
+
+def _report(r: _Runner, what: str, i: int, n: int, phi_deg: float | None = None) -> None:
+    if r.progress:
+        orientation = None if phi_deg is None else f"phi {phi_deg:+.0f}"
+        r.progress(MeasureStep(what, i, n, orientation, "plate" if what != "solving" else None))
+
+
+@dataclass
+class ExactMeasurements:
+    """What the exact method measured: peaks and their water paths, edge crossings."""
+
+    peaks: list[PeakResult]
+    tofs: list[TofRecord]
+    crossings: list[EdgeCrossing]
+    plate_crossings: list[PlateCrossing]
+    edge_fits: list[EdgeFit]
+    beam_estimate: BeamEstimate
+    position_mm: np.ndarray  # the tool centre estimated on the way (start of the first solve)
+    moves: int
+    reads: int
+
+
+@dataclass
+class PaperMeasurements:
+    """What paper 002's method measured: flange poses and water paths at incidence points."""
+
+    rotations: list[np.ndarray]
+    positions_mm: list[np.ndarray]
+    paths_mm: list[float]
+    path_stds_mm: list[float]
+    moves: int
+    reads: int
+
+
+ToolFrameMeasurements = ExactMeasurements | PaperMeasurements
+
+
+def measure_tool_frame(
+    profile: CellProfile, plan: ToolFramePlan, rig: Rig, progress: Report | None = None
+) -> ToolFrameMeasurements:
+    """Measure the plan (module docstring), reporting each posture and edge scan as it starts.
+    The caller owns the connection, STOP and the profile."""
+    r = _Runner(profile, plan, rig, progress)
+    if plan.method == "paper":
+        return _measure_paper(r)
+    return _measure_exact(r)
+
+
+def solve_measured(
+    profile: CellProfile, plan: ToolFramePlan, measured: ToolFrameMeasurements
+) -> ToolFrameRun:
+    """The tool frame from a run's measurements (module docstring); nothing moves."""
+    if isinstance(measured, PaperMeasurements):
+        return _solve_paper(profile, plan, measured)
+    return _solve_exact(profile, plan, measured)
 
 
 def run_tool_frame(
-    profile: CellProfile,
-    plan: ToolFramePlan,
-    rig: Rig,
-    progress: Callable[[str, int, int], None] | None = None,
+    profile: CellProfile, plan: ToolFramePlan, rig: Rig, progress: Report | None = None
 ) -> ToolFrameRun:
     """Measure and solve (see module docstring). The caller owns connection, STOP, profile."""
-    r = _Runner(profile, plan, rig, progress)
-    if plan.method == "paper":
-        return _run_paper(r)
-    return _run_exact(r)
+    return solve_measured(profile, plan, measure_tool_frame(profile, plan, rig, progress))
 
 
 def _tof(r: _Runner) -> tuple[float, float]:
     return read_distance(r.rig, r.temp, max(r.profile.procedure.tof_averages, 1))
 
 
-def _run_exact(r: _Runner) -> ToolFrameRun:
+def _measure_exact(r: _Runner) -> ExactMeasurements:
     plan = r.plan
     total = len(plan.peaks) + 4 * len(plan.edges)
     r.noise_floor(plan.peaks[0])
@@ -706,14 +770,14 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
     peaks: list[PeakResult] = []
     tofs: list[TofRecord] = []
     for i, target in enumerate(plan.peaks):
-        _report(r.progress, target.label, i, total)
+        _report(r, target.label, i, total, target.phi_deg)
         search, q_c = r.centred(target, quick=i > 0)
         peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
         if peak.tilt_std_deg > 0.02:
             log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
-            q_c = search.quick_centre(peak.joints_deg)
-            if q_c is not None:
-                peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
+            q_again = search.quick_centre(peak.joints_deg)
+            if q_again is not None:
+                peak = search.fit(q_again, averages=PEAK_AVERAGES, distance=lambda: _tof(r))
         if peaks and _probe_level(peak) < MAIN_LOBE_SHARE * _probe_level(peaks[0]):
             # A prediction off by degrees (joint offsets not yet calibrated turn the beam
             # differently at each orientation) can centre on a side lobe (−17.6 dB and less):
@@ -759,7 +823,7 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
     for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
         for ep in plan.edges:
             for j, lateral in enumerate(ep.lateral_mm):
-                _report(r.progress, f"edge {ep.name}", k, total)
+                _report(r, f"edge {ep.name}", k, total, phi)
                 k += 1
                 guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))
                 cr, fit, t_c, pc = r.edge_scan(ep, lateral, phi, guess)
@@ -769,16 +833,31 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
                 fits.append(fit)
     # leave the robot above the plate centre
     r.move(r.joints(plan.centre_mm, plan.peaks[0].water_path_mm, plan.phi0_deg, "centre"))
+    _report(r, "solving", total, total)
+    return ExactMeasurements(
+        peaks,
+        tofs,
+        crossings,
+        plate_crossings,
+        fits,
+        beam_est,
+        r.position,
+        r.rig.counters.moves,
+        r.rig.counters.reads,
+    )
+
+
+def _solve_exact(profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements) -> ToolFrameRun:
+    peaks, tofs, crossings, beam_est = m.peaks, m.tofs, m.crossings, m.beam_estimate
     # First estimate with the profile's offsets and the touched plane taken as exact (the
     # formulation of ucal.toolframe.exact): the start of the fit with the priors.
-    offsets = solve_offsets(beam_est, tofs, crossings, r.plane, r.position)
-    _report(r.progress, "done", total, total)
-    first_rot = rotation_for_beam(beam_est.direction, r.profile.tool_rotation_deg)
+    offsets = solve_offsets(beam_est, tofs, crossings, plan.plane, m.position_mm)
+    first_rot = rotation_for_beam(beam_est.direction, profile.tool_rotation_deg)
     tf = solve_plate_fit(
-        r.profile,
+        profile,
         plan.plane,
         peaks,
-        plate_crossings,
+        m.plate_crossings,
         offsets,
         np.concatenate([offsets.position_mm, first_rot]),
     )
@@ -794,12 +873,12 @@ def _run_exact(r: _Runner) -> ToolFrameRun:
         tf.beam_std_deg,
         tf.rms_residual_mm,
         len(peaks) + len(crossings),
-        r.rig.counters.moves,
-        r.rig.counters.reads,
+        m.moves,
+        m.reads,
         peaks,
         tofs,
         crossings,
-        fits,
+        m.edge_fits,
         beam_est,
         offsets,
         None,
@@ -833,6 +912,7 @@ def solve_plate_fit(
             )
         )
     edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()
+    assert profile.reflector_points_mm is not None
     return solve_tool_frame(
         prior_from_profile(profile),
         plate_prior(plane, profile.reflector_points_mm, profile.reflector_points_std_mm),
@@ -854,7 +934,7 @@ def rig_joints(r: _Runner) -> np.ndarray:
     return r.rig.controller.read_joints()
 
 
-def _run_paper(r: _Runner) -> ToolFrameRun:
+def _measure_paper(r: _Runner) -> PaperMeasurements:
     plan = r.plan
     total = len(plan.incidence)
     r.noise_floor(plan.incidence[0])
@@ -863,7 +943,7 @@ def _run_paper(r: _Runner) -> ToolFrameRun:
     paths: list[float] = []
     path_stds: list[float] = []
     for i, target in enumerate(plan.incidence):
-        _report(r.progress, target.label, i, total)
+        _report(r, target.label, i, total, target.phi_deg)
         _, q_c = r.centred(target, quick=i > 0)
         settled = r.move(q_c)
         path, std = _tof(r)
@@ -874,17 +954,24 @@ def _run_paper(r: _Runner) -> ToolFrameRun:
         path_stds.append(std)
         # predict the next incidence posture from the postures found so far (E1)
         r.update_beam(rots, [0.01] * len(rots))
-    _report(r.progress, "done", total, total)
+    _report(r, "solving", total, total)
+    return PaperMeasurements(
+        rots, poss, paths, path_stds, r.rig.counters.moves, r.rig.counters.reads
+    )
+
+
+def _solve_paper(profile: CellProfile, plan: ToolFramePlan, m: PaperMeasurements) -> ToolFrameRun:
+    rots, poss, paths, path_stds = m.rotations, m.positions_mm, m.paths_mm, m.path_stds_mm
     sol = solve_paper(
         np.array(rots),
         np.array(poss),
         np.array(paths),
-        r.plane,
-        np.asarray(r.profile.tool_position_mm, float),
-        r.profile.tool_matrix[:3, 2],
+        plan.plane,
+        np.asarray(profile.tool_position_mm, float),
+        profile.tool_matrix[:3, 2],
         float(np.median(path_stds)),
     )
-    rot = rotation_for_beam(sol.beam, r.profile.tool_rotation_deg)
+    rot = rotation_for_beam(sol.beam, profile.tool_rotation_deg)
     notes = list(sol.notes)
     ok = bool(sol.converged and sol.second_order_ok)
     if not sol.converged:
@@ -898,8 +985,8 @@ def _run_paper(r: _Runner) -> ToolFrameRun:
         sol.std_beam_deg,
         sol.rms_residual_mm,
         len(paths),
-        r.rig.counters.moves,
-        r.rig.counters.reads,
+        m.moves,
+        m.reads,
         tofs=[
             TofRecord(transform(p, R), d, s)
             for p, R, d, s in zip(poss, rots, paths, path_stds, strict=True)
@@ -908,3 +995,195 @@ def _run_paper(r: _Runner) -> ToolFrameRun:
         in_tolerance=ok,
         notes=notes,
     )
+
+
+def refusal(run: ToolFrameRun) -> str:
+    """Why a run is out of tolerance, as the one-line error (empty when in tolerance)."""
+    if run.in_tolerance:
+        return ""
+    if run.fit is not None:
+        cause = run.fit.refusal
+    else:
+        cause = "; ".join(
+            n for n in run.notes if "tolerance" in n or "converge" in n or "second-order" in n
+        )
+    return f"tool frame out of tolerance: {cause}{NOT_WRITTEN}"
+
+
+#: The largest tool tolerances a profile holds (``ucal.profile.read_tolerances``): mm, deg.
+TOOL_STD_LIMITS = {"position_std_mm": 100.0, "rotation_std_deg": 10.0}
+#: The end of a refusal's message, dropped when ``--force`` writes the result all the same.
+NOT_WRITTEN = " (profile not written; --force writes it)"
+
+
+def tool_keys(run: ToolFrameRun) -> tuple[dict[str, Any], str]:
+    """``[tool]`` keys to write: the frame and, from the exact fit, its stds; and a note when a
+    std beyond what a profile holds (a result written with --force, its stds scaled by a
+    misfit's √χ²ᵣ) is written at that limit."""
+    keys: dict[str, Any] = {
+        "position_mm": [round(float(v), 6) for v in run.position_mm],
+        "rotation_deg": [round(float(v), 6) for v in run.rotation_deg],
+    }
+    notes = []
+    if run.fit is not None:
+        for key, std in (
+            ("position_std_mm", run.fit.position_std_mm),
+            ("rotation_std_deg", run.fit.rotation_std_deg),
+        ):
+            limit = TOOL_STD_LIMITS[key]
+            if max(std) > limit:
+                notes.append(f"{key} {max(std):.3g} written as {limit:g}, the profile's limit")
+            keys[key] = [round(min(max(float(v), 1e-6), limit), 6) for v in std]
+    return keys, "; ".join(notes)
+
+
+def result_object(
+    run: ToolFrameRun,
+    profile: CellProfile,
+    profile_path: Path,
+    written: bool,
+    truth: WorldTruth | None,
+    duration_s: float,
+) -> dict[str, Any]:
+    """The ``tool-frame --json`` object of SPEC.md (and more)."""
+    tf = run.fit
+    out: dict[str, Any] = {
+        "position_mm": run.position_mm,
+        "rotation_deg": run.rotation_deg,
+        "beam_direction": run.beam,
+        "position_std_mm": run.std_position_mm,
+        "rotation_std_deg": None if tf is None else tf.rotation_std_deg,
+        "beam_std_deg": run.std_beam_deg,
+        "rms_residual_mm": run.rms_residual_mm,
+        "points": run.points,
+        "written": written,
+        "method": run.method,
+        "std": {"position_mm": run.std_position_mm, "beam_deg": run.std_beam_deg},
+        "moves": run.moves,
+        "pulser_reads": run.reads,
+        # time the run took on the cell: simulated time on the simulated cell
+        "duration_s": duration_s,
+        "profile": str(profile_path),
+        "notes": run.notes,
+    }
+    if tf is not None:
+        out["fit"] = tf.quality.to_json()
+        out["along_beam"] = {
+            "position_mm": tf.along_beam_mm,
+            "std_mm": tf.along_beam_std_mm,
+            "limited_by": tf.along_beam_limited_by,
+        }
+        out["across_beam_std_mm"] = tf.across_beam_std_mm
+        out["plate_height_mm"] = {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm}
+        out["delay_ns"] = {"value": tf.delay_ns, "std": tf.delay_std_ns}
+        out["sound_speed_m_s"] = tf.sound_speed_m_s
+        out["sound_speed_std_m_s"] = tf.sound_speed_std_m_s
+    if run.method == "exact":
+        out["normal_incidence_postures"] = len(run.peaks)
+        out["edge_crossings"] = len(run.crossings)
+    if run.paper is not None:
+        out["paper"] = {
+            "iterations": run.paper.iterations,
+            "converged": run.paper.converged,
+            "second_order_ok": run.paper.second_order_ok,
+            "multiplier": run.paper.multiplier,
+            "condition": run.paper.condition,
+        }
+    if truth is not None:  # the simulator's hidden truth: how far off the result is
+        true_tool = truth_in_profile_flange(profile, truth)
+        err = np.asarray(run.position_mm) - true_tool[:3, 3]
+        beam = np.asarray(run.beam)
+        out["simulated_error"] = {
+            "position_mm": err,
+            "along_beam_mm": float(beam @ err),
+            "across_beam_mm": tangent_basis(beam) @ err,
+            "beam_deg": float(angle_between_deg(beam, true_tool[:3, 2])),
+            "frame": "flange of the profile's J6 offset and last DH link",
+        }
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the tool-frame command's job in the procedure of ``ucal.procedure``
+
+
+class ToolFrameCalibration(ProfileJob):
+    """``tool-frame``: the tool frame → ``[tool]`` (with its stds from the exact fit)."""
+
+    command = "tool-frame"
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        profile_path: Path,
+        method: str = "exact",
+        points: int | None = None,
+        force: bool = False,
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.method = method
+        self.points = points
+        self.force = force
+
+    def plan(self) -> ToolFramePlan:
+        return plan_tool_frame(self.profile, self.method, self.points)
+
+    def summary(self, plan: ToolFramePlan) -> str:
+        return plan.summary()
+
+    def estimate(self, plan: ToolFramePlan) -> DurationEstimate:
+        speed = self.profile.procedure.speed
+        postures = [t.joints_deg for t in plan.peaks + plan.incidence]
+        at_postures = estimate_run(
+            postures, plan.reference_deg, speed, search=PLATE_PEAK, first=NO_SEARCH
+        )
+        # each edge scan starts near the plate centre, where the first posture looks from
+        scans = [postures[0]] * (4 * len(plan.edges))
+        return at_postures + estimate_run(
+            scans, postures[0], speed, search=EDGE_SCAN, first=NO_SEARCH
+        )
+
+    def record_header(self, plan: ToolFramePlan) -> dict[str, Any]:
+        return {"options": {"method": self.method, "points": self.points}, "plan": []}
+
+    def measure(
+        self, plan: ToolFramePlan, session: CellSession, report: Report
+    ) -> ToolFrameMeasurements:
+        return measure_tool_frame(self.profile, plan, session.rig, report)
+
+    def solve(self, plan: ToolFramePlan, measured: Measured[ToolFrameMeasurements]) -> ToolFrameRun:
+        return solve_measured(self.profile, plan, measured.data)
+
+    def may_write(self, run: ToolFrameRun) -> bool:
+        return run.in_tolerance or self.force
+
+    def write(self, run: ToolFrameRun) -> None:
+        reason = f"tool-frame ({run.method})"
+        keys, capped = tool_keys(run)
+        if not run.in_tolerance:
+            reason += f", written with --force: {refusal(run).replace(NOT_WRITTEN, '')}"
+        if capped:
+            reason += f"; {capped}"
+        write_profile(self.profile_path, {"tool": keys}, reason=reason)
+
+    def result(
+        self,
+        plan: ToolFramePlan,
+        measured: Measured[ToolFrameMeasurements],
+        run: ToolFrameRun,
+        written: bool,
+    ) -> Outcome:
+        out = result_object(
+            run, self.profile, self.profile_path, written, measured.truth, measured.duration_s
+        )
+        message = refusal(run)
+        if written and not run.in_tolerance:
+            message = message.replace(NOT_WRITTEN, "") + " (written with --force)"
+        return Outcome(
+            self.command,
+            out,
+            written,
+            out_of_tolerance=not run.in_tolerance,
+            message=message,
+            shown=run,
+        )

@@ -13,8 +13,9 @@ from drivers.controller.base import ControllerStatus, JointSample, RobotControll
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
 from ucal.calibration.faces import MAX_ACQUISITION_MOVES, acquire_and_centre, acquisition_gain
-from ucal.calibration.search import ZERO_FLOOR_FSH, PeakSearch, Rig, read_distance
+from ucal.calibration.search import PeakSearch, read_distance
 from ucal.errors import EXIT_HARDWARE, HardwareError
+from ucal.rig import ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
 

@@ -1,0 +1,91 @@
+"""The moving commands follow one procedure: the same steps in the same order, against the
+simulated cell, with the plan shown (with its estimated duration) and progress reported with
+the time left."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import shutil
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ucal.calibration.procedure import OffsetsCalibration
+from ucal.cell_choice import CellChoice
+from ucal.procedure import MeasuringProcedure, Outcome, RunOptions, Step
+from ucal.profile import load_profile
+from ucal.progress import Progress
+from ucal.toolframe.procedure import ToolFrameCalibration
+
+pytestmark = pytest.mark.system
+
+EXAMPLE = Path(__file__).parents[2] / "profiles" / "example_cell.toml"
+
+
+class Recorder:
+    """A presenter that keeps what the technician would see, and the steps."""
+
+    def __init__(self) -> None:
+        self.events: list[Any] = []
+        self.progress_seen: list[Progress] = []
+
+    def show_plan(self, text: str) -> None:
+        self.events.append(("plan", text))
+
+    def confirm(self, cell: CellChoice) -> None:
+        self.events.append(("confirm", cell.name))
+
+    @contextlib.contextmanager
+    def progress(self, title: str) -> Iterator[Callable[[Progress], None]]:
+        self.events.append(("progress", title))
+        yield self.progress_seen.append
+
+
+def run(job: Any, dry_run: bool = False) -> tuple[list[Any], Recorder, Outcome]:
+    steps: list[Step] = []
+    presenter = Recorder()
+    options = RunOptions(CellChoice("", None, None), yes=False, dry_run=dry_run)
+    outcome = MeasuringProcedure(job, options, presenter, on_step=steps.append).run()
+    return steps, presenter, outcome
+
+
+@pytest.fixture
+def profile_path(tmp_path: Path) -> Path:
+    path = tmp_path / "cell.toml"
+    shutil.copy(EXAMPLE, path)
+    return path
+
+
+def check_run(steps: list[Step], presenter: Recorder, outcome: Outcome, title: str) -> None:
+    assert steps == list(Step)  # check, plan, show, confirm, open, measure, solve, write, result
+    kinds = [e[0] for e in presenter.events]
+    assert kinds == ["plan", "confirm", "progress"]
+    assert "Estimated time on a real cell" in presenter.events[0][1]
+    assert presenter.events[1] == ("confirm", "the simulated cell")
+    assert presenter.events[2] == ("progress", title)
+    seen = presenter.progress_seen
+    # every step reported in order with its counters, the time left falling to 0 at the end
+    assert [p.step.done for p in seen] == list(range(len(seen)))
+    assert seen[-1].step.what == "solving" and seen[-1].left_s == 0.0
+    assert all(a.moves <= b.moves and a.reads <= b.reads for a, b in itertools.pairwise(seen))
+    assert seen[0].left_s > seen[len(seen) // 2].left_s > 0.0
+    assert isinstance(outcome.result, dict) and outcome.command == title
+
+
+def test_calibrate_and_tool_frame_go_through_the_same_steps(profile_path: Path) -> None:
+    before = profile_path.read_bytes()
+    profile = load_profile(profile_path)
+    steps, presenter, outcome = run(OffsetsCalibration(profile, profile_path), dry_run=True)
+    check_run(steps, presenter, outcome, "calibrate")
+    assert {p.step.face for p in presenter.progress_seen[:-1]} == {"XY", "YZ", "XZ"}
+    assert presenter.progress_seen[0].step.configuration == "base"
+    assert outcome.written is False and profile_path.read_bytes() == before  # a dry run
+
+    steps, presenter, outcome = run(ToolFrameCalibration(profile, profile_path, points=2))
+    check_run(steps, presenter, outcome, "tool-frame")
+    assert presenter.progress_seen[0].step.face == "plate"
+    assert outcome.written == (not outcome.out_of_tolerance)
+    assert outcome.result["written"] == outcome.written

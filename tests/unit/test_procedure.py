@@ -1,0 +1,184 @@
+"""The procedure's order, dry run and result shape, with a job that measures nothing, and the
+progress display's plain lines (stderr not a terminal) with the estimated time left."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+import ucal.procedure as procedure_module
+from ucal.cell_choice import CellChoice
+from ucal.cli.progress import StepProgress
+from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
+from ucal.progress import MeasureStep, Progress, time_left_s
+from ucal.timing import DurationEstimate
+
+
+class FakeRig:
+    class counters:
+        moves = 3
+        reads = 7
+
+
+class FakeSession:
+    rig = FakeRig()
+    truth = None
+    elapsed_s = 10.0
+
+
+class Job:
+    """Records what the procedure asks of it."""
+
+    command = "fake"
+    profile = None
+
+    def __init__(self, log: list[str], ok: bool = True) -> None:
+        self.log = log
+        self.ok = ok
+
+    def profile_text(self) -> str:
+        return ""
+
+    def check(self, options: RunOptions) -> contextlib.AbstractContextManager[object]:
+        self.log.append("job.check")
+        return contextlib.nullcontext()
+
+    def plan(self) -> str:
+        return "the plan"
+
+    def summary(self, plan: str) -> str:
+        return f"summary of {plan}"
+
+    def estimate(self, plan: str) -> DurationEstimate:
+        return DurationEstimate(10, 100, 20.0, 30.0, 60.0)
+
+    def record_header(self, plan: str) -> dict[str, Any]:
+        return {}
+
+    def measure(self, plan: str, session: Any, report: Callable[[MeasureStep], None]) -> str:
+        report(MeasureStep("face base/XY", 0, 2, "base", "XY"))
+        report(MeasureStep("face base/YZ", 1, 2, "base", "YZ"))
+        return "measured"
+
+    def solve(self, plan: str, measured: Measured[str]) -> str:
+        assert measured.data == "measured" and measured.duration_s == 10.0
+        return "solved"
+
+    def may_write(self, solved: str) -> bool:
+        return self.ok
+
+    def write(self, solved: str) -> None:
+        self.log.append("job.write")
+
+    def result(self, plan: str, measured: Measured[str], solved: str, written: bool) -> Outcome:
+        return Outcome(self.command, {"written": written}, written, not self.ok, "")
+
+
+class Presenter:
+    def __init__(self, log: list[str]) -> None:
+        self.log = log
+        self.shown: list[Progress] = []
+
+    def show_plan(self, text: str) -> None:
+        self.log.append(f"show: {text.splitlines()[0]}")
+
+    def confirm(self, cell: CellChoice) -> None:
+        self.log.append(f"confirm {cell.name}")
+
+    @contextlib.contextmanager
+    def progress(self, title: str) -> Iterator[Callable[[Progress], None]]:
+        yield self.shown.append
+
+
+@pytest.fixture
+def fake_cell(monkeypatch: pytest.MonkeyPatch) -> None:
+    @contextlib.contextmanager
+    def open_cell(*args: Any) -> Iterator[FakeSession]:
+        yield FakeSession()
+
+    monkeypatch.setattr(procedure_module, "open_cell", open_cell)
+    monkeypatch.setattr(procedure_module, "check_status", lambda rig: None)
+
+
+def run(log: list[str], options: RunOptions, ok: bool = True) -> tuple[Outcome, Presenter]:
+    presenter = Presenter(log)
+    outcome = MeasuringProcedure(Job(log, ok), options, presenter, on_step=log.append).run()
+    return outcome, presenter
+
+
+def test_steps_in_order_and_the_cell_named_before_any_motion(fake_cell: None) -> None:
+    log: list[Any] = []
+    outcome, presenter = run(log, RunOptions(CellChoice("", None, None)))
+    assert log == [
+        Step.CHECK,
+        "job.check",
+        Step.PLAN,
+        Step.SHOW,
+        "show: summary of the plan",
+        Step.CONFIRM,
+        "confirm the simulated cell",
+        Step.OPEN,
+        Step.MEASURE,
+        Step.SOLVE,
+        Step.WRITE,
+        "job.write",
+        Step.RESULT,
+    ]
+    assert outcome.written and outcome.result == {"written": True}
+    # each reported step with the rig's counters and the time left on the cell's clock
+    assert [(p.step.what, p.moves, p.reads, p.left_s) for p in presenter.shown] == [
+        ("face base/XY", 3, 7, 20.0),
+        ("face base/YZ", 3, 7, 20.0),
+    ]
+
+
+def test_yes_asks_nothing_and_a_dry_run_writes_nothing(fake_cell: None) -> None:
+    log: list[Any] = []
+    outcome, _ = run(log, RunOptions(CellChoice("", None, None), yes=True, dry_run=True))
+    assert "confirm the simulated cell" not in log and "job.write" not in log
+    assert [e for e in log if isinstance(e, Step)] == list(Step)  # the same steps
+    assert outcome.written is False
+
+
+def test_out_of_tolerance_is_not_written(fake_cell: None) -> None:
+    log: list[Any] = []
+    outcome, _ = run(log, RunOptions(CellChoice(None, "tcp://h:1", "modbus-tcp://h:2")), ok=False)
+    assert "confirm the robot at tcp://h:1" in log and "job.write" not in log
+    assert outcome.out_of_tolerance and not outcome.written
+
+
+def test_time_left_from_the_estimate_then_from_the_pace() -> None:
+    assert time_left_s(37.0, 8.0, 1, 12) == 29.0  # within the estimate: the rest of it
+    assert time_left_s(37.0, 40.0, 10, 12) == pytest.approx(8.0)  # past it: 4 s per step
+    assert time_left_s(37.0, 40.0, 12, 12) == 0.0
+
+
+def test_plain_progress_lines_on_a_non_terminal(capsys: pytest.CaptureFixture[str]) -> None:
+    steps = [
+        Progress(MeasureStep("face base/YZ", 1, 12, "base", "YZ"), 45, 515, 8.0, 29.0),
+        Progress(MeasureStep("solving", 12, 12), 190, 1344, 37.2, 0.0),
+        Progress(MeasureStep("peak 2", 1, 11), 45, 491, 100.0, 125.0),
+    ]
+    with StepProgress("calibrate") as display:
+        for p in steps:
+            display.show(p)
+    assert capsys.readouterr().err.splitlines() == [
+        "calibrate [1/12] face base/YZ (45 moves, 515 reads, about 29 s left)",
+        "calibrate [12/12] solving (190 moves, 1344 reads, about 0 s left)",
+        "calibrate [1/11] peak 2 (45 moves, 491 reads, about 2.1 min left)",
+    ]
+
+
+def test_faces_and_configurations_serialise_as_before() -> None:
+    import json
+
+    from ucal.calibration.model import FACE_NAMES, FACE_ORDER, Configuration, Face
+
+    assert json.dumps([Face.XY, Configuration.J3]) == '[2, "j3"]'
+    assert FACE_ORDER == (2, 0, 1) and FACE_NAMES == ("YZ", "XZ", "XY")
+    assert f"{Configuration.BASE}/{FACE_NAMES[Face.XZ]}" == "base/XZ"
+    assert np.eye(3)[:, Face.XZ].tolist() == [0.0, 1.0, 0.0]

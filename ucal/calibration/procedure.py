@@ -1,0 +1,345 @@
+"""The joint-offset calibration procedure (paper 000): the ``calibrate`` command's job.
+
+Read with ``ucal.procedure`` (the order every moving command follows): the plan and its checks
+(``ucal.calibration.sequence.plan_calibration``), the plan in words (``plan_summary``), the
+measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
+measurement, ``ucal.calibration.faces``), the solvers (``ucal.calibration.sequence.solve``:
+``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
+(``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
+
+``--level full`` has its own plan, measurement and identification
+(``ucal.calibration.full_plan``, ``full_run``, ``full``) and shares ``judge``,
+``written_keys`` and ``result_fields`` with this level.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.exact import OffsetSolution
+from ucal.calibration.fit import PRIOR_MEANING, FitQuality, prior_from_profile
+from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.sequence import (
+    CalibrationPlan,
+    CalibrationRun,
+    plan_calibration,
+    run_calibration,
+    solve,
+)
+from ucal.cell import CellProfile, WorldTruth
+from ucal.errors import UcalError
+from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.profile import write_profile
+from ucal.progress import Report
+from ucal.session import CellSession
+from ucal.timing import DurationEstimate, estimate_run
+
+#: A finished run whose observable offsets are less certain than this is out of tolerance.
+TOLERANCE_STD_DEG = 0.02
+
+
+class JointSolution(Protocol):
+    """What ``judge`` reads of a solution, whichever level solved it."""
+
+    @property
+    def offsets_deg(self) -> np.ndarray: ...
+
+    @property
+    def std_deg(self) -> np.ndarray: ...
+
+    @property
+    def unobservable_joints(self) -> tuple[int, ...]: ...
+
+    @property
+    def extra(self) -> dict[str, Any]: ...
+
+
+def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, Any]:
+    """The ``[calibration]`` keys every level writes: offsets, their std, the fit."""
+    return {
+        "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
+        "unobservable_joints": list(chosen.unobservable_joints),
+        "method": chosen.method,
+        "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in chosen.std_deg],
+        "sound_speed_m_s": round(float(speed_m_s), 3),
+        "fit_verdict": fit.verdict,
+        "chi2_reduced": round(float(fit.chi2_reduced), 4),
+        "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+    }
+
+
+def result_fields(
+    chosen: Any,
+    level: str,
+    measurements: Any,
+    duration_s: float,
+    profile_path: Path,
+    written: bool,
+    sound: Any,
+    fit: FitQuality,
+) -> dict[str, Any]:
+    """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
+    solution that fitted the sound speed)."""
+    return {
+        "joint_offsets_deg": chosen.offsets_deg,
+        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
+        "unobservable_joints": list(chosen.unobservable_joints),
+        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
+        "method": chosen.method,
+        "level": level,
+        "moves": measurements.moves,
+        "pulser_reads": measurements.reads,
+        # time the run took on the cell: simulated time on the simulated cell (what a real
+        # cell would take over Modbus TCP)
+        "duration_s": duration_s,
+        "profile": str(profile_path),
+        "written": written,
+        "sound_speed_m_s": sound.sound_speed_m_s,
+        "sound_speed_std_m_s": sound.sound_speed_std_m_s,
+        "fit": fit.to_json(),
+        "residuals": [
+            {"label": r.label, "tilt": list(r.tilt), "distance": r.distance} for r in fit.residuals
+        ],
+    }
+
+
+class Verdict:
+    """Whether a solution may be written, and the one-line message when not."""
+
+    def __init__(self, ok: bool, misfit_only: bool, message: str):
+        self.ok = ok
+        self.misfit_only = misfit_only
+        self.message = message
+
+
+def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
+    """Judge a solution: a misfit, or an observable offset less certain than the tolerance.
+
+    A misfit names the worst measurement and the likely cause; a std above
+    ``TOLERANCE_STD_DEG`` names the joint and what its uncertainty comes from (noise, or the
+    method's truncation for the paper method).
+    """
+    observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
+    std = chosen.std_deg
+    loose = [j for j in observable if not np.isfinite(std[j]) or std[j] > TOLERANCE_STD_DEG]
+    if fit.verdict == "misfit":
+        msg = (
+            f"calibration misfit: the measurements disagree with the model (χ²ᵣ "
+            f"{fit.chi2_reduced:.3g} on {fit.dof} degrees of freedom; worst: {fit.worst}); "
+            f"likely cause: {fit.cause}; the profile was not written (--force writes it)"
+        )
+        return Verdict(False, not loose, msg)
+    if loose:
+        j = max(loose, key=lambda k: std[k] if np.isfinite(std[k]) else np.inf)
+        why = ""
+        trunc = chosen.extra.get("truncation_deg")
+        cell = chosen.extra.get("cell_fit")
+        shares = cell.variance_share.get(f"J{j + 1}", {}) if cell is not None else {}
+        source = max(shares, key=lambda k: shares[k]) if shares else "data"
+        if trunc is not None and trunc[j] > 0.5 * std[j]:
+            why = (
+                f", mostly the paper method's first-order truncation error ({trunc[j]:.3g} "
+                "deg, about half the joint step); use --method exact"
+            )
+        elif source != "data":
+            why = (
+                f", mostly from {PRIOR_MEANING.get(source, source)} "
+                f"({100 * shares[source]:.0f} % of its variance)"
+            )
+        else:
+            worst = max(fit.residuals, key=lambda r: r.norm).label if fit.residuals else "?"
+            why = (
+                f": the measurements' own scatter ({100 * shares.get('data', 1.0):.0f} % of "
+                f"its variance; the peak postures are uncertain, worst fitted {worst}); check "
+                "the water, the gain and the transducer, or measure again"
+            )
+        return Verdict(
+            False,
+            False,
+            f"calibration out of tolerance: J{j + 1}'s std {std[j]:.3g} deg exceeds "
+            f"{TOLERANCE_STD_DEG} deg{why}; the profile was not written",
+        )
+    return Verdict(True, False, "")
+
+
+def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
+    """The plan in words for the confirmation (stderr); the procedure adds the estimated
+    duration."""
+    temp = profile.water_temperature_c
+    c_std = prior_from_profile(profile).sound_speed_std_m_s
+    azimuth = (
+        f", joint 1 by ±{plan.azimuth_step_deg:g} deg (second azimuth)"
+        if plan.azimuth_step_deg
+        else ", no room for a second J1 azimuth"
+    )
+    lines = [
+        (
+            f"Calibration plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
+            f"measurements; joints 2 and 3 stepped by ±{plan.step_deg:g} deg{azimuth} (the sign is "
+            "chosen on the way for clearance)"
+        ),
+        (
+            f"Water {temp:g} ± {profile.water_temperature_std_c:g} °C: sound speed "
+            f"{sound_speed_m_s(temp):.2f} ± {c_std:.2f} m/s (Marczak), fitted with the offsets; "
+            f"transducer {profile.frequency_mhz:g} MHz, {profile.element_diameter_mm:g} mm"
+        ),
+    ]
+    if plan.sound_speed_gain_deg_per_m_s is not None:
+        gain = plan.sound_speed_gain_deg_per_m_s
+        noise = plan.distance_noise_gain_deg_per_um
+        assert noise is not None
+        j = int(np.argmax(gain[1:5])) + 1
+        k = int(np.argmax(noise[1:5])) + 1
+        per_c = c_std / max(profile.water_temperature_std_c, 1e-9)  # m/s per °C
+        lines.append(
+            f"Amplification of this plan: 1 °C of water temperature ({per_c:.2f} m/s), if not "
+            f"fitted, would move J{j + 1} by {gain[j] * per_c:.3f} deg; 1 µm of water-path "
+            f"noise gives J{k + 1} a std of {noise[k]:.4f} deg"
+        )
+    lines.append("  target      J1       J2       J3       J4       J5       J6    water path")
+    for t in plan.targets:
+        lines.append(
+            f"  {t.config:>4}/{FACE_NAMES[t.face]:<3}"
+            + "".join(f"{v:9.2f}" for v in t.joints_deg)
+            + f"   {t.water_path_mm:6.1f} mm"
+        )
+    lines.append(
+        "The wrist searches around each target for the echo (joints 4-6 only); every "
+        "move ends approaching from below on each joint (backlash)."
+    )
+    return "\n".join(lines)
+
+
+@dataclass
+class OffsetsSolved:
+    """Both solutions of a run, the one chosen and its verdict."""
+
+    exact: OffsetSolution
+    paper: OffsetSolution | None
+    chosen: OffsetSolution
+    fit: FitQuality
+    verdict: Verdict
+
+
+@dataclass
+class OffsetsShown:
+    """What the result tables are drawn from."""
+
+    solved: OffsetsSolved
+    truth: WorldTruth | None
+
+
+class OffsetsCalibration(ProfileJob):
+    """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
+
+    command = "calibrate"
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        profile_path: Path,
+        method: str = "exact",
+        beam: str = "auto",
+        force: bool = False,
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.method = method
+        self.beam = beam
+        self.force = force
+
+    def plan(self) -> CalibrationPlan:
+        return plan_calibration(self.profile)
+
+    def summary(self, plan: CalibrationPlan) -> str:
+        return plan_summary(plan, self.profile)
+
+    def estimate(self, plan: CalibrationPlan) -> DurationEstimate:
+        return estimate_run(
+            [t.joints_deg for t in plan.targets], plan.pose_deg, self.profile.procedure.speed
+        )
+
+    def record_header(self, plan: CalibrationPlan) -> dict[str, Any]:
+        return {
+            "options": {"method": self.method, "beam": self.beam, "level": "offsets"},
+            "plan": [
+                {
+                    "label": t.label,
+                    "joints_deg": t.joints_deg.tolist(),
+                    "water_path_mm": t.water_path_mm,
+                }
+                for t in plan.targets
+            ],
+        }
+
+    def measure(
+        self, plan: CalibrationPlan, session: CellSession, report: Report
+    ) -> CalibrationRun:
+        return run_calibration(self.profile, plan, session.rig, progress=report)
+
+    def solve(self, plan: CalibrationPlan, measured: Measured[CalibrationRun]) -> OffsetsSolved:
+        exact, paper = solve(self.profile, measured.data, self.beam)
+        chosen = exact if self.method == "exact" else paper
+        if chosen is None:
+            raise UcalError("the paper's method could not be applied to these measurements")
+        fit = exact.fit
+        assert fit is not None
+        return OffsetsSolved(exact, paper, chosen, fit, judge(chosen, fit))
+
+    def may_write(self, solved: OffsetsSolved) -> bool:
+        return solved.verdict.ok or self.force
+
+    def write(self, solved: OffsetsSolved) -> None:
+        fit, chosen = solved.fit, solved.chosen
+        reason = f"calibrate --method {self.method}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
+        if not solved.verdict.ok:
+            reason += f", written with --force: {solved.verdict.message}"
+        write_profile(
+            self.profile_path,
+            {
+                "calibration": {
+                    **written_keys(chosen, solved.exact.sound_speed_m_s, fit),
+                    "condition_number": round(float(chosen.condition_number), 3),
+                }
+            },
+            reason=reason,
+        )
+
+    def result(
+        self,
+        plan: CalibrationPlan,
+        measured: Measured[CalibrationRun],
+        solved: OffsetsSolved,
+        written: bool,
+    ) -> Outcome:
+        chosen, verdict = solved.chosen, solved.verdict
+        result = {
+            **result_fields(
+                chosen,
+                "offsets",
+                measured.data,
+                measured.duration_s,
+                self.profile_path,
+                written,
+                solved.exact,
+                solved.fit,
+            ),
+            "condition_number": chosen.condition_number,
+            "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
+            "out_of_tolerance": not verdict.ok,
+        }
+        if measured.truth is not None:
+            result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
+        return Outcome(
+            self.command,
+            result,
+            written,
+            out_of_tolerance=not verdict.ok,
+            message=verdict.message,
+            shown=OffsetsShown(solved, measured.truth),
+        )

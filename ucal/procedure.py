@@ -1,0 +1,290 @@
+"""The procedure every command that moves the robot follows, in one order.
+
+``calibrate``, ``tool-frame`` and ``verify`` differ in what they plan, measure and solve; the
+order is the same and lives here (``MeasuringProcedure.run``):
+
+1. **check** usage and files: the profile lock and room to write (``Job.check``);
+2. **plan** every target, checked before any motion (``Job.plan``: ``SafetyError``, exit 4);
+3. **show** the plan with its estimated duration on a real cell;
+4. **confirm**, naming the cell ("the simulated cell" or the controller's address); ``--yes``
+   skips the question, a replayed run moves nothing and asks nothing;
+5. **open** the cell (``ucal.session``: simulated, real or replayed; recorded with ``--record``)
+   and check the controller's status;
+6. **measure**, reporting each step with moves, reads and the time left (``ucal.progress``);
+   the cell is closed (the robot told to STOP) as soon as the measurement ends, however it
+   ends;
+7. **solve** the measurements (``Job.solve``);
+8. **write** the result (the profile, or a picture), unless this is a dry run or the result
+   may not be written;
+9. **result**: one ``Outcome`` (the JSON object, written or not, out of tolerance or not).
+
+A ``Job`` is what one command contributes to these steps; ``Presenter`` is how the command
+line shows the plan, asks and displays progress (``ucal.cli.procedure``). ``on_step`` hears
+each step as it starts, which is how a test holds the three commands to the same order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any, Generic, Protocol, TypeVar
+
+from ucal import __version__
+from ucal.cell import CellProfile, WorldTruth
+from ucal.cell_choice import CellChoice
+from ucal.profile import check_writable, profile_lock
+from ucal.progress import MeasureStep, Progress, Report, time_left_s
+from ucal.record import Record, Recorder, sha256_text
+from ucal.session import CellSession, check_status, open_cell, replay_cell
+from ucal.timing import DurationEstimate
+
+log = logging.getLogger(__name__)
+
+PlanT = TypeVar("PlanT")
+MeasuredT = TypeVar("MeasuredT")
+SolvedT = TypeVar("SolvedT")
+
+
+class Step(StrEnum):
+    """The steps of a measuring procedure, in their order."""
+
+    CHECK = "check"
+    PLAN = "plan"
+    SHOW = "show"
+    CONFIRM = "confirm"
+    OPEN = "open"
+    MEASURE = "measure"
+    SOLVE = "solve"
+    WRITE = "write"
+    RESULT = "result"
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a procedure runs: on which cell, asking or not, writing or not, recorded or not."""
+
+    cell: CellChoice | None  # None with ``replay``
+    yes: bool = False
+    dry_run: bool = False  # nothing is written
+    record_path: Path | None = None
+    replay: Record | None = None  # a recorded run answers instead of a cell; nothing moves
+
+    @property
+    def writes(self) -> bool:
+        return not self.dry_run and self.replay is None
+
+
+@dataclass
+class Measured(Generic[MeasuredT]):
+    """What the measure step hands on: the job's measurements and what the cell said."""
+
+    data: MeasuredT
+    duration_s: float  # the run on the cell's clock (simulated time on the simulated cell)
+    truth: WorldTruth | None  # the simulator's hidden truth, for reporting
+
+
+@dataclass
+class Outcome:
+    """The one result shape of every command: its JSON object and what became of it."""
+
+    command: str
+    result: dict[str, Any]  # the ``--json`` object of SPEC.md (and more)
+    written: bool
+    out_of_tolerance: bool = False
+    message: str = ""  # why it is out of tolerance (the one-line error)
+    shown: Any = field(default=None, repr=False)  # what the command's tables are drawn from
+
+
+class Job(Protocol[PlanT, MeasuredT, SolvedT]):
+    """What one command contributes to the procedure's steps."""
+
+    command: str  # "calibrate", "tool-frame", "verify": the progress display's title
+    profile: CellProfile
+
+    def profile_text(self) -> str:
+        """The profile as the run reads it, for a ``--record`` file."""
+        ...
+
+    def check(self, options: RunOptions) -> AbstractContextManager[object]:
+        """Check the files (the lock held for the run, room to write); usage was checked
+        before the job was made."""
+        ...
+
+    def plan(self) -> PlanT: ...
+
+    def summary(self, plan: PlanT) -> str:
+        """The plan in words, for the technician before the first motion."""
+        ...
+
+    def estimate(self, plan: PlanT) -> DurationEstimate: ...
+
+    def record_header(self, plan: PlanT) -> dict[str, Any]:
+        """``options`` and ``plan`` of a ``--record`` file's header."""
+        ...
+
+    def measure(self, plan: PlanT, session: CellSession, report: Report) -> MeasuredT: ...
+
+    def solve(self, plan: PlanT, measured: Measured[MeasuredT]) -> SolvedT: ...
+
+    def may_write(self, solved: SolvedT) -> bool:
+        """Whether the result may be written (in tolerance, or forced)."""
+        ...
+
+    def write(self, solved: SolvedT) -> None: ...
+
+    def result(
+        self, plan: PlanT, measured: Measured[MeasuredT], solved: SolvedT, written: bool
+    ) -> Outcome: ...
+
+
+class Presenter(Protocol):
+    """How the procedure talks to the technician (the command line's is
+    ``ucal.cli.procedure.ConsolePresenter``)."""
+
+    def show_plan(self, text: str) -> None: ...
+
+    def confirm(self, cell: CellChoice) -> None:
+        """Ask before the first motion, naming the cell; raise to refuse."""
+        ...
+
+    def progress(self, title: str) -> AbstractContextManager[Callable[[Progress], None]]: ...
+
+
+def hold_profile(profile_path: Path, options: RunOptions) -> AbstractContextManager[object]:
+    """The profile held for the run (one run per profile) with room checked for the result,
+    when the run may write it; nothing otherwise."""
+    if not options.writes:
+        return contextlib.nullcontext()
+    stack = contextlib.ExitStack()
+    stack.enter_context(profile_lock(profile_path))
+    try:
+        check_writable(profile_path)
+    except BaseException:
+        stack.close()
+        raise
+    return stack
+
+
+class ProfileJob:
+    """What every job that writes into its profile shares: the profile held for the run, and its
+    text for a ``--record`` file."""
+
+    def __init__(self, profile: CellProfile, profile_path: Path) -> None:
+        self.profile = profile
+        self.profile_path = profile_path
+
+    def profile_text(self) -> str:
+        assert self.profile.path is not None
+        return Path(self.profile.path).read_text(encoding="utf-8")
+
+    def check(self, options: RunOptions) -> AbstractContextManager[object]:
+        return hold_profile(self.profile_path, options)
+
+
+class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
+    """Run a ``Job`` through the steps of the module docstring."""
+
+    def __init__(
+        self,
+        job: Job[PlanT, MeasuredT, SolvedT],
+        options: RunOptions,
+        presenter: Presenter,
+        on_step: Callable[[Step], None] | None = None,
+    ) -> None:
+        self.job = job
+        self.options = options
+        self.presenter = presenter
+        self.on_step = on_step
+
+    def _enter(self, step: Step) -> None:
+        log.debug("%s: %s", self.job.command, step)
+        if self.on_step is not None:
+            self.on_step(step)
+
+    def run(self) -> Outcome:
+        """Check, plan, show, confirm, open, measure, solve, write; the outcome."""
+        job, options = self.job, self.options
+        self._enter(Step.CHECK)
+        with job.check(options):
+            self._enter(Step.PLAN)
+            plan = job.plan()
+            estimate = job.estimate(plan)
+            self._enter(Step.SHOW)
+            self.presenter.show_plan(job.summary(plan) + "\n" + estimate.describe())
+            self._enter(Step.CONFIRM)
+            if options.replay is None and not options.yes:
+                assert options.cell is not None
+                self.presenter.confirm(options.cell)
+            with self._recorder(plan) as recorder:
+                measured = self._measure(plan, estimate, recorder)
+                self._enter(Step.SOLVE)
+                solved = job.solve(plan, measured)
+                self._enter(Step.WRITE)
+                written = options.writes and job.may_write(solved)
+                if written:
+                    job.write(solved)
+                self._enter(Step.RESULT)
+                outcome = job.result(plan, measured, solved, written)
+                if recorder is not None:
+                    recorder.end(outcome.result)
+        return outcome
+
+    @contextlib.contextmanager
+    def _recorder(self, plan: PlanT) -> Iterator[Recorder | None]:
+        path = self.options.record_path
+        if path is None:
+            yield None
+            return
+        profile = self.job.profile
+        assert self.options.cell is not None
+        text = self.job.profile_text()
+        with Recorder(path).open(
+            {
+                "command": self.job.command,
+                "ucal": __version__,
+                "profile_path": str(profile.path),
+                "profile_sha256": sha256_text(text),
+                "profile_text": text,
+                "cell": self.options.cell.address,
+                **self.job.record_header(plan),
+            }
+        ) as recorder:
+            yield recorder
+
+    def _open(self, recorder: Recorder | None) -> AbstractContextManager[CellSession]:
+        profile, options = self.job.profile, self.options
+        if options.replay is not None:
+            return replay_cell(profile, options.replay)
+        assert options.cell is not None
+        cell = options.cell
+        return open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url, recorder)
+
+    def _measure(
+        self, plan: PlanT, estimate: DurationEstimate, recorder: Recorder | None
+    ) -> Measured[MeasuredT]:
+        self._enter(Step.OPEN)
+        with self._open(recorder) as session:
+            check_status(session.rig)
+            self._enter(Step.MEASURE)
+            with self.presenter.progress(self.job.command) as show:
+
+                def report(step: MeasureStep) -> None:
+                    counters = session.rig.counters
+                    elapsed = session.elapsed_s
+                    show(
+                        Progress(
+                            step,
+                            counters.moves,
+                            counters.reads,
+                            elapsed,
+                            time_left_s(estimate.tcp_s, elapsed, step.done, step.total),
+                        )
+                    )
+
+                data = self.job.measure(plan, session, report)
+            return Measured(data, session.elapsed_s, session.truth)

@@ -1,0 +1,365 @@
+"""The rig: the robot and the pulser-receiver as the procedures use them.
+
+``Rig`` counts moves and reads, keeps the pulser's settings (gain, averages) and the noise
+floor, sweeps a joint-space line while reading the pulser (each reading paired with the
+streamed joint positions), and checks every reading for values no instrument gives (exit 3).
+``FinalApproachRig`` makes every static posture be reached from below on each joint
+(backlash). The peak search (``ucal.calibration.search``) and every procedure measure through
+a rig; the cell session (``ucal.session``) builds it from the profile.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from drivers.controller.base import RobotController
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal import timing
+from ucal.errors import HardwareError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SweepSpacing:
+    """How far apart a sweep's readings may come (deg of joint travel), by purpose.
+
+    ``acquire_deg``: acquisition lines, at most (and at most 0.4 × the spacing of the lines) —
+    at acquisition gain the echo shows over a few degrees, as wide as the lines are apart, so
+    a few readings land on it even this far apart. Centring sweeps: their length over
+    ``centre_reads_per_half`` per half-width, at least ``centre_min_deg`` — a long sweep only
+    needs to locate the echo's span. ``main_lobe_deg``: main-lobe crosses — the −6 dB lobe is
+    ~0.4° wide and its half-maximum crossings are interpolated between readings. A sweep aims
+    at ``aim`` × its allowed spacing, from the measured time between readings.
+    """
+
+    acquire_deg: float = 1.0
+    centre_reads_per_half: float = 10.0
+    centre_min_deg: float = 0.04
+    main_lobe_deg: float = 0.06
+    aim: float = 0.9
+
+    def centre_deg(self, half_width_deg: float) -> float:
+        """Allowed spacing on a centring sweep of ± ``half_width_deg`` joint travel."""
+        return max(self.centre_min_deg, half_width_deg / self.centre_reads_per_half)
+
+
+#: The first build's spacing (every sweep read about as densely as the pulser answered): the
+#: baseline that benchmarks/paper_protocol.py compares the reads and accuracy against.
+DENSE_SPACING = SweepSpacing(
+    acquire_deg=0.08,
+    centre_reads_per_half=math.inf,
+    centre_min_deg=0.04,
+    main_lobe_deg=0.01,
+    aim=0.5,
+)
+#: Slowest sweep (fraction of maximum speed): the VAL3 server takes a wire velocity of 0.001
+#: (0.1 %) for "extrapolate from the previous points", so sweeps stay clear of it.
+MIN_SPEED = 0.002
+#: Time per reading assumed before the first sweep has measured it (s): Modbus TCP.
+_FIRST_READ_S = timing.read_s("tcp")
+#: Noise floor taken when an empty gate reads exactly 0 and no reading is above 0 (fraction of
+#: full screen height): one level of an 8-bit amplitude. A quantised instrument reports 0 below
+#: one level, so the true floor is under it; the threshold (four floors) stays above the noise.
+ZERO_FLOOR_FSH = 1.0 / 256
+#: Gain step (dB) while an empty gate reads 0 (``Rig.measure_floor``).
+FLOOR_GAIN_STEP_DB = 12.0
+
+
+def check_reading(endpoint: str, amplitude: float, tof_ns: float) -> None:
+    """Raise ``HardwareError`` (exit 3) naming the pulser for a reading no instrument gives:
+    an amplitude that is NaN, infinite or negative, or a time of flight that is negative or
+    infinite (an echo without a finite time). NaN time of flight is "no echo" and fine."""
+    if not math.isfinite(amplitude) or amplitude < 0.0:
+        raise HardwareError(
+            f"pulser at {endpoint}: impossible reading: amplitude {amplitude!r} "
+            "(expected a fraction of full screen height, 0 or more)"
+        )
+    if math.isinf(tof_ns) or tof_ns < 0.0:
+        raise HardwareError(
+            f"pulser at {endpoint}: impossible reading: time of flight "
+            f"{tof_ns!r} ns with amplitude {amplitude!r} (expected a positive "
+            "round-trip time, or none without an echo)"
+        )
+
+
+def check_readings(endpoint: str, amplitudes: np.ndarray, tofs_ns: np.ndarray) -> None:
+    """:func:`check_reading` over the readings of a sweep; the first bad one is reported."""
+    amplitudes, tofs_ns = np.asarray(amplitudes, float), np.asarray(tofs_ns, float)
+    bad = ~np.isfinite(amplitudes) | (amplitudes < 0.0) | np.isinf(tofs_ns) | (tofs_ns < 0.0)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        check_reading(endpoint, float(amplitudes[i]), float(tofs_ns[i]))
+
+
+@dataclass
+class RigCounters:
+    moves: int = 0
+    reads: int = 0
+
+
+class Rig:
+    """The robot and the pulser as the procedures use them: counted moves and reads, gain."""
+
+    def __init__(
+        self,
+        controller: RobotController,
+        pulser: PulserReceiver,
+        joint_min_deg: np.ndarray,
+        joint_max_deg: np.ndarray,
+        speed: float = 0.3,
+        move_timeout_s: float = 60.0,
+        settings: PulserSettings | None = None,
+    ):
+        self.controller = controller
+        self.pulser = pulser
+        self.joint_min_deg = np.asarray(joint_min_deg, float)
+        self.joint_max_deg = np.asarray(joint_max_deg, float)
+        self.speed = speed
+        self.sweep_speed = speed
+        # Time between readings during a sweep (s), measured by every sweep: sets the speed
+        # that spaces the readings as a sweep asks.
+        self.read_interval_s = _FIRST_READ_S
+        self.read_period_s = 0.0  # wait between a sweep's reads (s); 0: read back to back
+        self.spacing = SweepSpacing()
+        self.move_timeout_s = move_timeout_s
+        self.counters = RigCounters()
+        self.settings = settings or PulserSettings(
+            gain_db=40.0, gate_start_us=5.0, gate_width_us=400.0, averages=1
+        )
+        self.floor_per_gain: float | None = None  # noise-floor amplitude at 0 dB gain
+        # One level of a quantised amplitude register (fraction of full screen height), seen
+        # when an empty gate reads exactly 0; 0 while no quantisation has shown.
+        self.amplitude_step_fsh = 0.0
+        self.on_move = None  # optional callback(target) for progress display
+        self.last_sweep_step_deg = 0.0
+
+    def clip(self, q: np.ndarray) -> np.ndarray:
+        return np.clip(q, self.joint_min_deg, self.joint_max_deg)
+
+    def configure(self, **changes: Any) -> None:
+        new = replace(self.settings, **changes)
+        if new != self.settings:
+            self.pulser.configure(new)
+            self.settings = new
+
+    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
+        q = np.asarray(q, float)
+        self.counters.moves += 1
+        if self.on_move:
+            self.on_move(q)
+        return self.controller.move_joints(q, speed or self.speed, self.move_timeout_s)
+
+    def read(self, averages: int = 1) -> GateReading:
+        """One fresh reading, checked (:func:`check_reading`: exit 3 for an impossible one)."""
+        self.configure(averages=int(averages))
+        self.counters.reads += 1
+        reading = self.pulser.read_gate(fresh=True)
+        check_reading(self.pulser.endpoint, reading.amplitude, reading.tof_ns)
+        return reading
+
+    def normalised_amplitude(self, averages: int = 1) -> float:
+        """Amplitude normalised to 0 dB gain; a saturated reading is repeated 10 dB lower."""
+        for _ in range(8):
+            a = self.read(averages).amplitude
+            g = self.settings.gain_db
+            if a < 0.98 or g <= 0.0:
+                return a / 10 ** (g / 20)
+            self.configure(gain_db=max(g - 10.0, 0.0))
+        raise HardwareError(f"{self.pulser.endpoint}: echo saturates at every gain")
+
+    def level_gain(self, averages: int = 1) -> None:
+        """Lower (or raise) the gain until the echo here sits at 40–85 % of full screen."""
+        for _ in range(8):
+            a = self.read(averages).amplitude
+            if 0.4 <= a <= 0.85:
+                return
+            g = self.settings.gain_db
+            new = g - 12.0 if a >= 0.999 else g + 20 * np.log10(0.6 / max(a, 1e-4))
+            new = float(np.clip(new, 0.0, 80.0))
+            if abs(new - g) < 0.05:
+                return
+            self.configure(gain_db=new)
+
+    def threshold(self) -> float:
+        """Detection level at the current gain: four times the measured noise floor."""
+        floor = (self.floor_per_gain or 1e-4) * 10 ** (self.settings.gain_db / 20)
+        return max(4.0 * floor, 0.02)
+
+    def measure_floor(self, n: int = 8) -> None:
+        """Noise floor from readings without an echo (call with the beam in open water).
+
+        The median of ``n`` readings; never 0, which the acquisition gain divides by. An empty
+        gate that reads exactly 0 is a quantised amplitude below one level: the smallest
+        reading above 0 bounds that level (``amplitude_step_fsh``), and the floor is measured
+        again ``FLOOR_GAIN_STEP_DB`` higher until it shows (up to 80 dB; then one level,
+        at most :data:`ZERO_FLOOR_FSH`, is taken). A floor taken as one level would be
+        overestimated tenfold, and the acquisition gain set too low to show the side lobes.
+        """
+        while True:
+            vals = [self.read().amplitude for _ in range(n)]
+            floor = float(np.median(vals))
+            if floor > 0.0:
+                break
+            positive = [v for v in vals if v > 0.0]
+            step = min(positive) if positive else ZERO_FLOOR_FSH
+            if self.amplitude_step_fsh == 0.0 or step < self.amplitude_step_fsh:
+                self.amplitude_step_fsh = step
+            gain = self.settings.gain_db
+            log.info("the empty gate reads 0 at %.1f dB (quantised amplitude)", gain)
+            if gain >= 80.0:
+                floor = step
+                break
+            self.configure(gain_db=min(gain + FLOOR_GAIN_STEP_DB, 80.0))
+        self.floor_per_gain = floor / 10 ** (self.settings.gain_db / 20)
+        log.info("noise floor %.2e FSH at %.1f dB", floor, self.settings.gain_db)
+
+    def sweep(
+        self, target: np.ndarray, max_step_deg: float = 0.08
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Move to ``target`` reading the pulser all the way.
+
+        Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
+        (n,), readings paired with the streamed joints by interpolation at arrival time. The
+        speed is chosen from the measured time between readings so that they come ``spacing.aim`` ×
+        ``max_step_deg`` apart; reading stops when the joints reach the target (none is taken
+        while the servo settles).
+        """
+        target = np.asarray(target, float)
+        start = self.controller.read_joints()
+        self.configure(averages=1)
+        self.counters.moves += 1
+        if self.on_move:
+            self.on_move(target)
+        speed = self._sweep_speed_for(start, target, max_step_deg)
+        clock = self.controller.clock
+        t0 = clock.now()
+        self.controller.start_move(target, speed)
+        readings: list[GateReading] = []
+        sent: list[float] = []
+        busy_s = 0.0  # time spent reading (without the waits), for the next sweep's speed
+        deadline = t0 + self.move_timeout_s
+        while True:
+            if sent and self.read_period_s > 0.0:
+                # At full speed the readings would come closer than needed: wait for the
+                # joints to travel the spacing (fewer pulser reads, the same motion).
+                idle = self.read_period_s - (clock.now() - sent[-1])
+                if idle > 0.0:
+                    clock.sleep(idle)
+            sent.append(clock.now())
+            readings.append(self.pulser.read_gate(fresh=True))
+            self.counters.reads += 1
+            here = self.controller.read_joints()
+            busy_s += clock.now() - sent[-1]
+            if np.max(np.abs(here - target)) < 1e-3:
+                break
+            if clock.now() > deadline:
+                raise HardwareError(
+                    f"{self.controller.endpoint}: sweep did not settle "
+                    f"within {self.move_timeout_s:.0f} s"
+                )
+        if len(readings) > 1:
+            self.read_interval_s = busy_s / len(readings)
+        self.controller.wait_settled(target, self.move_timeout_s)
+        samples = self.controller.joint_samples(t0 - 0.1)
+        ts = np.array([s.t_s for s in samples])
+        js = np.array([s.joints_deg for s in samples])
+        # The acquisition happens between request and answer: pair at the midpoint.
+        tr = 0.5 * (np.array(sent) + np.array([r.host_time_s for r in readings]))
+        if len(ts) >= 2:
+            q = np.column_stack([np.interp(tr, ts, js[:, j]) for j in range(6)])
+        else:
+            q = np.tile(target, (len(tr), 1))
+        amps = np.array([r.amplitude for r in readings])
+        tofs = np.array([r.tof_ns for r in readings])
+        travel = float(np.max(np.abs(target - start)))
+        self.last_sweep_step_deg = travel / max(len(readings), 1)
+        return q, amps, tofs
+
+    def _sweep_speed_for(self, start: np.ndarray, target: np.ndarray, max_step_deg: float) -> float:
+        """Speed fraction that spaces readings ``spacing.aim · max_step_deg`` apart on this move.
+
+        The move's rate is set by its slowest joint relative to its maximum speed (the
+        controller's joint-interpolated motion): travel per reading = speed · rate_max ·
+        interval, with rate_max = |Δ|_max over the move's duration at full speed.
+        """
+        delta = np.abs(np.asarray(target, float) - np.asarray(start, float))
+        full_speed_s = float(np.max(delta / timing.MAX_SPEED_DEG_S))
+        if full_speed_s <= 0.0:
+            return self.speed
+        rate_deg_s = float(np.max(delta)) / full_speed_s
+        speed = self.spacing.aim * max_step_deg / (rate_deg_s * self.read_interval_s)
+        self.sweep_speed = float(np.clip(speed, MIN_SPEED, self.speed))
+        # Capped at the profile's speed: read no more often than the spacing needs.
+        self.read_period_s = (
+            self.spacing.aim * max_step_deg / (rate_deg_s * self.sweep_speed)
+            if speed > self.speed
+            else 0.0
+        )
+        return self.sweep_speed
+
+    def line(
+        self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
+        readings came too far apart is swept again, back, at the lowered speed."""
+        here = self.controller.read_joints()
+        if np.max(np.abs(here - start)) > 1e-3:
+            self.move(start)
+        a, b = np.asarray(start, float), np.asarray(end, float)
+        for _ in range(4):
+            out = self.sweep(b, max_step_deg)
+            check_readings(self.pulser.endpoint, out[1], out[2])
+            if self.last_sweep_step_deg <= 1.5 * max_step_deg:
+                return out
+            a, b = b, a
+        return out
+
+
+#: Final approach of every move (deg below the target on each joint), larger than any backlash.
+APPROACH_DEG = 0.05
+
+
+if TYPE_CHECKING:
+    _RigProxy = Rig  # a FinalApproachRig stands wherever a Rig does
+else:
+    _RigProxy = object
+
+
+class FinalApproachRig(_RigProxy):
+    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
+
+    A joint with backlash leaves its link behind the encoder by half the lost motion, against
+    the direction of its last motion. If a move would bring any joint down onto its target, the
+    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
+    static postures are then reached from below. The two segments are one move in the counters.
+    Everything else is the wrapped rig's.
+    """
+
+    _rig: Rig
+    _approach_deg: float
+
+    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
+        object.__setattr__(self, "_rig", rig)
+        object.__setattr__(self, "_approach_deg", approach_deg)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._rig, name)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        setattr(self._rig, name, value)
+
+    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
+        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
+        rig = self._rig
+        q = np.asarray(q, float)
+        here = rig.controller.read_joints()
+        if np.any(q < here - 1e-6):
+            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
+            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
+        return rig.move(q, speed)
