@@ -227,13 +227,26 @@ def main() -> None:
     ap.add_argument("--worlds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--out", type=Path, help="write every row as JSON lines")
+    ap.add_argument("--first", type=int, default=0, help="index of the first world")
+    ap.add_argument(
+        "--out", type=Path, help="append every row as a JSON line as soon as its world ends"
+    )
+    ap.add_argument("--summary", type=Path, help="only print the summary of rows saved by --out")
     args = ap.parse_args()
+    if args.summary:
+        rows_saved = [json.loads(line) for line in args.summary.read_text().splitlines()]
+        print(f"{len({r['world'] for r in rows_saved})} fresh cells × 2 orders (saved)")
+        summarize(rows_saved)
+        return
     t0 = time.monotonic()
     rows: list[dict] = []
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
-        for res in pool.map(commission, range(args.worlds), [args.seed] * args.worlds):
+        indices = range(args.first, args.first + args.worlds)
+        for res in pool.map(commission, indices, [args.seed] * args.worlds):
             rows += res
+            if args.out:
+                with args.out.open("a") as f:
+                    f.write("".join(json.dumps(r) + "\n" for r in res))
             for r in res:
                 print(
                     f"world {r['world']:2d} {r['order']}: tool "
@@ -257,9 +270,12 @@ def main() -> None:
                     + "".join(f"\n    {w}" for w in r["why"]),
                     flush=True,
                 )
-    if args.out:
-        args.out.write_text("".join(json.dumps(r) + "\n" for r in rows))
     print(f"\n{args.worlds} fresh cells × 2 orders, {time.monotonic() - t0:.0f} s")
+    summarize(rows)
+
+
+def summarize(rows: list[dict]) -> None:
+    """Print the per-order summary of the rows (module docstring)."""
     for order in ("t-c", "c-t"):
         rs = [r for r in rows if r["order"] == order]
         both = sum(r["tool_written"] and r["cal_written"] for r in rs)
