@@ -57,11 +57,12 @@ peak postures give; no turn about the beam, which would move a real TCP that is 
 profile's across it): from ``EDGE_APPROACH_MM`` before the edge the point's estimate predicts,
 coarse steps until the echo falls below half, then ``EDGE_FINE_PROBES`` static probes across the
 fall, fitted with the edge profile ``A0·Φ((t_e − t)/σ)`` (``ucal.toolframe.exact``, eq. E4).
-The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)``: the model's W at its
-readings carried by ``WristMap`` — the small rigid motion that takes the model's wrist centres
-to the measured ones over the "after" points (an offset left in joint 1, unobservable with a
-hand-placed block, turns every displacement of the arm, and the edges are 100–200 mm from
-the points) — plus the point's true flange rotation moved with the model, times v. So the
+The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)``: the point's measured
+W moved by ``WristMap`` — the profile's kinematics with corrections to the offsets of joints
+1–3 and a small turn and shift of the block, fitted to the W measured at the "after" points
+(an offset left in joint 1, unobservable with a hand-placed block, or a joint left
+uncalibrated turns every displacement of the arm, and the edges are 100–200 mm from the
+points) — plus the point's true flange rotation moved with that arm, times v. So the
 crossing ``t_e`` is what the estimate says where the real TCP is at x = S, and
 
     b_x = S − t_e,   b_y = S − t_e(y)
@@ -109,7 +110,7 @@ from ucal.calibration.sequence import FinalApproachRig, calibration_pose, geomet
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, SafetyError, UnreachableError
-from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.kinematics.ik import ik
 from ucal.toolframe.exact import fit_edge_profile
 
@@ -758,10 +759,11 @@ def run_verify(
             progress(res, n_done + 1, total)
     # tool check: the real TCP against the estimate at the XY face's far edges
     after = {p.index: p for p in results if p.pass_name == "after"}
-    p_off = plan.offsets_deg["after"]
     wrist = WristMap.fit(
-        np.array([model_wrist_local(profile, p.commanded_deg, p_off) for p in after.values()]),
+        profile,
+        np.array([p.commanded_deg for p in after.values()]),
         np.array([p.wrist_centre_mm for p in after.values()]),
+        plan.offsets_deg["after"],
     )
     checks = tuple(
         scan_edge(
@@ -779,51 +781,56 @@ def run_verify(
     )
 
 
-def model_wrist_local(
-    profile: CellProfile, joints_deg: np.ndarray, offsets_deg: np.ndarray
-) -> np.ndarray:
-    """The profile's wrist centre (3,) at readings ``joints_deg``, in its block's coordinates."""
-    s_mat = profile.sample_matrix
-    w = fk_frames(profile.model, joints_deg, offsets_deg)[4, :3, 3]
-    return s_mat[:3, :3].T @ (w - s_mat[:3, 3])
-
-
 @dataclass(frozen=True)
 class WristMap:
-    """Where the wrist centre really is for a model position: a small rigid motion, rotation
-    ω (rad) about ``centre_mm`` and translation (block coordinates), fitted to the "after"
-    points. It carries the measured W from the points to the edge scans 100–200 mm away: an
-    offset left in joint 1 (unobservable with a hand-placed block) turns every displacement
-    of the arm by its error, which moving W with the model alone would miss."""
+    """Where the wrist centre really is at given readings (block coordinates, mm): the profile's
+    kinematics with corrections to the offsets of joints 1–3 and a small turn and shift of the
+    block, fitted to the W measured at the "after" points. It carries the measured W from the
+    points to the edge scans 100–200 mm away: what the profile still has wrong in the arm
+    (joint 1 unobservable with a hand-placed block, a joint left uncalibrated: degrees, tens
+    of mm at the TCP) changes along the way, which moving W with the profile alone, or with one
+    rigid motion, misses by tenths of a mm."""
 
-    centre_mm: np.ndarray
-    rotation_rad: np.ndarray
-    translation_mm: np.ndarray
+    model: RobotModel
+    offsets_deg: np.ndarray  # (6,) the profile's offsets with the fitted corrections on J1–J3
+    to_block: np.ndarray  # (3, 3) base frame → block coordinates
+    origin_mm: np.ndarray  # (3,) block coordinates of the base origin
 
     @classmethod
-    def fit(cls, model_mm: np.ndarray, measured_mm: np.ndarray) -> WristMap:
-        """Least squares over the points (n, 3 each); minimum norm where they do not fix the
-        rotation (one point: the translation only; two: no turn about their line). The
-        rotation is exact, not linearised: 2° of joint 1 over the 200 mm to an edge is 0.1 mm
-        of second order."""
-        model = np.asarray(model_mm, float).reshape(-1, 3)
+    def fit(
+        cls,
+        profile: CellProfile,
+        joints_deg: np.ndarray,
+        measured_mm: np.ndarray,
+        offsets_deg: np.ndarray,
+    ) -> WristMap:
+        """Least squares over the points (readings (n, 6), measured W (n, 3)). Where the points
+        do not separate an offset correction from a turn of the block (one or two points, or
+        joint 1 against the block's yaw), a weak prior prefers the offsets: both carry W the
+        same way where they are one motion."""
+        s_mat = profile.sample_matrix
+        q = np.asarray(joints_deg, float).reshape(-1, 6)
         measured = np.asarray(measured_mm, float).reshape(-1, 3)
-        centre = model.mean(0)
-        arms = model - centre
+        base = np.asarray(offsets_deg, float)
+
+        def build(x: np.ndarray) -> WristMap:
+            off = base.copy()
+            off[:3] += x[:3]
+            rot = Rotation.from_rotvec(x[3:6]).as_matrix() @ s_mat[:3, :3].T
+            return cls(profile.model, off, rot, x[6:] - rot @ s_mat[:3, 3])
 
         def fun(x: np.ndarray) -> np.ndarray:
-            moved = Rotation.from_rotvec(x[:3]).apply(arms) + centre + x[3:]
-            return np.concatenate([(moved - measured).ravel(), 1e-9 * x[:3]])
+            return np.concatenate([(build(x)(q) - measured).ravel(), 1e-4 * x[:3], 0.1 * x[3:6]])
 
-        x0 = np.concatenate([np.zeros(3), (measured - model).mean(0)])
+        x0 = np.zeros(9)
+        x0[6:] = (measured - build(x0)(q)).mean(0)
         sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        return cls(centre, sol.x[:3], sol.x[3:])
+        return build(sol.x)
 
-    def __call__(self, model_mm: np.ndarray) -> np.ndarray:
-        p = np.asarray(model_mm, float) - self.centre_mm
-        return (
-            Rotation.from_rotvec(self.rotation_rad).apply(p) + self.centre_mm + self.translation_mm
-        )
+    def __call__(self, joints_deg: np.ndarray) -> np.ndarray:
+        """W (block coordinates, mm) at readings (6,) or (n, 6)."""
+        w = fk_frames(self.model, np.asarray(joints_deg, float), self.offsets_deg)[..., 4, :3, 3]
+        return w @ self.to_block.T + self.origin_mm
 
 
 def scan_edge(
@@ -849,17 +856,18 @@ def scan_edge(
     falls below half, then a fine scan across the fall fitted with the edge profile. ``move``
     moves the robot (reaching each probe from below on every joint) and returns the readings.
     """
-    off = plan.offsets_deg["after"]
+    off = wrist.offsets_deg  # the arm as the "after" points measured it
     size = float(profile.sample_face_size_mm)
     nominal = plan.nominal_mm[point.index]
     q_i = np.asarray(point.commanded_deg, float)
     b_rot = geom.block_rotation
-    # the point's true flange rotation, moved with the profile's kinematics (its offsets; the
-    # running estimate has absorbed whatever the profile's tool hides)
+    # the point's true flange rotation, moved with that arm (not with the running estimate,
+    # which has absorbed whatever the profile's tool hides)
     frames_i = fk_frames(geom.model, q_i, off)
     r_true = orient.rotation(geom, q_i)
     r_i = r_true @ frames_i[6, :3, :3].T  # true = r_i · model, base frame
-    corner = profile.sample_matrix[:3, 3]
+    # the map's displacement from the point's own measured W (its fit is not exact there)
+    anchor = point.wrist_centre_mm - wrist(q_i)
     # the least tilt of the true beam onto the face's normal, as a model flange rotation
     beam = r_true @ geom.beam_flange
     cross = np.cross(beam, -geom.normal(2))
@@ -888,7 +896,7 @@ def scan_edge(
         settled = np.asarray(move(posture(t)), float)
         a = rig.normalised_amplitude(EDGE_AVERAGES)
         frames = fk_frames(geom.model, settled, off)
-        w = wrist(b_rot.T @ (frames[4, :3, 3] - corner))
+        w = wrist(settled) + anchor
         tcp = w + b_rot.T @ (r_i @ frames[6, :3, :3] @ v_flange_mm)
         rows.append((float(tcp[axis]), a))
         log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tomlkit
-from scipy.spatial.transform import Rotation
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import beam_and_tcp
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import aim_wrist
 from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk_frames
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify import (
     WristMap,
@@ -160,24 +160,28 @@ def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
     assert passed(stats, 0.4) and not passed(stats, 0.39)
 
 
-def test_wrist_map_carries_a_joint_1_error_to_the_edges_exactly() -> None:
-    """2° about the base axis fitted over a 100 mm grid and carried 200 mm beyond it: the
-    second order a linearised rotation would miss (0.1 mm) is not missed."""
-    rot = Rotation.from_euler("z", 2.0, degrees=True)
-    base = np.array([-260.0, -97.0, 277.0])  # the base axis in block coordinates
-    grid = np.array([[x, y, 30.0] for x in (230.0, 280.0, 330.0) for y in (230.0, 330.0)])
+def test_wrist_map_carries_arm_errors_to_the_edges(profile) -> None:
+    """Joints 1–3 off by degrees (not calibrated) and the block shifted: fitted over a 2 × 3
+    grid of wrist centres, carried 200 mm beyond it to within a micrometre (a single rigid
+    motion misses the change of a joint-2 error's axis with joint 1 by tenths of a mm)."""
+    plan = plan_verify(profile, 6)
+    after = np.array([t.joints_deg for t in plan.targets if t.pass_name == "after"])
+    error = np.array([2.0, -1.6, 0.8, 0.0, 0.0, 0.0])
     shift = np.array([0.3, -0.2, 0.05])
+    s_mat = profile.sample_matrix
 
-    def true(p: np.ndarray) -> np.ndarray:
-        return rot.apply(p - base) + base + shift
+    def true_w(q: np.ndarray) -> np.ndarray:
+        w = fk_frames(profile.model, q, error)[..., 4, :3, 3]
+        return (w - s_mat[:3, 3]) @ s_mat[:3, :3] + shift
 
-    wmap = WristMap.fit(grid, true(grid))
-    far = np.array([530.0, 280.0, 30.0])
-    assert wmap(far) == pytest.approx(true(far), abs=1e-6)
-    # one point: the translation only
-    one = WristMap.fit(grid[:1], true(grid[:1]))
-    assert one(grid[0]) == pytest.approx(true(grid[0]), abs=1e-9)
-    assert one.rotation_rad == pytest.approx(np.zeros(3), abs=1e-12)
+    wmap = WristMap.fit(profile, after, true_w(after), np.zeros(6))
+    far = after[0].copy()
+    far[0] += 8.0  # joint 1 turned: ~150–200 mm along the block
+    far[1] -= 3.0
+    assert wmap(far) == pytest.approx(true_w(far), abs=1e-3)
+    # one point: the shift only
+    one = WristMap.fit(profile, after[:1], true_w(after[:1]), np.zeros(6))
+    assert one(after[0]) == pytest.approx(true_w(after[0]), abs=1e-6)
 
 
 def test_sound_speed_from_the_calibration_else_the_thermometer(tmp_path, profile) -> None:
