@@ -40,7 +40,7 @@ import numpy as np
 
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import prior_from_profile
-from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full
+from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.calibration.full_plan import plan_full
 from ucal.calibration.full_run import run_full
 from ucal.calibration.sequence import calibration_pose
@@ -135,7 +135,7 @@ def run_world(profile_path: Path, world_path: Path) -> dict:
         for i in range(6)
         for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))
     }
-    true_p["dh2_beta_deg"] = true_model.beta_deg[1]
+    true_p["dh2_beta_deg"] = twists_deg(true_model)[1]
     z += [
         (v["value"] - true_p[n]) / v["std"]
         for n, v in full.parameters.items()

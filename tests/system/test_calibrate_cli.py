@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,7 @@ def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
         tool_rotation_std=0.0,
         robot={"dh_length_std_mm": 0.01, "dh_angle_std_deg": 0.001},
     )
+    write_profile(profile, {"calibration": {"level": "full"}}, "an earlier full run")
     world = make_world(tmp_path, offsets)
     out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 0, out.stderr
@@ -127,6 +129,8 @@ def test_recovers_large_offsets_with_an_angled_tool(tmp_path):
     written = load_profile(profile)
     np.testing.assert_allclose(written.joint_offsets_deg, result["joint_offsets_deg"], atol=1e-6)
     assert (tmp_path / "cell.toml.history").is_dir()  # what was replaced is kept
+    # the level that wrote [calibration], whatever an earlier run left there
+    assert tomllib.loads(profile.read_text())["calibration"]["level"] == "offsets"
 
 
 def test_on_axis_beam_reports_joint6_unobservable_and_keeps_its_value(tmp_path):

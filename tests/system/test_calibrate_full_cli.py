@@ -1,5 +1,5 @@
 """``ucal calibrate --level full`` on the simulated cell, a short plan (a whole run is the
-benchmark's: ``benchmarks/full_calibration.py``)."""
+benchmark's: ``benchmarks/full_calibration.py``); the run recorded and replayed."""
 
 from __future__ import annotations
 
@@ -32,33 +32,37 @@ seed = 3
 """
 
 
-def test_full_level_writes_the_identified_table(tmp_path: Path) -> None:
-    profile = tmp_path / "cell.toml"
-    create_profile(profile, "tx90l")
-    world = tmp_path / "world.toml"
-    world.write_text(WORLD)
-    before = profile.read_bytes()
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "ucal",
-            "calibrate",
-            str(profile),
-            "--sim",
-            str(world),
-            "--level",
-            "full",
-            "--postures",
-            "5",
-            "--yes",
-            "--json",
-        ],
+def ucal(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
         capture_output=True,
         text=True,
         timeout=300,
         stdin=subprocess.DEVNULL,
         check=False,
+    )
+
+
+def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> None:
+    profile = tmp_path / "cell.toml"
+    create_profile(profile, "tx90l")
+    world = tmp_path / "world.toml"
+    world.write_text(WORLD)
+    record = tmp_path / "run.jsonl"
+    before = profile.read_bytes()
+    r = ucal(
+        "calibrate",
+        str(profile),
+        "--sim",
+        str(world),
+        "--level",
+        "full",
+        "--postures",
+        "5",
+        "--yes",
+        "--json",
+        "--record",
+        str(record),
     )
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
@@ -79,3 +83,14 @@ def test_full_level_writes_the_identified_table(tmp_path: Path) -> None:
         assert p.joint_offsets_deg[j] == pytest.approx(v, abs=1e-6)
         if sd is not None:  # few postures: some stay unobservable
             assert abs(v - true[j]) < 3 * sd
+
+    # the recorded run solves again offline to the same numbers, and writes nothing
+    written = profile.read_bytes()
+    r = ucal("calibrate", str(profile), "--replay", str(record), "--json")
+    assert r.returncode == 0, r.stderr[-2000:]
+    again = json.loads(r.stdout)
+    assert again["level"] == "full" and again["written"] is False
+    for key in ("joint_offsets_deg", "std_deg", "dh", "identification", "plan", "fit"):
+        assert again[key] == out[key], key
+    assert again["pulser_reads"] == out["pulser_reads"] and again["moves"] == out["moves"]
+    assert profile.read_bytes() == written

@@ -76,11 +76,16 @@ PRIOR_DOMINATED = 0.5
 _ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
 
 
+def twists_deg(model: RobotModel) -> np.ndarray:
+    """Hayati's twists of ``model`` (6,; deg), zeros where it states none."""
+    return np.zeros(6) if model.beta_deg is None else np.asarray(model.beta_deg, float)
+
+
 def full_table(prior: CellPrior) -> ParameterTable:
     """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one)."""
     return ParameterTable(
         FULL_PARAMETERS,
-        np.append(prior.values(), prior.model.beta_deg[1]),
+        np.append(prior.values(), twists_deg(prior.model)[1]),
         np.append(prior.stds(), prior.dh_angle_std_deg),
     )
 
@@ -251,8 +256,9 @@ class FullSolution:
                 "a_mm": round(float(row[2]), 6),
                 "alpha_deg": round(float(row[3]), 7),
             }
-            if self.model.beta_deg[i] != 0.0:
-                r["beta_deg"] = round(float(self.model.beta_deg[i]), 7)
+            beta = twists_deg(self.model)[i]
+            if beta != 0.0:
+                r["beta_deg"] = round(float(beta), 7)
             rows.append(r)
         return rows
 
@@ -305,7 +311,7 @@ def solve_full(
         offsets[j] = cell.value(name)
         std[j] = sigma
     dh = prior.model.dh.copy()
-    beta = prior.model.beta_deg.copy()
+    beta = twists_deg(prior.model).copy()
     params: dict[str, dict] = {}
     for name in KINEMATIC:
         i = cell.table.index(name)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import cast
 
 import numpy as np
 
@@ -62,7 +63,7 @@ def run_full(
     geom = geometry(profile)
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, profile.water_temperature_c)
     prior = prior_from_profile(profile)
-    approach = FinalApproachRig(rig)
+    approach = cast(Rig, FinalApproachRig(rig))  # a Rig whose moves end from below
     first = plan.postures[0]
     away = first.joints_deg.copy()
     away[4] += 25.0 if away[4] < 0 else -25.0  # the beam in open water: the noise floor

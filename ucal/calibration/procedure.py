@@ -304,6 +304,9 @@ class OffsetsCalibration(ProfileJob):
             {
                 "calibration": {
                     **written_keys(chosen, solved.exact.sound_speed_m_s, fit),
+                    # the level that wrote these offsets (a table identified by an earlier
+                    # full run stays in force: these offsets were fitted on it)
+                    "level": "offsets",
                     "condition_number": round(float(chosen.condition_number), 3),
                 }
             },

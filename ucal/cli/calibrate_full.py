@@ -8,8 +8,12 @@ replay as the offsets level (``ucal.cli.calibrate``).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from ucal.cli.options import CellChoice, confirm_motion
+
+if TYPE_CHECKING:
+    from ucal.calibration.exact import OffsetSolution
 
 
 def plan_summary(plan, profile) -> str:
@@ -138,7 +142,8 @@ def _measure_and_identify(
         structure=plan.structure,
     )
     fit = sol.cell.quality
-    verdict = judge(sol, fit)
+    # judge reads what both levels' solutions have: unobservable joints, std, the fit
+    verdict = judge(cast("OffsetSolution", sol), fit)
     written = False
     if not dry_run and (verdict.ok or force):
         reason = f"calibrate --level full: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
