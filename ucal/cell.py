@@ -74,6 +74,7 @@ class CellProfile:
     sample_face_size_mm: float = 500.0
     reflector_points_mm: np.ndarray | None = None  # (n, 3), n >= 3
     reflector_points_std_mm: float = 1.0  # one sigma of a touched point (an uncalibrated robot)
+    step: Step | None = None  # a step of known height on the block's XY face (``[step]``)
     water_temperature_c: float = 20.0
     # One-sigma tolerances of what the profile states (SPEC.md defaults: a tool from its drawing,
     # a hand-placed block, a tank thermometer); solvers carry them as priors.
@@ -130,6 +131,26 @@ class Reflector:
 
 
 @dataclass(frozen=True)
+class Step:
+    """A step of known height standing on the block's XY face (a ground step block, or a gauge
+    block wrung to the face): its flat square top, ``height_mm`` above the face, is a reflector
+    whose distance from the face no sound speed enters — the length standard of
+    ``calibrate --level full``. Block frame: the top's centre at ``centre_mm`` (x, y), side
+    ``size_mm``.
+
+    A profile states how well the height is known (``height_std_mm``, one sigma: the block's
+    certificate); a world may tilt the top (``tilt_deg`` about the block's x and y axes: not
+    quite parallel to the face, as a gauge block not wrung flat).
+    """
+
+    height_mm: float
+    centre_mm: np.ndarray
+    size_mm: float
+    height_std_mm: float = 0.0
+    tilt_deg: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+@dataclass(frozen=True)
 class Noise:
     """Random errors of single readings (``[noise]``); every random source is seeded by ``seed``."""
 
@@ -179,6 +200,7 @@ class WorldTruth:
     initial_joints_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
     #: Hayati twist of each link about its y axis (deg): A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β).
     dh_beta_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    step: Step | None = None  # the step on the block's XY face, as it really is
     #: Lost motion per joint (deg): the link lags the encoder by half of it, against the
     #: direction of the joint's last motion.
     backlash_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -239,6 +261,7 @@ class WorldTruth:
             sample_rotation_deg=np.array(profile.sample_rotation_deg, float),
             sample_face_size_mm=profile.sample_face_size_mm,
             reflector=refl,
+            step=profile.step,
             water_temperature_c=profile.water_temperature_c,
             frequency_mhz=profile.frequency_mhz,
             element_diameter_mm=profile.element_diameter_mm,

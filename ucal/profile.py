@@ -41,6 +41,7 @@ from ucal.cell import (
     CellProfile,
     ControllerTimeouts,
     Procedure,
+    Step,
 )
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import RobotModel, wrist_centre
@@ -72,6 +73,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
         {"position_mm", "rotation_deg", "face_size_mm", "position_std_mm", "rotation_std_deg"}
     ),
     "reflector": frozenset({"points_mm", "points_std_mm"}),
+    "step": frozenset({"height_mm", "height_std_mm", "centre_mm", "size_mm"}),
     "water": frozenset({"temperature_c", "temperature_std_c"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
@@ -179,6 +181,9 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
         if v is not None:
             points_std = r.number("reflector.points_std_mm", v, lo=0.0, hi=100.0, unit="mm")
 
+    step_table = r.table("step")
+    step = None if step_table is None else read_step(r, step_table, face_mm, None, profile=True)
+
     water_c = read_water(r, r.table("water", required=True), "water", required=True)
     freq, diam = read_transducer(r, r.table("transducer", required=True), "transducer", True)
 
@@ -216,6 +221,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
         sample_face_size_mm=face_mm,
         reflector_points_mm=points,
         reflector_points_std_mm=points_std,
+        step=step,
         joint_offsets_std_deg=offsets_std,
         water_temperature_c=water_c,
         frequency_mhz=freq,
@@ -264,6 +270,49 @@ def read_tolerances(
             _profile_default(attr) if v is None else r.number(key, v, lo=0.0, hi=hi, unit=unit)
         )
     return out
+
+
+#: Highest step a ``[step]`` table may state (mm), and the largest tilt a world may give its top.
+MAX_STEP_MM = 200.0
+MAX_STEP_TILT_DEG = 1.0
+
+
+def read_step(
+    r: Reader, table: Mapping[str, Any], face_mm: float, base: Step | None, profile: bool
+) -> Step:
+    """``[step]``: ``height_mm`` (0–200), ``centre_mm`` = [x, y] on the block's XY face (block
+    frame) and ``size_mm`` (side of its square top), the top inside the face; a profile also
+    states ``height_std_mm`` (> 0: the height's one sigma), a world may state ``tilt_deg`` =
+    [about x, about y] (up to 1 deg). Keys a world leaves out are ``base``'s (the profile's)."""
+    required = base is None
+
+    def number(key: str, lo: float, hi: float, default: float | None, lo_open: bool) -> float:
+        v = r.get(table, f"step.{key}", required or default is None)
+        if v is None:
+            assert default is not None
+            return default
+        return r.number(f"step.{key}", v, lo=lo, hi=hi, lo_open=lo_open, unit="mm")
+
+    height = number("height_mm", 0.0, MAX_STEP_MM, None if base is None else base.height_mm, True)
+    size = number("size_mm", 0.0, face_mm, None if base is None else base.size_mm, True)
+    v = r.get(table, "step.centre_mm", required)
+    if v is not None:
+        lo, hi = 0.5 * size, face_mm - 0.5 * size
+        centre = r.vector("step.centre_mm", v, 2, lo=lo, hi=hi, unit="mm")
+    else:
+        assert base is not None  # required without a base
+        centre = base.centre_mm
+    std = 0.0 if base is None else base.height_std_mm
+    tilt = np.zeros(2)
+    if profile:
+        std = number("height_std_mm", 0.0, 10.0, None, True)
+    else:
+        v = r.get(table, "step.tilt_deg")
+        if v is not None:
+            tilt = r.vector(
+                "step.tilt_deg", v, 2, lo=-MAX_STEP_TILT_DEG, hi=MAX_STEP_TILT_DEG, unit="deg"
+            )
+    return Step(height, np.asarray(centre, float), size, std, tilt)
 
 
 def read_robot(

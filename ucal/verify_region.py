@@ -39,7 +39,8 @@ def plan_region(
     cands = [
         c
         for c in candidate_postures(profile)
-        if all(np.max(np.abs(c.joints_deg - e.joints_deg)) > 1.0 for e in exclude)
+        if not c.step  # the faces only: the model is judged, not the step
+        and all(np.max(np.abs(c.joints_deg - e.joints_deg)) > 1.0 for e in exclude)
     ]
     key = np.array([np.append(c.joints_deg[:3], _SPREAD_FACE_DEG * c.face) for c in cands])
     rng = np.random.default_rng(seed)

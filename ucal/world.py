@@ -19,6 +19,9 @@ Extra keys beyond SPEC.md:
 
 * ``[robot] initial_joints_deg`` — joint readings (deg) the simulated robot starts at;
 * ``[sample] face_size_mm`` — edge length of the block faces (mm);
+* ``[step]`` ``height_mm``, ``centre_mm``, ``size_mm`` — the step on the block's XY face as it
+  really is; ``tilt_deg`` = [about x, about y] (up to 1 deg) — its top not quite parallel to the
+  face (see ``ucal.cell.Step``);
 * ``[reflector] size_mm = [w, h]`` and ``edge_direction = [x, y, z]`` — extent of the plate;
   ``edge_radius_mm`` (0…20: rounded edges, the flat part ends that far inside) and
   ``flatness_mm`` (0…5, peak to valley: a bow along the normal) — see ``ucal.cell.Reflector``;
@@ -41,7 +44,7 @@ import numpy as np
 
 from drivers.controller.simulator import SERVERS
 from ucal.cell import CellProfile, Noise, PulserTruth, Reflector, WorldTruth
-from ucal.profile import read_robot, read_transducer, read_water
+from ucal.profile import read_robot, read_step, read_transducer, read_water
 from ucal.validation import Reader, read_toml, unknown_keys
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`).
@@ -60,6 +63,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     ),
     "tool": frozenset({"position_mm", "rotation_deg"}),
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
+    "step": frozenset({"height_mm", "centre_mm", "size_mm", "tilt_deg"}),
     "reflector": frozenset(
         {"point_mm", "normal", "size_mm", "edge_direction", "edge_radius_mm", "flatness_mm"}
     ),
@@ -153,6 +157,11 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
     reflector = r.table("reflector")
     if reflector is not None:
         changes["reflector"] = _reflector(r, reflector, world.reflector)
+
+    step = r.table("step")
+    if step is not None:
+        face_mm = changes.get("sample_face_size_mm", world.sample_face_size_mm)
+        changes["step"] = read_step(r, step, face_mm, world.step, profile=False)
 
     water = r.table("water")
     water_c = read_water(r, water, "water", required=False)

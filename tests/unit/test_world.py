@@ -12,6 +12,7 @@ from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, PulserTruth, WorldTr
 from ucal.errors import ProfileError
 from ucal.models import load_model
 from ucal.profile import default_profile_text, load_profile
+from ucal.sim.cell import SimulatedCell
 from ucal.validation import DH_KEYS
 from ucal.world import load_world, world_warnings
 
@@ -302,3 +303,36 @@ def test_world_dh_accepts_hayati_beta(profile: CellProfile, tmp_path: Path) -> N
     np.testing.assert_array_equal(w.model.dh, dh)
     np.testing.assert_array_equal(w.dh_beta_deg, [0.0, 0.05, -0.02, 0.0, 0.0, 0.0])
     assert world_warnings(path) == []
+
+
+def test_step_in_the_profile_and_the_world_and_its_echo(tmp_path: Path) -> None:
+    path = tmp_path / "cell.toml"
+    text = default_profile_text("tx90l")
+    path.write_text(
+        text + "\n[step]\nheight_mm = 40.0\ncentre_mm = [250.0, 250.0]\nsize_mm = 60.0\n"
+    )
+    with pytest.raises(ProfileError, match=r"step\.height_std_mm"):  # the certificate's sigma
+        load_profile(path)
+    path.write_text(
+        text + "\n[step]\nheight_mm = 40.0\nheight_std_mm = 0.002\n"
+        "centre_mm = [250.0, 250.0]\nsize_mm = 60.0\n"
+    )
+    profile = load_profile(path)
+    assert profile.step is not None and profile.step.height_std_mm == 0.002
+    assert load_world(None, profile).step == profile.step  # nominal: as the profile says
+    world = load_world(
+        _world(tmp_path, "[step]\nheight_mm = 40.003\ntilt_deg = [0.002, -0.001]\n"), profile
+    )
+    assert world.step.height_mm == 40.003 and world.step.size_mm == 60.0
+    np.testing.assert_array_equal(world.step.centre_mm, [250.0, 250.0])
+    with pytest.raises(ProfileError, match=r"step\.centre_mm"):  # its top off the face
+        load_world(_world(tmp_path, "[step]\ncentre_mm = [480.0, 250.0]\n"), profile)
+    # beam straight down over the step's centre: the echo comes from its top, 40 mm up
+    sim = SimulatedCell(world)
+    top = profile.sample_matrix @ np.array([250.0, 250.0, 40.003 + 100.0, 1.0])
+    down = np.array([0.0, 0.0, -1.0]) @ profile.sample_matrix[:3, :3].T
+    hit = sim._echoing_hit(top[:3], down)
+    assert hit is not None and hit[0].face.name == "step"
+    assert hit[0].distance_mm == pytest.approx(100.0, abs=0.01)
+    beside = profile.sample_matrix @ np.array([150.0, 250.0, 140.0, 1.0])
+    assert sim._echoing_hit(beside[:3], down)[0].face.name == "z"

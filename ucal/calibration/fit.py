@@ -138,6 +138,10 @@ class CellPrior:
     water_temperature_std_c: float = 2.0
     dh_length_std_mm: float = 0.2
     dh_angle_std_deg: float = 0.02
+    #: Height of the step on the block's XY face (mm) and its one sigma (0: no step; the cell
+    #: then has no length standard).
+    step_mm: float = 0.0
+    step_std_mm: float = 0.0
 
     @property
     def sound_speed_m_s(self) -> float:
@@ -199,6 +203,8 @@ def prior_from_profile(profile: CellProfile) -> CellPrior:
         water_temperature_std_c=float(p.water_temperature_std_c),
         dh_length_std_mm=float(p.dh_length_std_mm),
         dh_angle_std_deg=float(p.dh_angle_std_deg),
+        step_mm=0.0 if p.step is None else float(p.step.height_mm),
+        step_std_mm=0.0 if p.step is None else float(p.step.height_std_mm),
     )
 
 
@@ -292,6 +298,15 @@ class FitQuality:
 
 
 @dataclass(frozen=True)
+class ExtraRows:
+    """Data rows of another kind of measurement, after the face measurements' (``solve_cell``):
+    ``residuals`` maps the full value vector to one normalised row per label."""
+
+    residuals: Callable[[np.ndarray], np.ndarray]
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class CellFit:
     """Solution of the prior-augmented problem."""
 
@@ -362,6 +377,18 @@ class MeasurementArrays:
         )
 
 
+def table_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) -> CellGeometry:
+    """``cell_geometry`` with the DH lengths and twists of ``values`` (and Hayati's β₂ when the
+    table has it) in ``model``."""
+    dh = model.dh.copy()
+    dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
+    beta = None
+    if BETA[0] in table.names:
+        beta = np.zeros(6) if model.beta_deg is None else model.beta_deg.copy()
+        beta[1] = table.get(BETA, values)[0]
+    return cell_geometry(table, values, model.with_dh(dh, beta))
+
+
 def data_residuals(
     table: ParameterTable,
     values: np.ndarray,
@@ -372,13 +399,7 @@ def data_residuals(
     """Normalised measurement residuals (n, 3): two tilt rows, one distance row each."""
     arr = meas if isinstance(meas, MeasurementArrays) else MeasurementArrays.of(meas)
     n = len(arr.faces)
-    dh = model.dh.copy()
-    dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
-    beta = None
-    if BETA[0] in table.names:
-        beta = model.beta_deg.copy()
-        beta[1] = table.get(BETA, values)[0]
-    geom = cell_geometry(table, values, model.with_dh(dh, beta))
+    geom = table_geometry(table, values, model)
     offsets = table.get(OFFSETS, values)
     corner = table.get(BLOCK[:3], values)
     scale = table.get(SOUND, values)[0] / c0_m_s
@@ -406,6 +427,7 @@ def solve_cell(
     start: np.ndarray | None = None,
     tol: float = 1e-12,
     table: ParameterTable | None = None,
+    extra: ExtraRows | None = None,
 ) -> CellFit:
     """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
     docstring).
@@ -413,7 +435,8 @@ def solve_cell(
     ``fixed`` names parameters held at their prior values (e.g. the DH table while predicting
     postures during a run); ``start`` is a full parameter vector to start from (a previous
     estimate), ``tol`` the solver's tolerances; ``table`` the unknowns if not ``PARAMETERS``
-    with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist).
+    with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist);
+    ``extra`` the rows of other measurements (``ucal.calibration.full``'s edge crossings).
     """
     if table is None:
         table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
@@ -421,7 +444,8 @@ def solve_cell(
         table.free[table.index(name)] = False
     table.free &= table.prior_stds > 0  # a zero tolerance means "known exactly"
     c0 = prior.sound_speed_m_s
-    n_data = 3 * len(meas)
+    n_extra = 0 if extra is None else len(extra.labels)
+    n_data = 3 * len(meas) + n_extra
     has_prior = np.isfinite(table.prior_stds) & table.free
 
     arrays = MeasurementArrays.of(meas)
@@ -430,7 +454,9 @@ def solve_cell(
         v = table.expand(x)
         r_data = data_residuals(table, v, prior.model, arrays, c0).ravel()
         r_prior = (v - table.prior)[has_prior] / table.prior_stds[has_prior]
-        return np.concatenate([r_data, r_prior])
+        if extra is None:
+            return np.concatenate([r_data, r_prior])
+        return np.concatenate([r_data, extra.residuals(v), r_prior])
 
     if start is not None:
         x0 = np.asarray(start, float)[table.free].copy()
@@ -464,7 +490,18 @@ def solve_cell(
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
 
     shares = _variance_shares(table, jac, cov, n_data)
-    quality = _quality(table, estimate, prior, meas, res, n_data, chi2, dof, misfit_p)
+    quality = _quality(
+        table,
+        estimate,
+        prior,
+        meas,
+        res,
+        n_data,
+        chi2,
+        dof,
+        misfit_p,
+        () if extra is None else extra.labels,
+    )
     return CellFit(
         table,
         estimate,
@@ -556,11 +593,16 @@ def _quality(
     chi2: float,
     dof: int,
     misfit_p: float,
+    extra_labels: tuple[str, ...] = (),
 ) -> FitQuality:
-    r = res[:n_data].reshape(-1, 3)
+    n_face = 3 * len(meas)
+    r = res[:n_face].reshape(-1, 3)
     rows = tuple(
         ResidualRow(measurement_label(m), (float(r[i, 0]), float(r[i, 1])), float(r[i, 2]))
         for i, m in enumerate(meas)
+    ) + tuple(
+        ResidualRow(label, (0.0, 0.0), float(v))
+        for label, v in zip(extra_labels, res[n_face:n_data], strict=True)
     )
     tilt_deg = np.array([r[i, :2] * m.tilt_std_deg for i, m in enumerate(meas)])
     dist_mm = np.array([r[i, 2] * m.distance_std_mm for i, m in enumerate(meas)])

@@ -21,10 +21,20 @@ parameters it duplicates absorb its effect. Physics says which (``redundancy_rea
 * link 6 and the tool are one rigid body: the tool frame absorbs ``d₆``, ``a₆``, ``α₆``.
 
 The sound speed is tested last, against everything: the water paths measure lengths in units
-of the sound speed, so a common scale of every length and of ``c`` is invisible to the data.
-It stays an unknown, and the scale comes from the declared tolerances of the DH lengths and
-the thermometer (``scale_note``): this is why a full calibration needs honest length
-tolerances, and why the std of each length carries the scale.
+of the sound speed, so a common scale of every length and of ``c`` is invisible to them.
+Without a length standard it stays an unknown, and the scale comes from the declared
+tolerances of the DH lengths and the thermometer (``scale_note``): the std of each length
+carries it. A step of known height on the block's XY face (``[step]``, ``ucal.cell.Step``) is
+such a standard: a water path read over its top and one read over the face beside it differ
+by the robot's displacement along the normal less the step's height, which no sound speed
+enters. Its top is taken as a plane ``step_mm`` above the face (an unknown with the height's
+certificate as prior); only the water paths read over it are used: its tilt (a gauge block
+wrung not quite flat) is not known to the postures' thousandths of a degree.
+
+(Edge scans do not give the scale on this block: an edge's position across the beam is
+measured from the corner, which time of flight places only up to the tool's unknown offset
+along the beam — a larger block is a shorter tool in the same data. A length across the beam
+needs two opposite edges of one face, which the block's free edges are not.)
 
 A kinematic parameter that is independent but weakly seen (its data information below its
 prior's, or a std above ``PRIOR_DOMINATED`` of its tolerance) is fitted with its prior and
@@ -55,15 +65,25 @@ from ucal.calibration.fit import (
     TOOL,
     CellFit,
     CellPrior,
+    ExtraRows,
     ParameterTable,
     data_residuals,
     solve_cell,
+    table_geometry,
 )
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.calibration.model import (
+    CellGeometry,
+    FaceMeasurement,
+    beam_and_tcp,
+    distance_joints,
+)
 from ucal.kinematics.dh import RobotModel
 
-#: The unknowns of the full level: the offsets level's and Hayati's twist of axes 2-3.
-FULL_PARAMETERS = PARAMETERS + BETA
+#: Height of the step on the block's XY face (mm): the length standard.
+STEP = ("step_mm",)
+#: The unknowns of the full level: the offsets level's, Hayati's twist of axes 2-3 and the
+#: step's height.
+FULL_PARAMETERS = PARAMETERS + BETA + STEP
 #: The kinematic parameters the full level identifies (besides the joint offsets), table order.
 KINEMATIC = DH + BETA
 #: A kinematic column whose residual after projection on the kept columns is below this share
@@ -82,12 +102,35 @@ def twists_deg(model: RobotModel) -> np.ndarray:
 
 
 def full_table(prior: CellPrior) -> ParameterTable:
-    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one)."""
+    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one;
+    the step's is 0, known, when the cell has none)."""
     return ParameterTable(
         FULL_PARAMETERS,
-        np.append(prior.values(), twists_deg(prior.model)[1]),
-        np.append(prior.stds(), prior.dh_angle_std_deg),
+        np.append(prior.values(), [twists_deg(prior.model)[1], prior.step_mm]),
+        np.append(prior.stds(), [prior.dh_angle_std_deg, prior.step_std_mm]),
     )
+
+
+def step_residuals(
+    table: ParameterTable,
+    values: np.ndarray,
+    model: RobotModel,
+    meas: list[FaceMeasurement],
+    c0_m_s: float,
+) -> np.ndarray:
+    """Normalised residual of the water path of each measurement over the step's top (n,):
+    the path to the XY face's plane, less ``step_mm``, along the beam, against the measured
+    one (``ucal.calibration.fit.data_residuals``' distance row, for a plane ``step_mm`` up)."""
+    if not meas:
+        return np.zeros(0)
+    rows = data_residuals(table, values, model, meas, c0_m_s)
+    geom = table_geometry(table, values, model)
+    beam, _ = beam_and_tcp(
+        geom, np.array([distance_joints(m) for m in meas]), table.get(OFFSETS, values)
+    )
+    cos_t = np.maximum(-beam @ geom.normal(2), 0.5)
+    std = np.array([m.distance_std_mm for m in meas])
+    return rows[:, 2] - table.get(STEP, values)[0] / cos_t / std
 
 
 def redundancy_reason(name: str, partners: list[str]) -> str:
@@ -137,10 +180,14 @@ class Identifiability:
 
 
 def data_jacobian(
-    prior: CellPrior, meas: list[FaceMeasurement], values: np.ndarray | None = None
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    values: np.ndarray | None = None,
+    steps: list[FaceMeasurement] | None = None,
 ) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Jacobian of the data residuals (rows per σ) against the unknowns of ``full_table`` that
-    have a tolerance, per prior σ, at ``values`` (default: the profile's); and their names."""
+    """Jacobian of the data residuals (rows per σ: the face measurements', then the water
+    paths over the step's) against the unknowns of ``full_table`` that have a tolerance, per
+    prior σ, at ``values`` (default: the profile's); and their names."""
     table = full_table(prior)
     free = np.isfinite(table.prior_stds) & (table.prior_stds > 0)
     table.free = free
@@ -150,7 +197,8 @@ def data_jacobian(
     def fun(x: np.ndarray) -> np.ndarray:
         v = v0.copy()
         v[free] = x
-        return data_residuals(table, v, prior.model, meas, c0).ravel()
+        rows = data_residuals(table, v, prior.model, meas, c0).ravel() if meas else np.zeros(0)
+        return np.concatenate([rows, step_residuals(table, v, prior.model, steps or [], c0)])
 
     stds = table.prior_stds[free]
     jac = approx_fprime(v0[free], fun, 1e-3 * stds)
@@ -174,7 +222,7 @@ def identifiability(
     """Classify the kinematic parameters (module docstring) from the data Jacobian ``js``
     (``data_jacobian``) with columns ``names``."""
     col = {n: js[:, i] for i, n in enumerate(names)}
-    kept = [n for n in OFFSETS + BLOCK + TOOL if n in col]
+    kept = [n for n in OFFSETS + BLOCK + TOOL + STEP if n in col]
     redundant: dict[str, str] = {}
     identifiable: list[str] = []
     weak: list[str] = []
@@ -195,13 +243,21 @@ def identifiability(
             weak.append(name)
     note = ""
     if SOUND[0] in col:
-        cols = np.column_stack([col[n] for n in kept])
+        # with the step's height held (its prior is the length standard: the data alone cannot
+        # tell a higher step from a longer robot in faster water)
+        cols = np.column_stack([col[n] for n in kept if n not in STEP])
         share, _ = _residual_share(cols, col[SOUND[0]])
         if share < redundant_rel:
             note = (
                 "the water paths measure lengths in units of the sound speed: a common scale "
                 "of every length and of the sound speed is not seen, so the scale comes "
                 "from the DH length tolerance and the thermometer"
+            )
+        elif STEP[0] in col:
+            note = (
+                "the water paths over the step and beside it measure its height, which the "
+                "sound speed does not enter: the step's height tolerance sets the common "
+                "scale of every length and of the sound speed"
             )
     s = np.linalg.svd(js / np.maximum(np.linalg.norm(js, axis=0), 1e-300), compute_uv=False)
     rank = int(np.sum(s > redundant_rel * s[0]))
@@ -226,6 +282,8 @@ class FullSolution:
     unobservable_reasons: dict[int, str]  # 1-based joint → why
     model: RobotModel  # the identified DH table (nominal where kept)
     parameters: dict[str, dict] = field(default_factory=dict)
+    #: The step's height as its water paths and its prior put it (None without a step).
+    length_standard: dict | None = None
 
     @property
     def unobservable_joints(self) -> tuple[int, ...]:
@@ -271,6 +329,7 @@ class FullSolution:
             "not_identifiable": dict(self.ident.redundant),
             "prior_dominated": list(self.ident.weak),
             "scale": self.ident.scale_note,
+            "length_standard": self.length_standard,
         }
 
 
@@ -280,6 +339,7 @@ def solve_full(
     fixed: tuple[str, ...] = (),
     max_std_deg: float = MAX_STD_DEG,
     structure: Identifiability | None = None,
+    steps: list[FaceMeasurement] | None = None,
 ) -> FullSolution:
     """Identify the kinematic model from ``meas`` (module docstring).
 
@@ -289,15 +349,28 @@ def solve_full(
     these few postures happen not to (those stay unknowns with their priors: prior-dominated);
     without it, ``meas`` alone is judged. The redundant parameters are held at their nominal
     values in the fit. ``fixed`` names unknowns held at the profile's values too (e.g. the tool
-    orientation for ``--beam fixed``).
+    orientation for ``--beam fixed``). ``steps``: the measurements over the step's top (the
+    length standard; the step's height is then an unknown with its prior).
     """
-    ident = structure if structure is not None else identifiability(*data_jacobian(prior, meas))
+    steps = steps or []
+    ident = (
+        structure
+        if structure is not None
+        else identifiability(*data_jacobian(prior, meas, steps=steps))
+    )
+    table = full_table(prior)
+    c0 = prior.sound_speed_m_s
+    extra = ExtraRows(
+        lambda v: step_residuals(table, v, prior.model, steps, c0),
+        tuple(f"{m.config}/step" for m in steps),
+    )
     cell = solve_cell(
         prior,
         meas,
-        fixed=fixed + tuple(ident.redundant),
+        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP),
         max_std_deg=max_std_deg,
-        table=full_table(prior),
+        table=table,
+        extra=extra if steps else None,
     )
     offsets = np.array(prior.offsets_deg, float)
     std = np.full(6, np.nan)
@@ -339,7 +412,17 @@ def solve_full(
             dh[row, 1 + _ROW_KEYS.index(key)] = value
     model = prior.model.with_dh(dh, beta)
     model.meta["dh_source"] = "calibrate --level full"
-    return FullSolution(cell, ident, offsets, std, reasons, model, params)
+    standard = None
+    if steps:
+        i = cell.table.index(STEP[0])
+        standard = {
+            "step_mm": cell.value(STEP[0]),
+            "std_mm": cell.sigma(STEP[0]),
+            "nominal_mm": float(cell.table.prior[i]),
+            "tolerance_mm": float(cell.table.prior_stds[i]),
+            "measurements": len(steps),
+        }
+    return FullSolution(cell, ident, offsets, std, reasons, model, params, standard)
 
 
 def ideal_measurements(

@@ -24,7 +24,7 @@ than ``MIN_GAIN`` (then more postures buy little: fewer moves for the same crite
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -72,6 +72,10 @@ PLAN_MARGIN_DEG = 2.0
 #: σ assumed for planning: posture (deg) and water path (mm) of one measurement.
 PLAN_TILT_STD_DEG = 1e-3
 PLAN_DISTANCE_STD_MM = 1e-3
+#: The beam meets the XY face at least this far (mm) from the step's sides (its footprint and
+#: the search's tilts stay off the step), and the step's top this far inside its sides.
+STEP_MARGIN_MM = 30.0
+STEP_INSIDE_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -82,10 +86,12 @@ class Posture:
     face: int
     joints_deg: np.ndarray
     water_path_mm: float
+    #: The beam meets the top of the step on the XY face (``face`` 2), not the face itself.
+    step: bool = False
 
     @property
     def face_name(self) -> str:
-        return FACE_NAMES[self.face]
+        return "step" if self.step else FACE_NAMES[self.face]
 
 
 @dataclass(frozen=True)
@@ -134,14 +140,14 @@ def _target_pose(
     return pose
 
 
-def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Which postures (n, 6) keep the arm ``CLEARANCE_MM`` from the block and its table, with
-    the beam meeting its face (n,) inside the edges.
+def _arm_clear(profile: CellProfile, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which postures (n, 6) keep the arm ``CLEARANCE_MM`` from the block and its table; the
+    checked points in the block frame (n, 11, 3; index 5: the tool centre); the tool frames.
 
-    Checked points (block frame): the origins of frames 2-6, the midpoints of the links between
-    them and the tool centre. None may be below the XY face's plane plus the clearance (the
-    block stands on a table that extends beyond it), and none may be within the clearance of a
-    wall (YZ, XZ face) it is over.
+    Checked points: the origins of frames 2-6, the midpoints of the links between them and the
+    tool centre. None may be below the XY face's plane plus the clearance (the block stands on
+    a table that extends beyond it), and none may be within the clearance of a wall (YZ, XZ
+    face) it is over.
     """
     s = profile.sample_matrix
     frames = fk_frames(profile.model, q, profile.joint_offsets_deg)
@@ -157,12 +163,39 @@ def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray
             (local[..., others] >= -CLEARANCE_MM) & (local[..., others] <= size + CLEARANCE_MM), -1
         )
         ok &= ~np.any(over & (local[..., k] < CLEARANCE_MM), 1)
+    step = profile.step
+    if step is not None:  # nothing within the clearance of the step's top, nor over its sides
+        half = 0.5 * step.size_mm + CLEARANCE_MM
+        over = np.all(np.abs(local[..., :2] - step.centre_mm) <= half, -1)
+        ok &= ~np.any(over & (local[..., 2] < step.height_mm + CLEARANCE_MM), 1)
+    return ok, local, tcp
+
+
+def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Which postures (n, 6) keep the arm clear of the block (``_arm_clear``), with the beam
+    meeting its face (n,) inside the edges."""
+    s = profile.sample_matrix
+    size = profile.sample_face_size_mm
+    ok, local, tcp = _arm_clear(profile, q)
     here = local[:, 5]
     beam = tcp[:, :3, 2] @ s[:3, :3]
     hit = here + here[np.arange(len(q)), faces][:, None] * beam
     inside = (hit >= EDGE_MARGIN_MM) & (hit <= size - EDGE_MARGIN_MM)
     inside[np.arange(len(q)), faces] = True
-    return ok & np.all(inside, 1)
+    ok &= np.all(inside, 1)
+    step = profile.step
+    if step is not None:
+        # the beam meets the step's top well inside it, or passes the step well clear: sample
+        # its path from the tool centre to the face
+        half = 0.5 * step.size_mm
+        on_top = (faces == 2) & np.all(np.abs(hit[:, :2] - step.centre_mm) <= half, 1)
+        ok &= ~on_top | np.all(np.abs(hit[:, :2] - step.centre_mm) <= half - STEP_INSIDE_MM, 1)
+        depth = here[np.arange(len(q)), faces][:, None, None]
+        path = here[:, None, :] + np.linspace(0.0, 1.0, 24)[None, :, None] * depth * beam[:, None]
+        near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half + STEP_MARGIN_MM, -1)
+        crosses = np.any(near & (path[..., 2] < step.height_mm + STEP_MARGIN_MM), 1)
+        ok &= ~crosses | on_top
+    return ok
 
 
 def candidate_postures(profile: CellProfile) -> list[Posture]:
@@ -179,7 +212,15 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
                 for path in paths:
                     for turn in TURNS_DEG:
                         poses.append(_target_pose(s[:3, :3], s[:3, 3], face, u, v, path, turn))
-                        keys.append((face, path))
+                        keys.append((face, path, False))
+    step = profile.step
+    if step is not None:  # the beam normal to the step's top, at its centre
+        top = s[:3, 3] + step.height_mm * s[:3, 2]
+        for path in paths:
+            for turn in TURNS_DEG:
+                u, v = step.centre_mm
+                poses.append(_target_pose(s[:3, :3], top, 2, u, v, path, turn))
+                keys.append((2, path, True))
     near = calibration_pose(profile)
     sols, ok, _ = ik_solutions(
         profile.model,
@@ -200,7 +241,8 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
             check_joints(profile, q[i], "candidate", SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG)
         except SafetyError:
             continue
-        out.append(Posture(f"c{len(out)}", int(faces[i]), q[i].copy(), keys[pose_i[i]][1]))
+        _, path, on_step = keys[pose_i[i]]
+        out.append(Posture(f"c{len(out)}", int(faces[i]), q[i].copy(), path, on_step))
     return out
 
 
@@ -209,7 +251,8 @@ def posture_jacobians(
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """Data Jacobian of each posture (n, 3, p): its three rows (tilts, water path, per σ)
     against the unknowns of ``full_table`` (per prior σ), at the profile's values; and the
-    unknowns' names."""
+    unknowns' names. A posture over the step has only its water path row (its tilts are not
+    used: ``ucal.calibration.full.step_residuals``)."""
     meas = ideal_measurements(
         geometry(profile),
         profile.sample_position_mm,
@@ -218,8 +261,21 @@ def posture_jacobians(
         PLAN_DISTANCE_STD_MM,
         PLAN_TILT_STD_DEG,
     )
-    jac, names = data_jacobian(prior, meas)
-    return jac.reshape(len(postures), 3, -1), names
+    on_step = np.array([p.step for p in postures], bool)
+    faces = [m for m, o in zip(meas, on_step, strict=True) if not o]
+    # over the step the water path ends on its top (the Jacobian's sound speed column is the
+    # path itself: the step's height is what sets the scale)
+    height = 0.0 if profile.step is None else profile.step.height_mm
+    steps = [
+        replace(m, distance_mm=m.distance_mm - height)
+        for m, o in zip(meas, on_step, strict=True)
+        if o
+    ]
+    jac, names = data_jacobian(prior, faces, steps=steps)
+    out = np.zeros((len(postures), 3, jac.shape[1]))
+    out[~on_step] = jac[: 3 * len(faces)].reshape(len(faces), 3, -1)
+    out[on_step, 2] = jac[3 * len(faces) :]
+    return out, names
 
 
 def select_postures(
@@ -278,7 +334,7 @@ def plan_full(
     idx, log_det = select_postures(jacs, min_gain, max_postures)
     chosen = order_postures([cands[i] for i in idx])
     chosen = [
-        Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
+        Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm, p.step)
         for i, p in enumerate(chosen)
     ]
     j1 = [p.joints_deg[0] for p in chosen]

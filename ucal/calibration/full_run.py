@@ -14,12 +14,18 @@ by hundredths of a degree): the search around each prediction absorbs that. A pr
 landed within ``DIRECT_FIT_DEG`` lets the next face be fitted at once, otherwise the search
 centres first. A face whose peak came out uncertain is left out of the predictions and
 measured again at the end (``REMEASURE_TILT_DEG``).
+
+A posture over the step of known height (``[step]``, the length standard) is measured like one
+on the XY face, its top being parallel to it; its water path is kept apart (``FullRun.steps``:
+the running estimate and the peaks' refit know only the faces) and enters the identification
+with the step's height (``ucal.calibration.full.step_residuals``).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
@@ -32,7 +38,6 @@ from ucal.calibration.safety import check_joints
 from ucal.calibration.search import Rig, ka_of
 from ucal.calibration.sequence import (
     MIN_WATER_PATH_MM,
-    CalibrationRun,
     FinalApproachRig,
     estimate_cell,
     geometry,
@@ -52,12 +57,22 @@ DIRECT_FIT_DEG = 0.02
 REMEASURE_TILT_DEG = 0.01
 
 
+@dataclass(frozen=True)
+class FullRun:
+    """What the full level's run measured: the faces, the water paths over the step."""
+
+    measurements: list[FaceMeasurement]
+    steps: list[FaceMeasurement]
+    moves: int
+    reads: int
+
+
 def run_full(
     profile: CellProfile,
     plan: FullPlan,
     rig: Rig,
     progress: Callable[[str, int, int], None] | None = None,
-) -> CalibrationRun:
+) -> FullRun:
     """Measure every planned posture (module docstring). The caller owns the connection, STOP
     and the profile."""
     geom = geometry(profile)
@@ -75,12 +90,16 @@ def run_full(
     vector = None
     last_error = np.inf
     meas: list[FaceMeasurement] = []
+    taken: list[int] = []  # plan index of each face measurement
+    steps: list[FaceMeasurement] = []
+    top = 0.0 if profile.step is None else profile.step.height_mm
     total = len(plan.postures)
     for i, posture in enumerate(plan.postures):
         if progress:
             progress(posture.label, i, total)
         label = f"face {posture.face_name} ({posture.label})"
-        check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
+        plane = corner + top * fitted.normal(2) if posture.step else corner
+        check_prediction(profile, fitted, posture.joints_deg, posture.face, est, plane, label)
         mode = "acquire" if not meas else "direct" if last_error < DIRECT_FIT_DEG else "quick"
         res = measure_face(
             approach,
@@ -96,8 +115,12 @@ def run_full(
             mode,
             16.0 if not meas else 8.0,
         )
-        meas.append(res.measurement)
         last_error = res.prediction_error_deg
+        if posture.step:
+            steps.append(res.measurement)
+            continue
+        meas.append(res.measurement)
+        taken.append(i)
         good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
         cell = estimate_cell(prior, good, vector)
         est, corner, vector, fitted = (cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry)
@@ -107,7 +130,7 @@ def run_full(
     for i, m in enumerate(meas):
         if m.tilt_std_deg <= REMEASURE_TILT_DEG:
             continue
-        posture = plan.postures[i]
+        posture = plan.postures[taken[i]]
         label = f"face {posture.face_name} ({posture.label}, again)"
         log.info(
             "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, REMEASURE_TILT_DEG
@@ -135,7 +158,7 @@ def run_full(
     meas = refit_peaks(approach, profile, meas, ka, prior)
     if progress:
         progress("done", total, total)
-    return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
+    return FullRun(meas, steps, rig.counters.moves, rig.counters.reads)
 
 
 def check_prediction(

@@ -22,12 +22,19 @@ def plan_summary(plan, profile) -> str:
     from ucal.timing import estimate_run
 
     c_std = prior_from_profile(profile).sound_speed_std_m_s
+    step = profile.step
+    scale = (
+        f"with the DH length tolerance ({profile.dh_length_std_mm:g} mm) it sets the scale of "
+        "every length"
+        if step is None
+        else f"the step of {step.height_mm:g} ± {step.height_std_mm:g} mm on the XY face sets "
+        "the scale of every length (its water paths against the face's)"
+    )
     lines = [
         f"Full kinematic calibration plan for {profile.model.name}: {plan.describe()}",
         (
             f"Water {profile.water_temperature_c:g} ± {profile.water_temperature_std_c:g} °C "
-            f"(sound speed ± {c_std:.2f} m/s): with the DH length tolerance "
-            f"({profile.dh_length_std_mm:g} mm) it sets the scale of every length"
+            f"(sound speed ± {c_std:.2f} m/s); {scale}"
         ),
         "  posture face     J1       J2       J3       J4       J5       J6    water path",
     ]
@@ -140,6 +147,7 @@ def _measure_and_identify(
         measurements.measurements,
         fixed=fixed,
         structure=plan.structure,
+        steps=measurements.steps,
     )
     fit = sol.cell.quality
     # judge reads what both levels' solutions have: unobservable joints, std, the fit
@@ -215,6 +223,12 @@ def show_result(console, sol, result) -> None:
         console.print(escape(f"{name} not identifiable, kept at its nominal value: {why}"))
     if ident.scale_note:
         console.print(escape(f"scale: {ident.scale_note}"))
+    if sol.length_standard is not None:
+        s = sol.length_standard
+        console.print(
+            f"step height {s['step_mm']:.4f} ± {s['std_mm']:.4f} mm (certificate "
+            f"{s['nominal_mm']:g} ± {s['tolerance_mm']:g} mm; {s['measurements']} water paths)"
+        )
     for j, why in sorted(sol.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
     show_fit(console, sol.cell.quality)

@@ -59,6 +59,7 @@ from ucal.sim.geometry import (
     bowed_hit,
     intersect,
     reflector_face,
+    step_face,
 )
 from ucal.sim.receiver import EchoReceiver
 
@@ -128,6 +129,9 @@ class SimulatedCell:
             self._twists.append(ry)
         self._tool = world.beam_matrix  # tool centre, z along the acoustic axis (squint)
         faces: list[Face] = list(block_faces(world.sample_matrix, world.sample_face_size_mm))
+        if world.step is not None:
+            # the step's top: met before the XY face under it, so the beam does not reach that
+            faces.append(step_face(world.sample_matrix, world.step))
         self._plate: Face | None = None
         if world.reflector is not None:
             self._plate = reflector_face(world.reflector)

@@ -12,8 +12,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from ucal.cell import Reflector
+from ucal.cell import Reflector, Step
 
 #: Beam–normal cosine below which a face is treated as seen edge-on (no intersection).
 _MIN_COS = 1e-9
@@ -78,6 +79,27 @@ def block_faces(sample_matrix: np.ndarray, face_size_mm: float) -> tuple[Face, F
         Face("x", corner, ax[1], ax[2], ax[0], span, span),
         Face("y", corner, ax[2], ax[0], ax[1], span, span),
         Face("z", corner, ax[0], ax[1], ax[2], span, span),
+    )
+
+
+def step_face(sample_matrix: np.ndarray, step: Step) -> Face:
+    """The top of the step on the block's XY face (``ucal.cell.Step``): a square of side
+    ``size_mm`` centred ``height_mm`` above the face at ``centre_mm``, tilted by ``tilt_deg``
+    about the block's x and y axes, reflecting upwards (+z of the block)."""
+    m = np.asarray(sample_matrix, dtype=float)
+    tilt = Rotation.from_euler("xy", step.tilt_deg, degrees=True).as_matrix()
+    axes = m[:3, :3] @ tilt
+    cx, cy = (float(v) for v in step.centre_mm)
+    centre = m[:3, :3] @ np.array([cx, cy, step.height_mm]) + m[:3, 3]
+    half = 0.5 * float(step.size_mm)
+    return Face(
+        "step",
+        centre,
+        axes[:, 0].copy(),
+        axes[:, 1].copy(),
+        axes[:, 2].copy(),
+        (-half, half),
+        (-half, half),
     )
 
 

@@ -7,6 +7,7 @@ exact normal-incidence postures and water paths at the planned postures, with se
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,10 +21,11 @@ from ucal.calibration.full import (
     scanning_postures,
     solve_full,
 )
-from ucal.calibration.full_plan import plan_full
+from ucal.calibration.full_plan import candidate_postures, plan_full
 from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.calibration.sequence import calibration_pose
 from ucal.calibration.wrist import aim_wrist
+from ucal.cell import Step
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import load_profile
@@ -182,3 +184,37 @@ def test_region_check_flags_a_table_that_is_wrong_away_from_the_calibration(cell
     assert wrong.verdict == "misfit" and not wrong.passed and wrong.max_distance_mm > 0.01
     right = judge_region(profile.replace(model=model, joint_offsets_deg=offsets), meas, 0.5)
     assert right.passed and right.max_distance_mm < 0.005 and right.max_tilt_deg < 0.005
+
+
+def test_a_step_of_known_height_sets_the_scale_that_the_thermometer_cannot(cell):
+    profile, plan = cell
+    step = Step(50.0, np.array([250.0, 250.0]), 60.0, height_std_mm=0.002)
+    profile = profile.replace(step=step, water_temperature_std_c=2.0)
+    on_step = [c for c in candidate_postures(profile) if c.step]
+    assert on_step and all(c.face == 2 for c in on_step)
+    # the planned faces and one posture over the step; the water 3 °C warmer than the profile
+    # says, the step 1.5 µm higher than its certificate
+    postures = plan.postures + (on_step[0],)
+    water_c, height = profile.water_temperature_c + 3.0, 50.0015
+    meas = measure(
+        profile,
+        replace(plan, postures=postures),
+        profile.model,
+        np.zeros(6),
+        profile.sample_rotation_deg,
+        profile.sample_position_mm,
+        water_c,
+        seed=2,
+    )
+    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(water_c)
+    steps = [replace(meas[-1], distance_mm=meas[-1].distance_mm - height * scale)]
+    prior = prior_from_profile(profile)
+    sol = solve_full(prior, meas[:-1], steps=steps)
+    assert "step" in sol.ident.scale_note
+    # the thermometer alone: ±6 m/s; with the DH length tolerance, ±0.6 m/s (the plan's faces)
+    assert prior.sound_speed_std_m_s > 5.0 and sol.sound_speed_std_m_s < 0.2
+    assert abs(sol.sound_speed_m_s - sound_speed_m_s(water_c)) < 3 * sol.sound_speed_std_m_s
+    standard = sol.length_standard
+    assert standard is not None and standard["measurements"] == 1
+    assert abs(standard["step_mm"] - height) < 3 * standard["std_mm"]
+    assert sol.cell.quality.verdict == "ok"
