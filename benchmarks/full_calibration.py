@@ -45,7 +45,7 @@ from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.calibration.full_plan import plan_full
-from ucal.calibration.full_run import run_full
+from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.sequence import calibration_pose
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
@@ -129,32 +129,44 @@ def run_world(profile_path: Path, world_path: Path, save: Path | None = None) ->
         except DriverError as err:
             print(f"{world_path.name}: {err}; measuring again", flush=True)
             return measure_world(profile_path, world_path, save)
-    except UcalError as err:
+    except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
         print(f"{world_path.name}: stopped: {err}", flush=True)
         return {"stopped": str(err)}
 
 
 def measure_world(profile_path: Path, world_path: Path, save: Path | None = None) -> dict:
-    """Measure one world with the full plan; solve both levels; the figures of one row."""
+    """Measure one world with the full plan (or take its measurements from ``save``, where an
+    earlier run of the same worlds kept them); solve both levels; the figures of one row."""
     profile = load_profile(profile_path)
     plan = plan_full(profile)
+    kept = None if save is None else save / f"{world_path.stem}.pickle"
     t0 = time.monotonic()
-    with open_cell(profile, str(world_path), None, None) as cell:
-        check_status(cell.rig)
-        run = run_full(profile, plan, cell.rig)
-        duration = cell.elapsed_s
+    if kept is not None and kept.exists():
+        with open(kept, "rb") as f:
+            saved = pickle.load(f)
+        if saved["world"] != world_path.read_text():
+            raise ValueError(f"{kept} holds another world")
+        run = FullRun(saved["measurements"], saved["steps"], *saved.get("counts", (0, 0)))
+        duration = saved.get("duration_s", float("nan"))
+    else:
+        with open_cell(profile, str(world_path), None, None) as cell:
+            check_status(cell.rig)
+            run = run_full(profile, plan, cell.rig)
+            duration = cell.elapsed_s
+        if kept is not None:  # the measurements, to solve again with other assumptions
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            with open(kept, "wb") as f:
+                pickle.dump(
+                    {
+                        "measurements": run.measurements,
+                        "steps": run.steps,
+                        "counts": (run.moves, run.reads),
+                        "duration_s": duration,
+                        "world": world_path.read_text(),
+                    },
+                    f,
+                )
     wall = time.monotonic() - t0
-    if save is not None:  # the measurements, to solve again with other assumptions
-        save.mkdir(parents=True, exist_ok=True)
-        with open(save / f"{world_path.stem}.pickle", "wb") as f:
-            pickle.dump(
-                {
-                    "measurements": run.measurements,
-                    "steps": run.steps,
-                    "world": world_path.read_text(),
-                },
-                f,
-            )
     world = load_world(world_path, profile)
     prior = prior_from_profile(profile)
     full = solve_full(prior, run.measurements, structure=plan.structure, steps=run.steps)
@@ -220,7 +232,12 @@ def main() -> None:
     )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--save", type=Path, help="keep each world's measurements there (pickle)")
+    ap.add_argument(
+        "--save",
+        type=Path,
+        help="keep each world's measurements there (pickle); a world already there is solved "
+        "from them, not measured again",
+    )
     ap.add_argument(
         "--step", action="store_true", help="a step of known height on the XY face (the scale)"
     )
@@ -279,8 +296,8 @@ def main() -> None:
         f"reported quantities within 3σ (max |z| {np.max(np.abs(z)):.2f})"
     )
     print(
-        f"moves {np.mean([r['moves'] for r in drawn]):.0f} on average; simulated duration "
-        f"{np.mean([r['duration_s'] for r in drawn]) / 60:.1f} min (Modbus TCP); wall "
+        f"moves {np.mean([r['moves'] for r in drawn if r['moves']]):.0f} on average; simulated "
+        f"duration {np.nanmean([r['duration_s'] for r in drawn]) / 60:.1f} min (Modbus TCP); wall "
         f"{np.mean([r['wall_s'] for r in drawn]):.0f} s per world on this machine"
     )
     if "nominal_z" in rows[-1]:
