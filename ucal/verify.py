@@ -92,26 +92,57 @@ given as well (the bias and the scatter).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import tomllib
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.faces import acquisition_gain, estimate_offsets, measure_face
-from ucal.calibration.model import FACE_NAMES, CellGeometry, FaceMeasurement, face_basis
-from ucal.calibration.safety import check_joints
-from ucal.calibration.search import Rig, ka_of
-from ucal.calibration.sequence import FinalApproachRig, calibration_pose, geometry
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.faces import (
+    FaceRequest,
+    FaceSetup,
+    SearchMode,
+    acquisition_gain,
+    estimate_offsets,
+    measure,
+)
+from ucal.calibration.model import (
+    FACE_NAMES,
+    FACE_ORDER,
+    CellGeometry,
+    Face,
+    FaceMeasurement,
+    face_basis,
+)
+from ucal.calibration.safety import (
+    EDGE_MARGIN_MM,
+    MIN_WATER_PATH_MM,
+    check_face,
+    check_joints,
+)
+from ucal.calibration.search import ka_of
+from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, SafetyError, UnreachableError
 from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.kinematics.ik import ik
+from ucal.procedure import Measured, Outcome, RunOptions
+from ucal.profile import history_dir, load_profile, profile_history
+from ucal.progress import MeasureStep, Report
+from ucal.rig import FinalApproachRig, Rig
+from ucal.session import CellSession
+from ucal.sim.cell import SimulatedCell
+from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
 from ucal.toolframe.exact import fit_edge_profile
 
 log = logging.getLogger(__name__)
@@ -123,16 +154,8 @@ DEFAULT_POINTS = 20
 #: Water path from the TCP to each wall (YZ, XZ face) when the wrist points at it (mm):
 #: short enough for a strong echo at 25 MHz (−0.27 dB per mm), long enough for clearance.
 WALL_PATH_MM = (50.0, 150.0)
-#: Closest the TCP may come to a face while the wrist turns about W (mm).
-MIN_CLEARANCE_MM = 20.0
-#: Distance kept between a beam's hit point and a face's edges (mm).
-EDGE_MARGIN_MM = 20.0
-#: Room kept inside the wrist joints' ranges for the peak search (deg).
-SEARCH_MARGIN_DEG = 8.0
 #: A face whose last prediction missed by less than this (deg of beam tilt) is fitted directly.
 DIRECT_FIT_TILT_DEG = 0.12
-#: Faces in the order they are measured at each point: XY (beam straight down), YZ, XZ.
-FACE_ORDER = (2, 0, 1)
 PASSES = ("before", "after")
 #: Tool check: the edge scans run this far beyond the XY face's far edge at most (mm).
 EDGE_OVERSHOOT_MM = 15.0
@@ -240,7 +263,6 @@ class BeforeProfile:
 def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
     """The joint offsets of the profile as it was before its last ``calibrate`` write (its
     history); zero offsets when the history holds none (a profile calibrated by hand)."""
-    from ucal.profile import history_dir, load_profile, profile_history
 
     for entry in reversed(profile_history(profile_path)):
         if entry.reason.startswith("calibrate") and not entry.undone:
@@ -272,11 +294,6 @@ def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> So
     150 mm of a wall, different at every point; the calibration's fitted speed is known to
     tenths of a m/s.
     """
-    import tomllib
-
-    from scipy.optimize import brentq
-
-    from ucal.acoustics import sound_speed_m_s
 
     temp = float(profile.water_temperature_c)
     try:
@@ -353,39 +370,6 @@ def joints_for(
     return q
 
 
-def _check_face(
-    profile: CellProfile,
-    geom: CellGeometry,
-    q: np.ndarray,
-    face: int,
-    offsets: np.ndarray,
-    label: str,
-) -> None:
-    """The beam meets ``face`` inside its edges at a positive water path, TCP clear of it."""
-    frames = fk_frames(geom.model, q, offsets)
-    flange = frames[6]
-    beam = flange[:3, :3] @ geom.beam_flange
-    tcp = flange[:3, :3] @ geom.tool_matrix[:3, 3] + flange[:3, 3]
-    s_mat = profile.sample_matrix
-    local_tcp = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
-    path = float(local_tcp[face])
-    if path < MIN_CLEARANCE_MM:
-        raise SafetyError(
-            f"plan {label}/{FACE_NAMES[face]}: the tool centre would be "
-            f"{path:.1f} mm from face {FACE_NAMES[face]} (minimum "
-            f"{MIN_CLEARANCE_MM:g} mm)"
-        )
-    hit = local_tcp + path * (s_mat[:3, :3].T @ beam)
-    size = profile.sample_face_size_mm
-    edge = min(min(hit[i], size - hit[i]) for i in range(3) if i != face)
-    if edge < EDGE_MARGIN_MM:
-        raise SafetyError(
-            f"plan {label}/{FACE_NAMES[face]}: the beam would meet face "
-            f"{FACE_NAMES[face]} {edge:.1f} mm from its edge (minimum "
-            f"{EDGE_MARGIN_MM:g} mm)"
-        )
-
-
 def plan_verify(
     profile: CellProfile,
     n_points: int = DEFAULT_POINTS,
@@ -398,7 +382,7 @@ def plan_verify(
     commanded and planned face posture keeps ``SEARCH_MARGIN_DEG`` inside the wrist ranges and
     the θ5 singularity margin of the profile; each beam meets its face inside the edges; the
     wrist centre is far enough from each face that the TCP, turning about W, stays
-    ``MIN_CLEARANCE_MM`` away from it.
+    ``MIN_WATER_PATH_MM`` away from it.
     """
     geom = geometry(profile)
     nominal = nominal_points(profile, n_points, height_mm)
@@ -417,17 +401,17 @@ def plan_verify(
             q = joints_for(profile, target_matrix(profile, p), off, prev, f"plan {label}")
             w = fk_frames(profile.model, q, off)[4, :3, 3]
             w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
-            if np.min(w_local) - reach < MIN_CLEARANCE_MM:
+            if np.min(w_local) - reach < MIN_WATER_PATH_MM:
                 raise SafetyError(
                     f"plan {label}: the wrist centre would be "
                     f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
-                    f"mm from it) needs {MIN_CLEARANCE_MM:g} mm more"
+                    f"mm from it) needs {MIN_WATER_PATH_MM:g} mm more"
                 )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
                 qf = aim_wrist(geom, q, -geom.normal(k), off)
                 check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
-                _check_face(profile, geom, qf, k, off, label)
+                check_face(profile, geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
                 faces[k] = qf
             targets.append(VerifyTarget(pass_name, i, q, faces))
             prev = q
@@ -668,9 +652,10 @@ def run_verify(
     profile: CellProfile,
     plan: VerifyPlan,
     rig: Rig,
-    progress: Callable[[PointResult, int, int], None] | None = None,
+    progress: Report | None = None,
 ) -> VerifyResult:
-    """Move to every planned point of both passes and measure where the robot really is.
+    """Move to every planned point of both passes and measure where the robot really is,
+    reporting each point and each edge of the tool check as it starts.
 
     The caller owns the connection, STOP and preflight. Never writes the profile.
     """
@@ -688,15 +673,18 @@ def run_verify(
     )
     away = first.joints_deg.copy()
     away[js0[1]] += 25.0
-    acq_gain = acquisition_gain(rig, away)
+    setup = FaceSetup(profile, ka, acquisition_gain(rig, away))
 
     last_wrist: dict[int, np.ndarray] = {}
     pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
     orientations: dict[int, WristOrientation] = {}  # of the "after" points
-    total = len(plan.targets)
+    total = len(plan.targets) + len(plan.edge_points)
     approach = FinalApproachRig(rig)
     for n_done, target in enumerate(plan.targets):
+        if progress:
+            what = f"{target.pass_name} point {target.index + 1}"
+            progress(MeasureStep(what, n_done, total, target.pass_name))
         # the commanded point (TCP on the nominal point), reached from below on every joint
         # as in the calibration: a joint with backlash lags the same way as when calibrated
         approach.move(target.joints_deg)
@@ -710,26 +698,23 @@ def run_verify(
             # well is centred on its main lobe first; the first faces are acquired.
             last = pred_err_deg.get(k, np.inf)
             mode = (
-                "direct"
+                SearchMode.DIRECT
                 if last < DIRECT_FIT_TILT_DEG
-                else "quick"
+                else SearchMode.QUICK
                 if len(pred.meas) >= 2
-                else "acquire"
+                else SearchMode.ACQUIRE
             )
-            found = measure_face(
-                rig,
-                geom,
-                profile,
-                start,
-                k,
-                pred.offsets_deg,
-                ka,
-                acq_gain,
-                label,
-                f"{target.pass_name}/{target.index}",
-                mode,
-                16.0 if not pred.meas else 8.0,
+            request = FaceRequest(
+                face=Face(k),
+                start_deg=start,
+                geometry=geom,
+                offsets_deg=pred.offsets_deg,
+                label=label,
+                config=f"{target.pass_name}/{target.index}",
+                mode=mode,
+                radius_deg=16.0 if not pred.meas else 8.0,
             )
+            found = measure(rig, setup, request)
             m = found.measurement
             pred_err_deg[k] = found.prediction_error_deg
             faces[k] = m
@@ -755,8 +740,6 @@ def run_verify(
         )
         results.append(res)
         log.info("%s: deviation %s mm", target.label, np.round(res.deviation_mm, 4).tolist())
-        if progress:
-            progress(res, n_done + 1, total)
     # tool check: the real TCP against the estimate at the XY face's far edges
     after = {p.index: p for p in results if p.pass_name == "after"}
     wrist = WristMap.fit(
@@ -765,17 +748,24 @@ def run_verify(
         np.array([p.wrist_centre_mm for p in after.values()]),
         plan.offsets_deg["after"],
     )
-    checks = tuple(
-        scan_edge(
-            rig, approach.move, geom, profile, plan, after[i], orientations[i], wrist, axis, v
+    scans = []
+    for axis, i in enumerate(plan.edge_points):
+        if progress:
+            what = f"tool check along block {'XY'[axis]}"
+            progress(MeasureStep(what, len(plan.targets) + axis, total, "after", "XY"))
+        scans.append(
+            scan_edge(
+                rig, approach.move, geom, profile, plan, after[i], orientations[i], wrist, axis, v
+            )
         )
-        for axis, i in enumerate(plan.edge_points)
-    )
+    checks = tuple(scans)
     b = tool_offset(checks)
     log.info("tool check: real minus estimated TCP %s mm", np.round(b, 4).tolist())
     results = [replace(p, reached_mm=p.reached_mm + b) for p in results]
     # Leave the robot at the last commanded point (beam down, clear of the block).
     approach.move(plan.targets[-1].joints_deg)
+    if progress:
+        progress(MeasureStep("solving", total, total))
     return VerifyResult(
         plan, results, rig.counters.moves, rig.counters.reads, pred.offsets_deg.copy(), checks
     )
@@ -963,7 +953,6 @@ def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
     coordinates of the *true* block (mm): what the measurement should find. The commanded
     points are reached from below on every joint, so a joint with backlash lags by half of it
     against a positive motion."""
-    from ucal.sim.cell import SimulatedCell
 
     tcp = SimulatedCell(truth).true_tcp(joints_deg, motion_sign=np.ones(6))[:3, 3]
     s_mat = truth.sample_matrix
@@ -981,6 +970,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     of both passes, drawn at a stated scale (×1, 2, 5·10^k), and the Z deviation written beside each
     point. Right: per-axis mean and maximum of the absolute deviations, before vs after.
     """
+    # matplotlib only for the picture: importing it costs a command a second at start-up
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1073,3 +1063,161 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the verify command's job in the procedure of ``ucal.procedure``
+
+
+def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
+    """The plan in words for the confirmation (stderr)."""
+    lo = plan.nominal_mm.min(0)
+    hi = plan.nominal_mm.max(0)
+    return (
+        f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
+        f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
+        f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
+        f"({6 * plan.points} in all), then a tool check across the XY face's two far edges."
+    )
+
+
+def truth_check(result: VerifyResult, truth: WorldTruth) -> dict[str, Any]:
+    """Simulation only: the true reached TCPs and how far the measurement was from them.
+
+    The error splits into a common bias and what remains point by point.
+    """
+    reached: dict[str, list[Any]] = {"before": [], "after": []}
+    err = []
+    for p in sorted(result.points, key=lambda r: (r.pass_name != "before", r.index)):
+        t = true_reached_local(truth, p.commanded_deg)
+        reached[p.pass_name].append(t.tolist())
+        err.append(p.reached_mm - t)
+    err_arr = np.array(err)
+    bias = err_arr.mean(0)
+    n_before = len(reached["before"])
+    return {
+        "joint_offsets_deg": truth.joint_offsets_deg.tolist(),
+        "reached_mm": reached,
+        "measurement_error_max_mm": np.abs(err_arr).max(0).tolist(),
+        "after_error_max_mm": np.abs(err_arr[n_before:]).max(0).tolist(),
+        "measurement_bias_mm": bias.tolist(),
+        "measurement_scatter_max_mm": np.abs(err_arr - bias).max(0).tolist(),
+    }
+
+
+@dataclass
+class VerifyShown:
+    """What the result tables are drawn from."""
+
+    result: VerifyResult
+    before: BeforeProfile
+    sound: SoundSpeed
+    tolerance_mm: float
+    worst_mm: float
+    truth: dict[str, Any] | None
+    plot_path: Path | None
+
+
+class VerifyJob:
+    """``verify``: the positioning error before and after calibration; writes its picture,
+    never the profile."""
+
+    command = "verify"
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        profile_path: Path,
+        n_points: int = DEFAULT_POINTS,
+        tolerance_mm: float | None = None,
+        plot_path: Path | None = None,
+    ) -> None:
+        self.profile = profile
+        self.profile_path = profile_path
+        self.n_points = n_points
+        self.tolerance_mm = (
+            profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
+        )
+        self.plot_path = plot_path
+        self.before = BeforeProfile(np.zeros(6), "")
+        self.sound = SoundSpeed(0.0, 0.0, "")
+
+    def profile_text(self) -> str:
+        return self.profile_path.read_text(encoding="utf-8")
+
+    def check(self, options: RunOptions) -> AbstractContextManager[object]:
+        """The "before" offsets from the profile's history and the sound speed of its last
+        calibration; nothing is held (the profile is not written)."""
+        self.before = offsets_before_calibration(self.profile_path)
+        self.sound = sound_speed_for_verify(self.profile, self.profile_path)
+        return contextlib.nullcontext()
+
+    def plan(self) -> VerifyPlan:
+        return plan_verify(self.profile, self.n_points, before_offsets_deg=self.before.offsets_deg)
+
+    def summary(self, plan: VerifyPlan) -> str:
+        return plan_summary(plan, self.profile_path)
+
+    def estimate(self, plan: VerifyPlan) -> DurationEstimate:
+        speed = self.profile.procedure.speed
+        postures = [t.face_joints_deg[k] for t in plan.targets for k in FACE_ORDER]
+        faces = estimate_run(postures, calibration_pose(self.profile), speed)
+        edges = [plan.targets[-1].joints_deg] * len(plan.edge_points)
+        return faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
+
+    def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
+        return {"options": {"points": self.n_points}, "plan": []}
+
+    def measure(self, plan: VerifyPlan, session: CellSession, report: Report) -> VerifyResult:
+        # times of flight converted with the measured sound speed (as a water temperature)
+        measuring = self.profile.replace(water_temperature_c=self.sound.temperature_c)
+        return run_verify(measuring, plan, session.rig, report)
+
+    def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifyShown:
+        result = measured.data
+        return VerifyShown(
+            result,
+            self.before,
+            self.sound,
+            self.tolerance_mm,
+            float(np.max(result.stats("after")["max"])),
+            None if measured.truth is None else truth_check(result, measured.truth),
+            self.plot_path,
+        )
+
+    def may_write(self, shown: VerifyShown) -> bool:
+        return self.plot_path is not None
+
+    def write(self, shown: VerifyShown) -> None:
+        assert self.plot_path is not None
+        plot_verify(
+            shown.result,
+            self.plot_path,
+            title=f"{self.profile_path.name}: positioning error before and after calibration",
+        )
+
+    def result(
+        self, plan: VerifyPlan, measured: Measured[VerifyResult], shown: VerifyShown, written: bool
+    ) -> Outcome:
+        out = shown.result.to_json(self.tolerance_mm)
+        out["before_source"] = self.before.source
+        out["sound_speed_m_s"] = self.sound.m_s
+        out["sound_speed_source"] = self.sound.source
+        out["profile"] = str(self.profile_path)
+        out["plot"] = str(self.plot_path) if written else None
+        if shown.truth is not None:
+            out["truth"] = shown.truth
+        if not written:
+            shown.plot_path = None
+        message = (
+            f"verify: a point deviates {shown.worst_mm:.3f} mm after calibration, above the "
+            f"tolerance of {self.tolerance_mm:g} mm"
+        )
+        return Outcome(
+            self.command,
+            out,
+            written,
+            out_of_tolerance=not out["passed"],
+            message=message,
+            shown=shown,
+        )

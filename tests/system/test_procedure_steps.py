@@ -19,6 +19,7 @@ from ucal.procedure import MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile
 from ucal.progress import Progress
 from ucal.toolframe.procedure import ToolFrameCalibration
+from ucal.verify import VerifyJob
 
 pytestmark = pytest.mark.system
 
@@ -75,7 +76,7 @@ def check_run(steps: list[Step], presenter: Recorder, outcome: Outcome, title: s
     assert isinstance(outcome.result, dict) and outcome.command == title
 
 
-def test_calibrate_and_tool_frame_go_through_the_same_steps(profile_path: Path) -> None:
+def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path: Path) -> None:
     before = profile_path.read_bytes()
     profile = load_profile(profile_path)
     steps, presenter, outcome = run(OffsetsCalibration(profile, profile_path), dry_run=True)
@@ -89,3 +90,15 @@ def test_calibrate_and_tool_frame_go_through_the_same_steps(profile_path: Path) 
     assert presenter.progress_seen[0].step.face == "plate"
     assert outcome.written == (not outcome.out_of_tolerance)
     assert outcome.result["written"] == outcome.written
+
+    profile = load_profile(profile_path)  # as tool-frame wrote it
+    steps, presenter, outcome = run(VerifyJob(profile, profile_path, n_points=1), dry_run=True)
+    check_run(steps, presenter, outcome, "verify")
+    assert [p.step.what for p in presenter.progress_seen] == [
+        "before point 1",
+        "after point 1",
+        "tool check along block X",
+        "tool check along block Y",
+        "solving",
+    ]
+    assert outcome.written is False and outcome.result["plot"] is None  # a dry run

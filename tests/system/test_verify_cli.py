@@ -95,8 +95,9 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     out = json.loads(r.stdout)
     check_shape(out, 4)
     # stderr is not a terminal: a plain progress line per point and pass, --json or not
-    steps = re.findall(r"^verify \[(\d+)/8\] (?:before|after) point", r.stderr, re.MULTILINE)
-    assert steps == [str(i) for i in range(1, 9)]
+    steps = re.findall(r"^verify \[(\d+)/10\] (?:before|after) point", r.stderr, re.MULTILINE)
+    assert steps == [str(i) for i in range(8)]  # then the two edges of the tool check
+    assert re.search(r"^verify \[10/10\] solving \(\d+ moves, \d+ reads, about ", r.stderr, re.M)
     assert out["passed"] is True and out["tolerance_mm"] == 0.5  # [procedure] default
     assert out["before_source"].startswith("history entry")
     before = np.array(out["before_mm"]["mean"])
@@ -248,9 +249,9 @@ def test_ctrl_c_stops_and_exits_130(tmp_path: Path, world: Path) -> None:
         text=True,
     )
     try:
-        # the first point's result line shows the robot is measuring
+        # the second point's progress line shows the robot is measuring
         line = ""
-        while "[1/8]" not in line:
+        while "[1/10]" not in line:
             line = proc.stderr.readline()
             assert line, "verify ended before measuring a point"
         proc.send_signal(signal.SIGINT)

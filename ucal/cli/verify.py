@@ -3,26 +3,27 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
+from ucal.cli import verify_region
 from ucal.cli.options import (
     cell_from_options,
-    confirm_motion,
     controller_option,
-    emit_json,
+    dry_run_option,
     json_option,
     pulser_option,
     sim_option,
     yes_option,
 )
-from ucal.cli.progress import StepProgress
-
-if TYPE_CHECKING:
-    from ucal.cell import WorldTruth
-    from ucal.verify import PointResult, VerifyPlan, VerifyResult
+from ucal.cli.procedure import finish, run_job
+from ucal.errors import InputError
+from ucal.procedure import Outcome, RunOptions
+from ucal.profile import load_profile
+from ucal.verify import VerifyJob, VerifyResult, VerifyShown
 
 
 @click.command(
@@ -71,6 +72,7 @@ Examples:
     "postures spread like a full calibration's (ucal.verify_region).",
 )
 @yes_option
+@dry_run_option
 @json_option
 def cli(
     profile_path: Path,
@@ -82,6 +84,7 @@ def cli(
     tolerance_mm: float | None,
     region: int | None,
     yes: bool,
+    dry_run: bool,
     as_json: bool,
 ) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
@@ -101,21 +104,8 @@ def cli(
     profile is never written. The run passes when no point deviates more than the tolerance on
     any axis after calibration; otherwise exit 1.
     """
-    from ucal.errors import InputError, OutOfToleranceError
-    from ucal.profile import load_profile
-    from ucal.session import check_status, open_cell
-    from ucal.verify import (
-        offsets_before_calibration,
-        plan_verify,
-        plot_verify,
-        run_verify,
-        sound_speed_for_verify,
-    )
-
-    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes)
+    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
     if region is not None:
-        from ucal.cli import verify_region
-
         verify_region.run(profile_path, cell, region, tolerance_mm, yes, as_json)
         return
     profile = load_profile(profile_path)
@@ -124,68 +114,28 @@ def cli(
     if not plot_path.parent.is_dir():
         raise InputError(f"--plot {plot_path}: directory {plot_path.parent} does not exist")
     _check_plot_format(plot_path)
+    job = VerifyJob(profile, profile_path, n_points, tolerance_mm, plot_path)
+    finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)
 
-    tolerance = profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
-    before = offsets_before_calibration(profile_path)
-    sound = sound_speed_for_verify(profile, profile_path)
-    # every target checked before any connection
-    plan = plan_verify(profile, n_points, before_offsets_deg=before.offsets_deg)
-    confirm_motion(yes, _summary(plan, profile_path), cell)
-    with open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url) as session:
-        check_status(session.rig)
-        with StepProgress("verify") as progress:
 
-            def report(res: PointResult, done: int, total: int) -> None:
-                d = res.deviation_mm
-                progress.step(
-                    f"{res.pass_name} point {res.index + 1}",
-                    done,
-                    total,
-                    f"deviation X {d[0]:+.3f}  Y {d[1]:+.3f}  Z {d[2]:+.3f} mm with the "
-                    "profile's tool",
-                )
-
-            # times of flight converted with the measured sound speed (as a water temperature)
-            measuring = profile.replace(water_temperature_c=sound.temperature_c)
-            result = run_verify(measuring, plan, session.rig, report)
-        truth = session.truth
-    plot_verify(
-        result,
-        plot_path,
-        title=f"{profile_path.name}: positioning error before and after calibration",
-    )
-    out = result.to_json(tolerance)
-    out["before_source"] = before.source
-    out["sound_speed_m_s"] = sound.m_s
-    out["sound_speed_source"] = sound.source
-    out["profile"] = str(profile_path)
-    out["plot"] = str(plot_path)
-    worst = float(np.max(result.stats("after")["max"]))
-    message = (
-        f"verify: a point deviates {worst:.3f} mm after calibration, above the "
-        f"tolerance of {tolerance:g} mm"
-    )
-    if as_json:
-        if truth is not None:
-            out["truth"] = _truth_check(result, truth)
-        if not out["passed"]:
-            raise OutOfToleranceError(message, out)
-        emit_json(out)
-        return
-    _print_table(result)
+def show_outcome(outcome: Outcome) -> None:
+    """The deviation table, the tool check, the verdict and the simulation check on stdout."""
+    shown: VerifyShown = outcome.shown
+    out = outcome.result
+    _print_table(shown.result)
     b = out["tool_check"]["offset_mm"]
     click.echo(
         f"tool check (XY face's edges): real TCP minus the profile's X {b[0]:+.4f}  "
         f"Y {b[1]:+.4f} mm, included above"
     )
-    click.echo(f"before: {before.source}")
-    click.echo(f"sound speed: {sound.source}")
+    click.echo(f"before: {shown.before.source}")
+    click.echo(f"sound speed: {shown.sound.source}")
     click.echo(
-        f"after: largest deviation {worst:.4f} mm, tolerance {tolerance:g} mm: "
+        f"after: largest deviation {shown.worst_mm:.4f} mm, tolerance {shown.tolerance_mm:g} mm: "
         + ("passed" if out["passed"] else "FAILED")
     )
-    if truth is not None:
-        chk = _truth_check(result, truth)
+    if shown.truth is not None:
+        chk = shown.truth
         click.echo(
             "simulation check, measured minus true reached points: common bias "
             + ", ".join(
@@ -198,43 +148,12 @@ def cli(
             )
             + " mm"
         )
-    click.echo(f"picture: {plot_path}")
-    if not out["passed"]:
-        raise OutOfToleranceError(message, out)
-
-
-def _truth_check(result: VerifyResult, truth: WorldTruth) -> dict:
-    """Simulation only: the true reached TCPs and how far the measurement was from them.
-
-    The error splits into a common bias and
-    what remains point by point.
-    """
-
-    from ucal.verify import true_reached_local
-
-    reached: dict[str, list] = {"before": [], "after": []}
-    err = []
-    for p in sorted(result.points, key=lambda r: (r.pass_name != "before", r.index)):
-        t = true_reached_local(truth, p.commanded_deg)
-        reached[p.pass_name].append(t.tolist())
-        err.append(p.reached_mm - t)
-    err_arr = np.array(err)
-    bias = err_arr.mean(0)
-    n_before = len(reached["before"])
-    return {
-        "joint_offsets_deg": truth.joint_offsets_deg.tolist(),
-        "reached_mm": reached,
-        "measurement_error_max_mm": np.abs(err_arr).max(0).tolist(),
-        "after_error_max_mm": np.abs(err_arr[n_before:]).max(0).tolist(),
-        "measurement_bias_mm": bias.tolist(),
-        "measurement_scatter_max_mm": np.abs(err_arr - bias).max(0).tolist(),
-    }
+    click.echo(f"picture: {shown.plot_path}" if shown.plot_path else "picture: not written")
 
 
 def _check_plot_format(path: Path) -> None:
+    # matplotlib only here: importing it costs the command's start-up a second
     from matplotlib.backend_bases import FigureCanvasBase
-
-    from ucal.errors import InputError
 
     fmt = path.suffix.lstrip(".").lower()
     known = FigureCanvasBase.get_supported_filetypes()
@@ -245,21 +164,7 @@ def _check_plot_format(path: Path) -> None:
         )
 
 
-def _summary(plan: VerifyPlan, profile_path: Path) -> str:
-    lo = plan.nominal_mm.min(0)
-    hi = plan.nominal_mm.max(0)
-    return (
-        f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
-        f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
-        f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
-        f"({6 * plan.points} in all), then 2 edge scans (tool check)."
-    )
-
-
 def _print_table(result: VerifyResult) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
     table = Table(
         title=f"Deviation from the nominal points, {result.plan.points} points (mm, "
         "block axes; paper 000, Table 5)"
