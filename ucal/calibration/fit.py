@@ -49,7 +49,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 from scipy.special import chdtrc
 
 from ucal.acoustics import sound_speed_m_s
@@ -418,6 +418,29 @@ def data_residuals(
     return out
 
 
+def _least_squares_with_priors(
+    fun: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    table: ParameterTable,
+    tol: float,
+    max_nfev: int,
+) -> OptimizeResult:
+    """``least_squares`` over ``table``'s free parameters, each scaled by its prior σ (at most
+    1): its own forward-difference Jacobian, trust region, ``tol`` on every criterion."""
+    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
+    return least_squares(
+        fun,
+        x0,
+        jac="2-point",
+        method="trf",
+        x_scale=x_scale[table.free],
+        xtol=tol,
+        ftol=tol,
+        gtol=tol,
+        max_nfev=max_nfev,
+    )
+
+
 def solve_cell(
     prior: CellPrior,
     meas: list[FaceMeasurement],
@@ -464,18 +487,7 @@ def solve_cell(
         # Start the corner where eq. (2) puts it with the prior offsets (a hand-placed block
         # can be centimetres off; the least-squares start should not depend on that).
         x0 = _initial_corner(table, prior, meas, table.values[table.free].copy())
-    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
-    sol = least_squares(
-        fun,
-        x0,
-        jac="2-point",
-        method="trf",
-        x_scale=x_scale[table.free],
-        xtol=tol,
-        ftol=tol,
-        gtol=tol,
-        max_nfev=200,
-    )
+    sol = _least_squares_with_priors(fun, x0, table, tol, 200)
     jac = sol.jac
     res = sol.fun
     estimate = table.expand(sol.x)
@@ -758,18 +770,7 @@ def solve_augmented(
             [data_fn(v), (v - table.prior)[has_prior] / table.prior_stds[has_prior]]
         )
 
-    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
-    sol = least_squares(
-        fun,
-        x0,
-        jac="2-point",
-        method="trf",
-        x_scale=x_scale[table.free],
-        xtol=tol,
-        ftol=tol,
-        gtol=tol,
-        max_nfev=max_nfev,
-    )
+    sol = _least_squares_with_priors(fun, x0, table, tol, max_nfev)
     cov = np.linalg.pinv(sol.jac.T @ sol.jac)
     prior_names = [n for n, f in zip(table.names, has_prior, strict=True) if f]
     counted = np.concatenate([np.ones(n_data, bool), [n not in measured for n in prior_names]])

@@ -428,17 +428,13 @@ class PeakSearch:
         # dither it, the error repeats from probe to probe instead of averaging out, and the
         # few residual degrees of freedom (or six identical repeats) can hide it. Its variance
         # (a uniform level, step²/12, at the fit's gain) is added to the measured one.
-        step = self.rig.amplitude_step_fsh / 10 ** (self.rig.settings.gain_db / 20)
-        sigma = float(
-            np.hypot(
-                max(
-                    float(np.sqrt(res @ res / dof)),
-                    1e-6 * sol.x[0],
-                    (self.amp_sigma_rel or 0.0) * float(np.mean(amps)),
-                ),
-                step / np.sqrt(12.0),
-            )
+        measured = max(
+            float(np.sqrt(res @ res / dof)),
+            1e-6 * sol.x[0],
+            (self.amp_sigma_rel or 0.0) * float(np.mean(amps)),
         )
+        step = self.rig.amplitude_step_fsh / 10 ** (self.rig.settings.gain_db / 20)
+        sigma = float(np.hypot(measured, step / np.sqrt(12.0)))
         cov = np.linalg.pinv(sol.jac.T @ sol.jac) * sigma**2
         # Peak-posture covariance (deg²) → tilt covariance (rad²) through the local map.
         cov_tilt = self._tilt_cov(cov[1:3, 1:3], sol.x)
