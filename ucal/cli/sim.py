@@ -6,7 +6,7 @@ import json
 import signal
 import sys
 import tempfile
-import threading
+import time
 from pathlib import Path
 
 import click
@@ -89,10 +89,12 @@ def serve(
     if world_path is not None:
         world = load_world(world_path, profile)
 
-    stop = threading.Event()
+    # The handler takes no lock: a threading.Event set from a signal handler deadlocks when
+    # the signal lands while the main thread holds the event's lock inside wait().
+    signals: list[int] = []
 
     def _on_signal(signum: int, frame: object) -> None:
-        stop.set()
+        signals.append(signum)
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -106,8 +108,8 @@ def serve(
         ) as cell:
             sys.stdout.write(json.dumps(cell.urls) + "\n")
             sys.stdout.flush()
-            while not stop.wait(0.2):
-                pass
+            while not signals:
+                time.sleep(0.1)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
