@@ -114,6 +114,7 @@ from scipy.spatial.transform import Rotation
 
 from ucal.errors import InputError, UnreachableError
 from ucal.kinematics.dh import N_JOINTS, RobotModel, fk, jacobian
+from ucal.kinematics.rotations import rot_x
 
 log = logging.getLogger(__name__)
 
@@ -190,11 +191,6 @@ def _rot_z(th: np.ndarray) -> np.ndarray:
     return np.stack(
         [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
     )
-
-
-def _rot_x(alpha_rad: float) -> np.ndarray:
-    c, s = np.cos(alpha_rad), np.sin(alpha_rad)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def ideal_structure(model: RobotModel) -> RobotModel:
@@ -331,7 +327,7 @@ def ik_closed_form(
     R06 = T[..., :3, :3]
     p = T[..., :3, 3]
     # (1) wrist centre
-    w_off = _rot_x(-al[5]) @ np.array([a[5], 0.0, d[5]])
+    w_off = rot_x(-al[5]) @ np.array([a[5], 0.0, d[5]])
     W = p - R06 @ w_off
     wx, wy, wz = W[..., 0], W[..., 1], W[..., 2]
 
@@ -365,7 +361,7 @@ def ik_closed_form(
 
     # (11) M = R03ᵀ·R06·Rx(α6)ᵀ with R03 = Rz(θ1)·Rx(α1)·Rz(θ2 + θ3)·Rx(α3) (α2 = 0), applied
     # row by row: elementwise over all poses and branches, no batched 3×3 products
-    R = R06 @ _rot_x(al[5]).T
+    R = R06 @ rot_x(al[5]).T
     r0, r1, r2 = R[..., None, 0, :], R[..., None, 1, :], R[..., None, 2, :]
     c1v, s1v = c1[..., None], s1[..., None]
     n0 = c1v * r0 + s1v * r1  # Rz(θ1)ᵀ
