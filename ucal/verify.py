@@ -499,6 +499,28 @@ def reached_tcp_local(
     return np.asarray(w_local_mm, float) + geom.block_rotation.T @ (r @ v_flange_mm)
 
 
+def reached_from_peaks(
+    profile: CellProfile,
+    geom: CellGeometry,
+    peak_joints_deg: np.ndarray,
+    distances_mm: np.ndarray,
+    commanded_deg: np.ndarray,
+) -> tuple[np.ndarray, WristOrientation, np.ndarray]:
+    """W, the true flange orientation and the reached TCP (block coordinates, mm) of one point
+    from its three normal-incidence postures (3, 6) and water paths (3,), with the profile's tool.
+
+    The orientation is fitted about the profile's own offsets: its J6 offset is the frame the
+    tool was measured in (``tool-frame``), so the tool's lever across the beam turns with the
+    flange as the profile says. A running estimate of J6 (unobservable with the beam near its
+    axis: it wanders by tens of degrees) would turn that lever with it — 1.5 mm at the TCP for
+    a tool 1.7 mm off the flange axis turned 140°.
+    """
+    v, lever = tool_lever(profile)
+    w_local = wrist_centre_from_distances(distances_mm, lever)
+    orient = estimate_orientation(geom, peak_joints_deg, profile.joint_offsets_deg)
+    return w_local, orient, reached_tcp_local(geom, w_local, orient, commanded_deg, v)
+
+
 def deviation_stats(deviations_mm: np.ndarray) -> dict[str, list[float]]:
     """Per-axis statistics (paper 000, Table 5) of deviations (n, 3) mm.
 
@@ -662,7 +684,7 @@ def run_verify(
     geom = geometry(profile)
     temp = profile.water_temperature_c
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
-    v, lever = tool_lever(profile)
+    v, _ = tool_lever(profile)
     pred = _Predictor(geom, profile.joint_offsets_deg, profile.sample_position_mm)
 
     # Noise floor with the beam in open water: the first point's posture with the wrist turned
@@ -721,11 +743,13 @@ def run_verify(
             last_wrist[k] = m.joints_deg
             pred.add(m)
         ordered = tuple(faces[k] for k in range(3))
-        w_local = wrist_centre_from_distances(np.array([m.distance_mm for m in ordered]), lever)
-        orient = estimate_orientation(
-            geom, np.array([m.joints_deg for m in ordered]), pred.offsets_deg
+        w_local, orient, tcp = reached_from_peaks(
+            profile,
+            geom,
+            np.array([m.joints_deg for m in ordered]),
+            np.array([m.distance_mm for m in ordered]),
+            target.joints_deg,
         )
-        tcp = reached_tcp_local(geom, w_local, orient, target.joints_deg, v)
         if target.pass_name == "after":
             orientations[target.index] = orient
         res = PointResult(

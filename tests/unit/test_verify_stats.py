@@ -20,6 +20,7 @@ from ucal.verify import (
     grid_shape,
     nominal_points,
     plan_verify,
+    reached_from_peaks,
     reached_tcp_local,
     sound_speed_for_verify,
     tool_lever,
@@ -98,6 +99,35 @@ def test_reached_tcp_from_three_exact_face_measurements(profile) -> None:
         assert got == pytest.approx(want, abs=1e-6)
         # and the robot really is off the nominal point by millimetres
         assert np.max(np.abs(want - plan.nominal_mm[target.index])) > 1.0
+
+
+def test_reached_tcp_of_a_tool_off_the_flange_axis(profile) -> None:
+    """A tool 1.7 mm off the flange axis with its beam 1.2° off it, on a robot whose J1–J5
+    offsets differ from the profile's: the reached TCP comes out in the frame of the profile's
+    J6 offset (the tool's), to a micrometre, in both passes."""
+    prof = profile.replace(
+        tool_position_mm=np.array([1.2, -1.2, 80.0]),
+        tool_rotation_deg=np.array([0.9, -0.8, 0.0]),
+        joint_offsets_deg=np.array([0.3, -0.5, 0.4, 0.2, -0.3, 0.7]),
+    )
+    geom = geometry(prof)
+    true = np.array([1.6, -0.9, 1.1, -1.4, 0.5, 0.7])  # J6 as the profile says: the tool's frame
+    plan = plan_verify(prof, 2)
+    s_mat = prof.sample_matrix
+    for target in plan.targets:
+        peaks = np.array(
+            [aim_wrist(geom, target.face_joints_deg[k], -geom.normal(k), true) for k in range(3)]
+        )
+        dist = np.array(
+            [
+                geom.normal(k) @ (beam_and_tcp(geom, peaks[k], true)[1] - s_mat[:3, 3])
+                for k in range(3)
+            ]
+        )
+        _, orient, got = reached_from_peaks(prof, geom, peaks, dist, target.joints_deg)
+        want = s_mat[:3, :3].T @ (beam_and_tcp(geom, target.joints_deg, true)[1] - s_mat[:3, 3])
+        assert orient.rms_deg < 1e-6
+        assert got == pytest.approx(want, abs=1e-3)
 
 
 def test_orientation_ignores_the_unseen_joint_6(profile) -> None:
