@@ -353,6 +353,22 @@ class VerifyPlan:
         return len(self.nominal_mm)
 
 
+def wrist_centre_local(
+    profile: CellProfile, joints_deg: np.ndarray, offsets_deg: np.ndarray
+) -> np.ndarray:
+    """The profile's wrist centre W at readings (6,) with ``offsets_deg``, block coordinates."""
+    s_mat = profile.sample_matrix
+    w = fk_frames(profile.model, np.asarray(joints_deg, float), offsets_deg)[4, :3, 3]
+    return s_mat[:3, :3].T @ (w - s_mat[:3, 3])
+
+
+def tool_clearance_mm(profile: CellProfile, w_local_mm: np.ndarray) -> float:
+    """The least water path (mm) the tool can have to a face while the wrist turns it about W
+    (block coordinates): W's distance to the nearest face less the tool's reach from W."""
+    v, _ = tool_lever(profile)
+    return float(np.min(w_local_mm) - np.linalg.norm(v))
+
+
 def joints_for(
     profile: CellProfile,
     pose: np.ndarray,
@@ -391,7 +407,6 @@ def plan_verify(
     before = np.zeros(6) if before_offsets_deg is None else np.asarray(before_offsets_deg, float)
     offsets = {"before": before, "after": np.array(profile.joint_offsets_deg, float)}
     near = calibration_pose(profile)
-    s_mat = profile.sample_matrix
     targets: list[VerifyTarget] = []
     for pass_name in PASSES:
         off = offsets[pass_name]
@@ -399,9 +414,8 @@ def plan_verify(
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
             q = joints_for(profile, target_matrix(profile, p), off, prev, f"plan {label}")
-            w = fk_frames(profile.model, q, off)[4, :3, 3]
-            w_local = s_mat[:3, :3].T @ (w - s_mat[:3, 3])
-            if np.min(w_local) - reach < MIN_WATER_PATH_MM:
+            w_local = wrist_centre_local(profile, q, off)
+            if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
                 raise SafetyError(
                     f"plan {label}: the wrist centre would be "
                     f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
@@ -577,6 +591,36 @@ class EdgeCheck:
         return self.edge_mm - self.crossing_mm
 
 
+@dataclass(frozen=True)
+class SkippedPoint:
+    """A "before" point not moved to: the measured points of its pass put the tool closer to
+    a face there than ``MIN_WATER_PATH_MM`` (the offsets before calibration are that far off)."""
+
+    pass_name: str
+    index: int
+    clearance_mm: float  # the tool's predicted least water path to a face there
+
+    def reason(self) -> str:
+        return (
+            f"{self.pass_name} point {self.index + 1} not measured: the tool would come "
+            f"{self.clearance_mm:.1f} mm from a face there (the points measured before it "
+            f"say), less than the {MIN_WATER_PATH_MM:g} mm kept"
+        )
+
+
+def predicted_clearance_mm(
+    profile: CellProfile, previous: PointResult, joints_deg: np.ndarray, offsets_deg: np.ndarray
+) -> float:
+    """The tool's least water path to a face at readings ``joints_deg`` (mm): the previous
+    point's measured W moved by the profile's displacement of W between the two postures (a
+    few mm of arm motion: what the offsets still have wrong changes it by hundredths)."""
+    w = previous.wrist_centre_mm + (
+        wrist_centre_local(profile, joints_deg, offsets_deg)
+        - wrist_centre_local(profile, previous.commanded_deg, offsets_deg)
+    )
+    return tool_clearance_mm(profile, w)
+
+
 def tool_offset(checks: tuple[EdgeCheck, ...]) -> np.ndarray:
     """The bias b (3,) the tool check adds to every wrist-centre estimate (block axes, mm)."""
     b = np.zeros(3)
@@ -595,9 +639,14 @@ class VerifyResult:
     reads: int
     offsets_estimate_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
     edge_checks: tuple[EdgeCheck, ...] = ()
+    skipped: tuple[SkippedPoint, ...] = ()
+
+    def indices(self, pass_name: str) -> list[int]:
+        """0-based indices of the points measured in one pass, in order."""
+        return sorted(p.index for p in self.points if p.pass_name == pass_name)
 
     def deviations(self, pass_name: str) -> np.ndarray:
-        """Deviations (n, 3) mm of one pass, by point index."""
+        """Deviations (n, 3) mm of the measured points of one pass, by point index."""
         rows = sorted((p for p in self.points if p.pass_name == pass_name), key=lambda p: p.index)
         return np.array([p.deviation_mm for p in rows]).reshape(-1, 3)
 
@@ -618,6 +667,8 @@ class VerifyResult:
         out["frame"] = "block"
         out["height_mm"] = self.plan.height_mm
         out["nominal_mm"] = self.plan.nominal_mm.tolist()
+        out["measured_points"] = {p: [i + 1 for i in self.indices(p)] for p in PASSES}
+        out["skipped"] = [s.reason() for s in self.skipped]
         out["deviations_mm"] = {p: self.deviations(p).tolist() for p in PASSES}
         out["reached_mm"] = {p: self.reached(p).tolist() for p in PASSES}
         out["offsets_deg"] = {p: self.plan.offsets_deg[p].tolist() for p in PASSES}
@@ -700,6 +751,7 @@ def run_verify(
     last_wrist: dict[int, np.ndarray] = {}
     pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
+    skipped: list[SkippedPoint] = []
     orientations: dict[int, WristOrientation] = {}  # of the "after" points
     total = len(plan.targets) + len(plan.edge_points)
     approach = FinalApproachRig(rig)
@@ -707,6 +759,23 @@ def run_verify(
         if progress:
             what = f"{target.pass_name} point {target.index + 1}"
             progress(MeasureStep(what, n_done, total, target.pass_name))
+        # the tool's clearance there from the pass's points measured so far: offsets before
+        # calibration 2° off put the TCP tens of mm from the nominal point, into the block
+        done = [p for p in results if p.pass_name == target.pass_name]
+        if done:
+            clear = predicted_clearance_mm(
+                profile, done[-1], target.joints_deg, plan.offsets_deg[target.pass_name]
+            )
+            if clear < MIN_WATER_PATH_MM:
+                skip = SkippedPoint(target.pass_name, target.index, clear)
+                if target.pass_name != "before":
+                    raise SafetyError(
+                        f"{skip.reason()}: the profile's offsets put the robot that far from "
+                        "its nominal points; calibrate first"
+                    )
+                log.warning("%s", skip.reason())
+                skipped.append(skip)
+                continue
         # the commanded point (TCP on the nominal point), reached from below on every joint
         # as in the calibration: a joint with backlash lags the same way as when calibrated
         approach.move(target.joints_deg)
@@ -791,7 +860,13 @@ def run_verify(
     if progress:
         progress(MeasureStep("solving", total, total))
     return VerifyResult(
-        plan, results, rig.counters.moves, rig.counters.reads, pred.offsets_deg.copy(), checks
+        plan,
+        results,
+        rig.counters.moves,
+        rig.counters.reads,
+        pred.offsets_deg.copy(),
+        checks,
+        tuple(skipped),
     )
 
 
@@ -1002,6 +1077,7 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
 
     nom = result.plan.nominal_mm
     dev = {p: result.deviations(p) for p in PASSES}
+    at = {p: result.indices(p) for p in PASSES}
     colours = {"before": "tab:red", "after": "tab:green"}
     markers = {"before": "o", "after": "^"}
     span = np.ptp(nom[:, :2], axis=0)
@@ -1018,8 +1094,8 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1.2, 1]})
     ax.plot(nom[:, 0], nom[:, 1], "ks", ms=6, label="nominal point")
     for p in PASSES:
-        end = nom[:, :2] + scale * dev[p][:, :2]
-        for a, b in zip(nom[:, :2], end, strict=True):
+        end = nom[at[p], :2] + scale * dev[p][:, :2]
+        for a, b in zip(nom[at[p], :2], end, strict=True):
             ax.annotate(
                 "", xy=b, xytext=a, arrowprops={"arrowstyle": "->", "color": colours[p], "lw": 1.4}
             )
@@ -1032,9 +1108,14 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
             label=f"reached, {p} calibration",
         )
     for i, pt in enumerate(nom):
-        zb, za = (round(float(dev[p][i, 2]), 2) + 0.0 for p in PASSES)  # no "-0.00"
+        zs = [
+            f"{round(float(dev[p][at[p].index(i), 2]), 2) + 0.0:+.2f}"  # no "-0.00"
+            if i in at[p]
+            else "-"
+            for p in PASSES
+        ]
         ax.annotate(
-            f"{i + 1}\nZ {zb:+.2f} / {za:+.2f}",
+            f"{i + 1}\nZ {zs[0]} / {zs[1]}",
             pt[:2],
             textcoords="offset points",
             xytext=(6, -22),

@@ -14,18 +14,25 @@ from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify import (
+    PointResult,
+    SkippedPoint,
+    VerifyResult,
     WristMap,
     deviation_stats,
     estimate_orientation,
     grid_shape,
     nominal_points,
     plan_verify,
+    plot_verify,
+    predicted_clearance_mm,
     reached_from_peaks,
     reached_tcp_local,
     sound_speed_for_verify,
+    tool_clearance_mm,
     tool_lever,
     verify_region,
     wrist_centre_from_distances,
+    wrist_centre_local,
 )
 
 
@@ -226,3 +233,43 @@ def test_sound_speed_from_the_calibration_else_the_thermometer(tmp_path, profile
     s = sound_speed_for_verify(profile, path)
     assert s.m_s == 1486.422 and "measured with the offsets" in s.source
     assert sound_speed_m_s(s.temperature_c) == pytest.approx(1486.422, abs=1e-6)
+
+
+def test_a_before_point_the_measured_points_put_into_the_block_is_skipped(
+    profile, tmp_path
+) -> None:
+    """Offsets before calibration 2° off put the TCP 25 mm below the nominal points, 5 mm above
+    the XY face: the next point's clearance comes from the W measured at the last one, and a
+    point skipped is reported as such, its pass's statistics over the points measured."""
+    plan = plan_verify(profile, 2)
+    off = plan.offsets_deg["before"]
+    first, second = plan.targets[0], plan.targets[1]
+    w_model = wrist_centre_local(profile, first.joints_deg, off)
+    low = w_model - np.array([0.0, 0.0, 25.0])  # what the faces measured: 25 mm lower
+
+    def point(pass_name: str, index: int, w: np.ndarray, tcp: np.ndarray) -> PointResult:
+        q = plan.targets[index if pass_name == "before" else 2 + index].joints_deg
+        return PointResult(pass_name, index, plan.nominal_mm[index], q, (), w, tcp, 0.0)
+
+    measured = point("before", 0, low, plan.nominal_mm[0] - np.array([0.0, 0.0, 25.0]))
+    clear = predicted_clearance_mm(profile, measured, second.joints_deg, off)
+    w_second = wrist_centre_local(profile, second.joints_deg, off)
+    assert clear == pytest.approx(tool_clearance_mm(profile, w_second) - 25.0, abs=1e-9)
+    assert clear == pytest.approx(5.0, abs=0.01)  # 30 mm above the face, 25 mm lower
+    result = VerifyResult(
+        plan,
+        [measured] + [point("after", i, w_model, plan.nominal_mm[i] + 0.01) for i in range(2)],
+        moves=0,
+        reads=0,
+        skipped=(SkippedPoint("before", 1, clear),),
+    )
+    out = result.to_json(0.5)
+    assert out["measured_points"] == {"before": [1], "after": [1, 2]}
+    assert out["skipped"] == [
+        "before point 2 not measured: the tool would come 5.0 mm from a face there (the "
+        "points measured before it say), less than the 20 mm kept"
+    ]
+    assert out["before_mm"]["max"] == pytest.approx([0.0, 0.0, 25.0])
+    assert out["after_mm"]["max"] == pytest.approx([0.01, 0.01, 0.01])
+    assert out["passed"]
+    assert plot_verify(result, tmp_path / "v.png").stat().st_size > 0

@@ -129,6 +129,8 @@ def show_outcome(outcome: Outcome) -> None:
         f"Y {b[1]:+.4f} mm, included above"
     )
     click.echo(f"before: {shown.before.source}")
+    for why in out["skipped"]:
+        click.echo(why)
     click.echo(f"sound speed: {shown.sound.source}")
     click.echo(
         f"after: largest deviation {shown.worst_mm:.4f} mm, tolerance {shown.tolerance_mm:g} mm: "
