@@ -59,10 +59,11 @@ coarse steps until the echo falls below half, then ``EDGE_FINE_PROBES`` static p
 fall, fitted with the edge profile ``A0·Φ((t_e − t)/σ)`` (``ucal.toolframe.exact``, eq. E4).
 The scan coordinate of each probe is its wrist-centre estimate ``T̂(q)``: the point's measured
 W moved by ``WristMap`` — the profile's kinematics with corrections to the offsets of joints
-1–3 and a small turn and shift of the block, fitted to the W measured at the "after" points
-(an offset left in joint 1, unobservable with a hand-placed block, or a joint left
-uncalibrated turns every displacement of the arm, and the edges are 100–200 mm from the
-points) — plus the point's true flange rotation moved with that arm, times v. So the
+1–3, a small turn and shift of the block and a constant turn of the flange, fitted to the W
+and the flange rotations measured at the "after" points (an offset left in joint 1,
+unobservable with a hand-placed block, or a joint left uncalibrated turns every displacement
+of the arm, and the edges are 100–200 mm from the points) — plus the flange rotation that map
+gives at the probe, times v. So the
 crossing ``t_e`` is what the estimate says where the real TCP is at x = S, and
 
     b_x = S − t_e,   b_y = S − t_e(y)
@@ -840,6 +841,7 @@ def run_verify(
         np.array([p.commanded_deg for p in after.values()]),
         np.array([p.wrist_centre_mm for p in after.values()]),
         plan.offsets_deg["after"],
+        np.array([orientations[i].rotation(geom, p.commanded_deg) for i, p in after.items()]),
     )
     scans = []
     for axis, i in enumerate(plan.edge_points):
@@ -872,18 +874,24 @@ def run_verify(
 
 @dataclass(frozen=True)
 class WristMap:
-    """Where the wrist centre really is at given readings (block coordinates, mm): the profile's
-    kinematics with corrections to the offsets of joints 1–3 and a small turn and shift of the
-    block, fitted to the W measured at the "after" points. It carries the measured W from the
-    points to the edge scans 100–200 mm away: what the profile still has wrong in the arm
-    (joint 1 unobservable with a hand-placed block, a joint left uncalibrated: degrees, tens
-    of mm at the TCP) changes along the way, which moving W with the profile alone, or with one
-    rigid motion, misses by tenths of a mm."""
+    """Where the wrist centre really is at given readings (block coordinates, mm), and how the
+    flange is really turned (base frame): the profile's kinematics with corrections to the
+    offsets of joints 1–3, a small turn and shift of the block, and a constant turn of the
+    flange (what the block's turn does to the faces' normals, and joint 1), fitted to the W and
+    the flange rotations measured at the "after" points. It carries both from the points to
+    the edge scans 100–200 mm away: what the profile still has wrong in the arm (joint 1
+    unobservable with a hand-placed block, a joint left uncalibrated: degrees, tens of mm at
+    the TCP) changes along the way, which moving W with the profile alone, or with one rigid
+    motion, misses by tenths of a mm. W alone hardly separates a joint-2 error from a turn of
+    the block (a rigid motion at each joint 1); the rotations do, as the axis of joints 2 and 3
+    turns with joint 1: on a profile with J1 and J2 left 1.8° and 1.6° off, the flange's turn
+    carried with W alone missed the real TCP at the edge by 0.16 mm, 0.06 mm with both."""
 
     model: RobotModel
     offsets_deg: np.ndarray  # (6,) the profile's offsets with the fitted corrections on J1–J3
     to_block: np.ndarray  # (3, 3) base frame → block coordinates
     origin_mm: np.ndarray  # (3,) block coordinates of the base origin
+    turn: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) true = turn · model
 
     @classmethod
     def fit(
@@ -892,27 +900,39 @@ class WristMap:
         joints_deg: np.ndarray,
         measured_mm: np.ndarray,
         offsets_deg: np.ndarray,
+        rotations: np.ndarray | None = None,
     ) -> WristMap:
-        """Least squares over the points (readings (n, 6), measured W (n, 3)). Where the points
-        do not separate an offset correction from a turn of the block (one or two points, or
-        joint 1 against the block's yaw), a weak prior prefers the offsets: both carry W the
-        same way where they are one motion."""
+        """Least squares over the points (readings (n, 6), measured W (n, 3), true flange
+        rotations (n, 3, 3) in the base frame, if given; their misfit weighed as the TCP
+        moves, times the tool's reach). Where the points do not separate an offset correction
+        from a turn of the block (one or two points, or joint 1 against the block's yaw), a
+        weak prior prefers the offsets: both carry W the same way where they are one
+        motion."""
         s_mat = profile.sample_matrix
         q = np.asarray(joints_deg, float).reshape(-1, 6)
         measured = np.asarray(measured_mm, float).reshape(-1, 3)
         base = np.asarray(offsets_deg, float)
+        reach = float(np.linalg.norm(tool_lever(profile)[0]))
 
         def build(x: np.ndarray) -> WristMap:
             off = base.copy()
             off[:3] += x[:3]
             rot = Rotation.from_rotvec(x[3:6]).as_matrix() @ s_mat[:3, :3].T
-            return cls(profile.model, off, rot, x[6:] - rot @ s_mat[:3, 3])
+            turn = Rotation.from_rotvec(x[9:12]).as_matrix()
+            return cls(profile.model, off, rot, x[6:9] - rot @ s_mat[:3, 3], turn)
 
         def fun(x: np.ndarray) -> np.ndarray:
-            return np.concatenate([(build(x)(q) - measured).ravel(), 1e-4 * x[:3], 0.1 * x[3:6]])
+            m = build(x)
+            res = [(m(q) - measured).ravel(), 1e-4 * x[:3], 0.1 * x[3:6]]
+            if rotations is not None:
+                miss = np.swapaxes(m.rotation(q), -1, -2) @ rotations
+                res.append(reach * Rotation.from_matrix(miss).as_rotvec().ravel())
+            else:
+                res.append(x[9:12])
+            return np.concatenate(res)
 
-        x0 = np.zeros(9)
-        x0[6:] = (measured - build(x0)(q)).mean(0)
+        x0 = np.zeros(12)
+        x0[6:9] = (measured - build(x0)(q)).mean(0)
         sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
         return build(sol.x)
 
@@ -920,6 +940,11 @@ class WristMap:
         """W (block coordinates, mm) at readings (6,) or (n, 6)."""
         w = fk_frames(self.model, np.asarray(joints_deg, float), self.offsets_deg)[..., 4, :3, 3]
         return w @ self.to_block.T + self.origin_mm
+
+    def rotation(self, joints_deg: np.ndarray) -> np.ndarray:
+        """The true flange rotation (base frame) at readings (6,) or (n, 6)."""
+        frames = fk_frames(self.model, np.asarray(joints_deg, float), self.offsets_deg)
+        return self.turn @ frames[..., 6, :3, :3]
 
 
 def scan_edge(
@@ -941,7 +966,8 @@ def scan_edge(
     three peak postures give, ``orient``; no turn about the beam, which would move a real TCP
     that is off the profile's across the beam); each
     probe's scan coordinate is the wrist-centre estimate of the TCP at its settled readings
-    (the point's measured W moved with the model, plus ``R(q)·v``). Coarse steps until the echo
+    (the point's measured W moved with ``wrist``, plus ``R(q)·v`` with the flange rotation
+    ``wrist`` carries from the points). Coarse steps until the echo
     falls below half, then a fine scan across the fall fitted with the edge profile. ``move``
     moves the robot (reaching each probe from below on every joint) and returns the readings.
     """
@@ -984,9 +1010,8 @@ def scan_edge(
         nonlocal n_probes
         settled = np.asarray(move(posture(t)), float)
         a = rig.normalised_amplitude(EDGE_AVERAGES)
-        frames = fk_frames(geom.model, settled, off)
-        w = wrist(settled) + anchor
-        tcp = w + b_rot.T @ (r_i @ frames[6, :3, :3] @ v_flange_mm)
+        # W and the flange's turn carried from the points by the arm they measured
+        tcp = wrist(settled) + anchor + b_rot.T @ (wrist.rotation(settled) @ v_flange_mm)
         rows.append((float(tcp[axis]), a))
         log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)
         n_probes += 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tomlkit
+from scipy.spatial.transform import Rotation
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import beam_and_tcp
@@ -219,6 +220,18 @@ def test_wrist_map_carries_arm_errors_to_the_edges(profile) -> None:
     # one point: the shift only
     one = WristMap.fit(profile, after[:1], true_w(after[:1]), np.zeros(6))
     assert one(after[0]) == pytest.approx(true_w(after[0]), abs=1e-6)
+    # with the flange rotations the points measured (here turned as the block's faces are, by
+    # a constant 0.1°), the flange's turn is carried there too: to a microradian
+    turn = Rotation.from_rotvec([0.0, 0.0, np.radians(0.1)]).as_matrix()
+
+    def true_r(q: np.ndarray) -> np.ndarray:
+        return turn @ fk_frames(profile.model, q, error)[..., 6, :3, :3]
+
+    both = WristMap.fit(profile, after, true_w(after), np.zeros(6), true_r(after))
+    assert both(far) == pytest.approx(true_w(far), abs=1e-3)
+    miss = Rotation.from_matrix(both.rotation(far).T @ true_r(far)).magnitude()
+    assert miss < 1e-6
+    assert Rotation.from_matrix(wmap.rotation(far).T @ true_r(far)).magnitude() > 1e-3
 
 
 def test_sound_speed_from_the_calibration_else_the_thermometer(tmp_path, profile) -> None:
