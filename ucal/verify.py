@@ -134,6 +134,7 @@ from ucal.calibration.search import ka_of
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import CellProfile, WorldTruth
+from ucal.edges import coarse_edge_fall, fine_edge_scan
 from ucal.errors import HardwareError, SafetyError, UnreachableError
 from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.kinematics.ik import ik
@@ -144,7 +145,6 @@ from ucal.rig import FinalApproachRig, Rig
 from ucal.session import CellSession
 from ucal.sim.cell import SimulatedCell
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
-from ucal.toolframe.exact import fit_edge_profile
 
 log = logging.getLogger(__name__)
 
@@ -162,8 +162,10 @@ PASSES = ("before", "after")
 EDGE_OVERSHOOT_MM = 15.0
 #: Tool check: the coarse search starts this far before the edge the profile predicts (mm).
 EDGE_APPROACH_MM = 12.0
-#: Tool check: coarse step of the TCP towards the edge (mm; the footprint's σ is ~1.5 mm).
+#: Tool check: coarse step of the TCP towards the edge (mm; the footprint's σ is ~1.5 mm) ...
 EDGE_COARSE_STEP_MM = 2.0
+#: ... the echo falling below half the largest of this many last readings.
+EDGE_COARSE_MEMORY = 4
 #: Tool check: the fine scan spans ± this about the coarse crossing (mm) ...
 EDGE_FINE_HALF_MM = 5.0
 #: ... with this many static probes.
@@ -995,7 +997,6 @@ def scan_edge(
     tool_rot = flange_rot @ profile.tool_matrix[:3, :3]
     unit = np.eye(3)[axis]
     label = f"tool check along block {'XY'[axis]}"
-    rows: list[tuple[float, float]] = []
     near = q_i.copy()
     n_probes = 0
 
@@ -1006,16 +1007,19 @@ def scan_edge(
         near = joints_for(profile, pose, off, near, label)
         return near
 
-    def probe(t: float) -> float:
+    def probe(t: float) -> tuple[float, float]:
+        """The probe's scan coordinate (its wrist-centre estimate) and amplitude."""
         nonlocal n_probes
         settled = np.asarray(move(posture(t)), float)
         a = rig.normalised_amplitude(EDGE_AVERAGES)
         # W and the flange's turn carried from the points by the arm they measured
         tcp = wrist(settled) + anchor + b_rot.T @ (wrist.rotation(settled) @ v_flange_mm)
-        rows.append((float(tcp[axis]), a))
         log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)
         n_probes += 1
-        return a
+        return float(tcp[axis]), a
+
+    def amplitude(t: float) -> float:
+        return probe(t)[1]
 
     # where the edge is along the line: the point's own estimate of its TCP says how far the
     # robot is from where the profile puts it (a joint-1 offset the block's yaw hides: mm)
@@ -1028,33 +1032,17 @@ def scan_edge(
     rig.level_gain(EDGE_AVERAGES)
     level = rig.normalised_amplitude(EDGE_AVERAGES)
     t = max(0.0, t_edge - EDGE_APPROACH_MM)
-    while (a := probe(t)) < 0.5 * level and t > 0.0:
+    while (a := amplitude(t)) < 0.5 * level and t > 0.0:
         t = max(0.0, t - EDGE_APPROACH_MM)
-    recent = [a]
-    prev = t
-    t_c = None
-    while t < t_max:
-        t = min(t + EDGE_COARSE_STEP_MM, t_max)
-        a = probe(t)
-        if a < 0.5 * max(recent):
-            t_c = 0.5 * (prev + t)
-            break
-        recent = (recent + [a])[-4:]
-        prev = t
+    t_c = coarse_edge_fall(amplitude, t, a, t_max, EDGE_COARSE_STEP_MM, EDGE_COARSE_MEMORY)
     if t_c is None:
         raise HardwareError(
             f"{rig.pulser.endpoint}: {label}: the echo did not fall at the block's edge "
             f"within {t_max:.0f} mm of point {point.index + 1}: is [sample] face_size_mm "
             "right and the edge clean?"
         )
-    rows.clear()
-    for t in np.linspace(
-        t_c - EDGE_FINE_HALF_MM, min(t_c + EDGE_FINE_HALF_MM, t_max), EDGE_FINE_PROBES
-    ):
-        probe(float(t))
-    ts, amps = (np.array(c) for c in zip(*rows, strict=True))
     try:
-        fit = fit_edge_profile(ts, amps, outward=1.0)
+        fit = fine_edge_scan(probe, t_c, EDGE_FINE_HALF_MM, EDGE_FINE_PROBES, t_max)
     except ValueError as e:
         raise HardwareError(
             f"{rig.pulser.endpoint}: {label}: the fine scan near point {point.index + 1} "

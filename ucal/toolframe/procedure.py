@@ -60,6 +60,7 @@ from ucal.calibration.safety import check_joints
 from ucal.calibration.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.calibration.wrist import search_joints
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, WorldTruth
+from ucal.edges import coarse_edge_fall, fine_edge_scan
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik
@@ -78,7 +79,6 @@ from ucal.toolframe.exact import (
     TofRecord,
     along_beam_offset_mm,
     beam_from_normal_incidence,
-    fit_edge_profile,
     rotation_for_beam,
     solve_offsets,
     tangent_basis,
@@ -608,19 +608,10 @@ class _Runner:
         aim = np.asarray(q_n, float) - q0
         self.move(q0 + aim)
         self.set_gain(EDGE_AVERAGES)
-        recent = [probe(t, EDGE_AVERAGES)]
-        t_c = None
-        prev = t
-        while t < hi:
-            t = min(t + step, hi)
-            a = probe(t, EDGE_AVERAGES)
-            # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam
-            # that drifts off normal along the line (offsets not yet calibrated) fades slowly
-            if a < 0.5 * max(recent):
-                t_c = 0.5 * (prev + t)
-                break
-            recent = (recent + [a])[-COARSE_MEMORY:]
-            prev = t
+        # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam that
+        # drifts off normal along the line (offsets not yet calibrated) fades slowly
+        first = probe(t, EDGE_AVERAGES)
+        t_c = coarse_edge_fall(lambda t: probe(t, EDGE_AVERAGES), t, first, hi, step, COARSE_MEMORY)
         if t_c is None:
             raise HardwareError(
                 f"{self.rig.pulser.endpoint}: the echo did not fall at any "
@@ -632,21 +623,25 @@ class _Runner:
         q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi, label)
         _, q_n = self.normal_near(q1, label, quick=True)
         aim = np.asarray(q_n, float) - q1
+        ts: list[float] = []
+        flanges: list[np.ndarray] = []
+
+        def fine(t: float) -> tuple[float, float]:
+            """A fine probe's scan coordinate, from its actual flange pose (the estimated
+            tool centre), and amplitude."""
+            a = probe(t, EDGE_AVERAGES)
+            f = self.flange(rows[-1][2])
+            c = (f @ tool)[:3, 3]
+            ts.append(float(u @ (self.plane.project(c) - origin)))
+            flanges.append(f)
+            return ts[-1], a
+
         for half in (FINE_HALF_MM, 2.0 * FINE_HALF_MM):
             rows.clear()
-            for t in np.linspace(t_c - half, t_c + half, FINE_PROBES):
-                probe(float(t), EDGE_AVERAGES)
-            # scan coordinate of each probe from its actual flange pose (estimated tool centre)
-            ts, amps, flanges = [], [], []
-            for _, a, q in rows:
-                f = self.flange(q)
-                c = (f @ tool)[:3, 3]
-                ts.append(float(u @ (self.plane.project(c) - origin)))
-                amps.append(a)
-                flanges.append(f)
-            ts_arr = np.array(ts)
+            ts.clear()
+            flanges.clear()
             try:
-                fit = fit_edge_profile(ts_arr, np.array(amps), outward=1.0)
+                fit = fine_edge_scan(fine, t_c, half, FINE_PROBES)
                 break
             except ValueError as e:
                 log.info("edge %s: %s (±%.0f mm)", ep.name, e, half)
@@ -657,6 +652,7 @@ class _Runner:
                 "show the echo falling to half: is the edge straight and "
                 "clean?"
             )
+        ts_arr = np.array(ts)
         i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
         f = flanges[i].copy()
         shift = (fit.crossing - ts_arr[i]) * u
