@@ -949,6 +949,28 @@ class WristMap:
         return self.turn @ frames[..., 6, :3, :3]
 
 
+def line_to_edge(
+    coordinate_at: Callable[[float], float],
+    start_mm: float,
+    guess_mm: float,
+    edge_mm: float,
+    overshoot_mm: float,
+) -> tuple[float, float]:
+    """Where along a scan line (the profile's TCP moved by t from the point) the estimated
+    TCP reaches the edge, and where it is ``overshoot_mm`` beyond: two secant steps from the
+    point (t = 0, estimate ``start_mm``) and a first guess, ``coordinate_at(t)`` the estimate
+    at the line's posture t."""
+    t_a, c_a = 0.0, float(start_mm)
+    t_edge = float(guess_mm)
+    slope = 1.0
+    for _ in range(2):
+        c_e = coordinate_at(t_edge)
+        slope = (c_e - c_a) / (t_edge - t_a)
+        t_a, c_a = t_edge, c_e
+        t_edge += (edge_mm - c_e) / slope
+    return t_edge, t_edge + overshoot_mm / slope
+
+
 def scan_edge(
     rig: Rig,
     move: Callable[[np.ndarray], np.ndarray],
@@ -1000,31 +1022,46 @@ def scan_edge(
     near = q_i.copy()
     n_probes = 0
 
-    def posture(t: float) -> np.ndarray:
-        nonlocal near
+    def joints_at(t: float, seed: np.ndarray) -> np.ndarray:
         pose = target_matrix(profile, nominal + t * unit)
         pose[:3, :3] = tool_rot
-        near = joints_for(profile, pose, off, near, label)
+        return joints_for(profile, pose, off, seed, label)
+
+    def posture(t: float) -> np.ndarray:
+        nonlocal near
+        near = joints_at(t, near)
         return near
+
+    def coordinate(q: np.ndarray) -> float:
+        """The scan coordinate at readings ``q``: W and the flange's turn carried from the
+        points by the arm they measured, the TCP's estimate on the scan axis."""
+        tcp = wrist(q) + anchor + b_rot.T @ (wrist.rotation(q) @ v_flange_mm)
+        return float(tcp[axis])
 
     def probe(t: float) -> tuple[float, float]:
         """The probe's scan coordinate (its wrist-centre estimate) and amplitude."""
         nonlocal n_probes
         settled = np.asarray(move(posture(t)), float)
         a = rig.normalised_amplitude(EDGE_AVERAGES)
-        # W and the flange's turn carried from the points by the arm they measured
-        tcp = wrist(settled) + anchor + b_rot.T @ (wrist.rotation(settled) @ v_flange_mm)
-        log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), tcp[axis], a)
+        c = coordinate(settled)
+        log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), c, a)
         n_probes += 1
-        return float(tcp[axis]), a
+        return c, a
 
     def amplitude(t: float) -> float:
         return probe(t)[1]
 
     # where the edge is along the line: the point's own estimate of its TCP says how far the
-    # robot is from where the profile puts it (a joint-1 offset the block's yaw hides: mm)
-    t_edge = size - float(point.reached_mm[axis])
-    t_max = t_edge + EDGE_OVERSHOOT_MM
+    # robot is from where the profile puts it, and the arm the points measured how far it
+    # really moves along the line (a joint-1 offset the block's yaw hides turns every motion:
+    # 20 mm over 170 mm with the profile's J1 1.8° off); two secant steps on the estimate
+    t_edge, t_max = line_to_edge(
+        lambda t: coordinate(joints_at(t, q_i)),
+        coordinate(q_i),
+        size - float(point.reached_mm[axis]),
+        size,
+        EDGE_OVERSHOOT_MM,
+    )
     # the echo's level on the face at the point, then the coarse search from
     # EDGE_APPROACH_MM before that edge (stepping back while the echo
     # there is already below half: a tool or a block further off than that)

@@ -22,6 +22,7 @@ from ucal.verify import (
     deviation_stats,
     estimate_orientation,
     grid_shape,
+    line_to_edge,
     nominal_points,
     plan_verify,
     plot_verify,
@@ -286,3 +287,17 @@ def test_a_before_point_the_measured_points_put_into_the_block_is_skipped(
     assert out["after_mm"]["max"] == pytest.approx([0.01, 0.01, 0.01])
     assert out["passed"]
     assert plot_verify(result, tmp_path / "v.png").stat().st_size > 0
+
+
+def test_the_edge_scan_line_follows_the_arm_the_points_measured() -> None:
+    """A profile whose J1 is 1.8° off: the real TCP moves 0.88 mm per mm the profile's does
+    along the line, and starts 17.7 mm beyond the nominal point; the line ends 15 mm of real
+    motion beyond the edge (the profile's own offset alone would stop 20 mm short)."""
+
+    def estimate(t: float) -> float:
+        return 330.0 + 17.7 + 0.88 * t + 1e-5 * t**2
+
+    t_edge, t_max = line_to_edge(estimate, estimate(0.0), 500.0 - 347.7, 500.0, 15.0)
+    assert estimate(t_edge) == pytest.approx(500.0, abs=1e-4)
+    assert estimate(t_max) == pytest.approx(515.0, abs=0.05)
+    assert estimate(500.0 - 347.7 + 15.0) < 500.0 - 4.0
