@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from ucal.calibration.procedure import OffsetsCalibration
+from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
 from ucal.cell_choice import CellChoice
 from ucal.procedure import MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile
@@ -102,3 +102,17 @@ def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path:
         "solving",
     ]
     assert outcome.written is False and outcome.result["plot"] is None  # a dry run
+
+
+def test_calibrate_full_goes_through_the_same_steps(profile_path: Path) -> None:
+    before = profile_path.read_bytes()
+    job = FullCalibration(load_profile(profile_path), profile_path, max_postures=3)
+    steps, presenter, outcome = run(job, dry_run=True)
+    check_run(steps, presenter, outcome, "calibrate")
+    assert "3 postures chosen" in presenter.events[0][1]
+    seen = presenter.progress_seen
+    assert [p.step.configuration for p in seen[:-1]] == ["p01", "p02", "p03"]
+    assert all(p.step.face in {"XY", "YZ", "XZ", "step"} for p in seen[:-1])
+    assert outcome.result["level"] == "full" and outcome.result["plan"]["postures"] == 3
+    assert outcome.result["moves"] == seen[-1].moves
+    assert outcome.written is False and profile_path.read_bytes() == before  # a dry run

@@ -254,29 +254,6 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
     return FaceResult(m, err)
 
 
-def measure_face(
-    rig: Rig,
-    geom: CellGeometry,
-    profile: CellProfile,
-    start: np.ndarray,
-    face: int,
-    est: np.ndarray,
-    ka: float,
-    acq_gain: float,
-    label: str,
-    config: str,
-    mode: str = "acquire",
-    radius_deg: float = 16.0,
-) -> FaceResult:
-    """``measure`` with its setup and request spelt out, in the order
-    ``ucal.calibration.full_run`` passes them."""
-    return measure(
-        rig,
-        FaceSetup(profile, ka, acq_gain),
-        FaceRequest(Face(face), start, geom, est, label, config, SearchMode(mode), radius_deg),
-    )
-
-
 def estimate_offsets(
     geom: CellGeometry,
     meas: list[FaceMeasurement],

@@ -35,7 +35,7 @@ from ucal.calibration.full import (
     ideal_measurements,
     identifiability,
 )
-from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.model import FACE_NAMES, Face
 from ucal.calibration.safety import SEARCH_MARGIN_DEG, check_joints
 from ucal.calibration.sequence import (
     EDGE_MARGIN_MM,
@@ -83,10 +83,10 @@ class Posture:
     """One planned normal-incidence posture."""
 
     label: str
-    face: int
+    face: Face
     joints_deg: np.ndarray
     water_path_mm: float
-    #: The beam meets the top of the step on the XY face (``face`` 2), not the face itself.
+    #: The beam meets the top of the step on the XY face, not the face itself.
     step: bool = False
 
     @property
@@ -242,7 +242,7 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
         except SafetyError:
             continue
         _, path, on_step = keys[pose_i[i]]
-        out.append(Posture(f"c{len(out)}", int(faces[i]), q[i].copy(), path, on_step))
+        out.append(Posture(f"c{len(out)}", Face(int(faces[i])), q[i].copy(), path, on_step))
     return out
 
 

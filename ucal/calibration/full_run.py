@@ -4,7 +4,7 @@ Read top to bottom: noise floor and acquisition gain once; then for every planne
 (``ucal.calibration.full_plan``, visiting order) predict the normal-incidence posture with the
 cell as measured so far, check it (joint ranges with room for the wrist search, the θ5
 singularity margin, a safe water path) before moving, and measure the face there
-(``ucal.calibration.faces.measure_face``: peak search and water path); each measurement refines
+(``ucal.calibration.faces.measure``: peak search and water path); each measurement refines
 the estimate that predicts the next posture. Every move ends approaching from below on each
 joint (``FinalApproachRig``: backlash). At the end the early faces' probes are fitted again
 with the final estimate, and ``ucal.calibration.full.solve_full`` identifies the model.
@@ -24,16 +24,22 @@ with the step's height (``ucal.calibration.full.step_residuals``).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
 
-from ucal.calibration.faces import acquisition_gain, measure_face
+from ucal.calibration.faces import (
+    FaceRequest,
+    FaceResult,
+    FaceSetup,
+    SearchMode,
+    acquisition_gain,
+    measure,
+)
 from ucal.calibration.fit import prior_from_profile
-from ucal.calibration.full_plan import FullPlan
-from ucal.calibration.model import FaceMeasurement, beam_and_tcp
+from ucal.calibration.full_plan import FullPlan, Posture
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.safety import check_joints
 from ucal.calibration.search import Rig, ka_of
 from ucal.calibration.sequence import (
@@ -46,6 +52,7 @@ from ucal.calibration.sequence import (
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.progress import MeasureStep, Report
 
 log = logging.getLogger(__name__)
 
@@ -71,10 +78,10 @@ def run_full(
     profile: CellProfile,
     plan: FullPlan,
     rig: Rig,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Report | None = None,
 ) -> FullRun:
-    """Measure every planned posture (module docstring). The caller owns the connection, STOP
-    and the profile."""
+    """Measure every planned posture (module docstring), reporting each as it starts and the
+    final refit. The caller owns the connection, STOP and the profile."""
     geom = geometry(profile)
     ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, profile.water_temperature_c)
     prior = prior_from_profile(profile)
@@ -82,7 +89,7 @@ def run_full(
     first = plan.postures[0]
     away = first.joints_deg.copy()
     away[4] += 25.0 if away[4] < 0 else -25.0  # the beam in open water: the noise floor
-    acq_gain = acquisition_gain(rig, away)
+    setup = FaceSetup(profile, ka, acquisition_gain(rig, away))
 
     est = np.array(profile.joint_offsets_deg, float)
     corner = np.array(profile.sample_position_mm, float)
@@ -94,27 +101,32 @@ def run_full(
     steps: list[FaceMeasurement] = []
     top = 0.0 if profile.step is None else profile.step.height_mm
     total = len(plan.postures)
+
+    def measure_posture(
+        posture: Posture, label: str, mode: SearchMode, radius_deg: float
+    ) -> FaceResult:
+        """The face of ``posture``, its posture predicted with the cell as estimated so far."""
+        request = FaceRequest(
+            posture.face, posture.joints_deg, fitted, est, label, posture.label, mode, radius_deg
+        )
+        return measure(approach, setup, request)
+
     for i, posture in enumerate(plan.postures):
         if progress:
-            progress(posture.label, i, total)
+            progress(
+                MeasureStep(f"posture {posture.label}", i, total, posture.label, posture.face_name)
+            )
         label = f"face {posture.face_name} ({posture.label})"
         plane = corner + top * fitted.normal(2) if posture.step else corner
         check_prediction(profile, fitted, posture.joints_deg, posture.face, est, plane, label)
-        mode = "acquire" if not meas else "direct" if last_error < DIRECT_FIT_DEG else "quick"
-        res = measure_face(
-            approach,
-            fitted,
-            profile,
-            posture.joints_deg,
-            posture.face,
-            est,
-            ka,
-            acq_gain,
-            label,
-            posture.label,
-            mode,
-            16.0 if not meas else 8.0,
+        mode = (
+            SearchMode.ACQUIRE
+            if not meas
+            else SearchMode.DIRECT
+            if last_error < DIRECT_FIT_DEG
+            else SearchMode.QUICK
         )
+        res = measure_posture(posture, label, mode, 16.0 if not meas else 8.0)
         last_error = res.prediction_error_deg
         if posture.step:
             steps.append(res.measurement)
@@ -136,20 +148,7 @@ def run_full(
             "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, REMEASURE_TILT_DEG
         )
         check_prediction(profile, fitted, posture.joints_deg, posture.face, est, corner, label)
-        res = measure_face(
-            approach,
-            fitted,
-            profile,
-            posture.joints_deg,
-            posture.face,
-            est,
-            ka,
-            acq_gain,
-            label,
-            posture.label,
-            "quick",
-            8.0,
-        )
+        res = measure_posture(posture, label, SearchMode.QUICK, 8.0)
         meas[i] = res.measurement
         good = [m for m in meas if m.tilt_std_deg <= REMEASURE_TILT_DEG] or meas
         cell = estimate_cell(prior, good, vector)
@@ -157,13 +156,13 @@ def run_full(
     approach.move(first.joints_deg)
     meas = refit_peaks(approach, profile, meas, ka, prior)
     if progress:
-        progress("done", total, total)
+        progress(MeasureStep("solving", total, total))
     return FullRun(meas, steps, rig.counters.moves, rig.counters.reads)
 
 
 def check_prediction(
     profile: CellProfile,
-    geom,
+    geom: CellGeometry,
     joints_deg: np.ndarray,
     face: int,
     offsets_deg: np.ndarray,

@@ -7,14 +7,16 @@ measurement, ``ucal.calibration.faces``), the solvers (``ucal.calibration.sequen
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
 (``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
 
-``--level full`` has its own plan, measurement and identification
-(``ucal.calibration.full_plan``, ``full_run``, ``full``) and shares ``judge``,
-``written_keys`` and ``result_fields`` with this level.
+``calibrate --level full`` (``FullCalibration``) goes through the same steps with its own plan
+(``ucal.calibration.full_plan``: postures chosen by D-optimality), measurement
+(``ucal.calibration.full_run``) and identification (``ucal.calibration.full``), and the same
+verdict, ``[calibration]`` keys and result fields.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -24,10 +26,14 @@ import numpy as np
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import OffsetSolution
 from ucal.calibration.fit import PRIOR_MEANING, FitQuality, prior_from_profile
+from ucal.calibration.full import FullSolution, solve_full
+from ucal.calibration.full_plan import FullPlan, plan_full
+from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FACE_NAMES
 from ucal.calibration.sequence import (
     CalibrationPlan,
     CalibrationRun,
+    beam_fixed,
     plan_calibration,
     run_calibration,
     solve,
@@ -77,8 +83,7 @@ def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, An
 def result_fields(
     chosen: Any,
     level: str,
-    measurements: Any,
-    duration_s: float,
+    measured: Measured[CalibrationRun] | Measured[FullRun],
     profile_path: Path,
     written: bool,
     sound: Any,
@@ -86,6 +91,7 @@ def result_fields(
 ) -> dict[str, Any]:
     """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
     solution that fitted the sound speed)."""
+    measurements = measured.data
     return {
         "joint_offsets_deg": chosen.offsets_deg,
         "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
@@ -97,7 +103,7 @@ def result_fields(
         "pulser_reads": measurements.reads,
         # time the run took on the cell: simulated time on the simulated cell (what a real
         # cell would take over Modbus TCP)
-        "duration_s": duration_s,
+        "duration_s": measured.duration_s,
         "profile": str(profile_path),
         "written": written,
         "sound_speed_m_s": sound.sound_speed_m_s,
@@ -109,6 +115,40 @@ def result_fields(
     }
 
 
+class PlannedPosture(Protocol):
+    """What a record's plan rows read of a planned target or posture."""
+
+    @property
+    def label(self) -> str: ...
+
+    @property
+    def joints_deg(self) -> np.ndarray: ...
+
+    @property
+    def water_path_mm(self) -> float: ...
+
+
+#: The plans' last line: how every planned posture is measured.
+WRIST_SEARCH = (
+    "The wrist searches around each planned posture for the echo (joints 4-6 only); every "
+    "move ends approaching from below on each joint (backlash)."
+)
+
+
+def plan_line(name: str, planned: PlannedPosture) -> str:
+    """One planned posture in a plan's table: its name, joints (deg) and water path."""
+    joints = "".join(f"{v:9.2f}" for v in planned.joints_deg)
+    return f"  {name}{joints}   {planned.water_path_mm:6.1f} mm"
+
+
+def plan_rows(planned: Iterable[PlannedPosture]) -> list[dict[str, Any]]:
+    """The ``plan`` of a ``--record`` file's header: every planned posture."""
+    return [
+        {"label": p.label, "joints_deg": p.joints_deg.tolist(), "water_path_mm": p.water_path_mm}
+        for p in planned
+    ]
+
+
 class Verdict:
     """Whether a solution may be written, and the one-line message when not."""
 
@@ -116,6 +156,35 @@ class Verdict:
         self.ok = ok
         self.misfit_only = misfit_only
         self.message = message
+
+
+def write_calibration(
+    profile_path: Path, run: str, fit: FitQuality, verdict: Verdict, keys: dict[str, Any]
+) -> None:
+    """Write ``keys`` as ``[calibration]``, the history naming the ``run``, its fit and, when
+    written with ``--force``, why it was out of tolerance."""
+    reason = f"{run}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
+    if not verdict.ok:
+        reason += f", written with --force: {verdict.message}"
+    write_profile(profile_path, {"calibration": keys}, reason=reason)
+
+
+def outcome(
+    result: dict[str, Any], measured: Measured[Any], verdict: Verdict, written: bool, shown: Any
+) -> Outcome:
+    """The ``calibrate`` outcome of either level: its result with the verdict and, on the
+    simulated cell, the true offsets."""
+    result["out_of_tolerance"] = not verdict.ok
+    if measured.truth is not None:
+        result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
+    return Outcome(
+        "calibrate",
+        result,
+        written,
+        out_of_tolerance=not verdict.ok,
+        message=verdict.message,
+        shown=shown,
+    )
 
 
 def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
@@ -203,17 +272,8 @@ def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
             f"noise gives J{k + 1} a std of {noise[k]:.4f} deg"
         )
     lines.append("  target      J1       J2       J3       J4       J5       J6    water path")
-    for t in plan.targets:
-        lines.append(
-            f"  {t.config:>4}/{FACE_NAMES[t.face]:<3}"
-            + "".join(f"{v:9.2f}" for v in t.joints_deg)
-            + f"   {t.water_path_mm:6.1f} mm"
-        )
-    lines.append(
-        "The wrist searches around each target for the echo (joints 4-6 only); every "
-        "move ends approaching from below on each joint (backlash)."
-    )
-    return "\n".join(lines)
+    lines += [plan_line(f"{t.config:>4}/{FACE_NAMES[t.face]:<3}", t) for t in plan.targets]
+    return "\n".join([*lines, WRIST_SEARCH])
 
 
 @dataclass
@@ -267,14 +327,7 @@ class OffsetsCalibration(ProfileJob):
     def record_header(self, plan: CalibrationPlan) -> dict[str, Any]:
         return {
             "options": {"method": self.method, "beam": self.beam, "level": "offsets"},
-            "plan": [
-                {
-                    "label": t.label,
-                    "joints_deg": t.joints_deg.tolist(),
-                    "water_path_mm": t.water_path_mm,
-                }
-                for t in plan.targets
-            ],
+            "plan": plan_rows(plan.targets),
         }
 
     def measure(
@@ -295,22 +348,19 @@ class OffsetsCalibration(ProfileJob):
         return solved.verdict.ok or self.force
 
     def write(self, solved: OffsetsSolved) -> None:
-        fit, chosen = solved.fit, solved.chosen
-        reason = f"calibrate --method {self.method}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
-        if not solved.verdict.ok:
-            reason += f", written with --force: {solved.verdict.message}"
-        write_profile(
+        chosen = solved.chosen
+        write_calibration(
             self.profile_path,
+            f"calibrate --method {self.method}",
+            solved.fit,
+            solved.verdict,
             {
-                "calibration": {
-                    **written_keys(chosen, solved.exact.sound_speed_m_s, fit),
-                    # the level that wrote these offsets (a table identified by an earlier
-                    # full run stays in force: these offsets were fitted on it)
-                    "level": "offsets",
-                    "condition_number": round(float(chosen.condition_number), 3),
-                }
+                **written_keys(chosen, solved.exact.sound_speed_m_s, solved.fit),
+                # the level that wrote these offsets (a table identified by an earlier full run
+                # stays in force: these offsets were fitted on it)
+                "level": "offsets",
+                "condition_number": round(float(chosen.condition_number), 3),
             },
-            reason=reason,
         )
 
     def result(
@@ -325,8 +375,7 @@ class OffsetsCalibration(ProfileJob):
             **result_fields(
                 chosen,
                 "offsets",
-                measured.data,
-                measured.duration_s,
+                measured,
                 self.profile_path,
                 written,
                 solved.exact,
@@ -334,15 +383,141 @@ class OffsetsCalibration(ProfileJob):
             ),
             "condition_number": chosen.condition_number,
             "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
-            "out_of_tolerance": not verdict.ok,
         }
-        if measured.truth is not None:
-            result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
-        return Outcome(
-            self.command,
-            result,
-            written,
-            out_of_tolerance=not verdict.ok,
-            message=verdict.message,
-            shown=OffsetsShown(solved, measured.truth),
+        return outcome(result, measured, verdict, written, OffsetsShown(solved, measured.truth))
+
+
+def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
+    """The full level's plan in words for the confirmation (stderr); the procedure adds the
+    estimated duration."""
+    c_std = prior_from_profile(profile).sound_speed_std_m_s
+    step = profile.step
+    scale = (
+        f"with the DH length tolerance ({profile.dh_length_std_mm:g} mm) it sets the scale of "
+        "every length"
+        if step is None
+        else f"the step of {step.height_mm:g} ± {step.height_std_mm:g} mm on the XY face sets "
+        "the scale of every length (its water paths against the face's)"
+    )
+    lines = [
+        f"Full kinematic calibration plan for {profile.model.name}: {plan.describe()}",
+        (
+            f"Water {profile.water_temperature_c:g} ± {profile.water_temperature_std_c:g} °C "
+            f"(sound speed ± {c_std:.2f} m/s); {scale}"
+        ),
+        "  posture face     J1       J2       J3       J4       J5       J6    water path",
+    ]
+    lines += [plan_line(f"{p.label:>7} {p.face_name:<3}", p) for p in plan.postures]
+    return "\n".join([*lines, WRIST_SEARCH])
+
+
+@dataclass
+class FullSolved:
+    """The identified model, its fit and its verdict."""
+
+    solution: FullSolution
+    fit: FitQuality
+    verdict: Verdict
+
+
+class FullCalibration(ProfileJob):
+    """``calibrate --level full``: the identifiable kinematic parameters and the joint offsets
+    → ``[calibration]`` with its ``dh`` table."""
+
+    command = "calibrate"
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        profile_path: Path,
+        beam: str = "auto",
+        force: bool = False,
+        max_postures: int | None = None,
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.beam = beam
+        self.force = force
+        self.max_postures = max_postures  # None: as many as the D-optimal criterion finds
+
+    def plan(self) -> FullPlan:
+        if self.max_postures is None:
+            return plan_full(self.profile)
+        return plan_full(self.profile, max_postures=self.max_postures)
+
+    def summary(self, plan: FullPlan) -> str:
+        return full_plan_summary(plan, self.profile)
+
+    def estimate(self, plan: FullPlan) -> DurationEstimate:
+        return estimate_run(
+            [p.joints_deg for p in plan.postures],
+            plan.postures[0].joints_deg,
+            self.profile.procedure.speed,
         )
+
+    def record_header(self, plan: FullPlan) -> dict[str, Any]:
+        return {
+            "options": {
+                "method": "exact",
+                "beam": self.beam,
+                "level": "full",
+                "max_postures": self.max_postures,
+            },
+            "plan": plan_rows(plan.postures),
+        }
+
+    def measure(self, plan: FullPlan, session: CellSession, report: Report) -> FullRun:
+        return run_full(self.profile, plan, session.rig, progress=report)
+
+    def solve(self, plan: FullPlan, measured: Measured[FullRun]) -> FullSolved:
+        run = measured.data
+        solution = solve_full(
+            prior_from_profile(self.profile),
+            run.measurements,
+            fixed=beam_fixed(self.beam),
+            structure=plan.structure,
+            steps=run.steps,
+        )
+        fit = solution.cell.quality
+        return FullSolved(solution, fit, judge(solution, fit))
+
+    def may_write(self, solved: FullSolved) -> bool:
+        return solved.verdict.ok or self.force
+
+    def write(self, solved: FullSolved) -> None:
+        sol = solved.solution
+        write_calibration(
+            self.profile_path,
+            "calibrate --level full",
+            solved.fit,
+            solved.verdict,
+            {
+                **written_keys(sol, sol.sound_speed_m_s, solved.fit),
+                "level": "full",
+                "dh": sol.dh_rows(),
+            },
+        )
+
+    def result(
+        self, plan: FullPlan, measured: Measured[FullRun], solved: FullSolved, written: bool
+    ) -> Outcome:
+        sol, verdict = solved.solution, solved.verdict
+        result = {
+            **result_fields(
+                sol,
+                "full",
+                measured,
+                self.profile_path,
+                written,
+                sol,
+                solved.fit,
+            ),
+            "dh": sol.dh_rows(),
+            "identification": sol.to_json(),
+            "plan": {
+                "postures": len(plan.postures),
+                "candidates": plan.candidates,
+                "log_det": plan.log_det,
+                "d_criterion": plan.d_criterion,
+            },
+        }
+        return outcome(result, measured, verdict, written, sol)

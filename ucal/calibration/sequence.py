@@ -641,6 +641,12 @@ def run_calibration(
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
 
 
+def beam_fixed(beam: str) -> tuple[str, ...]:
+    """The unknowns ``--beam fixed`` holds at the profile's values: the tool's orientation
+    (and so the beam direction); none otherwise."""
+    return TOOL[3:] if beam == "fixed" else ()
+
+
 def solve(
     profile: CellProfile, run: CalibrationRun, beam: str = "auto"
 ) -> tuple[OffsetSolution, OffsetSolution | None]:
@@ -651,8 +657,7 @@ def solve(
     value; otherwise it is an unknown with the profile's tolerance as prior.
     """
     prior = prior_from_profile(profile)
-    fixed = ("tool_rx_deg", "tool_ry_deg", "tool_rz_deg") if beam == "fixed" else ()
-    exact = solve_exact_with_priors(prior, run.measurements, fixed=fixed)
+    exact = solve_exact_with_priors(prior, run.measurements, fixed=beam_fixed(beam))
     try:
         paper = solve_paper(
             geometry(profile),

@@ -1,9 +1,8 @@
 """``ucal calibrate``: joint zero offsets (paper 000) → ``[calibration]`` in the profile.
 
 Parses the options, loads (or, with ``--sim``, creates) the profile and runs the calibration
-procedure (``ucal.calibration.procedure``) through the steps of ``ucal.procedure``; prints the
-result. ``--level full`` runs ``ucal.cli.calibrate_full``, which shares this module's session
-(``in_session``), progress (``measure_with_progress``) and result helpers.
+procedure of the chosen level (``ucal.calibration.procedure``: ``OffsetsCalibration``,
+``FullCalibration``) through the steps of ``ucal.procedure``; prints the result.
 """
 
 from __future__ import annotations
@@ -11,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import tempfile
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,23 +20,15 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ucal import __version__
-from ucal.calibration.procedure import (  # noqa: F401  (shared with ucal.cli.calibrate_full)
-    TOLERANCE_STD_DEG,
-    OffsetsCalibration,
-    OffsetsShown,
-    judge,
-    result_fields,
-    written_keys,
-)
-from ucal.cli import calibrate_full
+from ucal.calibration.full import FullSolution
+from ucal.calibration.procedure import FullCalibration, OffsetsCalibration, OffsetsShown
+from ucal.cell import CellProfile
 from ucal.cli.options import (
     cell_from_options,
     cell_options_typed,
     check_output,
     controller_option,
     dry_run_option,
-    emit_json,
     info,
     json_option,
     pulser_option,
@@ -46,20 +36,11 @@ from ucal.cli.options import (
     yes_option,
 )
 from ucal.cli.procedure import finish, run_job
-from ucal.cli.progress import StepProgress
-from ucal.errors import InputError, OutOfToleranceError
+from ucal.errors import InputError
 from ucal.models import DEFAULT_MODEL
-from ucal.procedure import Outcome, RunOptions
-from ucal.profile import (
-    check_writable,
-    create_profile,
-    default_profile_text,
-    load_profile,
-    profile_from_data,
-    profile_lock,
-)
-from ucal.record import Record, Recorder, read_record, sha256_text
-from ucal.session import CellSession, check_status, open_cell, replay_cell
+from ucal.procedure import Job, Outcome, RunOptions
+from ucal.profile import create_profile, default_profile_text, load_profile, profile_from_data
+from ucal.record import read_record
 
 log = logging.getLogger(__name__)
 
@@ -189,33 +170,26 @@ def cli(
             profile = load_profile(profile_path)
     else:
         profile = load_profile(profile_path)
-    if level == "full":
-        # One run per profile, and room to write the result, checked before the first motion.
-        with scratch, contextlib.nullcontext() if dry_run else profile_lock(profile_path):
-            if not dry_run:
-                check_writable(profile_path)
-            result = calibrate_full.run(
-                profile,
-                profile_path,
-                cell.sim_world,
-                cell.controller_url,
-                cell.pulser_url,
-                beam,
-                yes,
-                dry_run,
-                as_json,
-                force,
-                record_path,
-                max_postures=postures,
-            )
-        result["created"] = created
-        finish_dict(result, as_json)
-        return
     with scratch:
-        job = OffsetsCalibration(profile, profile_path, method, beam, force)
+        job = _job(level, profile, profile_path, method, beam, force, postures)
         outcome = run_job(job, RunOptions(cell, yes, dry_run, record_path))
     outcome.result["created"] = created
     finish(outcome, as_json, show_outcome)
+
+
+def _job(
+    level: str,
+    profile: CellProfile,
+    profile_path: Path,
+    method: str,
+    beam: str,
+    force: bool,
+    postures: int | None,
+) -> Job[Any, Any, Any]:
+    """The calibration procedure of ``level``."""
+    if level == "full":
+        return FullCalibration(profile, profile_path, beam, force, postures)
+    return OffsetsCalibration(profile, profile_path, method, beam, force)
 
 
 def _replay(profile_path: Path, record_path: Path, method: str, beam: str, as_json: bool) -> None:
@@ -226,107 +200,22 @@ def _replay(profile_path: Path, record_path: Path, method: str, beam: str, as_js
     )
     if record.result is None:
         log.warning("%s has no end line: the recorded run was cut off", record_path)
-    if record.options.get("level") == "full":
-        result = calibrate_full.run(
-            profile,
-            profile_path,
-            None,
-            None,
-            None,
-            beam,
-            True,
-            True,
-            as_json,
-            record=record,
-            max_postures=record.options.get("max_postures"),
-        )
-        result["replayed"] = str(record_path)
-        finish_dict(result, as_json)
-        return
-    job = OffsetsCalibration(profile, profile_path, method, beam)
+    options = record.options
+    level = options.get("level", "offsets")
+    job = _job(level, profile, profile_path, method, beam, False, options.get("max_postures"))
     outcome = run_job(job, RunOptions(None, yes=True, dry_run=True, replay=record))
     outcome.result["replayed"] = str(record_path)
     finish(outcome, as_json, show_outcome)
 
 
-def finish_dict(result: dict[str, Any], as_json: bool) -> None:
-    """Print the full level's JSON result; out of tolerance, exit 1 (with ``--json`` the CLI
-    prints the result with the error fields)."""
-    message = result.pop("_message", None)
-    if result["out_of_tolerance"]:
-        raise OutOfToleranceError(message, result)
-    if as_json:
-        emit_json(result)
-
-
 def show_outcome(outcome: Outcome) -> None:
-    """The offsets level's result tables on stdout."""
+    """The result tables on stdout, of either level."""
+    if isinstance(outcome.shown, FullSolution):
+        show_full_result(Console(), outcome.shown, outcome.result)
+        return
     shown: OffsetsShown = outcome.shown
     solved = shown.solved
     show_result(Console(), solved.chosen, solved.exact, solved.paper, shown.truth, outcome.result)
-
-
-# -- the full level's session and progress (``ucal.cli.calibrate_full``) -------------------------
-
-
-def in_session(
-    profile: Any,
-    sim_world: str | None,
-    controller_url: str | None,
-    pulser_url: str | None,
-    record_path: Path | None,
-    record: Record | None,
-    options: dict[str, Any],
-    plan_rows: list[dict[str, Any]],
-    body: Callable[[CellSession], dict[str, Any]],
-) -> dict[str, Any]:
-    """Open the cell (or the replayed one), record its traffic if asked, run ``body(cell)`` and
-    return its result (also the record's end line)."""
-    recorder = None
-    if record_path is not None:
-        text = profile.path.read_text(encoding="utf-8")
-        recorder = Recorder(record_path).open(
-            {
-                "command": "calibrate",
-                "ucal": __version__,
-                "profile_path": str(profile.path),
-                "profile_sha256": sha256_text(text),
-                "profile_text": text,
-                "cell": "simulated cell" if sim_world is not None else controller_url,
-                "options": options,
-                "plan": plan_rows,
-            }
-        )
-    with contextlib.ExitStack() as stack:
-        if recorder is not None:
-            stack.enter_context(recorder)
-        cell = stack.enter_context(
-            replay_cell(profile, record)
-            if record is not None
-            else open_cell(profile, sim_world, controller_url, pulser_url, recorder)
-        )
-        result = body(cell)
-        if recorder is not None:
-            recorder.end({k: v for k, v in result.items() if not k.startswith("_")})
-    return result
-
-
-def measure_with_progress(cell: CellSession, what: str, measure: Callable[[Any], Any]) -> Any:
-    """``measure(report)`` with one progress line per step (``StepProgress``), after checking
-    the controller's status."""
-    check_status(cell.rig)
-    with StepProgress("calibrate") as progress:
-
-        def report(label: str, i: int, n: int) -> None:
-            counters = cell.rig.counters
-            progress.step(
-                f"{what} {label}" if label != "done" else "solving",
-                i,
-                n,
-                f"{counters.moves} moves, {counters.reads} reads",
-            )
-
-        return measure(report)
 
 
 # -- result tables -----------------------------------------------------------------------------
@@ -393,3 +282,49 @@ def show_fit(console: Console, fit: Any) -> None:
     )
     if fit.cause:
         console.print(escape(f"likely cause: {fit.cause}"))
+
+
+def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]) -> None:
+    """The identified parameters, offsets and fit of ``--level full`` as tables on stdout."""
+    table = Table(title="Kinematic parameters (calibrate --level full)")
+    for col in ("parameter", "value", "σ", "nominal", "status"):
+        table.add_column(col, justify="right" if col != "status" else "left")
+    for j in range(6):
+        unobs = j + 1 in sol.unobservable_joints
+        table.add_row(
+            f"J{j + 1} offset (deg)",
+            f"{sol.offsets_deg[j]:+.5f}",
+            "—" if unobs else f"{sol.std_deg[j]:.5f}",
+            "",
+            "unobservable (kept)" if unobs else "identified",
+        )
+    for name, p in sol.parameters.items():
+        table.add_row(
+            name,
+            f"{p['value']:.5f}",
+            "—" if p["std"] is None else f"{p['std']:.5f}",
+            f"{p['nominal']:.5f}",
+            p["status"],
+        )
+    console.print(table)
+    ident = sol.ident
+    console.print(f"rank {ident.rank} of {ident.n_parameters} unknowns")
+    for name, why in ident.redundant.items():
+        console.print(escape(f"{name} not identifiable, kept at its nominal value: {why}"))
+    if ident.scale_note:
+        console.print(escape(f"scale: {ident.scale_note}"))
+    if sol.length_standard is not None:
+        s = sol.length_standard
+        console.print(
+            f"step height {s['step_mm']:.4f} ± {s['std_mm']:.4f} mm (certificate "
+            f"{s['nominal_mm']:g} ± {s['tolerance_mm']:g} mm; {s['measurements']} water paths)"
+        )
+    for j, why in sorted(sol.unobservable_reasons.items()):
+        console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+    show_fit(console, sol.cell.quality)
+    console.print(
+        f"sound speed {result['sound_speed_m_s']:.2f} ± "
+        f"{result['sound_speed_std_m_s']:.2f} m/s; {result['moves']} moves, "
+        f"{result['pulser_reads']} pulser reads; profile "
+        f"{'written' if result['written'] else 'not written'}: {result['profile']}"
+    )
