@@ -8,9 +8,13 @@ path there. How hard it searches depends on how good the prediction is expected 
 * ``SearchMode.QUICK``: within about half a degree; centre on the main lobe first;
 * ``SearchMode.ACQUIRE``: acquire from scratch within ``radius_deg``.
 
-A fit that comes out imprecise is redone after centring (the quality gate). What a run's faces
-share (the profile, k·a, the acquisition gain) is a ``FaceSetup``; what one face needs (the
-face, where to start, the kinematics to predict with) a ``FaceRequest``.
+A fit that comes out imprecise is redone after centring (the quality gate). A centred peak far
+weaker than the main lobe the faces measured so far give at its water path is a side lobe
+(``ucal.calibration.search``, "Side lobes"): the search goes on to the main lobe with a raster
+where only the main lobe shows, and names the face if it finds none. What a run's faces share
+(the profile, k·a, the acquisition gain, the main lobe's heights found so far) is a
+``FaceSetup``; what one face needs (the face, where to start, the kinematics to predict with)
+a ``FaceRequest``.
 
 The noise floor (``acquisition_gain``) and the acquisition raster (``acquire_and_centre``)
 serve every procedure that searches an echo: the block's faces and the tool-frame plate.
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -35,7 +39,7 @@ from ucal.calibration.model import (
     beam_and_tcp,
     face_basis,
 )
-from ucal.calibration.search import PeakSearch, read_distance
+from ucal.calibration.search import MainLobe, PeakSearch, read_distance
 from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
@@ -55,6 +59,9 @@ MAX_ACQUISITION_MOVES = 100
 #: Raster line spacings of the block's faces (deg of beam tilt): 2.5° at acquisition gain,
 #: 0.5° where a long water path leaves little more than the main lobe above the noise.
 FACE_LINE_SPACINGS_DEG = (2.5, 0.5)
+#: First radius (deg of beam tilt) of the main-lobe raster (``PeakSearch.seek_main_lobe``),
+#: doubled up to ``ACQUIRE_MAX_DEG``: its lines are 0.5° apart.
+MAIN_LOBE_RADIUS_DEG = 4.0
 #: Noise floor the acquisition gain puts the empty gate at (fraction of full screen height).
 ACQUISITION_FLOOR_FSH = 0.025
 
@@ -74,6 +81,7 @@ class FaceSetup:
     profile: CellProfile
     ka: float  # k·a of the transducer in the profile's water
     acquisition_gain_db: float  # from ``acquisition_gain``
+    main_lobe: MainLobe = field(default_factory=MainLobe)  # heights found on the faces so far
 
 
 @dataclass(frozen=True)
@@ -99,8 +107,10 @@ def make_search(
     est: np.ndarray,
     ka: float,
     joints: tuple[int, int] | None = None,
+    main_lobe: MainLobe | None = None,
 ) -> PeakSearch:
-    """A peak search across ``face`` whose fit uses the kinematics with offsets ``est``."""
+    """A peak search across ``face`` whose fit uses the kinematics with offsets ``est``, and
+    that judges its peaks against ``main_lobe`` if given."""
     basis = face_basis(geom, face)
     normal = geom.normal(face)
     js, tilt_map = search_joints(geom, q, est, basis)
@@ -121,6 +131,7 @@ def make_search(
         profile.water_temperature_c,
         components,
         water_absorption_np_per_mm(profile.frequency_mhz),
+        main_lobe,
     )
 
 
@@ -147,6 +158,18 @@ def _no_face_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> Hardw
     )
 
 
+def side_lobe_error(
+    rig: Rig, label: str, below_db: float, moves: int, reached_deg: float | None = None
+) -> HardwareError:
+    """The search found only a side lobe (``PeakSearch.side_lobe_db``) on the face of ``label``."""
+    within = "" if reached_deg is None else f" within ±{reached_deg:g}° of the predicted posture"
+    return HardwareError(
+        f"pulser at {rig.pulser.endpoint}: {label}: the peak found{within} is {below_db:.0f} dB "
+        f"below the main lobe that the faces measured so far give at its water path: a side "
+        f"lobe, and no main lobe found ({moves} moves)"
+    )
+
+
 def acquire_and_centre(
     search: PeakSearch,
     rig: Rig,
@@ -161,15 +184,38 @@ def acquire_and_centre(
 ) -> np.ndarray:
     """Raster outward from the prediction, then centre on the main lobe.
 
-    For each line spacing in turn (for a face: 2.5° first — at acquisition gain the side lobes
+    Once the search has a main-lobe height to expect (``PeakSearch.main_lobe``), a raster
+    where only the main lobe shows comes first (``PeakSearch.seek_main_lobe``, radius from
+    ``MAIN_LOBE_RADIUS_DEG`` doubling to ``max_radius_deg``, half of ``max_moves``). Otherwise,
+    or if it finds nothing,
+    for each line spacing in turn (for a face: 2.5° first — at acquisition gain the side lobes
     show several degrees around normal at the nominal water path — then 0.5°), the radius
     widens from ``radius_deg`` up to ``max_radius_deg``. After ``max_moves`` moves (None: no
     bound) without an echo it gives up with the ``HardwareError`` (exit 3) of ``no_echo(rig,
     label, radius reached, moves)``: for a face it names the pulser and the face — the block is
-    not where ``[sample]`` says, or the beam does not reach it (water, transducer, gate).
+    not where ``[sample]`` says, or the beam does not reach it (water, transducer, gate). A
+    centred peak that is a side lobe, with no main lobe found, is a ``HardwareError`` naming the
+    face too.
     """
     first_move = rig.counters.moves
     reached = 0.0
+    if search.main_lobe is not None and search.main_lobe.peaks:
+        r = min(MAIN_LOBE_RADIUS_DEG, max_radius_deg)
+        budget = None if max_moves is None else max_moves // 2  # the rest: the usual raster
+        while True:
+            left = None if budget is None else budget - (rig.counters.moves - first_move)
+            if left is not None and left <= 0:
+                break
+            q = search.seek_main_lobe(q_pred, r, left)
+            if q is not None:
+                below = search.side_lobe_db()
+                if below is None:
+                    return q
+                raise side_lobe_error(rig, label, below, rig.counters.moves - first_move, r)
+            reached = max(reached, r)
+            if r >= max_radius_deg:
+                break
+            r = min(2 * r, max_radius_deg)
     for spacing in spacings_deg:
         r = min(radius_deg, max_radius_deg)
         while True:
@@ -178,7 +224,11 @@ def acquire_and_centre(
                 break
             found = search.acquire(q_pred, r, gain_db, spacing_tilt_deg=spacing, max_moves=left)
             if found is not None:
-                return search.centre(found[0], 3.0, gain_db)
+                q = search.centre(found[0], 3.0, gain_db)
+                below = search.side_lobe_db()
+                if below is not None:
+                    raise side_lobe_error(rig, label, below, rig.counters.moves - first_move, r)
+                return q
             reached = max(reached, r)
             if r >= max_radius_deg:
                 break
@@ -199,7 +249,8 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
     geom, face, est = request.geometry, request.face, request.offsets_deg
     label, mode, radius_deg = request.label, request.mode, request.radius_deg
     q_pred = aim_wrist(geom, request.start_deg, -geom.normal(face), est)
-    search = make_search(rig, geom, profile, q_pred, face, est, ka)
+    search = make_search(rig, geom, profile, q_pred, face, est, ka, main_lobe=setup.main_lobe)
+    first_move = rig.counters.moves
     averages = max(profile.procedure.tof_averages, 1)
 
     def tof() -> tuple[float, float]:
@@ -224,6 +275,12 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         peak = search.fit(q_c, averages=8, distance=tof)
     assert peak.distance is not None
     path, path_std = peak.distance
+    height = peak.amplitude / 10 ** (rig.settings.gain_db / 20)
+    below = search.side_lobe_db((height, path))
+    if below is not None:
+        raise side_lobe_error(rig, label, below, rig.counters.moves - first_move)
+    if peak.tilt_std_deg <= FIT_GATE_DEG:
+        setup.main_lobe.add(height, path)
     js = list(search.ja_jb)
     err = float(np.degrees(np.linalg.norm(search.m @ (peak.joints_deg[js] - q_pred[js]))))
     log.info(

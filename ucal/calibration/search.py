@@ -21,13 +21,24 @@ wrist joints only (they turn the beam about W without moving it):
    so any linear distortion of the nominal joint-to-tilt map is absorbed). A second grid,
    tighter and centred on the first estimate, gives the normal-incidence posture to a few
    thousandths of a degree; its covariance gives the posture uncertainty.
+
+**Side lobes.** Beyond the main lobe the echo does not vanish: a piston's side lobes (the first
+17.6 dB down at one frequency; for the broadband pulse a skirt 20-50 dB down with bumps a
+couple of degrees off normal) are local maxima too, and a search started degrees off normal
+(a poor first prediction) can centre on one and fit it, its tilt σ tens of times the main
+lobe's. Every face of the block is the same reflector, so the main lobe's height at a water
+path is known once one face has been measured (``MainLobe``: the heights found so far,
+carried to another path by the water's absorption). A centred peak more than
+``SIDE_LOBE_MARGIN_DB`` below it is a side lobe (``PeakSearch.side_lobe_db``); the search
+then goes on to the main lobe with a raster at a gain that leaves the side lobes below its
+level (``PeakSearch.seek_main_lobe``).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -44,6 +55,50 @@ log = logging.getLogger(__name__)
 #: the averages halve the noise the levels add to (a pulse costs microseconds, a read a Modbus
 #: round trip, so the run takes as many reads and hardly longer).
 QUANTISED_FIT_AVERAGES = 4
+
+#: A centred peak this far (dB) or more below the main lobe expected at its water path is a side
+#: lobe: the first side lobe of a piston is 17.6 dB down, the broadband pulse's skirt 20-50 dB;
+#: the expectation, carried from another path by the centre frequency's absorption, errs by
+#: up to 5 dB over 90 mm of path (the broadband echo falls more slowly) and faces of one block
+#: differ by a dB or two.
+SIDE_LOBE_MARGIN_DB = 12.0
+#: The main-lobe raster's level (dB below the expected main lobe) and its line spacing (deg of
+#: beam tilt): the broadband main lobe stays above −18 dB to 0.4° off normal, so lines 0.5°
+#: apart cross it, while the side lobes a degree or more off normal (29 dB down and lower)
+#: stay below the level.
+MAIN_LOBE_RASTER_DB = 18.0
+MAIN_LOBE_LINE_SPACING_DEG = 0.5
+#: Height (fraction of full screen) the main-lobe raster's gain puts the expected main lobe at:
+#: unsaturated, so that the centring that follows needs no gain steps.
+MAIN_LOBE_SCREEN_FSH = 0.4
+
+
+@dataclass
+class MainLobe:
+    """Heights of the main lobe found so far on one reflector (the block's faces).
+
+    ``peaks``: (amplitude at 0 dB gain, water path in mm) of each good peak fit. The height
+    expected at another water path is the largest of them carried there by the round trip's
+    absorption (the strongest echo a face has given: a side lobe found earlier cannot lower
+    it).
+    """
+
+    peaks: list[tuple[float, float]] = field(default_factory=list)
+
+    def add(self, amplitude: float, path_mm: float) -> None:
+        if amplitude > 0.0 and np.isfinite(path_mm):
+            self.peaks.append((float(amplitude), float(path_mm)))
+
+    def expected(self, path_mm: float, absorption_np_per_mm: float) -> float | None:
+        """Main-lobe amplitude (0 dB gain) expected at ``path_mm``; None before the first."""
+        if not self.peaks:
+            return None
+        return max(
+            a * float(np.exp(-2.0 * absorption_np_per_mm * (path_mm - p))) for a, p in self.peaks
+        )
+
+    def typical_path_mm(self) -> float:
+        return float(np.median([p for _, p in self.peaks]))
 
 
 @dataclass(frozen=True)
@@ -96,12 +151,18 @@ class PeakSearch:
         temperature_c: float,
         beam_components: Callable[[np.ndarray], np.ndarray] | None = None,
         absorption_np_per_mm: float = 0.0,
+        main_lobe: MainLobe | None = None,
     ):
         """``beam_components(q (n, 6)) -> (n, 3)``: the nominal beam's two components across
         the face (sines of the tilt, rad) and the tool centre's coordinate along the face
         normal (mm), from the forward kinematics; without it the fit uses the linear
-        ``tilt_map``. ``absorption_np_per_mm``: water absorption (one way) at the frequency."""
+        ``tilt_map``. ``absorption_np_per_mm``: water absorption (one way) at the frequency.
+        ``main_lobe``: the heights found so far on this reflector (module docstring), if
+        known; without them no peak is taken for a side lobe."""
         self.absorption = absorption_np_per_mm
+        self.main_lobe = main_lobe
+        # The last main-lobe cross's highest reading: (amplitude at 0 dB gain, water path mm).
+        self.last_peak: tuple[float, float] | None = None
         self.amp_sigma_rel: float | None = None  # measured relative amplitude repeatability
         self.beam_components = beam_components
         self.rig = rig
@@ -127,15 +188,17 @@ class PeakSearch:
         gain_db: float,
         spacing_tilt_deg: float = 1.5,
         max_moves: int | None = None,
+        level: float | None = None,
     ) -> tuple[np.ndarray, float] | None:
-        """Raster outward from ``q_pred`` until an echo is seen; returns (posture, level).
+        """Raster outward from ``q_pred`` until an echo reaches ``level`` (FSH; default the
+        detection threshold); returns (posture, level).
 
         None when the raster ends without an echo, or when it has used ``max_moves`` moves
         (the line in progress is finished first).
         """
         first_move = self.rig.counters.moves
         self.rig.configure(gain_db=gain_db)
-        level = self.rig.threshold()
+        level = max(level or 0.0, self.rig.threshold())
         half_a = radius_tilt_deg / self.per_deg[0]
         step_b = spacing_tilt_deg / self.per_deg[1]
         n_lines = int(np.ceil(radius_tilt_deg / spacing_tilt_deg))
@@ -168,10 +231,17 @@ class PeakSearch:
     def _cross(
         self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float = 0.04
     ) -> tuple[np.ndarray, float]:
-        """Sweep joint ``j`` through ``q``; move ``q[j]`` to the middle of the half-max run."""
-        qs, amps = self._sweep_through(q, j, half_tilt_deg, max_step_deg)
-        peak = float(np.max(amps))
+        """Sweep joint ``j`` through ``q``; move ``q[j]`` to the middle of the half-max run.
+
+        The highest reading, with its water path, is kept in ``last_peak``."""
+        qs, amps, tofs = self._sweep_through(q, j, half_tilt_deg, max_step_deg)
+        k = int(np.argmax(amps))
+        peak = float(amps[k])
         q = q.copy()
+        if peak >= self.rig.threshold() and np.isfinite(tofs[k]):
+            gain = 10 ** (self.rig.settings.gain_db / 20)
+            path = float(water_path_mm(tofs[k], self.temperature_c))
+            self.last_peak = (peak / gain, path)
         if peak >= self.rig.threshold():
             c = _run_centre(qs[:, j], amps, 0.5 * peak)
             if c is not None:
@@ -195,7 +265,7 @@ class PeakSearch:
             clipped = saturated = lost = False
             peak = 0.0
             for j in (self.jb, self.ja):
-                qs, amps = self._sweep_through(q, j, half)
+                qs, amps, _ = self._sweep_through(q, j, half)
                 peak = float(np.max(amps))
                 if peak < self.rig.threshold():
                     lost = True
@@ -215,6 +285,7 @@ class PeakSearch:
             else:
                 half = max(half * 0.5, 1.0)
         # Main lobe, finely: at fit gain the side lobes sink below half the peak.
+        self.last_peak = None
         self.set_fit_gain(q, averages=1)
         for _ in range(3):
             before = q.copy()
@@ -227,8 +298,9 @@ class PeakSearch:
 
     def _sweep_through(
         self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Sweep joint ``j`` over ±``half_tilt_deg`` of beam tilt through ``q``.
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sweep joint ``j`` over ±``half_tilt_deg`` of beam tilt through ``q``: the postures,
+        amplitudes and times of flight read.
 
         Without ``max_step_deg`` the spacing is ``SweepSpacing.centre_deg``.
         """
@@ -239,11 +311,12 @@ class PeakSearch:
         a, b = q.copy(), q.copy()
         a[j] -= h
         b[j] += h
-        qs, amps, _ = self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
-        return qs, amps
+        return self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
 
     def quick_centre(self, q_pred: np.ndarray) -> np.ndarray | None:
-        """Main-lobe cross at fit gain straight from a good prediction; None if no echo."""
+        """Main-lobe cross at fit gain straight from a good prediction; None if no echo, or
+        if the peak it centred on is a side lobe (``side_lobe_db``)."""
+        self.last_peak = None
         self.set_fit_gain(q_pred, averages=1)
         if self.rig.read().amplitude < self.rig.threshold():
             return None
@@ -257,7 +330,65 @@ class PeakSearch:
             if np.all(np.abs(q - before) < 0.01):
                 break
             self.set_fit_gain(q, averages=1)
+        below = self.side_lobe_db()
+        if below is not None:
+            log.info("centred on a side lobe: %.0f dB below the main lobe expected", below)
+            return None
         return q
+
+    # -- side lobes ----------------------------------------------------------------------------
+    def expected_peak(self, path_mm: float) -> float | None:
+        """Main-lobe amplitude (0 dB gain) expected at ``path_mm``; None without a reference."""
+        if self.main_lobe is None:
+            return None
+        return self.main_lobe.expected(path_mm, self.absorption)
+
+    def side_lobe_db(self, peak: tuple[float, float] | None = None) -> float | None:
+        """How far (dB) a peak, (amplitude at 0 dB gain, water path mm), by default the last
+        centred one (``last_peak``), lies below the main lobe expected at its water path, if it
+        is a side lobe (more than ``SIDE_LOBE_MARGIN_DB``); None if it is not, or if there is
+        no reference or no peak to judge."""
+        peak = peak or self.last_peak
+        if peak is None:
+            return None
+        amplitude, path = peak
+        expected = self.expected_peak(path)
+        if expected is None:
+            return None
+        below = float(20 * np.log10(expected / max(amplitude, 1e-12)))
+        return below if below > SIDE_LOBE_MARGIN_DB else None
+
+    def seek_main_lobe(
+        self, q_pred: np.ndarray, radius_tilt_deg: float, max_moves: int | None = None
+    ) -> np.ndarray | None:
+        """Raster outward from ``q_pred`` at a gain where only the main lobe shows, then centre.
+
+        The gain puts the main lobe expected (at the water path of the last peak, or the
+        reference's typical one) at ``MAIN_LOBE_SCREEN_FSH`` and the raster's level
+        ``MAIN_LOBE_RASTER_DB`` below it, so the side lobes a degree or more off normal do not
+        reach it; lines ``MAIN_LOBE_LINE_SPACING_DEG`` apart. None without a reference, or
+        when nothing reached the level within ``radius_tilt_deg`` or ``max_moves``. The caller
+        judges the centred peak (``side_lobe_db``).
+        """
+        if self.main_lobe is None or not self.main_lobe.peaks:
+            return None
+        path = self.last_peak[1] if self.last_peak else self.main_lobe.typical_path_mm()
+        expected = self.expected_peak(path)
+        assert expected is not None
+        gain_db = float(np.clip(20 * np.log10(MAIN_LOBE_SCREEN_FSH / expected), 0.0, 80.0))
+        level = expected * 10 ** ((gain_db - MAIN_LOBE_RASTER_DB) / 20)
+        log.info(
+            "seeking the main lobe within ±%g° at %.1f dB (level %.3f FSH)",
+            radius_tilt_deg,
+            gain_db,
+            level,
+        )
+        found = self.acquire(
+            q_pred, radius_tilt_deg, gain_db, MAIN_LOBE_LINE_SPACING_DEG, max_moves, level
+        )
+        if found is None:
+            return None
+        return self.centre(found[0], 1.0, gain_db)
 
     # -- stage 3: fit ------------------------------------------------------------------------------
     def set_fit_gain(self, q: np.ndarray, averages: int) -> None:
