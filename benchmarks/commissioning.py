@@ -49,6 +49,8 @@ from ucal.world import load_world
 MODEL = "tx90l"
 ORDERS = (("tool-frame", "calibrate"), ("calibrate", "tool-frame"))
 VERIFY_POINTS = 6
+#: verify's measured reached TCP should agree with the true one within this (mm).
+VERIFY_GOAL_MM = 0.05
 
 
 def draw_world(rng: np.random.Generator, profile_path: Path, path: Path) -> None:
@@ -310,7 +312,8 @@ def summarize(rows: list[dict]) -> None:
             both = [r["verify"]["agreement_mm"] for r in rs if "verify" in r and r["tool_written"]]
             print(
                 f"  verify ({len(ver)} runs): after figure minus the true reached TCP, max over "
-                f"the points: median {np.median(agree):.4f}, max {np.max(agree):.4f} mm"
+                f"the points: median {np.median(agree):.4f}, max {np.max(agree):.4f} mm, "
+                f"within {VERIFY_GOAL_MM:g} mm in {np.sum(agree <= VERIFY_GOAL_MM)}"
                 + (f" (tool written: max {np.max(both):.4f} mm)" if both else "")
                 + f"; passed {sum(v['passed'] for v in ver)}, true error within the "
                 f"tolerance {sum(v['should_pass'] for v in ver)}, verdicts agree "

@@ -25,11 +25,12 @@ a raster acquisition if the prediction misses, then the directivity fit) and the
 so the three distances give W in block coordinates, ``W_k = d_k + a_T·v``, against the *true*
 block. The three peak postures also fix the true orientation of the flange: they are three
 known wrist postures at which the true beam is −n_k. With the arm still, the true flange
-rotation is ``R(q) = Exp(ω)·R06(q, δ + (0, 0, 0, 0, ε5, ε6))`` for an unknown small rotation ω
-(it absorbs the arm offsets and joint 4) and wrist residuals ε5, ε6: five unknowns, six
-equations (joint 6 is held at its prior where the beam lies on the joint-6 axis: it then moves
-neither beam nor TCP). The wrist-centre estimate of the tool centre is the TCP of the
-*commanded* posture, ``T̂ = W + R(q_cmd)·v``, in block coordinates.
+rotation is ``R(q) = Exp(ω)·R06(q, δ + (0, 0, 0, 0, ε5, 0))`` for an unknown small rotation ω
+(it absorbs the arm offsets and joint 4) and a wrist residual ε5: four unknowns, six equations
+(joint 6 is held at the profile's offset, the frame the tool was measured in: with the beam
+near the joint-6 axis J6 and the tool's azimuth are one rotation). The wrist-centre estimate
+of the tool centre is the TCP of the *commanded* posture, ``T̂ = W + R(q_cmd)·v``, in block
+coordinates.
 
 **Why the tool needs a measurement of its own.** Let the real tool be ``v' = v + Δ`` (flange
 frame; the real beam a_T' along it). A water path at normal incidence sees only the TCP's
@@ -474,11 +475,13 @@ class WristOrientation:
 def estimate_orientation(
     geom: CellGeometry, peak_joints_deg: np.ndarray, offsets_deg: np.ndarray
 ) -> WristOrientation:
-    """Fit ω (rad) and the joint-5/6 residuals (deg) to three normal-incidence postures.
+    """Fit ω (rad) and the joint-5 residual (deg) to three normal-incidence postures.
 
     ``peak_joints_deg`` (3, 6): the postures at which the true beam is −n_k, k = 0, 1, 2 (same
-    arm joints). Joint 6 carries a weak prior towards 0: where the beam lies on its axis it
-    moves neither the beam nor the TCP and the data cannot see it.
+    arm joints). Joint 6 is held at ``offsets_deg``: the profile's J6 offset is the frame its
+    tool was measured in (J6 and the tool's azimuth are one rotation with the beam near the J6
+    axis). Fitted at every point from a beam 1–2° off that axis, it picked up the peaks' noise
+    (±0.6°, 0.05 mm at the TCP with a tool 1.7 mm off the flange axis).
     """
     q = np.asarray(peak_joints_deg, float)
     base = np.asarray(offsets_deg, float)
@@ -487,17 +490,17 @@ def estimate_orientation(
 
     def model(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         off = base.copy()
-        off[4:] += x[3:]
+        off[4] += x[3]
         corr = Rotation.from_rotvec(x[:3]).as_matrix()
         r06 = fk_frames(geom.model, q, off)[:, 6, :3, :3]
         return corr, off, (corr @ r06 @ a_t)
 
     def fun(x: np.ndarray) -> np.ndarray:
         _, _, beams = model(x)
-        return np.concatenate([(beams + normals).ravel(), [1e-3 * np.radians(x[4])]])
+        return (beams + normals).ravel()
 
     sol = least_squares(
-        fun, np.zeros(5), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000
+        fun, np.zeros(4), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000
     )
     corr, off, beams = model(sol.x)
     rms = float(np.degrees(np.sqrt(np.mean(np.sum((beams + normals) ** 2, axis=1)))))

@@ -301,3 +301,39 @@ def test_the_edge_scan_line_follows_the_arm_the_points_measured() -> None:
     assert estimate(t_edge) == pytest.approx(500.0, abs=1e-4)
     assert estimate(t_max) == pytest.approx(515.0, abs=0.05)
     assert estimate(500.0 - 347.7 + 15.0) < 500.0 - 4.0
+
+
+def test_peak_noise_does_not_turn_the_tool_about_joint_6(profile) -> None:
+    """Peaks found to 0.003° (their noise) on a tool 1.7 mm off the flange axis with its beam
+    1.2° off it: joint 6 stays the profile's (the tool's frame), so the TCP moves by the
+    noise's own hundredth of a mm, not by a J6 fitted from it (0.14 mm here)."""
+    prof = profile.replace(
+        tool_position_mm=np.array([1.2, -1.2, 80.0]),
+        tool_rotation_deg=np.array([0.9, -0.8, 0.0]),
+    )
+    geom = geometry(prof)
+    plan = plan_verify(prof, 2)
+    s_mat = prof.sample_matrix
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for target in plan.targets:
+        exact = np.array(
+            [
+                aim_wrist(geom, target.face_joints_deg[k], -geom.normal(k), np.zeros(6))
+                for k in range(3)
+            ]
+        )
+        for _ in range(5):
+            peaks = exact.copy()
+            peaks[:, 3:5] += rng.normal(0.0, 0.003, (3, 2))
+            dist = np.array(
+                [
+                    geom.normal(k) @ (beam_and_tcp(geom, exact[k], np.zeros(6))[1] - s_mat[:3, 3])
+                    for k in range(3)
+                ]
+            )
+            _, _, got = reached_from_peaks(prof, geom, peaks, dist, target.joints_deg)
+            tcp = beam_and_tcp(geom, target.joints_deg, np.zeros(6))[1]
+            want = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+            worst = max(worst, float(np.max(np.abs(got - want))))
+    assert worst < 0.03
