@@ -192,11 +192,7 @@ def measure_world(profile_path: Path, world_path: Path, save: Path | None = None
         for c, k in enumerate(("d_mm", "a_mm", "alpha_deg"))
     }
     true_p["dh2_beta_deg"] = twists_deg(true_model)[1]
-    z += [
-        (v["value"] - true_p[n]) / v["std"]
-        for n, v in full.parameters.items()
-        if v["std"] is not None
-    ]
+    z += [(v.value - true_p[n]) / v.std for n, v in full.parameters.items() if v.std is not None]
     est = estimate_run(
         [p.joints_deg for p in plan.postures], plan.postures[0].joints_deg, profile.procedure.speed
     )
@@ -214,9 +210,9 @@ def measure_world(profile_path: Path, world_path: Path, save: Path | None = None
         "verdict": full.cell.quality.verdict,
         "chi2": full.cell.quality.chi2_reduced,
         "nominal_z": max(
-            abs((v["value"] - v["nominal"]) / v["std"])
+            abs((v.value - v.nominal) / v.std)
             for v in full.parameters.values()
-            if v["std"] is not None
+            if v.std is not None
         ),
     }
 

@@ -47,6 +47,7 @@ from ucal.calibration.fit import (
     MAX_STD_DEG,
     OFFSETS,
     PRIOR_MEANING,
+    CellFit,
     CellPrior,
     FitQuality,
     solve_cell,
@@ -72,13 +73,23 @@ class OffsetSolution:
     corner_mm: np.ndarray | None = None
     rms_tilt_deg: float = float("nan")
     rms_distance_mm: float = float("nan")
-    extra: dict = field(default_factory=dict)
+    chi2_reduced: float = float("nan")  # of the solver's own fit
     fit: FitQuality | None = None
     sound_speed_m_s: float = float("nan")
     sound_speed_std_m_s: float = float("nan")
     #: 1-based joint → why it is unobservable (the data do not see it, or which tolerance it
     #: cannot be separated from).
     unobservable_reasons: dict[int, str] = field(default_factory=dict)
+    #: The fit with the cell's tolerances as priors (``solve_exact_with_priors``): values,
+    #: stds and each unknown's variance shares.
+    cell_fit: CellFit | None = None
+    #: The beam direction in the flange frame the solver used, and whether it fitted it
+    #: (``solve_exact``).
+    beam_flange: np.ndarray | None = None
+    beam_fitted: bool = False
+    #: The paper method's first-order truncation error and its noise std per joint (deg).
+    truncation_deg: np.ndarray | None = None
+    noise_std_deg: np.ndarray | None = None
 
 
 def solve_exact_with_priors(
@@ -115,11 +126,12 @@ def solve_exact_with_priors(
         corner_mm=np.array([cell.value(n) for n in ("block_x_mm", "block_y_mm", "block_z_mm")]),
         rms_tilt_deg=cell.quality.rms_tilt_deg,
         rms_distance_mm=cell.quality.rms_distance_mm,
-        extra={"cell_fit": cell, "chi2_reduced": cell.quality.chi2_reduced},
+        chi2_reduced=cell.quality.chi2_reduced,
         fit=cell.quality,
         sound_speed_m_s=cell.value("sound_speed_m_s"),
         sound_speed_std_m_s=cell.sigma("sound_speed_m_s"),
         unobservable_reasons=reasons,
+        cell_fit=cell,
     )
 
 
@@ -256,11 +268,9 @@ def solve_exact(
         corner_mm=corner,
         rms_tilt_deg=float(np.degrees(tilt_rms)),
         rms_distance_mm=dist_rms,
-        extra={
-            "chi2_reduced": float(res @ res / max(1, len(res) - len(x))),
-            "beam_flange": beam_vec,
-            "beam_fitted": fit_beam,
-        },
+        chi2_reduced=float(res @ res / max(1, len(res) - len(x))),
+        beam_flange=beam_vec,
+        beam_fitted=fit_beam,
     )
 
 

@@ -47,7 +47,8 @@ with the beam on its axis).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import approx_fprime
@@ -272,6 +273,33 @@ def identifiability(
 
 
 @dataclass(frozen=True)
+class IdentifiedParameter:
+    """A kinematic parameter as the full level found it (deg or mm)."""
+
+    value: float
+    std: float | None  # None: not identifiable, kept at its nominal value
+    nominal: float
+    status: str  # "identified", "prior-dominated" or "not identifiable"
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class LengthStandard:
+    """The step's height as its water paths and its prior put it (mm)."""
+
+    step_mm: float
+    std_mm: float
+    nominal_mm: float  # the certificate's
+    tolerance_mm: float
+    measurements: int  # water paths over the step
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class FullSolution:
     """The identified kinematic model with the fit behind it."""
 
@@ -281,9 +309,9 @@ class FullSolution:
     std_deg: np.ndarray  # NaN where unobservable
     unobservable_reasons: dict[int, str]  # 1-based joint → why
     model: RobotModel  # the identified DH table (nominal where kept)
-    parameters: dict[str, dict] = field(default_factory=dict)
+    parameters: dict[str, IdentifiedParameter] = field(default_factory=dict)
     #: The step's height as its water paths and its prior put it (None without a step).
-    length_standard: dict | None = None
+    length_standard: LengthStandard | None = None
 
     @property
     def unobservable_joints(self) -> tuple[int, ...]:
@@ -291,10 +319,13 @@ class FullSolution:
 
     method = "exact"
 
+    #: The paper method's truncation error (``judge`` reads it of any solution): none here.
+    truncation_deg = None
+
     @property
-    def extra(self) -> dict:
-        """What ``ucal.cli.calibrate.judge`` reads of a solution: the fit behind it."""
-        return {"cell_fit": self.cell}
+    def cell_fit(self) -> CellFit:
+        """The fit behind the solution (``ucal.calibration.procedure.judge`` reads it)."""
+        return self.cell
 
     @property
     def sound_speed_m_s(self) -> float:
@@ -325,11 +356,13 @@ class FullSolution:
         return {
             "rank": self.ident.rank,
             "unknowns": self.ident.n_parameters,
-            "parameters": self.parameters,
+            "parameters": {name: p.to_json() for name, p in self.parameters.items()},
             "not_identifiable": dict(self.ident.redundant),
             "prior_dominated": list(self.ident.weak),
             "scale": self.ident.scale_note,
-            "length_standard": self.length_standard,
+            "length_standard": (
+                None if self.length_standard is None else self.length_standard.to_json()
+            ),
         }
 
 
@@ -385,26 +418,18 @@ def solve_full(
         std[j] = sigma
     dh = prior.model.dh.copy()
     beta = twists_deg(prior.model).copy()
-    params: dict[str, dict] = {}
+    params: dict[str, IdentifiedParameter] = {}
     for name in KINEMATIC:
         i = cell.table.index(name)
         nominal = float(cell.table.prior[i])
         if name in ident.redundant:
-            params[name] = {
-                "value": nominal,
-                "std": None,
-                "nominal": nominal,
-                "status": "not identifiable",
-            }
+            params[name] = IdentifiedParameter(nominal, None, nominal, "not identifiable")
             continue
         value, sigma = cell.value(name), cell.sigma(name)
         weak = name in ident.weak or sigma > PRIOR_DOMINATED * cell.table.prior_stds[i]
-        params[name] = {
-            "value": value,
-            "std": sigma,
-            "nominal": nominal,
-            "status": "prior-dominated" if weak else "identified",
-        }
+        params[name] = IdentifiedParameter(
+            value, sigma, nominal, "prior-dominated" if weak else "identified"
+        )
         if name in BETA:
             beta[1] = value
         else:
@@ -415,13 +440,13 @@ def solve_full(
     standard = None
     if steps:
         i = cell.table.index(STEP[0])
-        standard = {
-            "step_mm": cell.value(STEP[0]),
-            "std_mm": cell.sigma(STEP[0]),
-            "nominal_mm": float(cell.table.prior[i]),
-            "tolerance_mm": float(cell.table.prior_stds[i]),
-            "measurements": len(steps),
-        }
+        standard = LengthStandard(
+            cell.value(STEP[0]),
+            cell.sigma(STEP[0]),
+            float(cell.table.prior[i]),
+            float(cell.table.prior_stds[i]),
+            len(steps),
+        )
     return FullSolution(cell, ident, offsets, std, reasons, model, params, standard)
 
 

@@ -241,7 +241,8 @@ def solve_paper(
         unobservable_joints=tuple(sorted(unobs)),
         condition_number=condition_number,
         method="paper",
-        extra={"truncation_deg": truncation, "noise_std_deg": np.sqrt(noise)},
+        truncation_deg=truncation,
+        noise_std_deg=np.sqrt(noise),
         unobservable_reasons={j: why[j] for j in unobs if j in why},
     )
 

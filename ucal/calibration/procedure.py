@@ -25,7 +25,7 @@ import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import PRIOR_MEANING, FitQuality, prior_from_profile
+from ucal.calibration.fit import PRIOR_MEANING, CellFit, FitQuality, prior_from_profile
 from ucal.calibration.full import FullSolution, solve_full
 from ucal.calibration.full_plan import FullPlan, plan_full
 from ucal.calibration.full_run import FullRun, run_full
@@ -63,7 +63,10 @@ class JointSolution(Protocol):
     def unobservable_joints(self) -> tuple[int, ...]: ...
 
     @property
-    def extra(self) -> dict[str, Any]: ...
+    def cell_fit(self) -> CellFit | None: ...
+
+    @property
+    def truncation_deg(self) -> np.ndarray | None: ...
 
 
 def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, Any]:
@@ -207,8 +210,8 @@ def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
     if loose:
         j = max(loose, key=lambda k: std[k] if np.isfinite(std[k]) else np.inf)
         why = ""
-        trunc = chosen.extra.get("truncation_deg")
-        cell = chosen.extra.get("cell_fit")
+        trunc = chosen.truncation_deg
+        cell = chosen.cell_fit
         shares = cell.variance_share.get(f"J{j + 1}", {}) if cell is not None else {}
         source = max(shares, key=lambda k: shares[k]) if shares else "data"
         if trunc is not None and trunc[j] > 0.5 * std[j]:

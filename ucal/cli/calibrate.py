@@ -301,10 +301,10 @@ def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]
     for name, p in sol.parameters.items():
         table.add_row(
             name,
-            f"{p['value']:.5f}",
-            "—" if p["std"] is None else f"{p['std']:.5f}",
-            f"{p['nominal']:.5f}",
-            p["status"],
+            f"{p.value:.5f}",
+            "—" if p.std is None else f"{p.std:.5f}",
+            f"{p.nominal:.5f}",
+            p.status,
         )
     console.print(table)
     ident = sol.ident
@@ -316,8 +316,8 @@ def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]
     if sol.length_standard is not None:
         s = sol.length_standard
         console.print(
-            f"step height {s['step_mm']:.4f} ± {s['std_mm']:.4f} mm (certificate "
-            f"{s['nominal_mm']:g} ± {s['tolerance_mm']:g} mm; {s['measurements']} water paths)"
+            f"step height {s.step_mm:.4f} ± {s.std_mm:.4f} mm (certificate "
+            f"{s.nominal_mm:g} ± {s.tolerance_mm:g} mm; {s.measurements} water paths)"
         )
     for j, why in sorted(sol.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))

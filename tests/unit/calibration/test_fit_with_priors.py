@@ -207,7 +207,8 @@ def test_paper_std_carries_its_truncation_error():
     meas = measure(offsets, configs=CONFIGS[:3], sigma_tilt_deg=1e-4, sigma_dist_mm=1e-4)
     geom = CellGeometry(MODEL, transform(TOOL_MM, np.eye(3)), np.eye(3))
     sol = solve_paper(geom, meas, np.zeros(6), unobservable=(6,), prior=prior(0.01, 0.1))
-    trunc = sol.extra["truncation_deg"]
+    trunc = sol.truncation_deg
+    assert trunc is not None
     assert trunc[1] + trunc[2] > 1.0  # half of the 5° step on θ2 + θ3
     ok = np.isfinite(sol.std_deg)
     err = np.abs(sol.offsets_deg[ok] - offsets[ok])

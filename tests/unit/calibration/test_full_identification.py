@@ -114,12 +114,12 @@ def test_dh_errors_identified_within_std_and_tcp_recovered(cell):
     assert sol.cell.quality.verdict == "ok"
     truth = true_parameters(model)
     z = [
-        (v["value"] - truth[n]) / v["std"]
+        (v.value - truth[n]) / v.std
         for n, v in sol.parameters.items()
-        if v["status"] != "not identifiable"
+        if v.std is not None and v.status != "not identifiable"
     ]
     assert max(np.abs(z)) < 4.0 and np.mean(np.abs(np.array(z)) <= 3.0) >= 0.9
-    assert abs(sol.parameters["dh2_beta_deg"]["value"] - 0.04) < 0.005
+    assert abs(sol.parameters["dh2_beta_deg"].value - 0.04) < 0.005
     assert sol.unobservable_joints == (1, 6)  # hand-placed block's yaw; beam on axis 6
     assert np.all(np.abs(sol.offsets_deg - offsets)[1:5] < 3 * sol.std_deg[1:5] + 1e-9)
     # TCP over the scanning region, after the best rigid alignment
@@ -149,10 +149,10 @@ def test_nominal_robot_gives_the_nominal_table_back(cell):
     sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
     truth = true_parameters(profile.model)
     for name, v in sol.parameters.items():
-        if v["std"] is None:
-            assert v["value"] == truth[name]
+        if v.std is None:
+            assert v.value == truth[name]
         else:
-            assert abs(v["value"] - truth[name]) <= 3 * v["std"], name
+            assert abs(v.value - truth[name]) <= 3 * v.std, name
 
 
 def test_region_check_flags_a_table_that_is_wrong_away_from_the_calibration(cell):
@@ -215,6 +215,6 @@ def test_a_step_of_known_height_sets_the_scale_that_the_thermometer_cannot(cell)
     assert prior.sound_speed_std_m_s > 5.0 and sol.sound_speed_std_m_s < 0.2
     assert abs(sol.sound_speed_m_s - sound_speed_m_s(water_c)) < 3 * sol.sound_speed_std_m_s
     standard = sol.length_standard
-    assert standard is not None and standard["measurements"] == 1
-    assert abs(standard["step_mm"] - height) < 3 * standard["std_mm"]
+    assert standard is not None and standard.measurements == 1
+    assert abs(standard.step_mm - height) < 3 * standard.std_mm
     assert sol.cell.quality.verdict == "ok"

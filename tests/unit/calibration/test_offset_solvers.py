@@ -101,7 +101,7 @@ def test_fitted_beam_absorbs_tool_tilt_without_biasing_the_wrist():
     # The tilt is seen; its azimuth about the joint-6 axis absorbs the unobservable δ6 (kept at
     # 0 instead of 0.6): the fitted beam is the true one turned by δ6 about flange z.
     turned = rpy_to_matrix(np.array([0.0, 0.0, offsets[5]])) @ true_beam
-    assert angle_between_deg(fitted.extra["beam_flange"], turned) < 1e-5
+    assert angle_between_deg(fitted.beam_flange, turned) < 1e-5
 
 
 def test_constant_theta6_leaves_joint5_confounded_with_beam_tilt():
