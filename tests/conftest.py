@@ -9,6 +9,12 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import pytest
+from hypothesis import settings
+
+# No test depends on the machine's speed: hypothesis's per-example deadline (200 ms) would
+# fail a test on a loaded machine for nothing it checks.
+settings.register_profile("ucal", deadline=None)
+settings.load_profile("ucal")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
