@@ -149,8 +149,9 @@ def acquisition_gain(
 
 
 def _no_face_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> HardwareError:
-    config, _, face = label.rpartition("/")
-    where = f"face {face}" + (f" ({config})" if config else "")
+    config, _, face = label.rpartition("/")  # "j3/XY", or the full level's "face XY (p7)"
+    where = face if face.startswith("face ") else f"face {face}"
+    where += f" ({config})" if config else ""
     return HardwareError(
         f"pulser at {rig.pulser.endpoint}: no echo from {where} within "
         f"±{reached_deg:g}° of the predicted posture ({moves} moves): is the block "

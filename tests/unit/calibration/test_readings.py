@@ -249,3 +249,15 @@ def test_the_peak_fit_averages_more_once_the_amplitude_shows_levels(
     if step:
         # the levels' variance is in the tilt σ even where the readings fit exactly
         assert peak.tilt_std_deg > 1e-4
+
+
+def test_no_echo_message_names_the_face_once_for_both_levels() -> None:
+    from types import SimpleNamespace
+
+    from ucal.calibration.faces import _no_face_echo
+
+    rig = SimpleNamespace(pulser=SimpleNamespace(endpoint="modbus-tcp://127.0.0.1:5020"))
+    offsets = str(_no_face_echo(rig, "j3/XY", 20.0, 5))  # type: ignore[arg-type]
+    full = str(_no_face_echo(rig, "face YZ (p7)", 20.0, 5))  # type: ignore[arg-type]
+    assert "no echo from face XY (j3) within ±20°" in offsets
+    assert "no echo from face YZ (p7) within ±20°" in full and "face face" not in full
