@@ -20,10 +20,14 @@ after saving the bytes it replaces as ``NNNN-after.toml``: an undo loses nothing
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import json
 import logging
 import os
+import shutil
+import socket
+import sys
 from collections.abc import Iterator, Mapping
 from dataclasses import MISSING, asdict, dataclass
 from datetime import UTC, datetime
@@ -1112,10 +1116,6 @@ def profile_lock(path: str | Path, command: str | None = None) -> Iterator[LockH
     The file records the holder (pid, host, command, start time) for the refusal, which is an
     ``InputError`` (exit 2) naming the profile and the holder. The file is removed on release.
     """
-    import fcntl
-    import socket
-    import sys
-
     lock = lock_path(path)
     me = LockHolder(
         pid=os.getpid(),
@@ -1168,8 +1168,6 @@ def check_writable(path: str | Path, min_free_bytes: int = MIN_FREE_BYTES) -> No
     """Preflight before the first motion: the profile's directory and its history directory
     must be writable and hold room for the write; else ``ProfileError`` (exit 2) naming the
     directory. ``min_free_bytes`` is the margin over three times the profile's size."""
-    import shutil
-
     p = real_path(path)
     hdir = history_dir(p)
     try:

@@ -36,6 +36,9 @@ from ucal.record import (
     ReplayPulser,
 )
 from ucal.rig import Rig
+from ucal.sim.demo import demo_world
+from ucal.sim.serve import SimulatedCellServer
+from ucal.world import load_world
 
 log = logging.getLogger(__name__)
 
@@ -109,11 +112,6 @@ def open_cell(
         controller_options = profile.controller.driver_options()
         pulser_options: dict[str, float] = {}
         if sim_world is not None:
-            # The simulated cell (its physics pulls in scipy.spatial) only for a --sim run.
-            from ucal.sim.demo import demo_world
-            from ucal.sim.serve import SimulatedCellServer
-            from ucal.world import load_world
-
             truth = load_world(Path(sim_world), profile) if sim_world else demo_world(profile)
             clock = SimClock()
             server = stack.enter_context(SimulatedCellServer(truth, profile, clock=clock))

@@ -16,16 +16,24 @@ the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
 
 from __future__ import annotations
 
+import contextlib
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ucal.calibration.fit import DH, OFFSETS, TOOL, prior_from_profile, solve_cell
 from ucal.calibration.full_plan import FullPlan, Posture, candidate_postures, order_postures
-from ucal.calibration.full_run import run_full
+from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.search import Rig
+from ucal.calibration.procedure import estimate_postures, plan_rows
 from ucal.cell import CellProfile
+from ucal.procedure import Measured, Outcome, RunOptions
+from ucal.progress import Report
+from ucal.session import CellSession
+from ucal.timing import DurationEstimate
 
 #: Joint-space weights of the farthest-point spread (deg of J1, J2, J3; a face change = 30°).
 _SPREAD_FACE_DEG = 30.0
@@ -125,9 +133,90 @@ def judge_region(
     )
 
 
-def run_region(
-    profile: CellProfile, plan: FullPlan, rig: Rig, tolerance_mm: float, progress=None
-) -> RegionResult:
-    """Measure the region's postures (as ``calibrate --level full`` does) and judge them."""
-    run = run_full(profile, plan, rig, progress)
-    return judge_region(profile, run.measurements, tolerance_mm)
+def plan_summary(plan: FullPlan, profile_path: Path) -> str:
+    """The region check's plan in words, for the technician before the first motion."""
+    lo, hi = plan.azimuths_deg
+    lines = [
+        f"Region check of {profile_path}: {len(plan.postures)} postures spread over "
+        f"{plan.candidates} candidates, J1 {lo:.1f} to {hi:.1f} deg; the model is held, only "
+        "the block pose, the sound speed and the tool's orientation are fitted"
+    ]
+    lines += [
+        f"  {p.label} {p.face_name:<3}" + "".join(f"{v:9.2f}" for v in p.joints_deg)
+        for p in plan.postures
+    ]
+    return "\n".join(lines)
+
+
+class RegionJob:
+    """``verify --region N``: the model judged over N spread postures; writes nothing."""
+
+    command = "verify"
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        profile_path: Path,
+        n_postures: int,
+        tolerance_mm: float | None = None,
+    ) -> None:
+        self.profile = profile
+        self.profile_path = profile_path
+        self.n_postures = n_postures
+        self.tolerance_mm = (
+            profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
+        )
+
+    def profile_text(self) -> str:
+        return self.profile_path.read_text(encoding="utf-8")
+
+    def check(self, options: RunOptions) -> AbstractContextManager[object]:
+        return contextlib.nullcontext()  # the profile is read, never written
+
+    def plan(self) -> FullPlan:
+        return plan_region(self.profile, self.n_postures)
+
+    def summary(self, plan: FullPlan) -> str:
+        return plan_summary(plan, self.profile_path)
+
+    def estimate(self, plan: FullPlan) -> DurationEstimate:
+        return estimate_postures(plan, self.profile)
+
+    def record_header(self, plan: FullPlan) -> dict[str, Any]:
+        return {"options": {"region": self.n_postures}, "plan": plan_rows(plan.postures)}
+
+    def measure(self, plan: FullPlan, session: CellSession, report: Report) -> FullRun:
+        """Each posture measured as ``calibrate --level full`` measures it."""
+        return run_full(self.profile, plan, session.rig, report)
+
+    def solve(self, plan: FullPlan, measured: Measured[FullRun]) -> RegionResult:
+        return judge_region(self.profile, measured.data.measurements, self.tolerance_mm)
+
+    def may_write(self, solved: RegionResult) -> bool:
+        return False
+
+    def write(self, solved: RegionResult) -> None:
+        raise AssertionError("a region check writes nothing")
+
+    def result(
+        self, plan: FullPlan, measured: Measured[FullRun], solved: RegionResult, written: bool
+    ) -> Outcome:
+        out = solved.to_json()
+        out["profile"] = str(self.profile_path)
+        out["moves"] = measured.data.moves
+        out["pulser_reads"] = measured.data.reads
+        out["duration_s"] = measured.duration_s
+        message = (
+            f"region check failed: the model leaves {solved.max_distance_mm:.4f} mm (rms "
+            f"{solved.rms_distance_mm:.4f}) along the face normals and "
+            f"{solved.max_tilt_deg:.4f} deg of beam tilt over {solved.postures} postures (χ²ᵣ "
+            f"{solved.chi2_reduced:.3g}, worst {solved.worst}); calibrate with --level full"
+        )
+        return Outcome(
+            self.command,
+            out,
+            written=False,
+            out_of_tolerance=not solved.passed,
+            message=message,
+            shown=solved,
+        )

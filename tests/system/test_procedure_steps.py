@@ -20,6 +20,7 @@ from ucal.profile import load_profile
 from ucal.progress import Progress
 from ucal.toolframe.procedure import ToolFrameCalibration
 from ucal.verify import VerifyJob
+from ucal.verify_region import RegionJob
 
 pytestmark = pytest.mark.system
 
@@ -116,3 +117,15 @@ def test_calibrate_full_goes_through_the_same_steps(profile_path: Path) -> None:
     assert outcome.result["level"] == "full" and outcome.result["plan"]["postures"] == 3
     assert outcome.result["moves"] == seen[-1].moves
     assert outcome.written is False and profile_path.read_bytes() == before  # a dry run
+
+
+def test_verify_region_goes_through_the_same_steps(profile_path: Path) -> None:
+    before = profile_path.read_bytes()
+    job = RegionJob(load_profile(profile_path), profile_path, n_postures=3)
+    steps, presenter, outcome = run(job)
+    check_run(steps, presenter, outcome, "verify")
+    assert "Region check of" in presenter.events[0][1]
+    seen = presenter.progress_seen
+    assert [p.step.configuration for p in seen[:-1]] == ["r01", "r02", "r03"]
+    assert outcome.result["region"]["postures"] == 3
+    assert outcome.written is False and profile_path.read_bytes() == before  # never written

@@ -264,3 +264,31 @@ def test_ctrl_c_stops_and_exits_130(tmp_path: Path, world: Path) -> None:
     assert "interrupted" in err and "Traceback" not in err
     assert not (tmp_path / "cell.verify.png").exists()
     assert profile.read_bytes() == before_bytes
+
+
+@pytest.mark.timeout(120)
+def test_region_check_passes_the_right_model_and_fails_the_wrong_one(
+    tmp_path: Path, world: Path
+) -> None:
+    """``verify --region``: the right offsets pass; offsets the profile does not know tilt the
+    beam off normal at postures spread over the block, a misfit: exit 1 with the result."""
+    good = make_profile(tmp_path, "good.toml", TRUE_OFFSETS_DEG)
+    r = run_ucal("verify", str(good), "--sim", str(world), "--region", "4", "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["passed"] is True and out["region"]["verdict"] == "ok"
+    assert out["region"]["postures"] == 4 and out["region"]["max_tilt_deg"] < 0.001
+    assert out["moves"] > 0 and out["pulser_reads"] > 0
+    # the procedure's plan and progress on stderr
+    assert "Region check of" in r.stderr and "Estimated time on a real cell" in r.stderr
+    assert "verify [4/4] solving" in r.stderr
+
+    bad = make_profile(tmp_path, "bad.toml", None)
+    before = bad.read_bytes()
+    r = run_ucal("verify", str(bad), "--sim", str(world), "--region", "4", "--yes", "--json")
+    assert r.returncode == 1, r.stderr
+    out = json.loads(r.stdout)
+    assert out["passed"] is False and out["region"]["verdict"] == "misfit"
+    assert out["exit_code"] == 1 and out["error"].startswith("region check failed")
+    assert out["region"]["max_tilt_deg"] > 0.3
+    assert bad.read_bytes() == before  # never written

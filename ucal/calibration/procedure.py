@@ -414,6 +414,15 @@ def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
     return "\n".join([*lines, WRIST_SEARCH])
 
 
+def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
+    """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does."""
+    return estimate_run(
+        [p.joints_deg for p in plan.postures],
+        plan.postures[0].joints_deg,
+        profile.procedure.speed,
+    )
+
+
 @dataclass
 class FullSolved:
     """The identified model, its fit and its verdict."""
@@ -451,11 +460,7 @@ class FullCalibration(ProfileJob):
         return full_plan_summary(plan, self.profile)
 
     def estimate(self, plan: FullPlan) -> DurationEstimate:
-        return estimate_run(
-            [p.joints_deg for p in plan.postures],
-            plan.postures[0].joints_deg,
-            self.profile.procedure.speed,
-        )
+        return estimate_postures(plan, self.profile)
 
     def record_header(self, plan: FullPlan) -> dict[str, Any]:
         return {

@@ -302,18 +302,6 @@ def _to_jsonable(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def confirm_motion(yes: bool, summary: str, cell: CellChoice) -> None:
-    """Show the plan and ask before the first motion, naming the cell; ``--yes`` skips.
-
-    ``summary`` (the plan) goes to stderr so that ``--json`` keeps stdout clean, and not at
-    all with ``-q`` (the question still names the cell). No terminal and no ``--yes`` →
-    refuse (exit 2); ``cell_from_options`` has already refused that before the plan.
-    """
-    info(summary)
-    if not yes:
-        ask_to_move(cell)
-
-
 def ask_to_move(cell: CellChoice) -> None:
     """Ask on the terminal whether to move ``cell``; no terminal → refuse (exit 2), no → abort."""
     if not sys.stdin.isatty():

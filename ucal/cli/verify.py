@@ -9,7 +9,6 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from ucal.cli import verify_region
 from ucal.cli.options import (
     cell_from_options,
     controller_option,
@@ -24,6 +23,7 @@ from ucal.errors import InputError
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
 from ucal.verify import VerifyJob, VerifyResult, VerifyShown
+from ucal.verify_region import RegionJob, RegionResult
 
 
 @click.command(
@@ -105,10 +105,11 @@ def cli(
     any axis after calibration; otherwise exit 1.
     """
     cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
-    if region is not None:
-        verify_region.run(profile_path, cell, region, tolerance_mm, yes, as_json)
-        return
     profile = load_profile(profile_path)
+    if region is not None:
+        region_job = RegionJob(profile, profile_path, region, tolerance_mm)
+        finish(run_job(region_job, RunOptions(cell, yes, dry_run)), as_json, show_region)
+        return
     if plot_path is None:
         plot_path = profile_path.with_name(profile_path.stem + ".verify.png")
     if not plot_path.parent.is_dir():
@@ -151,6 +152,17 @@ def show_outcome(outcome: Outcome) -> None:
             + " mm"
         )
     click.echo(f"picture: {shown.plot_path}" if shown.plot_path else "picture: not written")
+
+
+def show_region(outcome: Outcome) -> None:
+    """The region check's residuals and verdict on stdout."""
+    r: RegionResult = outcome.shown
+    click.echo(
+        f"region: {r.postures} postures; along the face normals rms {r.rms_distance_mm:.4f} mm, "
+        f"max {r.max_distance_mm:.4f} mm; beam tilt rms {r.rms_tilt_deg:.4f} deg, max "
+        f"{r.max_tilt_deg:.4f} deg; χ²ᵣ {r.chi2_reduced:.3g} ({r.verdict}, worst {r.worst}); "
+        f"tolerance {r.tolerance_mm:g} mm: " + ("passed" if r.passed else "FAILED")
+    )
 
 
 def _check_plot_format(path: Path) -> None:

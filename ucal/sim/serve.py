@@ -24,7 +24,9 @@ from typing import IO, Any, Self
 import numpy as np
 
 from drivers.clock import HOST_CLOCK, Clock, SimClock
+from drivers.controller.simulator import SimulatedController
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.simulator import SimulatedPulser
 from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import matrix_to_pose
@@ -84,9 +86,6 @@ class SimulatedCellServer:
         """Start both simulators (idempotent); returns self."""
         if self.controller is not None:
             return self
-        from drivers.controller.simulator import SimulatedController
-        from drivers.pulser.simulator import SimulatedPulser
-
         if self.log_path is not None:
             # open for the server's lifetime, closed by stop()
             self._log_file = open(self.log_path, "a", encoding="utf-8")  # noqa: SIM115
