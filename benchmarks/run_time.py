@@ -7,8 +7,12 @@
    run's own simulated duration (what it would take over Modbus TCP) and beside the wall time
    of the same calibration against ``ucal sim serve --time-scale 1`` (real time, another
    process, the drivers on the host clock) — unless ``--no-real-time``.
+4. With ``--commands``: every moving command on the demo cell, as a commissioning runs them
+   on a fresh profile (tool-frame, calibrate, verify with 4 and 20 points, calibrate --level
+   full, verify --region 12): the plan's real-cell estimate (Modbus TCP / RTU), the run's
+   simulated duration and its wall time.
 
-Usage: python benchmarks/run_time.py [--no-real-time]
+Usage: python benchmarks/run_time.py [--no-real-time] [--commands]
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import re
 import subprocess
 import sys
 import tempfile
@@ -47,10 +52,56 @@ def calibrate(workdir: Path, *extra: str) -> tuple[float, dict, str]:
     return wall, json.loads(out.stdout), estimate
 
 
+#: A commissioning's moving commands, in order, on one fresh demo profile.
+COMMANDS = (
+    ("tool-frame",),
+    ("calibrate",),
+    ("verify", "--points", "4"),
+    ("verify",),
+    ("calibrate", "--level", "full"),
+    ("verify", "--region", "12"),
+)
+
+
+def commands() -> None:
+    """Step 4 of the module docstring."""
+    with tempfile.TemporaryDirectory() as d:
+        work = Path(d)
+        subprocess.run(
+            [sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
+            cwd=work,
+            check=True,
+            capture_output=True,
+        )
+        print("every moving command on the demo cell (--sim --yes), in a commissioning's order")
+        print(f"  {'command':<34} {'estimate TCP / RTU':>20} {'simulated':>10} {'wall':>8}")
+        for cmd in COMMANDS:
+            t0 = time.monotonic()
+            out = subprocess.run(
+                [sys.executable, "-m", "ucal", *cmd[:1], "cell.toml", *cmd[1:], "--sim"]
+                + ["--yes", "--json"],
+                cwd=work,
+                capture_output=True,
+                text=True,
+                stdin=subprocess.DEVNULL,
+            )
+            wall = time.monotonic() - t0
+            res = json.loads(out.stdout) if out.stdout.strip() else {}
+            m = re.search(r"([\d.]+ (?:s|min)) over Modbus TCP, ([\d.]+ (?:s|min))", out.stderr)
+            estimate = f"{m.group(1)} / {m.group(2)}" if m else "-"
+            simulated = f"{res['duration_s']:.0f} s" if "duration_s" in res else "-"
+            name = " ".join(cmd) + ("" if out.returncode == 0 else f" (exit {out.returncode})")
+            print(f"  {name:<34} {estimate:>20} {simulated:>10} {wall:>6.1f} s", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--no-real-time", action="store_true")
+    ap.add_argument("--commands", action="store_true", help="step 4 instead of 1-3")
     args = ap.parse_args()
+    if args.commands:
+        commands()
+        return
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
         subprocess.run(

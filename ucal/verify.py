@@ -1362,6 +1362,7 @@ class VerifyJob:
         out["sound_speed_m_s"] = self.sound.m_s
         out["sound_speed_source"] = self.sound.source
         out["profile"] = str(self.profile_path)
+        out["duration_s"] = measured.duration_s
         out["plot"] = str(self.plot_path) if written else None
         if shown.truth is not None:
             out["truth"] = shown.truth

@@ -306,3 +306,28 @@ def test_ctrl_c_stops_and_leaves_profile(tmp_path: Path, profile: Path) -> None:
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert profile.read_bytes() == before
+
+
+@pytest.mark.timeout(240)
+def test_demo_cell_commissioned_tool_frame_first(tmp_path: Path) -> None:
+    """The README's workflow on the built-in demo cell: tool-frame, then calibrate (offsets,
+    then full) with the tool it wrote as their prior; each writes, and the demo's tool is
+    found by both (calibrate's tool prior is tool-frame's std: no misfit)."""
+    profile = tmp_path / "cell.toml"
+    assert ucal("profile", "init", "tx90l", str(profile)).returncode == 0
+    r = ucal("tool-frame", str(profile), "--sim", "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["written"] is True
+    tool = load_profile(profile).tool_rotation_deg
+    np.testing.assert_allclose(tool[:2], [0.2, -0.22], atol=0.005)  # the demo's beam tilt
+    for level in ("offsets", "full"):
+        r = ucal("calibrate", str(profile), "--sim", "--yes", "--json", "--level", level)
+        assert r.returncode == 0, r.stderr
+        out = json.loads(r.stdout)
+        assert out["written"] is True and out["fit"]["verdict"] == "ok"
+        est = np.array([np.nan if v is None else v for v in out["joint_offsets_deg"]])
+        std = np.array([np.nan if v is None else v for v in out["std_deg"]])
+        demo = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+        seen = np.isfinite(std)
+        assert seen[1:5].all()
+        assert np.all(np.abs(est - demo)[seen] <= 3 * std[seen])

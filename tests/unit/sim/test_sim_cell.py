@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import tomlkit
 from scipy.optimize import least_squares
 
 from ucal import acoustics as ac
@@ -11,6 +12,7 @@ from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, Noise, Reflector, Wo
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.models import load_model
+from ucal.profile import create_profile, load_profile, write_profile
 from ucal.sim.cell import SimulatedCell, ideal_echo
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, demo_world
 from ucal.sim.geometry import block_faces, intersect
@@ -532,3 +534,29 @@ def test_one_stream_per_effect(world: WorldTruth, cell: SimulatedCell) -> None:
     ratio_db = 20.0 * np.log10(b[:, 0] / a[:, 0])
     assert np.std(ratio_db) > 0.05
     assert ratio_db[0] != pytest.approx(ratio_db[2], abs=1e-3)  # 20 dB again: a new error
+
+
+def test_demo_truth_stays_one_cell_whatever_ucal_writes(tmp_path) -> None:
+    """The demo's errors are added to the profile before ucal measured it: a tool-frame or a
+    full calibration written into the profile does not move the demo's tool or table."""
+    path = create_profile(tmp_path / "cell.toml", "tx90l")
+    first = demo_world(load_profile(path))
+    write_profile(
+        path,
+        {"tool": {"position_mm": [0.3, -0.2, 80.4], "rotation_deg": [0.2, -0.22, 0.0]}},
+        "tool-frame (exact)",
+    )
+    rows = [dict(r) for r in tomlkit.parse(path.read_text())["robot"]["dh"]]
+    rows[5]["alpha_deg"] = 0.3
+    write_profile(path, {"calibration": {"dh": rows}}, "calibrate --level full")
+    written = load_profile(path)
+    assert written.tool_rotation_deg[0] == pytest.approx(0.2)  # the profile did change
+    assert written.model.alpha_deg[5] == pytest.approx(0.3)
+    after = demo_world(written)
+    np.testing.assert_array_equal(after.tool_position_mm, first.tool_position_mm)
+    np.testing.assert_array_equal(after.tool_rotation_deg, first.tool_rotation_deg)
+    np.testing.assert_array_equal(after.model.alpha_deg, first.model.alpha_deg)
+    # a hand edit is the cell's own description, not a measurement: the demo follows it
+    write_profile(path, {"sample": {"position_mm": [700.0, 0.0, -400.0]}}, "the block moved")
+    moved = demo_world(load_profile(path))
+    np.testing.assert_allclose(moved.sample_position_mm - [700.0, 0.0, -400.0], [1.5, -1.0, 0.8])
