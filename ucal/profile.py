@@ -905,6 +905,35 @@ def profile_history(path: str | Path) -> list[HistoryEntry]:
         raise ProfileError(index, None, f"unreadable history index: {e}") from None
 
 
+#: History reasons of the writes that put a measurement into a profile.
+MEASURED_BY = ("tool-frame", "calibrate")
+
+
+def before_measurement(profile: CellProfile) -> CellProfile:
+    """``profile`` with the tool and the kinematic model it had before ucal first wrote a
+    measurement into it (the before-file of its history's oldest ``tool-frame`` or
+    ``calibrate`` entry); ``profile`` itself if ucal never did.
+
+    What the simulator takes as "the cell as the profile says": the technician's description,
+    not ucal's estimates of it, so that a simulated cell stays one cell while the commands
+    write into its profile.
+    """
+    if profile.path is None:
+        return profile
+    for entry in profile_history(profile.path):
+        if entry.reason.startswith(MEASURED_BY):
+            before = history_dir(profile.path) / entry.before
+            if not before.exists():
+                break
+            old = load_profile(before)
+            return profile.replace(
+                model=old.model,
+                tool_position_mm=old.tool_position_mm,
+                tool_rotation_deg=old.tool_rotation_deg,
+            )
+    return profile
+
+
 def _index_bytes(path: Path, entries: list[HistoryEntry]) -> bytes:
     data = {"profile": path.name, "entries": [asdict(e) for e in entries]}
     return (json.dumps(data, indent=1) + "\n").encode("utf-8")

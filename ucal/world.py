@@ -1,8 +1,11 @@
 """World files: the truth the simulator is told (SPEC.md, "World file").
 
 Every key is optional. A missing key means "as the profile says" (nominal = true), zero joint
-offsets, zero noise. Values use the profile's units (mm, deg, °C, MHz) and the same validators,
-so an error names the world file and the dotted key. Keys the solvers do not model:
+offsets, zero noise; for the tool and the kinematic model, as it said before ucal first wrote a
+measurement into it (``ucal.profile.before_measurement``): the truth does not move with the
+estimates ``tool-frame`` and ``calibrate`` write. Values use the profile's units (mm, deg,
+°C, MHz) and the same validators, so an error names the world file and the dotted key. Keys
+the solvers do not model:
 
 * ``[robot] dh`` rows may carry ``beta_deg`` (Hayati's twist about the link's y axis,
   ``A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``, |β| <= 30°; an array row may give it as a fifth
@@ -44,7 +47,13 @@ import numpy as np
 
 from drivers.controller.simulator import SERVERS
 from ucal.cell import CellProfile, Noise, PulserTruth, Reflector, WorldTruth
-from ucal.profile import read_robot, read_step, read_transducer, read_water
+from ucal.profile import (
+    before_measurement,
+    read_robot,
+    read_step,
+    read_transducer,
+    read_water,
+)
 from ucal.validation import Reader, read_toml, unknown_keys
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`).
@@ -87,12 +96,13 @@ MAX_FLATNESS_MM = 5.0
 
 
 def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
-    """The simulator's truth: the world file at ``path`` over ``WorldTruth.nominal(profile)``.
+    """The simulator's truth: the world file at ``path`` over the nominal world of the profile
+    before ucal measured it (module docstring).
 
     ``path=None`` gives the nominal world (no hidden error, no noise). Raises
     :class:`ucal.errors.ProfileError` (exit 2) naming the world file and the key.
     """
-    world = WorldTruth.nominal(profile)
+    world = WorldTruth.nominal(before_measurement(profile))
     if path is None:
         return world
     p = Path(path)
@@ -110,7 +120,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
     if hasattr(data, "unwrap"):
         data = data.unwrap()
     r = Reader(path, data)
-    world = WorldTruth.nominal(profile)
+    world = WorldTruth.nominal(before_measurement(profile))
     changes: dict[str, Any] = {}
 
     robot = r.table("robot")

@@ -11,7 +11,7 @@ import tomlkit
 from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, PulserTruth, WorldTruth
 from ucal.errors import ProfileError
 from ucal.models import load_model
-from ucal.profile import default_profile_text, load_profile
+from ucal.profile import default_profile_text, load_profile, write_profile
 from ucal.sim.cell import SimulatedCell
 from ucal.validation import DH_KEYS
 from ucal.world import load_world, world_warnings
@@ -336,3 +336,19 @@ def test_step_in_the_profile_and_the_world_and_its_echo(tmp_path: Path) -> None:
     assert hit[0].distance_mm == pytest.approx(100.0, abs=0.01)
     beside = profile.sample_matrix @ np.array([150.0, 250.0, 140.0, 1.0])
     assert sim._echoing_hit(beside[:3], down)[0].face.name == "z"
+
+
+def test_missing_keys_are_the_cell_before_ucal_measured_it(tmp_path: Path) -> None:
+    """A world without [tool] is the tool the profile described (a hand edit included), not
+    what tool-frame wrote into it later: the simulated cell does not move with the estimates."""
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"))
+    world = _world(tmp_path, "[robot]\njoint_offsets_deg = [0.1, 0, 0, 0, 0, 0]\n")
+    write_profile(path, {"tool": {"position_mm": [0.0, 0.0, 95.0]}}, "the drawing, revised")
+    drawn = load_world(world, load_profile(path))
+    assert drawn.tool_position_mm[2] == pytest.approx(95.0)  # the technician's description
+    write_profile(path, {"tool": {"position_mm": [0.5, 0.5, 96.0]}}, "tool-frame (exact)")
+    measured = load_profile(path)
+    assert measured.tool_position_mm[2] == pytest.approx(96.0)
+    truth = load_world(world, measured)
+    np.testing.assert_array_equal(truth.tool_position_mm, drawn.tool_position_mm)

@@ -13,9 +13,9 @@ The robot's DH table, the water temperature, the transducer and the reflector pl
 
 The truth is one cell whatever ucal writes into the profile: the errors are added to the
 profile as it was before ``tool-frame`` or ``calibrate`` first wrote a measurement into it
-(its history's oldest such entry: the tool of the drawing, the ``[robot]`` table), not to the
-tool or the identified table they wrote. Built from the current profile instead, the demo tool
-would move by the demo's error every time ``tool-frame`` wrote its (right) estimate, and a
+(``ucal.profile.before_measurement``: the tool of the drawing, the ``[robot]`` table), not to
+the tool or the identified table they wrote. Built from the current profile instead, the demo
+tool would move by the demo's error every time ``tool-frame`` wrote its (right) estimate, and a
 ``calibrate`` run after it would meet a cell 0.3° away from what the profile rightly says.
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ucal.cell import CellProfile, Noise, WorldTruth
-from ucal.profile import history_dir, load_profile, profile_history
+from ucal.profile import before_measurement
 
 DEMO_JOINT_OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
 DEMO_TOOL_POSITION_ERROR_MM = np.array([0.3, -0.2, 0.4])
@@ -33,33 +33,10 @@ DEMO_SAMPLE_POSITION_ERROR_MM = np.array([1.5, -1.0, 0.8])
 DEMO_NOISE = Noise(tof_ns=0.5, amplitude=0.01, seed=20240611)
 
 
-#: History reasons of the writes that put a measurement into a profile.
-MEASURED_BY = ("tool-frame", "calibrate")
-
-
-def unmeasured(profile: CellProfile) -> CellProfile:
-    """``profile`` with the tool and the kinematic model it had before ucal first wrote a
-    measurement into it (module docstring); ``profile`` itself if it never did."""
-    if profile.path is None:
-        return profile
-    for entry in profile_history(profile.path):
-        if entry.reason.startswith(MEASURED_BY):
-            before = history_dir(profile.path) / entry.before
-            if not before.exists():
-                break
-            old = load_profile(before)
-            return profile.replace(
-                model=old.model,
-                tool_position_mm=old.tool_position_mm,
-                tool_rotation_deg=old.tool_rotation_deg,
-            )
-    return profile
-
-
 def demo_world(profile: CellProfile) -> WorldTruth:
     """The demo truth of ``profile``: its cell before ucal measured it, with the hidden errors
     of this module."""
-    nominal = WorldTruth.nominal(unmeasured(profile))
+    nominal = WorldTruth.nominal(before_measurement(profile))
     return nominal.replace(
         joint_offsets_deg=DEMO_JOINT_OFFSETS_DEG.copy(),
         tool_position_mm=nominal.tool_position_mm + DEMO_TOOL_POSITION_ERROR_MM,
