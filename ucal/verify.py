@@ -1,12 +1,18 @@
 """Positioning error before and after calibration (paper 000, §5.2): plan, measure, statistics.
 
-**Nominal points.** ``n`` points on a grid (e.g. 5 × 4 for 20) spread uniformly over the plane
-parallel to the block's XY face, ``height_mm`` (30 mm, as in the paper) above it, the tool
-pointing straight down onto the face (tool z = −block z, the orientation of the calibration
-pose). The grid stays inside the XY face with ``EDGE_MARGIN_MM`` and where the wrist centre W
-is ``WALL_PATH_MM`` (50–150 mm of water path) from the two walls (the YZ and XZ faces), so that
-each wall can be measured from every point. Coordinates are block coordinates (mm): origin at
-the block corner of the profile, axes along the block's edges.
+**Nominal points.** ``n`` points in up to three orientations of the tool (``point_groups``),
+each group a grid (e.g. 4 × 2 for 8) spread uniformly over a plane parallel to the block's XY
+face: the beam straight down onto the face (tool z = −block z, the orientation of the
+calibration pose and of paper 000's points), ``height_mm`` (30 mm, as in the paper) above it;
+the same beam with the tool turned 180° about it (J6 half a turn away: what the tool's lever
+across the beam does there is the opposite); and the beam tilted ``TILT_DEG`` towards block +X
+over a patch of its own ``TILTED_RAISE_MM`` higher (W moves 47 mm towards the YZ wall with the
+tilt, so the patch moves the other way). One point is commanded straight down, two in the first
+two orientations, more a third each in the turned and tilted ones. Each grid stays inside the
+XY face with ``EDGE_MARGIN_MM`` and where the wrist centre W is ``WALL_PATH_MM`` (50–150 mm of
+water path) from the two walls (the YZ and XZ faces), so that each wall can be measured from
+every point. Coordinates are block coordinates (mm): origin at the block corner of the profile,
+axes along the block's edges.
 
 **Two passes.** *before*: every point is commanded with joint readings from IK with the
 offsets the profile had before its last calibration (``offsets_before_calibration``); *after*:
@@ -44,9 +50,20 @@ reached TCP ``T = W + R·v'`` and its estimate differ by
 and at the nominal orientation (the profile's beam along −z, so ``R·Δ`` has z component
 −a_T·Δ) the z component is ``(a_T' − a_T)·v'``, the beam's direction error times the lever
 (a micrometre after ``tool-frame``), while x and y carry the tool's error across the beam
-plus its error along it: one bias ``b = (b_x, b_y, 0)`` for all points of a pass, since all
-are commanded in the same orientation; it is invisible to water paths and is what a tool
-error does to every TCP the profile computes.
+plus its error along it: one bias ``b = (b_x, b_y, 0)`` for all points commanded in that
+orientation; it is invisible to water paths and is what a tool error does to every TCP the
+profile computes. In general, with ``κ = a_T'·v' − a_T·v`` and ``Δ = Δ⊥ + (a_T·Δ)·a_T``,
+
+    T − T̂ = κ·(1, 1, 1) + R·(Δ⊥ + κ·a_T)        (``ToolOffset.bias``)
+
+taking ``a_T·Δ = κ − (a_T' − a_T)·v'`` as κ: the second term is the beam's direction error
+times the tool's lever *across* the beam (v' lies nearly along the beam), 0.03 mm for a tool
+1.5° and 3 mm off its drawing, micrometres after ``tool-frame``. Three unknowns, κ and Δ⊥:
+the edge scans from a point commanded straight down give ``κ + (R·Δ⊥)_x`` and
+``κ + (R·Δ⊥)_y``, those from a point with the tool turned 180° about the beam ``κ − (R·Δ⊥)_x``
+and ``κ − (R·Δ⊥)_y``; together (least squares, ``solve_tool_offset``) they give κ and Δ⊥, hence
+the bias at any orientation, the tilted points' included. With the down points alone (one
+point) the least-norm split is exact for them and is all that is used.
 
 **Tool check: the edges of the XY face.** A knife edge is a reflector whose echo sees the beam
 across its axis: with the beam at normal incidence to the XY face, the echo falls to half
@@ -69,14 +86,15 @@ crossing ``t_e`` is what the estimate says where the real TCP is at x = S, and
 
     b_x = S − t_e,   b_y = S − t_e(y)
 
-is the tool's error in block axes at the nominal orientation. Every reached point of both
-passes is ``T̂ + b`` (the "before" pass, commanded with other offsets, turns the tool by up to
-their difference: a few hundredths of a mm per mm of tool error per degree). That is the
-"after" figure: the real TCP against the nominal point, tool and kinematics together; a tool
-1 mm off across the beam makes it ~1 mm and the run fails its tolerance. What the check does
+is the tool's error in block axes at the nominal orientation; the same scans from a turned
+point give the other sense. Every reached point of both passes is ``T̂ + bias(R)`` at its own
+measured flange orientation R (the "before" pass, commanded with other offsets, turns the tool
+by up to their difference). That is the "after" figure: the real TCP against the nominal
+point, tool and kinematics together; a tool 1 mm off across the beam makes it ~1 mm and the
+run fails its tolerance. What the check does
 not see: the beam's tilt onto the normal times the tool's error (second order: 0.05 mm for a
 tool 2 mm and 1.5° off, a profile whose tool has not been measured). Two edge scans of about
-30 probes each.
+30 probes each in each sense about the beam.
 
 Because W is measured against the true block while the nominal points are placed from the
 profile's block corner, an error in the block's position shows as a *common bias* in both
@@ -146,6 +164,7 @@ from ucal.rig import FinalApproachRig, Rig
 from ucal.session import CellSession
 from ucal.sim.cell import SimulatedCell
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
+from ucal.toolframe.exact import tangent_basis
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +192,10 @@ EDGE_FINE_HALF_MM = 5.0
 EDGE_FINE_PROBES = 21
 #: Pulser readings averaged per probe of an edge scan.
 EDGE_AVERAGES = 16
+#: The tilted group's beam: this far from straight down (deg), towards block +X ...
+TILT_DEG = 15.0
+#: ... its points this much higher above the XY face than the others (mm): a patch of its own.
+TILTED_RAISE_MM = 30.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -197,6 +220,44 @@ def down_rotation_local() -> np.ndarray:
     return np.diag([-1.0, 1.0, -1.0])
 
 
+@dataclass(frozen=True)
+class PointGroup:
+    """Nominal points commanded in one tool orientation, over a patch of their own."""
+
+    name: str  # "down", "turned", "tilted"
+    description: str
+    rotation_local: np.ndarray  # (3, 3) the tool's orientation, block coordinates
+    height_mm: float  # the points' plane above the XY face
+
+
+def point_groups(
+    n_points: int, height_mm: float = VERIFY_HEIGHT_MM
+) -> list[tuple[PointGroup, int]]:
+    """The orientations the points are commanded in and how many points each (module doc):
+    the beam straight down (paper 000's), the tool turned 180° about that beam, and the beam
+    tilted ``TILT_DEG`` towards block +X over a patch ``TILTED_RAISE_MM`` higher; one point
+    takes the first, two the first two, more a third of them each for the others."""
+    if n_points < 1:
+        raise ValueError(f"the number of points must be at least 1, got {n_points}")
+    down = PointGroup("down", "beam straight down", down_rotation_local(), height_mm)
+    turned = PointGroup(
+        "turned",
+        "beam straight down, the tool turned 180° about it",
+        down_rotation_local() @ np.diag([-1.0, -1.0, 1.0]),
+        height_mm,
+    )
+    tilted = PointGroup(
+        "tilted",
+        f"beam {TILT_DEG:g}° from straight down towards block +X",
+        Rotation.from_euler("y", -TILT_DEG, degrees=True).as_matrix() @ down_rotation_local(),
+        height_mm + TILTED_RAISE_MM,
+    )
+    if n_points <= 2:
+        return [(down, 1), (turned, 1)][:n_points]
+    k = n_points // 3
+    return [(down, n_points - 2 * k), (turned, k), (tilted, k)]
+
+
 def grid_shape(n: int) -> tuple[int, int]:
     """Columns (along block X) and rows (along block Y) of an ``n``-point grid, most square
     first, more columns than rows (20 → 5 × 4, 4 → 2 × 2, 6 → 3 × 2, 7 → 7 × 1)."""
@@ -207,15 +268,19 @@ def grid_shape(n: int) -> tuple[int, int]:
 
 
 def verify_region(
-    profile: CellProfile, height_mm: float = VERIFY_HEIGHT_MM
+    profile: CellProfile,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    rotation_local: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper corner (block X, Y of the TCP, mm) of the area the grid spans.
+    """Lower and upper corner (block X, Y of the TCP, mm) of the area a grid spans with the tool
+    turned ``rotation_local`` (block coordinates; default straight down).
 
     The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``WALL_PATH_MM`` of
     water path (plus the lever a_T·v) from the YZ and XZ faces.
     """
     v, lever = tool_lever(profile)
-    r_flange = down_rotation_local() @ profile.tool_matrix[:3, :3].T
+    rot = down_rotation_local() if rotation_local is None else rotation_local
+    r_flange = rot @ profile.tool_matrix[:3, :3].T
     w_from_tcp = -(r_flange @ v)  # W − TCP in block coordinates
     size = profile.sample_face_size_mm
     lo = np.maximum(EDGE_MARGIN_MM, WALL_PATH_MM[0] + lever - w_from_tcp[:2])
@@ -229,11 +294,16 @@ def verify_region(
     return lo, hi
 
 
-def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGHT_MM) -> np.ndarray:
+def nominal_points(
+    profile: CellProfile,
+    n: int,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    rotation_local: np.ndarray | None = None,
+) -> np.ndarray:
     """Nominal TCP positions (n, 3) in block coordinates (mm): a grid (``grid_shape``) over
     ``verify_region`` at ``height_mm`` above the XY face, in serpentine order (short moves)."""
     nx, ny = grid_shape(n)
-    lo, hi = verify_region(profile, height_mm)
+    lo, hi = verify_region(profile, height_mm, rotation_local)
     xs = np.linspace(lo[0], hi[0], nx) if nx > 1 else np.array([0.5 * (lo[0] + hi[0])])
     ys = np.linspace(lo[1], hi[1], ny) if ny > 1 else np.array([0.5 * (lo[1] + hi[1])])
     pts: list[list[float]] = []
@@ -243,11 +313,16 @@ def nominal_points(profile: CellProfile, n: int, height_mm: float = VERIFY_HEIGH
     return np.array(pts, float)
 
 
-def target_matrix(profile: CellProfile, point_local_mm: np.ndarray) -> np.ndarray:
-    """Tool pose (4, 4, base frame) of a nominal point given in block coordinates (mm)."""
+def target_matrix(
+    profile: CellProfile, point_local_mm: np.ndarray, rotation_local: np.ndarray | None = None
+) -> np.ndarray:
+    """Tool pose (4, 4, base frame) of a nominal point given in block coordinates (mm), the
+    tool turned ``rotation_local`` (block coordinates; default straight down)."""
     s_mat = profile.sample_matrix
     t = np.eye(4)
-    t[:3, :3] = s_mat[:3, :3] @ down_rotation_local()
+    t[:3, :3] = s_mat[:3, :3] @ (
+        down_rotation_local() if rotation_local is None else rotation_local
+    )
     t[:3, 3] = s_mat[:3, :3] @ np.asarray(point_local_mm, float) + s_mat[:3, 3]
     return t
 
@@ -346,15 +421,26 @@ class VerifyPlan:
     """Nominal points and the commanded postures of both passes."""
 
     nominal_mm: np.ndarray  # (n, 3) block coordinates
-    height_mm: float
+    height_mm: float  # of the points commanded straight down
     offsets_deg: dict[str, np.ndarray]  # offsets the IK of each pass used
     targets: tuple[VerifyTarget, ...]  # all "before" targets, then all "after"
-    #: tool check: the point whose "after" posture each edge scan (block X, Y) starts from
-    edge_points: tuple[int, int] = (0, 0)
+    #: tool check: the block axis (0: X, 1: Y) of each edge scan and the point whose "after"
+    #: posture it starts from (the down points' first, then the turned points')
+    edge_points: tuple[tuple[int, int], ...] = ((0, 0), (1, 0))
+    groups: tuple[PointGroup, ...] = ()
+    group_of: tuple[int, ...] = ()  # each point's group
 
     @property
     def points(self) -> int:
         return len(self.nominal_mm)
+
+    def rotation_local(self, index: int) -> np.ndarray:
+        """The tool's commanded orientation at point ``index`` (block coordinates)."""
+        return (
+            self.groups[self.group_of[index]].rotation_local
+            if self.groups
+            else down_rotation_local()
+        )
 
 
 def wrist_centre_local(
@@ -405,7 +491,12 @@ def plan_verify(
     ``MIN_WATER_PATH_MM`` away from it.
     """
     geom = geometry(profile)
-    nominal = nominal_points(profile, n_points, height_mm)
+    groups = point_groups(n_points, height_mm)
+    nominal = np.concatenate(
+        [nominal_points(profile, n, g.height_mm, g.rotation_local) for g, n in groups]
+    )
+    group_of = tuple(i for i, (_, n) in enumerate(groups) for _ in range(n))
+    rotations = [groups[g][0].rotation_local for g in group_of]
     v, _ = tool_lever(profile)
     reach = float(np.linalg.norm(v))
     before = np.zeros(6) if before_offsets_deg is None else np.asarray(before_offsets_deg, float)
@@ -417,7 +508,8 @@ def plan_verify(
         prev = near
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
-            q = joints_for(profile, target_matrix(profile, p), off, prev, f"plan {label}")
+            pose = target_matrix(profile, p, rotations[i])
+            q = joints_for(profile, pose, off, prev, f"plan {label}")
             w_local = wrist_centre_local(profile, q, off)
             if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
                 raise SafetyError(
@@ -433,17 +525,36 @@ def plan_verify(
                 faces[k] = qf
             targets.append(VerifyTarget(pass_name, i, q, faces))
             prev = q
-    # tool check: each scan line, from the point nearest the far edge to beyond it
-    edge_points = (int(np.argmax(nominal[:, 0])), int(np.argmax(nominal[:, 1])))
+    # tool check: each scan line, from the point of its group nearest the far edge to beyond
+    # it, in the two senses about the beam (the down and the turned points) where there are
+    edge_points: list[tuple[int, int]] = []
+    for g in range(min(len(groups), 2)):
+        members = np.flatnonzero(np.array(group_of) == g)
+        edge_points += [(axis, int(members[np.argmax(nominal[members, axis])])) for axis in (0, 1)]
     after = [t for t in targets if t.pass_name == "after"]
-    for axis, i in enumerate(edge_points):
+    for axis, i in edge_points:
         end = nominal[i].copy()
         end[axis] = profile.sample_face_size_mm + EDGE_OVERSHOOT_MM
-        label = f"plan tool check along block {'XY'[axis]}"
-        joints_for(
-            profile, target_matrix(profile, end), offsets["after"], after[i].joints_deg, label
-        )
-    return VerifyPlan(nominal, float(height_mm), offsets, tuple(targets), edge_points)
+        label = f"plan {edge_label(axis, groups[group_of[i]][0])}"
+        pose = target_matrix(profile, end, rotations[i])
+        joints_for(profile, pose, offsets["after"], after[i].joints_deg, label)
+    return VerifyPlan(
+        nominal,
+        float(height_mm),
+        offsets,
+        tuple(targets),
+        tuple(edge_points),
+        tuple(g for g, _ in groups),
+        group_of,
+    )
+
+
+def edge_label(axis: int, group: PointGroup) -> str:
+    """A scan of the tool check in words: "tool check along block X" (down points), "..., tool
+    turned" (the turned points)."""
+    return f"tool check along block {'XY'[axis]}" + (
+        ", tool turned" if group.name == "turned" else ""
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -574,6 +685,8 @@ class PointResult:
     wrist_centre_mm: np.ndarray  # (3,) block coordinates
     reached_mm: np.ndarray  # (3,) reached TCP, block coordinates
     orientation_rms_deg: float
+    #: the flange's measured orientation at the commanded posture (flange → block coordinates)
+    flange_local: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     @property
     def deviation_mm(self) -> np.ndarray:
@@ -628,11 +741,50 @@ def predicted_clearance_mm(
 
 
 def tool_offset(checks: tuple[EdgeCheck, ...]) -> np.ndarray:
-    """The bias b (3,) the tool check adds to every wrist-centre estimate (block axes, mm)."""
+    """The bias b (3,) of the down points' scans (block axes, mm): what the tool check adds
+    to every wrist-centre estimate of a point commanded straight down."""
     b = np.zeros(3)
-    for c in checks:
+    for c in checks[:2]:
         b[c.axis] = c.offset_mm
     return b
+
+
+@dataclass(frozen=True)
+class ToolOffset:
+    """The real tool against the profile's, as the edge scans see it (module docstring): κ,
+    what the water paths took for the TCP's reach along the beam too little, and Δ⊥, the
+    tool's error across the beam (flange frame, mm)."""
+
+    along_mm: float  # κ = a_T'·v' − a_T·v
+    across_mm: np.ndarray  # (3,) Δ⊥, flange frame, orthogonal to the profile's beam
+    beam_flange: np.ndarray  # (3,) the profile's beam a_T, flange frame
+    separated: bool  # scans in both senses about the beam: κ and Δ⊥ apart
+
+    def bias(self, flange_local: np.ndarray) -> np.ndarray:
+        """Real minus estimated TCP (block coordinates, mm) of a point whose flange is turned
+        ``flange_local`` (flange → block): ``κ·(1, 1, 1) + R·(Δ⊥ + κ·a_T)``."""
+        delta = self.across_mm + self.along_mm * self.beam_flange
+        return self.along_mm * np.ones(3) + np.asarray(flange_local, float) @ delta
+
+
+def solve_tool_offset(
+    checks: tuple[EdgeCheck, ...], flange_local: list[np.ndarray], beam_flange: np.ndarray
+) -> ToolOffset:
+    """κ and Δ⊥ from the edge scans (each b = S − t_e on its axis) and the flange's turn at
+    each scan's point: least squares over ``b = [κ·(1, 1, 1) + R·(Δ⊥ + κ·a_T)]_axis``. With the
+    down scans alone (one sense about the beam) κ and Δ⊥ are one quantity: the least-norm
+    split, exact for the down points, is kept and said (``separated`` False)."""
+    a_t = np.asarray(beam_flange, float)
+    basis = tangent_basis(a_t)
+    rows = np.array(
+        [
+            [1.0 + (r @ a_t)[c.axis], (r @ basis[0])[c.axis], (r @ basis[1])[c.axis]]
+            for c, r in zip(checks, flange_local, strict=True)
+        ]
+    )
+    b = np.array([c.offset_mm for c in checks])
+    x, _, rank, _ = np.linalg.lstsq(rows, b, rcond=None)
+    return ToolOffset(float(x[0]), x[1] * basis[0] + x[2] * basis[1], a_t, bool(rank == 3))
 
 
 @dataclass
@@ -646,6 +798,7 @@ class VerifyResult:
     offsets_estimate_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
     edge_checks: tuple[EdgeCheck, ...] = ()
     skipped: tuple[SkippedPoint, ...] = ()
+    tool: ToolOffset | None = None
 
     def indices(self, pass_name: str) -> list[int]:
         """0-based indices of the points measured in one pass, in order."""
@@ -663,6 +816,18 @@ class VerifyResult:
     def stats(self, pass_name: str) -> dict[str, list[float]]:
         return deviation_stats(self.deviations(pass_name))
 
+    def group_deviations(self, pass_name: str, group: int) -> np.ndarray:
+        """Deviations (n, 3) mm of the measured points of one pass and group, by point index."""
+        rows = sorted(
+            (
+                p
+                for p in self.points
+                if p.pass_name == pass_name and self.plan.group_of[p.index] == group
+            ),
+            key=lambda p: p.index,
+        )
+        return np.array([p.deviation_mm for p in rows]).reshape(-1, 3)
+
     def to_json(self, tolerance_mm: float | None = None) -> dict:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
         out: dict = {f"{p}_mm": self.stats(p) for p in PASSES}
@@ -678,11 +843,30 @@ class VerifyResult:
         out["deviations_mm"] = {p: self.deviations(p).tolist() for p in PASSES}
         out["reached_mm"] = {p: self.reached(p).tolist() for p in PASSES}
         out["offsets_deg"] = {p: self.plan.offsets_deg[p].tolist() for p in PASSES}
+        out["groups"] = [
+            {
+                "name": g.name,
+                "orientation": g.description,
+                "height_mm": g.height_mm,
+                "points": [i + 1 for i, k in enumerate(self.plan.group_of) if k == n],
+                "after_max_mm": deviation_stats(self.group_deviations("after", n))["max"]
+                if any(
+                    self.plan.group_of[p.index] == n for p in self.points if p.pass_name == "after"
+                )
+                else None,
+            }
+            for n, g in enumerate(self.plan.groups)
+        ]
+        tool = self.tool
         out["tool_check"] = {
             "offset_mm": tool_offset(self.edge_checks).tolist(),
+            "along_beam_mm": None if tool is None else tool.along_mm,
+            "across_beam_flange_mm": None if tool is None else tool.across_mm.tolist(),
+            "separated": None if tool is None else tool.separated,
             "edges": [
                 {
                     "axis": "XY"[c.axis],
+                    "tool": self.plan.groups[self.plan.group_of[c.point]].name,
                     "point": c.point + 1,
                     "edge_mm": c.edge_mm,
                     "crossing_mm": c.crossing_mm,
@@ -836,6 +1020,7 @@ def run_verify(
             w_local,
             tcp,
             orient.rms_deg,
+            geom.block_rotation.T @ orient.rotation(geom, target.joints_deg),
         )
         results.append(res)
         log.info("%s: deviation %s mm", target.label, np.round(res.deviation_mm, 4).tolist())
@@ -849,19 +1034,26 @@ def run_verify(
         np.array([orientations[i].rotation(geom, p.commanded_deg) for i, p in after.items()]),
     )
     scans = []
-    for axis, i in enumerate(plan.edge_points):
+    for n_scan, (axis, i) in enumerate(plan.edge_points):
         if progress:
-            what = f"tool check along block {'XY'[axis]}"
-            progress(MeasureStep(what, len(plan.targets) + axis, total, "after", "XY"))
+            what = edge_label(axis, plan.groups[plan.group_of[i]])
+            progress(MeasureStep(what, len(plan.targets) + n_scan, total, "after", "XY"))
         scans.append(
             scan_edge(
                 rig, approach.move, geom, profile, plan, after[i], orientations[i], wrist, axis, v
             )
         )
     checks = tuple(scans)
-    b = tool_offset(checks)
-    log.info("tool check: real minus estimated TCP %s mm", np.round(b, 4).tolist())
-    results = [replace(p, reached_mm=p.reached_mm + b) for p in results]
+    tool = solve_tool_offset(
+        checks, [after[c.point].flange_local for c in checks], geom.beam_flange
+    )
+    log.info(
+        "tool check: κ %.4f mm along the beam, Δ⊥ %s mm (flange)%s",
+        tool.along_mm,
+        np.round(tool.across_mm, 4).tolist(),
+        "" if tool.separated else " (one sense about the beam: one quantity)",
+    )
+    results = [replace(p, reached_mm=p.reached_mm + tool.bias(p.flange_local)) for p in results]
     # Leave the robot at the last commanded point (beam down, clear of the block).
     approach.move(plan.targets[-1].joints_deg)
     if progress:
@@ -874,6 +1066,7 @@ def run_verify(
         pred.offsets_deg.copy(),
         checks,
         tuple(skipped),
+        tool,
     )
 
 
@@ -1021,7 +1214,7 @@ def scan_edge(
     flange_rot = r_i.T @ tilt @ r_true
     tool_rot = flange_rot @ profile.tool_matrix[:3, :3]
     unit = np.eye(3)[axis]
-    label = f"tool check along block {'XY'[axis]}"
+    label = edge_label(axis, plan.groups[plan.group_of[point.index]])
     near = q_i.copy()
     n_probes = 0
 
@@ -1133,10 +1326,9 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     at = {p: result.indices(p) for p in PASSES}
     colours = {"before": "tab:red", "after": "tab:green"}
     markers = {"before": "o", "after": "^"}
-    span = np.ptp(nom[:, :2], axis=0)
-    ref = float(np.max(span)) if np.max(span) > 0 else 100.0
-    nx, ny = grid_shape(len(nom))
-    spacing = ref / max(nx - 1, ny - 1, 1)
+    gaps = np.linalg.norm(nom[:, None, :2] - nom[None, :, :2], axis=-1)
+    gaps = gaps[gaps > 1e-6]
+    spacing = float(np.min(gaps)) if len(gaps) else 100.0
     biggest = max(float(np.max(np.linalg.norm(d[:, :2], axis=1))) for d in dev.values())
     biggest = max(biggest, 1e-6)
     # Longest vector at most 40 % of the grid spacing; the scale rounded down to 1, 2 or 5 × 10^k.
@@ -1145,7 +1337,18 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
     scale = max(m * exp10 for m in (1, 2, 5) if m * exp10 <= raw)
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1.2, 1]})
-    ax.plot(nom[:, 0], nom[:, 1], "ks", ms=6, label="nominal point")
+    for n, g in enumerate(result.plan.groups):
+        mine = np.array(result.plan.group_of) == n
+        ax.plot(
+            nom[mine, 0],
+            nom[mine, 1],
+            linestyle="none",
+            marker="sDv"[n % 3],
+            color="k",
+            ms=6 + 3 * n,  # points of two groups on one spot both show
+            mfc="k" if n == 0 else "none",
+            label=f"nominal, {g.name} ({g.height_mm:g} mm)",
+        )
     for p in PASSES:
         end = nom[at[p], :2] + scale * dev[p][:, :2]
         for a, b in zip(nom[at[p], :2], end, strict=True):
@@ -1171,21 +1374,20 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
             f"{i + 1}\nZ {zs[0]} / {zs[1]}",
             pt[:2],
             textcoords="offset points",
-            xytext=(6, -22),
+            xytext=(6, -22 - 18 * result.plan.group_of[i]),  # groups on one spot apart
             fontsize=7,
             color="0.25",
         )
     ax.set_xlabel("block X (mm)")
     ax.set_ylabel("block Y (mm)")
     ax.set_title(
-        f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)\n"
-        f"plane {result.plan.height_mm:g} mm above the XY face",
+        f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)",
         fontsize=10,
     )
     ax.set_aspect("equal", adjustable="datalim")
     ax.margins(0.15)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=8)
 
     width = 0.2
     axes = np.arange(3)
@@ -1229,14 +1431,20 @@ def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path
 
 def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
     """The plan in words for the confirmation (stderr)."""
-    lo = plan.nominal_mm.min(0)
-    hi = plan.nominal_mm.max(0)
-    return (
+    lines = [
         f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
-        f"block X {lo[0]:.0f}-{hi[0]:.0f} mm, Y {lo[1]:.0f}-{hi[1]:.0f} mm, "
-        f"{plan.height_mm:g} mm above the XY face; 3 face searches per point "
-        f"({6 * plan.points} in all), then a tool check across the XY face's two far edges."
-    )
+        f"3 face searches per point ({6 * plan.points} in all):"
+    ]
+    for n, g in enumerate(plan.groups):
+        pts = plan.nominal_mm[np.array(plan.group_of) == n]
+        lo, hi = pts.min(0), pts.max(0)
+        lines.append(
+            f"  {len(pts)} points, {g.description}: block X {lo[0]:.0f}-{hi[0]:.0f} mm, "
+            f"Y {lo[1]:.0f}-{hi[1]:.0f} mm, {g.height_mm:g} mm above the XY face"
+        )
+    senses = "in both senses about the beam" if len(plan.edge_points) > 2 else "straight down"
+    lines.append(f"then a tool check across the XY face's two far edges, {senses}.")
+    return "\n".join(lines)
 
 
 def truth_check(result: VerifyResult, truth: WorldTruth) -> dict[str, Any]:

@@ -95,9 +95,15 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     out = json.loads(r.stdout)
     check_shape(out, 4)
     # stderr is not a terminal: a plain progress line per point and pass, --json or not
-    steps = re.findall(r"^verify \[(\d+)/10\] (?:before|after) point", r.stderr, re.MULTILINE)
-    assert steps == [str(i) for i in range(8)]  # then the two edges of the tool check
-    assert re.search(r"^verify \[10/10\] solving \(\d+ moves, \d+ reads, about ", r.stderr, re.M)
+    steps = re.findall(r"^verify \[(\d+)/12\] (?:before|after) point", r.stderr, re.MULTILINE)
+    assert steps == [str(i) for i in range(8)]  # then the four edge scans of the tool check
+    assert "verify [10/12] tool check along block X, tool turned" in r.stderr
+    assert re.search(r"^verify \[12/12\] solving \(\d+ moves, \d+ reads, about ", r.stderr, re.M)
+    # points in three orientations, the tilted ones over a patch of their own
+    groups = {g["name"]: g for g in out["groups"]}
+    assert [groups[n]["points"] for n in ("down", "turned", "tilted")] == [[1, 2], [3], [4]]
+    assert groups["tilted"]["height_mm"] == 60.0 and groups["down"]["height_mm"] == 30.0
+    assert all(max(g["after_max_mm"]) < 0.05 for g in out["groups"])
     assert out["passed"] is True and out["tolerance_mm"] == 0.5  # [procedure] default
     assert out["before_source"].startswith("history entry")
     before = np.array(out["before_mm"]["mean"])
@@ -110,8 +116,16 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     assert np.all(np.array(out["truth"]["measurement_error_max_mm"]) < 0.01), out["truth"]
     # the right tool: the edges find the real TCP where the profile's is (up to the 8 ns
     # electronic delay, 6 µm of water path)
-    assert [e["axis"] for e in out["tool_check"]["edges"]] == ["X", "Y"]
-    assert np.max(np.abs(out["tool_check"]["offset_mm"])) < 0.01, out["tool_check"]
+    tool = out["tool_check"]
+    assert [(e["axis"], e["tool"]) for e in tool["edges"]] == [
+        ("X", "down"),
+        ("Y", "down"),
+        ("X", "turned"),
+        ("Y", "turned"),
+    ]
+    assert np.max(np.abs(tool["offset_mm"])) < 0.01, tool
+    assert tool["separated"] is True and abs(tool["along_beam_mm"]) < 0.01
+    assert np.max(np.abs(tool["across_beam_flange_mm"])) < 0.01
     assert plot.read_bytes()[:8] == PNG_MAGIC
     assert profile.read_bytes() == before_bytes  # verify never writes the profile
 
@@ -144,6 +158,37 @@ def test_tool_off_across_the_beam_fails(tmp_path: Path) -> None:
     # and agrees with the truth of the same point
     assert after == pytest.approx(true_after, abs=0.01)
     assert np.all(np.array(out["truth"]["after_error_max_mm"]) < 0.01), out["truth"]
+
+
+@pytest.mark.timeout(120)
+def test_tool_off_along_and_across_the_beam_shows_in_every_orientation(tmp_path: Path) -> None:
+    """A tool 1 mm longer and 0.8 / −0.5 mm off across the beam than the profile says: the
+    edge scans in both senses about the beam split the two, and every point — straight down,
+    turned, tilted 15° over its own patch — carries what the real TCP does there, as the
+    simulator's truth of the same points says."""
+    world = tmp_path / "tool.toml"
+    world.write_text(
+        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
+        "[tool]\nposition_mm = [0.8, -0.5, 81.0]\n",
+        encoding="utf-8",
+    )
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    r = run_ucal(
+        "verify", str(profile), "--sim", str(world), "--points", "3", "--yes", "--json", "-q"
+    )
+    assert r.returncode == 1, r.stderr
+    out = json.loads(r.stdout)
+    tool = out["tool_check"]
+    assert tool["separated"] is True
+    assert tool["along_beam_mm"] == pytest.approx(1.0, abs=0.01)
+    assert tool["across_beam_flange_mm"] == pytest.approx([0.8, -0.5, 0.0], abs=0.01)
+    nominal = np.array(out["nominal_mm"])
+    after = np.array(out["deviations_mm"]["after"])
+    true_after = np.array(out["truth"]["reached_mm"]["after"]) - nominal
+    assert after == pytest.approx(true_after, abs=0.01)
+    # each orientation puts the error elsewhere: the tilted point is not the down point
+    assert np.max(np.abs(after[2] - after[0])) > 0.2
+    assert [g["name"] for g in out["groups"]] == ["down", "turned", "tilted"]
 
 
 @pytest.mark.timeout(300)
@@ -251,7 +296,7 @@ def test_ctrl_c_stops_and_exits_130(tmp_path: Path, world: Path) -> None:
     try:
         # the second point's progress line shows the robot is measuring
         line = ""
-        while "[1/10]" not in line:
+        while "[1/12]" not in line:
             line = proc.stderr.readline()
             assert line, "verify ended before measuring a point"
         proc.send_signal(signal.SIGINT)

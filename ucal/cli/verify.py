@@ -124,11 +124,26 @@ def show_outcome(outcome: Outcome) -> None:
     shown: VerifyShown = outcome.shown
     out = outcome.result
     _print_table(shown.result)
-    b = out["tool_check"]["offset_mm"]
+    tool = out["tool_check"]
+    b = tool["offset_mm"]
     click.echo(
-        f"tool check (XY face's edges): real TCP minus the profile's X {b[0]:+.4f}  "
-        f"Y {b[1]:+.4f} mm, included above"
+        f"tool check (XY face's edges): real TCP minus the profile's, beam straight down: "
+        f"X {b[0]:+.4f}  Y {b[1]:+.4f} mm, included above"
     )
+    if tool["separated"]:
+        d = tool["across_beam_flange_mm"]
+        click.echo(
+            f"  the tool: {tool['along_beam_mm']:+.4f} mm along the beam, "
+            f"({d[0]:+.4f}, {d[1]:+.4f}, {d[2]:+.4f}) mm across it (flange frame), from the "
+            "scans in both senses about the beam"
+        )
+    for g in out["groups"]:
+        if g["after_max_mm"] is not None:
+            worst = max(g["after_max_mm"])
+            click.echo(
+                f"  after, {len(g['points'])} points {g['orientation']} "
+                f"({g['height_mm']:g} mm above the face): largest deviation {worst:.4f} mm"
+            )
     click.echo(f"before: {shown.before.source}")
     for why in out["skipped"]:
         click.echo(why)
