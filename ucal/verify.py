@@ -410,6 +410,9 @@ class VerifyTarget:
     index: int  # 0-based point number
     joints_deg: np.ndarray  # (6,) commanded readings (TCP on the nominal point)
     face_joints_deg: np.ndarray  # (3, 6) planned normal-incidence postures, by face 0, 1, 2
+    #: the tool's least water path to a face there as the profile's current offsets predict
+    #: it (mm): a "before" point commanded with offsets degrees off may be in the block
+    clearance_mm: float = np.inf
 
     @property
     def label(self) -> str:
@@ -523,7 +526,10 @@ def plan_verify(
                 check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
                 check_face(profile, geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
                 faces[k] = qf
-            targets.append(VerifyTarget(pass_name, i, q, faces))
+            # where the robot really goes there, as best known: the profile's current offsets
+            w_now = wrist_centre_local(profile, q, offsets["after"])
+            clear = tool_clearance_mm(profile, w_now)
+            targets.append(VerifyTarget(pass_name, i, q, faces, clear))
             prev = q
     # tool check: each scan line, from the point of its group nearest the far edge to beyond
     # it, in the two senses about the beam (the down and the turned points) where there are
@@ -712,18 +718,20 @@ class EdgeCheck:
 
 @dataclass(frozen=True)
 class SkippedPoint:
-    """A "before" point not moved to: the measured points of its pass put the tool closer to
-    a face there than ``MIN_WATER_PATH_MM`` (the offsets before calibration are that far off)."""
+    """A "before" point not moved to: the profile's current offsets, or the measured points of
+    its pass, put the tool closer to a face there than ``MIN_WATER_PATH_MM`` (the offsets before
+    calibration are that far off)."""
 
     pass_name: str
     index: int
     clearance_mm: float  # the tool's predicted least water path to a face there
+    said_by: str = "the points measured before it"
 
     def reason(self) -> str:
         return (
             f"{self.pass_name} point {self.index + 1} not measured: the tool would come "
-            f"{self.clearance_mm:.1f} mm from a face there (the points measured before it "
-            f"say), less than the {MIN_WATER_PATH_MM:g} mm kept"
+            f"{self.clearance_mm:.1f} mm from a face there ({self.said_by} say), less than "
+            f"the {MIN_WATER_PATH_MM:g} mm kept"
         )
 
 
@@ -952,20 +960,26 @@ def run_verify(
         # the tool's clearance there from the pass's points measured so far: offsets before
         # calibration 2° off put the TCP tens of mm from the nominal point, into the block
         done = [p for p in results if p.pass_name == target.pass_name]
-        if done:
+        skip = None
+        if target.clearance_mm < MIN_WATER_PATH_MM:
+            skip = SkippedPoint(
+                target.pass_name, target.index, target.clearance_mm, "the profile's offsets"
+            )
+        elif done:
             clear = predicted_clearance_mm(
                 profile, done[-1], target.joints_deg, plan.offsets_deg[target.pass_name]
             )
             if clear < MIN_WATER_PATH_MM:
                 skip = SkippedPoint(target.pass_name, target.index, clear)
-                if target.pass_name != "before":
-                    raise SafetyError(
-                        f"{skip.reason()}: the profile's offsets put the robot that far from "
-                        "its nominal points; calibrate first"
-                    )
-                log.warning("%s", skip.reason())
-                skipped.append(skip)
-                continue
+        if skip is not None:
+            if target.pass_name != "before":
+                raise SafetyError(
+                    f"{skip.reason()}: the profile's offsets put the robot that far from "
+                    "its nominal points; calibrate first"
+                )
+            log.warning("%s", skip.reason())
+            skipped.append(skip)
+            continue
         # the commanded point (TCP on the nominal point), reached from below on every joint
         # as in the calibration: a joint with backlash lags the same way as when calibrated
         approach.move(target.joints_deg)

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import beam_and_tcp
+from ucal.calibration.safety import MIN_WATER_PATH_MM
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import aim_wrist
 from ucal.errors import SafetyError
@@ -287,6 +288,21 @@ def test_a_before_point_the_measured_points_put_into_the_block_is_skipped(
     assert out["after_mm"]["max"] == pytest.approx([0.01, 0.01, 0.01])
     assert out["passed"]
     assert plot_verify(result, tmp_path / "v.png").stat().st_size > 0
+
+
+def test_before_points_the_current_offsets_put_into_the_block_are_flagged(profile) -> None:
+    """Before the first motion: a "before" point commanded with offsets 2° off from the
+    profile's current ones would put the tool a few mm from the XY face; the plan says so from
+    the current offsets (the run skips it without moving there), and not of "after" points."""
+    calibrated = profile.replace(joint_offsets_deg=np.array([0.0, 2.0, -1.0, 0.0, 0.0, 0.0]))
+    plan = plan_verify(calibrated, 3, before_offsets_deg=np.zeros(6))
+    before = [t for t in plan.targets if t.pass_name == "before"]
+    after = [t for t in plan.targets if t.pass_name == "after"]
+    assert all(t.clearance_mm < MIN_WATER_PATH_MM for t in before[:2])  # 30 mm, beam down
+    assert all(t.clearance_mm >= MIN_WATER_PATH_MM for t in after)
+    # the same plan with the before offsets right: nothing flagged
+    plan = plan_verify(calibrated, 3, before_offsets_deg=calibrated.joint_offsets_deg)
+    assert all(t.clearance_mm >= MIN_WATER_PATH_MM for t in plan.targets)
 
 
 def test_the_edge_scan_line_follows_the_arm_the_points_measured() -> None:
