@@ -63,16 +63,21 @@ COMMANDS = (
 )
 
 
+def new_profile(workdir: Path) -> None:
+    """``ucal profile init tx90l cell.toml`` in ``workdir``."""
+    subprocess.run(
+        [sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
+        cwd=workdir,
+        check=True,
+        capture_output=True,
+    )
+
+
 def commands() -> None:
     """Step 4 of the module docstring."""
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
-        subprocess.run(
-            [sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
-            cwd=work,
-            check=True,
-            capture_output=True,
-        )
+        new_profile(work)
         print("every moving command on the demo cell (--sim --yes), in a commissioning's order")
         print(f"  {'command':<34} {'estimate TCP / RTU':>20} {'simulated':>10} {'wall':>8}")
         for cmd in COMMANDS:
@@ -104,12 +109,7 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
-        subprocess.run(
-            [sys.executable, "-m", "ucal", "profile", "init", "tx90l", "cell.toml"],
-            cwd=work,
-            check=True,
-            capture_output=True,
-        )
+        new_profile(work)
         calibrate(work, "--sim")  # warm the interpreter's caches (imports, bytecode)
         idle_wall, idle, estimate = calibrate(work, "--sim")
         stop = mp.Event()
