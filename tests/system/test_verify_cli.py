@@ -130,23 +130,37 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
     assert profile.read_bytes() == before_bytes  # verify never writes the profile
 
 
+def verify_with_true_tool(tmp_path: Path, position_mm: list[float], points: int) -> dict:
+    """verify --json of a profile with the right offsets and its drawing's tool (0, 0, 80 mm in
+    the flange frame) on a cell whose tool is at ``position_mm``: exit 1; its JSON object."""
+    world = tmp_path / "world.toml"
+    world.write_text(
+        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
+        f"[tool]\nposition_mm = {position_mm}\n",
+        encoding="utf-8",
+    )
+    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
+    r = run_ucal(
+        "verify",
+        str(profile),
+        "--sim",
+        str(world),
+        "--points",
+        str(points),
+        "--yes",
+        "--json",
+        "-q",
+    )
+    assert r.returncode == 1, r.stderr
+    return json.loads(r.stdout)
+
+
 @pytest.mark.timeout(120)
 def test_tool_off_across_the_beam_fails(tmp_path: Path) -> None:
     """The real tool 1 mm off the profile's across the beam (flange x; the beam is flange z):
     water paths at normal incidence cannot see it, the edges of the XY face do: ~1 mm after
     calibration on one block axis, as the truth has it, above the tolerance: exit 1."""
-    world = tmp_path / "world.toml"
-    world.write_text(
-        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
-        "[tool]\nposition_mm = [1.0, 0.0, 80.0]\n",
-        encoding="utf-8",
-    )
-    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
-    r = run_ucal(
-        "verify", str(profile), "--sim", str(world), "--points", "1", "--yes", "--json", "-q"
-    )
-    assert r.returncode == 1, r.stderr
-    out = json.loads(r.stdout)
+    out = verify_with_true_tool(tmp_path, [1.0, 0.0, 80.0], points=1)
     assert out["passed"] is False and "above the tolerance of 0.5 mm" in out["error"]
     after = np.abs(np.array(out["deviations_mm"]["after"][0]))
     true_after = np.abs(
@@ -166,18 +180,7 @@ def test_tool_off_along_and_across_the_beam_shows_in_every_orientation(tmp_path:
     edge scans in both senses about the beam split the two, and every point — straight down,
     turned, tilted 15° over its own patch — carries what the real TCP does there, as the
     simulator's truth of the same points says."""
-    world = tmp_path / "tool.toml"
-    world.write_text(
-        "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
-        "[tool]\nposition_mm = [0.8, -0.5, 81.0]\n",
-        encoding="utf-8",
-    )
-    profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
-    r = run_ucal(
-        "verify", str(profile), "--sim", str(world), "--points", "3", "--yes", "--json", "-q"
-    )
-    assert r.returncode == 1, r.stderr
-    out = json.loads(r.stdout)
+    out = verify_with_true_tool(tmp_path, [0.8, -0.5, 81.0], points=3)
     tool = out["tool_check"]
     assert tool["separated"] is True
     assert tool["along_beam_mm"] == pytest.approx(1.0, abs=0.01)
