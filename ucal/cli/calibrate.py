@@ -26,6 +26,7 @@ from ucal.cell import CellProfile
 from ucal.cli.options import (
     cell_from_options,
     cell_options_typed,
+    check_can_confirm,
     check_output,
     controller_option,
     dry_run_option,
@@ -151,7 +152,7 @@ def cli(
             )
         _replay(profile_path, replay_path, method, beam, as_json)
         return
-    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
+    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     if record_path is not None:
         check_output(record_path)
     created = False
@@ -164,6 +165,7 @@ def cli(
             )
             profile = load_profile(tmp / profile_path.name)
         else:
+            check_can_confirm(cell, yes)  # before a file is created for a run that cannot ask
             create_profile(profile_path, DEFAULT_MODEL)
             created = True
             info(f"created {profile_path} for the default model {DEFAULT_MODEL}")

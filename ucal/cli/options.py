@@ -208,7 +208,6 @@ def cell_from_options(
     controller_url: str | None,
     pulser_url: str | None,
     *,
-    yes: bool,
     dry_run: bool = False,
 ) -> CellChoice:
     """Check a moving command's cell options before anything is planned or asked.
@@ -216,8 +215,8 @@ def cell_from_options(
     Options typed on the command line win over the environment: a typed ``--sim`` (or
     ``--dry-run``) drops ``UCAL_CONTROLLER``/``UCAL_PULSER``, a typed ``--controller`` or
     ``--pulser`` drops ``UCAL_SIM``. Raises ``InputError`` (exit 2) naming what is missing,
-    what cannot be combined, a malformed URL, a missing world file, or a confirmation that
-    cannot be asked (no ``--yes`` and stdin not a terminal).
+    what cannot be combined, a malformed URL or a missing world file. Whether the run can ask
+    before moving is checked after the files (``check_can_confirm``, from ``run_job``).
     """
     ctx = click.get_current_context()
     if _typed(ctx, "sim_world") or dry_run:
@@ -245,13 +244,18 @@ def cell_from_options(
         _check_urls(ctx, controller_url, pulser_url)
     elif sim_world and not Path(sim_world).is_file():
         raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
-    cell = CellChoice(sim_world, controller_url, pulser_url)
+    return CellChoice(sim_world, controller_url, pulser_url)
+
+
+def check_can_confirm(cell: CellChoice, yes: bool) -> None:
+    """Refuse (``InputError``, exit 2) a run that would have to ask before moving ``cell``
+    with no terminal to ask on: called once the options and files are checked, before any
+    plan."""
     if not yes and not sys.stdin.isatty():
         raise InputError(
             f"refusing to move {cell.name} without confirmation: stdin is not a "
             "terminal; pass --yes"
         )
-    return cell
 
 
 def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str | None) -> None:

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from ucal.cell_choice import CellChoice
-from ucal.cli.options import ask_to_move, emit_json, info
+from ucal.cli.options import ask_to_move, check_can_confirm, emit_json, info
 from ucal.cli.progress import StepProgress
 from ucal.errors import OutOfToleranceError
 from ucal.procedure import Job, MeasuringProcedure, Outcome, RunOptions, Step
@@ -40,7 +40,10 @@ def run_job(
     options: RunOptions,
     on_step: Callable[[Step], None] | None = None,
 ) -> Outcome:
-    """Run ``job`` through the procedure's steps with the console presenter."""
+    """Run ``job`` through the procedure's steps with the console presenter; first refuse a
+    run that would have to ask before moving with no terminal to ask on (exit 2, no plan)."""
+    if options.cell is not None:
+        check_can_confirm(options.cell, options.yes)
     return MeasuringProcedure(job, options, ConsolePresenter(), on_step).run()
 
 

@@ -92,7 +92,7 @@ def cli(
     keeps the profile's. Nothing is written with --dry-run, on failure, or when the result is
     out of tolerance (exit 1) unless --force.
     """
-    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
+    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
     job = ToolFrameCalibration(profile, profile_path, method, points, force)
     finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)

@@ -104,7 +104,7 @@ def cli(
     profile is never written. The run passes when no point deviates more than the tolerance on
     any axis after calibration; otherwise exit 1.
     """
-    cell = cell_from_options(sim_world, controller_url, pulser_url, yes=yes, dry_run=dry_run)
+    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
     if region is not None:
         region_job = RegionJob(profile, profile_path, region, tolerance_mm)

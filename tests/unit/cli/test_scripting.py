@@ -87,6 +87,26 @@ def test_usage_errors_name_what_was_typed(
     assert out == ""  # no --json: nothing on stdout
 
 
+@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify"])
+def test_a_missing_profile_is_named_before_the_missing_yes(
+    profile: Path, command: str, run_main: RunMain
+) -> None:
+    """Files are checked before whether the run could ask: the user fixes the file first."""
+    missing = profile.with_name("typo.toml")
+    code, _, err = run_main([command, str(missing), "--controller", CONTROLLER, "--pulser", PULSER])
+    assert code == 2 and one_error(err).startswith(f"{missing}: cannot read"), err
+    assert not missing.exists()
+
+
+def test_calibrate_creates_no_profile_for_a_run_that_cannot_ask(
+    profile: Path, run_main: RunMain
+) -> None:
+    new = profile.with_name("new.toml")
+    code, _, err = run_main(["calibrate", str(new), "--sim"])
+    assert code == 2 and one_error(err).startswith("refusing to move the simulated cell ")
+    assert not new.exists()
+
+
 def test_the_cell_comes_from_the_environment(
     profile: Path, monkeypatch: pytest.MonkeyPatch, run_main: RunMain
 ) -> None:
