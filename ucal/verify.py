@@ -365,6 +365,31 @@ class SoundSpeed:
     source: str
 
 
+def profile_notes(profile: CellProfile) -> list[str]:
+    """What the profile says it does not know that shows in every "after" figure: joints the
+    last calibration could not determine (J6 excepted: the tool is measured in its frame) or
+    a profile never calibrated. One sentence each, for ``notes`` in ``--json``."""
+    if profile.joint_offsets_std_deg is None:
+        return [
+            "the profile's joint offsets were never calibrated ([calibration] has no std_deg): "
+            "'after' is the robot as its controller zeroes it; run `ucal calibrate` first"
+        ]
+    kept = [j for j in profile.unobservable_joints if j != 6]
+    if not kept:
+        return []
+    names = ", ".join(f"J{j}" for j in kept)
+    why = (
+        " (with a hand-placed block J1's offset and the block's yaw are one rotation: a "
+        "doweled, levelled fixture and its [sample] rotation_std_deg let calibrate measure it)"
+        if 1 in kept
+        else ""
+    )
+    return [
+        f"{names} not calibrated ([calibration] unobservable_joints, kept at the profile's "
+        f"value): its error is in every 'after' figure{why}"
+    ]
+
+
 def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> SoundSpeed:
     """The sound speed ``calibrate`` measured with the offsets (``[calibration]
     sound_speed_m_s``), else Marczak's at the profile's ``[water] temperature_c``.
@@ -1585,6 +1610,7 @@ class VerifyJob:
         out["sound_speed_source"] = self.sound.source
         out["profile"] = str(self.profile_path)
         out["duration_s"] = measured.duration_s
+        out["notes"] = profile_notes(self.profile)
         out["plot"] = str(self.plot_path) if written else None
         if shown.truth is not None:
             out["truth"] = shown.truth

@@ -28,6 +28,7 @@ from ucal.verify import (
     plan_verify,
     plot_verify,
     predicted_clearance_mm,
+    profile_notes,
     reached_from_peaks,
     reached_tcp_local,
     sound_speed_for_verify,
@@ -54,6 +55,19 @@ def test_deviation_stats_exact_numbers() -> None:
     assert st["std"] == pytest.approx([np.sqrt(0.5), np.sqrt(0.75), np.sqrt(0.1875)])
     assert st["signed_mean"] == pytest.approx([-0.5, 0.5, 0.5])
     assert st["signed_std"] == pytest.approx([np.sqrt(4.25), np.sqrt(6.75), np.sqrt(0.5)])
+
+
+def test_notes_name_what_the_profile_does_not_know(profile) -> None:
+    """verify says why its 'after' is off when the profile says so itself: never calibrated,
+    or J1 kept (a hand-placed block); J6 alone is no note (the tool is measured in its frame)."""
+    [never] = profile_notes(profile)
+    assert "never calibrated" in never
+    std = np.array([np.nan, 0.005, 0.004, 0.004, 0.0006, np.nan])
+    [j1] = profile_notes(profile.replace(joint_offsets_std_deg=std, unobservable_joints=(1, 6)))
+    assert j1.startswith("J1 not calibrated") and "block's yaw" in j1
+    [j3] = profile_notes(profile.replace(joint_offsets_std_deg=std, unobservable_joints=(3,)))
+    assert j3.startswith("J3 not calibrated") and "yaw" not in j3
+    assert profile_notes(profile.replace(joint_offsets_std_deg=std, unobservable_joints=(6,))) == []
 
 
 def test_wrist_centre_from_distances_adds_the_lever() -> None:

@@ -167,6 +167,8 @@ def show_outcome(outcome: Outcome) -> None:
             + " mm"
         )
     click.echo(f"picture: {shown.plot_path}" if shown.plot_path else "picture: not written")
+    for note in out["notes"]:
+        click.echo(f"note: {note}")
 
 
 def show_region(outcome: Outcome) -> None:
