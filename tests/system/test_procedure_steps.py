@@ -89,6 +89,9 @@ def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path:
     steps, presenter, outcome = run(ToolFrameCalibration(profile, profile_path, points=2))
     check_run(steps, presenter, outcome, "tool-frame")
     assert presenter.progress_seen[0].step.face == "plate"
+    edges = [p.step.what for p in presenter.progress_seen if p.step.what.startswith("edge")]
+    turned = [w for w in edges if w.endswith(", tool turned 180°")]
+    assert edges and len(turned) == len(edges) / 2  # each edge scan named in both senses
     assert outcome.written == (not outcome.out_of_tolerance)
     assert outcome.result["written"] == outcome.written
 

@@ -819,7 +819,8 @@ def _measure_exact(r: _Runner) -> ExactMeasurements:
     for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
         for ep in plan.edges:
             for j, lateral in enumerate(ep.lateral_mm):
-                _report(r, f"edge {ep.name}", k, total, phi)
+                turned = "" if phi == plan.phi0_deg else ", tool turned 180°"
+                _report(r, f"edge {ep.name}{turned}", k, total, phi)
                 k += 1
                 guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))
                 cr, fit, t_c, pc = r.edge_scan(ep, lateral, phi, guess)
