@@ -10,7 +10,7 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -90,6 +90,14 @@ class RawStateReader:
         self.sock.close()
 
 
+def until(condition: Callable[[], bool], what: str, timeout_s: float = 30.0) -> None:
+    """Wait (real time: the server's threads) until ``condition()``; fail naming ``what``."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what}: not within {timeout_s:g} s"
+        time.sleep(0.01)
+
+
 @pytest.mark.parametrize(
     "server, joint_type, rate_hz, first, every",
     [
@@ -99,16 +107,17 @@ class RawStateReader:
 )
 def test_stream_silence_rate_and_status_cadence(cell, server, joint_type, rate_hz, first, every):
     clock, sim, client = cell(server)
-    client.close()  # one client per port: make room for the raw reader
-    for _ in range(500):  # until the server has seen the client leave
-        if not sim._has_state_clients():
-            break
-        time.sleep(0.01)
+    # One client per port: make room for the raw reader. connect() returns once the sockets are
+    # open, before the server's accept thread has registered the client: wait for that first,
+    # or the client could leave before it is registered and then be served instead of the raw
+    # reader (which the server would refuse as a second client).
+    until(sim._has_state_clients, "the server registers the client")
+    client.close()
+    until(lambda: not sim._has_state_clients(), "the server sees the client leave")
     raw = RawStateReader(sim.url, clock)
-    for _ in range(500):  # until the server has accepted it: sleep() below advances simulated
-        if sim._has_state_clients():  # time whether or not anybody listens yet
-            break
-        time.sleep(0.01)
+    # sleep() below advances simulated time whether or not anybody listens yet
+    mine = "{}:{}".format(*raw.sock.getsockname())
+    until(lambda: [c.peer for c in sim._state_clients] == [mine], "the server serves the reader")
     try:
         t0 = clock.now()
         for _ in range(300):
