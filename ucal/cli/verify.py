@@ -22,7 +22,7 @@ from ucal.cli.procedure import finish, run_job
 from ucal.errors import InputError
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
-from ucal.verify import VerifyJob, VerifyResult, VerifyShown
+from ucal.verify import MEASURED_WITHIN_MM, VerifyJob, VerifyResult, VerifyShown
 from ucal.verify_region import RegionJob, RegionResult
 
 
@@ -151,6 +151,12 @@ def show_outcome(outcome: Outcome) -> None:
     click.echo(
         f"after: largest deviation {shown.worst_mm:.4f} mm, tolerance {shown.tolerance_mm:g} mm: "
         + ("passed" if out["passed"] else "FAILED")
+        + (
+            f" (marginal: within {MEASURED_WITHIN_MM:g} mm of the tolerance, what verify "
+            "measures to)"
+            if out["marginal"]
+            else ""
+        )
     )
     if shown.truth is not None:
         chk = shown.truth
