@@ -210,8 +210,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
         if v is not None:
             # the table identified by `calibrate --level full` replaces [robot] dh everywhere
             rows, beta = r.split_beta("calibration.dh", v, MAX_CALIBRATED_BETA_DEG)
-            model = model.with_dh(r.dh_table("calibration.dh", rows), beta)
-            model.meta["dh_source"] = "[calibration] dh"
+            model = model.with_dh(r.dh_table("calibration.dh", rows), beta, "[calibration] dh")
 
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
@@ -357,8 +356,8 @@ def read_robot(
         if hi is None:
             raise r.error(f"{prefix}.joint_max_deg", "missing key")
         jmin, jmax = r.joint_ranges(f"{prefix}.joint_min_deg", lo, f"{prefix}.joint_max_deg", hi)
-    meta = {"source": "shipped" if dh_raw is None else str(r.path)}
-    return RobotModel(name or "custom", dh, jmin, jmax, meta)
+    source = "shipped" if dh_raw is None else f"{r.path} [{prefix}] dh"
+    return RobotModel(name or "custom", dh, jmin, jmax, dh_source=source)
 
 
 @overload

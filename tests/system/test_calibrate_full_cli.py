@@ -75,7 +75,7 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     assert abs(beta["value"] - 0.04) < 3 * beta["std"]
     assert profile.read_bytes() != before
     p = load_profile(profile)
-    assert p.model.meta["dh_source"] == "[calibration] dh"
+    assert p.model.dh_source == "[calibration] dh"
     assert p.model.beta_deg[1] == pytest.approx(beta["value"], abs=1e-6)
     assert p.model.dh[1, 2] == pytest.approx(ident["parameters"]["dh2_a_mm"]["value"], abs=1e-5)
     true = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]

@@ -435,8 +435,7 @@ def solve_full(
         else:
             row, key = int(name[2]) - 1, name.split("_", 1)[1]
             dh[row, 1 + _ROW_KEYS.index(key)] = value
-    model = prior.model.with_dh(dh, beta)
-    model.meta["dh_source"] = "calibrate --level full"
+    model = prior.model.with_dh(dh, beta, "calibrate --level full")
     standard = None
     if steps:
         i = cell.table.index(STEP[0])

@@ -53,8 +53,10 @@ class RobotModel:
     dh: np.ndarray
     joint_min_deg: np.ndarray
     joint_max_deg: np.ndarray
-    meta: dict = field(default_factory=dict, compare=False)
     beta_deg: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    #: where the DH table comes from: "shipped" (the model's data sheet), a file's ``[robot]
+    #: dh``, a profile's ``[calibration] dh``, or ``calibrate --level full``
+    dh_source: str = field(default="shipped", compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dh", np.asarray(self.dh, dtype=float).reshape(N_JOINTS, 4))
@@ -85,17 +87,20 @@ class RobotModel:
         j = np.asarray(joints_deg, dtype=float)
         return np.all((j >= self.joint_min_deg - tol_deg) & (j <= self.joint_max_deg + tol_deg), -1)
 
-    def with_dh(self, dh: np.ndarray, beta_deg: np.ndarray | None = None) -> RobotModel:
-        """Copy of this model with another DH table (e.g. a perturbed 'true' robot); the Hayati
-        twists are kept unless ``beta_deg`` is given."""
+    def with_dh(
+        self, dh: np.ndarray, beta_deg: np.ndarray | None = None, source: str | None = None
+    ) -> RobotModel:
+        """Copy of this model with another DH table (e.g. a perturbed 'true' robot) from
+        ``source`` (default: this model's); the Hayati twists are kept unless ``beta_deg`` is
+        given."""
         beta = self.beta_deg if beta_deg is None else beta_deg
         return RobotModel(
             self.name,
             np.array(dh, float),
             self.joint_min_deg,
             self.joint_max_deg,
-            dict(self.meta),
             np.array(beta, float),
+            self.dh_source if source is None else source,
         )
 
     @property
