@@ -22,7 +22,8 @@ each a process against the simulated cell). Printed:
 * then ``ucal verify`` on the commissioned profile (``--points 6``): its "after" figure (the
   largest deviation on any axis), the true one of the same points (the simulator's kinematics
   and tool), and how far the measured reached TCPs are from the true ones, with how many
-  runs pass the profile's tolerance and how many should (the true error within it).
+  runs pass the profile's tolerance and how many should (the true error within it), the
+  tool check's misfit and how many verdicts verify called marginal.
 
 With ``--fixture`` the block sits in a doweled, levelled fixture (declared 0.1 mm / 0.01°,
 drawn within 0.05 mm / 0.005° one sigma) and the plate was touched with a calibrated robot
@@ -237,6 +238,8 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
             "true_after_max_mm": float(np.max(true_after)),
             "agreement_mm": float(np.max(ver["truth"]["after_error_max_mm"])),
             "tool_check_mm": ver["tool_check"]["offset_mm"][:2],
+            "misfit_mm": ver["tool_check"]["misfit_mm"],
+            "marginal": bool(ver["marginal"]),
             "passed": bool(ver["passed"]),
             "should_pass": bool(np.max(true_after) <= ver["tolerance_mm"]),
         }
@@ -346,6 +349,15 @@ def summarize(rows: list[dict]) -> None:
                 f"tolerance {sum(v['should_pass'] for v in ver)}, verdicts agree "
                 f"{sum(v['passed'] == v['should_pass'] for v in ver)}/{len(ver)}"
             )
+            misfit = [v["misfit_mm"] for v in ver if "misfit_mm" in v]
+            if misfit:
+                wrong = [v for v in ver if v["passed"] != v["should_pass"]]
+                print(
+                    f"  verify's tool check misfit: median {np.median(misfit):.4f}, max "
+                    f"{np.max(misfit):.4f} mm; marginal verdicts "
+                    f"{sum(v['marginal'] for v in ver)}, of the verdicts the truth disagrees "
+                    f"with {sum(v['marginal'] for v in wrong)}/{len(wrong)} marginal"
+                )
         z = np.abs(np.concatenate([r["z"] for r in rs])) if rs else np.zeros(0)
         if len(z):
             print(

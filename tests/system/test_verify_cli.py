@@ -131,14 +131,19 @@ def test_calibrated_profile_verifies_far_better_after(tmp_path: Path, world: Pat
 
 
 def verify_with_true_tool(
-    tmp_path: Path, position_mm: list[float], points: int, *extra: str
+    tmp_path: Path,
+    position_mm: list[float],
+    points: int,
+    *extra: str,
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> dict:
     """verify --json of a profile with the right offsets and its drawing's tool (0, 0, 80 mm in
-    the flange frame) on a cell whose tool is at ``position_mm``: exit 1; its JSON object."""
+    the flange frame, not turned) on a cell whose tool is at ``position_mm`` turned
+    ``rotation_deg``: exit 1; its JSON object."""
     world = tmp_path / "world.toml"
     world.write_text(
         "[robot]\njoint_offsets_deg = [" + ", ".join(map(str, TRUE_OFFSETS_DEG)) + "]\n"
-        f"[tool]\nposition_mm = {position_mm}\n",
+        f"[tool]\nposition_mm = {position_mm}\nrotation_deg = {list(rotation_deg)}\n",
         encoding="utf-8",
     )
     profile = make_profile(tmp_path, "cell.toml", TRUE_OFFSETS_DEG)
@@ -186,6 +191,8 @@ def test_tool_off_along_and_across_the_beam_shows_in_every_orientation(tmp_path:
     simulator's truth of the same points says."""
     out = verify_with_true_tool(tmp_path, [0.8, -0.5, 81.0], points=3)
     assert out["marginal"] is False  # over 1 mm against 0.5
+    assert out["tool_check"]["misfit_mm"] < 0.02  # the beam where the profile says: consistent
+    assert not any("disagree" in n for n in out["notes"])
     tool = out["tool_check"]
     assert tool["separated"] is True
     assert tool["along_beam_mm"] == pytest.approx(1.0, abs=0.01)
@@ -345,3 +352,21 @@ def test_region_check_passes_the_right_model_and_fails_the_wrong_one(
     assert out["exit_code"] == 1 and out["error"].startswith("region check failed")
     assert out["region"]["max_tilt_deg"] > 0.3
     assert bad.read_bytes() == before  # never written
+
+
+@pytest.mark.timeout(120)
+def test_a_beam_off_the_profiles_is_said_not_hidden(tmp_path: Path) -> None:
+    """A tool turned 0.3° off its drawing (its beam 0.3° off the profile's, as before
+    ``tool-frame``): the flange orientation the postures give is off by as much, differently in
+    each sense about the beam, so the 'after' figures are off by tenths of a millimetre. The
+    four edge scans disagree by about that much, and verify says so, with the verdict
+    marginal within it."""
+    out = verify_with_true_tool(
+        tmp_path, [0.0, 0.0, 80.0], 2, "--tolerance-mm", "0.3", rotation_deg=(0.3, 0.0, 0.0)
+    )
+    misfit = out["tool_check"]["misfit_mm"]
+    off = np.max(out["truth"]["after_error_max_mm"])  # measured minus true, worst axis
+    assert off > 0.1 and misfit > 0.1  # a real effect, and seen
+    assert misfit == pytest.approx(off, rel=0.5)  # of the size it says
+    [note] = [n for n in out["notes"] if "disagree" in n]
+    assert "run `ucal tool-frame`" in note
