@@ -186,6 +186,25 @@ class ProfileJob:
         return hold_profile(self.profile_path, options)
 
 
+class CheckingJob(ProfileJob):
+    """What the jobs that check the cell against its profile share (``verify`` and its region
+    check): the tolerance they judge by, and nothing held for the run (the profile is read,
+    never written)."""
+
+    command = "verify"
+
+    def __init__(
+        self, profile: CellProfile, profile_path: Path, tolerance_mm: float | None = None
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.tolerance_mm = (
+            profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
+        )
+
+    def check(self, options: RunOptions) -> AbstractContextManager[object]:
+        return contextlib.nullcontext()
+
+
 class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
     """Run a ``Job`` through the steps of the module docstring."""
 

@@ -122,7 +122,6 @@ given as well (the bias and the scatter).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import tomllib
@@ -167,7 +166,7 @@ from ucal.edges import coarse_edge_fall, fine_edge_scan
 from ucal.errors import HardwareError, SafetyError, UnreachableError
 from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.kinematics.ik import ik
-from ucal.procedure import Measured, Outcome, RunOptions
+from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
 from ucal.profile import history_dir, load_profile, profile_history
 from ucal.progress import MeasureStep, Report
 from ucal.rig import FinalApproachRig, Rig
@@ -856,31 +855,34 @@ class VerifyResult:
 
     def indices(self, pass_name: str) -> list[int]:
         """0-based indices of the points measured in one pass, in order."""
-        return sorted(p.index for p in self.points if p.pass_name == pass_name)
+        return [p.index for p in self.measured(pass_name)]
 
-    def deviations(self, pass_name: str) -> np.ndarray:
-        """Deviations (n, 3) mm of the measured points of one pass, by point index."""
-        rows = sorted((p for p in self.points if p.pass_name == pass_name), key=lambda p: p.index)
-        return np.array([p.deviation_mm for p in rows]).reshape(-1, 3)
+    def measured(self, pass_name: str, group: int | None = None) -> list[PointResult]:
+        """The measured points of one pass (and one group, if given), by point index."""
+        return sorted(
+            (
+                p
+                for p in self.points
+                if p.pass_name == pass_name
+                and (group is None or self.plan.group_of[p.index] == group)
+            ),
+            key=lambda p: p.index,
+        )
+
+    def deviations(self, pass_name: str, group: int | None = None) -> np.ndarray:
+        """Deviations (n, 3) mm of the measured points of one pass (and group), by index."""
+        return np.array([p.deviation_mm for p in self.measured(pass_name, group)]).reshape(-1, 3)
 
     def reached(self, pass_name: str) -> np.ndarray:
-        rows = sorted((p for p in self.points if p.pass_name == pass_name), key=lambda p: p.index)
-        return np.array([p.reached_mm for p in rows]).reshape(-1, 3)
+        return np.array([p.reached_mm for p in self.measured(pass_name)]).reshape(-1, 3)
 
     def stats(self, pass_name: str) -> dict[str, list[float]]:
         return deviation_stats(self.deviations(pass_name))
 
-    def group_deviations(self, pass_name: str, group: int) -> np.ndarray:
-        """Deviations (n, 3) mm of the measured points of one pass and group, by point index."""
-        rows = sorted(
-            (
-                p
-                for p in self.points
-                if p.pass_name == pass_name and self.plan.group_of[p.index] == group
-            ),
-            key=lambda p: p.index,
-        )
-        return np.array([p.deviation_mm for p in rows]).reshape(-1, 3)
+    def group_after_max_mm(self, group: int) -> list[float] | None:
+        """The largest "after" deviation per axis of one group's points (None: none measured)."""
+        dev = self.deviations("after", group)
+        return deviation_stats(dev)["max"] if len(dev) else None
 
     def to_json(self, tolerance_mm: float | None = None) -> dict:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
@@ -903,11 +905,7 @@ class VerifyResult:
                 "orientation": g.description,
                 "height_mm": g.height_mm,
                 "points": [i + 1 for i, k in enumerate(self.plan.group_of) if k == n],
-                "after_max_mm": deviation_stats(self.group_deviations("after", n))["max"]
-                if any(
-                    self.plan.group_of[p.index] == n for p in self.points if p.pass_name == "after"
-                )
-                else None,
+                "after_max_mm": self.group_after_max_mm(n),
             }
             for n, g in enumerate(self.plan.groups)
         ]
@@ -1545,11 +1543,9 @@ class VerifyShown:
     plot_path: Path | None
 
 
-class VerifyJob:
+class VerifyJob(CheckingJob):
     """``verify``: the positioning error before and after calibration; writes its picture,
     never the profile."""
-
-    command = "verify"
 
     def __init__(
         self,
@@ -1559,25 +1555,18 @@ class VerifyJob:
         tolerance_mm: float | None = None,
         plot_path: Path | None = None,
     ) -> None:
-        self.profile = profile
-        self.profile_path = profile_path
+        super().__init__(profile, profile_path, tolerance_mm)
         self.n_points = n_points
-        self.tolerance_mm = (
-            profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
-        )
         self.plot_path = plot_path
         self.before = BeforeProfile(np.zeros(6), "")
         self.sound = SoundSpeed(0.0, 0.0, "")
-
-    def profile_text(self) -> str:
-        return self.profile_path.read_text(encoding="utf-8")
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets from the profile's history and the sound speed of its last
         calibration; nothing is held (the profile is not written)."""
         self.before = offsets_before_calibration(self.profile_path)
         self.sound = sound_speed_for_verify(self.profile, self.profile_path)
-        return contextlib.nullcontext()
+        return super().check(options)
 
     def plan(self) -> VerifyPlan:
         return plan_verify(self.profile, self.n_points, before_offsets_deg=self.before.offsets_deg)

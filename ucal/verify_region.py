@@ -16,8 +16,6 @@ the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
 
 from __future__ import annotations
 
-import contextlib
-from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +28,7 @@ from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.procedure import estimate_postures, plan_rows
 from ucal.cell import CellProfile
-from ucal.procedure import Measured, Outcome, RunOptions
+from ucal.procedure import CheckingJob, Measured, Outcome
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
@@ -148,10 +146,8 @@ def plan_summary(plan: FullPlan, profile_path: Path) -> str:
     return "\n".join(lines)
 
 
-class RegionJob:
+class RegionJob(CheckingJob):
     """``verify --region N``: the model judged over N spread postures; writes nothing."""
-
-    command = "verify"
 
     def __init__(
         self,
@@ -160,18 +156,8 @@ class RegionJob:
         n_postures: int,
         tolerance_mm: float | None = None,
     ) -> None:
-        self.profile = profile
-        self.profile_path = profile_path
+        super().__init__(profile, profile_path, tolerance_mm)
         self.n_postures = n_postures
-        self.tolerance_mm = (
-            profile.procedure.verify_tolerance_mm if tolerance_mm is None else tolerance_mm
-        )
-
-    def profile_text(self) -> str:
-        return self.profile_path.read_text(encoding="utf-8")
-
-    def check(self, options: RunOptions) -> AbstractContextManager[object]:
-        return contextlib.nullcontext()  # the profile is read, never written
 
     def plan(self) -> FullPlan:
         return plan_region(self.profile, self.n_postures)
