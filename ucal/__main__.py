@@ -1,4 +1,4 @@
-from ucal.cli import main
+from ucal.entry import main
 
 if __name__ == "__main__":
     main()

@@ -698,7 +698,10 @@ def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
                 None,
                 "already exists (use --force to replace it; the old file is kept in the history)",
             )
-        _replace_with_history(p, text.encode("utf-8"), f"init {model} --force")
+        # A run that holds the profile (calibrate, tool-frame) writes into it at its end: a
+        # new profile under it would receive results measured on another cell description.
+        with profile_lock(p, f"ucal profile init {model} {p} --force"):
+            _replace_with_history(p, text.encode("utf-8"), f"init {model} --force")
     else:
         try:
             p.parent.mkdir(parents=True, exist_ok=True)
@@ -1055,6 +1058,12 @@ def undo_profile(path: str | Path, force: bool = False) -> HistoryEntry:
     ``NNNN-after.toml``. Returns the undone entry.
     """
     p = real_path(path)
+    with profile_lock(p, f"ucal profile undo {p}"):
+        return _undo_held(p, force)
+
+
+def _undo_held(p: Path, force: bool) -> HistoryEntry:
+    """``undo_profile`` with the profile held."""
     entries = profile_history(p)
     pending = [e for e in entries if not e.undone]
     if not pending:

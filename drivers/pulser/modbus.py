@@ -63,6 +63,10 @@ class AScan:
         return self.start_ns + np.arange(self.samples.size) * (1e9 / self.sample_rate_hz)
 
 
+class _NoFrame(Exception):
+    """Bytes kept arriving past a request's deadline without forming the awaited frame."""
+
+
 class _SocketPort(_PyserialSocket):
     """pyserial's ``socket://`` port with an exact ``in_waiting`` and a close without delay.
 
@@ -122,6 +126,10 @@ class ModbusPulser(PulserReceiver):
         self._timeout_s = float(timeout_s)
         self._lock = threading.RLock()
         self._rx = b""  # bytes received for the request in flight (cumulative)
+        # When the request in flight must have its answer (time.monotonic() s): pymodbus
+        # waits for a valid frame as long as bytes keep coming, so a peer that streams
+        # anything but Modbus would hold a request forever.
+        self._rx_deadline = math.inf
         self._connected = False
         self._last_counter: int | None = None
         self._map_version: int | None = None
@@ -451,6 +459,8 @@ class ModbusPulser(PulserReceiver):
         else:
             self._rx = bytes(data)
             log.debug("pulser %s READ: %s", self._endpoint, data.hex(" "))
+            if time.monotonic() > self._rx_deadline:
+                raise _NoFrame()
         return data
 
     def _read(
@@ -503,8 +513,19 @@ class ModbusPulser(PulserReceiver):
             # pymodbus reads the receive timeout from comm_params on every request
             self._client.comm_params.timeout_connect = timeout_s
             self._rx = b""
+            self._rx_deadline = time.monotonic() + timeout_s
             try:
                 response = call(*args, device_id=self._unit, **kwargs)
+            except _NoFrame:
+                received = self._rx
+                self._lost()  # the stream is out of step: start the next request afresh
+                raise ProtocolError(
+                    self.device,
+                    self._endpoint,
+                    f"{what}: {len(received)} bytes in {timeout_s:.3g} s and no valid Modbus "
+                    f"frame among them (is this a Modbus pulser?): {received[:32].hex(' ')}"
+                    + (" ..." if len(received) > 32 else ""),
+                ) from None
             except ConnectionException as exc:
                 self._lost()
                 raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
@@ -526,6 +547,7 @@ class ModbusPulser(PulserReceiver):
                 raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
             finally:
                 self._client.comm_params.timeout_connect = self._timeout_s
+                self._rx_deadline = math.inf
             if response.isError():
                 code = int(getattr(response, "exception_code", 0))
                 raise DeviceError(

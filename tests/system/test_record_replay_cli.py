@@ -91,6 +91,25 @@ def test_replay_takes_no_cell(recorded: tuple[Path, dict]) -> None:
     assert "--replay" in out.stderr and "Traceback" not in out.stderr
 
 
+def test_replay_asked_for_another_level_says_so(recorded: tuple[Path, dict]) -> None:
+    d, _ = recorded
+    before = sorted(p.name for p in d.iterdir())
+    out = ucal(
+        "calibrate", "cell.toml", "--replay", "run.jsonl", "--level", "full", "--json", cwd=d
+    )
+    assert out.returncode == 2, out.stderr
+    err = json.loads(out.stdout)
+    assert err["exit_code"] == 2
+    assert "--level offsets" in err["error"] and "--level full" in err["error"]
+    assert "run.jsonl" in err["error"] and "Traceback" not in out.stderr
+    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--postures", "5", cwd=d)
+    assert out.returncode == 2 and "--postures" in out.stderr
+    # the level it was recorded at, typed, is no mismatch
+    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--level", "offsets", cwd=d)
+    assert out.returncode in (0, 1), out.stderr
+    assert sorted(p.name for p in d.iterdir()) == before  # a replay writes nothing
+
+
 def test_a_run_killed_mid_way_leaves_a_readable_record(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [

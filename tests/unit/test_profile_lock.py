@@ -117,6 +117,29 @@ def test_calibrate_refuses_a_profile_in_use_before_any_motion(
     assert cell.read_bytes() == before
 
 
+def test_no_command_replaces_or_undoes_a_profile_in_use(
+    cell: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A held profile receives the run's results at its end: a profile replaced under it
+    # (init --force) or rolled back (undo) would receive offsets measured on another cell.
+    assert exit_code(["calibrate", str(cell), "--sim", "--yes", "-q"]) == 0
+    before = cell.read_bytes()
+    proc = _hold(cell)
+    try:
+        code_init = exit_code(["profile", "init", "tx90", str(cell), "--force"])
+        code_undo = exit_code(["profile", "undo", str(cell)])
+    finally:
+        proc.communicate("")
+    err = capsys.readouterr().err
+    assert code_init == code_undo == EXIT_USAGE
+    lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 2 and all(f"pid {proc.pid}" in ln for ln in lines), err
+    assert cell.read_bytes() == before
+    # released, both go through
+    assert exit_code(["profile", "undo", str(cell)]) == 0
+    assert exit_code(["profile", "init", "tx90", str(cell), "--force"]) == 0
+
+
 # --- preflight ----------------------------------------------------------------------------------
 def test_writable_directory_with_room_passes(cell: Path) -> None:
     check_writable(cell)

@@ -91,13 +91,19 @@ def _interruptible() -> None:
     signal.signal(signal.SIGTERM, _terminate)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``ucal`` console script."""
+def main(argv: list[str] | None = None, held: list[int] | None = None) -> None:
+    """Run the ``ucal`` command line on ``argv`` (default: the process's arguments).
+
+    ``held``: signals that arrived before the command line could act on them
+    (``ucal.entry``); the first of them interrupts the run before anything is connected.
+    """
     _interruptible()
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
     as_json = _wants_json(args)
     try:
+        if held:
+            raise KeyboardInterrupt(f"signal {held[0]}")
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
     except click.exceptions.Abort as e:
         # click turns Ctrl-C into Abort; one without a cause is a confirmation declined

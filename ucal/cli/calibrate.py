@@ -150,7 +150,13 @@ def cli(
                 "--replay solves a recorded run: it takes no --sim, --controller, "
                 "--pulser or --record"
             )
-        _replay(profile_path, replay_path, method, beam, as_json)
+        ctx = click.get_current_context()
+        typed = {
+            name
+            for name in ("level", "postures")
+            if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
+        }
+        _replay(profile_path, replay_path, method, beam, as_json, typed, level, postures)
         return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     if record_path is not None:
@@ -194,8 +200,22 @@ def _job(
     return OffsetsCalibration(profile, profile_path, method, beam, force)
 
 
-def _replay(profile_path: Path, record_path: Path, method: str, beam: str, as_json: bool) -> None:
-    """Solve a recorded run again: its profile, plan and device traffic; nothing moves."""
+def _replay(
+    profile_path: Path,
+    record_path: Path,
+    method: str,
+    beam: str,
+    as_json: bool,
+    typed: set[str],
+    level: str,
+    postures: int | None,
+) -> None:
+    """Solve a recorded run again: its profile, plan and device traffic; nothing moves.
+
+    The record fixes the level and the postures: a replay asked for others (``typed``: the
+    options given on the command line) cannot give them and says so (exit 2) rather than
+    answering another question than the one asked.
+    """
     record = read_record(record_path)
     profile = profile_from_data(
         tomlkit.parse(record.profile_text), f"{record_path} (recorded profile)"
@@ -203,8 +223,20 @@ def _replay(profile_path: Path, record_path: Path, method: str, beam: str, as_js
     if record.result is None:
         log.warning("%s has no end line: the recorded run was cut off", record_path)
     options = record.options
-    level = options.get("level", "offsets")
-    job = _job(level, profile, profile_path, method, beam, False, options.get("max_postures"))
+    recorded_level = options.get("level", "offsets")
+    if "level" in typed and level != recorded_level:
+        raise InputError(
+            f"{record_path}: a record of --level {recorded_level}; it cannot be replayed as "
+            f"--level {level} (the postures of that level were never measured)"
+        )
+    if "postures" in typed and postures != options.get("max_postures"):
+        raise InputError(
+            f"{record_path}: recorded with --postures {options.get('max_postures')}; a "
+            "replay solves the postures that were measured (leave --postures out)"
+        )
+    job = _job(
+        recorded_level, profile, profile_path, method, beam, False, options.get("max_postures")
+    )
     outcome = run_job(job, RunOptions(None, yes=True, dry_run=True, replay=record))
     outcome.result["replayed"] = str(record_path)
     finish(outcome, as_json, show_outcome)

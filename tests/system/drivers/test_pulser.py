@@ -15,7 +15,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 from scipy.signal import hilbert
 
-from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout
+from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
@@ -301,6 +301,57 @@ def test_nothing_listening_is_connection_lost(
     )
     with pytest.raises(ConnectionLost, match=f"pulser at modbus-.*127.0.0.1:{port}"):
         make_pulser(url)
+
+
+class _Babbler:
+    """A peer on 127.0.0.1 that streams bytes that are not Modbus, as fast as it can, to
+    every client (a misconfigured port: another instrument, a console, line noise)."""
+
+    def __init__(self) -> None:
+        self.server = socket.socket()
+        self.server.bind(("127.0.0.1", 0))
+        self.server.listen()
+        self.port = self.server.getsockname()[1]
+        self.stop = threading.Event()
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self) -> None:
+        rng = np.random.default_rng(7)
+        try:
+            conn, _ = self.server.accept()
+        except OSError:
+            return
+        with conn:
+            while not self.stop.is_set():
+                try:
+                    conn.sendall(rng.integers(0, 256, 64, dtype=np.uint8).tobytes())
+                except OSError:
+                    return
+                time.sleep(0.005)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.server.close()
+
+
+def test_a_peer_streaming_garbage_is_a_protocol_fault_within_the_timeout(
+    framing: str, make_pulser: Callable[..., ModbusPulser]
+) -> None:
+    # pymodbus waits for a valid frame as long as bytes keep coming: the request's deadline
+    # must bound that wait too, or the identify step hangs for as long as the peer talks.
+    babbler = _Babbler()
+    url = (
+        f"modbus-tcp://127.0.0.1:{babbler.port}"
+        if framing == "tcp"
+        else f"modbus-rtu://socket://127.0.0.1:{babbler.port}"
+    )
+    start = time.monotonic()
+    try:
+        with pytest.raises(ProtocolError, match=r"pulser at .*no valid Modbus frame"):
+            make_pulser(url, timeout_s=0.5)
+    finally:
+        babbler.close()
+    assert time.monotonic() - start < 10.0
 
 
 def test_stopped_server_is_connection_lost_then_reconnects(
