@@ -61,6 +61,13 @@ DENSE_SPACING = SweepSpacing(
 #: Slowest sweep (fraction of maximum speed): the VAL3 server takes a wire velocity of 0.001
 #: (0.1 %) for "extrapolate from the previous points", so sweeps stay clear of it.
 MIN_SPEED = 0.002
+#: The arm's measured rate over the commanded one is taken as 1 while within this band: a
+#: sweep's spacing tolerates 1.5x, and a run on a cell that moves as commanded keeps the
+#: speeds it always had.
+RATE_BAND = (0.8, 1.25)
+#: Joint samples inside a sweep's motion needed to fit the arm's rate; with fewer the motion
+#: lasted at most the time between the samples that bracket it (a lower bound on the rate).
+MIN_RATE_SAMPLES = 3
 #: Time per reading assumed before the first sweep has measured it (s): Modbus TCP.
 _FIRST_READ_S = timing.read_s("tcp")
 #: Noise floor taken when an empty gate reads exactly 0 and no reading is above 0 (fraction of
@@ -138,6 +145,12 @@ class Rig:
         self.amplitude_step_fsh = 0.0
         self.on_move = None  # optional callback(target) for progress display
         self.last_sweep_step_deg = 0.0
+        # The arm's joint rate over the commanded one, measured by the sweeps: a pendant's
+        # speed override, a controller's own limits or a simulated cell's time scale make the
+        # arm slower or faster than commanded, and the sweep speed that spaces the readings
+        # must come from the motion as measured, not as commanded.
+        self.rate_factor = 1.0
+        self.stepped_lines = 0  # lines read as settled steps (the arm too fast to sweep)
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.joint_min_deg, self.joint_max_deg)
@@ -269,6 +282,8 @@ class Rig:
         samples = self.controller.joint_samples(t0 - 0.1)
         ts = np.array([s.t_s for s in samples])
         js = np.array([s.joints_deg for s in samples])
+        after = ts >= t0  # this motion's frames (the history holds the move before it too)
+        self._measure_rate(start, target, speed, ts[after], js[after])
         # The acquisition happens between request and answer: pair at the midpoint.
         tr = 0.5 * (np.array(sent) + np.array([r.host_time_s for r in readings]))
         if len(ts) >= 2:
@@ -277,9 +292,33 @@ class Rig:
             q = np.tile(target, (len(tr), 1))
         amps = np.array([r.amplitude for r in readings])
         tofs = np.array([r.tof_ns for r in readings])
-        travel = float(np.max(np.abs(target - start)))
-        self.last_sweep_step_deg = travel / max(len(readings), 1)
+        self.last_sweep_step_deg = self._covered_step(start, target, ts[after], js[after], tr)
         return q, amps, tofs
+
+    def _covered_step(
+        self, start: np.ndarray, target: np.ndarray, ts: np.ndarray, js: np.ndarray, tr: np.ndarray
+    ) -> float:
+        """Joint travel per reading that the state stream ties to a posture on a sweep.
+
+        A reading is tied by interpolating the streamed joints at its time; between two frames
+        of the moving arm that is exact for a joint-interpolated move, within a frame of the
+        motion's start or end it is not. Readings are counted within a frame period of the
+        frames that show the arm between start and target; an arm faster than the stream
+        resolves (a simulated cell without time) shows no such frame, and a sweep of it
+        covers nothing, whatever it read.
+        """
+        j = int(np.argmax(np.abs(target - start) / timing.MAX_SPEED_DEG_S))
+        travel = float(np.max(np.abs(target - start)))
+        if len(ts) < 2:
+            return travel
+        lo, hi = sorted((float(start[j]), float(target[j])))
+        margin = 1e-6 * max(travel, 1.0)
+        moving = ts[(js[:, j] > lo + margin) & (js[:, j] < hi - margin)]
+        if moving.size == 0:
+            return travel
+        period = float(np.median(np.diff(ts)))
+        tied = np.count_nonzero((tr >= moving[0] - period) & (tr <= moving[-1] + period))
+        return travel / max(int(tied), 1)
 
     def _sweep_speed_for(self, start: np.ndarray, target: np.ndarray, max_step_deg: float) -> float:
         """Speed fraction that spaces readings ``spacing.aim · max_step_deg`` apart on this move.
@@ -292,7 +331,7 @@ class Rig:
         full_speed_s = float(np.max(delta / timing.MAX_SPEED_DEG_S))
         if full_speed_s <= 0.0:
             return self.speed
-        rate_deg_s = float(np.max(delta)) / full_speed_s
+        rate_deg_s = float(np.max(delta)) / full_speed_s * self.rate_factor
         speed = self.spacing.aim * max_step_deg / (rate_deg_s * self.read_interval_s)
         self.sweep_speed = float(np.clip(speed, MIN_SPEED, self.speed))
         # Capped at the profile's speed: read no more often than the spacing needs.
@@ -303,11 +342,61 @@ class Rig:
         )
         return self.sweep_speed
 
+    def _measure_rate(
+        self, start: np.ndarray, target: np.ndarray, speed: float, ts: np.ndarray, js: np.ndarray
+    ) -> None:
+        """Update ``rate_factor`` from a sweep's streamed joints: the arm's rate over the rate
+        commanded (``speed`` of the nominal maximum), on the joint that sets the move's
+        duration.
+
+        The samples strictly between start and target are fitted with a line in time; with
+        fewer than ``MIN_RATE_SAMPLES`` of them the motion lasted at most the time between the
+        last sample at the start and the first at the target, which bounds the rate from
+        below (an instantaneous arm shows no sample inside its motion at all).
+        """
+        delta = np.asarray(target, float) - np.asarray(start, float)
+        # the joint that sets the move's duration (joint-interpolated: all arrive together)
+        j = int(np.argmax(np.abs(delta) / timing.MAX_SPEED_DEG_S))
+        travel = abs(float(delta[j]))
+        if travel < 1e-3 or len(ts) < 2:
+            return
+        commanded = speed * float(timing.MAX_SPEED_DEG_S[j])  # deg/s on joint j
+        u = (js[:, j] - start[j]) / delta[j]  # 0 at the start, 1 at the target
+        tol = 1e-4 / travel
+        inside = (u > tol) & (u < 1.0 - tol)
+        if np.count_nonzero(inside) >= MIN_RATE_SAMPLES:
+            slope = np.polyfit(ts[inside], u[inside], 1)[0]  # travel fractions per s
+            rate = abs(float(slope)) * travel
+        else:
+            at_start = np.flatnonzero(u <= tol)
+            at_end = np.flatnonzero(u >= 1.0 - tol)
+            if at_start.size == 0 or at_end.size == 0 or at_end[0] <= at_start[-1]:
+                return
+            lasted = max(float(ts[at_end[0]] - ts[at_start[-1]]), 1e-6)
+            rate = max(travel / lasted, commanded * self.rate_factor)
+        factor = rate / commanded
+        if RATE_BAND[0] <= factor <= RATE_BAND[1]:
+            factor = 1.0
+        if factor != self.rate_factor:
+            log.info(
+                "the arm moves at %.3g x the commanded speed (%.3g deg/s on J%d for %.3g): "
+                "sweep speeds follow the measured motion",
+                factor,
+                rate,
+                j + 1,
+                commanded,
+            )
+        self.rate_factor = factor
+
     def line(
         self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
-        readings came too far apart is swept again, back, at the lowered speed."""
+        readings came too far apart is swept again, back, at the speed the measured motion
+        allows. An arm too fast to sweep even at ``MIN_SPEED`` (its speed overridden upwards,
+        or a simulated cell without time) is read in settled steps along the line instead:
+        slower, but every reading tied to a posture the robot stood at.
+        """
         here = self.controller.read_joints()
         if np.max(np.abs(here - start)) > 1e-3:
             self.move(start)
@@ -317,8 +406,37 @@ class Rig:
             check_readings(self.pulser.endpoint, out[1], out[2])
             if self.last_sweep_step_deg <= 1.5 * max_step_deg:
                 return out
-            a, b = b, a
-        return out
+            a, b = b, a  # the arm stands at the new ``a``
+            if self.sweep_speed <= MIN_SPEED:
+                break  # no slower sweep to try
+        return self.stepped_line(a, b, max_step_deg)
+
+    def stepped_line(
+        self, start: np.ndarray, end: np.ndarray, max_step_deg: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Read the line from ``start`` to ``end`` in settled steps ``spacing.aim`` ×
+        ``max_step_deg`` apart: the postures, amplitudes and times of flight."""
+        a, b = np.asarray(start, float), np.asarray(end, float)
+        travel = float(np.max(np.abs(b - a)))
+        n = max(int(np.ceil(travel / (self.spacing.aim * max_step_deg))), 1) + 1
+        if self.stepped_lines == 0:
+            log.warning(
+                "the arm outruns the pulser even at %.1f %% speed (measured %.3g x the "
+                "commanded rate): lines are read in settled steps",
+                100 * MIN_SPEED,
+                self.rate_factor,
+            )
+        self.stepped_lines += 1
+        self.configure(averages=1)
+        qs, amps, tofs = [], [], []
+        for f in np.linspace(0.0, 1.0, n):
+            q = a + f * (b - a)
+            qs.append(self.move(q))
+            reading = self.read()
+            amps.append(reading.amplitude)
+            tofs.append(reading.tof_ns)
+        self.last_sweep_step_deg = travel / max(n - 1, 1)
+        return np.asarray(qs, float), np.asarray(amps, float), np.asarray(tofs, float)
 
 
 #: Final approach of every move (deg below the target on each joint), larger than any backlash.
