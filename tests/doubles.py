@@ -2,6 +2,7 @@
 directory of the root ``conftest.py`` on ``sys.path``).
 
 * :func:`exit_code` — the ``ucal`` entry point run in this process, its exit code;
+* :func:`terminal_typed` — a terminal for stdin on which the user has typed an answer;
 * :func:`crc16_modbus` — the reference CRC of a Modbus RTU frame, bit by bit;
 * :class:`ScriptedPort` — a serial port that plays a dialogue of expected requests and replies,
   in the style of pymeasure's ``expected_protocol``;
@@ -10,6 +11,11 @@ directory of the root ``conftest.py`` on ``sys.path``).
 """
 
 from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from typing import TextIO
 
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.cli import main
@@ -22,6 +28,18 @@ def exit_code(args: list[str]) -> int:
     except SystemExit as e:
         return 0 if e.code is None else int(e.code)
     return 0
+
+
+@contextlib.contextmanager
+def terminal_typed(text: str) -> Iterator[TextIO]:
+    """A terminal on which the user has typed ``text``, for stdin."""
+    master, slave = os.openpty()
+    try:
+        os.write(master, text.encode())
+        with open(slave, encoding="utf-8") as tty:
+            yield tty
+    finally:
+        os.close(master)
 
 
 def crc16_modbus(data: bytes) -> bytes:

@@ -42,6 +42,13 @@ class UnreachableError(SafetyError):
     """No joint solution reaches the requested pose inside the joint ranges."""
 
 
+class NotConfirmed(UcalError):
+    """The operator declined the confirmation before the first motion: refused (exit 4);
+    nothing moved, nothing written."""
+
+    exit_code = EXIT_SAFETY
+
+
 class HardwareError(UcalError):
     """Hardware or communication fault; the message names the device."""
 

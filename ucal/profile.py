@@ -50,14 +50,23 @@ from ucal.cell import (
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import RobotModel, wrist_centre
 from ucal.models import KNOWN_MODELS, load_model
-from ucal.validation import DH_KEYS, Reader, parse_toml_bytes, read_toml, unknown_keys
+from ucal.validation import (
+    DH_KEYS,
+    Reader,
+    describe_unknown,
+    parse_toml_bytes,
+    read_toml,
+    refuse_misspelt_keys,
+    unknown_keys,
+)
 
 log = logging.getLogger(__name__)
 
 #: The profile schema this version reads and writes.
 SCHEMA = 1
 
-#: Keys ucal knows in each table (others are allowed and reported as warnings).
+#: Keys ucal knows in each table (others are allowed and reported as warnings; one that is a
+#: misspelling of a known key the table lacks is refused).
 KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset({"schema"}),
     "robot": frozenset(
@@ -126,8 +135,8 @@ def load_profile(path: str | Path) -> CellProfile:
     """Read and validate the profile at ``path`` (SPEC.md keys; mm, deg, °C, MHz).
 
     Raises :class:`ProfileError` (exit 2) naming the file and the dotted key of the first
-    problem: unreadable file, bad TOML, missing key, wrong type or length, NaN/inf, value out
-    of range, unknown robot model without a ``dh`` table.
+    problem: unreadable file, bad TOML, a misspelt key (``did you mean``), missing key, wrong
+    type or length, NaN/inf, value out of range, unknown robot model without a ``dh`` table.
     """
     p = Path(path)
     return profile_from_data(read_toml(p), p)
@@ -136,7 +145,7 @@ def load_profile(path: str | Path) -> CellProfile:
 def profile_warnings(path: str | Path) -> list[str]:
     """Non-fatal remarks on a valid profile: keys ucal does not know (usually typos)."""
     data = read_toml(path).unwrap()
-    return [f"unknown key {k} (ignored)" for k in unknown_keys(data, KNOWN_KEYS)]
+    return [describe_unknown(k, KNOWN_KEYS) for k in unknown_keys(data, KNOWN_KEYS)]
 
 
 def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
@@ -144,6 +153,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
     if hasattr(data, "unwrap"):
         data = data.unwrap()
     r = Reader(path, data)
+    refuse_misspelt_keys(r, KNOWN_KEYS)  # before a misspelt key is reported as a missing one
     schema = r.get(data, "schema", required=True)
     if isinstance(schema, bool) or schema != SCHEMA:
         raise r.error(

@@ -8,8 +8,9 @@ raise, they never clip or repair. Array indices in keys are 0-based, as in the T
 
 from __future__ import annotations
 
+import difflib
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,9 @@ DUPLICATE_POINT_MM = 0.01
 #: Reflector points whose spread across their best-fit line is below this fraction of their
 #: spread along it cannot define a plane.
 COLLINEAR_RATIO = 1e-3
+#: An unknown key at least this similar to a known one (difflib's ratio, 0..1) is taken for
+#: its misspelling: ``frequncy_mhz`` for ``frequency_mhz`` (0.96), ``tof_n`` for ``tof_ns``.
+TYPO_CUTOFF = 0.8
 
 
 def describe(value: Any) -> str:
@@ -81,6 +85,22 @@ class Reader:
                 raise self.error(dotted, "missing key")
             return None
         return table[dotted.rsplit(".", 1)[-1]]
+
+    def refuse_misspelt(
+        self, where: str, table: Mapping[str, Any], known: Iterable[str], what: str = "key"
+    ) -> None:
+        """Refuse a key of ``table`` (dotted name ``where``; ``""`` = top level) that is not in
+        ``known`` but close to a known key the table lacks: a misspelling, which would
+        otherwise be ignored while the key it stands for goes missing or keeps its default.
+        The error names the typo and the key it should be."""
+        known = sorted(known)
+        for name in table:
+            guess = misspelling_of(name, known)
+            if guess is not None and guess not in table:
+                key = f"{where}.{name}" if where else name
+                kind = "table" if not where and isinstance(table[name], Mapping) else what
+                shown = f"[{guess}]" if kind == "table" else guess
+                raise self.error(key, f"unknown {kind}; did you mean {shown}?")
 
     # -- scalars -----------------------------------------------------------------------------
 
@@ -174,6 +194,7 @@ class Reader:
         for i, row in enumerate(rows):
             rkey = f"{key}[{i}]"
             if isinstance(row, Mapping):
+                self.refuse_misspelt(rkey, row, DH_KEYS, "DH column")
                 for j, name in enumerate(DH_KEYS):
                     if name not in row:
                         raise self.error(f"{rkey}.{name}", "missing key")
@@ -262,10 +283,24 @@ class Reader:
         return pts
 
 
+def misspelling_of(name: str, known: Collection[str]) -> str | None:
+    """The known key ``name`` is most likely a misspelling of (``TYPO_CUTOFF``), or None."""
+    if name in known:
+        return None
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=TYPO_CUTOFF)
+    return close[0] if close else None
+
+
+def _table_names(known: Mapping[str, frozenset[str] | None]) -> frozenset[str]:
+    """The top-level names of ``known``: its tables and its top-level keys."""
+    return frozenset(n for n in known if n) | (known.get("") or frozenset())
+
+
 def unknown_keys(data: Mapping[str, Any], known: Mapping[str, frozenset[str] | None]) -> list[str]:
     """Dotted keys of ``data`` not listed in ``known`` (table name → its keys; ``""`` = top
     level; ``None`` = any key allowed in that table). Unknown keys are allowed by SPEC.md, so
-    callers report them as warnings: they are usually typos."""
+    callers report them as warnings: they are usually typos (one close to a known key the
+    file lacks is refused by :func:`refuse_misspelt_keys`)."""
     out: list[str] = []
     top = known.get("", frozenset())
     for name, value in data.items():
@@ -276,6 +311,28 @@ def unknown_keys(data: Mapping[str, Any], known: Mapping[str, frozenset[str] | N
         elif top is not None and name not in top:
             out.append(name)
     return out
+
+
+def describe_unknown(key: str, known: Mapping[str, frozenset[str] | None]) -> str:
+    """The warning for an unknown dotted ``key`` of :func:`unknown_keys`, with the known key
+    it is probably a misspelling of."""
+    table, _, name = key.partition(".")
+    if name and known.get(table):
+        guess = misspelling_of(name, known[table] or ())
+    else:
+        guess = misspelling_of(key, _table_names(known))
+    return f"unknown key {key} (ignored" + (f"; did you mean {guess}?)" if guess else ")")
+
+
+def refuse_misspelt_keys(r: Reader, known: Mapping[str, frozenset[str] | None]) -> None:
+    """Refuse (:class:`ProfileError`, exit 2) the first key or table of ``r``'s file that is a
+    misspelling of a known one the file lacks (``Reader.refuse_misspelt``). Other unknown keys
+    stay allowed (SPEC.md: more keys are welcome)."""
+    r.refuse_misspelt("", r.data, _table_names(known), "key")
+    for name, keys in known.items():
+        table = r.data.get(name)
+        if name and keys is not None and isinstance(table, Mapping):
+            r.refuse_misspelt(name, table, keys)
 
 
 def read_toml(path: str | Path) -> Any:

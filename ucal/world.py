@@ -54,9 +54,10 @@ from ucal.profile import (
     read_transducer,
     read_water,
 )
-from ucal.validation import Reader, read_toml, unknown_keys
+from ucal.validation import Reader, describe_unknown, read_toml, refuse_misspelt_keys, unknown_keys
 
-#: Keys a world file may hold (others are reported by :func:`world_warnings`).
+#: Keys a world file may hold (others are reported by :func:`world_warnings`; one that is a
+#: misspelling of a known key the table lacks is refused).
 KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "": frozenset(),
     "robot": frozenset(
@@ -112,7 +113,7 @@ def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
 def world_warnings(path: str | Path) -> list[str]:
     """Keys of a world file that the simulator does not know (usually typos)."""
     data = read_toml(path).unwrap()
-    return [f"unknown key {k} (ignored)" for k in unknown_keys(data, KNOWN_WORLD_KEYS)]
+    return [describe_unknown(k, KNOWN_WORLD_KEYS) for k in unknown_keys(data, KNOWN_WORLD_KEYS)]
 
 
 def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProfile) -> WorldTruth:
@@ -120,6 +121,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
     if hasattr(data, "unwrap"):
         data = data.unwrap()
     r = Reader(path, data)
+    refuse_misspelt_keys(r, KNOWN_WORLD_KEYS)  # else ignored: the truth would silently be nominal
     world = WorldTruth.nominal(before_measurement(profile))
     changes: dict[str, Any] = {}
 

@@ -302,6 +302,26 @@ def test_refuses_to_move_without_yes_when_stdin_is_not_a_terminal(tmp_path):
     assert profile.read_bytes() == before
 
 
+def test_a_missing_profile_created_by_a_sim_run_is_a_warning_even_with_quiet(tmp_path):
+    """A mistyped PROFILE must not silently calibrate a new default cell: the warning names
+    the file and the model, and -q (which silences info lines) keeps it."""
+    out = ucal("-q", "calibrate", "typo.toml", "--sim", "--yes", "--json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr == (
+        "warning: typo.toml did not exist: created it from the default model tx90l\n"
+    )
+    assert json.loads(out.stdout)["created"] is True
+    assert load_profile(tmp_path / "typo.toml").model.name == "tx90l"
+    # a dry run creates nothing, and says which model it ran with
+    out = ucal("-q", "calibrate", "other.toml", "--sim", "--dry-run", "--yes", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr == (
+        "warning: other.toml does not exist: the dry run uses the default model tx90l "
+        "(nothing is created)\n"
+    )
+    assert not (tmp_path / "other.toml").exists()
+
+
 def test_paper_method_reports_its_half_step_bias_in_its_std_and_refuses(tmp_path):
     offsets = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
     # A thermometer good to 0.1 °C: with the default 2 °C the paper's equations, which take the

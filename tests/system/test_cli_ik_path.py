@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -86,6 +87,35 @@ def test_ik_table_output(profile_path: Path) -> None:
     r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all")
     assert r.returncode == 0, r.stderr
     assert "J1" in r.stdout and "J6" in r.stdout and "tx90l" in r.stdout
+
+
+def test_ik_all_says_why_the_others_are_not_offered(profile_path: Path) -> None:
+    """``--all`` accounts for all 8: the offered ones as rows, each other with its reason."""
+    pose = _tool_pose(profile_path, np.array([22.0, 12.0, 99.0, 0.0, 67.0, -158.0]))
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all", "--json")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert set(data) == {"solutions", "rejected"}
+    assert len(data["solutions"]) + len(data["rejected"]) == 8 and data["rejected"]
+    p = load_profile(profile_path)
+    for rejected in data["rejected"]:
+        assert set(rejected) == {"configuration", "joints_deg", "reason"}
+        assert re.fullmatch(r"out of range: J5 at -?\d+\.\d\d deg is .*", rejected["reason"])
+        assert not np.all(p.model.within_limits(rejected["joints_deg"]))
+    configurations = {c["configuration"] for c in data["rejected"]}
+
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    for name in configurations:  # a row of the "Not offered" table each, with its reason
+        (line,) = [ln for ln in lines if name in ln]
+        assert "out of range: J5 at" in line
+    offered = [ln for ln in lines if "shoulder" in ln and "out of range" not in ln]
+    assert len(offered) == len(data["solutions"])
+
+    # without --all: the one nearest solution and nothing else
+    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--json")
+    assert set(json.loads(r.stdout)) == {"solutions"}
 
 
 def test_ik_unreachable_exit_4(profile_path: Path) -> None:

@@ -54,6 +54,18 @@ def test_init_validate_show(tmp_path: Path) -> None:
     assert r.returncode == 0 and "tx90xl" in r.stdout
 
 
+def test_tables_in_a_pipe_are_not_cut(tmp_path: Path) -> None:
+    """stdout is a pipe here: no cell is cut at rich's default 80 columns ("unobserva…")."""
+    path = tmp_path / "cell.toml"
+    assert ucal("profile", "init", "tx90l", str(path)).returncode == 0
+    write_profile(path, {"calibration": {"unobservable_joints": [1, 6]}}, reason="test")
+    r = ucal("profile", "show", str(path))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.count("0.0000 (unobservable)") == 2, r.stdout
+    assert "…" not in r.stdout
+    assert max(len(line) for line in r.stdout.splitlines()) > 80
+
+
 def test_init_errors_exit_2(tmp_path: Path) -> None:
     path = tmp_path / "cell.toml"
     assert ucal("profile", "init", "tx90", str(path)).returncode == 0

@@ -9,7 +9,6 @@ must name the cell it would move; nothing moves.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -18,12 +17,13 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TextIO
 
 import pytest
 
 from ucal.profile import default_profile_text, load_profile
 from ucal.sim.serve import SimulatedCellServer
+
+from doubles import terminal_typed
 
 pytestmark = pytest.mark.system
 
@@ -80,18 +80,6 @@ def add_files(d: Path) -> None:
     )
 
 
-@contextlib.contextmanager
-def terminal_typed(text: str) -> Iterator[TextIO]:
-    """A terminal on which the user has typed ``text``, for stdin."""
-    master, slave = os.openpty()
-    try:
-        os.write(master, text.encode())
-        with open(slave, encoding="utf-8") as tty:
-            yield tty
-    finally:
-        os.close(master)
-
-
 @pytest.mark.parametrize("command", COMMANDS, ids=lambda c: " ".join(c) or "ucal")
 def test_help_examples_run_as_written(
     command: list[str],
@@ -118,9 +106,9 @@ def test_help_examples_run_as_written(
             where = (
                 "the simulated cell" if "--sim" in args else f"the robot at {cell['controller']}"
             )
-            assert code == 130 and f"Move {where} now?" in err, (shown, err)
+            assert code == 4 and f"Move {where} now?" in err, (shown, err)
             assert err.split(f"Move {where} now?")[0].strip(), err  # the plan was shown first
-            assert "not confirmed: nothing moved" in err
+            assert "not confirmed: nothing moved, nothing written" in err
             assert (workdir / "cell.toml").read_bytes() == before, shown
             continue
         code, out, err = run_main(args)

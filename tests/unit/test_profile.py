@@ -223,6 +223,26 @@ def _dh(row: int, col: str, value: object) -> Mutation:
     return f
 
 
+def _rename(table: str | None, old: str, new: str) -> Mutation:
+    """A key (or, with ``table`` None, a table) misspelt: ``old`` written as ``new``."""
+
+    def f(doc: tomlkit.TOMLDocument) -> None:
+        where = doc if table is None else doc[table]
+        value = where[old]
+        del where[old]
+        where[new] = value
+
+    return f
+
+
+def _dh_column(row: int, old: str, new: str) -> Mutation:
+    def f(doc: tomlkit.TOMLDocument) -> None:
+        cells = doc["robot"]["dh"][row]
+        cells[new] = cells.pop(old)
+
+    return f
+
+
 def _unknown_model(doc: tomlkit.TOMLDocument) -> None:
     doc["robot"]["model"] = "tx200"
     del doc["robot"]["dh"]
@@ -345,6 +365,32 @@ MALFORMED: list[tuple[str, Mutation, str, str]] = [
         "outside its range",
     ),
     ("not a table", _set("tool", "position_mm", {"x": 1}), "tool.position_mm", "must be an array"),
+    # a misspelt key is named as such, with the key it stands for, not as that key missing
+    (
+        "misspelt required key",
+        _rename("transducer", "frequency_mhz", "frequncy_mhz"),
+        "transducer.frequncy_mhz",
+        "unknown key; did you mean frequency_mhz?",
+    ),
+    (
+        "misspelt optional key",
+        _rename("water", "temperature_std_c", "temperatur_std_c"),
+        "water.temperatur_std_c",
+        "unknown key; did you mean temperature_std_c?",
+    ),
+    (
+        "misspelt table",
+        _rename(None, "transducer", "transducr"),
+        "transducr",
+        "unknown table; did you mean [transducer]?",
+    ),
+    ("misspelt schema", _rename(None, "schema", "schem"), "schem", "did you mean schema?"),
+    (
+        "misspelt DH column",
+        _dh_column(1, "a_mm", "a_m"),
+        "robot.dh[1].a_m",
+        "unknown DH column; did you mean a_mm?",
+    ),
 ]
 
 
@@ -394,13 +440,17 @@ def test_fk_with_malformed_profile_exits_2(
 
 def test_unknown_keys_are_warnings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     doc = tomlkit.parse(default_profile_text("tx90l"))
-    doc["water"]["temprature_c"] = 21.0
+    doc["water"]["temprature_c"] = 21.0  # beside temperature_c: allowed, but said
+    doc["water"]["operator"] = "J. Doe"  # close to no known key: allowed
     path = tmp_path / "c.toml"
     path.write_text(tomlkit.dumps(doc))
     assert exit_code(["profile", "validate", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["valid"] is True
-    assert out["warnings"] == ["unknown key water.temprature_c (ignored)"]
+    assert out["warnings"] == [
+        "unknown key water.temprature_c (ignored; did you mean temperature_c?)",
+        "unknown key water.operator (ignored)",
+    ]
 
 
 # ------------------------------------------------------------------------------ writing

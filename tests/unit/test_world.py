@@ -198,6 +198,10 @@ BAD_WORLDS = [
     (_dh_world("[0, 0, 50, -90, 31]"), "robot.dh[0][4]", "<= 30"),
     (_dh_world(_ROW2 + ', beta_deg = "x"}'), "robot.dh[1].beta_deg", "finite"),
     (_dh_world(_ROW2 + ", gamma_deg = 1}"), "robot.dh[1].gamma_deg", "unknown DH column"),
+    # a misspelt key would be ignored and the truth silently nominal: refused, with the cure
+    ("[noise]\ntof_n = 1.0\n", "noise.tof_n", "unknown key; did you mean tof_ns?"),
+    ("[reflector]\npoints_mm = [0, 0, 0]\n", "reflector.points_mm", "did you mean point_mm?"),
+    ("[nosie]\nseed = 1\n", "nosie", "unknown table; did you mean [noise]?"),
 ]
 
 

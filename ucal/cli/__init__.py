@@ -14,7 +14,13 @@ import sys
 import click
 
 from drivers.errors import DriverError, MotionRejected
-from ucal.cli.options import add_common_options, common_options, configure_logging, emit_json
+from ucal.cli.options import (
+    SuggestingGroup,
+    add_common_options,
+    common_options,
+    configure_logging,
+    emit_json,
+)
 from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
 
 #: command name → module under ``ucal.cli`` exposing ``cli``
@@ -31,7 +37,7 @@ COMMANDS = {
 }
 
 
-class LazyGroup(click.Group):
+class LazyGroup(SuggestingGroup):
     """Import a command's module only when the command is used (keeps ``ucal --help`` fast)."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
@@ -106,11 +112,12 @@ def main(argv: list[str] | None = None, held: list[int] | None = None) -> None:
             raise KeyboardInterrupt(f"signal {held[0]}")
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
     except click.exceptions.Abort as e:
-        # click turns Ctrl-C into Abort; one without a cause is a confirmation declined
+        # click turns Ctrl-C into Abort: during the run (with a cause) or at the confirmation
+        # (without; a declined confirmation is NotConfirmed, exit 4)
         _report(
             "interrupted; any motion was stopped"
             if e.__cause__ is not None
-            else "not confirmed: nothing moved",
+            else "interrupted at the confirmation: nothing moved, nothing written",
             EXIT_INTERRUPTED,
             as_json,
         )

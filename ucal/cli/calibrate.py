@@ -30,17 +30,24 @@ from ucal.cli.options import (
     check_output,
     controller_option,
     dry_run_option,
-    info,
     json_option,
     pulser_option,
     sim_option,
+    table_console,
+    warn,
     yes_option,
 )
 from ucal.cli.procedure import finish, run_job
-from ucal.errors import InputError
+from ucal.errors import InputError, NotConfirmed
 from ucal.models import DEFAULT_MODEL
 from ucal.procedure import Job, Outcome, RunOptions
-from ucal.profile import create_profile, default_profile_text, load_profile, profile_from_data
+from ucal.profile import (
+    create_profile,
+    default_profile_text,
+    load_profile,
+    profile_from_data,
+    real_path,
+)
 from ucal.record import read_record
 
 log = logging.getLogger(__name__)
@@ -170,17 +177,29 @@ def cli(
                 default_profile_text(DEFAULT_MODEL), encoding="utf-8"
             )
             profile = load_profile(tmp / profile_path.name)
+            warn(
+                f"{profile_path} does not exist: the dry run uses the default model "
+                f"{DEFAULT_MODEL} (nothing is created)"
+            )
         else:
             check_can_confirm(cell, yes)  # before a file is created for a run that cannot ask
             create_profile(profile_path, DEFAULT_MODEL)
             created = True
-            info(f"created {profile_path} for the default model {DEFAULT_MODEL}")
+            # a warning, not info: a mistyped PROFILE must not silently calibrate a new cell
+            warn(f"{profile_path} did not exist: created it from the default model {DEFAULT_MODEL}")
             profile = load_profile(profile_path)
     else:
         profile = load_profile(profile_path)
     with scratch:
         job = _job(level, profile, profile_path, method, beam, force, postures)
-        outcome = run_job(job, RunOptions(cell, yes, dry_run, record_path))
+        try:
+            outcome = run_job(job, RunOptions(cell, yes, dry_run, record_path))
+        except NotConfirmed as e:
+            if not created:
+                raise
+            # declined: nothing written means no profile either (often a mistyped name)
+            real_path(profile_path).unlink(missing_ok=True)
+            raise NotConfirmed(f"{e} ({profile_path}, created for the run, removed)") from None
     outcome.result["created"] = created
     finish(outcome, as_json, show_outcome)
 
@@ -245,11 +264,13 @@ def _replay(
 def show_outcome(outcome: Outcome) -> None:
     """The result tables on stdout, of either level."""
     if isinstance(outcome.shown, FullSolution):
-        show_full_result(Console(), outcome.shown, outcome.result)
+        show_full_result(table_console(), outcome.shown, outcome.result)
         return
     shown: OffsetsShown = outcome.shown
     solved = shown.solved
-    show_result(Console(), solved.chosen, solved.exact, solved.paper, shown.truth, outcome.result)
+    show_result(
+        table_console(), solved.chosen, solved.exact, solved.paper, shown.truth, outcome.result
+    )
 
 
 # -- result tables -----------------------------------------------------------------------------

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
-from ucal.cli.options import emit_json, json_option, parse_floats
-from ucal.kinematics.ik import ik
+from ucal.cli.options import emit_json, json_option, parse_floats, table_console
+from ucal.kinematics.ik import IkBranch, ik, ik_branches
 from ucal.kinematics.rotations import pose_to_matrix
 from ucal.profile import load_profile
 
@@ -42,7 +42,8 @@ Examples:
     "--all",
     "all_solutions",
     is_flag=True,
-    help="Every solution inside the joint ranges (up to 8), nearest first.",
+    help="Every solution inside the joint ranges (up to 8), nearest first, and for each of "
+    "the others of the 8 why it is not offered.",
 )
 @json_option
 def cli(
@@ -50,7 +51,10 @@ def cli(
 ) -> None:
     """Joint readings (deg) that put the tool at a pose, with the profile's offsets taken out.
 
-    Solutions are ranked by paper 004's weighted shortest distance to --near.
+    Solutions are ranked by paper 004's weighted shortest distance to --near. With --all,
+    every one of the 8 arm configurations: those inside the joint ranges as rows, and for
+    each of the others why it is not offered (a joint out of range and by how much, or the
+    pose out of that configuration's reach); --json lists them under "rejected".
     Exit 4 if the pose is unreachable inside the joint ranges.
     """
 
@@ -66,13 +70,52 @@ def cli(
         all_solutions=all_solutions,
     )
     sols = np.atleast_2d(sols)
+    rejected: list[IkBranch] = []
+    names: list[str] | None = None
+    if all_solutions:
+        branches = ik_branches(
+            profile.model,
+            pose_to_matrix(pose_v),
+            tool_T=profile.tool_matrix,
+            offsets_deg=profile.joint_offsets_deg,
+            near_deg=near_v,
+        )
+        names = [b.configuration for b in branches if b.reason is None]
+        rejected = [b for b in branches if b.reason is not None]
     if as_json:
-        emit_json({"solutions": sols})
+        out: dict[str, Any] = {"solutions": sols}
+        if all_solutions:
+            out["rejected"] = [_rejected_json(b) for b in rejected]
+        emit_json(out)
         return
-    _print_table(sols, pose_v, profile.model.name)
+    _print_table(sols, pose_v, profile.model.name, names)
+    if rejected:
+        _print_rejected(rejected)
 
 
-def _print_table(sols: np.ndarray, pose: np.ndarray, model_name: str) -> None:
+def _rejected_json(branch: IkBranch) -> dict[str, Any]:
+    """A solution not offered: its configuration, readings (null where the pose has no such
+    solution) and why."""
+    joints = branch.joints_deg
+    return {
+        "configuration": branch.configuration,
+        "joints_deg": None if np.isnan(joints).any() else joints,
+        "reason": branch.reason,
+    }
+
+
+def _print_rejected(rejected: list[IkBranch]) -> None:
+    table = Table(title="Not offered")
+    table.add_column("configuration")
+    table.add_column("why")
+    for b in rejected:
+        table.add_row(b.configuration, b.reason)
+    table_console().print(table)
+
+
+def _print_table(
+    sols: np.ndarray, pose: np.ndarray, model_name: str, names: list[str] | None = None
+) -> None:
 
     title = (
         f"{model_name}: "
@@ -83,8 +126,11 @@ def _print_table(sols: np.ndarray, pose: np.ndarray, model_name: str) -> None:
     )
     table = Table(title=title)
     table.add_column("#", justify="right")
+    if names is not None:
+        table.add_column("configuration")
     for j in range(1, 7):
         table.add_column(f"J{j} (deg)", justify="right")
     for i, row in enumerate(sols, 1):
-        table.add_row(str(i), *(f"{v:.4f}" for v in row))
-    Console().print(table)
+        label = [] if names is None else [names[i - 1]]
+        table.add_row(str(i), *label, *(f"{v:.4f}" for v in row))
+    table_console().print(table)

@@ -9,6 +9,7 @@ before or after the subcommand. The cell a moving command talks to comes from ``
 
 from __future__ import annotations
 
+import difflib
 import json
 import logging
 import os
@@ -20,10 +21,11 @@ from typing import Any, TypeVar
 import click
 import numpy as np
 from click.core import ParameterSource
+from rich.console import Console
 
 from drivers.registry import open_controller, open_pulser
 from ucal.cell_choice import CellChoice
-from ucal.errors import InputError
+from ucal.errors import InputError, NotConfirmed
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -34,6 +36,8 @@ ENV_PULSER = "UCAL_PULSER"
 #: ``UCAL_SIM`` values meaning "the simulated cell with the demo truth" / "no simulated cell".
 SIM_ENV_ON = frozenset({"1", "yes", "true", "on"})
 SIM_ENV_OFF = frozenset({"", "0", "no", "false", "off"})
+#: Columns of the tables written to a pipe or a file: no table is that wide, so none is cut.
+PIPE_WIDTH = 1000
 
 
 def _settings(ctx: click.Context) -> dict[str, Any]:
@@ -114,6 +118,22 @@ def add_common_options(command: click.Command) -> click.Command:
     return command
 
 
+class SuggestingGroup(click.Group):
+    """A command group whose "No such command" names the nearest command (``ucal calibrat``:
+    "Did you mean 'calibrate'?"), exit 2; works for groups that load their commands lazily."""
+
+    def resolve_command(
+        self, ctx: click.Context, args: list[str]
+    ) -> tuple[str | None, click.Command | None, list[str]]:
+        name = click.utils.make_str(args[0])
+        commands = self.list_commands(ctx)
+        if name not in commands and not name.startswith("-") and not ctx.resilient_parsing:
+            near = difflib.get_close_matches(name, commands, n=1)
+            if near:
+                ctx.fail(f"No such command {name!r}. Did you mean {near[0]!r}?")
+        return super().resolve_command(ctx, args)
+
+
 def quiet() -> bool:
     """Whether ``-q`` was given (anywhere on the command line)."""
     ctx = click.get_current_context(silent=True)
@@ -124,6 +144,12 @@ def info(message: str) -> None:
     """An informational line on stderr, unless ``-q``."""
     if not quiet():
         click.echo(message, err=True)
+
+
+def warn(message: str) -> None:
+    """A warning line on stderr, with or without ``-q``: something the user did not ask for
+    and must know about."""
+    click.echo(f"warning: {message}", err=True)
 
 
 json_option = click.option(
@@ -293,6 +319,12 @@ def parse_floats(text: str, n: int, what: str) -> np.ndarray:
     return np.array(values)
 
 
+def table_console() -> Console:
+    """The console a command draws its tables on (stdout): as wide as the terminal, or, in a
+    pipe or a file, wide enough that no cell is cut (rich's default there is 80 columns)."""
+    return Console() if sys.stdout.isatty() else Console(width=PIPE_WIDTH)
+
+
 def emit_json(obj: Any) -> None:
     """Print one JSON object on stdout (numpy values converted)."""
     click.echo(json.dumps(obj, default=_to_jsonable))
@@ -307,14 +339,23 @@ def _to_jsonable(o: Any) -> Any:
 
 
 def ask_to_move(cell: CellChoice) -> None:
-    """Ask on the terminal whether to move ``cell``; no terminal → refuse (exit 2), no → abort."""
+    """Ask on the terminal whether to move ``cell``; no terminal → refuse (exit 2), no (or the
+    end of the input) → ``NotConfirmed`` (exit 4); Ctrl-C at the question stays an
+    interruption (click's ``Abort``, exit 130)."""
     if not sys.stdin.isatty():
         raise InputError(
             f"refusing to move {cell.name} without confirmation: stdin is not a "
             "terminal; pass --yes"
         )
-    if not click.confirm(f"Move {cell.name} now?", default=False, err=True):
-        raise click.exceptions.Abort()
+    try:
+        confirmed = click.confirm(f"Move {cell.name} now?", default=False, err=True)
+    except click.exceptions.Abort as e:
+        if isinstance(e.__context__, KeyboardInterrupt):
+            raise
+        click.echo(err=True)  # end of input: no answer is no; end the prompt's line
+        confirmed = False
+    if not confirmed:
+        raise NotConfirmed("not confirmed: nothing moved, nothing written")
 
 
 def check_output(path: Path) -> None:

@@ -6,10 +6,9 @@ from dataclasses import asdict
 from pathlib import Path
 
 import click
-from rich.console import Console
 from rich.table import Table
 
-from ucal.cli.options import emit_json, info, json_option
+from ucal.cli.options import SuggestingGroup, emit_json, info, json_option, table_console
 from ucal.models import KNOWN_MODELS
 from ucal.profile import (
     create_profile,
@@ -28,6 +27,7 @@ profile_arg = click.argument(
 
 @click.group(
     "profile",
+    cls=SuggestingGroup,
     epilog="""\b
 Examples:
   ucal profile init tx90l cell.toml
@@ -119,7 +119,7 @@ def history(path: Path, as_json: bool) -> None:
             e.before,
             f"undone {e.undone_time}" if e.undone else "applied",
         )
-    Console().print(table)
+    table_console().print(table)
 
 
 @cli.command("undo")
@@ -166,7 +166,7 @@ def _fmt(values: object) -> str:
 
 def _print_profile(data: dict) -> None:
 
-    console = Console()
+    console = table_console()
     robot = data["robot"]
     dh = Table(title=f"{data['path']}: robot {robot['model']}")
     for col in (

@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from ucal.cell import CellProfile
+from ucal.cli.options import SuggestingGroup
 from ucal.errors import InputError
 from ucal.models import DEFAULT_MODEL
 from ucal.profile import default_profile_text, load_profile
@@ -19,7 +20,7 @@ from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world
 
 
-@click.group("sim")
+@click.group("sim", cls=SuggestingGroup)
 def cli() -> None:
     """The simulated cell (controller and pulser speaking the real protocols)."""
 

@@ -7,12 +7,11 @@ import logging
 from typing import Any
 
 import click
-from rich.console import Console
 from rich.table import Table
 
 from drivers.errors import DriverError
 from drivers.registry import open_controller, open_pulser
-from ucal.cli.options import controller_option, emit_json, json_option, pulser_option
+from ucal.cli.options import controller_option, emit_json, json_option, pulser_option, table_console
 from ucal.errors import HardwareError, InputError
 
 log = logging.getLogger(__name__)
@@ -151,7 +150,7 @@ def _flag(value: bool | None, yes: str, no: str) -> str:
 def show(out: dict[str, Any]) -> None:
     """The status as tables on stdout."""
 
-    console = Console()
+    console = table_console()
     c = out["controller"]
     table = Table(title=f"controller {c['endpoint']}", show_header=False)
     table.add_column("what")

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import click
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from ucal.cli.options import (
@@ -16,6 +15,7 @@ from ucal.cli.options import (
     json_option,
     pulser_option,
     sim_option,
+    table_console,
     yes_option,
 )
 from ucal.cli.procedure import finish, run_job
@@ -225,5 +225,5 @@ def _print_table(result: VerifyResult) -> None:
         f"{100 * (1 - a / b):.1f} %" if b > 0 else "-" for a, b in zip(after, before, strict=True)
     ]
     table.add_row("", "mean improved by", *gain)
-    Console().print(table)
+    table_console().print(table)
     click.echo(f"{result.moves} moves, {result.reads} pulser readings")

@@ -95,7 +95,10 @@ distance to the reference configuration θ_ref::
 
     (16) E = Σ_i w_i |θ_i − θ_ref,i|,    default w = (6, 5, 4, 3, 2, 1)
 
-is returned (nearest first with ``all_solutions``).
+is returned (nearest first with ``all_solutions``). ``ik_branches`` says of each of the eight
+why it is offered or not: the branch does not reach the pose (the wrist centre inside the
+shoulder's lateral offset, eq. 5; beyond the stretched or inside the folded arm, eq. 9) or a
+joint has no reading inside its range (which joint, and by how much).
 
 Calibrated tables. A table identified on a robot (``[calibration] dh``: twists a few
 hundredths of a degree off ±90°, Hayati's β₂, millimetre wrist offsets) has no closed form. Its
@@ -108,6 +111,7 @@ steps on the calibrated model's geometric Jacobian until the flange pose agrees 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -538,3 +542,128 @@ def ik(
             why = f"all {int(real.sum())} solutions are outside the joint ranges"
         raise UnreachableError(f"pose at ({pos}) mm is unreachable for {model.name}: {why}")
     return sols[ok] if all_solutions else sols[0]
+
+
+#: Words for the branch bits of ``ik_closed_form``'s index ``4·shoulder + 2·elbow + wrist``.
+#: On the TX90 tables elbow "positive" is J3 >= 0 and wrist "positive" J5 >= 0 (with zero
+#: offsets), as the controller's configuration names them.
+SHOULDER_NAMES = ("front", "back")
+ELBOW_NAMES = ("positive", "negative")
+WRIST_NAMES = ("positive", "negative")
+
+
+def configuration_name(index: int) -> str:
+    """The arm configuration of solution ``index`` (0…7): "shoulder front, elbow positive,
+    wrist negative"."""
+    return (
+        f"shoulder {SHOULDER_NAMES[index >> 2]}, elbow {ELBOW_NAMES[(index >> 1) & 1]}, "
+        f"wrist {WRIST_NAMES[index & 1]}"
+    )
+
+
+@dataclass(frozen=True)
+class IkBranch:
+    """One of the eight closed-form solutions of a tool pose, offered or not."""
+
+    index: int  # 4·shoulder + 2·elbow + wrist, as ``ik_closed_form``
+    configuration: str  # ``configuration_name(index)``
+    joints_deg: np.ndarray  # (6,) readings (in-range equivalents if offered); NaN: no solution
+    cost: float  # eq. 16 distance to the reference (deg); inf when not offered
+    reason: str | None  # why it is not offered; None: every joint inside its range
+
+
+def ik_branches(
+    model: RobotModel,
+    target_T: np.ndarray,
+    tool_T: np.ndarray | None = None,
+    offsets_deg: np.ndarray | None = None,
+    near_deg: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    singular_eps: float = SINGULAR_EPS,
+) -> list[IkBranch]:
+    """All eight solutions for one tool pose ``target_T`` (4, 4), offered ones (inside the
+    joint ranges, as ``ik(all_solutions=True)`` returns them) nearest first, then the others,
+    each with the reason it is not offered: the branch does not reach the pose (which part of
+    the arm cannot), or the joints out of range and by how much (deg). Never raises for an
+    unreachable pose."""
+    T = np.asarray(target_T, dtype=float)
+    if T.shape != (4, 4):
+        raise ValueError(f"target_T must be (4, 4), got {T.shape}")
+    flange = flange_from_tool(T, tool_T)
+    ref = np.zeros(N_JOINTS) if near_deg is None else np.asarray(near_deg, dtype=float)
+    raw, real = ik_all(model, flange, offsets_deg, wrist_ref_deg=ref[3], singular_eps=singular_eps)
+    sols, ok = select_in_range(model, raw, real, ref)
+    cost = np.where(ok, weighted_distance(np.nan_to_num(sols), ref, weights), np.inf)
+    unreached = _unreached(ideal_structure(model), flange)
+    out = []
+    for i in range(N_SOLUTIONS):
+        if ok[i]:
+            reason, joints = None, sols[i]
+        elif real[i]:
+            reason, joints = _out_of_range(model, raw[i]), raw[i]
+        else:
+            reason, joints = (
+                unreached[i >> 1]
+                or "no such solution: the calibrated table's refinement did not converge",
+                raw[i],
+            )
+        out.append(IkBranch(i, configuration_name(i), joints, float(cost[i]), reason))
+    return sorted(out, key=lambda b: b.cost)  # stable: as ``ik_solutions`` orders them
+
+
+def _unreached(model: RobotModel, flange_T: np.ndarray) -> list[str | None]:
+    """Why each arm branch (2·shoulder + elbow) of the closed form does not reach the flange
+    pose (None where it does): eqs. 1–9 again, in words and millimetres."""
+    d, a = model.d_mm, model.a_mm
+    al = np.radians(model.alpha_deg)
+    W = flange_T[:3, 3] - flange_T[:3, :3] @ rot_x(-al[5]) @ np.array([a[5], 0.0, d[5]])
+    lateral = abs(d[1] + d[2])
+    rho = float(np.hypot(W[0], W[1]))
+    if rho < lateral * (1.0 - _REACH_TOL):
+        inside = (
+            f"no such solution: the wrist centre is {rho:.1f} mm from axis 1, inside the "
+            f"shoulder's lateral offset {lateral:g} mm"
+        )
+        return [inside] * 4
+    if rho == 0.0:
+        return ["no such solution: the wrist centre is on axis 1 (joint 1 is undetermined)"] * 4
+    sg1 = np.sin(al[0])
+    asn = np.arcsin(np.clip(-sg1 * (d[1] + d[2]) / rho, -1.0, 1.0))
+    phi = np.arctan2(W[1], W[0])
+    L = np.hypot(a[2], d[3])
+    out: list[str | None] = []
+    for th1 in (phi - asn, phi - np.pi + asn):
+        r = np.cos(th1) * W[0] + np.sin(th1) * W[1] - a[0]
+        u = sg1 * (W[2] - d[0])
+        reach = float(np.hypot(r, u))
+        k = (reach**2 - a[1] ** 2 - L * L) / (2.0 * a[1] * L)
+        why: str | None = None
+        if k > 1.0 + _REACH_TOL:
+            why = (
+                f"no such solution: the wrist centre is {reach:.1f} mm from axis 2, beyond the "
+                f"stretched arm's {a[1] + L:.1f} mm"
+            )
+        elif k < -1.0 - _REACH_TOL:
+            why = (
+                f"no such solution: the wrist centre is {reach:.1f} mm from axis 2, inside the "
+                f"folded arm's {abs(a[1] - L):.1f} mm"
+            )
+        out += [why, why]
+    return out
+
+
+def _out_of_range(model: RobotModel, readings_deg: np.ndarray) -> str:
+    """The joints of a real solution that have no reading (±360°) inside their range, each
+    with how far its nearest equivalent is outside (deg)."""
+    parts = []
+    for j in range(N_JOINTS):
+        lo, hi = model.joint_min_deg[j], model.joint_max_deg[j]
+        cand = readings_deg[j] + np.array([-360.0, 0.0, 360.0])
+        beyond = np.maximum(lo - cand, cand - hi)
+        best = int(np.argmin(beyond))
+        if beyond[best] <= _ANGLE_TOL_DEG:
+            continue
+        v = cand[best]
+        side = f"below its minimum {lo:g}" if v < lo else f"above its maximum {hi:g}"
+        parts.append(f"J{j + 1} at {v:.2f} deg is {beyond[best]:.2f} deg {side} deg")
+    return "out of range: " + "; ".join(parts)

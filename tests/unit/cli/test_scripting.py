@@ -10,9 +10,12 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import click
 import pytest
 
 from ucal.profile import default_profile_text
+
+from doubles import terminal_typed
 
 CONTROLLER = "tcp://192.0.2.7:11000"
 PULSER = "modbus-tcp://192.0.2.8:502"
@@ -205,3 +208,82 @@ def test_log_level_from_flags_anywhere(
         assert code == 0 and logging.getLogger().level == level
         # pymodbus reports its own retries; ucal reports faults once, itself
         assert logging.getLogger("pymodbus").level == logging.CRITICAL
+
+
+@pytest.mark.parametrize("answer", ["n\n", "\n", "\x04"], ids=["no", "default", "end of input"])
+@pytest.mark.parametrize("quiet", [[], ["-q"]], ids=["", "quiet"])
+def test_declining_the_confirmation_is_refused_exit_4(
+    profile: Path,
+    answer: str,
+    quiet: list[str],
+    run_main: RunMain,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SPEC.md: saying no before the first motion is a refusal (4), not an interruption
+    (130). The plan is shown before the question even with -q: the operator cannot confirm
+    what they have not seen."""
+    before = profile.read_bytes()
+    with terminal_typed(answer) as tty:
+        monkeypatch.setattr(sys, "stdin", tty)
+        code, out, err = run_main([*quiet, "calibrate", str(profile), "--sim", "--json"])
+    assert code == 4, err
+    message = "not confirmed: nothing moved, nothing written"
+    assert err.rstrip().endswith(f"error: {message}")
+    assert json.loads(out) == {"error": message, "exit_code": 4}
+    plan, _, _ = err.partition("Move the simulated cell now?")
+    assert "Calibration plan for tx90l" in plan and "Estimated time on a real cell" in plan
+    assert profile.read_bytes() == before
+
+
+def test_ctrl_c_at_the_confirmation_is_an_interruption(
+    profile: Path, run_main: RunMain, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def interrupted(*args: object, **kwargs: object) -> bool:
+        try:  # what click.confirm does with Ctrl-C
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise click.exceptions.Abort() from None
+
+    monkeypatch.setattr(click, "confirm", interrupted)
+    monkeypatch.setattr(sys.stdin, "isatty", lambda: True)
+    code, _, err = run_main(["calibrate", str(profile), "--sim"])
+    assert code == 130
+    assert err.rstrip().splitlines()[-1] == (
+        "error: interrupted at the confirmation: nothing moved, nothing written"
+    )
+
+
+def test_a_profile_created_for_a_declined_run_is_removed(
+    profile: Path, run_main: RunMain, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    new = profile.with_name("typo.toml")
+    with terminal_typed("n\n") as tty:
+        monkeypatch.setattr(sys, "stdin", tty)
+        code, _, err = run_main(["-q", "calibrate", str(new), "--sim"])
+    assert code == 4
+    assert f"warning: {new} did not exist: created it from the default model tx90l" in err
+    assert err.rstrip().endswith(
+        f"error: not confirmed: nothing moved, nothing written ({new}, created for the run, "
+        "removed)"
+    )
+    assert not new.exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["calibrat"], "No such command 'calibrat'. Did you mean 'calibrate'?"),
+        (["tool_frame"], "No such command 'tool_frame'. Did you mean 'tool-frame'?"),
+        (["profile", "shw"], "No such command 'shw'. Did you mean 'show'?"),
+        (["sim", "serv"], "No such command 'serv'. Did you mean 'serve'?"),
+        (["xyzzy"], "No such command 'xyzzy'."),
+    ],
+)
+def test_a_mistyped_command_names_the_nearest_one(
+    args: list[str], message: str, run_main: RunMain
+) -> None:
+    code, out, err = run_main([*args, "cell.toml"])
+    assert code == 2 and out == ""
+    assert err.rstrip().splitlines()[-1] == f"Error: {message}"
+    code, out, _ = run_main([*args, "cell.toml", "--json"])
+    assert code == 2 and json.loads(out) == {"error": message, "exit_code": 2}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
@@ -12,8 +14,10 @@ from ucal.errors import EXIT_SAFETY, InputError, UnreachableError
 from ucal.kinematics.dh import RobotModel, fk, transform, wrist_centre
 from ucal.kinematics.ik import (
     DEFAULT_WEIGHTS,
+    configuration_name,
     ik,
     ik_all,
+    ik_branches,
     ik_many,
     ik_solutions,
     wrap_deg,
@@ -142,6 +146,62 @@ def test_unreachable_inside_workspace_but_outside_joint_ranges() -> None:
     target = fk(base, np.array([90.0, 10.0, 60.0, 0.0, 30.0, 0.0]))
     with pytest.raises(UnreachableError, match="outside the joint ranges"):
         ik(narrow, target)
+
+
+def test_branches_offer_what_ik_offers_and_say_why_not_the_others() -> None:
+    """All eight, each once: the in-range ones as ``ik(all_solutions=True)`` returns them (same
+    order), the others with the joint out of range and by how much."""
+    model = load_model("tx90l")
+    offsets = np.array([0.4, -0.3, 0.2, 0.5, -0.25, 0.1])
+    near = np.array([20.0, 10.0, 90.0, 0.0, 60.0, 0.0])
+    target = fk(model, np.array([22.0, 12.0, 99.0, 0.0, 67.0, -158.0]), TOOL, offsets)
+    branches = ik_branches(model, target, TOOL, offsets, near_deg=near)
+    assert sorted(b.index for b in branches) == list(range(8))
+    offered = [b for b in branches if b.reason is None]
+    expected = ik(model, target, TOOL, offsets, near_deg=near, all_solutions=True)
+    np.testing.assert_array_equal(np.array([b.joints_deg for b in offered]), expected)
+    rejected = [b for b in branches if b.reason is not None]
+    assert len(offered) == 4 and len(rejected) == 4
+    raw, _ = ik_all(model, target @ np.linalg.inv(TOOL), offsets)
+    for b in rejected:
+        assert b.configuration == configuration_name(b.index) and b.cost == np.inf
+        # here only J5 leaves its range: the message gives the reading and the excess
+        j5 = raw[b.index, 4]
+        limit = model.joint_max_deg[4] if j5 > 0 else model.joint_min_deg[4]
+        side = "above its maximum" if j5 > 0 else "below its minimum"
+        assert b.reason == (
+            f"out of range: J5 at {j5:.2f} deg is {abs(j5 - limit):.2f} deg {side} {limit:g} deg"
+        )
+    # the names follow the sign of J3 (elbow) and J5 (wrist) on the shipped tables
+    for b in offered:
+        assert ("elbow positive" in b.configuration) == (b.joints_deg[2] > 0)
+        assert ("wrist positive" in b.configuration) == (b.joints_deg[4] > 0)
+
+
+def test_branches_that_do_not_reach_the_pose_say_which_part_of_the_arm_cannot() -> None:
+    model = load_model("tx90l")  # upper arm 500, forearm 550 mm: stretched 1050 mm
+    # arm stretched forward: the shoulder-back branches would need 100 mm (2·a1) more
+    branches = ik_branches(model, fk(model, np.array([0.0, 60.0, 5.0, 0.0, 30.0, 0.0])))
+    back = [b for b in branches if b.index >= 4]
+    assert all(np.isnan(b.joints_deg).all() for b in back)
+    assert all(
+        re.fullmatch(
+            r"no such solution: the wrist centre is 1\d{3}\.\d mm from axis 2, beyond the "
+            r"stretched arm's 1050\.0 mm",
+            b.reason or "",
+        )
+        for b in back
+    )
+    assert all(b.reason is None for b in branches if b.index < 4)
+    # the wrist centre 10 mm from axis 1, inside the shoulder's 50 mm lateral offset
+    flange = transform([10.0, 0.0, 600.0], np.eye(3))  # wrist centre 100 mm below
+    branches = ik_branches(model, flange)
+    assert {b.reason for b in branches} == {
+        "no such solution: the wrist centre is 10.0 mm from axis 1, inside the shoulder's "
+        "lateral offset 50 mm"
+    }
+    with pytest.raises(UnreachableError):
+        ik(model, flange)
 
 
 def test_joints_4_and_6_use_their_360_equivalents_nearest_reference() -> None:
