@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from drivers.controller.client import DEFAULT_TIMEOUTS
+from drivers.pulser.registers import RegisterMap
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
 
@@ -49,6 +50,18 @@ class ControllerTimeouts:
     def driver_options(self) -> dict[str, float]:
         """The driver's timeouts as ``open_controller`` keyword arguments."""
         return {key: getattr(self, key) for key in DEFAULT_TIMEOUTS}
+
+
+@dataclass(frozen=True)
+class PulserConfig:
+    """``[pulser]`` in the profile: how ucal talks to the pulser-receiver (every key optional).
+
+    ``register_map``: the Modbus register map of the device (``drivers.pulser.map_file``),
+    read and validated from ``register_map_path``; None: ucal's own map.
+    """
+
+    register_map_path: Path | None = None
+    register_map: RegisterMap | None = None
 
 
 #: Largest value of each ``[controller]`` timeout a profile may state (s).
@@ -94,6 +107,7 @@ class CellProfile:
     unobservable_joints: tuple[int, ...] = ()
     procedure: Procedure = field(default_factory=Procedure)
     controller: ControllerTimeouts = field(default_factory=ControllerTimeouts)
+    pulser: PulserConfig = field(default_factory=PulserConfig)
     path: Path | None = None
 
     @property
@@ -173,12 +187,16 @@ class PulserTruth:
     ``amplitude_bits``: amplitude quantised to 2^bits levels of full screen height, truncated
     (a reading below one level reads 0); 0 = not quantised. ``gain_error_db``: one-sigma error
     of the gain actually applied, drawn anew at each gain change. ``delay_ns``: fixed
-    electronic delay added to every time of flight (round trip, ns).
+    electronic delay added to every time of flight (round trip, ns). ``register_map``: the
+    Modbus register map the simulated pulser serves, read from ``register_map_path`` (None:
+    the profile's).
     """
 
     amplitude_bits: int = 0
     gain_error_db: float = 0.0
     delay_ns: float = DEFAULT_PULSER_DELAY_NS
+    register_map_path: Path | None = None
+    register_map: RegisterMap | None = None
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,7 @@ from ucal.cell import (
     CellProfile,
     ControllerTimeouts,
     Procedure,
+    PulserConfig,
     Step,
 )
 from ucal.errors import InputError, ProfileError
@@ -102,6 +103,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
         }
     ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
+    "pulser": frozenset({"register_map"}),
 }
 
 #: Flange length of the shipped models (mm): wrist centre to flange along z6.
@@ -131,15 +133,18 @@ HISTORY_INDEX = "history.json"
 # loading
 
 
-def load_profile(path: str | Path) -> CellProfile:
+def load_profile(path: str | Path, base_dir: Path | None = None) -> CellProfile:
     """Read and validate the profile at ``path`` (SPEC.md keys; mm, deg, °C, MHz).
 
-    Raises :class:`ProfileError` (exit 2) naming the file and the dotted key of the first
-    problem: unreadable file, bad TOML, a misspelt key (``did you mean``), missing key, wrong
-    type or length, NaN/inf, value out of range, unknown robot model without a ``dh`` table.
+    Files the profile names (``[pulser] register_map``) are relative to ``base_dir`` (default:
+    the profile's directory; a copy in the history names its profile's). Raises
+    :class:`ProfileError` (exit 2) naming the file and the dotted key of the first problem:
+    unreadable file, bad TOML, a misspelt key (``did you mean``), missing key, wrong type or
+    length, NaN/inf, value out of range, unknown robot model without a ``dh`` table, a register
+    map that does not validate (naming the map file and its key).
     """
     p = Path(path)
-    return profile_from_data(read_toml(p), p)
+    return profile_from_data(read_toml(p), p, base_dir)
 
 
 def profile_warnings(path: str | Path) -> list[str]:
@@ -148,8 +153,11 @@ def profile_warnings(path: str | Path) -> list[str]:
     return [describe_unknown(k, KNOWN_KEYS) for k in unknown_keys(data, KNOWN_KEYS)]
 
 
-def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
-    """Validate parsed profile data (a tomlkit document or plain dict) → :class:`CellProfile`."""
+def profile_from_data(
+    data: Mapping[str, Any], path: str | Path, base_dir: Path | None = None
+) -> CellProfile:
+    """Validate parsed profile data (a tomlkit document or plain dict) → :class:`CellProfile`;
+    files it names are relative to ``base_dir`` (default: the directory of ``path``)."""
     if hasattr(data, "unwrap"):
         data = data.unwrap()
     r = Reader(path, data)
@@ -224,6 +232,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
 
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
+    pulser = read_pulser(r, r.table("pulser"), base_dir)
 
     return CellProfile(
         model=model,
@@ -243,6 +252,7 @@ def profile_from_data(data: Mapping[str, Any], path: str | Path) -> CellProfile:
         unobservable_joints=unobservable,
         procedure=procedure,
         controller=controller,
+        pulser=pulser,
         path=Path(path),
         **tolerances,
     )
@@ -470,6 +480,18 @@ def read_controller(r: Reader, table: Mapping[str, Any] | None) -> ControllerTim
     return ControllerTimeouts(**values)
 
 
+def read_pulser(
+    r: Reader, table: Mapping[str, Any] | None, base_dir: Path | None = None
+) -> PulserConfig:
+    """Optional ``[pulser]``: ``register_map``, a map file relative to ``base_dir`` (default:
+    the profile's directory), read and validated."""
+    raw = r.get(table, "pulser.register_map")
+    if raw is None:
+        return PulserConfig()
+    path, register_map = r.register_map("pulser.register_map", raw, base_dir)
+    return PulserConfig(register_map_path=path, register_map=register_map)
+
+
 def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
     """A profile as plain JSON-able data in the profile's own table/key layout."""
     m = profile.model
@@ -519,6 +541,13 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
             "tof_averages": proc.tof_averages,
         },
         "controller": asdict(profile.controller),
+        "pulser": {
+            "register_map": (
+                None
+                if profile.pulser.register_map_path is None
+                else str(profile.pulser.register_map_path)
+            )
+        },
     }
 
 
@@ -937,7 +966,7 @@ def before_measurement(profile: CellProfile) -> CellProfile:
             before = history_dir(profile.path) / entry.before
             if not before.exists():
                 break
-            old = load_profile(before)
+            old = load_profile(before, base_dir=profile.path.parent)
             return profile.replace(
                 model=old.model,
                 tool_position_mm=old.tool_position_mm,

@@ -110,7 +110,9 @@ def open_cell(
         truth = None
         clock: Clock = HOST_CLOCK
         controller_options = profile.controller.driver_options()
-        pulser_options: dict[str, float] = {}
+        pulser_options: dict[str, Any] = {}
+        if profile.pulser.register_map is not None:
+            pulser_options["register_map"] = profile.pulser.register_map
         if sim_world is not None:
             truth = load_world(Path(sim_world), profile) if sim_world else demo_world(profile)
             clock = SimClock()
@@ -120,7 +122,7 @@ def open_cell(
             controller_options.update(
                 reply_timeout_s=SIM_GUARD_TIMEOUT_S, connect_timeout_s=SIM_GUARD_TIMEOUT_S
             )
-            pulser_options = {"timeout_s": SIM_GUARD_TIMEOUT_S}
+            pulser_options["timeout_s"] = SIM_GUARD_TIMEOUT_S
         assert controller_url and pulser_url
         controller: Any
         pulser: Any
@@ -129,6 +131,13 @@ def open_cell(
             pulser = open_pulser(pulser_url, **pulser_options)
         except ValueError as e:
             raise InputError(str(e)) from e
+        except TypeError as e:  # a back-end whose from_url takes no register map
+            if "register_map" not in pulser_options or "register_map" not in str(e):
+                raise
+            raise InputError(
+                f"[pulser] register_map ({profile.pulser.register_map_path}) is for Modbus "
+                f"pulsers; the back-end of {pulser_url} takes none ({e})"
+            ) from e
         controller.clock = pulser.clock = clock
         if recorder is not None:
             controller = RecordingController(controller, recorder)

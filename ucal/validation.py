@@ -18,6 +18,8 @@ import numpy as np
 import tomlkit
 from tomlkit.exceptions import ParseError
 
+from drivers.pulser.map_file import RegisterMapError, load_register_map
+from drivers.pulser.registers import RegisterMap
 from ucal.errors import ProfileError
 
 #: Column names of one DH row, in the order of ``RobotModel.dh``.
@@ -226,6 +228,21 @@ class Reader:
                 row = list(row[:4])
             stripped.append(row)
         return stripped, beta
+
+    def register_map(
+        self, key: str, value: Any, base_dir: Path | None = None
+    ) -> tuple[Path, RegisterMap]:
+        """A Modbus register map file (``drivers.pulser.map_file``), relative to ``base_dir``
+        (default: this file's directory) → its path and the validated map. A bad map raises
+        :class:`ProfileError` naming the map file and its key, and ``key`` of this file."""
+        name = self.string(key, value)
+        p = Path(name).expanduser()
+        if not p.is_absolute():
+            p = (self.path.parent if base_dir is None else base_dir) / p
+        try:
+            return p, load_register_map(p)
+        except RegisterMapError as e:
+            raise ProfileError(e.path, e.key, f"{e.detail} ({key} in {self.path})") from None
 
     def joint_ranges(
         self, key_min: str, lo: Any, key_max: str, hi: Any

@@ -360,7 +360,7 @@ def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
         if entry.reason.startswith("calibrate") and not entry.undone:
             before = history_dir(profile_path) / entry.before
             if before.exists():
-                old = load_profile(before)
+                old = load_profile(before, base_dir=Path(profile_path).parent)
                 return BeforeProfile(
                     np.asarray(old.joint_offsets_deg, float),
                     f"history entry {entry.id} ({entry.time}): the profile "

@@ -16,7 +16,9 @@ the solvers do not model:
   (|drift| <= 10 °C/min; ``temperature_c`` is the temperature at the start of the run);
 * ``[pulser] amplitude_bits`` (0…24; 0 = not quantised), ``gain_error_db`` (one sigma, 0…6 dB)
   and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
-  ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`.
+  ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`;
+  ``register_map`` — the Modbus register map file the simulated pulser serves (relative to the
+  world file; default: the profile's ``[pulser] register_map``, else ucal's own map).
 
 Extra keys beyond SPEC.md:
 
@@ -81,7 +83,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "transducer": frozenset(
         {"frequency_mhz", "element_diameter_mm", "squint_deg", "squint_azimuth_deg", "near_field"}
     ),
-    "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns"}),
+    "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns", "register_map"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
     "controller": frozenset({"server", "startup_silence_s"}),
 }
@@ -258,12 +260,19 @@ def _split_beta(r: Reader, robot: Mapping[str, Any]) -> tuple[Mapping[str, Any],
 
 
 def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
-    """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000)."""
+    """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000),
+    register_map (a map file relative to the world file)."""
     d = PulserTruth()
     bits = r.get(table, "pulser.amplitude_bits")
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
+    map_raw = r.get(table, "pulser.register_map")
+    map_path, register_map = (
+        (None, None) if map_raw is None else r.register_map("pulser.register_map", map_raw)
+    )
     return PulserTruth(
+        register_map_path=map_path,
+        register_map=register_map,
         amplitude_bits=d.amplitude_bits
         if bits is None
         else r.integer("pulser.amplitude_bits", bits, lo=0, hi=24),

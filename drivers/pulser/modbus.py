@@ -1,8 +1,9 @@
 """Modbus client for the pulser-receiver: RTU over a serial line or pyserial URL, and Modbus TCP.
 
-The register map and its encodings are in ``drivers.pulser.registers``; this module owns the
-transport (a pymodbus synchronous client), timeouts, the mapping of Modbus faults to
-``drivers.errors`` and the DEBUG log of every frame (``WRITE:``/``READ:`` in hex).
+The register map (a data file, ``drivers.pulser.map_file``; ucal's own by default) and its
+encodings are in ``drivers.pulser.registers``; this module owns the transport (a pymodbus
+synchronous client), timeouts, the mapping of Modbus faults to ``drivers.errors`` and the
+DEBUG log of every frame (``WRITE:``/``READ:`` in hex).
 
 Fault mapping (every message names the device ``pulser`` and its URL):
 
@@ -23,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,6 +38,7 @@ from serial.urlhandler.protocol_socket import Serial as _PyserialSocket
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from drivers.pulser.map_file import load_register_map, shipped_map
 from drivers.pulser.urls import PulserUrl, parse_pulser_url
 
 log = logging.getLogger(__name__)
@@ -104,22 +107,33 @@ class _SocketPort(_PyserialSocket):
 
 
 class ModbusPulser(PulserReceiver):
-    """The pulser-receiver over Modbus RTU or Modbus TCP (register map ``registers``).
+    """The pulser-receiver over Modbus RTU or Modbus TCP.
 
     Build it with :meth:`from_url`. No I/O happens before :meth:`connect` (or the first call
     that needs the device, which connects lazily). ``timeout_s`` bounds every request.
-    ``port`` (RTU only) injects an already-open pyserial-compatible port instead of opening
-    ``DEVICE``, e.g. a test double; it is closed by :meth:`close`.
+    ``register_map`` is the device's map (a ``RegisterMap`` or the path of a map file; None:
+    ucal's own). ``port`` (RTU only) injects an already-open pyserial-compatible port instead
+    of opening ``DEVICE``, e.g. a test double; it is closed by :meth:`close`.
     """
 
     def __init__(
-        self, url: str | PulserUrl, timeout_s: float = DEFAULT_TIMEOUT_S, *, port: Any = None
+        self,
+        url: str | PulserUrl,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        *,
+        port: Any = None,
+        register_map: reg.RegisterMap | str | Path | None = None,
     ):
         parsed = parse_pulser_url(url) if isinstance(url, str) else url
         if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
         if port is not None and parsed.framing != "rtu":
             raise ValueError("port can only be injected for modbus-rtu URLs")
+        if register_map is None:
+            register_map = shipped_map()
+        elif not isinstance(register_map, reg.RegisterMap):
+            register_map = load_register_map(register_map)  # RegisterMapError is a ValueError
+        self._map = register_map
         self._url = parsed
         self._endpoint = str(parsed)
         self._unit = parsed.unit
@@ -133,20 +147,26 @@ class ModbusPulser(PulserReceiver):
         self._connected = False
         self._last_counter: int | None = None
         self._map_version: int | None = None
-        self._front_end_written: list[int] | None = None  # last front-end block written
+        self._front_end_written: list[list[int]] | None = None  # last front-end block written
         self.last_status = reg.Status(0)  #: status bits of the last gate reading
         self._injected_port = port
         self._client = self._make_client(parsed)
 
     @classmethod
-    def from_url(cls, url: str, timeout_s: float = DEFAULT_TIMEOUT_S) -> ModbusPulser:
-        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request.
+    def from_url(
+        cls,
+        url: str,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        register_map: reg.RegisterMap | str | Path | None = None,
+    ) -> ModbusPulser:
+        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request;
+        ``register_map`` is the device's map (None: ucal's own).
 
         ``url`` is ``modbus-tcp://HOST:PORT[?unit=N]`` or
         ``modbus-rtu://DEVICE[?baud=N&unit=N&parity=E]``. Raises ``ValueError`` for a
-        malformed URL. Does not connect.
+        malformed URL or an invalid map file. Does not connect.
         """
-        return cls(url, timeout_s)
+        return cls(url, timeout_s, register_map=register_map)
 
     def _make_client(self, url: PulserUrl) -> ModbusBaseSyncClient:
         common: dict[str, Any] = {
@@ -202,8 +222,14 @@ class ModbusPulser(PulserReceiver):
         """Time one request may wait for its answer, s."""
         return self._timeout_s
 
+    @property
+    def register_map(self) -> reg.RegisterMap:
+        """The register map this client speaks."""
+        return self._map
+
     def connect(self) -> None:
-        """Open the connection and check the device identity (map version).
+        """Open the connection and check the device identity (magic and map version, where
+        the map has them).
 
         Raises ``ConnectionLost`` (cannot open), ``DeviceTimeout`` (no answer),
         ``ProtocolError`` (not this register map) or ``DeviceError`` (exception response).
@@ -226,31 +252,28 @@ class ModbusPulser(PulserReceiver):
                     f"cannot open {what} (refused, unreachable or no answer "
                     f"within {self._timeout_s:.3g} s)",
                 )
+            identity = self._map.present(("magic", "map_version"))
             try:
-                ident = self._read(
-                    reg.FunctionCode.READ_INPUT_REGISTERS,
-                    reg.IDENTITY_ADDRESS,
-                    reg.IDENTITY_COUNT,
-                    "identify",
-                    autoconnect=False,
-                )
+                words = self._read_values(identity, "identify", autoconnect=False)
             except BaseException:
                 self._client.close()
                 raise
-            magic, version = ident
-            if magic != reg.DEVICE_MAGIC or version not in reg.SUPPORTED_MAP_VERSIONS:
+            got = {r.name: r.decode(words[r.name]) for r in identity}
+            if any(r.values is not None and got[r.name] not in r.values for r in identity):
                 self._client.close()
-                versions = "/".join(f"v{v}" for v in reg.SUPPORTED_MAP_VERSIONS)
+                answer = " ".join(_identity_text(r.name, [got[r.name]]) for r in identity)
+                expected = " ".join(_identity_text(r.name, r.values or ()) for r in identity)
                 raise ProtocolError(
                     self.device,
                     self._endpoint,
-                    f"unexpected identity 0x{magic:04X} v{version} (expected "
-                    f"0x{reg.DEVICE_MAGIC:04X} {versions}): not this register map",
+                    f"unexpected identity {answer} (expected {expected}): not the register "
+                    f"map {self._map}",
                 )
-            self._map_version = version
+            version = got.get("map_version")
+            self._map_version = None if version is None else int(version)
             self._front_end_written = None
             self._connected = True
-            log.debug("pulser %s: connected, map version %d", self._endpoint, version)
+            log.debug("pulser %s: connected, map version %s", self._endpoint, version)
 
     def close(self) -> None:
         """Close the connection. Idempotent."""
@@ -259,10 +282,10 @@ class ModbusPulser(PulserReceiver):
             self._client.close()
 
     @property
-    def map_version(self) -> int:
-        """The register-map version the device reported (connects first if needed)."""
+    def map_version(self) -> int | None:
+        """The register-map version the device reported (connects first if needed); None when
+        the map has no version register."""
         self.connect()
-        assert self._map_version is not None
         return self._map_version
 
     def configure(self, settings: PulserSettings) -> None:
@@ -271,49 +294,60 @@ class ModbusPulser(PulserReceiver):
         from what this connection last wrote.
 
         Raises ``ValueError`` naming the setting for an out-of-range value (nothing is
-        written then), or for front-end settings other than the defaults on a map-version-1
-        device (which has no such registers); values are rounded to the register resolution
-        (0.1 dB, 1 Hz, 1 ns, 1 V, 1 Ω, 0.01 MHz).
+        written then), or for settings other than the defaults that the device has no register
+        for (not in the map, or a map-version-1 device and the front end); values are rounded
+        to the register resolution (0.1 dB, 1 Hz, 1 ns, 1 V, 1 Ω, 0.01 MHz in ucal's map).
         """
-        registers = reg.encode_settings(settings)
-        front_end = reg.encode_front_end(settings)
+        registers = self._map.encode_settings(settings, reg.SETTINGS)
+        front_end = self._map.encode_settings(settings, reg.FRONT_END)
         map_version = self.map_version
-        if map_version < 2 and not reg.front_end_is_default(settings):
+        default = PulserSettings()
+        absent = [r for r, _ in registers + front_end if not self._on_device(r)]
+        refused = [
+            r for r in absent if getattr(settings, r.ucal_name) != getattr(default, r.ucal_name)
+        ]
+        if refused:
             raise ValueError(
-                f"pulser at {self._endpoint}: pulse_voltage_v, damping_ohm, high_pass_mhz and "
-                f"low_pass_mhz cannot be set: the device's register map is version "
-                f"{map_version} (front-end registers need version 2)"
+                f"pulser at {self._endpoint}: {', '.join(r.ucal_name for r in refused)} cannot "
+                f"be set: the device's register map is version {map_version} (the register "
+                f"needs version {max(r.min_version or 0 for r in refused)})"
             )
-        self._write(reg.SETTINGS_ADDRESS, registers, "configure")
-        if map_version >= 2 and front_end != self._front_end_written:
-            self._write(reg.FRONT_END_ADDRESS, front_end, "configure front end")
-            self._front_end_written = front_end
+        registers = [e for e in registers if e[0] not in absent]
+        front_end = [e for e in front_end if e[0] not in absent]
+        self._write_values(registers, "configure")
+        written = [words for _, words in front_end]
+        if front_end and written != self._front_end_written:
+            self._write_values(front_end, "configure front end")
+            self._front_end_written = written
         log.debug("pulser %s: configured %s", self._endpoint, settings)
 
     def settings(self) -> PulserSettings:
-        """Read the settings back from the device (one FC 03).
+        """Read the settings back from the device (one FC 03 in ucal's map).
 
-        A map-version-1 device has no front-end registers: those fields read as the defaults.
+        A setting the device has no register for (a map-version-1 device: the front end)
+        reads as its default.
         """
-        count = reg.HOLDING_COUNT if self.map_version >= 2 else reg.SETTINGS_COUNT
-        registers = self._read(
-            reg.FunctionCode.READ_HOLDING_REGISTERS, reg.SETTINGS_ADDRESS, count, "read settings"
-        )
-        return reg.decode_settings(registers)
+        version = self.map_version
+        present = self._map.present(reg.SETTINGS + reg.FRONT_END, version)
+        return self._map.decode_settings(self._read_values(present, "read settings"))
 
     def identity(self) -> dict[str, object]:
         """Map version, and model, firmware and serial number where the map has them (v2)."""
-        out: dict[str, object] = {"register_map_version": self.map_version}
-        if self.map_version >= 2:
-            info = reg.DeviceInfo.from_registers(
-                self._read(
-                    reg.FunctionCode.READ_INPUT_REGISTERS,
-                    reg.DEVICE_INFO_ADDRESS,
-                    reg.DEVICE_INFO_COUNT,
-                    "read device information",
-                )
+        version = self.map_version
+        out: dict[str, object] = {}
+        if version is not None:
+            out["register_map_version"] = version
+        present = self._map.present(reg.DEVICE_INFO, version)
+        if present:
+            info = self._map.decode_device_info(
+                self._read_values(present, "read device information")
             )
-            out.update(model=info.model, firmware=info.firmware_version, serial=info.serial)
+            if info.model is not None:
+                out["model"] = info.model
+            if info.firmware is not None:
+                out["firmware"] = info.firmware_version
+            if info.serial is not None:
+                out["serial"] = info.serial
         return out
 
     def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
@@ -329,27 +363,25 @@ class ModbusPulser(PulserReceiver):
         if timeout_s is None:
             timeout_s = self._timeout_s
         deadline = time.monotonic() + float(timeout_s)
+        measurement = self._map.present(reg.MEASUREMENT)
         while True:
-            registers = self._read(
-                reg.FunctionCode.READ_INPUT_REGISTERS,
-                reg.MEASUREMENT_ADDRESS,
-                reg.MEASUREMENT_COUNT,
-                "read gate",
-                deadline,
-            )
+            words = self._read_values(measurement, "read gate", deadline)
             host_time_s = self.clock.now()
-            m = reg.Measurement.from_registers(registers)
-            if not fresh or self._last_counter is None or m.counter != self._last_counter:
+            m = self._map.decode_measurement(words)
+            counter = m.counter
+            if counter is None:  # a map without a counter: every read is a new reading
+                counter = 0 if self._last_counter is None else self._last_counter + 1
+            if not fresh or self._last_counter is None or counter != self._last_counter:
                 break
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise DeviceTimeout(
                     self.device,
                     self._endpoint,
-                    f"no new reading within {timeout_s:g} s (counter stays at {m.counter})",
+                    f"no new reading within {timeout_s:g} s (counter stays at {counter})",
                 )
             time.sleep(min(POLL_INTERVAL_S, remaining))
-        self._last_counter = m.counter
+        self._last_counter = counter
         self.last_status = m.status
         if reg.Status.GATE_ERROR in m.status:
             raise DeviceError(
@@ -367,13 +399,16 @@ class ModbusPulser(PulserReceiver):
         return GateReading(
             amplitude=m.amplitude,
             tof_ns=tof_ns,
-            counter=m.counter,
-            device_time_s=m.device_time_ms / 1000.0,
+            counter=counter,
+            device_time_s=host_time_s if m.device_time_ms is None else m.device_time_ms / 1000.0,
             host_time_s=host_time_s,
         )
 
     def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
-        """Read the A-scan over the gate: normalised samples (n,) and sample rate (Hz)."""
+        """Read the A-scan over the gate: normalised samples (n,) and sample rate (Hz); None
+        when the register map has no A-scan."""
+        if "ascan_samples" not in self._map:
+            return None
         scan = self.read_ascan_trace(timeout_s)
         return scan.samples, scan.sample_rate_hz
 
@@ -385,20 +420,15 @@ class ModbusPulser(PulserReceiver):
         samples are then read in blocks of at most 125 registers.
         """
         deadline = time.monotonic() + float(timeout_s)
-        header = reg.AScanHeader.from_registers(
-            self._read(
-                reg.FunctionCode.READ_INPUT_REGISTERS,
-                reg.ASCAN_HEADER_ADDRESS,
-                reg.ASCAN_HEADER_COUNT,
-                "read A-scan header",
-                deadline,
-            )
+        sample_register = self._register("ascan_samples")
+        header = self._map.decode_ascan_header(
+            self._read_values(self._map.present(reg.ASCAN_HEADER), "read A-scan header", deadline)
         )
-        if header.length > reg.ASCAN_MAX_SAMPLES:
+        if header.length > sample_register.words:
             raise ProtocolError(
                 self.device,
                 self._endpoint,
-                f"A-scan length {header.length} exceeds {reg.ASCAN_MAX_SAMPLES}",
+                f"A-scan length {header.length} exceeds {sample_register.words}",
             )
         if header.length and not (
             math.isfinite(header.sample_rate_hz) and header.sample_rate_hz > 0
@@ -417,38 +447,81 @@ class ModbusPulser(PulserReceiver):
                 )
             count = min(reg.MAX_READ_REGISTERS, header.length - len(samples))
             samples += self._read(
-                reg.FunctionCode.READ_INPUT_REGISTERS,
-                reg.Input.ASCAN_SAMPLES + len(samples),
+                _READ[sample_register.table],
+                sample_register.address + len(samples),
                 count,
                 "read A-scan samples",
                 deadline,
             )
         return AScan(
-            samples=reg.decode_samples(samples),
+            samples=reg.decode_samples(samples, sample_register.full_scale),
             sample_rate_hz=header.sample_rate_hz,
             start_ns=float(header.start_ns),
-            counter=header.counter,
+            counter=-1 if header.counter is None else header.counter,
         )
 
     def set_gate_threshold(self, fraction: float) -> None:
-        """Set the gate threshold, fraction of full screen height (0 … 1, 0.001 resolution)."""
-        self._write(reg.Holding.THRESHOLD, [reg.THRESHOLD.to_raw(fraction)], "set gate threshold")
+        """Set the gate threshold, fraction of full screen height (0 … 1, 0.001 resolution in
+        ucal's map)."""
+        r = self._register("threshold")
+        self._write_values([(r, r.encode_value(fraction))], "set gate threshold")
 
     def gate_threshold(self) -> float:
         """Read the gate threshold, fraction of full screen height."""
-        (raw,) = self._read(
-            reg.FunctionCode.READ_HOLDING_REGISTERS, reg.Holding.THRESHOLD, 1, "read gate threshold"
-        )
-        return reg.THRESHOLD.from_raw(raw)
+        r = self._register("threshold")
+        return r.decode_value(self._read_values([r], "read gate threshold")[r.name])
 
     def trigger(self) -> None:
         """Make the device acquire now (its reading counter advances by one)."""
-        self._write(reg.Holding.COMMAND, [int(reg.Command.TRIGGER)], "trigger")
+        self._command("trigger")
 
     def clear_counter(self) -> None:
         """Reset the device's reading counter and measurement block to zero."""
-        self._write(reg.Holding.COMMAND, [int(reg.Command.CLEAR_COUNTER)], "clear counter")
+        self._command("clear_counter")
         self._last_counter = None
+
+    # --- register map -----------------------------------------------------------------------
+    def _register(self, name: str) -> reg.Register:
+        """The map's register ``name``; ``ValueError`` when the device has none."""
+        r = self._map.get(name)
+        if r is None:
+            raise ValueError(
+                f"pulser at {self._endpoint}: the register map {self._map} has no {name} register"
+            )
+        return r
+
+    def _command(self, name: str) -> None:
+        r = self._register("command")
+        if name not in r.names:
+            raise ValueError(
+                f"pulser at {self._endpoint}: the register map {self._map} has no {name} command"
+            )
+        self._write_values([(r, r.encode(r.names[name]))], name.replace("_", " "))
+
+    def _on_device(self, r: reg.Register) -> bool:
+        """Whether the connected device has ``r`` (its map version is recent enough)."""
+        return r.min_version is None or (self._map_version or 0) >= r.min_version
+
+    def _read_values(
+        self,
+        registers: Sequence[reg.Register],
+        what: str,
+        deadline: float | None = None,
+        *,
+        autoconnect: bool = True,
+    ) -> dict[str, list[int]]:
+        """Read ``registers`` in as few requests as the map allows; their words by name."""
+        requests = self._map.read_requests(registers)
+        answers = [
+            self._read(_READ[table], address, count, what, deadline, autoconnect=autoconnect)
+            for table, address, count in requests
+        ]
+        return self._map.pick(registers, requests, answers)
+
+    def _write_values(self, entries: Sequence[tuple[reg.Register, list[int]]], what: str) -> None:
+        """Write registers and their words, neighbours in one FC 16 request."""
+        for address, words in self._map.write_requests(entries):
+            self._write(address, words, what)
 
     # --- transport --------------------------------------------------------------------------
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
@@ -561,3 +634,17 @@ class ModbusPulser(PulserReceiver):
         """Forget the connection so that the next call reconnects."""
         self._connected = False
         self._client.close()
+
+
+#: The read function code of each table.
+_READ = {
+    "holding": reg.FunctionCode.READ_HOLDING_REGISTERS,
+    "input": reg.FunctionCode.READ_INPUT_REGISTERS,
+}
+
+
+def _identity_text(name: str, values: Sequence[float]) -> str:
+    """``0x5550`` for a magic, ``v1/v2`` for map versions."""
+    if name == "magic":
+        return "/".join(f"0x{int(v):04X}" for v in values)
+    return "/".join(f"v{int(v)}" for v in values)

@@ -1,17 +1,27 @@
-"""The pulser-receiver's Modbus register map, as data, and its value encodings.
+"""The pulser-receiver's Modbus registers: protocol constants, value encodings, and the typed
+register map that client and server share.
 
-The map is the contract between ``drivers.pulser.modbus`` (client) and
-``drivers.pulser.simulator`` (server); ``docs/protocols/pulser_modbus.md`` documents it in
-tables. Addresses here are the *protocol* addresses that travel in the PDU (0-based).
+The map itself is data, a TOML file: ``drivers/pulser/maps/ucal_pulser.toml`` is the map ucal
+defines (``docs/protocols/pulser_modbus.md`` documents it) and the default; another device
+needs another file, not code. ``drivers.pulser.map_file`` reads and validates a file into a
+:class:`RegisterMap` of :class:`Register`; ``drivers.pulser.modbus`` (client) and
+``drivers.pulser.simulator`` (server) both encode and decode through it, so they cannot
+disagree. Addresses are the *protocol* addresses that travel in the PDU (0-based).
 
 Encodings:
 
 - Every register is big-endian (high byte first), as Modbus prescribes.
-- 32-bit values (``uint32``, ``float32`` IEEE 754) occupy two consecutive registers, most
-  significant word first, at the lower address (:data:`WORD_ORDER` = ``"big"``, "ABCD"; the
-  same as pymodbus ``convert_to_registers(..., word_order="big")``). Client and server both
-  encode through the functions of this module, so they cannot disagree.
-- A-scan samples are ``int16`` two's complement; 32767 is full screen height (1.0).
+- 32-bit values (``uint32``, ``int32``, ``float32`` IEEE 754) occupy two consecutive registers;
+  the map says which comes first: ``"big"`` = most significant word at the lower address
+  ("ABCD", pymodbus ``convert_to_registers(..., word_order="big")``; ucal's own map),
+  ``"little"`` = least significant first ("CDAB").
+- ``int16``/``int32`` are two's complement; ``string`` is ASCII, two characters a register,
+  the first in the high byte, NUL padded.
+- A register's value in ucal's unit is ``raw / counts_per_unit`` (a map file states the
+  ``scale`` of one count in a unit of its choice; the loader turns it into counts per ucal
+  unit exactly).
+- A-scan samples are ``int16``; ``full_scale`` counts (32767 in ucal's map) are full screen
+  height (1.0).
 
 pymodbus datastores: ``ModbusDeviceContext`` adds 1 to the protocol address before it indexes
 its data blocks (protocol address N is served from block address N + 1). A block that must
@@ -24,14 +34,17 @@ from __future__ import annotations
 import enum
 import math
 import struct
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
 
 import numpy as np
 
 from drivers.pulser.base import PulserSettings
 
-#: Word order of every 32-bit value: most significant register first ("ABCD").
+#: Default word order of 32-bit values (a map file may choose another): most significant
+#: register first ("ABCD").
 WORD_ORDER = "big"
 #: pymodbus ``ModbusDeviceContext`` serves protocol address N from data-block address N + 1.
 DATASTORE_OFFSET = 1
@@ -39,20 +52,18 @@ DATASTORE_OFFSET = 1
 MAX_READ_REGISTERS = 125
 #: Most registers one write request (FC 16) may carry (Modbus application protocol §6.12).
 MAX_WRITE_REGISTERS = 123
+#: Registers in one Modbus table (protocol addresses 0 … 65535).
+TABLE_SIZE = 0x1_0000
 
-#: Identity register contents: ASCII "UP" (ultrasonic pulser) and the version of this map.
-DEVICE_MAGIC = 0x5550
-#: Version 2 adds the front-end settings (pulse voltage, damping, filters; holding registers
-#: 0x0009–0x000C) and the device information block (input registers 0x0002–0x000D) after the
-#: registers of version 1, whose addresses are unchanged.
-MAP_VERSION = 2
-#: Map versions the client talks to; a version-1 device has no front-end or device-info block.
-SUPPORTED_MAP_VERSIONS = (1, 2)
-
-#: Full-scale int16 A-scan sample (= 1.0 of full screen height).
+#: Full-scale int16 A-scan sample (= 1.0 of full screen height) of ucal's own map.
 ASCAN_FULL_SCALE = 32767
-#: Longest A-scan the device records, samples (327.68 µs at 100 MS/s).
+#: Longest A-scan a map may declare, samples (327.68 µs at 100 MS/s).
 ASCAN_MAX_SAMPLES = 32768
+#: Registers of the measurement block of ucal's own map (counter … TOF): what one reading
+#: costs on the wire (``ucal.timing``).
+MEASUREMENT_COUNT = 10
+#: Gate threshold of a freshly powered device, fraction of full screen height.
+DEFAULT_THRESHOLD = 0.02
 
 
 class FunctionCode(enum.IntEnum):
@@ -93,218 +104,640 @@ def exception_name(code: int) -> str:
 
 
 class Status(enum.IntFlag):
-    """Status bits of the measurement block (input register ``STATUS``)."""
+    """What a reading's status says (the map's ``status`` register places each on a bit)."""
 
     ECHO = 0x0001  #: an echo inside the gate crossed the threshold; TOF is valid
     SATURATED = 0x0002  #: the gated peak reached full screen (amplitude clipped at 1.0)
     GATE_ERROR = 0x0004  #: the gate ends after the pulse repetition period; no measurement
 
 
-class Command(enum.IntEnum):
-    """Values of the write-only ``COMMAND`` holding register (it always reads 0)."""
-
-    NONE = 0
-    TRIGGER = 1  #: acquire now (counter + 1)
-    CLEAR_COUNTER = 2  #: reset the reading counter and the measurement block to zero
+#: Names of the status bits in a map file (``bits``), and the flag each one sets.
+STATUS_BITS: dict[str, Status] = {
+    "echo": Status.ECHO,
+    "saturated": Status.SATURATED,
+    "gate_error": Status.GATE_ERROR,
+}
+#: Names of the command register's values in a map file (``values``); ``none`` is what it
+#: reads after a command ran.
+COMMANDS = ("none", "trigger", "clear_counter")
 
 
 # ---------------------------------------------------------------------------------------------
-# Holding registers (FC 3 read, FC 6 / FC 16 write)
+# What each register of a map means to ucal
 # ---------------------------------------------------------------------------------------------
-class Holding(enum.IntEnum):
-    """Holding-register addresses (protocol addresses, 0-based)."""
-
-    GAIN = 0x0000  #: uint16, 0.1 dB
-    PRF = 0x0001  #: uint16, Hz
-    GATE_START = 0x0002  #: uint32 (2 registers), ns of round-trip time
-    GATE_WIDTH = 0x0004  #: uint32 (2 registers), ns
-    AVERAGES = 0x0006  #: uint16, acquisitions averaged per reading
-    THRESHOLD = 0x0007  #: uint16, 0.1 % of full screen height
-    COMMAND = 0x0008  #: uint16, write-only, see :class:`Command`
-    PULSE_VOLTAGE = 0x0009  #: uint16, V (map version 2)
-    DAMPING = 0x000A  #: uint16, Ω (map version 2)
-    HIGH_PASS = 0x000B  #: uint16, 0.01 MHz (map version 2)
-    LOW_PASS = 0x000C  #: uint16, 0.01 MHz (map version 2)
-
-
-#: Number of holding registers (0x0000 … 0x000C).
-HOLDING_COUNT = 13
-#: The registers :func:`encode_settings` writes in one FC 16 request (GAIN … AVERAGES).
-SETTINGS_ADDRESS = Holding.GAIN
-SETTINGS_COUNT = 7
-#: The registers :func:`encode_front_end` writes in one FC 16 request (map version 2).
-FRONT_END_ADDRESS = Holding.PULSE_VOLTAGE
-FRONT_END_COUNT = 4
-
-
 @dataclass(frozen=True)
-class Setting:
-    """One declared setting: where it lives, its scaling, units and allowed range.
+class Quantity:
+    """What a register name of a map file means: ucal's name and unit for it, its dimension
+    (which units a map may state it in), and the group of requests it travels in."""
 
-    ``scale`` is register counts per user unit (0.1 dB → 10 counts per dB). User values are
-    validated against ``[minimum, maximum]`` (inclusive, in user units) and rounded to the
-    register resolution ``1 / scale``; out-of-range values raise, they are never clipped.
+    ucal_name: str  #: ucal's name (a ``PulserSettings`` field, or the reading's), in messages
+    dimension: str  #: a key of :data:`UNITS`, or "count", "code", "text", "samples"
+    unit: str  #: ucal's unit
+    group: str  #: settings, front_end, threshold, command, identity, info, measurement, ascan
+    required: bool = False
+
+
+#: Every register name a map may hold, with its meaning.
+QUANTITIES: dict[str, Quantity] = {
+    # holding registers the client writes
+    "gain": Quantity("gain_db", "gain", "dB", "settings", required=True),
+    "prf": Quantity("prf_hz", "frequency", "Hz", "settings", required=True),
+    "gate_start": Quantity("gate_start_us", "time", "µs", "settings", required=True),
+    "gate_width": Quantity("gate_width_us", "time", "µs", "settings", required=True),
+    "averages": Quantity("averages", "count", "", "settings"),
+    "pulse_voltage": Quantity("pulse_voltage_v", "voltage", "V", "front_end"),
+    "damping": Quantity("damping_ohm", "resistance", "Ω", "front_end"),
+    "high_pass": Quantity("high_pass_mhz", "frequency", "MHz", "front_end"),
+    "low_pass": Quantity("low_pass_mhz", "frequency", "MHz", "front_end"),
+    "threshold": Quantity("gate_threshold", "fraction", "FSH", "threshold"),
+    "command": Quantity("command", "code", "", "command"),
+    # what the client reads
+    "magic": Quantity("magic", "code", "", "identity"),
+    "map_version": Quantity("register_map_version", "code", "", "identity"),
+    "model": Quantity("model", "text", "", "info"),
+    "firmware_major": Quantity("firmware_major", "code", "", "info"),
+    "firmware_minor": Quantity("firmware_minor", "code", "", "info"),
+    "serial": Quantity("serial", "code", "", "info"),
+    "counter": Quantity("counter", "count", "", "measurement"),
+    "device_time": Quantity("device_time_ms", "time", "ms", "measurement"),
+    "status": Quantity("status", "code", "", "measurement"),
+    "amplitude": Quantity("amplitude", "fraction", "FSH", "measurement", required=True),
+    "tof": Quantity("tof_ns", "time", "ns", "measurement", required=True),
+    "ascan_counter": Quantity("ascan_counter", "count", "", "ascan"),
+    "ascan_length": Quantity("ascan_length", "count", "", "ascan"),
+    "ascan_rate": Quantity("sample_rate_hz", "frequency", "Hz", "ascan"),
+    "ascan_start": Quantity("ascan_start_ns", "time", "ns", "ascan"),
+    "ascan_samples": Quantity("samples", "samples", "FSH", "ascan"),
+}
+
+#: Units a map may state each dimension in: unit → its size in the dimension's base unit.
+UNITS: dict[str, dict[str, int | float]] = {
+    "gain": {"dB": 1},
+    "frequency": {"Hz": 1, "kHz": 1_000, "MHz": 1_000_000},
+    "time": {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "µs": 1_000, "ns": 1, "ps": 1e-3},
+    "voltage": {"V": 1, "kV": 1_000},
+    "resistance": {"ohm": 1, "Ω": 1},
+    "fraction": {"FSH": 1, "%": 1e-2},
+}
+
+#: The ``PulserSettings`` fields of the first configure request, and of the front end, by
+#: register name (register order of ucal's map).
+SETTINGS = ("gain", "prf", "gate_start", "gate_width", "averages")
+FRONT_END = ("pulse_voltage", "damping", "high_pass", "low_pass")
+#: The reading, the device information and the A-scan header, by register name.
+MEASUREMENT = ("counter", "device_time", "status", "amplitude", "tof")
+DEVICE_INFO = ("model", "firmware_major", "firmware_minor", "serial")
+ASCAN_HEADER = ("ascan_counter", "ascan_length", "ascan_rate", "ascan_start")
+
+#: Words of each value type (a string's come from its length).
+TYPE_WORDS = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
+#: Raw range of each integer type.
+TYPE_RANGE = {
+    "uint16": (0, 0xFFFF),
+    "int16": (-0x8000, 0x7FFF),
+    "uint32": (0, 0xFFFF_FFFF),
+    "int32": (-0x8000_0000, 0x7FFF_FFFF),
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# One register
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Register:
+    """One register (or run of registers) of a map: where it is, its type and scaling, what may
+    be written to it.
+
+    ``counts_per_unit`` is raw counts per *ucal* unit (0.1 dB → 10 counts per dB; a gate in
+    ns → 1000 counts per µs); ``minimum``/``maximum`` and ``values`` are in ucal units too.
+    User values are validated against them and rounded to the register resolution
+    ``1 / counts_per_unit``; out-of-range values raise, they are never clipped.
     """
 
-    name: str
+    name: str  #: the key in the map file, one of :data:`QUANTITIES`
+    table: str  #: "holding" (FC 3, 6, 16) or "input" (FC 4)
     address: int
-    words: int
-    scale: float
-    minimum: float
-    maximum: float
-    units: str
-    integer: bool = False
-    doc: str = ""
+    type: str  #: uint16, int16, uint32, int32, float32 or string
+    words: int = 1  #: registers it occupies
+    word_order: str = WORD_ORDER
+    counts_per_unit: float = 1.0
+    unit: str = ""  #: the unit the map file states it in (documentation)
+    access: str = "read"  #: "read", "write" or "read-write"
+    minimum: float | None = None
+    maximum: float | None = None
+    values: tuple[float, ...] | None = None  #: the only values the device takes
+    names: Mapping[str, int] = field(default_factory=dict)  #: command values, status bits
+    min_version: int | None = None  #: present from this map version on
+    full_scale: int = 0  #: A-scan samples: counts of full screen height
 
-    def to_raw(self, value: float) -> int:
-        """Validate a user value and return its raw register value (counts).
+    @property
+    def quantity(self) -> Quantity:
+        return QUANTITIES[self.name]
 
-        Raises ``ValueError`` naming the setting when the value is not a finite number, not an
-        integer where one is required, or outside ``[minimum, maximum]``.
+    @property
+    def ucal_name(self) -> str:
+        """ucal's name of the value (``gain_db``), as messages use it."""
+        return self.quantity.ucal_name
+
+    @property
+    def units(self) -> str:
+        """ucal's unit of the value (``dB``)."""
+        return self.quantity.unit
+
+    @property
+    def readable(self) -> bool:
+        return "read" in self.access
+
+    @property
+    def writable(self) -> bool:
+        return "write" in self.access
+
+    @property
+    def integer(self) -> bool:
+        """Whether the value itself must be a whole number (a count or a code)."""
+        return self.quantity.dimension in ("count", "code")
+
+    @property
+    def end(self) -> int:
+        """The address after its last register."""
+        return self.address + self.words
+
+    def where(self) -> str:
+        """``"holding 0x0002-0x0003"``: its table and addresses, for messages."""
+        last = f"-0x{self.end - 1:04X}" if self.words > 1 else ""
+        return f"{self.table} 0x{self.address:04X}{last}"
+
+    @cached_property
+    def _allowed_raw(self) -> frozenset[int | float] | None:
+        if self.values is None:
+            return None
+        return frozenset(self._scaled(v) for v in self.values)
+
+    def _scaled(self, value: float) -> int | float:
+        raw = float(value) * self.counts_per_unit
+        return raw if self.type == "float32" else round(raw)
+
+    def to_raw(self, value: float) -> int | float:
+        """Validate a user value (ucal unit) and return its raw register value.
+
+        Raises ``ValueError`` naming the value when it is not a finite number, not an integer
+        where one is required, outside ``[minimum, maximum]``, not one of ``values``, or too
+        large for the register's type.
         """
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
             # ValueError like every other invalid setting: callers catch one type
-            raise ValueError(f"{self.name} must be a number, got {value!r}")
+            raise ValueError(f"{self.ucal_name} must be a number, got {value!r}")
         v = float(value)
         if not math.isfinite(v):
-            raise ValueError(f"{self.name} must be finite, got {value!r}")
+            raise ValueError(f"{self.ucal_name} must be finite, got {value!r}")
         if self.integer and v != round(v):
-            raise ValueError(f"{self.name} must be an integer, got {value!r}")
-        if not self.minimum <= v <= self.maximum:
+            raise ValueError(f"{self.ucal_name} must be an integer, got {value!r}")
+        lo = -math.inf if self.minimum is None else self.minimum
+        hi = math.inf if self.maximum is None else self.maximum
+        if not lo <= v <= hi:
             raise ValueError(
-                f"{self.name} = {value!r} {self.units} is out of range "
-                f"[{self.minimum:g}, {self.maximum:g}] {self.units}"
+                f"{self.ucal_name} = {value!r} {self.units} is out of range "
+                f"[{lo:g}, {hi:g}] {self.units}"
             )
-        return round(v * self.scale)
+        raw = self._scaled(v)
+        allowed = self._allowed_raw
+        if allowed is not None and raw not in allowed:
+            assert self.values is not None
+            shown = ", ".join(f"{x:g}" for x in self.values)
+            unit = f" {self.units}" if self.units else ""
+            raise ValueError(
+                f"{self.ucal_name} = {value!r}{unit} is not one the device takes ({shown}{unit})"
+            )
+        if not self._fits(raw):
+            raise ValueError(
+                f"{self.ucal_name} = {value!r} {self.units} does not fit the {self.type} "
+                f"register at {self.where()}"
+            )
+        return raw
 
-    def from_raw(self, raw: int) -> float:
-        """Convert a raw register value (counts) to user units."""
-        return raw / self.scale
+    def from_raw(self, raw: float) -> float:
+        """Convert a raw register value to ucal's unit."""
+        return raw / self.counts_per_unit
 
-    def raw_ok(self, raw: int) -> bool:
-        """Tell whether a raw register value is inside the allowed range (server side)."""
-        return round(self.minimum * self.scale) <= raw <= round(self.maximum * self.scale)
+    def raw_ok(self, raw: float) -> bool:
+        """Tell whether a raw register value is allowed (server side: range and values)."""
+        if not (isinstance(raw, int) or math.isfinite(raw)):
+            return False
+        if self.minimum is not None and raw < self._scaled(self.minimum):
+            return False
+        if self.maximum is not None and raw > self._scaled(self.maximum):
+            return False
+        allowed = self._allowed_raw
+        return allowed is None or raw in allowed
 
-    def registers(self, raw: int) -> list[int]:
-        """Split a raw value into its ``words`` registers (:data:`WORD_ORDER`)."""
-        return [raw] if self.words == 1 else list(encode_uint32(raw))
+    def device_raw(self, value: float, wrap: bool = False) -> int | float:
+        """The raw value a device stores for a value it produced (ucal unit), unvalidated:
+        integer types round, then wrap (``wrap``: counters, clocks) or saturate at the type's
+        range; a NaN stores 0. A float32 keeps NaN."""
+        raw = float(value) * self.counts_per_unit
+        if self.type == "float32":
+            return raw
+        if not math.isfinite(raw):
+            return 0
+        lo, hi = TYPE_RANGE[self.type]
+        n = round(raw)
+        if wrap:
+            return (n - lo) % (hi - lo + 1) + lo
+        return min(max(n, lo), hi)
+
+    def _fits(self, raw: float) -> bool:
+        if self.type == "float32":
+            return abs(raw) <= float(np.finfo(np.float32).max)
+        lo, hi = TYPE_RANGE[self.type]
+        return lo <= raw <= hi
+
+    # -- words ---------------------------------------------------------------------------------
+    def encode(self, raw: Any) -> list[int]:
+        """The register words of a raw value (a str for ``string``), in address order."""
+        if self.type == "string":
+            return encode_string(raw, self.words)
+        if self.type == "float32":
+            return list(encode_float32(raw, self.word_order))
+        if not self._fits(raw):
+            raise ValueError(f"{self.name}: {raw!r} does not fit a {self.type}")
+        n = int(raw)
+        if self.words == 1:
+            return [n & 0xFFFF]
+        return list(encode_uint32(n & 0xFFFF_FFFF, self.word_order))
+
+    def decode(self, words: Sequence[int]) -> Any:
+        """The raw value of the register words read (address order); a str for ``string``."""
+        if len(words) != self.words:
+            raise ValueError(f"{self.name}: need {self.words} registers, got {len(words)}")
+        if self.type == "string":
+            return decode_string(words)
+        if self.type == "float32":
+            return decode_float32(words[0], words[1], self.word_order)
+        if self.words == 1:
+            raw = _check_register(words[0])
+        else:
+            raw = decode_uint32(words[0], words[1], self.word_order)
+        signed = self.type.startswith("int")
+        bits = 16 * self.words
+        return raw - (1 << bits) if signed and raw >= 1 << (bits - 1) else raw
+
+    def encode_value(self, value: float) -> list[int]:
+        """Validate a user value (ucal unit) and return its words (:meth:`to_raw`)."""
+        return self.encode(self.to_raw(value))
+
+    def decode_value(self, words: Sequence[int]) -> float:
+        """The value (ucal unit) of the words read."""
+        return self.from_raw(self.decode(words))
+
+    # -- codes ---------------------------------------------------------------------------------
+    def encode_status(self, status: Status) -> int:
+        """The raw status register of ``status`` (each flag on the map's bit)."""
+        return sum(
+            1 << self.names[n]
+            for n, flag in STATUS_BITS.items()
+            if n in self.names and flag in status
+        )
+
+    def decode_status(self, raw: int) -> Status:
+        """The flags a raw status register holds."""
+        out = Status(0)
+        for n, flag in STATUS_BITS.items():
+            if n in self.names and (int(raw) >> self.names[n]) & 1:
+                out |= flag
+        return out
 
 
-GAIN = Setting(
-    "gain_db", Holding.GAIN, 1, 10.0, 0.0, 80.0, "dB", doc="Receiver gain, 0.1 dB resolution."
-)
-PRF = Setting(
-    "prf_hz",
-    Holding.PRF,
-    1,
-    1.0,
-    1.0,
-    20000.0,
-    "Hz",
-    doc="Pulse repetition frequency, 1 Hz resolution.",
-)
-GATE_START = Setting(
-    "gate_start_us",
-    Holding.GATE_START,
-    2,
-    1000.0,
-    0.0,
-    1000.0,
-    "µs",
-    doc="Gate start, round-trip time after the transmit pulse, 1 ns resolution.",
-)
-GATE_WIDTH = Setting(
-    "gate_width_us",
-    Holding.GATE_WIDTH,
-    2,
-    1000.0,
-    0.1,
-    1000.0,
-    "µs",
-    doc="Gate width, 1 ns resolution.",
-)
-AVERAGES = Setting(
-    "averages",
-    Holding.AVERAGES,
-    1,
-    1.0,
-    1.0,
-    1024.0,
-    "",
-    integer=True,
-    doc="Acquisitions averaged into one reading.",
-)
-THRESHOLD = Setting(
-    "gate_threshold",
-    Holding.THRESHOLD,
-    1,
-    1000.0,
-    0.0,
-    1.0,
-    "FSH",
-    doc="Gate threshold as a fraction of full screen height, 0.1 % resolution.",
-)
-COMMAND = Setting(
-    "command",
-    Holding.COMMAND,
-    1,
-    1.0,
-    0.0,
-    float(max(Command)),
-    "",
-    integer=True,
-    doc="Write-only command, see Command.",
-)
+# ---------------------------------------------------------------------------------------------
+# Values of blocks that travel together
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Measurement:
+    """One reading as the device reports it (``MEASUREMENT`` registers).
 
-PULSE_VOLTAGE = Setting(
-    "pulse_voltage_v",
-    Holding.PULSE_VOLTAGE,
-    1,
-    1.0,
-    10.0,
-    500.0,
-    "V",
-    doc="Pulse voltage (sets the pulse energy), 1 V resolution.",
-)
-DAMPING = Setting(
-    "damping_ohm",
-    Holding.DAMPING,
-    1,
-    1.0,
-    10.0,
-    2000.0,
-    "Ω",
-    doc="Damping resistance across the transducer, 1 Ω resolution.",
-)
-HIGH_PASS = Setting(
-    "high_pass_mhz",
-    Holding.HIGH_PASS,
-    1,
-    100.0,
-    0.0,
-    100.0,
-    "MHz",
-    doc="Receiver high-pass cut-off (0 = DC coupled), 0.01 MHz resolution.",
-)
-LOW_PASS = Setting(
-    "low_pass_mhz",
-    Holding.LOW_PASS,
-    1,
-    100.0,
-    0.1,
-    500.0,
-    "MHz",
-    doc="Receiver low-pass cut-off, 0.01 MHz resolution.",
-)
+    ``counter`` and ``device_time_ms`` are None when the map has no such register.
+    """
 
-#: The settings of :class:`PulserSettings` in the first block (map version 1), register order.
-SETTINGS: tuple[Setting, ...] = (GAIN, PRF, GATE_START, GATE_WIDTH, AVERAGES)
-#: The front-end settings of :class:`PulserSettings` (map version 2), register order.
-FRONT_END_SETTINGS: tuple[Setting, ...] = (PULSE_VOLTAGE, DAMPING, HIGH_PASS, LOW_PASS)
-#: Every holding-register setting, in register order.
-HOLDING_SETTINGS: tuple[Setting, ...] = SETTINGS + (THRESHOLD, COMMAND) + FRONT_END_SETTINGS
-#: Gate threshold of a freshly powered device, fraction of full screen height.
-DEFAULT_THRESHOLD = 0.02
+    counter: int | None  #: reading counter, +1 per acquisition, wraps with its type
+    device_time_ms: float | None  #: device clock at acquisition, ms
+    status: Status  #: status bits
+    amplitude: float  #: gated peak, fraction of full screen height
+    tof_ns: float  #: round-trip time of flight, ns; NaN without echo
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """What the device tells about itself (``DEVICE_INFO`` registers); None where the map has
+    no register for it."""
+
+    model: str | None  #: ASCII
+    firmware: tuple[int, int] | None  #: (major, minor)
+    serial: int | None
+
+    @property
+    def firmware_version(self) -> str:
+        """The firmware version as ``"major.minor"``."""
+        return "" if self.firmware is None else f"{self.firmware[0]}.{self.firmware[1]}"
+
+
+@dataclass(frozen=True)
+class AScanHeader:
+    """The A-scan header (``ASCAN_HEADER`` registers)."""
+
+    counter: int | None  #: counter of the acquisition the samples belong to
+    length: int  #: number of samples
+    sample_rate_hz: float  #: sample rate, Hz
+    start_ns: float  #: time of sample 0, ns of round-trip time
+
+
+# ---------------------------------------------------------------------------------------------
+# The map
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RegisterMap:
+    """A device's register map: its registers by name, and how requests group them.
+
+    Build it with ``drivers.pulser.map_file.load_register_map`` (or ``shipped_map``). A
+    request may span every address the map declares — its registers' and the ``reserved``
+    ones ``(table, address, count)`` — so the client reads a block in one request where the
+    device has one, and never touches an address the map does not declare.
+    """
+
+    name: str
+    registers: Mapping[str, Register]
+    reserved: tuple[tuple[str, int, int], ...] = ()
+    source: str = ""  #: the file it was read from
+
+    def __getitem__(self, name: str) -> Register:
+        return self.registers[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.registers
+
+    def get(self, name: str) -> Register | None:
+        return self.registers.get(name)
+
+    def __str__(self) -> str:
+        return f"{self.name} ({self.source})" if self.source else self.name
+
+    # -- addresses -----------------------------------------------------------------------------
+    @cached_property
+    def _declared(self) -> dict[str, frozenset[int]]:
+        out: dict[str, set[int]] = {"holding": set(), "input": set()}
+        for r in self.registers.values():
+            out[r.table].update(range(r.address, r.end))
+        for table, address, count in self.reserved:
+            out[table].update(range(address, address + count))
+        return {t: frozenset(a) for t, a in out.items()}
+
+    def declared(self, table: str, address: int, count: int = 1) -> bool:
+        """Whether every address of ``[address, address + count)`` of ``table`` is declared."""
+        addresses = self._declared[table]
+        return count > 0 and all(a in addresses for a in range(address, address + count))
+
+    def span(self, table: str) -> int:
+        """The address after the last declared one of ``table`` (0 if none)."""
+        addresses = self._declared[table]
+        return max(addresses) + 1 if addresses else 0
+
+    def present(self, names: Iterable[str], version: int | None = None) -> list[Register]:
+        """The registers of ``names`` the map has, on a device reporting ``version`` (None: the
+        device's version is not known; every register counts)."""
+        out = []
+        for n in names:
+            r = self.registers.get(n)
+            if r is not None and (version is None or (r.min_version or 0) <= version):
+                out.append(r)
+        return out
+
+    def read_requests(self, registers: Iterable[Register]) -> list[tuple[str, int, int]]:
+        """The reads ``(table, address, count)`` that fetch ``registers``: neighbours share a
+        request when every address between them is declared and it stays within
+        :data:`MAX_READ_REGISTERS`. Ordered by table ("holding" first) and address."""
+        requests: list[tuple[str, int, int]] = []
+        for r in sorted(registers, key=lambda r: (r.table, r.address)):
+            if requests:
+                table, start, count = requests[-1]
+                end = start + count
+                if (
+                    r.table == table
+                    and r.end - start <= MAX_READ_REGISTERS
+                    and (r.address <= end or self.declared(table, end, r.address - end))
+                ):
+                    requests[-1] = (table, start, max(end, r.end) - start)
+                    continue
+            requests.append((r.table, r.address, r.words))
+        return requests
+
+    @staticmethod
+    def write_requests(
+        entries: Iterable[tuple[Register, list[int]]],
+    ) -> list[tuple[int, list[int]]]:
+        """The writes ``(address, words)`` (FC 16) of holding registers and their words:
+        registers that follow each other without a gap share a request of at most
+        :data:`MAX_WRITE_REGISTERS`."""
+        requests: list[tuple[int, list[int]]] = []
+        for r, words in sorted(entries, key=lambda e: e[0].address):
+            if requests:
+                start, prev = requests[-1]
+                if start + len(prev) == r.address and len(prev) + len(words) <= MAX_WRITE_REGISTERS:
+                    prev.extend(words)
+                    continue
+            requests.append((r.address, list(words)))
+        return requests
+
+    @staticmethod
+    def pick(
+        registers: Iterable[Register],
+        requests: Iterable[tuple[str, int, int]],
+        words: Sequence[Sequence[int]],
+    ) -> dict[str, list[int]]:
+        """Each register's words out of the answers ``words`` to ``requests``."""
+        out: dict[str, list[int]] = {}
+        for r in registers:
+            for (table, start, count), got in zip(requests, words, strict=True):
+                if r.table == table and start <= r.address and r.end <= start + count:
+                    out[r.name] = list(got[r.address - start : r.end - start])
+                    break
+        return out
+
+    # -- groups --------------------------------------------------------------------------------
+    @property
+    def versions(self) -> tuple[int, ...]:
+        """The map versions a device may report (``map_version``'s values); () if it has none."""
+        r = self.registers.get("map_version")
+        return () if r is None or r.values is None else tuple(int(v) for v in r.values)
+
+    @property
+    def measurement_trigger(self) -> Register:
+        """The reading's register the client reads first: a read of it is an acquisition."""
+        return self._first(MEASUREMENT)
+
+    @property
+    def ascan_trigger(self) -> Register | None:
+        """The A-scan header's register the client reads first (it freezes the A-scan)."""
+        return self._first(ASCAN_HEADER) if "ascan_samples" in self.registers else None
+
+    def _first(self, names: Sequence[str]) -> Register:
+        return min(self.present(names), key=lambda r: (r.table, r.address))
+
+    # -- settings ------------------------------------------------------------------------------
+    def encode_settings(
+        self, settings: PulserSettings, names: Sequence[str]
+    ) -> list[tuple[Register, list[int]]]:
+        """Validate the ``names`` settings of ``settings``; return each register and its words.
+
+        A setting the map has no register for may only keep its default. Raises ``ValueError``
+        naming the first invalid setting; nothing is clipped.
+        """
+        default = PulserSettings()
+        out: list[tuple[Register, list[int]]] = []
+        for n in names:
+            name = QUANTITIES[n].ucal_name
+            value = getattr(settings, name)
+            r = self.registers.get(n)
+            if r is None:
+                if value != getattr(default, name):
+                    raise ValueError(
+                        f"{name} = {value!r} cannot be set: the register map {self} has no "
+                        f"{n} register (only the default, {getattr(default, name)!r})"
+                    )
+                continue
+            out.append((r, r.encode_value(value)))
+        if "gate_width" in names:
+            check_gate(settings)
+        by_name = {r.name: r.decode_value(w) for r, w in out}
+        band = ("high_pass", "low_pass")
+        if all(n in by_name for n in band) and by_name["low_pass"] <= by_name["high_pass"]:
+            raise ValueError(
+                f"low_pass_mhz = {settings.low_pass_mhz:g} MHz must be above "
+                f"high_pass_mhz = {settings.high_pass_mhz:g} MHz"
+            )
+        return out
+
+    def decode_settings(self, words: Mapping[str, Sequence[int]]) -> PulserSettings:
+        """``PulserSettings`` from the words of the setting registers read (by register name);
+        a setting not read keeps its default."""
+        values: dict[str, Any] = {}
+        for n in SETTINGS + FRONT_END:
+            if n in words:
+                values[QUANTITIES[n].ucal_name] = self.registers[n].decode_value(words[n])
+        if "averages" in values:
+            values["averages"] = int(values["averages"])
+        return PulserSettings(**values)
+
+    def power_on(self) -> list[tuple[Register, list[int]]]:
+        """The holding registers of a freshly powered device: the ``PulserSettings`` defaults,
+        :data:`DEFAULT_THRESHOLD` and no command."""
+        default = PulserSettings()
+        out = [
+            (r, r.encode(_nearest_raw(r, getattr(default, r.ucal_name))))
+            for r in self.present(SETTINGS + FRONT_END)
+        ]
+        threshold = self.registers.get("threshold")
+        if threshold is not None:
+            out.append((threshold, threshold.encode(_nearest_raw(threshold, DEFAULT_THRESHOLD))))
+        command = self.registers.get("command")
+        if command is not None:
+            out.append((command, command.encode(command.names["none"])))
+        return out
+
+    # -- readings ------------------------------------------------------------------------------
+    def encode_measurement(self, m: Measurement) -> list[tuple[Register, list[int]]]:
+        """The words of a reading in the registers the map has (server side)."""
+        out = []
+        for r in self.present(MEASUREMENT):
+            if r.name == "status":
+                raw: int | float = r.encode_status(m.status)
+            else:
+                value = {
+                    "counter": m.counter,
+                    "device_time": m.device_time_ms,
+                    "amplitude": m.amplitude,
+                    "tof": m.tof_ns,
+                }[r.name]
+                raw = r.device_raw(
+                    0.0 if value is None else value, wrap=r.name in ("counter", "device_time")
+                )
+            out.append((r, r.encode(raw)))
+        return out
+
+    def decode_measurement(self, words: Mapping[str, Sequence[int]]) -> Measurement:
+        """A reading from the words of its registers. Without a ``status`` register a finite
+        TOF is an echo and a full-screen amplitude is saturated."""
+        amplitude = self["amplitude"].decode_value(words["amplitude"])
+        tof_ns = self["tof"].decode_value(words["tof"])
+        if "status" in words:
+            status = self["status"].decode_status(self["status"].decode(words["status"]))
+        else:
+            status = Status(0)
+            if math.isfinite(tof_ns):
+                status |= Status.ECHO
+            if amplitude >= 1.0:
+                status |= Status.SATURATED
+        counter = self["counter"].decode(words["counter"]) if "counter" in words else None
+        device_time = (
+            self["device_time"].decode_value(words["device_time"])
+            if "device_time" in words
+            else None
+        )
+        return Measurement(counter, device_time, status, amplitude, tof_ns)
+
+    def encode_device_info(self, info: DeviceInfo) -> list[tuple[Register, list[int]]]:
+        """The words of the device information in the registers the map has (server side)."""
+        values: dict[str, Any] = {
+            "model": info.model or "",
+            "firmware_major": info.firmware[0] if info.firmware else 0,
+            "firmware_minor": info.firmware[1] if info.firmware else 0,
+            "serial": info.serial or 0,
+        }
+        return [(r, r.encode(values[r.name])) for r in self.present(DEVICE_INFO)]
+
+    def decode_device_info(self, words: Mapping[str, Sequence[int]]) -> DeviceInfo:
+        """The device information from the words of its registers (None where not read)."""
+
+        def get(n: str) -> Any:
+            return self[n].decode(words[n]) if n in words else None
+
+        major, minor = get("firmware_major"), get("firmware_minor")
+        firmware = None if major is None and minor is None else (major or 0, minor or 0)
+        return DeviceInfo(model=get("model"), firmware=firmware, serial=get("serial"))
+
+    def encode_ascan_header(self, h: AScanHeader) -> list[tuple[Register, list[int]]]:
+        """The words of an A-scan header in the registers the map has (server side)."""
+        values = {
+            "ascan_counter": h.counter or 0,
+            "ascan_length": h.length,
+            "ascan_rate": h.sample_rate_hz,
+            "ascan_start": h.start_ns,
+        }
+        return [
+            (r, r.encode(r.device_raw(values[r.name], wrap=r.name == "ascan_counter")))
+            for r in self.present(ASCAN_HEADER)
+        ]
+
+    def decode_ascan_header(self, words: Mapping[str, Sequence[int]]) -> AScanHeader:
+        """An A-scan header from the words of its registers."""
+        counter = (
+            self["ascan_counter"].decode(words["ascan_counter"])
+            if "ascan_counter" in words
+            else None
+        )
+        return AScanHeader(
+            counter=counter,
+            length=int(self["ascan_length"].decode_value(words["ascan_length"])),
+            sample_rate_hz=self["ascan_rate"].decode_value(words["ascan_rate"]),
+            start_ns=self["ascan_start"].decode_value(words["ascan_start"]),
+        )
+
+
+def _nearest_raw(r: Register, value: float) -> int | float:
+    """The raw value of ``value``, or of the allowed value nearest to it when the device's range
+    leaves it out (a power-on state must exist whatever ucal's defaults are)."""
+    try:
+        return r.to_raw(value)
+    except ValueError:
+        allowed = r.values or [x for x in (r.minimum, r.maximum) if x is not None] or [0.0]
+        return r.device_raw(min(allowed, key=lambda x: abs(x - value)))
 
 
 def check_gate(settings: PulserSettings) -> None:
@@ -322,220 +755,6 @@ def check_gate(settings: PulserSettings) -> None:
         )
 
 
-def encode_settings(settings: PulserSettings) -> list[int]:
-    """Validate ``settings`` and return the :data:`SETTINGS_COUNT` registers from ``GAIN``.
-
-    Raises ``ValueError`` naming the first invalid setting; nothing is clipped.
-    """
-    registers: list[int] = []
-    for s in SETTINGS:
-        registers += s.registers(s.to_raw(getattr(settings, s.name)))
-    check_gate(settings)
-    return registers
-
-
-def encode_front_end(settings: PulserSettings) -> list[int]:
-    """Validate the front-end settings; return the :data:`FRONT_END_COUNT` registers from
-    ``PULSE_VOLTAGE`` (map version 2). Raises ``ValueError`` naming the first invalid one."""
-    registers: list[int] = []
-    for s in FRONT_END_SETTINGS:
-        registers += s.registers(s.to_raw(getattr(settings, s.name)))
-    if registers[-1] <= registers[-2]:  # the band after rounding to 0.01 MHz
-        raise ValueError(
-            f"low_pass_mhz = {settings.low_pass_mhz:g} MHz must be above "
-            f"high_pass_mhz = {settings.high_pass_mhz:g} MHz"
-        )
-    return registers
-
-
-def front_end_is_default(settings: PulserSettings) -> bool:
-    """Tell whether the front-end settings are the defaults (what a version-1 map implies)."""
-    default = PulserSettings()
-    return all(getattr(settings, s.name) == getattr(default, s.name) for s in FRONT_END_SETTINGS)
-
-
-def decode_settings(registers: Sequence[int]) -> PulserSettings:
-    """Decode holding registers read from ``GAIN`` into :class:`PulserSettings`.
-
-    The first :data:`SETTINGS_COUNT` registers are required; the front-end settings are decoded
-    when the registers reach ``LOW_PASS`` (a map-version-2 read), else they keep their defaults.
-    """
-    if len(registers) < SETTINGS_COUNT:
-        raise ValueError(f"need {SETTINGS_COUNT} registers, got {len(registers)}")
-    values: dict[str, float] = {}
-    settings = SETTINGS
-    if len(registers) >= FRONT_END_ADDRESS + FRONT_END_COUNT - SETTINGS_ADDRESS:
-        settings = SETTINGS + FRONT_END_SETTINGS
-    for s in settings:
-        i = s.address - SETTINGS_ADDRESS
-        raw = registers[i] if s.words == 1 else decode_uint32(registers[i], registers[i + 1])
-        values[s.name] = s.from_raw(raw)
-    values["averages"] = int(values["averages"])
-    return PulserSettings(**values)  # type: ignore[arg-type]
-
-
-def power_on_holding() -> list[int]:
-    """The :data:`HOLDING_COUNT` holding registers of a freshly powered device: the
-    :class:`PulserSettings` defaults, :data:`DEFAULT_THRESHOLD` and no command."""
-    defaults = PulserSettings()
-    return (
-        encode_settings(defaults)
-        + [THRESHOLD.to_raw(DEFAULT_THRESHOLD), int(Command.NONE)]
-        + encode_front_end(defaults)
-    )
-
-
-# ---------------------------------------------------------------------------------------------
-# Input registers (FC 4, read-only)
-# ---------------------------------------------------------------------------------------------
-class Input(enum.IntEnum):
-    """Input-register addresses (protocol addresses, 0-based)."""
-
-    MAGIC = 0x0000  #: uint16, :data:`DEVICE_MAGIC`
-    MAP_VERSION = 0x0001  #: uint16, :data:`MAP_VERSION`
-    MODEL = 0x0002  #: 16 bytes ASCII, NUL padded (8 registers, map version 2)
-    FIRMWARE = 0x000A  #: uint16 major, uint16 minor (map version 2)
-    SERIAL = 0x000C  #: uint32 serial number (map version 2)
-    COUNTER = 0x0010  #: uint32, reading counter (+1 per acquisition, wraps at 2**32)
-    DEVICE_TIME = 0x0012  #: uint32, device clock at acquisition, ms (wraps after 49.7 days)
-    STATUS = 0x0014  #: uint16, :class:`Status` bits
-    AMPLITUDE = 0x0016  #: float32, gated peak amplitude, fraction of full screen height
-    TOF = 0x0018  #: float32, round-trip time of flight at the peak, ns; NaN = no echo
-    ASCAN_COUNTER = 0x0100  #: uint32, counter of the acquisition the A-scan belongs to
-    ASCAN_LENGTH = 0x0102  #: uint16, number of samples (0 … ASCAN_MAX_SAMPLES)
-    ASCAN_RATE = 0x0104  #: float32, sample rate, Hz
-    ASCAN_START = 0x0106  #: uint32, time of sample 0 (= gate start), ns
-    ASCAN_SAMPLES = 0x0200  #: int16 × ASCAN_MAX_SAMPLES, 32767 = full screen height
-
-
-IDENTITY_ADDRESS = Input.MAGIC
-IDENTITY_COUNT = 2
-DEVICE_INFO_ADDRESS = Input.MODEL
-DEVICE_INFO_COUNT = 12
-#: Bytes of the model name (2 per register).
-MODEL_BYTES = 16
-MEASUREMENT_ADDRESS = Input.COUNTER
-MEASUREMENT_COUNT = 10
-ASCAN_HEADER_ADDRESS = Input.ASCAN_COUNTER
-ASCAN_HEADER_COUNT = 8
-
-#: Readable input-register ranges ``(first, count)``; a read must lie inside one of them.
-INPUT_RANGES: tuple[tuple[int, int], ...] = (
-    (IDENTITY_ADDRESS, IDENTITY_COUNT),
-    (DEVICE_INFO_ADDRESS, DEVICE_INFO_COUNT),
-    (MEASUREMENT_ADDRESS, MEASUREMENT_COUNT),
-    (ASCAN_HEADER_ADDRESS, ASCAN_HEADER_COUNT),
-    (Input.ASCAN_SAMPLES, ASCAN_MAX_SAMPLES),
-)
-#: Size of an input-register image that covers every range (protocol addresses 0 … end - 1).
-INPUT_SPAN = Input.ASCAN_SAMPLES + ASCAN_MAX_SAMPLES
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """The measurement block, ``MEASUREMENT_COUNT`` input registers from ``COUNTER``."""
-
-    counter: int  #: reading counter, uint32
-    device_time_ms: int  #: device clock at acquisition, ms, uint32
-    status: Status  #: status bits
-    amplitude: float  #: gated peak, fraction of full screen height (float32)
-    tof_ns: float  #: round-trip time of flight, ns (float32), NaN without echo
-
-    def to_registers(self) -> list[int]:
-        """Encode into registers: counter, time, status, reserved 0, amplitude, tof."""
-        return [
-            *encode_uint32(self.counter),
-            *encode_uint32(self.device_time_ms),
-            int(self.status) & 0xFFFF,
-            0,  # reserved: keeps the float32 pairs on even addresses
-            *encode_float32(self.amplitude),
-            *encode_float32(self.tof_ns),
-        ]
-
-    @classmethod
-    def from_registers(cls, registers: Sequence[int]) -> Measurement:
-        """Decode ``MEASUREMENT_COUNT`` registers read from ``COUNTER``."""
-        if len(registers) != MEASUREMENT_COUNT:
-            raise ValueError(f"need {MEASUREMENT_COUNT} registers, got {len(registers)}")
-        r = list(registers)
-        return cls(
-            counter=decode_uint32(r[0], r[1]),
-            device_time_ms=decode_uint32(r[2], r[3]),
-            status=Status(r[4] & int(Status.ECHO | Status.SATURATED | Status.GATE_ERROR)),
-            amplitude=decode_float32(r[6], r[7]),
-            tof_ns=decode_float32(r[8], r[9]),
-        )
-
-
-@dataclass(frozen=True)
-class DeviceInfo:
-    """The device information block, ``DEVICE_INFO_COUNT`` input registers from ``MODEL``."""
-
-    model: str  #: ASCII, at most :data:`MODEL_BYTES` characters
-    firmware: tuple[int, int]  #: (major, minor)
-    serial: int  #: uint32
-
-    def to_registers(self) -> list[int]:
-        """Encode into registers: model (NUL padded, 2 bytes per register, high byte first),
-        firmware major, minor, serial (uint32)."""
-        raw = self.model.encode("ascii")
-        if len(raw) > MODEL_BYTES:
-            raise ValueError(f"model name {self.model!r} is longer than {MODEL_BYTES} bytes")
-        raw = raw.ljust(MODEL_BYTES, b"\0")
-        words = [int.from_bytes(raw[i : i + 2], "big") for i in range(0, MODEL_BYTES, 2)]
-        major, minor = self.firmware
-        return [*words, _check_register(major), _check_register(minor), *encode_uint32(self.serial)]
-
-    @classmethod
-    def from_registers(cls, registers: Sequence[int]) -> DeviceInfo:
-        """Decode ``DEVICE_INFO_COUNT`` registers read from ``MODEL``."""
-        if len(registers) != DEVICE_INFO_COUNT:
-            raise ValueError(f"need {DEVICE_INFO_COUNT} registers, got {len(registers)}")
-        r = list(registers)
-        n = MODEL_BYTES // 2
-        raw = b"".join(_check_register(w).to_bytes(2, "big") for w in r[:n])
-        model = raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
-        return cls(model=model, firmware=(r[n], r[n + 1]), serial=decode_uint32(r[n + 2], r[n + 3]))
-
-    @property
-    def firmware_version(self) -> str:
-        """The firmware version as ``"major.minor"``."""
-        return f"{self.firmware[0]}.{self.firmware[1]}"
-
-
-@dataclass(frozen=True)
-class AScanHeader:
-    """The A-scan header, ``ASCAN_HEADER_COUNT`` input registers from ``ASCAN_COUNTER``."""
-
-    counter: int  #: counter of the acquisition the samples belong to
-    length: int  #: number of samples
-    sample_rate_hz: float  #: sample rate, Hz (float32)
-    start_ns: int  #: time of sample 0, ns of round-trip time
-
-    def to_registers(self) -> list[int]:
-        """Encode into registers: counter, length, reserved 0, rate, start."""
-        return [
-            *encode_uint32(self.counter),
-            self.length & 0xFFFF,
-            0,  # reserved
-            *encode_float32(self.sample_rate_hz),
-            *encode_uint32(self.start_ns),
-        ]
-
-    @classmethod
-    def from_registers(cls, registers: Sequence[int]) -> AScanHeader:
-        """Decode ``ASCAN_HEADER_COUNT`` registers read from ``ASCAN_COUNTER``."""
-        if len(registers) != ASCAN_HEADER_COUNT:
-            raise ValueError(f"need {ASCAN_HEADER_COUNT} registers, got {len(registers)}")
-        r = list(registers)
-        return cls(
-            counter=decode_uint32(r[0], r[1]),
-            length=r[2],
-            sample_rate_hz=decode_float32(r[4], r[5]),
-            start_ns=decode_uint32(r[6], r[7]),
-        )
-
-
 # ---------------------------------------------------------------------------------------------
 # Value encodings
 # ---------------------------------------------------------------------------------------------
@@ -545,46 +764,62 @@ def _check_register(value: int) -> int:
     return value
 
 
-def encode_uint32(value: int) -> tuple[int, int]:
-    """Split an unsigned 32-bit integer into two registers, :data:`WORD_ORDER` first."""
+def encode_uint32(value: int, word_order: str = WORD_ORDER) -> tuple[int, int]:
+    """Split an unsigned 32-bit integer into two registers, in ``word_order``."""
     if not 0 <= int(value) <= 0xFFFF_FFFF:
         raise ValueError(f"{value!r} does not fit in a uint32")
     hi, lo = divmod(int(value), 0x1_0000)
-    return (hi, lo) if WORD_ORDER == "big" else (lo, hi)
+    return (hi, lo) if word_order == "big" else (lo, hi)
 
 
-def decode_uint32(first: int, second: int) -> int:
+def decode_uint32(first: int, second: int, word_order: str = WORD_ORDER) -> int:
     """Join two registers (in address order) into an unsigned 32-bit integer."""
-    hi, lo = (first, second) if WORD_ORDER == "big" else (second, first)
+    hi, lo = (first, second) if word_order == "big" else (second, first)
     return (_check_register(hi) << 16) | _check_register(lo)
 
 
-def encode_float32(value: float) -> tuple[int, int]:
-    """Encode an IEEE 754 float32 into two registers, :data:`WORD_ORDER` first.
+def encode_float32(value: float, word_order: str = WORD_ORDER) -> tuple[int, int]:
+    """Encode an IEEE 754 float32 into two registers, in ``word_order``.
 
     Values are rounded to the nearest float32; finite values beyond the float32 range raise
     ``OverflowError``; NaN and ±inf are kept.
     """
     raw = struct.unpack(">I", struct.pack(">f", float(value)))[0]
-    return encode_uint32(raw)
+    return encode_uint32(raw, word_order)
 
 
-def decode_float32(first: int, second: int) -> float:
+def decode_float32(first: int, second: int, word_order: str = WORD_ORDER) -> float:
     """Decode two registers (in address order) holding an IEEE 754 float32."""
-    raw = decode_uint32(first, second)
+    raw = decode_uint32(first, second, word_order)
     return struct.unpack(">f", struct.pack(">I", raw))[0]
 
 
-def encode_samples(samples: np.ndarray) -> list[int]:
+def encode_string(text: str, words: int) -> list[int]:
+    """ASCII ``text`` in ``words`` registers (two characters each, the first in the high byte,
+    NUL padded); ``ValueError`` if it is longer."""
+    raw = text.encode("ascii")
+    if len(raw) > 2 * words:
+        raise ValueError(f"{text!r} is longer than {2 * words} bytes")
+    raw = raw.ljust(2 * words, b"\0")
+    return [int.from_bytes(raw[i : i + 2], "big") for i in range(0, 2 * words, 2)]
+
+
+def decode_string(registers: Sequence[int]) -> str:
+    """The ASCII text of registers (up to the first NUL)."""
+    raw = b"".join(_check_register(w).to_bytes(2, "big") for w in registers)
+    return raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
+
+
+def encode_samples(samples: np.ndarray, full_scale: int = ASCAN_FULL_SCALE) -> list[int]:
     """Encode normalised samples (1.0 = full screen) as int16 registers, saturating at ±1.0.
 
     Saturation here is the receiver's ADC clipping a too-strong signal, not input validation.
     """
-    counts = np.rint(np.clip(np.asarray(samples, float), -1.0, 1.0) * ASCAN_FULL_SCALE)
+    counts = np.rint(np.clip(np.asarray(samples, float), -1.0, 1.0) * full_scale)
     return (counts.astype(np.int16).view(np.uint16)).astype(int).tolist()
 
 
-def decode_samples(registers: Sequence[int]) -> np.ndarray:
+def decode_samples(registers: Sequence[int], full_scale: int = ASCAN_FULL_SCALE) -> np.ndarray:
     """Decode int16 registers into normalised samples (float64, 1.0 = full screen)."""
     raw = np.asarray(registers, dtype=np.uint16).view(np.int16)
-    return raw.astype(float) / ASCAN_FULL_SCALE
+    return raw.astype(float) / full_scale

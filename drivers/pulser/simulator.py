@@ -1,15 +1,21 @@
-"""A simulated pulser-receiver that speaks the real register map over Modbus TCP or RTU framing.
+"""A simulated pulser-receiver that serves a register map over Modbus TCP or RTU framing.
+
+It serves whatever map it is given (``drivers.pulser.map_file``; ucal's own by default), so a
+simulated cell can stand in for a device with another map.
 
 The echo itself is injected: ``model(settings) -> (amplitude, tof_ns)`` gives the amplitude as a
 fraction of full screen height and the round-trip time of flight in ns (NaN = no echo) at the
 instant of the call, noise included. This module only plays the device: it applies the gate
 and threshold, counts acquisitions, time-stamps them, and synthesises an A-scan.
 
-Acquisition policy (deterministic): every read of the measurement block (input registers
-``COUNTER`` … ``TOF``) is one new acquisition — ``model`` is called once, the counter advances
-by one and the device clock is sampled — and the read returns it. So ``read_gate(fresh=True)``
-costs one round trip. The ``TRIGGER`` command acquires too. Reading the A-scan header freezes
-the A-scan of the latest acquisition (acquiring first if there was none).
+Acquisition policy (deterministic): every read of the measurement block — a read that holds
+the map's ``measurement_trigger``, the reading's register the client reads first — is one new
+acquisition: ``model`` is called once, the counter advances by one and the device clock is
+sampled, and the read returns it. So ``read_gate(fresh=True)`` costs one round trip. The
+``trigger`` command acquires too. Reading the A-scan header (its ``ascan_trigger``) freezes the
+A-scan of the latest acquisition (acquiring first if there was none). A read or write of an
+address the map does not declare is refused (illegal data address), a written value outside
+the register's range or values too (illegal data value).
 
 The server (pymodbus ``ModbusTcpServer``, framer ``SOCKET`` or ``RTU``) runs on 127.0.0.1 in a
 background thread with its own asyncio loop. Faults for tests: :meth:`SimulatedPulser.set_silent`
@@ -26,7 +32,9 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
 from typing import Any, Self
 
 import numpy as np
@@ -41,6 +49,7 @@ from pymodbus.server import ModbusTcpServer
 
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.map_file import load_register_map, shipped_map
 from drivers.pulser.urls import format_rtu_url, format_tcp_url
 
 log = logging.getLogger(__name__)
@@ -51,7 +60,7 @@ PulserModel = Callable[[PulserSettings], tuple[float, float]]
 #: −6 dB bandwidth of the simulated transducer, as a fraction of its centre frequency.
 FRACTIONAL_BANDWIDTH = 0.6
 #: What the simulated device reports in its device information block.
-DEVICE_INFO = reg.DeviceInfo(model="ucal simulated", firmware=(reg.MAP_VERSION, 0), serial=1)
+DEVICE_INFO = reg.DeviceInfo(model="ucal simulated", firmware=(2, 0), serial=1)
 #: Longest wait for the server thread to start listening or to stop, s.
 START_TIMEOUT_S = 5.0
 STOP_TIMEOUT_S = 5.0
@@ -59,6 +68,8 @@ STOP_TIMEOUT_S = 5.0
 _FC_READ_HOLDING = int(reg.FunctionCode.READ_HOLDING_REGISTERS)
 _FC_READ_INPUT = int(reg.FunctionCode.READ_INPUT_REGISTERS)
 _FC_WRITE_SINGLE = int(reg.FunctionCode.WRITE_SINGLE_REGISTER)
+#: The function code the datastore files each table under.
+_FC_TABLE = {"holding": _FC_READ_HOLDING, "input": _FC_READ_INPUT}
 
 
 def gaussian_pulse(
@@ -90,9 +101,10 @@ class _PulserContext(ModbusDeviceContext):
     """
 
     def __init__(self, device: SimulatedPulser):
+        spans = {t: max(device.register_map.span(t), 1) for t in ("holding", "input")}
         super().__init__(
-            hr=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * reg.HOLDING_COUNT),
-            ir=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * reg.INPUT_SPAN),
+            hr=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * spans["holding"]),
+            ir=ModbusSequentialDataBlock(reg.DATASTORE_OFFSET, [0] * spans["input"]),
         )
         self._device = device
 
@@ -113,7 +125,8 @@ class SimulatedPulser:
     ``framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU frames over a TCP stream,
     reached through pyserial's ``socket://``). ``port`` 0 picks a free port; :attr:`url` tells
     it after :meth:`start`. ``center_frequency_hz`` and ``sample_rate_hz`` shape the A-scan.
-    Nothing is opened before :meth:`start`.
+    ``register_map`` is the map served (a ``RegisterMap`` or a map file; None: ucal's own); the
+    device reports the highest version it lists. Nothing is opened before :meth:`start`.
     """
 
     def __init__(
@@ -125,7 +138,14 @@ class SimulatedPulser:
         unit: int = 1,
         center_frequency_hz: float = 25e6,
         sample_rate_hz: float = 100e6,
+        register_map: reg.RegisterMap | str | Path | None = None,
     ):
+        if register_map is None:
+            register_map = shipped_map()
+        elif not isinstance(register_map, reg.RegisterMap):
+            register_map = load_register_map(register_map)
+        self.register_map = register_map
+        self._version = max(register_map.versions) if register_map.versions else None
         if not callable(model):
             raise TypeError("model must be callable: model(settings) -> (amplitude, tof_ns)")
         if framing not in ("tcp", "rtu"):
@@ -266,28 +286,46 @@ class SimulatedPulser:
     def gate_threshold(self) -> float:
         """The gate threshold, fraction of full screen height."""
         with self._lock:
-            return reg.THRESHOLD.from_raw(self._holding()[reg.Holding.THRESHOLD])
+            return self._threshold(self._holding())
 
     # --- the device -------------------------------------------------------------------------
     def _holding(self) -> list[int]:
-        values = self._context.getValues(_FC_READ_HOLDING, 0, reg.HOLDING_COUNT)
+        values = self._context.getValues(_FC_READ_HOLDING, 0, self.register_map.span("holding"))
         assert isinstance(values, list)  # the whole holding block: never an exception code
         return list(values)
 
-    def _settings(self) -> PulserSettings:
-        return reg.decode_settings(self._holding())
+    def _settings(self, holding: Sequence[int] | None = None) -> PulserSettings:
+        image = self._holding() if holding is None else holding
+        present = self.register_map.present(reg.SETTINGS + reg.FRONT_END, self._version)
+        return self.register_map.decode_settings(
+            {r.name: image[r.address : r.end] for r in present}
+        )
+
+    def _threshold(self, holding: Sequence[int]) -> float:
+        r = self.register_map.get("threshold")
+        return reg.DEFAULT_THRESHOLD if r is None else r.decode_value(holding[r.address : r.end])
+
+    def _put(self, entries: list[tuple[reg.Register, list[int]]]) -> None:
+        """Store registers' words in their tables."""
+        for r, words in entries:
+            self._context.setValues(_FC_TABLE[r.table], r.address, words)
 
     def _reset_registers(self) -> None:
         """Power-on state: default settings and threshold, zeroed measurement, identity."""
-        self._context.setValues(_FC_READ_HOLDING, 0, reg.power_on_holding())
-        self._context.setValues(
-            _FC_READ_INPUT, reg.IDENTITY_ADDRESS, [reg.DEVICE_MAGIC, reg.MAP_VERSION]
-        )
-        self._context.setValues(_FC_READ_INPUT, reg.DEVICE_INFO_ADDRESS, DEVICE_INFO.to_registers())
+        m = self.register_map
+        self._put(m.power_on())
+        magic, version, model = m.get("magic"), m.get("map_version"), m.get("model")
+        if magic is not None and magic.values:
+            self._put([(magic, magic.encode(int(magic.values[0])))])
+        if version is not None:
+            self._put([(version, version.encode(self._version or 0))])
+        name = DEVICE_INFO.model or ""
+        info = DEVICE_INFO if model is None else replace(DEVICE_INFO, model=name[: 2 * model.words])
+        self._put(m.encode_device_info(info))
         self._store_measurement(reg.Measurement(0, 0, reg.Status(0), 0.0, float("nan")))
 
     def _store_measurement(self, m: reg.Measurement) -> None:
-        self._context.setValues(_FC_READ_INPUT, reg.MEASUREMENT_ADDRESS, m.to_registers())
+        self._put(self.register_map.encode_measurement(m))
 
     def _get(self, func_code: int, address: int, count: int) -> list[int] | list[bool] | ExcCodes:
         """Serve a read (protocol address, server thread)."""
@@ -296,19 +334,19 @@ class SimulatedPulser:
                 return self._exception
             if func_code == _FC_WRITE_SINGLE:  # pymodbus reads back the register to echo it
                 return list(self._fc6_echo)
-            table = self._context.decode(func_code)
-            if table == "h":
-                if address < 0 or address + count > reg.HOLDING_COUNT:
-                    return ExcCodes.ILLEGAL_ADDRESS
-                return self._context.getValues(func_code, address, count)
-            if table != "i":
+            table = {"h": "holding", "i": "input"}.get(self._context.decode(func_code))
+            if table is None:
                 return ExcCodes.ILLEGAL_FUNCTION
-            block = _input_range(address, count)
-            if block is None:
+            m = self.register_map
+            if address < 0 or not m.declared(table, address, count):
                 return ExcCodes.ILLEGAL_ADDRESS
-            if block == reg.MEASUREMENT_ADDRESS and not self._acquire():
+
+            def holds(r: reg.Register | None) -> bool:
+                return r is not None and r.table == table and address <= r.address < address + count
+
+            if holds(m.measurement_trigger) and not self._acquire():
                 return ExcCodes.DEVICE_FAILURE
-            if block == reg.ASCAN_HEADER_ADDRESS and not self._freeze_ascan():
+            if holds(m.ascan_trigger) and not self._freeze_ascan():
                 return ExcCodes.DEVICE_FAILURE
             return self._context.getValues(func_code, address, count)
 
@@ -319,37 +357,47 @@ class SimulatedPulser:
                 return self._exception
             if self._context.decode(func_code) != "h":
                 return ExcCodes.ILLEGAL_FUNCTION
-            if address < 0 or address + len(values) > reg.HOLDING_COUNT:
+            m = self.register_map
+            if address < 0 or not m.declared("holding", address, len(values)):
                 return ExcCodes.ILLEGAL_ADDRESS
             image = self._holding()
             image[address : address + len(values)] = [int(v) for v in values]
-            for s in reg.HOLDING_SETTINGS:
-                if s.address + s.words <= address or s.address >= address + len(values):
+            for r in m.registers.values():
+                if r.table != "holding" or r.end <= address or r.address >= address + len(values):
                     continue  # not written
-                raw = (
-                    image[s.address]
-                    if s.words == 1
-                    else reg.decode_uint32(image[s.address], image[s.address + 1])
-                )
-                if not s.raw_ok(raw):
-                    log.debug("simulated pulser: rejected %s raw %d", s.name, raw)
+                if not r.writable:
+                    return ExcCodes.ILLEGAL_ADDRESS
+                raw = r.decode(image[r.address : r.end])
+                if not r.raw_ok(raw):
+                    log.debug("simulated pulser: rejected %s raw %r", r.name, raw)
                     return ExcCodes.ILLEGAL_VALUE
-            command = reg.Command(image[reg.Holding.COMMAND])
-            image[reg.Holding.COMMAND] = int(reg.Command.NONE)  # write-only: reads 0
+            try:
+                self._settings(image)
+            except ValueError as exc:  # each register in range, together meaningless
+                log.debug("simulated pulser: rejected settings: %s", exc)
+                return ExcCodes.ILLEGAL_VALUE
+            command = "none"
+            command_register = m.get("command")
+            if command_register is not None:
+                c = command_register
+                raw = c.decode(image[c.address : c.end])
+                command = next(name for name, v in c.names.items() if v == raw)
+                image[c.address : c.end] = c.encode(c.names["none"])  # write-only: reads none
             self._context.setValues(_FC_READ_HOLDING, 0, image)
             if func_code == _FC_WRITE_SINGLE:
                 self._fc6_echo = [int(v) for v in values]
-            if command == reg.Command.TRIGGER and not self._acquire():
+            if command == "trigger" and not self._acquire():
                 return ExcCodes.DEVICE_FAILURE
-            if command == reg.Command.CLEAR_COUNTER:
+            if command == "clear_counter":
                 self._counter = 0
                 self._store_measurement(reg.Measurement(0, 0, reg.Status(0), 0.0, float("nan")))
             return None
 
     def _acquire(self) -> bool:
         """One acquisition: call the model once, gate it, store the measurement block."""
-        settings = self._settings()
-        threshold = reg.THRESHOLD.from_raw(self._holding()[reg.Holding.THRESHOLD])
+        holding = self._holding()
+        settings = self._settings(holding)
+        threshold = self._threshold(holding)
         try:
             reg.check_gate(settings)
         except ValueError:
@@ -394,10 +442,11 @@ class SimulatedPulser:
             return False
         settings = self._settings()
         start_ns = round(settings.gate_start_us * 1e3)
+        samples = self.register_map["ascan_samples"]
         try:
             reg.check_gate(settings)
             n = round(settings.gate_width_us * 1e-6 * self.sample_rate_hz) + 1
-            n = min(n, reg.ASCAN_MAX_SAMPLES)
+            n = min(n, samples.words)
         except ValueError:
             n = 0
         time_ns = start_ns + np.arange(n) * (1e9 / self.sample_rate_hz)
@@ -407,11 +456,9 @@ class SimulatedPulser:
         else:
             wave = np.zeros(n)
         header = reg.AScanHeader(self._counter, n, self.sample_rate_hz, start_ns)
-        self._context.setValues(_FC_READ_INPUT, reg.ASCAN_HEADER_ADDRESS, header.to_registers())
+        self._put(self.register_map.encode_ascan_header(header))
         if n:
-            self._context.setValues(
-                _FC_READ_INPUT, reg.Input.ASCAN_SAMPLES, reg.encode_samples(wave)
-            )
+            self._put([(samples, reg.encode_samples(wave, samples.full_scale))])
         return True
 
     # --- server thread ----------------------------------------------------------------------
@@ -464,14 +511,6 @@ class SimulatedPulser:
             await self._stopping.wait()
         finally:
             await server.shutdown()
-
-
-def _input_range(address: int, count: int) -> int | None:
-    """Return the first address of the input range that holds the whole read, or None."""
-    for first, size in reg.INPUT_RANGES:
-        if first <= address and address + count <= first + size:
-            return first
-    return None
 
 
 def _is_loopback(host: str) -> bool:

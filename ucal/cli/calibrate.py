@@ -237,7 +237,9 @@ def _replay(
     """
     record = read_record(record_path)
     profile = profile_from_data(
-        tomlkit.parse(record.profile_text), f"{record_path} (recorded profile)"
+        tomlkit.parse(record.profile_text),
+        f"{record_path} (recorded profile)",
+        base_dir=profile_path.parent,
     )
     if record.result is None:
         log.warning("%s has no end line: the recorded run was cut off", record_path)

@@ -26,6 +26,7 @@ import numpy as np
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.controller.simulator import SimulatedController
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.registers import RegisterMap
 from drivers.pulser.simulator import SimulatedPulser
 from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
@@ -113,6 +114,7 @@ class SimulatedCellServer:
                 port=0,
                 unit=1,
                 center_frequency_hz=self.world.frequency_mhz * 1e6,
+                register_map=self.register_map,
             )
             self.pulser.start()
             self._t0 = self.clock.now()
@@ -142,6 +144,13 @@ class SimulatedCellServer:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    @property
+    def register_map(self) -> RegisterMap | None:
+        """The register map the simulated pulser serves: the world's, else the profile's (None:
+        ucal's own)."""
+        world = self.world.pulser.register_map
+        return world if world is not None else self.profile.pulser.register_map
 
     @property
     def urls(self) -> dict[str, str]:

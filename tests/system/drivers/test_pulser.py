@@ -377,12 +377,12 @@ def test_device_rejects_raw_out_of_range_writes_and_flags_gate_errors(
         raw = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=TIMEOUT_S, retries=0)
         try:
             assert raw.connect()
-            refused = raw.write_registers(reg.Holding.GAIN, [801], device_id=1)
+            refused = raw.write_registers(0x0000, [801], device_id=1)  # gain 80.1 dB
             assert refused.isError() and refused.exception_code == 3  # illegal data value
-            refused = raw.read_input_registers(reg.Input.COUNTER, count=12, device_id=1)
+            refused = raw.read_input_registers(0x0010, count=12, device_id=1)  # counter …
             assert refused.isError() and refused.exception_code == 2  # spans past the block
             # each register is valid, but the 205 µs gate outlasts the 50 µs pulse period
-            assert not raw.write_registers(reg.Holding.PRF, [20_000], device_id=1).isError()
+            assert not raw.write_registers(0x0001, [20_000], device_id=1).isError()  # PRF
         finally:
             raw.close()
         pulser = make_pulser(sim.url)

@@ -7,11 +7,20 @@ import pytest
 
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.map_file import shipped_map
 from drivers.pulser.modbus import ModbusPulser
 
 from doubles import ScriptedPort, crc16_modbus
 
 h = bytes.fromhex
+MAP = shipped_map()
+
+
+def encode_front_end(settings: PulserSettings) -> list[int]:
+    ((address, words),) = MAP.write_requests(MAP.encode_settings(settings, reg.FRONT_END))
+    assert address == 9
+    return words
+
 
 IDENTIFY = h("01 04 00 00 00 02 71 CB")
 IDENTIFY_V1 = h("01 04 04 55 50 00 01 2B 99")
@@ -97,60 +106,48 @@ def test_an_empty_filter_band_raises() -> None:
 )
 def test_register_ranges_raise_and_never_clip(field: str, value: float, message: str) -> None:
     with pytest.raises(ValueError, match=message):
-        reg.encode_front_end(PulserSettings(**{field: value}))
+        encode_front_end(PulserSettings(**{field: value}))
 
 
 def test_a_band_that_rounds_to_nothing_raises() -> None:
     with pytest.raises(ValueError, match="low_pass_mhz"):
-        reg.encode_front_end(PulserSettings(high_pass_mhz=10.001, low_pass_mhz=10.004))
+        encode_front_end(PulserSettings(high_pass_mhz=10.001, low_pass_mhz=10.004))
 
 
 # --- register map -------------------------------------------------------------------------------
 def test_existing_addresses_are_unchanged_and_new_ones_follow() -> None:
-    assert [
-        int(a)
-        for a in (
-            reg.Holding.GAIN,
-            reg.Holding.PRF,
-            reg.Holding.GATE_START,
-            reg.Holding.GATE_WIDTH,
-            reg.Holding.AVERAGES,
-            reg.Holding.THRESHOLD,
-            reg.Holding.COMMAND,
-        )
-    ] == [0, 1, 2, 4, 6, 7, 8]
-    assert [
-        int(a)
-        for a in (
-            reg.Holding.PULSE_VOLTAGE,
-            reg.Holding.DAMPING,
-            reg.Holding.HIGH_PASS,
-            reg.Holding.LOW_PASS,
-        )
-    ] == [9, 10, 11, 12]
-    assert reg.SETTINGS_COUNT == 7 and reg.HOLDING_COUNT == 13
-    assert int(reg.Input.MODEL) == 2 and int(reg.Input.COUNTER) == 0x10
+    old = ("gain", "prf", "gate_start", "gate_width", "averages", "threshold", "command")
+    assert [MAP[n].address for n in old] == [0, 1, 2, 4, 6, 7, 8]
+    assert {MAP[n].min_version for n in old} == {None}
+    assert [MAP[n].address for n in reg.FRONT_END] == [9, 10, 11, 12]
+    assert {MAP[n].min_version for n in reg.FRONT_END} == {2}
+    assert MAP.span("holding") == 13
+    assert MAP["model"].address == 2 and MAP["counter"].address == 0x10
 
 
 def test_front_end_registers_round_trip() -> None:
     wanted = PulserSettings(
         pulse_voltage_v=200.0, damping_ohm=100.0, high_pass_mhz=5.0, low_pass_mhz=35.5
     )
-    regs = reg.power_on_holding()[: reg.FRONT_END_ADDRESS] + reg.encode_front_end(wanted)
-    assert reg.encode_front_end(wanted) == [200, 100, 500, 3550]
-    assert reg.decode_settings(regs) == wanted
+    assert encode_front_end(wanted) == [200, 100, 500, 3550]
+    words = {r.name: w for r, w in MAP.power_on() if r.name in reg.SETTINGS}
+    words |= {r.name: w for r, w in MAP.encode_settings(wanted, reg.FRONT_END)}
+    assert MAP.decode_settings(words) == wanted
 
 
 def test_a_version_1_read_keeps_the_front_end_defaults() -> None:
-    assert reg.decode_settings(reg.power_on_holding()[: reg.SETTINGS_COUNT]) == PulserSettings()
+    words = {r.name: w for r, w in MAP.power_on() if r in MAP.present(reg.SETTINGS, version=1)}
+    assert set(words) == set(reg.SETTINGS)
+    assert MAP.decode_settings(words) == PulserSettings()
 
 
 def test_device_info_round_trips_and_refuses_long_names() -> None:
     info = reg.DeviceInfo("UP-1000", (2, 3), 4242)
-    assert reg.DeviceInfo.from_registers(info.to_registers()) == info
+    entries = MAP.encode_device_info(info)
+    assert MAP.decode_device_info({r.name: w for r, w in entries}) == info
     assert info.firmware_version == "2.3"
     with pytest.raises(ValueError, match="longer than 16"):
-        reg.DeviceInfo("x" * 17, (1, 0), 1).to_registers()
+        MAP.encode_device_info(reg.DeviceInfo("x" * 17, (1, 0), 1))
 
 
 @pytest.mark.parametrize("frame", FRAMES)

@@ -1,4 +1,5 @@
-"""The pulser register map: encodings, word order, declared settings and their validators."""
+"""The pulser register map: encodings, word order, declared settings and their validators, on
+ucal's own map (the shipped map file)."""
 
 from __future__ import annotations
 
@@ -16,8 +17,33 @@ from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock
 
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.map_file import shipped_map
 
 float32s = st.floats(width=32, allow_nan=True, allow_infinity=True)
+MAP = shipped_map()
+
+
+def encode_settings(settings: PulserSettings) -> list[int]:
+    """The words of the first configure request (gain … averages)."""
+    ((address, words),) = MAP.write_requests(MAP.encode_settings(settings, reg.SETTINGS))
+    assert address == 0
+    return words
+
+
+def decode_settings(words: list[int]) -> PulserSettings:
+    """Settings from holding registers read from address 0."""
+    present = MAP.present(reg.SETTINGS + reg.FRONT_END)
+    return MAP.decode_settings(
+        {r.name: words[r.address : r.end] for r in present if r.end <= len(words)}
+    )
+
+
+def image(entries: list[tuple[reg.Register, list[int]]], start: int, count: int) -> list[int]:
+    """The registers ``start … start + count - 1`` holding ``entries`` (0 elsewhere)."""
+    out = [0] * count
+    for r, words in entries:
+        out[r.address - start : r.end - start] = words
+    return out
 
 
 # --- float32 / uint32 pairs ---------------------------------------------------------------------
@@ -54,7 +80,9 @@ def test_word_order_agrees_with_pymodbus_big_word_order(value: float) -> None:
 )
 def test_float32_most_significant_word_first(value: float, registers: tuple[int, int]) -> None:
     assert reg.WORD_ORDER == "big"
+    assert {r.word_order for r in MAP.registers.values() if r.words == 2} == {"big"}
     assert reg.encode_float32(value) == registers
+    assert reg.encode_float32(value, "little") == registers[::-1]
 
 
 def test_float32_nan_survives() -> None:
@@ -66,6 +94,8 @@ def test_uint32_pair_round_trips(value: int) -> None:
     hi, lo = reg.encode_uint32(value)
     assert (hi << 16) | lo == value
     assert reg.decode_uint32(hi, lo) == value
+    assert reg.encode_uint32(value, "little") == (lo, hi)
+    assert reg.decode_uint32(lo, hi, "little") == value
 
 
 @pytest.mark.parametrize("value", [-1, 0x1_0000_0000])
@@ -82,8 +112,7 @@ def test_decode_rejects_a_register_that_is_not_uint16() -> None:
 # --- settings -----------------------------------------------------------------------------------
 def test_default_settings_registers() -> None:
     # gain 20.0 dB = 200, 1000 Hz, gate start 5000 ns, width 200000 ns = 0x0003_0D40, 1 average
-    assert reg.encode_settings(PulserSettings()) == [200, 1000, 0, 5000, 3, 0x0D40, 1]
-    assert len(reg.encode_settings(PulserSettings())) == reg.SETTINGS_COUNT
+    assert encode_settings(PulserSettings()) == [200, 1000, 0, 5000, 3, 0x0D40, 1]
 
 
 @given(
@@ -104,13 +133,13 @@ def test_settings_on_the_register_grid_round_trip(
         averages=averages,
     )
     try:
-        registers = reg.encode_settings(settings)
+        registers = encode_settings(settings)
     except ValueError as exc:
         # only the cross-check of gate end against the pulse period may refuse grid values
         assert "pulse repetition period" in str(exc)
         assert (start + width) / 1000 > 1e6 / prf
         return
-    assert reg.decode_settings(registers) == settings
+    assert decode_settings(registers) == settings
 
 
 @pytest.mark.parametrize(
@@ -134,47 +163,49 @@ def test_out_of_range_setting_raises_naming_it(field: str, value: float) -> None
     values = {"prf_hz": 100.0}  # a long pulse period, so only the tested field can be wrong
     values[field] = value
     with pytest.raises(ValueError, match=field):
-        reg.encode_settings(PulserSettings(**values))
+        encode_settings(PulserSettings(**values))
 
 
 def test_validator_does_not_clip() -> None:
     with pytest.raises(ValueError, match=r"gain_db = 80\.01 dB is out of range \[0, 80\] dB"):
-        reg.GAIN.to_raw(80.01)
-    assert reg.GAIN.to_raw(80.0) == 800
+        MAP["gain"].to_raw(80.01)
+    assert MAP["gain"].to_raw(80.0) == 800
 
 
 def test_non_number_setting_raises() -> None:
     with pytest.raises(ValueError, match="averages"):
-        reg.AVERAGES.to_raw(True)
+        MAP["averages"].to_raw(True)
     with pytest.raises(ValueError, match="gain_db"):
-        reg.GAIN.to_raw("20")  # type: ignore[arg-type]
+        MAP["gain"].to_raw("20")  # type: ignore[arg-type]
 
 
 def test_gate_ending_after_the_pulse_period_raises() -> None:
     settings = PulserSettings(prf_hz=20000, gate_start_us=5.0, gate_width_us=46.0)
     with pytest.raises(ValueError, match=r"gate_width_us.*51 µs.*50 µs"):
-        reg.encode_settings(settings)
-    reg.encode_settings(PulserSettings(prf_hz=20000, gate_start_us=5.0, gate_width_us=45.0))
+        encode_settings(settings)
+    encode_settings(PulserSettings(prf_hz=20000, gate_start_us=5.0, gate_width_us=45.0))
 
 
 def test_values_are_rounded_to_the_register_resolution() -> None:
-    assert reg.GAIN.to_raw(20.04) == 200
-    assert reg.GATE_START.to_raw(5.0004) == 5000
-    assert reg.THRESHOLD.to_raw(0.02) == 20
+    assert MAP["gain"].to_raw(20.04) == 200
+    assert MAP["gate_start"].to_raw(5.0004) == 5000
+    assert MAP["threshold"].to_raw(0.02) == 20
 
 
 def test_device_side_raw_range_matches_user_range() -> None:
-    assert reg.GAIN.raw_ok(800) and not reg.GAIN.raw_ok(801)
-    assert reg.GATE_WIDTH.raw_ok(100) and not reg.GATE_WIDTH.raw_ok(99)
-    assert reg.PRF.raw_ok(1) and not reg.PRF.raw_ok(0)
-    assert reg.COMMAND.raw_ok(int(reg.Command.CLEAR_COUNTER)) and not reg.COMMAND.raw_ok(3)
+    assert MAP["gain"].raw_ok(800) and not MAP["gain"].raw_ok(801)
+    assert MAP["gate_width"].raw_ok(100) and not MAP["gate_width"].raw_ok(99)
+    assert MAP["prf"].raw_ok(1) and not MAP["prf"].raw_ok(0)
+    command = MAP["command"]
+    assert command.raw_ok(command.names["clear_counter"]) and not command.raw_ok(3)
 
 
 def test_holding_map_is_contiguous_and_without_overlap() -> None:
     used: list[int] = []
-    for s in reg.HOLDING_SETTINGS:
-        used += range(s.address, s.address + s.words)
-    assert used == list(range(reg.HOLDING_COUNT))
+    for r in sorted(MAP.registers.values(), key=lambda r: r.address):
+        if r.table == "holding":
+            used += range(r.address, r.end)
+    assert used == list(range(13))
 
 
 # --- measurement and A-scan blocks --------------------------------------------------------------
@@ -189,9 +220,8 @@ def test_measurement_block_round_trips(
     counter: int, time_ms: int, status: int, amplitude: float, tof: float
 ) -> None:
     m = reg.Measurement(counter, time_ms, reg.Status(status), amplitude, tof)
-    registers = m.to_registers()
-    assert len(registers) == reg.MEASUREMENT_COUNT
-    back = reg.Measurement.from_registers(registers)
+    entries = MAP.encode_measurement(m)
+    back = MAP.decode_measurement({r.name: words for r, words in entries})
     assert (back.counter, back.device_time_ms, back.status) == (counter, time_ms, status)
     assert back.amplitude == amplitude
     assert back.tof_ns == tof or (math.isnan(back.tof_ns) and math.isnan(tof))
@@ -199,13 +229,19 @@ def test_measurement_block_round_trips(
 
 def test_measurement_layout() -> None:
     m = reg.Measurement(0x0001_0002, 1234, reg.Status.ECHO | reg.Status.SATURATED, 1.0, 40000.0)
-    assert m.to_registers() == [1, 2, 0, 1234, 3, 0, 0x3F80, 0, 0x471C, 0x4000]
-    assert reg.Input.TOF - reg.MEASUREMENT_ADDRESS == 8
+    assert MAP.read_requests(MAP.present(reg.MEASUREMENT)) == [("input", 0x10, 10)]
+    assert image(MAP.encode_measurement(m), 0x10, 10) == [
+        1, 2, 0, 1234, 3, 0, 0x3F80, 0, 0x471C, 0x4000
+    ]  # fmt: skip
+    assert MAP["tof"].address - MAP["counter"].address == 8
+    assert reg.MEASUREMENT_COUNT == 10  # what ucal.timing charges for a reading
 
 
 def test_ascan_header_round_trips() -> None:
     header = reg.AScanHeader(counter=9, length=2001, sample_rate_hz=100e6, start_ns=30_000)
-    assert reg.AScanHeader.from_registers(header.to_registers()) == header
+    entries = MAP.encode_ascan_header(header)
+    assert image(entries, 0x100, 8) == [0, 9, 2001, 0, *reg.encode_float32(100e6), 0, 30_000]
+    assert MAP.decode_ascan_header({r.name: words for r, words in entries}) == header
 
 
 def test_samples_are_int16_with_full_scale_32767_and_saturate() -> None:
@@ -214,11 +250,15 @@ def test_samples_are_int16_with_full_scale_32767_and_saturate() -> None:
     assert np.allclose(reg.decode_samples(registers), [0, 1, -1, 16384 / 32767, 1, -1])
 
 
-def test_input_ranges_do_not_overlap_and_fit_the_image() -> None:
-    spans = sorted(reg.INPUT_RANGES)
-    for (a, n), (b, _) in itertools.pairwise(spans):
+def test_input_blocks_do_not_overlap_and_fit_the_image() -> None:
+    blocks = sorted(
+        MAP.read_requests(MAP.present(names))[0][1:]
+        for names in (("magic", "map_version"), reg.DEVICE_INFO, reg.MEASUREMENT, reg.ASCAN_HEADER)
+    )
+    assert blocks == [(0, 2), (2, 12), (0x10, 10), (0x100, 8)]
+    for (a, n), (b, _) in itertools.pairwise(blocks):
         assert a + n <= b
-    assert spans[-1][0] + spans[-1][1] == reg.INPUT_SPAN <= 0x1_0000
+    assert MAP.span("input") == 0x200 + reg.ASCAN_MAX_SAMPLES <= 0x1_0000
 
 
 def test_exception_names() -> None:
