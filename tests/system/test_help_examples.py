@@ -18,9 +18,12 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from ucal.echo import build_reference
 from ucal.profile import default_profile_text, load_profile
+from ucal.sim.ascan import Digitiser, TransducerPulse, echo_shape, gate_around, synthesise
 from ucal.sim.serve import SimulatedCellServer
 
 from doubles import terminal_typed
@@ -39,6 +42,7 @@ COMMANDS = [
     ["calibrate"],
     ["tool-frame"],
     ["verify"],
+    ["echo"],
 ]
 MOVING = {"calibrate", "tool-frame", "verify"}
 
@@ -78,6 +82,26 @@ def add_files(d: Path) -> None:
     (d / "scan.csv").write_text(
         "X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n", encoding="utf-8"
     )
+    # A-scans and a reference echo (``ucal echo``): a 10 MHz echo at 100 MS/s, 40 dB
+    shape = echo_shape(TransducerPulse(10.0), Digitiser(100.0))
+    t0, n = gate_around(shape, 67_000.0, noise_samples=64)
+    records = synthesise(
+        shape,
+        np.random.default_rng(0),
+        t0_ns=t0,
+        n_samples=n,
+        arrival_ns=[67_000.0, 67_000.4, 67_001.9],
+        amplitude=0.5,
+        noise_rms=0.005,
+    )
+    ref = build_reference(records[:1])
+    for name, t_ns, columns in (
+        ("scans.csv", records[0].t_ns, [r.samples for r in records]),
+        ("ref.csv", ref.t0_ns + ref.dt_ns * np.arange(ref.n), [ref.samples]),
+    ):
+        rows = np.column_stack([t_ns, *columns])
+        header = ",".join(["t_ns", *(f"a{i}" for i in range(len(columns)))])
+        np.savetxt(d / name, rows, delimiter=",", header=header, comments="", fmt="%.6f")
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=lambda c: " ".join(c) or "ucal")

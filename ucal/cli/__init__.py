@@ -34,6 +34,7 @@ COMMANDS = {
     "tool-frame": "tool_frame",
     "verify": "verify",
     "status": "status",
+    "echo": "echo",
 }
 
 

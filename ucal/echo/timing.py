@@ -1,0 +1,386 @@
+"""Time of flight and amplitude of an echo in one A-scan, with the std the reading deserves.
+
+Model. The record holds ``x_n = A·r(t_n − τ) + w_n`` (n = 0…N−1, sample interval Δt): the
+reference echo ``r`` (``ReferenceEcho``, band-limited, arrival at t = 0) delayed by τ and
+scaled by A, in white Gaussian noise ``w`` of variance σ².
+
+Cramér–Rao bound. The log-likelihood is ``−Σ (x_n − A·r(t_n − τ))² / 2σ²``, whose Fisher
+information is
+
+    I_ττ = (A²/σ²)·Σ r'(t_n − τ)²,   I_AA = Σ r(t_n − τ)² / σ²,   I_Aτ = −(A/σ²)·Σ r·r' = 0
+
+(the cross term vanishes for an echo wholly inside the record: ∫ r·r' dt = [r²/2] = 0), so
+``var τ̂ ≥ σ² / (A²·Σ r'²)``. For a band-limited echo sampled above Nyquist, Parseval turns the
+sums into integrals, ``Σ r² = (1/Δt)·∫|R(f)|² df`` and ``Σ r'² = (1/Δt)·(2π)²·∫ f²|R(f)|² df``,
+so ``Σ r'² = (2πβ)²·Σ r²`` with β the RMS (Gabor) bandwidth about 0 Hz,
+
+    β² = ∫ f²·|R(f)|² df / ∫ |R(f)|² df = f_c² + B²
+
+(f_c the power-weighted centre frequency, B the RMS width about it), and
+
+    σ_τ ≥ 1 / (2π·β·√SNR_eff),   SNR_eff = A²·Σ r² / σ² = 2E/N0
+
+(E the echo's energy, N0/2 = σ²·Δt the noise's two-sided spectral density). This is the bound
+of an estimator that follows the carrier's phase; it holds above the ambiguity threshold,
+where no correlation peak a cycle away can win (SNR_eff well above (f_c/B)²). The envelope
+alone carries only B: its bound is f_c/B times larger, several times for a 60 % bandwidth.
+
+Estimator (``method = "reference"``). The maximum-likelihood delay maximises the correlation
+``c(τ) = Σ x_n·r(t_n − τ)``, and ``Â = c(τ̂)/Σ r²``; at high SNR it reaches the bound. The
+largest sample of the full cross-correlation (``scipy.signal.correlate``) gives the whole
+sample; Newton's method on the correlation's Fourier series (``ucal.echo.spectral``) gives the
+rest. The correlation of band-limited records is band-limited and that series is its exact
+interpolation, so the estimate does not depend on where the peak falls between samples; a
+parabola through three correlation samples assumes a shape the correlation has not (a
+cosine under an envelope) and errs by a fraction of a sample that does, most at a few samples
+a cycle.
+
+Reported std. The bound with the record's own numbers: σ̂ the noise of the samples outside the
+echo (``ucal.echo.ascan.noise_rms``: robust to a second echo, plus the quantisation noise
+LSB²/12 when the step is known), Â the fit, β the reference's (over its band, so that
+the noise the averaging left in it does not count). Samples that carry no information, on a
+rail or outside the record (an echo cut by its edge), are left out of the Fisher sum: the
+std is multiplied by √(Σ_all r'² / Σ_used r'²).
+
+The strongest echo is the largest correlation of the reference's polarity within the gate.
+
+Clipping. A sample on a rail says only "at least the rail": a censored observation. The fit
+replaces each by its expectation given the current fit and σ̂ (``m + σ·φ(α)/Q(α)``,
+α = (rail − m)/σ; expectation–maximisation for censored Gaussian data) and refits until the
+delay settles, so the echo is timed by its unclipped flanks; the result says ``clipped``.
+Without the digitiser's rails (a CSV file), samples at the record's extreme value are taken as
+clipped when a fit that takes them as censored puts the echo well beyond them. (The envelope
+method flags clipping only when the rails are known, and widens its std over the clipped
+samples.)
+
+The reference's own noise. The reference averages M captures; its noise adds about
+σ_ref²/σ²·(relative) to each reading's variance, negligible for many averages; its error in
+t = 0 is common to every reading, a constant in every time of flight (the calibration's
+electronic delay ``tof_delay_ns`` absorbs it).
+
+Without a reference (``method = "envelope (coarse: no reference echo)"``): the envelope of the
+record's analytic signal, band-passed to the echo's own −6 dB band (a Gaussian filter twice as
+wide), its largest sample refined by a parabola, as a peak-mode gate does. Its std propagates
+σ̂ through the filter and the parabola to first order; it follows the envelope, not the
+carrier, so it is several times that of the reference method, and it is not the reference's
+arrival: an asymmetric echo's envelope peaks away from its phase centre by an amount of its
+shape.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft, signal, stats
+
+from ucal.echo.ascan import AScan, ReferenceEcho, echo_band, noise_rms
+from ucal.echo.spectral import series_peak, shifted
+
+#: ``EchoEstimate.method`` of the two estimators.
+METHOD_REFERENCE = "reference"
+METHOD_ENVELOPE = "envelope (coarse: no reference echo)"
+#: Clipped samples: refits until the delay moves less than this (samples), at most this often.
+CLIP_TOLERANCE = 1e-6
+CLIP_ITERATIONS = 50
+
+
+@dataclass(frozen=True)
+class EchoEstimate:
+    """One echo: its time of flight (ns, the arrival on the reference's convention) and one
+    sigma, its amplitude (the echo's peak in the record's units) and one sigma, its peak
+    signal-to-noise ratio (dB), the centre frequency and −6 dB bandwidth of its spectrum
+    (MHz), the record's noise (one sigma, record units), how it was timed, and whether
+    samples of it sat on the digitiser's rails."""
+
+    tof_ns: float
+    tof_std_ns: float
+    amplitude: float
+    amplitude_std: float
+    snr_db: float
+    centre_frequency_mhz: float
+    bandwidth_mhz: float
+    noise_rms: float
+    method: str
+    clipped: bool
+
+    def as_json(self) -> dict[str, float | str | bool]:
+        """The fields of ``ucal echo --json``."""
+        return {
+            "tof_ns": self.tof_ns,
+            "tof_std_ns": self.tof_std_ns,
+            "amplitude": self.amplitude,
+            "snr_db": self.snr_db,
+            "centre_frequency_mhz": self.centre_frequency_mhz,
+            "bandwidth_mhz": self.bandwidth_mhz,
+            "method": self.method,
+            "clipped": self.clipped,
+        }
+
+
+def delay_crb_ns(rms_bandwidth_mhz: float, snr_eff: float) -> float:
+    """Cramér–Rao bound of a delay (ns): ``1 / (2π·β·√SNR_eff)``, β in MHz, SNR_eff = 2E/N0
+    (module docstring)."""
+    if not snr_eff > 0.0:
+        return math.inf
+    return 1.0 / (2.0 * math.pi * rms_bandwidth_mhz * 1e-3 * math.sqrt(snr_eff))
+
+
+def estimate_echo(
+    ascan: AScan,
+    reference: ReferenceEcho | None = None,
+    *,
+    gate_ns: tuple[float, float] | None = None,
+) -> EchoEstimate:
+    """Time the strongest echo of ``ascan`` whose arrival lies in ``gate_ns`` (default: the
+    record), against ``reference`` or, without one, by its envelope (module docstring).
+
+    The reference is resampled to the record's interval when they differ. Raises
+    ``ValueError`` when the gate holds no sample of the record.
+    """
+    lo, hi = gate_ns if gate_ns is not None else (-math.inf, math.inf)
+    lo = max(lo, ascan.t0_ns)
+    hi = min(hi, ascan.t0_ns + (ascan.n - 1) * ascan.dt_ns)
+    if hi < lo:
+        raise ValueError(
+            f"the gate {gate_ns} ns holds no sample of the record "
+            f"({ascan.t0_ns:g}…{ascan.t0_ns + (ascan.n - 1) * ascan.dt_ns:g} ns)"
+        )
+    if reference is None:
+        return _envelope_estimate(ascan, (lo, hi))
+    return _reference_estimate(ascan, reference.resampled(ascan.dt_ns), (lo, hi))
+
+
+@dataclass(frozen=True)
+class _Correlator:
+    """A reference echo against records of ``n`` samples: its spectrum padded to ``n_fft``
+    (no wrap-around between the record and the reference)."""
+
+    n: int
+    n_fft: int
+    spectrum: np.ndarray
+    energy: float
+
+    @classmethod
+    def of(cls, ref: ReferenceEcho, n: int) -> _Correlator:
+        n_fft = fft.next_fast_len(n + ref.n)
+        return cls(n, n_fft, fft.rfft(ref.samples, n_fft), ref.energy)
+
+    def fit(self, x: np.ndarray, lag: float) -> tuple[float, float]:
+        """(lag, amplitude) at the correlation peak nearest ``lag`` (samples)."""
+        lag, value = series_peak(fft.rfft(x, self.n_fft) * np.conj(self.spectrum), self.n_fft, lag)
+        return lag, value / self.energy
+
+    def model(self, lag: float) -> np.ndarray:
+        """The reference delayed by ``lag`` samples, over the record (peak 1)."""
+        return shifted(self.spectrum, self.n_fft, lag)[: self.n]
+
+
+def _reference_estimate(
+    ascan: AScan, ref: ReferenceEcho, gate: tuple[float, float]
+) -> EchoEstimate:
+    raw = ascan.samples
+    n, dt = ascan.n, ascan.dt_ns
+    corr = _Correlator.of(ref, n)
+    # arrival = t0 − ref.t0 + lag·dt: the whole-sample lag of the largest correlation sample
+    # whose arrival is in the gate, then its peak
+    x = raw - np.mean(raw)  # an echo sums to 0: the mean is the offset
+    c = signal.correlate(x, ref.samples, mode="full", method="fft")
+    lags = signal.correlation_lags(n, ref.n, mode="full")
+    arrivals = ascan.t0_ns - ref.t0_ns + lags * dt
+    inside = (arrivals >= gate[0] - 1e-9 * dt) & (arrivals <= gate[1] + 1e-9 * dt)
+    if not inside.any():  # a gate narrower than a sample
+        inside = np.abs(arrivals - 0.5 * (gate[0] + gate[1])) <= dt
+    lag, amplitude = corr.fit(x, float(lags[inside][np.argmax(c[inside])]))
+
+    # the echo's samples and the quiet ones: the noise, from the quiet ones only
+    s0, s1 = ref.support
+    idx = np.arange(n)
+    in_echo = (idx >= math.floor(lag) + s0 - 2) & (idx < math.ceil(lag) + s1 + 2)
+    quiet = ~in_echo & ~ascan.at_rails()
+    dc = float(np.mean(raw[quiet] if np.count_nonzero(quiet) >= 32 else raw))
+    x = raw - dc
+    sigma = noise_rms(x, quiet, ascan.lsb)
+    if sigma is None:  # no room outside the echo: the fit's residual
+        sigma = float(np.sqrt(np.sum((x - amplitude * corr.model(lag)) ** 2) / max(n - 2, 1)))
+        if ascan.lsb is not None:
+            sigma = math.hypot(sigma, ascan.lsb / math.sqrt(12.0))
+
+    # clipped samples: censored, the echo refitted by the others
+    if ascan.rails is None:
+        rails = (float(np.min(x)), float(np.max(x)))
+        clipped = _guess_clipped(x, rails, corr, lag, amplitude, sigma)
+    else:
+        rails = (ascan.rails[0] - dc, ascan.rails[1] - dc)
+        clipped = ascan.at_rails()
+    clipped_echo = bool(np.any(clipped & in_echo))
+    if clipped_echo:
+        x, lag, amplitude = _refit_censored(x, clipped, rails, corr, lag, amplitude, sigma)
+
+    # the bound with the record's own numbers, and the share of the information the used
+    # samples carry (the slope over the reference's band: not the noise the averaging left)
+    band = np.abs(corr.spectrum) ** 2 >= ref.band_power_threshold
+    slope = shifted(corr.spectrum * band, corr.n_fft, lag, derivative=True)
+    used = ~clipped
+    info_all = float(np.sum(slope**2))
+    info_used = float(np.sum(slope[:n][used] ** 2))
+    snr_eff = amplitude**2 * ref.energy / sigma**2 if sigma > 0 else math.inf
+    std_ns = delay_crb_ns(ref.rms_bandwidth_mhz, snr_eff)
+    std_ns *= math.sqrt(info_all / info_used) if info_used > 0 else math.inf
+    energy_used = float(np.sum(corr.model(lag)[used] ** 2))
+    band_mhz = echo_band(x[in_echo], dt)
+    return EchoEstimate(
+        tof_ns=ascan.t0_ns - ref.t0_ns + lag * dt,
+        tof_std_ns=std_ns,
+        amplitude=amplitude,
+        amplitude_std=sigma / math.sqrt(energy_used) if energy_used > 0 else math.inf,
+        snr_db=_snr_db(amplitude, sigma),
+        centre_frequency_mhz=band_mhz.centre_frequency_mhz,
+        bandwidth_mhz=band_mhz.bandwidth_mhz,
+        noise_rms=sigma,
+        method=METHOD_REFERENCE,
+        clipped=clipped_echo,
+    )
+
+
+def _snr_db(amplitude: float, sigma: float) -> float:
+    if sigma <= 0.0:
+        return math.inf
+    return 20.0 * math.log10(max(abs(amplitude), 1e-300) / sigma)
+
+
+def _guess_clipped(
+    x: np.ndarray,
+    rails: tuple[float, float],
+    corr: _Correlator,
+    lag: float,
+    amplitude: float,
+    sigma: float,
+) -> np.ndarray:
+    """Rails unknown (``rails``: the record's extremes): the samples on one are clipped when a
+    fit that takes them as censored has the echo more than 3σ beyond it at one of them (a
+    sample at the top of an unclipped record sits above the fit, not below it)."""
+    candidates = (x <= rails[0]) | (x >= rails[1])
+    _, lag, amplitude = _refit_censored(x, candidates, rails, corr, lag, amplitude, sigma)
+    model = amplitude * corr.model(lag)
+    clipped = np.zeros(x.size, dtype=bool)
+    for sign, rail in ((-1.0, rails[0]), (1.0, rails[1])):
+        at = sign * x >= sign * rail
+        if np.any(sign * model[at] > sign * rail + 3.0 * sigma):
+            clipped |= at
+    return clipped
+
+
+def _refit_censored(
+    x: np.ndarray,
+    clipped: np.ndarray,
+    rails: tuple[float, float],
+    corr: _Correlator,
+    lag: float,
+    amplitude: float,
+    sigma: float,
+) -> tuple[np.ndarray, float, float]:
+    """Refit with each clipped sample replaced by its expectation beyond its rail given the
+    fit (module docstring); returns (filled record, lag, amplitude)."""
+    bottom, top = rails
+    high = clipped & (x >= top)
+    low = clipped & (x <= bottom)
+    filled = x.copy()
+    for _ in range(CLIP_ITERATIONS):
+        model = amplitude * corr.model(lag)
+        if sigma > 0.0:
+            filled[high] = model[high] + sigma * _mills((top - model[high]) / sigma)
+            filled[low] = model[low] - sigma * _mills((model[low] - bottom) / sigma)
+        filled[high] = np.maximum(filled[high], top)
+        filled[low] = np.minimum(filled[low], bottom)
+        new_lag, amplitude = corr.fit(filled, lag)
+        moved = abs(new_lag - lag)
+        lag = new_lag
+        if moved < CLIP_TOLERANCE:
+            break
+    return filled, lag, amplitude
+
+
+def _mills(a: np.ndarray) -> np.ndarray:
+    """φ(a)/Q(a): the mean excess over the rail of a unit Gaussian beyond ``a``."""
+    return np.exp(stats.norm.logpdf(a) - stats.norm.logsf(a))
+
+
+def _envelope_estimate(ascan: AScan, gate: tuple[float, float]) -> EchoEstimate:
+    raw = ascan.samples
+    n, dt = ascan.n, ascan.dt_ns
+    k_lo = max(0, math.ceil((gate[0] - ascan.t0_ns) / dt - 1e-9))
+    k_hi = min(n - 1, math.floor((gate[1] - ascan.t0_ns) / dt + 1e-9))
+    x = raw - np.mean(raw)
+    envelope = np.abs(signal.hilbert(x))
+    k = k_lo + int(np.argmax(envelope[k_lo : k_hi + 1]))
+    # the echo: where the envelope stays above a quarter of its peak, widened threefold
+    below = envelope < 0.25 * envelope[k]
+    start = k - int(np.argmax(below[k::-1])) if below[: k + 1].any() else 0
+    stop = k + int(np.argmax(below[k:])) if below[k:].any() else n
+    in_echo = np.zeros(n, dtype=bool)
+    in_echo[max(0, 2 * start - stop) : min(n, 2 * stop - start)] = True
+    clipped = ascan.at_rails()
+    quiet = ~in_echo & ~clipped
+    if np.count_nonzero(quiet) >= 32:
+        x = raw - float(np.mean(raw[quiet]))
+    sigma = noise_rms(x, quiet, ascan.lsb)
+    if sigma is None:  # no room outside the echo: all that is not the echo, or all
+        sigma = float(np.std(x[~in_echo] if (~in_echo).any() else x))
+    band = echo_band(x[in_echo], dt)
+
+    # the analytic signal band-passed to the echo: a Gaussian of twice the echo's −6 dB width
+    n_fft = fft.next_fast_len(2 * n)
+    f_mhz = fft.fftfreq(n_fft, dt * 1e-3)
+    width_mhz = max(2.0 * band.bandwidth_mhz, 4.0 / (n_fft * dt * 1e-3))
+    s_mhz = width_mhz / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    response = np.where(
+        f_mhz > 0.0, 2.0 * np.exp(-0.5 * ((f_mhz - band.centre_frequency_mhz) / s_mhz) ** 2), 0.0
+    )
+    analytic = fft.ifft(fft.fft(x, n_fft) * response)[:n]
+    envelope = np.abs(analytic)
+    k = k_lo + int(np.argmax(envelope[k_lo : k_hi + 1]))
+    k = min(max(k, 1), n - 2)
+    a, b, c = envelope[k - 1 : k + 2]
+    d, curvature = a - c, a - 2.0 * b + c
+    if curvature < 0.0:
+        delta = 0.5 * d / curvature
+        height = b - 0.25 * d * delta
+        # first order: ∂δ/∂(a, b, c) and ∂height/∂(a, b, c), then through the filter
+        d_delta = np.array([0.5 * (curvature - d), d, -0.5 * (curvature + d)]) / curvature**2
+        d_height = np.array([-0.25 * delta, 1.0, 0.25 * delta]) - 0.25 * d * d_delta
+        impulse = fft.ifft(response)
+        std_ns = sigma * _propagated(d_delta, k, analytic, impulse) * dt
+        amplitude_std = sigma * _propagated(d_height, k, analytic, impulse)
+    else:  # no peak between samples: the sample itself, to within one interval
+        delta, height, std_ns, amplitude_std = 0.0, float(b), dt, sigma
+    clipped_echo = bool(np.any(clipped & in_echo))
+    if clipped_echo:
+        # a flat top: the peak may be anywhere among the clipped samples
+        run = np.flatnonzero(clipped & in_echo)
+        std_ns = math.hypot(std_ns, (run[-1] - run[0] + 1) * dt / math.sqrt(12.0))
+    return EchoEstimate(
+        tof_ns=ascan.t0_ns + (k + delta) * dt,
+        tof_std_ns=std_ns,
+        amplitude=float(height),
+        amplitude_std=amplitude_std,
+        snr_db=_snr_db(float(height), sigma),
+        centre_frequency_mhz=band.centre_frequency_mhz,
+        bandwidth_mhz=band.bandwidth_mhz,
+        noise_rms=sigma,
+        method=METHOD_ENVELOPE,
+        clipped=clipped_echo,
+    )
+
+
+def _propagated(weights: np.ndarray, k: int, analytic: np.ndarray, impulse: np.ndarray) -> float:
+    """‖∂q/∂x‖ of ``q = Σ_j weights_j·|z_j|`` (j = k−1, k, k+1), ``z = h ⊛ x`` the filtered
+    analytic signal: ``∂|z_j|/∂x_n = Re(ū_j·h_{j−n})``, u_j = z_j/|z_j|. Times σ, the std
+    of q for white noise."""
+    n, n_fft = analytic.size, impulse.size
+    gradient = np.zeros(n)
+    for j, w in zip(range(k - 1, k + 2), weights, strict=True):
+        u = analytic[j] / abs(analytic[j])
+        gradient += w * (np.conj(u) * impulse[(j - np.arange(n)) % n_fft]).real
+    return float(np.linalg.norm(gradient))
