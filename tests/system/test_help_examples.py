@@ -35,6 +35,8 @@ COMMANDS = [
     ["fk"],
     ["ik"],
     ["path"],
+    ["export"],
+    ["export", "val3"],
     ["status"],
     ["calibrate"],
     ["tool-frame"],
