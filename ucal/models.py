@@ -29,3 +29,19 @@ def load_model(name: str) -> RobotModel:
         [[r["theta_offset_deg"], r["d_mm"], r["a_mm"], r["alpha_deg"]] for r in data["dh"]]
     )
     return RobotModel(name, dh, data["joint_min_deg"], data["joint_max_deg"])
+
+
+def controller_model(model: RobotModel, source: object = "profile") -> RobotModel:
+    """The arm as its controller models it: the shipped DH table of ``model``'s name (no
+    Hayati twists; joint offsets are the caller's to leave out), ``model``'s joint ranges.
+
+    Raises ``InputError`` (exit 2) naming ``source`` (the profile) and ``robot.model`` when the
+    name is not a shipped model: the controller's own table is then unknown to ucal.
+    """
+    if model.name not in KNOWN_MODELS:
+        raise InputError(
+            f"{source}: robot.model: {model.name!r} is not a shipped model "
+            f"({', '.join(KNOWN_MODELS)}): the controller's nominal DH table is not known"
+        )
+    shipped = load_model(model.name)
+    return RobotModel(shipped.name, shipped.dh, model.joint_min_deg, model.joint_max_deg)

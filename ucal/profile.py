@@ -950,6 +950,15 @@ def profile_history(path: str | Path) -> list[HistoryEntry]:
 MEASURED_BY = ("tool-frame", "calibrate")
 
 
+def last_measurement(path: str | Path) -> HistoryEntry | None:
+    """The newest write of ``tool-frame`` or ``calibrate`` in a profile's history that was not
+    undone (its ``time`` is when that result went into the profile); None if there is none."""
+    for entry in reversed(profile_history(path)):
+        if entry.reason.startswith(MEASURED_BY) and not entry.undone:
+            return entry
+    return None
+
+
 def before_measurement(profile: CellProfile) -> CellProfile:
     """``profile`` with the tool and the kinematic model it had before ucal first wrote a
     measurement into it (the before-file of its history's oldest ``tool-frame`` or

@@ -14,7 +14,9 @@ import pytest
 
 from ucal.kinematics.dh import fk
 from ucal.kinematics.ik import ik
-from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix
+from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_angle_deg
+from ucal.models import load_model
 from ucal.profile import create_profile, load_profile, write_profile
 
 OFFSETS = [0.4, -0.3, 0.2, 0.5, -0.25, 0.1]
@@ -231,3 +233,59 @@ def test_ik_and_path_on_a_calibrated_table_agree_with_fk(
     got = fk(p.model, rows[:, -6:], p.tool_matrix, p.joint_offsets_deg)[:, :3, 3]
     want = np.array([pose_to_matrix(_tool_pose(profile_path, x))[:3, 3] for x in qs])
     assert np.max(np.linalg.norm(got - want, axis=1)) < 1e-6
+
+
+def test_path_for_controller_lands_the_calibrated_robot(profile_path: Path, tmp_path: Path) -> None:
+    """Targets for the nominal arm (shipped table, zero offsets, the profile's tool): solved by
+    the nominal model continuously from the same start, as the controller does, they put the
+    calibrated robot (identified table, offsets up to 0.5°) within 0.01 mm / 0.001° of the
+    poses asked for; the same file without the flag still gives joint readings."""
+    write_profile(profile_path, {"calibration": {"dh": CALIBRATED_DH}}, reason="test")
+    p = load_profile(profile_path)
+    rng = np.random.default_rng(24)
+    q = [np.array([25.0, 30.0, 100.0, 15.0, 40.0, 20.0])]
+    while len(q) < 30:
+        nxt = q[-1] + rng.uniform(-3.0, 3.0, 6)
+        if p.model.within_limits(nxt) and 15.0 < nxt[4] < 120.0:
+            q.append(nxt)
+    poses = _tool_pose(profile_path, np.array(q))
+    src, out = tmp_path / "scan.csv", tmp_path / "targets.csv"
+    src.write_text("X,Y,Z,RX,RY,RZ\n" + "\n".join(_csv(x) for x in poses) + "\n")
+
+    r = ucal(
+        "path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]),
+        "--for-controller", "--json",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert data["for_controller"] is True and data["nominal_model"] == "tx90l"
+    assert data["points"] == 30 and data["max_correction_mm"] > 1.0
+    rows = list(csv.reader(out.read_text().splitlines()))
+    assert rows[0] == ["X", "Y", "Z", "RX", "RY", "RZ"]
+    targets = np.array(rows[1:], float)
+
+    nominal = load_model("tx90l")
+    readings, _ = cartesian_path_to_joints(nominal, targets, p.tool_matrix, start_deg=q[0])
+    reached = fk(p.model, readings, p.tool_matrix, p.joint_offsets_deg)
+    want = pose_to_matrix(poses)
+    mm = np.linalg.norm(reached[:, :3, 3] - want[:, :3, 3], axis=-1)
+    deg = rotation_angle_deg(want[:, :3, :3], reached[:, :3, :3])
+    assert np.max(mm) < 0.01 and np.max(deg) < 0.001, (np.max(mm), np.max(deg))
+
+    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--for-controller")
+    assert r.returncode == 0, r.stderr
+    assert "controller targets" in r.stdout and "largest correction" in r.stdout
+    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]))
+    assert r.returncode == 0, r.stderr
+    joints = np.array(list(csv.reader(out.read_text().splitlines()))[1:], float)
+    np.testing.assert_allclose(joints, np.array(q), atol=1e-6)
+
+
+def test_path_for_controller_needs_a_shipped_model(profile_path: Path, tmp_path: Path) -> None:
+    text = profile_path.read_text().replace('model = "tx90l"', 'model = "my_arm"')
+    profile_path.write_text(text)
+    src, out = tmp_path / "scan.csv", tmp_path / "targets.csv"
+    src.write_text("600,0,300,180,0,0\n")
+    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--for-controller")
+    assert r.returncode == 2 and "robot.model" in r.stderr and str(profile_path) in r.stderr
+    assert not out.exists()

@@ -38,6 +38,8 @@ COMMANDS = [
     ["fk"],
     ["ik"],
     ["path"],
+    ["export"],
+    ["export", "val3"],
     ["status"],
     ["calibrate"],
     ["tool-frame"],

@@ -29,6 +29,7 @@ COMMANDS = {
     "fk": "fk",
     "ik": "ik",
     "path": "path",
+    "export": "export",
     "sim": "sim",
     "calibrate": "calibrate",
     "tool-frame": "tool_frame",

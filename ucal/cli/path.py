@@ -1,4 +1,6 @@
-"""``ucal path``: a Cartesian tool path (CSV) to a continuous joint path (CSV), paper 004."""
+"""``ucal path``: a Cartesian tool path (CSV) to a continuous joint path (CSV), paper 004;
+with ``--for-controller``, to targets for the controller's nominal arm
+(``ucal.kinematics.filtering``)."""
 
 from __future__ import annotations
 
@@ -6,6 +8,7 @@ import csv
 import io
 import math
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -13,11 +16,14 @@ import numpy as np
 from ucal import files
 from ucal.cli.options import check_output, emit_json, json_option, parse_floats
 from ucal.errors import InputError
+from ucal.kinematics.filtering import controller_targets
 from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.models import controller_model
 from ucal.profile import load_profile
 
-#: Column names of the output file.
+#: Column names of the output file: joint readings, or with ``--for-controller`` poses.
 JOINT_HEADER = ("J1", "J2", "J3", "J4", "J5", "J6")
+POSE_HEADER = ("X", "Y", "Z", "RX", "RY", "RZ")
 
 
 def read_pose_csv(path: Path) -> np.ndarray:
@@ -65,7 +71,17 @@ def _is_number(text: str) -> bool:
 
 
 def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
-    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header.
+    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header (``write_rows``)."""
+    write_rows(path, JOINT_HEADER, joints_deg)
+
+
+def write_pose_csv(path: Path, poses: np.ndarray) -> None:
+    """Write poses (n, 6) in mm and degrees with an ``X..RZ`` header (``write_rows``)."""
+    write_rows(path, POSE_HEADER, poses)
+
+
+def write_rows(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
+    """Write ``rows`` (n, 6) under ``header``, 9 decimals.
 
     Written to a temporary file beside ``path`` and renamed (a replaced file keeps its mode,
     a new one gets the umask's); raises ``InputError`` (exit 2) naming the file when it cannot
@@ -73,8 +89,8 @@ def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
     """
     text = io.StringIO(newline="")
     w = csv.writer(text)
-    w.writerow(JOINT_HEADER)
-    for row in joints_deg:
+    w.writerow(header)
+    for row in rows:
         w.writerow([f"{v:.9f}" for v in row])
     try:
         files.commit(files.stage(Path(path), text.getvalue().encode("utf-8")), Path(path))
@@ -88,6 +104,7 @@ def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
 Examples:
   ucal path cell.toml scan.csv -o scan_joints.csv
   ucal path cell.toml scan.csv -o scan_joints.csv --near 0,30,110,0,40,0 --json
+  ucal path cell.toml scan.csv -o scan_targets.csv --for-controller
 """,
 )
 @click.argument(
@@ -103,7 +120,8 @@ Examples:
     required=True,
     metavar="OUT.csv",
     type=click.Path(dir_okay=False, writable=True, path_type=Path),
-    help="Joint path to write: J1..J6 readings (deg), one row per pose.",
+    help="File to write, one row per pose: J1..J6 readings (deg), or with --for-controller "
+    "X,Y,Z,RX,RY,RZ targets (mm, deg).",
 )
 @click.option(
     "--near",
@@ -111,23 +129,63 @@ Examples:
     help="Joint readings (deg) the robot starts from; the first point takes the "
     "solution nearest them (default all zeros).",
 )
+@click.option(
+    "--for-controller",
+    is_flag=True,
+    help="Write targets for the controller's nominal arm (shipped DH table, zero offsets) "
+    "carrying the profile's tool (as `ucal export val3` writes it), which land the calibrated "
+    "robot on IN's poses.",
+)
 @json_option
-def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None, as_json: bool) -> None:
+def cli(
+    profile_path: Path,
+    in_path: Path,
+    out_path: Path,
+    near: str | None,
+    for_controller: bool,
+    as_json: bool,
+) -> None:
     """Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a continuous joint path.
 
     Each point takes the solution nearest the previous one (paper 004's weighted shortest
     distance), so a path through a wrist singularity does not flip joint 4 by 180 deg.
     Prints the largest joint step. Exit 2 for a bad CSV row, 4 if a point is unreachable.
+
+    With --for-controller each row is instead the pose to send a VAL3 movel (tool as
+    exported): the controller solves it with its own nominal model into the joint readings
+    that put the calibrated robot on the pose asked for. Start the path in the configuration
+    --near gives; a movel keeps it.
     """
 
     near_v = parse_floats(near, 6, "--near") if near is not None else None
     check_output(out_path)
     profile = load_profile(profile_path)
     poses = read_pose_csv(in_path)
-    joints, step = cartesian_path_to_joints(
-        profile.model, poses, profile.tool_matrix, profile.joint_offsets_deg, start_deg=near_v
-    )
-    write_joint_csv(out_path, joints)
+    result: dict[str, Any] = {}
+    if for_controller:
+        nominal = controller_model(profile.model, profile_path)
+        filtered = controller_targets(
+            profile.model,
+            nominal,
+            poses,
+            profile.tool_matrix,
+            profile.joint_offsets_deg,
+            start_deg=near_v,
+        )
+        joints, step = filtered.joints_deg, filtered.max_step_deg
+        write_pose_csv(out_path, filtered.targets)
+        result = {
+            "for_controller": True,
+            "nominal_model": nominal.name,
+            "kinematics": profile.model.dh_source,
+            "max_correction_mm": float(np.max(filtered.correction_mm)),
+            "max_correction_deg": float(np.max(filtered.correction_deg)),
+        }
+    else:
+        joints, step = cartesian_path_to_joints(
+            profile.model, poses, profile.tool_matrix, profile.joint_offsets_deg, start_deg=near_v
+        )
+        write_joint_csv(out_path, joints)
     if len(joints) > 1:
         d = np.abs(np.diff(joints, axis=0))
         row, joint = np.unravel_index(int(np.argmax(d)), d.shape)
@@ -142,10 +200,21 @@ def cli(profile_path: Path, in_path: Path, out_path: Path, near: str | None, as_
                 "max_step_joint": where["joint"],
                 "max_step_row": where["row"],
                 "output": str(out_path),
+                **result,
             }
         )
         return
-    click.echo(f"wrote {len(joints)} joint rows to {out_path}")
+    if for_controller:
+        click.echo(
+            f"wrote {len(joints)} controller targets to {out_path} "
+            f"(nominal {result['nominal_model']} arm, the profile's tool)"
+        )
+        click.echo(
+            f"largest correction: {result['max_correction_mm']:.4f} mm, "
+            f"{result['max_correction_deg']:.4f} deg"
+        )
+    else:
+        click.echo(f"wrote {len(joints)} joint rows to {out_path}")
     if where["joint"] is None:
         click.echo("largest joint step: 0 deg (one point)")
     else:
