@@ -39,6 +39,7 @@ COMMANDS = [
     ["calibrate"],
     ["tool-frame"],
     ["verify"],
+    ["report"],
 ]
 MOVING = {"calibrate", "tool-frame", "verify"}
 

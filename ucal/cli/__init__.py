@@ -28,6 +28,7 @@ COMMANDS = {
     "tool-frame": "tool_frame",
     "verify": "verify",
     "status": "status",
+    "report": "report",
 }
 
 
