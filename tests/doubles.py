@@ -7,7 +7,9 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :class:`ScriptedPort` — a serial port that plays a dialogue of expected requests and replies,
   in the style of pymeasure's ``expected_protocol``;
 * :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
-  gate reads.
+  gate reads;
+* :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
+  written by the profile's own write functions in a fraction of a second.
 """
 
 from __future__ import annotations
@@ -16,9 +18,46 @@ import contextlib
 import os
 from collections.abc import Iterator
 from typing import TextIO
+from pathlib import Path
 
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.cli import main
+from ucal.profile import create_profile, write_profile
+
+#: What :func:`calibrated_profile` writes (as ``calibrate`` and ``tool-frame`` write them).
+WRITTEN_OFFSETS_DEG = [0.0, -1.201831, 1.499818, -1.999015, 1.09977, 0.0]
+WRITTEN_STD_DEG = [-1.0, 0.006032, 0.004167, 0.0044, 0.000562, -1.0]
+WRITTEN_TOOL_MM = [0.315377, -0.193238, 80.178256]
+WRITTEN_TOOL_DEG = [0.202429, -0.218022, 0.0]
+
+
+def calibrated_profile(
+    path: Path, reason: str = "calibrate --method exact: fit ok (χ²ᵣ 0.282)"
+) -> Path:
+    """Create a tx90l profile at ``path`` and write into it what a calibrate run (history
+    write 1, with ``reason``) and a tool-frame run (write 2) write."""
+    create_profile(path, "tx90l")
+    calibration = {
+        "joint_offsets_deg": WRITTEN_OFFSETS_DEG,
+        "unobservable_joints": [1, 6],
+        "method": "exact",
+        "std_deg": WRITTEN_STD_DEG,
+        "sound_speed_m_s": 1482.385,
+        "fit_verdict": "ok",
+        "chi2_reduced": 0.2822,
+        "date": "2026-01-05T09:30:00+00:00",
+        "level": "offsets",
+        "condition_number": 96.887,
+    }
+    write_profile(path, {"calibration": calibration}, reason)
+    tool = {
+        "position_mm": WRITTEN_TOOL_MM,
+        "rotation_deg": WRITTEN_TOOL_DEG,
+        "position_std_mm": [0.005412, 0.00584, 0.751985],
+        "rotation_std_deg": [0.00034, 0.000347, 0.5],
+    }
+    write_profile(path, {"tool": tool}, "tool-frame (exact)")
+    return path
 
 
 def exit_code(args: list[str]) -> int:

@@ -1367,6 +1367,16 @@ def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
 # picture
 
 
+#: What ``verify`` appends to the profile's stem for its picture, unless ``--plot`` names one.
+PICTURE_SUFFIX = ".verify.png"
+
+
+def verify_picture_path(profile_path: str | Path) -> Path:
+    """The picture ``verify`` writes by default: ``cell.toml`` → ``cell.verify.png`` beside it."""
+    p = Path(profile_path)
+    return p.with_name(p.stem + PICTURE_SUFFIX)
+
+
 def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path:
     """Save a before/after picture (PNG, or any format matplotlib knows by the suffix).
 

@@ -45,6 +45,7 @@ COMMANDS = [
     ["tool-frame"],
     ["verify"],
     ["echo"],
+    ["report"],
 ]
 MOVING = {"calibrate", "tool-frame", "verify"}
 

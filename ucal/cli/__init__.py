@@ -36,6 +36,7 @@ COMMANDS = {
     "verify": "verify",
     "status": "status",
     "echo": "echo",
+    "report": "report",
 }
 
 

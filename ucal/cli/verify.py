@@ -22,7 +22,7 @@ from ucal.cli.procedure import finish, run_job
 from ucal.errors import InputError
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
-from ucal.verify import VerifyJob, VerifyResult, VerifyShown
+from ucal.verify import VerifyJob, VerifyResult, VerifyShown, verify_picture_path
 from ucal.verify_region import RegionJob, RegionResult
 
 
@@ -111,7 +111,7 @@ def cli(
         finish(run_job(region_job, RunOptions(cell, yes, dry_run)), as_json, show_region)
         return
     if plot_path is None:
-        plot_path = profile_path.with_name(profile_path.stem + ".verify.png")
+        plot_path = verify_picture_path(profile_path)
     if not plot_path.parent.is_dir():
         raise InputError(f"--plot {plot_path}: directory {plot_path.parent} does not exist")
     _check_plot_format(plot_path)

@@ -1,0 +1,71 @@
+"""``ucal report``: one self-contained HTML page of the cell, its calibrations and its writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ucal.cli.options import check_output, emit_json, info, json_option
+from ucal.report import gather_report, render_page, write_report
+
+
+@click.command(
+    "report",
+    epilog="""\b
+Examples:
+  ucal report cell.toml -o report.html
+  ucal report cell.toml -o report.html --json
+""",
+)
+@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    "out_path",
+    required=True,
+    metavar="FILE.html",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The page to write (replaced if it exists).",
+)
+@click.option(
+    "--record",
+    "records",
+    multiple=True,
+    metavar="FILE",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The --record file of a calibrate run that wrote into PROFILE: adds the residual of "
+    "each measurement and why a joint was unobservable (repeatable).",
+)
+@json_option
+def cli(profile_path: Path, out_path: Path, records: tuple[Path, ...], as_json: bool) -> None:
+    """Write one HTML page of the cell as PROFILE and its history hold it.
+
+    The robot model and its DH table (identified or shipped), the tool, block, plate, water and
+    transducer; each calibration in the history with its offsets, stds, unobservable joints and
+    fit; each tool-frame result; the last verify picture; lost motion and drift where measured;
+    every recorded write and what it changed. The page is self-contained (figures and style
+    inline, nothing loaded from elsewhere) and prints to PDF one section per page. Moves
+    nothing and writes nothing but FILE.html. Exit 2 for a missing or invalid profile, an
+    unreadable record or an output that cannot be written.
+    """
+
+    check_output(out_path)
+    report = gather_report(profile_path, records)
+    write_report(out_path, render_page(report))
+    if as_json:
+        emit_json(
+            {
+                "output": str(out_path),
+                "profile": str(profile_path),
+                "writes": len(report.writes),
+                "calibrations": len(report.calibrations),
+                "tool_frames": len(report.tools),
+                "verify_picture": None if report.verify is None else str(report.verify.path),
+            }
+        )
+        return
+    info(
+        f"wrote {out_path}: {len(report.calibrations)} calibrations, "
+        f"{len(report.tools)} tool frames, {len(report.writes)} writes"
+    )

@@ -1,0 +1,675 @@
+"""The report as one self-contained HTML page: CSS inline, figures as ``data:`` URIs.
+
+The page loads nothing: no script, no font, no stylesheet or image from elsewhere. Everything
+taken from the profile, its history or a record is escaped. It prints to PDF one section per
+page (A4), black on white, and reads in grey: states are written out, not only coloured.
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Iterable, Sequence
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+import numpy as np
+
+from ucal.models import KNOWN_MODELS, load_model
+from ucal.report import figures
+from ucal.report.gather import Calibration, CellReport, Change, Write
+
+#: Longest value shown in the history table's "what changed" (characters), then "…".
+MAX_VALUE_CHARS = 160
+
+CSS = """
+:root { color-scheme: light; }
+* { box-sizing: border-box; }
+body { font-family: "DejaVu Sans", "Liberation Sans", Arial, Helvetica, sans-serif;
+  font-size: 10.5pt; line-height: 1.4; color: #000; background: #fff;
+  max-width: 190mm; margin: 0 auto; padding: 8mm 6mm; }
+h1 { font-size: 17pt; margin: 0 0 2mm; }
+h2 { font-size: 13.5pt; border-bottom: 1.5pt solid #000; padding-bottom: 1mm; margin: 8mm 0 3mm; }
+h3 { font-size: 11pt; margin: 5mm 0 2mm; }
+h2, h3 { break-after: avoid; page-break-after: avoid; }
+p { margin: 1.5mm 0; }
+table { border-collapse: collapse; margin: 2mm 0 3mm; font-size: 9.5pt; }
+th, td { border: 0.6pt solid #888; padding: 0.8mm 2mm; vertical-align: top; text-align: left; }
+th { background: #ececec; font-weight: bold; }
+td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+thead { display: table-header-group; }
+tr { break-inside: avoid; page-break-inside: avoid; }
+table.kv th { width: 48mm; }
+table.wide { width: 100%; }
+.meta td, .meta th { border: none; padding: 0.3mm 3mm 0.3mm 0; background: none; }
+.note { border-left: 2.5pt solid #666; padding: 1mm 3mm; margin: 2mm 0; background: #f4f4f4; }
+.state { font-weight: bold; }
+.nowrap { white-space: nowrap; }
+.bad { font-weight: bold; text-decoration: underline; }
+.muted { color: #444; }
+code { font-family: "DejaVu Sans Mono", "Liberation Mono", monospace; font-size: 9pt; }
+figure { margin: 3mm 0; break-inside: avoid; page-break-inside: avoid; }
+figure img { display: block; width: 100%; height: auto; border: 0.6pt solid #bbb; }
+figcaption { font-size: 9pt; color: #222; margin-top: 1mm; }
+ul.changes { margin: 0; padding-left: 4mm; }
+ul.changes li { margin: 0; }
+section.calibration { break-inside: auto; }
+@page { size: A4; margin: 14mm 12mm 16mm; }
+@media print {
+  body { max-width: none; padding: 0; font-size: 10pt; }
+  section.part { break-before: page; page-break-before: always; }
+  section.calibration + section.calibration { break-before: page; page-break-before: always; }
+  a { color: #000; text-decoration: none; }
+  * { -webkit-print-color-adjust: exact; print-color-adjust: exact; }
+}
+"""
+
+
+def e(value: Any) -> str:
+    """``value`` as escaped HTML text."""
+    return html.escape(str(value), quote=True)
+
+
+def num(value: float | None, digits: int = 4) -> str:
+    """A number with ``digits`` decimals; an em dash for None or NaN."""
+    if value is None or not np.isfinite(value):
+        return "—"
+    return f"{round(float(value), digits) + 0.0:.{digits}f}"  # + 0.0: no "-0.0000"
+
+
+def nums(values: Iterable[float] | None, digits: int = 4, unit: str = "") -> str:
+    if values is None:
+        return "—"
+    text = ", ".join(num(float(v), digits) for v in values)
+    return f"[{text}]" + (f" {unit}" if unit else "")
+
+
+def when(iso: str | None) -> str:
+    """An ISO time as ``2026-01-02 10:00:00 UTC`` (as written when not ISO)."""
+    if not iso:
+        return "—"
+    return iso.replace("T", " ").replace("+00:00", " UTC")
+
+
+def _when_cell(iso: str | None) -> str:
+    """An ISO time on two lines (date, then time): narrow table columns."""
+    date, _, clock = when(iso).partition(" ")
+    return f'<span class="nowrap">{e(date)}</span><br><span class="nowrap">{e(clock)}</span>'
+
+
+def _table(
+    head: Sequence[str], rows: Iterable[Sequence[str]], numeric: Sequence[bool], cls: str = ""
+) -> str:
+    """A table of already escaped cells."""
+    th = "".join(
+        f'<th{" class=num" if n else ""} scope="col">{h}</th>'
+        for h, n in zip(head, numeric, strict=True)
+    )
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f"<td{' class=num' if n else ''}>{c}</td>" for c, n in zip(row, numeric, strict=True)
+        )
+        + "</tr>"
+        for row in rows
+    )
+    return f'<table class="{cls}"><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def _kv(rows: Iterable[tuple[str, str]]) -> str:
+    body = "".join(f'<tr><th scope="row">{k}</th><td>{v}</td></tr>' for k, v in rows)
+    return f'<table class="kv"><tbody>{body}</tbody></table>'
+
+
+def _figure(uri: str, alt: str, caption: str) -> str:
+    return f'<figure><img src="{e(uri)}" alt="{e(alt)}"><figcaption>{caption}</figcaption></figure>'
+
+
+def _note(text: str) -> str:
+    return f'<p class="note">{text}</p>'
+
+
+def _ucal_version() -> str:
+    try:
+        return version("ucal")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _state(w: Write) -> str:
+    return f"undone {e(when(w.entry.undone_time))}" if w.entry.undone else "applied"
+
+
+def _write_title(w: Write) -> str:
+    state = (
+        f'<span class="state">undone {e(when(w.entry.undone_time))}</span>'
+        if w.entry.undone
+        else '<span class="state">applied</span>'
+    )
+    return f"history write #{w.entry.id}, {e(when(w.entry.time))} ({state})"
+
+
+# ---------------------------------------------------------------------------------------------
+# the page
+
+
+def render_page(report: CellReport) -> str:
+    """The whole page for ``report`` (a str of HTML)."""
+    parts = [
+        _header(report),
+        _summary(report),
+        _cell(report),
+        _calibrations(report),
+        _tools(report),
+        _verify(report),
+        _lost_motion(report),
+        _history(report),
+    ]
+    title = f"ucal report: {report.path.name}"
+    return (
+        "<!DOCTYPE html>\n"
+        '<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f"<title>{e(title)}</title><style>{CSS}</style></head><body>\n"
+        + "\n".join(parts)
+        + "\n</body></html>\n"
+    )
+
+
+def _header(r: CellReport) -> str:
+    hist = (
+        f"{len(r.writes)} recorded writes in <code>{e(r.history_dir)}</code>"
+        if r.writes
+        else "no recorded write (the profile was never rewritten by ucal)"
+    )
+    meta = _kv(
+        [
+            ("profile", f"<code>{e(r.path)}</code>"),
+            ("SHA-256", f"<code>{e(r.profile_sha256)}</code>"),
+            ("history", hist),
+            ("report made", e(r.generated.strftime("%Y-%m-%d %H:%M:%S UTC"))),
+            ("by", f"ucal {e(_ucal_version())}"),
+        ]
+    )
+    return (
+        f"<header><h1>Robot cell report: {e(r.profile.model.name)}, "
+        f"<code>{e(r.path.name)}</code></h1>"
+        '<p class="muted">The cell as its profile and the profile\'s history hold it. '
+        "Lengths in mm, angles in degrees; ± values are one standard deviation (σ) unless "
+        "marked 3σ.</p>"
+        f'<div class="meta">{meta}</div></header>'
+    )
+
+
+def _summary(r: CellReport) -> str:
+    p = r.profile
+    cal = r.current_calibration
+    if cal is None:
+        calibrated = "never calibrated: joint offsets zero"
+    else:
+        src = "no recorded write" if cal.write is None else f"history write #{cal.write.entry.id}"
+        calibrated = (
+            f"{nums(cal.offsets_deg)} deg ({src}, fit "
+            f"<span class=state>{e(cal.fit.verdict or 'not recorded')}</span>"
+            + (
+                f", unobservable: {e(', '.join(f'J{j}' for j in cal.unobservable_joints))}"
+                if cal.unobservable_joints
+                else ""
+            )
+            + ")"
+        )
+    tool = r.tools[-1] if r.tools else None
+    tool_src = (
+        "as stated in the profile (no tool-frame write)"
+        if tool is None
+        else f"tool-frame, history write #{tool.write.entry.id}"
+    )
+    verify = (
+        f"picture of {e(r.verify.modified.strftime('%Y-%m-%d %H:%M UTC'))}"
+        if r.verify is not None
+        else "none beside the profile"
+    )
+    backlash = cal is not None and cal.backlash_deg is not None
+    drift = cal is not None and cal.drift_m_s_per_min is not None
+    return (
+        '<section class="summary"><h2>At a glance</h2>'
+        + _kv(
+            [
+                ("kinematic model", e(_dh_origin(r))),
+                ("joint offsets", calibrated),
+                (
+                    "tool (flange)",
+                    f"position {nums(p.tool_position_mm)} mm, rotation "
+                    f"{nums(p.tool_rotation_deg)} deg ({e(tool_src)})",
+                ),
+                ("last verify", verify),
+                ("lost motion", "measured" if backlash else "not measured"),
+                ("drift", "measured" if drift else "not measured"),
+            ]
+        )
+        + "</section>"
+    )
+
+
+def _dh_origin(r: CellReport) -> str:
+    name = r.nominal_model.name
+    if r.identified_dh:
+        return (
+            f"{name}, DH table identified by calibrate --level full ([calibration] dh), in "
+            f"place of the [robot] table"
+        )
+    if r.nominal_model.dh_source == "shipped":
+        return f"{name}, the shipped DH table (the profile has no [robot] dh)"
+    if name in KNOWN_MODELS and np.allclose(r.nominal_model.dh, load_model(name).dh):
+        return f"{name}, [robot] dh: the shipped table (not identified)"
+    return f"{name}, [robot] dh of the profile (not identified; differs from the shipped table)"
+
+
+def _dh_table(dh: np.ndarray, beta: np.ndarray | None, r: CellReport) -> str:
+    p = r.profile
+    model = p.model
+    std = p.joint_offsets_std_deg
+    with_beta = beta is not None and bool(np.any(beta != 0.0))
+    head = ["joint", "θ offset", "d (mm)", "a (mm)", "α"] + (["β"] if with_beta else [])
+    head += ["min", "max", "joint offset", "σ"]
+    rows = []
+    for j in range(6):
+        row = [f"J{j + 1}"] + [num(float(v), 4) for v in dh[j]]
+        if with_beta:
+            assert beta is not None
+            row.append(num(float(beta[j]), 4))
+        row += [
+            num(float(model.joint_min_deg[j]), 1),
+            num(float(model.joint_max_deg[j]), 1),
+            num(float(p.joint_offsets_deg[j]), 6),
+            "not determined"
+            if std is not None and j + 1 in p.unobservable_joints
+            else ("—" if std is None else num(float(std[j]), 6)),
+        ]
+        rows.append(row)
+    return _table(head, rows, [False] + [True] * (len(head) - 1))
+
+
+def _cell(r: CellReport) -> str:
+    p = r.profile
+    out = ['<section class="part"><h2>1. The cell</h2>', f"<h3>Robot: {e(_dh_origin(r))}</h3>"]
+    out.append(
+        "<p>Standard DH rows (θ offset, α, β in degrees), the joint ranges and the joint offsets "
+        "of [calibration] (actual angle = encoder reading + offset).</p>"
+    )
+    out.append(_dh_table(p.model.dh, p.model.beta_deg, r))
+    if r.identified_dh:
+        out.append("<p>The [robot] table the identified one replaces:</p>")
+        nominal = r.nominal_model
+        out.append(
+            _table(
+                ["joint", "θ offset", "d (mm)", "a (mm)", "α"],
+                [
+                    [f"J{j + 1}"] + [num(float(v), 4) for v in nominal.dh[j]]
+                    for j in range(len(nominal.dh))
+                ],
+                [False, True, True, True, True],
+            )
+        )
+    tool_src = (
+        "as stated in the profile: no tool-frame write in its history"
+        if not r.tools
+        else f"written by tool-frame, history write #{r.tools[-1].write.entry.id}"
+    )
+    out.append("<h3>Tool, block, plate, water, transducer</h3>")
+    rows = [
+        ("tool position", f"{nums(p.tool_position_mm)} mm ± {nums(p.tool_position_std_mm)}"),
+        ("tool rotation", f"{nums(p.tool_rotation_deg)} deg ± {nums(p.tool_rotation_std_deg)}"),
+        ("tool: source", e(tool_src)),
+        (
+            "block corner",
+            f"{nums(p.sample_position_mm, 3)} mm ± {nums(p.sample_position_std_mm, 3)}",
+        ),
+        (
+            "block rotation",
+            f"{nums(p.sample_rotation_deg, 3)} deg ± {nums(p.sample_rotation_std_deg, 3)}",
+        ),
+        ("block face size", f"{num(p.sample_face_size_mm, 1)} mm"),
+    ]
+    if p.reflector_points_mm is None:
+        rows.append(("plate", "no [reflector] in the profile"))
+    else:
+        pts = "<br>".join(nums(pt, 3) for pt in np.asarray(p.reflector_points_mm))
+        rows.append(("plate points", f"{pts}<br>± {num(p.reflector_points_std_mm, 3)} mm each"))
+    cal = r.current_calibration
+    speed = (
+        f"; sound speed {num(cal.sound_speed_m_s, 2)} m/s as last calibrated"
+        if cal is not None and cal.sound_speed_m_s is not None
+        else ""
+    )
+    rows += [
+        (
+            "water",
+            f"{num(p.water_temperature_c, 1)} °C ± {num(p.water_temperature_std_c, 1)}{speed}",
+        ),
+        (
+            "transducer",
+            f"{num(p.frequency_mhz, 2)} MHz, element {num(p.element_diameter_mm, 2)} mm",
+        ),
+    ]
+    if p.step is not None:
+        rows.append(
+            (
+                "step",
+                f"height {num(p.step.height_mm, 3)} ± {num(p.step.height_std_mm, 3)} mm, "
+                f"centre {nums(p.step.centre_mm, 1)} mm, size {num(p.step.size_mm, 1)} mm",
+            )
+        )
+    out.append(_kv(rows))
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _calibrations(r: CellReport) -> str:
+    out = ['<section class="part"><h2>2. Calibrations</h2>']
+    if not r.calibrations:
+        out.append(
+            "<p>No calibration: the profile's history holds no calibrate write and the "
+            "profile no [calibration] offsets.</p></section>"
+        )
+        return "\n".join(out)
+    out.append(
+        _figure(
+            figures.offsets_figure(r.calibrations),
+            "joint offsets per calibrate write with 3-sigma bars",
+            "Each joint's offset as written by each calibrate (x: history write), bars ±3σ "
+            "(the true offset lies within them); an open square is a joint the run could not "
+            "determine, its offset kept from the profile.",
+        )
+    )
+    if not any(c.residuals for c in r.calibrations):
+        out.append(
+            _note(
+                "The profile and its history hold each calibration's result and fit summary, "
+                "not the residual of each measurement: those come from a record of the run. "
+                "Calibrate with <code>--record run.jsonl</code> and give the record to the "
+                "report: <code>ucal report PROFILE -o report.html --record run.jsonl</code>."
+            )
+        )
+    current = r.current_calibration
+    for n, cal in reversed(list(enumerate(r.calibrations, 1))):
+        out.append(_calibration(cal, n, cal is current))
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _calibration(cal: Calibration, n: int, current: bool) -> str:
+    if cal.write is None:
+        title = "the profile's [calibration] (no recorded write)"
+        reason = ""
+    else:
+        title = _write_title(cal.write)
+        reason = f"<p>Recorded reason: <code>{e(cal.write.entry.reason)}</code></p>"
+    out = [
+        '<section class="calibration">',
+        f"<h3>Calibration {n}{' (current)' if current else ''}: {title}</h3>",
+        reason,
+    ]
+    fit = cal.fit
+    verdict = e(fit.verdict or "not recorded")
+    if fit.verdict and fit.verdict != "ok":
+        verdict = f'<span class="bad">{verdict}</span>'
+    out.append(
+        _kv(
+            [
+                ("method, level", f"{e(cal.method or '—')}, {e(cal.level or '—')}"),
+                ("run date", e(when(cal.date))),
+                ("fit verdict", verdict),
+                (
+                    "χ² reduced (dof)",
+                    f"{num(fit.chi2_reduced, 3)} ({'—' if fit.dof is None else fit.dof})",
+                ),
+                (
+                    "rms tilt, rms distance",
+                    "not recorded in the profile (the run's record has them)"
+                    if fit.rms_tilt_deg is None and fit.rms_distance_mm is None
+                    else f"{_sci(fit.rms_tilt_deg)} deg, {_sci(fit.rms_distance_mm)} mm",
+                ),
+                ("worst measurement", e(fit.worst or "—")),
+                ("sound speed", f"{num(cal.sound_speed_m_s, 2)} m/s"),
+                ("condition number", num(cal.condition_number, 1)),
+            ]
+        )
+    )
+    rows = []
+    for j in range(6):
+        std = None if cal.std_deg is None else float(cal.std_deg[j])
+        if j + 1 in cal.unobservable_joints:
+            why = cal.reasons.get(j + 1)
+            status = "unobservable, kept from the profile: " + (
+                e(why) if why else "reason not recorded in the profile (the run's record has it)"
+            )
+        elif std is None or not np.isfinite(std):
+            status = "std not recorded"
+        else:
+            status = "measured"
+        rows.append(
+            [
+                f"J{j + 1}",
+                num(float(cal.offsets_deg[j]), 6),
+                num(std, 6),
+                num(None if std is None else 3.0 * std, 6),
+                status,
+            ]
+        )
+    out.append(
+        _table(
+            ["joint", "offset (deg)", "σ (deg)", "3σ (deg)", "status"],
+            rows,
+            [False, True, True, True, False],
+            "wide",
+        )
+    )
+    if cal.dh is not None:
+        out.append("<p>Identified DH table ([calibration] dh):</p>")
+        beta = cal.beta_deg if cal.beta_deg is not None else np.zeros(6)
+        out.append(
+            _table(
+                ["joint", "θ offset", "d (mm)", "a (mm)", "α", "β"],
+                [
+                    [f"J{j + 1}"] + [num(float(v), 4) for v in cal.dh[j]] + [num(beta[j], 4)]
+                    for j in range(6)
+                ],
+                [False] + [True] * 5,
+            )
+        )
+    if cal.residuals:
+        assert cal.record is not None
+        out.append(
+            _figure(
+                figures.residuals_figure(cal),
+                "normalised residual of each measurement",
+                f"{len(cal.residuals)} measurements, from the record "
+                f"<code>{e(cal.record)}</code>: each residual divided by its noise; a fit that "
+                "agrees with its noise keeps almost all within ±3.",
+            )
+        )
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _sci(value: float | None) -> str:
+    if value is None or not np.isfinite(value):
+        return "—"
+    return f"{value:.3g}"
+
+
+def _tools(r: CellReport) -> str:
+    out = ['<section class="part"><h2>3. Tool frame</h2>']
+    if not r.tools:
+        p = r.profile
+        out.append(
+            "<p>No tool-frame write in the history: the tool is the profile's "
+            f"({nums(p.tool_position_mm)} mm, {nums(p.tool_rotation_deg)} deg), from its "
+            "drawing.</p></section>"
+        )
+        return "\n".join(out)
+    out.append(
+        _figure(
+            figures.tool_figure(r.tools),
+            "tool frame per tool-frame write with 3-sigma bars",
+            "The tool frame relative to the flange as written by each tool-frame (x: history "
+            "write), bars ±3σ. The rotation about the beam (rz) is not measured by an echo: "
+            "its σ is the profile's tolerance.",
+        )
+    )
+    rows = []
+    for t in reversed(r.tools):
+        write = f"#{t.write.entry.id}, {_state(t.write)}<br>{_when_cell(t.write.entry.time)}"
+        for name, unit, values, stds in (
+            ("position", "mm", t.position_mm, t.position_std_mm),
+            ("rotation", "deg", t.rotation_deg, t.rotation_std_deg),
+        ):
+            cells = [
+                num(float(v)) + ("" if stds is None else f" ± {num(float(s))}")
+                for v, s in zip(values, stds if stds is not None else values, strict=True)
+            ]
+            rows.append([write, f"{name} ({unit})", *cells])
+            write = ""
+    out.append(
+        _table(
+            ["write", "", "x | rx", "y | ry", "z | rz"],
+            rows,
+            [False, False, True, True, True],
+            "wide",
+        )
+    )
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _verify(r: CellReport) -> str:
+    out = ['<section class="part"><h2>4. Last verify</h2>']
+    v = r.verify
+    if v is None:
+        out.append(
+            "<p>No verify picture beside the profile: run <code>ucal verify PROFILE</code> "
+            "(it draws the positioning error before and after calibration).</p>"
+        )
+    else:
+        since = ""
+        if v.writes_since:
+            ids = ", ".join(f"#{w.entry.id} ({w.command})" for w in v.writes_since)
+            since = (
+                f" The profile was written since ({ids}): the picture shows the cell as an "
+                "earlier version of the profile held it."
+            )
+        out.append(
+            _figure(
+                figures.png_uri(v.png),
+                "positioning error before and after calibration, drawn by verify",
+                f"<code>{e(v.path)}</code>, drawn {e(v.modified.strftime('%Y-%m-%d %H:%M:%S'))}"
+                f" UTC by <code>ucal verify</code>.{e(since)}",
+            )
+        )
+    out.append(
+        _note(
+            "verify writes nothing into the profile or its history: the picture is the newest "
+            "one verify left beside the profile, and its figures (before/after, tolerance, "
+            "verdict) are those of <code>ucal verify --json</code> at the time."
+        )
+    )
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _lost_motion(r: CellReport) -> str:
+    out = ['<section class="part"><h2>5. Lost motion and drift</h2>']
+    cal = r.current_calibration
+    if cal is None or cal.backlash_deg is None:
+        out.append(
+            "<p>Lost motion (backlash) per joint: <strong>not measured</strong> (no "
+            "[calibration] backlash_deg in the profile).</p>"
+        )
+    else:
+        std = cal.backlash_std_deg
+        rows = [
+            [
+                f"J{j + 1}",
+                "not measured"
+                if not np.isfinite(cal.backlash_deg[j])
+                else num(float(cal.backlash_deg[j]), 4),
+                "—" if std is None else num(float(std[j]), 4),
+            ]
+            for j in range(6)
+        ]
+        out.append(_table(["joint", "lost motion (deg)", "σ (deg)"], rows, [False, True, True]))
+    if cal is None or cal.drift_m_s_per_min is None:
+        out.append("<p>Drift of the sound speed during a run: <strong>not measured</strong>.</p>")
+    else:
+        out.append(
+            f"<p>Sound speed drift during the last calibration: "
+            f"{num(cal.drift_m_s_per_min, 3)} ± {num(cal.drift_std_m_s_per_min, 3)} "
+            "m/s per minute.</p>"
+        )
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _history(r: CellReport) -> str:
+    out = ['<section class="part"><h2>6. History of writes</h2>']
+    if not r.writes:
+        out.append("<p>No recorded write: ucal never rewrote this profile.</p></section>")
+        return "\n".join(out)
+    out.append(
+        f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
+        f"<code>{e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
+    )
+    rows = [
+        [
+            f"#{w.entry.id}",
+            _when_cell(w.entry.time),
+            f'<code class="nowrap">{e(w.command)}</code>',
+            e(w.entry.reason),
+            _changes(w.changes),
+            _state(w),
+        ]
+        for w in r.writes
+    ]
+    out.append(
+        _table(
+            ["#", "time", "command", "reason", "what changed", "state"],
+            rows,
+            [False] * 6,
+            "wide",
+        )
+    )
+    for note in r.notes:
+        out.append(_note(e(note)))
+    out.append("</section>")
+    return "\n".join(out)
+
+
+def _changes(changes: Sequence[Change] | None) -> str:
+    if changes is None:
+        return "not known: the version it left is kept nowhere"
+    if not changes:
+        return "comments or layout only"
+    items = "".join(
+        f"<li><code>{e(c.key)}</code>: {e(_value(c.before))} → {e(_value(c.after))}</li>"
+        for c in changes
+    )
+    return f'<ul class="changes">{items}</ul>'
+
+
+def _value(v: Any) -> str:
+    """A profile value in a few characters: numbers to 6 significant digits."""
+    if v is None:
+        return "(absent)"
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float):
+        return f"{v + 0.0:.6g}"
+    if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+        return f"table of {len(v)} rows"
+    if isinstance(v, list):
+        text = "[" + ", ".join(_value(x) for x in v) + "]"
+    elif isinstance(v, dict):
+        text = "{" + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + "}"
+    else:
+        text = str(v)
+    return text if len(text) <= MAX_VALUE_CHARS else text[: MAX_VALUE_CHARS - 1] + "…"
