@@ -31,18 +31,21 @@ drawn within 0.05 mm / 0.005° one sigma) and the plate was touched with a calib
 are then measured too, the real TCP can come within verify's tolerance, and verify's verdict
 is put to the test both ways.
 
-Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1] [--fixture]``.
+Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1] [--fixture]``;
+``--quick``: one world, one order (calibrate then tool-frame): the same code path in seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import functools
 import json
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -54,19 +57,26 @@ from ucal.toolframe.plane import fit_plane
 from ucal.world import load_world
 
 MODEL = "tx90l"
-ORDERS = (("tool-frame", "calibrate"), ("calibrate", "tool-frame"))
+#: The two orders by their short names (``t`` tool-frame, ``c`` calibrate).
+ORDERS = {"t-c": ("tool-frame", "calibrate"), "c-t": ("calibrate", "tool-frame")}
 VERIFY_POINTS = 6
 #: verify's measured reached TCP should agree with the true one within this (mm).
 VERIFY_GOAL_MM = 0.05
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"worlds": 1, "jobs": 1, "order": "c-t"}
 
 
-#: The block and plate of a cell with a fixture (module docstring): declared and drawn sigmas.
-FIXTURE = {
-    "block_mm": (0.1, 0.05),
-    "block_deg": (0.01, 0.005),
-    "plate_mm": (0.05, 0.05),
-    "plate_deg": 0.01,
-}
+@dataclass(frozen=True)
+class Fixture:
+    """The block and plate of a cell with a fixture (module docstring)."""
+
+    block_mm: tuple[float, float] = (0.1, 0.05)  # declared, drawn sigma
+    block_deg: tuple[float, float] = (0.01, 0.005)  # declared, drawn sigma
+    plate_mm: tuple[float, float] = (0.05, 0.05)  # declared sigma, drawn within ±
+    plate_deg: float = 0.01  # tilt drawn within
+
+
+FIXTURE = Fixture()
 
 
 def draw_world(
@@ -78,7 +88,7 @@ def draw_world(
     tilt_axis = rng.normal(size=3)
     tilt_axis -= (tilt_axis @ plane.normal) * plane.normal
     tilt_axis /= np.linalg.norm(tilt_axis)
-    tilt = np.radians(rng.uniform(0.0, FIXTURE["plate_deg"] if fixture else 0.3))
+    tilt = np.radians(rng.uniform(0.0, FIXTURE.plate_deg if fixture else 0.3))
     k = np.array(
         [
             [0, -tilt_axis[2], tilt_axis[1]],
@@ -87,12 +97,12 @@ def draw_world(
         ]
     )
     normal = (np.eye(3) + np.sin(tilt) * k + (1 - np.cos(tilt)) * k @ k) @ plane.normal
-    plate_mm = FIXTURE["plate_mm"][1] if fixture else 2.0
+    plate_mm = FIXTURE.plate_mm[1] if fixture else 2.0
     point = plane.centroid_mm + rng.uniform(-plate_mm, plate_mm) * plane.normal
     offsets = rng.uniform(-2.0, 2.0, 6)
     tool = np.asarray(prof.tool_position_mm) + rng.uniform(-1.7, 1.7, 3)
     rot = np.asarray(prof.tool_rotation_deg) + rng.uniform(-0.85, 0.85, 3)
-    block_mm, block_deg = (FIXTURE["block_mm"][1], FIXTURE["block_deg"][1]) if fixture else (2, 0.2)
+    block_mm, block_deg = (FIXTURE.block_mm[1], FIXTURE.block_deg[1]) if fixture else (2, 0.2)
     block = np.asarray(prof.sample_position_mm) + rng.normal(0.0, block_mm, 3)
     block_rot = np.asarray(prof.sample_rotation_deg) + rng.normal(0.0, block_deg, 3)
 
@@ -130,12 +140,12 @@ def fresh_profile(path: Path, fixture: bool = False) -> Path:
     create_profile(path, MODEL)
     keys: dict = {
         "tool": {"position_std_mm": 1.5, "rotation_std_deg": 1.0},
-        "reflector": {"points_std_mm": FIXTURE["plate_mm"][0] if fixture else 1.2},
+        "reflector": {"points_std_mm": FIXTURE.plate_mm[0] if fixture else 1.2},
     }
     if fixture:
         keys["sample"] = {
-            "position_std_mm": FIXTURE["block_mm"][0],
-            "rotation_std_deg": [FIXTURE["block_deg"][0]] * 3,
+            "position_std_mm": FIXTURE.block_mm[0],
+            "rotation_std_deg": [FIXTURE.block_deg[0]] * 3,
         }
     write_profile(path, keys, "the drawing and the touch")
     return path
@@ -170,17 +180,22 @@ def run(cmd: str, profile: Path, world: Path, *extra: str) -> dict:
     return out
 
 
-def commission(index: int, seed: int, fixture: bool = False) -> list[dict]:
-    """Both orders on one drawn world; per order the outcome, errors and z-scores."""
+def commission(
+    index: int,
+    seed: int,
+    fixture: bool = False,
+    orders: tuple[str, ...] = tuple(ORDERS),
+) -> list[dict]:
+    """The orders (names in ``ORDERS``) on one drawn world; per order the outcome, errors and
+    z-scores."""
     rng = np.random.default_rng([seed, index])
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         draw_world(rng, fresh_profile(d / "template.toml", fixture), d / "world.toml", fixture)
-        for order in ORDERS:
-            name = "-".join("t" if c == "tool-frame" else "c" for c in order)
+        for name in orders:
             profile = fresh_profile(d / f"{name}.toml", fixture)
-            outs = {c: run(c, profile, d / "world.toml") for c in order}
+            outs = {c: run(c, profile, d / "world.toml") for c in ORDERS[name]}
             outs["verify"] = run(
                 "verify",
                 profile,
@@ -198,13 +213,15 @@ def commission(index: int, seed: int, fixture: bool = False) -> list[dict]:
 
 def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
     tf, cal = outs["tool-frame"], outs["calibrate"]
-    row = {
+    z: list[float] = []  # every reported quantity's error / std
+    why = [f"{c}: {o['error']}" for c, o in outs.items() if o.get("error")]
+    row: dict[str, object] = {
         "world": index,
         "order": order,
         "tool_written": bool(tf.get("written")),
         "cal_written": bool(cal.get("written")),
-        "why": [f"{c}: {o['error']}" for c, o in outs.items() if o.get("error")],
-        "z": [],
+        "why": why,
+        "z": z,
     }
     # tool frame as the last tool-frame run reported it, in the flange frame of the final J6
     if "position_mm" in tf:
@@ -216,10 +233,10 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
         row["across_mm"] = np.abs(across).tolist()
         row["along_mm"] = float(abs(beam @ err))
         row["beam_deg"] = float(np.degrees(np.arccos(np.clip(beam @ true_tool[:3, 2], -1, 1))))
-        row["z"] += (across / np.asarray(tf["across_beam_std_mm"])).tolist()
-        row["z"].append(float(beam @ err / tf["along_beam"]["std_mm"]))
+        z += (across / np.asarray(tf["across_beam_std_mm"])).tolist()
+        z.append(float(beam @ err / tf["along_beam"]["std_mm"]))
         tilt = np.degrees(tb @ true_tool[:3, 2])
-        row["z"] += (tilt / tf["beam_std_deg"]).tolist()
+        z += (tilt / tf["beam_std_deg"]).tolist()
         row["tool_std_across_mm"] = max(tf["across_beam_std_mm"])
     if "joint_offsets_deg" in cal:
         est = np.asarray(cal["joint_offsets_deg"], float)
@@ -228,7 +245,7 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
         row["offset_err_deg"] = [
             float(e) if np.isfinite(s) else None for e, s in zip(err, std, strict=True)
         ]
-        row["z"] += [float(e / s) for e, s in zip(err, std, strict=True) if np.isfinite(s)]
+        z += [float(e / s) for e, s in zip(err, std, strict=True) if np.isfinite(s)]
     ver = outs["verify"]
     if "truth" in ver:
         nominal = np.asarray(ver["nominal_mm"])
@@ -243,8 +260,6 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
             "passed": bool(ver["passed"]),
             "should_pass": bool(np.max(true_after) <= ver["tolerance_mm"]),
         }
-    elif ver.get("error"):
-        row["why"].append(f"verify: {ver['error']}")
     return row
 
 
@@ -263,10 +278,28 @@ def main() -> None:
         action="store_true",
         help="a fixtured block, a plate touched with a calibrated robot (module docstring)",
     )
+    ap.add_argument(
+        "--order",
+        choices=("both", *ORDERS),
+        default="both",
+        help="t-c: tool-frame then calibrate, c-t: the reverse",
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="--worlds 1 --jobs 1 --order c-t: the same code path in seconds",
+    )
     args = ap.parse_args()
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args()
+    orders = tuple(ORDERS) if args.order == "both" else (args.order,)
     if args.summary:
         rows_saved = [json.loads(line) for line in args.summary.read_text().splitlines()]
-        print(f"{len({r['world'] for r in rows_saved})} fresh cells × 2 orders (saved)")
+        print(
+            f"{len({r['world'] for r in rows_saved})} fresh cells × "
+            f"{len({r['order'] for r in rows_saved})} orders (saved)"
+        )
         summarize(rows_saved)
         return
     t0 = time.monotonic()
@@ -274,7 +307,8 @@ def main() -> None:
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
         indices = range(args.first, args.first + args.worlds)
         seeds, fixtures = [args.seed] * args.worlds, [args.fixture] * args.worlds
-        for res in pool.map(commission, indices, seeds, fixtures):
+        one = functools.partial(commission, orders=orders)
+        for res in pool.map(one, indices, seeds, fixtures):
             rows += res
             if args.out:
                 with args.out.open("a") as f:
@@ -302,14 +336,16 @@ def main() -> None:
                     + "".join(f"\n    {w}" for w in r["why"]),
                     flush=True,
                 )
-    print(f"\n{args.worlds} fresh cells × 2 orders, {time.monotonic() - t0:.0f} s")
+    print(f"\n{args.worlds} fresh cells × {len(orders)} orders, {time.monotonic() - t0:.0f} s")
     summarize(rows)
 
 
 def summarize(rows: list[dict]) -> None:
     """Print the per-order summary of the rows (module docstring)."""
-    for order in ("t-c", "c-t"):
+    for order in ORDERS:
         rs = [r for r in rows if r["order"] == order]
+        if not rs:
+            continue
         both = sum(r["tool_written"] and r["cal_written"] for r in rs)
         print(
             f"\norder {'tool-frame → calibrate' if order == 't-c' else 'calibrate → tool-frame'}"

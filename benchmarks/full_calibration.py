@@ -25,7 +25,9 @@ full level (``solve_full``). Printed:
   plan's own estimate for Modbus TCP and RTU;
 * a nominal robot (no DH error): the largest |value − nominal| / std of the table found.
 
-Usage: ``python benchmarks/full_calibration.py --worlds 10 [--thermometer 0.1] [--jobs 2]``.
+Usage: ``python benchmarks/full_calibration.py --worlds 10 [--thermometer 0.1] [--jobs 2]``;
+``--quick``: one world (and the nominal robot) of at most 8 postures, the same code path in
+seconds.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from drivers.errors import DriverError
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
-from ucal.calibration.full_plan import plan_full
+from ucal.calibration.full_plan import MAX_POSTURES, plan_full
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.sequence import calibration_pose
 from ucal.errors import UcalError
@@ -55,6 +57,8 @@ from ucal.timing import estimate_run
 from ucal.world import load_world
 
 MODEL = "tx90l"
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"worlds": 1, "jobs": 1, "postures": 8}
 
 
 #: The step of ``--step``: a ground step block on the XY face, height certified to 2 µm.
@@ -119,26 +123,37 @@ seed = {index + 1}
     )
 
 
-def run_world(profile_path: Path, world_path: Path, save: Path | None = None) -> dict:
+def run_world(
+    profile_path: Path,
+    world_path: Path,
+    save: Path | None = None,
+    max_postures: int = MAX_POSTURES,
+) -> dict:
     """``measure_world``, once more if the link to the simulated cell failed (a loaded machine
     can starve the in-process simulator past the drivers' guard timeout); a run the procedure
     stops (a posture refused for safety, an echo not found) is a row of its own."""
     try:
         try:
-            return measure_world(profile_path, world_path, save)
+            return measure_world(profile_path, world_path, save, max_postures)
         except DriverError as err:
             print(f"{world_path.name}: {err}; measuring again", flush=True)
-            return measure_world(profile_path, world_path, save)
+            return measure_world(profile_path, world_path, save, max_postures)
     except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
         print(f"{world_path.name}: stopped: {err}", flush=True)
         return {"stopped": str(err)}
 
 
-def measure_world(profile_path: Path, world_path: Path, save: Path | None = None) -> dict:
-    """Measure one world with the full plan (or take its measurements from ``save``, where an
-    earlier run of the same worlds kept them); solve both levels; the figures of one row."""
+def measure_world(
+    profile_path: Path,
+    world_path: Path,
+    save: Path | None = None,
+    max_postures: int = MAX_POSTURES,
+) -> dict:
+    """Measure one world with the full plan of at most ``max_postures`` (or take its
+    measurements from ``save``, where an earlier run of the same worlds kept them); solve both
+    levels; the figures of one row."""
     profile = load_profile(profile_path)
-    plan = plan_full(profile)
+    plan = plan_full(profile, max_postures=max_postures)
     kept = None if save is None else save / f"{world_path.stem}.pickle"
     t0 = time.monotonic()
     if kept is not None and kept.exists():
@@ -237,7 +252,21 @@ def main() -> None:
     ap.add_argument(
         "--step", action="store_true", help="a step of known height on the XY face (the scale)"
     )
+    ap.add_argument(
+        "--postures",
+        type=int,
+        default=MAX_POSTURES,
+        help="at most N postures (calibrate --level full --postures N)",
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="--worlds 1 --jobs 1 --postures 8: the same code path in seconds",
+    )
     args = ap.parse_args()
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="ucal-full-bench-"))
     profile_path = make_profile(work, args.thermometer, args.step)
     profile = load_profile(profile_path)
@@ -247,13 +276,13 @@ def main() -> None:
         path = work / f"world{i}.toml"
         path.write_text(draw_world(rng, profile, i, nominal=(i == args.worlds)))
         worlds.append(path)
-    plan = plan_full(profile)
+    plan = plan_full(profile, max_postures=args.postures)
     print(
         f"profile {MODEL}, thermometer ±{args.thermometer:g} °C, DH tolerance 0.3 mm / "
         f"0.03°{', step 50 ± 0.002 mm' if args.step else ''}; {plan.describe()}"
     )
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
-        measure = functools.partial(run_world, save=args.save)
+        measure = functools.partial(run_world, save=args.save, max_postures=args.postures)
         rows = list(pool.map(measure, [profile_path] * len(worlds), worlds))
     print(
         "world  postures  moves  reads  sim min  est TCP/RTU min  verdict  χ²ᵣ   "
@@ -275,6 +304,8 @@ def main() -> None:
     stopped = [r for r in rows[: args.worlds] if "stopped" in r]
     print(f"runs stopped by the procedure: {len(stopped)} of {args.worlds}")
     drawn = [r for r in rows[: args.worlds] if "stopped" not in r]
+    if not drawn:
+        return
     z = np.concatenate([r["z"] for r in drawn])
     full = np.array([r["full"] for r in drawn])
     l1 = np.array([r["offsets"] for r in drawn])

@@ -12,7 +12,8 @@ Measures, through the same driver code a cell runs:
 and prints median / 90th percentile per call with the number of calls, then the time a
 calibration of ``--moves`` moves and ``--reads`` reads spends in I/O alone.
 
-Usage: python benchmarks/io.py [--calls 200] [--moves 250] [--reads 20000]
+Usage: python benchmarks/io.py [--calls 200] [--moves 250] [--reads 20000]; ``--quick``: ten
+calls each, the same code path in seconds.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from drivers.pulser.simulator import SimulatedPulser
 
 LIMITS_MIN = [-180, -130, -145, -270, -115, -270]
 LIMITS_MAX = [180, 147.5, 145, 270, 140, 270]
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"calls": 10}
 
 
 def timed(fn, calls: int) -> np.ndarray:
@@ -53,12 +56,18 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=200)
     ap.add_argument("--moves", type=int, default=250)
     ap.add_argument("--reads", type=int, default=20000)
+    ap.add_argument(
+        "--quick", action="store_true", help="--calls 10: the same code path in seconds"
+    )
     args = ap.parse_args()
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     start = np.array([30.0, 30.0, 110.0, 0.0, 40.0, 30.0])
     with (
-        SimulatedController(LIMITS_MIN, LIMITS_MAX, start, time_scale=1.0) as sim,
-        SimpleMessageController.from_url(sim.url) as ctl,
+        SimulatedController(LIMITS_MIN, LIMITS_MAX, start, time_scale=1.0) as controller_sim,
+        SimpleMessageController.from_url(controller_sim.url) as ctl,
     ):
 
         def move(i: int) -> None:
@@ -74,8 +83,8 @@ def main() -> None:
     read_ms = {}
     for framing in ("tcp", "rtu"):
         with (
-            SimulatedPulser(lambda s: (0.5, 67459.0), framing=framing) as sim,
-            ModbusPulser.from_url(sim.url, timeout_s=2.0) as pulser,
+            SimulatedPulser(lambda s: (0.5, 67459.0), framing=framing) as pulser_sim,
+            ModbusPulser.from_url(pulser_sim.url, timeout_s=2.0) as pulser,
         ):
             pulser.configure(PulserSettings())
             pulser.read_gate()

@@ -20,7 +20,8 @@ the same measurements. Printed per solver:
   joint keeps its profile offset, so J1 with a hand-placed block dominates "after";
 * per joint: median |error| and median std over the runs that report it.
 
-Usage: ``python benchmarks/realistic.py --worlds 30 [--fixture] [--jobs 2] [--cache DIR]``.
+Usage: ``python benchmarks/realistic.py --worlds 30 [--fixture] [--jobs 2] [--cache DIR]``;
+``--quick``: one world, the same code path in seconds.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution, solve_exact
+from ucal.calibration.procedure import TOLERANCE_STD_DEG, judge
 from ucal.calibration.sequence import (
     CalibrationRun,
     geometry,
@@ -45,13 +47,14 @@ from ucal.calibration.sequence import (
     solve,
 )
 from ucal.cell import CellProfile, WorldTruth
-from ucal.cli.calibrate import TOLERANCE_STD_DEG, judge
 from ucal.kinematics.dh import fk_frames
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import check_status, open_cell
 from ucal.world import load_world
 
 MODEL = "tx90l"
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"worlds": 1, "jobs": 1}
 #: Amplitude quantisation of the simulated pulser (bits of full screen height; 0 = none).
 AMPLITUDE_BITS = 8
 
@@ -124,15 +127,16 @@ def measure_world(profile_path: Path, world_path: Path, cache: Path) -> Path:
     profile = load_profile(profile_path)
     plan = plan_calibration(profile)
     t0 = time.monotonic()
+    run: CalibrationRun | None = None
+    error: str | None = None
     try:
         with open_cell(profile, str(world_path), None, None) as cell:
             check_status(cell.rig)
             run = run_calibration(profile, plan, cell.rig)
         run.measurements[:] = [dc_replace(m, probes=None) for m in run.measurements]
-        data = {"run": run, "error": None}
     except Exception as e:
-        data = {"run": None, "error": f"{type(e).__name__}: {e}"}
-    data["seconds"] = time.monotonic() - t0
+        run, error = None, f"{type(e).__name__}: {e}"
+    data = {"run": run, "error": error, "seconds": time.monotonic() - t0}
     cache.write_bytes(pickle.dumps(data))
     return cache
 
@@ -230,7 +234,13 @@ def main() -> None:
         default=None,
         help="directory for worlds and measurements (kept between runs)",
     )
+    ap.add_argument(
+        "--quick", action="store_true", help="--worlds 1 --jobs 1: the same code path in seconds"
+    )
     args = ap.parse_args()
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args()
     work = args.cache or Path(tempfile.mkdtemp(prefix="ucal-realistic-"))
     work.mkdir(parents=True, exist_ok=True)
     profile_path = make_profile(work, args.fixture)

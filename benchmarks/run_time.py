@@ -12,7 +12,9 @@
    full, verify --region 12): the plan's real-cell estimate (Modbus TCP / RTU), the run's
    simulated duration and its wall time.
 
-Usage: python benchmarks/run_time.py [--no-real-time] [--commands]
+Usage: python benchmarks/run_time.py [--no-real-time] [--commands]; ``--quick``: no warm-up
+run, one hog, no real-time run (step 3 is the plan's estimate and the simulated duration), and
+with ``--commands`` the smallest run of each command: in seconds.
 """
 
 from __future__ import annotations
@@ -26,9 +28,16 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from multiprocessing.synchronize import Event
+
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"warm_up": 0, "hogs": 1, "no_real_time": True}
 
 
-def hog(stop: mp.Event) -> None:
+def hog(stop: Event) -> None:
     x = 0
     while not stop.is_set():
         x = (x * 31 + 7) % 1000003
@@ -61,6 +70,14 @@ COMMANDS = (
     ("calibrate", "--level", "full"),
     ("verify", "--region", "12"),
 )
+#: ``--commands --quick``: the same commands, each with the fewest points or postures it takes.
+QUICK_COMMANDS = (
+    ("tool-frame",),
+    ("calibrate",),
+    ("verify", "--points", "1"),
+    ("calibrate", "--level", "full", "--postures", "3"),
+    ("verify", "--region", "3"),
+)
 
 
 def new_profile(workdir: Path) -> None:
@@ -73,14 +90,14 @@ def new_profile(workdir: Path) -> None:
     )
 
 
-def commands() -> None:
-    """Step 4 of the module docstring."""
+def commands(quick: bool = False) -> None:
+    """Step 4 of the module docstring (``QUICK_COMMANDS`` if ``quick``)."""
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
         new_profile(work)
         print("every moving command on the demo cell (--sim --yes), in a commissioning's order")
         print(f"  {'command':<34} {'estimate TCP / RTU':>20} {'simulated':>10} {'wall':>8}")
-        for cmd in COMMANDS:
+        for cmd in QUICK_COMMANDS if quick else COMMANDS:
             t0 = time.monotonic()
             out = subprocess.run(
                 [sys.executable, "-m", "ucal", *cmd[:1], "cell.toml", *cmd[1:], "--sim"]
@@ -103,17 +120,34 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--no-real-time", action="store_true")
     ap.add_argument("--commands", action="store_true", help="step 4 instead of 1-3")
+    ap.add_argument(
+        "--warm-up",
+        type=int,
+        default=1,
+        help="untimed runs first, to warm the interpreter's caches (imports, bytecode)",
+    )
+    ap.add_argument("--hogs", type=int, default=2, help="busy processes beside the loaded run")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="--warm-up 0 --hogs 1 --no-real-time (with --commands: the smallest run of each "
+        "command): the same code paths in seconds",
+    )
     args = ap.parse_args()
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args()
     if args.commands:
-        commands()
+        commands(args.quick)
         return
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
         new_profile(work)
-        calibrate(work, "--sim")  # warm the interpreter's caches (imports, bytecode)
+        for _ in range(args.warm_up):
+            calibrate(work, "--sim")
         idle_wall, idle, estimate = calibrate(work, "--sim")
         stop = mp.Event()
-        hogs = [mp.Process(target=hog, args=(stop,)) for _ in range(2)]
+        hogs = [mp.Process(target=hog, args=(stop,)) for _ in range(args.hogs)]
         for p in hogs:
             p.start()
         try:
@@ -131,9 +165,10 @@ def main() -> None:
             f"  idle:             {idle_wall:6.1f} s wall, {idle['moves']} moves, "
             f"{idle['pulser_reads']} pulser reads"
         )
+        loaded = f"{args.hogs} CPU hog{'' if args.hogs == 1 else 's'}:"
         print(
-            f"  two CPU hogs:     {busy_wall:6.1f} s wall; offsets and stds bit for bit the "
-            f"same as idle: {same}"
+            f"  {loaded:<18}{busy_wall:6.1f} s wall; offsets and stds bit for bit the same as "
+            f"idle: {same}"
         )
         print(f"  plan: {estimate.strip()}")
         print(

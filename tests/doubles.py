@@ -17,8 +17,8 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
-from typing import TextIO
 from pathlib import Path
+from typing import TextIO
 
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.cli import main
