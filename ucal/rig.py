@@ -310,7 +310,8 @@ class Rig:
         j = int(np.argmax(np.abs(target - start) / timing.MAX_SPEED_DEG_S))
         travel = float(np.max(np.abs(target - start)))
         if len(ts) < 2:
-            return travel
+            # No stream to tie them (a controller double): the readings as if spread evenly.
+            return travel / max(len(tr), 1)
         lo, hi = sorted((float(start[j]), float(target[j])))
         margin = 1e-6 * max(travel, 1.0)
         moving = ts[(js[:, j] > lo + margin) & (js[:, j] < hi - margin)]
@@ -409,6 +410,8 @@ class Rig:
             a, b = b, a  # the arm stands at the new ``a``
             if self.sweep_speed <= MIN_SPEED:
                 break  # no slower sweep to try
+        if not self.controller.joint_samples(self.controller.clock.now() - 1.0):
+            return out  # no stream to say how the arm moved (a controller double)
         return self.stepped_line(a, b, max_step_deg)
 
     def stepped_line(
