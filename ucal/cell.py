@@ -57,12 +57,19 @@ class PulserConfig:
     """``[pulser]`` in the profile: how ucal talks to the pulser-receiver (every key optional).
 
     ``register_map``: the Modbus register map of the device (``drivers.pulser.map_file``),
-    read and validated from ``register_map_path``; None: ucal's own map.
+    read and validated from ``register_map_path``; None: ucal's own map. ``timeout_s``: how
+    long a request waits for its answer; ``retries``: how often a request that got no byte
+    back is asked again before the device counts as silent.
     """
 
     register_map_path: Path | None = None
     register_map: RegisterMap | None = None
+    timeout_s: float = 1.0
+    retries: int = 1
 
+
+#: Largest ``[pulser] timeout_s`` a profile may state (s).
+MAX_PULSER_TIMEOUT_S = 60.0
 
 #: Largest value of each ``[controller]`` timeout a profile may state (s).
 MAX_CONTROLLER_TIMEOUT_S = {
@@ -173,6 +180,34 @@ class Noise:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class CellTiming:
+    """The real cell's time (world ``[timing]``; s here, ms in the file), seeded by ``Noise.seed``.
+
+    Defaults are the released VAL3 server's state stream (JOINT_POSITION every 20 ms, no time
+    stamp in the frame) over a cell network, and a Modbus TCP instrument on a LAN: the
+    simulated cell applies them on both clocks, so every ``--sim`` run and every test meets a
+    stream whose frames arrive late and unevenly, and readings whose acquisition instant the
+    client does not know exactly.
+
+    * ``state_period_s``: the stream's period; ``state_latency_s`` + a half-normal jitter of
+      one-sigma ``state_jitter_s``: how old the position a frame carries is when it arrives;
+      ``missing_state_frames``: the share of frames lost.
+    * ``pulser_latency_s`` + jitter ``pulser_jitter_s`` (one sigma, half-normal): the
+      instrument transport's round trip, beyond its turnaround (``ucal.timing``), half before
+      the acquisition and half after; ``acquisition_delay_s``: from the acquisition to the
+      reply that carries it (an instrument that answers with its last completed acquisition).
+    """
+
+    state_period_s: float | None = None  # None: the server's own (20 ms for the VAL3 server)
+    state_latency_s: float = 0.002
+    state_jitter_s: float = 0.001
+    missing_state_frames: float = 0.0
+    pulser_latency_s: float = 0.001
+    pulser_jitter_s: float = 0.0005
+    acquisition_delay_s: float = 0.0
+
+
 #: Fixed delay (ns) between the instrument's time zero and the pulse leaving the element, that
 #: every TOF reading carries: ~0.8 m of coaxial cable each way (≈ 5 ns/m) left after the
 #: instrument's own zero. Real probes and cables add 10–60 ns; 8 ns keeps the uncorrected
@@ -238,6 +273,7 @@ class WorldTruth:
     #: server's own).
     controller_server: str = "simple"
     controller_silence_s: float | None = None
+    timing: CellTiming = field(default_factory=CellTiming)
 
     @property
     def tool_matrix(self) -> np.ndarray:

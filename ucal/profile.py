@@ -29,7 +29,7 @@ import shutil
 import socket
 import sys
 from collections.abc import Iterator, Mapping
-from dataclasses import MISSING, asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal, overload
@@ -41,6 +41,7 @@ from tomlkit.items import Array, InlineTable, Table
 from ucal import files
 from ucal.cell import (
     MAX_CONTROLLER_TIMEOUT_S,
+    MAX_PULSER_TIMEOUT_S,
     PAPER_CALIBRATION_POSE_DEG,
     CellProfile,
     ControllerTimeouts,
@@ -103,7 +104,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
         }
     ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
-    "pulser": frozenset({"register_map"}),
+    "pulser": frozenset({"register_map", "timeout_s", "retries"}),
 }
 
 #: Flange length of the shipped models (mm): wrist centre to flange along z6.
@@ -484,12 +485,23 @@ def read_pulser(
     r: Reader, table: Mapping[str, Any] | None, base_dir: Path | None = None
 ) -> PulserConfig:
     """Optional ``[pulser]``: ``register_map``, a map file relative to ``base_dir`` (default:
-    the profile's directory), read and validated."""
+    the profile's directory), read and validated; ``timeout_s`` and ``retries``, how long a
+    request waits for the first byte of its answer and how often one that got none is asked
+    again before the device counts as silent."""
+    d = PulserConfig()
+    timeout = r.get(table, "pulser.timeout_s")
+    retries = r.get(table, "pulser.retries")
+    config = PulserConfig(
+        timeout_s=d.timeout_s
+        if timeout is None
+        else r.number("pulser.timeout_s", timeout, lo=0.01, hi=MAX_PULSER_TIMEOUT_S, unit="s"),
+        retries=d.retries if retries is None else r.integer("pulser.retries", retries, lo=0, hi=10),
+    )
     raw = r.get(table, "pulser.register_map")
     if raw is None:
-        return PulserConfig()
+        return config
     path, register_map = r.register_map("pulser.register_map", raw, base_dir)
-    return PulserConfig(register_map_path=path, register_map=register_map)
+    return replace(config, register_map_path=path, register_map=register_map)
 
 
 def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
@@ -546,7 +558,9 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
                 None
                 if profile.pulser.register_map_path is None
                 else str(profile.pulser.register_map_path)
-            )
+            ),
+            "timeout_s": profile.pulser.timeout_s,
+            "retries": profile.pulser.retries,
         },
     }
 

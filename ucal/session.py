@@ -110,7 +110,10 @@ def open_cell(
         truth = None
         clock: Clock = HOST_CLOCK
         controller_options = profile.controller.driver_options()
-        pulser_options: dict[str, Any] = {}
+        pulser_options: dict[str, Any] = {
+            "timeout_s": profile.pulser.timeout_s,
+            "retries": profile.pulser.retries,
+        }
         if profile.pulser.register_map is not None:
             pulser_options["register_map"] = profile.pulser.register_map
         if sim_world is not None:

@@ -23,8 +23,12 @@ import numpy as np
 from drivers.controller.simulator import DEFAULT_MAX_SPEED_DEG_S
 from drivers.pulser.registers import MEASUREMENT_COUNT
 
-#: Modbus TCP request/response on a cell network plus instrument turnaround (s).
-TCP_READ_S = 0.002
+#: Modbus TCP request/response on a cell network plus instrument turnaround (s): the
+#: instrument's turnaround and the network's round trip (``NETWORK_LATENCY_S``, the default of
+#: a world's ``[timing] pulser_latency_ms``).
+NETWORK_LATENCY_S = 0.001
+TCP_TURNAROUND_S = 0.001
+TCP_READ_S = TCP_TURNAROUND_S + NETWORK_LATENCY_S
 #: Instrument turnaround after a Modbus RTU request (s).
 RTU_TURNAROUND_S = 0.001
 #: Bits per character on the serial line (start, 8 data, parity, stop).
@@ -37,8 +41,16 @@ MAX_SPEED_DEG_S = np.asarray(DEFAULT_MAX_SPEED_DEG_S, float)
 
 def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT) -> float:
     """Time of one measurement-block request over ``framing`` ("tcp" or "rtu"), in s."""
+    return device_transport_s(framing, baud, registers) + NETWORK_LATENCY_S
+
+
+def device_transport_s(
+    framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT
+) -> float:
+    """The instrument's own part of a request (s): its turnaround, and over RTU the bytes on
+    the serial line; the network's latency comes on top (a world's ``[timing]``)."""
     if framing == "tcp":
-        return TCP_READ_S
+        return TCP_TURNAROUND_S
     if framing != "rtu":
         raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
     chars = 8 + 5 + 2 * registers + 2 * 3.5  # request, answer, two frame silences

@@ -1219,8 +1219,13 @@ def line_to_edge(
     t_edge = float(guess_mm)
     slope = 1.0
     for _ in range(2):
+        if t_edge == t_a:  # the previous step landed on the edge exactly
+            break
         c_e = coordinate_at(t_edge)
-        slope = (c_e - c_a) / (t_edge - t_a)
+        secant = (c_e - c_a) / (t_edge - t_a)
+        if not abs(secant) > 1e-9:  # the estimate did not move along the line: keep the step
+            break
+        slope = secant
         t_a, c_a = t_edge, c_e
         t_edge += (edge_mm - c_e) / slope
     return t_edge, t_edge + overshoot_mm / slope

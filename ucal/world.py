@@ -37,18 +37,25 @@ Extra keys beyond SPEC.md:
   (``drivers.controller.simulator.SERVERS``: ``"simple"``, the default; ``"val3"``, the
   released VAL3 server; ``"val3-feedback"``, its 250 Hz JOINT_FEEDBACK pull request), and
   ``startup_silence_s`` to change that server's silence after a client connects (0…60 s).
+* ``[timing]`` — the real cell's time (``ucal.cell.CellTiming``): ``state_period_ms`` (the
+  state stream's period; default 20, the released VAL3 server's 50 Hz), ``state_latency_ms``
+  and ``state_jitter_ms`` (how late a frame's position arrives; 2 and 1), ``missing_state_frames``
+  (share lost, 0…0.5; 0), ``pulser_latency_ms`` and ``pulser_jitter_ms`` (the instrument
+  transport's round trip beyond its turnaround; 1 and 0.5), ``acquisition_delay_ms`` (from the
+  acquisition to the reply that carries it; 0). Applied on the simulated and the host clock.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from drivers.controller.simulator import SERVERS
-from ucal.cell import CellProfile, Noise, PulserTruth, Reflector, WorldTruth
+from ucal.cell import CellProfile, CellTiming, Noise, PulserTruth, Reflector, WorldTruth
 from ucal.profile import (
     before_measurement,
     read_robot,
@@ -86,6 +93,17 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns", "register_map"}),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
     "controller": frozenset({"server", "startup_silence_s"}),
+    "timing": frozenset(
+        {
+            "state_period_ms",
+            "state_latency_ms",
+            "state_jitter_ms",
+            "missing_state_frames",
+            "pulser_latency_ms",
+            "pulser_jitter_ms",
+            "acquisition_delay_ms",
+        }
+    ),
 }
 
 #: Largest Hayati twist (deg), backlash (deg) and water drift (°C/min) a world file may state.
@@ -231,6 +249,10 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
             "controller.startup_silence_s", v, lo=0.0, hi=60.0, unit="s"
         )
 
+    timing_table = r.table("timing")
+    if timing_table is not None:
+        changes["timing"] = _timing(r, timing_table)
+
     noise = r.table("noise")
     if noise is not None:
         d = Noise()
@@ -257,6 +279,34 @@ def _split_beta(r: Reader, robot: Mapping[str, Any]) -> tuple[Mapping[str, Any],
         return robot, None
     stripped, beta = r.split_beta("robot.dh", raw, MAX_BETA_DEG)
     return {**robot, "dh": stripped}, beta
+
+
+#: Bounds of the ``[timing]`` keys (ms, or a share): a state period of a 1 kHz stream to 1 s, a
+#: latency or delay up to a second.
+_TIMING_MS_BOUNDS = {
+    "state_period_ms": (1.0, 1000.0),
+    "state_latency_ms": (0.0, 1000.0),
+    "state_jitter_ms": (0.0, 1000.0),
+    "pulser_latency_ms": (0.0, 1000.0),
+    "pulser_jitter_ms": (0.0, 1000.0),
+    "acquisition_delay_ms": (0.0, 1000.0),
+}
+
+
+def _timing(r: Reader, table: Mapping[str, Any]) -> CellTiming:
+    """``[timing]``: the real cell's time (ms in the file, s in ``CellTiming``)."""
+    d = CellTiming()
+    values: dict[str, float] = {}
+    for key, (lo, hi) in _TIMING_MS_BOUNDS.items():
+        v = r.get(table, f"timing.{key}")
+        if v is not None:
+            values[key.removesuffix("_ms") + "_s"] = 1e-3 * r.number(
+                f"timing.{key}", v, lo=lo, hi=hi, unit="ms"
+            )
+    v = r.get(table, "timing.missing_state_frames")
+    if v is not None:
+        values["missing_state_frames"] = r.number("timing.missing_state_frames", v, lo=0.0, hi=0.5)
+    return replace(d, **values)
 
 
 def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:

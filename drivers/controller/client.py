@@ -29,6 +29,7 @@ import collections
 import contextlib
 import logging
 import math
+import select
 import socket
 import struct
 import threading
@@ -230,6 +231,7 @@ class SimpleMessageController(RobotController):
         self._late: list[int] = []
 
         self._state_sock: Connection | None = None
+        self._reader_waiting = True  # the state reader is blocked in recv, nothing in hand
         self._state_thread: threading.Thread | None = None
         self._closing = threading.Event()
         # Guards everything below; notified on every state frame and when the link dies.
@@ -355,16 +357,19 @@ class SimpleMessageController(RobotController):
     def _state_loop(self, sock: Connection, reader: FrameReader) -> None:
         debug = log.isEnabledFor(logging.DEBUG)
         while not self._closing.is_set():
+            self._reader_waiting = True
             try:
                 data = sock.recv(_RECV_SIZE)
             except TimeoutError:
                 continue
             except OSError as e:
+                self._reader_waiting = False
                 if not self._closing.is_set():
                     self._state_failed(
                         ConnectionLost(self.device, self.endpoint, f"state connection failed: {e}")
                     )
                 return
+            self._reader_waiting = False
             if not data:
                 if not self._closing.is_set():
                     self._state_failed(
@@ -444,6 +449,23 @@ class SimpleMessageController(RobotController):
             self._state_error = error
             self._cond.notify_all()
 
+    def _stream_behind(self) -> bool:
+        """Whether the state reader has frames it has not taken yet: bytes wait in the socket,
+        or the reader is not back in ``recv`` (busy with what came, or not yet scheduled by a
+        loaded host). Then a silence is the host's, not the controller's: the stream's
+        timeouts and the halt detection judge the controller only on a reader that waits
+        with nothing to read."""
+        if not self._reader_waiting:
+            return True
+        fileno = getattr(self._state_sock, "fileno", None)
+        if fileno is None:
+            return False
+        try:
+            ready, _, _ = select.select([fileno()], [], [], 0)
+        except (OSError, ValueError, TypeError):
+            return False
+        return bool(ready)
+
     def _check_state_locked(self, now: float) -> None:
         """Raise if the state link is closed, broken or silent, or the motion was halted.
 
@@ -454,14 +476,14 @@ class SimpleMessageController(RobotController):
         if self._state_sock is None:
             raise ConnectionLost(self.device, self.endpoint, "not connected")
         if self._first_frame_t is None:
-            if now - self._connected_t > self.first_state_timeout_s:
+            if now - self._connected_t > self.first_state_timeout_s and not self._stream_behind():
                 raise self._ran_out(
                     "first_state_timeout_s",
                     f"no state message since connecting to the state port "
                     f"{self._address.state_port} (a VAL3 server streams 1 s after a client "
                     f"connects: is ros_server running?)",
                 )
-        elif now - self._last_frame_t > self.state_timeout_s:
+        elif now - self._last_frame_t > self.state_timeout_s and not self._stream_behind():
             raise self._ran_out(
                 "state_timeout_s", f"no state message for {now - self._last_frame_t:.2f} s"
             )
@@ -492,7 +514,9 @@ class SimpleMessageController(RobotController):
             return
         stalled_s = now - self._best_t
         idle_s = 0.0 if self._idle_since is None else now - max(self._idle_since, self._accepted_t)
-        if stalled_s >= self.halt_timeout_s or idle_s >= self.halt_timeout_s:
+        if (
+            stalled_s >= self.halt_timeout_s or idle_s >= self.halt_timeout_s
+        ) and not self._stream_behind():
             said = "no status yet" if st is None else _describe(st)
             raise DeviceError(
                 self.device,

@@ -219,6 +219,10 @@ class SimulatedController:
         server: str = "simple",
         startup_silence_s: float | None = None,
         on_point: Callable[[int], None] | None = None,
+        state_latency_s: float = 0.0,
+        state_jitter_s: float = 0.0,
+        missing_state_frames: float = 0.0,
+        seed: int = 0,
     ):
         self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
         self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
@@ -264,6 +268,14 @@ class SimulatedController:
             raise ValueError(f"state_rate_hz must be > 0, got {state_rate_hz}")
         if joint_message not in (MsgType.JOINT_POSITION, MsgType.JOINT_FEEDBACK):
             raise ValueError(f"joint_message must be 10 or 15, got {joint_message}")
+        for name, value in (
+            ("state_latency_s", state_latency_s),
+            ("state_jitter_s", state_jitter_s),
+        ):
+            if not (value >= 0 and math.isfinite(value)):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if not 0.0 <= missing_state_frames < 1.0:
+            raise ValueError(f"missing_state_frames must be in [0, 1), got {missing_state_frames}")
         self.host = "127.0.0.1"
         self._requested_ports = (int(motion_port), int(state_port))
         self.time_scale = float(time_scale)
@@ -273,6 +285,17 @@ class SimulatedController:
         self.startup_silence_s = float(startup_silence_s)
         self.on_point = on_point
         self.clock: Clock = clock if clock is not None else HOST_CLOCK
+        # The stream's own time: each frame carries the arm as it was latency + jitter before
+        # it is sent (frames have no time stamp: the client sees only when they arrive), some
+        # frames are lost. One seeded generator, drawn once per pass, so that the same world
+        # gives the same stream.
+        self.state_latency_s = float(state_latency_s)
+        self.state_jitter_s = float(state_jitter_s)
+        self.missing_state_frames = float(missing_state_frames)
+        self._stream_rng = np.random.default_rng([int(seed), 0x57A7E])
+        self._last_frame_t = -math.inf  # the instant the last frame described
+        # How far back frames may describe the arm: finished moves are kept this much longer.
+        self._history_s = self.state_latency_s + 6.0 * self.state_jitter_s
 
         self._lock = threading.Lock()  # guards plan changes, faults, client lists, counters
         # replaced whole, read without the lock
@@ -424,6 +447,15 @@ class SimulatedController:
         """Direction (-1, 0, +1) of each joint's last motion, at this instant."""
         return self._plan.sign_at(self.clock.now())
 
+    def joints_at(self, t: float) -> np.ndarray:
+        """Joint readings (deg, (6,)) at instant ``t`` of the clock, a little in the past at
+        most (finished moves are kept for the stream's latency)."""
+        return self._plan.at(t)
+
+    def motion_sign_at(self, t: float) -> np.ndarray:
+        """Direction (-1, 0, +1) of each joint's last motion begun by instant ``t``."""
+        return self._plan.sign_at(t)
+
     def in_motion(self) -> bool:
         """Whether a move is executing (or settling) at this instant."""
         return self._plan.in_motion(self.clock.now())
@@ -524,8 +556,10 @@ class SimulatedController:
         """Drop finished segments from the plan and report them."""
         with self._lock:
             plan = self._plan
-            # a move is done once it has settled (the last one is reported in motion until then)
-            done = [s for s in plan.segments if s.t_end + plan.settle_s <= now]
+            # a move is done once it has settled (the last one is reported in motion until
+            # then) and no frame still to be sent describes it
+            keep_s = plan.settle_s + self._history_s
+            done = [s for s in plan.segments if s.t_end + keep_s <= now]
             if not done:
                 return
             self._plan = _Plan(
@@ -758,6 +792,21 @@ class SimulatedController:
     def _has_state_clients(self) -> bool:
         return bool(self._state_clients)
 
+    def _frame_instant(self, now: float) -> float | None:
+        """The instant the frame sent at ``now`` describes, or None for a lost frame.
+
+        ``now`` less the latency and a half-normal jitter, never earlier than the last frame's
+        (the stream keeps its order, as TCP does).
+        """
+        rng = self._stream_rng
+        lost = self.missing_state_frames > 0 and rng.random() < self.missing_state_frames
+        delay = self.state_latency_s + self.state_jitter_s * abs(float(rng.standard_normal()))
+        if lost:
+            return None
+        t = min(max(now - delay, self._last_frame_t), now)
+        self._last_frame_t = t
+        return t
+
     def _send_state(self, now: float) -> int:
         """Send the state frames of instant ``now`` to every state client; return how many."""
         self._retire(now)
@@ -766,8 +815,11 @@ class SimulatedController:
             garbage, self._state_garbage = self._state_garbage, b""
         if not clients:
             return 0
-        joints = self._joint_frame(now)
-        status = self._status(now).pack()
+        described = self._frame_instant(now)
+        if described is None:
+            return 0
+        joints = self._joint_frame(described)
+        status = self._status(described).pack()
         variant = self.variant
         sent = 0
         for client in clients:

@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 
 #: Default time one request may wait for its answer, s.
 DEFAULT_TIMEOUT_S = 1.0
+#: Times a request that got no byte back is asked again before the device counts as silent.
+DEFAULT_RETRIES = 1
 #: Pause between two polls of the measurement block while waiting for a new counter, s.
 POLL_INTERVAL_S = 0.002
 #: Shortest per-request timeout used when a deadline is almost reached, s.
@@ -123,10 +125,13 @@ class ModbusPulser(PulserReceiver):
         *,
         port: Any = None,
         register_map: reg.RegisterMap | str | Path | None = None,
+        retries: int = DEFAULT_RETRIES,
     ):
         parsed = parse_pulser_url(url) if isinstance(url, str) else url
         if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
+        if not (isinstance(retries, int) and 0 <= retries <= 10):
+            raise ValueError(f"retries must be an integer from 0 to 10, got {retries!r}")
         if port is not None and parsed.framing != "rtu":
             raise ValueError("port can only be injected for modbus-rtu URLs")
         if register_map is None:
@@ -138,6 +143,7 @@ class ModbusPulser(PulserReceiver):
         self._endpoint = str(parsed)
         self._unit = parsed.unit
         self._timeout_s = float(timeout_s)
+        self._retries = retries
         self._lock = threading.RLock()
         self._rx = b""  # bytes received for the request in flight (cumulative)
         # When the request in flight must have its answer (time.monotonic() s): pymodbus
@@ -158,15 +164,17 @@ class ModbusPulser(PulserReceiver):
         url: str,
         timeout_s: float = DEFAULT_TIMEOUT_S,
         register_map: reg.RegisterMap | str | Path | None = None,
+        retries: int = DEFAULT_RETRIES,
     ) -> ModbusPulser:
-        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request;
-        ``register_map`` is the device's map (None: ucal's own).
+        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request, asked again
+        ``retries`` times when nothing at all came back; ``register_map`` is the device's map
+        (None: ucal's own).
 
         ``url`` is ``modbus-tcp://HOST:PORT[?unit=N]`` or
         ``modbus-rtu://DEVICE[?baud=N&unit=N&parity=E]``. Raises ``ValueError`` for a
         malformed URL or an invalid map file. Does not connect.
         """
-        return cls(url, timeout_s, register_map=register_map)
+        return cls(url, timeout_s, register_map=register_map, retries=retries)
 
     def _make_client(self, url: PulserUrl) -> ModbusBaseSyncClient:
         common: dict[str, Any] = {
@@ -578,49 +586,33 @@ class ModbusPulser(PulserReceiver):
         connects first when the pulser is not connected yet.
         """
         with self._lock:
-            if autoconnect and not self._connected:
-                self.connect()
-            timeout_s = self._timeout_s
-            if deadline is not None:
-                timeout_s = min(timeout_s, max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S))
-            # pymodbus reads the receive timeout from comm_params on every request
-            self._client.comm_params.timeout_connect = timeout_s
-            self._rx = b""
-            self._rx_deadline = time.monotonic() + timeout_s
-            try:
-                response = call(*args, device_id=self._unit, **kwargs)
-            except _NoFrame:
-                received = self._rx
-                self._lost()  # the stream is out of step: start the next request afresh
-                raise ProtocolError(
-                    self.device,
-                    self._endpoint,
-                    f"{what}: {len(received)} bytes in {timeout_s:.3g} s and no valid Modbus "
-                    f"frame among them (is this a Modbus pulser?): {received[:32].hex(' ')}"
-                    + (" ..." if len(received) > 32 else ""),
-                ) from None
-            except ConnectionException as exc:
-                self._lost()
-                raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
-            except ModbusIOException as exc:
-                if self._rx:
-                    raise ProtocolError(
-                        self.device,
+            for attempt in range(self._retries + 1):
+                if autoconnect and not self._connected:
+                    self.connect()
+                timeout_s = self._timeout_s
+                if deadline is not None:
+                    timeout_s = min(
+                        timeout_s, max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S)
+                    )
+                try:
+                    response = self._attempt(what, timeout_s, call, *args, **kwargs)
+                    break
+                except DeviceTimeout:
+                    # Nothing came back: the request or its reply was lost. A retry on a fresh
+                    # connection (no late reply of this request can then be taken for the
+                    # next one's); the device is silent only when it stays silent.
+                    late = deadline is not None and time.monotonic() >= deadline
+                    if attempt >= self._retries or late or not autoconnect:
+                        raise
+                    log.warning(
+                        "pulser %s: %s: no answer within %.3g s; asking again (%d of %d)",
                         self._endpoint,
-                        f"{what}: invalid reply (bad CRC, wrong unit or truncated frame): "
-                        f"{self._rx.hex(' ')}",
-                    ) from exc
-                raise DeviceTimeout(
-                    self.device, self._endpoint, f"{what}: no answer within {timeout_s:.3g} s"
-                ) from exc
-            except ModbusException as exc:
-                raise ProtocolError(self.device, self._endpoint, f"{what}: {exc}") from exc
-            except OSError as exc:  # includes serial.SerialException
-                self._lost()
-                raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
-            finally:
-                self._client.comm_params.timeout_connect = self._timeout_s
-                self._rx_deadline = math.inf
+                        what,
+                        timeout_s,
+                        attempt + 1,
+                        self._retries,
+                    )
+                    self._lost()
             if response.isError():
                 code = int(getattr(response, "exception_code", 0))
                 raise DeviceError(
@@ -629,6 +621,49 @@ class ModbusPulser(PulserReceiver):
                     f"{what}: Modbus exception {reg.exception_name(code)}",
                 )
             return response
+
+    def _attempt(
+        self, what: str, timeout_s: float, call: Callable[..., Any], *args: Any, **kwargs: Any
+    ) -> Any:
+        """One request and its reply within ``timeout_s``; faults mapped as ``_execute`` says."""
+        # pymodbus reads the receive timeout from comm_params on every request
+        self._client.comm_params.timeout_connect = timeout_s
+        self._rx = b""
+        self._rx_deadline = time.monotonic() + timeout_s
+        try:
+            return call(*args, device_id=self._unit, **kwargs)
+        except _NoFrame:
+            received = self._rx
+            self._lost()  # the stream is out of step: start the next request afresh
+            raise ProtocolError(
+                self.device,
+                self._endpoint,
+                f"{what}: {len(received)} bytes in {timeout_s:.3g} s and no valid Modbus "
+                f"frame among them (is this a Modbus pulser?): {received[:32].hex(' ')}"
+                + (" ..." if len(received) > 32 else ""),
+            ) from None
+        except ConnectionException as exc:
+            self._lost()
+            raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
+        except ModbusIOException as exc:
+            if self._rx:
+                raise ProtocolError(
+                    self.device,
+                    self._endpoint,
+                    f"{what}: invalid reply (bad CRC, wrong unit or truncated frame): "
+                    f"{self._rx.hex(' ')}",
+                ) from exc
+            raise DeviceTimeout(
+                self.device, self._endpoint, f"{what}: no answer within {timeout_s:.3g} s"
+            ) from exc
+        except ModbusException as exc:
+            raise ProtocolError(self.device, self._endpoint, f"{what}: {exc}") from exc
+        except OSError as exc:  # includes serial.SerialException
+            self._lost()
+            raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
+        finally:
+            self._client.comm_params.timeout_connect = self._timeout_s
+            self._rx_deadline = math.inf
 
     def _lost(self) -> None:
         """Forget the connection so that the next call reconnects."""

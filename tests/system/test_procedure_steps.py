@@ -46,10 +46,10 @@ class Recorder:
         yield self.progress_seen.append
 
 
-def run(job: Any, dry_run: bool = False) -> tuple[list[Any], Recorder, Outcome]:
+def run(job: Any, dry_run: bool = False, world: str = "") -> tuple[list[Any], Recorder, Outcome]:
     steps: list[Step] = []
     presenter = Recorder()
-    options = RunOptions(CellChoice("", None, None), yes=False, dry_run=dry_run)
+    options = RunOptions(CellChoice(world, None, None), yes=False, dry_run=dry_run)
     outcome = MeasuringProcedure(job, options, presenter, on_step=steps.append).run()
     return steps, presenter, outcome
 
@@ -96,7 +96,13 @@ def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path:
     assert outcome.result["written"] == outcome.written
 
     profile = load_profile(profile_path)  # as tool-frame wrote it
-    steps, presenter, outcome = run(VerifyJob(profile, profile_path, n_points=1), dry_run=True)
+    # A cell as the profile describes it (the calibration above was a dry run: on the demo
+    # truth the offsets would be degrees off, and the searches a run longer than its plan)
+    world = profile_path.with_name("as_described.toml")
+    world.write_text("[noise]\nseed = 3\n", encoding="utf-8")
+    steps, presenter, outcome = run(
+        VerifyJob(profile, profile_path, n_points=1), dry_run=True, world=str(world)
+    )
     check_run(steps, presenter, outcome, "verify")
     assert [p.step.what for p in presenter.progress_seen] == [
         "before point 1",

@@ -258,6 +258,7 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         return read_distance(rig, profile.water_temperature_c, averages)
 
     peak = None
+    acquired = False  # whether the raster search has run (else the prediction was trusted)
     if mode == SearchMode.DIRECT:
         try:
             peak = search.fit(q_pred, averages=8, distance=tof)
@@ -267,17 +268,30 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         q_c = search.quick_centre(q_pred) if mode != SearchMode.ACQUIRE else None
         if q_c is None:
             q_c = acquire_and_centre(search, rig, q_pred, label, radius_deg, acq_gain)
+            acquired = True
         peak = search.fit(q_c, averages=8, distance=tof)
     if peak.tilt_std_deg > FIT_GATE_DEG:
         log.info("%s: poor fit (σ %.3f°), centring again", label, peak.tilt_std_deg)
         q_c = search.quick_centre(peak.joints_deg)
         if q_c is None:
             q_c = acquire_and_centre(search, rig, q_pred, label, 8.0, acq_gain)
+            acquired = True
         peak = search.fit(q_c, averages=8, distance=tof)
     assert peak.distance is not None
     path, path_std = peak.distance
     height = peak.amplitude / 10 ** (rig.settings.gain_db / 20)
     below = search.side_lobe_db((height, path))
+    if below is not None and not acquired:
+        # A fit where the prediction put it can settle on a side lobe, or on the noise of a
+        # beam far from normal (a flat patch fits a broad "peak"): that is a prediction to
+        # distrust, not yet a face without a main lobe. Search as for an unknown posture.
+        log.info("%s: the fit is %.0f dB below the main lobe: searching", label, below)
+        q_c = acquire_and_centre(search, rig, q_pred, label, radius_deg, acq_gain)
+        peak = search.fit(q_c, averages=8, distance=tof)
+        assert peak.distance is not None
+        path, path_std = peak.distance
+        height = peak.amplitude / 10 ** (rig.settings.gain_db / 20)
+        below = search.side_lobe_db((height, path))
     if below is not None:
         raise side_lobe_error(rig, label, below, rig.counters.moves - first_move)
     if peak.tilt_std_deg <= FIT_GATE_DEG:

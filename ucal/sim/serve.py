@@ -81,6 +81,8 @@ class SimulatedCellServer:
         self._log_file: IO[str] | None = None
         self._log_lock = threading.Lock()
         self._motions = 0
+        # the pulser transport's jitter, seeded by the world (its own stream of numbers)
+        self._transport_rng = np.random.default_rng([int(self.world.noise.seed), 0x9017])
 
     # --- lifecycle ----------------------------------------------------------------------------
     def start(self) -> Self:
@@ -91,6 +93,7 @@ class SimulatedCellServer:
             # open for the server's lifetime, closed by stop()
             self._log_file = open(self.log_path, "a", encoding="utf-8")  # noqa: SIM115
         model = self.world.model
+        period_s = self.world.timing.state_period_s
         try:
             self.controller = SimulatedController(
                 np.asarray(model.joint_min_deg, float),
@@ -105,6 +108,11 @@ class SimulatedCellServer:
                 settle_s=timing.SETTLE_S,
                 server=self.server,
                 startup_silence_s=self.world.controller_silence_s,
+                state_rate_hz=None if period_s is None else 1.0 / period_s,
+                state_latency_s=self.world.timing.state_latency_s,
+                state_jitter_s=self.world.timing.state_jitter_s,
+                missing_state_frames=self.world.timing.missing_state_frames,
+                seed=self.world.noise.seed,
             )
             self.controller.start()
             self.pulser = SimulatedPulser(
@@ -166,18 +174,29 @@ class SimulatedCellServer:
 
     # --- callbacks (server threads) -----------------------------------------------------------
     def _acquire(self, settings: PulserSettings) -> tuple[float, float]:
-        """Pulser model: the raw echo at the controller's joint readings of this instant."""
-        half = 0.5 * timing.read_s(self.pulser_framing, settings.averages, settings.prf_hz)
-        self._let_pass(half)
-        joints = self.controller.joints_deg()
+        """Pulser model: the raw echo at the controller's joint readings of the acquisition.
+
+        The request's half of the transport (the instrument's own part, ``ucal.timing``, and
+        the world's network latency with its jitter) passes, then the pulses averaged; the echo
+        is that of the arm ``acquisition_delay`` before the reply leaves, and the reply's half
+        of the transport passes after.
+        """
+        world = self.world.timing
+        rng = self._transport_rng
+        pulses_s = max(int(settings.averages), 1) / float(settings.prf_hz)
+        transport_s = timing.device_transport_s(self.pulser_framing) + world.pulser_latency_s
+        jitter = world.pulser_jitter_s * np.abs(rng.standard_normal(2))
+        self._let_pass(0.5 * transport_s + float(jitter[0]) + pulses_s)
+        t = self.clock.now()
+        delay = min(world.acquisition_delay_s, max(t - self._t0, 0.0))
         echo = self.cell.echo(
-            joints,
+            self.controller.joints_at(t - delay),
             averages=settings.averages,
             gain_db=settings.gain_db,
-            t_s=self.clock.now() - self._t0,
-            motion_sign=self.controller.motion_sign(),
+            t_s=t - delay - self._t0,
+            motion_sign=self.controller.motion_sign_at(t - delay),
         )
-        self._let_pass(half)
+        self._let_pass(0.5 * transport_s + float(jitter[1]) + delay)
         return echo
 
     def _let_pass(self, seconds: float) -> None:
