@@ -537,7 +537,7 @@ def test_failed_replace_leaves_the_profile_unchanged(
             raise OSError(28, "No space left on device")
         real_replace(src, dst)
 
-    monkeypatch.setattr(profile_mod.os, "replace", failing_replace)
+    monkeypatch.setattr(os, "replace", failing_replace)
     with pytest.raises(ProfileError, match="cannot write: No space left on device"):
         write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}}, reason="calibrate")
     assert cell.read_bytes() == before
@@ -555,7 +555,7 @@ def test_failed_temp_write_leaves_the_profile_unchanged(
     def failing_fsync(fd: int) -> None:
         raise OSError(5, "Input/output error")
 
-    monkeypatch.setattr(profile_mod.os, "fsync", failing_fsync)
+    monkeypatch.setattr(os, "fsync", failing_fsync)
     with pytest.raises(ProfileError):
         write_profile(cell, {"calibration": {"joint_offsets_deg": [0.5] * 6}}, reason="calibrate")
     assert cell.read_bytes() == before
@@ -635,7 +635,7 @@ def test_failed_undo_leaves_the_profile_unchanged(
             raise OSError(13, "Permission denied")
         real_replace(src, dst)
 
-    monkeypatch.setattr(profile_mod.os, "replace", failing_replace)
+    monkeypatch.setattr(os, "replace", failing_replace)
     with pytest.raises(ProfileError):
         undo_profile(cell)
     assert cell.read_bytes() == v1

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-import ucal.profile as profile_mod
 from ucal.errors import EXIT_USAGE, InputError, ProfileError
 from ucal.profile import check_writable, default_profile_text, lock_path, profile_lock
 
@@ -148,7 +147,7 @@ def test_writable_directory_with_room_passes(cell: Path) -> None:
 def test_unwritable_profile_directory_is_named(cell: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     real_access = os.access
     monkeypatch.setattr(
-        profile_mod.os,
+        os,
         "access",
         lambda p, mode: False if Path(p) == cell.parent else real_access(p, mode),
     )
@@ -166,7 +165,7 @@ def test_unwritable_history_directory_is_named(cell: Path, monkeypatch: pytest.M
     hdir.mkdir()
     real_access = os.access
     monkeypatch.setattr(
-        profile_mod.os, "access", lambda p, mode: False if Path(p) == hdir else real_access(p, mode)
+        os, "access", lambda p, mode: False if Path(p) == hdir else real_access(p, mode)
     )
     with pytest.raises(ProfileError, match=rf"^{hdir}: history directory is not writable"):
         check_writable(cell)

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-import ucal.profile as profile_mod
 from ucal.errors import EXIT_USAGE, ProfileError
 from ucal.profile import (
     default_profile_text,
@@ -68,7 +67,7 @@ def _full_disk(monkeypatch: pytest.MonkeyPatch, fail_from_call: int = 1) -> list
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         real_fsync(fd)
 
-    monkeypatch.setattr(profile_mod.os, "fsync", fsync)
+    monkeypatch.setattr(os, "fsync", fsync)
     return calls
 
 
@@ -152,7 +151,7 @@ def test_a_failed_final_rename_withdraws_the_history_entry(
         real_replace(src, dst)
 
     with monkeypatch.context() as m:
-        m.setattr(profile_mod.os, "replace", replace)
+        m.setattr(os, "replace", replace)
         with pytest.raises(ProfileError, match=r"cell.toml: cannot write: Input/output error"):
             write_profile(cell, UPDATE, reason="calibrate")
     assert cell.read_bytes() == before
