@@ -1,7 +1,7 @@
 """Every example in ``ucal --help`` and each command's ``--help`` runs as written.
 
 The examples are read from the help text itself, in a directory holding the files they name
-(``cell.toml``, ``world.toml``, ``scan.csv``); device URLs are those
+(``cell.toml``, the shipped ``examples/world.toml``, ``scan.csv``); device URLs are those
 of a simulated cell on 127.0.0.1. A command that moves the robot runs up to its confirmation,
 asked on a terminal and answered "no": its options, files and plan are all checked, and it
 must name the cell it would move; nothing moves.
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -48,6 +49,8 @@ COMMANDS = [
     ["report"],
 ]
 MOVING = {"calibrate", "tool-frame", "verify"}
+#: The world file shipped with the sources, which the examples name as ``examples/world.toml``.
+EXAMPLE_WORLD = Path(__file__).resolve().parents[2] / "examples" / "world.toml"
 
 
 @pytest.fixture(scope="module")
@@ -82,6 +85,8 @@ def add_files(d: Path) -> None:
     (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
     for world in ("world.toml", "truth.toml"):
         (d / world).write_text("[noise]\ntof_ns = 0.02\nseed = 3\n", encoding="utf-8")
+    (d / "examples").mkdir(exist_ok=True)
+    shutil.copy(EXAMPLE_WORLD, d / "examples" / "world.toml")  # the shipped example world
     (d / "scan.csv").write_text(
         "X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n", encoding="utf-8"
     )

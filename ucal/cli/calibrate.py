@@ -58,7 +58,7 @@ log = logging.getLogger(__name__)
     epilog="""\b
 Examples:
   ucal calibrate cell.toml --sim --yes
-  ucal calibrate cell.toml --sim world.toml --method paper --json --yes
+  ucal calibrate cell.toml --sim examples/world.toml --method paper --json --yes
   ucal calibrate cell.toml --controller tcp://10.0.0.5:11000 --pulser modbus-tcp://10.0.0.6:502
   ucal calibrate cell.toml --sim --yes --level full
   ucal calibrate cell.toml --sim --yes --record run.jsonl
@@ -103,8 +103,8 @@ Examples:
 @click.option(
     "--force",
     is_flag=True,
-    help="Write the result even when the fit is a misfit (the verdict is recorded in "
-    "the profile history).",
+    help="Write the result even when it is out of tolerance: a misfit, or an observable "
+    "offset less certain than 0.02 deg (the verdict is recorded in the profile history).",
 )
 @click.option(
     "--record",
@@ -140,11 +140,18 @@ def cli(
 ) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
 
-    The beam is brought normal to the three faces of the calibration block in three arm
-    configurations (the calibration pose, joint 3 stepped, joint 2 stepped); the peak-echo
-    postures and time-of-flight distances give the offsets (actual = reading + offset).
-    Every target is checked before the first motion. On any fault or Ctrl-C the robot is told
-    to stop and the profile is left byte-for-byte unchanged.
+    The beam is brought normal to the three faces of the calibration block in up to four arm
+    configurations (the calibration pose, joint 3 stepped, joint 2 stepped and, where the cell
+    leaves room, joint 1 stepped: 9 or 12 measurements; the plan lists them); the peak-echo
+    postures and time-of-flight distances give the offsets (actual = reading + offset) with
+    their stds, the cell's other uncertain quantities fitted with the profile's tolerances as
+    priors. A joint the data cannot determine (J1 with a hand-placed block, J6 with the beam on
+    its axis) is reported unobservable and keeps its profile value. With --level full, 25-30
+    postures chosen by D-optimality also identify the DH table's lengths and twists
+    ([calibration] dh). Writes [calibration] (the previous version is kept in the profile's
+    history); nothing is written with --dry-run, on failure, or when the result is out of
+    tolerance (exit 1) unless --force. Every target is checked before the first motion. On any
+    fault or Ctrl-C the robot is told to stop and the profile is left byte-for-byte unchanged.
     """
     if level == "full" and method != "exact":
         raise InputError(

@@ -30,7 +30,7 @@ def cli() -> None:
     epilog="""\b
 Examples:
   ucal sim serve
-  ucal sim serve --profile cell.toml --world truth.toml --log motions.jsonl
+  ucal sim serve --profile cell.toml --world examples/world.toml --log motions.jsonl
   ucal sim serve --rtu --time-scale 0.1
   ucal sim serve --server val3
 """,
@@ -39,13 +39,14 @@ Examples:
     "--world",
     "world_path",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="World TOML with the truth (default: the demo truth of the profile).",
+    help="World TOML with the truth (default: the demo truth of the profile; an example "
+    "with every key: examples/world.toml in the source tree).",
 )
 @click.option(
     "--profile",
     "profile_path",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Cell profile TOML (default: a new profile of the default model).",
+    help="Cell profile TOML (default: a new profile of the default model, tx90l).",
 )
 @click.option(
     "--log",
@@ -58,7 +59,9 @@ Examples:
     type=click.FloatRange(min=0.0),
     default=1.0,
     show_default=True,
-    help="Multiply motion durations (0.1 = ten times faster, 0 = instantaneous).",
+    help="Multiply the duration of every move and acquisition on the host clock (1 = real "
+    "time, 0.1 = ten times faster, 0 = instantaneous moves: nothing can be read during a "
+    "sweep, so not for calibrate).",
 )
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
 @click.option(

@@ -30,8 +30,8 @@ log = logging.getLogger(__name__)
     epilog="""\b
 Examples:
   ucal tool-frame cell.toml --sim --yes
-  ucal tool-frame cell.toml --sim world.toml --method paper --points 100 --yes --json
-  ucal tool-frame cell.toml --sim world.toml --dry-run
+  ucal tool-frame cell.toml --sim examples/world.toml --method paper --points 100 --yes --json
+  ucal tool-frame cell.toml --sim examples/world.toml --dry-run
   ucal tool-frame cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502
 """,
@@ -81,9 +81,12 @@ def cli(
     """Find the tool centre point and beam direction relative to the flange.
 
     Uses the reflector plate of [reflector] points_mm and the profile's [calibration] joint
-    offsets (actual = reading + offset). The exact method fits the tool with the cell's other
-    uncertain quantities as unknowns with the profile's tolerances as priors (joint offsets
-    with [calibration] std_deg, or wide when not calibrated; the plate with [reflector]
+    offsets (actual = reading + offset). The exact method (default) finds the beam at normal
+    incidence to the plate in --points orientations spread over a turn about it, reads the water
+    path there (the tool's offset along the beam) and scans the TCP across two of the plate's
+    edges in two senses about the beam (its offsets across the beam); it fits the tool with the
+    cell's other uncertain quantities as unknowns with the profile's tolerances as priors (joint
+    offsets with [calibration] std_deg, or wide when not calibrated; the plate with [reflector]
     points_std_mm; DH table, sound speed, an electronic delay), so it works before or after
     `ucal calibrate`. Writes [tool] position_mm, rotation_deg and their position_std_mm,
     rotation_std_deg (mm, deg; the previous version is kept in the profile's history). Time of

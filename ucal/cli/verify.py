@@ -31,7 +31,7 @@ from ucal.verify_region import RegionJob, RegionResult
     epilog="""\b
 Examples:
   ucal verify cell.toml --sim --yes
-  ucal verify cell.toml --sim world.toml --points 4 --json --yes
+  ucal verify cell.toml --sim examples/world.toml --points 4 --json --yes
   ucal verify cell.toml --sim --region 12 --yes
   ucal verify cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502 --plot report.png
@@ -47,7 +47,8 @@ Examples:
     type=click.IntRange(1, 100),
     default=20,
     show_default=True,
-    help="Number of nominal points (a grid, e.g. 20 = 5 x 4).",
+    help="Number of nominal points, shared by the three orientations (20 = 8 straight "
+    "down, 6 turned 180 deg about the beam, 6 tilted 15 deg).",
 )
 @click.option(
     "--plot",
@@ -89,20 +90,26 @@ def cli(
 ) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
-    N nominal points on a grid 30 mm above the block's XY face, the tool pointing straight down,
-    are visited twice: "before" commanded with the joint offsets the profile had before its last
-    calibration (from its history; zero without one), "after" with its [calibration] offsets; every
-    point is reached from below on each joint, as in the calibration. At each point the arm stays
-    still while the wrist turns the beam normal to each of the block's three faces; the three water
-    paths give the wrist centre, the three postures the flange orientation, hence the tool centre
-    the robot would reach with the profile's tool. Then a tool check: the TCP is moved across the
-    XY face's two far edges with the beam normal to it; where the echo falls to half, the real
-    TCP is on the edge, which gives the real TCP against the profile's in X and Y (a tool error
-    that water paths cannot see) and is added to every point. Deviations are given per block
-    axis X, Y, Z (mm): mean, max and standard deviation of the absolute values (paper 000,
-    Table 5). A block-position error in the profile shows as a common bias in both passes. The
-    profile is never written. The run passes when no point deviates more than the tolerance on
-    any axis after calibration; otherwise exit 1.
+    N nominal points in three orientations of the tool, each a grid over the block's XY face:
+    the beam straight down 30 mm above it (paper 000's points), the same with the tool turned
+    180 deg about the beam, and the beam tilted 15 deg towards block +X 60 mm above the face (20
+    points: 8, 6 and 6; 1 point: straight down; 2: one in each of the first two). Each point is
+    visited twice: "before" commanded with the joint offsets the profile had before its last
+    calibration (from its history; zero without one), "after" with its [calibration] offsets;
+    every point is reached from below on each joint, as in the calibration. At each point the
+    arm stays still while the wrist turns the beam normal to each of the block's three faces;
+    the three water paths give the wrist centre, the three postures the flange orientation,
+    hence the tool centre the robot would reach with the profile's tool. Then a tool check: the
+    TCP is moved across the XY face's two far edges with the beam normal to it, from a point
+    straight down and (2 points or more) one with the tool turned 180 deg; where the echo falls
+    to half, the real TCP is on the edge, which gives the tool's error along and across the beam
+    (which water paths cannot see) and is added to every point at its own orientation.
+    Deviations are given per block axis X, Y, Z (mm): mean, max and standard deviation of the
+    absolute values (paper 000, Table 5), and each orientation's largest. A block-position error
+    in the profile shows as a common bias in both passes. The profile is never written; the
+    picture is (--plot; not with --dry-run). The run passes when no point deviates more than the
+    tolerance on any axis after calibration; otherwise exit 1 (within 0.05 mm of it:
+    "marginal").
     """
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
