@@ -34,9 +34,24 @@ def _profile(directory: Path, pulser: str = "") -> Path:
 def test_without_the_key_the_shipped_map_is_used(tmp_path: Path) -> None:
     profile = load_profile(_profile(tmp_path))
     assert profile.pulser.register_map is None and profile.pulser.register_map_path is None
-    assert profile_to_dict(profile)["pulser"] == {"register_map": None}
+    assert profile_to_dict(profile)["pulser"] == {
+        "register_map": None,
+        "timeout_s": 1.0,
+        "retries": 1,
+    }
     server = SimulatedCellServer(None, profile)
     assert server.register_map is None  # the simulated pulser's default: ucal's own map
+
+
+def test_the_pulser_timeout_and_retries_are_read_and_checked(tmp_path: Path) -> None:
+    path = _profile(tmp_path)
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text + "\n[pulser]\ntimeout_s = 2.5\nretries = 3\n", encoding="utf-8")
+    profile = load_profile(path)
+    assert (profile.pulser.timeout_s, profile.pulser.retries) == (2.5, 3)
+    path.write_text(text + "\n[pulser]\ntimeout_s = 0\n", encoding="utf-8")
+    with pytest.raises(ProfileError, match=r"pulser\.timeout_s"):
+        load_profile(path)
 
 
 def test_a_relative_map_is_read_next_to_the_profile(tmp_path: Path) -> None:
