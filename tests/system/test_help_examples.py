@@ -44,10 +44,11 @@ COMMANDS = [
     ["calibrate"],
     ["tool-frame"],
     ["verify"],
+    ["check"],
     ["echo"],
     ["report"],
 ]
-MOVING = {"calibrate", "tool-frame", "verify"}
+MOVING = {"calibrate", "tool-frame", "verify", "check"}
 
 
 @pytest.fixture(scope="module")
