@@ -14,7 +14,7 @@ band).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,6 +30,11 @@ from ucal.progress import MeasureStep, Report
 from ucal.rig import FinalApproachRig, Rig
 
 log = logging.getLogger(__name__)
+
+
+def number(value: float | None) -> float | None:
+    """A JSON number, or null for what is not one (NaN, ±inf)."""
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 @dataclass(frozen=True)
@@ -50,14 +55,15 @@ class EchoReading:
     bandwidth_mhz: float | None = None
 
     def to_json(self) -> dict[str, Any]:
+        """The reading as JSON (a figure it could not give is null)."""
         return {
             "label": self.label,
-            "tof_ns": self.tof_ns,
-            "tof_std_ns": self.tof_std_ns,
-            "amplitude_db": self.amplitude_db,
-            "snr_db": self.snr_db,
-            "centre_frequency_mhz": self.centre_frequency_mhz,
-            "bandwidth_mhz": self.bandwidth_mhz,
+            "tof_ns": number(self.tof_ns),
+            "tof_std_ns": number(self.tof_std_ns),
+            "amplitude_db": number(self.amplitude_db),
+            "snr_db": number(self.snr_db),
+            "centre_frequency_mhz": number(self.centre_frequency_mhz),
+            "bandwidth_mhz": number(self.bandwidth_mhz),
         }
 
     @classmethod
@@ -122,7 +128,11 @@ def run_check(
             continue
         approach.move(m.joints_deg)
         path_tof_ns = float(tof_ns(m.distance_mm, profile.water_temperature_c))
-        ascans[label] = read_echo_band(rig, path_tof_ns)
+        try:
+            ascans[label] = read_echo_band(rig, path_tof_ns)
+        except NoAScan as e:
+            log.info("no A-scan (%s): no centre frequency or bandwidth", e)
+            break
     if progress:
         progress(MeasureStep("solving", total, total))
     echoes = [echo_reading(profile, m, floor, ascans.get(measurement_label(m))) for m in faces]
@@ -155,10 +165,14 @@ def echo_reading(
     )
 
 
+class NoAScan(Exception):
+    """The pulser gives no A-scan."""
+
+
 def read_echo_band(rig: Rig, echo_tof_ns: float) -> EchoEstimate | None:
-    """The echo in the A-scan at the current posture (None: the pulser gives no A-scan), read
-    in a window of ``ASCAN_WINDOW_US`` around ``echo_tof_ns`` at a levelled gain; the gate and
-    gain are restored after."""
+    """The echo in the A-scan at the current posture (None: no echo in it), read in a window of
+    ``ASCAN_WINDOW_US`` around ``echo_tof_ns`` at a levelled gain; the gate and gain are
+    restored after (the settings as they were). ``NoAScan`` when the pulser gives none."""
     pulser = rig.pulser
     trace = getattr(pulser, "read_ascan_trace", None)
     saved = rig.settings
@@ -171,21 +185,17 @@ def read_echo_band(rig: Rig, echo_tof_ns: float) -> EchoEstimate | None:
             try:
                 scan = trace()
             except ValueError as e:  # a register map without an A-scan
-                log.info("no A-scan: %s", e)
-                return None
+                raise NoAScan(str(e)) from None
             samples, rate_hz, t0_ns = scan.samples, scan.sample_rate_hz, scan.start_ns
         else:
-            got = pulser.read_ascan()
+            read_ascan = getattr(pulser, "read_ascan", None)
+            got = None if read_ascan is None else read_ascan()
             if got is None:
-                return None
+                raise NoAScan(f"pulser at {pulser.endpoint} gives no A-scan")
             samples, rate_hz = got
             t0_ns = start_us * 1e3
     finally:
-        rig.configure(
-            gate_start_us=saved.gate_start_us,
-            gate_width_us=saved.gate_width_us,
-            gain_db=saved.gain_db,
-        )
+        rig.configure(**asdict(saved))
     samples = np.asarray(samples, float)
     if samples.size < 64 or not np.any(samples):
         log.info("A-scan of %d samples without an echo: no band", samples.size)
@@ -213,7 +223,7 @@ def faces_to_json(faces: list[FaceMeasurement]) -> list[dict[str, Any]]:
             "distance_mm": float(m.distance_mm),
             "distance_std_mm": float(m.distance_std_mm),
             "tilt_std_deg": float(m.tilt_std_deg),
-            "amplitude": float(m.amplitude),
+            "amplitude": number(m.amplitude),
             "gain_db": None if m.gain_db is None else float(m.gain_db),
             "distance_joints_deg": (
                 None if m.distance_joints_deg is None else [float(v) for v in m.distance_joints_deg]

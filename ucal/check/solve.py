@@ -303,15 +303,19 @@ def _significant(lowering: float, k: int) -> bool:
     return float(chdtrc(k, max(lowering, 0.0))) < SIGNIFICANCE_P
 
 
-def select(problem: ChangeFit, values: np.ndarray) -> tuple[list[str], np.ndarray, Linearised]:
+def select(
+    problem: ChangeFit, values: np.ndarray
+) -> tuple[list[str], np.ndarray, Linearised, float]:
     """Stepwise selection of the suspects that changed (module docstring, rule 1): add the
     suspect that lowers the χ² most (after paying its threshold) while the lowering is
     significant, then drop any chosen earlier that the others now explain (its removal no
     longer raises the χ² significantly); each step linearised at the fit with the suspects
-    chosen so far. Returns the chosen suspects, their fit and its linearisation."""
+    chosen so far. Returns the chosen suspects, their fit, its linearisation and the χ² of the
+    fit where nothing changed."""
     size = {s.name: len(s.parameters) for s in problem.suspects}
     chosen: list[str] = []
     values, lin = fit(problem, values, chosen)
+    chi2_null = problem.chi2(values, chosen)
     tried: set[tuple[str, ...]] = {()}
     for _ in range(3 * len(size)):
         chi2 = lin.solve(chosen)[0]
@@ -336,7 +340,7 @@ def select(problem: ChangeFit, values: np.ndarray) -> tuple[list[str], np.ndarra
         if tuple(sorted(chosen)) in tried:
             break
         tried.add(tuple(sorted(chosen)))
-    return chosen, values, lin
+    return chosen, values, lin, chi2_null
 
 
 def alike(lin: Linearised, chosen: list[str], names: list[str]) -> dict[str, tuple[str, ...]]:
@@ -358,8 +362,7 @@ def compare_geometry(
     """What moved between the reference's measurements and the check's (module docstring)."""
     problem = ChangeFit(prior, reference, check, suspects(prior))
     start = problem.start()
-    chosen, values, lin = select(problem, start)
-    chi2_null = lin.solve([])[0]
+    chosen, values, lin, chi2_null = select(problem, start)
     chi2, _, cols, cov = lin.solve(chosen)
     table = problem.table
     changes: list[Change] = []
