@@ -184,7 +184,8 @@ def main() -> None:
         f"calibrate ({'--level full --postures 3' if small else 'the main job'}, {args.model}, "
         "demo truth, released VAL3 server timing); errors in units of the reported std"
     )
-    print(f"{'run':34} {'exit':>4} {'moves':>6} {'reads':>6} {'wall s':>7}  J2-J5 vs truth   vs --sim")
+    head = f"{'run':34} {'exit':>4} {'moves':>6} {'reads':>6} {'wall s':>7}"
+    print(f"{head}  J2-J5 vs truth   vs --sim")
     for r in rows:
         truth_s = " ".join("-" if v is None else f"{v:.1f}" for v in r["error_sigmas_J2_J5"])
         vs = r["vs_sim_sigmas_J2_J5"]

@@ -45,10 +45,11 @@ COMMANDS = [
     ["calibrate"],
     ["tool-frame"],
     ["verify"],
+    ["check"],
     ["echo"],
     ["report"],
 ]
-MOVING = {"calibrate", "tool-frame", "verify"}
+MOVING = {"calibrate", "tool-frame", "verify", "check"}
 #: The world file shipped with the sources, which the examples name as ``examples/world.toml``.
 EXAMPLE_WORLD = Path(__file__).resolve().parents[2] / "examples" / "world.toml"
 

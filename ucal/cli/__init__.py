@@ -34,6 +34,7 @@ COMMANDS = {
     "calibrate": "calibrate",
     "tool-frame": "tool_frame",
     "verify": "verify",
+    "check": "check",
     "status": "status",
     "echo": "echo",
     "report": "report",

@@ -1,4 +1,5 @@
-"""``ucal profile``: create, print, check a cell profile; list and undo its recorded writes."""
+"""``ucal profile``: create, print, check a cell profile; list and undo its recorded writes,
+list its checks."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
+from ucal.check.history import read_checks
 from ucal.cli.options import SuggestingGroup, emit_json, info, json_option, table_console
 from ucal.models import KNOWN_MODELS
 from ucal.profile import (
@@ -101,24 +103,63 @@ def validate(path: Path, as_json: bool) -> None:
 @profile_arg
 @json_option
 def history(path: Path, as_json: bool) -> None:
-    """List the recorded writes of a profile (kept in PATH.history/), oldest first."""
+    """List the recorded writes of a profile (kept in PATH.history/) and its checks
+    (ucal check), oldest first."""
 
     entries = profile_history(path)
+    checks = read_checks(path)
     if as_json:
-        emit_json({"history_dir": str(history_dir(path)), "entries": [asdict(e) for e in entries]})
+        emit_json(
+            {
+                "history_dir": str(history_dir(path)),
+                "entries": [asdict(e) for e in entries],
+                # what each check measured stays in the history; the listing gives its results
+                "checks": [
+                    {k: v for k, v in asdict(c).items() if k not in ("faces", "echoes")}
+                    for c in checks
+                ],
+            }
+        )
         return
 
-    table = Table(title=f"{path}: writes (copies in {history_dir(path)})")
-    for col in ("#", "time (UTC)", "reason", "replaced version", "state"):
+    table = Table(title=f"{path}: writes (copies in {history_dir(path)}) and checks")
+    for col in ("#", "time (UTC)", "kind", "reason or result", "replaced version", "state"):
         table.add_column(col)
-    for e in entries:
-        table.add_row(
-            str(e.id),
+    rows = [
+        (
             e.time,
-            e.reason,
-            e.before,
-            f"undone {e.undone_time}" if e.undone else "applied",
+            0,
+            (
+                str(e.id),
+                e.time,
+                "write",
+                e.reason,
+                e.before,
+                f"undone {e.undone_time}" if e.undone else "applied",
+            ),
         )
+        for e in entries
+    ] + [
+        (
+            c.time,
+            1,
+            (
+                str(c.id),
+                c.time,
+                "check",
+                f"{c.verdict}: {c.summary}",
+                "—",
+                "reference"
+                if c.reference
+                else f"against check {c.compared_with}"
+                if c.compared_with is not None
+                else "",
+            ),
+        )
+        for c in checks
+    ]
+    for _, _, row in sorted(rows, key=lambda r: (r[0], r[1])):
+        table.add_row(*row)
     table_console().print(table)
 
 

@@ -41,7 +41,7 @@ def one_error(err: str) -> str:
     return lines[0].removeprefix("error: ")
 
 
-@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify"])
+@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify", "check"])
 def test_no_cell_is_a_usage_error_before_any_plan(
     profile: Path, command: str, run_main: RunMain
 ) -> None:
@@ -90,7 +90,7 @@ def test_usage_errors_name_what_was_typed(
     assert out == ""  # no --json: nothing on stdout
 
 
-@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify"])
+@pytest.mark.parametrize("command", ["calibrate", "tool-frame", "verify", "check"])
 def test_a_missing_profile_is_named_before_the_missing_yes(
     profile: Path, command: str, run_main: RunMain
 ) -> None:

@@ -1,0 +1,84 @@
+"""``ucal check`` against the simulated cell: the commissioned cell passes, a moved joint 2 is
+named, in less than two minutes of real-cell time; both checks go into the profile's history."""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.profile import before_measurement, load_profile
+from ucal.sim import demo
+
+pytestmark = pytest.mark.system
+
+RunMain = Callable[[list[str]], tuple[int, str, str]]
+
+
+def demo_world(profile_path: Path, path: Path, j2_moved_deg: float, seed: int) -> Path:
+    """The demo truth (``ucal.sim.demo``) as a world file, joint 2 moved and another noise
+    seed (another day's readings)."""
+    nominal = before_measurement(load_profile(profile_path))
+    offsets = demo.DEMO_JOINT_OFFSETS_DEG + [0.0, j2_moved_deg, 0.0, 0.0, 0.0, 0.0]
+
+    def vec(values: np.ndarray) -> str:
+        return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+    path.write_text(
+        f"[robot]\njoint_offsets_deg = {vec(offsets)}\n"
+        f"[tool]\nposition_mm = {vec(nominal.tool_position_mm + demo.DEMO_TOOL_POSITION_ERROR_MM)}"
+        f"\nrotation_deg = {vec(nominal.tool_rotation_deg + demo.DEMO_TOOL_ROTATION_ERROR_DEG)}\n"
+        f"[sample]\nposition_mm = "
+        f"{vec(nominal.sample_position_mm + demo.DEMO_SAMPLE_POSITION_ERROR_MM)}\n"
+        f"rotation_deg = {vec(nominal.sample_rotation_deg)}\n"
+        f"[noise]\ntof_ns = {demo.DEMO_NOISE.tof_ns}\namplitude = {demo.DEMO_NOISE.amplitude}\n"
+        f"seed = {seed}\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+def test_passes_the_commissioned_cell_and_names_a_moved_joint_2(
+    tmp_path: Path, run_main: RunMain
+) -> None:
+    profile = tmp_path / "cell.toml"
+    code, _, err = run_main(["calibrate", str(profile), "--sim", "--yes", "-q"])
+    assert code == 0, err
+    calibrated = profile.read_bytes()
+
+    # the first check after the calibration: judged against it, recorded as the reference
+    code, out, err = run_main(["check", str(profile), "--sim", "--yes"])
+    assert code == 0, err
+    assert "Estimated time on a real cell" in err and "as the reference" in err
+    assert "verdict: ok; reference recorded" in out and "history: check 1" in out
+
+    world = demo_world(profile, tmp_path / "j2.toml", 0.05, seed=7)
+    code, out, err = run_main(["check", str(profile), "--sim", str(world), "--yes", "--json"])
+    assert code == 1, err
+    result = json.loads(out)
+    assert result["exit_code"] == 1 and result["moved"] == ["J2"]
+    said = re.search(r"joint 2 \(J2\) moved by \+(\d\.\d+) deg", result["error"])
+    assert said and abs(float(said.group(1)) - 0.05) < 0.002, result["error"]
+    q = {q["name"]: q for q in result["quantities"]}
+    assert q["J2"]["verdict"] == "out of tolerance"
+    assert abs(q["J2"]["difference"] - 0.05) < 0.002
+    assert [n for n, v in q.items() if v["verdict"] == "out of tolerance"] == ["J2"]
+    assert {"value", "baseline", "difference", "std", "verdict"} <= set(q["amplitude_db"])
+    assert q["centre_frequency_mhz"]["verdict"] == "ok"  # the A-scans: the transducer as it was
+    assert result["reference"]["id"] == 1 and result["written"] is False
+    assert 0 < result["duration_s"] <= 120
+    assert profile.read_bytes() == calibrated  # a check never writes the profile
+
+    code, out, _ = run_main(["profile", "history", str(profile), "--json"])
+    checks = json.loads(out)["checks"]
+    assert [(c["verdict"], c["reference"]) for c in checks] == [
+        ("ok", True),
+        ("out of tolerance", False),
+    ]
+    assert checks[1]["compared_with"] == 1 and "J2" in checks[1]["summary"]
+    code, out, _ = run_main(["profile", "history", str(profile)])
+    assert code == 0 and "calibrate" in out and out.count("check") >= 2

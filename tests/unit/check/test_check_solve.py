@@ -1,0 +1,119 @@
+"""What moved: the check's fit of its measurements against the reference's (no processes).
+
+The measurements are computed at normal incidence on a cell that is exactly the model (the
+true peak postures and water paths, with a little noise), at the postures a check plans.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.fit import prior_from_profile
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.calibration.wrist import aim_wrist
+from ucal.check.measure import EchoReading
+from ucal.check.plan import plan_check
+from ucal.check.solve import (
+    CHANGED,
+    OK,
+    OUT,
+    compare_geometry,
+    echo_quantities,
+    geometry_quantities,
+)
+from ucal.kinematics.dh import transform
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.profile import load_profile
+
+EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"
+TRUE_OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+
+
+@pytest.fixture(scope="module")
+def cell():
+    profile = load_profile(EXAMPLE)
+    return profile, plan_check(profile, None).targets
+
+
+def measure(cell, seed, offsets=TRUE_OFFSETS_DEG, block_mm=(1.5, -1.0, 0.8), temperature_c=20.0):
+    """Normal-incidence measurements of the planned faces on the true cell."""
+    profile, targets = cell
+    rng = np.random.default_rng(seed)
+    tool = transform(
+        profile.tool_position_mm + [0.3, -0.2, 0.4],
+        rpy_to_matrix(profile.tool_rotation_deg + [0.2, -0.22, 0.0]),
+    )
+    geom = CellGeometry(profile.model, tool, rpy_to_matrix(profile.sample_rotation_deg))
+    corner = profile.sample_position_mm + np.asarray(block_mm)
+    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(temperature_c)
+    out = []
+    for t in targets:
+        q = aim_wrist(geom, t.joints_deg, -geom.normal(t.face), np.asarray(offsets, float))
+        _, tcp = beam_and_tcp(geom, q, np.asarray(offsets, float))
+        path = float(geom.normal(t.face) @ (tcp - corner)) * scale
+        q = q + np.r_[0.0, 0.0, 0.0, rng.normal(0.0, 2e-4, 3)]
+        out.append(FaceMeasurement(t.config, t.face, q, path + rng.normal(0.0, 3e-4), 5e-4, 5e-4))
+    return out
+
+
+def test_an_unchanged_cell_names_nothing(cell) -> None:
+    prior = prior_from_profile(cell[0])
+    result = compare_geometry(prior, measure(cell, 1), measure(cell, 2))
+    assert result.chosen == [] and not result.unexplained
+    assert all(q.verdict == OK for q in geometry_quantities(result, prior))
+
+
+def test_joint_2_and_the_water_are_told_apart(cell) -> None:
+    """Joint 2 moved by 0.05° and the tank warmed by 1 °C: both named, each by its change."""
+    prior = prior_from_profile(cell[0])
+    moved = TRUE_OFFSETS_DEG + [0.0, 0.05, 0.0, 0.0, 0.0, 0.0]
+    result = compare_geometry(
+        prior, measure(cell, 1), measure(cell, 2, offsets=moved, temperature_c=21.0)
+    )
+    assert sorted(result.chosen) == ["J2", "water"] and not result.unexplained
+    assert result.alike == {"J2": (), "water": ()}
+    q = {q.name: q for q in geometry_quantities(result, prior)}
+    assert q["J2"].verdict == OUT
+    assert abs(q["J2"].difference - 0.05) < max(3 * q["J2"].std, 1e-4)
+    # 1 °C is within the profile's declared water tolerance (2 °C): changed, not out
+    assert q["water_temperature_c"].verdict == CHANGED
+    assert abs(q["water_temperature_c"].difference - 1.0) < 0.01
+    assert [n for n, v in q.items() if v.verdict == OUT] == ["J2"]
+
+
+def test_joint_1_and_the_block_yaw_are_named_together(cell) -> None:
+    """A turn of joint 1 and one of the block about the base axis look alike from anywhere."""
+    prior = prior_from_profile(cell[0])
+    moved = TRUE_OFFSETS_DEG + [0.05, 0.0, 0.0, 0.0, 0.0, 0.0]
+    result = compare_geometry(prior, measure(cell, 1), measure(cell, 2, offsets=moved))
+    assert len(result.chosen) == 1
+    named = {result.chosen[0], *result.alike[result.chosen[0]]}
+    assert named == {"J1", "block"}
+
+
+def reading(label: str, amplitude_db: float, centre_mhz: float | None) -> EchoReading:
+    return EchoReading(label, 1.0e5, 0.1, amplitude_db, amplitude_db + 95.0, centre_mhz, 15.0)
+
+
+@pytest.mark.parametrize(
+    ("drop_db", "shift_mhz", "amplitude", "centre"),
+    [(0.0, 0.0, OK, OK), (1.0, 0.0, CHANGED, OK), (3.0, 0.0, OUT, OK), (0.0, -3.0, OK, OUT)],
+)
+def test_the_transducer_is_judged_by_3_sigma_and_its_tolerance(
+    drop_db: float, shift_mhz: float, amplitude: str, centre: str
+) -> None:
+    labels = ("base/XY", "base/YZ", "base/XZ")
+    ref = [reading(label, -30.0 + i, 25.0) for i, label in enumerate(labels)]
+    noise = (0.01, -0.02, 0.01)
+    chk = [
+        reading(label, -30.0 + i - drop_db + noise[i], 25.0 + shift_mhz + noise[i])
+        for i, label in enumerate(labels)
+    ]
+    q = {q.name: q for q in echo_quantities(ref, chk)}
+    assert q["amplitude_db"].verdict == amplitude
+    assert q["centre_frequency_mhz"].verdict == centre
+    assert q["tof_ns"].verdict == OK

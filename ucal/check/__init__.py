@@ -1,0 +1,12 @@
+"""``ucal check``: a short check of the cell against what its commissioning recorded.
+
+* ``plan``: the postures (a few of calibrate's normal-incidence measurements) and the echo
+  chain, the reference to compare against, the real-cell duration;
+* ``measure``: calibrate's face measurements of those postures, then the echo chain (time of
+  flight, amplitude, SNR, the A-scan's centre frequency and bandwidth);
+* ``solve``: what moved — the check and the reference in one fit on the profile's model, the
+  3σ-and-tolerance rule; the echo chain against the reference's;
+* ``result``: the typed result, the message naming what moved, the history entry;
+* ``history``: the checks in the profile's history directory (``checks.json``);
+* ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).
+"""

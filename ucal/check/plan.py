@@ -1,0 +1,165 @@
+"""The check's plan: a few of calibrate's normal-incidence measurements and the echo chain.
+
+Postures. The calibration configuration (the beam normal to each of the block's three faces,
+arm still) and the second joint-1 azimuth of ``calibrate`` (``ucal.calibration.sequence``):
+six of its normal-incidence measurements, planned and checked by the same code. Seen from one
+azimuth only, a change of joint 2's offset is one rotation with a tilt of the block about the
+joint-2 axis (and joint 1's with its yaw, from any azimuth); from two, joints 2 to 5, the tool,
+the block and the water are each told apart (``ucal.check.solve``). Where the cell leaves no
+room for the second azimuth, joint 2 is stepped instead, and the check says which joints it
+cannot tell from the block.
+
+The echo chain. Every face measurement gives its time of flight and its peak amplitude (brought
+to 0 dB gain); the noise floor measured in open water at the start gives the SNR. At the
+calibration configuration's three postures the pulser's A-scan is read as well, where it gives
+one (a window of ``ASCAN_WINDOW_US`` around the echo): the echo's centre frequency and −6 dB
+bandwidth (``ucal.echo``, ASTM E1065's convention).
+
+Duration: ``ucal.timing`` (the same model the simulated cell charges), plus the A-scan
+transfers; a check is meant to fit in ``BUDGET_S`` on a real cell.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from ucal.calibration.model import FACE_NAMES, Configuration
+from ucal.calibration.procedure import WRIST_SEARCH, plan_line
+from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
+from ucal.cell import CellProfile
+from ucal.check.history import CheckEntry
+from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
+
+#: The configurations a check measures: the calibration pose and the second joint-1 azimuth;
+#: without room for the azimuth, joint 2 stepped.
+CONFIGURATIONS = (Configuration.BASE, Configuration.J1)
+FALLBACK_CONFIGURATIONS = (Configuration.BASE, Configuration.J2)
+#: Where the A-scans are read.
+ECHO_CONFIGURATION = Configuration.BASE
+#: Width of the A-scan window around the echo (µs of round-trip time).
+ASCAN_WINDOW_US = 2.0
+#: Sample rate assumed for the A-scan transfer in the estimate (MHz): SPEC's default digitiser.
+ASCAN_RATE_MHZ = 200.0
+#: Registers per Modbus read of the A-scan's samples.
+ASCAN_BLOCK = 125
+#: Averages of the reading the A-scan is frozen from.
+ASCAN_AVERAGES = 8
+#: The echo chain at a posture: the move there, the gain levelled (a few reads), the reading
+#: the A-scan is frozen from.
+ECHO_READ = SearchCost(moves=0, reads=6, motion_s=0.0)
+#: What a check should take on a real cell at most (s).
+BUDGET_S = 120.0
+
+
+@dataclass(frozen=True)
+class CheckPlan:
+    """What a check measures and what it compares against."""
+
+    calibration: CalibrationPlan  # the postures: a subset of calibrate's
+    echo_labels: tuple[str, ...]  # the postures where the A-scan is read
+    reference: CheckEntry | None  # the reference check; None: this check records it
+    baseline_asked: bool = False  # ``--baseline``: a new reference whatever the history holds
+
+    @property
+    def targets(self) -> tuple[PlannedTarget, ...]:
+        return self.calibration.targets
+
+    @property
+    def configurations(self) -> tuple[Configuration, ...]:
+        return self.calibration.configs
+
+
+def plan_check(
+    profile: CellProfile, reference: CheckEntry | None, baseline_asked: bool = False
+) -> CheckPlan:
+    """Plan and check every posture before the first motion (``SafetyError``, exit 4): the
+    configurations of ``CONFIGURATIONS`` out of calibrate's plan (``FALLBACK_CONFIGURATIONS``
+    when it has no second azimuth)."""
+    full = plan_calibration(profile)
+    wanted = CONFIGURATIONS if Configuration.J1 in full.configs else FALLBACK_CONFIGURATIONS
+    targets = tuple(t for t in full.targets if t.config in wanted)
+    echo = tuple(t.label for t in targets if t.config == ECHO_CONFIGURATION)
+    return CheckPlan(replace(full, targets=targets), echo, reference, baseline_asked)
+
+
+def ascan_transfer_s(framing: str, window_us: float = ASCAN_WINDOW_US) -> float:
+    """Time to read one A-scan of ``window_us`` at ``ASCAN_RATE_MHZ`` over ``framing`` (s):
+    its header, then its samples in blocks of ``ASCAN_BLOCK`` registers."""
+    samples = int(window_us * ASCAN_RATE_MHZ) + 1
+    blocks = math.ceil(samples / ASCAN_BLOCK)
+    header = transport_s(framing, registers=8)
+    return header + sum(
+        transport_s(framing, registers=min(ASCAN_BLOCK, samples - i * ASCAN_BLOCK))
+        for i in range(blocks)
+    )
+
+
+def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
+    """The check's duration on a real cell: calibrate's measurements of its postures, the echo
+    chain at ``plan.echo_labels`` and their A-scan transfers."""
+    speed = profile.procedure.speed
+    targets = plan.targets
+    faces = estimate_run([t.joints_deg for t in targets], plan.calibration.pose_deg, speed)
+    by_label = {t.label: t for t in targets}
+    echo_postures = [by_label[label].joints_deg for label in plan.echo_labels]
+    echoes = estimate_run(
+        echo_postures,
+        targets[0].joints_deg,
+        speed,
+        averages=ASCAN_AVERAGES,
+        search=ECHO_READ,
+        first=SearchCost(0, 0, 0.0),
+    )
+    n = len(echo_postures)
+    transfers = DurationEstimate(
+        0, 0, 0.0, n * ascan_transfer_s("tcp"), n * ascan_transfer_s("rtu")
+    )
+    return faces + echoes + transfers
+
+
+def plan_summary(plan: CheckPlan, profile: CellProfile, estimate: DurationEstimate) -> str:
+    """The plan in words for the confirmation (stderr); the procedure adds the estimate."""
+    configs = plan.configurations
+    steps = []
+    if Configuration.J1 in configs:
+        steps.append(f"joint 1 by ±{plan.calibration.azimuth_step_deg:g} deg (second azimuth)")
+    if Configuration.J2 in configs:
+        steps.append(
+            f"joint 2 by ±{plan.calibration.step_deg:g} deg (no room for a second azimuth: "
+            "joint 2 cannot be told from a tilt of the block)"
+        )
+    if plan.reference is not None:
+        against = (
+            f"against the reference check {plan.reference.id} ({plan.reference.time}): what "
+            "moved since is named"
+        )
+    elif plan.baseline_asked:
+        against = "as the new reference (--baseline): later checks compare against it"
+    else:
+        against = (
+            "as the reference (the first check of the profile as it now is): later checks "
+            "compare against it"
+        )
+    lines = [
+        (
+            f"Check plan for {profile.model.name}: {len(plan.targets)} normal-incidence "
+            f"measurements of calibrate's, in the calibration configuration and "
+            f"{' and '.join(steps)}; {against}"
+        ),
+        (
+            f"Echo chain: time of flight, amplitude (0 dB gain) and SNR at every posture; "
+            f"centre frequency and -6 dB bandwidth from the A-scan at "
+            f"{', '.join(plan.echo_labels)} (where the pulser gives one); transducer "
+            f"{profile.frequency_mhz:g} MHz"
+        ),
+        "  target      J1       J2       J3       J4       J5       J6    water path",
+        *(plan_line(f"{t.config:>4}/{FACE_NAMES[t.face]:<3}", t) for t in plan.targets),
+        WRIST_SEARCH,
+    ]
+    if estimate.tcp_s > BUDGET_S:
+        lines.append(
+            f"note: more than the {BUDGET_S:g} s a check is meant to take (slow speed in "
+            "[procedure] speed?)"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,135 @@
+"""The ``check`` command's job on the measuring procedure (``ucal.procedure``).
+
+Check the files (the profile held for the run: the check is appended to its history), plan
+(``ucal.check.plan``: the postures, the reference to compare against), measure
+(``ucal.check.measure``), solve (``ucal.check.solve``: what moved), write (the history entry:
+``ucal.check.history``; the profile itself is never written), result (``ucal.check.result``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ucal.calibration.fit import prior_from_profile
+from ucal.calibration.procedure import plan_rows
+from ucal.cell import CellProfile
+from ucal.check.history import append_check, model_digest, reference_check
+from ucal.check.measure import CheckRun, EchoReading, faces_from_json, run_check
+from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
+from ucal.check.result import CheckResult, misfit_text, named_changes, unexplained_text
+from ucal.check.solve import (
+    compare_geometry,
+    compare_to_profile,
+    echo_quantities,
+    echo_record,
+    geometry_quantities,
+    profile_quantities,
+)
+from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.progress import Report
+from ucal.session import CellSession
+from ucal.timing import DurationEstimate
+
+
+class CheckJob(ProfileJob):
+    """``ucal check``: the cell against its commissioning (the reference check)."""
+
+    command = "check"
+
+    def __init__(self, profile: CellProfile, profile_path: Path, baseline: bool = False) -> None:
+        super().__init__(profile, profile_path)
+        self.baseline = baseline
+        self.digest = model_digest(profile)
+        self.duration_s = 0.0
+
+    def plan(self) -> CheckPlan:
+        reference = None if self.baseline else reference_check(self.profile_path, self.digest)
+        return plan_check(self.profile, reference, self.baseline)
+
+    def summary(self, plan: CheckPlan) -> str:
+        return plan_summary(plan, self.profile, self.estimate(plan))
+
+    def estimate(self, plan: CheckPlan) -> DurationEstimate:
+        return estimate_check(plan, self.profile)
+
+    def record_header(self, plan: CheckPlan) -> dict[str, Any]:
+        return {
+            "options": {"baseline": self.baseline},
+            "plan": plan_rows(plan.targets),
+            "reference": None if plan.reference is None else plan.reference.id,
+        }
+
+    def measure(self, plan: CheckPlan, session: CellSession, report: Report) -> CheckRun:
+        return run_check(self.profile, plan, session.rig, progress=report)
+
+    def solve(self, plan: CheckPlan, measured: Measured[CheckRun]) -> CheckResult:
+        run = measured.data
+        self.duration_s = measured.duration_s
+        prior = prior_from_profile(self.profile)
+        ref = plan.reference
+        if ref is None:
+            fit = compare_to_profile(self.profile, prior, run.faces)
+            echo = echo_record(run.echoes, self.profile.frequency_mhz)
+            named, moved = named_changes(None, echo, prior)
+            if fit.misfit:
+                moved.append("calibration")
+            return CheckResult(
+                profile_quantities(fit, prior) + echo,
+                named,
+                moved,
+                None,
+                profile_fit=fit,
+                unexplained=misfit_text(fit) if fit.misfit else "",
+                run=run,
+            )
+        geometry = compare_geometry(prior, faces_from_json(ref.faces), run.faces)
+        echo = echo_quantities([EchoReading.from_json(e) for e in ref.echoes], run.echoes)
+        named, moved = named_changes(geometry, echo, prior)
+        return CheckResult(
+            geometry_quantities(geometry, prior) + echo,
+            named,
+            moved,
+            ref,
+            geometry=geometry,
+            unexplained=unexplained_text(geometry),
+            run=run,
+        )
+
+    def may_write(self, solved: CheckResult) -> bool:
+        return True  # every check goes into the history: a drift shows as a trend
+
+    def write(self, solved: CheckResult) -> None:
+        entry = solved.history_entry(self.digest, self.duration_s)
+        solved.entry = append_check(self.profile_path, entry)
+
+    def result(
+        self, plan: CheckPlan, measured: Measured[CheckRun], solved: CheckResult, written: bool
+    ) -> Outcome:
+        run = measured.data
+        estimate = self.estimate(plan)
+        result: dict[str, Any] = {
+            **solved.to_json(),
+            "profile": str(self.profile_path),
+            # a check never writes the profile; it is appended to the profile's history
+            "written": False,
+            "recorded": written,
+            "history_entry": None if solved.entry is None else solved.entry.id,
+            # time the run took on the cell: simulated time on the simulated cell
+            "duration_s": measured.duration_s,
+            "estimated_s": {"tcp": estimate.tcp_s, "rtu": estimate.rtu_s},
+            "moves": run.moves,
+            "pulser_reads": run.reads,
+            "postures": [t.label for t in plan.targets],
+            "echoes": [e.to_json() for e in run.echoes],
+        }
+        if measured.truth is not None:
+            result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
+        return Outcome(
+            "check",
+            result,
+            written,
+            out_of_tolerance=solved.out_of_tolerance,
+            message=solved.message(),
+            shown=solved,
+        )

@@ -1,0 +1,224 @@
+"""The check's one typed result: its verdict, what moved and by how much, every checked quantity.
+
+``CheckResult`` is built from the comparisons of ``ucal.check.solve`` (the geometry against the
+reference, or a reference check's fit against the profile; the echo chain) and gives the
+``--json`` object, the one-line message naming what moved, and the history entry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ucal.calibration.fit import CellPrior
+from ucal.check.history import CheckEntry
+from ucal.check.measure import CheckRun, faces_to_json
+from ucal.check.solve import (
+    CHANGED,
+    OUT,
+    GeometryComparison,
+    ProfileComparison,
+    Quantity,
+    temperature_change_c,
+    unit_of,
+)
+
+
+@dataclass
+class CheckResult:
+    """A check's verdict and what it rests on."""
+
+    quantities: list[Quantity]
+    named: list[str]  # what moved, each in words with its change
+    moved: list[str]  # the parts out of tolerance ("J2", "tool", "water", "transducer", ...)
+    reference: CheckEntry | None  # compared against; None: this check records the reference
+    geometry: GeometryComparison | None = None
+    profile_fit: ProfileComparison | None = None
+    unexplained: str = ""  # a misfit no single change accounts for
+    run: CheckRun | None = field(default=None, repr=False)  # what was measured
+    entry: CheckEntry | None = field(default=None, repr=False)  # once appended to the history
+
+    @property
+    def out_of_tolerance(self) -> bool:
+        return bool(self.named) or bool(self.unexplained)
+
+    @property
+    def verdict(self) -> str:
+        return OUT if self.out_of_tolerance else "ok"
+
+    @property
+    def becomes_reference(self) -> bool:
+        """A reference check that passed: later checks compare against it."""
+        return self.reference is None and not self.out_of_tolerance
+
+    def message(self) -> str:
+        """The one-line error of an out-of-tolerance check: what moved and by how much."""
+        what = "; ".join(self.named + ([self.unexplained] if self.unexplained else []))
+        if self.reference is None:
+            return f"the cell is not as its profile says: {what}; no reference recorded"
+        return (
+            f"the cell is not as commissioned (reference check {self.reference.id}, "
+            f"{self.reference.time}): {what}"
+        )
+
+    def summary(self) -> str:
+        """One line for the history: what moved; or what changed within tolerance (a drift
+        to watch), else the largest change against its tolerance."""
+        if self.out_of_tolerance:
+            return "; ".join(self.named + ([self.unexplained] if self.unexplained else []))
+        if self.reference is None:
+            return "reference recorded" if self.becomes_reference else "no reference"
+        drifts = [q for q in self.quantities if q.verdict == CHANGED and q.name != "tof_ns"]
+        if drifts:
+            return "as commissioned; changed within tolerance: " + ", ".join(
+                f"{q.name} {_fmt(q.difference or 0.0, q.unit)}" for q in drifts
+            )
+        judged = [
+            q
+            for q in self.quantities
+            if q.tolerance and q.difference is not None and np.isfinite(q.difference)
+        ]
+        if not judged:
+            return "as commissioned"
+        q = max(judged, key=lambda q: abs(q.difference or 0.0) / (q.tolerance or 1.0))
+        return (
+            f"as commissioned (largest change {q.name} {_fmt(q.difference or 0.0, q.unit)}, "
+            f"tolerance {q.tolerance:.3g})"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """The check's fields of the ``--json`` object."""
+        out: dict[str, Any] = {
+            "verdict": self.verdict,
+            "moved": self.moved,
+            "named": self.named,
+            "reference": None
+            if self.reference is None
+            else {"id": self.reference.id, "time": self.reference.time},
+            "records_reference": self.becomes_reference,
+            "quantities": [q.to_json() for q in self.quantities],
+        }
+        if self.geometry is not None:
+            g = self.geometry
+            out["fit"] = {
+                "chosen": g.chosen,
+                "alike": {k: list(v) for k, v in g.alike.items()},
+                "chi2_unchanged": g.chi2_null,
+                "chi2": g.chi2,
+                "dof": g.dof,
+                "unexplained": g.unexplained,
+                "worst": g.worst,
+            }
+        if self.profile_fit is not None:
+            p = self.profile_fit
+            out["fit"] = {
+                "chi2_reduced": p.chi2_reduced,
+                "dof": p.dof,
+                "verdict": "misfit" if p.misfit else "ok",
+                "worst": p.worst,
+            }
+        return out
+
+    def history_entry(self, digest: str, duration_s: float) -> CheckEntry:
+        """The entry this check adds to the profile's history (id and time set on append)."""
+        run = self.run
+        assert run is not None
+        return CheckEntry(
+            id=0,
+            time="",
+            kind="check",
+            verdict=self.verdict,
+            reference=self.becomes_reference,
+            model_digest=digest,
+            duration_s=float(duration_s),
+            named=list(self.named),
+            summary=self.summary(),
+            compared_with=None if self.reference is None else self.reference.id,
+            quantities=[q.to_json() for q in self.quantities],
+            faces=faces_to_json(run.faces),
+            echoes=[e.to_json() for e in run.echoes],
+            floor_per_gain=run.floor_per_gain,
+        )
+
+
+def _fmt(value: float, unit: str) -> str:
+    digits = {"deg": 4, "mm": 3, "m/s": 2, "°C": 2, "dB": 2, "MHz": 2, "ns": 1}.get(unit, 3)
+    return f"{value:+.{digits}f} {unit}"
+
+
+def named_changes(
+    geometry: GeometryComparison | None,
+    echo: list[Quantity],
+    prior: CellPrior,
+) -> tuple[list[str], list[str]]:
+    """What moved out of tolerance, in words with the change and its std, and the parts'
+    short names (``CheckResult.named``, ``moved``)."""
+    named: list[str] = []
+    moved: list[str] = []
+    if geometry is not None:
+        words = {s.name: s.words for s in geometry.suspects}
+        for suspect in geometry.chosen:
+            out = [c for c in geometry.changes if c.suspect == suspect and c.out_of_tolerance]
+            if not out:
+                continue
+            alike = geometry.alike.get(suspect, ())
+            also = (
+                f" (or {' or '.join(words[a] for a in alike)}: the check cannot tell them apart)"
+                if alike
+                else ""
+            )
+            if suspect.startswith("J"):
+                c = out[0]
+                text = (
+                    f"{words[suspect]} ({suspect}) moved by {_fmt(c.change, 'deg')} "
+                    f"(± {c.std:.2g} deg; tolerance {c.tolerance:g} deg)"
+                )
+            elif suspect == "water":
+                c = out[0]
+                dt = temperature_change_c(prior, c.change)
+                text = (
+                    f"the water changed: sound speed {_fmt(c.change, 'm/s')} (± {c.std:.2g} "
+                    f"m/s), about {_fmt(dt, '°C')}; tolerance {c.tolerance:.2f} m/s "
+                    "([water] temperature_std_c)"
+                )
+            else:
+                parts = ", ".join(
+                    f"{c.parameter} {_fmt(c.change, unit_of(c.parameter))} (± {c.std:.2g})"
+                    for c in out
+                )
+                text = f"{words[suspect]} moved: {parts}"
+            named.append(text + also)
+            moved.append(suspect)
+    bad = [q for q in echo if q.verdict == OUT and q.name != "tof_ns"]
+    if bad:
+        parts = ", ".join(
+            f"{q.name} {_fmt(q.difference or 0.0, q.unit)} (± {q.std or 0.0:.2g}; tolerance "
+            f"{q.tolerance or 0.0:.2f} {q.unit})"
+            for q in bad
+        )
+        named.append(f"the transducer changed: {parts}")
+        moved.append("transducer")
+    return named, moved
+
+
+def unexplained_text(geometry: GeometryComparison) -> str:
+    """The misfit left after the selection, in words ("" when none)."""
+    if not geometry.unexplained:
+        return ""
+    return (
+        f"the measurements disagree with the reference's beyond what a change of a joint, the "
+        f"tool, the block or the water explains (χ² {geometry.chi2:.1f} on {geometry.dof} "
+        f"measurements; worst {geometry.worst}): check the block's faces and the kinematic "
+        "model (calibrate again)"
+    )
+
+
+def misfit_text(fit: ProfileComparison) -> str:
+    """A reference check's disagreement with the profile's calibration, in words."""
+    return (
+        f"its measurements disagree with the profile's calibration (χ²ᵣ "
+        f"{fit.chi2_reduced:.3g} on {fit.dof} measurements; worst {fit.worst}); likely cause: "
+        f"{fit.cause}"
+    )

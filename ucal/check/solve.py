@@ -1,0 +1,741 @@
+"""What moved: the check's measurements against the reference's, fitted on the profile's model.
+
+The geometry (``compare_geometry``). The reference's face measurements and the check's enter
+one fit (``ChangeFit``): the cell's unknowns of ``ucal.calibration.fit`` (joint offsets, block
+pose, tool frame, sound speed, with the profile's values and tolerances as priors; the DH table
+held) are shared by both sets, and a *suspect* — a joint's offset, the tool frame, the block
+pose, the water's sound speed — may add a change to the check's. What cannot be told apart
+stays so: a joint-1 offset and a turn of the block about the base axis are one rotation, and
+both are named.
+
+The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
+
+1. **Which suspects changed** — stepwise selection on the fit's χ² (``select``): from "nothing
+   changed", add the suspect that leaves the least χ² after paying its threshold, provided its
+   lowering of the χ² has a probability below ``SIGNIFICANCE_P`` = 0.27 % (the two-sided 3σ of
+   one normal variable; for a suspect of k unknowns, the χ² distribution with k degrees of
+   freedom); then drop a suspect chosen earlier whose removal no longer raises the χ²
+   significantly (the others now explain it); repeat. Each step is linearised at the
+   Gauss–Newton fit of the suspects chosen so far (``fit``). A suspect that, in place of a
+   chosen one, explains the data within ``ALIKE_CHI2`` = 9 (3σ) cannot be told apart from it
+   and is named with it (``alike``).
+2. **By how much** — the chosen suspects' changes and their one-sigma from that fit, the
+   covariance scaled by ``max(1, χ²ᵣ)``.
+3. **Out of tolerance** — an unknown of a chosen suspect whose change exceeds both 3σ and its
+   tolerance (``JOINT_TOLERANCE_DEG``, ``POSITION_TOLERANCE_MM``, ``ROTATION_TOLERANCE_DEG``;
+   the water: the profile's declared temperature tolerance); beyond 3σ but within tolerance it
+   is ``changed`` (a drift to watch), exit 0.
+
+What is left unexplained after the selection (the χ² still a misfit at ``MISFIT_P``) is out of
+tolerance too: something changed that no suspect accounts for (the kinematic model itself, a
+damaged face), and the message names the worst measurement.
+
+The suspects not chosen are reported as well: each one's change fitted with the chosen ones
+(linearised), i.e. how much it could have moved unseen.
+
+The echo chain (``echo_quantities``): the mean change over the postures both measured, its
+std from the changes' scatter, judged by the same rule (``AMPLITUDE_TOLERANCE_DB`` and the
+others); a time of flight change is reported, never judged alone (the geometry says what it
+means).
+
+The first check after a calibration (``compare_to_profile``) has no reference: its fit with the
+profile's calibration as the offsets' prior must not be a misfit; its offsets, water and echo
+chain are recorded, and the A-scan's centre frequency is judged against the transducer's
+nominal one.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.special import chdtrc, chdtri
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.fit import (
+    BLOCK,
+    DH,
+    MISFIT_P,
+    OFFSETS,
+    PARAMETERS,
+    SOUND,
+    TOOL,
+    CellPrior,
+    MeasurementArrays,
+    ParameterTable,
+    data_residuals,
+    measurement_label,
+    offsets_prior_std_deg,
+    solve_cell,
+)
+from ucal.calibration.model import FaceMeasurement
+from ucal.cell import CellProfile
+
+log = logging.getLogger(__name__)
+
+#: Probability below which a lowering of the χ² (or a change) is significant: two-sided 3σ.
+SIGNIFICANCE_P = 0.0027
+#: Suspects whose χ² differ by less than this explain the data alike (3σ of one unknown).
+ALIKE_CHI2 = 9.0
+#: Significance of one value's change: more than this many sigmas.
+N_SIGMA = 3.0
+#: The smallest change worth a commissioning's attention, per unknown of a suspect. Joints:
+#: 0.01° moves the tool centre by 0.17 mm at a metre's reach; tool and block: 0.05 mm and
+#: 0.02° (a transducer knocked in its holder, a block nudged); the water: the profile's declared
+#: temperature tolerance (``[water] temperature_std_c``, as a sound speed).
+JOINT_TOLERANCE_DEG = 0.01
+POSITION_TOLERANCE_MM = 0.05
+ROTATION_TOLERANCE_DEG = 0.02
+#: Weak priors on the changes (one sigma): they only hold directions the data do not see.
+JOINT_CHANGE_STD_DEG = 1.0
+POSITION_CHANGE_STD_MM = 5.0
+ROTATION_CHANGE_STD_DEG = 1.0
+SOUND_CHANGE_STD_M_S = 30.0
+
+
+@dataclass(frozen=True)
+class Suspect:
+    """What may have moved: named unknowns of the cell (``ucal.calibration.fit``), their
+    tolerances and the weak prior on their change (one sigma), in their units."""
+
+    name: str  # "J2", "tool", "block", "water"
+    words: str  # "joint 2", "the tool", ...
+    parameters: tuple[str, ...]
+    tolerances: tuple[float, ...]
+    change_std: tuple[float, ...]
+
+
+def suspects(prior: CellPrior) -> tuple[Suspect, ...]:
+    """Every suspect of a cell: the six joints, the tool, the block, the water."""
+    pose_tol = (POSITION_TOLERANCE_MM,) * 3 + (ROTATION_TOLERANCE_DEG,) * 3
+    pose_std = (POSITION_CHANGE_STD_MM,) * 3 + (ROTATION_CHANGE_STD_DEG,) * 3
+    joints = tuple(
+        Suspect(name, f"joint {name[1]}", (name,), (JOINT_TOLERANCE_DEG,), (JOINT_CHANGE_STD_DEG,))
+        for name in OFFSETS
+    )
+    return (
+        *joints,
+        Suspect("tool", "the tool", TOOL, pose_tol, pose_std),
+        Suspect("block", "the block", BLOCK, pose_tol, pose_std),
+        Suspect("water", "the water", SOUND, (prior.sound_speed_std_m_s,), (SOUND_CHANGE_STD_M_S,)),
+    )
+
+
+def change_name(parameter: str) -> str:
+    """The unknown of a parameter's change in the check."""
+    return f"change_{parameter}"
+
+
+@dataclass(frozen=True)
+class Change:
+    """One unknown's change from the reference to the check."""
+
+    parameter: str  # "J2", "tool_x_mm", "sound_speed_m_s", ...
+    suspect: str
+    baseline: float  # the reference's value (the joint fit's)
+    change: float
+    std: float
+    tolerance: float
+    chosen: bool  # its suspect was chosen as what moved
+
+    @property
+    def significant(self) -> bool:
+        return bool(abs(self.change) > N_SIGMA * self.std)
+
+    @property
+    def out_of_tolerance(self) -> bool:
+        return self.chosen and self.significant and abs(self.change) > self.tolerance
+
+
+@dataclass
+class GeometryComparison:
+    """The geometry of the check against its reference's."""
+
+    changes: list[Change]
+    chosen: list[str]  # the suspects that changed, in the order chosen
+    alike: dict[str, tuple[str, ...]]  # a chosen suspect → those the check cannot tell it from
+    chi2_null: float  # nothing changed
+    chi2: float  # with the chosen suspects
+    dof: int
+    unexplained: bool  # a misfit remains
+    worst: str  # the measurement with the largest residual left
+    suspects: tuple[Suspect, ...] = field(default=(), repr=False)
+
+
+class ChangeFit:
+    """The reference's and the check's face measurements in one prior-augmented fit: the cell's
+    unknowns shared (``ucal.calibration.fit.PARAMETERS``, the DH table held), each suspect's
+    change added to the check's (module docstring)."""
+
+    def __init__(
+        self,
+        prior: CellPrior,
+        reference: list[FaceMeasurement],
+        check: list[FaceMeasurement],
+        all_suspects: tuple[Suspect, ...],
+    ) -> None:
+        self.prior = prior
+        self.suspects = all_suspects
+        self.changed = tuple(p for s in all_suspects for p in s.parameters)
+        names = PARAMETERS + tuple(change_name(p) for p in self.changed)
+        values = np.concatenate([prior.values(), np.zeros(len(self.changed))])
+        stds = np.concatenate([prior.stds(), [v for s in all_suspects for v in s.change_std]])
+        self.table = ParameterTable(names, values, stds)
+        self.base_free = np.array([n not in DH for n in PARAMETERS])
+        self.base_idx = np.array([self.table.index(p) for p in self.changed])
+        self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
+        self.reference = reference
+        self.check = check
+        self._ref = MeasurementArrays.of(reference)
+        self._chk = MeasurementArrays.of(check)
+        self.n_data = 3 * (len(reference) + len(check))
+
+    def data(self, values: np.ndarray) -> np.ndarray:
+        """Normalised residuals of the reference's measurements, then of the check's."""
+        model, c0 = self.prior.model, self.prior.sound_speed_m_s
+        r_ref = data_residuals(self.table, values, model, self._ref, c0)
+        moved = values.copy()
+        moved[self.base_idx] += values[self.change_idx]
+        r_chk = data_residuals(self.table, moved, model, self._chk, c0)
+        return np.concatenate([r_ref.ravel(), r_chk.ravel()])
+
+    def free_mask(self, chosen: list[str]) -> np.ndarray:
+        """The unknowns free when ``chosen`` suspects may have changed."""
+        params = {p for s in self.suspects if s.name in chosen for p in s.parameters}
+        changes = np.array([p in params for p in self.changed])
+        return np.concatenate([self.base_free, changes])
+
+    def start(self) -> np.ndarray:
+        """A full value vector to start from: the reference's own fit, nothing changed."""
+        estimate = solve_cell(self.prior, self.reference, fixed=DH).estimate
+        return np.concatenate([estimate, np.zeros(len(self.changed))])
+
+    def chi2(self, values: np.ndarray, chosen: list[str]) -> float:
+        """χ² of the data and of the priors of the unknowns free with ``chosen``."""
+        free = self.free_mask(chosen)
+        t = self.table
+        pulls = (values - t.prior)[free] / t.prior_stds[free]
+        r = self.data(values)
+        return float(r @ r + pulls @ pulls)
+
+
+class Linearised:
+    """The joint fit linearised at ``values``: every suspect set is then a linear least-squares
+    problem (the selection tries many). The Jacobian is taken by central differences over every
+    unknown that any suspect set frees."""
+
+    def __init__(self, problem: ChangeFit, values: np.ndarray) -> None:
+        self.problem = problem
+        self.values = values
+        table = problem.table
+        self.cols = np.flatnonzero(problem.free_mask([s.name for s in problem.suspects]))
+        self.r0 = problem.data(values)
+        jac = np.empty((self.r0.size, self.cols.size))
+        for k, i in enumerate(self.cols):
+            h = 1e-5 * max(1.0, abs(values[i]) * 1e-2)
+            up, down = values.copy(), values.copy()
+            up[i] += h
+            down[i] -= h
+            jac[:, k] = (problem.data(up) - problem.data(down)) / (2 * h)
+        self.jac = jac
+        sigma = table.prior_stds[self.cols]
+        self.prior_r0 = (values[self.cols] - table.prior[self.cols]) / sigma
+        self.prior_d = 1.0 / sigma
+
+    def solve(self, chosen: list[str]) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The least-squares step with ``chosen`` suspects changed (the changes of the others
+        held at zero): its χ² (data and the priors of the free unknowns), the value vector it
+        reaches, the free unknowns (indices into that vector) and their covariance (scaled by
+        ``max(1, χ²ᵣ)``)."""
+        free = self.problem.free_mask(chosen)
+        mask = free[self.cols]
+        cols = self.cols[mask]
+        # a change no longer chosen goes back to zero
+        held = ~mask & (self.values[self.cols] != 0.0)
+        r_data = self.r0 - self.jac[:, held] @ self.values[self.cols[held]]
+        a = np.vstack([self.jac[:, mask], np.diag(self.prior_d[mask])])
+        r = np.concatenate([r_data, self.prior_r0[mask]])
+        step, *_ = np.linalg.lstsq(a, -r, rcond=None)
+        res = r + a @ step
+        chi2 = float(res @ res)
+        cov = np.linalg.pinv(a.T @ a) * max(1.0, chi2 / self.r0.size)
+        values = self.values.copy()
+        values[self.cols[held]] = 0.0
+        values[cols] += step
+        return chi2, values, cols, cov
+
+
+def fit(
+    problem: ChangeFit, values: np.ndarray, chosen: list[str], iterations: int = 12
+) -> tuple[np.ndarray, Linearised]:
+    """Gauss–Newton on the joint fit with ``chosen`` suspects changed, from ``values`` (the
+    changes of the others set to zero; the step halved while it raises the χ²); the solution
+    and the fit linearised there."""
+    values = values.copy()
+    values[problem.change_idx[~problem.free_mask(chosen)[problem.change_idx]]] = 0.0
+    lin = Linearised(problem, values)
+    chi2 = problem.chi2(values, chosen)
+    for _ in range(iterations):
+        target = lin.solve(chosen)[1]
+        for _ in range(20):
+            trial_chi2 = problem.chi2(target, chosen)
+            if trial_chi2 <= chi2 * (1 + 1e-12) + 1e-12:
+                break
+            target = values + (target - values) / 2
+        else:
+            break
+        done = chi2 - trial_chi2 < 1e-6 * max(chi2, 1.0)
+        values, chi2 = target, trial_chi2
+        lin = Linearised(problem, values)
+        if done:
+            break
+    return values, lin
+
+
+def _score(after: float, k: int) -> float:
+    """The χ² a suspect of ``k`` unknowns leaves, plus what it must pay to be chosen."""
+    return after + chi2_threshold(k)
+
+
+def _significant(lowering: float, k: int) -> bool:
+    return float(chdtrc(k, max(lowering, 0.0))) < SIGNIFICANCE_P
+
+
+def select(
+    problem: ChangeFit, values: np.ndarray
+) -> tuple[list[str], np.ndarray, Linearised, float]:
+    """Stepwise selection of the suspects that changed (module docstring, rule 1): add the
+    suspect that lowers the χ² most (after paying its threshold) while the lowering is
+    significant, then drop any chosen earlier that the others now explain (its removal no
+    longer raises the χ² significantly); each step linearised at the fit with the suspects
+    chosen so far. Returns the chosen suspects, their fit, its linearisation and the χ² of the
+    fit where nothing changed."""
+    size = {s.name: len(s.parameters) for s in problem.suspects}
+    chosen: list[str] = []
+    values, lin = fit(problem, values, chosen)
+    chi2_null = problem.chi2(values, chosen)
+    tried: set[tuple[str, ...]] = {()}
+    for _ in range(3 * len(size)):
+        chi2 = lin.solve(chosen)[0]
+        after = {n: lin.solve([*chosen, n])[0] for n in size if n not in chosen}
+        if not after:
+            break
+        best = min(after, key=lambda n: (_score(after[n], size[n]), size[n]))
+        if not _significant(chi2 - after[best], size[best]):
+            break
+        log.info("check: %s changed (χ² %.1f → %.1f)", best, chi2, after[best])
+        chosen.append(best)
+        values, lin = fit(problem, values, chosen)
+        while len(chosen) > 1:
+            chi2 = lin.solve(chosen)[0]
+            rise = {n: lin.solve([c for c in chosen if c != n])[0] - chi2 for n in chosen[:-1]}
+            drop = min(rise, key=lambda n: rise[n] - chi2_threshold(size[n]))
+            if _significant(rise[drop], size[drop]):
+                break
+            log.info("check: %s explained by the others (χ² +%.1f without it)", drop, rise[drop])
+            chosen.remove(drop)
+            values, lin = fit(problem, values, chosen)
+        if tuple(sorted(chosen)) in tried:
+            break
+        tried.add(tuple(sorted(chosen)))
+    return chosen, values, lin, chi2_null
+
+
+def alike(lin: Linearised, chosen: list[str], names: list[str]) -> dict[str, tuple[str, ...]]:
+    """For each chosen suspect, the others that, in its place, explain the data within
+    ``ALIKE_CHI2`` of the χ²: what the check cannot tell it from."""
+    chi2 = lin.solve(chosen)[0]
+    out = {}
+    for c in chosen:
+        rest = [n for n in chosen if n != c]
+        out[c] = tuple(
+            n for n in names if n not in chosen and lin.solve([*rest, n])[0] - chi2 < ALIKE_CHI2
+        )
+    return out
+
+
+def compare_geometry(
+    prior: CellPrior, reference: list[FaceMeasurement], check: list[FaceMeasurement]
+) -> GeometryComparison:
+    """What moved between the reference's measurements and the check's (module docstring)."""
+    problem = ChangeFit(prior, reference, check, suspects(prior))
+    start = problem.start()
+    chosen, values, lin, chi2_null = select(problem, start)
+    chi2, _, cols, cov = lin.solve(chosen)
+    table = problem.table
+    changes: list[Change] = []
+    for s in problem.suspects:
+        if s.name in chosen:
+            v, c, cv = values, cols, cov
+        else:  # how much it could have moved unseen: fitted with the chosen, linearised
+            _, v, c, cv = lin.solve([*chosen, s.name])
+        std = np.full(values.size, np.nan)
+        std[c] = np.sqrt(np.clip(np.diag(cv), 0.0, None))
+        for p, tol in zip(s.parameters, s.tolerances, strict=True):
+            i = table.index(change_name(p))
+            changes.append(
+                Change(
+                    p,
+                    s.name,
+                    float(values[table.index(p)]),
+                    float(v[i]),
+                    float(std[i]),
+                    tol,
+                    s.name in chosen,
+                )
+            )
+    res = lin.r0.reshape(-1, 3)
+    labels = [f"reference {measurement_label(m)}" for m in reference] + [
+        measurement_label(m) for m in check
+    ]
+    worst = labels[int(np.argmax(np.linalg.norm(res, axis=1)))]
+    dof = problem.n_data
+    return GeometryComparison(
+        changes,
+        chosen,
+        alike(lin, chosen, [s.name for s in problem.suspects]),
+        chi2_null,
+        chi2,
+        dof,
+        float(chdtrc(dof, chi2)) < MISFIT_P,
+        worst,
+        problem.suspects,
+    )
+
+
+@dataclass(frozen=True)
+class ProfileComparison:
+    """The first check of a profile: its measurements fitted with the profile's calibration as
+    the prior of the joint offsets (``[calibration] std_deg``), the cell's other tolerances as
+    theirs."""
+
+    offsets_deg: np.ndarray  # as fitted
+    offsets_std_deg: np.ndarray
+    profile_offsets_deg: np.ndarray
+    sound_speed_m_s: float
+    sound_speed_std_m_s: float
+    chi2_reduced: float
+    dof: int
+    misfit: bool
+    worst: str
+    cause: str
+
+
+def compare_to_profile(
+    profile: CellProfile, prior: CellPrior, check: list[FaceMeasurement]
+) -> ProfileComparison:
+    """Whether the check's measurements agree with the calibration the profile holds: the χ²
+    of the fit whose joint-offset priors are the calibration's values and stds (a misfit at
+    ``MISFIT_P``: the cell is not as calibrated). A few postures leave most offsets to their
+    priors, so this is a consistency test, not a new calibration."""
+    stds = prior.stds()
+    stds[: len(OFFSETS)] = offsets_prior_std_deg(profile)
+    table = ParameterTable(PARAMETERS, prior.values(), stds)
+    cell = solve_cell(prior, check, fixed=DH, table=table)
+    q = cell.quality
+    return ProfileComparison(
+        np.array([cell.value(n) for n in OFFSETS]),
+        np.array([cell.sigma(n) for n in OFFSETS]),
+        np.asarray(profile.joint_offsets_deg, float),
+        cell.value(SOUND[0]),
+        cell.sigma(SOUND[0]),
+        q.chi2_reduced,
+        q.dof,
+        q.verdict == "misfit",
+        q.worst,
+        q.cause,
+    )
+
+
+def temperature_change_c(prior: CellPrior, sound_change_m_s: float) -> float:
+    """The water temperature change (°C) that a sound speed change (m/s) means, at the
+    profile's temperature (Marczak's c(T))."""
+    t = prior.water_temperature_c
+    slope = (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
+    return float(sound_change_m_s / slope)
+
+
+def chi2_threshold(k: int) -> float:
+    """The χ² lowering a suspect of ``k`` unknowns needs to be chosen."""
+    return float(chdtri(k, SIGNIFICANCE_P))
+
+
+def temperature_of(prior: CellPrior, speed_m_s: float) -> float:
+    """The water temperature (°C) at which Marczak's c(T) is ``speed_m_s`` (near the
+    profile's temperature; Newton's method)."""
+    t = prior.water_temperature_c
+    for _ in range(20):
+        slope = (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
+        step = (speed_m_s - sound_speed_m_s(t)) / slope
+        t += step
+        if abs(step) < 1e-9:
+            break
+    return float(t)
+
+
+# ---------------------------------------------------------------------------------------------
+# the checked quantities and their verdicts
+
+#: Verdicts of a checked quantity.
+OK = "ok"
+CHANGED = "changed"  # beyond 3σ but within tolerance: a drift to watch
+OUT = "out of tolerance"
+RECORDED = "recorded"  # a reference check: nothing to compare with
+NOT_MEASURED = "not measured"
+
+#: The echo chain's tolerances: amplitude and SNR (dB) against the reference; the centre
+#: frequency and the −6 dB bandwidth as fractions of the reference's (EN 12668-2's tolerances
+#: of a transducer against its data sheet: ±10 % and ±15 %), the centre frequency of a reference
+#: check against the profile's ``[transducer] frequency_mhz``.
+AMPLITUDE_TOLERANCE_DB = 2.0
+SNR_TOLERANCE_DB = 6.0
+CENTRE_FREQUENCY_TOLERANCE = 0.10
+BANDWIDTH_TOLERANCE = 0.15
+#: Floors of the echo figures' stds: amplitude (dB, a few readings at the peak), the open-water
+#: noise floor (dB, the median of eight readings), A-scan frequencies (MHz).
+AMPLITUDE_STD_FLOOR_DB = 0.05
+FLOOR_STD_DB = 1.0
+FREQUENCY_STD_FLOOR_MHZ = 0.05
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One checked quantity: the check's value against the reference's, its one-sigma, the
+    tolerance it is judged by and the verdict (``OK``, ``CHANGED``, ``OUT``, ``RECORDED``,
+    ``NOT_MEASURED``)."""
+
+    name: str  # "J2", "tool_rx_deg", "sound_speed_m_s", "amplitude_db", ...
+    part: str  # what it belongs to: "joint 2", "the tool", "the water", "the transducer", ...
+    unit: str
+    value: float | None
+    baseline: float | None
+    std: float | None
+    tolerance: float | None
+    verdict: str
+
+    @property
+    def difference(self) -> float | None:
+        if self.value is None or self.baseline is None:
+            return None
+        return self.value - self.baseline
+
+    def to_json(self) -> dict[str, object]:
+        def num(v: float | None) -> float | None:
+            return None if v is None or not np.isfinite(v) else float(v)
+
+        return {
+            "name": self.name,
+            "part": self.part,
+            "unit": self.unit,
+            "value": num(self.value),
+            "baseline": num(self.baseline),
+            "difference": num(self.difference),
+            "std": num(self.std),
+            "tolerance": num(self.tolerance),
+            "verdict": self.verdict,
+        }
+
+
+def judge(difference: float, std: float, tolerance: float | None, may_fail: bool = True) -> str:
+    """The 3σ-and-tolerance rule: ``OUT`` beyond both (when ``may_fail``), ``CHANGED`` beyond
+    3σ only, else ``OK``; ``NOT_MEASURED`` without a difference."""
+    if not np.isfinite(difference):
+        return NOT_MEASURED
+    if not abs(difference) > N_SIGMA * std:
+        return OK
+    if may_fail and tolerance is not None and abs(difference) > tolerance:
+        return OUT
+    return CHANGED
+
+
+def unit_of(parameter: str) -> str:
+    """The unit of a cell unknown, from its name."""
+    if parameter in OFFSETS or parameter.endswith("_deg"):
+        return "deg"
+    if parameter.endswith("_mm"):
+        return "mm"
+    return "m/s"
+
+
+def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> list[Quantity]:
+    """Each unknown of every suspect, and the water's temperature, as checked quantities."""
+    words = {s.name: s.words for s in comparison.suspects}
+    out = []
+    for c in comparison.changes:
+        verdict = OUT if c.out_of_tolerance else CHANGED if c.chosen and c.significant else OK
+        out.append(
+            Quantity(
+                c.parameter,
+                words[c.suspect],
+                unit_of(c.parameter),
+                c.baseline + c.change,
+                c.baseline,
+                c.std,
+                c.tolerance,
+                verdict,
+            )
+        )
+        if c.parameter == SOUND[0]:
+            t0 = temperature_of(prior, c.baseline)
+            t1 = temperature_of(prior, c.baseline + c.change)
+            slope = c.change / (t1 - t0) if t1 != t0 else 1.0
+            out.append(
+                Quantity(
+                    "water_temperature_c",
+                    words[c.suspect],
+                    "°C",
+                    t1,
+                    t0,
+                    c.std / abs(slope),
+                    c.tolerance / abs(slope),
+                    verdict,
+                )
+            )
+    return out
+
+
+def profile_quantities(comparison: ProfileComparison, prior: CellPrior) -> list[Quantity]:
+    """A reference check's offsets and water as fitted, against the profile's (recorded)."""
+    out = [
+        Quantity(
+            name,
+            f"joint {name[1]}",
+            "deg",
+            float(comparison.offsets_deg[j]),
+            float(comparison.profile_offsets_deg[j]),
+            float(comparison.offsets_std_deg[j]),
+            None,
+            RECORDED,
+        )
+        for j, name in enumerate(OFFSETS)
+    ]
+    c0 = prior.sound_speed_m_s
+    out.append(
+        Quantity(
+            SOUND[0],
+            "the water",
+            "m/s",
+            comparison.sound_speed_m_s,
+            c0,
+            comparison.sound_speed_std_m_s,
+            None,
+            RECORDED,
+        )
+    )
+    return out
+
+
+def _pairs(reference: list[Any], check: list[Any], key: str) -> list[tuple[float, float]]:
+    """The figure ``key`` of the readings at the postures both measured (finite in both)."""
+    ref = {r.label: getattr(r, key) for r in reference}
+    out = []
+    for c in check:
+        a, b = ref.get(c.label), getattr(c, key)
+        if a is not None and b is not None and np.isfinite(a) and np.isfinite(b):
+            out.append((float(a), float(b)))
+    return out
+
+
+def _mean_change(pairs: list[tuple[float, float]], floor: float) -> tuple[float, float, float]:
+    """Mean reference value, mean check value, and the std of the mean change (from the
+    changes' scatter, not below ``floor``)."""
+    ref = np.array([p[0] for p in pairs])
+    chk = np.array([p[1] for p in pairs])
+    d = chk - ref
+    scatter = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else floor
+    return float(ref.mean()), float(chk.mean()), max(scatter, floor)
+
+
+def echo_quantities(reference: list[Any], check: list[Any]) -> list[Quantity]:
+    """The echo chain against the reference's (``EchoReading``s at the same postures): mean
+    time of flight, amplitude at 0 dB gain, SNR, the A-scans' centre frequency and bandwidth."""
+    out = []
+    tof = _pairs(reference, check, "tof_ns")
+    if tof:
+        stds = {r.label: r.tof_std_ns for r in reference}
+        var = sum(stds.get(c.label, 0.0) ** 2 + c.tof_std_ns**2 for c in check)
+        base, value, _ = _mean_change(tof, 0.0)
+        std = float(np.sqrt(var)) / len(tof)
+        # the geometry decides what a time of flight change means: never out by itself
+        verdict = judge(value - base, std, None, may_fail=False)
+        out.append(Quantity("tof_ns", "the echo", "ns", value, base, std, None, verdict))
+    specs: tuple[tuple[str, str, str, float, float | None, bool], ...] = (
+        (
+            "amplitude_db",
+            "the transducer",
+            "dB",
+            AMPLITUDE_STD_FLOOR_DB,
+            AMPLITUDE_TOLERANCE_DB,
+            False,
+        ),
+        ("snr_db", "the transducer or the receiver", "dB", 0.0, SNR_TOLERANCE_DB, False),
+        (
+            "centre_frequency_mhz",
+            "the transducer",
+            "MHz",
+            FREQUENCY_STD_FLOOR_MHZ,
+            CENTRE_FREQUENCY_TOLERANCE,
+            True,
+        ),
+        (
+            "bandwidth_mhz",
+            "the transducer",
+            "MHz",
+            FREQUENCY_STD_FLOOR_MHZ,
+            BANDWIDTH_TOLERANCE,
+            True,
+        ),
+    )
+    amp_std = AMPLITUDE_STD_FLOOR_DB
+    for name, part, unit, floor, tol, relative in specs:
+        pairs = _pairs(reference, check, name)
+        if not pairs:
+            out.append(Quantity(name, part, unit, None, None, None, None, NOT_MEASURED))
+            continue
+        base, value, std = _mean_change(pairs, floor)
+        if name == "amplitude_db":
+            amp_std = std
+        elif name == "snr_db":
+            std = float(np.hypot(amp_std, FLOOR_STD_DB))
+        tolerance = None if tol is None else tol * abs(base) if relative else tol
+        out.append(
+            Quantity(
+                name, part, unit, value, base, std, tolerance, judge(value - base, std, tolerance)
+            )
+        )
+    return out
+
+
+def echo_record(check: list[Any], frequency_mhz: float) -> list[Quantity]:
+    """A reference check's echo chain: recorded, and the A-scans' centre frequency against the
+    transducer's nominal one (``CENTRE_FREQUENCY_TOLERANCE`` of it)."""
+    out = []
+    for name, part, unit in (
+        ("tof_ns", "the echo", "ns"),
+        ("amplitude_db", "the transducer", "dB"),
+        ("snr_db", "the transducer or the receiver", "dB"),
+        ("centre_frequency_mhz", "the transducer", "MHz"),
+        ("bandwidth_mhz", "the transducer", "MHz"),
+    ):
+        values = np.array(
+            [v for c in check if (v := getattr(c, name)) is not None and np.isfinite(v)]
+        )
+        if not values.size:
+            out.append(Quantity(name, part, unit, None, None, None, None, NOT_MEASURED))
+            continue
+        mean = float(values.mean())
+        if unit != "MHz":  # the postures' water paths differ: their mean has no one-sigma
+            out.append(Quantity(name, part, unit, mean, None, None, None, RECORDED))
+            continue
+        scatter = float(np.std(values, ddof=1) / np.sqrt(values.size)) if values.size > 1 else 0.0
+        std = max(scatter, FREQUENCY_STD_FLOOR_MHZ)
+        if name == "centre_frequency_mhz":
+            tol = CENTRE_FREQUENCY_TOLERANCE * frequency_mhz
+            verdict = judge(mean - frequency_mhz, std, tol)
+            verdict = RECORDED if verdict == OK else verdict
+            out.append(Quantity(name, part, unit, mean, frequency_mhz, std, tol, verdict))
+        else:
+            out.append(Quantity(name, part, unit, mean, None, std, None, RECORDED))
+    return out
