@@ -94,13 +94,15 @@ def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict
         served.communicate(timeout=30)
 
 
-def sigmas(result: dict, reference: np.ndarray, ref_std: np.ndarray | None = None) -> list:
+def sigmas(
+    result: dict, reference: np.ndarray, ref_std: np.ndarray | None = None
+) -> list[float | None]:
     """Each of J2–J5's difference from ``reference`` in units of the (combined) std."""
     got = result.get("joint_offsets_deg")
     std = result.get("std_deg")
     if not got or not std:
         return [None] * 4
-    out = []
+    out: list[float | None] = []
     for j in range(1, 5):
         if std[j] is None:
             out.append(None)
