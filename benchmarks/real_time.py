@@ -10,8 +10,8 @@ of its reported std; then the same profile rehearsed with ``--sim`` (lock-step s
 and the two results' difference in units of their combined std.
 
 Usage: python benchmarks/real_time.py [--scales 1,0.2,0.1] [--hogs 2] [--model tx90] [--json];
-``--quick``: one scale (0.2), no hog, ``calibrate --level full --postures 3`` (the smallest
-plan: the code path, not the figures).
+``--quick``: the lock-step rehearsal only, and the served runs named as skipped (each takes
+a minute of wall time; ``tests/system/test_real_time.py`` runs one at time scale 0.2).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import shutil
 import signal
 import subprocess
 import sys
@@ -35,8 +36,10 @@ from ucal.sim.demo import demo_world
 if TYPE_CHECKING:
     from multiprocessing.synchronize import Event
 
-#: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"scales": "0.2", "hogs": 0, "small": True}
+#: ``--quick``: the defaults it changes (an option given on the command line still wins):
+#: no served run, no hog.
+QUICK_SCALES = ""
+QUICK_HOGS = 0
 
 
 def hog(stop: Event) -> None:
@@ -65,7 +68,12 @@ def ucal(workdir: Path, *args: str) -> tuple[int, dict[str, Any], float, str]:
 
 
 def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict, float, str]:
-    """``calibrate`` against ``ucal sim serve --time-scale SCALE --server val3``."""
+    """``calibrate`` against ``ucal sim serve --time-scale SCALE --server val3``, on a copy of
+    the fresh profile (a real cell's run writes it: each run starts from the same one)."""
+    run = workdir / f"scale-{scale:g}"
+    run.mkdir()
+    shutil.copy(workdir / "cell.toml", run / "cell.toml")
+    workdir = run
     served = subprocess.Popen(
         [sys.executable, "-m", "ucal", "sim", "serve", "--profile", "cell.toml"]
         + ["--time-scale", str(scale), "--server", "val3"],
@@ -86,7 +94,6 @@ def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict
             "--pulser",
             urls["pulser"],
             "--yes",
-            "--dry-run",
             *extra,
         )
     finally:
@@ -120,13 +127,13 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--quick", action="store_true", help="one scale, no hog, smallest plan")
     args = ap.parse_args()
-    small = False
     if args.quick:
         given = set(sys.argv[1:])
-        args.scales = args.scales if "--scales" in given else QUICK["scales"]
-        args.hogs = args.hogs if "--hogs" in given else QUICK["hogs"]
-        small = True
-    extra = ["--level", "full", "--postures", "3"] if small else []
+        args.scales = args.scales if "--scales" in given else QUICK_SCALES
+        args.hogs = args.hogs if "--hogs" in given else QUICK_HOGS
+        if not args.scales:
+            print("--quick: served runs skipped (a minute of wall time each)", file=sys.stderr)
+    extra: list[str] = []
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
@@ -156,7 +163,7 @@ def main() -> None:
             }
         )
         sim_offsets = np.asarray(rehearsal.get("joint_offsets_deg") or truth, float)
-        for scale in (float(s) for s in args.scales.split(",")):
+        for scale in (float(s) for s in args.scales.split(",") if s):
             stop = mp.Event()
             hogs = [mp.Process(target=hog, args=(stop,)) for _ in range(args.hogs)]
             for p in hogs:
@@ -180,11 +187,11 @@ def main() -> None:
                 }
             )
     if args.json:
-        print(json.dumps({"model": args.model, "plan": "small" if small else "main", "rows": rows}))
+        print(json.dumps({"model": args.model, "rows": rows}))
         return
     print(
-        f"calibrate ({'--level full --postures 3' if small else 'the main job'}, {args.model}, "
-        "demo truth, released VAL3 server timing); errors in units of the reported std"
+        f"calibrate (the main job, {args.model}, demo truth, released VAL3 server timing); "
+        "errors in units of the reported std"
     )
     head = f"{'run':34} {'exit':>4} {'moves':>6} {'reads':>6} {'wall s':>7}"
     print(f"{head}  J2-J5 vs truth   vs --sim")
