@@ -68,11 +68,11 @@ class HostEchoTimer:
         if not (math.isfinite(echo.amplitude) and math.isfinite(echo.tof_ns)):
             return self._nothing()
         return EchoTiming(
-            amplitude=abs(echo.amplitude),
-            tof_ns=echo.tof_ns,
-            tof_std_ns=echo.tof_std_ns,
+            amplitude=abs(float(echo.amplitude)),
+            tof_ns=float(echo.tof_ns),
+            tof_std_ns=float(echo.tof_std_ns),
             method=echo.method,
-            clipped=echo.clipped,
+            clipped=bool(echo.clipped),
         )
 
     def _nothing(self) -> EchoTiming:
