@@ -9,8 +9,8 @@ returns an unconnected device: a ``PulserReceiver`` for the group ``ucal.pulsers
     my-scheme = "my_package.my_module:MyPulser"
 
 The entry-point name is the URL scheme (``my-scheme://...``). ucal's own back-ends are declared
-the same way (``modbus-tcp``, ``modbus-rtu``, ``tcp``) and are also known without installed
-metadata (a source checkout), so the drivers work before ``pip install``.
+the same way (``modbus-tcp``, ``modbus-rtu``, ``ascii``, ``tcp``) and are also known without
+installed metadata (a source checkout), so the drivers work before ``pip install``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ BUILTIN: dict[str, dict[str, str]] = {
     PULSER_GROUP: {
         "modbus-tcp": "drivers.pulser.modbus:ModbusPulser",
         "modbus-rtu": "drivers.pulser.modbus:ModbusPulser",
+        "ascii": "drivers.pulser.ascii:AsciiScpiPulser",
     },
     CONTROLLER_GROUP: {
         "tcp": "drivers.controller.client:SimpleMessageController",
@@ -82,8 +83,9 @@ def _open(group: str, kind: str, url: str, options: dict[str, Any]) -> Any:
 def open_pulser(url: str, **options: Any) -> PulserReceiver:
     """Build the pulser-receiver for ``url`` with the back-end of its scheme (not connected).
 
-    ``options`` go to the back-end's ``from_url`` (e.g. ``timeout_s``). Raises ``ValueError``
-    for an unknown scheme (naming it and the known ones) or a malformed URL.
+    ``options`` go to the back-end's ``from_url`` (e.g. ``timeout_s``; ``digitizer`` for a
+    pulser that does not digitise, ``ascii://``). Raises ``ValueError`` for an unknown scheme
+    (naming it and the known ones) or a malformed URL.
     """
     device = _open(PULSER_GROUP, "pulser", url, options)
     if not isinstance(device, PulserReceiver):

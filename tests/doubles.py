@@ -6,6 +6,7 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :func:`crc16_modbus` — the reference CRC of a Modbus RTU frame, bit by bit;
 * :class:`ScriptedPort` — a serial port that plays a dialogue of expected requests and replies,
   in the style of pymeasure's ``expected_protocol``;
+* :class:`ScriptedVisaResource` — the same for a PyVISA message-based resource;
 * :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
   gate reads;
 * :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
@@ -126,6 +127,56 @@ class ScriptedPort:
     def assert_done(self) -> None:
         assert not self.dialogue, f"unused pairs: {self.dialogue}"
         assert not self.rx, f"unread bytes: {bytes(self.rx).hex(' ')}"
+
+
+class ScriptedVisaResource:
+    """A PyVISA message-based resource double (``write_raw``, ``read_raw``, ``read_bytes``,
+    ``timeout``, ``close``): a dialogue of (expected message, reply or None) pairs.
+
+    Every ``write_raw`` must equal the next expected message; its reply then becomes readable.
+    A read with nothing left raises PyVISA's timeout error, as the resource would.
+    :meth:`assert_done` fails if a pair is left unused or bytes are left unread.
+    """
+
+    def __init__(self, dialogue: list[tuple[bytes, bytes | None]]):
+        self.dialogue = list(dialogue)
+        self.rx = bytearray()
+        self.timeout = 2000.0
+        self.closed = False
+
+    def write_raw(self, data: bytes) -> int:
+        assert self.dialogue, f"unexpected write {bytes(data)!r}"
+        expected, reply = self.dialogue.pop(0)
+        assert bytes(data) == expected, f"sent {bytes(data)!r}, expected {expected!r}"
+        self.rx += reply or b""
+        return len(data)
+
+    def _timeout(self) -> Exception:
+        from pyvisa import constants, errors
+
+        return errors.VisaIOError(constants.StatusCode.error_timeout)
+
+    def read_raw(self) -> bytes:
+        end = self.rx.find(b"\n")
+        if end < 0:
+            raise self._timeout()
+        out = bytes(self.rx[: end + 1])
+        del self.rx[: end + 1]
+        return out
+
+    def read_bytes(self, count: int, break_on_termchar: bool = False) -> bytes:
+        if len(self.rx) < count:
+            raise self._timeout()
+        out = bytes(self.rx[:count])
+        del self.rx[:count]
+        return out
+
+    def close(self) -> None:
+        self.closed = True
+
+    def assert_done(self) -> None:
+        assert not self.dialogue, f"unused pairs: {self.dialogue}"
+        assert not self.rx, f"unread bytes: {bytes(self.rx)!r}"
 
 
 class QuietPulser(PulserReceiver):

@@ -224,7 +224,9 @@ class PulserTruth:
     of the gain actually applied, drawn anew at each gain change. ``delay_ns``: fixed
     electronic delay added to every time of flight (round trip, ns). ``register_map``: the
     Modbus register map the simulated pulser serves, read from ``register_map_path`` (None:
-    the profile's).
+    the profile's). ``kind``: the back-end the simulated cell speaks, ``"modbus"`` (a pulser
+    that gates) or ``"ascii-scpi"`` (an ASCII serial pulser and a SCPI oscilloscope that
+    digitises at ``sample_rate_mhz`` with a ``bits`` ADC; ucal times the echoes).
     """
 
     amplitude_bits: int = 0
@@ -232,6 +234,9 @@ class PulserTruth:
     delay_ns: float = DEFAULT_PULSER_DELAY_NS
     register_map_path: Path | None = None
     register_map: RegisterMap | None = None
+    kind: str = "modbus"
+    sample_rate_mhz: float = 200.0
+    bits: int = 12
 
 
 @dataclass(frozen=True)

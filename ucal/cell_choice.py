@@ -12,11 +12,13 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class CellChoice:
     """The cell a moving command will open: the simulated cell (``sim_world`` not None; ""
-    = demo truth) or the controller and pulser at their URLs."""
+    = demo truth) or the controller and pulser at their URLs (and the pulser's digitiser,
+    for one that does not digitise)."""
 
     sim_world: str | None
     controller_url: str | None
     pulser_url: str | None
+    digitizer_url: str | None = None
 
     @property
     def name(self) -> str:

@@ -281,7 +281,14 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
             return replay_cell(profile, options.replay)
         assert options.cell is not None
         cell = options.cell
-        return open_cell(profile, cell.sim_world, cell.controller_url, cell.pulser_url, recorder)
+        return open_cell(
+            profile,
+            cell.sim_world,
+            cell.controller_url,
+            cell.pulser_url,
+            recorder,
+            digitizer_url=cell.digitizer_url,
+        )
 
     def _measure(
         self, plan: PlanT, estimate: DurationEstimate, recorder: Recorder | None

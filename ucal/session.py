@@ -22,9 +22,13 @@ from pathlib import Path
 from typing import Any
 
 from drivers.clock import HOST_CLOCK, Clock, SimClock
+from drivers.digitizer.base import HostTimed
 from drivers.errors import DriverError
+from drivers.pulser.ascii import AsciiScpiPulser
+from drivers.pulser.ascii_commands import KNOBS, Letter
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
+from ucal.echo.host import HostEchoTimer
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.record import (
     Record,
@@ -42,6 +46,8 @@ from ucal.world import load_world
 
 log = logging.getLogger(__name__)
 
+#: The ASCII pulser's pulse width knob.
+WIDTH = KNOBS[Letter.WIDTH]
 #: Real-time guard on every request to the in-process simulated cell (s): it answers at once
 #: in simulated time, so only a hung simulator could make a request take this long.
 SIM_GUARD_TIMEOUT_S = 60.0
@@ -89,6 +95,33 @@ def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
     return rig
 
 
+def fit_back_end(pulser: Any, profile: CellProfile) -> None:
+    """What ucal gives a pulser back-end before its first reading: an echo timer to one that
+    only digitises (``drivers.digitizer.base.HostTimed``: ``ucal.echo.host``, the coarse
+    envelope fallback while the profile names no reference echo), and to the ASCII pulser the
+    pulse width of the profile's transducer (a half cycle of its centre frequency)."""
+    endpoint = pulser.endpoint
+    if isinstance(pulser, HostTimed):
+        timer = HostEchoTimer()
+        pulser.echo_timer = timer
+        if timer.reference is None:
+            log.warning(
+                "pulser %s: no reference echo: echoes are timed on the host by their envelope "
+                "(coarse)",
+                endpoint,
+            )
+    if isinstance(pulser, AsciiScpiPulser):
+        width_ns = 500.0 / profile.frequency_mhz
+        try:
+            WIDTH.code(width_ns)
+        except ValueError as e:
+            raise InputError(
+                f"{profile.path}: transducer.frequency_mhz = {profile.frequency_mhz:g} MHz needs "
+                f"a pulse of {width_ns:g} ns, which the pulser at {endpoint} cannot give ({e})"
+            ) from None
+        pulser.pulse_width_ns = width_ns
+
+
 @contextlib.contextmanager
 def open_cell(
     profile: CellProfile,
@@ -96,8 +129,10 @@ def open_cell(
     controller_url: str | None,
     pulser_url: str | None,
     recorder: Recorder | None = None,
+    digitizer_url: str | None = None,
 ) -> Iterator[CellSession]:
-    """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs.
+    """Connect to the simulated cell (``sim_world`` not None; "" = demo truth) or to the URLs
+    (``digitizer_url``: the digitiser of a pulser that does not digitise itself).
 
     With a ``recorder`` every call the procedure makes to the devices is recorded as it happens
     (``ucal.record``).
@@ -122,11 +157,14 @@ def open_cell(
             server = stack.enter_context(SimulatedCellServer(truth, profile, clock=clock))
             stack.callback(clock.close)  # after the drivers have closed, before the server stops
             controller_url, pulser_url = server.urls["controller"], server.urls["pulser"]
+            digitizer_url = server.urls.get("digitizer")
             controller_options.update(
                 reply_timeout_s=SIM_GUARD_TIMEOUT_S, connect_timeout_s=SIM_GUARD_TIMEOUT_S
             )
             pulser_options["timeout_s"] = SIM_GUARD_TIMEOUT_S
         assert controller_url and pulser_url
+        if digitizer_url:
+            pulser_options["digitizer"] = digitizer_url
         controller: Any
         pulser: Any
         try:
@@ -134,13 +172,19 @@ def open_cell(
             pulser = open_pulser(pulser_url, **pulser_options)
         except ValueError as e:
             raise InputError(str(e)) from e
-        except TypeError as e:  # a back-end whose from_url takes no register map
-            if "register_map" not in pulser_options or "register_map" not in str(e):
-                raise
-            raise InputError(
-                f"[pulser] register_map ({profile.pulser.register_map_path}) is for Modbus "
-                f"pulsers; the back-end of {pulser_url} takes none ({e})"
-            ) from e
+        except TypeError as e:  # a back-end whose from_url takes no register map / digitiser
+            if "register_map" in pulser_options and "register_map" in str(e):
+                raise InputError(
+                    f"[pulser] register_map ({profile.pulser.register_map_path}) is for Modbus "
+                    f"pulsers; the back-end of {pulser_url} takes none ({e})"
+                ) from e
+            if "digitizer" in pulser_options and "digitizer" in str(e):
+                raise InputError(
+                    f"--digitizer {digitizer_url}: the pulser at {pulser_url} digitises "
+                    f"itself; a digitiser is for pulsers that do not (ascii://) ({e})"
+                ) from e
+            raise
+        fit_back_end(pulser, profile)
         controller.clock = pulser.clock = clock
         if recorder is not None:
             controller = RecordingController(controller, recorder)

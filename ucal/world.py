@@ -18,7 +18,10 @@ the solvers do not model:
   and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
   ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`;
   ``register_map`` — the Modbus register map file the simulated pulser serves (relative to the
-  world file; default: the profile's ``[pulser] register_map``, else ucal's own map).
+  world file; default: the profile's ``[pulser] register_map``, else ucal's own map);
+  ``kind`` — the back-end the simulated cell speaks: ``"modbus"`` (default) or ``"ascii-scpi"``
+  (an ASCII serial pulser and a SCPI oscilloscope, ``ucal.sim.serve``), whose digitiser samples
+  at ``sample_rate_mhz`` (10…5000, default 200) with a ``bits`` ADC (8…16, default 12).
 
 Extra keys beyond SPEC.md:
 
@@ -90,7 +93,17 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "transducer": frozenset(
         {"frequency_mhz", "element_diameter_mm", "squint_deg", "squint_azimuth_deg", "near_field"}
     ),
-    "pulser": frozenset({"amplitude_bits", "gain_error_db", "delay_ns", "register_map"}),
+    "pulser": frozenset(
+        {
+            "amplitude_bits",
+            "gain_error_db",
+            "delay_ns",
+            "register_map",
+            "kind",
+            "sample_rate_mhz",
+            "bits",
+        }
+    ),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
     "controller": frozenset({"server", "startup_silence_s"}),
     "timing": frozenset(
@@ -309,10 +322,21 @@ def _timing(r: Reader, table: Mapping[str, Any]) -> CellTiming:
     return replace(d, **values)
 
 
+#: The back-ends a simulated cell may speak (``[pulser] kind``).
+PULSER_KINDS = ("modbus", "ascii-scpi")
+
+
 def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
     """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000),
-    register_map (a map file relative to the world file)."""
+    register_map (a map file relative to the world file), kind (``PULSER_KINDS``),
+    sample_rate_mhz (10…5000) and bits (8…16) of the digitiser."""
     d = PulserTruth()
+    kind_raw = r.get(table, "pulser.kind")
+    kind = d.kind if kind_raw is None else r.string("pulser.kind", kind_raw)
+    if kind not in PULSER_KINDS:
+        raise r.error("pulser.kind", f"unknown kind {kind!r} (known: {', '.join(PULSER_KINDS)})")
+    rate = r.get(table, "pulser.sample_rate_mhz")
+    adc_bits = r.get(table, "pulser.bits")
     bits = r.get(table, "pulser.amplitude_bits")
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
@@ -332,6 +356,11 @@ def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
         delay_ns=d.delay_ns
         if delay is None
         else r.number("pulser.delay_ns", delay, lo=-1000.0, hi=10000.0, unit="ns"),
+        kind=kind,
+        sample_rate_mhz=d.sample_rate_mhz
+        if rate is None
+        else r.number("pulser.sample_rate_mhz", rate, lo=10.0, hi=5000.0, unit="MHz"),
+        bits=d.bits if adc_bits is None else r.integer("pulser.bits", adc_bits, lo=8, hi=16),
     )
 
 

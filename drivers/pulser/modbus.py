@@ -15,11 +15,8 @@ Fault mapping (every message names the device ``pulser`` and its URL):
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import select
-import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -33,13 +30,13 @@ from pymodbus.client.base import ModbusBaseSyncClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 from serial import SerialException
-from serial.urlhandler.protocol_socket import Serial as _PyserialSocket
 
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from drivers.pulser.map_file import load_register_map, shipped_map
 from drivers.pulser.urls import PulserUrl, parse_pulser_url
+from drivers.serial_port import SocketPort as _SocketPort
 
 log = logging.getLogger(__name__)
 
@@ -70,42 +67,6 @@ class AScan:
 
 class _NoFrame(Exception):
     """Bytes kept arriving past a request's deadline without forming the awaited frame."""
-
-
-class _SocketPort(_PyserialSocket):
-    """pyserial's ``socket://`` port with an exact ``in_waiting`` and a close without delay.
-
-    pyserial reports at most 1 byte waiting on a socket, so pymodbus's RTU receiver would read a
-    frame one byte per poll (~1 ms each); peeking gives the real count. pyserial also sleeps
-    0.3 s in ``close()``; a closed TCP stream needs no such pause.
-    """
-
-    # Set by pyserial's ``open()``/``close()``; declared for the overrides below.
-    is_open: bool
-    _socket: socket.socket | None
-
-    @property
-    def in_waiting(self) -> int:
-        """Return the number of bytes received and not yet read."""
-        if not self.is_open or self._socket is None:
-            return super().in_waiting
-        ready, _, _ = select.select([self._socket], [], [], 0)
-        if not ready:
-            return 0
-        try:
-            peeked = self._socket.recv(65536, socket.MSG_PEEK)
-        except BlockingIOError:
-            return 0
-        return max(len(peeked), 1)  # 1 at EOF, so that read() reports the disconnect
-
-    def close(self) -> None:
-        """Close the TCP stream."""
-        if self.is_open and self._socket is not None:
-            with contextlib.suppress(OSError):
-                self._socket.shutdown(socket.SHUT_RDWR)
-            self._socket.close()
-            self._socket = None
-        self.is_open = False
 
 
 class ModbusPulser(PulserReceiver):

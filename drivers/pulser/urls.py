@@ -1,4 +1,5 @@
-"""Pulser URLs: ``modbus-tcp://HOST:PORT[?unit=N]`` and ``modbus-rtu://DEVICE[?baud=N&unit=N]``.
+"""Pulser URLs: ``modbus-tcp://HOST:PORT[?unit=N]``, ``modbus-rtu://DEVICE[?baud=N&unit=N]`` and
+``ascii://DEVICE[?baud=N]``.
 
 ``DEVICE`` is a serial device path (``/dev/ttyUSB0``, written ``modbus-rtu:///dev/ttyUSB0``;
 ``COM3``) or a pyserial URL such as ``socket://127.0.0.1:5021`` (RTU framing over a TCP
@@ -6,7 +7,9 @@ stream, e.g. a serial-to-Ethernet converter). The pulser's options are the query
 *last* ``?``; pyserial URL options therefore cannot be combined with them.
 
 Defaults: TCP port 502; unit 1; serial line 19200 baud, 8 data bits, even parity, 1 stop bit
-(the Modbus serial-line default; ``parity=N|E|O`` overrides it).
+(the Modbus serial-line default; ``parity=N|E|O`` overrides it). An ``ascii`` pulser (the
+CompactPulser's ASCII command set, ``drivers.pulser.ascii``) speaks 9600 baud 8N1 unless
+``baud`` says otherwise.
 """
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ from drivers.urls import UrlError
 
 TCP_SCHEME = "modbus-tcp"
 RTU_SCHEME = "modbus-rtu"
+ASCII_SCHEME = "ascii"
+DEFAULT_ASCII_BAUD = 9600
 DEFAULT_TCP_PORT = 502
 DEFAULT_UNIT = 1
 DEFAULT_BAUD = 19200
@@ -94,6 +99,39 @@ def parse_pulser_url(url: str) -> PulserUrl:
     if parity not in ("N", "E", "O"):
         raise UrlError(f"parity must be N, E or O in {url!r}, got {options['parity']!r}")
     return PulserUrl("rtu", unit=unit, device=target, baud=baud, parity=parity)
+
+
+@dataclass(frozen=True)
+class AsciiUrl:
+    """A parsed ``ascii://DEVICE[?baud=N]``: the serial device (path or pyserial URL) and its
+    baud rate."""
+
+    device: str
+    baud: int = DEFAULT_ASCII_BAUD
+
+    def __str__(self) -> str:
+        return format_ascii_url(self.device, self.baud)
+
+
+def format_ascii_url(device: str, baud: int | None = None) -> str:
+    """Return ``ascii://DEVICE`` (``?baud=N`` when not the default 9600)."""
+    query = "" if baud is None or int(baud) == DEFAULT_ASCII_BAUD else f"?baud={int(baud)}"
+    return f"{ASCII_SCHEME}://{device}{query}"
+
+
+def parse_ascii_url(url: str) -> AsciiUrl:
+    """Parse ``ascii://DEVICE[?baud=N]``; ``UrlError`` names the problem and the URL."""
+    if not isinstance(url, str) or "://" not in url:
+        raise UrlError(f"not an ascii pulser URL: {url!r} (expected {ASCII_SCHEME}://DEVICE)")
+    scheme, rest = url.split("://", 1)
+    if scheme.lower() != ASCII_SCHEME:
+        raise UrlError(f"unknown pulser URL scheme {scheme!r} in {url!r} (expected ascii)")
+    target, _, query = rest.rpartition("?") if "?" in rest else (rest, "", "")
+    options = _parse_query(query, frozenset({"baud"}), url)
+    if not target:
+        raise UrlError(f"missing serial device in {url!r}")
+    baud = _int_option(options, "baud", DEFAULT_ASCII_BAUD, 50, 4_000_000, url)
+    return AsciiUrl(target, baud)
 
 
 def _parse_query(query: str, allowed: frozenset[str], url: str) -> dict[str, str]:

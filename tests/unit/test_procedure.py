@@ -97,7 +97,7 @@ class Presenter:
 @pytest.fixture
 def fake_cell(monkeypatch: pytest.MonkeyPatch) -> None:
     @contextlib.contextmanager
-    def open_cell(*args: Any) -> Iterator[FakeSession]:
+    def open_cell(*args: Any, **kwargs: Any) -> Iterator[FakeSession]:
         yield FakeSession()
 
     monkeypatch.setattr(procedure_module, "open_cell", open_cell)

@@ -2,9 +2,9 @@
 
 ``-v``/``-q``/``--debug`` are added to every command (``add_common_options``), so they work
 before or after the subcommand. The cell a moving command talks to comes from ``--sim`` or
-``--controller``/``--pulser``, or from the environment (``UCAL_SIM``, ``UCAL_CONTROLLER``,
-``UCAL_PULSER``); options typed on the command line win over the environment
-(``cell_from_options``).
+``--controller``/``--pulser`` (and ``--digitizer`` for a pulser that does not digitise), or from
+the environment (``UCAL_SIM``, ``UCAL_CONTROLLER``, ``UCAL_PULSER``, ``UCAL_DIGITIZER``); options
+typed on the command line win over the environment (``cell_from_options``).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 ENV_SIM = "UCAL_SIM"
 ENV_CONTROLLER = "UCAL_CONTROLLER"
 ENV_PULSER = "UCAL_PULSER"
+ENV_DIGITIZER = "UCAL_DIGITIZER"
 #: ``UCAL_SIM`` values meaning "the simulated cell with the demo truth" / "no simulated cell".
 SIM_ENV_ON = frozenset({"1", "yes", "true", "on"})
 SIM_ENV_OFF = frozenset({"", "0", "no", "false", "off"})
@@ -197,20 +198,53 @@ controller_option = click.option(
     show_envvar=True,
     help="Controller URL, tcp://HOST:PORT[?state=PORT].",
 )
-pulser_option = click.option(
+_pulser_url_option = click.option(
     "--pulser",
     "pulser_url",
     metavar="URL",
     envvar=ENV_PULSER,
     show_envvar=True,
-    help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N] or modbus-rtu://DEVICE[?baud=N&unit=N].",
+    help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N], modbus-rtu://DEVICE[?baud=N&unit=N] "
+    "or ascii://DEVICE[?baud=N] (with --digitizer).",
 )
+
+
+def _remember_digitizer(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """Keep ``--digitizer`` for ``digitizer_from_options`` (no command takes it as an
+    argument: the cell options carry it)."""
+    ctx.meta["digitizer_url"] = value or None
+
+
+_digitizer_option = click.option(
+    "--digitizer",
+    "digitizer_url",
+    metavar="URL",
+    envvar=ENV_DIGITIZER,
+    show_envvar=True,
+    expose_value=False,
+    callback=_remember_digitizer,
+    help="Digitiser of a pulser that does not digitise (ascii://): visa://RESOURCE, e.g. "
+    "visa://TCPIP::192.168.0.7::5025::SOCKET.",
+)
+
+
+def pulser_option(f: F) -> F:
+    """Decorator: ``--pulser URL`` and ``--digitizer URL``."""
+    return _pulser_url_option(_digitizer_option(f))
+
+
+def digitizer_from_options(ctx: click.Context | None = None) -> str | None:
+    """The ``--digitizer`` URL (or ``UCAL_DIGITIZER``) of the current command, None if none."""
+    ctx = ctx or click.get_current_context()
+    value = ctx.meta.get("digitizer_url")
+    return str(value) if value else None
 
 
 _SOURCES = {
     "sim_world": ("--sim", ENV_SIM),
     "controller_url": ("--controller", ENV_CONTROLLER),
     "pulser_url": ("--pulser", ENV_PULSER),
+    "digitizer_url": ("--digitizer", ENV_DIGITIZER),
 }
 
 
@@ -225,8 +259,13 @@ def _origin(ctx: click.Context, name: str) -> str:
 
 
 def cell_options_typed(ctx: click.Context) -> list[str]:
-    """The cell options typed on the command line (``--sim``, ``--controller``, ``--pulser``)."""
-    return [_SOURCES[n][0] for n in _SOURCES if n in ctx.params and _typed(ctx, n)]
+    """The cell options typed on the command line (``--sim``, ``--controller``, ``--pulser``,
+    ``--digitizer``)."""
+    return [
+        _SOURCES[n][0]
+        for n in _SOURCES
+        if (n in ctx.params or (n == "digitizer_url" and n in ctx.meta)) and _typed(ctx, n)
+    ]
 
 
 def cell_from_options(
@@ -245,14 +284,20 @@ def cell_from_options(
     before moving is checked after the files (``check_can_confirm``, from ``run_job``).
     """
     ctx = click.get_current_context()
+    digitizer_url = digitizer_from_options(ctx)
     if _typed(ctx, "sim_world") or dry_run:
         controller_url = controller_url if _typed(ctx, "controller_url") else None
         pulser_url = pulser_url if _typed(ctx, "pulser_url") else None
+        digitizer_url = digitizer_url if _typed(ctx, "digitizer_url") else None
     if _typed(ctx, "controller_url") or _typed(ctx, "pulser_url"):
         sim_world = sim_world if _typed(ctx, "sim_world") else None
     real = [
         _origin(ctx, n)
-        for n, v in (("controller_url", controller_url), ("pulser_url", pulser_url))
+        for n, v in (
+            ("controller_url", controller_url),
+            ("pulser_url", pulser_url),
+            ("digitizer_url", digitizer_url),
+        )
         if v
     ]
     if dry_run and real and sim_world is None:
@@ -267,10 +312,10 @@ def cell_from_options(
     if dry_run and sim_world is None:
         sim_world = ""  # --dry-run runs against the simulator
     if sim_world is None:
-        _check_urls(ctx, controller_url, pulser_url)
+        _check_urls(ctx, controller_url, pulser_url, digitizer_url)
     elif sim_world and not Path(sim_world).is_file():
         raise InputError(f"{sim_world}: world file not found ({_origin(ctx, 'sim_world')})")
-    return CellChoice(sim_world, controller_url, pulser_url)
+    return CellChoice(sim_world, controller_url, pulser_url, digitizer_url)
 
 
 def check_can_confirm(cell: CellChoice, yes: bool) -> None:
@@ -284,8 +329,14 @@ def check_can_confirm(cell: CellChoice, yes: bool) -> None:
         )
 
 
-def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str | None) -> None:
-    """Both URLs given and well-formed (parsed by their back-ends; nothing is connected)."""
+def _check_urls(
+    ctx: click.Context,
+    controller_url: str | None,
+    pulser_url: str | None,
+    digitizer_url: str | None = None,
+) -> None:
+    """Both URLs given and well-formed (parsed by their back-ends; nothing is connected), and
+    a digitiser where the pulser needs one and only there."""
 
     if not controller_url and not pulser_url:
         raise InputError(
@@ -301,9 +352,19 @@ def _check_urls(ctx: click.Context, controller_url: str | None, pulser_url: str 
             flag, env = _SOURCES[name]
             raise InputError(f"{_origin(ctx, other)} given without {flag} URL (or {env})")
         try:
-            opener(url)
+            if opener is open_pulser and digitizer_url:
+                opener(url, digitizer=digitizer_url)
+            else:
+                opener(url)
         except ValueError as e:
             raise InputError(f"{_origin(ctx, name)}: {e}") from None
+        except TypeError as e:  # a back-end whose from_url takes no digitiser
+            if opener is not open_pulser or "digitizer" not in str(e):
+                raise
+            raise InputError(
+                f"{_origin(ctx, 'digitizer_url')} is for a pulser that does not digitise "
+                f"(ascii://); {_origin(ctx, name)} {url} takes none"
+            ) from None
 
 
 def parse_floats(text: str, n: int, what: str) -> np.ndarray:

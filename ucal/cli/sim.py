@@ -33,6 +33,7 @@ Examples:
   ucal sim serve --profile cell.toml --world examples/world.toml --log motions.jsonl
   ucal sim serve --rtu --time-scale 0.1
   ucal sim serve --server val3
+  ucal sim serve --pulser-kind ascii-scpi
 """,
 )
 @click.option(
@@ -65,6 +66,14 @@ Examples:
 )
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
 @click.option(
+    "--pulser-kind",
+    type=click.Choice(["modbus", "ascii-scpi"]),
+    help="The pulser back-end served: modbus (a pulser that gates), or ascii-scpi (an ASCII "
+    "serial pulser at ascii://socket://… and a SCPI oscilloscope at visa://…, whose "
+    'URL the first line adds as "digitizer"). Default: the world\'s [pulser] kind, '
+    "else modbus.",
+)
+@click.option(
     "--server",
     type=click.Choice(["simple", "val3", "val3-feedback"]),
     help="Simple Message server the controller behaves as: val3 = the released VAL3 "
@@ -79,11 +88,13 @@ def serve(
     log_path: Path | None,
     time_scale: float,
     rtu: bool,
+    pulser_kind: str | None,
     server: str | None,
 ) -> None:
     """Serve the simulated cell until SIGINT or SIGTERM.
 
-    Prints one JSON line {"controller": URL, "pulser": URL} on stdout, then serves.
+    Prints one JSON line {"controller": URL, "pulser": URL} on stdout (with
+    "digitizer": URL for an ascii-scpi pulser), then serves.
     """
 
     if log_path is not None:
@@ -92,6 +103,9 @@ def serve(
     world = None
     if world_path is not None:
         world = load_world(world_path, profile)
+    kind = pulser_kind or (world.pulser.kind if world is not None else "modbus")
+    if rtu and kind != "modbus":
+        raise InputError(f"--rtu is Modbus RTU framing: the {kind} pulser has its own")
 
     # The handler takes no lock: a threading.Event set from a signal handler deadlocks when
     # the signal lands while the main thread holds the event's lock inside wait().
@@ -109,6 +123,7 @@ def serve(
             time_scale=time_scale,
             pulser_framing="rtu" if rtu else "tcp",
             server=server,
+            pulser_kind=kind,
         ) as cell:
             sys.stdout.write(json.dumps(cell.urls) + "\n")
             sys.stdout.flush()

@@ -11,7 +11,14 @@ from rich.table import Table
 
 from drivers.errors import DriverError
 from drivers.registry import open_controller, open_pulser
-from ucal.cli.options import controller_option, emit_json, json_option, pulser_option, table_console
+from ucal.cli.options import (
+    controller_option,
+    digitizer_from_options,
+    emit_json,
+    json_option,
+    pulser_option,
+    table_console,
+)
 from ucal.errors import HardwareError, InputError
 
 log = logging.getLogger(__name__)
@@ -64,15 +71,18 @@ def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> No
     shown, not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
     reached or answers wrongly (the message names it).
     """
-    out = read_status(controller_url, pulser_url)
+    out = read_status(controller_url, pulser_url, digitizer_from_options())
     if as_json:
         emit_json(out)
     else:
         show(out)
 
 
-def read_status(controller_url: str | None, pulser_url: str | None) -> dict[str, Any]:
-    """Read both devices; return ``{"joints_deg", "controller", "pulser"}`` (SPEC.md).
+def read_status(
+    controller_url: str | None, pulser_url: str | None, digitizer_url: str | None = None
+) -> dict[str, Any]:
+    """Read both devices; return ``{"joints_deg", "controller", "pulser"}`` (SPEC.md); a
+    pulser that does not digitise is read with its digitiser (``digitizer_url``).
 
     Raises ``InputError`` (exit 2) for a missing or malformed URL and ``HardwareError``
     (exit 3, naming the device) for a device that cannot be reached or answers wrongly.
@@ -80,11 +90,19 @@ def read_status(controller_url: str | None, pulser_url: str | None) -> dict[str,
 
     if not controller_url:
         raise InputError("give --controller URL (or set UCAL_CONTROLLER)")
+    options = {"digitizer": digitizer_url} if digitizer_url else {}
     try:
         controller = open_controller(controller_url)
-        pulser = open_pulser(pulser_url) if pulser_url else None
+        pulser = open_pulser(pulser_url, **options) if pulser_url else None
     except ValueError as e:
         raise InputError(str(e)) from None
+    except TypeError as e:  # a back-end whose from_url takes no digitiser
+        if "digitizer" not in str(e):
+            raise
+        raise InputError(
+            f"--digitizer {digitizer_url}: the pulser at {pulser_url} digitises itself; a "
+            "digitiser is for pulsers that do not (ascii://)"
+        ) from None
     joints_deg, ctrl = _guarded("controller", controller_url, _read_controller, controller)
     pulse = None
     if pulser is not None:

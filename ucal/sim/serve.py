@@ -5,6 +5,12 @@ simulated robot; the pulser (Modbus, ``drivers.pulser.simulator``) answers every
 with ``SimulatedCell.echo`` at the controller's joint readings of that instant, so a reading
 taken while the robot moves sees the robot where it is. Both listen on free ports.
 
+With ``pulser_kind="ascii-scpi"`` (world ``[pulser] kind``) the pulser is the ASCII serial one
+(``drivers.pulser.ascii_simulator``: it holds the knobs) and a SCPI oscilloscope
+(``drivers.digitizer.scpi_simulator``) records its RF output: every acquisition of the scope
+takes the same echo at that instant and returns it as a waveform (``ucal.sim.rf``), which ucal
+times on the host.
+
 Time (``drivers.clock``): with a ``SimClock`` (a client in the same process, ``ucal calibrate
 --sim``) both devices run on simulated time in lock step with the client — an acquisition
 takes its real-cell duration (``ucal.timing``: transport, pulses averaged) of simulated time,
@@ -18,6 +24,7 @@ import json
 import logging
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any, Self
 
@@ -25,6 +32,8 @@ import numpy as np
 
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.controller.simulator import SimulatedController
+from drivers.digitizer.scpi_simulator import AcquisitionRequest, SimulatedScope
+from drivers.pulser.ascii_simulator import SimulatedAsciiPulser
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.registers import RegisterMap
 from drivers.pulser.simulator import SimulatedPulser
@@ -34,6 +43,8 @@ from ucal.kinematics.rotations import matrix_to_pose
 from ucal.record import jsonable
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
+from ucal.sim.rf import RfOutput, transfer_s
+from ucal.world import PULSER_KINDS
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +59,8 @@ class SimulatedCellServer:
     instantaneous); ``pulser_framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU over a
     TCP socket); ``clock`` is the devices' clock (a ``SimClock`` for lock-step simulated time,
     which ignores ``time_scale``); ``server`` overrides the world's ``controller_server`` (the
-    Simple Message server the controller behaves as, ``drivers.controller.simulator.SERVERS``).
+    Simple Message server the controller behaves as, ``drivers.controller.simulator.SERVERS``);
+    ``pulser_kind`` overrides the world's ``[pulser] kind`` (``"modbus"`` or ``"ascii-scpi"``).
     """
 
     def __init__(
@@ -61,9 +73,12 @@ class SimulatedCellServer:
         host: str = HOST,
         clock: Clock | None = None,
         server: str | None = None,
+        pulser_kind: str | None = None,
     ):
         if pulser_framing not in ("tcp", "rtu"):
             raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
+        if pulser_kind is not None and pulser_kind not in PULSER_KINDS:
+            raise ValueError(f"pulser_kind must be one of {PULSER_KINDS}, got {pulser_kind!r}")
         self.profile = profile
         self.world = world if world is not None else demo_world(profile)
         # the simulated pulser applies its own gate and threshold (holding registers)
@@ -76,8 +91,11 @@ class SimulatedCellServer:
         self.clock: Clock = clock if clock is not None else HOST_CLOCK
         self.simulated_time = isinstance(self.clock, SimClock)
         self._t0 = 0.0
+        self.pulser_kind = pulser_kind if pulser_kind is not None else self.world.pulser.kind
         self.controller: Any = None
         self.pulser: Any = None
+        self.digitizer: Any = None  # the oscilloscope of an ascii-scpi cell
+        self.rf: RfOutput | None = None
         self._log_file: IO[str] | None = None
         self._log_lock = threading.Lock()
         self._motions = 0
@@ -115,16 +133,19 @@ class SimulatedCellServer:
                 seed=self.world.noise.seed,
             )
             self.controller.start()
-            self.pulser = SimulatedPulser(
-                self._acquire,
-                framing=self.pulser_framing,
-                host=self.host,
-                port=0,
-                unit=1,
-                center_frequency_hz=self.world.frequency_mhz * 1e6,
-                register_map=self.register_map,
-            )
-            self.pulser.start()
+            if self.pulser_kind == "ascii-scpi":
+                self._start_ascii_scpi()
+            else:
+                self.pulser = SimulatedPulser(
+                    self._acquire,
+                    framing=self.pulser_framing,
+                    host=self.host,
+                    port=0,
+                    unit=1,
+                    center_frequency_hz=self.world.frequency_mhz * 1e6,
+                    register_map=self.register_map,
+                )
+                self.pulser.start()
             self._t0 = self.clock.now()
         except BaseException:
             self.stop()
@@ -132,9 +153,22 @@ class SimulatedCellServer:
         log.info("simulated cell: controller %s, pulser %s", self.controller.url, self.pulser.url)
         return self
 
+    def _start_ascii_scpi(self) -> None:
+        """Start the ASCII serial pulser and the oscilloscope that records its RF output."""
+        self.pulser = SimulatedAsciiPulser(self.host, 0).start()
+        self.rf = RfOutput(self.world.frequency_mhz, self.cell.noise_floor, self.world.noise.seed)
+        self.digitizer = SimulatedScope(
+            self._ascan,
+            self.host,
+            0,
+            sample_rate_hz=self.world.pulser.sample_rate_mhz * 1e6,
+            bits=self.world.pulser.bits,
+            seed=self.world.noise.seed,
+        ).start()
+
     def stop(self) -> None:
-        """Stop both simulators and close the motion log. Idempotent."""
-        for name in ("pulser", "controller"):
+        """Stop the simulators and close the motion log. Idempotent."""
+        for name in ("digitizer", "pulser", "controller"):
             dev = getattr(self, name)
             if dev is not None:
                 try:
@@ -162,10 +196,14 @@ class SimulatedCellServer:
 
     @property
     def urls(self) -> dict[str, str]:
-        """``{"controller": URL, "pulser": URL}`` of the running simulators."""
+        """``{"controller": URL, "pulser": URL}`` of the running simulators, and
+        ``"digitizer": URL`` for an ascii-scpi cell."""
         if self.controller is None or self.pulser is None:
             raise RuntimeError("the simulated cell is not running")
-        return {"controller": self.controller.url, "pulser": self.pulser.url}
+        urls = {"controller": self.controller.url, "pulser": self.pulser.url}
+        if self.digitizer is not None:
+            urls["digitizer"] = self.digitizer.url
+        return urls
 
     @property
     def motions(self) -> int:
@@ -198,6 +236,25 @@ class SimulatedCellServer:
         )
         self._let_pass(0.5 * transport_s + float(jitter[1]) + delay)
         return echo
+
+    def _ascan(self, request: AcquisitionRequest) -> np.ndarray:
+        """Scope model (scope server thread): the receiver's RF output (V) over the record
+        asked, holding the echo of this instant (``_acquire`` with the pulser's knobs and the
+        scope's window and averages), then the time the scope takes to hand it over."""
+        assert self.rf is not None
+        knobs = self.pulser.settings
+        settings = replace(
+            knobs,
+            gate_start_us=max(request.t0_ns, 0.0) * 1e-3,
+            gate_width_us=max(request.n - 1, 1) * request.dt_ns * 1e-3,
+            averages=request.averages,
+        )
+        amplitude, tof_ns = self._acquire(settings)
+        if not self.pulser.pulsing:
+            amplitude, tof_ns = 0.0, float("nan")
+        self._let_pass(transfer_s(request.n))
+        noise = self.rf.noise_rms_fsh(settings.gain_db, request.averages)
+        return self.rf.record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, noise)
 
     def _let_pass(self, seconds: float) -> None:
         """Let an acquisition's duration pass: simulated time, or host time × time_scale."""

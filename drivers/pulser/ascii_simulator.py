@@ -1,0 +1,218 @@
+"""A simulated CompactPulser-class pulser on 127.0.0.1, speaking the ASCII command set over TCP.
+
+A client reaches it as a serial device through pyserial's ``socket://127.0.0.1:PORT``
+(``ascii://socket://127.0.0.1:PORT``), the way a serial-to-Ethernet converter is reached. It
+plays the device of ``docs/protocols/ascii_pulser.md`` (``drivers.pulser.ascii_commands``):
+a command inside the knob's range sets it and is not answered, a query is answered
+``<letter>=<n>\\r``, and anything else — an unknown letter, a value outside the range, a line
+that is not a command — is ignored, as the device does. It pulses and receives nothing
+itself: what its receiver puts out is the simulated cell's business, which reads
+:attr:`SimulatedAsciiPulser.settings` (the gain above all) when the simulated scope acquires.
+
+Faults for tests: :meth:`SimulatedAsciiPulser.set_silent` (lines are read and executed, never
+answered).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import socket
+import threading
+from typing import Any, Self
+
+from drivers.pulser import ascii_commands as cmd
+from drivers.pulser.base import PulserSettings
+from drivers.pulser.urls import format_ascii_url
+
+log = logging.getLogger(__name__)
+
+#: The knobs at power-on (codes): 20 dB, 1000 Hz, 100 V, 50 ns, 50 Ω, 96 MHz.
+POWER_ON: dict[cmd.Letter, int] = {
+    cmd.Letter.GAIN: 200,
+    cmd.Letter.PRF: 100,
+    cmd.Letter.VOLTAGE: 100,
+    cmd.Letter.WIDTH: 50,
+    cmd.Letter.DAMPING: 0,
+    cmd.Letter.LOW_PASS: 3,
+}
+#: Longest wait for the server threads to stop, s.
+STOP_TIMEOUT_S = 5.0
+
+
+class SimulatedAsciiPulser:
+    """The ASCII pulser on 127.0.0.1 (context manager). ``port`` 0 picks a free port;
+    :attr:`url` tells it after :meth:`start`. Nothing is opened before :meth:`start`."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0):
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            raise ValueError(f"the simulated pulser serves on loopback only, got host {host!r}")
+        self.host = host
+        self._requested_port = int(port)
+        self._port: int | None = None
+        self._lock = threading.RLock()
+        self._codes = dict(POWER_ON)
+        self._silent = False
+        self._server: socket.socket | None = None
+        self._clients: list[socket.socket] = []
+        self._threads: list[threading.Thread] = []
+        self._stopping = threading.Event()
+        self.commands = 0  #: settings taken since start
+        self.ignored = 0  #: lines ignored since start
+
+    # --- lifecycle --------------------------------------------------------------------------
+    def start(self) -> Self:
+        """Listen and serve (idempotent); return self."""
+        if self._server is not None:
+            return self
+        self._stopping.clear()
+        server = socket.create_server((self.host, self._requested_port))
+        server.settimeout(0.1)
+        self._server = server
+        self._port = int(server.getsockname()[1])
+        thread = threading.Thread(target=self._accept, name="simulated-ascii-pulser", daemon=True)
+        self._threads = [thread]
+        thread.start()
+        log.info("simulated ascii pulser serving %s", self.url)
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close every connection. Idempotent."""
+        if self._server is None:
+            return
+        self._stopping.set()
+        with self._lock:
+            clients, self._clients = self._clients, []
+        for c in clients:
+            with contextlib.suppress(OSError):
+                c.shutdown(socket.SHUT_RDWR)
+            c.close()
+        for t in self._threads:
+            t.join(STOP_TIMEOUT_S)
+        self._server.close()
+        self._server = None
+        self._port = None
+        self._threads = []
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def port(self) -> int:
+        """The TCP port served on (after :meth:`start`)."""
+        if self._port is None:
+            raise RuntimeError("the simulated ascii pulser is not running")
+        return self._port
+
+    @property
+    def url(self) -> str:
+        """``ascii://socket://127.0.0.1:PORT``."""
+        return format_ascii_url(f"socket://{self.host}:{self.port}")
+
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop (or resume) answering queries; lines are still read and executed."""
+        with self._lock:
+            self._silent = bool(silent)
+
+    # --- the device -------------------------------------------------------------------------
+    def code(self, letter: cmd.Letter) -> int:
+        """The code a knob holds."""
+        with self._lock:
+            return self._codes[letter]
+
+    @property
+    def pulsing(self) -> bool:
+        """Whether it pulses (``P0`` stops it)."""
+        return self.code(cmd.Letter.PRF) > 0
+
+    @property
+    def settings(self) -> PulserSettings:
+        """The knobs as ``PulserSettings`` (gate and averages are the scope's: defaults; a
+        stopped pulser reports its lowest rate: see :attr:`pulsing`)."""
+        with self._lock:
+            codes = dict(self._codes)
+        codes[cmd.Letter.PRF] = max(codes[cmd.Letter.PRF], 1)
+        values: dict[str, Any] = {
+            k.field: k.value(codes[letter])
+            for letter, k in cmd.KNOBS.items()
+            if k.field is not None
+        }
+        return PulserSettings(high_pass_mhz=cmd.FIXED_HIGH_PASS_MHZ, **values)
+
+    @property
+    def pulse_width_ns(self) -> float:
+        """The pulse width (ns)."""
+        return cmd.KNOBS[cmd.Letter.WIDTH].value(self.code(cmd.Letter.WIDTH))
+
+    def execute(self, line: bytes) -> bytes | None:
+        """Run one line; the answer (CR included) or None."""
+        parsed = cmd.parse_line(line)
+        with self._lock:
+            if parsed is None:
+                self.ignored += 1
+                log.debug("simulated ascii pulser ignores %r", line)
+                return None
+            letter, code = parsed
+            if code is None:
+                return cmd.answer(letter, self._codes[letter])
+            knob = cmd.KNOBS[letter]
+            if letter == cmd.Letter.PRF and code == 0:
+                self._codes[letter] = 0  # P0: pulsing stopped
+            elif knob.lo <= code <= knob.hi:
+                self._codes[letter] = code
+            else:
+                self.ignored += 1
+                log.debug("simulated ascii pulser ignores %r (out of range)", line)
+                return None
+            self.commands += 1
+            return None
+
+    # --- server threads ---------------------------------------------------------------------
+    def _accept(self) -> None:
+        assert self._server is not None
+        server = self._server
+        while not self._stopping.is_set():
+            try:
+                client, _ = server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self._clients.append(client)
+            thread = threading.Thread(
+                target=self._serve, args=(client,), name="simulated-ascii-client", daemon=True
+            )
+            self._threads.append(thread)
+            thread.start()
+
+    def _serve(self, client: socket.socket) -> None:
+        buffer = b""
+        try:
+            while not self._stopping.is_set():
+                chunk = client.recv(4096)
+                if not chunk:
+                    break
+                buffer += chunk.replace(b"\n", b"\r")
+                while cmd.TERMINATOR in buffer:
+                    line, buffer = buffer.split(cmd.TERMINATOR, 1)
+                    if not line.strip():
+                        continue
+                    log.debug("simulated ascii pulser READ: %r", line)
+                    answer = self.execute(line)
+                    with self._lock:
+                        silent = self._silent
+                    if answer is not None and not silent:
+                        log.debug("simulated ascii pulser WRITE: %r", answer)
+                        client.sendall(answer)
+        except OSError:
+            pass
+        finally:
+            with self._lock:
+                if client in self._clients:
+                    self._clients.remove(client)
+            client.close()

@@ -1,0 +1,134 @@
+"""The ASCII serial pulser + SCPI oscilloscope back-end from the command line: a calibration of
+a simulated ascii-scpi cell agrees with the Modbus back-end's on the same world, ``sim serve``
+serves it, and the digitiser's URL is asked for where it is needed and only there."""
+
+from __future__ import annotations
+
+import json
+import select
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.system
+
+RunMain = Callable[[list[str]], tuple[int, str, str]]
+
+OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+WORLD = """\
+[robot]
+joint_offsets_deg = [0.8, -1.2, 1.5, -2.0, 1.1, 0.6]
+[noise]
+tof_ns = 0.5
+amplitude = 0.01
+seed = 20240611
+[pulser]
+kind = "{kind}"
+sample_rate_mhz = 100.0
+"""
+
+
+def calibrate(tmp_path: Path, kind: str) -> subprocess.Popen[str]:
+    """``ucal calibrate`` of a new profile against a simulated cell speaking ``kind``."""
+    world = tmp_path / f"{kind}.toml"
+    world.write_text(WORLD.format(kind=kind))
+    return subprocess.Popen(
+        [sys.executable, "-m", "ucal", "calibrate", str(tmp_path / f"cell-{kind}.toml")]
+        + ["--sim", str(world), "--yes", "--json", "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+        text=True,
+    )
+
+
+def finished(proc: subprocess.Popen[str]) -> dict:
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    return json.loads(out)
+
+
+def stds(result: dict) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in result["std_deg"]])
+
+
+def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(tmp_path: Path) -> None:
+    runs = {kind: calibrate(tmp_path, kind) for kind in ("ascii-scpi", "modbus")}
+    host, modbus = (finished(runs[k]) for k in ("ascii-scpi", "modbus"))
+    assert host["written"] and host["fit"]["verdict"] == "ok"
+    assert host["unobservable_joints"] == modbus["unobservable_joints"]
+    reported = np.isfinite(stds(host))
+    # covered: the world's offsets within 3 reported sigmas
+    error = np.abs(np.array(host["joint_offsets_deg"]) - OFFSETS_DEG)[reported]
+    assert np.all(error <= 3 * stds(host)[reported]), (error, stds(host))
+    # agreement: the two back-ends' estimates differ by less than 3 sigmas of their difference
+    difference = np.abs(np.subtract(host["joint_offsets_deg"], modbus["joint_offsets_deg"]))
+    both = np.hypot(stds(host), stds(modbus))[reported]
+    assert np.all(difference[reported] <= 3 * both), (difference, both)
+
+
+def test_sim_serve_serves_the_ascii_scpi_cell_and_status_reads_it(
+    run_main: RunMain, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ucal", "sim", "serve", "--pulser-kind", "ascii-scpi"]
+        + ["--time-scale", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 20.0)
+        assert ready, "ucal sim serve printed nothing within 20 s"
+        assert proc.stdout is not None
+        urls = json.loads(proc.stdout.readline())
+        assert set(urls) == {"controller", "pulser", "digitizer"}
+        assert urls["pulser"].startswith("ascii://socket://127.0.0.1:")
+        assert urls["digitizer"].startswith("visa://TCPIP::127.0.0.1::")
+        monkeypatch.setenv("UCAL_DIGITIZER", urls["digitizer"])
+        code, out, err = run_main(
+            ["status", "--controller", urls["controller"], "--pulser", urls["pulser"], "--json"]
+        )
+        assert code == 0, err
+        pulser = json.loads(out)["pulser"]
+        assert pulser["digitizer"]["model"] == "SIMULATED SCOPE"
+        assert pulser["settings"]["low_pass_mhz"] == 96.0  # L3 at power-on
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+    assert proc.returncode == 0
+
+
+@pytest.mark.parametrize(
+    "cell, message",
+    [
+        (
+            ["--controller", "tcp://127.0.0.1:11000", "--pulser", "ascii:///dev/ttyUSB0"],
+            "does not digitise: give its digitiser, --digitizer visa://RESOURCE",
+        ),
+        (
+            ["--controller", "tcp://127.0.0.1:11000", "--pulser", "modbus-tcp://127.0.0.1:502"]
+            + ["--digitizer", "visa://TCPIP::127.0.0.1::5025::SOCKET"],
+            "--digitizer is for a pulser that does not digitise",
+        ),
+        (
+            ["--controller", "tcp://127.0.0.1:11000", "--pulser", "ascii:///dev/ttyUSB0"]
+            + ["--digitizer", "visa://TCPIP::127.0.0.1::SOCKET"],
+            "not a VISA resource string",
+        ),
+        (["--sim", "--digitizer", "visa://TCPIP::127.0.0.1::5025::SOCKET"], "cannot be combined"),
+    ],
+)
+def test_the_digitizer_is_asked_for_where_needed_and_only_there(
+    run_main: RunMain, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cell, message
+) -> None:
+    for name in ("UCAL_SIM", "UCAL_CONTROLLER", "UCAL_PULSER", "UCAL_DIGITIZER"):
+        monkeypatch.delenv(name, raising=False)
+    code, out, _ = run_main(["calibrate", str(tmp_path / "cell.toml"), *cell, "--yes", "--json"])
+    assert code == 2
+    assert message in json.loads(out)["error"]

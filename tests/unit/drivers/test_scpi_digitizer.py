@@ -1,0 +1,211 @@
+"""The SCPI oscilloscope client, byte for byte: IEEE 488.2 blocks, the preamble, and the
+dialogues of connect, configure and acquire against a scripted VISA resource (every pair
+used, nothing left unread)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.digitizer import scpi
+from drivers.digitizer.urls import parse_digitizer_url
+from drivers.digitizer.visa import ScpiScope
+from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
+from drivers.urls import UrlError
+
+from doubles import ScriptedVisaResource
+
+URL = "visa://TCPIP::127.0.0.1::5025::SOCKET"
+IDN = (b"*IDN?\n", b"KEYSIGHT TECHNOLOGIES,DSOX3024T,MY12345678,07.50\n")
+SETUP = (
+    b"*CLS;:WAV:SOUR CHAN1;:WAV:FORM WORD;:WAV:BYT MSBF;:WAV:UNS 1;:WAV:POIN:MODE RAW;"
+    b":WAV:POIN MAX;:TIM:REF LEFT;:TRIG:EDGE:SOUR EXT;:CHAN1:RANG 2.000000E+00;"
+    b":CHAN1:OFFS 0;:SYST:ERR?\n",
+    b'+0,"No error"\n',
+)
+CONFIGURE_8 = (
+    b":TIM:RANG 4.000000E-04;:TIM:POS 5.000000E-06;:ACQ:TYPE AVER;:ACQ:COUN 8;:SYST:ERR?\n",
+    b'+0,"No error"\n',
+)
+ACQUIRE = (b":DIG;*OPC?\n", b"1\n")
+# WORD, AVERage, 4 points, 8 averages, 5 ns from 5 µs; 2 V over 65536 codes about 0x8000
+PREAMBLE = (
+    b":WAV:PRE?\n",
+    b"+1,+2,+4,+8,+5.000000E-09,+5.000000E-06,+0,+3.0517578125E-05,+0.0E+00,+32768\n",
+)
+# 0 V, +16 codes, clipped high, -16 codes: a 12-bit ADC left-aligned in 16 bits
+DATA = (b":WAV:DATA?\n", b"#9000000008\x80\x00\x80\x10\xff\xff\x7f\xf0\n")
+Y_INC = 2.0 / 65536
+
+
+def scope(*dialogue: tuple[bytes, bytes | None]) -> tuple[ScpiScope, ScriptedVisaResource]:
+    resource = ScriptedVisaResource([IDN, SETUP, *dialogue])
+    device = ScpiScope(URL, 0.5, resource=resource)
+    device.connect()
+    return device, resource
+
+
+# --- framing --------------------------------------------------------------------------------
+
+
+def test_a_definite_length_block_has_its_digit_its_length_and_its_payload() -> None:
+    assert scpi.format_block(b"\x01\x02\x03") == b"#13\x01\x02\x03"
+    assert scpi.format_block(b"\x00" * 1000, 9) == b"#9000001000" + b"\x00" * 1000
+    payload, rest = scpi.parse_block(b"#9000000004\n\x00\r\xff\nNEXT")
+    assert payload == b"\n\x00\r\xff" and rest == b"NEXT"  # LF inside the data is data
+
+
+def test_a_block_read_through_exact_reads_consumes_its_terminator() -> None:
+    stream = bytearray(b"#212" + bytes(range(12)) + b"\n")
+
+    def read_exact(n: int) -> bytes:
+        out = bytes(stream[:n])
+        del stream[:n]
+        return out
+
+    assert scpi.read_block(read_exact) == bytes(range(12))
+    assert not stream
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        (b"#0\x01\x02\n", "indefinite"),
+        (b"#A12\n", "not 1"),
+        (b"#3001\x00X", "not followed by LF"),
+        (b"#14\x00\x00\n", "announces 4"),
+        (b"1,2,3\n", "expected a definite-length block"),
+    ],
+)
+def test_a_malformed_block_is_refused_naming_what_is_wrong(data: bytes, message: str) -> None:
+    with pytest.raises(scpi.ScpiError, match=message):
+        scpi.parse_block(data)
+
+
+def test_the_preamble_gives_the_time_and_volts_of_every_sample() -> None:
+    p = scpi.parse_preamble(PREAMBLE[1].decode())
+    assert p.format == scpi.WaveFormat.WORD and p.type == scpi.AcquireType.AVERAGE
+    assert (p.points, p.count) == (4, 8)
+    assert p.t0_ns == pytest.approx(5000.0) and p.dt_ns == pytest.approx(5.0)
+    np.testing.assert_allclose(p.volts(np.array([0x8000, 0x8010])), [0.0, 16 * Y_INC])
+    assert scpi.parse_preamble(scpi.format_preamble(p)) == p
+    with pytest.raises(scpi.ScpiError, match="9 fields"):
+        scpi.parse_preamble("1,0,4,1,5e-9,0,0,1e-3,0")
+    with pytest.raises(scpi.ScpiError, match="xincrement"):
+        scpi.parse_preamble("1,0,4,1,fast,0,0,1e-3,0,128")
+
+
+def test_the_adc_step_comes_from_the_codes_trailing_zeros() -> None:
+    codes = np.array([0x8000, 0x8010, 0x7FE0, 0xFFFF, 0x0001])  # flags do not count
+    assert scpi.code_step(codes, scpi.WaveFormat.WORD, 0x8000) == 16
+    assert scpi.code_step(np.array([0x8000] * 4), scpi.WaveFormat.WORD, 0x8000) == 1
+
+
+def test_digitizer_urls() -> None:
+    assert parse_digitizer_url(URL).resource == "TCPIP::127.0.0.1::5025::SOCKET"
+    assert str(parse_digitizer_url("VISA://USB0::0x0957::0x1796::MY1::INSTR")).startswith(
+        "visa://USB0"
+    )
+    for bad in ("visa://", "tcp://1.2.3.4:5025", "visa://TCPIP::1.2.3.4::SOCKET", "scope"):
+        with pytest.raises(UrlError):
+            parse_digitizer_url(bad)
+
+
+# --- dialogues ------------------------------------------------------------------------------
+
+
+def test_connect_identifies_and_sets_the_scope_up_in_one_message() -> None:
+    device, resource = scope()
+    assert device.identity() == {
+        "manufacturer": "KEYSIGHT TECHNOLOGIES",
+        "model": "DSOX3024T",
+        "serial": "MY12345678",
+        "firmware": "07.50",
+    }
+    resource.assert_done()
+
+
+def test_configure_writes_what_changed_and_checks_the_error_queue() -> None:
+    device, resource = scope(
+        CONFIGURE_8,
+        (b":ACQ:TYPE NORM;:SYST:ERR?\n", b'+0,"No error"\n'),
+    )
+    device.configure(5000.0, 400_000.0, 8)
+    device.configure(5000.0, 400_000.0, 8)  # nothing changed: nothing written
+    device.configure(5000.0, 400_000.0, 1)
+    resource.assert_done()
+
+
+def test_a_refused_setting_is_a_device_error_naming_the_scope_error() -> None:
+    device, resource = scope((CONFIGURE_8[0], b'-222,"Data out of range"\n'))
+    with pytest.raises(DeviceError, match='-222 "Data out of range"'):
+        device.configure(5000.0, 400_000.0, 8)
+    resource.assert_done()
+
+
+def test_a_window_or_count_the_scope_cannot_take_is_refused_before_any_write() -> None:
+    device, resource = scope()
+    for start, width, averages in ((0.0, 0.0, 1), (0.0, 1e9, 1), (0.0, 1e3, 0), (0.0, 1e3, 1e6)):
+        with pytest.raises(ValueError, match="digitizer"):
+            device.configure(start, width, averages)  # type: ignore[arg-type]
+    resource.assert_done()
+
+
+def test_one_acquisition_is_dig_opc_preamble_and_data() -> None:
+    device, resource = scope(CONFIGURE_8, ACQUIRE, PREAMBLE, DATA)
+    device.configure(5000.0, 400_000.0, 8)
+    record = device.acquire()
+    resource.assert_done()
+    assert record.t0_ns == pytest.approx(5000.0) and record.dt_ns == pytest.approx(5.0)
+    np.testing.assert_allclose(record.samples, np.array([0, 16, 32767, -16]) * Y_INC)
+    assert record.clipped  # 0xFFFF
+    assert record.rails == pytest.approx(((1 - 32768) * Y_INC, 32767 * Y_INC))
+    assert record.lsb == pytest.approx(16 * Y_INC)
+    assert (record.averages, record.counter) == (8, 1)
+
+
+def test_byte_records_and_their_clip_codes() -> None:
+    resource = ScriptedVisaResource(
+        [
+            IDN,
+            (SETUP[0].replace(b"FORM WORD", b"FORM BYTE"), SETUP[1]),
+            ACQUIRE,
+            (b":WAV:PRE?\n", b"0,0,3,1,1.0E-08,0.0,0,7.8125E-03,0.0,128\n"),
+            (b":WAV:DATA?\n", b"#13\x80\x01\x82\n"),
+        ]
+    )
+    device = ScpiScope(URL, 0.5, resource=resource, wave_format="BYTE")
+    record = device.acquire()
+    resource.assert_done()
+    np.testing.assert_allclose(record.samples, np.array([0, -127, 2]) * 7.8125e-3)
+    assert record.clipped and record.lsb == pytest.approx(2 * 7.8125e-3)
+
+
+@pytest.mark.parametrize(
+    "preamble, data, error, message",
+    [
+        (PREAMBLE[1], b"#9000000006\x80\x00\x80\x10\x80\x00\n", ProtocolError, "preamble says 4"),
+        (PREAMBLE[1], b"#9000000008\x80\x00\x00\x00\x80\x10\x80\x00\n", DeviceError, "holes"),
+        (PREAMBLE[1].replace(b"+8,+5", b"+4,+5"), DATA[1], DeviceError, "asked for 8 averages"),
+        (b"1,0,4\n", None, ProtocolError, "3 fields"),  # no data asked for
+    ],
+)
+def test_a_record_that_does_not_add_up_is_refused(
+    preamble: bytes, data: bytes | None, error: type[Exception], message: str
+) -> None:
+    dialogue = [CONFIGURE_8, ACQUIRE, (PREAMBLE[0], preamble)]
+    if data is not None:
+        dialogue.append((DATA[0], data))
+    device, resource = scope(*dialogue)
+    device.configure(5000.0, 400_000.0, 8)
+    with pytest.raises(error, match=message):
+        device.acquire()
+    resource.assert_done()
+
+
+def test_no_answer_is_a_timeout_naming_the_digitizer() -> None:
+    device, resource = scope((ACQUIRE[0], None))
+    with pytest.raises(DeviceTimeout, match=r"digitizer at visa://TCPIP.*acquire: no answer"):
+        device.acquire(timeout_s=0.05)
+    resource.assert_done()
+    assert resource.closed  # a late answer must not be read as the next one's
