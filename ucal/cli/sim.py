@@ -61,8 +61,8 @@ Examples:
     default=1.0,
     show_default=True,
     help="Multiply the duration of every move and acquisition on the host clock (1 = real "
-    "time, 0.1 = ten times faster, 0 = instantaneous moves: nothing can be read during a "
-    "sweep, so not for calibrate).",
+    "time, 0.1 = ten times faster, 0 = instantaneous moves: an arm faster than the stream "
+    "can show, so the moving commands read their lines in settled steps, slowly).",
 )
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
 @click.option(
