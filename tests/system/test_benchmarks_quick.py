@@ -1,6 +1,8 @@
 """Every script in ``benchmarks/`` runs in its ``--quick`` mode and prints its figures.
 
-Each runs as a user runs it, ``python benchmarks/NAME.py --quick``, in a process of its own (one
+Marked ``bench``: the suite (``pytest -q``) leaves these out, as they cost a minute and a half
+of CPU between them; CI runs them as a step of their own (``pytest -q -m bench``). Each runs
+as a user runs it, ``python benchmarks/NAME.py --quick``, in a process of its own (one
 test per script, so the workers share them out): a benchmark that no longer imports, or no
 longer fits the code it measures, fails here instead of on its next long run. Its temporary
 files go to the test's directory (``TMPDIR``). A baseline library that is not installed is
@@ -29,6 +31,7 @@ def test_the_benchmarks_are_found() -> None:
     assert len(SCRIPTS) >= 8, SCRIPTS
 
 
+@pytest.mark.bench
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
 def test_quick_mode_runs_and_prints_figures(script: Path, tmp_path: Path) -> None:
     try:

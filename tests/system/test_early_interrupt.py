@@ -72,8 +72,12 @@ def test_an_early_signal_stops_the_run_before_any_motion(
     sent = time.time()
     proc.send_signal(signum)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == EXIT_INTERRUPTED, err
-    assert "Traceback" not in err and "interrupted" in err
+    if background or proc.returncode != -signum:
+        assert proc.returncode == EXIT_INTERRUPTED, err
+        assert "Traceback" not in err and "interrupted" in err
+    # else: on a loaded host the signal came before the interpreter ran ucal's first line,
+    # and its default action ended the process there: stopped before anything, as asked (a
+    # background run has no default action to fall back on: it must be 130)
     assert profile.read_bytes() == before
     lines = log.read_text().splitlines()[moved_before:] if log.exists() else []
     # nothing moved after the signal (a move ending after it must have been stopped)
