@@ -106,9 +106,16 @@ figure (a tool turned 0.3°: misfit 0.42 mm, "after" 0.44 mm off the truth); abo
 ``MEASURED_WITHIN_MM`` verify says so in its notes and widens its marginal band by it. After
 ``tool-frame`` (beam within 0.001°) it was at most 0.016 mm on the commissioning benchmark.
 
-Because W is measured against the true block while the nominal points are placed from the
-profile's block corner, an error in the block's position shows as a *common bias* in both
-passes; calibration removes the joint-offset part only.
+**Gauge: relative to the block.** W is measured against the true block's faces and the
+nominal points are placed from the profile's block, so every figure says where the tool is
+relative to the block: an error in the profile's block pose shows in it, a turn of the arm and
+the block together about the base axis does not. That is the gauge ``calibrate`` fixes
+(``ucal.calibration.gauge``): J1 relative to the block as placed, the block's corner and tilts
+as the calibration measured them (written into ``[sample]``). In the robot's base frame the
+points are then known only to the block's yaw tolerance times their distance from the base
+axis (``VerifyGauge``: ``absolute_std_mm``), which verify states and cannot check. The
+"before" pass is commanded with the offsets *and* the block pose the profile had before its
+last calibration.
 
 **Predictions.** Every face measurement enters a running regularised fit of the joint offsets
 and the block corner (as in the calibration sequence), so the posture correction found at one
@@ -174,6 +181,9 @@ from ucal.session import CellSession
 from ucal.sim.cell import SimulatedCell
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
 from ucal.toolframe.exact import tangent_basis
+from ucal.verify_picture import PICTURE_SUFFIX as PICTURE_SUFFIX
+from ucal.verify_picture import PictureText, plot_verify
+from ucal.verify_picture import verify_picture_path as verify_picture_path
 
 log = logging.getLogger(__name__)
 
@@ -346,15 +356,38 @@ def target_matrix(
 
 @dataclass(frozen=True)
 class BeforeProfile:
-    """Offsets of the "before" pass and where they come from."""
+    """The "before" pass: the offsets and the block pose the profile had before its last
+    calibration, and where they come from."""
 
     offsets_deg: np.ndarray
     source: str
+    #: the block's corner (mm) and orientation (deg) then, base frame; None: the current ones
+    sample_position_mm: np.ndarray | None = None
+    sample_rotation_deg: np.ndarray | None = None
+
+    def placed(self, profile: CellProfile) -> CellProfile:
+        """``profile`` with the block where it was before the calibration (``calibrate``
+        writes the block it measured)."""
+        if self.sample_position_mm is None or self.sample_rotation_deg is None:
+            return profile
+        return profile.replace(
+            sample_position_mm=self.sample_position_mm,
+            sample_rotation_deg=self.sample_rotation_deg,
+        )
+
+    def same_as(self, profile: CellProfile) -> bool:
+        """True when "before" is the profile as it is: both passes command the same points."""
+        placed = self.placed(profile)
+        return bool(
+            np.allclose(self.offsets_deg, profile.joint_offsets_deg, rtol=0.0, atol=1e-9)
+            and np.allclose(placed.sample_matrix, profile.sample_matrix, rtol=0.0, atol=1e-9)
+        )
 
 
 def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
-    """The joint offsets of the profile as it was before its last ``calibrate`` write (its
-    history); zero offsets when the history holds none (a profile calibrated by hand)."""
+    """The joint offsets and the block pose of the profile as it was before its last
+    ``calibrate`` write (its history); zero offsets and the current block when the history
+    holds none (a profile calibrated by hand, or never)."""
 
     for entry in reversed(profile_history(profile_path)):
         if entry.reason.startswith("calibrate") and not entry.undone:
@@ -364,7 +397,9 @@ def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
                 return BeforeProfile(
                     np.asarray(old.joint_offsets_deg, float),
                     f"history entry {entry.id} ({entry.time}): the profile "
-                    "before its last calibration",
+                    "before its last calibration (its offsets and block pose)",
+                    np.asarray(old.sample_position_mm, float),
+                    np.asarray(old.sample_rotation_deg, float),
                 )
     return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
 
@@ -401,6 +436,66 @@ def profile_notes(profile: CellProfile) -> list[str]:
         f"{names} not calibrated ([calibration] unobservable_joints, kept at the profile's "
         f"value): its error is in every 'after' figure{why}"
     ]
+
+
+@dataclass(frozen=True)
+class VerifyGauge:
+    """What verify's figures are relative to, and what that leaves known in the robot's base
+    frame (``ucal.calibration.gauge``).
+
+    Every deviation is measured against the block's faces (the water paths and the edges):
+    it says where the tool is relative to the block. ``calibrate`` gives J1 relative to the
+    block as placed (``[calibration] gauge = "block"``), so in the base frame the points are
+    where the profile puts them only to the block's yaw tolerance times their distance from
+    the base axis; with a doweled block (``"base"``) that is small.
+    """
+
+    j1: str | None  # [calibration] gauge as calibrate wrote it; None: not written
+    yaw_std_deg: float  # [sample] rotation_std_deg[2]
+    reach_mm: float = 0.0  # the points' largest distance from the base axis
+
+    @property
+    def absolute_std_mm(self) -> float | None:
+        """One sigma of the points' position in the base frame from the block's yaw (mm);
+        None when the profile does not say how J1 was calibrated."""
+        if self.j1 is None:
+            return None
+        return self.reach_mm * math.radians(self.yaw_std_deg)
+
+    def statement(self) -> str:
+        """The gauge in words (``gauge_note`` in ``--json``)."""
+        text = (
+            "positions relative to the block (gauge: block): every deviation is measured "
+            "against the block's faces, which is what a scan of a part located from the block "
+            "needs"
+        )
+        absolute = self.absolute_std_mm
+        if self.j1 == "block" and absolute is not None:
+            text += (
+                f"; J1 is calibrated relative to the block as placed, so in the robot's base "
+                f"frame the points are where the profile puts them only to ±{absolute:.1f} mm "
+                f"(one sigma: the block's yaw as placed, ±{self.yaw_std_deg:g}°, at "
+                f"{self.reach_mm:.0f} mm from the base axis); a doweled, levelled block makes "
+                "them absolute"
+            )
+        elif self.j1 == "base" and absolute is not None:
+            text += (
+                f"; J1 is absolute (the block's yaw declared to ±{self.yaw_std_deg:g}°): in the "
+                f"robot's base frame too, to ±{absolute:.2f} mm"
+            )
+        return text
+
+
+def calibration_gauge(profile: CellProfile, profile_path: str | Path) -> VerifyGauge:
+    """How the profile's J1 was calibrated (``[calibration] gauge``, written by ``calibrate``)
+    and the block's yaw tolerance."""
+    try:
+        with open(profile_path, "rb") as f:
+            j1 = tomllib.load(f).get("calibration", {}).get("gauge")
+    except (OSError, tomllib.TOMLDecodeError):
+        j1 = None
+    yaw = float(np.broadcast_to(profile.sample_rotation_std_deg, 3)[2])
+    return VerifyGauge(j1 if j1 in ("block", "base") else None, yaw)
 
 
 def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> SoundSpeed:
@@ -522,8 +617,13 @@ def plan_verify(
     n_points: int = DEFAULT_POINTS,
     height_mm: float = VERIFY_HEIGHT_MM,
     before_offsets_deg: np.ndarray | None = None,
+    before_placed: CellProfile | None = None,
 ) -> VerifyPlan:
     """Plan and check every posture of both passes before the first motion.
+
+    The "before" points are commanded with ``before_offsets_deg`` (zero if not given) in the
+    block frame of ``before_placed`` (the block where the profile had it then; the current one
+    if not given), the "after" points with the profile's offsets and block.
 
     Checks (``SafetyError``, exit 4): IK reaches each point inside the joint ranges; every
     commanded and planned face posture keeps ``SEARCH_MARGIN_DEG`` inside the wrist ranges and
@@ -542,16 +642,20 @@ def plan_verify(
     reach = float(np.linalg.norm(v))
     before = np.zeros(6) if before_offsets_deg is None else np.asarray(before_offsets_deg, float)
     offsets = {"before": before, "after": np.array(profile.joint_offsets_deg, float)}
+    # each pass as its profile saw the cell (the block calibrate measured, or the one before)
+    placed = {"before": before_placed or profile, "after": profile}
+    geoms = {"before": geometry(placed["before"]), "after": geom}
     near = calibration_pose(profile)
     targets: list[VerifyTarget] = []
     for pass_name in PASSES:
         off = offsets[pass_name]
+        seen, seen_geom = placed[pass_name], geoms[pass_name]
         prev = near
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
-            pose = target_matrix(profile, p, rotations[i])
+            pose = target_matrix(seen, p, rotations[i])
             q = joints_for(profile, pose, off, prev, f"plan {label}")
-            w_local = wrist_centre_local(profile, q, off)
+            w_local = wrist_centre_local(seen, q, off)
             if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
                 raise SafetyError(
                     f"plan {label}: the wrist centre would be "
@@ -560,11 +664,12 @@ def plan_verify(
                 )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
-                qf = aim_wrist(geom, q, -geom.normal(k), off)
+                qf = aim_wrist(seen_geom, q, -seen_geom.normal(k), off)
                 check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
-                check_face(profile, geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
+                check_face(seen, seen_geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
                 faces[k] = qf
             # where the robot really goes there, as best known: the profile's current offsets
+            # and block
             w_now = wrist_centre_local(profile, q, offsets["after"])
             clear = tool_clearance_mm(profile, w_now)
             targets.append(VerifyTarget(pass_name, i, q, faces, clear))
@@ -1369,137 +1474,6 @@ def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# picture
-
-
-#: What ``verify`` appends to the profile's stem for its picture, unless ``--plot`` names one.
-PICTURE_SUFFIX = ".verify.png"
-
-
-def verify_picture_path(profile_path: str | Path) -> Path:
-    """The picture ``verify`` writes by default: ``cell.toml`` → ``cell.verify.png`` beside it."""
-    p = Path(profile_path)
-    return p.with_name(p.stem + PICTURE_SUFFIX)
-
-
-def plot_verify(result: VerifyResult, path: str | Path, title: str = "") -> Path:
-    """Save a before/after picture (PNG, or any format matplotlib knows by the suffix).
-
-    Left: the nominal points on the XY plane (block coordinates, mm) with the XY error vectors
-    of both passes, drawn at a stated scale (×1, 2, 5·10^k), and the Z deviation written beside each
-    point. Right: per-axis mean and maximum of the absolute deviations, before vs after.
-    """
-    # matplotlib only for the picture: importing it costs a command a second at start-up
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    nom = result.plan.nominal_mm
-    dev = {p: result.deviations(p) for p in PASSES}
-    at = {p: result.indices(p) for p in PASSES}
-    colours = {"before": "tab:red", "after": "tab:green"}
-    markers = {"before": "o", "after": "^"}
-    gaps = np.linalg.norm(nom[:, None, :2] - nom[None, :, :2], axis=-1)
-    gaps = gaps[gaps > 1e-6]
-    spacing = float(np.min(gaps)) if len(gaps) else 100.0
-    biggest = max(float(np.max(np.linalg.norm(d[:, :2], axis=1))) for d in dev.values())
-    biggest = max(biggest, 1e-6)
-    # Longest vector at most 40 % of the grid spacing; the scale rounded down to 1, 2 or 5 × 10^k.
-    raw = 0.4 * spacing / biggest
-    exp10 = 10 ** math.floor(math.log10(raw))
-    scale = max(m * exp10 for m in (1, 2, 5) if m * exp10 <= raw)
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1.2, 1]})
-    for n, g in enumerate(result.plan.groups):
-        mine = np.array(result.plan.group_of) == n
-        ax.plot(
-            nom[mine, 0],
-            nom[mine, 1],
-            linestyle="none",
-            marker="sDv"[n % 3],
-            color="k",
-            ms=6 + 3 * n,  # points of two groups on one spot both show
-            mfc="k" if n == 0 else "none",
-            label=f"nominal, {g.name} ({g.height_mm:g} mm)",
-        )
-    for p in PASSES:
-        end = nom[at[p], :2] + scale * dev[p][:, :2]
-        for a, b in zip(nom[at[p], :2], end, strict=True):
-            ax.annotate(
-                "", xy=b, xytext=a, arrowprops={"arrowstyle": "->", "color": colours[p], "lw": 1.4}
-            )
-        ax.plot(
-            end[:, 0],
-            end[:, 1],
-            markers[p],
-            color=colours[p],
-            mfc="none",
-            label=f"reached, {p} calibration",
-        )
-    for i, pt in enumerate(nom):
-        zs = [
-            f"{round(float(dev[p][at[p].index(i), 2]), 2) + 0.0:+.2f}"  # no "-0.00"
-            if i in at[p]
-            else "-"
-            for p in PASSES
-        ]
-        ax.annotate(
-            f"{i + 1}\nZ {zs[0]} / {zs[1]}",
-            pt[:2],
-            textcoords="offset points",
-            xytext=(6, -22 - 18 * result.plan.group_of[i]),  # groups on one spot apart
-            fontsize=7,
-            color="0.25",
-        )
-    ax.set_xlabel("block X (mm)")
-    ax.set_ylabel("block Y (mm)")
-    ax.set_title(
-        f"XY errors drawn ×{scale:g} (point no.; Z before / after, mm)",
-        fontsize=10,
-    )
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.margins(0.15)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=8)
-
-    width = 0.2
-    axes = np.arange(3)
-    for j, (p, stat, hatch) in enumerate(
-        [
-            ("before", "mean", ""),
-            ("before", "max", "//"),
-            ("after", "mean", ""),
-            ("after", "max", "//"),
-        ]
-    ):
-        vals = np.array(result.stats(p)[stat])
-        bars = bx.bar(
-            axes + (j - 1.5) * width,
-            vals,
-            width,
-            color=colours[p],
-            hatch=hatch,
-            alpha=0.85 if stat == "mean" else 0.5,
-            edgecolor="k",
-            label=f"{p}: {stat} |Δ|",
-        )
-        bx.bar_label(bars, fmt="%.3f", fontsize=7, rotation=90, padding=2)
-    bx.set_xticks(axes, ["ΔX", "ΔY", "ΔZ"])
-    bx.set_ylabel("absolute deviation (mm)")
-    bx.set_title(f"{result.plan.points} points: mean and max per axis", fontsize=10)
-    bx.legend(fontsize=8)
-    bx.margins(y=0.2)
-    bx.grid(True, axis="y", alpha=0.3)
-    fig.suptitle(title or "Positioning error before and after calibration (paper 000, §5.2)")
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
 # the verify command's job in the procedure of ``ucal.procedure``
 
 
@@ -1521,28 +1495,52 @@ def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
     return "\n".join(lines)
 
 
-def truth_check(result: VerifyResult, truth: WorldTruth) -> dict[str, Any]:
+def truth_check(
+    result: VerifyResult, truth: WorldTruth, profile: CellProfile | None = None
+) -> dict[str, Any]:
     """Simulation only: the true reached TCPs and how far the measurement was from them.
 
-    The error splits into a common bias and what remains point by point.
+    The error splits into a common bias and what remains point by point. ``after_mm`` is what
+    the "after" figure should have been (the true TCP against the nominal point, relative to
+    the true block, as verify measures it), ``after_figure_error_mm`` how far the reported
+    largest deviations are from it; with ``profile``, ``absolute_after_max_mm`` is the true
+    TCP in the robot's base frame against the nominal point where the profile places it
+    (profile's block axes): what the block gauge does not check.
     """
     reached: dict[str, list[Any]] = {"before": [], "after": []}
     err = []
+    true_base = []
     for p in sorted(result.points, key=lambda r: (r.pass_name != "before", r.index)):
         t = true_reached_local(truth, p.commanded_deg)
         reached[p.pass_name].append(t.tolist())
         err.append(p.reached_mm - t)
+        if p.pass_name == "after":
+            s_mat = truth.sample_matrix
+            true_base.append(s_mat[:3, :3] @ t + s_mat[:3, 3])
     err_arr = np.array(err)
     bias = err_arr.mean(0)
     n_before = len(reached["before"])
-    return {
+    after = result.measured("after")
+    nominal = np.array([p.nominal_mm for p in after]).reshape(-1, 3)
+    true_after = deviation_stats(np.array(reached["after"]).reshape(-1, 3) - nominal)
+    out = {
         "joint_offsets_deg": truth.joint_offsets_deg.tolist(),
         "reached_mm": reached,
         "measurement_error_max_mm": np.abs(err_arr).max(0).tolist(),
         "after_error_max_mm": np.abs(err_arr[n_before:]).max(0).tolist(),
         "measurement_bias_mm": bias.tolist(),
         "measurement_scatter_max_mm": np.abs(err_arr - bias).max(0).tolist(),
+        "after_mm": {k: true_after[k] for k in ("mean", "max", "std")},
+        "after_figure_error_mm": np.abs(
+            np.array(result.stats("after")["max"]) - np.array(true_after["max"])
+        ).tolist(),
     }
+    if profile is not None and true_base:
+        s_mat = profile.sample_matrix
+        placed = nominal @ s_mat[:3, :3].T + s_mat[:3, 3]
+        absolute = (np.array(true_base) - placed) @ s_mat[:3, :3]
+        out["absolute_after_max_mm"] = np.abs(absolute).max(0).tolist()
+    return out
 
 
 @dataclass
@@ -1556,6 +1554,57 @@ class VerifyShown:
     worst_mm: float
     truth: dict[str, Any] | None
     plot_path: Path | None
+    gauge: VerifyGauge = field(default_factory=lambda: VerifyGauge(None, 0.0))
+    #: "before" is the profile as it is (no calibration in its history): both passes alike
+    before_is_after: bool = False
+
+
+def tool_notes(tool: ToolOffset | None, profile: CellProfile) -> list[str]:
+    """What the tool check says of the profile's ``[tool]``: off by more than its stated std
+    (moved since ``tool-frame``, or never measured), or, along the beam, off within it (the
+    hand-touched plate's tolerance, which shows in X and Y of the points straight down)."""
+    if tool is None:
+        return []
+    std = np.broadcast_to(np.asarray(profile.tool_position_std_mm, float), 3)
+    beam = np.abs(profile.tool_matrix[:3, 2])
+    along_std = float(np.sqrt(np.sum((beam * std) ** 2)))
+    across_std = float(np.sqrt(np.sum(((1.0 - beam) * std) ** 2)))
+    across = float(np.linalg.norm(tool.across_mm))
+    notes = []
+    if across > max(3.0 * across_std, MEASURED_WITHIN_MM):
+        notes.append(
+            f"the tool check finds the real tool {across:.3f} mm off the profile's across the "
+            f"beam, beyond what [tool] says it is known to (±{across_std:.3f} mm): moved since "
+            "`ucal tool-frame` measured it, or never measured? run `ucal tool-frame`"
+        )
+    along = abs(tool.along_mm)
+    longer = f"{along:.3f} mm {'longer' if tool.along_mm > 0 else 'shorter'} along the beam"
+    if along > max(3.0 * along_std, MEASURED_WITHIN_MM):
+        notes.append(
+            f"the tool check finds the real tool {longer} than the profile's, beyond what "
+            f"[tool] says it is known to (±{along_std:.3f} mm): run `ucal tool-frame`"
+        )
+    elif along > MEASURED_WITHIN_MM:
+        notes.append(
+            f"the real tool is {longer} than the profile's, within what [tool] says it is "
+            f"known to (±{along_std:.2f} mm; after `ucal tool-frame`, the touched plate's "
+            "tolerance): it shows in X and Y of the points straight down"
+        )
+    return notes
+
+
+def tool_misfit_mm(shown: VerifyShown) -> float:
+    """The tool check's largest misfit (mm; 0 without a tool check)."""
+    tool = shown.result.tool
+    return 0.0 if tool is None else tool.misfit_mm
+
+
+def marginal(shown: VerifyShown) -> bool:
+    """The verdict could go the other way within what verify measures to (plus the tool
+    check's misfit)."""
+    return bool(
+        abs(shown.worst_mm - shown.tolerance_mm) <= MEASURED_WITHIN_MM + tool_misfit_mm(shown)
+    )
 
 
 class VerifyJob(CheckingJob):
@@ -1575,16 +1624,23 @@ class VerifyJob(CheckingJob):
         self.plot_path = plot_path
         self.before = BeforeProfile(np.zeros(6), "")
         self.sound = SoundSpeed(0.0, 0.0, "")
+        self.gauge = VerifyGauge(None, 0.0)
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
-        """The "before" offsets from the profile's history and the sound speed of its last
-        calibration; nothing is held (the profile is not written)."""
+        """The "before" offsets and block from the profile's history, the sound speed of its
+        last calibration and its J1 gauge; nothing is held (the profile is not written)."""
         self.before = offsets_before_calibration(self.profile_path)
         self.sound = sound_speed_for_verify(self.profile, self.profile_path)
+        self.gauge = calibration_gauge(self.profile, self.profile_path)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
-        return plan_verify(self.profile, self.n_points, before_offsets_deg=self.before.offsets_deg)
+        return plan_verify(
+            self.profile,
+            self.n_points,
+            before_offsets_deg=self.before.offsets_deg,
+            before_placed=self.before.placed(self.profile),
+        )
 
     def summary(self, plan: VerifyPlan) -> str:
         return plan_summary(plan, self.profile_path)
@@ -1606,14 +1662,20 @@ class VerifyJob(CheckingJob):
 
     def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifyShown:
         result = measured.data
+        s_mat = self.profile.sample_matrix
+        points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
+        reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
+        truth = measured.truth
         return VerifyShown(
             result,
             self.before,
             self.sound,
             self.tolerance_mm,
             float(np.max(result.stats("after")["max"])),
-            None if measured.truth is None else truth_check(result, measured.truth),
+            None if truth is None else truth_check(result, truth, self.profile),
             self.plot_path,
+            replace(self.gauge, reach_mm=reach),
+            self.before.same_as(self.profile),
         )
 
     def may_write(self, shown: VerifyShown) -> bool:
@@ -1621,11 +1683,34 @@ class VerifyJob(CheckingJob):
 
     def write(self, shown: VerifyShown) -> None:
         assert self.plot_path is not None
-        plot_verify(
-            shown.result,
-            self.plot_path,
-            title=f"{self.profile_path.name}: positioning error before and after calibration",
+        plot_verify(shown.result, self.plot_path, self.picture_text(shown))
+
+    def picture_text(self, shown: VerifyShown) -> PictureText:
+        """What the picture says beside its data: the profile, the verdict's terms, why
+        "before" is what it is, the gauge and the notes."""
+        return PictureText(
+            name=self.profile_path.name,
+            tolerance_mm=shown.tolerance_mm,
+            marginal=marginal(shown),
+            before_source=shown.before.source,
+            before_is_after=shown.before_is_after,
+            gauge_note=shown.gauge.statement(),
+            notes=tuple(self.notes(shown)),
         )
+
+    def notes(self, shown: VerifyShown) -> list[str]:
+        """``notes`` of the result: what the profile says it does not know, and a tool check
+        whose scans disagree."""
+        notes = profile_notes(self.profile) + tool_notes(shown.result.tool, self.profile)
+        misfit = tool_misfit_mm(shown)
+        if misfit > MEASURED_WITHIN_MM:
+            notes.append(
+                f"the tool check's scans in the two senses about the beam disagree by "
+                f"{misfit:.3f} mm: the beam is not where the profile's [tool] puts it in the "
+                "flange (not yet measured?), and every 'after' figure may be off by as much; "
+                "run `ucal tool-frame`"
+            )
+        return notes
 
     def result(
         self, plan: VerifyPlan, measured: Measured[VerifyResult], shown: VerifyShown, written: bool
@@ -1636,20 +1721,13 @@ class VerifyJob(CheckingJob):
         out["sound_speed_source"] = self.sound.source
         out["profile"] = str(self.profile_path)
         out["duration_s"] = measured.duration_s
-        tool = shown.result.tool
-        misfit = 0.0 if tool is None else tool.misfit_mm
-        out["notes"] = profile_notes(self.profile)
-        if misfit > MEASURED_WITHIN_MM:
-            out["notes"].append(
-                f"the tool check's scans in the two senses about the beam disagree by "
-                f"{misfit:.3f} mm: the beam is not where the profile's [tool] puts it in the "
-                "flange (not yet measured?), and every 'after' figure may be off by as much; "
-                "run `ucal tool-frame`"
-            )
-        # the verdict could go the other way within what verify measures to
-        out["marginal"] = bool(
-            abs(shown.worst_mm - self.tolerance_mm) <= MEASURED_WITHIN_MM + misfit
-        )
+        out["gauge"] = "block"
+        out["gauge_note"] = shown.gauge.statement()
+        out["absolute_std_mm"] = shown.gauge.absolute_std_mm
+        out["j1_gauge"] = shown.gauge.j1
+        out["before_is_after"] = shown.before_is_after
+        out["notes"] = self.notes(shown)
+        out["marginal"] = marginal(shown)
         out["plot"] = str(self.plot_path) if written else None
         if shown.truth is not None:
             out["truth"] = shown.truth

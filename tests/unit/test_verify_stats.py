@@ -214,6 +214,67 @@ def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
     assert passed(stats, 0.4) and not passed(stats, 0.39)
 
 
+def test_before_is_commanded_in_the_block_the_profile_had_then(tmp_path) -> None:
+    """calibrate writes the block it measured: "before" places its points in the block the
+    profile had before that write, "after" in the measured one, and an uncalibrated profile's
+    "before" is the profile as it is."""
+    from ucal.profile import create_profile, load_profile, write_profile
+    from ucal.verify import offsets_before_calibration
+
+    path = create_profile(tmp_path / "cell.toml", "tx90l")
+    fresh = load_profile(path)
+    assert offsets_before_calibration(path).same_as(fresh)
+    placed = fresh.sample_position_mm
+    write_profile(
+        path,
+        {
+            "calibration": {"joint_offsets_deg": [0.8, -1.2, 1.5, -2.0, 1.1, 0.0]},
+            "sample": {"position_mm": (placed + [1.5, -1.0, 0.8]).tolist()},
+        },
+        "calibrate --method exact: fit ok",
+    )
+    profile = load_profile(path)
+    before = offsets_before_calibration(path)
+    assert not before.same_as(profile)
+    then = before.placed(profile)
+    assert then.sample_position_mm == pytest.approx(placed)
+    plan = plan_verify(profile, 2, before_offsets_deg=before.offsets_deg, before_placed=then)
+    geom_then, geom_now = geometry(then), geometry(profile)
+    for target in plan.targets:
+        seen, geom, off = (
+            (then, geom_then, before.offsets_deg)
+            if target.pass_name == "before"
+            else (profile, geom_now, profile.joint_offsets_deg)
+        )
+        tcp = beam_and_tcp(geom, target.joints_deg, off)[1]
+        s_mat = seen.sample_matrix
+        local = s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+        assert local == pytest.approx(plan.nominal_mm[target.index], abs=1e-6)
+
+
+def test_gauge_says_what_is_known_only_relative_to_the_block(tmp_path, profile) -> None:
+    """verify's figures are relative to the block; with J1 calibrated relative to the block
+    as placed, the points in the base frame are known to the yaw's tolerance at their reach."""
+    from ucal.verify import VerifyGauge, calibration_gauge
+
+    path = tmp_path / "cell.toml"
+    doc = tomlkit.parse(default_profile_text("tx90l"))
+    path.write_text(tomlkit.dumps(doc), encoding="utf-8")
+    none = calibration_gauge(profile, path)
+    assert none.j1 is None and none.absolute_std_mm is None
+    assert "gauge: block" in none.statement() and "J1" not in none.statement()
+    doc["calibration"]["gauge"] = "block"
+    path.write_text(tomlkit.dumps(doc), encoding="utf-8")
+    hand = calibration_gauge(profile, path)
+    assert hand.j1 == "block" and hand.yaw_std_deg == 0.5
+    reached = VerifyGauge("block", 0.5, reach_mm=650.0)
+    assert reached.absolute_std_mm == pytest.approx(650.0 * np.radians(0.5))
+    assert "only to ±5.7 mm" in reached.statement()
+    assert "relative to the block as placed" in reached.statement()
+    fixture = VerifyGauge("base", 0.01, reach_mm=650.0)
+    assert "J1 is absolute" in fixture.statement() and "±0.11 mm" in fixture.statement()
+
+
 def test_wrist_map_carries_arm_errors_to_the_edges(profile) -> None:
     """Joints 1–3 off by degrees (not calibrated) and the block shifted: fitted over a 2 × 3
     grid of wrist centres, carried 200 mm beyond it to within a micrometre (a single rigid

@@ -45,13 +45,12 @@ from scipy.optimize import least_squares
 
 from ucal.calibration.fit import (
     MAX_STD_DEG,
-    OFFSETS,
-    PRIOR_MEANING,
     CellFit,
     CellPrior,
     FitQuality,
     solve_cell,
 )
+from ucal.calibration.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
 from ucal.calibration.model import (
     CellGeometry,
     FaceMeasurement,
@@ -90,6 +89,10 @@ class OffsetSolution:
     #: The paper method's first-order truncation error and its noise std per joint (deg).
     truncation_deg: np.ndarray | None = None
     noise_std_deg: np.ndarray | None = None
+    #: One sigma relative to the block as placed (``ucal.calibration.gauge``; J1's without the
+    #: block's yaw tolerance), and how J1 is known; None for the previous solver.
+    std_block_deg: np.ndarray | None = None
+    gauge: J1Gauge | None = None
 
 
 def solve_exact_with_priors(
@@ -98,29 +101,22 @@ def solve_exact_with_priors(
     max_std_deg: float = MAX_STD_DEG,
     fixed: tuple[str, ...] = (),
 ) -> OffsetSolution:
-    """Offsets with the cell's uncertain quantities as prior-constrained unknowns.
+    """Offsets with the cell's uncertain quantities as prior-constrained unknowns, in the
+    block gauge (``ucal.calibration.gauge``: the block's yaw held as placed, J1 relative to it).
 
     A joint whose std exceeds ``max_std_deg`` while less than half of its variance comes from
     the measurements is reported unobservable (profile value kept) with the prior that
     dominates it as the reason; a joint whose large std comes from the data stays observable
     (the caller judges it out of tolerance).
     """
-    cell = solve_cell(prior, meas, fixed=fixed, max_std_deg=max_std_deg)
-    offsets = np.array(prior.offsets_deg, float)
-    std = np.full(6, np.nan)
-    reasons: dict[int, str] = {}
-    for j, name in enumerate(OFFSETS):
-        sigma = cell.sigma(name)
-        shares = cell.variance_share[name]
-        if sigma > max_std_deg and shares["data"] < 0.5:
-            reasons[j + 1] = unobservable_reason(j + 1, sigma, shares)
-            continue
-        offsets[j] = cell.value(name)
-        std[j] = sigma
+    cell = solve_cell(prior, meas, fixed=fixed + (BLOCK_YAW,), max_std_deg=max_std_deg)
+    gauged = gauged_offsets(
+        cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg
+    )
     return OffsetSolution(
-        offsets_deg=offsets,
-        std_deg=std,
-        unobservable_joints=tuple(sorted(reasons)),
+        offsets_deg=gauged.offsets_deg,
+        std_deg=gauged.std_deg,
+        unobservable_joints=tuple(sorted(gauged.reasons)),
         condition_number=cell.condition_number,
         method="exact",
         corner_mm=np.array([cell.value(n) for n in ("block_x_mm", "block_y_mm", "block_z_mm")]),
@@ -130,26 +126,11 @@ def solve_exact_with_priors(
         fit=cell.quality,
         sound_speed_m_s=cell.value("sound_speed_m_s"),
         sound_speed_std_m_s=cell.sigma("sound_speed_m_s"),
-        unobservable_reasons=reasons,
+        unobservable_reasons=gauged.reasons,
         cell_fit=cell,
+        std_block_deg=gauged.std_block_deg,
+        gauge=gauged.gauge,
     )
-
-
-def unobservable_reason(joint: int, sigma_deg: float, shares: dict[str, float]) -> str:
-    """Why joint ``joint`` (1-based) cannot be calibrated, from the sources of its variance."""
-    source, share = max(((k, v) for k, v in shares.items() if k != "data"), key=lambda kv: kv[1])
-    if source == OFFSETS[joint - 1]:
-        return "the measurements do not move it (e.g. joint 6 with the beam on its axis)"
-    what = PRIOR_MEANING.get(source, source)
-    text = (
-        f"cannot be separated from {what}: {100 * share:.0f} % of its variance, "
-        f"std {sigma_deg:.3g} deg"
-    )
-    if source == "block_rz_deg":
-        text += "; fixture the block (doweled and levelled to 0.01 deg) and state it"
-    elif source in ("block_rx_deg", "block_ry_deg"):
-        text += "; level the block or see it from a second J1 azimuth"
-    return text
 
 
 def _initial_corner(

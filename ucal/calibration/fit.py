@@ -26,7 +26,9 @@ tolerances propagate into the offsets' std), multiplied by ``max(1, χ²ᵣ)`` w
 disagree with the model. Physics decides what that std carries:
 
 * the block's yaw and δ1 are one rotation about the base axis: no measurement separates them,
-  so ``std(δ1) ≥ rotation_std_deg[2]`` (a doweled, levelled fixture is needed for J1);
+  so ``std(δ1) ≥ rotation_std_deg[2]`` in the robot's base frame; the callers hold the yaw as
+  placed and give δ1 relative to the block (``ucal.calibration.gauge``), absolute only with a
+  doweled, levelled fixture;
 * at one J1 azimuth, a block tilt about the joint-2 axis and δ2 are one rotation about that
   axis (the corner takes up the translation): ``std(δ2)`` carries the tilt tolerance unless
   the block is also seen from another J1 azimuth (configuration ``"j1"`` of the sequence);

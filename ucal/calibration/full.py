@@ -40,9 +40,9 @@ A kinematic parameter that is independent but weakly seen (its data information 
 prior's, or a std above ``PRIOR_DOMINATED`` of its tolerance) is fitted with its prior and
 reported as prior-dominated (e.g. ``d₅``, ``a₅``: they shift the flange across the beam,
 which a plane seen at normal incidence does not show): its value stays within its
-tolerance of the nominal one and its std says so. Joint offsets follow the offsets level:
-unobservable (kept) when their large std comes from a prior (J1 with a hand-placed block, J6
-with the beam on its axis).
+tolerance of the nominal one and its std says so. Joint offsets follow the offsets level: J1
+relative to the block as placed (the block gauge, ``ucal.calibration.gauge``), unobservable
+(kept) when their large std comes from a prior (J6 with the beam on its axis).
 """
 
 from __future__ import annotations
@@ -54,7 +54,6 @@ import numpy as np
 from scipy.optimize import approx_fprime
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.exact import unobservable_reason
 from ucal.calibration.fit import (
     BETA,
     BLOCK,
@@ -72,6 +71,7 @@ from ucal.calibration.fit import (
     solve_cell,
     table_geometry,
 )
+from ucal.calibration.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
 from ucal.calibration.model import (
     CellGeometry,
     FaceMeasurement,
@@ -305,13 +305,16 @@ class FullSolution:
 
     cell: CellFit
     ident: Identifiability
-    offsets_deg: np.ndarray  # kept from the profile where unobservable
-    std_deg: np.ndarray  # NaN where unobservable
+    offsets_deg: np.ndarray  # kept from the profile where unobservable; J1 in the block gauge
+    std_deg: np.ndarray  # absolute one sigma, NaN where unobservable
     unobservable_reasons: dict[int, str]  # 1-based joint → why
     model: RobotModel  # the identified DH table (nominal where kept)
     parameters: dict[str, IdentifiedParameter] = field(default_factory=dict)
     #: The step's height as its water paths and its prior put it (None without a step).
     length_standard: LengthStandard | None = None
+    #: One sigma relative to the block as placed, and how J1 is known (``ucal.calibration.gauge``).
+    std_block_deg: np.ndarray | None = None
+    gauge: J1Gauge | None = None
 
     @property
     def unobservable_joints(self) -> tuple[int, ...]:
@@ -397,25 +400,18 @@ def solve_full(
         lambda v: step_residuals(table, v, prior.model, steps, c0),
         tuple(f"{m.config}/step" for m in steps),
     )
+    # the block gauge (ucal.calibration.gauge): the block's yaw held as placed, J1 relative
     cell = solve_cell(
         prior,
         meas,
-        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP),
+        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,),
         max_std_deg=max_std_deg,
         table=table,
         extra=extra if steps else None,
     )
-    offsets = np.array(prior.offsets_deg, float)
-    std = np.full(6, np.nan)
-    reasons: dict[int, str] = {}
-    for j, name in enumerate(OFFSETS):
-        sigma = cell.sigma(name)
-        shares = cell.variance_share.get(name, {"data": 0.0, name: 1.0})
-        if not np.isfinite(sigma) or (sigma > max_std_deg and shares["data"] < 0.5):
-            reasons[j + 1] = unobservable_reason(j + 1, sigma, shares)
-            continue
-        offsets[j] = cell.value(name)
-        std[j] = sigma
+    gauged = gauged_offsets(
+        cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg
+    )
     dh = prior.model.dh.copy()
     beta = twists_deg(prior.model).copy()
     params: dict[str, IdentifiedParameter] = {}
@@ -446,7 +442,18 @@ def solve_full(
             float(cell.table.prior_stds[i]),
             len(steps),
         )
-    return FullSolution(cell, ident, offsets, std, reasons, model, params, standard)
+    return FullSolution(
+        cell,
+        ident,
+        gauged.offsets_deg,
+        gauged.std_deg,
+        gauged.reasons,
+        model,
+        params,
+        standard,
+        gauged.std_block_deg,
+        gauged.gauge,
+    )
 
 
 def ideal_measurements(

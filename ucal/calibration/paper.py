@@ -51,6 +51,7 @@ import numpy as np
 
 from ucal.calibration.exact import OffsetSolution
 from ucal.calibration.fit import MAX_STD_DEG, PRIOR_MEANING, CellPrior
+from ucal.calibration.gauge import BLOCK_YAW, J1Gauge
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
 from ucal.errors import InputError
@@ -195,6 +196,9 @@ def solve_paper(
     ``unobservable`` (1-based, from the exact model's observability analysis of the same data)
     keep their prior values; so does a joint whose std exceeds ``max_std_deg`` mainly because
     of a tolerance (the paper's three configurations see the block from one J1 azimuth only).
+    The block's yaw is taken as placed, so θ1 is relative to the block (the block gauge of
+    ``ucal.calibration.gauge``): ``std_block_deg`` leaves the yaw's share out, ``std_deg``
+    keeps it.
     """
     offsets = paper_offsets(geom, meas)
     noise = np.zeros(6)
@@ -218,23 +222,30 @@ def solve_paper(
     truncation = truncation_error(geom, meas, offsets)
     var = noise + truncation**2 + sum(nuisance.values(), np.zeros(6))
     std = np.sqrt(var)
+    # the block gauge (ucal.calibration.gauge): the equations take the block's yaw as placed,
+    # so relative to the block that tolerance is no error of theirs
+    relative = {k: v for k, v in nuisance.items() if k != BLOCK_YAW}
+    var_block = var - nuisance.get(BLOCK_YAW, np.zeros(6))
+    std_block = np.sqrt(var_block)
     prior_off = np.asarray(prior_offsets_deg, float)
     why = dict(reasons or {})
     unobs = set(unobservable)
     for j in range(6):
-        if j + 1 in unobs or std[j] <= max_std_deg or not nuisance:
+        if j + 1 in unobs or std_block[j] <= max_std_deg or not relative:
             continue
-        source, v = max(nuisance.items(), key=lambda kv: kv[1][j])
-        if v[j] > 0.5 * var[j]:
+        source, v = max(relative.items(), key=lambda kv: kv[1][j])
+        if v[j] > 0.5 * var_block[j]:
             unobs.add(j + 1)
             why[j + 1] = (
                 f"cannot be separated from {PRIOR_MEANING.get(source, source)} by "
-                f"the paper's equations: {100 * v[j] / var[j]:.0f} % of its "
-                f"variance, std {std[j]:.3g} deg"
+                f"the paper's equations: {100 * v[j] / var_block[j]:.0f} % of its "
+                f"variance relative to the block, std {std_block[j]:.3g} deg"
             )
     for j in unobs:
         offsets[j - 1] = prior_off[j - 1]
         std[j - 1] = np.nan
+        std_block[j - 1] = np.nan
+    yaw_std = 0.0 if prior is None else float(prior.block_rotation_std_deg[2])
     return OffsetSolution(
         offsets_deg=offsets,
         std_deg=std,
@@ -244,6 +255,8 @@ def solve_paper(
         truncation_deg=truncation,
         noise_std_deg=np.sqrt(noise),
         unobservable_reasons={j: why[j] for j in unobs if j in why},
+        std_block_deg=std_block,
+        gauge=J1Gauge(float(std_block[0]), yaw_std, max_std_deg),
     )
 
 

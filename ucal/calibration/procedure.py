@@ -29,6 +29,13 @@ from ucal.calibration.fit import PRIOR_MEANING, CellFit, FitQuality, prior_from_
 from ucal.calibration.full import FullSolution, solve_full
 from ucal.calibration.full_plan import FullPlan, plan_full
 from ucal.calibration.full_run import FullRun, run_full
+from ucal.calibration.gauge import (
+    J1Gauge,
+    block_keys,
+    block_pose,
+    gauge_fields,
+    j1_relative_to_block,
+)
 from ucal.calibration.model import FACE_NAMES
 from ucal.calibration.sequence import (
     CalibrationPlan,
@@ -68,19 +75,51 @@ class JointSolution(Protocol):
     @property
     def truncation_deg(self) -> np.ndarray | None: ...
 
+    @property
+    def std_block_deg(self) -> np.ndarray | None: ...
+
+
+def _stds(values: np.ndarray) -> list[float]:
+    """Stds as the profile holds them: rounded, −1 where not determined."""
+    return [round(float(v), 6) if np.isfinite(v) else -1.0 for v in values]
+
 
 def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, Any]:
-    """The ``[calibration]`` keys every level writes: offsets, their std, the fit."""
-    return {
+    """The ``[calibration]`` keys every level writes: offsets, their std (absolute, and
+    relative to the block as placed: ``ucal.calibration.gauge``), the gauge, the fit."""
+    keys = {
         "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
         "unobservable_joints": list(chosen.unobservable_joints),
         "method": chosen.method,
-        "std_deg": [round(float(v), 6) if np.isfinite(v) else -1.0 for v in chosen.std_deg],
+        "std_deg": _stds(chosen.std_deg),
+    }
+    gauge: J1Gauge | None = chosen.gauge
+    if gauge is not None and chosen.std_block_deg is not None:
+        keys |= {
+            "std_block_deg": _stds(chosen.std_block_deg),
+            "gauge": gauge.frame,
+            "gauge_note": gauge.statement(),
+        }
+    return keys | {
         "sound_speed_m_s": round(float(speed_m_s), 3),
         "fit_verdict": fit.verdict,
         "chi2_reduced": round(float(fit.chi2_reduced), 4),
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     }
+
+
+def block_measured(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
+    """The block as the fit measured it (the block gauge, ``ucal.calibration.gauge``), or
+    None without a fit."""
+    if cell is None:
+        return None
+    return block_pose(cell, float(np.broadcast_to(profile.sample_rotation_std_deg, 3)[2]))
+
+
+def block_written(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
+    """``[sample]`` keys of the block as the fit measured it: its pose, not its stds."""
+    block = block_measured(cell, profile)
+    return None if block is None else block_keys(block)
 
 
 def result_fields(
@@ -95,11 +134,17 @@ def result_fields(
     """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
     solution that fitted the sound speed)."""
     measurements = measured.data
+    gauge: J1Gauge | None = chosen.gauge
     return {
         "joint_offsets_deg": chosen.offsets_deg,
         "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
         "unobservable_joints": list(chosen.unobservable_joints),
         "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
+        **(
+            {}
+            if gauge is None or chosen.std_block_deg is None
+            else gauge_fields(chosen.std_block_deg, gauge)
+        ),
         "method": chosen.method,
         "level": level,
         "moves": measurements.moves,
@@ -162,14 +207,21 @@ class Verdict:
 
 
 def write_calibration(
-    profile_path: Path, run: str, fit: FitQuality, verdict: Verdict, keys: dict[str, Any]
+    profile_path: Path,
+    run: str,
+    fit: FitQuality,
+    verdict: Verdict,
+    keys: dict[str, Any],
+    block: dict[str, Any] | None = None,
 ) -> None:
-    """Write ``keys`` as ``[calibration]``, the history naming the ``run``, its fit and, when
-    written with ``--force``, why it was out of tolerance."""
+    """Write ``keys`` as ``[calibration]`` (and ``block`` as ``[sample]``: the block as the
+    fit measured it), the history naming the ``run``, its fit and, when written with
+    ``--force``, why it was out of tolerance."""
     reason = f"{run}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
     if not verdict.ok:
         reason += f", written with --force: {verdict.message}"
-    write_profile(profile_path, {"calibration": keys}, reason=reason)
+    updates = {"calibration": keys} if block is None else {"calibration": keys, "sample": block}
+    write_profile(profile_path, updates, reason=reason)
 
 
 def outcome(
@@ -178,8 +230,17 @@ def outcome(
     """The ``calibrate`` outcome of either level: its result with the verdict and, on the
     simulated cell, the true offsets."""
     result["out_of_tolerance"] = not verdict.ok
-    if measured.truth is not None:
-        result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
+    truth = measured.truth
+    if truth is not None:
+        result["truth_offsets_deg"] = truth.joint_offsets_deg
+        block = result.get("block")
+        if block is not None:
+            # what the block gauge should give: J1 relative to the true block as placed
+            relative = np.array(truth.joint_offsets_deg, float)
+            relative[0] = j1_relative_to_block(
+                relative[0], truth.sample_rotation_deg, block["rotation_deg"][2]
+            )
+            result["truth_offsets_block_deg"] = relative
     return Outcome(
         "calibrate",
         result,
@@ -195,10 +256,13 @@ def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
 
     A misfit names the worst measurement and the likely cause; a std above
     ``TOLERANCE_STD_DEG`` names the joint and what its uncertainty comes from (noise, or the
-    method's truncation for the paper method).
+    method's truncation for the paper method). Stds are judged relative to the block as placed
+    (``std_block_deg``): J1's absolute std carries the block's yaw tolerance, which a
+    hand-placed block makes 0.5°, and is reported, not judged.
     """
     observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
-    std = chosen.std_deg
+    # relative to the block as placed (J1: without the block's yaw, ucal.calibration.gauge)
+    std = chosen.std_deg if chosen.std_block_deg is None else chosen.std_block_deg
     loose = [j for j in observable if not np.isfinite(std[j]) or std[j] > TOLERANCE_STD_DEG]
     if fit.verdict == "misfit":
         msg = (
@@ -364,6 +428,8 @@ class OffsetsCalibration(ProfileJob):
                 "level": "offsets",
                 "condition_number": round(float(chosen.condition_number), 3),
             },
+            # the block the offsets were fitted with (the paper's equations measure none)
+            block_written(chosen.cell_fit, self.profile),
         )
 
     def result(
@@ -384,6 +450,7 @@ class OffsetsCalibration(ProfileJob):
                 solved.exact,
                 solved.fit,
             ),
+            "block": block_measured(chosen.cell_fit, self.profile),
             "condition_number": chosen.condition_number,
             "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
         }
@@ -503,6 +570,7 @@ class FullCalibration(ProfileJob):
                 "level": "full",
                 "dh": sol.dh_rows(),
             },
+            block_written(sol.cell, self.profile),
         )
 
     def result(
@@ -519,6 +587,7 @@ class FullCalibration(ProfileJob):
                 sol,
                 solved.fit,
             ),
+            "block": block_measured(sol.cell, self.profile),
             "dh": sol.dh_rows(),
             "identification": sol.to_json(),
             "plan": {

@@ -327,6 +327,26 @@ def show_result(
     )
     for j, why in sorted(chosen.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+    show_gauge(console, result)
+
+
+def show_gauge(console: Console, result: dict[str, Any]) -> None:
+    """How J1 is known (``ucal.calibration.gauge``) and the block the fit measured."""
+    if "gauge_note" in result:
+        console.print(escape(f"gauge ({result['gauge']}): {result['gauge_note']}"))
+    block = result.get("block")
+    if block:
+        pos, std = block["position_mm"], block["position_std_mm"]
+        console.print(
+            escape(
+                "block corner as measured: "
+                + ", ".join(f"{p:.3f} ± {s:.3f}" for p, s in zip(pos, std, strict=True))
+                + " mm, tilt "
+                + ", ".join(f"{v:+.4f}" for v in block["rotation_deg"][:2])
+                + " deg, yaw as placed"
+                + (" (written to [sample])" if result["written"] else "")
+            )
+        )
 
 
 def show_fit(console: Console, fit: Any) -> None:
@@ -385,6 +405,7 @@ def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]
         )
     for j, why in sorted(sol.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+    show_gauge(console, result)
     show_fit(console, sol.cell.quality)
     console.print(
         f"sound speed {result['sound_speed_m_s']:.2f} ± "

@@ -13,10 +13,16 @@ The robot's DH table, the water temperature, the transducer and the reflector pl
 
 The truth is one cell whatever ucal writes into the profile: the errors are added to the
 profile as it was before ``tool-frame`` or ``calibrate`` first wrote a measurement into it
-(``ucal.profile.before_measurement``: the tool of the drawing, the ``[robot]`` table), not to
-the tool or the identified table they wrote. Built from the current profile instead, the demo
-tool would move by the demo's error every time ``tool-frame`` wrote its (right) estimate, and a
-``calibrate`` run after it would meet a cell 0.3° away from what the profile rightly says.
+(``ucal.profile.before_measurement``: the tool of the drawing, the ``[robot]`` table, the block
+as placed), not to the tool, the identified table or the block they wrote. Built from the
+current profile instead, the demo tool would move by the demo's error every time ``tool-frame``
+wrote its (right) estimate, and a ``calibrate`` run after it would meet a cell 0.3° away from
+what the profile rightly says; the block would move by its 1.9 mm each time ``calibrate``
+wrote where it found it.
+
+The block's yaw is as placed: the commissioning on this cell ends with ``verify`` passing
+relative to the block (J1 relative to the block as placed, ``ucal.calibration.gauge``), and
+``examples/faulty_world.toml`` is this cell with faults, for a ``verify`` that fails.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ import pytest
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact, solve_exact_with_priors
 from ucal.calibration.fit import CellPrior
+from ucal.calibration.gauge import j1_relative_to_block
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.paper import solve_paper
 from ucal.calibration.wrist import aim_wrist
@@ -157,19 +158,50 @@ def test_sound_speed_is_recovered_from_the_steps():
     assert np.all(np.abs(sol.offsets_deg[ok] - offsets[ok]) < 0.01)
 
 
-def test_block_yaw_goes_into_joint1_std_or_makes_it_unobservable():
+def block_gauge_j1_deg(offset_deg: float, block_rpy) -> float:
+    """J1's offset relative to the block as placed (yaw 0) in a cell with this truth."""
+    return j1_relative_to_block(offset_deg, np.asarray(block_rpy, float), 0.0)
+
+
+def test_joint1_is_measured_relative_to_the_block_as_placed():
+    """A hand-placed block yawed 0.4°: J1 and the yaw are one rotation, so J1 comes out
+    relative to the block as placed (δ1 − 0.4°) to the data's std, and absolutely with the
+    yaw's 0.5° in its std (never claiming more); a doweled block makes it absolute."""
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     meas = measure(offsets, block_rpy=(0.0, 0.0, 0.4))
     hand = solve_exact_with_priors(prior(block_rot_std_deg=0.5), meas)
-    assert 1 in hand.unobservable_joints  # yaw and J1: one rotation
-    assert "yaw" in hand.unobservable_reasons[1]
-    assert hand.offsets_deg[0] == 0.0  # kept, never fabricated
+    assert 1 not in hand.unobservable_joints  # measured, not kept
+    assert hand.gauge is not None and hand.gauge.frame == "block"
+    assert hand.std_block_deg is not None and hand.std_block_deg[0] < 0.01
+    relative = block_gauge_j1_deg(offsets[0], (0.0, 0.0, 0.4))
+    assert relative == pytest.approx(0.4, abs=1e-9)
+    assert abs(hand.offsets_deg[0] - relative) <= 3 * hand.std_block_deg[0]
+    # absolutely: the yaw's tolerance is in the std, and covers the 0.4° the yaw hides
+    assert hand.std_deg[0] >= 0.5
+    assert abs(hand.offsets_deg[0] - offsets[0]) <= 3 * hand.std_deg[0]
+    assert "relative to the block as placed" in hand.gauge.statement()
     fixture = solve_exact_with_priors(
         prior(block_rot_std_deg=0.01), measure(offsets, block_rpy=(0.0, 0.0, 0.008))
     )
     assert 1 not in fixture.unobservable_joints
+    assert fixture.gauge is not None and fixture.gauge.frame == "base"
     assert fixture.std_deg[0] >= 0.01 * 0.99  # the fixture's tolerance, no less
     assert abs(fixture.offsets_deg[0] - offsets[0]) <= 3 * fixture.std_deg[0]
+
+
+def test_joint1_relative_to_the_block_is_within_its_std_on_random_cells():
+    """Cells drawn within a hand-placed block's tolerances (yaw, tilts, corner, tool, water,
+    DH table): J1 relative to the block as placed is within 3 of its block-relative stds."""
+    rng = np.random.default_rng(5)
+    z = []
+    for seed in range(8):
+        cell = random_cell(rng, 0.5)
+        sol = solve_exact_with_priors(prior(0.5), measure(**cell, seed=seed))
+        assert sol.std_block_deg is not None
+        want = block_gauge_j1_deg(cell["offsets_deg"][0], cell["block_rpy"])
+        z.append(abs(sol.offsets_deg[0] - want) / sol.std_block_deg[0])
+    assert max(z) <= 3.0, z
+    assert np.median(z) < 1.5, z
 
 
 def test_block_tilt_needs_a_second_azimuth_for_joint2():

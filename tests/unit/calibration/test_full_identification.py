@@ -22,6 +22,7 @@ from ucal.calibration.full import (
     solve_full,
 )
 from ucal.calibration.full_plan import candidate_postures, plan_full
+from ucal.calibration.gauge import j1_relative_to_block
 from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.calibration.sequence import calibration_pose
 from ucal.calibration.wrist import aim_wrist
@@ -120,7 +121,13 @@ def test_dh_errors_identified_within_std_and_tcp_recovered(cell):
     ]
     assert max(np.abs(z)) < 4.0 and np.mean(np.abs(np.array(z)) <= 3.0) >= 0.9
     assert abs(sol.parameters["dh2_beta_deg"].value - 0.04) < 0.005
-    assert sol.unobservable_joints == (1, 6)  # hand-placed block's yaw; beam on axis 6
+    # J1 relative to the hand-placed block as placed (measured); J6: beam on axis 6
+    assert sol.unobservable_joints == (6,)
+    assert sol.gauge is not None and sol.gauge.frame == "block"
+    assert sol.std_block_deg is not None
+    j1 = j1_relative_to_block(offsets[0], np.array([0.3, -0.2, 0.4]), 0.0)
+    assert abs(sol.offsets_deg[0] - j1) < 3 * sol.std_block_deg[0]
+    assert abs(sol.offsets_deg[0] - offsets[0]) < 3 * sol.std_deg[0]
     assert np.all(np.abs(sol.offsets_deg - offsets)[1:5] < 3 * sol.std_deg[1:5] + 1e-9)
     # TCP over the scanning region, after the best rigid alignment
     qs = scanning_postures(calibration_pose(profile), 100, 3, profile.model)

@@ -538,7 +538,7 @@ def test_one_stream_per_effect(world: WorldTruth, cell: SimulatedCell) -> None:
 
 def test_demo_truth_stays_one_cell_whatever_ucal_writes(tmp_path) -> None:
     """The demo's errors are added to the profile before ucal measured it: a tool-frame or a
-    full calibration written into the profile does not move the demo's tool or table."""
+    calibration written into the profile does not move the demo's tool, table or block."""
     path = create_profile(tmp_path / "cell.toml", "tx90l")
     first = demo_world(load_profile(path))
     write_profile(
@@ -560,3 +560,15 @@ def test_demo_truth_stays_one_cell_whatever_ucal_writes(tmp_path) -> None:
     write_profile(path, {"sample": {"position_mm": [700.0, 0.0, -400.0]}}, "the block moved")
     moved = demo_world(load_profile(path))
     np.testing.assert_allclose(moved.sample_position_mm - [700.0, 0.0, -400.0], [1.5, -1.0, 0.8])
+    # calibrate writes the block it measured: a measurement, which the demo does not follow
+    measured = {"position_mm": [701.3, -0.8, -399.1], "rotation_deg": [0.001, -0.002, 0.0]}
+    write_profile(path, {"sample": measured}, "calibrate --method exact: fit ok")
+    write_profile(path, {"tool": {"position_mm": [0.3, -0.2, 80.3]}}, "tool-frame (exact)")
+    write_profile(path, {"sample": {"position_mm": [701.4, -0.8, -399.1]}}, "calibrate")
+    again = demo_world(load_profile(path))
+    np.testing.assert_allclose(again.sample_position_mm - [700.0, 0.0, -400.0], [1.5, -1.0, 0.8])
+    np.testing.assert_array_equal(again.sample_rotation_deg, moved.sample_rotation_deg)
+    # and a hand edit after it is the description again
+    write_profile(path, {"sample": {"position_mm": [650.0, 0.0, -400.0]}}, "the block moved")
+    last = demo_world(load_profile(path))
+    np.testing.assert_allclose(last.sample_position_mm - [650.0, 0.0, -400.0], [1.5, -1.0, 0.8])

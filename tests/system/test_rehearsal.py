@@ -1,0 +1,106 @@
+"""The commissioning rehearsal on the built-in simulated cell, as a new user runs it.
+
+One test, because the whole workflow costs tens of seconds of CPU: a fresh profile, then
+``tool-frame``, ``calibrate`` and ``verify`` with ``--sim`` (the demo truth of
+``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
+``ucal.calibration.gauge``), with the simulator's truth confirming the "after" figure; then
+the shipped world with faults, which must fail.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.verify import MEASURED_WITHIN_MM
+
+pytestmark = pytest.mark.system
+
+REPO = Path(__file__).resolve().parents[2]
+FAULTY_WORLD = REPO / "examples" / "faulty_world.toml"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def ucal(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "ucal", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=360,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+@pytest.mark.timeout(420)
+def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path) -> None:
+    r = ucal(tmp_path, "profile", "init", "tx90", "cell.toml")
+    assert r.returncode == 0, r.stderr
+    profile = tmp_path / "cell.toml"
+    placed = tomllib.loads(profile.read_text())["sample"]
+
+    r = ucal(tmp_path, "tool-frame", "cell.toml", "--sim", "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+
+    r = ucal(tmp_path, "calibrate", "cell.toml", "--sim", "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    cal = json.loads(r.stdout)
+    # J1 measured relative to the hand-placed block, not kept: its absolute std carries the
+    # block's yaw tolerance, its block-relative std the data's
+    assert cal["unobservable_joints"] == [6] and cal["gauge"] == "block"
+    assert "relative to the block as placed" in cal["gauge_note"]
+    assert cal["std_deg"][0] >= 0.5 and cal["std_block_deg"][0] < 0.01
+    truth_block = np.array(cal["truth_offsets_block_deg"])
+    error = np.abs(np.array(cal["joint_offsets_deg"][:5]) - truth_block[:5])
+    assert np.all(error <= 3 * np.array(cal["std_block_deg"][:5])), error
+    # the block as the calibration measured it goes into [sample] (its stds as declared)
+    written = tomllib.loads(profile.read_text())
+    assert written["sample"]["position_mm"] == cal["block"]["position_mm"]
+    assert written["sample"]["position_std_mm"] == placed["position_std_mm"]
+    assert written["calibration"]["gauge"] == "block"
+
+    r = ucal(tmp_path, "verify", "cell.toml", "--sim", "--yes", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["passed"] is True and out["tolerance_mm"] == 0.5 and out["points"] == 20
+    assert out["gauge"] == "block" and out["j1_gauge"] == "block"
+    assert out["absolute_std_mm"] > 1.0  # the yaw as placed, at the points' reach
+    assert "relative to the block as placed" in out["gauge_note"]
+    after = np.array(out["after_mm"]["max"])
+    assert np.max(after) < 0.5 - MEASURED_WITHIN_MM and not out["marginal"]
+    assert np.max(out["before_mm"]["max"]) > 5.0  # the profile before its calibration
+    # the simulator's truth of the same points, relative to the true block: the figure is
+    # honest to what verify says it measures to, and the truth passes too
+    truth = out["truth"]
+    assert np.all(np.array(truth["after_figure_error_mm"]) <= MEASURED_WITHIN_MM), truth
+    assert np.max(truth["after_mm"]["max"]) < 0.5
+    assert (tmp_path / "cell.verify.png").read_bytes()[:8] == PNG_MAGIC
+    # verify never writes the profile
+    assert tomllib.loads(profile.read_text()) == written
+
+    # one command away: the same cell after a remount, a collision and a bumped block
+    r = ucal(
+        tmp_path,
+        "verify",
+        "cell.toml",
+        "--sim",
+        str(FAULTY_WORLD),
+        "--points",
+        "3",
+        "--yes",
+        "--json",
+    )
+    assert r.returncode == 1, r.stderr
+    bad = json.loads(r.stdout)
+    assert bad["passed"] is False and "above the tolerance" in bad["error"]
+    assert np.max(bad["truth"]["after_mm"]["max"]) > 0.5  # the truth fails it too
+    # the tool check finds the transducer's millimetre across the beam
+    across = np.array(bad["tool_check"]["across_beam_flange_mm"])
+    assert np.linalg.norm(across) == pytest.approx(1.0, abs=0.1)
