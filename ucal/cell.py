@@ -14,6 +14,7 @@ import numpy as np
 
 from drivers.controller.client import DEFAULT_TIMEOUTS
 from drivers.pulser.registers import RegisterMap
+from ucal.echo.ascan import ReferenceEcho
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
 
@@ -59,14 +60,23 @@ class PulserConfig:
     ``register_map``: the Modbus register map of the device (``drivers.pulser.map_file``),
     read and validated from ``register_map_path``; None: ucal's own map. ``timeout_s``: how
     long a request waits for its answer; ``retries``: how often a request that got no byte
-    back is asked again before the device counts as silent.
+    back is asked again before the device counts as silent. ``timing``: who times the echo,
+    ``"gate"`` (the instrument's own gate) or ``"ascan"`` (ucal, from the digitised A-scan,
+    ``ucal.echo``); ``reference_echo``: the cell's reference echo for that, read from
+    ``reference_echo_path`` (None: captured on the block at the start of a run).
     """
 
     register_map_path: Path | None = None
     register_map: RegisterMap | None = None
     timeout_s: float = 1.0
     retries: int = 1
+    timing: str = "gate"
+    reference_echo_path: Path | None = None
+    reference_echo: ReferenceEcho | None = None
 
+
+#: ``[pulser] timing``: the instrument's gate, or ucal on the A-scan.
+PULSER_TIMINGS = ("gate", "ascan")
 
 #: Largest ``[pulser] timeout_s`` a profile may state (s).
 MAX_PULSER_TIMEOUT_S = 60.0

@@ -86,6 +86,8 @@ class Measured(Generic[MeasuredT]):
     data: MeasuredT
     duration_s: float  # the run on the cell's clock (simulated time on the simulated cell)
     truth: WorldTruth | None  # the simulator's hidden truth, for reporting
+    #: How the echoes were timed: ``"timing"`` and ``"reference_echo"`` of the result.
+    echo_timing: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -249,6 +251,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                     job.write(solved)
                 self._enter(Step.RESULT)
                 outcome = job.result(plan, measured, solved, written)
+                outcome.result.update(measured.echo_timing)
                 if recorder is not None:
                     recorder.end(outcome.result)
         return outcome
@@ -313,4 +316,4 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                     )
 
                 data = self.job.measure(plan, session, report)
-            return Measured(data, session.elapsed_s, session.truth)
+            return Measured(data, session.elapsed_s, session.truth, session.echo_timing.as_json())

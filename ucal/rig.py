@@ -22,6 +22,9 @@ from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal import timing
 from ucal.errors import HardwareError
 
+if TYPE_CHECKING:
+    from ucal.echo.capture import ReferenceCapture
+
 log = logging.getLogger(__name__)
 
 
@@ -144,6 +147,9 @@ class Rig:
         # when an empty gate reads exactly 0; 0 while no quantisation has shown.
         self.amplitude_step_fsh = 0.0
         self.on_move = None  # optional callback(target) for progress display
+        # Captures the reference echo of a host-timed pulser at the first distance reading
+        # (``ucal.echo.capture``); None: nothing to capture.
+        self.reference_capture: ReferenceCapture | None = None
         self.last_sweep_step_deg = 0.0
         # The arm's joint rate over the commanded one, measured by the sweeps: a pendant's
         # speed override, a controller's own limits or a simulated cell's time scale make the

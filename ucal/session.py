@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +26,10 @@ from drivers.digitizer.base import HostTimed
 from drivers.errors import DriverError
 from drivers.pulser.ascii import AsciiScpiPulser
 from drivers.pulser.ascii_commands import KNOBS, Letter
+from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
+from ucal.echo.capture import ReferenceCapture
 from ucal.echo.host import HostEchoTimer
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.record import (
@@ -59,6 +61,7 @@ class CellSession:
     truth: WorldTruth | None  # the simulator's hidden truth; None on a real cell
     simulated: bool
     clock: Clock = HOST_CLOCK  # simulated time on the simulated cell
+    echo_timing: TimingMode = field(default_factory=lambda: TimingMode())
 
     @property
     def elapsed_s(self) -> float:
@@ -95,19 +98,50 @@ def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
     return rig
 
 
-def fit_back_end(pulser: Any, profile: CellProfile) -> None:
-    """What ucal gives a pulser back-end before its first reading: an echo timer to one that
-    only digitises (``drivers.digitizer.base.HostTimed``: ``ucal.echo.host``, the coarse
-    envelope fallback while the profile names no reference echo), and to the ASCII pulser the
-    pulse width of the profile's transducer (a half cycle of its centre frequency)."""
+@dataclass(frozen=True)
+class TimingMode:
+    """How a session's echoes are timed: ``mode`` ``"gate"`` (the instrument's gate) or
+    ``"ascan"`` (on the host, from the A-scan), and for the latter the reference capture
+    (``ucal.echo.capture``) that holds the timer."""
+
+    mode: str = "gate"
+    capture: ReferenceCapture | None = None
+
+    def as_json(self) -> dict[str, Any]:
+        """``"timing"`` and ``"reference_echo"`` (None with the gate) of a run's result."""
+        return {
+            "timing": self.mode,
+            "reference_echo": None if self.capture is None else self.capture.as_json(),
+        }
+
+
+def fit_back_end(pulser: Any, profile: CellProfile) -> TimingMode:
+    """What ucal gives a pulser back-end before its first reading: an echo timer
+    (``ucal.echo.host``, with the profile's reference echo if it names one) to one that only
+    digitises, and to one that can transfer its A-scans when the profile says ``[pulser]
+    timing = "ascan"`` (``drivers.digitizer.base.HostTimed``); and to the ASCII pulser the
+    pulse width of the profile's transducer (a half cycle of its centre frequency). Returns
+    how the session's echoes are timed."""
     endpoint = pulser.endpoint
-    if isinstance(pulser, HostTimed):
-        timer = HostEchoTimer()
+    timing = TimingMode()
+    host_timed = isinstance(pulser, AsciiScpiPulser) or profile.pulser.timing == "ascan"
+    if host_timed:
+        if not isinstance(pulser, HostTimed) or (
+            isinstance(pulser, ModbusPulser) and "ascan_samples" not in pulser.register_map
+        ):
+            raise InputError(
+                f'{profile.path}: [pulser] timing = "ascan", but the pulser at {endpoint} '
+                'gives no A-scan to time (its register map has no ascan_samples): use "gate"'
+            )
+        timer = HostEchoTimer(profile.pulser.reference_echo)
         pulser.echo_timer = timer
+        path = profile.pulser.reference_echo_path
+        capture = ReferenceCapture(timer, profile_path=None if path is None else str(path))
+        timing = TimingMode("ascan", capture)
         if timer.reference is None:
             log.warning(
                 "pulser %s: no reference echo: echoes are timed on the host by their envelope "
-                "(coarse)",
+                "(coarse) until the cell's own is captured on the block",
                 endpoint,
             )
     if isinstance(pulser, AsciiScpiPulser):
@@ -120,6 +154,7 @@ def fit_back_end(pulser: Any, profile: CellProfile) -> None:
                 f"a pulse of {width_ns:g} ns, which the pulser at {endpoint} cannot give ({e})"
             ) from None
         pulser.pulse_width_ns = width_ns
+    return timing
 
 
 @contextlib.contextmanager
@@ -184,7 +219,7 @@ def open_cell(
                     f"itself; a digitiser is for pulsers that do not (ascii://) ({e})"
                 ) from e
             raise
-        fit_back_end(pulser, profile)
+        echo_timing = fit_back_end(pulser, profile)
         controller.clock = pulser.clock = clock
         if recorder is not None:
             controller = RecordingController(controller, recorder)
@@ -194,9 +229,9 @@ def open_cell(
             stack.enter_context(controller)  # exits first: STOP, then close
         except DriverError as e:
             raise HardwareError(str(e)) from e
-        yield CellSession(
-            make_rig(profile, controller, pulser), truth, sim_world is not None, clock
-        )
+        rig = make_rig(profile, controller, pulser)
+        rig.reference_capture = echo_timing.capture
+        yield CellSession(rig, truth, sim_world is not None, clock, echo_timing)
 
 
 @contextlib.contextmanager
@@ -206,4 +241,10 @@ def replay_cell(profile: CellProfile, record: Record) -> Iterator[CellSession]:
     controller = ReplayController(replay, str(record.header.get("cell", "recorded cell")))
     pulser = ReplayPulser(replay, "recorded pulser")
     # the session's own clock stays the host's: the procedure's clock readings are the replay's
-    yield CellSession(make_rig(profile, controller, pulser), None, False)
+    # how the recorded run timed its echoes is in its readings; no capture is asked again
+    yield CellSession(
+        make_rig(profile, controller, pulser),
+        None,
+        False,
+        echo_timing=TimingMode(profile.pulser.timing),
+    )

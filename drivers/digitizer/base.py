@@ -9,7 +9,9 @@ to fractions of full screen height, the unit of ``GateReading.amplitude``.
 ``EchoTimer`` is the contract of the echo estimator a back-end that only digitises needs: the
 maths lives in the application (``ucal.echo``), which ``drivers`` never imports, so the
 application injects it (``HostTimed.echo_timer``): a callable ``(record, gate_ns) ->
-EchoTiming``.
+EchoTiming``. A timer may say how much of a record it reads around the echo (a method
+``window_ns(dt_ns)``: the half width, ns); a back-end that transfers records by parts
+(``drivers.pulser.modbus``) transfers no more than that.
 """
 
 from __future__ import annotations
@@ -84,6 +86,24 @@ class EchoTiming:
 
 #: ``(record, (gate start, gate end) ns) -> EchoTiming``: the strongest echo in the gate.
 EchoTimer = Callable[[AScanRecord, tuple[float, float]], EchoTiming]
+
+
+def left_aligned_step(codes: np.ndarray) -> int:
+    """The ADC's step in ``codes`` (integers, 0 = the ADC's zero): the largest power of two
+    that divides every one, as an ADC of fewer bits left-aligned in wider words gives them;
+    1 when every code is 0 (nothing shows)."""
+    # two's complement keeps a number's trailing zeros: the OR of the codes has the lowest
+    # set bit of the smallest step
+    codes = np.asarray(codes, np.int64)
+    bits = int(np.bitwise_or.reduce(codes)) if codes.size else 0
+    return bits & -bits if bits else 1
+
+
+def timer_window_ns(timer: EchoTimer, dt_ns: float, default_ns: float) -> float:
+    """Half width (ns) of the record ``timer`` reads around an echo (its ``window_ns``), else
+    ``default_ns``."""
+    window = getattr(timer, "window_ns", None)
+    return float(window(dt_ns)) if callable(window) else float(default_ns)
 
 
 @runtime_checkable

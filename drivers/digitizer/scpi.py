@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.digitizer.base import left_aligned_step
+
 #: The terminator of every program message and every answer line.
 TERMINATOR = b"\n"
 
@@ -252,14 +254,11 @@ def code_step(codes: np.ndarray, fmt: WaveFormat, y_reference: int) -> int:
     """The ADC's step in codes: the largest power of two that divides every sample's distance
     from ``y_reference`` (a WORD record carries fewer bits left-aligned); 1 when every sample
     sits on the reference (nothing shows)."""
-    # two's complement keeps a number's trailing zeros: the OR of the signed distances has
-    # the lowest set bit of the smallest step
     distances = np.asarray(codes, np.int32) - np.int32(y_reference)
     flagged = (codes == HOLE) | (codes == CLIP_LOW[fmt]) | (codes == CLIP_HIGH[fmt])
     if np.any(flagged):
         distances = distances[~flagged]
-    bits = int(np.bitwise_or.reduce(distances)) if distances.size else 0
-    return bits & -bits if bits else 1
+    return left_aligned_step(distances)
 
 
 @dataclass(frozen=True)

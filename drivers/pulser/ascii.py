@@ -231,8 +231,9 @@ class AsciiScpiPulser(PulserReceiver):
         self._settings: PulserSettings | None = None
         #: What the last ``configure`` asked and what the devices set, by setting.
         self.settings_applied: dict[str, dict[str, float]] = {}
-        #: The echo of the last ``read_gate`` as the host timed it.
+        #: The echo of the last ``read_gate`` as the host timed it, and its record.
         self.last_echo: EchoTiming | None = None
+        self.last_record: AScanRecord | None = None
 
     @classmethod
     def from_url(
@@ -374,7 +375,7 @@ class AsciiScpiPulser(PulserReceiver):
         start_ns = settings.gate_start_us * 1e3
         gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
         echo = self.echo_timer(record, gate)
-        self.last_echo = echo
+        self.last_echo, self.last_record = echo, record
         amplitude = float(echo.amplitude) if math.isfinite(echo.amplitude) else 0.0
         tof_ns = float(echo.tof_ns)
         if not (amplitude >= self._threshold and math.isfinite(tof_ns)):
@@ -385,6 +386,7 @@ class AsciiScpiPulser(PulserReceiver):
             counter=record.counter,
             device_time_s=record.host_time_s,
             host_time_s=record.host_time_s,
+            tof_std_ns=float(echo.tof_std_ns) if math.isfinite(tof_ns) else math.nan,
         )
 
     def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:

@@ -90,6 +90,9 @@ class GateReading:
     ``tof_ns`` is NaN when no echo crossed the gate threshold. ``counter`` increments with each
     new acquisition; ``device_time_s`` is the device clock at acquisition; ``host_time_s`` the
     host monotonic clock when the reading arrived (for pairing with streamed joint positions).
+    ``tof_std_ns`` is one sigma of ``tof_ns`` when the one who timed the echo knows it (an
+    echo timed on the host from the A-scan: its SNR and bandwidth); NaN for a device's gate,
+    which does not say.
     """
 
     amplitude: float
@@ -97,6 +100,7 @@ class GateReading:
     counter: int
     device_time_s: float
     host_time_s: float
+    tof_std_ns: float = math.nan
 
     @property
     def has_echo(self) -> bool:

@@ -11,6 +11,17 @@ Fault mapping (every message names the device ``pulser`` and its URL):
 - no byte back within the timeout → ``DeviceTimeout``;
 - bytes back that never form a valid frame (bad CRC, wrong unit, truncated) → ``ProtocolError``;
 - connection refused, serial device missing, peer closed → ``ConnectionLost``.
+
+Host timing. With an ``echo_timer`` (``drivers.digitizer.base.EchoTimer``; ucal injects its
+estimator when the profile says ``[pulser] timing = "ascan"``) every reading is timed on the
+host: the measurement block is read as always (the acquisition, its counter, and the device's
+peak-mode gate, which says whether and roughly where there is an echo), then the A-scan of that
+acquisition around the device's peak — as much of it as the timer reads (its ``window_ns``),
+a few requests rather than the whole gate — and the timer gives the amplitude, the time of
+flight and its std. Below the device's gate threshold there is nothing to time: the reading is
+the device's amplitude without a time of flight, and nothing is transferred. The A-scan's
+int16 samples carry the device's ADC codes left-aligned; its step and rails follow from them
+(``left_aligned_step``).
 """
 
 from __future__ import annotations
@@ -20,7 +31,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +42,13 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from pymodbus.framer import FramerType
 from serial import SerialException
 
+from drivers.digitizer.base import (
+    AScanRecord,
+    EchoTimer,
+    EchoTiming,
+    left_aligned_step,
+    timer_window_ns,
+)
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
@@ -46,6 +64,9 @@ DEFAULT_TIMEOUT_S = 1.0
 DEFAULT_RETRIES = 1
 #: Pause between two polls of the measurement block while waiting for a new counter, s.
 POLL_INTERVAL_S = 0.002
+#: Half width (ns) of the A-scan transferred around the device's peak for a timer that does
+#: not say how much it reads.
+DEFAULT_WINDOW_NS = 2000.0
 #: Shortest per-request timeout used when a deadline is almost reached, s.
 _MIN_REQUEST_TIMEOUT_S = 0.01
 
@@ -116,6 +137,12 @@ class ModbusPulser(PulserReceiver):
         self._map_version: int | None = None
         self._front_end_written: list[list[int]] | None = None  # last front-end block written
         self.last_status = reg.Status(0)  #: status bits of the last gate reading
+        #: Times echoes on the host from the A-scan (module docstring); None: the device's gate.
+        self.echo_timer: EchoTimer | None = None
+        #: The echo of the last host-timed ``read_gate`` as the host timed it, and its record.
+        self.last_echo: EchoTiming | None = None
+        self.last_record: AScanRecord | None = None
+        self._settings: PulserSettings | None = None  # as last configured
         self._injected_port = port
         self._client = self._make_client(parsed)
 
@@ -288,6 +315,7 @@ class ModbusPulser(PulserReceiver):
         if front_end and written != self._front_end_written:
             self._write_values(front_end, "configure front end")
             self._front_end_written = written
+        self._settings = settings
         log.debug("pulser %s: configured %s", self._endpoint, settings)
 
     def settings(self) -> PulserSettings:
@@ -317,6 +345,9 @@ class ModbusPulser(PulserReceiver):
                 out["firmware"] = info.firmware_version
             if info.serial is not None:
                 out["serial"] = info.serial
+        if self.echo_timer is not None:
+            label = getattr(self.echo_timer, "label", type(self.echo_timer).__name__)
+            out["timing"] = str(label)
         return out
 
     def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
@@ -365,12 +396,38 @@ class ModbusPulser(PulserReceiver):
                     self.device, self._endpoint, f"echo flagged but time of flight is {m.tof_ns}"
                 )
             tof_ns = m.tof_ns
-        return GateReading(
+        reading = GateReading(
             amplitude=m.amplitude,
             tof_ns=tof_ns,
             counter=counter,
             device_time_s=host_time_s if m.device_time_ms is None else m.device_time_ms / 1000.0,
             host_time_s=host_time_s,
+        )
+        if self.echo_timer is None or not math.isfinite(tof_ns):
+            return reading
+        return self._timed_on_host(reading, self.echo_timer, deadline)
+
+    def _timed_on_host(
+        self, reading: GateReading, timer: EchoTimer, deadline: float
+    ) -> GateReading:
+        """``reading`` with the amplitude, time of flight and std ``timer`` finds in the
+        A-scan around the device's peak."""
+        settings = self._settings or PulserSettings()
+        start_ns = settings.gate_start_us * 1e3
+        gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
+        record = self.read_ascan_record(
+            reading.tof_ns, timeout_s=max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S)
+        )
+        echo = timer(record, gate)
+        self.last_echo, self.last_record = echo, record
+        if not (math.isfinite(echo.tof_ns) and echo.amplitude > 0.0):
+            return replace(reading, tof_ns=float("nan"))
+        return replace(
+            reading,
+            amplitude=min(float(echo.amplitude), 1.0),
+            tof_ns=float(echo.tof_ns),
+            tof_std_ns=float(echo.tof_std_ns),
+            host_time_s=record.host_time_s,
         )
 
     def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
@@ -427,6 +484,81 @@ class ModbusPulser(PulserReceiver):
             sample_rate_hz=header.sample_rate_hz,
             start_ns=float(header.start_ns),
             counter=-1 if header.counter is None else header.counter,
+        )
+
+    def read_ascan_record(
+        self,
+        centre_ns: float | None = None,
+        half_width_ns: float | None = None,
+        timeout_s: float = 2.0,
+    ) -> AScanRecord:
+        """The A-scan of the latest acquisition as a record (fractions of full screen height,
+        the ADC's step and rails, stamped with ``self.clock`` on arrival): the samples within
+        ``half_width_ns`` (None: the echo timer's window, else ``DEFAULT_WINDOW_NS``) of
+        ``centre_ns``, or the whole A-scan when ``centre_ns`` is None. ``timeout_s`` bounds
+        the transfer."""
+        deadline = time.monotonic() + float(timeout_s)
+        sample_register = self._register("ascan_samples")
+        header = self._map.decode_ascan_header(
+            self._read_values(self._map.present(reg.ASCAN_HEADER), "read A-scan header", deadline)
+        )
+        if not (0 < header.length <= sample_register.words):
+            raise ProtocolError(
+                self.device,
+                self._endpoint,
+                f"A-scan length {header.length} (expected 1 … {sample_register.words})",
+            )
+        if not (math.isfinite(header.sample_rate_hz) and header.sample_rate_hz > 0):
+            raise ProtocolError(
+                self.device, self._endpoint, f"A-scan sample rate {header.sample_rate_hz} Hz"
+            )
+        dt_ns = 1e9 / header.sample_rate_hz
+        first, stop = 0, header.length
+        if centre_ns is not None:
+            if half_width_ns is None:
+                timer = self.echo_timer
+                half_width_ns = (
+                    DEFAULT_WINDOW_NS
+                    if timer is None
+                    else timer_window_ns(timer, dt_ns, DEFAULT_WINDOW_NS)
+                )
+            k = round((centre_ns - header.start_ns) / dt_ns)
+            half = math.ceil(half_width_ns / dt_ns)
+            first, stop = max(0, k - half), min(header.length, k + half + 1)
+            if stop - first < 8:  # the peak at the A-scan's end: its last samples
+                first, stop = max(0, min(first, header.length - 8)), header.length
+        words: list[int] = []
+        while first + len(words) < stop:
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(
+                    self.device,
+                    self._endpoint,
+                    f"A-scan of {stop - first} samples not read within {timeout_s:g} s",
+                )
+            count = min(reg.MAX_READ_REGISTERS, stop - first - len(words))
+            words += self._read(
+                _READ[sample_register.table],
+                sample_register.address + first + len(words),
+                count,
+                "read A-scan samples",
+                deadline,
+            )
+        host_time_s = self.clock.now()
+        codes = np.asarray(words, dtype=np.uint16).view(np.int16).astype(np.int64)
+        step = left_aligned_step(codes)
+        fs = float(sample_register.full_scale)
+        low, high = -32768, 32768 - step  # the lowest and highest multiples of the step
+        settings = self._settings or PulserSettings()
+        return AScanRecord(
+            t0_ns=float(header.start_ns) + first * dt_ns,
+            dt_ns=dt_ns,
+            samples=codes / fs,
+            rails=(low / fs, high / fs),
+            lsb=step / fs,
+            clipped=bool(np.any((codes <= low) | (codes >= high))),
+            averages=int(settings.averages),
+            counter=-1 if header.counter is None else int(header.counter),
+            host_time_s=host_time_s,
         )
 
     def set_gate_threshold(self, fraction: float) -> None:

@@ -6,7 +6,19 @@ simulated cell can stand in for a device with another map.
 The echo itself is injected: ``model(settings) -> (amplitude, tof_ns)`` gives the amplitude as a
 fraction of full screen height and the round-trip time of flight in ns (NaN = no echo) at the
 instant of the call, noise included. This module only plays the device: it applies the gate
-and threshold, counts acquisitions, time-stamps them, and synthesises an A-scan.
+and threshold, counts acquisitions, time-stamps them, and digitises an A-scan.
+
+The A-scan's waveform may be injected too: ``ascan(request) -> samples`` (``AScanRequest``: the
+record's start, interval and length, and the acquisition's echo and settings) gives the
+receiver's output in fractions of full screen height, noise included; without one it is a
+Gaussian-modulated cosine at the echo (``gaussian_pulse``). A gate longer than the A-scan's
+memory (``ascan_samples``) at ``sample_rate_hz`` is sampled as fast as the memory allows, as a
+scope does (with the injected waveform; the Gaussian keeps the first samples of the gate).
+With ``bits`` the device's ADC
+quantises it, its codes left-aligned in the int16 registers (full screen height is the top of
+the register's range; a sample beyond the ADC's range sits on its rail); without, the samples are
+rounded to the register. ``on_ascan_read(words)`` is told of every read of the A-scan, header
+or samples (a simulated cell charges the transfer's time to its clock).
 
 Acquisition policy (deterministic): every read of the measurement block — a read that holds
 the map's ``measurement_trigger``, the reading's register the client reads first — is one new
@@ -33,7 +45,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -56,6 +68,24 @@ log = logging.getLogger(__name__)
 
 #: ``model(settings) -> (amplitude_fsh, tof_ns)``; NaN ``tof_ns`` means no echo.
 PulserModel = Callable[[PulserSettings], tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class AScanRequest:
+    """What an A-scan holds: ``n`` samples from ``t0_ns`` every ``dt_ns``, of the acquisition
+    whose echo is ``amplitude`` (fraction of full screen) at ``tof_ns`` (NaN: none), taken with
+    ``settings``."""
+
+    t0_ns: float
+    dt_ns: float
+    n: int
+    amplitude: float
+    tof_ns: float
+    settings: PulserSettings
+
+
+#: ``ascan(request) -> samples (n,)``: the receiver's output, fractions of full screen height.
+AScanModel = Callable[[AScanRequest], np.ndarray]
 
 #: −6 dB bandwidth of the simulated transducer, as a fraction of its centre frequency.
 FRACTIONAL_BANDWIDTH = 0.6
@@ -139,7 +169,13 @@ class SimulatedPulser:
         center_frequency_hz: float = 25e6,
         sample_rate_hz: float = 100e6,
         register_map: reg.RegisterMap | str | Path | None = None,
+        *,
+        bits: int | None = None,
+        ascan: AScanModel | None = None,
+        on_ascan_read: Callable[[int], None] | None = None,
     ):
+        if bits is not None and not 4 <= int(bits) <= 16:
+            raise ValueError(f"bits must be 4 … 16, got {bits!r}")
         if register_map is None:
             register_map = shipped_map()
         elif not isinstance(register_map, reg.RegisterMap):
@@ -168,6 +204,9 @@ class SimulatedPulser:
         self.unit = int(unit)
         self.center_frequency_hz = float(center_frequency_hz)
         self.sample_rate_hz = float(sample_rate_hz)
+        self.bits = None if bits is None else int(bits)
+        self.ascan = ascan
+        self.on_ascan_read = on_ascan_read
         self._requested_port = int(port)
         self._port: int | None = None
         self._lock = threading.RLock()
@@ -348,6 +387,17 @@ class SimulatedPulser:
                 return ExcCodes.DEVICE_FAILURE
             if holds(m.ascan_trigger) and not self._freeze_ascan():
                 return ExcCodes.DEVICE_FAILURE
+            samples = m.get("ascan_samples")
+            if self.on_ascan_read is not None and (
+                holds(m.ascan_trigger)
+                or (
+                    samples is not None
+                    and samples.table == table
+                    and address < samples.end
+                    and samples.address < address + count
+                )
+            ):
+                self.on_ascan_read(count)
             return self._context.getValues(func_code, address, count)
 
     def _set(self, func_code: int, address: int, values: list[int] | list[bool]) -> ExcCodes | None:
@@ -443,23 +493,49 @@ class SimulatedPulser:
         settings = self._settings()
         start_ns = round(settings.gate_start_us * 1e3)
         samples = self.register_map["ascan_samples"]
+        rate_hz = self.sample_rate_hz
         try:
             reg.check_gate(settings)
-            n = round(settings.gate_width_us * 1e-6 * self.sample_rate_hz) + 1
+            n = round(settings.gate_width_us * 1e-6 * rate_hz) + 1
+            if n > samples.words and self.ascan is not None:
+                # a gate longer than the memory: sampled as fast as the memory allows (as a
+                # scope does), at a rate the header's float32 carries exactly
+                rate_hz = float(np.float32((samples.words - 1) / (settings.gate_width_us * 1e-6)))
+                n = round(settings.gate_width_us * 1e-6 * rate_hz) + 1
             n = min(n, samples.words)
         except ValueError:
             n = 0
-        time_ns = start_ns + np.arange(n) * (1e9 / self.sample_rate_hz)
+        dt_ns = 1e9 / rate_hz
         amp, tof_ns = self._echo
-        if math.isfinite(tof_ns) and amp > 0.0:
-            wave = gaussian_pulse(time_ns, tof_ns, amp, self.center_frequency_hz)
+        if self.ascan is not None and n:
+            try:
+                wave = np.asarray(
+                    self.ascan(AScanRequest(float(start_ns), dt_ns, n, amp, tof_ns, settings)),
+                    float,
+                )
+            except Exception:  # a failing model is a device failure, not a server crash
+                log.exception("simulated pulser: the A-scan model failed")
+                return False
+        elif math.isfinite(tof_ns) and amp > 0.0:
+            wave = gaussian_pulse(
+                start_ns + np.arange(n) * dt_ns, tof_ns, amp, self.center_frequency_hz
+            )
         else:
             wave = np.zeros(n)
-        header = reg.AScanHeader(self._counter, n, self.sample_rate_hz, start_ns)
+        header = reg.AScanHeader(self._counter, n, rate_hz, start_ns)
         self._put(self.register_map.encode_ascan_header(header))
         if n:
-            self._put([(samples, reg.encode_samples(wave, samples.full_scale))])
+            self._put([(samples, self._digitise(wave, samples.full_scale))])
         return True
+
+    def _digitise(self, wave: np.ndarray, full_scale: int) -> list[int]:
+        """The A-scan's registers: the ADC's codes left-aligned in int16 (module docstring)."""
+        if self.bits is None:
+            return reg.encode_samples(wave, full_scale)
+        shift = 2 ** (16 - self.bits)
+        top = 2 ** (self.bits - 1)
+        codes = np.clip(np.rint(wave * full_scale / shift), -top, top - 1) * shift
+        return (codes.astype(np.int16).view(np.uint16)).astype(int).tolist()
 
     # --- server thread ----------------------------------------------------------------------
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:

@@ -15,6 +15,7 @@ from ucal.cell_choice import CellChoice
 from ucal.cli.progress import StepProgress
 from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.progress import MeasureStep, Progress, time_left_s
+from ucal.session import TimingMode
 from ucal.timing import DurationEstimate
 
 
@@ -28,6 +29,7 @@ class FakeSession:
     rig = FakeRig()
     truth = None
     elapsed_s = 10.0
+    echo_timing = TimingMode()
 
 
 class Job:
@@ -128,7 +130,11 @@ def test_steps_in_order_and_the_cell_named_before_any_motion(fake_cell: None) ->
         "job.write",
         Step.RESULT,
     ]
-    assert outcome.written and outcome.result == {"written": True}
+    assert outcome.written and outcome.result == {
+        "written": True,
+        "timing": "gate",
+        "reference_echo": None,
+    }
     # each reported step with the rig's counters and the time left on the cell's clock
     assert [(p.step.what, p.moves, p.reads, p.left_s) for p in presenter.shown] == [
         ("face base/XY", 3, 7, 20.0),

@@ -38,6 +38,8 @@ def test_without_the_key_the_shipped_map_is_used(tmp_path: Path) -> None:
         "register_map": None,
         "timeout_s": 1.0,
         "retries": 1,
+        "timing": "gate",
+        "reference_echo": None,
     }
     server = SimulatedCellServer(None, profile)
     assert server.register_map is None  # the simulated pulser's default: ucal's own map

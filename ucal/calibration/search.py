@@ -585,19 +585,36 @@ class PeakSearch:
 def read_distance(
     rig: Rig, temperature_c: float, averages: int, repeats: int = 8
 ) -> tuple[float, float]:
-    """Water path (mm) from averaged TOF readings at the current posture, and its one-sigma."""
-    tofs = []
+    """Water path (mm) from averaged TOF readings at the current posture, and its one-sigma.
+
+    The one-sigma is the standard error of the readings' mean: their scatter over √repeats,
+    or, when every reading carries its own std (an echo timed on the host from its A-scan:
+    the record's SNR and bandwidth, ``GateReading.tof_std_ns``), their root mean square over
+    √repeats if that is larger. The scatter of a few readings is itself uncertain by a
+    quarter; the readings' own stds are not, but they leave out what moves the echo between
+    readings (trigger jitter, the arm), which the scatter shows.
+
+    A host-timed run without a reference echo captures it here first (``ucal.echo.capture``):
+    the first distance a run reads is at the first face's normal incidence.
+    """
+    if rig.reference_capture is not None:  # the first distance: the cell's reference echo
+        rig.reference_capture.ensure(rig)
+    tofs, stds = [], []
     for _ in range(repeats):
         r = rig.read(averages)
         if not r.has_echo:
             log.info("no echo: %s at gain %.1f dB", r, rig.settings.gain_db)
             raise HardwareError(f"{rig.pulser.endpoint}: no echo in the gate at the peak posture")
         tofs.append(r.tof_ns)
+        stds.append(r.tof_std_ns)
         log.debug("distance reading %s", r)
     tof_ns = np.array(tofs)
     mean = float(np.mean(tof_ns))
     # Standard error of the mean, with a floor of the float32 register resolution.
     sem = max(float(np.std(tof_ns, ddof=1) / np.sqrt(len(tof_ns))), 0.004)
+    own = np.array(stds)
+    if np.all(np.isfinite(own)):
+        sem = max(sem, float(np.sqrt(np.mean(own**2) / own.size)))
     path = float(water_path_mm(mean, temperature_c))
     return path, float(water_path_mm(sem, temperature_c))
 

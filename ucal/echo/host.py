@@ -21,6 +21,7 @@ amplitude 0 and no time of flight.
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 
@@ -42,11 +43,23 @@ class HostEchoTimer:
 
     def __init__(self, reference: ReferenceEcho | None = None):
         self.reference = reference
+        #: Echoes timed so far, by method (the fallback's count: readings before a reference).
+        self.timed: Counter[str] = Counter()
 
     @property
     def label(self) -> str:
         """How echoes are timed: ``"host: reference"`` or the labelled fallback."""
         return f"host: {METHOD_REFERENCE if self.reference is not None else METHOD_ENVELOPE}"
+
+    def window_ns(self, dt_ns: float) -> float:
+        """Half width (ns) of the record this timer reads around the largest excursion, for
+        records sampled every ``dt_ns``: the cut of ``_cut``."""
+        return self._half_ns() + NOISE_MARGIN * dt_ns
+
+    def _half_ns(self) -> float:
+        if self.reference is not None:  # the largest sample anywhere in the echo
+            return self.reference.n * self.reference.dt_ns
+        return SEARCH_HALF_NS
 
     def __call__(self, record: AScanRecord, gate_ns: tuple[float, float]) -> EchoTiming:
         """The strongest echo of ``record`` whose time lies in ``gate_ns``."""
@@ -67,6 +80,7 @@ class HostEchoTimer:
             return self._nothing()
         if not (math.isfinite(echo.amplitude) and math.isfinite(echo.tof_ns)):
             return self._nothing()
+        self.timed[echo.method] += 1
         return EchoTiming(
             amplitude=abs(float(echo.amplitude)),
             tof_ns=float(echo.tof_ns),
@@ -91,9 +105,5 @@ class HostEchoTimer:
         inside = samples[lo:hi]
         # the offset is the mean: an echo has no DC (a median would cost more than the rest)
         k = lo + int(np.argmax(np.abs(inside - np.mean(inside))))
-        if self.reference is not None:  # the largest sample anywhere in the echo
-            half_ns = self.reference.n * self.reference.dt_ns
-        else:
-            half_ns = SEARCH_HALF_NS
-        half = math.ceil(half_ns / dt) + NOISE_MARGIN
+        half = math.ceil(self._half_ns() / dt) + NOISE_MARGIN
         return max(0, k - half), min(n, k + half + 1)

@@ -17,12 +17,15 @@ import numpy as np
 from ucal.cell import (
     MAX_CONTROLLER_TIMEOUT_S,
     MAX_PULSER_TIMEOUT_S,
+    PULSER_TIMINGS,
     CellProfile,
     ControllerTimeouts,
     Procedure,
     PulserConfig,
     Step,
 )
+from ucal.echo.files import read_reference
+from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.validation import (
@@ -74,7 +77,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
         }
     ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
-    "pulser": frozenset({"register_map", "timeout_s", "retries"}),
+    "pulser": frozenset({"register_map", "timeout_s", "retries", "timing", "reference_echo"}),
 }
 
 #: Largest Hayati twist (deg) a calibrated table may hold: a calibration finds hundredths.
@@ -444,16 +447,35 @@ def read_pulser(
     """Optional ``[pulser]``: ``register_map``, a map file relative to ``base_dir`` (default:
     the profile's directory), read and validated; ``timeout_s`` and ``retries``, how long a
     request waits for the first byte of its answer and how often one that got none is asked
-    again before the device counts as silent."""
+    again before the device counts as silent; ``timing`` (``"gate"`` or ``"ascan"``) and
+    ``reference_echo``, a CSV file of ``ucal echo``'s reference format, relative like the
+    map."""
     d = PulserConfig()
     timeout = r.get(table, "pulser.timeout_s")
     retries = r.get(table, "pulser.retries")
+    timing = r.get(table, "pulser.timing")
+    if timing is not None and timing not in PULSER_TIMINGS:
+        raise r.error(
+            "pulser.timing",
+            f"must be one of {', '.join(map(repr, PULSER_TIMINGS))}, got {timing!r}",
+        )
     config = PulserConfig(
         timeout_s=d.timeout_s
         if timeout is None
         else r.number("pulser.timeout_s", timeout, lo=0.01, hi=MAX_PULSER_TIMEOUT_S, unit="s"),
         retries=d.retries if retries is None else r.integer("pulser.retries", retries, lo=0, hi=10),
+        timing=d.timing if timing is None else str(timing),
     )
+    raw = r.get(table, "pulser.reference_echo")
+    if raw is not None:
+        p = Path(r.string("pulser.reference_echo", raw)).expanduser()
+        if not p.is_absolute():
+            p = (r.path.parent if base_dir is None else base_dir) / p
+        try:
+            reference = read_reference(p)
+        except InputError as e:
+            raise r.error("pulser.reference_echo", str(e)) from None
+        config = replace(config, reference_echo_path=p, reference_echo=reference)
     raw = r.get(table, "pulser.register_map")
     if raw is None:
         return config
@@ -518,5 +540,11 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
             ),
             "timeout_s": profile.pulser.timeout_s,
             "retries": profile.pulser.retries,
+            "timing": profile.pulser.timing,
+            "reference_echo": (
+                None
+                if profile.pulser.reference_echo_path is None
+                else str(profile.pulser.reference_echo_path)
+            ),
         },
     }

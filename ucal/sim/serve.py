@@ -36,6 +36,7 @@ from drivers.digitizer.scpi_simulator import AcquisitionRequest, SimulatedScope
 from drivers.pulser.ascii_simulator import SimulatedAsciiPulser
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.registers import RegisterMap
+from drivers.pulser.simulator import AScanRequest as PulserAScanRequest
 from drivers.pulser.simulator import SimulatedPulser
 from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
@@ -136,6 +137,7 @@ class SimulatedCellServer:
             if self.pulser_kind == "ascii-scpi":
                 self._start_ascii_scpi()
             else:
+                self.rf = self._rf_output()
                 self.pulser = SimulatedPulser(
                     self._acquire,
                     framing=self.pulser_framing,
@@ -143,7 +145,11 @@ class SimulatedCellServer:
                     port=0,
                     unit=1,
                     center_frequency_hz=self.world.frequency_mhz * 1e6,
+                    sample_rate_hz=self.world.pulser.sample_rate_mhz * 1e6,
                     register_map=self.register_map,
+                    bits=self.world.pulser.bits,
+                    ascan=self._modbus_ascan,
+                    on_ascan_read=self._ascan_transfer,
                 )
                 self.pulser.start()
             self._t0 = self.clock.now()
@@ -156,7 +162,7 @@ class SimulatedCellServer:
     def _start_ascii_scpi(self) -> None:
         """Start the ASCII serial pulser and the oscilloscope that records its RF output."""
         self.pulser = SimulatedAsciiPulser(self.host, 0).start()
-        self.rf = RfOutput(self.world.frequency_mhz, self.cell.noise_floor, self.world.noise.seed)
+        self.rf = self._rf_output()
         self.digitizer = SimulatedScope(
             self._ascan,
             self.host,
@@ -253,8 +259,45 @@ class SimulatedCellServer:
         if not self.pulser.pulsing:
             amplitude, tof_ns = 0.0, float("nan")
         self._let_pass(transfer_s(request.n))
-        noise = self.rf.noise_rms_fsh(settings.gain_db, request.averages)
-        return self.rf.record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, noise)
+        return self._rf_record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, settings)
+
+    def _modbus_ascan(self, request: PulserAScanRequest) -> np.ndarray:
+        """The Modbus pulser's A-scan model (pulser server thread): the receiver's RF output
+        (fractions of full screen) of the acquisition just made, which its ADC digitises."""
+        return self._rf_record(
+            request.t0_ns,
+            request.dt_ns,
+            request.n,
+            request.amplitude,
+            request.tof_ns,
+            request.settings,
+        )
+
+    def _rf_output(self) -> RfOutput:
+        return RfOutput(self.world.frequency_mhz, self.cell.noise_floor, self.world.noise.seed)
+
+    def _rf_record(
+        self,
+        t0_ns: float,
+        dt_ns: float,
+        n: int,
+        amplitude: float,
+        tof_ns: float,
+        settings: PulserSettings,
+    ) -> np.ndarray:
+        """The receiver's RF output over a record (``ucal.sim.rf``): the echo of this
+        acquisition and the receiver's noise at its gain and averages."""
+        assert self.rf is not None
+        noise = self.rf.noise_rms_fsh(settings.gain_db, settings.averages)
+        return self.rf.record(t0_ns, dt_ns, n, amplitude, tof_ns, noise)
+
+    def _ascan_transfer(self, words: int) -> None:
+        """Let the time of one A-scan request of ``words`` registers pass (pulser server
+        thread): the instrument's part and the network's latency, as a measurement read."""
+        self._let_pass(
+            timing.device_transport_s(self.pulser_framing, registers=words)
+            + self.world.timing.pulser_latency_s
+        )
 
     def _let_pass(self, seconds: float) -> None:
         """Let an acquisition's duration pass: simulated time, or host time × time_scale."""
