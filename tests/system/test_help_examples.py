@@ -87,7 +87,8 @@ def add_files(d: Path) -> None:
     for world in ("world.toml", "truth.toml"):
         (d / world).write_text("[noise]\ntof_ns = 0.02\nseed = 3\n", encoding="utf-8")
     (d / "examples").mkdir(exist_ok=True)
-    shutil.copy(EXAMPLE_WORLD, d / "examples" / "world.toml")  # the shipped example world
+    for shipped in EXAMPLE_WORLD.parent.glob("*.toml"):  # the shipped example worlds
+        shutil.copy(shipped, d / "examples" / shipped.name)
     (d / "scan.csv").write_text(
         "X,Y,Z,RX,RY,RZ\n600,300,100,180,0,0\n610,300,100,180,0,0\n", encoding="utf-8"
     )

@@ -68,7 +68,7 @@ def _write(path: Path, calls: list[tuple[str, tuple, object]], end: dict | None)
 
 def test_replay_serves_the_recorded_results_in_order(tmp_path: Path) -> None:
     path = tmp_path / "run.jsonl"
-    reading = GateReading(0.25, 6.7e4, 1, 0.0, 0.5)
+    reading = GateReading(0.25, 6.7e4, 1, 0.0, 0.5, tof_std_ns=0.02)
     _write(
         path,
         [
@@ -84,6 +84,10 @@ def test_replay_serves_the_recorded_results_in_order(tmp_path: Path) -> None:
     assert controller.clock.now() == 0.5
     assert np.array_equal(controller.read_joints(), np.arange(6.0))
     assert pulser.read_gate() == reading
+    # a device's own gate gives no std (NaN), which the record keeps
+    _write(path, [("pulser.read_gate", (), GateReading(0.25, 6.7e4, 1, 0.0, 0.5))], None)
+    gate = ReplayPulser(Replay(read_record(path)), "y").read_gate()
+    assert gate.tof_ns == 6.7e4 and math.isnan(gate.tof_std_ns)
     assert record.result == {"joint_offsets_deg": [0.0] * 6}
 
 
