@@ -29,6 +29,26 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    full screen when ``[pulser] amplitude_bits`` > 0 (below one level it reads 0); the gain
    error (one sigma ``gain_error_db``) is drawn anew whenever the requested gain changes.
 
+7. the other echoes of an A-scan (``echoes``, noise-free, the RF output's: ``ucal.sim.rf``):
+   the first multiple, the echo of the face's image in the transducer's face (twice the path,
+   twice the tilt) × ``TRANSDUCER_FACE_REFLECTION`` (0.35, a matched epoxy face) ×
+   ``BLOCK_FACE_REFLECTION`` (0.94, steel) × the share: 8.1 % of the main echo at 50 mm and
+   normal incidence (water absorption at 100 mm of path takes 0.25 of it), 2 % at 100 mm;
+   the specular echo of a face behind the main one that the footprint reaches (the step's
+   face under it, a face of a tilted plate), at the path along the axis to its plane, its
+   broadband height at its tilt (none past 45°) × the footprint's share on it (σ widened by
+   the beam's one-way −6 dB spread from the piston's directivity) less the nearer faces'
+   shares; and the corner echo of two block faces: a ray that meets both comes back parallel
+   to itself (a dihedral retro-reflector), mirrored across their edge, at the round trip of
+   the distance along the beam to the edge point nearest the axis, tilted by the beam's angle
+   to the edge. Its height is × ``BLOCK_FACE_REFLECTION`` × the share of the element whose rays
+   meet both faces before they are back at the transducer (a band min(S, t)·sin ψ either side
+   of the edge, ψ the beam's lean towards the other face) and land on the element again
+   (``_mirror_overlap``) × the footprint's share along the edge. Normal to a face no ray meets
+   the other one: no corner echo; 1° off the XY face, 1 mm from the YZ face, at 50 mm: 0.24
+   of full screen, 23 ns after the main echo, which has fallen to 0.015 (the corner of three
+   faces is not modelled).
+
 Every random source is a ``numpy.random.Generator`` seeded with ``(world.noise.seed, stream)``,
 one stream per effect, so the same world and seed give the same readings for the same calls,
 and adding an effect never shifts another's draws. Below the gate threshold (``threshold``,
@@ -48,6 +68,7 @@ from enum import IntEnum
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.special import ndtr
 
 from ucal import acoustics
 from ucal.cell import WorldTruth
@@ -78,6 +99,17 @@ _NOISE_FLOOR_SPREAD = 0.25
 _FLOOR_PEAK_PER_SIGMA = 4.6
 #: Footprint share below which a face is considered missed.
 _MIN_SHARE = 1e-9
+#: Pressure reflection coefficient of the transducer's face seen from the water (a quarter-wave
+#: matched epoxy face of about 3.1 MRayl against water's 1.48: (3.1 − 1.48)/(3.1 + 1.48)).
+TRANSDUCER_FACE_REFLECTION = 0.35
+#: Pressure reflection coefficient of a block face (steel, 45.7 MRayl, against water): each
+#: bounce beyond the first of an echo (the multiple, the corner) multiplies it by this.
+BLOCK_FACE_REFLECTION = 0.94
+#: A face tilted more than this from the beam sends its specular echo 90° or more off the
+#: transducer's axis: no echo.
+_MAX_SPECULAR_TILT_DEG = 45.0
+#: Echoes weaker than this (fraction of full screen) are left out of ``echoes``.
+_MIN_ECHO = 1e-6
 
 
 class _Stream(IntEnum):
@@ -138,6 +170,7 @@ class SimulatedCell:
             faces.append(self._plate)
         self.faces: tuple[Face, ...] = tuple(faces)
         self._sigma_mm = acoustics.footprint_sigma_mm(world.element_diameter_mm)
+        self._spread_tan: float | None = None  # tan of the beam's spread, on first use
         self._c_m_s = acoustics.sound_speed_m_s(world.water_temperature_c)
         self._receiver = EchoReceiver(
             world.frequency_mhz, world.element_diameter_mm, near_field=world.near_field
@@ -247,6 +280,150 @@ class SimulatedCell:
         return float(acoustics.rectangle_share(h.edge_distances_mm, self._sigma_mm))
 
     # --- echoes -------------------------------------------------------------------------------
+    def echoes(
+        self,
+        joint_readings_deg: np.ndarray,
+        gain_db: float = acoustics.REFERENCE_GAIN_DB,
+        t_s: float = 0.0,
+        motion_sign: np.ndarray | None = None,
+        *,
+        gate_ns: tuple[float, float] | None = None,
+    ) -> list[tuple[float, float]]:
+        """Noise-free echoes ``[(tof_ns, amplitude), ...]`` the receiver gets at these readings:
+        the main echo first (that of ``echo``, its arrival and its envelope's peak before
+        saturation), then the others in time order; empty without an echoing face.
+
+        The others (``ucal.sim`` echo model in docs): the first multiple of the main echo, the
+        specular echo of any other face the beam's footprint reaches, and the corner echo of two
+        block faces that the footprint spans. ``gate_ns`` (start, stop) keeps only the echoes
+        arriving inside it (the main one too).
+        """
+        origin, direction = self.true_beam(joint_readings_deg, motion_sign)
+        g = acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(float(gain_db))
+        found = self._echo_list(origin, direction, g, self.sound_speed_m_s(t_s))
+        if gate_ns is not None:
+            found = [e for e in found if gate_ns[0] <= e[0] <= gate_ns[1]]
+        return found
+
+    def _echo_list(
+        self, origin: np.ndarray, direction: np.ndarray, scale: float, c_m_s: float
+    ) -> list[tuple[float, float]]:
+        """``echoes`` for a beam ray, ``scale`` = reference amplitude × gain factor."""
+        found = self._echoing_hit(origin, direction)
+        if found is None:
+            return []
+        h, share = found
+        main = (
+            self._arrival_ns(h.distance_mm, c_m_s),
+            self._peak(h.tilt_deg, h.distance_mm, c_m_s),
+        )
+        out = [(main[0], main[1] * scale * share)]
+        others: list[tuple[float, float]] = []
+        # the multiple: the image of the face in the transducer's face, at twice the path and
+        # twice the tilt, one more bounce on the face and one on the transducer
+        if 2.0 * h.tilt_deg < _MAX_SPECULAR_TILT_DEG:
+            peak = self._peak(2.0 * h.tilt_deg, 2.0 * h.distance_mm, c_m_s)
+            factor = TRANSDUCER_FACE_REFLECTION * BLOCK_FACE_REFLECTION * share
+            others.append((self._arrival_ns(2.0 * h.distance_mm, c_m_s), peak * scale * factor))
+        others += self._other_faces(origin, direction, h, share, scale, c_m_s)
+        others += self._corners(origin, direction, scale, c_m_s)
+        out += sorted(e for e in others if e[1] > _MIN_ECHO)
+        return out
+
+    def _peak(self, tilt_deg: float, water_path_mm: float, c_m_s: float) -> float:
+        """Envelope peak of the noise-free broadband echo of unit scale (the receiver's)."""
+        rx = self._receiver
+        t0_ns, samples = rx.waveform(0.0, 1.0, rx.spectrum(tilt_deg, water_path_mm, c_m_s))
+        return rx.detect(t0_ns, samples)[0]
+
+    def _footprint_sigma_mm(self, water_path_mm: float) -> float:
+        """The footprint's σ at a water path: the element's (``acoustics.footprint_sigma_mm``)
+        widened by the beam's spread, the one-way −6 dB half-angle of the piston's directivity
+        (twice the pulse-echo tilt of ``acoustics.directivity_half_angle_deg``), 0.40° at
+        25 MHz and 6 mm: 0.35 mm of half width at 50 mm, σ 1.50 → 1.53 mm."""
+        if self._spread_tan is None:
+            w = self.world
+            spread_deg = 2.0 * acoustics.directivity_half_angle_deg(
+                0.5, w.frequency_mhz, w.element_diameter_mm, w.water_temperature_c
+            )
+            self._spread_tan = math.tan(math.radians(spread_deg))
+        half_width_mm = water_path_mm * self._spread_tan
+        # a Gaussian's half width at half height is 1.177 σ
+        return math.hypot(self._sigma_mm, half_width_mm / math.sqrt(2.0 * math.log(2.0)))
+
+    def _other_faces(
+        self,
+        origin: np.ndarray,
+        direction: np.ndarray,
+        main: FaceHit,
+        main_share: float,
+        scale: float,
+        c_m_s: float,
+    ) -> list[tuple[float, float]]:
+        """Specular echoes of the faces behind the main one that the footprint reaches: the
+        footprint's share on each (σ of ``_footprint_sigma_mm``), less the share the nearer
+        faces took (exact for a face inside another, as the step on the XY face), at the path
+        along the axis to its plane and the broadband echo's height at its tilt."""
+        out = []
+        taken = main_share
+        hits = [
+            hit
+            for f in self.faces
+            if f is not main.face
+            and (hit := intersect(origin, direction, f)) is not None
+            and hit.facing
+            and hit.distance_mm > main.distance_mm
+            and hit.tilt_deg < _MAX_SPECULAR_TILT_DEG
+        ]
+        for hit in sorted(hits, key=lambda x: x.distance_mm):
+            sigma = self._footprint_sigma_mm(hit.distance_mm)
+            share = float(acoustics.rectangle_share(hit.edge_distances_mm, sigma)) - taken
+            if share <= _MIN_SHARE:
+                continue
+            taken += share
+            peak = self._peak(hit.tilt_deg, hit.distance_mm, c_m_s)
+            out.append((self._arrival_ns(hit.distance_mm, c_m_s), peak * scale * share))
+        return out
+
+    def _corners(
+        self, origin: np.ndarray, direction: np.ndarray, scale: float, c_m_s: float
+    ) -> list[tuple[float, float]]:
+        """Corner echoes of the block's pairs of faces (module doc of ``ucal.sim`` echoes)."""
+        m = self.world.sample_matrix
+        corner = m[:3, 3]
+        size = float(self.world.sample_face_size_mm)
+        radius = 0.5 * float(self.world.element_diameter_mm)
+        d = np.asarray(direction, float)
+        out = []
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            n_i, n_j, e = m[:3, i], m[:3, j], m[:3, 3 - i - j]
+            if not (d @ n_i < 0.0 and d @ n_j < 0.0):
+                continue  # the beam comes from behind one of the faces
+            # the point C of the edge nearest the beam axis: C = corner + s·e, axis point O + t·d
+            b = float(d @ e)
+            w0 = corner - origin
+            s = (b * float(d @ w0) - float(e @ w0)) / (1.0 - b * b)
+            t = float(d @ w0) + s * b
+            if t <= 0.0:
+                continue
+            offset_mm = float(np.linalg.norm(origin + t * d - (corner + s * e)))
+            # across the edge, each face seen along the beam is a band S·|n_other·τ| wide; a
+            # ray returns from the corner if it meets the other face before it is back at the
+            # transducer, t from the edge: the band of both is min(S, t)·min|n·τ|
+            tau = np.cross(d, e)
+            tau /= np.linalg.norm(tau)
+            band_mm = min(size, t) * min(abs(float(n_i @ tau)), abs(float(n_j @ tau)))
+            frac = _mirror_overlap(offset_mm, band_mm, radius)
+            sigma = self._sigma_mm
+            along = float(ndtr(s / sigma) + ndtr((size - s) / sigma) - 1.0)
+            amp = frac * max(along, 0.0) * BLOCK_FACE_REFLECTION
+            if amp <= _MIN_SHARE:
+                continue
+            tilt_deg = math.degrees(math.asin(min(abs(b), 1.0)))
+            peak = self._peak(tilt_deg, t, c_m_s)
+            out.append((self._arrival_ns(t, c_m_s), peak * scale * amp))
+        return out
+
     def ideal_echo(
         self,
         joint_readings_deg: np.ndarray,
@@ -364,6 +541,24 @@ class SimulatedCell:
             levels = float(1 << bits)
             a = math.floor(a * levels) / levels
         return a
+
+
+def _mirror_overlap(offset_mm: float, band_mm: float, radius_mm: float) -> float:
+    """Share of an element of ``radius_mm`` whose rays a corner returns onto the element: a
+    ray ``r`` across the edge (in the beam's cross-section) that meets both faces, |r| ≤
+    ``band_mm``, comes back at −r; the element's centre is ``offset_mm`` from the edge. The
+    area of {p in the disc, its mirror in the disc, |r| ≤ band} over πa²:
+    ``4·[F(o + w) − F(o)]/(πa²)``, F(u) = ∫√(a² − u²)du, w = min(band, a − o)."""
+    a, o = float(radius_mm), abs(float(offset_mm))
+    w = min(float(band_mm), a - o)
+    if w <= 0.0:
+        return 0.0
+
+    def f(u: float) -> float:
+        u = min(u, a)
+        return 0.5 * (u * math.sqrt(max(a * a - u * u, 0.0)) + a * a * math.asin(u / a))
+
+    return 4.0 * (f(o + w) - f(o)) / (math.pi * a * a)
 
 
 def ideal_echo(

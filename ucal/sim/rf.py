@@ -10,6 +10,9 @@ fraction of full screen height, round-trip time of flight):
   continuous peak at the cell's amplitude, band-limited by an anti-alias filter at the record's
   sample rate (``ucal.sim.ascan.Digitiser``); it is synthesised over its own support only and
   placed in the record, so a long gate costs little;
+* the other echoes of the acquisition (``ucal.sim.cell.SimulatedCell.echoes``: the multiple,
+  another face's echo, a corner's) follow it with their delays and relative heights
+  (``later_echoes``), the same pulse shape each;
 * white Gaussian noise is added to every sample: the receiver's noise, ``noise_floor`` (the
   cell's: the peak of the noise envelope over a 200 µs gate at 20 dB, ``ucal.sim.cell``) over
   ``FLOOR_PEAK_PER_SIGMA``, scaled by the gain and divided by √averages;
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Sequence
 
 import numpy as np
 from scipy import fft
@@ -46,6 +50,16 @@ SCOPE_TURNAROUND_S = 0.002
 def transfer_s(points: int, bytes_per_point: int = 2) -> float:
     """Time a scope takes to hand over a record of ``points`` samples (s)."""
     return SCOPE_TURNAROUND_S + points * bytes_per_point * 8 / LINK_BIT_S
+
+
+def later_echoes(echoes: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The echoes after the first of ``SimulatedCell.echoes`` (``[(tof_ns, amplitude), ...]``,
+    the main one first) as ``(delay_ns, relative_amplitude)`` from it: they follow the main
+    echo the instrument measured, its trigger jitter, gain error and averaging noise."""
+    if len(echoes) < 2 or not echoes[0][1] > 0.0:
+        return []
+    tof0, amplitude0 = echoes[0]
+    return [(tof - tof0, amplitude / amplitude0) for tof, amplitude in echoes[1:]]
 
 
 class RfOutput:
@@ -97,14 +111,19 @@ class RfOutput:
         amplitude_fsh: float,
         tof_ns: float,
         noise_rms_fsh: float,
+        later: Sequence[tuple[float, float]] = (),
     ) -> np.ndarray:
         """Volts of ``n`` samples from ``t0_ns`` every ``dt_ns``: the echo of
-        ``amplitude_fsh`` arriving at ``tof_ns`` (NaN: none) plus the noise."""
+        ``amplitude_fsh`` arriving at ``tof_ns`` (NaN: none), the other echoes of the
+        acquisition, ``later`` = ``(delay_ns, relative_amplitude)`` after and relative to it
+        (``later_echoes``), plus the noise."""
         with self._lock:
             noise = self._rng.standard_normal(n)
         out = noise * noise_rms_fsh
         if math.isfinite(tof_ns) and amplitude_fsh > 0.0:
             self._add_echo(out, t0_ns, dt_ns, amplitude_fsh, tof_ns)
+            for delay_ns, relative in later:
+                self._add_echo(out, t0_ns, dt_ns, amplitude_fsh * relative, tof_ns + delay_ns)
         return out * FULL_SCREEN_V
 
     def _add_echo(

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from dataclasses import replace
@@ -44,7 +45,7 @@ from ucal.kinematics.rotations import matrix_to_pose
 from ucal.record import jsonable
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
-from ucal.sim.rf import RfOutput, transfer_s
+from ucal.sim.rf import RfOutput, later_echoes, transfer_s
 from ucal.world import PULSER_KINDS
 
 log = logging.getLogger(__name__)
@@ -100,6 +101,8 @@ class SimulatedCellServer:
         self._log_file: IO[str] | None = None
         self._log_lock = threading.Lock()
         self._motions = 0
+        # (joint readings, gain dB, simulated time s, motion sign) of the latest acquisition
+        self._posture: tuple[np.ndarray, float, float, np.ndarray | None] | None = None
         # the pulser transport's jitter, seeded by the world (its own stream of numbers)
         self._transport_rng = np.random.default_rng([int(self.world.noise.seed), 0x9017])
 
@@ -233,13 +236,18 @@ class SimulatedCellServer:
         self._let_pass(0.5 * transport_s + float(jitter[0]) + pulses_s)
         t = self.clock.now()
         delay = min(world.acquisition_delay_s, max(t - self._t0, 0.0))
+        joints = self.controller.joints_at(t - delay)
+        t_s = t - delay - self._t0
+        motion_sign = self.controller.motion_sign_at(t - delay)
         echo = self.cell.echo(
-            self.controller.joints_at(t - delay),
+            joints,
             averages=settings.averages,
             gain_db=settings.gain_db,
-            t_s=t - delay - self._t0,
-            motion_sign=self.controller.motion_sign_at(t - delay),
+            t_s=t_s,
+            motion_sign=motion_sign,
         )
+        # where the arm was: the A-scan of this acquisition holds its other echoes too
+        self._posture = (joints, float(settings.gain_db), t_s, motion_sign)
         self._let_pass(0.5 * transport_s + float(jitter[1]) + delay)
         return echo
 
@@ -285,11 +293,17 @@ class SimulatedCellServer:
         tof_ns: float,
         settings: PulserSettings,
     ) -> np.ndarray:
-        """The receiver's RF output over a record (``ucal.sim.rf``): the echo of this
-        acquisition and the receiver's noise at its gain and averages."""
+        """The receiver's RF output over a record (``ucal.sim.rf``): the echoes of this
+        acquisition (``SimulatedCell.echoes`` where the arm was) and the receiver's noise at
+        its gain and averages."""
         assert self.rf is not None
         noise = self.rf.noise_rms_fsh(settings.gain_db, settings.averages)
-        return self.rf.record(t0_ns, dt_ns, n, amplitude, tof_ns, noise)
+        later: list[tuple[float, float]] = []
+        posture = self._posture
+        if posture is not None and math.isfinite(tof_ns):
+            joints, gain_db, t_s, motion_sign = posture
+            later = later_echoes(self.cell.echoes(joints, gain_db, t_s, motion_sign))
+        return self.rf.record(t0_ns, dt_ns, n, amplitude, tof_ns, noise, later)
 
     def _ascan_transfer(self, words: int) -> None:
         """Let the time of one A-scan request of ``words`` registers pass (pulser server
