@@ -165,6 +165,41 @@ def test_errors_under_noise_are_within_three_reported_sigmas(tmp_path):
     assert np.all(err[reported] <= 3 * std[reported]), (err, std)
 
 
+def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
+    # A known tool whose beam is 0.3° off the flange axis on a table identified on this robot:
+    # turning J6 tilts the beam by sin 0.3° per degree, so the posture scatter leaves J6 a std
+    # of 0.03° (above the 0.02° write tolerance), 100 % from the data. It keeps its profile
+    # value with the reason; J1-J5 are written.
+    offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+    profile = make_profile(
+        tmp_path,
+        tool_rotation=(0.0, 0.3, 0.0),
+        tool_rotation_std=0.0,
+        prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25],
+        robot={"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0},
+    )
+    world = make_world(tmp_path, offsets, noise=(0.5, 0.01, 7))
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert result["written"] is True and result["fit"]["verdict"] == "ok"
+    assert result["unobservable_joints"] == [6] and result["std_deg"][5] is None
+    assert result["joint_offsets_deg"][5] == 0.25  # the profile's value, kept
+    weak = result["weak_joints"]["6"]
+    assert weak["std_deg"] > 0.02 and "off the joint-6 axis" in weak["reason"]
+    assert abs(weak["offset_deg"] - offsets[5]) <= 3 * weak["std_deg"]
+    assert result["unobservable_reasons"]["6"] == weak["reason"]
+    assert "warning: J6 measured at" in out.stderr
+    err = np.abs(np.array(result["joint_offsets_deg"][:5]) - offsets[:5])
+    assert np.all(err <= 3 * np.array(result["std_deg"][:5])), (err, result["std_deg"])
+    # the offsets' approach direction, stated; lost motion not measured by this level
+    assert result["approach"] == "positive"
+    assert result["backlash_deg"] == [None] * 6 == result["backlash_std_deg"]
+    cal = tomllib.loads(profile.read_text())["calibration"]
+    assert cal["approach"] == "positive" and cal["unobservable_joints"] == [6]
+    np.testing.assert_allclose(cal["joint_offsets_deg"], result["joint_offsets_deg"], atol=1e-6)
+
+
 def test_plan_leaving_the_joint_range_is_refused_before_any_motion(tmp_path):
     pose = [30.53, 31.15, 144.0, 0.0, 39.36, 30.54]  # the joint-3 step would pass 145°
     profile = make_profile(tmp_path, calibration_pose_deg=pose)

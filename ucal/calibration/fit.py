@@ -648,6 +648,57 @@ def _quality(
     )
 
 
+#: A pull beyond this many of its prior's σ is evidence that something is absorbed there, not
+#: by itself the cause.
+FAR_PULL_SIGMA = 10.0
+#: How far from its profile value each kind of quantity can physically be (the sound speed: the
+#: range of water from 0 to 70 °C, m/s); a fit beyond it explains nothing about the cell.
+PHYSICAL_SPAN: dict[str, float | tuple[float, float]] = {
+    "sound_speed_m_s": (1400.0, 1560.0),
+    "block_x_mm": 50.0,
+    "block_y_mm": 50.0,
+    "block_z_mm": 50.0,
+    "block_rx_deg": 5.0,
+    "block_ry_deg": 5.0,
+    "block_rz_deg": 10.0,
+    "tool_x_mm": 5.0,
+    "tool_y_mm": 5.0,
+    "tool_z_mm": 10.0,
+    "tool_rx_deg": 5.0,
+    "tool_ry_deg": 5.0,
+    "tool_rz_deg": 10.0,
+    **{n: 2.0 for n in DH if n.endswith("_mm")},
+    **{n: 0.5 for n in DH if n.endswith("_deg")},
+}
+
+
+def physically_possible(name: str, value: float, profile_value: float) -> bool:
+    """Whether a fitted quantity lies where a real cell could put it (``PHYSICAL_SPAN``)."""
+    span = PHYSICAL_SPAN.get(name)
+    if span is None:
+        return True
+    if isinstance(span, tuple):
+        return span[0] <= value <= span[1]
+    return abs(value - profile_value) <= span
+
+
+def residual_pattern(rows: tuple[ResidualRow, ...]) -> str:
+    """What the residuals' order shows, or "": water paths that trend with the order of the
+    readings (their time) point at a drift, not at a quantity of the cell."""
+    dist = np.array([r.distance for r in rows], float)
+    if len(dist) < 6 or float(np.std(dist)) == 0.0:
+        return ""
+    order = np.arange(len(dist), dtype=float)
+    corr = float(np.corrcoef(order, dist)[0, 1])
+    if abs(corr) < 0.8:
+        return ""
+    return (
+        f"the water-path residuals trend with the order of the readings (correlation {corr:+.2f} "
+        "with their time): a drift during the run, most often the tank warming or cooling (the "
+        "sound speed changing); let the water settle, or measure again and compare"
+    )
+
+
 def likely_cause(
     rows: tuple[ResidualRow, ...],
     pulls: dict[str, float],
@@ -659,7 +710,10 @@ def likely_cause(
 
     If the priors carry most of the χ² (the data fit, but only by moving a quantity beyond its
     tolerance), the cell is outside its declared tolerance (block placed worse than stated,
-    water warmer, tool off). Otherwise the measurements themselves disagree with the model:
+    water warmer, tool off). A quantity dragged beyond ``FAR_PULL_SIGMA`` is named as evidence;
+    dragged where no real cell could put it (``PHYSICAL_SPAN``), it is not offered as the cause:
+    the residuals' pattern is (a drift over the run), or the message says that the model does
+    not explain the data. Otherwise the measurements themselves disagree with the model:
     residuals mostly in the water paths point at the kinematic model (link lengths), mostly in
     the tilts at the tool frame or the block's faces.
     """
@@ -667,16 +721,31 @@ def likely_cause(
     dist2 = sum(r.distance**2 for r in rows)
     nuisance = {n: p for n, p in pulls.items() if not n.startswith("J")}
     prior2 = sum(p**2 for p in nuisance.values())
+    pattern = residual_pattern(rows)
     if nuisance and prior2 > tilt2 + dist2:
         name, pull = max(nuisance.items(), key=lambda kv: abs(kv[1]))
         value = estimate[table.index(name)]
         prior_v = table.prior[table.index(name)]
         what = PRIOR_MEANING.get(name, name)
-        return (
-            f"{name} fitted at {value:.4g}, {abs(pull):.1f}σ from the profile's "
-            f"{prior_v:.4g}: the cell is outside {what}; correct the profile or widen "
-            "its tolerance"
+        evidence = (
+            f"{name} fitted at {value:.4g}, {abs(pull):.1f}σ from the profile's {prior_v:.4g}"
         )
+        if not physically_possible(name, float(value), float(prior_v)):
+            return (
+                f"the model does not explain the data: to fit them it drags {evidence}, where no "
+                f"cell can be (evidence, not a cause); "
+                + (
+                    pattern
+                    or "look for what the model lacks: lost motion (residuals that change sign "
+                    "with the approach direction), a drift over the run (residuals that trend "
+                    "with time), the transducer's frequency or size, or the DH table"
+                )
+            )
+        if abs(pull) > FAR_PULL_SIGMA and pattern:
+            return f"{pattern} ({evidence}, absorbing it)"
+        return f"{evidence}: the cell is outside {what}; correct the profile or widen its tolerance"
+    if pattern:
+        return pattern
     if dist2 >= tilt2:
         return (
             "the water paths disagree with the kinematic model across the stepped "

@@ -45,6 +45,7 @@ from ucal.calibration.sequence import (
     run_calibration,
     solve,
 )
+from ucal.calibration.weak import WeakJoint, keep_weak
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.procedure import Measured, Outcome, ProfileJob
@@ -53,8 +54,20 @@ from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate, estimate_run
 
-#: A finished run whose observable offsets are less certain than this is out of tolerance.
+#: An offset less certain than this is not written: a joint the data determine that weakly is
+#: kept at its profile value with the reason (``ucal.calibration.weak``); the paper method's
+#: truncation error beyond it is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
+
+#: The approach direction the offsets belong to: every static posture is reached with each joint
+#: moving in its positive direction (``ucal.rig.FinalApproachRig``), the link lagging its encoder
+#: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
+APPROACH = "positive"
+#: Why ``backlash_deg`` is null: what the offsets level does not measure.
+BACKLASH_NOTE = (
+    "lost motion is not measured by this level: every posture is approached from below, so the "
+    "offsets hold for that approach (a joint with lost motion b reached from above is off by b/2)"
+)
 
 
 class JointSolution(Protocol):
@@ -92,6 +105,7 @@ def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, An
         "unobservable_joints": list(chosen.unobservable_joints),
         "method": chosen.method,
         "std_deg": _stds(chosen.std_deg),
+        "approach": APPROACH,
     }
     gauge: J1Gauge | None = chosen.gauge
     if gauge is not None and chosen.std_block_deg is not None:
@@ -147,6 +161,11 @@ def result_fields(
         ),
         "method": chosen.method,
         "level": level,
+        "approach": APPROACH,
+        # SPEC.md: null where not measured (no plan of either level approaches from both sides)
+        "backlash_deg": [None] * 6,
+        "backlash_std_deg": [None] * 6,
+        "backlash_note": BACKLASH_NOTE,
         "moves": measurements.moves,
         "pulser_reads": measurements.reads,
         # time the run took on the cell: simulated time on the simulated cell (what a real
@@ -254,11 +273,14 @@ def outcome(
 def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
     """Judge a solution: a misfit, or an observable offset less certain than the tolerance.
 
-    A misfit names the worst measurement and the likely cause; a std above
-    ``TOLERANCE_STD_DEG`` names the joint and what its uncertainty comes from (noise, or the
-    method's truncation for the paper method). Stds are judged relative to the block as placed
-    (``std_block_deg``): J1's absolute std carries the block's yaw tolerance, which a
-    hand-placed block makes 0.5°, and is reported, not judged.
+    At the offsets level a joint the measurements determine weakly has already been kept at its
+    profile value (``ucal.calibration.weak``) and is unobservable here; what remains loose is
+    the paper method's truncation (or the full level's joints). A misfit names the worst
+    measurement and the likely cause; a std above ``TOLERANCE_STD_DEG`` names the joint and
+    what its uncertainty comes from (noise, or the method's truncation for the paper method).
+    Stds are judged relative to the block as placed (``std_block_deg``): J1's absolute std
+    carries the block's yaw tolerance, which a hand-placed block makes 0.5°, and is reported,
+    not judged.
     """
     observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
     # relative to the block as placed (J1: without the block's yaw, ucal.calibration.gauge)
@@ -352,6 +374,8 @@ class OffsetsSolved:
     chosen: OffsetSolution
     fit: FitQuality
     verdict: Verdict
+    #: 1-based joint → its estimate, measured too weakly to write (kept at the profile value)
+    weak: dict[int, WeakJoint]
 
 
 @dataclass
@@ -409,7 +433,12 @@ class OffsetsCalibration(ProfileJob):
             raise UcalError("the paper's method could not be applied to these measurements")
         fit = exact.fit
         assert fit is not None
-        return OffsetsSolved(exact, paper, chosen, fit, judge(chosen, fit))
+        kept, weak = keep_weak(
+            chosen, self.profile.joint_offsets_deg, self.profile.model, TOLERANCE_STD_DEG
+        )
+        if chosen is exact:
+            exact = kept
+        return OffsetsSolved(exact, paper, kept, fit, judge(kept, fit), weak)
 
     def may_write(self, solved: OffsetsSolved) -> bool:
         return solved.verdict.ok or self.force
@@ -453,6 +482,7 @@ class OffsetsCalibration(ProfileJob):
             "block": block_measured(chosen.cell_fit, self.profile),
             "condition_number": chosen.condition_number,
             "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
+            "weak_joints": {str(j): w.to_json() for j, w in solved.weak.items()},
         }
         return outcome(result, measured, verdict, written, OffsetsShown(solved, measured.truth))
 

@@ -103,8 +103,8 @@ Examples:
 @click.option(
     "--force",
     is_flag=True,
-    help="Write the result even when it is out of tolerance: a misfit, or an observable "
-    "offset less certain than 0.02 deg (the verdict is recorded in the profile history).",
+    help="Write the result even when it is out of tolerance: a misfit, or the paper method's "
+    "offsets less certain than 0.02 deg (the verdict is recorded in the profile history).",
 )
 @click.option(
     "--record",
@@ -146,8 +146,9 @@ def cli(
     postures and time-of-flight distances give the offsets (actual = reading + offset) with
     their stds, the cell's other uncertain quantities fitted with the profile's tolerances as
     priors. A joint the data cannot determine (J1 with a hand-placed block, J6 with the beam on
-    its axis) is reported unobservable and keeps its profile value. With --level full, 25-30
-    postures chosen by D-optimality also identify the DH table's lengths and twists
+    its axis) is reported unobservable and keeps its profile value; so does one measured less
+    certainly than 0.02 deg (a warning names why), and the others are written. With --level
+    full, 25-30 postures chosen by D-optimality also identify the DH table's lengths and twists
     ([calibration] dh). Writes [calibration] (the previous version is kept in the profile's
     history); nothing is written with --dry-run, on failure, or when the result is out of
     tolerance (exit 1) unless --force. Every target is checked before the first motion. On any
@@ -208,6 +209,7 @@ def cli(
             real_path(profile_path).unlink(missing_ok=True)
             raise NotConfirmed(f"{e} ({profile_path}, created for the run, removed)") from None
     outcome.result["created"] = created
+    warn_weak(outcome)
     finish(outcome, as_json, show_outcome)
 
 
@@ -267,7 +269,14 @@ def _replay(
     )
     outcome = run_job(job, RunOptions(None, yes=True, dry_run=True, replay=record))
     outcome.result["replayed"] = str(record_path)
+    warn_weak(outcome)
     finish(outcome, as_json, show_outcome)
+
+
+def warn_weak(outcome: Outcome) -> None:
+    """A warning line per joint measured too weakly to write (kept at its profile value)."""
+    for j, w in outcome.result.get("weak_joints", {}).items():
+        warn(f"J{j} measured at {w['offset_deg']:+.4f} ± {w['std_deg']:.3g} deg: {w['reason']}")
 
 
 def show_outcome(outcome: Outcome) -> None:
@@ -300,12 +309,14 @@ def show_result(
     if truth is not None:
         table.add_column("simulator truth", justify="right")
         table.add_column("error", justify="right")
+    weak = result.get("weak_joints", {})
     for j in range(6):
         unobs = j + 1 in chosen.unobservable_joints
+        kept_as = "weak" if str(j + 1) in weak else "unobservable"
         row = [
             f"J{j + 1}",
             f"{chosen.offsets_deg[j]:+.4f}" + (" (kept)" if unobs else ""),
-            "unobservable" if unobs else f"{chosen.std_deg[j]:.4f}",
+            kept_as if unobs else f"{chosen.std_deg[j]:.4f}",
         ]
         if paper is not None and chosen is exact:
             row.append(f"{paper.offsets_deg[j]:+.4f}")
@@ -326,8 +337,25 @@ def show_result(
         f"{'written' if result['written'] else 'not written'}: {result['profile']}"
     )
     for j, why in sorted(chosen.unobservable_reasons.items()):
-        console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+        w = weak.get(str(j))
+        if w is None:
+            console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+        else:
+            console.print(
+                escape(f"J{j} measured at {w['offset_deg']:+.4f} ± {w['std_deg']:.3g} deg: {why}")
+            )
+    show_approach(console, result)
     show_gauge(console, result)
+
+
+def show_approach(console: Console, result: dict[str, Any]) -> None:
+    """The approach direction the offsets belong to, and what is not measured of it."""
+    console.print(
+        escape(
+            f"approach {result['approach']}: the offsets hold for postures reached with every "
+            f"joint moving in its positive direction; {result['backlash_note']}"
+        )
+    )
 
 
 def show_gauge(console: Console, result: dict[str, Any]) -> None:
@@ -405,6 +433,7 @@ def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]
         )
     for j, why in sorted(sol.unobservable_reasons.items()):
         console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
+    show_approach(console, result)
     show_gauge(console, result)
     show_fit(console, sol.cell.quality)
     console.print(
