@@ -8,15 +8,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drivers.controller.client import DEFAULT_TIMEOUTS
 from drivers.pulser.registers import RegisterMap
-from ucal.echo.ascan import ReferenceEcho
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
+
+if TYPE_CHECKING:  # the A-scan code (scipy.signal) loads only where echoes are timed
+    from ucal.echo.ascan import ReferenceEcho
 
 #: Paper 000, §5.1: the calibration pose of the TX90L (deg).
 PAPER_CALIBRATION_POSE_DEG = np.array([30.53, 31.15, 109.49, 0.0, 39.36, 30.54])

@@ -19,7 +19,7 @@ import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.digitizer.base import HostTimed
@@ -29,8 +29,6 @@ from drivers.pulser.ascii_commands import KNOBS, Letter
 from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
-from ucal.echo.capture import ReferenceCapture
-from ucal.echo.host import HostEchoTimer
 from ucal.errors import HardwareError, InputError, SafetyError
 from ucal.record import (
     Record,
@@ -45,6 +43,9 @@ from ucal.rig import Rig
 from ucal.sim.demo import demo_world
 from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world
+
+if TYPE_CHECKING:
+    from ucal.echo.capture import ReferenceCapture
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +134,10 @@ def fit_back_end(pulser: Any, profile: CellProfile) -> TimingMode:
                 f'{profile.path}: [pulser] timing = "ascan", but the pulser at {endpoint} '
                 'gives no A-scan to time (its register map has no ascan_samples): use "gate"'
             )
+        # the host's echo timing (scipy.signal) loads only for a session that uses it
+        from ucal.echo.capture import ReferenceCapture
+        from ucal.echo.host import HostEchoTimer
+
         timer = HostEchoTimer(profile.pulser.reference_echo)
         pulser.echo_timer = timer
         path = profile.pulser.reference_echo_path

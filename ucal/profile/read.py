@@ -24,7 +24,6 @@ from ucal.cell import (
     PulserConfig,
     Step,
 )
-from ucal.echo.files import read_reference
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
@@ -472,6 +471,8 @@ def read_pulser(
         if not p.is_absolute():
             p = (r.path.parent if base_dir is None else base_dir) / p
         try:
+            from ucal.echo.files import read_reference  # scipy.signal: only when named
+
             reference = read_reference(p)
         except InputError as e:
             raise r.error("pulser.reference_echo", str(e)) from None

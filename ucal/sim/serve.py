@@ -27,7 +27,7 @@ import threading
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import IO, Any, Self
+from typing import IO, TYPE_CHECKING, Any, Self
 
 import numpy as np
 
@@ -45,8 +45,10 @@ from ucal.kinematics.rotations import matrix_to_pose
 from ucal.record import jsonable
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
-from ucal.sim.rf import RfOutput, later_echoes, transfer_s
 from ucal.world import PULSER_KINDS
+
+if TYPE_CHECKING:
+    from ucal.sim.rf import RfOutput
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +99,7 @@ class SimulatedCellServer:
         self.controller: Any = None
         self.pulser: Any = None
         self.digitizer: Any = None  # the oscilloscope of an ascii-scpi cell
-        self.rf: RfOutput | None = None
+        self.rf: RfOutput | None = None  # made with the first A-scan
         self._log_file: IO[str] | None = None
         self._log_lock = threading.Lock()
         self._motions = 0
@@ -140,7 +142,6 @@ class SimulatedCellServer:
             if self.pulser_kind == "ascii-scpi":
                 self._start_ascii_scpi()
             else:
-                self.rf = self._rf_output()
                 self.pulser = SimulatedPulser(
                     self._acquire,
                     framing=self.pulser_framing,
@@ -266,6 +267,8 @@ class SimulatedCellServer:
         amplitude, tof_ns = self._acquire(settings)
         if not self.pulser.pulsing:
             amplitude, tof_ns = 0.0, float("nan")
+        from ucal.sim.rf import transfer_s
+
         self._let_pass(transfer_s(request.n))
         return self._rf_record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, settings)
 
@@ -282,6 +285,10 @@ class SimulatedCellServer:
         )
 
     def _rf_output(self) -> RfOutput:
+        # The RF model (scipy.signal) loads with the first A-scan: a run that reads only the
+        # instrument's gate never needs it.
+        from ucal.sim.rf import RfOutput
+
         return RfOutput(self.world.frequency_mhz, self.cell.noise_floor, self.world.noise.seed)
 
     def _rf_record(
@@ -296,7 +303,10 @@ class SimulatedCellServer:
         """The receiver's RF output over a record (``ucal.sim.rf``): the echoes of this
         acquisition (``SimulatedCell.echoes`` where the arm was) and the receiver's noise at
         its gain and averages."""
-        assert self.rf is not None
+        from ucal.sim.rf import later_echoes
+
+        if self.rf is None:
+            self.rf = self._rf_output()
         noise = self.rf.noise_rms_fsh(settings.gain_db, settings.averages)
         later: list[tuple[float, float]] = []
         posture = self._posture
