@@ -33,7 +33,8 @@ from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import open_cell
 from ucal.toolframe.exact import beam_from_normal_incidence, solve_offsets
 from ucal.toolframe.paper import solve_paper
-from ucal.toolframe.procedure import plan_tool_frame, run_tool_frame
+from ucal.toolframe.plan import plan_tool_frame
+from ucal.toolframe.solve import run_tool_frame
 
 TRUE_POSITION = np.array([2.5, -3.0, 83.5])
 TRUE_ROTATION = np.array([1.2, -0.8, 5.0])

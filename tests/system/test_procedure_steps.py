@@ -19,8 +19,8 @@ from ucal.procedure import MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile
 from ucal.progress import Progress
 from ucal.toolframe.procedure import ToolFrameCalibration
-from ucal.verify import VerifyJob
-from ucal.verify_region import RegionJob
+from ucal.verify.procedure import VerifyJob
+from ucal.verify.region import RegionJob
 
 pytestmark = pytest.mark.system
 

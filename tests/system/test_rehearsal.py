@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.verify import MEASURED_WITHIN_MM
+from ucal.verify.result import MEASURED_WITHIN_MM
 
 pytestmark = pytest.mark.system
 

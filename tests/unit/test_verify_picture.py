@@ -11,8 +11,9 @@ from matplotlib.figure import Figure
 from matplotlib.text import Text
 
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.verify import PointResult, VerifyResult, plan_verify
-from ucal.verify_picture import AXIS_STYLE, BAR_STYLE, PictureText, plot_verify, verify_figure
+from ucal.verify.measure import PointResult, VerifyResult
+from ucal.verify.picture import AXIS_STYLE, BAR_STYLE, PictureText, plot_verify, verify_figure
+from ucal.verify.plan import plan_verify
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 GAUGE = (

@@ -15,28 +15,32 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.verify import (
+from ucal.verify.inputs import sound_speed_for_verify
+from ucal.verify.measure import (
     PointResult,
     SkippedPoint,
     VerifyResult,
-    WristMap,
-    deviation_stats,
-    estimate_orientation,
-    grid_shape,
     line_to_edge,
+    predicted_clearance_mm,
+)
+from ucal.verify.picture import plot_verify
+from ucal.verify.plan import (
+    grid_shape,
     nominal_points,
     plan_verify,
-    plot_verify,
-    predicted_clearance_mm,
-    profile_notes,
-    reached_from_peaks,
-    reached_tcp_local,
-    sound_speed_for_verify,
     tool_clearance_mm,
     tool_lever,
     verify_region,
-    wrist_centre_from_distances,
     wrist_centre_local,
+)
+from ucal.verify.result import profile_notes
+from ucal.verify.solve import (
+    WristMap,
+    deviation_stats,
+    estimate_orientation,
+    reached_from_peaks,
+    reached_tcp_local,
+    wrist_centre_from_distances,
 )
 
 
@@ -196,7 +200,8 @@ def test_plan_uses_the_offsets_in_the_after_pass_only(profile) -> None:
 
 def test_before_is_the_profile_before_its_last_calibration(tmp_path) -> None:
     from ucal.profile import create_profile, write_profile
-    from ucal.verify import offsets_before_calibration, passed
+    from ucal.verify.inputs import offsets_before_calibration
+    from ucal.verify.solve import passed
 
     path = create_profile(tmp_path / "cell.toml", "tx90l")
     assert offsets_before_calibration(path).offsets_deg.tolist() == [0.0] * 6
@@ -219,7 +224,7 @@ def test_before_is_commanded_in_the_block_the_profile_had_then(tmp_path) -> None
     profile had before that write, "after" in the measured one, and an uncalibrated profile's
     "before" is the profile as it is."""
     from ucal.profile import create_profile, load_profile, write_profile
-    from ucal.verify import offsets_before_calibration
+    from ucal.verify.inputs import offsets_before_calibration
 
     path = create_profile(tmp_path / "cell.toml", "tx90l")
     fresh = load_profile(path)
@@ -255,7 +260,7 @@ def test_before_is_commanded_in_the_block_the_profile_had_then(tmp_path) -> None
 def test_gauge_says_what_is_known_only_relative_to_the_block(tmp_path, profile) -> None:
     """verify's figures are relative to the block; with J1 calibrated relative to the block
     as placed, the points in the base frame are known to the yaw's tolerance at their reach."""
-    from ucal.verify import VerifyGauge, calibration_gauge
+    from ucal.verify.inputs import VerifyGauge, calibration_gauge
 
     path = tmp_path / "cell.toml"
     doc = tomlkit.parse(default_profile_text("tx90l"))

@@ -22,8 +22,11 @@ from ucal.cli.procedure import finish, run_job
 from ucal.errors import InputError
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
-from ucal.verify import VerifyJob, VerifyResult, VerifyShown, verify_picture_path
-from ucal.verify_region import RegionJob, RegionResult
+from ucal.verify.measure import VerifyResult
+from ucal.verify.picture import verify_picture_path
+from ucal.verify.procedure import VerifyJob
+from ucal.verify.region import RegionJob, RegionResult
+from ucal.verify.result import VerifyShown
 
 
 @click.command(
@@ -70,7 +73,7 @@ Examples:
     type=click.IntRange(3, 100),
     default=None,
     help="Instead: check the kinematic model against the block's faces from N "
-    "postures spread like a full calibration's (ucal.verify_region).",
+    "postures spread like a full calibration's (ucal.verify.region).",
 )
 @yes_option
 @dry_run_option

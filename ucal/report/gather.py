@@ -36,7 +36,7 @@ from ucal.profile import (
 )
 from ucal.record import Record, read_record
 from ucal.validation import DH_KEYS, parse_toml_bytes
-from ucal.verify import verify_picture_path
+from ucal.verify.picture import verify_picture_path
 
 log = logging.getLogger(__name__)
 

@@ -5,5 +5,9 @@ constrained least-squares formulation; ``exact`` is ours (beam from normal incid
 along the beam from time of flight, offsets across the beam from edge reversal);
 ``fit`` solves those measurements again with the joint offsets, the plate, the DH table, the
 sound speed and an electronic delay as unknowns with the profile's tolerances as priors (what a
-run reports and writes); ``procedure`` plans, checks and measures with the rig.
+run reports and writes). The command over them, of the shape of every procedure package:
+``plan`` (the targets, checked before the first motion), ``measure`` (the postures and edge
+scans with the rig), ``solve`` (the tool frame from the measurements), ``result`` (the ``[tool]``
+keys, the refusal, the ``--json`` object) and ``procedure`` (the command's job on
+``ucal.procedure``).
 """

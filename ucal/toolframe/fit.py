@@ -1,6 +1,6 @@
 """The tool frame with the cell's uncertain quantities as prior-constrained unknowns.
 
-The measurements of ``ucal.toolframe.procedure`` (exact method) in the notation of
+The measurements of ``ucal.toolframe.measure`` (exact method) in the notation of
 ``ucal.toolframe.exact``, but with every flange pose computed from the joint readings ``q``
 with *unknown* joint offsets δ and DH table (``ucal.calibration.fit``), and the plate as an
 unknown as well:

@@ -30,7 +30,7 @@ from ucal.cell import Step
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import load_profile
-from ucal.verify_region import judge_region, plan_region
+from ucal.verify.region import judge_region, plan_region
 
 REPO = Path(__file__).resolve().parents[3]
 SIGMA = 5e-4  # deg of posture, mm of water path

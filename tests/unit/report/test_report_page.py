@@ -13,7 +13,7 @@ from ucal.errors import EXIT_USAGE
 from ucal.profile import create_profile, history_dir, undo_profile, write_profile
 from ucal.record import Recorder, sha256_text
 from ucal.report import gather_report, render_page
-from ucal.verify import verify_picture_path
+from ucal.verify.picture import verify_picture_path
 
 from doubles import (
     WRITTEN_OFFSETS_DEG,

@@ -25,8 +25,8 @@ from ucal.toolframe.fit import (
     solve_tool_frame,
     truth_in_profile_flange,
 )
+from ucal.toolframe.plan import ToolFramePlan, plan_tool_frame, tcp_pose
 from ucal.toolframe.plane import fit_plane
-from ucal.toolframe.procedure import ToolFramePlan, plan_tool_frame, tcp_pose
 
 TRUE_OFFSETS = np.array([0.8, -0.6, 0.9, -1.2, 0.7, 0.5])
 TRUE_TOOL_MM = np.array([2.5, -3.0, 82.0])

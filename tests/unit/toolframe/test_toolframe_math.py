@@ -20,8 +20,8 @@ from ucal.toolframe.exact import (
     tangent_basis,
 )
 from ucal.toolframe.paper import residuals_mm, solve_paper
+from ucal.toolframe.plan import tcp_pose
 from ucal.toolframe.plane import fit_plane, hull_reach_mm
-from ucal.toolframe.procedure import tcp_pose
 
 TRUE_P = np.array([2.5, -3.0, 83.5])
 TRUE_ROT = np.array([1.2, -0.8, 5.0])

@@ -31,7 +31,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ucal.verify import VerifyResult
+    from ucal.verify.measure import VerifyResult
 
 #: What ``verify`` appends to the profile's stem for its picture, unless ``--plot`` names one.
 PICTURE_SUFFIX = ".verify.png"

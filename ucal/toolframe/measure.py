@@ -1,0 +1,492 @@
+"""The tool-frame measurement with the rig: every posture and edge scan of the plan.
+
+The rig, the plate and the running tool estimate the steps share are one ``PlateRig``.
+
+Measure (exact): noise floor with the beam off the plate; at each posture the peak search of
+``ucal.calibration.search`` (acquisition raster only for the first; later postures are
+predicted from the beam found so far), fitted, the water path read at the peak; the beam a_T
+from all peaks (``exact`` eq. E1), a_T·p_T from the paths (E2); then the edge scans with the
+tool estimate updated (the beam normal to the plate within the peak precision): a coarse search
+outward from the plate until the echo falls below half, a fine scan of static probes across the
+edge fitted with eq. E4, in both orientations; p_T from all paths and crossings (E3) as a
+first estimate (the solve of ``ucal.toolframe.solve`` starts from it). A posture whose probes
+are below half of the first posture's echo is a side lobe (a prediction off by degrees when the
+offsets are not yet calibrated): it is acquired again as the first.
+
+Measure (paper): at each incidence point the quick main-lobe centring (or the acquisition
+raster if no echo at the prediction) and the water path there; the beam estimate is refined
+from the postures found so far to predict the next one (the solver uses only flange poses and
+water paths, eqs. 12–15).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ucal.calibration.faces import acquire_and_centre, acquisition_gain
+from ucal.calibration.model import CellGeometry
+from ucal.calibration.search import PeakResult, PeakSearch, ka_of, read_distance
+from ucal.calibration.wrist import search_joints
+from ucal.cell import CellProfile
+from ucal.edges import coarse_edge_fall, fine_edge_scan
+from ucal.errors import HardwareError
+from ucal.kinematics.dh import fk, transform
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.progress import MeasureStep, Report
+from ucal.rig import Rig
+from ucal.toolframe.exact import (
+    BeamEstimate,
+    EdgeCrossing,
+    EdgeFit,
+    TofRecord,
+    along_beam_offset_mm,
+    beam_from_normal_incidence,
+    rotation_for_beam,
+)
+from ucal.toolframe.fit import (
+    PlateCrossing,
+)
+from ucal.toolframe.plan import EDGE_WATER_PATH_MM, EdgePlan, Target, ToolFramePlan, solve_target
+from ucal.toolframe.plane import Plane
+
+log = logging.getLogger(__name__)
+
+#: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
+COARSE_STEP_MM = 2.0
+#: Probes (the last ones) whose largest echo the coarse search compares each new one with.
+COARSE_MEMORY = 4
+#: Fine scan: half width (mm) and number of static probes across the 50 % point.
+FINE_HALF_MM = 5.0
+FINE_PROBES = 21
+#: Pulser averages per amplitude reading on edge scans and per peak-fit probe.
+EDGE_AVERAGES = 16
+PEAK_AVERAGES = 8
+#: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max;
+#: its lines 1.5° apart (the plate is met at the planned water path).
+ACQUIRE_RADIUS_DEG = 4.0
+ACQUIRE_MAX_DEG = 8.0
+ACQUIRE_LINE_SPACING_DEG = 1.5
+#: Noise floor the acquisition gain puts the empty gate at (fraction of full screen height).
+ACQUISITION_FLOOR_FSH = 0.05
+#: A peak below this share of the first posture's amplitude (same plate, same water path) is
+#: a side lobe: the piston's first side lobe is 17.6 dB (0.13) below the main lobe.
+MAIN_LOBE_SHARE = 0.5
+
+
+class PlateRig:
+    """The rig aimed at the reflector plate, with what the measurement steps share: the plan
+    and its plane, the acquisition gain, the running tool estimate (``position_mm`` and
+    ``beam``, flange frame) and the last commanded readings ``q`` (deg)."""
+
+    profile: CellProfile
+    plan: ToolFramePlan
+    plane: Plane
+    rig: Rig
+    progress: Report | None
+    offsets: np.ndarray  # (6,) the profile's joint offsets (deg)
+    temp: float  # water temperature (°C)
+    ka: float  # the transducer's k·a at the water temperature
+    position: np.ndarray  # (3,) running estimate of the TCP, flange frame (mm)
+    beam: np.ndarray  # (3,) running estimate of the beam, flange frame (unit)
+    acq_gain: float  # acquisition gain (dB) from the noise floor
+    q: np.ndarray  # (6,) the last commanded readings (deg)
+
+    def __init__(
+        self,
+        profile: CellProfile,
+        plan: ToolFramePlan,
+        rig: Rig,
+        progress: Report | None,
+    ):
+        self.profile = profile
+        self.plan = plan
+        self.plane = plan.plane
+        self.rig = rig
+        self.progress = progress
+        self.offsets = np.asarray(profile.joint_offsets_deg, float)
+        self.temp = profile.water_temperature_c
+        self.ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, self.temp)
+        self.position = np.asarray(profile.tool_position_mm, float).copy()
+        self.beam = np.asarray(profile.tool_matrix[:3, 2], float).copy()
+        self.acq_gain = 40.0
+        self.q = np.asarray(plan.reference_deg, float)
+
+    # -- kinematics ------------------------------------------------------------------------------
+    def tool(self) -> np.ndarray:
+        rot = rpy_to_matrix(rotation_for_beam(self.beam, self.profile.tool_rotation_deg))
+        return transform(self.position, rot)
+
+    def flange(self, q: np.ndarray) -> np.ndarray:
+        return fk(self.profile.model, q, offsets_deg=self.offsets)
+
+    def joints(
+        self, point: np.ndarray, path: float, phi: float, label: str, wrist_margin: float = 0.0
+    ) -> np.ndarray:
+        return solve_target(
+            self.profile, self.plane, self.tool(), point, path, phi, self.q, label, wrist_margin
+        )
+
+    def move(self, q: np.ndarray) -> np.ndarray:
+        self.q = np.asarray(q, float)
+        return self.rig.move(q)
+
+    # -- pulser ----------------------------------------------------------------------------------
+    def set_gain(self, averages: int) -> float:
+        """Gain for an echo at 40–85 % of full screen at the current posture; its amplitude
+        (0 dB normalised)."""
+        self.rig.level_gain(averages)
+        return self.rig.normalised_amplitude(averages)
+
+    def noise_floor(self, target: Target) -> None:
+        """Noise floor with the beam 25° off the plate's normal; sets the acquisition gain."""
+        away = target.joints_deg.copy()
+        away[4] += 25.0 if away[4] + 25.0 < self.profile.model.joint_max_deg[4] else -25.0
+        self.acq_gain = acquisition_gain(self.rig, away, ACQUISITION_FLOOR_FSH)
+        self.q = self.rig.clip(away)
+
+    # -- posture search --------------------------------------------------------------------------
+    def _search(self, q_pred: np.ndarray) -> PeakSearch:
+        geom = CellGeometry(self.profile.model, self.tool(), self.plane.rotation)
+        js, tilt_map = search_joints(geom, q_pred, self.offsets, self.plane.rotation[:, :2].T)
+        return PeakSearch(self.rig, self.ka, js, tilt_map, self.temp)
+
+    def centred(self, target: Target, quick: bool) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
+        q_pred = self.joints(
+            target.point_mm, target.water_path_mm, target.phi_deg, target.label, 0.0
+        )
+        return self.normal_near(q_pred, target.label, quick)
+
+    def normal_near(
+        self, q_pred: np.ndarray, label: str, quick: bool
+    ) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture (wrist only) near ``q_pred``: a quick centring, else (or when
+        ``quick`` is False) the acquisition raster, widened up to ``ACQUIRE_MAX_DEG``."""
+        search = self._search(q_pred)
+        q_c = search.quick_centre(q_pred) if quick else None
+        if q_c is None:
+            q_c = acquire_and_centre(
+                search,
+                self.rig,
+                q_pred,
+                label,
+                ACQUIRE_RADIUS_DEG,
+                self.acq_gain,
+                max_moves=None,
+                spacings_deg=(ACQUIRE_LINE_SPACING_DEG,),
+                max_radius_deg=ACQUIRE_MAX_DEG,
+                no_echo=_no_plate_echo,
+            )
+        self.q = np.asarray(q_c, float)
+        return search, q_c
+
+    def update_beam(self, rots: list[np.ndarray], stds: list[float]) -> BeamEstimate:
+        est = beam_from_normal_incidence(np.array(rots), self.plane.normal, np.array(stds))
+        self.beam = est.direction
+        return est
+
+    # -- edge scans ------------------------------------------------------------------------------
+    def edge_scan(
+        self, ep: EdgePlan, lateral: float, phi: float, guess: float | None
+    ) -> tuple[EdgeCrossing, EdgeFit, float, PlateCrossing]:
+        """Coarse search and fine scan across edge ``ep`` on the line at ``lateral``; returns
+        the crossing, its profile fit, the coarse crossing (mm from the centre) and the
+        crossing as readings (for the fit with the offsets as unknowns)."""
+        u, w = ep.direction, ep.along
+        origin = self.plan.centre_mm + lateral * w
+        tool = self.tool()
+        label = f"edge {ep.name}"
+        rows: list[tuple[float, float, np.ndarray]] = []
+        aim = np.zeros(6)  # wrist correction to normal incidence on this line
+
+        def probe(t: float, averages: int) -> float:
+            q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
+            settled = self.move(q)
+            a = self.rig.normalised_amplitude(averages)
+            rows.append((t, a, np.asarray(settled, float)))
+            return a
+
+        hi = ep.start_mm + ep.search_mm
+        if guess is None:
+            t = ep.start_mm
+            step = COARSE_STEP_MM
+        else:
+            t = max(ep.start_mm, guess - 20.0)
+            step = 0.75 * COARSE_STEP_MM
+        # normal incidence at the line's start: with joint offsets not yet calibrated the
+        # beam turns differently in this arm configuration than at the plate centre (a few
+        # tenths of a degree can put it in the first null); the wrist correction found here
+        # holds along the short line. Then gain on the plate, and outward until the echo falls
+        # below half.
+        q0 = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
+        _, q_n = self.normal_near(q0, label, quick=True)
+        aim = np.asarray(q_n, float) - q0
+        self.move(q0 + aim)
+        self.set_gain(EDGE_AVERAGES)
+        # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam that
+        # drifts off normal along the line (offsets not yet calibrated) fades slowly
+        first = probe(t, EDGE_AVERAGES)
+        t_c = coarse_edge_fall(lambda t: probe(t, EDGE_AVERAGES), t, first, hi, step, COARSE_MEMORY)
+        if t_c is None:
+            raise HardwareError(
+                f"{self.rig.pulser.endpoint}: the echo did not fall at any "
+                f"edge along {ep.name} within {hi:.0f} mm of the plate centre"
+            )
+        # fine scan across the coarse crossing; once more twice as wide if it does not cross
+        # (the coarse fall was a dip of the echo on the plate, e.g. a bow or a scratch)
+        # normal incidence again just inside the edge, for the fine scan
+        q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi, label)
+        _, q_n = self.normal_near(q1, label, quick=True)
+        aim = np.asarray(q_n, float) - q1
+        ts: list[float] = []
+        flanges: list[np.ndarray] = []
+
+        def fine(t: float) -> tuple[float, float]:
+            """A fine probe's scan coordinate, from its actual flange pose (the estimated
+            tool centre), and amplitude."""
+            a = probe(t, EDGE_AVERAGES)
+            f = self.flange(rows[-1][2])
+            c = (f @ tool)[:3, 3]
+            ts.append(float(u @ (self.plane.project(c) - origin)))
+            flanges.append(f)
+            return ts[-1], a
+
+        for half in (FINE_HALF_MM, 2.0 * FINE_HALF_MM):
+            rows.clear()
+            ts.clear()
+            flanges.clear()
+            try:
+                fit = fine_edge_scan(fine, t_c, half, FINE_PROBES)
+                break
+            except ValueError as e:
+                log.info("edge %s: %s (±%.0f mm)", ep.name, e, half)
+        else:
+            raise HardwareError(
+                f"{self.rig.pulser.endpoint}: the fine scan across edge "
+                f"{ep.name} near {t_c:.0f} mm from the plate centre does not "
+                "show the echo falling to half: is the edge straight and "
+                "clean?"
+            )
+        ts_arr = np.array(ts)
+        i = int(np.argmin(np.abs(ts_arr - fit.crossing)))
+        f = flanges[i].copy()
+        shift = (fit.crossing - ts_arr[i]) * u
+        f[:3, 3] += shift
+        log.info(
+            "edge %s lateral %+.1f phi %+.0f: crossing %.4f ± %.4f mm (σ %.3f mm, rms %.2g)",
+            ep.name,
+            lateral,
+            phi,
+            fit.crossing,
+            fit.crossing_std,
+            fit.width_mm,
+            fit.rms,
+        )
+        std = max(fit.crossing_std, 1e-4)
+        return (
+            EdgeCrossing(f, ep.index, std, u.copy()),
+            fit,
+            float(t_c),
+            PlateCrossing(
+                f"edge {ep.name} {lateral:+.0f} mm phi {phi:+.0f}",
+                rows[i][2].copy(),
+                shift,
+                ep.index,
+                std,
+            ),
+        )
+
+
+def _no_plate_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> HardwareError:
+    return HardwareError(
+        f"{rig.pulser.endpoint}: no echo from the reflector plate within {reached_deg:g} deg "
+        f"of the predicted posture ({label}); check [reflector] points_mm and [tool] in the "
+        "profile"
+    )
+
+
+def _report(plate_rig: PlateRig, what: str, i: int, n: int, phi_deg: float | None = None) -> None:
+    if plate_rig.progress:
+        orientation = None if phi_deg is None else f"phi {phi_deg:+.0f}"
+        plate_rig.progress(
+            MeasureStep(what, i, n, orientation, "plate" if what != "solving" else None)
+        )
+
+
+@dataclass
+class ExactMeasurements:
+    """What the exact method measured: peaks and their water paths, edge crossings."""
+
+    peaks: list[PeakResult]
+    tofs: list[TofRecord]
+    crossings: list[EdgeCrossing]
+    plate_crossings: list[PlateCrossing]
+    edge_fits: list[EdgeFit]
+    beam_estimate: BeamEstimate
+    position_mm: np.ndarray  # the tool centre estimated on the way (start of the first solve)
+    moves: int
+    reads: int
+
+
+@dataclass
+class PaperMeasurements:
+    """What paper 002's method measured: flange poses and water paths at incidence points."""
+
+    rotations: list[np.ndarray]
+    positions_mm: list[np.ndarray]
+    paths_mm: list[float]
+    path_stds_mm: list[float]
+    moves: int
+    reads: int
+
+
+ToolFrameMeasurements = ExactMeasurements | PaperMeasurements
+
+
+def measure_tool_frame(
+    profile: CellProfile, plan: ToolFramePlan, rig: Rig, progress: Report | None = None
+) -> ToolFrameMeasurements:
+    """Measure the plan (module docstring), reporting each posture and edge scan as it starts.
+    The caller owns the connection, STOP and the profile."""
+    plate_rig = PlateRig(profile, plan, rig, progress)
+    if plan.method == "paper":
+        return _measure_paper(plate_rig)
+    return _measure_exact(plate_rig)
+
+
+def _tof(plate_rig: PlateRig) -> tuple[float, float]:
+    return read_distance(
+        plate_rig.rig, plate_rig.temp, max(plate_rig.profile.procedure.tof_averages, 1)
+    )
+
+
+def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
+    plan = plate_rig.plan
+    total = len(plan.peaks) + 4 * len(plan.edges)
+    plate_rig.noise_floor(plan.peaks[0])
+    rots: list[np.ndarray] = []
+    stds: list[float] = []
+    peaks: list[PeakResult] = []
+    tofs: list[TofRecord] = []
+    for i, target in enumerate(plan.peaks):
+        _report(plate_rig, target.label, i, total, target.phi_deg)
+        search, q_c = plate_rig.centred(target, quick=i > 0)
+        peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
+        if peak.tilt_std_deg > 0.02:
+            log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
+            q_again = search.quick_centre(peak.joints_deg)
+            if q_again is not None:
+                peak = search.fit(q_again, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
+        if peaks and _probe_level(peak) < MAIN_LOBE_SHARE * _probe_level(peaks[0]):
+            # A prediction off by degrees (joint offsets not yet calibrated turn the beam
+            # differently at each orientation) can centre on a side lobe (−17.6 dB and less):
+            # acquire and centre as for the first posture.
+            log.info(
+                "%s: %.2g of the first peak's echo, a side lobe: acquiring",
+                target.label,
+                _probe_level(peak) / _probe_level(peaks[0]),
+            )
+            search, q_c = plate_rig.centred(target, quick=False)
+            peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
+            level = _probe_level(peak) / _probe_level(peaks[0])
+            if level < MAIN_LOBE_SHARE:
+                raise HardwareError(
+                    f"{plate_rig.rig.pulser.endpoint}: {target.label}: only a side lobe "
+                    f"of the plate's echo found ({level:.2g} of the first "
+                    "posture's); is the plate flat and still?"
+                )
+        assert peak.distance is not None and peak.distance_joints_deg is not None
+        peaks.append(peak)
+        rots.append(plate_rig.flange(peak.joints_deg)[:3, :3])
+        stds.append(max(peak.tilt_std_deg, 1e-4))
+        path, path_std = peak.distance
+        tofs.append(
+            TofRecord(plate_rig.flange(peak.distance_joints_deg), path, max(path_std, 1e-4))
+        )
+        plate_rig.q = np.asarray(rig_joints(plate_rig), float)
+        beam_est = plate_rig.update_beam(rots, stds)
+        log.info(
+            "%s: beam %s (%d postures), water path %.4f mm",
+            target.label,
+            np.round(beam_est.direction, 6).tolist(),
+            len(rots),
+            path,
+        )
+    beam_est = plate_rig.update_beam(rots, stds)
+    # a_T·p_T from the water paths alone (E2) before the edge scans
+    s, _ = along_beam_offset_mm(beam_est.direction, tofs, plate_rig.plane)
+    plate_rig.position = (
+        plate_rig.position + (s - beam_est.direction @ plate_rig.position) * beam_est.direction
+    )
+    crossings: list[EdgeCrossing] = []
+    plate_crossings: list[PlateCrossing] = []
+    fits: list[EdgeFit] = []
+    guesses: dict[tuple[int, int], float] = {}
+    k = len(plan.peaks)
+    for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
+        for ep in plan.edges:
+            for j, lateral in enumerate(ep.lateral_mm):
+                turned = "" if phi == plan.phi0_deg else ", tool turned 180°"
+                _report(plate_rig, f"edge {ep.name}{turned}", k, total, phi)
+                k += 1
+                guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))
+                cr, fit, t_c, pc = plate_rig.edge_scan(ep, lateral, phi, guess)
+                guesses.setdefault((ep.index, j), t_c)
+                crossings.append(cr)
+                plate_crossings.append(pc)
+                fits.append(fit)
+    # leave the robot above the plate centre
+    plate_rig.move(
+        plate_rig.joints(plan.centre_mm, plan.peaks[0].water_path_mm, plan.phi0_deg, "centre")
+    )
+    _report(plate_rig, "solving", total, total)
+    return ExactMeasurements(
+        peaks,
+        tofs,
+        crossings,
+        plate_crossings,
+        fits,
+        beam_est,
+        plate_rig.position,
+        plate_rig.rig.counters.moves,
+        plate_rig.rig.counters.reads,
+    )
+
+
+def _probe_level(peak: PeakResult) -> float:
+    """Strongest echo (normalised to 0 dB) among a peak fit's probes."""
+    return float(np.max(peak.probes[1])) if peak.probes is not None else peak.amplitude
+
+
+def rig_joints(plate_rig: PlateRig) -> np.ndarray:
+    """Current joint readings of the robot."""
+    return plate_rig.rig.controller.read_joints()
+
+
+def _measure_paper(plate_rig: PlateRig) -> PaperMeasurements:
+    plan = plate_rig.plan
+    total = len(plan.incidence)
+    plate_rig.noise_floor(plan.incidence[0])
+    rots: list[np.ndarray] = []
+    poss: list[np.ndarray] = []
+    paths: list[float] = []
+    path_stds: list[float] = []
+    for i, target in enumerate(plan.incidence):
+        _report(plate_rig, target.label, i, total, target.phi_deg)
+        _, q_c = plate_rig.centred(target, quick=i > 0)
+        settled = plate_rig.move(q_c)
+        path, std = _tof(plate_rig)
+        f = plate_rig.flange(settled)
+        rots.append(f[:3, :3])
+        poss.append(f[:3, 3])
+        paths.append(path)
+        path_stds.append(std)
+        # predict the next incidence posture from the postures found so far (E1)
+        plate_rig.update_beam(rots, [0.01] * len(rots))
+    _report(plate_rig, "solving", total, total)
+    return PaperMeasurements(
+        rots, poss, paths, path_stds, plate_rig.rig.counters.moves, plate_rig.rig.counters.reads
+    )

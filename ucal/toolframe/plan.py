@@ -1,0 +1,361 @@
+"""Plate frame. The plane of the touched points (``ucal.toolframe.plane``) with its in-plane axes
+``e1, e2`` and normal ``n``; the nominal plate centre is the points' centroid. The beam is
+aimed along ``−n``; a tool orientation "φ" turns the tool frame's x axis from ``e1`` towards
+``e2`` by φ (a rotation about the beam). Targets are tool poses; joint readings come from the
+closed-form IK with the current tool estimate and the profile's joint offsets
+(actual = reading + offset), and every flange pose that enters the solution is the forward
+kinematics of the settled readings with those offsets.
+
+Plan (before the first motion; ``SafetyError``, exit 4, without any motion):
+
+* exact method (default): ``points`` normal-incidence postures at the plate centre, at
+  orientations spread evenly over a turn, water path ``[procedure] water_path_mm``; edge
+  scans along ``+e1`` and ``+e2`` (or ``−e1``/``−e2`` if those reach farther) at two lateral
+  positions each, in orientations φ0 and φ0 + 180°, with ``EDGE_WATER_PATH_MM`` of water.
+  The edge search starts inside the hull of the touched points and goes outward as far as the
+  arm can follow in both orientations (at most ``EDGE_SEARCH_MM``);
+* paper method: ``points`` incidence points (default 100, as paper 002) drawn inside the hull
+  of the touched points (shrunk by 15 % about the centroid), water paths 0.6–1.4 × the
+  profile's, orientations over ±150° (paper 002, §5: "scattered", "different distance",
+  "different angles");
+
+and every target is checked: inside the joint ranges (keeping ``WRIST_MARGIN_DEG`` on joints
+4–6 for the posture searches), ``|sin θ5| ≥ sin(singularity margin)``, and — for the incidence
+points — the beam meeting the plate inside the touched points' hull (the plate's edges are not
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ucal.calibration.safety import check_joints
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import InputError, SafetyError
+from ucal.kinematics.dh import transform
+from ucal.kinematics.ik import ik
+from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
+
+METHODS = ("exact", "paper")
+DEFAULT_POINTS = {"exact": 4, "paper": 100}
+MIN_POINTS = {"exact": 2, "paper": 7}
+
+#: Room kept inside the ranges of joints 4–6 for the posture searches (deg).
+WRIST_MARGIN_DEG = 10.0
+#: Water path during edge scans (mm): short, so that a beam-direction error moves the axis
+#: hit point little (Δl·δa) — it would otherwise look like an offset across the beam.
+EDGE_WATER_PATH_MM = 50.0
+#: Farthest the edge search goes beyond its start (mm).
+EDGE_SEARCH_MM = 300.0
+#: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
+#: Margin (mm) kept between an incidence point and the hull of the touched points.
+HULL_MARGIN_MM = 3.0
+
+
+@dataclass(frozen=True)
+class Target:
+    """One planned tool pose: the beam along −n meeting the plate at ``point_mm``."""
+
+    label: str
+    point_mm: np.ndarray  # (3,) on the plane
+    water_path_mm: float
+    phi_deg: float
+    joints_deg: np.ndarray  # planned readings (nominal tool)
+
+
+@dataclass(frozen=True)
+class EdgePlan:
+    """Scans across one plate edge: outward ``direction``, lines at ``lateral_mm`` along
+    ``along``, search from ``start_mm`` to ``start_mm + search_mm`` (from the centre)."""
+
+    index: int
+    name: str
+    direction: np.ndarray
+    along: np.ndarray
+    lateral_mm: tuple[float, float]
+    start_mm: float
+    search_mm: float
+
+
+@dataclass(frozen=True)
+class ToolFramePlan:
+    method: str
+    plane: Plane
+    centre_mm: np.ndarray
+    reference_deg: np.ndarray
+    phi0_deg: float
+    peaks: tuple[Target, ...]
+    edges: tuple[EdgePlan, ...]
+    incidence: tuple[Target, ...]
+    notes: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        """Human-readable plan (for the confirmation before the first motion)."""
+        c = np.round(self.centre_mm, 1).tolist()
+        lines = [
+            (
+                f"tool-frame calibration ({self.method}); plate plane n = "
+                f"{np.round(self.plane.normal, 4).tolist()}, centre {c} mm "
+                f"({self.plane.n_points} touched points, rms {self.plane.rms_mm:.3f} mm)"
+            )
+        ]
+        for t in self.peaks + self.incidence[:5]:
+            lines.append(
+                f"  {t.label}: beam at {np.round(t.point_mm, 1).tolist()} mm, "
+                f"water {t.water_path_mm:.0f} mm, phi {t.phi_deg:+.0f} deg, joints "
+                f"{np.round(t.joints_deg, 1).tolist()}"
+            )
+        if len(self.incidence) > 5:
+            lines.append(f"  … {len(self.incidence) - 5} more incidence points")
+        for e in self.edges:
+            lines.append(
+                f"  edge {e.name}: search {e.start_mm:.0f}–{e.start_mm + e.search_mm:.0f}"
+                f" mm from the centre along {np.round(e.direction, 3).tolist()}, lines at"
+                f" {e.lateral_mm[0]:+.0f}/{e.lateral_mm[1]:+.0f} mm, phi "
+                f"{self.phi0_deg:+.0f}/{self.phi0_deg + 180:+.0f} deg, water "
+                f"{EDGE_WATER_PATH_MM:.0f} mm"
+            )
+        lines.extend(f"  note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+
+def tcp_pose(
+    plane: Plane, point_mm: np.ndarray, water_path_mm: float, phi_deg: float
+) -> np.ndarray:
+    """Tool pose (4, 4): beam (tool z) along −n meeting the plane at ``point_mm`` after
+    ``water_path_mm``; tool x turned by ``phi_deg`` from e1 towards e2 about the beam."""
+    z = -plane.normal
+    ph = np.radians(phi_deg)
+    x = np.cos(ph) * plane.e1 + np.sin(ph) * plane.e2
+    y = np.cross(z, x)
+    return transform(
+        np.asarray(point_mm, float) + water_path_mm * plane.normal, np.column_stack([x, y, z])
+    )
+
+
+def reference_joints(profile: CellProfile) -> np.ndarray:
+    """Reference configuration for the IK choice: the profile's calibration pose."""
+    pose = profile.procedure.calibration_pose_deg
+    return np.asarray(PAPER_CALIBRATION_POSE_DEG if pose is None else pose, float)
+
+
+def solve_target(
+    profile: CellProfile,
+    plane: Plane,
+    tool: np.ndarray,
+    point: np.ndarray,
+    path: float,
+    phi: float,
+    near: np.ndarray,
+    label: str,
+    wrist_margin: float,
+) -> np.ndarray:
+    """Checked joint readings for a target (``SafetyError`` naming ``label``)."""
+    try:
+        q = ik(
+            profile.model,
+            tcp_pose(plane, point, path, phi),
+            tool,
+            profile.joint_offsets_deg,
+            near_deg=near,
+        )
+    except SafetyError as e:
+        raise SafetyError(f"plan {label}: {e}") from None
+    check_joints(profile, q, label, wrist_margin)
+    return q
+
+
+def _inside_hull(plane: Plane, points: np.ndarray, x: np.ndarray, margin: float) -> bool:
+    """``x`` (on the plane) lies inside the touched points' hull with ``margin`` (mm) to spare."""
+    for ang in np.radians(np.arange(0.0, 360.0, 30.0)):
+        d = np.cos(ang) * plane.e1 + np.sin(ang) * plane.e2
+        if hull_reach_mm(plane, points, d, x) < margin:
+            return False
+    return True
+
+
+def plan_tool_frame(
+    profile: CellProfile, method: str = "exact", points: int | None = None
+) -> ToolFramePlan:
+    """Plan and check every target (see module docstring); nothing moves."""
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    n_pts = DEFAULT_POINTS[method] if points is None else int(points)
+    if n_pts < MIN_POINTS[method]:
+        raise InputError(
+            f"--points must be at least {MIN_POINTS[method]} for the {method} method, got {n_pts}"
+        )
+    plane = fit_plane(profile.reflector_points_mm, profile.path)
+    pts = np.asarray(profile.reflector_points_mm, float)
+    centre = plane.project(plane.centroid_mm)
+    tool = profile.tool_matrix
+    ref = reference_joints(profile)
+    path = profile.procedure.water_path_mm
+    notes: list[str] = []
+    if not _inside_hull(plane, pts, centre, HULL_MARGIN_MM):
+        raise SafetyError(
+            "plan: the touched points enclose no room for the beam (the plate's "
+            "centre is within 3 mm of their hull)"
+        )
+    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre.
+    best = None
+    for phi in np.arange(-180.0, 180.0, 15.0):
+        try:
+            q = solve_target(
+                profile, plane, tool, centre, path, phi, ref, "centre", WRIST_MARGIN_DEG
+            )
+            q2 = solve_target(
+                profile, plane, tool, centre, path, phi + 180.0, q, "centre", WRIST_MARGIN_DEG
+            )
+        except SafetyError:
+            continue
+        mid = 0.5 * (profile.model.joint_min_deg[5] + profile.model.joint_max_deg[5])
+        cost = abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi)
+        if best is None or cost < best[0]:
+            best = (cost, float(phi))
+    if best is None:
+        # report the reason for φ = 0
+        solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG)
+        solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre", WRIST_MARGIN_DEG)
+        raise SafetyError(
+            "plan: no orientation about the beam reaches the plate centre in both senses"
+        )
+    phi0 = best[1]
+
+    peaks: list[Target] = []
+    edges: list[EdgePlan] = []
+    incidence: list[Target] = []
+    if method == "exact":
+        near = ref
+        for i in range(n_pts):
+            phi = phi0 + 360.0 * i / n_pts
+            phi = (phi + 180.0) % 360.0 - 180.0
+            label = f"peak {i + 1}"
+            q = solve_target(profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG)
+            peaks.append(Target(label, centre, path, phi, q))
+            near = q
+        edges = _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes)
+    else:
+        incidence = _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+    return ToolFramePlan(
+        method, plane, centre, ref, phi0, tuple(peaks), tuple(edges), tuple(incidence), tuple(notes)
+    )
+
+
+def _plan_edges(
+    profile: CellProfile,
+    plane: Plane,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    tool: np.ndarray,
+    phi0: float,
+    ref: np.ndarray,
+    notes: list[str],
+) -> list[EdgePlan]:
+    out: list[EdgePlan] = []
+    for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
+        candidates = []
+        for sign in (1.0, -1.0):
+            u = sign * e
+            w = np.cross(plane.normal, u)
+            lat = 0.5 * min(
+                hull_reach_mm(plane, pts, w, centre), hull_reach_mm(plane, pts, -w, centre)
+            )
+            if lat < 5.0:
+                continue
+            starts = [hull_reach_mm(plane, pts, u, centre + s * lat * w) for s in (-1, 1)]
+            start = max(0.0, min(starts) - HULL_MARGIN_MM)
+            reach = 0.0
+            near = ref
+            ok = True
+            for dist in np.arange(0.0, EDGE_SEARCH_MM + 1e-9, 10.0):
+                for s in (-1.0, 1.0):
+                    for phi in (phi0, phi0 + 180.0):
+                        p = centre + (start + dist) * u + s * lat * w
+                        try:
+                            near = solve_target(
+                                profile,
+                                plane,
+                                tool,
+                                p,
+                                EDGE_WATER_PATH_MM,
+                                phi,
+                                near,
+                                f"edge {name}",
+                                0.0,
+                            )
+                        except SafetyError:
+                            ok = False
+                            break
+                    if not ok:
+                        break
+                if not ok:
+                    break
+                reach = dist
+            candidates.append((reach, sign, u, w, lat, start))
+        if not candidates:
+            raise SafetyError(
+                f"plan edge {name}: the touched points are too close to a line "
+                "across this direction to place two scan lines"
+            )
+        reach, sign, u, w, lat, start = max(candidates, key=lambda c: (c[0], c[1]))
+        label = ("+" if sign > 0 else "-") + name
+        if reach < 20.0:
+            raise SafetyError(
+                f"plan edge {label}: the arm cannot follow the edge search "
+                f"beyond {reach:.0f} mm from the touched points' hull in both "
+                "orientations"
+            )
+        if reach < EDGE_SEARCH_MM:
+            notes.append(
+                f"edge search {label} limited to {reach:.0f} mm beyond the touched "
+                "points by the arm's reach"
+            )
+        out.append(EdgePlan(axis, label, u, w, (-lat, lat), start, float(reach)))
+    return out
+
+
+def _plan_incidence(
+    profile: CellProfile,
+    plane: Plane,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    tool: np.ndarray,
+    phi0: float,
+    ref: np.ndarray,
+    n_pts: int,
+    notes: list[str],
+) -> list[Target]:
+    rng = np.random.default_rng(2023)  # paper 002's year: a fixed, reproducible draw
+    path0 = profile.procedure.water_path_mm
+    uv = plane.to_plane(pts)
+    lo, hi = uv.min(0), uv.max(0)
+    out: list[Target] = []
+    skipped = 0
+    near = ref
+    for _ in range(50 * n_pts):
+        if len(out) == n_pts:
+            break
+        a, b = rng.uniform(lo, hi)
+        x = centre + 0.85 * (a * plane.e1 + b * plane.e2)
+        if not _inside_hull(plane, pts, x, HULL_MARGIN_MM):
+            continue
+        path = float(rng.uniform(0.6, 1.4) * path0)
+        phi = float(phi0 + rng.uniform(-150.0, 150.0))
+        label = f"point {len(out) + 1}"
+        try:
+            q = solve_target(profile, plane, tool, x, path, phi, near, label, WRIST_MARGIN_DEG)
+        except SafetyError:
+            skipped += 1
+            continue
+        out.append(Target(label, x, path, phi, q))
+        near = q
+    if len(out) < n_pts:
+        raise SafetyError(
+            f"plan: only {len(out)} of {n_pts} incidence points inside the "
+            "touched points' hull are reachable"
+        )
+    if skipped:
+        notes.append(f"{skipped} drawn incidence points were unreachable and drawn again")
+    return out

@@ -1,0 +1,164 @@
+"""What verify reads from the profile's files beside its model: the offsets and block pose it had
+before its last calibration (its history), the sound speed that calibration measured, and how it
+calibrated J1 (the gauge the figures are relative to)."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import brentq
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.cell import CellProfile
+from ucal.profile import history_dir, load_profile, profile_history
+
+
+@dataclass(frozen=True)
+class BeforeProfile:
+    """The "before" pass: the offsets and the block pose the profile had before its last
+    calibration, and where they come from."""
+
+    offsets_deg: np.ndarray
+    source: str
+    #: the block's corner (mm) and orientation (deg) then, base frame; None: the current ones
+    sample_position_mm: np.ndarray | None = None
+    sample_rotation_deg: np.ndarray | None = None
+
+    def placed(self, profile: CellProfile) -> CellProfile:
+        """``profile`` with the block where it was before the calibration (``calibrate``
+        writes the block it measured)."""
+        if self.sample_position_mm is None or self.sample_rotation_deg is None:
+            return profile
+        return profile.replace(
+            sample_position_mm=self.sample_position_mm,
+            sample_rotation_deg=self.sample_rotation_deg,
+        )
+
+    def same_as(self, profile: CellProfile) -> bool:
+        """True when "before" is the profile as it is: both passes command the same points."""
+        placed = self.placed(profile)
+        return bool(
+            np.allclose(self.offsets_deg, profile.joint_offsets_deg, rtol=0.0, atol=1e-9)
+            and np.allclose(placed.sample_matrix, profile.sample_matrix, rtol=0.0, atol=1e-9)
+        )
+
+
+def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
+    """The joint offsets and the block pose of the profile as it was before its last
+    ``calibrate`` write (its history); zero offsets and the current block when the history
+    holds none (a profile calibrated by hand, or never)."""
+
+    for entry in reversed(profile_history(profile_path)):
+        if entry.reason.startswith("calibrate") and not entry.undone:
+            before = history_dir(profile_path) / entry.before
+            if before.exists():
+                old = load_profile(before, base_dir=Path(profile_path).parent)
+                return BeforeProfile(
+                    np.asarray(old.joint_offsets_deg, float),
+                    f"history entry {entry.id} ({entry.time}): the profile "
+                    "before its last calibration (its offsets and block pose)",
+                    np.asarray(old.sample_position_mm, float),
+                    np.asarray(old.sample_rotation_deg, float),
+                )
+    return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
+
+
+@dataclass(frozen=True)
+class SoundSpeed:
+    """The sound speed verify converts times of flight with, and where it comes from."""
+
+    m_s: float
+    temperature_c: float  # the water temperature Marczak's c(T) gives it at
+    source: str
+
+
+@dataclass(frozen=True)
+class VerifyGauge:
+    """What verify's figures are relative to, and what that leaves known in the robot's base
+    frame (``ucal.calibration.gauge``).
+
+    Every deviation is measured against the block's faces (the water paths and the edges):
+    it says where the tool is relative to the block. ``calibrate`` gives J1 relative to the
+    block as placed (``[calibration] gauge = "block"``), so in the base frame the points are
+    where the profile puts them only to the block's yaw tolerance times their distance from
+    the base axis; with a doweled block (``"base"``) that is small.
+    """
+
+    j1: str | None  # [calibration] gauge as calibrate wrote it; None: not written
+    yaw_std_deg: float  # [sample] rotation_std_deg[2]
+    reach_mm: float = 0.0  # the points' largest distance from the base axis
+
+    @property
+    def absolute_std_mm(self) -> float | None:
+        """One sigma of the points' position in the base frame from the block's yaw (mm);
+        None when the profile does not say how J1 was calibrated."""
+        if self.j1 is None:
+            return None
+        return self.reach_mm * math.radians(self.yaw_std_deg)
+
+    def statement(self) -> str:
+        """The gauge in words (``gauge_note`` in ``--json``)."""
+        text = (
+            "positions relative to the block (gauge: block): every deviation is measured "
+            "against the block's faces, which is what a scan of a part located from the block "
+            "needs"
+        )
+        absolute = self.absolute_std_mm
+        if self.j1 == "block" and absolute is not None:
+            text += (
+                f"; J1 is calibrated relative to the block as placed, so in the robot's base "
+                f"frame the points are where the profile puts them only to ±{absolute:.1f} mm "
+                f"(one sigma: the block's yaw as placed, ±{self.yaw_std_deg:g}°, at "
+                f"{self.reach_mm:.0f} mm from the base axis); a doweled, levelled block makes "
+                "them absolute"
+            )
+        elif self.j1 == "base" and absolute is not None:
+            text += (
+                f"; J1 is absolute (the block's yaw declared to ±{self.yaw_std_deg:g}°): in the "
+                f"robot's base frame too, to ±{absolute:.2f} mm"
+            )
+        return text
+
+
+def calibration_gauge(profile: CellProfile, profile_path: str | Path) -> VerifyGauge:
+    """How the profile's J1 was calibrated (``[calibration] gauge``, written by ``calibrate``)
+    and the block's yaw tolerance."""
+    try:
+        with open(profile_path, "rb") as f:
+            j1 = tomllib.load(f).get("calibration", {}).get("gauge")
+    except (OSError, tomllib.TOMLDecodeError):
+        j1 = None
+    yaw = float(np.broadcast_to(profile.sample_rotation_std_deg, 3)[2])
+    return VerifyGauge(j1 if j1 in ("block", "base") else None, yaw)
+
+
+def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> SoundSpeed:
+    """The sound speed ``calibrate`` measured with the offsets (``[calibration]
+    sound_speed_m_s``), else Marczak's at the profile's ``[water] temperature_c``.
+
+    The thermometer's tolerance (±2 °C, 6 m/s) is 0.4 % of every water path: 0.6 mm at the
+    150 mm of a wall, different at every point; the calibration's fitted speed is known to
+    tenths of a m/s.
+    """
+
+    temp = float(profile.water_temperature_c)
+    try:
+        with open(profile_path, "rb") as f:
+            measured = tomllib.load(f).get("calibration", {}).get("sound_speed_m_s")
+    except (OSError, tomllib.TOMLDecodeError):
+        measured = None
+    if isinstance(measured, int | float) and np.isfinite(measured):
+        c = float(measured)
+        lo, hi = 0.0, 70.0  # c(T) rises monotonically here
+        c_lo, c_hi = (float(sound_speed_m_s(t)) for t in (lo, hi))
+        if c_lo < c < c_hi:
+            t_eq = float(brentq(lambda t: float(sound_speed_m_s(t)) - c, lo, hi, xtol=1e-9))
+            return SoundSpeed(
+                c, t_eq, f"[calibration] sound_speed_m_s, measured with the offsets ({c:.2f} m/s)"
+            )
+    c = float(sound_speed_m_s(temp))
+    return SoundSpeed(c, temp, f"[water] temperature_c = {temp:g} °C ({c:.2f} m/s, Marczak)")

@@ -1,0 +1,368 @@
+"""Verify's plan: the nominal points, the commanded postures of both passes, checked before the
+first motion.
+
+``n`` points in up to three orientations of the tool (``point_groups``), each group a grid
+spread over a plane parallel to the block's XY face: the beam straight down (paper 000's
+points), ``VERIFY_HEIGHT_MM`` above it; the same beam with the tool turned 180° about it; and
+the beam tilted ``TILT_DEG`` towards block +X over a patch ``TILTED_RAISE_MM`` higher. Each grid
+stays ``EDGE_MARGIN_MM`` inside the XY face, with the wrist centre W ``WALL_PATH_MM`` of water
+path from the YZ and XZ faces, so that each wall can be measured from every point. Coordinates
+are block coordinates (mm). The "before" pass is commanded with the offsets and block pose the
+profile had before its last calibration (``ucal.verify.inputs``), the "after" pass with its
+current ones. The method: docs/method/commissioning.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ucal.calibration.model import (
+    FACE_NAMES,
+    FACE_ORDER,
+)
+from ucal.calibration.safety import (
+    EDGE_MARGIN_MM,
+    MIN_WATER_PATH_MM,
+    check_face,
+    check_joints,
+)
+from ucal.calibration.sequence import calibration_pose, geometry
+from ucal.calibration.wrist import aim_wrist
+from ucal.cell import CellProfile
+from ucal.errors import SafetyError, UnreachableError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik
+
+#: Paper 000, §5.2: the plane of the nominal points is 30 mm from the block's XY face.
+VERIFY_HEIGHT_MM = 30.0
+#: Paper 000, §5.2: twenty nominal points.
+DEFAULT_POINTS = 20
+#: Water path from the TCP to each wall (YZ, XZ face) when the wrist points at it (mm):
+#: short enough for a strong echo at 25 MHz (−0.27 dB per mm), long enough for clearance.
+WALL_PATH_MM = (50.0, 150.0)
+PASSES = ("before", "after")
+#: Tool check: the edge scans run this far beyond the XY face's far edge at most (mm).
+EDGE_OVERSHOOT_MM = 15.0
+#: The tilted group's beam: this far from straight down (deg), towards block +X ...
+TILT_DEG = 15.0
+#: ... its points this much higher above the XY face than the others (mm): a patch of its own.
+TILTED_RAISE_MM = 30.0
+
+
+def tool_lever(profile: CellProfile) -> tuple[np.ndarray, float]:
+    """The vector v from the wrist centre W to the TCP in the flange frame (mm) and a_T·v (mm).
+
+    Constant for a spherical wrist; computed from the model at the zero pose.
+    """
+    frames = fk_frames(profile.model, np.zeros(6))
+    flange = frames[6]
+    w = frames[4, :3, 3]
+    tcp = (flange @ profile.tool_matrix)[:3, 3]
+    v = flange[:3, :3].T @ (tcp - w)
+    return v, float(profile.tool_matrix[:3, 2] @ v)
+
+
+def down_rotation_local() -> np.ndarray:
+    """Tool orientation of the nominal points in block coordinates: tool z = −block z."""
+    return np.diag([-1.0, 1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class PointGroup:
+    """Nominal points commanded in one tool orientation, over a patch of their own."""
+
+    name: str  # "down", "turned", "tilted"
+    description: str
+    rotation_local: np.ndarray  # (3, 3) the tool's orientation, block coordinates
+    height_mm: float  # the points' plane above the XY face
+
+
+def point_groups(
+    n_points: int, height_mm: float = VERIFY_HEIGHT_MM
+) -> list[tuple[PointGroup, int]]:
+    """The orientations the points are commanded in and how many points each (module doc):
+    the beam straight down (paper 000's), the tool turned 180° about that beam, and the beam
+    tilted ``TILT_DEG`` towards block +X over a patch ``TILTED_RAISE_MM`` higher; one point
+    takes the first, two the first two, more a third of them each for the others."""
+    if n_points < 1:
+        raise ValueError(f"the number of points must be at least 1, got {n_points}")
+    down = PointGroup("down", "beam straight down", down_rotation_local(), height_mm)
+    turned = PointGroup(
+        "turned",
+        "beam straight down, the tool turned 180° about it",
+        down_rotation_local() @ np.diag([-1.0, -1.0, 1.0]),
+        height_mm,
+    )
+    tilted = PointGroup(
+        "tilted",
+        f"beam {TILT_DEG:g}° from straight down towards block +X",
+        Rotation.from_euler("y", -TILT_DEG, degrees=True).as_matrix() @ down_rotation_local(),
+        height_mm + TILTED_RAISE_MM,
+    )
+    if n_points <= 2:
+        return [(down, 1), (turned, 1)][:n_points]
+    k = n_points // 3
+    return [(down, n_points - 2 * k), (turned, k), (tilted, k)]
+
+
+def grid_shape(n: int) -> tuple[int, int]:
+    """Columns (along block X) and rows (along block Y) of an ``n``-point grid, most square
+    first, more columns than rows (20 → 5 × 4, 4 → 2 × 2, 6 → 3 × 2, 7 → 7 × 1)."""
+    if n < 1:
+        raise ValueError(f"the number of points must be at least 1, got {n}")
+    rows = max(r for r in range(1, math.isqrt(n) + 1) if n % r == 0)
+    return n // rows, rows
+
+
+def verify_region(
+    profile: CellProfile,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    rotation_local: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corner (block X, Y of the TCP, mm) of the area a grid spans with the tool
+    turned ``rotation_local`` (block coordinates; default straight down).
+
+    The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``WALL_PATH_MM`` of
+    water path (plus the lever a_T·v) from the YZ and XZ faces.
+    """
+    v, lever = tool_lever(profile)
+    rot = down_rotation_local() if rotation_local is None else rotation_local
+    r_flange = rot @ profile.tool_matrix[:3, :3].T
+    w_from_tcp = -(r_flange @ v)  # W − TCP in block coordinates
+    size = profile.sample_face_size_mm
+    lo = np.maximum(EDGE_MARGIN_MM, WALL_PATH_MM[0] + lever - w_from_tcp[:2])
+    hi = np.minimum(size - EDGE_MARGIN_MM, WALL_PATH_MM[1] + lever - w_from_tcp[:2])
+    if np.any(hi <= lo):
+        raise SafetyError(
+            f"no room for verification points on the XY face of the block "
+            f"({size:g} mm faces, tool lever {lever:.1f} mm, walls "
+            f"{WALL_PATH_MM[0]:g}–{WALL_PATH_MM[1]:g} mm away)"
+        )
+    return lo, hi
+
+
+def nominal_points(
+    profile: CellProfile,
+    n: int,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    rotation_local: np.ndarray | None = None,
+) -> np.ndarray:
+    """Nominal TCP positions (n, 3) in block coordinates (mm): a grid (``grid_shape``) over
+    ``verify_region`` at ``height_mm`` above the XY face, in serpentine order (short moves)."""
+    nx, ny = grid_shape(n)
+    lo, hi = verify_region(profile, height_mm, rotation_local)
+    xs = np.linspace(lo[0], hi[0], nx) if nx > 1 else np.array([0.5 * (lo[0] + hi[0])])
+    ys = np.linspace(lo[1], hi[1], ny) if ny > 1 else np.array([0.5 * (lo[1] + hi[1])])
+    pts: list[list[float]] = []
+    for j, y in enumerate(ys):
+        row = xs if j % 2 == 0 else xs[::-1]
+        pts.extend([x, y, height_mm] for x in row)
+    return np.array(pts, float)
+
+
+def target_matrix(
+    profile: CellProfile, point_local_mm: np.ndarray, rotation_local: np.ndarray | None = None
+) -> np.ndarray:
+    """Tool pose (4, 4, base frame) of a nominal point given in block coordinates (mm), the
+    tool turned ``rotation_local`` (block coordinates; default straight down)."""
+    s_mat = profile.sample_matrix
+    t = np.eye(4)
+    t[:3, :3] = s_mat[:3, :3] @ (
+        down_rotation_local() if rotation_local is None else rotation_local
+    )
+    t[:3, 3] = s_mat[:3, :3] @ np.asarray(point_local_mm, float) + s_mat[:3, 3]
+    return t
+
+
+@dataclass(frozen=True)
+class VerifyTarget:
+    """One commanded point of one pass, with the planned face postures."""
+
+    pass_name: str  # "before" or "after"
+    index: int  # 0-based point number
+    joints_deg: np.ndarray  # (6,) commanded readings (TCP on the nominal point)
+    face_joints_deg: np.ndarray  # (3, 6) planned normal-incidence postures, by face 0, 1, 2
+    #: the tool's least water path to a face there as the profile's current offsets predict
+    #: it (mm): a "before" point commanded with offsets degrees off may be in the block
+    clearance_mm: float = np.inf
+
+    @property
+    def label(self) -> str:
+        return f"{self.pass_name} {self.index + 1}"
+
+
+@dataclass(frozen=True)
+class VerifyPlan:
+    """Nominal points and the commanded postures of both passes."""
+
+    nominal_mm: np.ndarray  # (n, 3) block coordinates
+    height_mm: float  # of the points commanded straight down
+    offsets_deg: dict[str, np.ndarray]  # offsets the IK of each pass used
+    targets: tuple[VerifyTarget, ...]  # all "before" targets, then all "after"
+    #: tool check: the block axis (0: X, 1: Y) of each edge scan and the point whose "after"
+    #: posture it starts from (the down points' first, then the turned points')
+    edge_points: tuple[tuple[int, int], ...] = ((0, 0), (1, 0))
+    groups: tuple[PointGroup, ...] = ()
+    group_of: tuple[int, ...] = ()  # each point's group
+
+    @property
+    def points(self) -> int:
+        return len(self.nominal_mm)
+
+    def rotation_local(self, index: int) -> np.ndarray:
+        """The tool's commanded orientation at point ``index`` (block coordinates)."""
+        return (
+            self.groups[self.group_of[index]].rotation_local
+            if self.groups
+            else down_rotation_local()
+        )
+
+
+def wrist_centre_local(
+    profile: CellProfile, joints_deg: np.ndarray, offsets_deg: np.ndarray
+) -> np.ndarray:
+    """The profile's wrist centre W at readings (6,) with ``offsets_deg``, block coordinates."""
+    s_mat = profile.sample_matrix
+    w = fk_frames(profile.model, np.asarray(joints_deg, float), offsets_deg)[4, :3, 3]
+    return s_mat[:3, :3].T @ (w - s_mat[:3, 3])
+
+
+def tool_clearance_mm(profile: CellProfile, w_local_mm: np.ndarray) -> float:
+    """The least water path (mm) the tool can have to a face while the wrist turns it about W
+    (block coordinates): W's distance to the nearest face less the tool's reach from W."""
+    v, _ = tool_lever(profile)
+    return float(np.min(w_local_mm) - np.linalg.norm(v))
+
+
+def joints_for(
+    profile: CellProfile,
+    pose: np.ndarray,
+    offsets_deg: np.ndarray,
+    near_deg: np.ndarray,
+    label: str,
+) -> np.ndarray:
+    """Joint readings (deg) that put the profile's tool at ``pose`` (4, 4, base frame), nearest
+    ``near_deg``, checked against the ranges (``SafetyError`` naming ``label`` otherwise)."""
+    try:
+        q = ik(profile.model, pose, profile.tool_matrix, offsets_deg, near_deg=near_deg)
+    except UnreachableError as e:
+        raise SafetyError(f"{label}: {e}") from None
+    check_joints(profile, q, label)
+    return q
+
+
+def plan_verify(
+    profile: CellProfile,
+    n_points: int = DEFAULT_POINTS,
+    height_mm: float = VERIFY_HEIGHT_MM,
+    before_offsets_deg: np.ndarray | None = None,
+    before_placed: CellProfile | None = None,
+) -> VerifyPlan:
+    """Plan and check every posture of both passes before the first motion.
+
+    The "before" points are commanded with ``before_offsets_deg`` (zero if not given) in the
+    block frame of ``before_placed`` (the block where the profile had it then; the current one
+    if not given), the "after" points with the profile's offsets and block.
+
+    Checks (``SafetyError``, exit 4): IK reaches each point inside the joint ranges; every
+    commanded and planned face posture keeps ``SEARCH_MARGIN_DEG`` inside the wrist ranges and
+    the θ5 singularity margin of the profile; each beam meets its face inside the edges; the
+    wrist centre is far enough from each face that the TCP, turning about W, stays
+    ``MIN_WATER_PATH_MM`` away from it.
+    """
+    geom = geometry(profile)
+    groups = point_groups(n_points, height_mm)
+    nominal = np.concatenate(
+        [nominal_points(profile, n, g.height_mm, g.rotation_local) for g, n in groups]
+    )
+    group_of = tuple(i for i, (_, n) in enumerate(groups) for _ in range(n))
+    rotations = [groups[g][0].rotation_local for g in group_of]
+    v, _ = tool_lever(profile)
+    reach = float(np.linalg.norm(v))
+    before = np.zeros(6) if before_offsets_deg is None else np.asarray(before_offsets_deg, float)
+    offsets = {"before": before, "after": np.array(profile.joint_offsets_deg, float)}
+    # each pass as its profile saw the cell (the block calibrate measured, or the one before)
+    placed = {"before": before_placed or profile, "after": profile}
+    geoms = {"before": geometry(placed["before"]), "after": geom}
+    near = calibration_pose(profile)
+    targets: list[VerifyTarget] = []
+    for pass_name in PASSES:
+        off = offsets[pass_name]
+        seen, seen_geom = placed[pass_name], geoms[pass_name]
+        prev = near
+        for i, p in enumerate(nominal):
+            label = f"{pass_name} point {i + 1}"
+            pose = target_matrix(seen, p, rotations[i])
+            q = joints_for(profile, pose, off, prev, f"plan {label}")
+            w_local = wrist_centre_local(seen, q, off)
+            if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
+                raise SafetyError(
+                    f"plan {label}: the wrist centre would be "
+                    f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
+                    f"mm from it) needs {MIN_WATER_PATH_MM:g} mm more"
+                )
+            faces = np.empty((3, 6))
+            for k in FACE_ORDER:
+                qf = aim_wrist(seen_geom, q, -seen_geom.normal(k), off)
+                check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
+                check_face(seen, seen_geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
+                faces[k] = qf
+            # where the robot really goes there, as best known: the profile's current offsets
+            # and block
+            w_now = wrist_centre_local(profile, q, offsets["after"])
+            clear = tool_clearance_mm(profile, w_now)
+            targets.append(VerifyTarget(pass_name, i, q, faces, clear))
+            prev = q
+    # tool check: each scan line, from the point of its group nearest the far edge to beyond
+    # it, in the two senses about the beam (the down and the turned points) where there are
+    edge_points: list[tuple[int, int]] = []
+    for g in range(min(len(groups), 2)):
+        members = np.flatnonzero(np.array(group_of) == g)
+        edge_points += [(axis, int(members[np.argmax(nominal[members, axis])])) for axis in (0, 1)]
+    after = [t for t in targets if t.pass_name == "after"]
+    for axis, i in edge_points:
+        end = nominal[i].copy()
+        end[axis] = profile.sample_face_size_mm + EDGE_OVERSHOOT_MM
+        label = f"plan {edge_label(axis, groups[group_of[i]][0])}"
+        pose = target_matrix(profile, end, rotations[i])
+        joints_for(profile, pose, offsets["after"], after[i].joints_deg, label)
+    return VerifyPlan(
+        nominal,
+        float(height_mm),
+        offsets,
+        tuple(targets),
+        tuple(edge_points),
+        tuple(g for g, _ in groups),
+        group_of,
+    )
+
+
+def edge_label(axis: int, group: PointGroup) -> str:
+    """A scan of the tool check in words: "tool check along block X" (down points), "..., tool
+    turned" (the turned points)."""
+    return f"tool check along block {'XY'[axis]}" + (
+        ", tool turned" if group.name == "turned" else ""
+    )
+
+
+def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
+    """The plan in words for the confirmation (stderr)."""
+    lines = [
+        f"verify {profile_path}: {plan.points} points x 2 passes (before/after calibration), "
+        f"3 face searches per point ({6 * plan.points} in all):"
+    ]
+    for n, g in enumerate(plan.groups):
+        pts = plan.nominal_mm[np.array(plan.group_of) == n]
+        lo, hi = pts.min(0), pts.max(0)
+        lines.append(
+            f"  {len(pts)} points, {g.description}: block X {lo[0]:.0f}-{hi[0]:.0f} mm, "
+            f"Y {lo[1]:.0f}-{hi[1]:.0f} mm, {g.height_mm:g} mm above the XY face"
+        )
+    senses = "in both senses about the beam" if len(plan.edge_points) > 2 else "straight down"
+    lines.append(f"then a tool check across the XY face's two far edges, {senses}.")
+    return "\n".join(lines)
