@@ -27,27 +27,22 @@ One connection is served at a time per client thread; the state is shared. Fault
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import socket
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Self
 
 import numpy as np
 
 from drivers.digitizer import scpi
 from drivers.digitizer.urls import format_digitizer_url, socket_resource
+from drivers.loopback import LoopbackServer
 
 log = logging.getLogger(__name__)
 
 #: What ``*IDN?`` answers.
 IDN = "UCAL,SIMULATED SCOPE,SIM0001,1.0"
-#: Longest wait for the server thread to start or to stop, s.
-START_TIMEOUT_S = 5.0
-STOP_TIMEOUT_S = 5.0
 #: Vertical divisions the ADC spans, and horizontal ones of ``:TIM:RANG``.
 VERTICAL_DIVISIONS = 8
 
@@ -131,7 +126,7 @@ def _header(text: str) -> str:
     return ":" + ":".join(_SHORT.get(n, n) for n in nodes) + ("?" if query else "")
 
 
-class SimulatedScope:
+class SimulatedScope(LoopbackServer):
     """A SCPI oscilloscope on 127.0.0.1 whose channel 1 sees ``signal``. Context manager.
 
     ``sample_rate_hz`` is its fastest sampling, ``bits`` its ADC's resolution (8 … 16),
@@ -139,6 +134,8 @@ class SimulatedScope:
     sigma) drawn with ``seed``. ``port`` 0 picks a free port; :attr:`url` tells it after
     :meth:`start`. Nothing is opened before :meth:`start`.
     """
+
+    what = "simulated scope"
 
     def __init__(
         self,
@@ -153,14 +150,12 @@ class SimulatedScope:
     ):
         if not callable(signal):
             raise TypeError("signal must be callable: signal(request) -> volts")
-        if host not in ("127.0.0.1", "localhost", "::1"):
-            raise ValueError(f"the simulated scope serves on loopback only, got host {host!r}")
+        super().__init__(host, port)
         if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
             raise ValueError(f"sample_rate_hz must be positive, got {sample_rate_hz!r}")
         if not 8 <= int(bits) <= 16:
             raise ValueError(f"bits must be 8 … 16, got {bits!r}")
         self.signal = signal
-        self.host = host
         self.sample_rate_hz = float(sample_rate_hz)
         self.bits = int(bits)
         self.memory_points = int(memory_points)
@@ -168,13 +163,6 @@ class SimulatedScope:
             raise ValueError(f"noise_lsb must be 0 or more, got {noise_lsb!r}")
         self.noise_lsb = float(noise_lsb)
         self._rng = np.random.default_rng(int(seed))
-        self._requested_port = int(port)
-        self._port: int | None = None
-        self._lock = threading.RLock()
-        self._server: socket.socket | None = None
-        self._clients: list[socket.socket] = []
-        self._threads: list[threading.Thread] = []
-        self._stopping = threading.Event()
         self._silent = False
         self.acquisitions = 0  #: acquisitions made (``signal`` calls)
         self._reset()
@@ -199,53 +187,6 @@ class SimulatedScope:
         }
         self._errors: list[str] = []
         self._last: tuple[scpi.Preamble, np.ndarray] | None = None
-
-    # --- lifecycle --------------------------------------------------------------------------
-    def start(self) -> Self:
-        """Listen and serve (idempotent); return self."""
-        if self._server is not None:
-            return self
-        self._stopping.clear()
-        server = socket.create_server((self.host, self._requested_port))
-        server.settimeout(0.1)
-        self._server = server
-        self._port = int(server.getsockname()[1])
-        thread = threading.Thread(target=self._accept, name="simulated-scope", daemon=True)
-        self._threads = [thread]
-        thread.start()
-        log.info("simulated scope serving %s", self.url)
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and close every connection. Idempotent."""
-        if self._server is None:
-            return
-        self._stopping.set()
-        with self._lock:
-            clients, self._clients = self._clients, []
-        for c in clients:
-            with contextlib.suppress(OSError):
-                c.shutdown(socket.SHUT_RDWR)
-            c.close()
-        for t in self._threads:
-            t.join(STOP_TIMEOUT_S)
-        self._server.close()
-        self._server = None
-        self._port = None
-        self._threads = []
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> int:
-        """The TCP port served on (after :meth:`start`)."""
-        if self._port is None:
-            raise RuntimeError("the simulated scope is not running")
-        return self._port
 
     @property
     def resource(self) -> str:
@@ -426,25 +367,6 @@ class SimulatedScope:
         return word
 
     # --- server threads ---------------------------------------------------------------------
-    def _accept(self) -> None:
-        assert self._server is not None
-        server = self._server
-        while not self._stopping.is_set():
-            try:
-                client, _ = server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                break
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lock:
-                self._clients.append(client)
-            thread = threading.Thread(
-                target=self._serve, args=(client,), name="simulated-scope-client", daemon=True
-            )
-            self._threads.append(thread)
-            thread.start()
-
     def _serve(self, client: socket.socket) -> None:
         buffer = b""
         try:

@@ -15,12 +15,11 @@ answered).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import socket
-import threading
-from typing import Any, Self
+from typing import Any
 
+from drivers.loopback import LoopbackServer
 from drivers.pulser import ascii_commands as cmd
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.urls import format_ascii_url
@@ -36,76 +35,20 @@ POWER_ON: dict[cmd.Letter, int] = {
     cmd.Letter.DAMPING: 0,
     cmd.Letter.LOW_PASS: 3,
 }
-#: Longest wait for the server threads to stop, s.
-STOP_TIMEOUT_S = 5.0
 
 
-class SimulatedAsciiPulser:
+class SimulatedAsciiPulser(LoopbackServer):
     """The ASCII pulser on 127.0.0.1 (context manager). ``port`` 0 picks a free port;
     :attr:`url` tells it after :meth:`start`. Nothing is opened before :meth:`start`."""
 
+    what = "simulated ascii pulser"
+
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
-        if host not in ("127.0.0.1", "localhost", "::1"):
-            raise ValueError(f"the simulated pulser serves on loopback only, got host {host!r}")
-        self.host = host
-        self._requested_port = int(port)
-        self._port: int | None = None
-        self._lock = threading.RLock()
+        super().__init__(host, port)
         self._codes = dict(POWER_ON)
         self._silent = False
-        self._server: socket.socket | None = None
-        self._clients: list[socket.socket] = []
-        self._threads: list[threading.Thread] = []
-        self._stopping = threading.Event()
         self.commands = 0  #: settings taken since start
         self.ignored = 0  #: lines ignored since start
-
-    # --- lifecycle --------------------------------------------------------------------------
-    def start(self) -> Self:
-        """Listen and serve (idempotent); return self."""
-        if self._server is not None:
-            return self
-        self._stopping.clear()
-        server = socket.create_server((self.host, self._requested_port))
-        server.settimeout(0.1)
-        self._server = server
-        self._port = int(server.getsockname()[1])
-        thread = threading.Thread(target=self._accept, name="simulated-ascii-pulser", daemon=True)
-        self._threads = [thread]
-        thread.start()
-        log.info("simulated ascii pulser serving %s", self.url)
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and close every connection. Idempotent."""
-        if self._server is None:
-            return
-        self._stopping.set()
-        with self._lock:
-            clients, self._clients = self._clients, []
-        for c in clients:
-            with contextlib.suppress(OSError):
-                c.shutdown(socket.SHUT_RDWR)
-            c.close()
-        for t in self._threads:
-            t.join(STOP_TIMEOUT_S)
-        self._server.close()
-        self._server = None
-        self._port = None
-        self._threads = []
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> int:
-        """The TCP port served on (after :meth:`start`)."""
-        if self._port is None:
-            raise RuntimeError("the simulated ascii pulser is not running")
-        return self._port
 
     @property
     def url(self) -> str:
@@ -171,25 +114,6 @@ class SimulatedAsciiPulser:
             return None
 
     # --- server threads ---------------------------------------------------------------------
-    def _accept(self) -> None:
-        assert self._server is not None
-        server = self._server
-        while not self._stopping.is_set():
-            try:
-                client, _ = server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                break
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lock:
-                self._clients.append(client)
-            thread = threading.Thread(
-                target=self._serve, args=(client,), name="simulated-ascii-client", daemon=True
-            )
-            self._threads.append(thread)
-            thread.start()
-
     def _serve(self, client: socket.socket) -> None:
         buffer = b""
         try:
