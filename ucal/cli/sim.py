@@ -61,8 +61,9 @@ Examples:
     default=1.0,
     show_default=True,
     help="Multiply the duration of every move and acquisition on the host clock (1 = real "
-    "time, 0.1 = ten times faster, 0 = instantaneous moves: an arm faster than the stream "
-    "can show, so the moving commands read their lines in settled steps, slowly).",
+    "time, 0.1 = ten times faster; 0 = instantaneous moves, an arm faster than the stream "
+    "shows: the moving commands read their lines in settled steps, slowly, and a face's "
+    "search may not settle: rehearse them at 0.1 or more).",
 )
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
 @click.option(
