@@ -1,10 +1,11 @@
 """Checks in a profile's history: ``PROFILE.history/checks.json``, one entry per ``ucal check``.
 
 A check changes nothing in the profile: it measures the cell and compares it with the
-reference the commissioning left (docs/decisions/0009-check-against-a-reference.md). Its entries sit beside
-the writes (``history.json``, ``ucal.profile``) in the same history directory, in their own
-index, so that ``ucal profile undo`` (which walks the writes) never meets one and every reader
-of the writes stays as it was; ``ucal profile history`` lists both kinds by time.
+reference the commissioning left (docs/decisions/0009-check-against-a-reference.md). Its
+entries sit beside the writes (``history.json``, ``ucal.profile``) in the same history
+directory, in their own index, so that ``ucal profile undo`` (which walks the writes) never
+meets one and every reader of the writes stays as it was; ``ucal profile history`` lists both
+kinds by time.
 
 An entry holds what the check measured (every face measurement as the solver receives it, and
 the echo chain's readings), its verdict, each checked quantity and, for the reference, that it
