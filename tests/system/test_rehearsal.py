@@ -1,15 +1,18 @@
 """The commissioning rehearsal on the built-in simulated cell, as a new user runs it.
 
-One test, because the whole workflow costs tens of seconds of CPU: a fresh profile, then
-``tool-frame``, ``calibrate`` and ``verify`` with ``--sim`` (the demo truth of
-``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
-``ucal.calibration.gauge``), with the simulator's truth confirming the "after" figure; then
-the shipped world with faults, which must fail.
+The README's rehearsal block, line by line as written (each with ``--json`` added to read its
+result): a fresh profile, then ``tool-frame``, ``calibrate`` and ``verify`` with ``--sim`` (the
+demo truth of ``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
+``ucal.calibration.gauge``), with the simulator's truth confirming the "after" figure; then the
+shipped world with faults, which must fail. One test, because the whole workflow costs tens of
+seconds of CPU; ``test_readme_examples`` leaves this block to it.
 """
 
 from __future__ import annotations
 
 import json
+import shlex
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -39,17 +42,34 @@ def ucal(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+#: The first line of the README's rehearsal block, which names it.
+REHEARSAL_FIRST = "ucal profile init tx90l cell.toml"
+
+
+def rehearsal_lines() -> list[list[str]]:
+    """The README's rehearsal block: each line's arguments after ``ucal``."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    block = text[text.index(REHEARSAL_FIRST) :].split("```", 1)[0]
+    return [shlex.split(ln)[1:] for ln in block.splitlines() if ln.strip()]
+
+
 @pytest.mark.timeout(420)
 def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path) -> None:
-    r = ucal(tmp_path, "profile", "init", "tx90", "cell.toml")
+    lines = rehearsal_lines()
+    assert [a[0] for a in lines] == ["profile", "tool-frame", "calibrate", "verify", "verify"]
+    (tmp_path / "examples").mkdir()
+    shutil.copy(FAULTY_WORLD, tmp_path / "examples" / FAULTY_WORLD.name)
+    init, tool_frame, calibrate, verify, faulty = lines
+    assert faulty[faulty.index("--sim") + 1] == f"examples/{FAULTY_WORLD.name}"
+    r = ucal(tmp_path, *init)
     assert r.returncode == 0, r.stderr
     profile = tmp_path / "cell.toml"
     placed = tomllib.loads(profile.read_text())["sample"]
 
-    r = ucal(tmp_path, "tool-frame", "cell.toml", "--sim", "--yes", "--json")
+    r = ucal(tmp_path, *tool_frame, "--json")
     assert r.returncode == 0, r.stderr
 
-    r = ucal(tmp_path, "calibrate", "cell.toml", "--sim", "--yes", "--json")
+    r = ucal(tmp_path, *calibrate, "--json")
     assert r.returncode == 0, r.stderr
     cal = json.loads(r.stdout)
     # J1 measured relative to the hand-placed block, not kept: its absolute std carries the
@@ -66,11 +86,10 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     assert written["sample"]["position_std_mm"] == placed["position_std_mm"]
     assert written["calibration"]["gauge"] == "block"
 
-    # four points, as the README's rehearsal (the default 20 cost the suite 20 s of CPU more)
-    r = ucal(tmp_path, "verify", "cell.toml", "--sim", "--yes", "--json", "--points", "4")
+    r = ucal(tmp_path, *verify, "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert out["passed"] is True and out["tolerance_mm"] == 0.5 and out["points"] == 4
+    assert out["passed"] is True and out["tolerance_mm"] == 0.5
     assert out["gauge"] == "block" and out["j1_gauge"] == "block"
     assert out["absolute_std_mm"] > 1.0  # the yaw as placed, at the points' reach
     assert "relative to the block as placed" in out["gauge_note"]
@@ -87,17 +106,7 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     assert tomllib.loads(profile.read_text()) == written
 
     # one command away: the same cell after a remount, a collision and a bumped block
-    r = ucal(
-        tmp_path,
-        "verify",
-        "cell.toml",
-        "--sim",
-        str(FAULTY_WORLD),
-        "--points",
-        "3",
-        "--yes",
-        "--json",
-    )
+    r = ucal(tmp_path, *faulty, "--json")
     assert r.returncode == 1, r.stderr
     bad = json.loads(r.stdout)
     assert bad["passed"] is False and "above the tolerance" in bad["error"]
