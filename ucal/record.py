@@ -87,6 +87,8 @@ def encode(value: Any) -> Any:
         }
     if isinstance(value, (list, tuple)):
         return [encode(v) for v in value]
+    if isinstance(value, dict) and all(isinstance(k, str) for k in value):
+        return {"map": {k: encode(v) for k, v in value.items()}}
     raise TypeError(f"cannot record a {type(value).__name__}")
 
 
@@ -102,6 +104,8 @@ def decode(value: Any) -> Any:
         if "dc" in value:
             cls = _DATACLASSES[value["dc"]]
             return cls(**{k: decode(v) for k, v in value["v"].items()})
+        if "map" in value and len(value) == 1:
+            return {k: decode(v) for k, v in value["map"].items()}
         return {k: decode(v) for k, v in value.items()}
     return value
 

@@ -246,10 +246,16 @@ def replay_cell(profile: CellProfile, record: Record) -> Iterator[CellSession]:
     controller = ReplayController(replay, str(record.header.get("cell", "recorded cell")))
     pulser = ReplayPulser(replay, "recorded pulser")
     # the session's own clock stays the host's: the procedure's clock readings are the replay's
-    # how the recorded run timed its echoes is in its readings; no capture is asked again
-    yield CellSession(
-        make_rig(profile, controller, pulser),
-        None,
-        False,
-        echo_timing=TimingMode(profile.pulser.timing),
-    )
+    # how the recorded run timed its echoes is in its readings; a reference it captured on the
+    # block is replayed as the calls it made (ucal.echo.capture.ReplayedCapture)
+    rig = make_rig(profile, controller, pulser)
+    result = record.result or {}
+    recorded = result.get("reference_echo")
+    timing = TimingMode(str(result.get("timing", profile.pulser.timing)))
+    if isinstance(recorded, dict) and recorded.get("source") == "captured":
+        from ucal.echo.capture import ReplayedCapture
+
+        capture = ReplayedCapture(recorded)
+        rig.reference_capture = capture  # type: ignore[assignment]
+        timing = TimingMode(timing.mode, capture)  # type: ignore[arg-type]
+    yield CellSession(rig, None, False, echo_timing=timing)

@@ -280,14 +280,14 @@ class AsciiScpiPulser(PulserReceiver):
             self.line.close()
             self._written = {}
 
-    def configure(self, settings: PulserSettings) -> None:
+    def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]] | None:
         """Write the settings: the scope's window (gate) and averages, then every pulser knob
         that changed, each read back.
 
         Raises ``ValueError`` naming the setting, before anything is written, for a value
         the devices cannot take (values are rounded to the device's own steps; what was asked
-        and what was set is kept in ``settings_applied``), and ``DeviceError`` when the pulser
-        sets another value than the one written.
+        and what was set is returned, and kept in ``settings_applied``), and ``DeviceError``
+        when the pulser sets another value than the one written.
         """
         codes = cmd.settings_codes(settings)
         if self.pulse_width_ns is not None:
@@ -331,6 +331,7 @@ class AsciiScpiPulser(PulserReceiver):
         self.settings_applied = applied
         self._settings = settings
         log.debug("pulser %s: configured %s", self.endpoint, applied)
+        return applied
 
     def settings(self) -> PulserSettings:
         """The settings as the devices hold them: the pulser's knobs read back, the scope's

@@ -128,8 +128,12 @@ class PulserReceiver(abc.ABC):
         """Close the connection. Idempotent."""
 
     @abc.abstractmethod
-    def configure(self, settings: PulserSettings) -> None:
-        """Write the settings; validators raise ``ValueError`` for out-of-range values."""
+    def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]] | None:
+        """Write the settings; validators raise ``ValueError`` for out-of-range values.
+
+        A device that takes its own steps of a setting (an indexed damping, a gain in 0.1 dB)
+        returns what was asked and what it set, ``{name: {"asked": x, "set": y}}``, so that a
+        run's record holds both; None: every setting is set as asked."""
 
     @abc.abstractmethod
     def settings(self) -> PulserSettings:

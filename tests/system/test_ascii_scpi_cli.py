@@ -39,7 +39,8 @@ def calibrate(tmp_path: Path, kind: str) -> subprocess.Popen[str]:
     world.write_text(WORLD.format(kind=kind))
     return subprocess.Popen(
         [sys.executable, "-m", "ucal", "calibrate", str(tmp_path / f"cell-{kind}.toml")]
-        + ["--sim", str(world), "--yes", "--json", "-q"],
+        + ["--sim", str(world), "--yes", "--json", "-q"]
+        + ["--record", str(tmp_path / f"{kind}.jsonl")],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,
@@ -70,6 +71,20 @@ def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(tmp_path: Path) 
     difference = np.abs(np.subtract(host["joint_offsets_deg"], modbus["joint_offsets_deg"]))
     both = np.hypot(stds(host), stds(modbus))[reported]
     assert np.all(difference[reported] <= 3 * both), (difference, both)
+    # the host-timed run replays bit for bit: its reference capture's calls are replayed too
+    replay = subprocess.run(
+        [sys.executable, "-m", "ucal", "calibrate", str(tmp_path / "again.toml")]
+        + ["--replay", str(tmp_path / "ascii-scpi.jsonl"), "--json"],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        check=False,
+    )
+    assert replay.returncode == 0, replay.stderr[-2000:]
+    again = json.loads(replay.stdout)
+    assert again["joint_offsets_deg"] == host["joint_offsets_deg"]
+    assert again["std_deg"] == host["std_deg"]
+    assert again["reference_echo"]["source"] == host["reference_echo"]["source"] == "captured"
 
 
 def test_sim_serve_serves_the_ascii_scpi_cell_and_status_reads_it(

@@ -17,6 +17,7 @@ from ucal.record import (
     Record,
     Recorder,
     RecordError,
+    RecordingPulser,
     Replay,
     ReplayController,
     ReplayPulser,
@@ -124,3 +125,32 @@ def test_a_tampered_profile_is_refused(tmp_path: Path) -> None:
     path.write_text(json.dumps(header) + "\n")
     with pytest.raises(RecordError, match="SHA-256"):
         read_record(path)
+
+
+def test_a_pulser_that_sets_its_own_steps_leaves_asked_and_set_in_the_record(
+    tmp_path: Path,
+) -> None:
+    class Stepping:
+        """A pulser whose gain takes 0.5 dB steps: configure says what it set."""
+
+        def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]]:
+            return {"gain_db": {"asked": settings.gain_db, "set": round(settings.gain_db * 2) / 2}}
+
+    path = tmp_path / "run.jsonl"
+    with Recorder(path) as recorder:
+        recorder.open(
+            {
+                "command": "calibrate",
+                "profile_text": PROFILE_TEXT,
+                "profile_sha256": sha256_text(PROFILE_TEXT),
+                "cell": "test",
+            }
+        )
+        RecordingPulser(Stepping(), recorder).configure(PulserSettings(gain_db=37.24))
+        recorder.end({})
+    record = read_record(path)
+    (line,) = [c for c in record.calls if c["call"] == "pulser.configure"]
+    assert decode(line["result"]) == {"gain_db": {"asked": 37.24, "set": 37.0}}
+    # and the replay hands it back as the device said it
+    replayed = ReplayPulser(Replay(record), "y").configure(PulserSettings(gain_db=37.24))
+    assert replayed == {"gain_db": {"asked": 37.24, "set": 37.0}}

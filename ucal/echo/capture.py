@@ -134,3 +134,35 @@ class ReferenceCapture:
             )
         out["timed"] = dict(self.timer.timed)
         return out
+
+
+class ReplayedCapture:
+    """The capture of a recorded run, replayed (``ucal.record``): the same device calls in
+    the same order — the gain levelled, ``captures`` readings of ``averages`` acquisitions,
+    the settings restored, the joints read — so that the replay keeps to the recording; the
+    reference itself is the recorded one (the records it was averaged from are not in the
+    recording, and the readings after it were timed with it already)."""
+
+    def __init__(self, recorded: dict[str, Any]):
+        self.recorded = dict(recorded)
+        self.captures = int(recorded.get("captures", CAPTURES))
+        self.averages = int(recorded.get("averages", CAPTURE_AVERAGES))
+        self._tried = False
+
+    def ensure(self, rig: Rig) -> None:
+        """Make the recorded capture's calls once."""
+        if self._tried:
+            return
+        self._tried = True
+        saved = rig.settings
+        try:
+            rig.level_gain(self.averages)
+            for _ in range(self.captures):
+                rig.read(self.averages)
+        finally:
+            rig.configure(**asdict(saved))
+        rig.controller.read_joints()
+
+    def as_json(self) -> dict[str, Any]:
+        """The recorded run's account of its reference echo."""
+        return dict(self.recorded)

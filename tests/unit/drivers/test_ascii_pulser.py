@@ -168,9 +168,10 @@ def test_configure_sets_each_knob_to_the_devices_step_reads_it_back_and_records_
         pulse_width_ns=20.0,
     )
     settings = PulserSettings(gain_db=37.24, gate_start_us=5.0, gate_width_us=400.0, averages=8)
-    pulser.configure(settings)
+    returned = pulser.configure(settings)  # what a run's record keeps of the call
     assert digitizer.windows == [(5000.0, 400_000.0, 8)]
     applied = pulser.settings_applied
+    assert returned == applied
     assert applied["gain_db"] == {"asked": 37.24, "set": pytest.approx(37.2)}
     assert applied["low_pass_mhz"] == {"asked": 50.0, "set": 48.0}
     assert applied["pulse_width_ns"] == {"asked": 20.0, "set": 20.0}
