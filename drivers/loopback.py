@@ -1,10 +1,12 @@
-"""A simulated instrument's TCP server on 127.0.0.1: listen, accept, one thread a client, stop.
+"""A simulated line-oriented instrument's TCP server on 127.0.0.1.
 
 The simulated SCPI scope and the simulated ASCII pulser differ in what they say, not in how
 they serve: both listen on a loopback port (0 picks a free one), serve each client on a thread
-of its own and, on :meth:`LoopbackServer.stop`, close every connection and join their threads.
-A subclass gives its name (for logs and errors) and :meth:`_serve`, the conversation with one
-client; its constructor calls ``super().__init__(host, port)`` first.
+of its own, read its bytes as lines ended by ``terminator`` and answer each line (or not), can
+be told to fall silent (a fault for tests: lines are still read and executed, never answered)
+and, on :meth:`LoopbackServer.stop`, close every connection and join their threads. A subclass
+gives its name (for logs and errors), its ``terminator`` and :meth:`_answer`, what one line
+does; its constructor calls ``super().__init__(host, port)`` first.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ class LoopbackServer:
 
     #: What the instrument is, for logs and errors ("simulated scope").
     what = "simulated instrument"
+    #: What ends a line the client sends.
+    terminator = b"\n"
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
         if host not in LOOPBACK_HOSTS:
@@ -41,6 +45,12 @@ class LoopbackServer:
         self._clients: list[socket.socket] = []
         self._threads: list[threading.Thread] = []
         self._stopping = threading.Event()
+        self._silent = False
+
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop (or resume) answering; lines are still read and executed."""
+        with self._lock:
+            self._silent = bool(silent)
 
     # --- lifecycle --------------------------------------------------------------------------
     def start(self) -> Self:
@@ -110,5 +120,36 @@ class LoopbackServer:
             thread.start()
 
     def _serve(self, client: socket.socket) -> None:
-        """The conversation with one client, until it closes or the server stops."""
+        """The conversation with one client, until it closes or the server stops: each line
+        (terminator removed) to :meth:`_answer`, its answer sent unless silent."""
+        buffer = b""
+        try:
+            while not self._stopping.is_set():
+                chunk = client.recv(65536)
+                if not chunk:
+                    break
+                buffer += self._normalise(chunk)
+                while self.terminator in buffer:
+                    line, buffer = buffer.split(self.terminator, 1)
+                    log.debug("%s READ: %r", self.what, line)
+                    answer = self._answer(line)
+                    with self._lock:
+                        silent = self._silent
+                    if answer is not None and not silent:
+                        log.debug("%s WRITE: %d bytes", self.what, len(answer))
+                        client.sendall(answer)
+        except OSError:
+            pass
+        finally:
+            with self._lock:
+                if client in self._clients:
+                    self._clients.remove(client)
+            client.close()
+
+    def _normalise(self, chunk: bytes) -> bytes:
+        """Received bytes as the line reader takes them (as they are, unless a subclass says)."""
+        return chunk
+
+    def _answer(self, line: bytes) -> bytes | None:
+        """What one line does; its answer, or None for a line that gets none."""
         raise NotImplementedError

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import logging
 import math
-import socket
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -136,6 +135,7 @@ class SimulatedScope(LoopbackServer):
     """
 
     what = "simulated scope"
+    terminator = scpi.TERMINATOR
 
     def __init__(
         self,
@@ -163,7 +163,6 @@ class SimulatedScope(LoopbackServer):
             raise ValueError(f"noise_lsb must be 0 or more, got {noise_lsb!r}")
         self.noise_lsb = float(noise_lsb)
         self._rng = np.random.default_rng(int(seed))
-        self._silent = False
         self.acquisitions = 0  #: acquisitions made (``signal`` calls)
         self._reset()
 
@@ -197,11 +196,6 @@ class SimulatedScope(LoopbackServer):
     def url(self) -> str:
         """``visa://TCPIP::127.0.0.1::PORT::SOCKET``."""
         return format_digitizer_url(self.resource)
-
-    def set_silent(self, silent: bool = True) -> None:
-        """Stop (or resume) answering; commands are still read and executed."""
-        with self._lock:
-            self._silent = bool(silent)
 
     # --- the instrument ---------------------------------------------------------------------
     def _float(self, key: str) -> float:
@@ -367,28 +361,5 @@ class SimulatedScope(LoopbackServer):
         return word
 
     # --- server threads ---------------------------------------------------------------------
-    def _serve(self, client: socket.socket) -> None:
-        buffer = b""
-        try:
-            while not self._stopping.is_set():
-                chunk = client.recv(65536)
-                if not chunk:
-                    break
-                buffer += chunk
-                while scpi.TERMINATOR in buffer:
-                    line, buffer = buffer.split(scpi.TERMINATOR, 1)
-                    message = line.decode("ascii", errors="replace")
-                    log.debug("simulated scope READ: %s", message)
-                    answer = self.execute(message)
-                    with self._lock:
-                        silent = self._silent
-                    if answer is not None and not silent:
-                        log.debug("simulated scope WRITE: %d bytes", len(answer))
-                        client.sendall(answer)
-        except OSError:
-            pass
-        finally:
-            with self._lock:
-                if client in self._clients:
-                    self._clients.remove(client)
-            client.close()
+    def _answer(self, line: bytes) -> bytes | None:
+        return self.execute(line.decode("ascii", errors="replace"))

@@ -16,7 +16,6 @@ answered).
 from __future__ import annotations
 
 import logging
-import socket
 from typing import Any
 
 from drivers.loopback import LoopbackServer
@@ -42,11 +41,11 @@ class SimulatedAsciiPulser(LoopbackServer):
     :attr:`url` tells it after :meth:`start`. Nothing is opened before :meth:`start`."""
 
     what = "simulated ascii pulser"
+    terminator = cmd.TERMINATOR
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
         super().__init__(host, port)
         self._codes = dict(POWER_ON)
-        self._silent = False
         self.commands = 0  #: settings taken since start
         self.ignored = 0  #: lines ignored since start
 
@@ -54,11 +53,6 @@ class SimulatedAsciiPulser(LoopbackServer):
     def url(self) -> str:
         """``ascii://socket://127.0.0.1:PORT``."""
         return format_ascii_url(f"socket://{self.host}:{self.port}")
-
-    def set_silent(self, silent: bool = True) -> None:
-        """Stop (or resume) answering queries; lines are still read and executed."""
-        with self._lock:
-            self._silent = bool(silent)
 
     # --- the device -------------------------------------------------------------------------
     def code(self, letter: cmd.Letter) -> int:
@@ -114,29 +108,8 @@ class SimulatedAsciiPulser(LoopbackServer):
             return None
 
     # --- server threads ---------------------------------------------------------------------
-    def _serve(self, client: socket.socket) -> None:
-        buffer = b""
-        try:
-            while not self._stopping.is_set():
-                chunk = client.recv(4096)
-                if not chunk:
-                    break
-                buffer += chunk.replace(b"\n", b"\r")
-                while cmd.TERMINATOR in buffer:
-                    line, buffer = buffer.split(cmd.TERMINATOR, 1)
-                    if not line.strip():
-                        continue
-                    log.debug("simulated ascii pulser READ: %r", line)
-                    answer = self.execute(line)
-                    with self._lock:
-                        silent = self._silent
-                    if answer is not None and not silent:
-                        log.debug("simulated ascii pulser WRITE: %r", answer)
-                        client.sendall(answer)
-        except OSError:
-            pass
-        finally:
-            with self._lock:
-                if client in self._clients:
-                    self._clients.remove(client)
-            client.close()
+    def _normalise(self, chunk: bytes) -> bytes:
+        return chunk.replace(b"\n", b"\r")  # a terminal's Enter ends a line too
+
+    def _answer(self, line: bytes) -> bytes | None:
+        return self.execute(line) if line.strip() else None
