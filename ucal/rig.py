@@ -23,7 +23,7 @@ from ucal import timing
 from ucal.errors import HardwareError
 
 if TYPE_CHECKING:
-    from ucal.echo.capture import ReferenceCapture
+    from ucal.echo.capture import Capture
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +149,7 @@ class Rig:
         self.on_move = None  # optional callback(target) for progress display
         # Captures the reference echo of a host-timed pulser at the first distance reading
         # (``ucal.echo.capture``); None: nothing to capture.
-        self.reference_capture: ReferenceCapture | None = None
+        self.reference_capture: Capture | None = None
         self.last_sweep_step_deg = 0.0
         # The arm's joint rate over the commanded one, measured by the sweeps: a pendant's
         # speed override, a controller's own limits or a simulated cell's time scale make the

@@ -45,7 +45,7 @@ from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world
 
 if TYPE_CHECKING:
-    from ucal.echo.capture import ReferenceCapture
+    from ucal.echo.capture import Capture
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,7 @@ class TimingMode:
     (``ucal.echo.capture``) that holds the timer."""
 
     mode: str = "gate"
-    capture: ReferenceCapture | None = None
+    capture: Capture | None = None
 
     def as_json(self) -> dict[str, Any]:
         """``"timing"`` and ``"reference_echo"`` (None with the gate) of a run's result."""
@@ -256,6 +256,6 @@ def replay_cell(profile: CellProfile, record: Record) -> Iterator[CellSession]:
         from ucal.echo.capture import ReplayedCapture
 
         capture = ReplayedCapture(recorded)
-        rig.reference_capture = capture  # type: ignore[assignment]
-        timing = TimingMode(timing.mode, capture)  # type: ignore[arg-type]
+        rig.reference_capture = capture
+        timing = TimingMode(timing.mode, capture)
     yield CellSession(rig, None, False, echo_timing=timing)

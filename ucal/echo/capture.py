@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import asdict
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -31,6 +31,15 @@ log = logging.getLogger(__name__)
 #: Records averaged into a captured reference, and acquisitions averaged into each.
 CAPTURES = 16
 CAPTURE_AVERAGES = 64
+
+
+class Capture(Protocol):
+    """What a session's rig calls at its first distance reading, and what the result says of
+    the reference echo: a capture (``ReferenceCapture``) or a recorded one replayed."""
+
+    def ensure(self, rig: Rig) -> None: ...
+
+    def as_json(self) -> dict[str, Any]: ...
 
 
 class ReferenceCapture:
