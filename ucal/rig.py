@@ -157,6 +157,7 @@ class Rig:
         # must come from the motion as measured, not as commanded.
         self.rate_factor = 1.0
         self.stepped_lines = 0  # lines read as settled steps (the arm too fast to sweep)
+        self._streamed = False  # whether the last sweep had streamed joints to tie its readings
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.joint_min_deg, self.joint_max_deg)
@@ -289,6 +290,7 @@ class Rig:
         ts = np.array([s.t_s for s in samples])
         js = np.array([s.joints_deg for s in samples])
         after = ts >= t0  # this motion's frames (the history holds the move before it too)
+        self._streamed = len(ts) >= 2
         self._measure_rate(start, target, speed, ts[after], js[after])
         # The acquisition happens between request and answer: pair at the midpoint.
         tr = 0.5 * (np.array(sent) + np.array([r.host_time_s for r in readings]))
@@ -416,7 +418,7 @@ class Rig:
             a, b = b, a  # the arm stands at the new ``a``
             if self.sweep_speed <= MIN_SPEED:
                 break  # no slower sweep to try
-        if not self.controller.joint_samples(self.controller.clock.now() - 1.0):
+        if not self._streamed:
             return out  # no stream to say how the arm moved (a controller double)
         return self.stepped_line(a, b, max_step_deg)
 
