@@ -5,7 +5,9 @@
 * ``measure``: calibrate's face measurements of those postures, then the echo chain (time of
   flight, amplitude, SNR, the A-scan's centre frequency and bandwidth);
 * ``solve``: what moved — the check and the reference in one fit on the profile's model, the
-  3σ-and-tolerance rule; the echo chain against the reference's;
+  stepwise choice of the suspects that explain the data;
+* ``judge``: every checked quantity (geometry, water, echo chain) against its 3σ and its
+  tolerance;
 * ``result``: the typed result, the message naming what moved, the history entry;
 * ``history``: the checks in the profile's history directory (``checks.json``);
 * ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).

@@ -44,7 +44,7 @@ class CheckEntry:
 
     ``verdict``: "ok" (as commissioned) or "out of tolerance"; ``named``: what moved, in
     words; ``reference``: later checks compare against this one; ``quantities``: each checked
-    quantity (``ucal.check.solve.Quantity.to_json``); ``faces`` and ``echoes``: what it
+    quantity (``ucal.check.judge.Quantity.to_json``); ``faces`` and ``echoes``: what it
     measured (``ucal.check.measure``), so that a later check solves against the measurements
     themselves.
     """

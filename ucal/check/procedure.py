@@ -15,16 +15,18 @@ from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.procedure import plan_rows
 from ucal.cell import CellProfile
 from ucal.check.history import append_check, model_digest, reference_check
+from ucal.check.judge import (
+    echo_quantities,
+    echo_record,
+    geometry_quantities,
+    profile_quantities,
+)
 from ucal.check.measure import CheckRun, EchoReading, faces_from_json, run_check
 from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
 from ucal.check.result import CheckResult, misfit_text, named_changes, unexplained_text
 from ucal.check.solve import (
     compare_geometry,
     compare_to_profile,
-    echo_quantities,
-    echo_record,
-    geometry_quantities,
-    profile_quantities,
 )
 from ucal.procedure import Measured, Outcome, ProfileJob
 from ucal.progress import Report

@@ -1,8 +1,9 @@
 """The check's one typed result: its verdict, what moved and by how much, every checked quantity.
 
 ``CheckResult`` is built from the comparisons of ``ucal.check.solve`` (the geometry against the
-reference, or a reference check's fit against the profile; the echo chain) and gives the
-``--json`` object, the one-line message naming what moved, and the history entry.
+reference, or a reference check's fit against the profile) and the quantities ``ucal.check.judge``
+draws from them and from the echo chain, and gives the ``--json`` object, the one-line message
+naming what moved, and the history entry.
 """
 
 from __future__ import annotations
@@ -14,15 +15,17 @@ import numpy as np
 
 from ucal.calibration.fit import CellPrior
 from ucal.check.history import CheckEntry
-from ucal.check.measure import CheckRun, faces_to_json
-from ucal.check.solve import (
+from ucal.check.judge import (
     CHANGED,
     OUT,
+    Quantity,
+    unit_of,
+)
+from ucal.check.measure import CheckRun, faces_to_json
+from ucal.check.solve import (
     GeometryComparison,
     ProfileComparison,
-    Quantity,
     temperature_change_c,
-    unit_of,
 )
 
 

@@ -15,15 +15,17 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
-from ucal.check.measure import EchoReading
-from ucal.check.plan import plan_check
-from ucal.check.solve import (
+from ucal.check.judge import (
     CHANGED,
     OK,
     OUT,
-    compare_geometry,
     echo_quantities,
     geometry_quantities,
+)
+from ucal.check.measure import EchoReading
+from ucal.check.plan import plan_check
+from ucal.check.solve import (
+    compare_geometry,
 )
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import rpy_to_matrix
