@@ -30,7 +30,7 @@ from typing import Any
 from ucal import files
 from ucal.cell import CellProfile
 from ucal.errors import ProfileError
-from ucal.profile import history_dir, profile_to_dict, real_path
+from ucal.profile import history_dir, made_history_dir, profile_to_dict, real_path
 
 #: The checks' index in a profile's history directory.
 CHECKS_INDEX = "checks.json"
@@ -104,13 +104,7 @@ def append_check(profile_path: str | Path, entry: CheckEntry) -> CheckEntry:
     the index is replaced atomically, the profile itself is not touched. Returns the entry as
     stored. The caller holds the profile's lock."""
     p = real_path(profile_path)
-    hdir = history_dir(p)
-    try:
-        hdir.mkdir(exist_ok=True)
-    except OSError as e:
-        raise ProfileError(
-            hdir, None, f"cannot create history directory: {e.strerror or e}"
-        ) from None
+    made_history_dir(p)
     entries = read_checks(p)
     entry.id = max((e.id for e in entries), default=0) + 1
     entry.time = datetime.now(UTC).isoformat(timespec="seconds")

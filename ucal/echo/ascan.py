@@ -43,6 +43,19 @@ BAND_LEVEL = 1e-4
 BAND_RESOLUTION = 1.0 / 4096.0
 
 
+def sampled_row(samples: object, dt_ns: float, at_least: int, what: str) -> np.ndarray:
+    """``samples`` as one finite row of at least ``at_least`` floats taken every ``dt_ns`` > 0
+    ns, or ValueError naming ``what`` they were meant to be."""
+    row = np.asarray(samples, dtype=float)
+    if row.ndim != 1 or row.size < at_least:
+        raise ValueError(f"{what} is one row of at least {at_least} samples, got {row.shape}")
+    if not np.all(np.isfinite(row)):
+        raise ValueError(f"{what}'s samples must be finite")
+    if not (math.isfinite(dt_ns) and dt_ns > 0.0):
+        raise ValueError(f"sample interval must be positive, got {dt_ns} ns")
+    return row
+
+
 @dataclass(frozen=True)
 class AScan:
     """One digitised record: ``samples[k]`` taken at ``t0_ns + k·dt_ns``.
@@ -59,15 +72,7 @@ class AScan:
     lsb: float | None = None
 
     def __post_init__(self) -> None:
-        samples = np.asarray(self.samples, dtype=float)
-        if samples.ndim != 1 or samples.size < 8:
-            raise ValueError(
-                f"an A-scan is one row of at least 8 samples, got shape {samples.shape}"
-            )
-        if not np.all(np.isfinite(samples)):
-            raise ValueError("an A-scan's samples must be finite")
-        if not (math.isfinite(self.dt_ns) and self.dt_ns > 0.0):
-            raise ValueError(f"sample interval must be positive, got {self.dt_ns} ns")
+        samples = sampled_row(self.samples, self.dt_ns, 8, "an A-scan")
         object.__setattr__(self, "samples", samples)
 
     @property
@@ -183,15 +188,7 @@ class ReferenceEcho:
     averages: int = 1
 
     def __post_init__(self) -> None:
-        samples = np.asarray(self.samples, dtype=float)
-        if samples.ndim != 1 or samples.size < 4:
-            raise ValueError(
-                f"a reference echo is one row of at least 4 samples, got {samples.shape}"
-            )
-        if not np.all(np.isfinite(samples)):
-            raise ValueError("a reference echo's samples must be finite")
-        if not (math.isfinite(self.dt_ns) and self.dt_ns > 0.0):
-            raise ValueError(f"sample interval must be positive, got {self.dt_ns} ns")
+        samples = sampled_row(self.samples, self.dt_ns, 4, "a reference echo")
         peak = band_limited_peak(samples)
         if not peak > 0.0:
             raise ValueError("a reference echo cannot be all zeros")

@@ -12,7 +12,7 @@ Writes are atomic and reversible: each keeps the bytes it replaces in the profil
 - :mod:`ucal.profile.disk`: where a profile's files sit, atomic replacement.
 """
 
-from ucal.profile.disk import history_dir, real_path
+from ucal.profile.disk import history_dir, made_history_dir, real_path
 from ucal.profile.history import (
     HistoryEntry,
     before_measurement,
@@ -55,6 +55,7 @@ __all__ = [
     "last_measurement",
     "load_profile",
     "lock_path",
+    "made_history_dir",
     "profile_from_data",
     "profile_history",
     "profile_lock",

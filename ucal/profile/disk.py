@@ -31,6 +31,18 @@ def history_dir(path: str | Path) -> Path:
     return p.with_name(p.name + HISTORY_SUFFIX)
 
 
+def made_history_dir(path: str | Path) -> Path:
+    """The history directory of a profile, created if missing; ProfileError if it cannot be."""
+    hdir = history_dir(path)
+    try:
+        hdir.mkdir(exist_ok=True)
+    except OSError as e:
+        raise ProfileError(
+            hdir, None, f"cannot create history directory: {e.strerror or e}"
+        ) from None
+    return hdir
+
+
 def atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:
     """Replace ``path`` with ``data``: temp file in the same directory, fsync, ``os.replace``.
 

@@ -25,7 +25,15 @@ import numpy as np
 from ucal import files
 from ucal.cell import CellProfile
 from ucal.errors import ProfileError
-from ucal.profile.disk import HISTORY_INDEX, atomic_write, commit, history_dir, real_path, stage
+from ucal.profile.disk import (
+    HISTORY_INDEX,
+    atomic_write,
+    commit,
+    history_dir,
+    made_history_dir,
+    real_path,
+    stage,
+)
 from ucal.profile.lock import profile_lock
 from ucal.profile.read import load_profile
 
@@ -202,13 +210,7 @@ def _replace_with_history(
     path = real_path(path)
     if before is None:
         before = path.read_bytes()
-    hdir = history_dir(path)
-    try:
-        hdir.mkdir(exist_ok=True)
-    except OSError as e:
-        raise ProfileError(
-            hdir, None, f"cannot create history directory: {e.strerror or e}"
-        ) from None
+    hdir = made_history_dir(path)
     entries = profile_history(path)
     new_id = _next_history_id(hdir, entries)
     copy = hdir / f"{new_id:04d}-before.toml"
