@@ -9,6 +9,8 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :class:`ScriptedVisaResource` — the same for a PyVISA message-based resource;
 * :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
   gate reads;
+* :func:`measured_cell` — noisy face measurements of a true cell (a DH table, offsets, block,
+  water) at a plan's postures, without a simulator;
 * :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
   written by the profile's own write functions in a fraction of a second.
 """
@@ -21,8 +23,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TextIO
 
+import numpy as np
+
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.full import ideal_measurements
+from ucal.calibration.model import CellGeometry, FaceMeasurement
+from ucal.calibration.wrist import aim_wrist
 from ucal.cli import main
+from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import create_profile, write_profile
 
 #: What :func:`calibrated_profile` writes (as ``calibrate`` and ``tool-frame`` write them).
@@ -204,3 +213,24 @@ class QuietPulser(PulserReceiver):
 
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         raise NotImplementedError
+
+
+def measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, seed, sigma):
+    """Measurements of the true cell (``model``, ``offsets``, the block at ``corner`` turned by
+    ``block_rpy``, water at ``water_c``) at ``plan``'s postures: the wrist aimed at normal
+    incidence and the water path along the normal, each with seeded noise of ``sigma`` (deg of
+    posture, mm of path)."""
+    rng = np.random.default_rng(seed)
+    truth = CellGeometry(model, profile.tool_matrix, rpy_to_matrix(block_rpy))
+    postures = []
+    for p in plan.postures:
+        q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), offsets)
+        q[3:5] += rng.normal(0.0, sigma, 2)
+        postures.append((p.label, p.face, q))
+    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(water_c)
+    return [
+        FaceMeasurement(
+            m.config, m.face, m.joints_deg, m.distance_mm + rng.normal(0.0, sigma), sigma, sigma
+        )
+        for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)
+    ]

@@ -197,6 +197,10 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
     assert result["backlash_deg"] == [None] * 6 == result["backlash_std_deg"]
     cal = tomllib.loads(profile.read_text())["calibration"]
     assert cal["approach"] == "positive" and cal["unobservable_joints"] == [6]
+    # a table identified on this robot: what no echo sees is the common scale, micrometres
+    unseen = result["unidentified_tcp_mm"]
+    assert set(unseen["by_quantity"]) <= {"sound_speed_m_s"} and unseen["max"] < 0.02
+    assert cal["unidentified_tcp_mm"] == pytest.approx([unseen["mean"], unseen["max"]], abs=1e-4)
     np.testing.assert_allclose(cal["joint_offsets_deg"], result["joint_offsets_deg"], atol=1e-6)
 
 

@@ -54,7 +54,8 @@ def make_profile(tmp_path: Path, name: str, offsets_deg: list[float] | None) -> 
     )
     if offsets_deg is not None:
         # as `ucal calibrate` would have written it
-        write_profile(path, {"calibration": {"joint_offsets_deg": offsets_deg}}, "calibrate")
+        cal = {"joint_offsets_deg": offsets_deg, "unidentified_tcp_mm": [0.12, 0.25]}
+        write_profile(path, {"calibration": cal}, "calibrate")
     return path
 
 
@@ -338,6 +339,8 @@ def test_region_check_passes_the_right_model_and_fails_the_wrong_one(
     out = json.loads(r.stdout)
     assert out["passed"] is True and out["region"]["verdict"] == "ok"
     assert out["region"]["postures"] == 4 and out["region"]["max_tilt_deg"] < 0.001
+    # what the calibration could not see is said beside what the region measured
+    assert out["region"]["unidentified_tcp_mm"] == {"mean": 0.12, "max": 0.25}
     assert out["moves"] > 0 and out["pulser_reads"] > 0
     # the procedure's plan and progress on stderr
     assert "Region check of" in r.stderr and "Estimated time on a real cell" in r.stderr
@@ -351,6 +354,7 @@ def test_region_check_passes_the_right_model_and_fails_the_wrong_one(
     assert out["passed"] is False and out["region"]["verdict"] == "misfit"
     assert out["exit_code"] == 1 and out["error"].startswith("region check failed")
     assert out["region"]["max_tilt_deg"] > 0.3
+    assert out["region"]["unidentified_tcp_mm"] is None  # never calibrated: none stated
     assert bad.read_bytes() == before  # never written
 
 

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.budget import TcpBudget, calibration_budget
 from ucal.calibration.exact import OffsetSolution
 from ucal.calibration.fit import PRIOR_MEANING, CellFit, FitQuality, prior_from_profile
 from ucal.calibration.full import FullSolution, solve_full
@@ -120,6 +121,14 @@ def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, An
         "chi2_reduced": round(float(fit.chi2_reduced), 4),
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     }
+
+
+def budget_keys(budget: TcpBudget | None) -> dict[str, Any]:
+    """``[calibration] unidentified_tcp_mm``: [mean, max] over the scanning region, one sigma
+    (``verify --region`` reports it beside what it measures)."""
+    if budget is None:
+        return {}
+    return {"unidentified_tcp_mm": [round(budget.mean_mm, 4), round(budget.max_mm, 4)]}
 
 
 def block_measured(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
@@ -376,6 +385,8 @@ class OffsetsSolved:
     verdict: Verdict
     #: 1-based joint → its estimate, measured too weakly to write (kept at the profile value)
     weak: dict[int, WeakJoint]
+    #: What the unidentified quantities' priors allow at the tool centre (``calibration.budget``)
+    budget: TcpBudget | None = None
 
 
 @dataclass
@@ -438,7 +449,8 @@ class OffsetsCalibration(ProfileJob):
         )
         if chosen is exact:
             exact = kept
-        return OffsetsSolved(exact, paper, kept, fit, judge(kept, fit), weak)
+        budget = calibration_budget(self.profile, exact.cell_fit, measured.data.measurements)
+        return OffsetsSolved(exact, paper, kept, fit, judge(kept, fit), weak, budget)
 
     def may_write(self, solved: OffsetsSolved) -> bool:
         return solved.verdict.ok or self.force
@@ -456,6 +468,7 @@ class OffsetsCalibration(ProfileJob):
                 # stays in force: these offsets were fitted on it)
                 "level": "offsets",
                 "condition_number": round(float(chosen.condition_number), 3),
+                **budget_keys(solved.budget),
             },
             # the block the offsets were fitted with (the paper's equations measure none)
             block_written(chosen.cell_fit, self.profile),
@@ -483,6 +496,7 @@ class OffsetsCalibration(ProfileJob):
             "condition_number": chosen.condition_number,
             "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
             "weak_joints": {str(j): w.to_json() for j, w in solved.weak.items()},
+            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
         }
         return outcome(result, measured, verdict, written, OffsetsShown(solved, measured.truth))
 
@@ -527,6 +541,7 @@ class FullSolved:
     solution: FullSolution
     fit: FitQuality
     verdict: Verdict
+    budget: TcpBudget | None = None
 
 
 class FullCalibration(ProfileJob):
@@ -583,7 +598,8 @@ class FullCalibration(ProfileJob):
             steps=run.steps,
         )
         fit = solution.cell.quality
-        return FullSolved(solution, fit, judge(solution, fit))
+        budget = calibration_budget(self.profile, solution.cell, run.measurements, run.steps)
+        return FullSolved(solution, fit, judge(solution, fit), budget)
 
     def may_write(self, solved: FullSolved) -> bool:
         return solved.verdict.ok or self.force
@@ -599,6 +615,7 @@ class FullCalibration(ProfileJob):
                 **written_keys(sol, sol.sound_speed_m_s, solved.fit),
                 "level": "full",
                 "dh": sol.dh_rows(),
+                **budget_keys(solved.budget),
             },
             block_written(sol.cell, self.profile),
         )
@@ -620,6 +637,7 @@ class FullCalibration(ProfileJob):
             "block": block_measured(sol.cell, self.profile),
             "dh": sol.dh_rows(),
             "identification": sol.to_json(),
+            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
             "plan": {
                 "postures": len(plan.postures),
                 "candidates": plan.candidates,

@@ -349,7 +349,18 @@ def show_result(
 
 
 def show_approach(console: Console, result: dict[str, Any]) -> None:
-    """The approach direction the offsets belong to, and what is not measured of it."""
+    """The approach direction the offsets belong to, and what is not measured of it; what
+    the unidentified quantities' tolerances allow at the tool centre."""
+    budget = result.get("unidentified_tcp_mm")
+    if budget is not None:
+        top = ", ".join(f"{k} {v:.3f}" for k, v in list(budget["by_quantity"].items())[:3])
+        console.print(
+            escape(
+                f"not identified: their tolerances allow {budget['mean']:.3f} mm mean, "
+                f"{budget['max']:.3f} mm max at the tool centre over the scanning region "
+                f"(one sigma{'; ' + top if top else ''})"
+            )
+        )
     console.print(
         escape(
             f"approach {result['approach']}: the offsets hold for postures reached with every "

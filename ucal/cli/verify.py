@@ -214,6 +214,12 @@ def show_region(outcome: Outcome) -> None:
         f"{r.max_tilt_deg:.4f} deg; χ²ᵣ {r.chi2_reduced:.3g} ({r.verdict}, worst {r.worst}); "
         f"tolerance {r.tolerance_mm:g} mm: " + ("passed" if r.passed else "FAILED")
     )
+    if r.unidentified_tcp_mm is not None:
+        mean, top = r.unidentified_tcp_mm
+        click.echo(
+            f"not seen: across the beam the calibration's unidentified quantities allow {mean:.3f}"
+            f" mm mean, {top:.3f} mm max at the tool centre (one sigma), besides these residuals"
+        )
 
 
 def _check_plot_format(path: Path) -> None:

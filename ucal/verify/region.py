@@ -16,7 +16,8 @@ the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import tomllib
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +81,10 @@ class RegionResult:
     verdict: str
     worst: str
     tolerance_mm: float
+    #: What the last calibration's unidentified quantities allow at the tool centre, one sigma
+    #: (mm, mean and max over the scanning region; ``ucal.calibration.budget``): across the
+    #: beam, where these echoes do not look either. None: the profile states none.
+    unidentified_tcp_mm: tuple[float, float] | None = None
 
     @property
     def passed(self) -> bool:
@@ -96,6 +101,11 @@ class RegionResult:
                 "chi2_reduced": self.chi2_reduced,
                 "verdict": self.verdict,
                 "worst": self.worst,
+                "unidentified_tcp_mm": (
+                    None
+                    if self.unidentified_tcp_mm is None
+                    else dict(zip(("mean", "max"), self.unidentified_tcp_mm, strict=True))
+                ),
             },
             "tolerance_mm": self.tolerance_mm,
             "passed": self.passed,
@@ -129,6 +139,22 @@ def judge_region(
         q.worst,
         tolerance_mm,
     )
+
+
+def written_budget(profile_path: Path) -> tuple[float, float] | None:
+    """``[calibration] unidentified_tcp_mm`` of the profile (mean, max), or None."""
+    try:
+        with open(profile_path, "rb") as f:
+            value = tomllib.load(f).get("calibration", {}).get("unidentified_tcp_mm")
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    if not (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        return None
+    return float(value[0]), float(value[1])
 
 
 def plan_summary(plan: FullPlan, profile_path: Path) -> str:
@@ -176,7 +202,8 @@ class RegionJob(CheckingJob):
         return run_full(self.profile, plan, session.rig, report)
 
     def solve(self, plan: FullPlan, measured: Measured[FullRun]) -> RegionResult:
-        return judge_region(self.profile, measured.data.measurements, self.tolerance_mm)
+        solved = judge_region(self.profile, measured.data.measurements, self.tolerance_mm)
+        return replace(solved, unidentified_tcp_mm=written_budget(self.profile_path))
 
     def may_write(self, solved: RegionResult) -> bool:
         return False

@@ -17,20 +17,18 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.full import (
     aligned_errors_mm,
-    ideal_measurements,
     scanning_postures,
     solve_full,
 )
 from ucal.calibration.full_plan import candidate_postures, plan_full
 from ucal.calibration.gauge import j1_relative_to_block
-from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.calibration.sequence import calibration_pose
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import Step
 from ucal.kinematics.dh import fk
-from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import load_profile
 from ucal.verify.region import judge_region, plan_region
+
+from doubles import measured_cell
 
 REPO = Path(__file__).resolve().parents[3]
 SIGMA = 5e-4  # deg of posture, mm of water path
@@ -45,21 +43,7 @@ def cell():
 
 
 def measure(profile, plan, model, offsets, block_rpy, corner, water_c, seed):
-    """Noisy measurements of the true cell at the plan's postures."""
-    rng = np.random.default_rng(seed)
-    truth = CellGeometry(model, profile.tool_matrix, rpy_to_matrix(block_rpy))
-    postures = []
-    for p in plan.postures:
-        q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), offsets)
-        q[3:5] += rng.normal(0.0, SIGMA, 2)
-        postures.append((p.label, p.face, q))
-    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(water_c)
-    return [
-        FaceMeasurement(
-            m.config, m.face, m.joints_deg, m.distance_mm + rng.normal(0.0, SIGMA), SIGMA, SIGMA
-        )
-        for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)
-    ]
+    return measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, seed, SIGMA)
 
 
 def true_parameters(model) -> dict[str, float]:
