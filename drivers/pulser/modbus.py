@@ -42,6 +42,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from pymodbus.framer import FramerType
 from serial import SerialException
 
+from drivers.device import RequestLink
 from drivers.digitizer.base import (
     AScanRecord,
     EchoTimer,
@@ -90,7 +91,7 @@ class _NoFrame(Exception):
     """Bytes kept arriving past a request's deadline without forming the awaited frame."""
 
 
-class ModbusPulser(PulserReceiver):
+class ModbusPulser(RequestLink, PulserReceiver):
     """The pulser-receiver over Modbus RTU or Modbus TCP.
 
     Build it with :meth:`from_url`. No I/O happens before :meth:`connect` (or the first call
@@ -110,8 +111,7 @@ class ModbusPulser(PulserReceiver):
         retries: int = DEFAULT_RETRIES,
     ):
         parsed = parse_pulser_url(url) if isinstance(url, str) else url
-        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
+        self._link_to(str(parsed), timeout_s)
         if not (isinstance(retries, int) and 0 <= retries <= 10):
             raise ValueError(f"retries must be an integer from 0 to 10, got {retries!r}")
         if port is not None and parsed.framing != "rtu":
@@ -122,9 +122,7 @@ class ModbusPulser(PulserReceiver):
             register_map = load_register_map(register_map)  # RegisterMapError is a ValueError
         self._map = register_map
         self._url = parsed
-        self._endpoint = str(parsed)
         self._unit = parsed.unit
-        self._timeout_s = float(timeout_s)
         self._retries = retries
         self._lock = threading.RLock()
         self._rx = b""  # bytes received for the request in flight (cumulative)
@@ -208,16 +206,6 @@ class ModbusPulser(PulserReceiver):
             client.last_frame_end = None
 
     # --- PulserReceiver ---------------------------------------------------------------------
-    @property
-    def endpoint(self) -> str:
-        """The pulser URL, e.g. ``modbus-tcp://127.0.0.1:5020?unit=1``."""
-        return self._endpoint
-
-    @property
-    def timeout_s(self) -> float:
-        """Time one request may wait for its answer, s."""
-        return self._timeout_s
-
     @property
     def register_map(self) -> reg.RegisterMap:
         """The register map this client speaks."""
