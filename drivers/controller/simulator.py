@@ -74,6 +74,7 @@ from drivers.controller.simple_message import (
     Status,
 )
 from drivers.errors import ProtocolError
+from drivers.loopback import Served, accept_clients
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,7 @@ class _Plan:
         return _Plan(self.at(t), (), self.sign_at(t), self.settle_s)
 
 
-class SimulatedController:
+class SimulatedController(Served):
     """Simple Message controller simulator (see the module docstring for its behaviour).
 
     Joint limits and positions in degrees, speeds in deg/s, ``state_rate_hz`` in Hz.
@@ -362,12 +363,6 @@ class SimulatedController:
         """Simulate a crash: reset every connection at once and stop serving."""
         self._shutdown(abort=True)
 
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     def _shutdown(self, abort: bool) -> None:
         if not self._started:
             return
@@ -427,15 +422,10 @@ class SimulatedController:
     def _accept_loop(
         self, listener: socket.socket, handler: Callable[[socket.socket, str], None]
     ) -> None:
-        while not self._stop_evt.is_set():
-            try:
-                conn, addr = listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return  # listener closed by stop()/kill()
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            handler(conn, f"{addr[0]}:{addr[1]}")
+        # listener closed by stop()/kill(): the loop ends
+        accept_clients(
+            listener, self._stop_evt, lambda conn, addr: handler(conn, f"{addr[0]}:{addr[1]}")
+        )
 
     # -- model ------------------------------------------------------------------------------
 

@@ -59,6 +59,7 @@ from pymodbus.datastore import (
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusTcpServer
 
+from drivers.loopback import ServedOnPort
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.map_file import load_register_map, shipped_map
@@ -149,7 +150,7 @@ class _PulserContext(ModbusDeviceContext):
         return self._device._set(func_code, address, values)
 
 
-class SimulatedPulser:
+class SimulatedPulser(ServedOnPort):
     """A pulser-receiver on 127.0.0.1 whose echo comes from ``model``. Use as a context manager.
 
     ``framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU frames over a TCP stream,
@@ -158,6 +159,8 @@ class SimulatedPulser:
     ``register_map`` is the map served (a ``RegisterMap`` or a map file; None: ucal's own); the
     device reports the highest version it lists. Nothing is opened before :meth:`start`.
     """
+
+    what = "simulated pulser"
 
     def __init__(
         self,
@@ -262,19 +265,6 @@ class SimulatedPulser:
         self._thread = None
         self._loop = None
         self._port = None
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> int:
-        """The TCP port served on (after :meth:`start`)."""
-        if self._port is None:
-            raise RuntimeError("the simulated pulser is not running")
-        return self._port
 
     @property
     def url(self) -> str:
