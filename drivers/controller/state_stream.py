@@ -36,7 +36,8 @@ from drivers.controller.val3 import describe_status, status_from_message
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, DriverError, ProtocolError
 from drivers.urls import ControllerAddress
 
-log = logging.getLogger(__name__)
+# The client logs both ports (its READ/WRITE lines) under one name.
+log = logging.getLogger("drivers.controller.client")
 
 #: A move in progress gets at least this much closer to its target (deg, the largest joint
 #: distance) every ``halt_timeout_s``; otherwise the controller has halted it.
