@@ -59,12 +59,6 @@ from drivers.pulser.urls import PulserUrl, parse_pulser_url
 
 log = logging.getLogger(__name__)
 
-#: Pause between two polls of the measurement block while waiting for a new counter, s.
-POLL_INTERVAL_S = 0.002
-#: Half width (ns) of the A-scan transferred around the device's peak for a timer that does
-#: not say how much it reads.
-DEFAULT_WINDOW_NS = 2000.0
-
 
 @dataclass(frozen=True)
 class AScan:
@@ -79,6 +73,13 @@ class AScan:
     def time_ns(self) -> np.ndarray:
         """Round-trip time of each sample, ns."""
         return self.start_ns + np.arange(self.samples.size) * (1e9 / self.sample_rate_hz)
+
+
+#: Pause between two polls of the measurement block while waiting for a new counter, s.
+POLL_INTERVAL_S = 0.002
+#: Half width (ns) of the A-scan transferred around the device's peak for a timer that does
+#: not say how much it reads.
+DEFAULT_WINDOW_NS = 2000.0
 
 
 class ModbusPulser(ModbusLink, PulserReceiver):
