@@ -57,6 +57,14 @@ class ServedOnPort(Served):
     #: What the simulator is, for logs and errors ("simulated scope").
     what = "simulated instrument"
     _port: int | None
+    _lock: threading.RLock
+    _silent: bool
+
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop (or resume) answering: what a client sends is still received (and executed),
+        the connection stays open."""
+        with self._lock:
+            self._silent = bool(silent)
 
     @property
     def port(self) -> int:
@@ -104,11 +112,6 @@ class LoopbackServer(ServedOnPort):
         self._threads: list[threading.Thread] = []
         self._stopping = threading.Event()
         self._silent = False
-
-    def set_silent(self, silent: bool = True) -> None:
-        """Stop (or resume) answering; lines are still read and executed."""
-        with self._lock:
-            self._silent = bool(silent)
 
     # --- lifecycle --------------------------------------------------------------------------
     def start(self) -> Self:

@@ -357,10 +357,7 @@ class AsciiScpiPulser(PulserReceiver):
                 "the application must give it one (echo_timer)"
             )
         record = self.read_ascan_record(timeout_s)
-        settings = self._settings or PulserSettings()
-        start_ns = settings.gate_start_us * 1e3
-        gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
-        echo = self.echo_timer(record, gate)
+        echo = self.echo_timer(record, (self._settings or PulserSettings()).gate_ns)
         self.last_echo, self.last_record = echo, record
         amplitude = float(echo.amplitude) if math.isfinite(echo.amplitude) else 0.0
         tof_ns = float(echo.tof_ns)

@@ -81,6 +81,12 @@ class PulserSettings:
                 f"high_pass_mhz = {self.high_pass_mhz!r} MHz (empty filter band)"
             )
 
+    @property
+    def gate_ns(self) -> tuple[float, float]:
+        """The gate's start and end, ns of round-trip time."""
+        start_ns = self.gate_start_us * 1e3
+        return start_ns, start_ns + self.gate_width_us * 1e3
+
 
 @dataclass(frozen=True)
 class GateReading:

@@ -47,7 +47,7 @@ from drivers.digitizer.base import (
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
-from drivers.pulser.map_file import load_register_map, shipped_map
+from drivers.pulser.map_file import register_map_of
 from drivers.pulser.modbus_link import (
     DEFAULT_RETRIES,
     DEFAULT_TIMEOUT_S,
@@ -103,11 +103,7 @@ class ModbusPulser(ModbusLink, PulserReceiver):
     ):
         parsed = parse_pulser_url(url) if isinstance(url, str) else url
         super().__init__(parsed, timeout_s, retries=retries, port=port)
-        if register_map is None:
-            register_map = shipped_map()
-        elif not isinstance(register_map, reg.RegisterMap):
-            register_map = load_register_map(register_map)  # RegisterMapError is a ValueError
-        self._map = register_map
+        self._map = register_map_of(register_map)
         self._last_counter: int | None = None
         self._map_version: int | None = None
         self._front_end_written: list[list[int]] | None = None  # last front-end block written
@@ -319,13 +315,10 @@ class ModbusPulser(ModbusLink, PulserReceiver):
     ) -> GateReading:
         """``reading`` with the amplitude, time of flight and std ``timer`` finds in the
         A-scan around the device's peak."""
-        settings = self._settings or PulserSettings()
-        start_ns = settings.gate_start_us * 1e3
-        gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
         record = self.read_ascan_record(
             reading.tof_ns, timeout_s=max(deadline - time.monotonic(), MIN_REQUEST_TIMEOUT_S)
         )
-        echo = timer(record, gate)
+        echo = timer(record, (self._settings or PulserSettings()).gate_ns)
         self.last_echo, self.last_record = echo, record
         if not (math.isfinite(echo.tof_ns) and echo.amplitude > 0.0):
             return replace(reading, tof_ns=float("nan"))
