@@ -49,37 +49,37 @@ class Quantity:
     required: bool = False
 
 
-#: Every register name a map may hold, with its meaning.
+#: Every register name a map may hold, with its meaning and whether every map must have it.
 QUANTITIES: dict[str, Quantity] = {
     # holding registers the client writes
     "gain": Quantity("gain_db", "gain", "dB", "settings", required=True),
     "prf": Quantity("prf_hz", "frequency", "Hz", "settings", required=True),
     "gate_start": Quantity("gate_start_us", "time", "µs", "settings", required=True),
     "gate_width": Quantity("gate_width_us", "time", "µs", "settings", required=True),
-    "averages": Quantity("averages", "count", "", "settings"),
-    "pulse_voltage": Quantity("pulse_voltage_v", "voltage", "V", "front_end"),
-    "damping": Quantity("damping_ohm", "resistance", "Ω", "front_end"),
-    "high_pass": Quantity("high_pass_mhz", "frequency", "MHz", "front_end"),
-    "low_pass": Quantity("low_pass_mhz", "frequency", "MHz", "front_end"),
-    "threshold": Quantity("gate_threshold", "fraction", "FSH", "threshold"),
-    "command": Quantity("command", "code", "", "command"),
+    "averages": Quantity("averages", "count", "", "settings", required=False),
+    "pulse_voltage": Quantity("pulse_voltage_v", "voltage", "V", "front_end", required=False),
+    "damping": Quantity("damping_ohm", "resistance", "Ω", "front_end", required=False),
+    "high_pass": Quantity("high_pass_mhz", "frequency", "MHz", "front_end", required=False),
+    "low_pass": Quantity("low_pass_mhz", "frequency", "MHz", "front_end", required=False),
+    "threshold": Quantity("gate_threshold", "fraction", "FSH", "threshold", required=False),
+    "command": Quantity("command", "code", "", "command", required=False),
     # what the client reads
-    "magic": Quantity("magic", "code", "", "identity"),
-    "map_version": Quantity("register_map_version", "code", "", "identity"),
-    "model": Quantity("model", "text", "", "info"),
-    "firmware_major": Quantity("firmware_major", "code", "", "info"),
-    "firmware_minor": Quantity("firmware_minor", "code", "", "info"),
-    "serial": Quantity("serial", "code", "", "info"),
-    "counter": Quantity("counter", "count", "", "measurement"),
-    "device_time": Quantity("device_time_ms", "time", "ms", "measurement"),
-    "status": Quantity("status", "code", "", "measurement"),
+    "magic": Quantity("magic", "code", "", "identity", required=False),
+    "map_version": Quantity("register_map_version", "code", "", "identity", required=False),
+    "model": Quantity("model", "text", "", "info", required=False),
+    "firmware_major": Quantity("firmware_major", "code", "", "info", required=False),
+    "firmware_minor": Quantity("firmware_minor", "code", "", "info", required=False),
+    "serial": Quantity("serial", "code", "", "info", required=False),
+    "counter": Quantity("counter", "count", "", "measurement", required=False),
+    "device_time": Quantity("device_time_ms", "time", "ms", "measurement", required=False),
+    "status": Quantity("status", "code", "", "measurement", required=False),
     "amplitude": Quantity("amplitude", "fraction", "FSH", "measurement", required=True),
     "tof": Quantity("tof_ns", "time", "ns", "measurement", required=True),
-    "ascan_counter": Quantity("ascan_counter", "count", "", "ascan"),
-    "ascan_length": Quantity("ascan_length", "count", "", "ascan"),
-    "ascan_rate": Quantity("sample_rate_hz", "frequency", "Hz", "ascan"),
-    "ascan_start": Quantity("ascan_start_ns", "time", "ns", "ascan"),
-    "ascan_samples": Quantity("samples", "samples", "FSH", "ascan"),
+    "ascan_counter": Quantity("ascan_counter", "count", "", "ascan", required=False),
+    "ascan_length": Quantity("ascan_length", "count", "", "ascan", required=False),
+    "ascan_rate": Quantity("sample_rate_hz", "frequency", "Hz", "ascan", required=False),
+    "ascan_start": Quantity("ascan_start_ns", "time", "ns", "ascan", required=False),
+    "ascan_samples": Quantity("samples", "samples", "FSH", "ascan", required=False),
 }
 
 #: Units a map may state each dimension in: unit → its size in the dimension's base unit.
