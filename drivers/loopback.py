@@ -1,4 +1,9 @@
-"""A simulated line-oriented instrument's TCP server on 127.0.0.1.
+"""What the simulated devices share in serving on 127.0.0.1, and the TCP server of a simulated
+line-oriented instrument.
+
+:class:`Served` is any simulator (or set of them) that serves between ``start()`` and
+``stop()``, used as a context manager; :class:`ServedOnPort` one that serves on one TCP port;
+:func:`accept_clients` the loop that takes every connection on a listening socket.
 
 The simulated SCPI scope and the simulated ASCII pulser differ in what they say, not in how
 they serve: both listen on a loopback port (0 picks a free one), serve each client on a thread
@@ -11,11 +16,13 @@ does; its constructor calls ``super().__init__(host, port)`` first.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import logging
 import socket
 import threading
-from typing import Self
+from collections.abc import Callable
+from typing import Any, Self
 
 log = logging.getLogger(__name__)
 
@@ -25,12 +32,71 @@ STOP_TIMEOUT_S = 5.0
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
-class LoopbackServer:
+class Served(abc.ABC):
+    """A simulator that serves between :meth:`start` and :meth:`stop`. Use as a context
+    manager: entry starts it, exit stops it."""
+
+    @abc.abstractmethod
+    def start(self) -> Self:
+        """Start serving (idempotent); return self."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Stop serving and close every connection. Idempotent."""
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class ServedOnPort(Served):
+    """A simulator served on one TCP port (``_port``, None until started)."""
+
+    #: What the simulator is, for logs and errors ("simulated scope").
+    what = "simulated instrument"
+    _port: int | None
+    _lock: threading.RLock
+    _silent: bool
+
+    def set_silent(self, silent: bool = True) -> None:
+        """Stop (or resume) answering: what a client sends is still received (and executed),
+        the connection stays open."""
+        with self._lock:
+            self._silent = bool(silent)
+
+    @property
+    def port(self) -> int:
+        """The TCP port served on (after :meth:`start`)."""
+        if self._port is None:
+            raise RuntimeError(f"the {self.what} is not running")
+        return self._port
+
+
+def accept_clients(
+    listener: socket.socket,
+    stopping: threading.Event,
+    serve: Callable[[socket.socket, Any], None],
+) -> None:
+    """Take every connection on ``listener`` (a timeout set on it, so that ``stopping`` is
+    seen) until ``stopping`` is set or the listener is closed; hand each, with Nagle's
+    algorithm off, to ``serve(connection, address)``."""
+    while not stopping.is_set():
+        try:
+            conn, address = listener.accept()
+        except TimeoutError:
+            continue
+        except OSError:
+            return  # listener closed by stop()
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        serve(conn, address)
+
+
+class LoopbackServer(ServedOnPort):
     """Base of a simulated instrument served on loopback (context manager). Nothing is opened
     before :meth:`start`; :attr:`port` tells the port after it."""
 
-    #: What the instrument is, for logs and errors ("simulated scope").
-    what = "simulated instrument"
     #: What ends a line the client sends.
     terminator = b"\n"
 
@@ -46,11 +112,6 @@ class LoopbackServer:
         self._threads: list[threading.Thread] = []
         self._stopping = threading.Event()
         self._silent = False
-
-    def set_silent(self, silent: bool = True) -> None:
-        """Stop (or resume) answering; lines are still read and executed."""
-        with self._lock:
-            self._silent = bool(silent)
 
     # --- lifecycle --------------------------------------------------------------------------
     def start(self) -> Self:
@@ -87,37 +148,18 @@ class LoopbackServer:
         self._port = None
         self._threads = []
 
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> int:
-        """The TCP port served on (after :meth:`start`)."""
-        if self._port is None:
-            raise RuntimeError(f"the {self.what} is not running")
-        return self._port
-
     # --- serving ----------------------------------------------------------------------------
     def _accept(self) -> None:
         assert self._server is not None
-        server = self._server
-        while not self._stopping.is_set():
-            try:
-                client, _ = server.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                break
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lock:
-                self._clients.append(client)
-            name = f"{self.what.replace(' ', '-')}-client"
-            thread = threading.Thread(target=self._serve, args=(client,), name=name, daemon=True)
-            self._threads.append(thread)
-            thread.start()
+        accept_clients(self._server, self._stopping, self._add_client)
+
+    def _add_client(self, client: socket.socket, address: Any) -> None:
+        with self._lock:
+            self._clients.append(client)
+        name = f"{self.what.replace(' ', '-')}-client"
+        thread = threading.Thread(target=self._serve, args=(client,), name=name, daemon=True)
+        self._threads.append(thread)
+        thread.start()
 
     def _serve(self, client: socket.socket) -> None:
         """The conversation with one client, until it closes or the server stops: each line

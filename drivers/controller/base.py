@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import Self
 
 import numpy as np
 
-from drivers.clock import HOST_CLOCK, Clock
+from drivers.device import Device
 
 
 @dataclass(frozen=True)
@@ -36,25 +35,14 @@ class JointSample:
     joints_deg: np.ndarray
 
 
-class RobotController(abc.ABC):
-    """A six-axis robot controller. Use as a context manager: exit sends STOP, then closes."""
+class RobotController(Device):
+    """A six-axis robot controller (endpoint e.g. ``tcp://127.0.0.1:11000?state=11002``).
+
+    Use as a context manager: exit sends STOP, then closes. ``clock`` timestamps and waits on
+    the streamed state.
+    """
 
     device = "controller"
-    #: Timestamps and waits on streamed state (``drivers.clock``).
-    clock: Clock = HOST_CLOCK
-
-    @property
-    @abc.abstractmethod
-    def endpoint(self) -> str:
-        """Where the controller is (e.g. ``tcp://127.0.0.1:11000?state=11002``)."""
-
-    @abc.abstractmethod
-    def connect(self) -> None:
-        """Open the connection(s); raise ``ConnectionLost`` or ``DeviceTimeout`` on failure."""
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Close the connection(s). Idempotent."""
 
     @abc.abstractmethod
     def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
@@ -98,10 +86,6 @@ class RobotController(abc.ABC):
     @abc.abstractmethod
     def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
         """Streamed joint positions received at or after ``since_t_s`` (host monotonic clock)."""
-
-    def __enter__(self) -> Self:
-        self.connect()
-        return self
 
     def __exit__(self, *exc: object) -> None:
         try:

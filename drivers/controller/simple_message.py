@@ -112,28 +112,46 @@ def _frame(msg_type: int, comm_type: int, reply_code: int, body: bytes) -> bytes
     )
 
 
+class _Framed:
+    """What every message of a decoded type does: its frame is the header and the body it
+    packs (``_body``); its joint arrays (``_JOINT_ARRAYS``, by field name) are padded to the
+    ten elements every joint array has on the wire."""
+
+    msg_type: ClassVar[int]
+    _JOINT_ARRAYS: ClassVar[tuple[str, ...]] = ()
+    comm_type: int
+    reply_code: int
+
+    def __post_init__(self) -> None:
+        for name in self._JOINT_ARRAYS:
+            object.__setattr__(self, name, _joint_array(getattr(self, name), name))
+
+    def _body(self) -> bytes:
+        raise NotImplementedError
+
+    def pack(self) -> bytes:
+        """Serialise to a complete frame (length prefix included)."""
+        return _frame(self.msg_type, self.comm_type, self.reply_code, self._body())
+
+
 @dataclass(frozen=True)
-class JointPosition:
+class JointPosition(_Framed):
     """JOINT_POSITION (10): joint state, ``joints_rad`` padded to ten elements (rad).
 
     Body (44 bytes): int32 sequence (0 when reporting state) · float32[10] joint_data.
     """
+
+    msg_type: ClassVar[int] = MsgType.JOINT_POSITION
+    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "i10f")
+    _JOINT_ARRAYS = ("joints_rad",)
 
     joints_rad: tuple[float, ...]
     sequence: int = 0
     comm_type: int = CommType.TOPIC
     reply_code: int = ReplyCode.INVALID
 
-    msg_type: ClassVar[int] = MsgType.JOINT_POSITION
-    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "i10f")
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "joints_rad", _joint_array(self.joints_rad, "joints_rad"))
-
-    def pack(self) -> bytes:
-        """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(self.sequence, *self.joints_rad)
-        return _frame(self.msg_type, self.comm_type, self.reply_code, body)
+    def _body(self) -> bytes:
+        return self._BODY.pack(self.sequence, *self.joints_rad)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> JointPosition:
@@ -142,13 +160,17 @@ class JointPosition:
 
 
 @dataclass(frozen=True)
-class JointTrajPt:
+class JointTrajPt(_Framed):
     """JOINT_TRAJ_PT (11) request: enqueue one trajectory point.
 
     Body (52 bytes): int32 sequence · float32[10] joint_data (rad) · float32 velocity (fraction
     of the maximum joint speed, (0, 1]) · float32 duration (s; ignored by the VAL3 server, which
     executes ``movej`` at ``velocity``).
     """
+
+    msg_type: ClassVar[int] = MsgType.JOINT_TRAJ_PT
+    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "i12f")
+    _JOINT_ARRAYS = ("joints_rad",)
 
     sequence: int
     joints_rad: tuple[float, ...]
@@ -157,16 +179,8 @@ class JointTrajPt:
     comm_type: int = CommType.SERVICE_REQUEST
     reply_code: int = ReplyCode.INVALID
 
-    msg_type: ClassVar[int] = MsgType.JOINT_TRAJ_PT
-    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "i12f")
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "joints_rad", _joint_array(self.joints_rad, "joints_rad"))
-
-    def pack(self) -> bytes:
-        """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(self.sequence, *self.joints_rad, self.velocity, self.duration)
-        return _frame(self.msg_type, self.comm_type, self.reply_code, body)
+    def _body(self) -> bytes:
+        return self._BODY.pack(self.sequence, *self.joints_rad, self.velocity, self.duration)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> JointTrajPt:
@@ -175,7 +189,7 @@ class JointTrajPt:
 
 
 @dataclass(frozen=True)
-class JointTrajPtReply:
+class JointTrajPtReply(_Framed):
     """JOINT_TRAJ_PT (11) SERVICE_REPLY: the result of enqueueing one point.
 
     REP-I0006 allows three body sizes: none (header only), 40 bytes (float32[10] dummy data) and
@@ -184,13 +198,13 @@ class JointTrajPtReply:
     the sequence). ``sequence`` is ``None`` when the reply does not carry it.
     """
 
+    msg_type: ClassVar[int] = MsgType.JOINT_TRAJ_PT
+    BODY_SIZES: ClassVar[tuple[int, ...]] = (0, 40, 52)
+
     reply_code: int
     sequence: int | None = None
     body_size: int = 52
     comm_type: int = CommType.SERVICE_REPLY
-
-    msg_type: ClassVar[int] = MsgType.JOINT_TRAJ_PT
-    BODY_SIZES: ClassVar[tuple[int, ...]] = (0, 40, 52)
 
     def __post_init__(self) -> None:
         if self.body_size not in self.BODY_SIZES:
@@ -202,13 +216,10 @@ class JointTrajPtReply:
     def success(self) -> bool:
         return self.reply_code == ReplyCode.SUCCESS
 
-    def pack(self) -> bytes:
-        """Serialise to a complete frame (length prefix included)."""
+    def _body(self) -> bytes:
         if self.body_size == 52:
-            body = JointTrajPt._BODY.pack(self.sequence or 0, *([0.0] * 12))
-        else:
-            body = bytes(self.body_size)
-        return _frame(self.msg_type, self.comm_type, self.reply_code, body)
+            return JointTrajPt._BODY.pack(self.sequence or 0, *([0.0] * 12))
+        return bytes(self.body_size)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> JointTrajPtReply:
@@ -217,12 +228,15 @@ class JointTrajPtReply:
 
 
 @dataclass(frozen=True)
-class Status:
+class Status(_Framed):
     """STATUS (13): controller state; tri-states are -1 unknown, 0 false, 1 true.
 
     Body (28 bytes): int32 drives_powered · e_stopped · error_code · in_error · in_motion ·
     mode (-1 unknown, 1 manual, 2 auto) · motion_possible.
     """
+
+    msg_type: ClassVar[int] = MsgType.STATUS
+    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "7i")
 
     drives_powered: int = TriState.UNKNOWN
     e_stopped: int = TriState.UNKNOWN
@@ -234,12 +248,8 @@ class Status:
     comm_type: int = CommType.TOPIC
     reply_code: int = ReplyCode.INVALID
 
-    msg_type: ClassVar[int] = MsgType.STATUS
-    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "7i")
-
-    def pack(self) -> bytes:
-        """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(
+    def _body(self) -> bytes:
+        return self._BODY.pack(
             self.drives_powered,
             self.e_stopped,
             self.error_code,
@@ -248,7 +258,6 @@ class Status:
             self.mode,
             self.motion_possible,
         )
-        return _frame(self.msg_type, self.comm_type, self.reply_code, body)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> Status:
@@ -275,7 +284,7 @@ class Status:
 
 
 @dataclass(frozen=True)
-class JointFeedback:
+class JointFeedback(_Framed):
     """JOINT_FEEDBACK (15): joint state with velocities (VAL3 pull request #36 streams it).
 
     Body (132 bytes): int32 robot_id · int32 valid_fields (bit 0 time, 1 position, 2 velocity,
@@ -284,6 +293,10 @@ class JointFeedback:
     server writes it as an int32 (``encodeJFeedback.pgx``), so it is kept here as the raw 4
     bytes and ``time_s`` decodes it the REP way. Consumers should timestamp on receipt instead.
     """
+
+    msg_type: ClassVar[int] = MsgType.JOINT_FEEDBACK
+    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "ii4s30f")
+    _JOINT_ARRAYS = ("positions_rad", "velocities_rad_s", "accelerations_rad_s2")
 
     positions_rad: tuple[float, ...]
     velocities_rad_s: tuple[float, ...] = ()
@@ -294,12 +307,8 @@ class JointFeedback:
     comm_type: int = CommType.TOPIC
     reply_code: int = ReplyCode.INVALID
 
-    msg_type: ClassVar[int] = MsgType.JOINT_FEEDBACK
-    _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "ii4s30f")
-
     def __post_init__(self) -> None:
-        for name in ("positions_rad", "velocities_rad_s", "accelerations_rad_s2"):
-            object.__setattr__(self, name, _joint_array(getattr(self, name), name))
+        super().__post_init__()
         if len(self.time_raw) != 4:
             raise ValueError("time_raw must be 4 bytes")
 
@@ -308,9 +317,8 @@ class JointFeedback:
         """The ``time`` field read as REP-I0006 defines it (float32, s)."""
         return struct.unpack(BYTE_ORDER + "f", self.time_raw)[0]
 
-    def pack(self) -> bytes:
-        """Serialise to a complete frame (length prefix included)."""
-        body = self._BODY.pack(
+    def _body(self) -> bytes:
+        return self._BODY.pack(
             self.robot_id,
             self.valid_fields,
             self.time_raw,
@@ -318,7 +326,6 @@ class JointFeedback:
             *self.velocities_rad_s,
             *self.accelerations_rad_s2,
         )
-        return _frame(self.msg_type, self.comm_type, self.reply_code, body)
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> JointFeedback:

@@ -36,6 +36,10 @@ points are acknowledged but not executed, STATUS reporting in motion or not), ``
 (called with the count of accepted points), ``inject_reply`` / ``inject_state`` (raw bytes in
 place of the next reply / before the next state frame).
 
+The arm itself (its motion model, faults and queue of points) is ``drivers.controller.arm_model``;
+the server variants are ``drivers.controller.server_variants``; this module serves them on
+the two ports, and re-exports ``SERVERS`` and ``DEFAULT_MAX_SPEED_DEG_S``.
+
 Time: ``clock`` (``drivers.clock``). On the host clock the state port streams at
 ``state_rate_hz`` from a thread of its own. On a ``SimClock`` the stream is a ticker of that
 clock: a frame per period of simulated time, handed to the client in lock step; the start-up
@@ -58,7 +62,14 @@ from typing import Self
 
 import numpy as np
 
-from drivers.clock import HOST_CLOCK, Clock, SimClock
+from drivers.clock import Clock, SimClock
+from drivers.controller.arm_model import (
+    DEFAULT_MAX_SPEED_DEG_S,
+    N_JOINTS,
+    RANGE_EPS_DEG,
+    SimulatedArm,
+)
+from drivers.controller.server_variants import SERVERS, ServerVariant
 from drivers.controller.simple_message import (
     CommType,
     FrameReader,
@@ -69,45 +80,22 @@ from drivers.controller.simple_message import (
     Message,
     MsgType,
     ReplyCode,
-    RobotMode,
     SpecialSeq,
-    Status,
 )
 from drivers.errors import ProtocolError
+from drivers.loopback import Served, accept_clients
 
-
-@dataclass(frozen=True)
-class ServerVariant:
-    """What a Simple Message server on a Staubli controller does that a client can see."""
-
-    name: str
-    joint_message: int  # MsgType.JOINT_POSITION or JOINT_FEEDBACK
-    state_rate_hz: float  # state passes per second
-    status_first: int  # first STATUS after this pass (1-based)
-    status_every: int  # then after every this many passes
-    startup_silence_s: float  # nothing on the state port this long after a client connects
-    one_client_per_port: bool  # a second connection to a port is closed at once
-    refuse_when_halted: bool  # FAILURE (else SUCCESS, point dropped) while e-stopped etc.
-    needs_state_stream: bool  # no motion while the state stream is not running
-
-
-#: The server variants of ``SimulatedController(server=...)`` and ``ucal sim serve --server``.
-SERVERS: dict[str, ServerVariant] = {
-    "simple": ServerVariant("simple", MsgType.JOINT_POSITION, 50.0, 1, 1, 0.0, False, True, False),
-    "val3": ServerVariant("val3", MsgType.JOINT_POSITION, 50.0, 6, 5, 1.0, True, False, True),
-    "val3-feedback": ServerVariant(
-        "val3-feedback", MsgType.JOINT_FEEDBACK, 250.0, 21, 20, 1.0, True, True, True
-    ),
-}
+__all__ = [
+    "DEFAULT_MAX_SPEED_DEG_S",
+    "N_JOINTS",
+    "RANGE_EPS_DEG",
+    "SERVERS",
+    "ServerVariant",
+    "SimulatedController",
+]
 
 log = logging.getLogger(__name__)
 
-N_JOINTS = 6
-# Nominal maximum joint speeds of a TX90-class arm (deg/s), J1..J6.
-DEFAULT_MAX_SPEED_DEG_S = (250.0, 200.0, 250.0, 400.0, 400.0, 600.0)
-# Targets this far beyond a joint limit are clamped onto it instead of refused: a target that
-# sits exactly on the limit comes back a few 1e-5 deg beyond it after deg → float32 rad → deg.
-RANGE_EPS_DEG = 1e-4
 _POLL_S = 0.1  # how often blocking loops look at the stop flag (s)
 _SEND_TIMEOUT_S = 0.5  # a state client that cannot take a frame within this is dropped
 _LOOPBACK = ("127.0.0.1", "localhost")
@@ -123,66 +111,7 @@ class _StateClient:
     passes: int = 0
 
 
-@dataclass(frozen=True)
-class _Segment:
-    """One joint-interpolated move; times on the host monotonic clock (s)."""
-
-    seq: int
-    t_start: float
-    t_end: float
-    start_deg: np.ndarray
-    target_deg: np.ndarray
-
-    def at(self, t: float) -> np.ndarray:
-        if t >= self.t_end:
-            return self.target_deg.copy()
-        if t <= self.t_start:
-            return self.start_deg.copy()
-        f = (t - self.t_start) / (self.t_end - self.t_start)
-        return self.start_deg + f * (self.target_deg - self.start_deg)
-
-
-@dataclass(frozen=True)
-class _Plan:
-    """Position at rest before the first segment, then the queued segments (immutable)."""
-
-    rest_deg: np.ndarray
-    segments: tuple[_Segment, ...] = ()
-    rest_sign: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(N_JOINTS))
-    settle_s: float = 0.0
-
-    def at(self, t: float) -> np.ndarray:
-        for seg in reversed(self.segments):
-            if t >= seg.t_start:
-                return seg.at(t)
-        return self.rest_deg.copy()
-
-    def velocity_at(self, t: float) -> np.ndarray:
-        """Joint velocities (deg/s) at ``t``: the moving segment's, else zero."""
-        for seg in self.segments:
-            if seg.t_start <= t < seg.t_end:
-                return (seg.target_deg - seg.start_deg) / (seg.t_end - seg.t_start)
-        return np.zeros(N_JOINTS)
-
-    def in_motion(self, t: float) -> bool:
-        return bool(self.segments) and t < self.segments[-1].t_end + self.settle_s
-
-    def sign_at(self, t: float) -> np.ndarray:
-        """Direction (-1, 0, +1) of each joint's last motion begun by ``t``."""
-        sign = self.rest_sign.copy()
-        for seg in self.segments:
-            if seg.t_start >= t:
-                break
-            step = np.sign(seg.target_deg - seg.start_deg)
-            sign = np.where(step != 0, step, sign)
-        return sign
-
-    def rest(self, t: float) -> _Plan:
-        """The plan of an arm stopped where it is at ``t``."""
-        return _Plan(self.at(t), (), self.sign_at(t), self.settle_s)
-
-
-class SimulatedController:
+class SimulatedController(SimulatedArm, Served):
     """Simple Message controller simulator (see the module docstring for its behaviour).
 
     Joint limits and positions in degrees, speeds in deg/s, ``state_rate_hz`` in Hz.
@@ -224,38 +153,22 @@ class SimulatedController:
         missing_state_frames: float = 0.0,
         seed: int = 0,
     ):
-        self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
-        self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
-        self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
-        for name, arr in (
-            ("joint_min_deg", self.joint_min_deg),
-            ("joint_max_deg", self.joint_max_deg),
-            ("max_speed_deg_s", self.max_speed_deg_s),
-        ):
-            if arr.shape != (N_JOINTS,) or not np.all(np.isfinite(arr)):
-                raise ValueError(f"{name} must be {N_JOINTS} finite numbers, got {arr.tolist()}")
-        if np.any(self.joint_min_deg >= self.joint_max_deg):
-            raise ValueError("every joint_min_deg must be below its joint_max_deg")
-        if np.any(self.max_speed_deg_s <= 0):
-            raise ValueError("max_speed_deg_s must be positive")
-        if initial_deg is None:
-            initial = np.clip(np.zeros(N_JOINTS), self.joint_min_deg, self.joint_max_deg)
-        else:
-            initial = np.asarray(initial_deg, dtype=float)
-            if initial.shape != (N_JOINTS,) or not self._in_range(initial):
-                raise ValueError(
-                    f"initial_deg {initial.tolist()} is not {N_JOINTS} values "
-                    "inside the joint ranges"
-                )
-        if host not in _LOOPBACK:
-            raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")
-        if not (time_scale >= 0 and math.isfinite(time_scale)):
-            raise ValueError(f"time_scale must be >= 0, got {time_scale}")
-        if not (settle_s >= 0 and math.isfinite(settle_s)):
-            raise ValueError(f"settle_s must be >= 0, got {settle_s}")
         if server not in SERVERS:
             raise ValueError(f"server must be one of {', '.join(SERVERS)}, got {server!r}")
-        self.variant = SERVERS[server]
+        super().__init__(
+            joint_min_deg,
+            joint_max_deg,
+            initial_deg,
+            max_speed_deg_s,
+            variant=SERVERS[server],
+            time_scale=time_scale,
+            settle_s=settle_s,
+            on_motion=on_motion,
+            on_point=on_point,
+            clock=clock,
+        )
+        if host not in _LOOPBACK:
+            raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")
         if state_rate_hz is None:
             state_rate_hz = self.variant.state_rate_hz
         if joint_message is None:
@@ -278,13 +191,9 @@ class SimulatedController:
             raise ValueError(f"missing_state_frames must be in [0, 1), got {missing_state_frames}")
         self.host = "127.0.0.1"
         self._requested_ports = (int(motion_port), int(state_port))
-        self.time_scale = float(time_scale)
         self.state_rate_hz = float(state_rate_hz)
-        self.on_motion = on_motion
         self.joint_message = int(joint_message)
         self.startup_silence_s = float(startup_silence_s)
-        self.on_point = on_point
-        self.clock: Clock = clock if clock is not None else HOST_CLOCK
         # The stream's own time: each frame carries the arm as it was latency + jitter before
         # it is sent (frames have no time stamp: the client sees only when they arrive), some
         # frames are lost. One seeded generator, drawn once per pass, so that the same world
@@ -297,16 +206,6 @@ class SimulatedController:
         # How far back frames may describe the arm: finished moves are kept this much longer.
         self._history_s = self.state_latency_s + 6.0 * self.state_jitter_s
 
-        self._lock = threading.Lock()  # guards plan changes, faults, client lists, counters
-        # replaced whole, read without the lock
-        self._plan = _Plan(initial.copy(), settle_s=float(settle_s))
-        self._drives_powered = True
-        self._e_stopped = False
-        self._in_error = False
-        self._error_code = 0
-        self.moves_executed = 0
-        self.points_received = 0  # valid trajectory points received (on_point counts these)
-        self.stops_received = 0  # STOP_TRAJECTORY requests seen (tests check that STOP was sent)
         self.motion_port: int | None = None
         self.state_port: int | None = None
 
@@ -314,7 +213,6 @@ class SimulatedController:
         self._listeners: list[socket.socket] = []
         self._motion_clients: set[socket.socket] = set()
         self._state_clients: list[_StateClient] = []
-        self._hold_in_motion: bool | None = None  # set by hold(): the arm is held
         self._replies: list[bytes] = []  # inject_reply()
         self._state_garbage = b""  # inject_state()
         self._threads: list[threading.Thread] = []
@@ -361,12 +259,6 @@ class SimulatedController:
     def kill(self) -> None:
         """Simulate a crash: reset every connection at once and stop serving."""
         self._shutdown(abort=True)
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def _shutdown(self, abort: bool) -> None:
         if not self._started:
@@ -427,70 +319,10 @@ class SimulatedController:
     def _accept_loop(
         self, listener: socket.socket, handler: Callable[[socket.socket, str], None]
     ) -> None:
-        while not self._stop_evt.is_set():
-            try:
-                conn, addr = listener.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return  # listener closed by stop()/kill()
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            handler(conn, f"{addr[0]}:{addr[1]}")
-
-    # -- model ------------------------------------------------------------------------------
-
-    def joints_deg(self) -> np.ndarray:
-        """Joint readings (deg, (6,)) at this instant. Thread-safe, lock-free."""
-        return self._plan.at(self.clock.now())
-
-    def motion_sign(self) -> np.ndarray:
-        """Direction (-1, 0, +1) of each joint's last motion, at this instant."""
-        return self._plan.sign_at(self.clock.now())
-
-    def joints_at(self, t: float) -> np.ndarray:
-        """Joint readings (deg, (6,)) at instant ``t`` of the clock, a little in the past at
-        most (finished moves are kept for the stream's latency)."""
-        return self._plan.at(t)
-
-    def motion_sign_at(self, t: float) -> np.ndarray:
-        """Direction (-1, 0, +1) of each joint's last motion begun by instant ``t``."""
-        return self._plan.sign_at(t)
-
-    def in_motion(self) -> bool:
-        """Whether a move is executing (or settling) at this instant."""
-        return self._plan.in_motion(self.clock.now())
-
-    def set_fault(
-        self,
-        *,
-        e_stopped: bool | None = None,
-        drives_powered: bool | None = None,
-        in_error: bool | None = None,
-        error_code: int | None = None,
-    ) -> None:
-        """Change the reported fault state; an e-stop, power loss or error freezes motion."""
-        with self._lock:
-            if e_stopped is not None:
-                self._e_stopped = bool(e_stopped)
-            if drives_powered is not None:
-                self._drives_powered = bool(drives_powered)
-            if in_error is not None:
-                self._in_error = bool(in_error)
-            if error_code is not None:
-                self._error_code = int(error_code)
-            halt = self._e_stopped or not self._drives_powered or self._in_error
-        if halt:
-            self._freeze(self.clock.now(), "fault")
-
-    def hold(self, in_motion: bool | None = False) -> None:
-        """Stop the arm where it is and execute no more points (they are still acknowledged),
-        the stream going on, STATUS reporting ``in_motion``: a halt the controller makes
-        without a fault (``False``) or an arm held while reporting motion (``True``).
-        ``None`` releases the hold."""
-        with self._lock:
-            self._hold_in_motion = in_motion
-        if in_motion is not None:
-            self._freeze(self.clock.now(), "held")
+        # listener closed by stop()/kill(): the loop ends
+        accept_clients(
+            listener, self._stop_evt, lambda conn, addr: handler(conn, f"{addr[0]}:{addr[1]}")
+        )
 
     def inject_reply(self, raw: bytes) -> None:
         """Send ``raw`` instead of the next reply on the motion port."""
@@ -502,168 +334,14 @@ class SimulatedController:
         with self._lock:
             self._state_garbage += bytes(raw)
 
-    def _in_range(self, joints: np.ndarray) -> bool:
-        return bool(
-            np.all(joints >= self.joint_min_deg - RANGE_EPS_DEG)
-            and np.all(joints <= self.joint_max_deg + RANGE_EPS_DEG)
-        )
-
-    def _status(self, now: float) -> Status:
-        with self._lock:
-            powered, estop, err, code = (
-                self._drives_powered,
-                self._e_stopped,
-                self._in_error,
-                self._error_code,
-            )
-            held = self._hold_in_motion
-        possible = powered and not estop and not err
-        moving = self._plan.in_motion(now) if held is None else held
-        return Status(
-            drives_powered=int(powered),
-            e_stopped=int(estop),
-            error_code=code,
-            in_error=int(err),
-            in_motion=int(moving),
-            mode=RobotMode.AUTO,
-            motion_possible=int(possible),
-        )
-
-    def _record(self, seg: _Segment, end_deg: np.ndarray, stopped: bool) -> dict:
-        wall_start = time.time() - (self.clock.now() - seg.t_start)
-        return {
-            "seq": seg.seq,
-            "t_start": seg.t_start,
-            "t_wall_start": wall_start,
-            "start_deg": [float(v) for v in seg.start_deg],
-            "target_deg": [float(v) for v in seg.target_deg],
-            "end_deg": [float(v) for v in end_deg],
-            "duration_s": seg.t_end - seg.t_start,
-            "stopped": stopped,
-        }
-
-    def _notify(self, records: list[dict]) -> None:
-        callback = self.on_motion
-        if callback is None:
-            return
-        for record in records:
-            try:
-                callback(record)
-            except Exception:  # a faulty observer must not kill the simulator
-                log.exception("on_motion callback failed")
-
-    def _retire(self, now: float) -> None:
-        """Drop finished segments from the plan and report them."""
-        with self._lock:
-            plan = self._plan
-            # a move is done once it has settled (the last one is reported in motion until
-            # then) and no frame still to be sent describes it
-            keep_s = plan.settle_s + self._history_s
-            done = [s for s in plan.segments if s.t_end + keep_s <= now]
-            if not done:
-                return
-            self._plan = _Plan(
-                done[-1].target_deg.copy(),
-                plan.segments[len(done) :],
-                plan.sign_at(done[-1].t_end),
-                plan.settle_s,
-            )
-        self._notify([self._record(s, s.target_deg, False) for s in done])
-
-    def _freeze(self, now: float, why: str) -> None:
-        """Stop where the arm is now: report finished and interrupted moves, drop queued ones."""
-        with self._lock:
-            plan = self._plan
-            if not plan.segments:
-                return
-            here = plan.at(now)
-            records = [
-                self._record(s, s.target_deg, False) for s in plan.segments if s.t_end <= now
-            ]
-            active = [s for s in plan.segments if s.t_start <= now < s.t_end]
-            records += [self._record(s, here, True) for s in active]
-            dropped = sum(1 for s in plan.segments if s.t_start > now)
-            self._plan = plan.rest(now)
-        if active or dropped:
-            log.info(
-                "simulated controller stopped motion (%s) at %s deg; %d queued point(s) dropped",
-                why,
-                np.round(here, 4).tolist(),
-                dropped,
-            )
-        self._notify(records)
-
-    def _enqueue(self, msg: JointTrajPt) -> bool:
-        """Queue one trajectory point; False when it must be refused."""
-        target = np.degrees(np.asarray(msg.joints_rad[:N_JOINTS], dtype=float))
-        velocity = min(float(msg.velocity), 1.0)  # VAL3: limit(velocity * 100, 0, 100) %
-        if not (np.all(np.isfinite(target)) and math.isfinite(velocity) and velocity > 0):
-            log.warning(
-                "simulated controller refuses point %d: bad target or velocity %r",
-                msg.sequence,
-                msg.velocity,
-            )
-            return False
-        if not self._in_range(target):
-            log.warning(
-                "simulated controller refuses point %d: %s deg outside the joint ranges",
-                msg.sequence,
-                np.round(target, 4).tolist(),
-            )
-            return False
-        target = np.clip(target, self.joint_min_deg, self.joint_max_deg)
-        with self._lock:
-            self.points_received += 1
-            count = self.points_received
-        if self.on_point is not None:
-            self.on_point(count)  # a fault hook strikes before the point is executed
-        now = self.clock.now()
-        self._retire(now)
-        with self._lock:
-            if self._e_stopped or not self._drives_powered or self._in_error:
-                refuse = self.variant.refuse_when_halted
-                log.warning(
-                    "simulated controller %s point %d: e-stopped=%s powered=%s in error=%s",
-                    "refuses" if refuse else "drops",
-                    msg.sequence,
-                    self._e_stopped,
-                    self._drives_powered,
-                    self._in_error,
-                )
-                return not refuse
-            if self._hold_in_motion is not None or (
-                self.variant.needs_state_stream and not self._streaming(now)
-            ):
-                log.warning(
-                    "simulated controller drops point %d: %s",
-                    msg.sequence,
-                    "the arm is held"
-                    if self._hold_in_motion is not None
-                    else "the state stream is not running",
-                )
-                return True
-            plan = self._plan
-            if plan.segments:
-                start_t, start = plan.segments[-1].t_end, plan.segments[-1].target_deg
-            else:
-                start_t, start = now, plan.rest_deg
-            t0 = max(now, start_t)
-            duration = float(np.max(np.abs(target - start) / (self.max_speed_deg_s * velocity)))
-            seg = _Segment(msg.sequence, t0, t0 + duration * self.time_scale, start.copy(), target)
-            self._plan = dataclasses.replace(plan, segments=plan.segments + (seg,))
-            self.moves_executed += 1
-        log.debug(
-            "simulated controller queued point %d: %s deg in %.3f s",
-            msg.sequence,
-            np.round(target, 4).tolist(),
-            seg.t_end - seg.t_start,
-        )
-        return True
-
     # -- motion port ------------------------------------------------------------------------
 
-    def _refuse_second(self, conn: socket.socket, peer: str, port: str, served: bool) -> bool:
-        """Close ``conn`` at once if the variant serves one client per port and one is served."""
+    def _refuse(self, conn: socket.socket, peer: str, port: str, served: bool) -> bool:
+        """Close ``conn`` at once if the simulator is stopping, or if the variant serves one
+        client per port and one is ``served``; the caller holds ``_lock``."""
+        if self._stop_evt.is_set():
+            conn.close()
+            return True
         if not (served and self.variant.one_client_per_port):
             return False
         log.warning(
@@ -677,10 +355,7 @@ class SimulatedController:
 
     def _serve_motion(self, conn: socket.socket, peer: str) -> None:
         with self._lock:
-            if self._stop_evt.is_set():
-                conn.close()
-                return
-            if self._refuse_second(conn, peer, "motion", bool(self._motion_clients)):
+            if self._refuse(conn, peer, "motion", bool(self._motion_clients)):
                 return
             self._motion_clients.add(conn)
         self._spawn(self._motion_loop, (conn, peer), f"motion {peer}")
@@ -750,10 +425,7 @@ class SimulatedController:
     def _add_state_client(self, conn: socket.socket, peer: str) -> None:
         conn.settimeout(_SEND_TIMEOUT_S)
         with self._lock:
-            if self._stop_evt.is_set():
-                conn.close()
-                return
-            if self._refuse_second(conn, peer, "state", bool(self._state_clients)):
+            if self._refuse(conn, peer, "state", bool(self._state_clients)):
                 return
             client = _StateClient(conn, peer, self.clock.now() + self.startup_silence_s)
             self._state_clients.append(client)

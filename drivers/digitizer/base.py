@@ -20,11 +20,11 @@ import abc
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Protocol, Self, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from drivers.clock import HOST_CLOCK, Clock
+from drivers.device import Device
 
 
 @dataclass(frozen=True)
@@ -114,25 +114,13 @@ class HostTimed(Protocol):
     echo_timer: EchoTimer | None
 
 
-class Digitizer(abc.ABC):
-    """An instrument that records the receiver's RF output. Use as a context manager."""
+class Digitizer(Device):
+    """An instrument that records the receiver's RF output (endpoint e.g.
+    ``visa://TCPIP::127.0.0.1::5025::SOCKET``). Use as a context manager; ``connect`` also sets
+    the instrument up for single acquisitions. ``clock`` stamps ``AScanRecord.host_time_s``.
+    """
 
     device = "digitizer"
-    #: Stamps ``AScanRecord.host_time_s`` (``drivers.clock``).
-    clock: Clock = HOST_CLOCK
-
-    @property
-    @abc.abstractmethod
-    def endpoint(self) -> str:
-        """Where the digitiser is (e.g. ``visa://TCPIP::127.0.0.1::5025::SOCKET``)."""
-
-    @abc.abstractmethod
-    def connect(self) -> None:
-        """Open the connection and set the instrument up for single acquisitions."""
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Close the connection. Idempotent."""
 
     @abc.abstractmethod
     def configure(self, start_ns: float, width_ns: float, averages: int) -> None:
@@ -146,10 +134,3 @@ class Digitizer(abc.ABC):
     def identity(self) -> dict[str, object]:
         """What the instrument tells about itself."""
         return {}
-
-    def __enter__(self) -> Self:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

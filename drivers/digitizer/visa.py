@@ -32,6 +32,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drivers.device import RequestLink
 from drivers.digitizer import scpi
 from drivers.digitizer.base import AScanRecord, Digitizer
 from drivers.digitizer.urls import DigitizerUrl, parse_digitizer_url
@@ -122,7 +123,7 @@ def open_visa_resource(resource: str, backend: str, timeout_s: float) -> Any:
     return handle
 
 
-class ScpiScope(Digitizer):
+class ScpiScope(RequestLink, Digitizer):
     """An oscilloscope recording the receiver's RF output on channel 1, triggered by the
     pulser's sync output on EXT.
 
@@ -144,8 +145,7 @@ class ScpiScope(Digitizer):
         backend: str = DEFAULT_BACKEND,
     ):
         parsed = parse_digitizer_url(url) if isinstance(url, str) else url
-        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
+        self._link_to(str(parsed), timeout_s)
         if not (math.isfinite(full_scale_v) and full_scale_v > 0):
             raise ValueError(f"full_scale_v must be a positive voltage, got {full_scale_v!r}")
         try:
@@ -155,8 +155,6 @@ class ScpiScope(Digitizer):
         if self._format not in scpi.SAMPLE_BYTES:
             raise ValueError(f"wave_format must be WORD or BYTE, got {wave_format!r}")
         self._url = parsed
-        self._endpoint = str(parsed)
-        self._timeout_s = float(timeout_s)
         self.full_scale_v = float(full_scale_v)
         self._backend = backend
         self._injected = resource
@@ -172,16 +170,6 @@ class ScpiScope(Digitizer):
         """Build a scope from ``visa://RESOURCE`` (``ValueError`` if malformed); no I/O."""
         return cls(url, timeout_s, **options)
 
-    @property
-    def endpoint(self) -> str:
-        """The digitiser URL, e.g. ``visa://TCPIP::127.0.0.1::5025::SOCKET``."""
-        return self._endpoint
-
-    @property
-    def timeout_s(self) -> float:
-        """Time one request may wait for its answer, s."""
-        return self._timeout_s
-
     # --- lifecycle --------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the resource, identify the scope and set it up for single acquisitions."""
@@ -189,16 +177,12 @@ class ScpiScope(Digitizer):
             if self._transport is not None:
                 return
             log.debug("digitizer %s: connecting", self._endpoint)
-            try:
-                resource = (
-                    self._injected
-                    if self._injected is not None
-                    else open_visa_resource(self._url.resource, self._backend, self._timeout_s)
-                )
-            except Exception as exc:  # pyvisa-py raises plain Exception for a refused socket
-                raise ConnectionLost(
-                    self.device, self._endpoint, f"cannot open {self._url.resource}: {exc}"
-                ) from exc
+            # pyvisa-py raises plain Exception for a refused socket: any error is a lost link.
+            resource = self._open_link(
+                self._injected,
+                lambda: open_visa_resource(self._url.resource, self._backend, self._timeout_s),
+                self._url.resource,
+            )
             self._transport = PyVisaTransport(resource)
             self._written = {}
             self.acquisitions = 0
@@ -229,11 +213,7 @@ class ScpiScope(Digitizer):
         """Close the resource. Idempotent."""
         with self._lock:
             transport, self._transport = self._transport, None
-            if transport is not None:
-                try:
-                    transport.close()
-                except Exception:  # closing a dead link must not hide why it died
-                    log.debug("digitizer %s: close failed", self._endpoint, exc_info=True)
+            self._close_link(transport)
 
     def identity(self) -> dict[str, object]:
         """``*IDN?``: manufacturer, model, serial number and firmware."""

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from serial import SerialException
 
+from drivers.device import RequestLink
 from drivers.digitizer.base import AScanRecord, Digitizer, EchoTimer, EchoTiming
 from drivers.digitizer.visa import ScpiScope
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
@@ -52,7 +53,7 @@ DEFAULT_THRESHOLD = 0.02
 _POLL_S = 0.0005
 
 
-class AsciiPulser:
+class AsciiPulser(RequestLink):
     """The serial line of a CompactPulser-class pulser (``ascii://DEVICE[?baud=N]``).
 
     ``port`` injects an already-open pyserial-compatible port (``write``, ``read``,
@@ -66,35 +67,23 @@ class AsciiPulser:
         self, url: str | AsciiUrl, timeout_s: float = DEFAULT_TIMEOUT_S, *, port: Any = None
     ):
         self._url = parse_ascii_url(url) if isinstance(url, str) else url
-        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
-        self._endpoint = str(self._url)
-        self._timeout_s = float(timeout_s)
+        self._link_to(str(self._url), timeout_s)
         self._injected = port
         self._port: Any = None
         self._rx = b""
         self._lock = threading.RLock()
-
-    @property
-    def endpoint(self) -> str:
-        """``ascii://DEVICE[?baud=N]``."""
-        return self._endpoint
 
     def connect(self) -> None:
         """Open the line and check that a pulser answers (``G?``)."""
         with self._lock:
             if self._port is not None:
                 return
-            try:
-                self._port = (
-                    self._injected
-                    if self._injected is not None
-                    else open_port(self._url.device, self._url.baud, self._timeout_s)
-                )
-            except (SerialException, OSError, ValueError) as exc:
-                raise ConnectionLost(
-                    self.device, self._endpoint, f"cannot open {self._url.device}: {exc}"
-                ) from exc
+            self._port = self._open_link(
+                self._injected,
+                lambda: open_port(self._url.device, self._url.baud, self._timeout_s),
+                self._url.device,
+                (SerialException, OSError, ValueError),
+            )
             self._rx = b""
             try:
                 self.read(cmd.Letter.GAIN)
@@ -106,11 +95,7 @@ class AsciiPulser:
         """Close the line. Idempotent."""
         with self._lock:
             port, self._port = self._port, None
-            if port is not None:
-                try:
-                    port.close()
-                except Exception:
-                    log.debug("pulser %s: close failed", self._endpoint, exc_info=True)
+            self._close_link(port)
 
     def write(self, letter: cmd.Letter, code: int) -> None:
         """Send ``<letter><code>`` (the device does not answer)."""
@@ -372,10 +357,7 @@ class AsciiScpiPulser(PulserReceiver):
                 "the application must give it one (echo_timer)"
             )
         record = self.read_ascan_record(timeout_s)
-        settings = self._settings or PulserSettings()
-        start_ns = settings.gate_start_us * 1e3
-        gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
-        echo = self.echo_timer(record, gate)
+        echo = self.echo_timer(record, (self._settings or PulserSettings()).gate_ns)
         self.last_echo, self.last_record = echo, record
         amplitude = float(echo.amplitude) if math.isfinite(echo.amplitude) else 0.0
         tof_ns = float(echo.tof_ns)

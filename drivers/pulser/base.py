@@ -10,11 +10,10 @@ from __future__ import annotations
 import abc
 import math
 from dataclasses import dataclass
-from typing import Self
 
 import numpy as np
 
-from drivers.clock import HOST_CLOCK, Clock
+from drivers.device import Device
 
 
 @dataclass(frozen=True)
@@ -82,6 +81,12 @@ class PulserSettings:
                 f"high_pass_mhz = {self.high_pass_mhz!r} MHz (empty filter band)"
             )
 
+    @property
+    def gate_ns(self) -> tuple[float, float]:
+        """The gate's start and end, ns of round-trip time."""
+        start_ns = self.gate_start_us * 1e3
+        return start_ns, start_ns + self.gate_width_us * 1e3
+
 
 @dataclass(frozen=True)
 class GateReading:
@@ -107,25 +112,13 @@ class GateReading:
         return bool(np.isfinite(self.tof_ns))
 
 
-class PulserReceiver(abc.ABC):
-    """An ultrasonic pulser-receiver. Use as a context manager."""
+class PulserReceiver(Device):
+    """An ultrasonic pulser-receiver (endpoint e.g. ``modbus-tcp://127.0.0.1:5020?unit=1``).
+
+    Use as a context manager. ``clock`` stamps ``GateReading.host_time_s``.
+    """
 
     device = "pulser"
-    #: Stamps ``GateReading.host_time_s`` (``drivers.clock``).
-    clock: Clock = HOST_CLOCK
-
-    @property
-    @abc.abstractmethod
-    def endpoint(self) -> str:
-        """Where the pulser is (e.g. ``modbus-tcp://127.0.0.1:5020?unit=1``)."""
-
-    @abc.abstractmethod
-    def connect(self) -> None:
-        """Open the connection; raise ``ConnectionLost`` or ``DeviceTimeout`` on failure."""
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Close the connection. Idempotent."""
 
     @abc.abstractmethod
     def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]] | None:
@@ -151,10 +144,3 @@ class PulserReceiver(abc.ABC):
     def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
         """Optional: A-scan samples (normalised, (n,)) and sample rate (Hz); None if unsupported."""
         return None
-
-    def __enter__(self) -> Self:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -104,6 +104,16 @@ def shipped_map() -> RegisterMap:
     return load_register_map(SHIPPED_MAP_PATH)
 
 
+def register_map_of(register_map: RegisterMap | str | Path | None) -> RegisterMap:
+    """``register_map`` itself, the map in that file (:class:`RegisterMapError`, a
+    ``ValueError``, when it is not a valid one), or for None ucal's own."""
+    if register_map is None:
+        return shipped_map()
+    if isinstance(register_map, RegisterMap):
+        return register_map
+    return load_register_map(register_map)
+
+
 def load_register_map(path: str | Path) -> RegisterMap:
     """Read and validate the map file at ``path``; raise :class:`RegisterMapError`."""
     p = Path(path)

@@ -1,9 +1,10 @@
 """Modbus client for the pulser-receiver: RTU over a serial line or pyserial URL, and Modbus TCP.
 
 The register map (a data file, ``drivers.pulser.map_file``; ucal's own by default) and its
-encodings are in ``drivers.pulser.registers``; this module owns the transport (a pymodbus
-synchronous client), timeouts, the mapping of Modbus faults to ``drivers.errors`` and the
-DEBUG log of every frame (``WRITE:``/``READ:`` in hex).
+encodings are in ``drivers.pulser.registers``; the transport (a pymodbus synchronous client),
+timeouts, the mapping of Modbus faults to ``drivers.errors`` and the DEBUG log of every frame
+(``WRITE:``/``READ:`` in hex) in ``drivers.pulser.modbus_link``; this module gives the
+registers their meaning: identity, settings, readings, the A-scan.
 
 Fault mapping (every message names the device ``pulser`` and its URL):
 
@@ -28,19 +29,13 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.client.base import ModbusBaseSyncClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.framer import FramerType
-from serial import SerialException
 
 from drivers.digitizer.base import (
     AScanRecord,
@@ -49,26 +44,20 @@ from drivers.digitizer.base import (
     left_aligned_step,
     timer_window_ns,
 )
-from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
+from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
-from drivers.pulser.map_file import load_register_map, shipped_map
+from drivers.pulser.map_file import register_map_of
+from drivers.pulser.modbus_link import (
+    DEFAULT_RETRIES,
+    DEFAULT_TIMEOUT_S,
+    MIN_REQUEST_TIMEOUT_S,
+    READ_FUNCTION,
+    ModbusLink,
+)
 from drivers.pulser.urls import PulserUrl, parse_pulser_url
-from drivers.serial_port import SocketPort as _SocketPort
 
 log = logging.getLogger(__name__)
-
-#: Default time one request may wait for its answer, s.
-DEFAULT_TIMEOUT_S = 1.0
-#: Times a request that got no byte back is asked again before the device counts as silent.
-DEFAULT_RETRIES = 1
-#: Pause between two polls of the measurement block while waiting for a new counter, s.
-POLL_INTERVAL_S = 0.002
-#: Half width (ns) of the A-scan transferred around the device's peak for a timer that does
-#: not say how much it reads.
-DEFAULT_WINDOW_NS = 2000.0
-#: Shortest per-request timeout used when a deadline is almost reached, s.
-_MIN_REQUEST_TIMEOUT_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -86,11 +75,14 @@ class AScan:
         return self.start_ns + np.arange(self.samples.size) * (1e9 / self.sample_rate_hz)
 
 
-class _NoFrame(Exception):
-    """Bytes kept arriving past a request's deadline without forming the awaited frame."""
+#: Pause between two polls of the measurement block while waiting for a new counter, s.
+POLL_INTERVAL_S = 0.002
+#: Half width (ns) of the A-scan transferred around the device's peak for a timer that does
+#: not say how much it reads.
+DEFAULT_WINDOW_NS = 2000.0
 
 
-class ModbusPulser(PulserReceiver):
+class ModbusPulser(ModbusLink, PulserReceiver):
     """The pulser-receiver over Modbus RTU or Modbus TCP.
 
     Build it with :meth:`from_url`. No I/O happens before :meth:`connect` (or the first call
@@ -110,29 +102,8 @@ class ModbusPulser(PulserReceiver):
         retries: int = DEFAULT_RETRIES,
     ):
         parsed = parse_pulser_url(url) if isinstance(url, str) else url
-        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
-        if not (isinstance(retries, int) and 0 <= retries <= 10):
-            raise ValueError(f"retries must be an integer from 0 to 10, got {retries!r}")
-        if port is not None and parsed.framing != "rtu":
-            raise ValueError("port can only be injected for modbus-rtu URLs")
-        if register_map is None:
-            register_map = shipped_map()
-        elif not isinstance(register_map, reg.RegisterMap):
-            register_map = load_register_map(register_map)  # RegisterMapError is a ValueError
-        self._map = register_map
-        self._url = parsed
-        self._endpoint = str(parsed)
-        self._unit = parsed.unit
-        self._timeout_s = float(timeout_s)
-        self._retries = retries
-        self._lock = threading.RLock()
-        self._rx = b""  # bytes received for the request in flight (cumulative)
-        # When the request in flight must have its answer (time.monotonic() s): pymodbus
-        # waits for a valid frame as long as bytes keep coming, so a peer that streams
-        # anything but Modbus would hold a request forever.
-        self._rx_deadline = math.inf
-        self._connected = False
+        super().__init__(parsed, timeout_s, retries=retries, port=port)
+        self._map = register_map_of(register_map)
         self._last_counter: int | None = None
         self._map_version: int | None = None
         self._front_end_written: list[list[int]] | None = None  # last front-end block written
@@ -143,8 +114,6 @@ class ModbusPulser(PulserReceiver):
         self.last_echo: EchoTiming | None = None
         self.last_record: AScanRecord | None = None
         self._settings: PulserSettings | None = None  # as last configured
-        self._injected_port = port
-        self._client = self._make_client(parsed)
 
     @classmethod
     def from_url(
@@ -164,60 +133,7 @@ class ModbusPulser(PulserReceiver):
         """
         return cls(url, timeout_s, register_map=register_map, retries=retries)
 
-    def _make_client(self, url: PulserUrl) -> ModbusBaseSyncClient:
-        common: dict[str, Any] = {
-            "timeout": self._timeout_s,
-            "retries": 0,
-            "trace_packet": self._trace_packet,
-            "name": "pulser",
-        }
-        if url.framing == "tcp":
-            return ModbusTcpClient(
-                url.host or "", port=url.port or 502, framer=FramerType.SOCKET, **common
-            )
-        return ModbusSerialClient(
-            url.device or "",
-            framer=FramerType.RTU,
-            baudrate=url.baud,
-            bytesize=8,
-            parity=url.parity,
-            stopbits=1,
-            **common,
-        )
-
-    def _open_port(self) -> None:
-        """Give the RTU client its port when pymodbus should not open it itself.
-
-        pymodbus uses an already-set ``client.socket`` instead of calling ``serial_for_url``:
-        that is how an injected port, or the faster ``socket://`` port, is handed over.
-        """
-        client = self._client
-        if not isinstance(client, ModbusSerialClient) or client.socket is not None:
-            return
-        port = self._injected_port
-        if port is None and (self._url.device or "").startswith("socket://"):
-            port = _SocketPort(None, timeout=self._timeout_s)
-            port.port = self._url.device
-            try:
-                port.open()
-            except (SerialException, OSError) as exc:
-                raise ConnectionLost(self.device, self._endpoint, f"cannot open: {exc}") from exc
-        if port is not None:
-            port.inter_byte_timeout = client.inter_byte_timeout or None
-            client.socket = port
-            client.last_frame_end = None
-
     # --- PulserReceiver ---------------------------------------------------------------------
-    @property
-    def endpoint(self) -> str:
-        """The pulser URL, e.g. ``modbus-tcp://127.0.0.1:5020?unit=1``."""
-        return self._endpoint
-
-    @property
-    def timeout_s(self) -> float:
-        """Time one request may wait for its answer, s."""
-        return self._timeout_s
-
     @property
     def register_map(self) -> reg.RegisterMap:
         """The register map this client speaks."""
@@ -234,20 +150,7 @@ class ModbusPulser(PulserReceiver):
             if self._connected:
                 return
             log.debug("pulser %s: connecting", self._endpoint)
-            self._open_port()
-            if not self._client.connect():
-                self._client.close()
-                what = (
-                    f"serial device {self._url.device!r}"
-                    if self._url.framing == "rtu"
-                    else f"TCP {self._url.host}:{self._url.port}"
-                )
-                raise ConnectionLost(
-                    self.device,
-                    self._endpoint,
-                    f"cannot open {what} (refused, unreachable or no answer "
-                    f"within {self._timeout_s:.3g} s)",
-                )
+            self._open()
             identity = self._map.present(("magic", "map_version"))
             try:
                 words = self._read_values(identity, "identify", autoconnect=False)
@@ -412,13 +315,10 @@ class ModbusPulser(PulserReceiver):
     ) -> GateReading:
         """``reading`` with the amplitude, time of flight and std ``timer`` finds in the
         A-scan around the device's peak."""
-        settings = self._settings or PulserSettings()
-        start_ns = settings.gate_start_us * 1e3
-        gate = (start_ns, start_ns + settings.gate_width_us * 1e3)
         record = self.read_ascan_record(
-            reading.tof_ns, timeout_s=max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S)
+            reading.tof_ns, timeout_s=max(deadline - time.monotonic(), MIN_REQUEST_TIMEOUT_S)
         )
-        echo = timer(record, gate)
+        echo = timer(record, (self._settings or PulserSettings()).gate_ns)
         self.last_echo, self.last_record = echo, record
         if not (math.isfinite(echo.tof_ns) and echo.amplitude > 0.0):
             return replace(reading, tof_ns=float("nan"))
@@ -446,10 +346,7 @@ class ModbusPulser(PulserReceiver):
         samples are then read in blocks of at most 125 registers.
         """
         deadline = time.monotonic() + float(timeout_s)
-        sample_register = self._register("ascan_samples")
-        header = self._map.decode_ascan_header(
-            self._read_values(self._map.present(reg.ASCAN_HEADER), "read A-scan header", deadline)
-        )
+        sample_register, header = self._ascan_header(deadline)
         if header.length > sample_register.words:
             raise ProtocolError(
                 self.device,
@@ -462,23 +359,7 @@ class ModbusPulser(PulserReceiver):
             raise ProtocolError(
                 self.device, self._endpoint, f"A-scan sample rate {header.sample_rate_hz} Hz"
             )
-        samples: list[int] = []
-        while len(samples) < header.length:
-            if time.monotonic() >= deadline:
-                raise DeviceTimeout(
-                    self.device,
-                    self._endpoint,
-                    f"A-scan of {header.length} samples not read within "
-                    f"{timeout_s:g} s ({len(samples)} read)",
-                )
-            count = min(reg.MAX_READ_REGISTERS, header.length - len(samples))
-            samples += self._read(
-                _READ[sample_register.table],
-                sample_register.address + len(samples),
-                count,
-                "read A-scan samples",
-                deadline,
-            )
+        samples = self._ascan_words(sample_register, 0, header.length, deadline, timeout_s)
         return AScan(
             samples=reg.decode_samples(samples, sample_register.full_scale),
             sample_rate_hz=header.sample_rate_hz,
@@ -498,10 +379,7 @@ class ModbusPulser(PulserReceiver):
         ``centre_ns``, or the whole A-scan when ``centre_ns`` is None. ``timeout_s`` bounds
         the transfer."""
         deadline = time.monotonic() + float(timeout_s)
-        sample_register = self._register("ascan_samples")
-        header = self._map.decode_ascan_header(
-            self._read_values(self._map.present(reg.ASCAN_HEADER), "read A-scan header", deadline)
-        )
+        sample_register, header = self._ascan_header(deadline)
         if not (0 < header.length <= sample_register.words):
             raise ProtocolError(
                 self.device,
@@ -527,22 +405,7 @@ class ModbusPulser(PulserReceiver):
             first, stop = max(0, k - half), min(header.length, k + half + 1)
             if stop - first < 8:  # the peak at the A-scan's end: its last samples
                 first, stop = max(0, min(first, header.length - 8)), header.length
-        words: list[int] = []
-        while first + len(words) < stop:
-            if time.monotonic() >= deadline:
-                raise DeviceTimeout(
-                    self.device,
-                    self._endpoint,
-                    f"A-scan of {stop - first} samples not read within {timeout_s:g} s",
-                )
-            count = min(reg.MAX_READ_REGISTERS, stop - first - len(words))
-            words += self._read(
-                _READ[sample_register.table],
-                sample_register.address + first + len(words),
-                count,
-                "read A-scan samples",
-                deadline,
-            )
+        words = self._ascan_words(sample_register, first, stop, deadline, timeout_s)
         host_time_s = self.clock.now()
         codes = np.asarray(words, dtype=np.uint16).view(np.int16).astype(np.int64)
         step = left_aligned_step(codes)
@@ -560,6 +423,39 @@ class ModbusPulser(PulserReceiver):
             counter=-1 if header.counter is None else int(header.counter),
             host_time_s=host_time_s,
         )
+
+    def _ascan_header(self, deadline: float) -> tuple[reg.Register, reg.AScanHeader]:
+        """The samples' register and the A-scan header; reading it freezes the A-scan of the
+        latest acquisition."""
+        sample_register = self._register("ascan_samples")
+        header = self._map.decode_ascan_header(
+            self._read_values(self._map.present(reg.ASCAN_HEADER), "read A-scan header", deadline)
+        )
+        return sample_register, header
+
+    def _ascan_words(
+        self, r: reg.Register, first: int, stop: int, deadline: float, timeout_s: float
+    ) -> list[int]:
+        """Samples ``first`` … ``stop - 1`` of the frozen A-scan, in blocks of at most 125
+        registers; ``DeviceTimeout`` past ``deadline`` (``timeout_s`` after the transfer began)."""
+        words: list[int] = []
+        while first + len(words) < stop:
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(
+                    self.device,
+                    self._endpoint,
+                    f"A-scan of {stop - first} samples not read within "
+                    f"{timeout_s:g} s ({len(words)} read)",
+                )
+            count = min(reg.MAX_READ_REGISTERS, stop - first - len(words))
+            words += self._read(
+                READ_FUNCTION[r.table],
+                r.address + first + len(words),
+                count,
+                "read A-scan samples",
+                deadline,
+            )
+        return words
 
     def set_gate_threshold(self, fraction: float) -> None:
         """Set the gate threshold, fraction of full screen height (0 … 1, 0.001 resolution in
@@ -580,195 +476,6 @@ class ModbusPulser(PulserReceiver):
         """Reset the device's reading counter and measurement block to zero."""
         self._command("clear_counter")
         self._last_counter = None
-
-    # --- register map -----------------------------------------------------------------------
-    def _register(self, name: str) -> reg.Register:
-        """The map's register ``name``; ``ValueError`` when the device has none."""
-        r = self._map.get(name)
-        if r is None:
-            raise ValueError(
-                f"pulser at {self._endpoint}: the register map {self._map} has no {name} register"
-            )
-        return r
-
-    def _command(self, name: str) -> None:
-        r = self._register("command")
-        if name not in r.names:
-            raise ValueError(
-                f"pulser at {self._endpoint}: the register map {self._map} has no {name} command"
-            )
-        self._write_values([(r, r.encode(r.names[name]))], name.replace("_", " "))
-
-    def _on_device(self, r: reg.Register) -> bool:
-        """Whether the connected device has ``r`` (its map version is recent enough)."""
-        return r.min_version is None or (self._map_version or 0) >= r.min_version
-
-    def _read_values(
-        self,
-        registers: Sequence[reg.Register],
-        what: str,
-        deadline: float | None = None,
-        *,
-        autoconnect: bool = True,
-    ) -> dict[str, list[int]]:
-        """Read ``registers`` in as few requests as the map allows; their words by name."""
-        requests = self._map.read_requests(registers)
-        answers = [
-            self._read(_READ[table], address, count, what, deadline, autoconnect=autoconnect)
-            for table, address, count in requests
-        ]
-        return self._map.pick(registers, requests, answers)
-
-    def _write_values(self, entries: Sequence[tuple[reg.Register, list[int]]], what: str) -> None:
-        """Write registers and their words, neighbours in one FC 16 request."""
-        for address, words in self._map.write_requests(entries):
-            self._write(address, words, what)
-
-    # --- transport --------------------------------------------------------------------------
-    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """Log every frame and remember what came back (pymodbus ``trace_packet`` hook)."""
-        if sending:
-            self._rx = b""
-            log.debug("pulser %s WRITE: %s", self._endpoint, data.hex(" "))
-        else:
-            self._rx = bytes(data)
-            log.debug("pulser %s READ: %s", self._endpoint, data.hex(" "))
-            if time.monotonic() > self._rx_deadline:
-                raise _NoFrame()
-        return data
-
-    def _read(
-        self,
-        function: reg.FunctionCode,
-        address: int,
-        count: int,
-        what: str,
-        deadline: float | None = None,
-        *,
-        autoconnect: bool = True,
-    ) -> list[int]:
-        if function == reg.FunctionCode.READ_HOLDING_REGISTERS:
-            call: Callable[..., Any] = self._client.read_holding_registers
-        else:
-            call = self._client.read_input_registers
-        response = self._execute(what, deadline, autoconnect, call, address, count=count)
-        registers = list(response.registers)
-        if len(registers) != count:
-            raise ProtocolError(
-                self.device,
-                self._endpoint,
-                f"{what}: asked for {count} registers at 0x{address:04X}, got {len(registers)}",
-            )
-        return registers
-
-    def _write(self, address: int, values: Sequence[int], what: str) -> None:
-        self._execute(what, None, True, self._client.write_registers, address, list(values))
-
-    def _execute(
-        self,
-        what: str,
-        deadline: float | None,
-        autoconnect: bool,
-        call: Callable[..., Any],
-        *args: Any,
-        **kwargs: Any,
-    ) -> Any:
-        """Run one request; map every pymodbus/pyserial fault to a ``drivers.errors`` type.
-
-        ``deadline`` (``time.monotonic()`` s) shortens the request timeout; ``autoconnect``
-        connects first when the pulser is not connected yet.
-        """
-        with self._lock:
-            for attempt in range(self._retries + 1):
-                if autoconnect and not self._connected:
-                    self.connect()
-                timeout_s = self._timeout_s
-                if deadline is not None:
-                    timeout_s = min(
-                        timeout_s, max(deadline - time.monotonic(), _MIN_REQUEST_TIMEOUT_S)
-                    )
-                try:
-                    response = self._attempt(what, timeout_s, call, *args, **kwargs)
-                    break
-                except DeviceTimeout:
-                    # Nothing came back: the request or its reply was lost. A retry on a fresh
-                    # connection (no late reply of this request can then be taken for the
-                    # next one's); the device is silent only when it stays silent.
-                    late = deadline is not None and time.monotonic() >= deadline
-                    if attempt >= self._retries or late or not autoconnect:
-                        raise
-                    log.warning(
-                        "pulser %s: %s: no answer within %.3g s; asking again (%d of %d)",
-                        self._endpoint,
-                        what,
-                        timeout_s,
-                        attempt + 1,
-                        self._retries,
-                    )
-                    self._lost()
-            if response.isError():
-                code = int(getattr(response, "exception_code", 0))
-                raise DeviceError(
-                    self.device,
-                    self._endpoint,
-                    f"{what}: Modbus exception {reg.exception_name(code)}",
-                )
-            return response
-
-    def _attempt(
-        self, what: str, timeout_s: float, call: Callable[..., Any], *args: Any, **kwargs: Any
-    ) -> Any:
-        """One request and its reply within ``timeout_s``; faults mapped as ``_execute`` says."""
-        # pymodbus reads the receive timeout from comm_params on every request
-        self._client.comm_params.timeout_connect = timeout_s
-        self._rx = b""
-        self._rx_deadline = time.monotonic() + timeout_s
-        try:
-            return call(*args, device_id=self._unit, **kwargs)
-        except _NoFrame:
-            received = self._rx
-            self._lost()  # the stream is out of step: start the next request afresh
-            raise ProtocolError(
-                self.device,
-                self._endpoint,
-                f"{what}: {len(received)} bytes in {timeout_s:.3g} s and no valid Modbus "
-                f"frame among them (is this a Modbus pulser?): {received[:32].hex(' ')}"
-                + (" ..." if len(received) > 32 else ""),
-            ) from None
-        except ConnectionException as exc:
-            self._lost()
-            raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
-        except ModbusIOException as exc:
-            if self._rx:
-                raise ProtocolError(
-                    self.device,
-                    self._endpoint,
-                    f"{what}: invalid reply (bad CRC, wrong unit or truncated frame): "
-                    f"{self._rx.hex(' ')}",
-                ) from exc
-            raise DeviceTimeout(
-                self.device, self._endpoint, f"{what}: no answer within {timeout_s:.3g} s"
-            ) from exc
-        except ModbusException as exc:
-            raise ProtocolError(self.device, self._endpoint, f"{what}: {exc}") from exc
-        except OSError as exc:  # includes serial.SerialException
-            self._lost()
-            raise ConnectionLost(self.device, self._endpoint, f"{what}: {exc}") from exc
-        finally:
-            self._client.comm_params.timeout_connect = self._timeout_s
-            self._rx_deadline = math.inf
-
-    def _lost(self) -> None:
-        """Forget the connection so that the next call reconnects."""
-        self._connected = False
-        self._client.close()
-
-
-#: The read function code of each table.
-_READ = {
-    "holding": reg.FunctionCode.READ_HOLDING_REGISTERS,
-    "input": reg.FunctionCode.READ_INPUT_REGISTERS,
-}
 
 
 def _identity_text(name: str, values: Sequence[float]) -> str:

@@ -1,5 +1,5 @@
-"""The pulser-receiver's Modbus registers: protocol constants, value encodings, and the typed
-register map that client and server share.
+"""The pulser-receiver's Modbus registers: the typed register map that client and server
+share.
 
 The map itself is data, a TOML file: ``drivers/pulser/maps/ucal_pulser.toml`` is the map ucal
 defines (``docs/protocols/pulser_modbus.md`` documents it) and the default; another device
@@ -8,32 +8,14 @@ needs another file, not code. ``drivers.pulser.map_file`` reads and validates a 
 ``drivers.pulser.simulator`` (server) both encode and decode through it, so they cannot
 disagree. Addresses are the *protocol* addresses that travel in the PDU (0-based).
 
-Encodings:
-
-- Every register is big-endian (high byte first), as Modbus prescribes.
-- 32-bit values (``uint32``, ``int32``, ``float32`` IEEE 754) occupy two consecutive registers;
-  the map says which comes first: ``"big"`` = most significant word at the lower address
-  ("ABCD", pymodbus ``convert_to_registers(..., word_order="big")``; ucal's own map),
-  ``"little"`` = least significant first ("CDAB").
-- ``int16``/``int32`` are two's complement; ``string`` is ASCII, two characters a register,
-  the first in the high byte, NUL padded.
-- A register's value in ucal's unit is ``raw / counts_per_unit`` (a map file states the
-  ``scale`` of one count in a unit of its choice; the loader turns it into counts per ucal
-  unit exactly).
-- A-scan samples are ``int16``; ``full_scale`` counts (32767 in ucal's map) are full screen
-  height (1.0).
-
-pymodbus datastores: ``ModbusDeviceContext`` adds 1 to the protocol address before it indexes
-its data blocks (protocol address N is served from block address N + 1). A block that must
-serve protocol address N from ``values[0]`` is therefore created at block address
-N + :data:`DATASTORE_OFFSET`.
+The value encodings and the Modbus codes are in ``drivers.pulser.modbus_words``; what each
+register name means to ucal in ``drivers.pulser.quantities``; this module holds one register
+(:class:`Register`) and the map (:class:`RegisterMap`), and re-exports the names of both.
 """
 
 from __future__ import annotations
 
-import enum
 import math
-import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -42,162 +24,86 @@ from typing import Any
 import numpy as np
 
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.modbus_words import (
+    ASCAN_FULL_SCALE,
+    DATASTORE_OFFSET,
+    MAX_READ_REGISTERS,
+    MAX_WRITE_REGISTERS,
+    TABLE_SIZE,
+    TYPE_RANGE,
+    TYPE_WORDS,
+    WORD_ORDER,
+    ExceptionCode,
+    FunctionCode,
+    check_register,
+    decode_float32,
+    decode_samples,
+    decode_string,
+    decode_uint32,
+    encode_float32,
+    encode_samples,
+    encode_string,
+    encode_uint32,
+    exception_name,
+)
+from drivers.pulser.quantities import (
+    ASCAN_HEADER,
+    ASCAN_MAX_SAMPLES,
+    COMMANDS,
+    DEFAULT_THRESHOLD,
+    DEVICE_INFO,
+    FRONT_END,
+    MEASUREMENT,
+    MEASUREMENT_COUNT,
+    QUANTITIES,
+    SETTINGS,
+    STATUS_BITS,
+    UNITS,
+    Quantity,
+    Status,
+)
 
-#: Default word order of 32-bit values (a map file may choose another): most significant
-#: register first ("ABCD").
-WORD_ORDER = "big"
-#: pymodbus ``ModbusDeviceContext`` serves protocol address N from data-block address N + 1.
-DATASTORE_OFFSET = 1
-#: Most registers one read request (FC 3/4) may ask for (Modbus application protocol §6.3).
-MAX_READ_REGISTERS = 125
-#: Most registers one write request (FC 16) may carry (Modbus application protocol §6.12).
-MAX_WRITE_REGISTERS = 123
-#: Registers in one Modbus table (protocol addresses 0 … 65535).
-TABLE_SIZE = 0x1_0000
-
-#: Full-scale int16 A-scan sample (= 1.0 of full screen height) of ucal's own map.
-ASCAN_FULL_SCALE = 32767
-#: Longest A-scan a map may declare, samples (327.68 µs at 100 MS/s).
-ASCAN_MAX_SAMPLES = 32768
-#: Registers of the measurement block of ucal's own map (counter … TOF): what one reading
-#: costs on the wire (``ucal.timing``).
-MEASUREMENT_COUNT = 10
-#: Gate threshold of a freshly powered device, fraction of full screen height.
-DEFAULT_THRESHOLD = 0.02
-
-
-class FunctionCode(enum.IntEnum):
-    """Modbus function codes the pulser implements."""
-
-    READ_HOLDING_REGISTERS = 0x03
-    READ_INPUT_REGISTERS = 0x04
-    WRITE_SINGLE_REGISTER = 0x06
-    WRITE_MULTIPLE_REGISTERS = 0x10
-
-
-class ExceptionCode(enum.IntEnum):
-    """Modbus exception codes (Modbus application protocol §7) and their readable names."""
-
-    ILLEGAL_FUNCTION = 0x01
-    ILLEGAL_DATA_ADDRESS = 0x02
-    ILLEGAL_DATA_VALUE = 0x03
-    SERVER_DEVICE_FAILURE = 0x04
-    ACKNOWLEDGE = 0x05
-    SERVER_DEVICE_BUSY = 0x06
-    NEGATIVE_ACKNOWLEDGE = 0x07
-    MEMORY_PARITY_ERROR = 0x08
-    GATEWAY_PATH_UNAVAILABLE = 0x0A
-    GATEWAY_TARGET_FAILED_TO_RESPOND = 0x0B
-
-    @property
-    def description(self) -> str:
-        """Return the name in words, e.g. ``"illegal data address"``."""
-        return self.name.lower().replace("_", " ")
-
-
-def exception_name(code: int) -> str:
-    """Return ``"illegal data address (0x02)"`` for a Modbus exception code, known or not."""
-    try:
-        return f"{ExceptionCode(code).description} (0x{code:02X})"
-    except ValueError:
-        return f"unknown exception (0x{code:02X})"
-
-
-class Status(enum.IntFlag):
-    """What a reading's status says (the map's ``status`` register places each on a bit)."""
-
-    ECHO = 0x0001  #: an echo inside the gate crossed the threshold; TOF is valid
-    SATURATED = 0x0002  #: the gated peak reached full screen (amplitude clipped at 1.0)
-    GATE_ERROR = 0x0004  #: the gate ends after the pulse repetition period; no measurement
-
-
-#: Names of the status bits in a map file (``bits``), and the flag each one sets.
-STATUS_BITS: dict[str, Status] = {
-    "echo": Status.ECHO,
-    "saturated": Status.SATURATED,
-    "gate_error": Status.GATE_ERROR,
-}
-#: Names of the command register's values in a map file (``values``); ``none`` is what it
-#: reads after a command ran.
-COMMANDS = ("none", "trigger", "clear_counter")
-
-
-# ---------------------------------------------------------------------------------------------
-# What each register of a map means to ucal
-# ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Quantity:
-    """What a register name of a map file means: ucal's name and unit for it, its dimension
-    (which units a map may state it in), and the group of requests it travels in."""
-
-    ucal_name: str  #: ucal's name (a ``PulserSettings`` field, or the reading's), in messages
-    dimension: str  #: a key of :data:`UNITS`, or "count", "code", "text", "samples"
-    unit: str  #: ucal's unit
-    group: str  #: settings, front_end, threshold, command, identity, info, measurement, ascan
-    required: bool = False
-
-
-#: Every register name a map may hold, with its meaning.
-QUANTITIES: dict[str, Quantity] = {
-    # holding registers the client writes
-    "gain": Quantity("gain_db", "gain", "dB", "settings", required=True),
-    "prf": Quantity("prf_hz", "frequency", "Hz", "settings", required=True),
-    "gate_start": Quantity("gate_start_us", "time", "µs", "settings", required=True),
-    "gate_width": Quantity("gate_width_us", "time", "µs", "settings", required=True),
-    "averages": Quantity("averages", "count", "", "settings"),
-    "pulse_voltage": Quantity("pulse_voltage_v", "voltage", "V", "front_end"),
-    "damping": Quantity("damping_ohm", "resistance", "Ω", "front_end"),
-    "high_pass": Quantity("high_pass_mhz", "frequency", "MHz", "front_end"),
-    "low_pass": Quantity("low_pass_mhz", "frequency", "MHz", "front_end"),
-    "threshold": Quantity("gate_threshold", "fraction", "FSH", "threshold"),
-    "command": Quantity("command", "code", "", "command"),
-    # what the client reads
-    "magic": Quantity("magic", "code", "", "identity"),
-    "map_version": Quantity("register_map_version", "code", "", "identity"),
-    "model": Quantity("model", "text", "", "info"),
-    "firmware_major": Quantity("firmware_major", "code", "", "info"),
-    "firmware_minor": Quantity("firmware_minor", "code", "", "info"),
-    "serial": Quantity("serial", "code", "", "info"),
-    "counter": Quantity("counter", "count", "", "measurement"),
-    "device_time": Quantity("device_time_ms", "time", "ms", "measurement"),
-    "status": Quantity("status", "code", "", "measurement"),
-    "amplitude": Quantity("amplitude", "fraction", "FSH", "measurement", required=True),
-    "tof": Quantity("tof_ns", "time", "ns", "measurement", required=True),
-    "ascan_counter": Quantity("ascan_counter", "count", "", "ascan"),
-    "ascan_length": Quantity("ascan_length", "count", "", "ascan"),
-    "ascan_rate": Quantity("sample_rate_hz", "frequency", "Hz", "ascan"),
-    "ascan_start": Quantity("ascan_start_ns", "time", "ns", "ascan"),
-    "ascan_samples": Quantity("samples", "samples", "FSH", "ascan"),
-}
-
-#: Units a map may state each dimension in: unit → its size in the dimension's base unit.
-UNITS: dict[str, dict[str, int | float]] = {
-    "gain": {"dB": 1},
-    "frequency": {"Hz": 1, "kHz": 1_000, "MHz": 1_000_000},
-    "time": {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "µs": 1_000, "ns": 1, "ps": 1e-3},
-    "voltage": {"V": 1, "kV": 1_000},
-    "resistance": {"ohm": 1, "Ω": 1},
-    "fraction": {"FSH": 1, "%": 1e-2},
-}
-
-#: The ``PulserSettings`` fields of the first configure request, and of the front end, by
-#: register name (register order of ucal's map).
-SETTINGS = ("gain", "prf", "gate_start", "gate_width", "averages")
-FRONT_END = ("pulse_voltage", "damping", "high_pass", "low_pass")
-#: The reading, the device information and the A-scan header, by register name.
-MEASUREMENT = ("counter", "device_time", "status", "amplitude", "tof")
-DEVICE_INFO = ("model", "firmware_major", "firmware_minor", "serial")
-ASCAN_HEADER = ("ascan_counter", "ascan_length", "ascan_rate", "ascan_start")
-
-#: Words of each value type (a string's come from its length).
-TYPE_WORDS = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2}
-#: Raw range of each integer type.
-TYPE_RANGE = {
-    "uint16": (0, 0xFFFF),
-    "int16": (-0x8000, 0x7FFF),
-    "uint32": (0, 0xFFFF_FFFF),
-    "int32": (-0x8000_0000, 0x7FFF_FFFF),
-}
+__all__ = [
+    "ASCAN_FULL_SCALE",
+    "ASCAN_HEADER",
+    "ASCAN_MAX_SAMPLES",
+    "COMMANDS",
+    "DATASTORE_OFFSET",
+    "DEFAULT_THRESHOLD",
+    "DEVICE_INFO",
+    "FRONT_END",
+    "MAX_READ_REGISTERS",
+    "MAX_WRITE_REGISTERS",
+    "MEASUREMENT",
+    "MEASUREMENT_COUNT",
+    "QUANTITIES",
+    "SETTINGS",
+    "STATUS_BITS",
+    "TABLE_SIZE",
+    "TYPE_RANGE",
+    "TYPE_WORDS",
+    "UNITS",
+    "WORD_ORDER",
+    "AScanHeader",
+    "DeviceInfo",
+    "ExceptionCode",
+    "FunctionCode",
+    "Measurement",
+    "Quantity",
+    "Register",
+    "RegisterMap",
+    "Status",
+    "check_gate",
+    "decode_float32",
+    "decode_samples",
+    "decode_string",
+    "decode_uint32",
+    "encode_float32",
+    "encode_samples",
+    "encode_string",
+    "encode_uint32",
+    "exception_name",
+]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -374,7 +280,7 @@ class Register:
         if self.type == "float32":
             return decode_float32(words[0], words[1], self.word_order)
         if self.words == 1:
-            raw = _check_register(words[0])
+            raw = check_register(words[0])
         else:
             raw = decode_uint32(words[0], words[1], self.word_order)
         signed = self.type.startswith("int")
@@ -753,73 +659,3 @@ def check_gate(settings: PulserSettings) -> None:
             f"gate_width_us: the gate ends at {end_us:g} µs, after the pulse repetition "
             f"period of {period_us:g} µs (prf_hz = {settings.prf_hz:g})"
         )
-
-
-# ---------------------------------------------------------------------------------------------
-# Value encodings
-# ---------------------------------------------------------------------------------------------
-def _check_register(value: int) -> int:
-    if not 0 <= value <= 0xFFFF:
-        raise ValueError(f"register value {value!r} is not a uint16")
-    return value
-
-
-def encode_uint32(value: int, word_order: str = WORD_ORDER) -> tuple[int, int]:
-    """Split an unsigned 32-bit integer into two registers, in ``word_order``."""
-    if not 0 <= int(value) <= 0xFFFF_FFFF:
-        raise ValueError(f"{value!r} does not fit in a uint32")
-    hi, lo = divmod(int(value), 0x1_0000)
-    return (hi, lo) if word_order == "big" else (lo, hi)
-
-
-def decode_uint32(first: int, second: int, word_order: str = WORD_ORDER) -> int:
-    """Join two registers (in address order) into an unsigned 32-bit integer."""
-    hi, lo = (first, second) if word_order == "big" else (second, first)
-    return (_check_register(hi) << 16) | _check_register(lo)
-
-
-def encode_float32(value: float, word_order: str = WORD_ORDER) -> tuple[int, int]:
-    """Encode an IEEE 754 float32 into two registers, in ``word_order``.
-
-    Values are rounded to the nearest float32; finite values beyond the float32 range raise
-    ``OverflowError``; NaN and ±inf are kept.
-    """
-    raw = struct.unpack(">I", struct.pack(">f", float(value)))[0]
-    return encode_uint32(raw, word_order)
-
-
-def decode_float32(first: int, second: int, word_order: str = WORD_ORDER) -> float:
-    """Decode two registers (in address order) holding an IEEE 754 float32."""
-    raw = decode_uint32(first, second, word_order)
-    return struct.unpack(">f", struct.pack(">I", raw))[0]
-
-
-def encode_string(text: str, words: int) -> list[int]:
-    """ASCII ``text`` in ``words`` registers (two characters each, the first in the high byte,
-    NUL padded); ``ValueError`` if it is longer."""
-    raw = text.encode("ascii")
-    if len(raw) > 2 * words:
-        raise ValueError(f"{text!r} is longer than {2 * words} bytes")
-    raw = raw.ljust(2 * words, b"\0")
-    return [int.from_bytes(raw[i : i + 2], "big") for i in range(0, 2 * words, 2)]
-
-
-def decode_string(registers: Sequence[int]) -> str:
-    """The ASCII text of registers (up to the first NUL)."""
-    raw = b"".join(_check_register(w).to_bytes(2, "big") for w in registers)
-    return raw.split(b"\0", 1)[0].decode("ascii", errors="replace")
-
-
-def encode_samples(samples: np.ndarray, full_scale: int = ASCAN_FULL_SCALE) -> list[int]:
-    """Encode normalised samples (1.0 = full screen) as int16 registers, saturating at ±1.0.
-
-    Saturation here is the receiver's ADC clipping a too-strong signal, not input validation.
-    """
-    counts = np.rint(np.clip(np.asarray(samples, float), -1.0, 1.0) * full_scale)
-    return (counts.astype(np.int16).view(np.uint16)).astype(int).tolist()
-
-
-def decode_samples(registers: Sequence[int], full_scale: int = ASCAN_FULL_SCALE) -> np.ndarray:
-    """Decode int16 registers into normalised samples (float64, 1.0 = full screen)."""
-    raw = np.asarray(registers, dtype=np.uint16).view(np.int16)
-    return raw.astype(float) / full_scale

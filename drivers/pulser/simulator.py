@@ -59,9 +59,10 @@ from pymodbus.datastore import (
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusTcpServer
 
+from drivers.loopback import ServedOnPort
 from drivers.pulser import registers as reg
 from drivers.pulser.base import PulserSettings
-from drivers.pulser.map_file import load_register_map, shipped_map
+from drivers.pulser.map_file import register_map_of
 from drivers.pulser.urls import format_rtu_url, format_tcp_url
 
 log = logging.getLogger(__name__)
@@ -149,7 +150,7 @@ class _PulserContext(ModbusDeviceContext):
         return self._device._set(func_code, address, values)
 
 
-class SimulatedPulser:
+class SimulatedPulser(ServedOnPort):
     """A pulser-receiver on 127.0.0.1 whose echo comes from ``model``. Use as a context manager.
 
     ``framing`` is ``"tcp"`` (Modbus TCP) or ``"rtu"`` (Modbus RTU frames over a TCP stream,
@@ -158,6 +159,8 @@ class SimulatedPulser:
     ``register_map`` is the map served (a ``RegisterMap`` or a map file; None: ucal's own); the
     device reports the highest version it lists. Nothing is opened before :meth:`start`.
     """
+
+    what = "simulated pulser"
 
     def __init__(
         self,
@@ -176,11 +179,7 @@ class SimulatedPulser:
     ):
         if bits is not None and not 4 <= int(bits) <= 16:
             raise ValueError(f"bits must be 4 … 16, got {bits!r}")
-        if register_map is None:
-            register_map = shipped_map()
-        elif not isinstance(register_map, reg.RegisterMap):
-            register_map = load_register_map(register_map)
-        self.register_map = register_map
+        register_map = self.register_map = register_map_of(register_map)
         self._version = max(register_map.versions) if register_map.versions else None
         if not callable(model):
             raise TypeError("model must be callable: model(settings) -> (amplitude, tof_ns)")
@@ -263,19 +262,6 @@ class SimulatedPulser:
         self._loop = None
         self._port = None
 
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> int:
-        """The TCP port served on (after :meth:`start`)."""
-        if self._port is None:
-            raise RuntimeError("the simulated pulser is not running")
-        return self._port
-
     @property
     def url(self) -> str:
         """``modbus-tcp://127.0.0.1:PORT?unit=1`` or ``modbus-rtu://socket://127.0.0.1:PORT?unit=1``."""
@@ -284,11 +270,6 @@ class SimulatedPulser:
         return format_rtu_url(f"socket://{self.host}:{self.port}", self.unit)
 
     # --- fault hooks and state for tests ----------------------------------------------------
-    def set_silent(self, silent: bool = True) -> None:
-        """Stop (or resume) answering: requests are still received, the connection stays open."""
-        with self._lock:
-            self._silent = bool(silent)
-
     def set_exception(self, code: int | None) -> None:
         """Answer every following request with Modbus exception ``code``; None to stop.
 
@@ -475,8 +456,7 @@ class SimulatedPulser:
         settings: PulserSettings, threshold: float, amp: float, tof_ns: float
     ) -> tuple[float, float, reg.Status]:
         """Apply the gate and threshold to the raw echo: (amplitude, tof_ns, status)."""
-        start_ns = settings.gate_start_us * 1e3
-        end_ns = start_ns + settings.gate_width_us * 1e3
+        start_ns, end_ns = settings.gate_ns
         if math.isfinite(tof_ns) and not start_ns <= tof_ns <= end_ns:
             return 0.0, float("nan"), reg.Status(0)  # the echo is outside the gate
         status = reg.Status(0)

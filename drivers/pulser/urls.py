@@ -74,19 +74,9 @@ def format_rtu_url(
 
 def parse_pulser_url(url: str) -> PulserUrl:
     """Parse a pulser URL; raise ``UrlError`` (a ``ValueError``) naming the problem and the URL."""
-    if not isinstance(url, str) or "://" not in url:
-        raise UrlError(
-            f"not a pulser URL: {url!r} (expected {TCP_SCHEME}://HOST:PORT or "
-            f"{RTU_SCHEME}://DEVICE)"
-        )
-    scheme, rest = url.split("://", 1)
-    scheme = scheme.lower()
-    if scheme not in (TCP_SCHEME, RTU_SCHEME):
-        raise UrlError(
-            f"unknown pulser URL scheme {scheme!r} in {url!r} "
-            f"(expected {TCP_SCHEME} or {RTU_SCHEME})"
-        )
-    target, _, query = rest.rpartition("?") if "?" in rest else (rest, "", "")
+    scheme, target, query = _split(
+        url, "a pulser URL", {TCP_SCHEME: "HOST:PORT", RTU_SCHEME: "DEVICE"}
+    )
     options = _parse_query(query, _TCP_KEYS if scheme == TCP_SCHEME else _RTU_KEYS, url)
     unit = _int_option(options, "unit", DEFAULT_UNIT, 1, 247, url)
     if scheme == TCP_SCHEME:
@@ -121,17 +111,28 @@ def format_ascii_url(device: str, baud: int | None = None) -> str:
 
 def parse_ascii_url(url: str) -> AsciiUrl:
     """Parse ``ascii://DEVICE[?baud=N]``; ``UrlError`` names the problem and the URL."""
-    if not isinstance(url, str) or "://" not in url:
-        raise UrlError(f"not an ascii pulser URL: {url!r} (expected {ASCII_SCHEME}://DEVICE)")
-    scheme, rest = url.split("://", 1)
-    if scheme.lower() != ASCII_SCHEME:
-        raise UrlError(f"unknown pulser URL scheme {scheme!r} in {url!r} (expected ascii)")
-    target, _, query = rest.rpartition("?") if "?" in rest else (rest, "", "")
+    _, target, query = _split(url, "an ascii pulser URL", {ASCII_SCHEME: "DEVICE"})
     options = _parse_query(query, frozenset({"baud"}), url)
     if not target:
         raise UrlError(f"missing serial device in {url!r}")
     baud = _int_option(options, "baud", DEFAULT_ASCII_BAUD, 50, 4_000_000, url)
     return AsciiUrl(target, baud)
+
+
+def _split(url: str, what: str, forms: dict[str, str]) -> tuple[str, str, str]:
+    """The scheme (lower case), target and query of ``url``, whose scheme must be one of
+    ``forms`` (scheme → what follows it, for the message); ``what`` names the URL expected."""
+    expected = " or ".join(f"{scheme}://{target}" for scheme, target in forms.items())
+    if not isinstance(url, str) or "://" not in url:
+        raise UrlError(f"not {what}: {url!r} (expected {expected})")
+    scheme, rest = url.split("://", 1)
+    scheme = scheme.lower()
+    if scheme not in forms:
+        raise UrlError(
+            f"unknown pulser URL scheme {scheme!r} in {url!r} (expected {' or '.join(forms)})"
+        )
+    target, _, query = rest.rpartition("?") if "?" in rest else (rest, "", "")
+    return scheme, target, query
 
 
 def _parse_query(query: str, allowed: frozenset[str], url: str) -> dict[str, str]:

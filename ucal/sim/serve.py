@@ -34,6 +34,7 @@ import numpy as np
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.controller.simulator import SimulatedController
 from drivers.digitizer.scpi_simulator import AcquisitionRequest, SimulatedScope
+from drivers.loopback import Served
 from drivers.pulser.ascii_simulator import SimulatedAsciiPulser
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.registers import RegisterMap
@@ -55,7 +56,7 @@ log = logging.getLogger(__name__)
 HOST = "127.0.0.1"
 
 
-class SimulatedCellServer:
+class SimulatedCellServer(Served):
     """The simulated controller and pulser of one world, served on 127.0.0.1 (context manager).
 
     ``world`` None means the demo truth of ``profile``. ``log_path`` receives one JSON line per
@@ -190,12 +191,6 @@ class SimulatedCellServer:
             with self._log_lock:
                 self._log_file.close()
                 self._log_file = None
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     @property
     def register_map(self) -> RegisterMap | None:
