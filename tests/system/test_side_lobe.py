@@ -10,17 +10,12 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import water_absorption_np_per_mm
-from ucal.calibration.faces import (
-    FaceRequest,
-    FaceSetup,
-    SearchMode,
-    acquisition_gain,
-    measure,
-)
 from ucal.calibration.model import Face
-from ucal.calibration.search import MainLobe, PeakSearch, ka_of
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.errors import EXIT_HARDWARE, HardwareError
+from ucal.measure.acquire import acquisition_gain
+from ucal.measure.face import FaceRequest, FaceSetup, SearchMode, measure
+from ucal.measure.search import MainLobe, PeakSearch, ka_of
 from ucal.profile import create_profile, load_profile
 from ucal.rig import FinalApproachRig
 from ucal.session import open_cell

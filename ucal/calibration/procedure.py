@@ -3,7 +3,7 @@
 Read with ``ucal.procedure`` (the order every moving command follows): the plan and its checks
 (``ucal.calibration.sequence.plan_calibration``), the plan in words (``plan_summary``), the
 measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
-measurement, ``ucal.calibration.faces``), the solvers (``ucal.calibration.sequence.solve``:
+measurement, ``ucal.measure.face``), the solvers (``ucal.calibration.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
 (``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
-from ucal.calibration.search import PeakResult
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import transform
+from ucal.measure.search import PeakResult
 from ucal.progress import Report
 from ucal.rig import Rig
 from ucal.toolframe.exact import (

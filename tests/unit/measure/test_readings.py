@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,9 +13,9 @@ import pytest
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
-from ucal.calibration.faces import MAX_ACQUISITION_MOVES, acquire_and_centre, acquisition_gain
-from ucal.calibration.search import PeakSearch, read_distance
 from ucal.errors import EXIT_HARDWARE, HardwareError
+from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain
+from ucal.measure.search import PeakSearch, read_distance
 from ucal.rig import ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
@@ -190,7 +191,9 @@ def test_search_without_any_echo_gives_up_after_a_bounded_number_of_moves() -> N
     )
     assert err.value.exit_code == EXIT_HARDWARE
     # the line in progress is finished: at most one line (a move and four sweeps) over
-    assert MAX_ACQUISITION_MOVES <= rig.counters.moves <= MAX_ACQUISITION_MOVES + 5
+    max_moves = BLOCK_FACES.max_moves
+    assert max_moves is not None
+    assert max_moves <= rig.counters.moves <= max_moves + 5
     assert rig.controller.moves == rig.counters.moves
 
 
@@ -198,7 +201,9 @@ def test_a_smaller_budget_is_honoured() -> None:
     rig = rig_with(lambda n: (0.0, float("nan")))
     rig.measure_floor()
     with pytest.raises(HardwareError, match="no echo from face YZ"):
-        acquire_and_centre(_search(rig), rig, np.zeros(6), "YZ", 8.0, 40.0, max_moves=10)
+        acquire_and_centre(
+            _search(rig), rig, np.zeros(6), "YZ", 8.0, 40.0, replace(BLOCK_FACES, max_moves=10)
+        )
     assert rig.counters.moves <= 10 + 5
 
 
@@ -254,7 +259,7 @@ def test_the_peak_fit_averages_more_once_the_amplitude_shows_levels(
 def test_no_echo_message_names_the_face_once_for_both_levels() -> None:
     from types import SimpleNamespace
 
-    from ucal.calibration.faces import _no_face_echo
+    from ucal.measure.acquire import _no_face_echo
 
     rig = SimpleNamespace(pulser=SimpleNamespace(endpoint="modbus-tcp://127.0.0.1:5020"))
     offsets = str(_no_face_echo(rig, "j3/XY", 20.0, 5))  # type: ignore[arg-type]
