@@ -3,8 +3,7 @@
 ``Rig`` counts moves and reads, keeps the pulser's settings (gain, averages) and the noise
 floor, sweeps a joint-space line while reading the pulser (each reading paired with the
 streamed joint positions), and checks every reading for values no instrument gives (exit 3).
-``FinalApproachRig`` makes every static posture be reached from below on each joint
-(backlash). The rig keeps what a reading needs to be modelled later: the sign of each
+The rig keeps what a reading needs to be modelled later: the sign of each
 joint's last motion (``approach``) and the time since the run's first reading (``minutes``).
 The measuring library (``ucal.measure``) and every procedure measure through a rig; the cell
 session (``ucal.session``) builds it from the profile.
@@ -484,48 +483,3 @@ class Rig:
             tofs.append(reading.tof_ns)
         self.last_sweep_step_deg = travel / max(n - 1, 1)
         return np.asarray(qs, float), np.asarray(amps, float), np.asarray(tofs, float)
-
-
-#: Final approach of every move (deg below the target on each joint), larger than any backlash.
-APPROACH_DEG = 0.05
-
-
-if TYPE_CHECKING:
-    _RigProxy = Rig  # a FinalApproachRig stands wherever a Rig does
-else:
-    _RigProxy = object
-
-
-class FinalApproachRig(_RigProxy):
-    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
-
-    A joint with backlash leaves its link behind the encoder by half the lost motion, against
-    the direction of its last motion. If a move would bring any joint down onto its target, the
-    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
-    static postures are then reached from below. The two segments are one move in the counters.
-    Everything else is the wrapped rig's.
-    """
-
-    _rig: Rig
-    _approach_deg: float
-
-    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
-        object.__setattr__(self, "_rig", rig)
-        object.__setattr__(self, "_approach_deg", approach_deg)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._rig, name)
-
-    def __setattr__(self, name: str, value: object) -> None:
-        setattr(self._rig, name, value)
-
-    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
-        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
-        rig = self._rig
-        q = np.asarray(q, float)
-        here = rig.controller.read_joints()
-        if np.any(q < here - 1e-6):
-            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
-            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
-            rig.moved_to(below, here)
-        return rig.move(q, speed)

@@ -14,10 +14,10 @@ from ucal.calibration.model import Face
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import acquisition_gain
+from ucal.measure.approach import FinalApproachRig
 from ucal.measure.face import FaceRequest, FaceSetup, SearchMode, measure
 from ucal.measure.search import MainLobe, PeakSearch, ka_of
 from ucal.profile import create_profile, load_profile
-from ucal.rig import FinalApproachRig
 from ucal.session import open_cell
 from ucal.sim.cell import SimulatedCell
 from ucal.world import load_world

@@ -60,7 +60,7 @@ from ucal.timing import DurationEstimate, estimate_run
 TOLERANCE_STD_DEG = 0.02
 
 #: The approach direction the offsets belong to: every static posture is reached with each joint
-#: moving in its positive direction (``ucal.rig.FinalApproachRig``), the link lagging its encoder
+#: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
 #: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
 APPROACH = "positive"
 #: Why ``backlash_deg`` is null: what the offsets level does not measure.

@@ -26,8 +26,9 @@ from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
 from ucal.echo import AScan, EchoEstimate, estimate_echo
+from ucal.measure.approach import FinalApproachRig
 from ucal.progress import MeasureStep, Report
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

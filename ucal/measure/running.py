@@ -42,9 +42,10 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.measure.acquire import BLOCK_FACES, noise_floor
+from ucal.measure.approach import FinalApproachRig
 from ucal.measure.face import FaceRequest, FaceResult, FaceSetup, SearchMode, make_search, measure
 from ucal.measure.search import ka_of
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 
 #: Half-width (deg of beam tilt) of the main lobe at −6 dB (25 MHz, 6 mm element): a prediction
 #: that missed by more than this is not trusted for a direct fit next.

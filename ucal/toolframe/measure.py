@@ -41,10 +41,11 @@ from ucal.errors import HardwareError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.measure.acquire import PLATE, acquire_and_centre, acquisition_gain, open_water
+from ucal.measure.approach import FinalApproachRig
 from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
 from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.progress import MeasureStep, Report
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,

@@ -14,7 +14,10 @@ from drivers.controller.base import ControllerStatus, JointSample, RobotControll
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
 from ucal.errors import EXIT_HARDWARE, HardwareError
-from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain
+from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
+from ucal.measure.approach import FinalApproachRig
+from ucal.measure.face import SearchMode
+from ucal.measure.running import TRUST
 from ucal.measure.search import PeakSearch, read_distance
 from ucal.rig import ZERO_FLOOR_FSH, Rig
 
@@ -266,3 +269,47 @@ def test_no_echo_message_names_the_face_once_for_both_levels() -> None:
     full = str(_no_face_echo(rig, "face YZ (p7)", 20.0, 5))  # type: ignore[arg-type]
     assert "no echo from face XY (j3) within ±20°" in offsets
     assert "no echo from face YZ (p7) within ±20°" in full and "face face" not in full
+
+
+class TimedPulser(FakePulser):
+    """Stamps the n-th reading's arrival at 30·n s on the host clock."""
+
+    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+        r = super().read_gate(fresh, timeout_s)
+        return replace(r, host_time_s=30.0 * r.counter)
+
+
+def test_rig_records_each_joints_last_motion_and_the_minutes_since_the_first_reading() -> None:
+    rig = rig_with(lambda n: (0.5, 1000.0))
+    rig.pulser = TimedPulser(lambda n: (0.5, 1000.0))
+    assert rig.minutes() == 0.0  # nothing read yet
+    rig.move(np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]))
+    rig.read()  # t = 30 s: the run's first reading
+    rig.move(np.array([0.5, 2.0, 4.0, 4.0, 5.0, 6.0]))  # J1 down, J3 up, the rest still
+    rig.read()
+    rig.read()  # t = 90 s
+    assert rig.approach.tolist() == [-1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+    assert rig.minutes() == pytest.approx(1.0)
+    # the final approach: down to below the target, then up onto it on every joint
+    approach = FinalApproachRig(rig)
+    approach.move(np.array([0.2, 1.0, 4.0, 4.0, 5.0, 6.0]))
+    assert rig.approach.tolist() == [1.0] * 6
+    assert rig.controller.read_joints().tolist() == [0.2, 1.0, 4.0, 4.0, 5.0, 6.0]
+    assert rig.counters.moves == 3
+
+
+def test_open_water_turns_the_joint_up_or_down_where_up_leaves_its_range() -> None:
+    lo, hi = np.full(6, -140.0), np.full(6, 140.0)
+    q = np.array([0.0, 30.0, 100.0, 0.0, 50.0, 0.0])
+    assert open_water(q, 4, lo, hi)[4] == pytest.approx(75.0)
+    q[4] = 120.0  # 25° up would leave the range: clipped, the beam would turn back
+    assert open_water(q, 4, lo, hi)[4] == pytest.approx(95.0)
+    assert open_water(q, 4, lo, hi)[[0, 1, 2, 3, 5]].tolist() == [0.0, 30.0, 100.0, 0.0, 0.0]
+
+
+def test_one_trust_policy_acquires_the_first_two_faces_then_centres_then_fits_at_once() -> None:
+    modes = [TRUST.mode(n, miss) for n, miss in [(0, np.inf), (1, 2.0), (2, 0.6), (3, 0.14)]]
+    assert modes == [SearchMode.ACQUIRE, SearchMode.ACQUIRE, SearchMode.QUICK, SearchMode.DIRECT]
+    # the last prediction missed by more than the main lobe's half-width: centre first
+    assert TRUST.mode(5, 1.0) == SearchMode.QUICK
+    assert (TRUST.radius(0), TRUST.radius(1), TRUST.radius(7)) == (16.0, 8.0, 8.0)
