@@ -139,12 +139,8 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
     first_move = rig.counters.moves
     averages = max(profile.procedure.tof_averages, 1)
 
-    when: list[tuple[float, np.ndarray]] = []  # the water path's time and approach
-
     def tof() -> tuple[float, float]:
-        path = read_distance(rig, profile.water_temperature_c, averages)
-        when[:] = [(rig.minutes(), np.array(rig.approach, float))]
-        return path
+        return read_distance(rig, profile.water_temperature_c, averages)
 
     peak = None
     acquired = False  # whether the raster search has run (else the prediction was trusted)
@@ -211,7 +207,7 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         gain_db=rig.settings.gain_db,
         probes=peak.probes,
         search_joints=(search.ja, search.jb),
-        time_min=when[0][0] if when else rig.minutes(),
-        approach=when[0][1] if when else np.array(rig.approach, float),
+        time_min=peak.time_min,
+        approach=peak.approach,
     )
     return FaceResult(m, err)

@@ -9,10 +9,13 @@ At the end the early faces' recorded probes are fitted again with the final esti
 (``refit_peaks``), without motion. ``RunningEstimate`` holds that loop's state; the
 procedures say only which face to measure next and from where.
 
-The trust policy (``Trust``) is one for every command: the first face is acquired within 16°;
-the second too, within 8° (one face leaves two combinations of offsets free: its prediction
-can be degrees off); after two faces the prediction is within about half a degree, so the
-search centres on the main lobe first; after three it lands within a few thousandths of a
+The trust policy (``Trust``) is one for every command (the tool-frame plate's differs only
+in what pins its prediction down, ``PLATE_TRUST``): the first face is acquired within 16°;
+a second face too, within 8° (one face leaves two combinations of offsets free, which turn the
+beam about that face's normal: another face's prediction can be degrees off), but the same
+face again is centred on its main lobe first (its prediction rests on what that face has
+measured: a fraction of a degree); after two faces every prediction is within about half a
+degree, so the search centres first; after three it lands within a few thousandths of a
 degree, inside the fit's first grid, and the face is fitted at once — unless the last
 prediction missed by more than the main lobe's half-width (``MAIN_LOBE_HALF_DEG``), which
 says the faces so far do not pin the model down yet (postures far apart, as the full level's).
@@ -58,22 +61,24 @@ UNCERTAIN_TILT_DEG = 0.01
 @dataclass(frozen=True)
 class Trust:
     """How far a predicted posture is trusted, from the faces measured so far (module
-    docstring): ``quick_after`` faces for a quick centring, ``direct_after`` for a direct fit
-    (while the last prediction missed by at most ``direct_miss_deg``); the acquisition radius
-    (deg of beam tilt) of the first face and of the later ones."""
+    docstring): ``quick_after`` faces, or the same face measured before, for a quick centring;
+    ``direct_after`` faces (None: never) for a direct fit, while the last prediction missed by
+    at most ``direct_miss_deg``; the acquisition radius (deg of beam tilt) of the first face
+    and of the later ones."""
 
     quick_after: int = 2
-    direct_after: int = 3
+    direct_after: int | None = 3
     direct_miss_deg: float = MAIN_LOBE_HALF_DEG
     first_radius_deg: float = 16.0
     radius_deg: float = 8.0
 
-    def mode(self, measured: int, last_miss_deg: float) -> SearchMode:
-        """The search mode after ``measured`` faces, the last prediction off by
-        ``last_miss_deg`` (deg of tilt)."""
-        if measured >= self.direct_after and last_miss_deg <= self.direct_miss_deg:
+    def mode(self, measured: int, seen: bool, last_miss_deg: float = np.inf) -> SearchMode:
+        """The search mode after ``measured`` faces (``seen``: this face among them), the last
+        prediction off by ``last_miss_deg`` (deg of tilt)."""
+        direct = self.direct_after is not None and measured >= self.direct_after
+        if direct and last_miss_deg <= self.direct_miss_deg:
             return SearchMode.DIRECT
-        if measured >= self.quick_after:
+        if measured >= self.quick_after or seen:
             return SearchMode.QUICK
         return SearchMode.ACQUIRE
 
@@ -81,7 +86,14 @@ class Trust:
         return self.first_radius_deg if measured == 0 else self.radius_deg
 
 
-TRUST = Trust()
+#: The block's faces (module docstring).
+BLOCK_TRUST = Trust()
+#: The tool-frame plate, one face measured again and again (centred from the second posture
+#: on), but never fitted without centring: the joint offsets, not yet calibrated, turn the beam
+#: differently at each orientation by tenths of a degree, which no posture's fit pins down.
+#: The plate is met at the planned water path, the profile's tool and plate known to a degree
+#: or so: the raster starts 4° wide (``acquire.PLATE``).
+PLATE_TRUST = Trust(direct_after=None, first_radius_deg=4.0, radius_deg=4.0)
 
 
 @dataclass(frozen=True)
@@ -184,7 +196,7 @@ class RunningEstimate:
     setup: FaceSetup
     prior: CellPrior
     geometry: CellGeometry  # tool and block orientation as estimated so far
-    trust: Trust = TRUST
+    trust: Trust = BLOCK_TRUST
     offsets_deg: np.ndarray = field(init=False)
     corner_mm: np.ndarray = field(init=False)
     vector: np.ndarray | None = None
@@ -234,7 +246,7 @@ class RunningEstimate:
             self.offsets_deg,
             label,
             config,
-            mode or self.trust.mode(n, self.last_miss_deg),
+            mode or self.trust.mode(n, face in self.faces_seen, self.last_miss_deg),
             self.trust.radius(n),
         )
         found = measure(self.rig, self.setup, request)
@@ -243,6 +255,10 @@ class RunningEstimate:
             self.measurements.append(found.measurement)
             self.refit()
         return found
+
+    @property
+    def faces_seen(self) -> set[Face]:
+        return {Face(m.face) for m in self.measurements}
 
     def replace(self, i: int, m: FaceMeasurement) -> None:
         """Put ``m`` (a face measured again) in place of measurement ``i`` and refit."""

@@ -43,6 +43,8 @@ from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.measure.acquire import PLATE, acquire_and_centre, acquisition_gain, open_water
 from ucal.measure.approach import FinalApproachRig
 from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
+from ucal.measure.face import SearchMode
+from ucal.measure.running import PLATE_TRUST
 from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
@@ -65,8 +67,6 @@ log = logging.getLogger(__name__)
 
 #: Pulser averages per probe of a peak fit.
 PEAK_AVERAGES = 8
-#: First acquisition radius (deg of beam tilt), doubled up to the plate raster's largest.
-ACQUIRE_RADIUS_DEG = 4.0
 #: A peak below this share of the first posture's amplitude (same plate, same water path) is
 #: a side lobe: the piston's first side lobe is 17.6 dB (0.13) below the main lobe.
 MAIN_LOBE_SHARE = 0.5
@@ -149,15 +149,21 @@ class PlateRig:
         js, tilt_map = search_joints(geom, q_pred, self.offsets, self.plane.rotation[:, :2].T)
         return PeakSearch(self.rig, self.ka, js, tilt_map, self.temp)
 
-    def centred(self, target: Target, quick: bool) -> tuple[PeakSearch, np.ndarray]:
-        """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
+    def centred(self, target: Target, measured: int) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture near the target, searched as the plate's trust policy says after
+        ``measured`` postures (``ucal.measure.running.PLATE_TRUST``; 0: acquire)."""
         q_pred = self.joints(
             target.point_mm, target.water_path_mm, target.phi_deg, target.label, 0.0
         )
-        return self.normal_near(q_pred, target.label, quick)
+        quick = PLATE_TRUST.mode(measured, measured > 0) != SearchMode.ACQUIRE
+        return self.normal_near(q_pred, target.label, quick, PLATE_TRUST.radius(measured))
 
     def normal_near(
-        self, q_pred: np.ndarray, label: str, quick: bool
+        self,
+        q_pred: np.ndarray,
+        label: str,
+        quick: bool,
+        radius_deg: float = PLATE_TRUST.radius_deg,
     ) -> tuple[PeakSearch, np.ndarray]:
         """Main-lobe posture (wrist only) near ``q_pred``: a quick centring, else (or when
         ``quick`` is False) the plate's acquisition raster (``ucal.measure.acquire.PLATE``)."""
@@ -169,7 +175,7 @@ class PlateRig:
                 self.rig,
                 q_pred,
                 label,
-                ACQUIRE_RADIUS_DEG,
+                radius_deg,
                 self.acq_gain,
                 PLATE,
             )
@@ -192,14 +198,16 @@ class PlateRig:
         origin = self.plan.centre_mm + lateral * w
         tool = self.tool()
         label = f"edge {ep.name}"
-        rows: list[tuple[float, float, np.ndarray]] = []
+        # each probe: t, amplitude, settled readings, minutes since the first reading, approach
+        rows: list[tuple[float, float, np.ndarray, float, np.ndarray]] = []
         aim = np.zeros(6)  # wrist correction to normal incidence on this line
 
         def probe(t: float, averages: int) -> float:
             q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
             settled = self.move(q)
             a = self.rig.normalised_amplitude(averages)
-            rows.append((t, a, np.asarray(settled, float)))
+            rig = self.rig
+            rows.append((t, a, np.asarray(settled, float), rig.minutes(), rig.approach.copy()))
             return a
 
         hi = ep.start_mm + ep.search_mm
@@ -292,6 +300,8 @@ class PlateRig:
                 shift,
                 ep.index,
                 std,
+                rows[i][3],
+                rows[i][4],
             ),
         )
 
@@ -361,7 +371,7 @@ def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
     tofs: list[TofRecord] = []
     for i, target in enumerate(plan.peaks):
         _report(plate_rig, target.label, i, total, target.phi_deg)
-        search, q_c = plate_rig.centred(target, quick=i > 0)
+        search, q_c = plate_rig.centred(target, i)
         peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
         if peak.tilt_std_deg > 0.02:
             log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
@@ -377,7 +387,7 @@ def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
                 target.label,
                 _probe_level(peak) / _probe_level(peaks[0]),
             )
-            search, q_c = plate_rig.centred(target, quick=False)
+            search, q_c = plate_rig.centred(target, 0)
             peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
             level = _probe_level(peak) / _probe_level(peaks[0])
             if level < MAIN_LOBE_SHARE:
@@ -464,7 +474,7 @@ def _measure_paper(plate_rig: PlateRig) -> PaperMeasurements:
     path_stds: list[float] = []
     for i, target in enumerate(plan.incidence):
         _report(plate_rig, target.label, i, total, target.phi_deg)
-        _, q_c = plate_rig.centred(target, quick=i > 0)
+        _, q_c = plate_rig.centred(target, i)
         settled = plate_rig.move(q_c)
         path, std = _tof(plate_rig)
         f = plate_rig.flange(settled)

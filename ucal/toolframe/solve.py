@@ -150,6 +150,8 @@ def solve_plate_fit(
                 p.distance_joints_deg,
                 p.distance[0],
                 max(p.distance[1], 1e-4),
+                p.time_min,
+                p.approach,
             )
         )
     edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()

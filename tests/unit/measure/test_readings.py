@@ -17,7 +17,7 @@ from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
 from ucal.measure.approach import FinalApproachRig
 from ucal.measure.face import SearchMode
-from ucal.measure.running import TRUST
+from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
 from ucal.rig import ZERO_FLOOR_FSH, Rig
 
@@ -308,8 +308,14 @@ def test_open_water_turns_the_joint_up_or_down_where_up_leaves_its_range() -> No
 
 
 def test_one_trust_policy_acquires_the_first_two_faces_then_centres_then_fits_at_once() -> None:
-    modes = [TRUST.mode(n, miss) for n, miss in [(0, np.inf), (1, 2.0), (2, 0.6), (3, 0.14)]]
+    faces = [(0, False, np.inf), (1, False, 2.0), (2, True, 0.6), (3, False, 0.14)]
+    modes = [BLOCK_TRUST.mode(n, seen, miss) for n, seen, miss in faces]
     assert modes == [SearchMode.ACQUIRE, SearchMode.ACQUIRE, SearchMode.QUICK, SearchMode.DIRECT]
+    # the same face again after one: its prediction rests on what it measured
+    assert BLOCK_TRUST.mode(1, True, 2.0) == SearchMode.QUICK
     # the last prediction missed by more than the main lobe's half-width: centre first
-    assert TRUST.mode(5, 1.0) == SearchMode.QUICK
-    assert (TRUST.radius(0), TRUST.radius(1), TRUST.radius(7)) == (16.0, 8.0, 8.0)
+    assert BLOCK_TRUST.mode(5, True, 1.0) == SearchMode.QUICK
+    assert (BLOCK_TRUST.radius(0), BLOCK_TRUST.radius(1), BLOCK_TRUST.radius(7)) == (16.0, 8.0, 8.0)
+    # the plate: one posture fixes the beam, none is fitted without centring
+    plate = [PLATE_TRUST.mode(n, n > 0, 0.0) for n in range(4)]
+    assert plate == [SearchMode.ACQUIRE] + [SearchMode.QUICK] * 3
