@@ -118,7 +118,6 @@ def run_check(
     floor = rig.floor_per_gain
     faces = run.measurements
     ascans: dict[str, EchoEstimate | None] = {}
-    approach = FinalApproachRig(rig)
     by_label = {measurement_label(m): m for m in faces}
     for i, label in enumerate(echo_labels):
         if progress:
@@ -127,7 +126,7 @@ def run_check(
         m = by_label.get(label)
         if m is None:  # not measured (a configuration skipped on the way)
             continue
-        approach.move(m.joints_deg)
+        FinalApproachRig(rig).move(m.joints_deg)  # reached as the faces were
         path_tof_ns = float(tof_ns(m.distance_mm, profile.water_temperature_c))
         try:
             ascans[label] = read_echo_band(rig, path_tof_ns)
