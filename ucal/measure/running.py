@@ -102,7 +102,7 @@ class CellEstimate:
 
     offsets_deg: np.ndarray  # (6,)
     corner_mm: np.ndarray  # (3,) block corner
-    vector: np.ndarray | None  # the fit's full parameter vector (start of the next fit)
+    vector: np.ndarray  # the fit's full parameter vector (start of the next fit)
     geometry: CellGeometry  # tool and block orientation as fitted
 
 
