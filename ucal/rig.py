@@ -3,8 +3,8 @@
 ``Rig`` counts moves and reads, keeps the pulser's settings (gain, averages) and the noise
 floor, sweeps a joint-space line while reading the pulser (each reading paired with the
 streamed joint positions), and checks every reading for values no instrument gives (exit 3).
-The rig keeps what a reading needs to be modelled later: the sign of each
-joint's last motion (``approach``) and the time since the run's first reading (``minutes``).
+The rig keeps what a reading needs to be modelled later: the sign of each joint's last motion
+(``approach``) and the time since the run's first reading (``minutes``).
 The measuring library (``ucal.measure``) and every procedure measure through a rig; the cell
 session (``ucal.session``) builds it from the profile.
 """
