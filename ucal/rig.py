@@ -3,9 +3,10 @@
 ``Rig`` counts moves and reads, keeps the pulser's settings (gain, averages) and the noise
 floor, sweeps a joint-space line while reading the pulser (each reading paired with the
 streamed joint positions), and checks every reading for values no instrument gives (exit 3).
-``FinalApproachRig`` makes every static posture be reached from below on each joint
-(backlash). The peak search (``ucal.calibration.search``) and every procedure measure through
-a rig; the cell session (``ucal.session``) builds it from the profile.
+The rig keeps what a reading needs to be modelled later: the sign of each joint's last motion
+(``approach``) and the time since the run's first reading (``minutes``).
+The measuring library (``ucal.measure``) and every procedure measure through a rig; the cell
+session (``ucal.session``) builds it from the profile.
 """
 
 from __future__ import annotations
@@ -158,6 +159,13 @@ class Rig:
         self.rate_factor = 1.0
         self.stepped_lines = 0  # lines read as settled steps (the arm too fast to sweep)
         self._streamed = False  # whether the last sweep had streamed joints to tie its readings
+        # The sign (+1/-1) of each joint's last motion (``approach``), from the last target
+        # commanded; +1 for a joint not yet moved in the run (its motion before is unknown).
+        self.approach = np.ones(6)
+        self._last_target: np.ndarray | None = None
+        # Pulser clock (s) at the run's first reading and at the last one (``minutes``).
+        self._first_read_s: float | None = None
+        self._last_read_s: float | None = None
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.joint_min_deg, self.joint_max_deg)
@@ -168,8 +176,32 @@ class Rig:
             self.pulser.configure(new)
             self.settings = new
 
+    def moved_to(self, target: np.ndarray, start: np.ndarray | None = None) -> None:
+        """Note a motion to ``target`` (from ``start``, else the last target): each joint that
+        moves sets its sign in ``approach``."""
+        target = np.asarray(target, float)
+        start = self._last_target if start is None else np.asarray(start, float)
+        if start is not None:
+            delta = target - start
+            self.approach = np.where(np.abs(delta) > 1e-9, np.sign(delta), self.approach)
+        self._last_target = target.copy()
+
+    def _stamp(self, reading: GateReading) -> None:
+        """Note the pulser clock of a reading (``minutes``)."""
+        if self._first_read_s is None:
+            self._first_read_s = reading.host_time_s
+        self._last_read_s = reading.host_time_s
+
+    def minutes(self) -> float:
+        """Minutes from the run's first reading to the last one, on the pulser's clock (the
+        clock that stamps a reading's arrival and pairs it with the streamed joints)."""
+        if self._first_read_s is None or self._last_read_s is None:
+            return 0.0
+        return (self._last_read_s - self._first_read_s) / 60.0
+
     def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
         q = np.asarray(q, float)
+        self.moved_to(q)
         self.counters.moves += 1
         if self.on_move:
             self.on_move(q)
@@ -181,6 +213,7 @@ class Rig:
         self.counters.reads += 1
         reading = self.pulser.read_gate(fresh=True)
         check_reading(self.pulser.endpoint, reading.amplitude, reading.tof_ns)
+        self._stamp(reading)
         return reading
 
     def normalised_amplitude(self, averages: int = 1) -> float:
@@ -253,6 +286,7 @@ class Rig:
         target = np.asarray(target, float)
         start = self.controller.read_joints()
         self.configure(averages=1)
+        self.moved_to(target, start)
         self.counters.moves += 1
         if self.on_move:
             self.on_move(target)
@@ -273,6 +307,7 @@ class Rig:
                     clock.sleep(idle)
             sent.append(clock.now())
             readings.append(self.pulser.read_gate(fresh=True))
+            self._stamp(readings[-1])
             self.counters.reads += 1
             here = self.controller.read_joints()
             busy_s += clock.now() - sent[-1]
@@ -448,47 +483,3 @@ class Rig:
             tofs.append(reading.tof_ns)
         self.last_sweep_step_deg = travel / max(n - 1, 1)
         return np.asarray(qs, float), np.asarray(amps, float), np.asarray(tofs, float)
-
-
-#: Final approach of every move (deg below the target on each joint), larger than any backlash.
-APPROACH_DEG = 0.05
-
-
-if TYPE_CHECKING:
-    _RigProxy = Rig  # a FinalApproachRig stands wherever a Rig does
-else:
-    _RigProxy = object
-
-
-class FinalApproachRig(_RigProxy):
-    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
-
-    A joint with backlash leaves its link behind the encoder by half the lost motion, against
-    the direction of its last motion. If a move would bring any joint down onto its target, the
-    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
-    static postures are then reached from below. The two segments are one move in the counters.
-    Everything else is the wrapped rig's.
-    """
-
-    _rig: Rig
-    _approach_deg: float
-
-    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
-        object.__setattr__(self, "_rig", rig)
-        object.__setattr__(self, "_approach_deg", approach_deg)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._rig, name)
-
-    def __setattr__(self, name: str, value: object) -> None:
-        setattr(self._rig, name, value)
-
-    def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
-        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
-        rig = self._rig
-        q = np.asarray(q, float)
-        here = rig.controller.read_joints()
-        if np.any(q < here - 1e-6):
-            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
-            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
-        return rig.move(q, speed)

@@ -10,19 +10,14 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import water_absorption_np_per_mm
-from ucal.calibration.faces import (
-    FaceRequest,
-    FaceSetup,
-    SearchMode,
-    acquisition_gain,
-    measure,
-)
 from ucal.calibration.model import Face
-from ucal.calibration.search import MainLobe, PeakSearch, ka_of
 from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.errors import EXIT_HARDWARE, HardwareError
+from ucal.measure.acquire import acquisition_gain
+from ucal.measure.approach import FinalApproachRig
+from ucal.measure.face import FaceRequest, FaceSetup, SearchMode, measure
+from ucal.measure.search import MainLobe, PeakSearch, ka_of
 from ucal.profile import create_profile, load_profile
-from ucal.rig import FinalApproachRig
 from ucal.session import open_cell
 from ucal.sim.cell import SimulatedCell
 from ucal.world import load_world
@@ -61,6 +56,11 @@ def _wall(tmp_path: Path, reference: str) -> tuple[float | str, MainLobe]:
             floor = FaceRequest(Face.XY, pose, geom, est, "face XY (base)", "base")
             found = measure(rig, setup, floor)
             assert _true_tilt_deg(truth, found.measurement.joints_deg, Face.XY) < 0.01
+            # its water path read at a posture reached from below on every joint, some time
+            # after the run's first reading (the noise floor's)
+            approach, minutes = found.measurement.approach, found.measurement.time_min
+            assert approach is not None and approach.tolist() == [1.0] * 6
+            assert minutes is not None and 0.0 < minutes == pytest.approx(rig.minutes(), abs=1.0)
             if reference == "30 dB too strong":  # as if another reflector had given it
                 setup.main_lobe.peaks[:] = [(a * 10**1.5, p) for a, p in setup.main_lobe.peaks]
         wall = FaceRequest(

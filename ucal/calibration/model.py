@@ -82,6 +82,10 @@ class FaceMeasurement:
     gain_db: float | None = field(default=None, compare=False)
     probes: Probes | None = field(default=None, compare=False)
     search_joints: tuple[int, int] | None = field(default=None, compare=False)
+    #: Minutes since the run's first reading when the water path was read (the tank's drift).
+    time_min: float | None = field(default=None, compare=False)
+    #: (6,) sign (+1/-1) of each joint's last motion before the reading (lost motion).
+    approach: np.ndarray | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "face", Face(self.face))

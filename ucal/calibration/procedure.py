@@ -3,7 +3,7 @@
 Read with ``ucal.procedure`` (the order every moving command follows): the plan and its checks
 (``ucal.calibration.sequence.plan_calibration``), the plan in words (``plan_summary``), the
 measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
-measurement, ``ucal.calibration.faces``), the solvers (``ucal.calibration.sequence.solve``:
+measurement, ``ucal.measure.face``), the solvers (``ucal.calibration.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
 (``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
 
@@ -61,7 +61,7 @@ from ucal.timing import DurationEstimate, estimate_run
 TOLERANCE_STD_DEG = 0.02
 
 #: The approach direction the offsets belong to: every static posture is reached with each joint
-#: moving in its positive direction (``ucal.rig.FinalApproachRig``), the link lagging its encoder
+#: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
 #: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
 APPROACH = "positive"
 #: Why ``backlash_deg`` is null: what the offsets level does not measure.

@@ -21,8 +21,8 @@ then part of the offset instead of a configuration-dependent error.
 Every target is planned and checked before the first motion (joint ranges with room for the
 wrist search, the θ5 singularity margin, the beam meeting each face inside its edges at a
 positive water path). During the run each new measurement refines the estimate of the offsets
-and of the block corner (a regularised fit of the measurements so far), which predicts the next
-posture: the first face may need a wide search, the others are found near their prediction.
+and of the block corner, which predicts the next posture (``ucal.measure.running``): the first
+face may need a wide search, the others are found near their prediction.
 """
 
 from __future__ import annotations
@@ -33,21 +33,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution, beam_on_axis, solve_exact_with_priors
-from ucal.calibration.faces import (
-    FaceRequest,
-    FaceSetup,
-    SearchMode,
-    acquisition_gain,
-    make_search,
-    measure,
-)
 from ucal.calibration.fit import (
-    BLOCK,
-    DH,
     OFFSETS,
     TOOL,
-    CellPrior,
-    cell_geometry,
     prior_from_profile,
     solve_cell,
 )
@@ -69,14 +57,14 @@ from ucal.calibration.safety import (
     check_joints,
     face_hit,
 )
-from ucal.calibration.search import ka_of
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError
 from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.measure.running import RunningEstimate
 from ucal.progress import MeasureStep, Report
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -490,97 +478,19 @@ def _stepped_clearance(
     return min(paths)
 
 
-@dataclass(frozen=True)
-class CellEstimate:
-    """What the measurements so far say about the cell, to predict the next posture."""
-
-    offsets_deg: np.ndarray  # (6,)
-    corner_mm: np.ndarray  # (3,) block corner
-    vector: np.ndarray  # the fit's full parameter vector (start of the next fit)
-    geometry: CellGeometry  # tool and block orientation as fitted
-
-
-def estimate_cell(
-    prior: CellPrior, meas: list[FaceMeasurement], start: np.ndarray | None = None
-) -> CellEstimate:
-    """The cell as the measurements so far see it (``start``: the previous vector).
-
-    The prior-augmented fit of ``ucal.calibration.fit``: with fewer than the full set the
-    priors (broad on the offsets, the declared tolerances on the rest) hold the directions the
-    data do not see yet, and the sound speed is fitted as soon as a step shows it. The DH
-    table and the tool position are held (their tolerances move a prediction by micrometres).
-    The fitted tool and block orientations are part of the prediction: a block tilted by a
-    tenth of a degree moves the next face's normal-incidence posture by as much, which is
-    most of a fit grid.
-    """
-    cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-7)
-    return CellEstimate(
-        np.array([cell.value(n) for n in OFFSETS]),
-        np.array([cell.value(n) for n in BLOCK[:3]]),
-        cell.estimate,
-        cell_geometry(cell.table, cell.estimate, prior.model),
-    )
-
-
-def refit_peaks(
-    rig: Rig,
-    profile: CellProfile,
-    meas: list[FaceMeasurement],
-    ka: float,
-    prior: CellPrior,
-    vector: np.ndarray | None = None,
-    rounds: int = 1,
-) -> list[FaceMeasurement]:
-    """Fit every face's recorded probes again with the offsets of a full solution.
-
-    The first faces were fitted with kinematics whose offsets could be degrees off, which
-    distorts the fit model (beam direction and water path against the wrist joints) at the
-    1e-4 degree level. No motion: only the recorded probes are used.
-    """
-    for _ in range(rounds):
-        cell = estimate_cell(prior, meas, vector)
-        vector, est, geom = cell.vector, cell.offsets_deg, cell.geometry
-        new = []
-        for m in meas:
-            if m.probes is None:
-                new.append(m)
-                continue
-            search = make_search(rig, geom, profile, m.joints_deg, m.face, est, ka, m.search_joints)
-            peak = search.refit(m.probes)
-            new.append(
-                replace(m, joints_deg=peak.joints_deg, tilt_std_deg=max(peak.tilt_std_deg, 1e-4))
-            )
-        meas = new
-    return meas
-
-
 def run_calibration(
     profile: CellProfile,
     plan: CalibrationPlan,
     rig: Rig,
     progress: Report | None = None,
 ) -> CalibrationRun:
-    """Measure the planned faces (``solve`` turns them into offsets), reporting each face as it
-    starts and the final refit. The caller owns the connection, STOP and the profile."""
-    geom = geometry(profile)
-    temp = profile.water_temperature_c
-    ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
-    prior = prior_from_profile(profile)
-    est = np.array(profile.joint_offsets_deg, float)
-    corner = np.array(profile.sample_position_mm, float)
-    meas: list[FaceMeasurement] = []
-    approach = FinalApproachRig(rig)
-
-    # Noise floor with the beam in open water: the first target with the wrist turned 25°
-    # away from normal (far outside every lobe that matters).
+    """Measure the planned faces (``solve`` turns them into offsets) with the running estimate
+    of ``ucal.measure.running``, reporting each face as it starts and the final refit. The
+    caller owns the connection, STOP and the profile."""
     first = plan.targets[0]
-    away = first.joints_deg.copy()
-    away[first.search_joints[1]] += 25.0
-    setup = FaceSetup(profile, ka, acquisition_gain(rig, away))
-
+    geom = geometry(profile)
+    running = RunningEstimate.start(profile, rig, geom, first.joints_deg, first.search_joints[1])
     total = len(plan.targets)
-    vector = None
-    fitted = geom
     last_wrist: dict[int, np.ndarray] = {}
     steps: dict[Configuration, float] = {}
     skipped: set[Configuration] = set()
@@ -596,7 +506,13 @@ def run_calibration(
         if target.config not in steps:
             try:
                 steps[target.config] = choose_step(
-                    profile, fitted, plan, target.config, est, corner, last_wrist
+                    profile,
+                    running.geometry,
+                    plan,
+                    target.config,
+                    running.offsets_deg,
+                    running.corner_mm,
+                    last_wrist,
                 )
             except SafetyError as e:
                 if target.config != Configuration.J1:
@@ -609,33 +525,12 @@ def run_calibration(
         start = config_arm(plan.pose_deg, target.config, steps[target.config])
         start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
         start[5] = target.joints_deg[5]
-        # Three faces pin the model down: later predictions land within a few thousandths of a
-        # degree, inside the fit's first grid; two faces leave a fraction of a degree.
-        mode = (
-            SearchMode.DIRECT
-            if len(meas) >= 3
-            else SearchMode.QUICK
-            if len(meas) == 2
-            else SearchMode.ACQUIRE
-        )
-        request = FaceRequest(
-            face=target.face,
-            start_deg=start,
-            geometry=fitted,
-            offsets_deg=est,
-            label=f"face {FACE_NAMES[target.face]} ({target.label})",
-            config=target.config,
-            mode=mode,
-            radius_deg=16.0 if not meas else 8.0,
-        )
-        res = measure(approach, setup, request)
-        meas.append(res.measurement)
-        last_wrist[target.face] = res.measurement.joints_deg
-        cell = estimate_cell(prior, meas, vector)
-        est, corner, vector, fitted = cell.offsets_deg, cell.corner_mm, cell.vector, cell.geometry
+        label = f"face {FACE_NAMES[target.face]} ({target.label})"
+        found = running.measure(target.face, start, label, target.config)
+        last_wrist[target.face] = found.measurement.joints_deg
     # Leave the robot at the calibration pose's XY posture.
-    approach.move(plan.targets[0].joints_deg)
-    meas = refit_peaks(approach, profile, meas, ka, prior, vector)
+    running.rig.move(first.joints_deg)
+    meas = running.refit_peaks()
     if progress:
         progress(MeasureStep("solving", total, total))
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)

@@ -26,8 +26,9 @@ from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
 from ucal.echo import AScan, EchoEstimate, estimate_echo
+from ucal.measure.approach import FinalApproachRig
 from ucal.progress import MeasureStep, Report
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +118,6 @@ def run_check(
     floor = rig.floor_per_gain
     faces = run.measurements
     ascans: dict[str, EchoEstimate | None] = {}
-    approach = FinalApproachRig(rig)
     by_label = {measurement_label(m): m for m in faces}
     for i, label in enumerate(echo_labels):
         if progress:
@@ -126,7 +126,7 @@ def run_check(
         m = by_label.get(label)
         if m is None:  # not measured (a configuration skipped on the way)
             continue
-        approach.move(m.joints_deg)
+        FinalApproachRig(rig).move(m.joints_deg)  # reached as the faces were
         path_tof_ns = float(tof_ns(m.distance_mm, profile.water_temperature_c))
         try:
             ascans[label] = read_echo_band(rig, path_tof_ns)

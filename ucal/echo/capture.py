@@ -3,7 +3,7 @@
 A run that times echoes on the host (``[pulser] timing = "ascan"``, or a back-end that only
 digitises) and whose profile names no ``reference_echo`` times its first readings by their
 envelope (the coarse fallback, ``ucal.echo.timing.METHOD_ENVELOPE``). At its first distance
-reading (``ucal.calibration.search.read_distance``: the first face's normal-incidence
+reading (``ucal.measure.search.read_distance``: the first face's normal-incidence
 posture, where the echo is the block's and strongest) :meth:`ReferenceCapture.ensure` levels
 the gain, takes ``captures`` readings of ``averages`` acquisitions each, averages their records
 into the reference (``ucal.echo.reference.build_reference``), restores the settings and hands

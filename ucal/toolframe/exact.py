@@ -9,7 +9,7 @@ frame is ``c = p_E + R_E p_T`` and the beam ``b = R_E a_T``.
 
     (E1)  R_E,i a_T = −n   ⇒   a_T = −R_E,iᵀ n
 
-so each peak-amplitude posture search (``ucal.calibration.search.PeakSearch``) gives the
+so each peak-amplitude posture search (``ucal.measure.search.PeakSearch``) gives the
 beam in the flange frame directly, independent of the tool offsets, the plate's offset and
 the time of flight. Searches at k flange orientations (turned about the beam) are combined by
 least squares on the unit sphere: the normalised weighted mean of the ``−R_E,iᵀ n``

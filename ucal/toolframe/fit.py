@@ -89,6 +89,10 @@ class PlatePeak:
     distance_joints_deg: np.ndarray  # (6,) readings where the TOF was read
     path_mm: float  # water path from the TOF with the profile's sound speed
     path_std_mm: float
+    #: Minutes since the run's first reading (the tank's drift), and the sign (+1/-1) of each
+    #: joint's last motion (6,) (lost motion), at the water path's reading.
+    time_min: float | None = field(default=None, compare=False)
+    approach: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,9 @@ class PlateCrossing:
     shift_mm: np.ndarray
     edge: int
     std_mm: float
+    #: As ``PlatePeak``'s, at the nearest probe's reading.
+    time_min: float | None = field(default=None, compare=False)
+    approach: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,17 @@
 """The tool-frame measurement with the rig: every posture and edge scan of the plan.
 
-The rig, the plate and the running tool estimate the steps share are one ``PlateRig``.
+The rig, the plate and the running tool estimate the steps share are one ``PlateRig``. Its rig
+is a ``FinalApproachRig``: every static posture (the peak fits' probes, the water paths, each
+probe of an edge scan) is reached from below on every joint, as in the calibration. Readings
+taken during motion only find the echo, and go both ways: the acquisition raster's lines
+alternate their sense; the centring crosses sweep each wrist joint in its positive sense, but
+a cross whose readings came too far apart is swept again back, in the negative sense
+(``Rig.line``); the rig's ``approach`` says which. The edge scans read nothing in motion:
+their coarse and fine probes are static and step outward from the plate's centre
+(``ucal.measure.edges``).
 
 Measure (exact): noise floor with the beam off the plate; at each posture the peak search of
-``ucal.calibration.search`` (acquisition raster only for the first; later postures are
+``ucal.measure.search`` (acquisition raster only for the first; later postures are
 predicted from the beam found so far), fitted, the water path read at the peak; the beam a_T
 from all peaks (``exact`` eq. E1), a_T·p_T from the paths (E2); then the edge scans with the
 tool estimate updated (the beam normal to the plate within the peak precision): a coarse search
@@ -26,15 +34,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.faces import acquire_and_centre, acquisition_gain
 from ucal.calibration.model import CellGeometry
-from ucal.calibration.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.calibration.wrist import search_joints
 from ucal.cell import CellProfile
-from ucal.edges import coarse_edge_fall, fine_edge_scan
 from ucal.errors import HardwareError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.measure.acquire import PLATE, acquire_and_centre, acquisition_gain, open_water
+from ucal.measure.approach import FinalApproachRig
+from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
+from ucal.measure.face import SearchMode
+from ucal.measure.running import PLATE_TRUST
+from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 from ucal.toolframe.exact import (
@@ -54,23 +65,8 @@ from ucal.toolframe.plane import Plane
 
 log = logging.getLogger(__name__)
 
-#: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
-COARSE_STEP_MM = 2.0
-#: Probes (the last ones) whose largest echo the coarse search compares each new one with.
-COARSE_MEMORY = 4
-#: Fine scan: half width (mm) and number of static probes across the 50 % point.
-FINE_HALF_MM = 5.0
-FINE_PROBES = 21
-#: Pulser averages per amplitude reading on edge scans and per peak-fit probe.
-EDGE_AVERAGES = 16
+#: Pulser averages per probe of a peak fit.
 PEAK_AVERAGES = 8
-#: Acquisition raster radius (deg of beam tilt) for the first posture, doubled up to the max;
-#: its lines 1.5° apart (the plate is met at the planned water path).
-ACQUIRE_RADIUS_DEG = 4.0
-ACQUIRE_MAX_DEG = 8.0
-ACQUIRE_LINE_SPACING_DEG = 1.5
-#: Noise floor the acquisition gain puts the empty gate at (fraction of full screen height).
-ACQUISITION_FLOOR_FSH = 0.05
 #: A peak below this share of the first posture's amplitude (same plate, same water path) is
 #: a side lobe: the piston's first side lobe is 17.6 dB (0.13) below the main lobe.
 MAIN_LOBE_SHARE = 0.5
@@ -104,7 +100,7 @@ class PlateRig:
         self.profile = profile
         self.plan = plan
         self.plane = plan.plane
-        self.rig = rig
+        self.rig = FinalApproachRig(rig)
         self.progress = progress
         self.offsets = np.asarray(profile.joint_offsets_deg, float)
         self.temp = profile.water_temperature_c
@@ -141,11 +137,11 @@ class PlateRig:
         return self.rig.normalised_amplitude(averages)
 
     def noise_floor(self, target: Target) -> None:
-        """Noise floor with the beam 25° off the plate's normal; sets the acquisition gain."""
-        away = target.joints_deg.copy()
-        away[4] += 25.0 if away[4] + 25.0 < self.profile.model.joint_max_deg[4] else -25.0
-        self.acq_gain = acquisition_gain(self.rig, away, ACQUISITION_FLOOR_FSH)
-        self.q = self.rig.clip(away)
+        """Noise floor with the beam off the plate (``ucal.measure.acquire.open_water`` on J5);
+        sets the acquisition gain for the plate's raster."""
+        away = open_water(target.joints_deg, 4, self.rig.joint_min_deg, self.rig.joint_max_deg)
+        self.acq_gain = acquisition_gain(self.rig, away, PLATE.floor_fsh)
+        self.q = away
 
     # -- posture search --------------------------------------------------------------------------
     def _search(self, q_pred: np.ndarray) -> PeakSearch:
@@ -153,18 +149,24 @@ class PlateRig:
         js, tilt_map = search_joints(geom, q_pred, self.offsets, self.plane.rotation[:, :2].T)
         return PeakSearch(self.rig, self.ka, js, tilt_map, self.temp)
 
-    def centred(self, target: Target, quick: bool) -> tuple[PeakSearch, np.ndarray]:
-        """Main-lobe posture near the target (acquisition raster if no echo is predicted)."""
+    def centred(self, target: Target, measured: int) -> tuple[PeakSearch, np.ndarray]:
+        """Main-lobe posture near the target, searched as the plate's trust policy says after
+        ``measured`` postures (``ucal.measure.running.PLATE_TRUST``; 0: acquire)."""
         q_pred = self.joints(
             target.point_mm, target.water_path_mm, target.phi_deg, target.label, 0.0
         )
-        return self.normal_near(q_pred, target.label, quick)
+        quick = PLATE_TRUST.mode(measured, measured > 0) != SearchMode.ACQUIRE
+        return self.normal_near(q_pred, target.label, quick, PLATE_TRUST.radius(measured))
 
     def normal_near(
-        self, q_pred: np.ndarray, label: str, quick: bool
+        self,
+        q_pred: np.ndarray,
+        label: str,
+        quick: bool,
+        radius_deg: float = PLATE_TRUST.radius_deg,
     ) -> tuple[PeakSearch, np.ndarray]:
         """Main-lobe posture (wrist only) near ``q_pred``: a quick centring, else (or when
-        ``quick`` is False) the acquisition raster, widened up to ``ACQUIRE_MAX_DEG``."""
+        ``quick`` is False) the plate's acquisition raster (``ucal.measure.acquire.PLATE``)."""
         search = self._search(q_pred)
         q_c = search.quick_centre(q_pred) if quick else None
         if q_c is None:
@@ -173,12 +175,9 @@ class PlateRig:
                 self.rig,
                 q_pred,
                 label,
-                ACQUIRE_RADIUS_DEG,
+                radius_deg,
                 self.acq_gain,
-                max_moves=None,
-                spacings_deg=(ACQUIRE_LINE_SPACING_DEG,),
-                max_radius_deg=ACQUIRE_MAX_DEG,
-                no_echo=_no_plate_echo,
+                PLATE,
             )
         self.q = np.asarray(q_c, float)
         return search, q_c
@@ -199,23 +198,25 @@ class PlateRig:
         origin = self.plan.centre_mm + lateral * w
         tool = self.tool()
         label = f"edge {ep.name}"
-        rows: list[tuple[float, float, np.ndarray]] = []
+        # each probe: t, amplitude, settled readings, minutes since the first reading, approach
+        rows: list[tuple[float, float, np.ndarray, float, np.ndarray]] = []
         aim = np.zeros(6)  # wrist correction to normal incidence on this line
 
         def probe(t: float, averages: int) -> float:
             q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
             settled = self.move(q)
             a = self.rig.normalised_amplitude(averages)
-            rows.append((t, a, np.asarray(settled, float)))
+            rig = self.rig
+            rows.append((t, a, np.asarray(settled, float), rig.minutes(), rig.approach.copy()))
             return a
 
         hi = ep.start_mm + ep.search_mm
         if guess is None:
             t = ep.start_mm
-            step = COARSE_STEP_MM
+            step = EDGES.coarse_step_mm
         else:
             t = max(ep.start_mm, guess - 20.0)
-            step = 0.75 * COARSE_STEP_MM
+            step = 0.75 * EDGES.coarse_step_mm
         # normal incidence at the line's start: with joint offsets not yet calibrated the
         # beam turns differently in this arm configuration than at the plate centre (a few
         # tenths of a degree can put it in the first null); the wrist correction found here
@@ -225,11 +226,13 @@ class PlateRig:
         _, q_n = self.normal_near(q0, label, quick=True)
         aim = np.asarray(q_n, float) - q0
         self.move(q0 + aim)
-        self.set_gain(EDGE_AVERAGES)
+        self.set_gain(EDGES.averages)
         # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam that
         # drifts off normal along the line (offsets not yet calibrated) fades slowly
-        first = probe(t, EDGE_AVERAGES)
-        t_c = coarse_edge_fall(lambda t: probe(t, EDGE_AVERAGES), t, first, hi, step, COARSE_MEMORY)
+        first = probe(t, EDGES.averages)
+        t_c = coarse_edge_fall(
+            lambda t: probe(t, EDGES.averages), t, first, hi, step, EDGES.coarse_memory
+        )
         if t_c is None:
             raise HardwareError(
                 f"{self.rig.pulser.endpoint}: the echo did not fall at any "
@@ -238,7 +241,8 @@ class PlateRig:
         # fine scan across the coarse crossing; once more twice as wide if it does not cross
         # (the coarse fall was a dip of the echo on the plate, e.g. a bow or a scratch)
         # normal incidence again just inside the edge, for the fine scan
-        q1 = self.joints(origin + (t_c - FINE_HALF_MM - 2.0) * u, EDGE_WATER_PATH_MM, phi, label)
+        inside = t_c - EDGES.fine_half_mm - 2.0
+        q1 = self.joints(origin + inside * u, EDGE_WATER_PATH_MM, phi, label)
         _, q_n = self.normal_near(q1, label, quick=True)
         aim = np.asarray(q_n, float) - q1
         ts: list[float] = []
@@ -247,19 +251,19 @@ class PlateRig:
         def fine(t: float) -> tuple[float, float]:
             """A fine probe's scan coordinate, from its actual flange pose (the estimated
             tool centre), and amplitude."""
-            a = probe(t, EDGE_AVERAGES)
+            a = probe(t, EDGES.averages)
             f = self.flange(rows[-1][2])
             c = (f @ tool)[:3, 3]
             ts.append(float(u @ (self.plane.project(c) - origin)))
             flanges.append(f)
             return ts[-1], a
 
-        for half in (FINE_HALF_MM, 2.0 * FINE_HALF_MM):
+        for half in (EDGES.fine_half_mm, 2.0 * EDGES.fine_half_mm):
             rows.clear()
             ts.clear()
             flanges.clear()
             try:
-                fit = fine_edge_scan(fine, t_c, half, FINE_PROBES)
+                fit = fine_edge_scan(fine, t_c, half, EDGES.fine_probes)
                 break
             except ValueError as e:
                 log.info("edge %s: %s (±%.0f mm)", ep.name, e, half)
@@ -296,16 +300,10 @@ class PlateRig:
                 shift,
                 ep.index,
                 std,
+                rows[i][3],
+                rows[i][4],
             ),
         )
-
-
-def _no_plate_echo(rig: Rig, label: str, reached_deg: float, moves: int) -> HardwareError:
-    return HardwareError(
-        f"{rig.pulser.endpoint}: no echo from the reflector plate within {reached_deg:g} deg "
-        f"of the predicted posture ({label}); check [reflector] points_mm and [tool] in the "
-        "profile"
-    )
 
 
 def _report(plate_rig: PlateRig, what: str, i: int, n: int, phi_deg: float | None = None) -> None:
@@ -373,7 +371,7 @@ def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
     tofs: list[TofRecord] = []
     for i, target in enumerate(plan.peaks):
         _report(plate_rig, target.label, i, total, target.phi_deg)
-        search, q_c = plate_rig.centred(target, quick=i > 0)
+        search, q_c = plate_rig.centred(target, i)
         peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
         if peak.tilt_std_deg > 0.02:
             log.info("%s: poor fit (σ %.3f°), centring again", target.label, peak.tilt_std_deg)
@@ -389,7 +387,7 @@ def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
                 target.label,
                 _probe_level(peak) / _probe_level(peaks[0]),
             )
-            search, q_c = plate_rig.centred(target, quick=False)
+            search, q_c = plate_rig.centred(target, 0)
             peak = search.fit(q_c, averages=PEAK_AVERAGES, distance=lambda: _tof(plate_rig))
             level = _probe_level(peak) / _probe_level(peaks[0])
             if level < MAIN_LOBE_SHARE:
@@ -476,7 +474,7 @@ def _measure_paper(plate_rig: PlateRig) -> PaperMeasurements:
     path_stds: list[float] = []
     for i, target in enumerate(plan.incidence):
         _report(plate_rig, target.label, i, total, target.phi_deg)
-        _, q_c = plate_rig.centred(target, quick=i > 0)
+        _, q_c = plate_rig.centred(target, i)
         settled = plate_rig.move(q_c)
         path, std = _tof(plate_rig)
         f = plate_rig.flange(settled)

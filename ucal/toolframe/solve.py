@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
-from ucal.calibration.search import PeakResult
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import transform
+from ucal.measure.search import PeakResult
 from ucal.progress import Report
 from ucal.rig import Rig
 from ucal.toolframe.exact import (
@@ -150,6 +150,8 @@ def solve_plate_fit(
                 p.distance_joints_deg,
                 p.distance[0],
                 max(p.distance[1], 1e-4),
+                p.time_min,
+                p.approach,
             )
         )
     edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()

@@ -2,12 +2,13 @@
 
 At each commanded point the arm (joints 1–3) stays still and the wrist turns the beam onto each
 of the three faces in turn (arm–wrist separation, paper 000 §4.2); each face's normal-incidence
-posture is searched (``ucal.calibration.faces.measure``) and its water path read. Every face
-measurement enters a running regularised fit of the joint offsets and the block corner, so the
-correction found at one point predicts the next: only the first faces need a wide search, and a
-face whose last prediction was within ``DIRECT_FIT_TILT_DEG`` goes straight to the directivity
-fit. The tool check then moves the profile's TCP across the XY face's two far edges with the
-beam normal to it (``scan_edge``): where the echo falls to half, the real TCP is on the edge.
+posture is searched (``ucal.measure.face.measure``) and its water path read. Every face
+measurement enters the running estimate of ``ucal.measure.running`` (calibrate's, with its
+trust policy), so the correction found at one point predicts the next: only the first faces
+need a wide search. Every posture, the face searches' and the tool check's probes, is reached
+from below on every joint (``FinalApproachRig``), as in the calibration. The tool check then
+moves the profile's TCP across the XY face's two far edges with the beam normal to it
+(``scan_edge``): where the echo falls to half, the real TCP is on the edge.
 """
 
 from __future__ import annotations
@@ -19,14 +20,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.faces import (
-    FaceRequest,
-    FaceSetup,
-    SearchMode,
-    acquisition_gain,
-    estimate_offsets,
-    measure,
-)
 from ucal.calibration.model import (
     FACE_NAMES,
     FACE_ORDER,
@@ -38,15 +31,15 @@ from ucal.calibration.model import (
 from ucal.calibration.safety import (
     MIN_WATER_PATH_MM,
 )
-from ucal.calibration.search import ka_of
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import search_joints
 from ucal.cell import CellProfile
-from ucal.edges import coarse_edge_fall, fine_edge_scan
 from ucal.errors import HardwareError, SafetyError
 from ucal.kinematics.dh import fk_frames
+from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
+from ucal.measure.running import RunningEstimate
 from ucal.progress import MeasureStep, Report
-from ucal.rig import FinalApproachRig, Rig
+from ucal.rig import Rig
 from ucal.verify.plan import (
     EDGE_OVERSHOOT_MM,
     PASSES,
@@ -72,20 +65,8 @@ from ucal.verify.solve import (
 
 log = logging.getLogger(__name__)
 
-#: A face whose last prediction missed by less than this (deg of beam tilt) is fitted directly.
-DIRECT_FIT_TILT_DEG = 0.12
 #: Tool check: the coarse search starts this far before the edge the profile predicts (mm).
 EDGE_APPROACH_MM = 12.0
-#: Tool check: coarse step of the TCP towards the edge (mm; the footprint's σ is ~1.5 mm) ...
-EDGE_COARSE_STEP_MM = 2.0
-#: ... the echo falling below half the largest of this many last readings.
-EDGE_COARSE_MEMORY = 4
-#: Tool check: the fine scan spans ± this about the coarse crossing (mm) ...
-EDGE_FINE_HALF_MM = 5.0
-#: ... with this many static probes.
-EDGE_FINE_PROBES = 21
-#: Pulser readings averaged per probe of an edge scan.
-EDGE_AVERAGES = 16
 
 
 @dataclass(frozen=True)
@@ -235,27 +216,6 @@ class VerifyResult:
         return out
 
 
-class _Predictor:
-    """Running estimate of offsets and corner from every face measured so far."""
-
-    def __init__(self, geom: CellGeometry, prior_deg: np.ndarray, corner_mm: np.ndarray):
-        self.geom = geom
-        self.prior = np.asarray(prior_deg, float)
-        self.corner_prior = np.asarray(corner_mm, float)
-        self.x = np.concatenate([self.prior, self.corner_prior])
-        self.meas: list[FaceMeasurement] = []
-
-    @property
-    def offsets_deg(self) -> np.ndarray:
-        return self.x[:6]
-
-    def add(self, m: FaceMeasurement) -> None:
-        self.meas.append(m)
-        self.x = np.concatenate(
-            estimate_offsets(self.geom, self.meas, self.prior, self.corner_prior, self.x)
-        )
-
-
 def run_verify(
     profile: CellProfile,
     plan: VerifyPlan,
@@ -268,28 +228,20 @@ def run_verify(
     The caller owns the connection, STOP and preflight. Never writes the profile.
     """
     geom = geometry(profile)
-    temp = profile.water_temperature_c
-    ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, temp)
     v, _ = tool_lever(profile)
-    pred = _Predictor(geom, profile.joint_offsets_deg, profile.sample_position_mm)
-
-    # Noise floor with the beam in open water: the first point's posture with the wrist turned
-    # 25° away from the XY face's normal (far outside every lobe that matters).
+    # the noise floor off the first point's XY face, turning a joint that tilts the beam
     first = plan.targets[0]
     js0, _ = search_joints(
         geom, first.face_joints_deg[2], plan.offsets_deg["before"], face_basis(geom, 2)
     )
-    away = first.joints_deg.copy()
-    away[js0[1]] += 25.0
-    setup = FaceSetup(profile, ka, acquisition_gain(rig, away))
+    running = RunningEstimate.start(profile, rig, geom, first.joints_deg, js0[1])
+    approach = running.rig
 
     last_wrist: dict[int, np.ndarray] = {}
-    pred_err_deg: dict[int, float] = {}  # last prediction error per face (deg of tilt)
     results: list[PointResult] = []
     skipped: list[SkippedPoint] = []
     orientations: dict[int, WristOrientation] = {}  # of the "after" points
     total = len(plan.targets) + len(plan.edge_points)
-    approach = FinalApproachRig(rig)
     for n_done, target in enumerate(plan.targets):
         if progress:
             what = f"{target.pass_name} point {target.index + 1}"
@@ -325,33 +277,10 @@ def run_verify(
             label = f"{target.label}/{FACE_NAMES[k]}"
             start = target.joints_deg.copy()
             start[3:] = last_wrist.get(k, target.face_joints_deg[k])[3:]
-            # A face whose last prediction was within DIRECT_FIT_TILT_DEG goes straight to the
-            # fit (its 3×3 grid spans ±0.14° of tilt, the main lobe ±0.2°); one predicted less
-            # well is centred on its main lobe first; the first faces are acquired.
-            last = pred_err_deg.get(k, np.inf)
-            mode = (
-                SearchMode.DIRECT
-                if last < DIRECT_FIT_TILT_DEG
-                else SearchMode.QUICK
-                if len(pred.meas) >= 2
-                else SearchMode.ACQUIRE
-            )
-            request = FaceRequest(
-                face=Face(k),
-                start_deg=start,
-                geometry=geom,
-                offsets_deg=pred.offsets_deg,
-                label=label,
-                config=f"{target.pass_name}/{target.index}",
-                mode=mode,
-                radius_deg=16.0 if not pred.meas else 8.0,
-            )
-            found = measure(rig, setup, request)
+            found = running.measure(Face(k), start, label, f"{target.pass_name}/{target.index}")
             m = found.measurement
-            pred_err_deg[k] = found.prediction_error_deg
             faces[k] = m
             last_wrist[k] = m.joints_deg
-            pred.add(m)
         ordered = tuple(faces[k] for k in range(3))
         w_local, orient, tcp = reached_from_peaks(
             profile,
@@ -414,7 +343,7 @@ def run_verify(
         results,
         rig.counters.moves,
         rig.counters.reads,
-        pred.offsets_deg.copy(),
+        running.offsets_deg.copy(),
         checks,
         tuple(skipped),
         tool,
@@ -519,7 +448,7 @@ def scan_edge(
         """The probe's scan coordinate (its wrist-centre estimate) and amplitude."""
         nonlocal n_probes
         settled = np.asarray(move(posture(t)), float)
-        a = rig.normalised_amplitude(EDGE_AVERAGES)
+        a = rig.normalised_amplitude(EDGES.averages)
         c = coordinate(settled)
         log.debug("%s probe %s: %.5f mm, amplitude %.4f", label, settled.tolist(), c, a)
         n_probes += 1
@@ -543,12 +472,12 @@ def scan_edge(
     # EDGE_APPROACH_MM before that edge (stepping back while the echo
     # there is already below half: a tool or a block further off than that)
     move(posture(0.0))
-    rig.level_gain(EDGE_AVERAGES)
-    level = rig.normalised_amplitude(EDGE_AVERAGES)
+    rig.level_gain(EDGES.averages)
+    level = rig.normalised_amplitude(EDGES.averages)
     t = max(0.0, t_edge - EDGE_APPROACH_MM)
     while (a := amplitude(t)) < 0.5 * level and t > 0.0:
         t = max(0.0, t - EDGE_APPROACH_MM)
-    t_c = coarse_edge_fall(amplitude, t, a, t_max, EDGE_COARSE_STEP_MM, EDGE_COARSE_MEMORY)
+    t_c = coarse_edge_fall(amplitude, t, a, t_max, EDGES.coarse_step_mm, EDGES.coarse_memory)
     if t_c is None:
         raise HardwareError(
             f"{rig.pulser.endpoint}: {label}: the echo did not fall at the block's edge "
@@ -556,7 +485,7 @@ def scan_edge(
             "right and the edge clean?"
         )
     try:
-        fit = fine_edge_scan(probe, t_c, EDGE_FINE_HALF_MM, EDGE_FINE_PROBES, t_max)
+        fit = fine_edge_scan(probe, t_c, EDGES.fine_half_mm, EDGES.fine_probes, t_max)
     except ValueError as e:
         raise HardwareError(
             f"{rig.pulser.endpoint}: {label}: the fine scan near point {point.index + 1} "

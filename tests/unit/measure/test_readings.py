@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,9 +13,12 @@ import pytest
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
-from ucal.calibration.faces import MAX_ACQUISITION_MOVES, acquire_and_centre, acquisition_gain
-from ucal.calibration.search import PeakSearch, read_distance
 from ucal.errors import EXIT_HARDWARE, HardwareError
+from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
+from ucal.measure.approach import FinalApproachRig
+from ucal.measure.face import SearchMode
+from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
+from ucal.measure.search import PeakSearch, read_distance
 from ucal.rig import ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
@@ -190,7 +194,9 @@ def test_search_without_any_echo_gives_up_after_a_bounded_number_of_moves() -> N
     )
     assert err.value.exit_code == EXIT_HARDWARE
     # the line in progress is finished: at most one line (a move and four sweeps) over
-    assert MAX_ACQUISITION_MOVES <= rig.counters.moves <= MAX_ACQUISITION_MOVES + 5
+    max_moves = BLOCK_FACES.max_moves
+    assert max_moves is not None
+    assert max_moves <= rig.counters.moves <= max_moves + 5
     assert rig.controller.moves == rig.counters.moves
 
 
@@ -198,7 +204,9 @@ def test_a_smaller_budget_is_honoured() -> None:
     rig = rig_with(lambda n: (0.0, float("nan")))
     rig.measure_floor()
     with pytest.raises(HardwareError, match="no echo from face YZ"):
-        acquire_and_centre(_search(rig), rig, np.zeros(6), "YZ", 8.0, 40.0, max_moves=10)
+        acquire_and_centre(
+            _search(rig), rig, np.zeros(6), "YZ", 8.0, 40.0, replace(BLOCK_FACES, max_moves=10)
+        )
     assert rig.counters.moves <= 10 + 5
 
 
@@ -254,10 +262,60 @@ def test_the_peak_fit_averages_more_once_the_amplitude_shows_levels(
 def test_no_echo_message_names_the_face_once_for_both_levels() -> None:
     from types import SimpleNamespace
 
-    from ucal.calibration.faces import _no_face_echo
+    from ucal.measure.acquire import _no_face_echo
 
     rig = SimpleNamespace(pulser=SimpleNamespace(endpoint="modbus-tcp://127.0.0.1:5020"))
     offsets = str(_no_face_echo(rig, "j3/XY", 20.0, 5))  # type: ignore[arg-type]
     full = str(_no_face_echo(rig, "face YZ (p7)", 20.0, 5))  # type: ignore[arg-type]
     assert "no echo from face XY (j3) within ±20°" in offsets
     assert "no echo from face YZ (p7) within ±20°" in full and "face face" not in full
+
+
+class TimedPulser(FakePulser):
+    """Stamps the n-th reading's arrival at 30·n s on the host clock."""
+
+    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+        r = super().read_gate(fresh, timeout_s)
+        return replace(r, host_time_s=30.0 * r.counter)
+
+
+def test_rig_records_each_joints_last_motion_and_the_minutes_since_the_first_reading() -> None:
+    rig = rig_with(lambda n: (0.5, 1000.0))
+    rig.pulser = TimedPulser(lambda n: (0.5, 1000.0))
+    assert rig.minutes() == 0.0  # nothing read yet
+    rig.move(np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]))
+    rig.read()  # t = 30 s: the run's first reading
+    rig.move(np.array([0.5, 2.0, 4.0, 4.0, 5.0, 6.0]))  # J1 down, J3 up, the rest still
+    rig.read()
+    rig.read()  # t = 90 s
+    assert rig.approach.tolist() == [-1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+    assert rig.minutes() == pytest.approx(1.0)
+    # the final approach: down to below the target, then up onto it on every joint
+    approach = FinalApproachRig(rig)
+    approach.move(np.array([0.2, 1.0, 4.0, 4.0, 5.0, 6.0]))
+    assert rig.approach.tolist() == [1.0] * 6
+    assert rig.controller.read_joints().tolist() == [0.2, 1.0, 4.0, 4.0, 5.0, 6.0]
+    assert rig.counters.moves == 3
+
+
+def test_open_water_turns_the_joint_up_or_down_where_up_leaves_its_range() -> None:
+    lo, hi = np.full(6, -140.0), np.full(6, 140.0)
+    q = np.array([0.0, 30.0, 100.0, 0.0, 50.0, 0.0])
+    assert open_water(q, 4, lo, hi)[4] == pytest.approx(75.0)
+    q[4] = 120.0  # 25° up would leave the range: clipped, the beam would turn back
+    assert open_water(q, 4, lo, hi)[4] == pytest.approx(95.0)
+    assert open_water(q, 4, lo, hi)[[0, 1, 2, 3, 5]].tolist() == [0.0, 30.0, 100.0, 0.0, 0.0]
+
+
+def test_one_trust_policy_acquires_the_first_two_faces_then_centres_then_fits_at_once() -> None:
+    faces = [(0, False, np.inf), (1, False, 2.0), (2, True, 0.6), (3, False, 0.14)]
+    modes = [BLOCK_TRUST.mode(n, seen, miss) for n, seen, miss in faces]
+    assert modes == [SearchMode.ACQUIRE, SearchMode.ACQUIRE, SearchMode.QUICK, SearchMode.DIRECT]
+    # the same face again after one: its prediction rests on what it measured
+    assert BLOCK_TRUST.mode(1, True, 2.0) == SearchMode.QUICK
+    # the last prediction missed by more than the main lobe's half-width: centre first
+    assert BLOCK_TRUST.mode(5, True, 1.0) == SearchMode.QUICK
+    assert (BLOCK_TRUST.radius(0), BLOCK_TRUST.radius(1), BLOCK_TRUST.radius(7)) == (16.0, 8.0, 8.0)
+    # the plate: one posture fixes the beam, none is fitted without centring
+    plate = [PLATE_TRUST.mode(n, n > 0, 0.0) for n in range(4)]
+    assert plate == [SearchMode.ACQUIRE] + [SearchMode.QUICK] * 3

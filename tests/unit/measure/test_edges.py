@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from ucal.edges import coarse_edge_fall, fine_edge_scan
+from ucal.measure.edges import coarse_edge_fall, fine_edge_scan
 
 EDGE_MM = 37.3
 SIGMA_MM = 1.5

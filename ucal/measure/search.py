@@ -112,6 +112,8 @@ class PeakResult:
     distance: tuple[float, float] | None = None  # water path and its σ (mm), if read
     distance_joints_deg: np.ndarray | None = None  # readings where it was read
     probes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (pts, amps, q) fitted
+    time_min: float | None = None  # minutes since the run's first reading, at the water path
+    approach: np.ndarray | None = None  # (6,) sign of each joint's last motion, there
 
 
 def _run_centre(u: np.ndarray, amps: np.ndarray, level: float) -> float | None:
@@ -441,7 +443,8 @@ class PeakSearch:
                 # TOF at this round's centre (the last good one is kept); a first centre off the
                 # lobe may have no echo in the gate.
                 try:
-                    dist = (distance(), settled.copy())
+                    path = distance()
+                    dist = (path, settled.copy(), self.rig.minutes(), self.rig.approach.copy())
                 except HardwareError:
                     if pattern is plus:
                         raise
@@ -473,7 +476,14 @@ class PeakSearch:
         assert result is not None
         result = replace(result, probes=(np.array(pts), np.array(amps), np.array(q_centre, float)))
         if dist is not None:
-            result = replace(result, distance=dist[0], distance_joints_deg=dist[1])
+            path, joints, minutes, approach = dist
+            result = replace(
+                result,
+                distance=path,
+                distance_joints_deg=joints,
+                time_min=minutes,
+                approach=approach,
+            )
         return result
 
     def _settled_fit(self, result: PeakResult, q: np.ndarray, half_tilt_deg: float) -> bool:

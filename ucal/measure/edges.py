@@ -7,16 +7,39 @@ footprint (σ ~1.5 mm at 25 MHz), and the 50 % point is where the beam axis cros
 check (the block's far edges) find it the same way: coarse steps outward until the echo falls
 below half the largest of the last few readings, then static probes across that fall fitted
 with the edge profile. Only the scan coordinate of a probe differs: each caller's ``probe``
-moves the robot and says where it is.
+moves the robot and says where it is. Every probe is static (moved to, then read), and the
+probes step outward: with a ``FinalApproachRig`` each is reached from below on every joint.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from ucal.toolframe.exact import EdgeFit, fit_edge_profile
+
+
+@dataclass(frozen=True)
+class EdgeScan:
+    """The settings of an edge scan, the same for the plate's edges and the block's.
+
+    ``coarse_step_mm``: the coarse search's step outward, below the footprint's width (σ =
+    D/4 = 1.5 mm for a 6 mm element: 4σ = 6 mm), so the fall to half takes a few steps;
+    ``coarse_memory``: the last readings whose largest a new one is compared with;
+    ``fine_half_mm`` and ``fine_probes``: the fine scan's half width about the coarse
+    crossing and its static probes; ``averages``: pulser readings averaged per probe.
+    """
+
+    coarse_step_mm: float = 2.0
+    coarse_memory: int = 4
+    fine_half_mm: float = 5.0
+    fine_probes: int = 21
+    averages: int = 16
+
+
+EDGES = EdgeScan()
 
 
 def coarse_edge_fall(
