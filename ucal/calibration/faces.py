@@ -43,7 +43,7 @@ from ucal.calibration.search import MainLobe, PeakSearch, read_distance
 from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
-from ucal.rig import Rig
+from ucal.rig import FinalApproachRig, Rig
 
 log = logging.getLogger(__name__)
 
@@ -322,6 +322,8 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         gain_db=rig.settings.gain_db,
         probes=peak.probes,
         search_joints=(search.ja, search.jb),
+        time_min=rig.controller.clock.now() / 60.0,
+        approach=np.ones(6) if isinstance(rig, FinalApproachRig) else None,  # ends from below
     )
     return FaceResult(m, err)
 
