@@ -254,8 +254,13 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
     first_move = rig.counters.moves
     averages = max(profile.procedure.tof_averages, 1)
 
+    read_at_s: list[float] = []  # the middle of each distance reading on the rig's clock
+
     def tof() -> tuple[float, float]:
-        return read_distance(rig, profile.water_temperature_c, averages)
+        start = rig.controller.clock.now()
+        path = read_distance(rig, profile.water_temperature_c, averages)
+        read_at_s.append(0.5 * (start + rig.controller.clock.now()))
+        return path
 
     peak = None
     acquired = False  # whether the raster search has run (else the prediction was trusted)
@@ -322,7 +327,7 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         gain_db=rig.settings.gain_db,
         probes=peak.probes,
         search_joints=(search.ja, search.jb),
-        time_min=rig.controller.clock.now() / 60.0,
+        time_min=read_at_s[-1] / 60.0 if read_at_s else None,
         approach=np.ones(6) if isinstance(rig, FinalApproachRig) else None,  # ends from below
     )
     return FaceResult(m, err)
