@@ -25,7 +25,8 @@ per case and solver:
   std; the sound speed at the middle of the run and its drift where fitted; at the full level
   the identified and prior-dominated DH parameters), and the largest |z|;
 * runs written (``judge``: fit ok and every observable offset within tolerance), why the
-  others are refused, and written runs with a quantity beyond 4 std (must be none);
+  others are refused (a misfit: the effect its message names), and written runs with a
+  quantity beyond 4 std (must be none);
 * TCP error over the scanning region (calibration pose ± 20° on J1-J3, ± 90/30/90° on the
   wrist; 200 postures) after the best rigid alignment (the base frame is a gauge), mean of
   the runs' means / largest maximum (mm).
@@ -49,15 +50,24 @@ import full_calibration
 import numpy as np
 import realistic
 
+from drivers.errors import DriverError
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.fit import BACKLASH, DRIFT, CellFit, RunEffects, prior_from_profile
+from ucal.calibration.fit import (
+    BACKLASH,
+    DRIFT,
+    CellFit,
+    FitQuality,
+    RunEffects,
+    prior_from_profile,
+)
 from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.calibration.full_plan import MAX_POSTURES, plan_full
 from ucal.calibration.full_run import run_full
 from ucal.calibration.procedure import judge
 from ucal.calibration.sequence import calibration_pose, plan_calibration, run_calibration
 from ucal.cell import CellProfile, WorldTruth
+from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.profile import load_profile, write_profile
 from ucal.session import check_status, open_cell
@@ -145,11 +155,18 @@ def solve_offsets(profile: CellProfile, world: WorldTruth, meas: list, held: tup
     qs = scanning_postures(calibration_pose(profile), 200, 1, profile.model)
     true_tcp = fk(true_model(world), qs, world.tool_matrix, truth)[:, :3, 3]
     tcp = fk(profile.model, qs, profile.tool_matrix, sol.offsets_deg)[:, :3, 3]
-    return outcome(z, verdict, sol.fit.verdict, aligned_errors_mm(tcp, true_tcp), held)
+    return outcome(z, verdict, sol.fit, aligned_errors_mm(tcp, true_tcp), held)
 
 
-def outcome(z: list[float], verdict, fit_verdict: str, tcp: np.ndarray, held: tuple) -> Outcome:
-    refusal = "" if verdict.ok else ("misfit" if fit_verdict == "misfit" else "std")
+#: What a misfit's message names, by the words it uses (the first that appears).
+CAUSES = (("a drift of the", "drift"), ("lost motion of", "lost motion"), ("DH table", "DH"))
+
+
+def outcome(z: list[float], verdict, fit: FitQuality, tcp: np.ndarray, held: tuple) -> Outcome:
+    refusal = ""
+    if not verdict.ok:
+        named = next((short for words, short in CAUSES if words in fit.cause), "other")
+        refusal = f"misfit naming {named}" if fit.verdict == "misfit" else "std"
     drift_z = float("nan") if held else z[-1]
     return Outcome(np.array(z), verdict.ok, refusal, tcp, drift_z)
 
@@ -177,20 +194,26 @@ def solve_full_level(
     tcp = aligned_errors_mm(
         fk(sol.model, qs, tool, sol.offsets_deg)[:, :3, 3], fk(model, qs, tool, truth)[:, :3, 3]
     )
-    return outcome(z, judge(sol, sol.cell.quality), sol.cell.quality.verdict, tcp, held)
+    return outcome(z, judge(sol, sol.cell.quality), sol.cell.quality, tcp, held)
 
 
-def run_world(case: str, profile_path: Path, world_path: Path, postures: int) -> list[Outcome]:
-    """Measure one world and solve it with the current and the previous solver."""
+def run_world(
+    case: str, profile_path: Path, world_path: Path, postures: int
+) -> list[Outcome] | str:
+    """Measure one world and solve it with the current and the previous solver; a run the
+    procedure stops (a posture refused for safety, an echo not found) is its message."""
     profile = load_profile(profile_path)
     world = load_world(world_path, profile)
-    with open_cell(profile, str(world_path), None, None) as cell:
-        check_status(cell.rig)
-        if case == "offsets":
-            run = run_calibration(profile, plan_calibration(profile), cell.rig)
-        else:
-            plan = plan_full(profile, max_postures=postures)
-            full_run = run_full(profile, plan, cell.rig)
+    try:
+        with open_cell(profile, str(world_path), None, None) as cell:
+            check_status(cell.rig)
+            if case == "offsets":
+                run = run_calibration(profile, plan_calibration(profile), cell.rig)
+            else:
+                plan = plan_full(profile, max_postures=postures)
+                full_run = run_full(profile, plan, cell.rig)
+    except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
+        return f"{world_path.name}: stopped: {err}"
     if case == "offsets":
         return [solve_offsets(profile, world, run.measurements, h) for h in ((), HELD)]
     return [
@@ -202,6 +225,8 @@ def run_world(case: str, profile_path: Path, world_path: Path, postures: int) ->
 
 
 def summary(name: str, outs: list[Outcome]) -> str:
+    if not outs:
+        return f"| {name} | no run solved |"
     z = np.concatenate([o.z for o in outs])
     written = [o for o in outs if o.written]
     beyond = sum(1 for o in written if np.any(o.z > 4.0))
@@ -249,6 +274,7 @@ def main(argv: list[str] | None = None) -> int:
         args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-drift-"))
     cases = ("offsets", "full") if args.case == "both" else (args.case,)
+    stopped: list[str] = []
     print(
         "| case | solver | coverage (|err| ≤ 3σ) | drift within 3σ | written | refused (why) "
         "| written beyond 4σ | TCP error mean / max mm |"
@@ -274,8 +300,15 @@ def main(argv: list[str] | None = None) -> int:
                     [args.postures] * len(worlds),
                 )
             )
-        print(summary(f"{case}, {declared:g} °C/min | current", [r[0] for r in rows]))
-        print(summary(f"{case}, {declared:g} °C/min | previous (held at 0)", [r[1] for r in rows]))
+        solved = [r for r in rows if not isinstance(r, str)]
+        print(summary(f"{case}, {declared:g} °C/min | current", [r[0] for r in solved]))
+        print(
+            summary(f"{case}, {declared:g} °C/min | previous (held at 0)", [r[1] for r in solved])
+        )
+        stopped.extend(r for r in rows if isinstance(r, str))
+    print(f"runs stopped by the procedure: {len(stopped)}")
+    for line in stopped:
+        print("  ", line)
     return 0
 
 
