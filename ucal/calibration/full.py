@@ -2,7 +2,8 @@
 measurements determine, and their values with honest standard deviations.
 
 Model. The unknowns of ``ucal.calibration.fit`` (joint offsets, block pose, tool frame, sound
-speed, the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
+speed and its drift over the run, each joint's lost motion where it is read from both sides,
+the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
 of the nearly parallel axes 2 and 3 (``A₂ = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``): a modified DH
 model. Every unknown has the profile's value and tolerance as its prior; the measurements are
 the face measurements of ``ucal.calibration.model`` (normal-incidence postures and water
