@@ -117,6 +117,10 @@ class CellProfile:
     water_temperature_std_c: float = 2.0
     dh_length_std_mm: float = 0.2  # how well the DH lengths and twists match this robot
     dh_angle_std_deg: float = 0.02
+    #: How fast the tank may warm or cool during a run (°C/min, one sigma; ``[water]``).
+    drift_std_c_per_min: float = 0.05
+    #: Lost motion each joint may have (deg, one sigma, (6,); ``[robot] backlash_std_deg``).
+    backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
     frequency_mhz: float = 25.0
     element_diameter_mm: float = 6.0
     joint_offsets_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))

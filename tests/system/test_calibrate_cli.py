@@ -178,12 +178,21 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
         prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25],
         robot={"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0},
     )
-    world = make_world(tmp_path, offsets, noise=(0.5, 0.01, 7))
+    # the tank warms by 0.1 °C/min during the run (twice the default tolerance)
+    world = make_world(
+        tmp_path, offsets, noise=(0.5, 0.01, 7), extra="[water]\ndrift_c_per_min = 0.1\n"
+    )
     out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     assert result["written"] is True and result["fit"]["verdict"] == "ok"
     assert result["unobservable_joints"] == [6] and result["std_deg"][5] is None
+    # the drift, fitted from the readings' times: 0.1 °C/min is 0.31 m/s per min at 20 °C
+    drift, drift_std = (
+        result["sound_speed_drift_m_s_per_min"],
+        result["sound_speed_drift_m_s_per_min_std"],
+    )
+    assert abs(drift - 0.31) <= 3 * drift_std and drift_std < 0.1, (drift, drift_std)
     assert result["joint_offsets_deg"][5] == 0.25  # the profile's value, kept
     weak = result["weak_joints"]["6"]
     assert weak["std_deg"] > 0.02 and "off the joint-6 axis" in weak["reason"]
@@ -201,6 +210,9 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
     unseen = result["unidentified_tcp_mm"]
     assert set(unseen["by_quantity"]) <= {"sound_speed_m_s"} and unseen["max"] < 0.02
     assert cal["unidentified_tcp_mm"] == pytest.approx([unseen["mean"], unseen["max"]], abs=1e-4)
+    assert cal["backlash_deg"] == [-1.0] * 6 == cal["backlash_std_deg"]
+    assert cal["sound_speed_drift_m_s_per_min"] == round(drift, 5)
+    assert cal["sound_speed_drift_m_s_per_min_std"] == round(drift_std, 5)
     np.testing.assert_allclose(cal["joint_offsets_deg"], result["joint_offsets_deg"], atol=1e-6)
 
 

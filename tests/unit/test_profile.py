@@ -176,6 +176,32 @@ def test_optional_tables_default(tmp_path: Path) -> None:
     np.testing.assert_array_equal(prof.joint_offsets_deg, np.zeros(6))
 
 
+def test_drift_and_lost_motion_tolerances(tmp_path: Path) -> None:
+    doc = tomlkit.parse(default_profile_text("tx90l"))
+    path = tmp_path / "c.toml"
+    path.write_text(tomlkit.dumps(doc))
+    prof = load_profile(path)  # the template's: the defaults
+    assert prof.drift_std_c_per_min == 0.05
+    np.testing.assert_array_equal(prof.backlash_std_deg, np.full(6, 0.01))
+    doc["water"]["drift_std_c_per_min"] = 0.2
+    doc["robot"]["backlash_std_deg"] = [0.01, 0.02, 0.03, 0.004, 0.005, 0.006]
+    path.write_text(tomlkit.dumps(doc))
+    prof = load_profile(path)
+    assert prof.drift_std_c_per_min == 0.2
+    np.testing.assert_array_equal(prof.backlash_std_deg, [0.01, 0.02, 0.03, 0.004, 0.005, 0.006])
+    del doc["water"]["drift_std_c_per_min"]
+    doc["robot"]["backlash_std_deg"] = 0.03
+    path.write_text(tomlkit.dumps(doc))
+    prof = load_profile(path)
+    assert prof.drift_std_c_per_min == 0.05
+    np.testing.assert_array_equal(prof.backlash_std_deg, np.full(6, 0.03))
+    doc["robot"]["backlash_std_deg"] = [0.01, 0.02]
+    path.write_text(tomlkit.dumps(doc))
+    with pytest.raises(ProfileError) as err:
+        load_profile(path)
+    assert err.value.key == "robot.backlash_std_deg"
+
+
 def test_dh_rows_as_plain_arrays(tmp_path: Path) -> None:
     doc = tomlkit.parse(default_profile_text("tx90l"))
     doc["robot"]["dh"] = [[float(v) for v in row] for row in load_model("tx90l").dh]

@@ -2,7 +2,8 @@
 measurements determine, and their values with honest standard deviations.
 
 Model. The unknowns of ``ucal.calibration.fit`` (joint offsets, block pose, tool frame, sound
-speed, the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
+speed and its drift over the run, each joint's lost motion where it is read from both sides,
+the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
 of the nearly parallel axes 2 and 3 (``A₂ = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``): a modified DH
 model. Every unknown has the profile's value and tolerance as its prior; the measurements are
 the face measurements of ``ucal.calibration.model`` (normal-incidence postures and water
@@ -67,7 +68,10 @@ from ucal.calibration.fit import (
     CellPrior,
     ExtraRows,
     ParameterTable,
+    RunEffects,
     data_residuals,
+    hold_unseen,
+    reference_time_min,
     solve_cell,
     table_geometry,
 )
@@ -118,13 +122,15 @@ def step_residuals(
     model: RobotModel,
     meas: list[FaceMeasurement],
     c0_m_s: float,
+    time_ref_min: float = 0.0,
 ) -> np.ndarray:
     """Normalised residual of the water path of each measurement over the step's top (n,):
     the path to the XY face's plane, less ``step_mm``, along the beam, against the measured
-    one (``ucal.calibration.fit.data_residuals``' distance row, for a plane ``step_mm`` up)."""
+    one (``ucal.calibration.fit.data_residuals``' distance row, for a plane ``step_mm`` up;
+    ``time_ref_min``: the face measurements' reference time, ``reference_time_min``)."""
     if not meas:
         return np.zeros(0)
-    rows = data_residuals(table, values, model, meas, c0_m_s)
+    rows = data_residuals(table, values, model, meas, c0_m_s, time_ref_min)
     geom = table_geometry(table, values, model)
     beam, _ = beam_and_tcp(
         geom, np.array([distance_joints(m) for m in meas]), table.get(OFFSETS, values)
@@ -190,16 +196,21 @@ def data_jacobian(
     paths over the step's) against the unknowns of ``full_table`` that have a tolerance, per
     prior σ, at ``values`` (default: the profile's); and their names."""
     table = full_table(prior)
-    free = np.isfinite(table.prior_stds) & (table.prior_stds > 0)
+    hold_unseen(table, meas)  # the drift and lost motion these readings cannot see
+    free = table.free & np.isfinite(table.prior_stds) & (table.prior_stds > 0)
     table.free = free
     v0 = table.values if values is None else np.asarray(values, float)
     c0 = prior.sound_speed_m_s
+    t_ref = reference_time_min(meas)
 
     def fun(x: np.ndarray) -> np.ndarray:
         v = v0.copy()
         v[free] = x
-        rows = data_residuals(table, v, prior.model, meas, c0).ravel() if meas else np.zeros(0)
-        return np.concatenate([rows, step_residuals(table, v, prior.model, steps or [], c0)])
+        rows = (
+            data_residuals(table, v, prior.model, meas, c0, t_ref).ravel() if meas else np.zeros(0)
+        )
+        steps_r = step_residuals(table, v, prior.model, steps or [], c0, t_ref)
+        return np.concatenate([rows, steps_r])
 
     stds = table.prior_stds[free]
     jac = approx_fprime(v0[free], fun, 1e-3 * stds)
@@ -338,6 +349,11 @@ class FullSolution:
     def sound_speed_std_m_s(self) -> float:
         return self.cell.sigma(SOUND[0])
 
+    @property
+    def effects(self) -> RunEffects:
+        """The tank's drift and the arm's lost motion as the fit found them."""
+        return RunEffects.of(self.cell)
+
     def dh_rows(self) -> list[dict[str, float]]:
         """The identified table as ``[calibration] dh`` rows (SPEC.md), ``beta_deg`` where not 0."""
         rows = []
@@ -396,8 +412,9 @@ def solve_full(
     )
     table = full_table(prior)
     c0 = prior.sound_speed_m_s
+    t_ref = reference_time_min(meas)
     extra = ExtraRows(
-        lambda v: step_residuals(table, v, prior.model, steps, c0),
+        lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref),
         tuple(f"{m.config}/step" for m in steps),
     )
     # the block gauge (ucal.calibration.gauge): the block's yaw held as placed, J1 relative

@@ -82,9 +82,11 @@ class FaceMeasurement:
     gain_db: float | None = field(default=None, compare=False)
     probes: Probes | None = field(default=None, compare=False)
     search_joints: tuple[int, int] | None = field(default=None, compare=False)
-    #: Minutes since the run's first reading when the water path was read (the tank's drift).
+    #: When the water path was read (minutes since the run's first reading; the solvers use
+    #: differences only): the sound speed drifts with the tank's temperature. None: not known.
     time_min: float | None = field(default=None, compare=False)
-    #: (6,) sign (+1/-1) of each joint's last motion before the reading (lost motion).
+    #: The sign of each joint's last motion before the reading ((6,), +1 or −1): the link lags
+    #: its encoder by half the lost motion against it. None: not known (taken as +1).
     approach: np.ndarray | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:

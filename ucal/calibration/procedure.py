@@ -26,7 +26,13 @@ import numpy as np
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import PRIOR_MEANING, CellFit, FitQuality, prior_from_profile
+from ucal.calibration.fit import (
+    PRIOR_MEANING,
+    CellFit,
+    FitQuality,
+    RunEffects,
+    prior_from_profile,
+)
 from ucal.calibration.full import FullSolution, solve_full
 from ucal.calibration.full_plan import FullPlan, plan_full
 from ucal.calibration.full_run import FullRun, run_full
@@ -71,6 +77,24 @@ BACKLASH_NOTE = (
 )
 
 
+def backlash_note(effects: RunEffects | None) -> str:
+    """What the run measured of the lost motion, in words for the result."""
+    if effects is None or not np.any(np.isfinite(effects.backlash_deg)):
+        return BACKLASH_NOTE
+    measured = np.flatnonzero(np.isfinite(effects.backlash_deg))
+    joints = ", ".join(f"J{j + 1}" for j in measured)
+    return (
+        f"lost motion measured on {joints} (read from both sides); the offsets are those of the "
+        "positive approach"
+    )
+
+
+def run_effects(sound: Any) -> RunEffects | None:
+    """The drift and lost motion of the solution that fitted the sound speed, if it has a fit."""
+    cell = getattr(sound, "cell_fit", None)
+    return None if cell is None else RunEffects.of(cell)
+
+
 class JointSolution(Protocol):
     """What ``judge`` reads of a solution, whichever level solved it."""
 
@@ -98,9 +122,10 @@ def _stds(values: np.ndarray) -> list[float]:
     return [round(float(v), 6) if np.isfinite(v) else -1.0 for v in values]
 
 
-def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, Any]:
+def written_keys(chosen: Any, sound: Any, fit: FitQuality) -> dict[str, Any]:
     """The ``[calibration]`` keys every level writes: offsets, their std (absolute, and
-    relative to the block as placed: ``ucal.calibration.gauge``), the gauge, the fit."""
+    relative to the block as placed: ``ucal.calibration.gauge``), the gauge, the sound speed
+    and its drift, the lost motion (``sound``: the solution that fitted them), the fit."""
     keys = {
         "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
         "unobservable_joints": list(chosen.unobservable_joints),
@@ -115,8 +140,11 @@ def written_keys(chosen: Any, speed_m_s: float, fit: FitQuality) -> dict[str, An
             "gauge": gauge.frame,
             "gauge_note": gauge.statement(),
         }
+    effects = run_effects(sound)
+    if effects is not None:
+        keys |= effects.profile_keys()
     return keys | {
-        "sound_speed_m_s": round(float(speed_m_s), 3),
+        "sound_speed_m_s": round(float(sound.sound_speed_m_s), 3),
         "fit_verdict": fit.verdict,
         "chi2_reduced": round(float(fit.chi2_reduced), 4),
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -158,6 +186,7 @@ def result_fields(
     solution that fitted the sound speed)."""
     measurements = measured.data
     gauge: J1Gauge | None = chosen.gauge
+    effects = run_effects(sound)
     return {
         "joint_offsets_deg": chosen.offsets_deg,
         "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
@@ -171,10 +200,13 @@ def result_fields(
         "method": chosen.method,
         "level": level,
         "approach": APPROACH,
-        # SPEC.md: null where not measured (no plan of either level approaches from both sides)
+        # SPEC.md: null where not measured (readings from one side only)
         "backlash_deg": [None] * 6,
         "backlash_std_deg": [None] * 6,
-        "backlash_note": BACKLASH_NOTE,
+        "sound_speed_drift_m_s_per_min": None,
+        "sound_speed_drift_m_s_per_min_std": None,
+        **({} if effects is None else effects.to_json()),
+        "backlash_note": backlash_note(effects),
         "moves": measurements.moves,
         "pulser_reads": measurements.reads,
         # time the run took on the cell: simulated time on the simulated cell (what a real
@@ -463,7 +495,7 @@ class OffsetsCalibration(ProfileJob):
             solved.fit,
             solved.verdict,
             {
-                **written_keys(chosen, solved.exact.sound_speed_m_s, solved.fit),
+                **written_keys(chosen, solved.exact, solved.fit),
                 # the level that wrote these offsets (a table identified by an earlier full run
                 # stays in force: these offsets were fitted on it)
                 "level": "offsets",
@@ -612,7 +644,7 @@ class FullCalibration(ProfileJob):
             solved.fit,
             solved.verdict,
             {
-                **written_keys(sol, sol.sound_speed_m_s, solved.fit),
+                **written_keys(sol, sol, solved.fit),
                 "level": "full",
                 "dh": sol.dh_rows(),
                 **budget_keys(solved.budget),

@@ -53,6 +53,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
             "forearm_mm",
             "dh_length_std_mm",
             "dh_angle_std_deg",
+            "backlash_std_deg",
         }
     ),
     "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"}),
@@ -61,7 +62,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     ),
     "reflector": frozenset({"points_mm", "points_std_mm"}),
     "step": frozenset({"height_mm", "height_std_mm", "centre_mm", "size_mm"}),
-    "water": frozenset({"temperature_c", "temperature_std_c"}),
+    "water": frozenset({"temperature_c", "temperature_std_c", "drift_std_c_per_min"}),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
     "procedure": frozenset(
@@ -226,25 +227,28 @@ def read_tolerances(
     robot: Mapping[str, Any] | None,
 ) -> dict[str, Any]:
     """One-sigma tolerances: ``[tool]`` / ``[sample]`` ``position_std_mm`` and
-    ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[water] temperature_std_c``
-    (0–20 °C) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
+    ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[robot] backlash_std_deg`` (a
+    number or six, 0–1 deg), ``[water] temperature_std_c`` (0–20 °C), ``drift_std_c_per_min``
+    (0–10 °C/min) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
     missing keys keep ``CellProfile``'s defaults (SPEC.md)."""
     out: dict[str, Any] = {}
-    for table, tname, key, attr, hi, unit in (
-        (tool, "tool", "position_std_mm", "tool_position_std_mm", 100.0, "mm"),
-        (tool, "tool", "rotation_std_deg", "tool_rotation_std_deg", 10.0, "deg"),
-        (sample, "sample", "position_std_mm", "sample_position_std_mm", 100.0, "mm"),
-        (sample, "sample", "rotation_std_deg", "sample_rotation_std_deg", 10.0, "deg"),
+    for table, tname, key, attr, size, hi, unit in (
+        (tool, "tool", "position_std_mm", "tool_position_std_mm", 3, 100.0, "mm"),
+        (tool, "tool", "rotation_std_deg", "tool_rotation_std_deg", 3, 10.0, "deg"),
+        (sample, "sample", "position_std_mm", "sample_position_std_mm", 3, 100.0, "mm"),
+        (sample, "sample", "rotation_std_deg", "sample_rotation_std_deg", 3, 10.0, "deg"),
+        (robot, "robot", "backlash_std_deg", "backlash_std_deg", 6, 1.0, "deg"),
     ):
         v = r.get(table, f"{tname}.{key}")
         if v is None:
             out[attr] = _profile_default(attr)
         elif isinstance(v, (int, float)) and not isinstance(v, bool):
-            out[attr] = np.full(3, r.number(f"{tname}.{key}", v, lo=0.0, hi=hi, unit=unit))
+            out[attr] = np.full(size, r.number(f"{tname}.{key}", v, lo=0.0, hi=hi, unit=unit))
         else:
-            out[attr] = r.vector(f"{tname}.{key}", v, 3, lo=0.0, hi=hi, unit=unit)
+            out[attr] = r.vector(f"{tname}.{key}", v, size, lo=0.0, hi=hi, unit=unit)
     for table, key, attr, hi, unit in (
         (water, "water.temperature_std_c", "water_temperature_std_c", 20.0, "degC"),
+        (water, "water.drift_std_c_per_min", "drift_std_c_per_min", 10.0, "degC/min"),
         (robot, "robot.dh_length_std_mm", "dh_length_std_mm", 10.0, "mm"),
         (robot, "robot.dh_angle_std_deg", "dh_angle_std_deg", 1.0, "deg"),
     ):

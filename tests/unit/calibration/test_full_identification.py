@@ -209,3 +209,45 @@ def test_a_step_of_known_height_sets_the_scale_that_the_thermometer_cannot(cell)
     assert standard is not None and standard.measurements == 1
     assert abs(standard.step_mm - height) < 3 * standard.std_mm
     assert sol.cell.quality.verdict == "ok"
+
+
+def test_a_drifting_tank_is_measured_and_named_at_the_full_level(cell):
+    profile, plan = cell
+    meas = measure(
+        profile,
+        plan,
+        profile.model,
+        np.zeros(6),
+        profile.sample_rotation_deg,
+        profile.sample_position_mm,
+        profile.water_temperature_c,
+        seed=4,
+    )
+    # the tank warms 0.1 °C/min (twice the default tolerance), a reading every 0.1 min
+    t0, drift = profile.water_temperature_c, 0.1
+    c0 = sound_speed_m_s(t0)
+    meas = [
+        replace(
+            m,
+            distance_mm=m.distance_mm * c0 / sound_speed_m_s(t0 + drift * 0.1 * i),
+            time_min=0.1 * i,
+            approach=np.ones(6),
+        )
+        for i, m in enumerate(meas)
+    ]
+    prior = prior_from_profile(profile)
+    sol = solve_full(prior, meas, structure=plan.structure)
+    assert sol.cell.quality.verdict == "ok"
+    effects = sol.effects
+    t_mid = t0 + drift * sol.cell.time_ref_min
+    rate = (sound_speed_m_s(t_mid + 0.01) - sound_speed_m_s(t_mid - 0.01)) / 0.02 * drift
+    assert abs(effects.drift_m_s_per_min - rate) <= 3 * effects.drift_std_m_s_per_min
+    assert effects.drift_std_m_s_per_min < 0.5 * prior.drift_std_m_s_per_min
+    assert np.all(np.isnan(effects.backlash_deg))  # every reading from below: not measured
+    # held at 0, the misfit names the drift, never the full level it already is
+    held = solve_full(
+        prior, meas, fixed=("sound_speed_drift_m_s_per_min",), structure=plan.structure
+    )
+    assert held.cell.quality.verdict == "misfit"
+    assert "drift of the sound speed" in held.cell.quality.cause
+    assert "--level full" not in held.cell.quality.cause

@@ -1,0 +1,458 @@
+"""The prior-augmented least squares of the calibration solvers and the covariance of their
+unknowns (``ucal.calibration.fit``'s docstring has the model): ``solve_cell`` over face
+measurements, ``solve_augmented`` over any rows, and what a fit found of the tank's drift and
+the arm's lost motion (``RunEffects``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import OptimizeResult, least_squares
+
+from ucal.calibration.model import FaceMeasurement, beam_and_tcp, distance_joints
+from ucal.calibration.priors import (
+    BACKLASH,
+    BLOCK,
+    DRIFT,
+    OFFSETS,
+    PARAMETERS,
+    SOUND,
+    CellPrior,
+    ParameterTable,
+)
+from ucal.calibration.quality import MISFIT_P, FitQuality, fit_quality, verdict
+from ucal.calibration.residuals import (
+    MeasurementArrays,
+    cell_geometry,
+    data_residuals,
+    reference_time_min,
+    two_sided_joints,
+)
+
+#: A joint whose std exceeds this and comes mainly from a prior is reported unobservable.
+MAX_STD_DEG = 0.02
+
+
+def hold_unseen(table: ParameterTable, meas: list[FaceMeasurement]) -> None:
+    """Hold at their priors (``table.free``) the unknowns no row of ``meas`` sees: the sound
+    speed's drift unless two readings carry different times, and each joint's lost motion
+    unless readings approach that joint from both sides.
+
+    A one-sided joint's lost motion is a gauge, not an unknown. The offsets are those of the
+    positive approach (the link at reading + offset when reached from below; from above it
+    lags by the whole lost motion b, ``ucal.calibration.residuals.MeasurementArrays.lag``):
+    readings all from below do not see b at all, readings all from above see only offset + b,
+    one quantity. Left free with its prior, b would then add its tolerance to that offset's
+    std for nothing the data could tell apart; held at 0, the offsets are those of the
+    approach the readings had, with the std the data give them.
+    """
+    times = {m.time_min for m in meas if m.time_min is not None}
+    if DRIFT[0] in table.names and len(times) < 2:
+        table.free[table.index(DRIFT[0])] = False
+    if BACKLASH[0] in table.names:
+        for name, seen in zip(BACKLASH, two_sided_joints(meas), strict=True):
+            if not seen:
+                table.free[table.index(name)] = False
+
+
+@dataclass(frozen=True)
+class ExtraRows:
+    """Data rows of another kind of measurement, after the face measurements' (``solve_cell``):
+    ``residuals`` maps the full value vector to one normalised row per label."""
+
+    residuals: Callable[[np.ndarray], np.ndarray]
+    labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class CellFit:
+    """Solution of the prior-augmented problem."""
+
+    table: ParameterTable
+    estimate: np.ndarray  # full parameter vector
+    cov: np.ndarray  # (n_free, n_free), marginal over the nuisance unknowns
+    std: np.ndarray  # full vector, NaN for fixed parameters
+    quality: FitQuality
+    variance_share: dict[str, dict[str, float]]  # joint → {source: share of its variance}
+    condition_number: float
+    jac: np.ndarray | None = None  # Jacobian of the augmented residuals at the solution
+    n_data: int = 0  # its first n_data rows are the measurements'
+    time_ref_min: float = 0.0  # the time the sound speed is given at (``reference_time_min``)
+
+    def value(self, name: str) -> float:
+        return float(self.estimate[self.table.index(name)])
+
+    def sigma(self, name: str) -> float:
+        return float(self.std[self.table.index(name)])
+
+
+def _least_squares_with_priors(
+    fun: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    table: ParameterTable,
+    tol: float,
+    max_nfev: int,
+) -> OptimizeResult:
+    """``least_squares`` over ``table``'s free parameters, each scaled by its prior σ (at most
+    1): its own forward-difference Jacobian, trust region, ``tol`` on every criterion."""
+    x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
+    return least_squares(
+        fun,
+        x0,
+        jac="2-point",
+        method="trf",
+        x_scale=x_scale[table.free],
+        xtol=tol,
+        ftol=tol,
+        gtol=tol,
+        max_nfev=max_nfev,
+    )
+
+
+def solve_cell(
+    prior: CellPrior,
+    meas: list[FaceMeasurement],
+    fixed: tuple[str, ...] = (),
+    max_std_deg: float = MAX_STD_DEG,
+    misfit_p: float = MISFIT_P,
+    start: np.ndarray | None = None,
+    tol: float = 1e-12,
+    table: ParameterTable | None = None,
+    extra: ExtraRows | None = None,
+) -> CellFit:
+    """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
+    docstring).
+
+    ``fixed`` names parameters held at their prior values (e.g. the DH table while predicting
+    postures during a run); ``start`` is a full parameter vector to start from (a previous
+    estimate), ``tol`` the solver's tolerances; ``table`` the unknowns if not ``PARAMETERS``
+    with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist);
+    ``extra`` the rows of other measurements (``ucal.calibration.full``'s edge crossings).
+    The sound speed's drift and each joint's lost motion are held where no reading sees them
+    (``hold_unseen``).
+    """
+    if table is None:
+        table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
+    for name in fixed:
+        table.free[table.index(name)] = False
+    hold_unseen(table, meas)
+    table.free &= table.prior_stds > 0  # a zero tolerance means "known exactly"
+    c0 = prior.sound_speed_m_s
+    n_extra = 0 if extra is None else len(extra.labels)
+    n_data = 3 * len(meas) + n_extra
+    has_prior = np.isfinite(table.prior_stds) & table.free
+
+    t_ref = reference_time_min(meas)
+    arrays = MeasurementArrays.of(meas, t_ref)
+
+    def rows(v: np.ndarray) -> np.ndarray:
+        r_data = data_residuals(table, v, prior.model, arrays, c0).ravel()
+        return r_data if extra is None else np.concatenate([r_data, extra.residuals(v)])
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        v = table.expand(x)
+        return np.concatenate([rows(v), (v - table.prior)[has_prior] / table.prior_stds[has_prior]])
+
+    if start is not None:
+        x0 = np.asarray(start, float)[table.free].copy()
+    else:
+        # Start the corner where eq. (2) puts it with the prior offsets (a hand-placed block
+        # can be centimetres off; the least-squares start should not depend on that).
+        x0 = _initial_corner(table, prior, meas, table.values[table.free].copy())
+    sol = _least_squares_with_priors(fun, x0, table, tol, 200)
+    jac = sol.jac
+    res = sol.fun
+    estimate = table.expand(sol.x)
+    info = jac.T @ jac
+    cov = np.linalg.pinv(info)
+    chi2 = float(res @ res)
+    dof = max(1, n_data)
+    chi2_red = chi2 / dof
+    scale = max(1.0, chi2_red)
+    cov_scaled = cov * scale
+    std = np.full(len(table.names), np.nan)
+    std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
+
+    shares = _variance_shares(table, jac, cov, n_data)
+    gains = {}
+    if verdict(chi2, dof, misfit_p) == "misfit":
+        gains = effect_gains(table, estimate, rows, res, jac)
+    quality = fit_quality(
+        table,
+        estimate,
+        prior,
+        meas,
+        res,
+        n_data,
+        chi2,
+        dof,
+        misfit_p,
+        () if extra is None else extra.labels,
+        gains,
+    )
+    return CellFit(
+        table,
+        estimate,
+        cov_scaled,
+        std,
+        quality,
+        shares,
+        _condition_number(table, jac[:n_data], std, max_std_deg),
+        jac,
+        n_data,
+        t_ref,
+    )
+
+
+#: The run's effects a misfit is tested against (``effect_gains``).
+EFFECTS = DRIFT + BACKLASH
+
+
+def effect_gains(
+    table: ParameterTable,
+    estimate: np.ndarray,
+    rows: Callable[[np.ndarray], np.ndarray],
+    res: np.ndarray,
+    jac: np.ndarray,
+) -> dict[str, float]:
+    """How much of the χ² each of the run's effects (``EFFECTS``) would remove, were it free
+    beyond its prior: the score test at the solution, Δχ² = (g⊥·r)²/|g⊥|², with ``g`` the
+    effect's column of the data rows (``rows``: the full vector to them) and ``g⊥`` its part
+    outside the fit's columns ``jac`` (residuals ``res``). An effect the readings cannot see
+    (no time, one-sided approach) has no such part and is left out."""
+    basis, _ = np.linalg.qr(jac)
+    base = rows(estimate)
+    out: dict[str, float] = {}
+    for name in EFFECTS:
+        if name not in table.names:
+            continue
+        i = table.index(name)
+        step = 1e-3 * (table.prior_stds[i] if table.prior_stds[i] > 0 else 1e-3)
+        v = estimate.copy()
+        v[i] += step
+        g = np.zeros(len(res))
+        g[: len(base)] = (rows(v) - base) / step
+        g_perp = g - basis @ (basis.T @ g)
+        norm2 = float(g_perp @ g_perp)
+        if norm2 > 1e-9 * float(g @ g) and norm2 > 0.0:
+            out[name] = float(g_perp @ res) ** 2 / norm2
+    return out
+
+
+def _initial_corner(
+    table: ParameterTable, prior: CellPrior, meas: list[FaceMeasurement], x0: np.ndarray
+) -> np.ndarray:
+    """Corner from eq. (2), n_k·c = n_k·p − d, averaged per face (prior offsets and tool)."""
+    if not all(table.free[table.index(n)] for n in BLOCK[:3]):
+        return x0
+    geom = cell_geometry(table, table.values, prior.model)
+    coord = geom.block_rotation.T @ table.get(BLOCK[:3])
+    for k in range(3):
+        vals = [
+            geom.normal(k) @ beam_and_tcp(geom, distance_joints(m), prior.offsets_deg)[1]
+            - m.distance_mm
+            for m in meas
+            if m.face == k
+        ]
+        if vals:
+            coord[k] = float(np.mean(vals))
+    corner = geom.block_rotation @ coord
+    x = x0.copy()
+    free_names = table.free_names
+    for i, n in enumerate(BLOCK[:3]):
+        x[free_names.index(n)] = corner[i]
+    return x
+
+
+def _variance_shares(
+    table: ParameterTable, jac: np.ndarray, cov: np.ndarray, n_data: int
+) -> dict[str, dict[str, float]]:
+    """Share of each offset's variance from the data and from each prior.
+
+    The estimate's sensitivity to the rows is ``K = Cov·Jᵀ``; with unit-variance rows the
+    variance of parameter j is Σ_rows K_jr², split here by row: the data rows together, and
+    each prior row by the parameter it constrains.
+    """
+    k = cov @ jac.T
+    free = table.free_names
+    prior_rows = [n for n in free if np.isfinite(table.prior_stds[table.index(n)])]
+    out: dict[str, dict[str, float]] = {}
+    for name in OFFSETS:
+        if name not in free:
+            continue
+        j = free.index(name)
+        contrib = k[j] ** 2
+        total = float(contrib.sum()) or 1.0
+        shares = {"data": float(contrib[:n_data].sum()) / total}
+        for r, pn in enumerate(prior_rows):
+            shares[pn] = float(contrib[n_data + r]) / total
+        out[name] = shares
+    return out
+
+
+def _condition_number(
+    table: ParameterTable, jac_data: np.ndarray, std: np.ndarray, max_std_deg: float
+) -> float:
+    """Condition number of the column-scaled data Jacobian over the offsets the data determine,
+    the block corner and the sound speed (the unknowns the measurements are meant to fix)."""
+    free = table.free_names
+    cols = [
+        free.index(n)
+        for n in OFFSETS + BLOCK[:3] + SOUND
+        if n in free and (n not in OFFSETS or std[table.index(n)] <= max_std_deg)
+    ]
+    js = jac_data[:, cols]
+    js = js / np.maximum(np.linalg.norm(js, axis=0), 1e-300)
+    s = np.linalg.svd(js, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+# any measurement type: the prior-augmented fit and its uncertainty
+
+
+@dataclass(frozen=True)
+class AugmentedFit:
+    """Solution of a prior-augmented least-squares problem over a ``ParameterTable``.
+
+    ``cov`` (free × free) is ``(JᵀJ)⁻¹`` scaled by ``max(1, χ²ᵣ)``; ``gain`` = ``(JᵀJ)⁻¹·Jᵀ``
+    (unscaled) maps unit-variance rows to parameters, so a quantity's variance splits by row.
+    """
+
+    table: ParameterTable
+    estimate: np.ndarray
+    cov: np.ndarray
+    std: np.ndarray
+    jac: np.ndarray
+    res: np.ndarray
+    gain: np.ndarray
+    n_data: int
+    chi2: float
+
+    @property
+    def dof(self) -> int:
+        """Data rows less the free unknowns that have no prior row."""
+        t = self.table
+        no_prior = int(np.sum(t.free & ~np.isfinite(t.prior_stds)))
+        return max(1, self.n_data - no_prior)
+
+    @property
+    def prior_rows(self) -> list[str]:
+        """Names of the parameters whose prior rows follow the data rows, in order."""
+        t = self.table
+        return [n for n in t.free_names if np.isfinite(t.prior_stds[t.index(n)])]
+
+    def gradient(self, weights: dict[str, float | np.ndarray]) -> np.ndarray:
+        """Free-parameter gradient of ``Σ w·x`` (one row per entry of array weights)."""
+        free = self.table.free_names
+        rows = np.atleast_2d(
+            np.column_stack([np.atleast_1d(np.asarray(w, float)) for w in weights.values()])
+        )
+        g = np.zeros((rows.shape[0], len(free)))
+        for j, name in enumerate(weights):
+            if name in free:
+                g[:, free.index(name)] = rows[:, j]
+        return g
+
+    def shares(self, gradient: np.ndarray) -> dict[str, float]:
+        """Share of the variance of ``gradient·x`` (summed over its rows) from the data and
+        from each prior (by parameter name)."""
+        contrib = (np.atleast_2d(gradient) @ self.gain) ** 2
+        contrib = contrib.sum(0)
+        total = float(contrib.sum()) or 1.0
+        out = {"data": float(contrib[: self.n_data].sum()) / total}
+        for r, name in enumerate(self.prior_rows):
+            out[name] = float(contrib[self.n_data + r]) / total
+        return out
+
+
+def solve_augmented(
+    table: ParameterTable,
+    data_fn: Callable[[np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    tol: float = 1e-12,
+    max_nfev: int = 200,
+    measured: tuple[str, ...] = (),
+) -> AugmentedFit:
+    """Minimise ``|data_fn(v)|² + Σ ((v − prior)/σ)²`` over the free parameters of ``table``
+    (``data_fn`` takes the full value vector and returns normalised data residuals).
+
+    ``measured`` names the quantities the run exists to measure: their priors (a drawing's
+    tolerance) still enter the solution, but their pulls are not counted in the χ² that
+    judges the fit and scales the covariance."""
+    has_prior = np.isfinite(table.prior_stds) & table.free
+    n_data = len(data_fn(table.expand(x0)))
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        v = table.expand(x)
+        return np.concatenate(
+            [data_fn(v), (v - table.prior)[has_prior] / table.prior_stds[has_prior]]
+        )
+
+    sol = _least_squares_with_priors(fun, x0, table, tol, max_nfev)
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac)
+    prior_names = [n for n, f in zip(table.names, has_prior, strict=True) if f]
+    counted = np.concatenate([np.ones(n_data, bool), [n not in measured for n in prior_names]])
+    chi2 = float(sol.fun[counted] @ sol.fun[counted])
+    no_prior = int(np.sum(table.free & ~np.isfinite(table.prior_stds)))
+    cov_scaled = cov * max(1.0, chi2 / max(1, n_data - no_prior))
+    std = np.full(len(table.names), np.nan)
+    std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
+    return AugmentedFit(
+        table, table.expand(sol.x), cov_scaled, std, sol.jac, sol.fun, cov @ sol.jac.T, n_data, chi2
+    )
+
+
+@dataclass(frozen=True)
+class RunEffects:
+    """What a fit found of the tank's drift (m/s per min) and each joint's lost motion (deg):
+    a drift no reading saw keeps its prior (0 ± its tolerance); lost motion is measured only
+    where readings approached the joint from both sides (NaN elsewhere)."""
+
+    drift_m_s_per_min: float
+    drift_std_m_s_per_min: float
+    backlash_deg: np.ndarray  # (6,)
+    backlash_std_deg: np.ndarray  # (6,)
+
+    @classmethod
+    def of(cls, cell: CellFit) -> RunEffects:
+        table = cell.table
+        drift, drift_std = 0.0, float("nan")
+        if DRIFT[0] in table.names:
+            i = table.index(DRIFT[0])
+            drift = cell.value(DRIFT[0])
+            drift_std = cell.sigma(DRIFT[0]) if table.free[i] else float(table.prior_stds[i])
+        backlash, backlash_std = np.full(6, np.nan), np.full(6, np.nan)
+        for j, name in enumerate(BACKLASH):
+            if name in table.names and table.free[table.index(name)]:
+                backlash[j], backlash_std[j] = cell.value(name), cell.sigma(name)
+        return cls(drift, drift_std, backlash, backlash_std)
+
+    def to_json(self) -> dict[str, Any]:
+        """The fields of ``calibrate --json`` (SPEC.md: null where not measured)."""
+
+        def listed(v: np.ndarray) -> list[float | None]:
+            return [float(x) if np.isfinite(x) else None for x in v]
+
+        return {
+            "backlash_deg": listed(self.backlash_deg),
+            "backlash_std_deg": listed(self.backlash_std_deg),
+            "sound_speed_drift_m_s_per_min": self.drift_m_s_per_min,
+            "sound_speed_drift_m_s_per_min_std": self.drift_std_m_s_per_min,
+        }
+
+    def profile_keys(self) -> dict[str, Any]:
+        """The ``[calibration]`` keys (SPEC.md: −1 where not measured)."""
+
+        def listed(v: np.ndarray) -> list[float]:
+            return [round(float(x), 6) if np.isfinite(x) else -1.0 for x in v]
+
+        return {
+            "backlash_deg": listed(self.backlash_deg),
+            "backlash_std_deg": listed(self.backlash_std_deg),
+            "sound_speed_drift_m_s_per_min": round(self.drift_m_s_per_min, 5),
+            "sound_speed_drift_m_s_per_min_std": round(self.drift_std_m_s_per_min, 5),
+        }
