@@ -23,6 +23,7 @@ from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
 from ucal.progress import Report
+from ucal.record import measured_from_lines, measurement_lines
 from ucal.session import CellSession
 from ucal.sim.truth import verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
@@ -99,6 +100,16 @@ class VerifyJob(CheckingJob):
         # times of flight converted with the measured sound speed (as a water temperature)
         measuring = self.profile.replace(water_temperature_c=self.sound.temperature_c)
         return run_verify(measuring, plan, session.rig, report)
+
+    def measurement_lines(self, data: VerifyResult) -> list[dict[str, Any]]:
+        """One line per point and edge check; the plan is the replay's own."""
+        return measurement_lines(data, given=("plan",))
+
+    def measured_from(
+        self, lines: list[dict[str, Any]], plan: VerifyPlan, source: str
+    ) -> VerifyResult:
+        result: VerifyResult = measured_from_lines(lines, source, plan=plan)
+        return result
 
     def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifyShown:
         result = measured.data
