@@ -142,6 +142,7 @@ class Job(Protocol[PlanT, MeasuredT, SolvedT]):
 
     command: str  # "calibrate", "tool-frame", "verify": the progress display's title
     profile: CellProfile
+    profile_path: Path
 
     def profile_text(self) -> str:
         """The profile as the run reads it, for a ``--record`` file."""
@@ -345,8 +346,9 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         for key, value in plain_json(self.job.record_header(plan)).items():
             if key not in ("options", "plan") and record.header.get(key) != value:
                 raise RecordError(
-                    f"{record.path}: recorded with {key} {record.header.get(key)!r}, this "
-                    f"replay's is {value!r}: it cannot solve those measurements"
+                    f"{record.path}: the run was recorded with another {key} than this replay "
+                    f"reads from {self.job.profile_path}'s history: it cannot solve those "
+                    "measurements"
                 )
 
     def _open(self, recorder: Recorder | None) -> AbstractContextManager[CellSession]:

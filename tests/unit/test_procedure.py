@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -15,6 +17,7 @@ from ucal.cell_choice import CellChoice
 from ucal.cli.progress import StepProgress
 from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.progress import MeasureStep, Progress, time_left_s
+from ucal.record import read_record
 from ucal.session import TimingMode
 from ucal.timing import DurationEstimate
 
@@ -36,7 +39,8 @@ class Job:
     """Records what the procedure asks of it."""
 
     command = "fake"
-    profile = None
+    profile = SimpleNamespace(path="cell.toml")
+    profile_path = Path("cell.toml")
 
     def __init__(self, log: list[str], ok: bool = True) -> None:
         self.log = log
@@ -65,6 +69,13 @@ class Job:
         report(MeasureStep("face base/XY", 0, 2, "base", "XY"))
         report(MeasureStep("face base/YZ", 1, 2, "base", "YZ"))
         return "measured"
+
+    def measurement_lines(self, data: str) -> list[dict[str, Any]]:
+        return [{"of": "run", "data": data}]
+
+    def measured_from(self, lines: list[dict[str, Any]], plan: str, source: str) -> str:
+        self.log.append("job.measured_from")
+        return str(lines[0]["data"])
 
     def solve(self, plan: str, measured: Measured[str]) -> str:
         assert measured.data == "measured" and measured.duration_s == 10.0
@@ -155,6 +166,32 @@ def test_out_of_tolerance_is_not_written(fake_cell: None) -> None:
     outcome, _ = run(log, RunOptions(CellChoice(None, "tcp://h:1", "modbus-tcp://h:2")), ok=False)
     assert "confirm the robot at tcp://h:1" in log and "job.write" not in log
     assert outcome.out_of_tolerance and not outcome.written
+
+
+def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
+    fake_cell: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "run.jsonl"
+    run([], RunOptions(CellChoice("", None, None), yes=True, dry_run=True, record_path=path))
+    record = read_record(path)
+    assert [line["of"] for line in record.measurements] == ["run", "session"]
+    assert record.session()["duration_s"] == 10.0
+    log: list[Any] = []
+    outcome, _ = run(log, RunOptions(None, replay=record))
+    assert [e for e in log if isinstance(e, Step)] == [
+        s for s in Step if s not in (Step.OPEN, Step.MEASURE)
+    ]
+    assert "job.measured_from" in log and "job.write" not in log and not outcome.written
+    assert outcome.result["timing"] == "gate"  # as the recorded session timed its echoes
+    # with --remeasure the recorded traffic answers (faked here: the fake cell made no calls)
+    monkeypatch.setattr(
+        procedure_module,
+        "replay_cell",
+        lambda profile, record: contextlib.nullcontext(FakeSession()),
+    )
+    log.clear()
+    run(log, RunOptions(None, replay=record, remeasure=True))
+    assert Step.MEASURE in log and "job.measured_from" not in log
 
 
 def test_time_left_from_the_estimate_then_from_the_pace() -> None:

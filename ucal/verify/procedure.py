@@ -23,7 +23,7 @@ from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
 from ucal.progress import Report
-from ucal.record import measured_from_lines, measurement_lines
+from ucal.record import encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
 from ucal.sim.truth import verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
@@ -94,7 +94,9 @@ class VerifyJob(CheckingJob):
         return faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
 
     def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
-        return {"options": {"points": self.n_points}, "plan": []}
+        # what the run read from the profile's history: a replay must read the same
+        inputs = {"before": self.before, "sound": self.sound, "gauge": self.gauge}
+        return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
 
     def measure(self, plan: VerifyPlan, session: CellSession, report: Report) -> VerifyResult:
         # times of flight converted with the measured sound speed (as a water temperature)
