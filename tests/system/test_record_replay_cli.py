@@ -20,6 +20,8 @@ from ucal.record import read_record
 
 pytestmark = pytest.mark.system
 
+Examples = Callable[[list[str]], list[tuple[dict, list[str]]]]
+
 
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -111,7 +113,7 @@ def test_replay_with_remeasure_searches_again_on_the_traffic(recorded: tuple[Pat
 
 
 def test_replay_with_another_method_solves_the_same_measurements(
-    recorded: tuple[Path, dict], help_examples: Callable[[list[str]], list[tuple[dict, list[str]]]]
+    recorded: tuple[Path, dict], help_examples: Examples
 ) -> None:
     d, result = recorded
     # as `ucal calibrate --help` shows it (every other example runs in test_help_examples)
@@ -237,16 +239,19 @@ def recorded_command(
 
 
 def test_other_commands_replay_their_measurements_to_their_recorded_result(
-    recorded_command: tuple[str, Path, dict, int],
+    recorded_command: tuple[str, Path, dict, int], help_examples: Examples
 ) -> None:
     command, d, result, code = recorded_command
     record = read_record(d / "run.jsonl")
     assert record.command == command and record.measured
     assert record.result is not None
     assert record.result == {k: v for k, v in result.items() if k not in ("error", "exit_code")}
-    measurements = stripped(d / "run.jsonl", d)
+    # as `ucal COMMAND --help` shows it, on the record stripped to its header and measurements
+    (args,) = [a for _, a in help_examples([command]) if "--replay" in a]
+    assert args == [command, "cell.toml", "--replay", args[3], "--json"]
+    stripped(d / "run.jsonl", d).rename(d / args[3])
     before = {p: p.read_bytes() for p in d.iterdir()}
-    out = ucal(command, "cell.toml", "--replay", measurements.name, "--json", cwd=d)
+    out = ucal(*args, cwd=d)
     assert out.returncode == code, out.stderr  # in or out of tolerance as recorded
     same_result(json.loads(out.stdout), result)
     assert {p: p.read_bytes() for p in d.iterdir()} == before  # moves, writes nothing

@@ -32,6 +32,8 @@ Examples:
   ucal check cell.toml --sim --yes
   ucal check cell.toml --sim world.toml --json --yes
   ucal check cell.toml --sim --baseline --yes
+  ucal check cell.toml --sim --yes --record check.jsonl
+  ucal check cell.toml --replay check.jsonl --json
   ucal check cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502
 """,
