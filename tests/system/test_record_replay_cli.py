@@ -231,8 +231,11 @@ def recorded_command(
     command = request.param
     d = tmp_path_factory.mktemp(command)
     (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
+    # the check is the profile's first: it goes into the history as the reference, which its
+    # replay must not then compare it against
     few = {"tool-frame": ["--points", "2"], "verify": ["--points", "1"], "check": []}[command]
-    args = [command, "cell.toml", "--sim", "--yes", "--json", "--dry-run", *few]
+    dry_run = [] if command == "check" else ["--dry-run"]
+    args = [command, "cell.toml", "--sim", "--yes", "--json", *dry_run, *few]
     out = ucal(*args, "--record", "run.jsonl", cwd=d)
     assert out.returncode in (0, 1), out.stderr
     return command, d, json.loads(out.stdout), out.returncode
@@ -250,11 +253,20 @@ def test_other_commands_replay_their_measurements_to_their_recorded_result(
     (args,) = [a for _, a in help_examples([command]) if "--replay" in a]
     assert args == [command, "cell.toml", "--replay", args[3], "--json"]
     stripped(d / "run.jsonl", d).rename(d / args[3])
-    before = {p: p.read_bytes() for p in d.iterdir()}
+    before = files(d)
     out = ucal(*args, cwd=d)
     assert out.returncode == code, out.stderr  # in or out of tolerance as recorded
-    same_result(json.loads(out.stdout), result)
-    assert {p: p.read_bytes() for p in d.iterdir()} == before  # moves, writes nothing
+    again = json.loads(out.stdout)
+    if command == "check":  # the recorded check went into the history, its replay does not
+        assert result["recorded"] and result["history_entry"] == 1
+        assert again.pop("recorded") is False and again.pop("history_entry") is None
+        result = {k: v for k, v in result.items() if k not in ("recorded", "history_entry")}
+    same_result(again, result)
+    assert files(d) == before  # a replay moves nothing and writes nothing
+
+
+def files(d: Path) -> dict[Path, bytes]:
+    return {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
 
 
 def test_a_replay_refuses_what_the_record_did_not_measure(
