@@ -21,10 +21,12 @@ order is the same and lives here (``MeasuringProcedure.run``):
 
 A replay (``--replay FILE``) solves the record's measurement lines: steps 5 and 6 are skipped
 (``Job.measured_from`` rebuilds what the measure step handed on), nothing moves and nothing is
-asked. With ``--remeasure``, or a record that has no measurement lines (version 1, or a run cut
-off before its measure step ended: a one-line warning says so), the recorded device traffic
-answers steps 5 and 6 instead, and the search runs again. Either way the replay's plan must
-be the recorded one: a header key the job writes besides ``options`` and ``plan`` (check's
+asked. With ``--remeasure``, or a record that has no measurement lines (version 1, or a run
+cut off before its measure step ended: a one-line warning says so), the recorded device
+traffic answers steps 5 and 6 instead, and the search runs again. Either way the plan is the
+recorded one (the header's ``planned``), so that a change to the planners since leaves the
+record replayable; a record whose plan this ucal cannot rebuild is planned again (a warning
+says so), and then a header key the job writes besides ``options`` and ``plan`` (check's
 reference, say) that differs is refused (``RecordError``, exit 2).
 
 A ``Job`` is what one command contributes to these steps; ``Presenter`` is how the command
@@ -53,6 +55,8 @@ from ucal.record import (
     Record,
     Recorder,
     RecordError,
+    decode,
+    encode,
     measured_from_lines,
     measurement_lines,
     plain_json,
@@ -284,7 +288,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         self._enter(Step.CHECK)
         with job.check(options):
             self._enter(Step.PLAN)
-            plan = job.plan()
+            plan = self._plan()
             estimate = job.estimate(plan)
             self._enter(Step.SHOW)
             self.presenter.show_plan(job.summary(plan) + "\n" + estimate.describe())
@@ -328,9 +332,23 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 "profile_text": text,
                 "cell": self.options.cell.address,
                 **self.job.record_header(plan),
+                "planned": encode(plan),
             }
         ) as recorder:
             yield recorder
+
+    def _plan(self) -> PlanT:
+        """The job's plan; a replay's is the recorded one (the header's ``planned``), so that a
+        change to the planner since leaves the record replayable."""
+        record = self.options.replay
+        if record is None or "planned" not in record.header:
+            return self.job.plan()
+        try:
+            plan: PlanT = decode(record.header["planned"])
+        except RecordError as e:
+            log.warning("%s: its plan is not this ucal's (%s): planning again", record.path, e)
+            return self.job.plan()
+        return plan
 
     def _measured(self, plan: PlanT, record: Record) -> Measured[MeasuredT]:
         """What the measure step handed on, from the record's measurement lines."""

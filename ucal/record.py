@@ -4,9 +4,11 @@ Capture and solve meet in one file, as ROS robot_calibration's capture and calib
 meet in a bag. ``--record FILE`` writes JSON lines, each one object with a ``"kind"``:
 
 1. ``"header"`` (first): ``{"kind": "header", "record": "ucal", "version": 2, "command", "ucal",
-   "profile_path", "profile_sha256", "profile_text", "cell", "options", "plan",
+   "profile_path", "profile_sha256", "profile_text", "cell", "options", "plan", "planned",
    "started_utc"}`` — the profile as it was (text and SHA-256), what the run was asked
-   (method, level, beam, points) and its plan (a job may add keys, e.g. check's reference);
+   (method, level, beam, points), its plan in rows to read (``plan``) and whole, tagged, for
+   a replay (``planned``); a job may add keys (check's reference, what verify read from the
+   profile's history);
 2. ``"call"``: one line per call the procedure made to a device, in order, as it is made:
    ``{"kind": "call", "n": i, "call": "controller.start_move", "args": [...], "result": ...}``
    (or ``"error"`` for a call that raised) — joint readings, controller status, moves, the
@@ -150,7 +152,11 @@ def decode(value: Any) -> Any:
             return tuple(decode(v) for v in value["t"])
         if "dc" in value:
             cls = dataclass_named(str(value["dc"]))
-            return cls(**{k: decode(v) for k, v in value["v"].items()})
+            fields = {k: decode(v) for k, v in value["v"].items()}
+            try:
+                return cls(**fields)
+            except TypeError as e:  # a field added without a default, or removed, since
+                raise RecordError(f"a record's {value['dc']} is not this ucal's ({e})") from None
         if "map" in value and len(value) == 1:
             return {k: decode(v) for k, v in value["map"].items()}
         return {k: decode(v) for k, v in value.items()}
@@ -392,7 +398,10 @@ def measured_from_lines(
                 f"{count}: the record is incomplete"
             )
         fields[name] = tuple(values) if kind == "tuple" else values
-    return dataclass_named(str(run["type"]))(**fields, **given)
+    try:
+        return dataclass_named(str(run["type"]))(**fields, **given)
+    except TypeError as e:  # a field added without a default, or removed, since the run
+        raise RecordError(f"{source}: its measurements are not this ucal's ({e})") from None
 
 
 # -- replay ---------------------------------------------------------------------------------------

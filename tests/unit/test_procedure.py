@@ -176,8 +176,10 @@ def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
     record = read_record(path)
     assert [line["of"] for line in record.measurements] == ["run", "session"]
     assert record.session()["duration_s"] == 10.0
+    record.header["planned"] = "the recorded plan"  # as the planner had it then
     log: list[Any] = []
     outcome, _ = run(log, RunOptions(None, replay=record))
+    assert "show: summary of the recorded plan" in log
     assert [e for e in log if isinstance(e, Step)] == [
         s for s in Step if s not in (Step.OPEN, Step.MEASURE)
     ]

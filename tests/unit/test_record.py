@@ -18,6 +18,7 @@ from ucal.calibration.model import Face, FaceMeasurement
 from ucal.calibration.search import PeakResult
 from ucal.calibration.sequence import CalibrationRun
 from ucal.procedure import RunOptions
+from ucal.profile import default_profile_text, load_profile, write_profile
 from ucal.record import (
     Record,
     Recorder,
@@ -33,6 +34,7 @@ from ucal.record import (
     read_record,
     sha256_text,
 )
+from ucal.verify.procedure import VerifyJob
 
 PROFILE_TEXT = "schema = 1\n"
 
@@ -236,6 +238,9 @@ def test_a_record_rebuilds_only_ucal_dataclasses() -> None:
         decode({"dc": "subprocess:Popen", "v": {}})
     with pytest.raises(RecordError, match="does not have"):
         decode({"dc": "ucal.calibration.model:NoSuchThing", "v": {}})
+    # one recorded before a field without a default was added (or after one was removed)
+    with pytest.raises(RecordError, match="FaceMeasurement is not this ucal's"):
+        decode({"dc": "ucal.calibration.model:FaceMeasurement", "v": {"config": "base"}})
 
 
 def test_every_line_has_a_kind_header_first_result_last(tmp_path: Path) -> None:
@@ -265,3 +270,28 @@ def test_a_version_1_record_is_read_and_replays_its_traffic(
     assert ReplayController(Replay(record), "x").clock.now() == 0.5
     assert not RunOptions(None, replay=record).from_measurements  # it has no measurements
     assert "version 1" in caplog.text and "device traffic" in caplog.text
+
+
+def test_a_verify_replay_reads_the_profiles_history_as_the_run_did(tmp_path: Path) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
+    run = VerifyJob(load_profile(path), path)
+    run.check(RunOptions(None, dry_run=True))
+    inputs = json.loads(json.dumps(run.record_header(None)["inputs"]))
+    # a calibration since: the history now gives another "before" and another sound speed
+    offsets = [0.1, -0.2, 0.3, 0.0, 0.1, 0.2]
+    cal = {"joint_offsets_deg": offsets, "sound_speed_m_s": 1490.0}
+    write_profile(path, {"calibration": cal}, reason="calibrate")
+    now, replay = (
+        VerifyJob(load_profile(path), path),
+        VerifyJob(load_profile(path), path, recorded_inputs=inputs),
+    )
+    for job in (now, replay):
+        job.check(RunOptions(None, dry_run=True))
+    assert now.before.source != run.before.source and now.sound.m_s != run.sound.m_s
+    assert (replay.before.source, replay.sound, replay.gauge) == (
+        run.before.source,
+        run.sound,
+        run.gauge,
+    )
+    assert np.array_equal(replay.before.offsets_deg, run.before.offsets_deg)

@@ -28,7 +28,6 @@ from ucal.check.solve import (
 )
 from ucal.procedure import Measured, Outcome, ProfileJob
 from ucal.progress import Report
-from ucal.record import decode, encode
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
 
@@ -38,28 +37,14 @@ class CheckJob(ProfileJob):
 
     command = "check"
 
-    def __init__(
-        self,
-        profile: CellProfile,
-        profile_path: Path,
-        baseline: bool = False,
-        recorded: dict[str, Any] | None = None,
-    ) -> None:
-        """``recorded``: a replayed record's header, whose reference check the replay compares
-        against (the history may have gained the recorded check itself since)."""
+    def __init__(self, profile: CellProfile, profile_path: Path, baseline: bool = False) -> None:
         super().__init__(profile, profile_path)
         self.baseline = baseline
         self.digest = model_digest(profile)
         self.duration_s = 0.0
-        self.recorded = recorded
 
     def plan(self) -> CheckPlan:
-        if self.recorded is not None and "reference_check" in self.recorded:
-            reference = decode(self.recorded["reference_check"])
-        elif self.baseline:
-            reference = None
-        else:
-            reference = reference_check(self.profile_path, self.digest)
+        reference = None if self.baseline else reference_check(self.profile_path, self.digest)
         return plan_check(self.profile, reference, self.baseline)
 
     def summary(self, plan: CheckPlan) -> str:
@@ -72,9 +57,9 @@ class CheckJob(ProfileJob):
         return {
             "options": {"baseline": self.baseline},
             "plan": plan_rows(plan.targets),
+            # a replay compares against it as recorded (the plan, ucal.procedure), whatever
+            # the history holds by then
             "reference": None if plan.reference is None else plan.reference.id,
-            # what the check was compared against, for a replay: the history moves on
-            "reference_check": encode(plan.reference),
         }
 
     def measure(self, plan: CheckPlan, session: CellSession, report: Report) -> CheckRun:

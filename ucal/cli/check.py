@@ -84,9 +84,7 @@ def cli(
     )
     if replayed is not None:
         record, recorded_profile = replayed
-        job = CheckJob(
-            recorded_profile, profile_path, bool(record.options.get("baseline")), record.header
-        )
+        job = CheckJob(recorded_profile, profile_path, bool(record.options.get("baseline")))
         finish(replay_job(job, record, remeasure), as_json, show_outcome)
         return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)

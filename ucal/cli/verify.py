@@ -140,7 +140,11 @@ def cli(
             finish(replay_job(region_replay, record, remeasure), as_json, show_region)
             return
         verify = VerifyJob(
-            recorded_profile, profile_path, options.get("points", n_points), tolerance_mm
+            recorded_profile,
+            profile_path,
+            options.get("points", n_points),
+            tolerance_mm,
+            recorded_inputs=record.header.get("inputs"),
         )
         finish(replay_job(verify, record, remeasure), as_json, show_outcome)
         return

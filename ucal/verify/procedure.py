@@ -23,7 +23,7 @@ from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
 from ucal.progress import Report
-from ucal.record import encode, measured_from_lines, measurement_lines
+from ucal.record import decode, encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
 from ucal.sim.truth import verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
@@ -59,8 +59,12 @@ class VerifyJob(CheckingJob):
         n_points: int = DEFAULT_POINTS,
         tolerance_mm: float | None = None,
         plot_path: Path | None = None,
+        recorded_inputs: dict[str, Any] | None = None,
     ) -> None:
+        """``recorded_inputs``: a replayed record's ``inputs``, read in place of the history
+        (which may have moved on since the run)."""
         super().__init__(profile, profile_path, tolerance_mm)
+        self.recorded_inputs = recorded_inputs
         self.n_points = n_points
         self.plot_path = plot_path
         self.before = BeforeProfile(np.zeros(6), "")
@@ -69,10 +73,15 @@ class VerifyJob(CheckingJob):
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets and block from the profile's history, the sound speed of its
-        last calibration and its J1 gauge; nothing is held (the profile is not written)."""
-        self.before = offsets_before_calibration(self.profile_path)
-        self.sound = sound_speed_for_verify(self.profile, self.profile_path)
-        self.gauge = calibration_gauge(self.profile, self.profile_path)
+        last calibration and its J1 gauge (a replay's: as recorded); nothing is held (the
+        profile is not written)."""
+        if self.recorded_inputs is not None:
+            inputs = decode(self.recorded_inputs)
+            self.before, self.sound, self.gauge = inputs["before"], inputs["sound"], inputs["gauge"]
+        else:
+            self.before = offsets_before_calibration(self.profile_path)
+            self.sound = sound_speed_for_verify(self.profile, self.profile_path)
+            self.gauge = calibration_gauge(self.profile, self.profile_path)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
@@ -94,7 +103,7 @@ class VerifyJob(CheckingJob):
         return faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
 
     def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
-        # what the run read from the profile's history: a replay must read the same
+        # what the run read from the profile's history: a replay reads these instead
         inputs = {"before": self.before, "sound": self.sound, "gauge": self.gauge}
         return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
 
