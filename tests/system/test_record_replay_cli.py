@@ -21,6 +21,7 @@ from ucal.record import read_record
 pytestmark = pytest.mark.system
 
 Examples = Callable[[list[str]], list[tuple[dict, list[str]]]]
+RunMain = Callable[[list[str]], tuple[int, str, str]]
 
 
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -84,14 +85,14 @@ def test_every_line_has_a_kind(recorded: tuple[Path, dict]) -> None:
 
 
 def test_replay_of_the_measurements_alone_gives_the_recorded_result(
-    recorded: tuple[Path, dict],
+    recorded: tuple[Path, dict], run_main: RunMain, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     d, result = recorded
-    out = ucal(
-        "calibrate", "cell.toml", "--replay", str(stripped(d / "run.jsonl", d)), "--json", cwd=d
-    )
-    assert out.returncode in (0, 1), out.stderr
-    again = json.loads(out.stdout)
+    measurements = stripped(d / "run.jsonl", d)
+    monkeypatch.chdir(d)
+    code, out, err = run_main(["calibrate", "cell.toml", "--replay", measurements.name, "--json"])
+    assert code in (0, 1), err
+    again = json.loads(out)
     assert np.allclose(again["joint_offsets_deg"], result["joint_offsets_deg"], rtol=0, atol=1e-9)
     assert again["std_deg"] == result["std_deg"]
     same_result(again, result)
@@ -242,7 +243,10 @@ def recorded_command(
 
 
 def test_other_commands_replay_their_measurements_to_their_recorded_result(
-    recorded_command: tuple[str, Path, dict, int], help_examples: Examples
+    recorded_command: tuple[str, Path, dict, int],
+    help_examples: Examples,
+    run_main: RunMain,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     command, d, result, code = recorded_command
     record = read_record(d / "run.jsonl")
@@ -254,9 +258,10 @@ def test_other_commands_replay_their_measurements_to_their_recorded_result(
     assert args == [command, "cell.toml", "--replay", args[3], "--json"]
     stripped(d / "run.jsonl", d).rename(d / args[3])
     before = files(d)
-    out = ucal(*args, cwd=d)
-    assert out.returncode == code, out.stderr  # in or out of tolerance as recorded
-    again = json.loads(out.stdout)
+    monkeypatch.chdir(d)
+    exit_code, out, err = run_main(args)
+    assert exit_code == code, err  # in or out of tolerance as recorded
+    again = json.loads(out)
     if command == "check":  # the recorded check went into the history, its replay does not
         assert result["recorded"] and result["history_entry"] == 1
         assert again.pop("recorded") is False and again.pop("history_entry") is None
@@ -271,7 +276,7 @@ def files(d: Path) -> dict[Path, bytes]:
 
 def test_a_replay_refuses_what_the_record_did_not_measure(
     recorded_command: tuple[str, Path, dict, int],
-    run_main: Callable[[list[str]], tuple[int, str, str]],
+    run_main: RunMain,
 ) -> None:
     command, d, _, _ = recorded_command
     other = {"tool-frame": ["--method", "paper"], "verify": ["--points", "5"]}
