@@ -101,9 +101,9 @@ class RunOptions:
     def writes(self) -> bool:
         return not self.dry_run and self.replay is None
 
-    @property
-    def from_measurements(self) -> bool:
-        """Whether the run solves a record's measurement lines (no cell, no measure step)."""
+    def replays_measurements(self) -> bool:
+        """Whether the run solves a record's measurement lines (no cell, no measure step); a
+        warning when it would, but the record has none."""
         if self.replay is None or self.remeasure:
             return False
         if not self.replay.measured:
@@ -297,7 +297,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 assert options.cell is not None
                 self.presenter.confirm(options.cell)
             with self._recorder(plan) as recorder:
-                if options.replay is not None and options.from_measurements:
+                if options.replay is not None and options.replays_measurements():
                     measured = self._measured(plan, options.replay)
                 else:
                     measured = self._measure(plan, estimate, recorder)

@@ -268,7 +268,7 @@ def test_a_version_1_record_is_read_and_replays_its_traffic(
     record = read_record(path)
     assert (record.version, record.measured, record.result) == (1, False, {"a": 1})
     assert ReplayController(Replay(record), "x").clock.now() == 0.5
-    assert not RunOptions(None, replay=record).from_measurements  # it has no measurements
+    assert not RunOptions(None, replay=record).replays_measurements()  # it has none
     assert "version 1" in caplog.text and "device traffic" in caplog.text
 
 
