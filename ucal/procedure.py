@@ -332,10 +332,19 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 "profile_text": text,
                 "cell": self.options.cell.address,
                 **self.job.record_header(plan),
-                "planned": encode(plan),
+                **self._planned(plan),
             }
         ) as recorder:
             yield recorder
+
+    def _planned(self, plan: PlanT) -> dict[str, Any]:
+        """The header's ``planned``: the whole plan, tagged (none, with a warning, for a plan
+        a record cannot hold: a replay then plans again)."""
+        try:
+            return {"planned": encode(plan)}
+        except TypeError as e:
+            log.warning("the plan is not recorded (%s): a replay plans again", e)
+            return {}
 
     def _plan(self) -> PlanT:
         """The job's plan; a replay's is the recorded one (the header's ``planned``), so that a
@@ -411,10 +420,26 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 data, session.elapsed_s, session.truth, session.echo_timing.as_json()
             )
         if recorder is not None:
-            session_line = {
-                "of": SESSION,
-                "duration_s": measured.duration_s,
-                "echo_timing": plain_json(measured.echo_timing),
-            }
-            recorder.measurements([*self.job.measurement_lines(data), session_line])
+            self._record_measurements(recorder, measured)
         return measured
+
+    def _record_measurements(self, recorder: Recorder, measured: Measured[MeasuredT]) -> None:
+        """Write the measurement lines; measurements a record cannot hold (a value of a type it
+        does not know) are left out with a warning, not the run: its traffic is recorded."""
+        try:
+            lines = self.job.measurement_lines(measured.data)
+            lines.append(
+                {
+                    "of": SESSION,
+                    "duration_s": measured.duration_s,
+                    "echo_timing": plain_json(measured.echo_timing),
+                }
+            )
+        except (TypeError, ValueError) as e:
+            log.warning(
+                "%s: the measurements are not recorded (%s): a replay replays the traffic",
+                recorder.path,
+                e,
+            )
+            return
+        recorder.measurements(lines)

@@ -196,6 +196,22 @@ def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
     assert Step.MEASURE in log and "job.measured_from" not in log
 
 
+def test_measurements_a_record_cannot_hold_leave_the_run_and_its_traffic(
+    fake_cell: None, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    class Unrecordable(Job):
+        def measurement_lines(self, data: str) -> list[dict[str, Any]]:
+            raise TypeError("cannot record a Thing")
+
+    path = tmp_path / "run.jsonl"
+    options = RunOptions(CellChoice("", None, None), yes=True, dry_run=True, record_path=path)
+    outcome = MeasuringProcedure(Unrecordable([]), options, Presenter([])).run()
+    assert outcome.result["timing"] == "gate"  # the run went on to its result
+    record = read_record(path)
+    assert record.result is not None and not record.measured
+    assert "cannot record a Thing" in caplog.text
+
+
 def test_time_left_from_the_estimate_then_from_the_pace() -> None:
     assert time_left_s(37.0, 8.0, 1, 12) == 29.0  # within the estimate: the rest of it
     assert time_left_s(37.0, 40.0, 10, 12) == pytest.approx(8.0)  # past it: 4 s per step
