@@ -79,7 +79,10 @@ _PACKAGES = ("ucal.", "drivers.")
 CONTROLLER_CALLS = frozenset(
     {"read_joints", "status", "start_move", "wait_settled", "move_joints", "joint_samples", "stop"}
 )
-PULSER_CALLS = frozenset({"configure", "settings", "read_gate"})
+#: Pulser calls of a back-end that has them (the A-scan of ``check``'s echo band): a replay
+#: offers one only where the record holds it, as the recorded pulser did.
+OPTIONAL_PULSER_CALLS = frozenset({"read_ascan_trace", "read_ascan"})
+PULSER_CALLS = frozenset({"configure", "settings", "read_gate"}) | OPTIONAL_PULSER_CALLS
 
 
 class RecordError(InputError):
@@ -538,6 +541,8 @@ def _replayed_error(err: dict[str, str]) -> Exception:
         e = cls.__new__(cls)
         Exception.__init__(e, err["message"])
         return e
+    if err.get("type") == "ValueError":  # a back-end refusing a request (no A-scan register)
+        return ValueError(err["message"])
     return RecordError(f"replayed fault: {err.get('message')}")
 
 
@@ -593,3 +598,10 @@ class ReplayPulser(_ReplayDevice):
     device = "pulser"
     _prefix = "pulser"
     _calls = PULSER_CALLS
+
+    def __getattr__(self, name: str) -> Any:
+        if name in OPTIONAL_PULSER_CALLS and not any(
+            c["call"] == f"pulser.{name}" for c in self._replay.record.calls
+        ):
+            raise AttributeError(name)  # the recorded pulser had none, or was never asked
+        return super().__getattr__(name)

@@ -295,3 +295,30 @@ def test_a_verify_replay_reads_the_profiles_history_as_the_run_did(tmp_path: Pat
         run.gauge,
     )
     assert np.array_equal(replay.before.offsets_deg, run.before.offsets_deg)
+
+
+def test_a_replayed_pulser_has_an_a_scan_only_where_the_recorded_one_gave_one(
+    tmp_path: Path,
+) -> None:
+    class Scanning:
+        def read_ascan(self) -> tuple[np.ndarray, float]:
+            return np.linspace(0.0, 1.0, 5), 1e8
+
+        def read_ascan_trace(self) -> None:
+            raise ValueError("the register map has no ascan_samples")
+
+    path = tmp_path / "run.jsonl"
+    with Recorder(path) as recorder:
+        recorder.open({"command": "check", "profile_text": "", "profile_sha256": sha256_text("")})
+        pulser = RecordingPulser(Scanning(), recorder)
+        with pytest.raises(ValueError):
+            pulser.read_ascan_trace()
+        pulser.read_ascan()
+    replayed = ReplayPulser(Replay(read_record(path)), "y")
+    with pytest.raises(ValueError, match="no ascan_samples"):  # as the back-end refused it
+        replayed.read_ascan_trace()
+    samples, rate_hz = replayed.read_ascan()
+    assert np.array_equal(samples, np.linspace(0.0, 1.0, 5)) and rate_hz == 1e8
+    # a record whose pulser was never asked for an A-scan: the replayed pulser has none
+    _write(path, [("pulser.read_gate", (), GateReading(0.25, 6.7e4, 1, 0.0, 0.5))], None)
+    assert getattr(ReplayPulser(Replay(read_record(path)), "y"), "read_ascan", None) is None
