@@ -200,7 +200,7 @@ def _through_json(lines: list[dict]) -> list[dict]:
     return [json.loads(json.dumps(line, allow_nan=False)) for line in lines]
 
 
-def test_measurements_round_trip_bit_for_bit_without_the_searchs_by_products() -> None:
+def test_measurements_round_trip_bit_for_bit_without_the_searchs_probes() -> None:
     probes = (np.ones((4, 2)), np.arange(4.0), np.zeros(6))
     faces = [
         _face(0, gain_db=31.5, probes=probes, search_joints=(3, 4)),
@@ -211,9 +211,9 @@ def test_measurements_round_trip_bit_for_bit_without_the_searchs_by_products() -
     back = measured_from_lines(_through_json(lines))
     assert type(back) is CalibrationRun and (back.moves, back.reads) == (182, 1273)
     assert all(_same_face(a, b) for a, b in zip(faces, back.measurements, strict=True))
-    # the probes, gain and searched joints only served the measure step's re-fit
-    assert back.measurements[0].probes is None and back.measurements[0].gain_db is None
-    assert "probes" not in json.dumps(lines)
+    # the probes only served the measure step's re-fit; the rest of the fields are kept
+    assert back.measurements[0].probes is None and "probes" not in json.dumps(lines)
+    assert (back.measurements[0].gain_db, back.measurements[0].search_joints) == (31.5, (3, 4))
     # a frozen run, an empty list, and a dataclass holding tuples and int arrays
     full = FullRun([faces[1]], [], 3, 4)
     again = measured_from_lines(_through_json(measurement_lines(full)))
