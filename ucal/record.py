@@ -39,8 +39,9 @@ Values are tagged so they come back as they went: arrays ``{"nd": [...]}`` (with
 and ``"shape"`` where a list alone would not say them), tuples ``{"t": [...]}``, non-finite
 floats ``{"f": "nan"}``, dataclasses ``{"dc": "GateReading", "v": {...}}`` (the drivers') or
 ``{"dc": "ucal.calibration.model:FaceMeasurement", "v": {...}}`` (ucal's, every init field by
-``dataclasses.fields``, so a field added later round-trips unchanged). Python's float repr
-round-trips exactly, so replayed numbers are the recorded ones to the bit.
+``dataclasses.fields``, so a field added later round-trips unchanged; a class moved to another
+module since is found by its name among those the replaying command has loaded). Python's float
+repr round-trips exactly, so replayed numbers are the recorded ones to the bit.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ import importlib
 import json
 import logging
 import math
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -177,14 +179,36 @@ def dataclass_named(name: str) -> type:
     if not module.startswith(_PACKAGES) or not qualname:
         raise RecordError(f"a record names {name!r}, which is no ucal dataclass")
     try:
-        obj: Any = importlib.import_module(module)
-        for part in qualname.split("."):
-            obj = getattr(obj, part)
+        obj: Any = _attribute(importlib.import_module(module), qualname)
     except (ImportError, AttributeError):
-        raise RecordError(f"a record names {name!r}, which this ucal does not have") from None
+        obj = _moved(qualname)
+        if obj is None:
+            raise RecordError(f"a record names {name!r}, which this ucal does not have") from None
     if not (isinstance(obj, type) and dataclasses.is_dataclass(obj)):
         raise RecordError(f"a record names {name!r}, which is no dataclass")
     return obj
+
+
+def _attribute(obj: Any, qualname: str) -> Any:
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def _moved(qualname: str) -> type | None:
+    """The one dataclass of this name in the ucal modules loaded (the replaying command's):
+    a class that moved to another module since the run was recorded."""
+    found = set()
+    for module_name, module in list(sys.modules.items()):
+        if module is None or not module_name.startswith(_PACKAGES):
+            continue
+        try:
+            obj = _attribute(module, qualname)
+        except AttributeError:
+            continue
+        if isinstance(obj, type) and dataclasses.is_dataclass(obj) and obj.__qualname__ == qualname:
+            found.add(obj)
+    return found.pop() if len(found) == 1 else None
 
 
 def sha256_text(text: str) -> str:

@@ -238,6 +238,12 @@ def test_a_record_rebuilds_only_ucal_dataclasses() -> None:
         decode({"dc": "subprocess:Popen", "v": {}})
     with pytest.raises(RecordError, match="does not have"):
         decode({"dc": "ucal.calibration.model:NoSuchThing", "v": {}})
+    # a class that moved to another module since: the one of its name the replay has loaded
+    moved = {
+        "dc": "ucal.calibration.old_home:PeakResult",
+        "v": encode(PeakResult(np.ones(6), 0.5, 0.0, 0.0))["v"],
+    }
+    assert type(decode(moved)) is PeakResult
     # one recorded before a field without a default was added (or after one was removed)
     with pytest.raises(RecordError, match="FaceMeasurement is not this ucal's"):
         decode({"dc": "ucal.calibration.model:FaceMeasurement", "v": {"config": "base"}})
