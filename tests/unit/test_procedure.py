@@ -168,6 +168,39 @@ def test_out_of_tolerance_is_not_written(fake_cell: None) -> None:
     assert outcome.out_of_tolerance and not outcome.written
 
 
+def test_time_left_from_the_estimate_then_from_the_pace() -> None:
+    assert time_left_s(37.0, 8.0, 1, 12) == 29.0  # within the estimate: the rest of it
+    assert time_left_s(37.0, 40.0, 10, 12) == pytest.approx(8.0)  # past it: 4 s per step
+    assert time_left_s(37.0, 40.0, 12, 12) == 0.0
+
+
+def test_plain_progress_lines_on_a_non_terminal(capsys: pytest.CaptureFixture[str]) -> None:
+    steps = [
+        Progress(MeasureStep("face base/YZ", 1, 12, "base", "YZ"), 45, 515, 8.0, 29.0),
+        Progress(MeasureStep("solving", 12, 12), 190, 1344, 37.2, 0.0),
+        Progress(MeasureStep("peak 2", 1, 11), 45, 491, 100.0, 125.0),
+    ]
+    with StepProgress("calibrate") as display:
+        for p in steps:
+            display.show(p)
+    assert capsys.readouterr().err.splitlines() == [
+        "calibrate [1/12] face base/YZ (45 moves, 515 reads, about 29 s left)",
+        "calibrate [12/12] solving (190 moves, 1344 reads, about 0 s left)",
+        "calibrate [1/11] peak 2 (45 moves, 491 reads, about 2.1 min left)",
+    ]
+
+
+def test_faces_and_configurations_serialise_as_before() -> None:
+    import json
+
+    from ucal.calibration.model import FACE_NAMES, FACE_ORDER, Configuration, Face
+
+    assert json.dumps([Face.XY, Configuration.J3]) == '[2, "j3"]'
+    assert FACE_ORDER == (2, 0, 1) and FACE_NAMES == ("YZ", "XZ", "XY")
+    assert f"{Configuration.BASE}/{FACE_NAMES[Face.XZ]}" == "base/XZ"
+    assert np.eye(3)[:, Face.XZ].tolist() == [0.0, 1.0, 0.0]
+
+
 def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
     fake_cell: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -210,36 +243,3 @@ def test_measurements_a_record_cannot_hold_leave_the_run_and_its_traffic(
     record = read_record(path)
     assert record.result is not None and not record.measured
     assert "cannot record a Thing" in caplog.text
-
-
-def test_time_left_from_the_estimate_then_from_the_pace() -> None:
-    assert time_left_s(37.0, 8.0, 1, 12) == 29.0  # within the estimate: the rest of it
-    assert time_left_s(37.0, 40.0, 10, 12) == pytest.approx(8.0)  # past it: 4 s per step
-    assert time_left_s(37.0, 40.0, 12, 12) == 0.0
-
-
-def test_plain_progress_lines_on_a_non_terminal(capsys: pytest.CaptureFixture[str]) -> None:
-    steps = [
-        Progress(MeasureStep("face base/YZ", 1, 12, "base", "YZ"), 45, 515, 8.0, 29.0),
-        Progress(MeasureStep("solving", 12, 12), 190, 1344, 37.2, 0.0),
-        Progress(MeasureStep("peak 2", 1, 11), 45, 491, 100.0, 125.0),
-    ]
-    with StepProgress("calibrate") as display:
-        for p in steps:
-            display.show(p)
-    assert capsys.readouterr().err.splitlines() == [
-        "calibrate [1/12] face base/YZ (45 moves, 515 reads, about 29 s left)",
-        "calibrate [12/12] solving (190 moves, 1344 reads, about 0 s left)",
-        "calibrate [1/11] peak 2 (45 moves, 491 reads, about 2.1 min left)",
-    ]
-
-
-def test_faces_and_configurations_serialise_as_before() -> None:
-    import json
-
-    from ucal.calibration.model import FACE_NAMES, FACE_ORDER, Configuration, Face
-
-    assert json.dumps([Face.XY, Configuration.J3]) == '[2, "j3"]'
-    assert FACE_ORDER == (2, 0, 1) and FACE_NAMES == ("YZ", "XZ", "XY")
-    assert f"{Configuration.BASE}/{FACE_NAMES[Face.XZ]}" == "base/XZ"
-    assert np.eye(3)[:, Face.XZ].tolist() == [0.0, 1.0, 0.0]
