@@ -15,7 +15,6 @@ from drivers.controller.base import ControllerStatus, JointSample
 from drivers.pulser.base import GateReading, PulserSettings
 from ucal.calibration.full_run import FullRun
 from ucal.calibration.model import Face, FaceMeasurement
-from ucal.calibration.search import PeakResult
 from ucal.calibration.sequence import CalibrationRun
 from ucal.procedure import RunOptions
 from ucal.profile import default_profile_text, load_profile, write_profile
@@ -34,6 +33,7 @@ from ucal.record import (
     read_record,
     sha256_text,
 )
+from ucal.toolframe.measure import PeakResult
 from ucal.verify.procedure import VerifyJob
 
 PROFILE_TEXT = "schema = 1\n"
