@@ -75,9 +75,10 @@ READ_VERSIONS = (1, 2)
 #: The kinds of line of a version 2 record.
 HEADER, CALL, MEASUREMENT, RESULT = "header", "call", "measurement", "result"
 _DATACLASSES = {c.__name__: c for c in (GateReading, ControllerStatus, JointSample, PulserSettings)}
-#: Fields of a measurement that a record's measurement lines leave out: what the search keeps
-#: to re-fit its peaks without motion (``FaceMeasurement.probes``), bulky, and read by no
-#: solver (the re-fit is the measure step's). Every other field is kept, whatever it is.
+#: Fields of a measurement that a record's measurement lines leave out, where declared
+#: ``compare=False`` (no part of the measurement's value): what the search keeps to re-fit its
+#: peaks without motion (``FaceMeasurement.probes``), bulky, and read by no solver (the re-fit
+#: is the measure step's). Every other field is kept, whatever it is.
 SEARCH_ONLY = frozenset({"probes"})
 #: Packages whose dataclasses a record may name (``module:Qualname``) and a replay rebuild.
 _PACKAGES = ("ucal.", "drivers.")
@@ -101,7 +102,7 @@ class RecordError(InputError):
 def encode(value: Any, *, measurement: bool = False) -> Any:
     """A JSON-able, tagged form of ``value`` (see the module docstring).
 
-    ``measurement``: leave out the fields of ucal's dataclasses named in ``SEARCH_ONLY``."""
+    ``measurement``: leave out the ``compare=False`` fields named in ``SEARCH_ONLY``."""
     if isinstance(value, bool) or value is None or isinstance(value, str):
         return value
     if isinstance(value, (int, np.integer)):
@@ -137,7 +138,7 @@ def _encode_dataclass(value: Any, measurement: bool) -> dict[str, Any]:
     fields = [
         f
         for f in dataclasses.fields(value)
-        if f.init and not (measurement and f.name in SEARCH_ONLY and name not in _DATACLASSES)
+        if f.init and not (measurement and f.name in SEARCH_ONLY and not f.compare)
     ]
     return {
         "dc": name,

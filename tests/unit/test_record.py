@@ -35,6 +35,7 @@ from ucal.record import (
 )
 from ucal.toolframe.measure import PeakResult
 from ucal.verify.procedure import VerifyJob
+from ucal.verify.solve import EdgeCheck
 
 PROFILE_TEXT = "schema = 1\n"
 
@@ -223,6 +224,9 @@ def test_measurements_round_trip_bit_for_bit_without_the_searchs_probes() -> Non
     assert value.distance == (101.25, 2e-4) and value.joints_deg.dtype == peak.joints_deg.dtype
     assert value.probes[0].shape == (4, 2) and isinstance(value.probes, tuple)
     assert decode(encode(np.zeros((0, 3)))).shape == (0, 3)
+    # a field of that name that is part of a measurement's value (a scan's probe count) stays
+    check = EdgeCheck(0, 1, 280.0, 280.1, 0.02, 21)
+    assert decode(json.loads(json.dumps(encode(check, measurement=True)))) == check
 
 
 def test_a_record_missing_a_measurement_line_is_refused() -> None:
