@@ -12,11 +12,22 @@ order is the same and lives here (``MeasuringProcedure.run``):
    and check the controller's status;
 6. **measure**, reporting each step with moves, reads and the time left (``ucal.progress``);
    the cell is closed (the robot told to STOP) as soon as the measurement ends, however it
-   ends;
+   ends; with ``--record`` the measurements are written as the record's measurement lines
+   (``Job.measurement_lines``) when the step ends;
 7. **solve** the measurements (``Job.solve``);
 8. **write** the result (the profile, or a picture), unless this is a dry run or the result
    may not be written;
 9. **result**: one ``Outcome`` (the JSON object, written or not, out of tolerance or not).
+
+A replay (``--replay FILE``) solves the record's measurement lines: steps 5 and 6 are skipped
+(``Job.measured_from`` rebuilds what the measure step handed on), nothing moves and nothing is
+asked. With ``--remeasure``, or a record that has no measurement lines (version 1, or a run
+cut off before its measure step ended: a one-line warning says so), the recorded device
+traffic answers steps 5 and 6 instead, and the search runs again. Either way the plan is the
+recorded one (the header's ``planned``), so that a change to the planners since leaves the
+record replayable; a record whose plan this ucal cannot rebuild is planned again (a warning
+says so), and then a header key the job writes besides ``options`` and ``plan`` (check's
+reference, say) that differs is refused (``RecordError``, exit 2).
 
 A ``Job`` is what one command contributes to these steps; ``Presenter`` is how the command
 line shows the plan, asks and displays progress (``ucal.cli.procedure``). ``on_step`` hears
@@ -39,7 +50,18 @@ from ucal.cell import CellProfile, WorldTruth
 from ucal.cell_choice import CellChoice
 from ucal.profile import check_writable, profile_lock
 from ucal.progress import MeasureStep, Progress, Report, time_left_s
-from ucal.record import Record, Recorder, sha256_text
+from ucal.record import (
+    SESSION,
+    Record,
+    Recorder,
+    RecordError,
+    decode,
+    encode,
+    measured_from_lines,
+    measurement_lines,
+    plain_json,
+    sha256_text,
+)
 from ucal.session import CellSession, check_status, open_cell, replay_cell
 from ucal.timing import DurationEstimate
 
@@ -73,10 +95,27 @@ class RunOptions:
     dry_run: bool = False  # nothing is written
     record_path: Path | None = None
     replay: Record | None = None  # a recorded run answers instead of a cell; nothing moves
+    remeasure: bool = False  # replay the recorded device traffic, not the measurements
 
     @property
     def writes(self) -> bool:
         return not self.dry_run and self.replay is None
+
+    def replays_measurements(self) -> bool:
+        """Whether the run solves a record's measurement lines (no cell, no measure step); a
+        warning when it would, but the record has none."""
+        if self.replay is None or self.remeasure:
+            return False
+        if not self.replay.measured:
+            log.warning(
+                "%s has no measurement lines (%s): replaying its device traffic",
+                self.replay.path,
+                "a version 1 record"
+                if self.replay.version == 1
+                else "the run was cut off before its measure step ended",
+            )
+            return False
+        return True
 
 
 @dataclass
@@ -107,6 +146,7 @@ class Job(Protocol[PlanT, MeasuredT, SolvedT]):
 
     command: str  # "calibrate", "tool-frame", "verify": the progress display's title
     profile: CellProfile
+    profile_path: Path
 
     def profile_text(self) -> str:
         """The profile as the run reads it, for a ``--record`` file."""
@@ -130,6 +170,14 @@ class Job(Protocol[PlanT, MeasuredT, SolvedT]):
         ...
 
     def measure(self, plan: PlanT, session: CellSession, report: Report) -> MeasuredT: ...
+
+    def measurement_lines(self, data: MeasuredT) -> list[dict[str, Any]]:
+        """The measure step's data as a record's measurement lines (``ucal.record``)."""
+        ...
+
+    def measured_from(self, lines: list[dict[str, Any]], plan: PlanT, source: str) -> MeasuredT:
+        """The measure step's data again, from the lines ``measurement_lines`` wrote."""
+        ...
 
     def solve(self, plan: PlanT, measured: Measured[MeasuredT]) -> SolvedT: ...
 
@@ -187,6 +235,13 @@ class ProfileJob:
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         return hold_profile(self.profile_path, options)
 
+    def measurement_lines(self, data: Any) -> list[dict[str, Any]]:
+        """One line per measurement of the measure step's dataclass (``ucal.record``)."""
+        return measurement_lines(data)
+
+    def measured_from(self, lines: list[dict[str, Any]], plan: Any, source: str) -> Any:
+        return measured_from_lines(lines, source)
+
 
 class CheckingJob(ProfileJob):
     """What the jobs that check the cell against its profile share (``verify`` and its region
@@ -233,7 +288,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         self._enter(Step.CHECK)
         with job.check(options):
             self._enter(Step.PLAN)
-            plan = job.plan()
+            plan = self._plan()
             estimate = job.estimate(plan)
             self._enter(Step.SHOW)
             self.presenter.show_plan(job.summary(plan) + "\n" + estimate.describe())
@@ -242,7 +297,10 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 assert options.cell is not None
                 self.presenter.confirm(options.cell)
             with self._recorder(plan) as recorder:
-                measured = self._measure(plan, estimate, recorder)
+                if options.replay is not None and options.replays_measurements():
+                    measured = self._measured(plan, options.replay)
+                else:
+                    measured = self._measure(plan, estimate, recorder)
                 self._enter(Step.SOLVE)
                 solved = job.solve(plan, measured)
                 self._enter(Step.WRITE)
@@ -274,9 +332,51 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                 "profile_text": text,
                 "cell": self.options.cell.address,
                 **self.job.record_header(plan),
+                **self._planned(plan),
             }
         ) as recorder:
             yield recorder
+
+    def _planned(self, plan: PlanT) -> dict[str, Any]:
+        """The header's ``planned``: the whole plan, tagged (none, with a warning, for a plan
+        a record cannot hold: a replay then plans again)."""
+        try:
+            return {"planned": encode(plan)}
+        except TypeError as e:
+            log.warning("the plan is not recorded (%s): a replay plans again", e)
+            return {}
+
+    def _plan(self) -> PlanT:
+        """The job's plan; a replay's is the recorded one (the header's ``planned``), so that a
+        change to the planner since leaves the record replayable."""
+        record = self.options.replay
+        if record is None or "planned" not in record.header:
+            return self.job.plan()
+        try:
+            plan: PlanT = decode(record.header["planned"])
+        except RecordError as e:
+            log.warning("%s: its plan is not this ucal's (%s): planning again", record.path, e)
+            return self.job.plan()
+        return plan
+
+    def _measured(self, plan: PlanT, record: Record) -> Measured[MeasuredT]:
+        """What the measure step handed on, from the record's measurement lines."""
+        self._check_plan(plan, record)
+        session = record.session()
+        data = self.job.measured_from(record.measurements, plan, str(record.path))
+        echo_timing = dict(session.get("echo_timing", {}))
+        return Measured(data, float(session.get("duration_s", 0.0)), None, echo_timing)
+
+    def _check_plan(self, plan: PlanT, record: Record) -> None:
+        """Refuse a replay whose plan the recorded run did not measure: a header key the job
+        writes besides ``options`` and ``plan`` that differs (``RecordError``, exit 2)."""
+        for key, value in plain_json(self.job.record_header(plan)).items():
+            if key not in ("options", "plan") and record.header.get(key) != value:
+                raise RecordError(
+                    f"{record.path}: the run was recorded with another {key} than this replay "
+                    f"reads from {self.job.profile_path}'s history: it cannot solve those "
+                    "measurements"
+                )
 
     def _open(self, recorder: Recorder | None) -> AbstractContextManager[CellSession]:
         profile, options = self.job.profile, self.options
@@ -316,4 +416,30 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                     )
 
                 data = self.job.measure(plan, session, report)
-            return Measured(data, session.elapsed_s, session.truth, session.echo_timing.as_json())
+            measured = Measured(
+                data, session.elapsed_s, session.truth, session.echo_timing.as_json()
+            )
+        if recorder is not None:
+            self._record_measurements(recorder, measured)
+        return measured
+
+    def _record_measurements(self, recorder: Recorder, measured: Measured[MeasuredT]) -> None:
+        """Write the measurement lines; measurements a record cannot hold (a value of a type it
+        does not know) are left out with a warning, not the run: its traffic is recorded."""
+        try:
+            lines = self.job.measurement_lines(measured.data)
+            lines.append(
+                {
+                    "of": SESSION,
+                    "duration_s": measured.duration_s,
+                    "echo_timing": plain_json(measured.echo_timing),
+                }
+            )
+        except (TypeError, ValueError) as e:
+            log.warning(
+                "%s: the measurements are not recorded (%s): a replay replays the traffic",
+                recorder.path,
+                e,
+            )
+            return
+        recorder.measurements(lines)

@@ -1,4 +1,6 @@
-"""``calibrate --record`` / ``--replay``: a recorded run solves again offline, bit for bit."""
+"""``--record`` / ``--replay``: a recorded run solves again offline, bit for bit, from its
+measurement lines alone or (``--remeasure``) from its device traffic; calibrate, tool-frame,
+verify and check alike."""
 
 from __future__ import annotations
 
@@ -10,11 +12,16 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from ucal.profile import default_profile_text
 from ucal.record import read_record
 
 pytestmark = pytest.mark.system
+
+Examples = Callable[[list[str]], list[tuple[dict, list[str]]]]
+RunMain = Callable[[list[str]], tuple[int, str, str]]
 
 
 def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -47,13 +54,57 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     return d, json.loads(out.stdout)
 
 
-def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
+#: Result fields only a run on the simulated cell has (the simulator's hidden truth), and one
+#: only a run that creates its profile sets.
+SIMULATED = {"truth", "truth_offsets_deg", "truth_offsets_block_deg", "simulated_error", "created"}
+
+
+def stripped(path: Path, d: Path) -> Path:
+    """The record at ``path`` with only its header and measurement lines."""
+    out = d / f"{path.stem}.stripped.jsonl"
+    lines = path.read_text().splitlines()
+    kept = [line for line in lines if json.loads(line)["kind"] in ("header", "measurement")]
+    out.write_text("\n".join(kept) + "\n")
+    return out
+
+
+def same_result(replayed: dict, recorded: dict) -> None:
+    """A replay's result is the recorded one, field for field, but for the simulator's truth."""
+    assert replayed.pop("replayed")
+    assert set(recorded) - set(replayed) <= SIMULATED
+    assert {k: v for k, v in recorded.items() if k not in SIMULATED} == replayed
+
+
+def test_every_line_has_a_kind(recorded: tuple[Path, dict]) -> None:
+    d, result = recorded
+    kinds = [json.loads(line)["kind"] for line in (d / "run.jsonl").read_text().splitlines()]
+    assert kinds[0] == "header" and kinds[-1] == "result"
+    assert set(kinds[1:-1]) == {"call", "measurement"}
+    # one line per face measured, the run's counters, the session's duration
+    assert kinds.count("measurement") == len(result["residuals"]) + 2
+
+
+def test_replay_of_the_measurements_alone_gives_the_recorded_result(
+    recorded: tuple[Path, dict], run_main: RunMain, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    d, result = recorded
+    measurements = stripped(d / "run.jsonl", d)
+    monkeypatch.chdir(d)
+    code, out, err = run_main(["calibrate", "cell.toml", "--replay", measurements.name, "--json"])
+    assert code in (0, 1), err
+    again = json.loads(out)
+    assert np.allclose(again["joint_offsets_deg"], result["joint_offsets_deg"], rtol=0, atol=1e-9)
+    assert again["std_deg"] == result["std_deg"]
+    same_result(again, result)
+
+
+def test_replay_with_remeasure_searches_again_on_the_traffic(recorded: tuple[Path, dict]) -> None:
     d, result = recorded
     record = read_record(d / "run.jsonl")
     assert record.result is not None
     assert record.result["joint_offsets_deg"] == result["joint_offsets_deg"]
     assert len(record.calls) > result["pulser_reads"]  # every reading, and more
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--json", cwd=d)
+    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--remeasure", "--json", cwd=d)
     assert out.returncode in (0, 1), out.stderr
     again = json.loads(out.stdout)
     assert again["joint_offsets_deg"] == result["joint_offsets_deg"]  # bit for bit
@@ -63,7 +114,7 @@ def test_replay_gives_the_recorded_result(recorded: tuple[Path, dict]) -> None:
 
 
 def test_replay_with_another_method_solves_the_same_measurements(
-    recorded: tuple[Path, dict], help_examples: Callable[[list[str]], list[tuple[dict, list[str]]]]
+    recorded: tuple[Path, dict], help_examples: Examples
 ) -> None:
     d, result = recorded
     # as `ucal calibrate --help` shows it (every other example runs in test_help_examples)
@@ -149,3 +200,92 @@ def test_a_run_killed_mid_way_leaves_a_readable_record(tmp_path: Path) -> None:
     out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", cwd=tmp_path)
     assert out.returncode == 2
     assert "cut off" in out.stderr
+
+
+def test_a_version_1_record_still_replays(recorded: tuple[Path, dict]) -> None:
+    """The format before kinds: a header, the device calls, an end line; no measurements."""
+    d, result = recorded
+    v1 = []
+    for line in (d / "run.jsonl").read_text().splitlines():
+        obj = json.loads(line)
+        kind = obj.pop("kind")
+        if kind == "header":
+            v1.append({**obj, "version": 1})
+        elif kind == "call":
+            v1.append(obj)
+        elif kind == "result":
+            v1.append({"end": obj["result"]})
+    (d / "v1.jsonl").write_text("".join(json.dumps(o) + "\n" for o in v1))
+    out = ucal("calibrate", "cell.toml", "--replay", "v1.jsonl", "--json", cwd=d)
+    assert out.returncode in (0, 1), out.stderr
+    assert "version 1" in out.stderr and "replaying its device traffic" in out.stderr
+    again = json.loads(out.stdout)
+    assert again["joint_offsets_deg"] == result["joint_offsets_deg"]  # bit for bit
+    assert again["std_deg"] == result["std_deg"]
+
+
+@pytest.fixture(scope="module", params=["tool-frame", "verify", "check"])
+def recorded_command(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[str, Path, dict, int]:
+    """One short recorded run of each other moving command on the demo cell."""
+    command = request.param
+    d = tmp_path_factory.mktemp(command)
+    (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
+    # the check is the profile's first: it goes into the history as the reference, which its
+    # replay must not then compare it against
+    few = {"tool-frame": ["--points", "2"], "verify": ["--points", "1"], "check": []}[command]
+    dry_run = [] if command == "check" else ["--dry-run"]
+    args = [command, "cell.toml", "--sim", "--yes", "--json", *dry_run, *few]
+    out = ucal(*args, "--record", "run.jsonl", cwd=d)
+    assert out.returncode in (0, 1), out.stderr
+    return command, d, json.loads(out.stdout), out.returncode
+
+
+def test_other_commands_replay_their_measurements_to_their_recorded_result(
+    recorded_command: tuple[str, Path, dict, int],
+    help_examples: Examples,
+    run_main: RunMain,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    command, d, result, code = recorded_command
+    record = read_record(d / "run.jsonl")
+    assert record.command == command and record.measured
+    assert record.result is not None
+    assert record.result == {k: v for k, v in result.items() if k not in ("error", "exit_code")}
+    # as `ucal COMMAND --help` shows it, on the record stripped to its header and measurements
+    (args,) = [a for _, a in help_examples([command]) if "--replay" in a]
+    assert args == [command, "cell.toml", "--replay", args[3], "--json"]
+    stripped(d / "run.jsonl", d).rename(d / args[3])
+    before = files(d)
+    monkeypatch.chdir(d)
+    exit_code, out, err = run_main(args)
+    assert exit_code == code, err  # in or out of tolerance as recorded
+    again = json.loads(out)
+    if command == "check":  # the recorded check went into the history, its replay does not
+        assert result["recorded"] and result["history_entry"] == 1
+        assert again.pop("recorded") is False and again.pop("history_entry") is None
+        result = {k: v for k, v in result.items() if k not in ("recorded", "history_entry")}
+    same_result(again, result)
+    assert files(d) == before  # a replay moves nothing and writes nothing
+
+
+def files(d: Path) -> dict[Path, bytes]:
+    return {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
+
+
+def test_a_replay_refuses_what_the_record_did_not_measure(
+    recorded_command: tuple[str, Path, dict, int],
+    run_main: RunMain,
+) -> None:
+    command, d, _, _ = recorded_command
+    other = {"tool-frame": ["--method", "paper"], "verify": ["--points", "5"]}
+    for args, words in (
+        ([*other.get(command, ["--baseline"])], "it cannot be replayed with"),
+        (["--remeasure"], "--remeasure"),
+    ):
+        replay = ["--replay", str(d / "run.jsonl")] if args != ["--remeasure"] else []
+        code, _, err = run_main([command, str(d / "cell.toml"), *replay, *args])
+        assert code == 2 and words in err, err
+    code, _, err = run_main(["calibrate", str(d / "cell.toml"), "--replay", str(d / "run.jsonl")])
+    assert code == 2 and f"a record of `ucal {command}`" in err, err

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -15,6 +17,7 @@ from ucal.cell_choice import CellChoice
 from ucal.cli.progress import StepProgress
 from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.progress import MeasureStep, Progress, time_left_s
+from ucal.record import read_record
 from ucal.session import TimingMode
 from ucal.timing import DurationEstimate
 
@@ -36,7 +39,8 @@ class Job:
     """Records what the procedure asks of it."""
 
     command = "fake"
-    profile = None
+    profile = SimpleNamespace(path="cell.toml")
+    profile_path = Path("cell.toml")
 
     def __init__(self, log: list[str], ok: bool = True) -> None:
         self.log = log
@@ -65,6 +69,13 @@ class Job:
         report(MeasureStep("face base/XY", 0, 2, "base", "XY"))
         report(MeasureStep("face base/YZ", 1, 2, "base", "YZ"))
         return "measured"
+
+    def measurement_lines(self, data: str) -> list[dict[str, Any]]:
+        return [{"of": "run", "data": data}]
+
+    def measured_from(self, lines: list[dict[str, Any]], plan: str, source: str) -> str:
+        self.log.append("job.measured_from")
+        return str(lines[0]["data"])
 
     def solve(self, plan: str, measured: Measured[str]) -> str:
         assert measured.data == "measured" and measured.duration_s == 10.0
@@ -188,3 +199,47 @@ def test_faces_and_configurations_serialise_as_before() -> None:
     assert FACE_ORDER == (2, 0, 1) and FACE_NAMES == ("YZ", "XZ", "XY")
     assert f"{Configuration.BASE}/{FACE_NAMES[Face.XZ]}" == "base/XZ"
     assert np.eye(3)[:, Face.XZ].tolist() == [0.0, 1.0, 0.0]
+
+
+def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
+    fake_cell: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "run.jsonl"
+    run([], RunOptions(CellChoice("", None, None), yes=True, dry_run=True, record_path=path))
+    record = read_record(path)
+    assert [line["of"] for line in record.measurements] == ["run", "session"]
+    assert record.session()["duration_s"] == 10.0
+    record.header["planned"] = "the recorded plan"  # as the planner had it then
+    log: list[Any] = []
+    outcome, _ = run(log, RunOptions(None, replay=record))
+    assert "show: summary of the recorded plan" in log
+    assert [e for e in log if isinstance(e, Step)] == [
+        s for s in Step if s not in (Step.OPEN, Step.MEASURE)
+    ]
+    assert "job.measured_from" in log and "job.write" not in log and not outcome.written
+    assert outcome.result["timing"] == "gate"  # as the recorded session timed its echoes
+    # with --remeasure the recorded traffic answers (faked here: the fake cell made no calls)
+    monkeypatch.setattr(
+        procedure_module,
+        "replay_cell",
+        lambda profile, record: contextlib.nullcontext(FakeSession()),
+    )
+    log.clear()
+    run(log, RunOptions(None, replay=record, remeasure=True))
+    assert Step.MEASURE in log and "job.measured_from" not in log
+
+
+def test_measurements_a_record_cannot_hold_leave_the_run_and_its_traffic(
+    fake_cell: None, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    class Unrecordable(Job):
+        def measurement_lines(self, data: str) -> list[dict[str, Any]]:
+            raise TypeError("cannot record a Thing")
+
+    path = tmp_path / "run.jsonl"
+    options = RunOptions(CellChoice("", None, None), yes=True, dry_run=True, record_path=path)
+    outcome = MeasuringProcedure(Unrecordable([]), options, Presenter([])).run()
+    assert outcome.result["timing"] == "gate"  # the run went on to its result
+    record = read_record(path)
+    assert record.result is not None and not record.measured
+    assert "cannot record a Thing" in caplog.text

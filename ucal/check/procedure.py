@@ -59,6 +59,8 @@ class CheckJob(ProfileJob):
         return {
             "options": {"baseline": self.baseline},
             "plan": plan_rows(plan.targets),
+            # a replay compares against it as recorded (the plan, ucal.procedure), whatever
+            # the history holds by then
             "reference": None if plan.reference is None else plan.reference.id,
         }
 

@@ -15,7 +15,6 @@ from typing import Any
 
 import click
 import numpy as np
-import tomlkit
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -25,19 +24,18 @@ from ucal.calibration.procedure import FullCalibration, OffsetsCalibration, Offs
 from ucal.cell import CellProfile
 from ucal.cli.options import (
     cell_from_options,
-    cell_options_typed,
     check_can_confirm,
-    check_output,
     controller_option,
     dry_run_option,
     json_option,
     pulser_option,
+    record_options,
     sim_option,
     table_console,
     warn,
     yes_option,
 )
-from ucal.cli.procedure import finish, run_job
+from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
 from ucal.errors import InputError, NotConfirmed
 from ucal.models import DEFAULT_MODEL
 from ucal.procedure import Job, Outcome, RunOptions
@@ -45,10 +43,8 @@ from ucal.profile import (
     create_profile,
     default_profile_text,
     load_profile,
-    profile_from_data,
     real_path,
 )
-from ucal.record import read_record
 
 log = logging.getLogger(__name__)
 
@@ -106,19 +102,7 @@ Examples:
     help="Write the result even when it is out of tolerance: a misfit, or the paper method's "
     "offsets less certain than 0.02 deg (the verdict is recorded in the profile history).",
 )
-@click.option(
-    "--record",
-    "record_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Write every device call of the run (joint readings, moves, gain, amplitude, "
-    "TOF, times), the plan and the profile to FILE as JSON lines, as it goes.",
-)
-@click.option(
-    "--replay",
-    "replay_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Solve a recorded run again (any --method) without moving anything; writes nothing.",
-)
+@record_options
 @yes_option
 @dry_run_option
 @json_option
@@ -134,6 +118,7 @@ def cli(
     force: bool,
     record_path: Path | None,
     replay_path: Path | None,
+    remeasure: bool,
     yes: bool,
     dry_run: bool,
     as_json: bool,
@@ -159,23 +144,31 @@ def cli(
             "--level full identifies the kinematic model by least squares: it "
             "takes --method exact only"
         )
-    if replay_path is not None:
-        if cell_options_typed(click.get_current_context()) or record_path is not None:
-            raise InputError(
-                "--replay solves a recorded run: it takes no --sim, --controller, "
-                "--pulser or --record"
-            )
-        ctx = click.get_current_context()
-        typed = {
-            name
-            for name in ("level", "postures")
-            if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE
-        }
-        _replay(profile_path, replay_path, method, beam, as_json, typed, level, postures)
+    replayed = recorded_run(
+        "calibrate",
+        profile_path,
+        record_path,
+        replay_path,
+        remeasure,
+        {"level": "level", "max_postures": "postures"},
+    )
+    if replayed is not None:
+        record, recorded_profile = replayed
+        options = record.options
+        job = _job(
+            options.get("level", "offsets"),
+            recorded_profile,
+            profile_path,
+            method,
+            beam,
+            False,
+            options.get("max_postures"),
+        )
+        outcome = replay_job(job, record, remeasure)
+        warn_weak(outcome)
+        finish(outcome, as_json, show_outcome)
         return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
-    if record_path is not None:
-        check_output(record_path)
     created = False
     scratch = contextlib.ExitStack()  # holds a dry run's default profile until the run ends
     if not profile_path.exists() and cell.sim_world is not None:
@@ -226,51 +219,6 @@ def _job(
     if level == "full":
         return FullCalibration(profile, profile_path, beam, force, postures)
     return OffsetsCalibration(profile, profile_path, method, beam, force)
-
-
-def _replay(
-    profile_path: Path,
-    record_path: Path,
-    method: str,
-    beam: str,
-    as_json: bool,
-    typed: set[str],
-    level: str,
-    postures: int | None,
-) -> None:
-    """Solve a recorded run again: its profile, plan and device traffic; nothing moves.
-
-    The record fixes the level and the postures: a replay asked for others (``typed``: the
-    options given on the command line) cannot give them and says so (exit 2) rather than
-    answering another question than the one asked.
-    """
-    record = read_record(record_path)
-    profile = profile_from_data(
-        tomlkit.parse(record.profile_text),
-        f"{record_path} (recorded profile)",
-        base_dir=profile_path.parent,
-    )
-    if record.result is None:
-        log.warning("%s has no end line: the recorded run was cut off", record_path)
-    options = record.options
-    recorded_level = options.get("level", "offsets")
-    if "level" in typed and level != recorded_level:
-        raise InputError(
-            f"{record_path}: a record of --level {recorded_level}; it cannot be replayed as "
-            f"--level {level} (the postures of that level were never measured)"
-        )
-    if "postures" in typed and postures != options.get("max_postures"):
-        raise InputError(
-            f"{record_path}: recorded with --postures {options.get('max_postures')}; a "
-            "replay solves the postures that were measured (leave --postures out)"
-        )
-    job = _job(
-        recorded_level, profile, profile_path, method, beam, False, options.get("max_postures")
-    )
-    outcome = run_job(job, RunOptions(None, yes=True, dry_run=True, replay=record))
-    outcome.result["replayed"] = str(record_path)
-    warn_weak(outcome)
-    finish(outcome, as_json, show_outcome)
 
 
 def warn_weak(outcome: Outcome) -> None:

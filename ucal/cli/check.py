@@ -15,11 +15,12 @@ from ucal.cli.options import (
     dry_run_option,
     json_option,
     pulser_option,
+    record_options,
     sim_option,
     table_console,
     yes_option,
 )
-from ucal.cli.procedure import finish, run_job
+from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
 
@@ -31,6 +32,8 @@ Examples:
   ucal check cell.toml --sim --yes
   ucal check cell.toml --sim world.toml --json --yes
   ucal check cell.toml --sim --baseline --yes
+  ucal check cell.toml --sim --yes --record check.jsonl
+  ucal check cell.toml --replay check.jsonl --json
   ucal check cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502
 """,
@@ -45,6 +48,7 @@ Examples:
     help="Record this check as the new reference, whatever the history holds (after a "
     "repair or a deliberate change); it is judged against the profile's calibration only.",
 )
+@record_options
 @yes_option
 @dry_run_option
 @json_option
@@ -54,6 +58,9 @@ def cli(
     controller_url: str | None,
     pulser_url: str | None,
     baseline: bool,
+    record_path: Path | None,
+    replay_path: Path | None,
+    remeasure: bool,
     yes: bool,
     dry_run: bool,
     as_json: bool,
@@ -72,10 +79,18 @@ def cli(
     Every check is appended to the profile's history (ucal profile history); the profile
     itself is never written.
     """
+    replayed = recorded_run(
+        "check", profile_path, record_path, replay_path, remeasure, {"baseline": "baseline"}
+    )
+    if replayed is not None:
+        record, recorded_profile = replayed
+        job = CheckJob(recorded_profile, profile_path, bool(record.options.get("baseline")))
+        finish(replay_job(job, record, remeasure), as_json, show_outcome)
+        return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
     job = CheckJob(profile, profile_path, baseline)
-    finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)
+    finish(run_job(job, RunOptions(cell, yes, dry_run, record_path)), as_json, show_outcome)
 
 
 def show_outcome(outcome: Outcome) -> None:

@@ -166,6 +166,34 @@ dry_run_option = click.option(
     "--dry-run", is_flag=True, help="Run against the simulator and write nothing."
 )
 
+_record_option = click.option(
+    "--record",
+    "record_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    metavar="FILE",
+    help="Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
+    "call (joint readings, moves, gain, readings, times), then the measurements the solver "
+    "receives and the result.",
+)
+_replay_option = click.option(
+    "--replay",
+    "replay_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    metavar="FILE",
+    help="Solve the measurements of a --record FILE again; moves nothing, asks nothing, "
+    "writes nothing.",
+)
+_remeasure_option = click.option(
+    "--remeasure",
+    is_flag=True,
+    help="With --replay: run the search again on the recorded device traffic instead.",
+)
+
+
+def record_options(f: F) -> F:
+    """Decorator: ``--record FILE``, ``--replay FILE`` and ``--remeasure`` (``ucal.record``)."""
+    return _record_option(_replay_option(_remeasure_option(f)))
+
 
 def _sim_from_env(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """``UCAL_SIM=1`` is ``--sim`` (demo truth), ``UCAL_SIM=WORLD`` is ``--sim WORLD``."""

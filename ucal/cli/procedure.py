@@ -4,23 +4,37 @@
 the first motion naming the cell, and displays progress (``ucal.cli.progress``); ``run_job``
 runs a command's job through the procedure's steps; ``finish`` prints the outcome: the
 command's tables on stdout, or the one JSON object with ``--json``, and exit 1 when out of
-tolerance.
+tolerance. ``recorded_run`` checks ``--record``/``--replay``/``--remeasure`` and loads the
+run a replay solves again; ``replay_job`` runs it.
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import click
+import tomlkit
+from click.core import ParameterSource
 
+from ucal.cell import CellProfile
 from ucal.cell_choice import CellChoice
-from ucal.cli.options import ask_to_move, check_can_confirm, emit_json, info
+from ucal.cli.options import (
+    ask_to_move,
+    cell_options_typed,
+    check_can_confirm,
+    check_output,
+    emit_json,
+    info,
+)
 from ucal.cli.progress import StepProgress
-from ucal.errors import OutOfToleranceError
+from ucal.errors import InputError, OutOfToleranceError
 from ucal.procedure import Job, MeasuringProcedure, Outcome, RunOptions, Step
+from ucal.profile import profile_from_data
 from ucal.progress import Progress
+from ucal.record import Record, read_record
 
 
 class ConsolePresenter:
@@ -68,3 +82,63 @@ def finish(outcome: Outcome, as_json: bool, show: Callable[[Outcome], None]) -> 
         raise OutOfToleranceError(outcome.message, outcome.result)
     if as_json:
         emit_json(outcome.result)
+
+
+def recorded_run(
+    command: str,
+    profile_path: Path,
+    record_path: Path | None,
+    replay_path: Path | None,
+    remeasure: bool,
+    fixed: dict[str, str],
+) -> tuple[Record, CellProfile] | None:
+    """The record a ``--replay`` solves again and its profile (None without ``--replay``, the
+    ``--record`` file's directory checked). Exit 2 (``InputError``) for a replay given a cell or
+    ``--record``, ``--remeasure`` without ``--replay``, a record of another command, and an
+    option typed on the command line that would measure something else than was recorded:
+    ``fixed`` maps each such option's key in the record's ``options`` to its parameter."""
+    if replay_path is None:
+        if remeasure:
+            raise InputError("--remeasure replays a record's device traffic: give --replay FILE")
+        if record_path is not None:
+            check_output(record_path)
+        return None
+    ctx = click.get_current_context()
+    if cell_options_typed(ctx) or record_path is not None:
+        raise InputError(
+            "--replay solves a recorded run: it takes no --sim, --controller, --pulser or --record"
+        )
+    record = read_record(replay_path)
+    if record.command != command:
+        raise InputError(
+            f"{replay_path}: a record of `ucal {record.command}`; `ucal {command}` cannot replay it"
+        )
+    options = record.options
+    flags = {p.name: p.opts[0] for p in ctx.command.params}
+    for key, name in fixed.items():
+        typed = ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE
+        if typed and ctx.params[name] != options.get(key):
+            flag = flags[name]
+            raise InputError(
+                f"{replay_path}: recorded with {flag} {_shown(options.get(key))}; it cannot be "
+                f"replayed with {flag} {_shown(ctx.params[name])}: a replay solves what was "
+                f"measured (leave {flag} out)"
+            )
+    profile = profile_from_data(
+        tomlkit.parse(record.profile_text),
+        f"{replay_path} (recorded profile)",
+        base_dir=profile_path.parent,
+    )
+    return record, profile
+
+
+def _shown(value: Any) -> str:
+    return "(not given)" if value is None else str(value)
+
+
+def replay_job(job: Job[Any, Any, Any], record: Record, remeasure: bool) -> Outcome:
+    """Run ``job`` on a record (``recorded_run``): nothing moves, nothing is asked or written."""
+    options = RunOptions(None, yes=True, dry_run=True, replay=record, remeasure=remeasure)
+    outcome = run_job(job, options)
+    outcome.result["replayed"] = str(record.path)
+    return outcome

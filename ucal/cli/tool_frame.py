@@ -14,10 +14,11 @@ from ucal.cli.options import (
     dry_run_option,
     json_option,
     pulser_option,
+    record_options,
     sim_option,
     yes_option,
 )
-from ucal.cli.procedure import finish, run_job
+from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
 from ucal.toolframe.procedure import ToolFrameCalibration
@@ -32,6 +33,8 @@ Examples:
   ucal tool-frame cell.toml --sim --yes
   ucal tool-frame cell.toml --sim examples/world.toml --method paper --points 100 --yes --json
   ucal tool-frame cell.toml --sim examples/world.toml --dry-run
+  ucal tool-frame cell.toml --sim --yes --record tool.jsonl
+  ucal tool-frame cell.toml --replay tool.jsonl --json
   ucal tool-frame cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502
 """,
@@ -63,6 +66,7 @@ Examples:
     help="Write the result even when it is out of tolerance or a misfit (the reason "
     "is recorded in the profile history).",
 )
+@record_options
 @yes_option
 @dry_run_option
 @json_option
@@ -74,6 +78,9 @@ def cli(
     method: str,
     points: int | None,
     force: bool,
+    record_path: Path | None,
+    replay_path: Path | None,
+    remeasure: bool,
     yes: bool,
     dry_run: bool,
     as_json: bool,
@@ -95,10 +102,26 @@ def cli(
     keeps the profile's. Nothing is written with --dry-run, on failure, or when the result is
     out of tolerance (exit 1) unless --force.
     """
+    replayed = recorded_run(
+        "tool-frame",
+        profile_path,
+        record_path,
+        replay_path,
+        remeasure,
+        {"method": "method", "points": "points"},
+    )
+    if replayed is not None:
+        record, recorded_profile = replayed
+        options = record.options
+        job = ToolFrameCalibration(
+            recorded_profile, profile_path, options.get("method", "exact"), options.get("points")
+        )
+        finish(replay_job(job, record, remeasure), as_json, show_outcome)
+        return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
     job = ToolFrameCalibration(profile, profile_path, method, points, force)
-    finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)
+    finish(run_job(job, RunOptions(cell, yes, dry_run, record_path)), as_json, show_outcome)
 
 
 def show_outcome(outcome: Outcome) -> None:

@@ -14,11 +14,12 @@ from ucal.cli.options import (
     dry_run_option,
     json_option,
     pulser_option,
+    record_options,
     sim_option,
     table_console,
     yes_option,
 )
-from ucal.cli.procedure import finish, run_job
+from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
 from ucal.errors import InputError
 from ucal.procedure import Outcome, RunOptions
 from ucal.profile import load_profile
@@ -36,6 +37,8 @@ Examples:
   ucal verify cell.toml --sim --yes
   ucal verify cell.toml --sim examples/world.toml --points 4 --json --yes
   ucal verify cell.toml --sim --region 12 --yes
+  ucal verify cell.toml --sim --yes --points 2 --record verify.jsonl
+  ucal verify cell.toml --replay verify.jsonl --json
   ucal verify cell.toml --controller tcp://192.168.0.254:11000 \\
       --pulser modbus-tcp://192.168.0.20:502 --plot report.png
 """,
@@ -75,6 +78,7 @@ Examples:
     help="Instead: check the kinematic model against the block's faces from N "
     "postures spread like a full calibration's (ucal.verify.region).",
 )
+@record_options
 @yes_option
 @dry_run_option
 @json_option
@@ -87,6 +91,9 @@ def cli(
     plot_path: Path | None,
     tolerance_mm: float | None,
     region: int | None,
+    record_path: Path | None,
+    replay_path: Path | None,
+    remeasure: bool,
     yes: bool,
     dry_run: bool,
     as_json: bool,
@@ -115,11 +122,38 @@ def cli(
     --dry-run). The run passes when no point deviates more than the tolerance on any axis after
     calibration; otherwise exit 1 (within 0.05 mm of it: "marginal").
     """
+    replayed = recorded_run(
+        "verify",
+        profile_path,
+        record_path,
+        replay_path,
+        remeasure,
+        {"points": "n_points", "region": "region"},
+    )
+    if replayed is not None:
+        record, recorded_profile = replayed
+        options = record.options
+        if options.get("region") is not None:
+            region_replay = RegionJob(
+                recorded_profile, profile_path, options["region"], tolerance_mm
+            )
+            finish(replay_job(region_replay, record, remeasure), as_json, show_region)
+            return
+        verify = VerifyJob(
+            recorded_profile,
+            profile_path,
+            options.get("points", n_points),
+            tolerance_mm,
+            recorded_inputs=record.header.get("inputs"),
+        )
+        finish(replay_job(verify, record, remeasure), as_json, show_outcome)
+        return
     cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
     profile = load_profile(profile_path)
+    run = RunOptions(cell, yes, dry_run, record_path)
     if region is not None:
         region_job = RegionJob(profile, profile_path, region, tolerance_mm)
-        finish(run_job(region_job, RunOptions(cell, yes, dry_run)), as_json, show_region)
+        finish(run_job(region_job, run), as_json, show_region)
         return
     if plot_path is None:
         plot_path = verify_picture_path(profile_path)
@@ -127,7 +161,7 @@ def cli(
         raise InputError(f"--plot {plot_path}: directory {plot_path.parent} does not exist")
     _check_plot_format(plot_path)
     job = VerifyJob(profile, profile_path, n_points, tolerance_mm, plot_path)
-    finish(run_job(job, RunOptions(cell, yes, dry_run)), as_json, show_outcome)
+    finish(run_job(job, run), as_json, show_outcome)
 
 
 def show_outcome(outcome: Outcome) -> None:

@@ -23,6 +23,7 @@ from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
 from ucal.progress import Report
+from ucal.record import decode, encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
 from ucal.sim.truth import verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
@@ -58,8 +59,12 @@ class VerifyJob(CheckingJob):
         n_points: int = DEFAULT_POINTS,
         tolerance_mm: float | None = None,
         plot_path: Path | None = None,
+        recorded_inputs: dict[str, Any] | None = None,
     ) -> None:
+        """``recorded_inputs``: a replayed record's ``inputs``, read in place of the history
+        (which may have moved on since the run)."""
         super().__init__(profile, profile_path, tolerance_mm)
+        self.recorded_inputs = recorded_inputs
         self.n_points = n_points
         self.plot_path = plot_path
         self.before = BeforeProfile(np.zeros(6), "")
@@ -68,10 +73,15 @@ class VerifyJob(CheckingJob):
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets and block from the profile's history, the sound speed of its
-        last calibration and its J1 gauge; nothing is held (the profile is not written)."""
-        self.before = offsets_before_calibration(self.profile_path)
-        self.sound = sound_speed_for_verify(self.profile, self.profile_path)
-        self.gauge = calibration_gauge(self.profile, self.profile_path)
+        last calibration and its J1 gauge (a replay's: as recorded); nothing is held (the
+        profile is not written)."""
+        if self.recorded_inputs is not None:
+            inputs = decode(self.recorded_inputs)
+            self.before, self.sound, self.gauge = inputs["before"], inputs["sound"], inputs["gauge"]
+        else:
+            self.before = offsets_before_calibration(self.profile_path)
+            self.sound = sound_speed_for_verify(self.profile, self.profile_path)
+            self.gauge = calibration_gauge(self.profile, self.profile_path)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
@@ -93,12 +103,24 @@ class VerifyJob(CheckingJob):
         return faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
 
     def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
-        return {"options": {"points": self.n_points}, "plan": []}
+        # what the run read from the profile's history: a replay reads these instead
+        inputs = {"before": self.before, "sound": self.sound, "gauge": self.gauge}
+        return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
 
     def measure(self, plan: VerifyPlan, session: CellSession, report: Report) -> VerifyResult:
         # times of flight converted with the measured sound speed (as a water temperature)
         measuring = self.profile.replace(water_temperature_c=self.sound.temperature_c)
         return run_verify(measuring, plan, session.rig, report)
+
+    def measurement_lines(self, data: VerifyResult) -> list[dict[str, Any]]:
+        """One line per point and edge check; the plan is the replay's own."""
+        return measurement_lines(data, given=("plan",))
+
+    def measured_from(
+        self, lines: list[dict[str, Any]], plan: VerifyPlan, source: str
+    ) -> VerifyResult:
+        result: VerifyResult = measured_from_lines(lines, source, plan=plan)
+        return result
 
     def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifyShown:
         result = measured.data
