@@ -31,6 +31,7 @@ from ucal import files
 from ucal.cell import CellProfile
 from ucal.errors import ProfileError
 from ucal.profile import history_dir, made_history_dir, profile_to_dict, real_path
+from ucal.profile.disk import read_index
 
 #: The checks' index in a profile's history directory.
 CHECKS_INDEX = "checks.json"
@@ -81,12 +82,10 @@ def checks_path(profile_path: str | Path) -> Path:
 def read_checks(profile_path: str | Path) -> list[CheckEntry]:
     """The checks of a profile, oldest first (empty when it was never checked)."""
     index = checks_path(profile_path)
-    if not index.exists():
-        return []
+    entries = read_index(index, "checks", "checks index")
     try:
-        raw = json.loads(index.read_text(encoding="utf-8"))
-        return [CheckEntry(**e) for e in raw["checks"]]
-    except (OSError, ValueError, KeyError, TypeError) as e:
+        return [CheckEntry(**e) for e in entries]
+    except TypeError as e:
         raise ProfileError(index, None, f"unreadable checks index: {e}") from None
 
 

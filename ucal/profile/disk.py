@@ -9,8 +9,10 @@ that needs disk space), then renamed over it (atomic, needs no space); any failu
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
+from typing import Any
 
 from ucal import files
 from ucal.errors import ProfileError
@@ -41,6 +43,20 @@ def made_history_dir(path: str | Path) -> Path:
             hdir, None, f"cannot create history directory: {e.strerror or e}"
         ) from None
     return hdir
+
+
+def read_index(index: Path, key: str, what: str) -> list[dict[str, Any]]:
+    """The entries under ``key`` of a JSON index file (empty when there is none), or a
+    ProfileError naming the unreadable ``what``."""
+    if not index.exists():
+        return []
+    try:
+        entries = json.loads(index.read_text(encoding="utf-8"))[key]
+        if not isinstance(entries, list):
+            raise TypeError(f"{key} is not a list")
+        return entries
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ProfileError(index, None, f"unreadable {what}: {e}") from None
 
 
 def atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:

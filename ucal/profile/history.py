@@ -31,6 +31,7 @@ from ucal.profile.disk import (
     commit,
     history_dir,
     made_history_dir,
+    read_index,
     real_path,
     stage,
 )
@@ -71,12 +72,10 @@ def _now() -> str:
 def profile_history(path: str | Path) -> list[HistoryEntry]:
     """The history entries of a profile, oldest first (empty if it was never rewritten)."""
     index = history_dir(path) / HISTORY_INDEX
-    if not index.exists():
-        return []
+    entries = read_index(index, "entries", "history index")
     try:
-        raw = json.loads(index.read_text(encoding="utf-8"))
-        return [HistoryEntry(**e) for e in raw["entries"]]
-    except (OSError, ValueError, KeyError, TypeError) as e:
+        return [HistoryEntry(**e) for e in entries]
+    except TypeError as e:
         raise ProfileError(index, None, f"unreadable history index: {e}") from None
 
 
