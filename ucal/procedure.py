@@ -21,6 +21,10 @@ order is the same and lives here (``MeasuringProcedure.run``):
 A ``Job`` is what one command contributes to these steps; ``Presenter`` is how the command
 line shows the plan, asks and displays progress (``ucal.cli.procedure``). ``on_step`` hears
 each step as it starts, which is how a test holds the three commands to the same order.
+
+A signal is acted on at every step boundary and every measuring step (``ucal.interrupt.check``):
+one whose ``KeyboardInterrupt`` was swallowed where it struck still stops the run before the
+cell is opened, before the first motion, before the next face and before anything is written.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
-from ucal import __version__
+from ucal import __version__, interrupt
 from ucal.cell import CellProfile, WorldTruth
 from ucal.cell_choice import CellChoice
 from ucal.profile import check_writable, profile_lock
@@ -223,6 +227,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         self.on_step = on_step
 
     def _enter(self, step: Step) -> None:
+        interrupt.check()
         log.debug("%s: %s", self.job.command, step)
         if self.on_step is not None:
             self.on_step(step)
@@ -303,6 +308,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
             with self.presenter.progress(self.job.command) as show:
 
                 def report(step: MeasureStep) -> None:
+                    interrupt.check()
                     counters = session.rig.counters
                     elapsed = session.elapsed_s
                     show(
