@@ -32,6 +32,10 @@ reference, say) that differs is refused (``RecordError``, exit 2).
 A ``Job`` is what one command contributes to these steps; ``Presenter`` is how the command
 line shows the plan, asks and displays progress (``ucal.cli.procedure``). ``on_step`` hears
 each step as it starts, which is how a test holds the three commands to the same order.
+
+A signal is acted on at every step boundary and every measuring step (``ucal.interrupt.check``):
+one whose ``KeyboardInterrupt`` was swallowed where it struck still stops the run before the
+cell is opened, before the first motion, before the next face and before anything is written.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
-from ucal import __version__
+from ucal import __version__, interrupt
 from ucal.cell import CellProfile, WorldTruth
 from ucal.cell_choice import CellChoice
 from ucal.profile import check_writable, profile_lock
@@ -278,6 +282,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         self.on_step = on_step
 
     def _enter(self, step: Step) -> None:
+        interrupt.check()
         log.debug("%s: %s", self.job.command, step)
         if self.on_step is not None:
             self.on_step(step)
@@ -403,6 +408,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
             with self.presenter.progress(self.job.command) as show:
 
                 def report(step: MeasureStep) -> None:
+                    interrupt.check()
                     counters = session.rig.counters
                     elapsed = session.elapsed_s
                     show(

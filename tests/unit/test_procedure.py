@@ -4,6 +4,7 @@ progress display's plain lines (stderr not a terminal) with the estimated time l
 from __future__ import annotations
 
 import contextlib
+import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 import ucal.procedure as procedure_module
+from ucal import interrupt
 from ucal.cell_choice import CellChoice
 from ucal.cli.progress import StepProgress
 from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
@@ -166,6 +168,32 @@ def test_out_of_tolerance_is_not_written(fake_cell: None) -> None:
     outcome, _ = run(log, RunOptions(CellChoice(None, "tcp://h:1", "modbus-tcp://h:2")), ok=False)
     assert "confirm the robot at tcp://h:1" in log and "job.write" not in log
     assert outcome.out_of_tolerance and not outcome.written
+
+
+class InterruptedJob(Job):
+    """A signal arrives during the first face and its ``KeyboardInterrupt`` is lost there."""
+
+    def measure(self, plan: str, session: Any, report: Callable[[MeasureStep], None]) -> str:
+        report(MeasureStep("face base/XY", 0, 2, "base", "XY"))
+        interrupt.received.append(signal.SIGTERM)  # what the handler recorded
+        report(MeasureStep("face base/YZ", 1, 2, "base", "YZ"))
+        self.log.append("second face measured")
+        return "measured"
+
+
+def test_a_lost_interrupt_stops_the_measurement_at_the_next_step(
+    fake_cell: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(interrupt, "received", [])
+    log: list[Any] = []
+    presenter = Presenter(log)
+    procedure = MeasuringProcedure(
+        InterruptedJob(log), RunOptions(CellChoice("", None, None), yes=True), presenter, log.append
+    )
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        procedure.run()
+    assert log[-1] == Step.MEASURE and "job.write" not in log
+    assert [p.step.what for p in presenter.shown] == ["face base/XY"]
 
 
 def test_time_left_from_the_estimate_then_from_the_pace() -> None:

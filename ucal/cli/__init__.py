@@ -8,12 +8,12 @@ with ``--debug``. ``-v``, ``-q`` and ``--debug`` are accepted before or after th
 from __future__ import annotations
 
 import importlib
-import signal
 import sys
 
 import click
 
 from drivers.errors import DriverError, MotionRejected
+from ucal import interrupt
 from ucal.cli.options import (
     SuggestingGroup,
     add_common_options,
@@ -85,36 +85,25 @@ def _wants_json(args: list[str]) -> bool:
     return "--json" in options
 
 
-def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-def _interruptible() -> None:
-    """Ctrl-C and SIGTERM always interrupt: the robot is stopped and the profile kept.
-
-    A process started in the background by a non-interactive shell inherits SIGINT as ignored;
-    a supervisor stops a commissioning script with SIGTERM. Both must still stop the robot.
-    (``ucal sim serve`` installs its own handlers.)
-    """
-
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _terminate)
-
-
-def main(argv: list[str] | None = None, held: list[int] | None = None) -> None:
+def main(argv: list[str] | None = None) -> None:
     """Run the ``ucal`` command line on ``argv`` (default: the process's arguments).
 
-    ``held``: signals that arrived before the command line could act on them
-    (``ucal.entry``); the first of them interrupts the run before anything is connected.
+    Ctrl-C and SIGTERM always interrupt: the robot is stopped and the profile kept. A process
+    started in the background by a non-interactive shell inherits SIGINT as ignored; a
+    supervisor stops a commissioning script with SIGTERM. Both must still stop the robot. The
+    handler is armed first thing (``ucal.interrupt``): a signal that arrived while the command
+    line was imported interrupts the run here, before anything is connected; a run that
+    received one ends as interrupted (exit 130) even where its ``KeyboardInterrupt`` was
+    swallowed or turned into another error on the way. (``ucal sim serve`` installs its own
+    handlers.)
     """
-    _interruptible()
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
     as_json = _wants_json(args)
     try:
-        if held:
-            raise KeyboardInterrupt(f"signal {held[0]}")
+        interrupt.arm()
         cli.main(args=args, prog_name="ucal", standalone_mode=False)
+        interrupt.check()
     except click.exceptions.Abort as e:
         # click turns Ctrl-C into Abort: during the run (with a cause) or at the confirmation
         # (without; a declined confirmation is NotConfirmed, exit 4)
@@ -145,7 +134,9 @@ def main(argv: list[str] | None = None, held: list[int] | None = None) -> None:
 def _classify(e: BaseException) -> tuple[str, int]:
     """The one-line message and the SPEC exit code of an error that ended a command."""
 
-    if isinstance(e, KeyboardInterrupt):
+    if isinstance(e, KeyboardInterrupt) or interrupt.received:
+        # a signal's KeyboardInterrupt may have become another error where it struck (an
+        # ImportError from an extension's initialisation): the run was still interrupted
         return "interrupted; the robot was told to stop", EXIT_INTERRUPTED
     if isinstance(e, UcalError):
         return str(e), e.exit_code

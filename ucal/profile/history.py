@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ucal import files
+from ucal import files, interrupt
 from ucal.cell import CellProfile
 from ucal.errors import ProfileError
 from ucal.profile.disk import (
@@ -205,7 +205,10 @@ def _replace_with_history(
     path: Path, after: bytes, reason: str, before: bytes | None = None
 ) -> HistoryEntry:
     """Record ``before`` (default: the current bytes) in the history, then replace ``path``
-    with ``after`` atomically; withdraw the entry if the replacement fails."""
+    with ``after`` atomically; withdraw the entry if the replacement fails. Once the process
+    received SIGINT or SIGTERM nothing is written (``ucal.interrupt``): an interrupted run
+    leaves the profile as it was, even where its ``KeyboardInterrupt`` was swallowed."""
+    interrupt.check()
     path = real_path(path)
     if before is None:
         before = path.read_bytes()

@@ -1,0 +1,132 @@
+"""A SIGINT or SIGTERM is acted on however it lands (``ucal.interrupt``): held until the command
+line arms the handler, raised from then on, and raised again at the run's boundaries where the
+``KeyboardInterrupt`` it raised was swallowed.
+
+The signals are delivered in this process at the exact point (``signal.raise_signal``), inside
+a ``contextlib.suppress(BaseException)``: what Cython's module initialisation does around its
+``collections.abc.Sequence.register`` calls, where a SIGTERM to a run that was importing scipy
+was taken and the run went on to write the profile.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import click
+import pytest
+
+import ucal.procedure as procedure_module
+from ucal import interrupt
+from ucal.cli import LazyGroup
+from ucal.profile import create_profile, profile_history, write_profile
+
+
+@pytest.fixture(autouse=True)
+def own_signals(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Nothing received, the handler not armed; the test process's handlers put back after."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    monkeypatch.setattr(interrupt, "received", [])
+    monkeypatch.setattr(interrupt, "_armed", False)
+    yield
+    for s, handler in previous.items():
+        signal.signal(s, handler)
+
+
+def swallow(signum: int) -> None:
+    """Deliver ``signum`` here and lose the ``KeyboardInterrupt`` it raises."""
+    with contextlib.suppress(BaseException):
+        signal.raise_signal(signum)
+
+
+def test_a_signal_before_the_command_line_takes_over_is_held_then_raised() -> None:
+    interrupt.install()
+    signal.raise_signal(signal.SIGTERM)  # the imports go on: nothing is raised in them
+    signal.raise_signal(signal.SIGINT)
+    assert interrupt.received == [signal.SIGTERM, signal.SIGINT]
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        interrupt.arm()
+
+
+def test_a_swallowed_interrupt_is_raised_again_by_check() -> None:
+    interrupt.arm()
+    interrupt.check()  # nothing received: nothing raised
+    with pytest.raises(KeyboardInterrupt, match="signal 2"):
+        signal.raise_signal(signal.SIGINT)  # armed: raised where it lands
+    swallow(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt, match="signal 2"):
+        interrupt.check()
+    assert interrupt.received == [signal.SIGINT, signal.SIGTERM]
+
+
+@pytest.fixture
+def profile(tmp_path: Path) -> Path:
+    return create_profile(tmp_path / "cell.toml", "tx90")
+
+
+def interrupted_while_loading(
+    monkeypatch: pytest.MonkeyPatch, then: Callable[[], None] = lambda: None
+) -> list[Any]:
+    """A signal lands while the command's module is being imported (after the command line
+    armed the handler) and its interrupt is swallowed there; ``then`` runs next (e.g. raises
+    what an extension's initialisation makes of it). Returns the cells opened."""
+    get_command = LazyGroup.get_command
+
+    def loading(self: LazyGroup, ctx: click.Context, name: str) -> click.Command | None:
+        if not interrupt.received:
+            swallow(signal.SIGTERM)
+            then()
+        return get_command(self, ctx, name)
+
+    opened: list[Any] = []
+
+    def open_cell(*args: Any, **kwargs: Any) -> Any:
+        opened.append(args)
+        raise AssertionError("the cell was opened after the signal")
+
+    monkeypatch.setattr(LazyGroup, "get_command", loading)
+    monkeypatch.setattr(procedure_module, "open_cell", open_cell)
+    return opened
+
+
+def test_a_signal_swallowed_while_the_command_loads_stops_the_run_before_the_cell_opens(
+    profile: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    run_main: Callable[[list[str]], tuple[int, str, str]],
+) -> None:
+    before = profile.read_bytes()
+    opened = interrupted_while_loading(monkeypatch)
+    code, out, err = run_main(["calibrate", str(profile), "--sim", "--yes"])
+    assert (code, out) == (130, "")
+    assert err.strip().splitlines()[-1].startswith("error: interrupted;")
+    assert opened == [] and profile.read_bytes() == before
+    assert interrupt.received == [signal.SIGTERM]
+
+
+def test_an_interrupt_turned_into_another_error_is_still_an_interruption(
+    profile: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    run_main: Callable[[list[str]], tuple[int, str, str]],
+) -> None:
+    def pybind11_init() -> None:
+        raise ImportError("initialization failed")
+
+    opened = interrupted_while_loading(monkeypatch, pybind11_init)
+    code, out, err = run_main(["calibrate", str(profile), "--sim", "--yes", "--json"])
+    assert code == 130 and opened == []
+    assert err.strip() == "error: interrupted; the robot was told to stop"
+    assert '"exit_code": 130' in out
+
+
+def test_no_profile_is_written_once_a_signal_was_received(profile: Path) -> None:
+    before = profile.read_bytes()
+    interrupt.install()
+    signal.raise_signal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        write_profile(profile, {"calibration": {"method": "exact"}}, "calibrate")
+    assert profile.read_bytes() == before
+    assert profile_history(profile) == []
+    assert sorted(p.name for p in profile.parent.iterdir()) == ["cell.toml"]

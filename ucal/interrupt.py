@@ -1,0 +1,59 @@
+"""Ctrl-C and SIGTERM: taken once, at the process's first line, and never lost.
+
+One handler serves the whole run. ``install`` (``ucal.entry``, before any import of weight)
+makes it take SIGINT and SIGTERM and record them in ``received``; until the command line
+``arm``s it, it raises nothing, so a signal cannot strike inside the imports. Armed, it also
+raises ``KeyboardInterrupt`` in the main thread, so a wait or a motion ends at once and the
+robot is told to stop while the exception unwinds.
+
+A ``KeyboardInterrupt`` raised from a handler strikes wherever the main thread is, and some code
+there swallows it. Cython's module initialisation registers its memoryview types with
+``collections.abc.Sequence`` inside a bare ``except: pass`` (the scipy and numpy.random
+extensions that load with a command's module): a signal that lands in that ``register`` call
+was taken and the run went on to the end, profile written. pybind11 turns it into
+``ImportError("initialization failed")``; a finaliser or a weakref callback prints it as
+"Exception ignored" and carries on. The record survives all of them: ``check`` raises the
+interrupt again wherever a run crosses a boundary (each step of ``ucal.procedure``, each
+measuring step, before a profile is replaced), and the command line reports a run that
+received a signal as interrupted (exit 130) whatever exception ended it.
+"""
+
+from __future__ import annotations
+
+import signal
+from types import FrameType
+
+#: SIGINT and SIGTERM received by this process since ``install`` (their numbers, in order).
+received: list[int] = []
+
+_armed = False
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    received.append(signum)
+    if _armed:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+
+def install() -> None:
+    """Take SIGINT and SIGTERM (even where SIGINT was inherited as ignored): record them."""
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+
+
+def arm() -> None:
+    """From now on a signal also raises ``KeyboardInterrupt``; one received before raises now.
+
+    Installs the handler when ``install`` was not called (the command line run in-process).
+    """
+    global _armed
+    install()
+    _armed = True
+    check()
+
+
+def check() -> None:
+    """Raise ``KeyboardInterrupt`` if a signal was received, even one whose exception was
+    swallowed where it struck."""
+    if received:
+        raise KeyboardInterrupt(f"signal {received[0]}")
