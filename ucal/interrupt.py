@@ -20,7 +20,9 @@ received a signal as interrupted (exit 130) whatever exception ended it.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+from collections.abc import Iterator
 from types import FrameType
 
 #: SIGINT and SIGTERM received by this process since ``install`` (their numbers, in order).
@@ -57,3 +59,19 @@ def check() -> None:
     swallowed where it struck."""
     if received:
         raise KeyboardInterrupt(f"signal {received[0]}")
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """Raise nothing while the block runs, a commit that must not be cut in two (a profile and
+    its history index replaced together); a signal received meanwhile is raised when it ends,
+    the commit whole."""
+    global _armed
+    was = _armed
+    _armed = False
+    try:
+        yield
+    finally:
+        _armed = was
+    if was:
+        check()

@@ -130,3 +130,29 @@ def test_no_profile_is_written_once_a_signal_was_received(profile: Path) -> None
     assert profile.read_bytes() == before
     assert profile_history(profile) == []
     assert sorted(p.name for p in profile.parent.iterdir()) == ["cell.toml"]
+
+
+def test_a_signal_during_the_commit_waits_for_the_profile_and_its_history_together(
+    profile: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGTERM between the history index's rename and the profile's: both are replaced, then
+    the run is interrupted; never an index that names a write that did not happen."""
+    import ucal.profile.history as history
+
+    interrupt.arm()
+    commit = history.commit
+    calls = []
+
+    def signalled_commit(*args, **kwargs):
+        result = commit(*args, **kwargs)
+        calls.append(args)
+        if len(calls) == 1:  # the history index renamed, the profile not yet: the signal
+            signal.raise_signal(signal.SIGTERM)
+        return result
+
+    monkeypatch.setattr(history, "commit", signalled_commit)
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        write_profile(profile, {"calibration": {"method": "exact"}}, "calibrate")
+    assert len(calls) == 2  # the commit was not cut in two
+    entries = profile_history(profile)
+    assert len(entries) == 1 and "exact" in profile.read_text()

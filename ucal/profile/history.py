@@ -225,11 +225,13 @@ def _replace_with_history(
         before_sha256=_sha(before),
         after_sha256=_sha(after),
     )
-    try:
-        _replace_both(path, after, entries + [entry], copy)
-    except ProfileError:
-        _withdraw(path, entries, copy)  # only needed when the final rename failed
-        raise
+    # a signal from here on is acted on once both files are replaced, never between them
+    with interrupt.deferred():
+        try:
+            _replace_both(path, after, entries + [entry], copy)
+        except ProfileError:
+            _withdraw(path, entries, copy)  # only needed when the final rename failed
+            raise
     log.info("%s: written (%s); previous version kept as %s", path, reason, copy)
     return entry
 
