@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.controller.base import RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
-from ucal import timing
+from ucal import interrupt, timing
 from ucal.errors import HardwareError
 
 if TYPE_CHECKING:
@@ -200,6 +200,7 @@ class Rig:
         return (self._last_read_s - self._first_read_s) / 60.0
 
     def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
+        interrupt.check()  # an interrupt swallowed since the last motion starts none
         q = np.asarray(q, float)
         self.moved_to(q)
         self.counters.moves += 1
@@ -293,6 +294,7 @@ class Rig:
         speed = self._sweep_speed_for(start, target, max_step_deg)
         clock = self.controller.clock
         t0 = clock.now()
+        interrupt.check()
         self.controller.start_move(target, speed)
         readings: list[GateReading] = []
         sent: list[float] = []

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ucal import interrupt
 from ucal.rig import Rig
 
 #: Final approach of every move (deg below the target on each joint), larger than any backlash.
@@ -61,6 +62,7 @@ class FinalApproachRig(_RigProxy):
         here = rig.controller.read_joints()
         if np.any(q < here - 1e-6):
             below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
+            interrupt.check()
             rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
             rig.moved_to(below, here)
         return rig.move(q, speed)

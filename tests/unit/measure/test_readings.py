@@ -319,3 +319,19 @@ def test_one_trust_policy_acquires_the_first_two_faces_then_centres_then_fits_at
     # the plate: one posture fixes the beam, none is fitted without centring
     plate = [PLATE_TRUST.mode(n, n > 0, 0.0) for n in range(4)]
     assert plate == [SearchMode.ACQUIRE] + [SearchMode.QUICK] * 3
+
+
+def test_an_interrupt_swallowed_since_the_last_motion_starts_no_other(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from ucal import interrupt
+    from ucal.measure.approach import FinalApproachRig
+
+    rig = rig_with(lambda n: (0.5, 1000.0))
+    rig.move(np.zeros(6))
+    monkeypatch.setattr(interrupt, "received", [15])  # taken, its exception lost somewhere
+    moved = rig.counters.moves
+    for move in (rig.move, FinalApproachRig(rig).move):
+        with pytest.raises(KeyboardInterrupt, match="signal 15"):
+            move(np.full(6, -1.0))
+    assert rig.counters.moves == moved
