@@ -307,10 +307,13 @@ def test_open_water_turns_the_joint_up_or_down_where_up_leaves_its_range() -> No
     assert open_water(q, 4, lo, hi)[[0, 1, 2, 3, 5]].tolist() == [0.0, 30.0, 100.0, 0.0, 0.0]
 
 
-def test_one_trust_policy_acquires_the_first_two_faces_then_centres_then_fits_at_once() -> None:
+def test_one_trust_policy_acquires_the_first_face_then_centres_then_fits_at_once() -> None:
     faces = [(0, False, np.inf), (1, False, 2.0), (2, True, 0.6), (3, False, 0.14)]
     modes = [BLOCK_TRUST.mode(n, seen, miss) for n, seen, miss in faces]
-    assert modes == [SearchMode.ACQUIRE, SearchMode.ACQUIRE, SearchMode.QUICK, SearchMode.DIRECT]
+    assert modes == [SearchMode.ACQUIRE, SearchMode.QUICK, SearchMode.QUICK, SearchMode.DIRECT]
+    # a prediction that landed inside the fit's first grid: fitted at once after one face
+    assert BLOCK_TRUST.mode(1, False, 0.01) == SearchMode.DIRECT
+    assert BLOCK_TRUST.mode(2, False, 0.1) == SearchMode.QUICK  # on the lobe, not in the grid
     # the same face again after one: its prediction rests on what it measured
     assert BLOCK_TRUST.mode(1, True, 2.0) == SearchMode.QUICK
     # the last prediction missed by more than the main lobe's half-width: centre first
