@@ -36,15 +36,16 @@ from ucal.calibration.full import (
     identifiability,
 )
 from ucal.calibration.model import FACE_NAMES, Face
-from ucal.calibration.safety import SEARCH_MARGIN_DEG, check_joints
-from ucal.calibration.sequence import (
+from ucal.calibration.plan import STEPPED_PATH_RANGE_MM, calibration_pose, geometry
+from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
-    STEPPED_PATH_RANGE_MM,
-    calibration_pose,
-    geometry,
+    SEARCH_MARGIN_DEG,
+    check_joints,
+    step_blocked,
+    tolerance_margins,
 )
-from ucal.cell import CellProfile
-from ucal.errors import SafetyError
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik_solutions
 
@@ -171,29 +172,26 @@ def _arm_clear(profile: CellProfile, q: np.ndarray) -> tuple[np.ndarray, np.ndar
     return ok, local, tcp
 
 
-def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray, margin_mm: float) -> np.ndarray:
     """Which postures (n, 6) keep the arm clear of the block (``_arm_clear``), with the beam
-    meeting its face (n,) inside the edges."""
+    meeting its face (n,) ``margin_mm`` more than ``EDGE_MARGIN_MM`` inside the edges."""
     s = profile.sample_matrix
     size = profile.sample_face_size_mm
     ok, local, tcp = _arm_clear(profile, q)
     here = local[:, 5]
     beam = tcp[:, :3, 2] @ s[:3, :3]
     hit = here + here[np.arange(len(q)), faces][:, None] * beam
-    inside = (hit >= EDGE_MARGIN_MM) & (hit <= size - EDGE_MARGIN_MM)
+    edge = EDGE_MARGIN_MM + margin_mm
+    inside = (hit >= edge) & (hit <= size - edge)
     inside[np.arange(len(q)), faces] = True
     ok &= np.all(inside, 1)
     step = profile.step
     if step is not None:
-        # the beam meets the step's top well inside it, or passes the step well clear: sample
-        # its path from the tool centre to the face
+        # the beam meets the step's top well inside it, or passes the step well clear
         half = 0.5 * step.size_mm
         on_top = (faces == 2) & np.all(np.abs(hit[:, :2] - step.centre_mm) <= half, 1)
         ok &= ~on_top | np.all(np.abs(hit[:, :2] - step.centre_mm) <= half - STEP_INSIDE_MM, 1)
-        depth = here[np.arange(len(q)), faces][:, None, None]
-        path = here[:, None, :] + np.linspace(0.0, 1.0, 24)[None, :, None] * depth * beam[:, None]
-        near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half + STEP_MARGIN_MM, -1)
-        crosses = np.any(near & (path[..., 2] < step.height_mm + STEP_MARGIN_MM), 1)
+        crosses = step_blocked(step, here, beam, faces, max(STEP_MARGIN_MM, margin_mm))
         ok &= ~crosses | on_top
     return ok
 
@@ -221,7 +219,10 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
                 u, v = step.centre_mm
                 poses.append(_target_pose(s[:3, :3], top, 2, u, v, path, turn))
                 keys.append((2, path, True))
-    near = calibration_pose(profile)
+    try:
+        near = calibration_pose(profile)
+    except UcalError:  # no computed pose reaches the block: the paper's as the reference
+        near = PAPER_CALIBRATION_POSE_DEG
     sols, ok, _ = ik_solutions(
         profile.model,
         np.array(poses),
@@ -234,11 +235,18 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
     pose_i, branch = np.nonzero(ok)
     q = sols[pose_i, branch]
     faces = np.array([keys[i][0] for i in pose_i], int)
-    passed = _clear(profile, q, faces)
+    margins = tolerance_margins(profile)
+    passed = _clear(profile, q, faces, margins.block_mm)
     out: list[Posture] = []
     for i in np.flatnonzero(passed):
         try:
-            check_joints(profile, q[i], "candidate", SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG)
+            check_joints(
+                profile,
+                q[i],
+                "candidate",
+                SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG,
+                tolerance_deg=margins.wrist_deg,
+            )
         except SafetyError:
             continue
         _, path, on_step = keys[pose_i[i]]

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.safety import check_joints
+from ucal.calibration.safety import check_joints, reach_advice
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import InputError, SafetyError
 from ucal.kinematics.dh import transform
@@ -192,14 +192,14 @@ def plan_tool_frame(
     tool = profile.tool_matrix
     ref = reference_joints(profile)
     path = profile.procedure.water_path_mm
-    notes: list[str] = []
     if not _inside_hull(plane, pts, centre, HULL_MARGIN_MM):
         raise SafetyError(
             "plan: the touched points enclose no room for the beam (the plate's "
             "centre is within 3 mm of their hull)"
         )
-    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre.
-    best = None
+    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre,
+    # then the others by that cost, until one whose every target passes.
+    costs = []
     for phi in np.arange(-180.0, 180.0, 15.0):
         try:
             q = solve_target(
@@ -211,36 +211,77 @@ def plan_tool_frame(
         except SafetyError:
             continue
         mid = 0.5 * (profile.model.joint_min_deg[5] + profile.model.joint_max_deg[5])
-        cost = abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi)
-        if best is None or cost < best[0]:
-            best = (cost, float(phi))
-    if best is None:
+        costs.append((abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi), float(phi)))
+    if not costs:
         # report the reason for φ = 0
         solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG)
         solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre", WRIST_MARGIN_DEG)
         raise SafetyError(
             "plan: no orientation about the beam reaches the plate centre in both senses"
         )
-    phi0 = best[1]
-
-    peaks: list[Target] = []
-    edges: list[EdgePlan] = []
-    incidence: list[Target] = []
-    if method == "exact":
-        near = ref
-        for i in range(n_pts):
-            phi = phi0 + 360.0 * i / n_pts
-            phi = (phi + 180.0) % 360.0 - 180.0
-            label = f"peak {i + 1}"
-            q = solve_target(profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG)
-            peaks.append(Target(label, centre, path, phi, q))
-            near = q
-        edges = _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes)
+    first: SafetyError | None = None
+    notes: list[str] = []
+    for _, phi0 in sorted(costs):
+        notes = []
+        try:
+            peaks, edges, incidence = _plan_targets(
+                _Plate(profile, plane, pts, centre, tool, ref), phi0, method, n_pts, notes
+            )
+        except SafetyError as e:
+            first = first or e
+            continue
+        break
     else:
-        incidence = _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+        assert first is not None
+        raise SafetyError(
+            f"{first}; no other orientation of the tool about the beam ({len(costs)} tried) "
+            "passes either: "
+            + reach_advice(profile, centre + path * plane.normal, "the plate (touch it again)")
+        )
     return ToolFramePlan(
         method, plane, centre, ref, phi0, tuple(peaks), tuple(edges), tuple(incidence), tuple(notes)
     )
+
+
+@dataclass(frozen=True)
+class _Plate:
+    """What every target is placed with: the profile, the touched points' plane, the points
+    (n, 3), the plate centre, the tool (4, 4) and the reference joints of the IK choice."""
+
+    profile: CellProfile
+    plane: Plane
+    points: np.ndarray
+    centre: np.ndarray
+    tool: np.ndarray
+    ref: np.ndarray
+
+
+def _plan_targets(
+    plate: _Plate, phi0: float, method: str, n_pts: int, notes: list[str]
+) -> tuple[list[Target], list[EdgePlan], list[Target]]:
+    """The peaks and edge scans (exact method) or the incidence points (paper method) in
+    orientation ``phi0`` (``SafetyError`` if one fails)."""
+    profile, plane, pts, centre, tool, ref = (
+        plate.profile,
+        plate.plane,
+        plate.points,
+        plate.centre,
+        plate.tool,
+        plate.ref,
+    )
+    path = profile.procedure.water_path_mm
+    peaks: list[Target] = []
+    if method != "exact":
+        return [], [], _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+    near = ref
+    for i in range(n_pts):
+        phi = phi0 + 360.0 * i / n_pts
+        phi = (phi + 180.0) % 360.0 - 180.0
+        label = f"peak {i + 1}"
+        q = solve_target(profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG)
+        peaks.append(Target(label, centre, path, phi, q))
+        near = q
+    return peaks, _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes), []
 
 
 def _plan_edges(
