@@ -41,6 +41,7 @@ from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
     SEARCH_MARGIN_DEG,
     check_joints,
+    reach_advice,
     step_blocked,
     tolerance_margins,
 )
@@ -333,9 +334,15 @@ def plan_full(
     """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
     cands = candidate_postures(profile)
     if not cands:
+        s_mat = profile.sample_matrix
+        middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
         raise SafetyError(
             "plan --level full: no posture normal to a block face passes the "
-            "checks (joint ranges, singularity margin, clearance, face edges)"
+            "checks (joint ranges, singularity margin, clearance, face edges, with the room "
+            "the declared tolerances need): "
+            + reach_advice(
+                profile, middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2], "the block"
+            )
         )
     prior = prior_from_profile(profile)
     jacs, names = posture_jacobians(prior, profile, cands)

@@ -41,6 +41,7 @@ from ucal.calibration.model import (
 from ucal.calibration.safety import (
     Margins,
     beam_on_flange_axis,
+    block_shift_advice,
     check_face,
     check_joints,
     reach_advice,
@@ -374,11 +375,30 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         )
     _, lever = tool_lever_mm(profile)
     w = profile.sample_matrix[:3, :3] @ np.full(3, lever + profile.procedure.water_path_mm)
+    advice = block_shift_advice(
+        profile, lambda moved: _plans_somewhere(moved, margins)
+    ) or reach_advice(profile, w + profile.sample_matrix[:3, 3], "the block")
     raise SafetyError(
         f"{first or 'no calibration pose reaches the block'}; none of the {tried} calibration "
-        f"poses tried passes either: "
-        + reach_advice(profile, w + profile.sample_matrix[:3, 3], "the block")
+        f"poses tried passes either: {advice}"
     )
+
+
+#: Searched poses a moved block is tried with when a refusal says how far to move it.
+ADVICE_POSES = 12
+
+
+def _plans_somewhere(profile: CellProfile, margins: Margins) -> bool:
+    """Whether one of the first ``ADVICE_POSES`` searched calibration poses plans (the
+    refusal's advice: would the block, moved, do?)."""
+    geom = geometry(profile)
+    for pose in itertools.islice(_searched_poses(profile), ADVICE_POSES):
+        try:
+            _plan_at(profile, geom, pose, margins)
+        except SafetyError:
+            continue
+        return True
+    return False
 
 
 def nominal_measurements(

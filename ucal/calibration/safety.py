@@ -14,6 +14,7 @@ tolerance plans and is measured without a check failing on the way.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,3 +231,30 @@ def reach_advice(profile: CellProfile, point_mm: np.ndarray, what: str) -> str:
         f"{'towards' if r > middle else 'away from'} the robot, or mount a shorter tool or a "
         "straighter holder"
     )
+
+
+#: Shifts of the block (mm) ``block_shift_advice`` tries, nearest first.
+SHIFTS_MM = tuple(range(25, 625, 25))
+
+
+def block_shift_advice(
+    profile: CellProfile, passes: Callable[[CellProfile], bool], what: str = "the block"
+) -> str | None:
+    """The least move of the block, towards or away from the robot (horizontally, along the
+    line from joint 1's axis to its corner) or up or down, with which ``passes`` holds for the
+    profile with the block moved, in words; None if no move of up to 600 mm does."""
+    corner = np.asarray(profile.sample_position_mm, float)
+    radial = np.array([corner[0], corner[1], 0.0])
+    radial = radial / max(float(np.linalg.norm(radial)), 1e-9)
+    directions = (
+        (-radial, "towards the robot"),
+        (radial, "away from the robot"),
+        (np.array([0.0, 0.0, 1.0]), "up"),
+        (np.array([0.0, 0.0, -1.0]), "down"),
+    )
+    for shift in SHIFTS_MM:
+        for direction, words in directions:
+            moved = profile.replace(sample_position_mm=corner + shift * direction)
+            if passes(moved):
+                return f"move {what} about {shift} mm {words}"
+    return None

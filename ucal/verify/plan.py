@@ -28,6 +28,7 @@ from ucal.calibration.safety import (
     MIN_WATER_PATH_MM,
     Margins,
     beam_on_flange_axis,
+    block_shift_advice,
     check_face,
     check_joints,
     reach_advice,
@@ -343,11 +344,23 @@ def plan_verify(
     s_mat = profile.sample_matrix
     _, lever = tool_lever(profile)
     w = s_mat[:3, :3] @ np.array([100.0, 100.0, height_mm + lever]) + s_mat[:3, 3]
+    advice = block_shift_advice(
+        profile, lambda moved: _plans_at_all(moved, height_mm)
+    ) or reach_advice(profile, w, "the block")
     raise SafetyError(
         f"{first}; none of the {tried - 1} other choices of the points' height, their area, "
-        "the tool's turn about the beam (and their side of the step) passes either: "
-        + reach_advice(profile, w, "the block")
+        f"the tool's turn about the beam (and their side of the step) passes either: {advice}"
     )
+
+
+def _plans_at_all(profile: CellProfile, height_mm: float) -> bool:
+    """Whether two points in the first choice of every kind plan (the refusal's advice:
+    would the block, moved, do?)."""
+    try:
+        _plan_choice(profile, 2, height_mm, 0.0, Layout(), None, None)
+    except SafetyError:
+        return False
+    return True
 
 
 #: Raises of the points above ``height_mm`` (mm), areas (water paths from W to the walls, mm)
