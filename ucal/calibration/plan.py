@@ -41,10 +41,9 @@ from ucal.calibration.model import (
 from ucal.calibration.safety import (
     Margins,
     beam_on_flange_axis,
-    block_shift_advice,
     check_face,
     check_joints,
-    reach_advice,
+    move_advice,
     tolerance_margins,
 )
 from ucal.calibration.wrist import aim_wrist, search_joints
@@ -375,9 +374,9 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         )
     _, lever = tool_lever_mm(profile)
     w = profile.sample_matrix[:3, :3] @ np.full(3, lever + profile.procedure.water_path_mm)
-    advice = block_shift_advice(
-        profile, lambda moved: _plans_somewhere(moved, margins)
-    ) or reach_advice(profile, w + profile.sample_matrix[:3, 3], "the block")
+    advice = move_advice(
+        profile, lambda moved: _plans_somewhere(moved, margins), w + profile.sample_matrix[:3, 3]
+    )
     raise SafetyError(
         f"{first or 'no calibration pose reaches the block'}; none of the {tried} calibration "
         f"poses tried passes either: {advice}"

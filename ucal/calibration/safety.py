@@ -258,3 +258,15 @@ def block_shift_advice(
             if passes(moved):
                 return f"move {what} about {shift} mm {words}"
     return None
+
+
+def move_advice(
+    profile: CellProfile,
+    passes: Callable[[CellProfile], bool],
+    wrist_mm: np.ndarray,
+    what: str = "the block",
+) -> str:
+    """What a refusal tells to move: the least move of ``what`` with which ``passes`` holds
+    (``block_shift_advice``), else where the arm's reach puts the wrist centre ``wrist_mm``
+    the plan needs (``reach_advice``)."""
+    return block_shift_advice(profile, passes, what) or reach_advice(profile, wrist_mm, what)

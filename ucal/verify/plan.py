@@ -28,10 +28,9 @@ from ucal.calibration.safety import (
     MIN_WATER_PATH_MM,
     Margins,
     beam_on_flange_axis,
-    block_shift_advice,
     check_face,
     check_joints,
-    reach_advice,
+    move_advice,
     tolerance_margins,
 )
 from ucal.calibration.wrist import aim_wrist
@@ -344,9 +343,7 @@ def plan_verify(
     s_mat = profile.sample_matrix
     _, lever = tool_lever(profile)
     w = s_mat[:3, :3] @ np.array([100.0, 100.0, height_mm + lever]) + s_mat[:3, 3]
-    advice = block_shift_advice(
-        profile, lambda moved: _plans_at_all(moved, height_mm)
-    ) or reach_advice(profile, w, "the block")
+    advice = move_advice(profile, lambda moved: _plans_at_all(moved, height_mm), w)
     raise SafetyError(
         f"{first}; none of the {tried - 1} other choices of the points' height, their area, "
         f"the tool's turn about the beam (and their side of the step) passes either: {advice}"
