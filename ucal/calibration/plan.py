@@ -363,7 +363,7 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
             first = first or e
             continue
         if searched:
-            log.info(
+            log.warning(
                 "calibration pose %s: the profile's fails a check (%s)",
                 np.round(pose, 2).tolist(),
                 first,
