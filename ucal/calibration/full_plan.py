@@ -353,7 +353,10 @@ def plan_full(
         for i, p in enumerate(chosen)
     ]
     j1 = [p.joints_deg[0] for p in chosen]
-    structure = identifiability(jacs.reshape(-1, jacs.shape[-1]), names)
+    # R of the candidates' Jacobian (J = QR): the same column norms, regressions and singular
+    # values as J, in p rows instead of three per candidate
+    every = jacs.reshape(-1, jacs.shape[-1])
+    structure = identifiability(np.linalg.qr(every).R, names)
     return FullPlan(
         tuple(chosen),
         len(cands),
