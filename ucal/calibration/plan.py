@@ -248,10 +248,13 @@ POSE_TURNS_DEG = (0.0, 90.0, -90.0, 180.0)
 POSE_BRANCHES = 3
 
 
-def tool_lever_mm(profile: CellProfile) -> tuple[np.ndarray, float]:
-    """The tool centre seen from the wrist centre W in the flange frame (mm), and its component
-    along the beam (mm): aimed at a face from W, the tool centre stands that much nearer to it
-    than W, whatever the holder turns the beam by (a spherical wrist)."""
+def tool_lever(profile: CellProfile) -> tuple[np.ndarray, float]:
+    """The vector v from the wrist centre W to the TCP in the flange frame (mm) and a_T·v (mm):
+    aimed at a face from W, the tool centre stands a_T·v nearer to it than W, whatever the
+    holder turns the beam by.
+
+    Constant for a spherical wrist; computed from the model at the zero pose.
+    """
     frames = fk_frames(profile.model, np.zeros(6))
     flange = frames[6]
     tcp = (flange @ profile.tool_matrix)[:3, 3]
@@ -262,7 +265,7 @@ def tool_lever_mm(profile: CellProfile) -> tuple[np.ndarray, float]:
 def _searched_poses(profile: CellProfile) -> Iterator[np.ndarray]:
     """Calibration poses for the search (module docstring), the nearest the profile's first."""
     s_mat = profile.sample_matrix
-    v, lever = tool_lever_mm(profile)
+    v, lever = tool_lever(profile)
     paths = tuple(dict.fromkeys((profile.procedure.water_path_mm, *POSE_PATHS_MM)))
     wp = paths[0]
     combos = sorted(itertools.product(paths, repeat=3), key=lambda c: sum(abs(x - wp) for x in c))
@@ -372,7 +375,7 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
         return replace(
             plan, sound_speed_gain_deg_per_m_s=gains[0], distance_noise_gain_deg_per_um=gains[1]
         )
-    _, lever = tool_lever_mm(profile)
+    _, lever = tool_lever(profile)
     w = profile.sample_matrix[:3, :3] @ np.full(3, lever + profile.procedure.water_path_mm)
     advice = move_advice(
         profile, lambda moved: _plans_somewhere(moved, margins), w + profile.sample_matrix[:3, 3]

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ucal.calibration.model import FACE_NAMES, FACE_ORDER, CellGeometry, Face
-from ucal.calibration.plan import calibration_pose, geometry
+from ucal.calibration.plan import calibration_pose, geometry, tool_lever
 from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
@@ -53,19 +53,6 @@ EDGE_OVERSHOOT_MM = 15.0
 TILT_DEG = 15.0
 #: ... its points this much higher above the XY face than the others (mm): a patch of its own.
 TILTED_RAISE_MM = 30.0
-
-
-def tool_lever(profile: CellProfile) -> tuple[np.ndarray, float]:
-    """The vector v from the wrist centre W to the TCP in the flange frame (mm) and a_T·v (mm).
-
-    Constant for a spherical wrist; computed from the model at the zero pose.
-    """
-    frames = fk_frames(profile.model, np.zeros(6))
-    flange = frames[6]
-    w = frames[4, :3, 3]
-    tcp = (flange @ profile.tool_matrix)[:3, 3]
-    v = flange[:3, :3].T @ (tcp - w)
-    return v, float(profile.tool_matrix[:3, 2] @ v)
 
 
 def down_rotation_local() -> np.ndarray:
