@@ -17,7 +17,7 @@ grouped by their message (numbers masked, so that one cause is one line).
 Run::
 
     python benchmarks/plans.py              # 3 models x 4 blocks x 4 tools x 3 holders x 2
-    python benchmarks/plans.py --quick      # one block and one tool per model x holder x step
+    python benchmarks/plans.py --quick      # one block, one tool per model x holder: 9 cells
     python benchmarks/plans.py --model tx90xl --blocks 8 --json
 """
 
@@ -52,7 +52,7 @@ HOLDERS_DEG = (0.0, 10.0, 20.0)
 TOOL_LENGTHS_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (0.0, 5.0)
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"blocks": 1, "tools": 1}
+QUICK = {"blocks": 1, "tools": 1, "one_step": True}
 
 PLANNERS: dict[str, Callable[[CellProfile], object]] = {
     "calibrate": plan_calibration,
@@ -103,10 +103,13 @@ def profile_of(case: Case, base: CellProfile) -> CellProfile:
     )
 
 
-def cases(models: tuple[str, ...], blocks: int, tools: int, seed: int) -> list[Case]:
+def cases(
+    models: tuple[str, ...], blocks: int, tools: int, seed: int, one_step: bool = False
+) -> list[Case]:
     """The sweep's cells: per model, ``blocks`` declared block poses (the first at the corner
     of the ±2σ box that lowers and turns it most, the others drawn uniformly in the box) ×
-    ``tools`` tools (the longest, farthest off axis first, then drawn) × holders × step."""
+    ``tools`` tools (the longest, farthest off axis first, then drawn) × holders × step
+    (``one_step``: the step declared on the 10° holder's cells only, not both ways on each)."""
     rng = np.random.default_rng(seed)
     out = []
     for model in models:
@@ -129,7 +132,7 @@ def cases(models: tuple[str, ...], blocks: int, tools: int, seed: int) -> list[C
                 a = np.radians(az)
                 tool = np.array([off * np.cos(a), off * np.sin(a), length])
                 for k, holder in enumerate(HOLDERS_DEG):
-                    for step in (False, True):
+                    for step in (k == 1,) if one_step else (False, True):
                         out.append(
                             Case(model, block_mm, block_deg, tool, holder, 90.0 * k + az, step)
                         )
@@ -188,13 +191,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tools", type=int, default=4, help="tools per block pose")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
-    p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1: 18 cells")
+    p.add_argument(
+        "--one-step",
+        action="store_true",
+        help="the step on the 10-degree holder's cells only, instead of with and without it",
+    )
+    p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1 --one-step: 9 cells")
     args = p.parse_args(argv)
     if args.quick:
         p.set_defaults(**QUICK)
         args = p.parse_args(argv)
     models = tuple(args.model or KNOWN_MODELS)
-    result = sweep(cases(models, args.blocks, args.tools, args.seed))
+    result = sweep(cases(models, args.blocks, args.tools, args.seed, args.one_step))
     if args.json:
         print(json.dumps(result))
         return 0
