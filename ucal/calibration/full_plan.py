@@ -9,7 +9,9 @@ candidates differ in J1 azimuth (where on a face), in J2/J3 (water path, height,
 branch) and in the wrist (turn about the beam, flip). Each passes the checks of the offsets
 level before it is considered: joint ranges with room for the wrist search, the θ5 singularity
 margin, the beam inside the face, and a tool that keeps ``CLEARANCE_MM`` from every face's
-plane where the face is (no collision with the block).
+plane where the face is (no collision with the block), each with the room three sigma of the
+declared tolerances can move a posture by (``ucal.calibration.safety.tolerance_margins``): a
+block anywhere within its tolerance is measured without a posture leaving the checks.
 
 Criterion. A candidate contributes three rows to the data Jacobian ``J`` (two tilts and the
 water path, each in units of its σ; columns per prior σ, ``ucal.calibration.full``). The
@@ -39,6 +41,7 @@ from ucal.calibration.model import FACE_NAMES, Face
 from ucal.calibration.plan import STEPPED_PATH_RANGE_MM, calibration_pose, geometry
 from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
+    MIN_WATER_PATH_MM,
     SEARCH_MARGIN_DEG,
     check_joints,
     reach_advice,
@@ -251,6 +254,8 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
         except SafetyError:
             continue
         _, path, on_step = keys[pose_i[i]]
+        if path < MIN_WATER_PATH_MM + margins.block_mm:  # a block 3σ nearer than declared
+            continue
         out.append(Posture(f"c{len(out)}", Face(int(faces[i])), q[i].copy(), path, on_step))
     return out
 
