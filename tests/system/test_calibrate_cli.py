@@ -513,3 +513,21 @@ def test_sigterm_interrupts_like_ctrl_c(tmp_path):
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert profile.read_bytes() == before
+
+
+def test_a_declared_step_is_planned_around_and_the_offsets_recovered(tmp_path):
+    """The README's step on the XY face (docs/method/full-calibration.md): the template's
+    calibration pose aims its XY beam at the step's edge, so a run timed the step's top as the
+    face, fitted a corner 50 mm off and failed hundreds of moves later; the plan now takes a
+    pose whose beams all pass the step clear, and the run is an ordinary one."""
+    path = tmp_path / "cell.toml"
+    create_profile(path, "tx90l")
+    step = {"height_mm": 50.0, "height_std_mm": 0.002, "centre_mm": [250.0, 250.0]}
+    write_profile(path, {"step": {**step, "size_mm": 60.0}}, "test setup")
+    r = ucal("calibrate", str(path), "--sim", "--yes", "--json")
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    assert out["written"] and out["moves"] < 250
+    found = np.array(out["joint_offsets_deg"][1:5])
+    truth = np.array(out["truth_offsets_deg"][1:5])
+    assert np.all(np.abs(found - truth) <= 3.0 * np.array(out["std_deg"][1:5])), (found, truth)

@@ -9,7 +9,9 @@ candidates differ in J1 azimuth (where on a face), in J2/J3 (water path, height,
 branch) and in the wrist (turn about the beam, flip). Each passes the checks of the offsets
 level before it is considered: joint ranges with room for the wrist search, the θ5 singularity
 margin, the beam inside the face, and a tool that keeps ``CLEARANCE_MM`` from every face's
-plane where the face is (no collision with the block).
+plane where the face is (no collision with the block), each with the room three sigma of the
+declared tolerances can move a posture by (``ucal.calibration.safety.tolerance_margins``): a
+block anywhere within its tolerance is measured without a posture leaving the checks.
 
 Criterion. A candidate contributes three rows to the data Jacobian ``J`` (two tilts and the
 water path, each in units of its σ; columns per prior σ, ``ucal.calibration.full``). The
@@ -36,15 +38,18 @@ from ucal.calibration.full import (
     identifiability,
 )
 from ucal.calibration.model import FACE_NAMES, Face
-from ucal.calibration.safety import SEARCH_MARGIN_DEG, check_joints
-from ucal.calibration.sequence import (
+from ucal.calibration.plan import STEPPED_PATH_RANGE_MM, calibration_pose, geometry
+from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
-    STEPPED_PATH_RANGE_MM,
-    calibration_pose,
-    geometry,
+    MIN_WATER_PATH_MM,
+    SEARCH_MARGIN_DEG,
+    check_joints,
+    reach_advice,
+    step_blocked,
+    tolerance_margins,
 )
-from ucal.cell import CellProfile
-from ucal.errors import SafetyError
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik_solutions
 
@@ -171,29 +176,26 @@ def _arm_clear(profile: CellProfile, q: np.ndarray) -> tuple[np.ndarray, np.ndar
     return ok, local, tcp
 
 
-def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray, margin_mm: float) -> np.ndarray:
     """Which postures (n, 6) keep the arm clear of the block (``_arm_clear``), with the beam
-    meeting its face (n,) inside the edges."""
+    meeting its face (n,) ``margin_mm`` more than ``EDGE_MARGIN_MM`` inside the edges."""
     s = profile.sample_matrix
     size = profile.sample_face_size_mm
     ok, local, tcp = _arm_clear(profile, q)
     here = local[:, 5]
     beam = tcp[:, :3, 2] @ s[:3, :3]
     hit = here + here[np.arange(len(q)), faces][:, None] * beam
-    inside = (hit >= EDGE_MARGIN_MM) & (hit <= size - EDGE_MARGIN_MM)
+    edge = EDGE_MARGIN_MM + margin_mm
+    inside = (hit >= edge) & (hit <= size - edge)
     inside[np.arange(len(q)), faces] = True
     ok &= np.all(inside, 1)
     step = profile.step
     if step is not None:
-        # the beam meets the step's top well inside it, or passes the step well clear: sample
-        # its path from the tool centre to the face
+        # the beam meets the step's top well inside it, or passes the step well clear
         half = 0.5 * step.size_mm
         on_top = (faces == 2) & np.all(np.abs(hit[:, :2] - step.centre_mm) <= half, 1)
         ok &= ~on_top | np.all(np.abs(hit[:, :2] - step.centre_mm) <= half - STEP_INSIDE_MM, 1)
-        depth = here[np.arange(len(q)), faces][:, None, None]
-        path = here[:, None, :] + np.linspace(0.0, 1.0, 24)[None, :, None] * depth * beam[:, None]
-        near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half + STEP_MARGIN_MM, -1)
-        crosses = np.any(near & (path[..., 2] < step.height_mm + STEP_MARGIN_MM), 1)
+        crosses = step_blocked(step, here, beam, faces, max(STEP_MARGIN_MM, margin_mm))
         ok &= ~crosses | on_top
     return ok
 
@@ -221,7 +223,10 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
                 u, v = step.centre_mm
                 poses.append(_target_pose(s[:3, :3], top, 2, u, v, path, turn))
                 keys.append((2, path, True))
-    near = calibration_pose(profile)
+    try:
+        near = calibration_pose(profile)
+    except UcalError:  # no computed pose reaches the block: the paper's as the reference
+        near = PAPER_CALIBRATION_POSE_DEG
     sols, ok, _ = ik_solutions(
         profile.model,
         np.array(poses),
@@ -234,14 +239,23 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
     pose_i, branch = np.nonzero(ok)
     q = sols[pose_i, branch]
     faces = np.array([keys[i][0] for i in pose_i], int)
-    passed = _clear(profile, q, faces)
+    margins = tolerance_margins(profile)
+    passed = _clear(profile, q, faces, margins.block_mm)
     out: list[Posture] = []
     for i in np.flatnonzero(passed):
         try:
-            check_joints(profile, q[i], "candidate", SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG)
+            check_joints(
+                profile,
+                q[i],
+                "candidate",
+                SEARCH_MARGIN_DEG + PLAN_MARGIN_DEG,
+                tolerance_deg=margins.wrist_deg,
+            )
         except SafetyError:
             continue
         _, path, on_step = keys[pose_i[i]]
+        if path < MIN_WATER_PATH_MM + margins.block_mm:  # a block 3σ nearer than declared
+            continue
         out.append(Posture(f"c{len(out)}", Face(int(faces[i])), q[i].copy(), path, on_step))
     return out
 
@@ -325,9 +339,15 @@ def plan_full(
     """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
     cands = candidate_postures(profile)
     if not cands:
+        s_mat = profile.sample_matrix
+        middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
         raise SafetyError(
             "plan --level full: no posture normal to a block face passes the "
-            "checks (joint ranges, singularity margin, clearance, face edges)"
+            "checks (joint ranges, singularity margin, clearance, face edges, with the room "
+            "the declared tolerances need): "
+            + reach_advice(
+                profile, middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2], "the block"
+            )
         )
     prior = prior_from_profile(profile)
     jacs, names = posture_jacobians(prior, profile, cands)
@@ -338,7 +358,10 @@ def plan_full(
         for i, p in enumerate(chosen)
     ]
     j1 = [p.joints_deg[0] for p in chosen]
-    structure = identifiability(jacs.reshape(-1, jacs.shape[-1]), names)
+    # R of the candidates' Jacobian (J = QR): the same column norms, regressions and singular
+    # values as J, in p rows instead of three per candidate
+    every = jacs.reshape(-1, jacs.shape[-1])
+    structure = identifiability(np.linalg.qr(every).R, names)
     return FullPlan(
         tuple(chosen),
         len(cands),

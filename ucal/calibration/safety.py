@@ -2,16 +2,27 @@
 
 The limits are the procedures' common ones: room for the wrist search inside the joint ranges,
 the θ5 singularity margin of the profile, a water path that keeps the tool clear of the face it
-measures, and a beam that meets the face inside its edges.
+measures, a beam that meets the face inside its edges and clear of a declared step.
+
+Margins. A plan is made on the profile's nominal values, but the run follows the cell as it
+is: a block within its declared tolerances moves each posture's wrist (its faces turn) and its
+water path and hit point (its faces shift). ``tolerance_margins`` turns the profile's declared
+tolerances into what three sigma of them can move a posture, and the plans keep that much
+room beyond the wrist search's and the clearances above, so that a block anywhere within its
+tolerance plans and is measured without a check failing on the way.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from ucal.calibration.model import FACE_NAMES, CellGeometry, beam_and_tcp
-from ucal.cell import CellProfile
+from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk_frames
 
 #: Room kept inside the joint ranges of joints 4–6 for a wrist search around a planned posture.
 SEARCH_MARGIN_DEG = 8.0
@@ -19,31 +30,78 @@ SEARCH_MARGIN_DEG = 8.0
 MIN_WATER_PATH_MM = 20.0
 #: Distance kept between the beam's hit point on a face and the face's edges (mm).
 EDGE_MARGIN_MM = 20.0
+#: The margins cover this many sigma of the declared tolerances.
+TOLERANCE_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class Margins:
+    """Room a plan keeps for what the declared tolerances can move a posture by (3σ)."""
+
+    wrist_deg: float  # on joints 4-6, beyond the wrist search's ``SEARCH_MARGIN_DEG``
+    block_mm: float  # on the water path, the distance to a face's edges and to a step
+
+
+def tolerance_margins(profile: CellProfile) -> Margins:
+    """What ``TOLERANCE_SIGMAS`` of the profile's declared tolerances can move a posture.
+
+    The wrist turns the beam onto a face as the block's and the tool's orientations really
+    are: by up to their tolerances' resultant (root sum of squares, deg). The water path and
+    the hit point move with the block's corner and the tool centre, and with the block's tilt
+    over the half face from the corner to the middle of a face (mm).
+    """
+    k = TOLERANCE_SIGMAS
+    rot = np.hypot(
+        np.linalg.norm(profile.sample_rotation_std_deg),
+        np.linalg.norm(profile.tool_rotation_std_deg),
+    )
+    tilt_mm = (
+        0.5 * profile.sample_face_size_mm * np.radians(np.max(profile.sample_rotation_std_deg))
+    )
+    shift = np.sqrt(
+        np.max(profile.sample_position_std_mm) ** 2
+        + np.max(profile.tool_position_std_mm) ** 2
+        + tilt_mm**2
+    )
+    return Margins(float(k * rot), float(k * shift))
+
+
+def beam_on_flange_axis(profile: CellProfile, tol_deg: float = 1.0) -> bool:
+    """The beam leaves the tool along the flange axis within ``tol_deg``: turning the tool
+    about the beam then turns joint 6 alone (a plan need not try it for the wrist's sake)."""
+    return bool(profile.tool_matrix[2, 2] > np.cos(np.radians(tol_deg)))
 
 
 def check_joints(
-    profile: CellProfile, q: np.ndarray, label: str, wrist_margin_deg: float = SEARCH_MARGIN_DEG
+    profile: CellProfile,
+    q: np.ndarray,
+    label: str,
+    wrist_margin_deg: float = SEARCH_MARGIN_DEG,
+    tolerance_deg: float = 0.0,
 ) -> None:
     """Joint readings ``q`` (deg) inside the ranges, with ``wrist_margin_deg`` kept on joints
-    4–6, and θ5 (kinematic, offsets applied) at least the profile's singularity margin from 0."""
+    4–6, and θ5 (kinematic, offsets applied) at least the profile's singularity margin from 0;
+    ``tolerance_deg`` more on both (``Margins.wrist_deg``: what the declared tolerances can
+    turn the wrist by)."""
     model = profile.model
+    room = wrist_margin_deg + tolerance_deg
     lo = model.joint_min_deg.copy()
     hi = model.joint_max_deg.copy()
-    lo[3:] += wrist_margin_deg
-    hi[3:] -= wrist_margin_deg
+    lo[3:] += room
+    hi[3:] -= room
     bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
+    why = "for the wrist search" + (" and the declared tolerances" if tolerance_deg else "")
     if bad:
         raise SafetyError(
             f"plan {label}: joint(s) {bad} at "
             f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
-            f"range (keeping {wrist_margin_deg:g} deg on joints 4-6 for the wrist "
-            "search)"
+            f"range (keeping {room:.3g} deg on joints 4-6 {why})"
         )
     theta5 = q[4] + model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
-    margin = profile.procedure.singularity_margin_deg
+    margin = profile.procedure.singularity_margin_deg + tolerance_deg
     if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
         raise SafetyError(
-            f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:g} deg "
+            f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:.3g} deg "
             "of the wrist singularity"
         )
 
@@ -74,22 +132,141 @@ def check_face(
     face: int,
     offsets_deg: np.ndarray,
     label: str,
+    margin_mm: float = 0.0,
 ) -> float:
     """The beam at ``q`` meets ``face`` of the profile's block inside its edges
-    (``EDGE_MARGIN_MM``) with the tool at least ``MIN_WATER_PATH_MM`` from it; the water path
-    (mm). ``SafetyError`` naming ``label`` otherwise."""
-    path, edge = face_hit(
-        geom, q, offsets_deg, profile.sample_matrix[:3, 3], face, profile.sample_face_size_mm
-    )
+    (``EDGE_MARGIN_MM``) with the tool at least ``MIN_WATER_PATH_MM`` from it, each with
+    ``margin_mm`` more, and passes a declared step ``margin_mm`` clear (``step_blocked``); the
+    water path (mm). ``SafetyError`` naming ``label`` otherwise."""
+    corner = profile.sample_matrix[:3, 3]
+    path, edge = face_hit(geom, q, offsets_deg, corner, face, profile.sample_face_size_mm)
     name = FACE_NAMES[face]
-    if path < MIN_WATER_PATH_MM:
+    least = MIN_WATER_PATH_MM + margin_mm
+    if path < least:
         raise SafetyError(
             f"plan {label}: the tool centre would be {path:.1f} mm from face {name} "
-            f"(minimum {MIN_WATER_PATH_MM:g} mm)"
+            f"(minimum {least:.3g} mm)"
         )
-    if edge < EDGE_MARGIN_MM:
+    if edge < EDGE_MARGIN_MM + margin_mm:
         raise SafetyError(
             f"plan {label}: the beam would meet face {name} {edge:.1f} mm from its edge "
-            f"(minimum {EDGE_MARGIN_MM:g} mm)"
+            f"(minimum {EDGE_MARGIN_MM + margin_mm:.3g} mm)"
+        )
+    if beam_meets_step(profile, geom, q, offsets_deg, corner, face, margin_mm):
+        assert profile.step is not None
+        raise SafetyError(
+            f"plan {label}: the beam to face {name} would pass within {margin_mm:.3g} mm "
+            f"of the step (block x, y {np.round(profile.step.centre_mm, 1).tolist()} mm, "
+            f"{profile.step.height_mm:g} mm high)"
         )
     return path
+
+
+def beam_meets_step(
+    profile: CellProfile,
+    geom: CellGeometry,
+    q: np.ndarray,
+    offsets_deg: np.ndarray,
+    corner_mm: np.ndarray,
+    face: int,
+    margin_mm: float,
+) -> bool:
+    """Whether the beam at readings ``q``, aimed at ``face`` of a block with its corner at
+    ``corner_mm``, comes within ``margin_mm`` of the profile's step (``step_blocked``; False
+    without a step)."""
+    if profile.step is None:
+        return False
+    beam, tcp = beam_and_tcp(geom, q, offsets_deg)
+    rot = geom.block_rotation
+    local = (rot.T @ (tcp - corner_mm))[None]
+    return bool(
+        step_blocked(profile.step, local, (rot.T @ beam)[None], np.array([face]), margin_mm)[0]
+    )
+
+
+def step_blocked(
+    step: Step, tcp_local: np.ndarray, beam_local: np.ndarray, faces: np.ndarray, margin_mm: float
+) -> np.ndarray:
+    """Which beams (n,) come within ``margin_mm`` of ``step`` between the tool centre and the
+    face they are aimed at: the step's top and sides, grown by the margin, against points
+    along each beam (tool centres (n, 3) and beam directions (n, 3) in block coordinates,
+    ``faces`` (n,) the face each meets). A beam aimed at the XY face beside the step, a
+    tool over it or a beam to a wall that grazes it are all blocked."""
+    n = len(tcp_local)
+    depth = tcp_local[np.arange(n), faces]
+    t = np.linspace(0.0, 1.0, 24)
+    path = tcp_local[:, None, :] + t[None, :, None] * depth[:, None, None] * beam_local[:, None]
+    half = 0.5 * step.size_mm + margin_mm
+    near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half, -1)
+    return np.any(near & (path[..., 2] < step.height_mm + margin_mm), 1)
+
+
+def reach_advice(profile: CellProfile, point_mm: np.ndarray, what: str) -> str:
+    """What to move, and by how much, for the wrist centre to reach ``point_mm`` (base frame)
+    with room to spare: ``what`` (e.g. "the block") towards the robot or away from it when
+    the point is beyond or inside the arm's reach (shoulder to wrist centre, mm), otherwise
+    towards the middle of that reach, or a shorter tool or holder."""
+    model = profile.model
+    azimuth = np.degrees(np.arctan2(point_mm[1], point_mm[0]))
+    shoulder = fk_frames(model, np.array([azimuth, 0.0, 0.0, 0.0, 0.0, 0.0]))[1, :3, 3]
+    upper = abs(model.a_mm[1])
+    fore = float(np.hypot(model.a_mm[2], model.d_mm[3]))
+    far, near = upper + fore, abs(upper - fore)
+    r = float(np.linalg.norm(np.asarray(point_mm, float) - shoulder))
+    middle = 0.5 * (near + far)
+    room = 0.1 * (far - near)  # a wrist at the edge of the reach leaves the arm no freedom
+    if r > far - room:
+        return (
+            f"the wrist would be {r:.0f} mm from the shoulder, the arm reaches {far:.0f} mm: "
+            f"move {what} about {r - far + room:.0f} mm towards the robot"
+        )
+    if r < near + room:
+        return (
+            f"the wrist would be {r:.0f} mm from the shoulder, within {near + room:.0f} mm: "
+            f"move {what} about {near + room - r:.0f} mm away from the robot"
+        )
+    return (
+        f"within the arm's reach ({r:.0f} mm from the shoulder), the joint ranges, the wrist "
+        f"and the clearances leave no posture: move {what} about {abs(r - middle):.0f} mm "
+        f"{'towards' if r > middle else 'away from'} the robot, or mount a shorter tool or a "
+        "straighter holder"
+    )
+
+
+#: Shifts of the block (mm) ``block_shift_advice`` tries, nearest first.
+SHIFTS_MM = tuple(range(25, 625, 25))
+
+
+def block_shift_advice(
+    profile: CellProfile, passes: Callable[[CellProfile], bool], what: str = "the block"
+) -> str | None:
+    """The least move of the block, towards or away from the robot (horizontally, along the
+    line from joint 1's axis to its corner) or up or down, with which ``passes`` holds for the
+    profile with the block moved, in words; None if no move of up to 600 mm does."""
+    corner = np.asarray(profile.sample_position_mm, float)
+    radial = np.array([corner[0], corner[1], 0.0])
+    radial = radial / max(float(np.linalg.norm(radial)), 1e-9)
+    directions = (
+        (-radial, "towards the robot"),
+        (radial, "away from the robot"),
+        (np.array([0.0, 0.0, 1.0]), "up"),
+        (np.array([0.0, 0.0, -1.0]), "down"),
+    )
+    for shift in SHIFTS_MM:
+        for direction, words in directions:
+            moved = profile.replace(sample_position_mm=corner + shift * direction)
+            if passes(moved):
+                return f"move {what} about {shift} mm {words}"
+    return None
+
+
+def move_advice(
+    profile: CellProfile,
+    passes: Callable[[CellProfile], bool],
+    wrist_mm: np.ndarray,
+    what: str = "the block",
+) -> str:
+    """What a refusal tells to move: the least move of ``what`` with which ``passes`` holds
+    (``block_shift_advice``), else where the arm's reach puts the wrist centre ``wrist_mm``
+    the plan needs (``reach_advice``)."""
+    return block_shift_advice(profile, passes, what) or reach_advice(profile, wrist_mm, what)

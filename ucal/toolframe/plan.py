@@ -20,7 +20,8 @@ Plan (before the first motion; ``SafetyError``, exit 4, without any motion):
   "different angles");
 
 and every target is checked: inside the joint ranges (keeping ``WRIST_MARGIN_DEG`` on joints
-4–6 for the posture searches), ``|sin θ5| ≥ sin(singularity margin)``, and — for the incidence
+4–6 for the posture searches, ``tool_turn_deg`` more for the tool's declared tolerance),
+``|sin θ5| ≥ sin(singularity margin)``, and — for the incidence
 points — the beam meeting the plate inside the touched points' hull (the plate's edges are not
 """
 
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.safety import check_joints
+from ucal.calibration.safety import check_joints, reach_advice
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import InputError, SafetyError
 from ucal.kinematics.dh import transform
@@ -43,6 +44,10 @@ MIN_POINTS = {"exact": 2, "paper": 7}
 
 #: Room kept inside the ranges of joints 4–6 for the posture searches (deg).
 WRIST_MARGIN_DEG = 10.0
+#: ... and room for how far the tool's orientation may really be from the profile's: the
+#: searches turn the wrist by that much to find the plate's normal (this many sigma of
+#: ``[tool] rotation_std_deg``).
+TOOL_SIGMAS = 3.0
 #: Water path during edge scans (mm): short, so that a beam-direction error moves the axis
 #: hit point little (Δl·δa) — it would otherwise look like an offset across the beam.
 EDGE_WATER_PATH_MM = 50.0
@@ -140,6 +145,12 @@ def reference_joints(profile: CellProfile) -> np.ndarray:
     return np.asarray(PAPER_CALIBRATION_POSE_DEG if pose is None else pose, float)
 
 
+def tool_turn_deg(profile: CellProfile) -> float:
+    """How far the searches may turn the wrist from a planned posture to find the plate's
+    normal: ``TOOL_SIGMAS`` of the tool orientation's declared tolerance (deg)."""
+    return float(TOOL_SIGMAS * np.linalg.norm(profile.tool_rotation_std_deg))
+
+
 def solve_target(
     profile: CellProfile,
     plane: Plane,
@@ -150,8 +161,10 @@ def solve_target(
     near: np.ndarray,
     label: str,
     wrist_margin: float,
+    tolerance_deg: float = 0.0,
 ) -> np.ndarray:
-    """Checked joint readings for a target (``SafetyError`` naming ``label``)."""
+    """Checked joint readings for a target (``SafetyError`` naming ``label``), ``wrist_margin``
+    and ``tolerance_deg`` kept on the wrist (``check_joints``)."""
     try:
         q = ik(
             profile.model,
@@ -162,7 +175,7 @@ def solve_target(
         )
     except SafetyError as e:
         raise SafetyError(f"plan {label}: {e}") from None
-    check_joints(profile, q, label, wrist_margin)
+    check_joints(profile, q, label, wrist_margin, tolerance_deg)
     return q
 
 
@@ -192,55 +205,102 @@ def plan_tool_frame(
     tool = profile.tool_matrix
     ref = reference_joints(profile)
     path = profile.procedure.water_path_mm
-    notes: list[str] = []
+    turn = tool_turn_deg(profile)
     if not _inside_hull(plane, pts, centre, HULL_MARGIN_MM):
         raise SafetyError(
             "plan: the touched points enclose no room for the beam (the plate's "
             "centre is within 3 mm of their hull)"
         )
-    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre.
-    best = None
+    # φ0: the orientation whose joint 6 sits nearest the middle of its range at the centre,
+    # then the others by that cost, until one whose every target passes.
+    costs = []
     for phi in np.arange(-180.0, 180.0, 15.0):
         try:
             q = solve_target(
-                profile, plane, tool, centre, path, phi, ref, "centre", WRIST_MARGIN_DEG
+                profile, plane, tool, centre, path, phi, ref, "centre", WRIST_MARGIN_DEG, turn
             )
             q2 = solve_target(
-                profile, plane, tool, centre, path, phi + 180.0, q, "centre", WRIST_MARGIN_DEG
+                profile, plane, tool, centre, path, phi + 180.0, q, "centre", WRIST_MARGIN_DEG, turn
             )
         except SafetyError:
             continue
         mid = 0.5 * (profile.model.joint_min_deg[5] + profile.model.joint_max_deg[5])
-        cost = abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi)
-        if best is None or cost < best[0]:
-            best = (cost, float(phi))
-    if best is None:
+        costs.append((abs(q[5] - mid) + abs(q2[5] - mid) + 0.01 * abs(phi), float(phi)))
+    if not costs:
         # report the reason for φ = 0
-        solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG)
-        solve_target(profile, plane, tool, centre, path, 180.0, ref, "centre", WRIST_MARGIN_DEG)
+        solve_target(profile, plane, tool, centre, path, 0.0, ref, "centre", WRIST_MARGIN_DEG, turn)
+        solve_target(
+            profile, plane, tool, centre, path, 180.0, ref, "centre", WRIST_MARGIN_DEG, turn
+        )
         raise SafetyError(
             "plan: no orientation about the beam reaches the plate centre in both senses"
         )
-    phi0 = best[1]
-
-    peaks: list[Target] = []
-    edges: list[EdgePlan] = []
-    incidence: list[Target] = []
-    if method == "exact":
-        near = ref
-        for i in range(n_pts):
-            phi = phi0 + 360.0 * i / n_pts
-            phi = (phi + 180.0) % 360.0 - 180.0
-            label = f"peak {i + 1}"
-            q = solve_target(profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG)
-            peaks.append(Target(label, centre, path, phi, q))
-            near = q
-        edges = _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes)
+    first: SafetyError | None = None
+    notes: list[str] = []
+    for _, phi0 in sorted(costs):
+        notes = []
+        try:
+            peaks, edges, incidence = _plan_targets(
+                _Plate(profile, plane, pts, centre, tool, ref), phi0, method, n_pts, notes
+            )
+        except SafetyError as e:
+            first = first or e
+            continue
+        break
     else:
-        incidence = _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+        assert first is not None
+        raise SafetyError(
+            f"{first}; no other orientation of the tool about the beam ({len(costs)} tried) "
+            "passes either: "
+            + reach_advice(profile, centre + path * plane.normal, "the plate (touch it again)")
+        )
     return ToolFramePlan(
         method, plane, centre, ref, phi0, tuple(peaks), tuple(edges), tuple(incidence), tuple(notes)
     )
+
+
+@dataclass(frozen=True)
+class _Plate:
+    """What every target is placed with: the profile, the touched points' plane, the points
+    (n, 3), the plate centre, the tool (4, 4) and the reference joints of the IK choice."""
+
+    profile: CellProfile
+    plane: Plane
+    points: np.ndarray
+    centre: np.ndarray
+    tool: np.ndarray
+    ref: np.ndarray
+
+
+def _plan_targets(
+    plate: _Plate, phi0: float, method: str, n_pts: int, notes: list[str]
+) -> tuple[list[Target], list[EdgePlan], list[Target]]:
+    """The peaks and edge scans (exact method) or the incidence points (paper method) in
+    orientation ``phi0`` (``SafetyError`` if one fails)."""
+    profile, plane, pts, centre, tool, ref = (
+        plate.profile,
+        plate.plane,
+        plate.points,
+        plate.centre,
+        plate.tool,
+        plate.ref,
+    )
+    path = profile.procedure.water_path_mm
+    turn = tool_turn_deg(profile)
+    peaks: list[Target] = []
+    if method != "exact":
+        return [], [], _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+    near = ref
+    for i in range(n_pts):
+        phi = phi0 + 360.0 * i / n_pts
+        phi = (phi + 180.0) % 360.0 - 180.0
+        label = f"peak {i + 1}"
+        q = solve_target(
+            profile, plane, tool, centre, path, phi, near, label, WRIST_MARGIN_DEG, turn
+        )
+        peaks.append(Target(label, centre, path, phi, q))
+        near = q
+    return peaks, _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes), []
 
 
 def _plan_edges(
@@ -329,6 +389,7 @@ def _plan_incidence(
 ) -> list[Target]:
     rng = np.random.default_rng(2023)  # paper 002's year: a fixed, reproducible draw
     path0 = profile.procedure.water_path_mm
+    turn = tool_turn_deg(profile)
     uv = plane.to_plane(pts)
     lo, hi = uv.min(0), uv.max(0)
     out: list[Target] = []
@@ -345,7 +406,9 @@ def _plan_incidence(
         phi = float(phi0 + rng.uniform(-150.0, 150.0))
         label = f"point {len(out) + 1}"
         try:
-            q = solve_target(profile, plane, tool, x, path, phi, near, label, WRIST_MARGIN_DEG)
+            q = solve_target(
+                profile, plane, tool, x, path, phi, near, label, WRIST_MARGIN_DEG, turn
+            )
         except SafetyError:
             skipped += 1
             continue

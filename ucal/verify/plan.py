@@ -21,20 +21,21 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.model import (
-    FACE_NAMES,
-    FACE_ORDER,
-)
+from ucal.calibration.model import FACE_NAMES, FACE_ORDER, CellGeometry, Face
+from ucal.calibration.plan import calibration_pose, geometry, tool_lever
 from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
+    Margins,
+    beam_on_flange_axis,
     check_face,
     check_joints,
+    move_advice,
+    tolerance_margins,
 )
-from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.calibration.wrist import aim_wrist
-from ucal.cell import CellProfile
-from ucal.errors import SafetyError, UnreachableError
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError, UnreachableError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik
 
@@ -54,19 +55,6 @@ TILT_DEG = 15.0
 TILTED_RAISE_MM = 30.0
 
 
-def tool_lever(profile: CellProfile) -> tuple[np.ndarray, float]:
-    """The vector v from the wrist centre W to the TCP in the flange frame (mm) and a_T·v (mm).
-
-    Constant for a spherical wrist; computed from the model at the zero pose.
-    """
-    frames = fk_frames(profile.model, np.zeros(6))
-    flange = frames[6]
-    w = frames[4, :3, 3]
-    tcp = (flange @ profile.tool_matrix)[:3, 3]
-    v = flange[:3, :3].T @ (tcp - w)
-    return v, float(profile.tool_matrix[:3, 2] @ v)
-
-
 def down_rotation_local() -> np.ndarray:
     """Tool orientation of the nominal points in block coordinates: tool z = −block z."""
     return np.diag([-1.0, 1.0, -1.0])
@@ -83,25 +71,31 @@ class PointGroup:
 
 
 def point_groups(
-    n_points: int, height_mm: float = VERIFY_HEIGHT_MM
+    n_points: int, height_mm: float = VERIFY_HEIGHT_MM, turn_deg: float = 0.0
 ) -> list[tuple[PointGroup, int]]:
     """The orientations the points are commanded in and how many points each (module doc):
     the beam straight down (paper 000's), the tool turned 180° about that beam, and the beam
     tilted ``TILT_DEG`` towards block +X over a patch ``TILTED_RAISE_MM`` higher; one point
-    takes the first, two the first two, more a third of them each for the others."""
+    takes the first, two the first two, more a third of them each for the others. Every
+    group's tool is turned ``turn_deg`` more about its beam (the plan's choice of joint 6)."""
     if n_points < 1:
         raise ValueError(f"the number of points must be at least 1, got {n_points}")
-    down = PointGroup("down", "beam straight down", down_rotation_local(), height_mm)
+    turn = Rotation.from_euler("z", turn_deg, degrees=True).as_matrix()
+    about = f", the tool turned {turn_deg:g}° about it" if turn_deg else ""
+    down = PointGroup("down", "beam straight down" + about, down_rotation_local() @ turn, height_mm)
     turned = PointGroup(
         "turned",
-        "beam straight down, the tool turned 180° about it",
-        down_rotation_local() @ np.diag([-1.0, -1.0, 1.0]),
+        f"beam straight down, the tool turned {(turn_deg + 180.0 + 180.0) % 360.0 - 180.0:g}° "
+        "about it",
+        down_rotation_local() @ np.diag([-1.0, -1.0, 1.0]) @ turn,
         height_mm,
     )
     tilted = PointGroup(
         "tilted",
-        f"beam {TILT_DEG:g}° from straight down towards block +X",
-        Rotation.from_euler("y", -TILT_DEG, degrees=True).as_matrix() @ down_rotation_local(),
+        f"beam {TILT_DEG:g}° from straight down towards block +X" + about,
+        Rotation.from_euler("y", -TILT_DEG, degrees=True).as_matrix()
+        @ down_rotation_local()
+        @ turn,
         height_mm + TILTED_RAISE_MM,
     )
     if n_points <= 2:
@@ -119,30 +113,56 @@ def grid_shape(n: int) -> tuple[int, int]:
     return n // rows, rows
 
 
+@dataclass(frozen=True)
+class Layout:
+    """Where on the XY face the points go: ``wall_path_mm``, the water paths (mm) from W to the
+    YZ and XZ faces the points span; ``side``, the block axis (0: X, 1: Y) along which they
+    lie beyond a declared step."""
+
+    wall_path_mm: tuple[float, float] = WALL_PATH_MM
+    side: int = 0
+
+
 def verify_region(
     profile: CellProfile,
     height_mm: float = VERIFY_HEIGHT_MM,
     rotation_local: np.ndarray | None = None,
+    layout: Layout = Layout(),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper corner (block X, Y of the TCP, mm) of the area a grid spans with the tool
     turned ``rotation_local`` (block coordinates; default straight down).
 
-    The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``WALL_PATH_MM`` of
-    water path (plus the lever a_T·v) from the YZ and XZ faces.
+    The TCP must lie ``EDGE_MARGIN_MM`` inside the XY face, and W must be ``wall_path_mm`` of
+    water path (plus the lever a_T·v) from the YZ and XZ faces. With a ``[step]`` the area is
+    the part beyond the step along block X (``side`` 0) or Y (1), clear of it by the block's
+    tolerance margin: no point over the step, and the tool check's scans, which run from the
+    points to the far edges, never cross it.
     """
     v, lever = tool_lever(profile)
     rot = down_rotation_local() if rotation_local is None else rotation_local
     r_flange = rot @ profile.tool_matrix[:3, :3].T
     w_from_tcp = -(r_flange @ v)  # W − TCP in block coordinates
     size = profile.sample_face_size_mm
-    lo = np.maximum(EDGE_MARGIN_MM, WALL_PATH_MM[0] + lever - w_from_tcp[:2])
-    hi = np.minimum(size - EDGE_MARGIN_MM, WALL_PATH_MM[1] + lever - w_from_tcp[:2])
+    walls = layout.wall_path_mm
+    side = layout.side
+    lo = np.maximum(EDGE_MARGIN_MM, walls[0] + lever - w_from_tcp[:2])
+    hi = np.minimum(size - EDGE_MARGIN_MM, walls[1] + lever - w_from_tcp[:2])
     if np.any(hi <= lo):
         raise SafetyError(
             f"no room for verification points on the XY face of the block "
             f"({size:g} mm faces, tool lever {lever:.1f} mm, walls "
-            f"{WALL_PATH_MM[0]:g}–{WALL_PATH_MM[1]:g} mm away)"
+            f"{walls[0]:g}–{walls[1]:g} mm away)"
         )
+    step = profile.step
+    if step is not None:
+        clear = step.centre_mm[side] + 0.5 * step.size_mm + tolerance_margins(profile).block_mm
+        lo = lo.copy()
+        lo[side] = max(lo[side], clear)
+        if hi[side] <= lo[side]:
+            raise SafetyError(
+                f"no room for verification points on the XY face beyond the step along block "
+                f"{'XY'[side]} (from {clear:.0f} mm, the points' area ends at {hi[side]:.0f} mm)"
+            )
     return lo, hi
 
 
@@ -151,11 +171,12 @@ def nominal_points(
     n: int,
     height_mm: float = VERIFY_HEIGHT_MM,
     rotation_local: np.ndarray | None = None,
+    layout: Layout = Layout(),
 ) -> np.ndarray:
     """Nominal TCP positions (n, 3) in block coordinates (mm): a grid (``grid_shape``) over
     ``verify_region`` at ``height_mm`` above the XY face, in serpentine order (short moves)."""
     nx, ny = grid_shape(n)
-    lo, hi = verify_region(profile, height_mm, rotation_local)
+    lo, hi = verify_region(profile, height_mm, rotation_local, layout)
     xs = np.linspace(lo[0], hi[0], nx) if nx > 1 else np.array([0.5 * (lo[0] + hi[0])])
     ys = np.linspace(lo[1], hi[1], ny) if ny > 1 else np.array([0.5 * (lo[1] + hi[1])])
     pts: list[list[float]] = []
@@ -245,14 +266,16 @@ def joints_for(
     offsets_deg: np.ndarray,
     near_deg: np.ndarray,
     label: str,
+    tolerance_deg: float = 0.0,
 ) -> np.ndarray:
     """Joint readings (deg) that put the profile's tool at ``pose`` (4, 4, base frame), nearest
-    ``near_deg``, checked against the ranges (``SafetyError`` naming ``label`` otherwise)."""
+    ``near_deg``, checked against the ranges with ``tolerance_deg`` more room on the wrist
+    (``SafetyError`` naming ``label`` otherwise)."""
     try:
         q = ik(profile.model, pose, profile.tool_matrix, offsets_deg, near_deg=near_deg)
     except UnreachableError as e:
         raise SafetyError(f"{label}: {e}") from None
-    check_joints(profile, q, label)
+    check_joints(profile, q, label, tolerance_deg=tolerance_deg)
     return q
 
 
@@ -273,12 +296,81 @@ def plan_verify(
     commanded and planned face posture keeps ``SEARCH_MARGIN_DEG`` inside the wrist ranges and
     the θ5 singularity margin of the profile; each beam meets its face inside the edges; the
     wrist centre is far enough from each face that the TCP, turning about W, stays
-    ``MIN_WATER_PATH_MM`` away from it.
+    ``MIN_WATER_PATH_MM`` away from it; every check with the room the declared tolerances
+    need (``tolerance_margins``).
+
+    Where the points as paper 000 places them fail a check, the plan's free choices are
+    searched: the tool turned about the beam (``PLAN_TURNS_DEG``: joint 6 and, with a holder,
+    the wrist), the points raised above the face (``PLAN_RAISES_MM``: room for a long tool
+    or a holder turning about W), and with a ``[step]`` the side of it the points take.
+    Refused only when no choice passes, naming what to move.
     """
+    first: SafetyError | None = None
+    sides = (0,) if profile.step is None else (0, 1)
+    # turning an on-axis beam about itself turns joint 6 alone
+    turns = PLAN_TURNS_DEG[:1] if beam_on_flange_axis(profile) else PLAN_TURNS_DEG
+    tried = 0
+    for raise_mm in PLAN_RAISES_MM:
+        for walls in PLAN_WALL_PATHS_MM:
+            for turn in turns:
+                for side in sides:
+                    tried += 1
+                    try:
+                        return _plan_choice(
+                            profile,
+                            n_points,
+                            height_mm + raise_mm,
+                            turn,
+                            Layout(walls, side),
+                            before_offsets_deg,
+                            before_placed,
+                        )
+                    except SafetyError as e:
+                        first = first or e
+    s_mat = profile.sample_matrix
+    _, lever = tool_lever(profile)
+    w = s_mat[:3, :3] @ np.array([100.0, 100.0, height_mm + lever]) + s_mat[:3, 3]
+    advice = move_advice(profile, lambda moved: _plans_at_all(moved, height_mm), w)
+    raise SafetyError(
+        f"{first}; none of the {tried - 1} other choices of the points' height, their area, "
+        f"the tool's turn about the beam (and their side of the step) passes either: {advice}"
+    )
+
+
+def _plans_at_all(profile: CellProfile, height_mm: float) -> bool:
+    """Whether two points in the first choice of every kind plan (the refusal's advice:
+    would the block, moved, do?)."""
+    try:
+        _plan_choice(profile, 2, height_mm, 0.0, Layout(), None, None)
+    except SafetyError:
+        return False
+    return True
+
+
+#: Raises of the points above ``height_mm`` (mm), areas (water paths from W to the walls, mm)
+#: and turns of the tool about the beam (deg) the plan tries, in order, where the points as
+#: paper 000 places them fail a check.
+PLAN_RAISES_MM = (0.0, 20.0, 40.0)
+PLAN_WALL_PATHS_MM = (WALL_PATH_MM, (45.0, 100.0), (40.0, 75.0))
+PLAN_TURNS_DEG = (0.0, 90.0, -90.0, 45.0, -45.0, 135.0, -135.0, 180.0)
+
+
+def _plan_choice(
+    profile: CellProfile,
+    n_points: int,
+    height_mm: float,
+    turn_deg: float,
+    layout: Layout,
+    before_offsets_deg: np.ndarray | None,
+    before_placed: CellProfile | None,
+) -> VerifyPlan:
+    """``plan_verify`` for one choice of height, turn and layout (``SafetyError`` if a check
+    fails)."""
     geom = geometry(profile)
-    groups = point_groups(n_points, height_mm)
+    margins = tolerance_margins(profile)
+    groups = point_groups(n_points, height_mm, turn_deg)
     nominal = np.concatenate(
-        [nominal_points(profile, n, g.height_mm, g.rotation_local) for g, n in groups]
+        [nominal_points(profile, n, g.height_mm, g.rotation_local, layout) for g, n in groups]
     )
     group_of = tuple(i for i, (_, n) in enumerate(groups) for _ in range(n))
     rotations = [groups[g][0].rotation_local for g in group_of]
@@ -289,7 +381,10 @@ def plan_verify(
     # each pass as its profile saw the cell (the block calibrate measured, or the one before)
     placed = {"before": before_placed or profile, "after": profile}
     geoms = {"before": geometry(placed["before"]), "after": geom}
-    near = calibration_pose(profile)
+    try:
+        near = calibration_pose(profile)
+    except UcalError:  # no computed pose reaches the block: the paper's as the reference
+        near = PAPER_CALIBRATION_POSE_DEG
     targets: list[VerifyTarget] = []
     for pass_name in PASSES:
         off = offsets[pass_name]
@@ -298,7 +393,7 @@ def plan_verify(
         for i, p in enumerate(nominal):
             label = f"{pass_name} point {i + 1}"
             pose = target_matrix(seen, p, rotations[i])
-            q = joints_for(profile, pose, off, prev, f"plan {label}")
+            q = joints_for(profile, pose, off, prev, f"plan {label}", margins.wrist_deg)
             w_local = wrist_centre_local(seen, q, off)
             if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
                 raise SafetyError(
@@ -308,10 +403,7 @@ def plan_verify(
                 )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
-                qf = aim_wrist(seen_geom, q, -seen_geom.normal(k), off)
-                check_joints(profile, qf, f"{label}/{FACE_NAMES[k]}")
-                check_face(seen, seen_geom, qf, k, off, f"{label}/{FACE_NAMES[k]}")
-                faces[k] = qf
+                faces[k] = _face_posture(profile, seen, seen_geom, q, Face(k), off, label, margins)
             # where the robot really goes there, as best known: the profile's current offsets
             # and block
             w_now = wrist_centre_local(profile, q, offsets["after"])
@@ -340,6 +432,45 @@ def plan_verify(
         tuple(g for g, _ in groups),
         group_of,
     )
+
+
+#: Turns of joint 6 (deg) a face posture may take from its point's, in order: with the beam
+#: off the flange axis (a holder) joint 6 changes how far joint 5 must turn to aim it.
+FACE_J6_TURNS_DEG = (0.0, 90.0, -90.0, 180.0, 45.0, -45.0, 135.0, -135.0)
+
+
+def _face_posture(
+    profile: CellProfile,
+    seen: CellProfile,
+    geom: CellGeometry,
+    q: np.ndarray,
+    face: Face,
+    offsets_deg: np.ndarray,
+    label: str,
+    margins: Margins,
+) -> np.ndarray:
+    """The checked normal-incidence posture of ``face`` from point readings ``q``: the wrist
+    aims the beam with joint 6 at its reading, or turned by ``FACE_J6_TURNS_DEG`` where that
+    fails a check and the beam is off the flange axis (``SafetyError``: the first failure)."""
+    name = f"{label}/{FACE_NAMES[face]}"
+    # the XY face at the paper's height: the run skips a point the cell as measured puts too
+    # near it (``clearance_mm``); the walls keep the tolerances' room
+    margin = 0.0 if face == Face.XY else margins.block_mm
+    first: SafetyError | None = None
+    turns = FACE_J6_TURNS_DEG if not beam_on_flange_axis(profile) else FACE_J6_TURNS_DEG[:1]
+    for turn in turns:
+        start = q.copy()
+        start[5] += turn
+        try:
+            qf = aim_wrist(geom, start, -geom.normal(face), offsets_deg)
+            check_joints(profile, qf, name, tolerance_deg=margins.wrist_deg)
+            check_face(seen, geom, qf, face, offsets_deg, name, margin)
+        except SafetyError as e:
+            first = first or e
+            continue
+        return qf
+    assert first is not None
+    raise first
 
 
 def edge_label(axis: int, group: PointGroup) -> str:

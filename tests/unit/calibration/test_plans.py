@@ -1,0 +1,124 @@
+"""The offsets level's and the full level's plans on cells the template does not lay out: a
+block declared 2σ off, the README's step on the XY face, a block out of reach (no processes).
+
+Each found plan is checked as the run checks it: every posture inside the joint ranges with
+the wrist search's room and the declared tolerances' (``tolerance_margins``), and — for the
+full level — still inside them when the block really stands 3σ off its declared pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tomlkit
+
+from ucal.calibration.full_plan import plan_full
+from ucal.calibration.model import CellGeometry, Configuration, beam_and_tcp
+from ucal.calibration.plan import calibration_pose, geometry, plan_calibration
+from ucal.calibration.safety import (
+    EDGE_MARGIN_MM,
+    MIN_WATER_PATH_MM,
+    SEARCH_MARGIN_DEG,
+    check_joints,
+    face_hit,
+    step_blocked,
+    tolerance_margins,
+)
+from ucal.calibration.wrist import aim_wrist
+from ucal.cell import CellProfile, Step
+from ucal.errors import SafetyError
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.profile import default_profile_text, profile_from_data
+
+#: The README's example step (docs/method/full-calibration.md).
+README_STEP = Step(50.0, np.array([250.0, 250.0]), 60.0, 0.002)
+
+
+def template(model: str) -> CellProfile:
+    """The profile ``ucal profile init MODEL`` writes."""
+    return profile_from_data(tomlkit.parse(default_profile_text(model)), f"{model}.toml")
+
+
+def at_two_sigma(profile: CellProfile) -> CellProfile:
+    """The block declared 2σ off the template's pose: lower, turned about every axis."""
+    pos2 = 2.0 * profile.sample_position_std_mm
+    return profile.replace(
+        sample_position_mm=profile.sample_position_mm + pos2 * np.array([1.0, 1.0, -1.0]),
+        sample_rotation_deg=2.0 * profile.sample_rotation_std_deg,
+    )
+
+
+def test_the_tolerance_margins_are_three_sigma_of_the_declared_tolerances() -> None:
+    profile = template("tx90l")  # block 5 mm, 0.5° per axis; tool 1 mm, 0.5° per axis
+    margins = tolerance_margins(profile)
+    assert margins.wrist_deg == pytest.approx(3.0 * np.sqrt(0.75 + 0.75))
+    tilt = 250.0 * np.radians(0.5)  # the block's tilt over half a 500 mm face
+    assert margins.block_mm == pytest.approx(3.0 * np.sqrt(25.0 + 1.0 + tilt**2))
+    doweled = profile.replace(
+        sample_position_std_mm=np.full(3, 0.5), sample_rotation_std_deg=np.full(3, 0.01)
+    )
+    assert tolerance_margins(doweled).block_mm < 3.5
+
+
+def test_the_full_plan_of_a_tx90xl_with_its_block_at_two_sigma_keeps_the_run_in_range() -> None:
+    profile = at_two_sigma(template("tx90xl"))
+    plan = plan_full(profile)
+    margins = tolerance_margins(profile)
+    assert len(plan.postures) >= 12
+    off = profile.joint_offsets_deg
+    # the block really 3σ further off in every direction the plan's margins must cover
+    sigma3 = 3.0 * profile.sample_rotation_std_deg
+    for signs in ([1, 1, 1], [-1, -1, -1], [1, -1, 1], [-1, 1, -1]):
+        rot = rpy_to_matrix(profile.sample_rotation_deg + np.array(signs) * sigma3)
+        truth = CellGeometry(profile.model, profile.tool_matrix, rot)
+        for p in plan.postures:
+            check_joints(profile, p.joints_deg, p.label, tolerance_deg=margins.wrist_deg)
+            # as the run predicts it before moving there (full_run.check_prediction)
+            q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), off)
+            check_joints(profile, q, p.label, SEARCH_MARGIN_DEG)
+            assert p.water_path_mm >= MIN_WATER_PATH_MM + margins.block_mm
+
+
+def test_the_offsets_plan_keeps_every_beam_off_the_readme_step() -> None:
+    """The template's calibration pose aims its XY beam at the step's edge (a run then times
+    the step's top as the face and walks off hundreds of moves later): the plan takes a pose
+    whose beams all pass the step clear, with the tolerances' room."""
+    profile = template("tx90l").replace(step=README_STEP)
+    plan = plan_calibration(profile)
+    assert not np.allclose(plan.pose_deg, calibration_pose(profile))  # the profile's fails
+    geom = geometry(profile)
+    margins = tolerance_margins(profile)
+    corner = profile.sample_position_mm
+    assert {t.config for t in plan.targets} >= {
+        Configuration.BASE,
+        Configuration.J2,
+        Configuration.J3,
+    }
+    for t in plan.targets:
+        check_joints(profile, t.joints_deg, t.label, tolerance_deg=margins.wrist_deg)
+        beam, tcp = beam_and_tcp(geom, t.joints_deg, profile.joint_offsets_deg)
+        local = geom.block_rotation.T @ (tcp - corner)
+        blocked = step_blocked(
+            README_STEP,
+            local[None],
+            (geom.block_rotation.T @ beam)[None],
+            np.array([t.face]),
+            margins.block_mm,
+        )
+        assert not blocked[0], t.label
+        path, edge = face_hit(geom, t.joints_deg, profile.joint_offsets_deg, corner, t.face, 500.0)
+        assert path >= MIN_WATER_PATH_MM + margins.block_mm
+        assert edge >= EDGE_MARGIN_MM + margins.block_mm
+
+
+def test_a_block_out_of_reach_is_refused_naming_how_far_to_move_it() -> None:
+    profile = template("tx90l")
+    corner = profile.sample_position_mm
+    outward = np.array([corner[0], corner[1], 0.0]) / np.hypot(corner[0], corner[1])
+    far = profile.replace(sample_position_mm=corner + 300.0 * outward)
+    with pytest.raises(SafetyError) as e:
+        plan_calibration(far)
+    words = str(e.value)
+    assert "calibration poses tried passes either: move the block about" in words
+    shift = float(words.split("move the block about ")[1].split(" mm")[0])
+    assert 100.0 <= shift <= 300.0 and words.endswith("mm towards the robot")

@@ -1,0 +1,40 @@
+"""Tool-frame's plan with a tool on a 20° holder: the beam 20° off the flange axis (no
+processes). The orientation about the beam that suits the straight tool puts the edge scans'
+wrist at its range or the peaks' joint 5 at the singularity; the plan takes another."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tomlkit
+from scipy.spatial.transform import Rotation
+
+from ucal.calibration.safety import check_joints
+from ucal.cell import CellProfile
+from ucal.kinematics.dh import fk
+from ucal.kinematics.rotations import matrix_to_rpy
+from ucal.profile import default_profile_text, profile_from_data
+from ucal.toolframe.plan import WRIST_MARGIN_DEG, plan_tool_frame, tcp_pose
+
+
+def on_holder(model: str, holder_deg: float, axis: tuple[float, float, float]) -> CellProfile:
+    """The template's profile with the tool turned ``holder_deg`` about ``axis`` (flange
+    frame, across the flange axis)."""
+    profile = profile_from_data(tomlkit.parse(default_profile_text(model)), f"{model}.toml")
+    turn = Rotation.from_rotvec(np.radians(holder_deg) * np.asarray(axis)).as_matrix()
+    return profile.replace(tool_rotation_deg=matrix_to_rpy(turn))
+
+
+@pytest.mark.parametrize(
+    ("model", "axis"), [("tx90l", (0.0, 1.0, 0.0)), ("tx90", (0.0, -1.0, 0.0))]
+)
+def test_a_twenty_degree_holder_plans_its_peaks_and_edge_scans(model, axis) -> None:
+    profile = on_holder(model, 20.0, axis)
+    plan = plan_tool_frame(profile, "exact", 4)
+    assert len(plan.peaks) == 4 and len(plan.edges) == 2
+    for t in plan.peaks:
+        check_joints(profile, t.joints_deg, t.label, WRIST_MARGIN_DEG)
+        reached = fk(profile.model, t.joints_deg, profile.tool_matrix)
+        assert np.allclose(reached, tcp_pose(plan.plane, t.point_mm, t.water_path_mm, t.phi_deg))
+    for e in plan.edges:
+        assert e.search_mm >= 20.0, e  # main refused: "beyond 0 mm"
