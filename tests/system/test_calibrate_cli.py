@@ -216,9 +216,11 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
     np.testing.assert_allclose(cal["joint_offsets_deg"], result["joint_offsets_deg"], atol=1e-6)
 
 
-def test_plan_leaving_the_joint_range_is_refused_before_any_motion(tmp_path):
-    pose = [30.53, 31.15, 144.0, 0.0, 39.36, 30.54]  # the joint-3 step would pass 145°
-    profile = make_profile(tmp_path, calibration_pose_deg=pose)
+def test_a_block_out_of_reach_is_refused_before_any_motion(tmp_path):
+    # the planner tries hundreds of calibration poses; none reaches a block 600 mm out
+    profile = make_profile(tmp_path)
+    placed = tomllib.loads(profile.read_text())["sample"]["position_mm"]
+    write_profile(profile, {"sample": {"position_mm": [placed[0] + 600.0, *placed[1:]]}}, "test")
     log = tmp_path / "motions.jsonl"
     server = subprocess.Popen(
         [
@@ -248,7 +250,7 @@ def test_plan_leaving_the_joint_range_is_refused_before_any_motion(tmp_path):
             "--yes",
         )
         assert out.returncode == 4, out.stderr
-        assert "joint" in out.stderr and "Traceback" not in out.stderr
+        assert "move the block" in out.stderr and "Traceback" not in out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
         assert profile.read_bytes() == before
     finally:
