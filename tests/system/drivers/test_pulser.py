@@ -351,7 +351,9 @@ def test_a_peer_streaming_garbage_is_a_protocol_fault_within_the_timeout(
             make_pulser(url, timeout_s=0.5)
     finally:
         babbler.close()
-    assert time.monotonic() - start < 10.0
+    # bounded, not endless: a generous bound (the deadline is 0.5 s a request; a loaded host
+    # parsing the stream of garbage takes seconds more), well inside the suite's 120 s timeout
+    assert time.monotonic() - start < 60.0
 
 
 def test_stopped_server_is_connection_lost_then_reconnects(
