@@ -17,33 +17,38 @@ from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
-from ucal.calibration.exact import OffsetSolution
 from ucal.calibration.fit import (
     PRIOR_MEANING,
     CellFit,
     FitQuality,
-    RunEffects,
     prior_from_profile,
 )
-from ucal.calibration.full import FullSolution, solve_full
+from ucal.calibration.full import solve_full
 from ucal.calibration.full_plan import FullPlan, plan_full
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.gauge import (
     J1Gauge,
     block_keys,
     block_pose,
-    gauge_fields,
-    j1_relative_to_block,
 )
 from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.result import (
+    APPROACH,
+    CalibrationResult,
+    FullResult,
+    FullSolved,
+    OffsetsResult,
+    OffsetsSolved,
+    Verdict,
+    run_effects,
+)
 from ucal.calibration.sequence import (
     CalibrationPlan,
     CalibrationRun,
@@ -52,10 +57,10 @@ from ucal.calibration.sequence import (
     run_calibration,
     solve,
 )
-from ucal.calibration.weak import WeakJoint, keep_weak
-from ucal.cell import CellProfile, WorldTruth
+from ucal.calibration.weak import keep_weak
+from ucal.cell import CellProfile
 from ucal.errors import UcalError
-from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
@@ -66,33 +71,7 @@ from ucal.timing import DurationEstimate, estimate_run
 #: truncation error beyond it is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
 
-#: The approach direction the offsets belong to: every static posture is reached with each joint
-#: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
-#: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
-APPROACH = "positive"
-#: Why ``backlash_deg`` is null: what the offsets level does not measure.
-BACKLASH_NOTE = (
-    "lost motion is not measured by this level: every posture is approached from below, so the "
-    "offsets hold for that approach (a joint with lost motion b reached from above is off by b/2)"
-)
-
-
-def backlash_note(effects: RunEffects | None) -> str:
-    """What the run measured of the lost motion, in words for the result."""
-    if effects is None or not np.any(np.isfinite(effects.backlash_deg)):
-        return BACKLASH_NOTE
-    measured = np.flatnonzero(np.isfinite(effects.backlash_deg))
-    joints = ", ".join(f"J{j + 1}" for j in measured)
-    return (
-        f"lost motion measured on {joints} (read from both sides); the offsets are those of the "
-        "positive approach"
-    )
-
-
-def run_effects(sound: Any) -> RunEffects | None:
-    """The drift and lost motion of the solution that fitted the sound speed, if it has a fit."""
-    cell = getattr(sound, "cell_fit", None)
-    return None if cell is None else RunEffects.of(cell)
+CalibrationT = TypeVar("CalibrationT", bound=CalibrationResult)
 
 
 class JointSolution(Protocol):
@@ -173,56 +152,6 @@ def block_written(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] 
     return None if block is None else block_keys(block)
 
 
-def result_fields(
-    chosen: Any,
-    level: str,
-    measured: Measured[CalibrationRun] | Measured[FullRun],
-    profile_path: Path,
-    written: bool,
-    sound: Any,
-    fit: FitQuality,
-) -> dict[str, Any]:
-    """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
-    solution that fitted the sound speed)."""
-    measurements = measured.data
-    gauge: J1Gauge | None = chosen.gauge
-    effects = run_effects(sound)
-    return {
-        "joint_offsets_deg": chosen.offsets_deg,
-        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
-        "unobservable_joints": list(chosen.unobservable_joints),
-        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
-        **(
-            {}
-            if gauge is None or chosen.std_block_deg is None
-            else gauge_fields(chosen.std_block_deg, gauge)
-        ),
-        "method": chosen.method,
-        "level": level,
-        "approach": APPROACH,
-        # SPEC.md: null where not measured (readings from one side only)
-        "backlash_deg": [None] * 6,
-        "backlash_std_deg": [None] * 6,
-        "sound_speed_drift_m_s_per_min": None,
-        "sound_speed_drift_m_s_per_min_std": None,
-        **({} if effects is None else effects.to_json()),
-        "backlash_note": backlash_note(effects),
-        "moves": measurements.moves,
-        "pulser_reads": measurements.reads,
-        # time the run took on the cell: simulated time on the simulated cell (what a real
-        # cell would take over Modbus TCP)
-        "duration_s": measured.duration_s,
-        "profile": str(profile_path),
-        "written": written,
-        "sound_speed_m_s": sound.sound_speed_m_s,
-        "sound_speed_std_m_s": sound.sound_speed_std_m_s,
-        "fit": fit.to_json(),
-        "residuals": [
-            {"label": r.label, "tilt": list(r.tilt), "distance": r.distance} for r in fit.residuals
-        ],
-    }
-
-
 class PlannedPosture(Protocol):
     """What a record's plan rows read of a planned target or posture."""
 
@@ -257,15 +186,6 @@ def plan_rows(planned: Iterable[PlannedPosture]) -> list[dict[str, Any]]:
     ]
 
 
-class Verdict:
-    """Whether a solution may be written, and the one-line message when not."""
-
-    def __init__(self, ok: bool, misfit_only: bool, message: str):
-        self.ok = ok
-        self.misfit_only = misfit_only
-        self.message = message
-
-
 def write_calibration(
     profile_path: Path,
     run: str,
@@ -282,33 +202,6 @@ def write_calibration(
         reason += f", written with --force: {verdict.message}"
     updates = {"calibration": keys} if block is None else {"calibration": keys, "sample": block}
     write_profile(profile_path, updates, reason=reason)
-
-
-def outcome(
-    result: dict[str, Any], measured: Measured[Any], verdict: Verdict, written: bool, shown: Any
-) -> Outcome:
-    """The ``calibrate`` outcome of either level: its result with the verdict and, on the
-    simulated cell, the true offsets."""
-    result["out_of_tolerance"] = not verdict.ok
-    truth = measured.truth
-    if truth is not None:
-        result["truth_offsets_deg"] = truth.joint_offsets_deg
-        block = result.get("block")
-        if block is not None:
-            # what the block gauge should give: J1 relative to the true block as placed
-            relative = np.array(truth.joint_offsets_deg, float)
-            relative[0] = j1_relative_to_block(
-                relative[0], truth.sample_rotation_deg, block["rotation_deg"][2]
-            )
-            result["truth_offsets_block_deg"] = relative
-    return Outcome(
-        "calibrate",
-        result,
-        written,
-        out_of_tolerance=not verdict.ok,
-        message=verdict.message,
-        shown=shown,
-    )
 
 
 def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
@@ -406,29 +299,6 @@ def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
     return "\n".join([*lines, WRIST_SEARCH])
 
 
-@dataclass
-class OffsetsSolved:
-    """Both solutions of a run, the one chosen and its verdict."""
-
-    exact: OffsetSolution
-    paper: OffsetSolution | None
-    chosen: OffsetSolution
-    fit: FitQuality
-    verdict: Verdict
-    #: 1-based joint → its estimate, measured too weakly to write (kept at the profile value)
-    weak: dict[int, WeakJoint]
-    #: What the unidentified quantities' priors allow at the tool centre (``calibration.budget``)
-    budget: TcpBudget | None = None
-
-
-@dataclass
-class OffsetsShown:
-    """What the result tables are drawn from."""
-
-    solved: OffsetsSolved
-    truth: WorldTruth | None
-
-
 class OffsetsCalibration(ProfileJob):
     """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
 
@@ -512,25 +382,15 @@ class OffsetsCalibration(ProfileJob):
         measured: Measured[CalibrationRun],
         solved: OffsetsSolved,
         written: bool,
-    ) -> Outcome:
-        chosen, verdict = solved.chosen, solved.verdict
-        result = {
-            **result_fields(
-                chosen,
-                "offsets",
-                measured,
-                self.profile_path,
-                written,
-                solved.exact,
-                solved.fit,
-            ),
-            "block": block_measured(chosen.cell_fit, self.profile),
-            "condition_number": chosen.condition_number,
-            "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
-            "weak_joints": {str(j): w.to_json() for j, w in solved.weak.items()},
-            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
-        }
-        return outcome(result, measured, verdict, written, OffsetsShown(solved, measured.truth))
+    ) -> Outcome[OffsetsResult]:
+        return outcome(
+            OffsetsResult(
+                RunFacts.of(measured, self.profile_path, written),
+                block_measured(solved.chosen.cell_fit, self.profile),
+                solved,
+                {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
+            )
+        )
 
 
 def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
@@ -564,16 +424,6 @@ def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
         plan.postures[0].joints_deg,
         profile.procedure.speed,
     )
-
-
-@dataclass
-class FullSolved:
-    """The identified model, its fit and its verdict."""
-
-    solution: FullSolution
-    fit: FitQuality
-    verdict: Verdict
-    budget: TcpBudget | None = None
 
 
 class FullCalibration(ProfileJob):
@@ -654,27 +504,24 @@ class FullCalibration(ProfileJob):
 
     def result(
         self, plan: FullPlan, measured: Measured[FullRun], solved: FullSolved, written: bool
-    ) -> Outcome:
-        sol, verdict = solved.solution, solved.verdict
-        result = {
-            **result_fields(
-                sol,
-                "full",
-                measured,
-                self.profile_path,
-                written,
-                sol,
-                solved.fit,
-            ),
-            "block": block_measured(sol.cell, self.profile),
-            "dh": sol.dh_rows(),
-            "identification": sol.to_json(),
-            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
-            "plan": {
-                "postures": len(plan.postures),
-                "candidates": plan.candidates,
-                "log_det": plan.log_det,
-                "d_criterion": plan.d_criterion,
-            },
-        }
-        return outcome(result, measured, verdict, written, sol)
+    ) -> Outcome[FullResult]:
+        return outcome(
+            FullResult(
+                RunFacts.of(measured, self.profile_path, written),
+                block_measured(solved.solution.cell, self.profile),
+                solved,
+                plan,
+            )
+        )
+
+
+def outcome(result: CalibrationT) -> Outcome[CalibrationT]:
+    """The ``calibrate`` outcome of either level."""
+    verdict = result.verdict
+    return Outcome(
+        "calibrate",
+        result,
+        result.run.written,
+        out_of_tolerance=not verdict.ok,
+        message=verdict.message,
+    )

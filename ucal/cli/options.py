@@ -10,11 +10,13 @@ typed on the command line win over the environment (``cell_from_options``).
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import logging
 import os
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -393,6 +395,66 @@ def _check_urls(
                 f"{_origin(ctx, 'digitizer_url')} is for a pulser that does not digitise "
                 f"(ascii://); {_origin(ctx, name)} {url} takes none"
             ) from None
+
+
+profile_argument = click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path)
+)
+
+
+@dataclass(frozen=True)
+class MovingCall:
+    """What every command that moves the robot is called with besides its own options: the
+    profile, the cell, the record, whether to ask, write and print JSON (``moving_options``)."""
+
+    profile_path: Path
+    sim_world: str | None
+    controller_url: str | None
+    pulser_url: str | None
+    record_path: Path | None
+    replay_path: Path | None
+    remeasure: bool
+    yes: bool
+    dry_run: bool
+    as_json: bool
+
+    def cell(self) -> CellChoice:
+        """The cell the options name, checked (``cell_from_options``)."""
+        return cell_from_options(
+            self.sim_world, self.controller_url, self.pulser_url, dry_run=self.dry_run
+        )
+
+
+def moving_options(*own: Callable[[F], F]) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Decorator: a moving command's PROFILE and the options every moving command takes around
+    its ``own``, in the order ``--help`` lists them: ``--sim``, ``--controller``, ``--pulser``
+    (and ``--digitizer``), the command's own, ``--record``, ``--replay``, ``--remeasure``,
+    ``--yes``, ``--dry-run``, ``--json``. The command is called with one ``MovingCall`` and its
+    own options by name."""
+    shared = [f.name for f in fields(MovingCall)]
+
+    def decorate(f: Callable[..., None]) -> Callable[..., None]:
+        @functools.wraps(f)
+        def command(**kwargs: Any) -> None:
+            call = MovingCall(**{name: kwargs.pop(name) for name in shared})
+            f(call, **kwargs)
+
+        options: list[Callable[[Any], Any]] = [
+            profile_argument,
+            sim_option,
+            controller_option,
+            pulser_option,
+            *own,
+            record_options,
+            yes_option,
+            dry_run_option,
+            json_option,
+        ]
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
 
 
 def parse_floats(text: str, n: int, what: str) -> np.ndarray:
