@@ -44,8 +44,10 @@ from ucal.calibration.result import (
     CalibrationResult,
     FullResult,
     FullSolved,
+    Judged,
     OffsetsResult,
     OffsetsSolved,
+    SolvedT,
     Verdict,
     run_effects,
 )
@@ -60,7 +62,7 @@ from ucal.calibration.sequence import (
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
-from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
+from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
@@ -71,7 +73,7 @@ from ucal.timing import DurationEstimate, estimate_run
 #: truncation error beyond it is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
 
-CalibrationT = TypeVar("CalibrationT", bound=CalibrationResult)
+CalibrationT = TypeVar("CalibrationT", bound=CalibrationResult[Any])
 
 
 class JointSolution(Protocol):
@@ -299,10 +301,44 @@ def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
     return "\n".join([*lines, WRIST_SEARCH])
 
 
-class OffsetsCalibration(ProfileJob):
-    """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
+class CalibrationJob(ProfileJob):
+    """What both levels share: the beam's treatment (``--beam``), ``--force``, the verdict that
+    lets the result be written, and the outcome."""
 
     command = "calibrate"
+
+    def __init__(
+        self, profile: CellProfile, profile_path: Path, beam: str = "auto", force: bool = False
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.beam = beam
+        self.force = force
+
+    def may_write(self, solved: Judged) -> bool:
+        return solved.verdict.ok or self.force
+
+    def found(
+        self, measured: Measured[CountedT], solved: SolvedT, written: bool
+    ) -> tuple[RunFacts, dict[str, Any] | None, SolvedT]:
+        """What either level's result begins with: the run, the block as measured, the
+        solution."""
+        block = block_measured(solved.chosen.cell_fit, self.profile)
+        return RunFacts.of(measured, self.profile_path, written), block, solved
+
+    def outcome(self, result: CalibrationT) -> Outcome[CalibrationT]:
+        """The outcome of either level: out of tolerance as the verdict says."""
+        verdict = result.solved.verdict
+        return Outcome(
+            self.command,
+            result,
+            result.run.written,
+            out_of_tolerance=not verdict.ok,
+            message=verdict.message,
+        )
+
+
+class OffsetsCalibration(CalibrationJob):
+    """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
 
     def __init__(
         self,
@@ -312,10 +348,8 @@ class OffsetsCalibration(ProfileJob):
         beam: str = "auto",
         force: bool = False,
     ) -> None:
-        super().__init__(profile, profile_path)
+        super().__init__(profile, profile_path, beam, force)
         self.method = method
-        self.beam = beam
-        self.force = force
 
     def plan(self) -> CalibrationPlan:
         return plan_calibration(self.profile)
@@ -354,9 +388,6 @@ class OffsetsCalibration(ProfileJob):
         budget = calibration_budget(self.profile, exact.cell_fit, measured.data.measurements)
         return OffsetsSolved(exact, paper, kept, fit, judge(kept, fit), weak, budget)
 
-    def may_write(self, solved: OffsetsSolved) -> bool:
-        return solved.verdict.ok or self.force
-
     def write(self, solved: OffsetsSolved) -> None:
         chosen = solved.chosen
         write_calibration(
@@ -383,14 +414,8 @@ class OffsetsCalibration(ProfileJob):
         solved: OffsetsSolved,
         written: bool,
     ) -> Outcome[OffsetsResult]:
-        return outcome(
-            OffsetsResult(
-                RunFacts.of(measured, self.profile_path, written),
-                block_measured(solved.chosen.cell_fit, self.profile),
-                solved,
-                {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
-            )
-        )
+        steps = {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg}
+        return self.outcome(OffsetsResult(*self.found(measured, solved, written), steps))
 
 
 def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
@@ -426,11 +451,9 @@ def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
     )
 
 
-class FullCalibration(ProfileJob):
+class FullCalibration(CalibrationJob):
     """``calibrate --level full``: the identifiable kinematic parameters and the joint offsets
     → ``[calibration]`` with its ``dh`` table."""
-
-    command = "calibrate"
 
     def __init__(
         self,
@@ -440,9 +463,7 @@ class FullCalibration(ProfileJob):
         force: bool = False,
         max_postures: int | None = None,
     ) -> None:
-        super().__init__(profile, profile_path)
-        self.beam = beam
-        self.force = force
+        super().__init__(profile, profile_path, beam, force)
         self.max_postures = max_postures  # None: as many as the D-optimal criterion finds
 
     def plan(self) -> FullPlan:
@@ -483,11 +504,8 @@ class FullCalibration(ProfileJob):
         budget = calibration_budget(self.profile, solution.cell, run.measurements, run.steps)
         return FullSolved(solution, fit, judge(solution, fit), budget)
 
-    def may_write(self, solved: FullSolved) -> bool:
-        return solved.verdict.ok or self.force
-
     def write(self, solved: FullSolved) -> None:
-        sol = solved.solution
+        sol = solved.chosen
         write_calibration(
             self.profile_path,
             "calibrate --level full",
@@ -505,23 +523,4 @@ class FullCalibration(ProfileJob):
     def result(
         self, plan: FullPlan, measured: Measured[FullRun], solved: FullSolved, written: bool
     ) -> Outcome[FullResult]:
-        return outcome(
-            FullResult(
-                RunFacts.of(measured, self.profile_path, written),
-                block_measured(solved.solution.cell, self.profile),
-                solved,
-                plan,
-            )
-        )
-
-
-def outcome(result: CalibrationT) -> Outcome[CalibrationT]:
-    """The ``calibrate`` outcome of either level."""
-    verdict = result.verdict
-    return Outcome(
-        "calibrate",
-        result,
-        result.run.written,
-        out_of_tolerance=not verdict.ok,
-        message=verdict.message,
-    )
+        return self.outcome(FullResult(*self.found(measured, solved, written), plan))

@@ -12,7 +12,7 @@ measured, what the unidentified quantities allow at the tool centre, and what be
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -65,6 +65,35 @@ class Verdict:
         self.message = message
 
 
+class Judged(Protocol):
+    """What the results of both levels read of what their solve step concluded."""
+
+    @property
+    def chosen(self) -> Solution:
+        """The solution reported and written."""
+        ...
+
+    @property
+    def sound(self) -> Solution:
+        """The solution that fitted the sound speed, the drift and the lost motion."""
+        ...
+
+    @property
+    def fit(self) -> FitQuality: ...
+
+    @property
+    def verdict(self) -> Verdict: ...
+
+    @property
+    def budget(self) -> TcpBudget | None:
+        """What the unidentified quantities' priors allow at the tool centre
+        (``ucal.calibration.budget``)."""
+        ...
+
+
+SolvedT = TypeVar("SolvedT", bound=Judged)
+
+
 @dataclass
 class OffsetsSolved:
     """Both solutions of a run, the one chosen and its verdict."""
@@ -76,60 +105,47 @@ class OffsetsSolved:
     verdict: Verdict
     #: 1-based joint → its estimate, measured too weakly to write (kept at the profile value)
     weak: dict[int, WeakJoint]
-    #: What the unidentified quantities' priors allow at the tool centre (``calibration.budget``)
     budget: TcpBudget | None = None
+
+    @property
+    def sound(self) -> OffsetSolution:
+        return self.exact
 
 
 @dataclass
 class FullSolved:
     """The identified model, its fit and its verdict."""
 
-    solution: FullSolution
+    chosen: FullSolution
     fit: FitQuality
     verdict: Verdict
     budget: TcpBudget | None = None
 
+    @property
+    def sound(self) -> FullSolution:
+        return self.chosen
+
 
 @dataclass(frozen=True)
-class CalibrationResult:
+class CalibrationResult(Generic[SolvedT]):
     """What both levels report (SPEC.md's ``calibrate --json`` fields every level gives)."""
 
     run: RunFacts
     #: The block as the fit measured it (``ucal.calibration.gauge.block_pose``; None: the
     #: paper's equations measure none).
     block: dict[str, Any] | None
+    solved: SolvedT
 
     level: ClassVar[str]
 
     @property
-    def chosen(self) -> Solution:
-        """The solution reported and written."""
-        raise NotImplementedError
-
-    @property
-    def sound(self) -> Solution:
-        """The solution that fitted the sound speed, the drift and the lost motion."""
-        raise NotImplementedError
-
-    @property
-    def fit(self) -> FitQuality:
-        raise NotImplementedError
-
-    @property
-    def verdict(self) -> Verdict:
-        raise NotImplementedError
-
-    @property
-    def budget(self) -> TcpBudget | None:
-        raise NotImplementedError
-
-    @property
     def effects(self) -> RunEffects | None:
-        return run_effects(self.sound)
+        return run_effects(self.solved.sound)
 
     @property
     def gauge(self) -> J1Gauge | None:
-        return None if self.chosen.std_block_deg is None else self.chosen.gauge
+        chosen = self.solved.chosen
+        return None if chosen.std_block_deg is None else chosen.gauge
 
     def weak(self) -> dict[int, WeakJoint]:
         """Joints measured too weakly to write (the offsets level's; none at the full level)."""
@@ -145,7 +161,7 @@ class CalibrationResult:
 
     def common_json(self) -> dict[str, Any]:
         """The fields every level reports, and the block."""
-        chosen, sound, fit, run = self.chosen, self.sound, self.fit, self.run
+        chosen, sound, fit, run = self.solved.chosen, self.solved.sound, self.solved.fit, self.run
         gauge, effects = self.gauge, self.effects
         return {
             "joint_offsets_deg": chosen.offsets_deg,
@@ -185,11 +201,12 @@ class CalibrationResult:
         }
 
     def budget_json(self) -> dict[str, object] | None:
-        return None if self.budget is None else self.budget.to_json()
+        budget = self.solved.budget
+        return None if budget is None else budget.to_json()
 
     def verdict_json(self) -> dict[str, Any]:
         """Out of tolerance or not and, on the simulated cell, the true offsets."""
-        out: dict[str, Any] = {"out_of_tolerance": not self.verdict.ok}
+        out: dict[str, Any] = {"out_of_tolerance": not self.solved.verdict.ok}
         truth = self.run.truth
         if truth is not None:
             out["truth_offsets_deg"] = truth.joint_offsets_deg
@@ -209,40 +226,19 @@ class CalibrationResult:
 
 
 @dataclass(frozen=True)
-class OffsetsResult(CalibrationResult):
+class OffsetsResult(CalibrationResult[OffsetsSolved]):
     """``calibrate --level offsets``: the six joint offsets."""
 
-    solved: OffsetsSolved
     joint_steps_deg: dict[str, float | None]  # "arm" (J2, J3) and "azimuth" (J1; None: no room)
 
     level: ClassVar[str] = "offsets"
-
-    @property
-    def chosen(self) -> OffsetSolution:
-        return self.solved.chosen
-
-    @property
-    def sound(self) -> OffsetSolution:
-        return self.solved.exact
-
-    @property
-    def fit(self) -> FitQuality:
-        return self.solved.fit
-
-    @property
-    def verdict(self) -> Verdict:
-        return self.solved.verdict
-
-    @property
-    def budget(self) -> TcpBudget | None:
-        return self.solved.budget
 
     def weak(self) -> dict[int, WeakJoint]:
         return self.solved.weak
 
     def level_json(self) -> dict[str, Any]:
         return {
-            "condition_number": self.chosen.condition_number,
+            "condition_number": self.solved.chosen.condition_number,
             "joint_steps_deg": self.joint_steps_deg,
             "weak_joints": {str(j): w.to_json() for j, w in self.solved.weak.items()},
             "unidentified_tcp_mm": self.budget_json(),
@@ -250,36 +246,15 @@ class OffsetsResult(CalibrationResult):
 
 
 @dataclass(frozen=True)
-class FullResult(CalibrationResult):
+class FullResult(CalibrationResult[FullSolved]):
     """``calibrate --level full``: the identified kinematic model and the joint offsets."""
 
-    solved: FullSolved
     plan: FullPlan
 
     level: ClassVar[str] = "full"
 
-    @property
-    def chosen(self) -> FullSolution:
-        return self.solved.solution
-
-    @property
-    def sound(self) -> FullSolution:
-        return self.solved.solution
-
-    @property
-    def fit(self) -> FitQuality:
-        return self.solved.fit
-
-    @property
-    def verdict(self) -> Verdict:
-        return self.solved.verdict
-
-    @property
-    def budget(self) -> TcpBudget | None:
-        return self.solved.budget
-
     def level_json(self) -> dict[str, Any]:
-        sol, plan = self.chosen, self.plan
+        sol, plan = self.solved.chosen, self.plan
         return {
             "dh": sol.dh_rows(),
             "identification": sol.to_json(),

@@ -32,6 +32,8 @@ from ucal.cell import CellProfile
 from ucal.cli.options import (
     MovingCall,
     check_can_confirm,
+    choice_option,
+    force_option,
     moving_options,
     table_console,
     warn,
@@ -64,28 +66,22 @@ Examples:
 """,
 )
 @moving_options(
-    click.option(
+    choice_option(
         "--method",
-        type=click.Choice(["exact", "paper"]),
-        default="exact",
-        show_default=True,
-        help="exact: nonlinear least squares over the full kinematics; paper: paper 000's "
+        ["exact", "paper"],
+        "exact: nonlinear least squares over the full kinematics; paper: paper 000's "
         "first-order equations 11-21.",
     ),
-    click.option(
+    choice_option(
         "--beam",
-        type=click.Choice(["auto", "fit", "fixed"]),
-        default="auto",
-        show_default=True,
-        help="auto/fit: the beam direction in the flange frame is an unknown with the "
+        ["auto", "fit", "fixed"],
+        "auto/fit: the beam direction in the flange frame is an unknown with the "
         "profile's tool tolerance as prior; fixed: take the profile's tool as exact.",
     ),
-    click.option(
+    choice_option(
         "--level",
-        type=click.Choice(["offsets", "full"]),
-        default="offsets",
-        show_default=True,
-        help="offsets: the six joint offsets; full: the identifiable kinematic parameters "
+        ["offsets", "full"],
+        "offsets: the six joint offsets; full: the identifiable kinematic parameters "
         "as well, from many postures, written as [calibration] dh.",
     ),
     click.option(
@@ -95,12 +91,10 @@ Examples:
         help="--level full: at most N postures (default: as many as the D-optimal "
         "criterion finds worth measuring).",
     ),
-    click.option(
-        "--force",
-        is_flag=True,
-        help="Write the result even when it is out of tolerance: a misfit, or the paper "
+    force_option(
+        "Write the result even when it is out of tolerance: a misfit, or the paper "
         "method's offsets less certain than 0.02 deg (the verdict is recorded in the profile "
-        "history).",
+        "history)."
     ),
 )
 def cli(
@@ -269,7 +263,7 @@ def show_result(console: Console, result: OffsetsResult) -> None:
 
 
 def _sound_speed(result: CalibrationResult) -> str:
-    sound = result.sound
+    sound = result.solved.sound
     return f"sound speed {sound.sound_speed_m_s:.2f} ± {sound.sound_speed_std_m_s:.2f} m/s"
 
 
@@ -284,7 +278,7 @@ def _run_line(result: CalibrationResult) -> str:
 def show_approach(console: Console, result: CalibrationResult) -> None:
     """The approach direction the offsets belong to, and what is not measured of it; what
     the unidentified quantities' tolerances allow at the tool centre."""
-    budget = result.budget
+    budget = result.solved.budget
     if budget is not None:
         top = ", ".join(f"{k} {v:.3f}" for k, v in list(budget.by_quantity.items())[:3])
         console.print(
@@ -344,7 +338,7 @@ def show_fit(console: Console, fit: FitQuality | None) -> None:
 
 def show_full_result(console: Console, result: FullResult) -> None:
     """The identified parameters, offsets and fit of ``--level full`` as tables on stdout."""
-    sol = result.chosen
+    sol = result.solved.chosen
     table = Table(title="Kinematic parameters (calibrate --level full)")
     for col in ("parameter", "value", "σ", "nominal", "status"):
         table.add_column(col, justify="right" if col != "status" else "left")

@@ -397,6 +397,19 @@ def _check_urls(
             ) from None
 
 
+def choice_option(flag: str, choices: list[str], text: str) -> Callable[[F], F]:
+    """Decorator: ``flag`` taking one of ``choices``, the first by default (``--help`` says
+    so); ``text`` is its help."""
+    return click.option(
+        flag, type=click.Choice(choices), default=choices[0], show_default=True, help=text
+    )
+
+
+def force_option(text: str) -> Callable[[F], F]:
+    """Decorator: ``--force``, writing a result out of tolerance; ``text`` says what."""
+    return click.option("--force", is_flag=True, help=text)
+
+
 profile_argument = click.argument(
     "profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path)
 )

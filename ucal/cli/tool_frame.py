@@ -7,7 +7,7 @@ import logging
 import click
 
 from ucal.cell import CellProfile
-from ucal.cli.options import MovingCall, moving_options
+from ucal.cli.options import MovingCall, choice_option, force_option, moving_options
 from ucal.cli.procedure import run_command
 from ucal.procedure import Outcome
 from ucal.record import Record
@@ -31,12 +31,10 @@ Examples:
 """,
 )
 @moving_options(
-    click.option(
+    choice_option(
         "--method",
-        type=click.Choice(["exact", "paper"]),
-        default="exact",
-        show_default=True,
-        help="exact: beam from normal-incidence postures, offset along the beam from "
+        ["exact", "paper"],
+        "exact: beam from normal-incidence postures, offset along the beam from "
         "time of flight, offsets across it from edge reversal; paper: paper 002's "
         "constrained least squares over incidence points.",
     ),
@@ -48,11 +46,9 @@ Examples:
         help="exact: normal-incidence postures (default 4, at least 2); paper: "
         "incidence points (default 100, at least 7).",
     ),
-    click.option(
-        "--force",
-        is_flag=True,
-        help="Write the result even when it is out of tolerance or a misfit (the reason "
-        "is recorded in the profile history).",
+    force_option(
+        "Write the result even when it is out of tolerance or a misfit (the reason "
+        "is recorded in the profile history)."
     ),
 )
 def cli(call: MovingCall, method: str, points: int | None, force: bool) -> None:
