@@ -79,27 +79,19 @@ def configure_logging(ctx: click.Context) -> None:
     logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
+def _counted(flags: list[str], text: str, flag: bool = False) -> click.Option:
+    """An option counted wherever it is typed (``_count``): a flag, or one that repeats."""
+    return click.Option(
+        flags, is_flag=flag, count=not flag, expose_value=False, callback=_count, help=text
+    )
+
+
 COMMON_OPTIONS = (
-    click.Option(
-        ["--debug"],
-        is_flag=True,
-        expose_value=False,
-        callback=_count,
-        help="Show tracebacks and debug logging.",
-    ),
-    click.Option(
-        ["-v", "--verbose"],
-        count=True,
-        expose_value=False,
-        callback=_count,
-        help="More log output (-v info, -vv debug).",
-    ),
-    click.Option(
+    _counted(["--debug"], "Show tracebacks and debug logging.", flag=True),
+    _counted(["-v", "--verbose"], "More log output (-v info, -vv debug)."),
+    _counted(
         ["-q", "--quiet"],
-        count=True,
-        expose_value=False,
-        callback=_count,
-        help="No progress or informational messages on stderr (errors and warnings still print).",
+        "No progress or informational messages on stderr (errors and warnings still print).",
     ),
 )
 
@@ -413,6 +405,18 @@ def force_option(text: str) -> Callable[[F], F]:
 profile_argument = click.argument(
     "profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path)
 )
+#: PROFILE of a command that only reads it: it must exist (click says so, exit 2).
+existing_profile_argument = click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+
+
+def output_option(name: str, metavar: str, kind: click.Path, text: str) -> Callable[[F], F]:
+    """Decorator: the required ``-o``/``--output`` a command writes, as its parameter
+    ``name`` (``kind``: a file or a directory); ``text`` is its help."""
+    return click.option(
+        "-o", "--output", name, required=True, metavar=metavar, type=kind, help=text
+    )
 
 
 @dataclass(frozen=True)
