@@ -160,22 +160,24 @@ dry_run_option = click.option(
     "--dry-run", is_flag=True, help="Run against the simulator and write nothing."
 )
 
-_record_option = click.option(
+
+def _file_option(flag: str, name: str, text: str) -> Callable[[F], F]:
+    """Decorator: ``flag FILE``, one file, as the parameter ``name``; ``text`` is its help."""
+    kind = click.Path(dir_okay=False, path_type=Path)
+    return click.option(flag, name, type=kind, metavar="FILE", help=text)
+
+
+_record_option = _file_option(
     "--record",
     "record_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    metavar="FILE",
-    help="Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
+    "Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
     "call (joint readings, moves, gain, readings, times), then the measurements the solver "
     "receives and the result.",
 )
-_replay_option = click.option(
+_replay_option = _file_option(
     "--replay",
     "replay_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    metavar="FILE",
-    help="Solve the measurements of a --record FILE again; moves nothing, asks nothing, "
-    "writes nothing.",
+    "Solve the measurements of a --record FILE again; moves nothing, asks nothing, writes nothing.",
 )
 _remeasure_option = click.option(
     "--remeasure",
