@@ -4,9 +4,7 @@ tables show the same figures. The job's run is replaced by a result built here."
 
 from __future__ import annotations
 
-import io
 import json
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +38,7 @@ from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckFindings, CheckResult
 from ucal.cli.options import _to_jsonable
 from ucal.procedure import CommandResult, Outcome, RunFacts, RunOptions
-from ucal.profile import default_profile_text, load_profile
+from ucal.profile import load_profile
 from ucal.timing import DurationEstimate
 from ucal.toolframe.procedure import ToolFrameCalibration
 from ucal.toolframe.result import SimulatedError, ToolFrameResult
@@ -75,16 +73,6 @@ class Case:
     outcome: Outcome[CommandResult]
     fields: dict[str, Any]  # fields of the printed JSON, as the result says them
     shown: list[str]  # lines (or parts) of the tables
-
-
-@pytest.fixture
-def profile(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    for name in ("UCAL_SIM", "UCAL_CONTROLLER", "UCAL_PULSER"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
-    path = tmp_path / "cell.toml"
-    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
-    return path
 
 
 def outcome(command: str, result: CommandResult, ok: bool = True) -> Outcome[CommandResult]:
