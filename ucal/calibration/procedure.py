@@ -5,12 +5,13 @@ Read with ``ucal.procedure`` (the order every moving command follows): the plan 
 measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
 measurement, ``ucal.measure.face``), the solvers (``ucal.calibration.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
-(``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
+(``judge``), the ``[calibration]`` keys written and the typed result the tables and ``--json``
+are drawn from (``ucal.calibration.result``).
 
 ``calibrate --level full`` (``FullCalibration``) goes through the same steps with its own plan
 (``ucal.calibration.full_plan``: postures chosen by D-optimality), measurement
 (``ucal.calibration.full_run``) and identification (``ucal.calibration.full``), and the same
-verdict, ``[calibration]`` keys and result fields.
+verdict, ``[calibration]`` keys and result fields (``CalibrationJob`` holds what both share).
 """
 
 from __future__ import annotations

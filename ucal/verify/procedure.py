@@ -138,31 +138,31 @@ class VerifyJob(CheckingJob):
             self.before.same_as(self.profile),
         )
 
-    def may_write(self, shown: VerifySolved) -> bool:
+    def may_write(self, solved: VerifySolved) -> bool:
         return self.plot_path is not None
 
-    def write(self, shown: VerifySolved) -> None:
+    def write(self, solved: VerifySolved) -> None:
         assert self.plot_path is not None
-        plot_verify(shown.result, self.plot_path, self.picture_text(shown))
+        plot_verify(solved.result, self.plot_path, self.picture_text(solved))
 
-    def picture_text(self, shown: VerifySolved) -> PictureText:
+    def picture_text(self, solved: VerifySolved) -> PictureText:
         """What the picture says beside its data: the profile, the verdict's terms, why
         "before" is what it is, the gauge and the notes."""
         return PictureText(
             name=self.profile_path.name,
-            tolerance_mm=shown.tolerance_mm,
-            marginal=marginal(shown),
-            before_source=shown.before.source,
-            before_is_after=shown.before_is_after,
-            gauge_note=shown.gauge.statement(),
-            notes=tuple(self.notes(shown)),
+            tolerance_mm=solved.tolerance_mm,
+            marginal=marginal(solved),
+            before_source=solved.before.source,
+            before_is_after=solved.before_is_after,
+            gauge_note=solved.gauge.statement(),
+            notes=tuple(self.notes(solved)),
         )
 
-    def notes(self, shown: VerifySolved) -> list[str]:
+    def notes(self, solved: VerifySolved) -> list[str]:
         """``notes`` of the result: what the profile says it does not know, and a tool check
         whose scans disagree."""
-        notes = profile_notes(self.profile) + tool_notes(shown.result.tool, self.profile)
-        misfit = tool_misfit_mm(shown)
+        notes = profile_notes(self.profile) + tool_notes(solved.result.tool, self.profile)
+        misfit = tool_misfit_mm(solved)
         if misfit > MEASURED_WITHIN_MM:
             notes.append(
                 f"the tool check's scans in the two senses about the beam disagree by "

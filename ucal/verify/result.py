@@ -216,15 +216,15 @@ def tool_notes(tool: ToolOffset | None, profile: CellProfile) -> list[str]:
     return notes
 
 
-def tool_misfit_mm(shown: VerifySolved) -> float:
+def tool_misfit_mm(solved: VerifySolved) -> float:
     """The tool check's largest misfit (mm; 0 without a tool check)."""
-    tool = shown.result.tool
+    tool = solved.result.tool
     return 0.0 if tool is None else tool.misfit_mm
 
 
-def marginal(shown: VerifySolved) -> bool:
+def marginal(solved: VerifySolved) -> bool:
     """The verdict could go the other way within what verify measures to (plus the tool
     check's misfit)."""
     return bool(
-        abs(shown.worst_mm - shown.tolerance_mm) <= MEASURED_WITHIN_MM + tool_misfit_mm(shown)
+        abs(solved.worst_mm - solved.tolerance_mm) <= MEASURED_WITHIN_MM + tool_misfit_mm(solved)
     )
