@@ -17,7 +17,8 @@ order is the same and lives here (``MeasuringProcedure.run``):
 7. **solve** the measurements (``Job.solve``);
 8. **write** the result (the profile, or a picture), unless this is a dry run or the result
    may not be written;
-9. **result**: one ``Outcome`` (the JSON object, written or not, out of tolerance or not).
+9. **result**: one ``Outcome``: the command's typed result (the tables and ``--json`` are
+   drawn from it), written or not, out of tolerance or not.
 
 A replay (``--replay FILE``) solves the record's measurement lines: steps 5 and 6 are skipped
 (``Job.measured_from`` rebuilds what the measure step handed on), nothing moves and nothing is
@@ -74,6 +75,18 @@ log = logging.getLogger(__name__)
 PlanT = TypeVar("PlanT")
 MeasuredT = TypeVar("MeasuredT")
 SolvedT = TypeVar("SolvedT")
+
+
+class CommandResult(Protocol):
+    """What a command's typed result gives besides its fields: its ``--json`` object."""
+
+    def to_json(self) -> dict[str, Any]:
+        """The command's ``--json`` object of SPEC.md (and more)."""
+        ...
+
+
+ResultT = TypeVar("ResultT", bound=CommandResult)
+ResultT_co = TypeVar("ResultT_co", bound=CommandResult, covariant=True)
 
 
 class Step(StrEnum):
@@ -133,19 +146,64 @@ class Measured(Generic[MeasuredT]):
     echo_timing: dict[str, Any] = field(default_factory=dict)
 
 
+class Counted(Protocol):
+    """What every measure step counts: the robot's moves and the pulser's readings."""
+
+    @property
+    def moves(self) -> int: ...
+
+    @property
+    def reads(self) -> int: ...
+
+
+CountedT = TypeVar("CountedT", bound=Counted)
+
+
+@dataclass(frozen=True)
+class RunFacts:
+    """What every command's result says of its run besides what it found."""
+
+    profile_path: Path
+    written: bool  # the result (the profile, the picture, the history entry) was written
+    moves: int
+    reads: int
+    duration_s: float  # on the cell's clock: simulated time on the simulated cell
+    truth: WorldTruth | None = None  # the simulator's hidden truth, for reporting
+
+    @classmethod
+    def of(cls, measured: Measured[CountedT], profile_path: Path, written: bool) -> RunFacts:
+        """The facts of the run ``measured`` came from."""
+        data = measured.data
+        return cls(
+            profile_path, written, data.moves, data.reads, measured.duration_s, measured.truth
+        )
+
+
 @dataclass
-class Outcome:
-    """The one result shape of every command: its JSON object and what became of it."""
+class Outcome(Generic[ResultT_co]):
+    """The one result shape of every command: its typed result and what became of it."""
 
     command: str
-    result: dict[str, Any]  # the ``--json`` object of SPEC.md (and more)
+    result: ResultT_co  # what the command's tables and ``--json`` object are drawn from
     written: bool
     out_of_tolerance: bool = False
     message: str = ""  # why it is out of tolerance (the one-line error)
-    shown: Any = field(default=None, repr=False)  # what the command's tables are drawn from
+    #: How the echoes were timed (``Measured.echo_timing``), set by the procedure.
+    echo_timing: dict[str, object] = field(default_factory=dict)
+    created: bool | None = None  # the profile was created for the run (``calibrate``)
+    replayed: Path | None = None  # the record a replay solved again
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``--json`` object of SPEC.md (and more): the result's, then how the run went."""
+        out = {**self.result.to_json(), **self.echo_timing}
+        if self.created is not None:
+            out["created"] = self.created
+        if self.replayed is not None:
+            out["replayed"] = str(self.replayed)
+        return out
 
 
-class Job(Protocol[PlanT, MeasuredT, SolvedT]):
+class Job(Protocol[PlanT, MeasuredT, SolvedT, ResultT_co]):
     """What one command contributes to the procedure's steps."""
 
     command: str  # "calibrate", "tool-frame", "verify": the progress display's title
@@ -193,7 +251,7 @@ class Job(Protocol[PlanT, MeasuredT, SolvedT]):
 
     def result(
         self, plan: PlanT, measured: Measured[MeasuredT], solved: SolvedT, written: bool
-    ) -> Outcome: ...
+    ) -> Outcome[ResultT_co]: ...
 
 
 class Presenter(Protocol):
@@ -266,12 +324,12 @@ class CheckingJob(ProfileJob):
         return contextlib.nullcontext()
 
 
-class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
+class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
     """Run a ``Job`` through the steps of the module docstring."""
 
     def __init__(
         self,
-        job: Job[PlanT, MeasuredT, SolvedT],
+        job: Job[PlanT, MeasuredT, SolvedT, ResultT],
         options: RunOptions,
         presenter: Presenter,
         on_step: Callable[[Step], None] | None = None,
@@ -287,7 +345,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
         if self.on_step is not None:
             self.on_step(step)
 
-    def run(self) -> Outcome:
+    def run(self) -> Outcome[ResultT]:
         """Check, plan, show, confirm, open, measure, solve, write; the outcome."""
         job, options = self.job, self.options
         self._enter(Step.CHECK)
@@ -314,9 +372,9 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT]):
                     job.write(solved)
                 self._enter(Step.RESULT)
                 outcome = job.result(plan, measured, solved, written)
-                outcome.result.update(measured.echo_timing)
+                outcome.echo_timing = measured.echo_timing
                 if recorder is not None:
-                    recorder.end(outcome.result)
+                    recorder.end(outcome.to_json())
         return outcome
 
     @contextlib.contextmanager

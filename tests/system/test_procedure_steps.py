@@ -46,7 +46,9 @@ class Recorder:
         yield self.progress_seen.append
 
 
-def run(job: Any, dry_run: bool = False, world: str = "") -> tuple[list[Any], Recorder, Outcome]:
+def run(
+    job: Any, dry_run: bool = False, world: str = ""
+) -> tuple[list[Any], Recorder, Outcome[Any]]:
     steps: list[Step] = []
     presenter = Recorder()
     options = RunOptions(CellChoice(world, None, None), yes=False, dry_run=dry_run)
@@ -61,7 +63,7 @@ def profile_path(tmp_path: Path) -> Path:
     return path
 
 
-def check_run(steps: list[Step], presenter: Recorder, outcome: Outcome, title: str) -> None:
+def check_run(steps: list[Step], presenter: Recorder, outcome: Outcome[Any], title: str) -> None:
     assert steps == list(Step)  # check, plan, show, confirm, open, measure, solve, write, result
     kinds = [e[0] for e in presenter.events]
     assert kinds == ["plan", "confirm", "progress"]
@@ -74,7 +76,7 @@ def check_run(steps: list[Step], presenter: Recorder, outcome: Outcome, title: s
     assert seen[-1].step.what == "solving" and seen[-1].left_s == 0.0
     assert all(a.moves <= b.moves and a.reads <= b.reads for a, b in itertools.pairwise(seen))
     assert seen[0].left_s > seen[len(seen) // 2].left_s > 0.0
-    assert isinstance(outcome.result, dict) and outcome.command == title
+    assert isinstance(outcome.to_json(), dict) and outcome.command == title
 
 
 def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path: Path) -> None:
@@ -93,7 +95,7 @@ def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path:
     turned = [w for w in edges if w.endswith(", tool turned 180°")]
     assert edges and len(turned) == len(edges) / 2  # each edge scan named in both senses
     assert outcome.written == (not outcome.out_of_tolerance)
-    assert outcome.result["written"] == outcome.written
+    assert outcome.to_json()["written"] == outcome.written
 
     profile = load_profile(profile_path)  # as tool-frame wrote it
     # A cell as the profile describes it (the calibration above was a dry run: on the demo
@@ -111,7 +113,7 @@ def test_calibrate_tool_frame_and_verify_go_through_the_same_steps(profile_path:
         "tool check along block Y",
         "solving",
     ]
-    assert outcome.written is False and outcome.result["plot"] is None  # a dry run
+    assert outcome.written is False and outcome.to_json()["plot"] is None  # a dry run
 
 
 def test_calibrate_full_goes_through_the_same_steps(profile_path: Path) -> None:
@@ -123,8 +125,8 @@ def test_calibrate_full_goes_through_the_same_steps(profile_path: Path) -> None:
     seen = presenter.progress_seen
     assert [p.step.configuration for p in seen[:-1]] == ["p01", "p02", "p03"]
     assert all(p.step.face in {"XY", "YZ", "XZ", "step"} for p in seen[:-1])
-    assert outcome.result["level"] == "full" and outcome.result["plan"]["postures"] == 3
-    assert outcome.result["moves"] == seen[-1].moves
+    assert outcome.to_json()["level"] == "full" and outcome.to_json()["plan"]["postures"] == 3
+    assert outcome.to_json()["moves"] == seen[-1].moves
     assert outcome.written is False and profile_path.read_bytes() == before  # a dry run
 
 
@@ -136,5 +138,5 @@ def test_verify_region_goes_through_the_same_steps(profile_path: Path) -> None:
     assert "Region check of" in presenter.events[0][1]
     seen = presenter.progress_seen
     assert [p.step.configuration for p in seen[:-1]] == ["r01", "r02", "r03"]
-    assert outcome.result["region"]["postures"] == 3
+    assert outcome.to_json()["region"]["postures"] == 3
     assert outcome.written is False and profile_path.read_bytes() == before  # never written

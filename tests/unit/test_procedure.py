@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import signal
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -89,8 +90,20 @@ class Job:
     def write(self, solved: str) -> None:
         self.log.append("job.write")
 
-    def result(self, plan: str, measured: Measured[str], solved: str, written: bool) -> Outcome:
-        return Outcome(self.command, {"written": written}, written, not self.ok, "")
+    def result(
+        self, plan: str, measured: Measured[str], solved: str, written: bool
+    ) -> Outcome[Written]:
+        return Outcome(self.command, Written(written), written, not self.ok, "")
+
+
+@dataclass(frozen=True)
+class Written:
+    """The fake job's result."""
+
+    written: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"written": self.written}
 
 
 class Presenter:
@@ -119,7 +132,7 @@ def fake_cell(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(procedure_module, "check_status", lambda rig: None)
 
 
-def run(log: list[str], options: RunOptions, ok: bool = True) -> tuple[Outcome, Presenter]:
+def run(log: list[str], options: RunOptions, ok: bool = True) -> tuple[Outcome[Written], Presenter]:
     presenter = Presenter(log)
     outcome = MeasuringProcedure(Job(log, ok), options, presenter, on_step=log.append).run()
     return outcome, presenter
@@ -143,7 +156,7 @@ def test_steps_in_order_and_the_cell_named_before_any_motion(fake_cell: None) ->
         "job.write",
         Step.RESULT,
     ]
-    assert outcome.written and outcome.result == {
+    assert outcome.written and outcome.to_json() == {
         "written": True,
         "timing": "gate",
         "reference_echo": None,
@@ -245,7 +258,7 @@ def test_a_replay_solves_the_recorded_measurements_without_opening_a_cell(
         s for s in Step if s not in (Step.OPEN, Step.MEASURE)
     ]
     assert "job.measured_from" in log and "job.write" not in log and not outcome.written
-    assert outcome.result["timing"] == "gate"  # as the recorded session timed its echoes
+    assert outcome.to_json()["timing"] == "gate"  # as the recorded session timed its echoes
     # with --remeasure the recorded traffic answers (faked here: the fake cell made no calls)
     monkeypatch.setattr(
         procedure_module,
@@ -267,7 +280,7 @@ def test_measurements_a_record_cannot_hold_leave_the_run_and_its_traffic(
     path = tmp_path / "run.jsonl"
     options = RunOptions(CellChoice("", None, None), yes=True, dry_run=True, record_path=path)
     outcome = MeasuringProcedure(Unrecordable([]), options, Presenter([])).run()
-    assert outcome.result["timing"] == "gate"  # the run went on to its result
+    assert outcome.to_json()["timing"] == "gate"  # the run went on to its result
     record = read_record(path)
     assert record.result is not None and not record.measured
     assert "cannot record a Thing" in caplog.text

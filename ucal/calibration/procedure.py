@@ -5,45 +5,53 @@ Read with ``ucal.procedure`` (the order every moving command follows): the plan 
 measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
 measurement, ``ucal.measure.face``), the solvers (``ucal.calibration.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
-(``judge``), the ``[calibration]`` keys written and the ``--json`` result of SPEC.md.
+(``judge``), the ``[calibration]`` keys written and the typed result the tables and ``--json``
+are drawn from (``ucal.calibration.result``).
 
 ``calibrate --level full`` (``FullCalibration``) goes through the same steps with its own plan
 (``ucal.calibration.full_plan``: postures chosen by D-optimality), measurement
 (``ucal.calibration.full_run``) and identification (``ucal.calibration.full``), and the same
-verdict, ``[calibration]`` keys and result fields.
+verdict, ``[calibration]`` keys and result fields (``CalibrationJob`` holds what both share).
 """
 
 from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
-from ucal.calibration.exact import OffsetSolution
 from ucal.calibration.fit import (
     PRIOR_MEANING,
     CellFit,
     FitQuality,
-    RunEffects,
     prior_from_profile,
 )
-from ucal.calibration.full import FullSolution, solve_full
+from ucal.calibration.full import solve_full
 from ucal.calibration.full_plan import FullPlan, plan_full
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.gauge import (
     J1Gauge,
     block_keys,
     block_pose,
-    gauge_fields,
-    j1_relative_to_block,
 )
 from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.result import (
+    APPROACH,
+    CalibrationResult,
+    FullResult,
+    FullSolved,
+    Judged,
+    OffsetsResult,
+    OffsetsSolved,
+    SolvedT,
+    Verdict,
+    run_effects,
+)
 from ucal.calibration.sequence import (
     CalibrationPlan,
     CalibrationRun,
@@ -52,10 +60,10 @@ from ucal.calibration.sequence import (
     run_calibration,
     solve,
 )
-from ucal.calibration.weak import WeakJoint, keep_weak
-from ucal.cell import CellProfile, WorldTruth
+from ucal.calibration.weak import keep_weak
+from ucal.cell import CellProfile
 from ucal.errors import UcalError
-from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
@@ -66,33 +74,7 @@ from ucal.timing import DurationEstimate, estimate_run
 #: truncation error beyond it is out of tolerance.
 TOLERANCE_STD_DEG = 0.02
 
-#: The approach direction the offsets belong to: every static posture is reached with each joint
-#: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
-#: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
-APPROACH = "positive"
-#: Why ``backlash_deg`` is null: what the offsets level does not measure.
-BACKLASH_NOTE = (
-    "lost motion is not measured by this level: every posture is approached from below, so the "
-    "offsets hold for that approach (a joint with lost motion b reached from above is off by b/2)"
-)
-
-
-def backlash_note(effects: RunEffects | None) -> str:
-    """What the run measured of the lost motion, in words for the result."""
-    if effects is None or not np.any(np.isfinite(effects.backlash_deg)):
-        return BACKLASH_NOTE
-    measured = np.flatnonzero(np.isfinite(effects.backlash_deg))
-    joints = ", ".join(f"J{j + 1}" for j in measured)
-    return (
-        f"lost motion measured on {joints} (read from both sides); the offsets are those of the "
-        "positive approach"
-    )
-
-
-def run_effects(sound: Any) -> RunEffects | None:
-    """The drift and lost motion of the solution that fitted the sound speed, if it has a fit."""
-    cell = getattr(sound, "cell_fit", None)
-    return None if cell is None else RunEffects.of(cell)
+CalibrationT = TypeVar("CalibrationT", bound=CalibrationResult[Any])
 
 
 class JointSolution(Protocol):
@@ -173,56 +155,6 @@ def block_written(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] 
     return None if block is None else block_keys(block)
 
 
-def result_fields(
-    chosen: Any,
-    level: str,
-    measured: Measured[CalibrationRun] | Measured[FullRun],
-    profile_path: Path,
-    written: bool,
-    sound: Any,
-    fit: FitQuality,
-) -> dict[str, Any]:
-    """The fields of SPEC.md's ``calibrate --json`` object every level reports (``sound``: the
-    solution that fitted the sound speed)."""
-    measurements = measured.data
-    gauge: J1Gauge | None = chosen.gauge
-    effects = run_effects(sound)
-    return {
-        "joint_offsets_deg": chosen.offsets_deg,
-        "std_deg": [float(v) if np.isfinite(v) else None for v in chosen.std_deg],
-        "unobservable_joints": list(chosen.unobservable_joints),
-        "unobservable_reasons": {str(j): r for j, r in chosen.unobservable_reasons.items()},
-        **(
-            {}
-            if gauge is None or chosen.std_block_deg is None
-            else gauge_fields(chosen.std_block_deg, gauge)
-        ),
-        "method": chosen.method,
-        "level": level,
-        "approach": APPROACH,
-        # SPEC.md: null where not measured (readings from one side only)
-        "backlash_deg": [None] * 6,
-        "backlash_std_deg": [None] * 6,
-        "sound_speed_drift_m_s_per_min": None,
-        "sound_speed_drift_m_s_per_min_std": None,
-        **({} if effects is None else effects.to_json()),
-        "backlash_note": backlash_note(effects),
-        "moves": measurements.moves,
-        "pulser_reads": measurements.reads,
-        # time the run took on the cell: simulated time on the simulated cell (what a real
-        # cell would take over Modbus TCP)
-        "duration_s": measured.duration_s,
-        "profile": str(profile_path),
-        "written": written,
-        "sound_speed_m_s": sound.sound_speed_m_s,
-        "sound_speed_std_m_s": sound.sound_speed_std_m_s,
-        "fit": fit.to_json(),
-        "residuals": [
-            {"label": r.label, "tilt": list(r.tilt), "distance": r.distance} for r in fit.residuals
-        ],
-    }
-
-
 class PlannedPosture(Protocol):
     """What a record's plan rows read of a planned target or posture."""
 
@@ -257,15 +189,6 @@ def plan_rows(planned: Iterable[PlannedPosture]) -> list[dict[str, Any]]:
     ]
 
 
-class Verdict:
-    """Whether a solution may be written, and the one-line message when not."""
-
-    def __init__(self, ok: bool, misfit_only: bool, message: str):
-        self.ok = ok
-        self.misfit_only = misfit_only
-        self.message = message
-
-
 def write_calibration(
     profile_path: Path,
     run: str,
@@ -282,33 +205,6 @@ def write_calibration(
         reason += f", written with --force: {verdict.message}"
     updates = {"calibration": keys} if block is None else {"calibration": keys, "sample": block}
     write_profile(profile_path, updates, reason=reason)
-
-
-def outcome(
-    result: dict[str, Any], measured: Measured[Any], verdict: Verdict, written: bool, shown: Any
-) -> Outcome:
-    """The ``calibrate`` outcome of either level: its result with the verdict and, on the
-    simulated cell, the true offsets."""
-    result["out_of_tolerance"] = not verdict.ok
-    truth = measured.truth
-    if truth is not None:
-        result["truth_offsets_deg"] = truth.joint_offsets_deg
-        block = result.get("block")
-        if block is not None:
-            # what the block gauge should give: J1 relative to the true block as placed
-            relative = np.array(truth.joint_offsets_deg, float)
-            relative[0] = j1_relative_to_block(
-                relative[0], truth.sample_rotation_deg, block["rotation_deg"][2]
-            )
-            result["truth_offsets_block_deg"] = relative
-    return Outcome(
-        "calibrate",
-        result,
-        written,
-        out_of_tolerance=not verdict.ok,
-        message=verdict.message,
-        shown=shown,
-    )
 
 
 def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
@@ -406,33 +302,44 @@ def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
     return "\n".join([*lines, WRIST_SEARCH])
 
 
-@dataclass
-class OffsetsSolved:
-    """Both solutions of a run, the one chosen and its verdict."""
-
-    exact: OffsetSolution
-    paper: OffsetSolution | None
-    chosen: OffsetSolution
-    fit: FitQuality
-    verdict: Verdict
-    #: 1-based joint → its estimate, measured too weakly to write (kept at the profile value)
-    weak: dict[int, WeakJoint]
-    #: What the unidentified quantities' priors allow at the tool centre (``calibration.budget``)
-    budget: TcpBudget | None = None
-
-
-@dataclass
-class OffsetsShown:
-    """What the result tables are drawn from."""
-
-    solved: OffsetsSolved
-    truth: WorldTruth | None
-
-
-class OffsetsCalibration(ProfileJob):
-    """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
+class CalibrationJob(ProfileJob):
+    """What both levels share: the beam's treatment (``--beam``), ``--force``, the verdict that
+    lets the result be written, and the outcome."""
 
     command = "calibrate"
+
+    def __init__(
+        self, profile: CellProfile, profile_path: Path, beam: str = "auto", force: bool = False
+    ) -> None:
+        super().__init__(profile, profile_path)
+        self.beam = beam
+        self.force = force
+
+    def may_write(self, solved: Judged) -> bool:
+        return solved.verdict.ok or self.force
+
+    def found(
+        self, measured: Measured[CountedT], solved: SolvedT, written: bool
+    ) -> tuple[RunFacts, dict[str, Any] | None, SolvedT]:
+        """What either level's result begins with: the run, the block as measured, the
+        solution."""
+        block = block_measured(solved.chosen.cell_fit, self.profile)
+        return RunFacts.of(measured, self.profile_path, written), block, solved
+
+    def outcome(self, result: CalibrationT) -> Outcome[CalibrationT]:
+        """The outcome of either level: out of tolerance as the verdict says."""
+        verdict = result.solved.verdict
+        return Outcome(
+            self.command,
+            result,
+            result.run.written,
+            out_of_tolerance=not verdict.ok,
+            message=verdict.message,
+        )
+
+
+class OffsetsCalibration(CalibrationJob):
+    """``calibrate --level offsets``: the six joint offsets → ``[calibration]``."""
 
     def __init__(
         self,
@@ -442,10 +349,8 @@ class OffsetsCalibration(ProfileJob):
         beam: str = "auto",
         force: bool = False,
     ) -> None:
-        super().__init__(profile, profile_path)
+        super().__init__(profile, profile_path, beam, force)
         self.method = method
-        self.beam = beam
-        self.force = force
 
     def plan(self) -> CalibrationPlan:
         return plan_calibration(self.profile)
@@ -484,9 +389,6 @@ class OffsetsCalibration(ProfileJob):
         budget = calibration_budget(self.profile, exact.cell_fit, measured.data.measurements)
         return OffsetsSolved(exact, paper, kept, fit, judge(kept, fit), weak, budget)
 
-    def may_write(self, solved: OffsetsSolved) -> bool:
-        return solved.verdict.ok or self.force
-
     def write(self, solved: OffsetsSolved) -> None:
         chosen = solved.chosen
         write_calibration(
@@ -512,25 +414,9 @@ class OffsetsCalibration(ProfileJob):
         measured: Measured[CalibrationRun],
         solved: OffsetsSolved,
         written: bool,
-    ) -> Outcome:
-        chosen, verdict = solved.chosen, solved.verdict
-        result = {
-            **result_fields(
-                chosen,
-                "offsets",
-                measured,
-                self.profile_path,
-                written,
-                solved.exact,
-                solved.fit,
-            ),
-            "block": block_measured(chosen.cell_fit, self.profile),
-            "condition_number": chosen.condition_number,
-            "joint_steps_deg": {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg},
-            "weak_joints": {str(j): w.to_json() for j, w in solved.weak.items()},
-            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
-        }
-        return outcome(result, measured, verdict, written, OffsetsShown(solved, measured.truth))
+    ) -> Outcome[OffsetsResult]:
+        steps = {"arm": plan.step_deg, "azimuth": plan.azimuth_step_deg}
+        return self.outcome(OffsetsResult(*self.found(measured, solved, written), steps))
 
 
 def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
@@ -566,21 +452,9 @@ def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
     )
 
 
-@dataclass
-class FullSolved:
-    """The identified model, its fit and its verdict."""
-
-    solution: FullSolution
-    fit: FitQuality
-    verdict: Verdict
-    budget: TcpBudget | None = None
-
-
-class FullCalibration(ProfileJob):
+class FullCalibration(CalibrationJob):
     """``calibrate --level full``: the identifiable kinematic parameters and the joint offsets
     → ``[calibration]`` with its ``dh`` table."""
-
-    command = "calibrate"
 
     def __init__(
         self,
@@ -590,9 +464,7 @@ class FullCalibration(ProfileJob):
         force: bool = False,
         max_postures: int | None = None,
     ) -> None:
-        super().__init__(profile, profile_path)
-        self.beam = beam
-        self.force = force
+        super().__init__(profile, profile_path, beam, force)
         self.max_postures = max_postures  # None: as many as the D-optimal criterion finds
 
     def plan(self) -> FullPlan:
@@ -633,11 +505,8 @@ class FullCalibration(ProfileJob):
         budget = calibration_budget(self.profile, solution.cell, run.measurements, run.steps)
         return FullSolved(solution, fit, judge(solution, fit), budget)
 
-    def may_write(self, solved: FullSolved) -> bool:
-        return solved.verdict.ok or self.force
-
     def write(self, solved: FullSolved) -> None:
-        sol = solved.solution
+        sol = solved.chosen
         write_calibration(
             self.profile_path,
             "calibrate --level full",
@@ -654,27 +523,5 @@ class FullCalibration(ProfileJob):
 
     def result(
         self, plan: FullPlan, measured: Measured[FullRun], solved: FullSolved, written: bool
-    ) -> Outcome:
-        sol, verdict = solved.solution, solved.verdict
-        result = {
-            **result_fields(
-                sol,
-                "full",
-                measured,
-                self.profile_path,
-                written,
-                sol,
-                solved.fit,
-            ),
-            "block": block_measured(sol.cell, self.profile),
-            "dh": sol.dh_rows(),
-            "identification": sol.to_json(),
-            "unidentified_tcp_mm": None if solved.budget is None else solved.budget.to_json(),
-            "plan": {
-                "postures": len(plan.postures),
-                "candidates": plan.candidates,
-                "log_det": plan.log_det,
-                "d_criterion": plan.d_criterion,
-            },
-        }
-        return outcome(result, measured, verdict, written, sol)
+    ) -> Outcome[FullResult]:
+        return self.outcome(FullResult(*self.found(measured, solved, written), plan))

@@ -23,12 +23,18 @@ from ucal.check.judge import (
 )
 from ucal.check.measure import CheckRun, EchoReading, faces_from_json, run_check
 from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
-from ucal.check.result import CheckResult, misfit_text, named_changes, unexplained_text
+from ucal.check.result import (
+    CheckFindings,
+    CheckResult,
+    misfit_text,
+    named_changes,
+    unexplained_text,
+)
 from ucal.check.solve import (
     compare_geometry,
     compare_to_profile,
 )
-from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
@@ -67,7 +73,7 @@ class CheckJob(ProfileJob):
     def measure(self, plan: CheckPlan, session: CellSession, report: Report) -> CheckRun:
         return run_check(self.profile, plan, session.rig, progress=report)
 
-    def solve(self, plan: CheckPlan, measured: Measured[CheckRun]) -> CheckResult:
+    def solve(self, plan: CheckPlan, measured: Measured[CheckRun]) -> CheckFindings:
         run = measured.data
         self.duration_s = measured.duration_s
         prior = prior_from_profile(self.profile)
@@ -78,7 +84,7 @@ class CheckJob(ProfileJob):
             named, moved = named_changes(None, echo, prior)
             if fit.misfit:
                 moved.append("calibration")
-            return CheckResult(
+            return CheckFindings(
                 profile_quantities(fit, prior) + echo,
                 named,
                 moved,
@@ -90,7 +96,7 @@ class CheckJob(ProfileJob):
         geometry = compare_geometry(prior, faces_from_json(ref.faces), run.faces)
         echo = echo_quantities([EchoReading.from_json(e) for e in ref.echoes], run.echoes)
         named, moved = named_changes(geometry, echo, prior)
-        return CheckResult(
+        return CheckFindings(
             geometry_quantities(geometry, prior) + echo,
             named,
             moved,
@@ -100,40 +106,26 @@ class CheckJob(ProfileJob):
             run=run,
         )
 
-    def may_write(self, solved: CheckResult) -> bool:
+    def may_write(self, solved: CheckFindings) -> bool:
         return True  # every check goes into the history: a drift shows as a trend
 
-    def write(self, solved: CheckResult) -> None:
+    def write(self, solved: CheckFindings) -> None:
         entry = solved.history_entry(self.digest, self.duration_s)
         solved.entry = append_check(self.profile_path, entry)
 
     def result(
-        self, plan: CheckPlan, measured: Measured[CheckRun], solved: CheckResult, written: bool
-    ) -> Outcome:
-        run = measured.data
-        estimate = self.estimate(plan)
-        result: dict[str, Any] = {
-            **solved.to_json(),
-            "profile": str(self.profile_path),
-            # a check never writes the profile; it is appended to the profile's history
-            "written": False,
-            "recorded": written,
-            "history_entry": None if solved.entry is None else solved.entry.id,
-            # time the run took on the cell: simulated time on the simulated cell
-            "duration_s": measured.duration_s,
-            "estimated_s": {"tcp": estimate.tcp_s, "rtu": estimate.rtu_s},
-            "moves": run.moves,
-            "pulser_reads": run.reads,
-            "postures": [t.label for t in plan.targets],
-            "echoes": [e.to_json() for e in run.echoes],
-        }
-        if measured.truth is not None:
-            result["truth_offsets_deg"] = measured.truth.joint_offsets_deg
+        self, plan: CheckPlan, measured: Measured[CheckRun], solved: CheckFindings, written: bool
+    ) -> Outcome[CheckResult]:
+        result = CheckResult(
+            solved,
+            RunFacts.of(measured, self.profile_path, written),
+            self.estimate(plan),
+            [t.label for t in plan.targets],
+        )
         return Outcome(
             "check",
             result,
             written,
             out_of_tolerance=solved.out_of_tolerance,
             message=solved.message(),
-            shown=solved,
         )

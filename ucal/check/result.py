@@ -1,9 +1,10 @@
 """The check's one typed result: its verdict, what moved and by how much, every checked quantity.
 
-``CheckResult`` is built from the comparisons of ``ucal.check.solve`` (the geometry against the
+``CheckFindings`` is built from the comparisons of ``ucal.check.solve`` (the geometry against the
 reference, or a reference check's fit against the profile) and the quantities ``ucal.check.judge``
-draws from them and from the echo chain, and gives the ``--json`` object, the one-line message
-naming what moved, and the history entry.
+draws from them and from the echo chain, and gives the verdict's fields, the one-line message
+naming what moved, and the history entry; ``CheckResult`` adds what became of the run, and is
+what the tables and the ``--json`` object are drawn from.
 """
 
 from __future__ import annotations
@@ -27,10 +28,12 @@ from ucal.check.solve import (
     ProfileComparison,
     temperature_change_c,
 )
+from ucal.procedure import RunFacts
+from ucal.timing import DurationEstimate
 
 
 @dataclass
-class CheckResult:
+class CheckFindings:
     """A check's verdict and what it rests on."""
 
     quantities: list[Quantity]
@@ -146,6 +149,44 @@ class CheckResult:
         )
 
 
+@dataclass(frozen=True)
+class CheckResult:
+    """``check``'s result: the findings, and what became of the run (``run.written``: the
+    check appended to the history; the profile itself is never written)."""
+
+    findings: CheckFindings
+    run: RunFacts
+    estimate: DurationEstimate
+    postures: list[str]  # the planned postures' labels
+
+    @property
+    def measured(self) -> CheckRun:
+        assert self.findings.run is not None
+        return self.findings.run
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``check --json`` object."""
+        found, run = self.findings, self.run
+        out: dict[str, Any] = {
+            **found.to_json(),
+            "profile": str(run.profile_path),
+            # a check never writes the profile; it is appended to the profile's history
+            "written": False,
+            "recorded": run.written,
+            "history_entry": None if found.entry is None else found.entry.id,
+            # time the run took on the cell: simulated time on the simulated cell
+            "duration_s": run.duration_s,
+            "estimated_s": {"tcp": self.estimate.tcp_s, "rtu": self.estimate.rtu_s},
+            "moves": run.moves,
+            "pulser_reads": run.reads,
+            "postures": self.postures,
+            "echoes": [e.to_json() for e in self.measured.echoes],
+        }
+        if run.truth is not None:
+            out["truth_offsets_deg"] = run.truth.joint_offsets_deg
+        return out
+
+
 def _fmt(value: float, unit: str) -> str:
     digits = {"deg": 4, "mm": 3, "m/s": 2, "°C": 2, "dB": 2, "MHz": 2, "ns": 1}.get(unit, 3)
     return f"{value:+.{digits}f} {unit}"
@@ -157,7 +198,7 @@ def named_changes(
     prior: CellPrior,
 ) -> tuple[list[str], list[str]]:
     """What moved out of tolerance, in words with the change and its std, and the parts'
-    short names (``CheckResult.named``, ``moved``)."""
+    short names (``CheckFindings.named``, ``moved``)."""
     named: list[str] = []
     moved: list[str] = []
     if geometry is not None:

@@ -19,32 +19,36 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ucal.calibration.full import FullSolution
-from ucal.calibration.procedure import FullCalibration, OffsetsCalibration, OffsetsShown
+from ucal.calibration.fit import FitQuality
+from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
+from ucal.calibration.result import (
+    APPROACH,
+    CalibrationResult,
+    FullResult,
+    OffsetsResult,
+    backlash_note,
+)
 from ucal.cell import CellProfile
 from ucal.cli.options import (
-    cell_from_options,
+    MovingCall,
     check_can_confirm,
-    controller_option,
-    dry_run_option,
-    json_option,
-    pulser_option,
-    record_options,
-    sim_option,
+    choice_option,
+    force_option,
+    moving_options,
     table_console,
     warn,
-    yes_option,
 )
-from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
+from ucal.cli.procedure import finish, replay_outcome, run_job, run_options
 from ucal.errors import InputError, NotConfirmed
 from ucal.models import DEFAULT_MODEL
-from ucal.procedure import Job, Outcome, RunOptions
+from ucal.procedure import Job, Outcome
 from ucal.profile import (
     create_profile,
     default_profile_text,
     load_profile,
     real_path,
 )
+from ucal.record import Record
 
 log = logging.getLogger(__name__)
 
@@ -61,67 +65,40 @@ Examples:
   ucal calibrate cell.toml --replay run.jsonl --method paper --json
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
-@sim_option
-@controller_option
-@pulser_option
-@click.option(
-    "--method",
-    type=click.Choice(["exact", "paper"]),
-    default="exact",
-    show_default=True,
-    help="exact: nonlinear least squares over the full kinematics; paper: paper 000's "
-    "first-order equations 11-21.",
+@moving_options(
+    choice_option(
+        "--method",
+        ["exact", "paper"],
+        "exact: nonlinear least squares over the full kinematics; paper: paper 000's "
+        "first-order equations 11-21.",
+    ),
+    choice_option(
+        "--beam",
+        ["auto", "fit", "fixed"],
+        "auto/fit: the beam direction in the flange frame is an unknown with the "
+        "profile's tool tolerance as prior; fixed: take the profile's tool as exact.",
+    ),
+    choice_option(
+        "--level",
+        ["offsets", "full"],
+        "offsets: the six joint offsets; full: the identifiable kinematic parameters "
+        "as well, from many postures, written as [calibration] dh.",
+    ),
+    click.option(
+        "--postures",
+        type=click.IntRange(3, 200),
+        default=None,
+        help="--level full: at most N postures (default: as many as the D-optimal "
+        "criterion finds worth measuring).",
+    ),
+    force_option(
+        "Write the result even when it is out of tolerance: a misfit, or the paper "
+        "method's offsets less certain than 0.02 deg (the verdict is recorded in the profile "
+        "history)."
+    ),
 )
-@click.option(
-    "--beam",
-    type=click.Choice(["auto", "fit", "fixed"]),
-    default="auto",
-    show_default=True,
-    help="auto/fit: the beam direction in the flange frame is an unknown with the "
-    "profile's tool tolerance as prior; fixed: take the profile's tool as exact.",
-)
-@click.option(
-    "--level",
-    type=click.Choice(["offsets", "full"]),
-    default="offsets",
-    show_default=True,
-    help="offsets: the six joint offsets; full: the identifiable kinematic parameters "
-    "as well, from many postures, written as [calibration] dh.",
-)
-@click.option(
-    "--postures",
-    type=click.IntRange(3, 200),
-    default=None,
-    help="--level full: at most N postures (default: as many as the D-optimal "
-    "criterion finds worth measuring).",
-)
-@click.option(
-    "--force",
-    is_flag=True,
-    help="Write the result even when it is out of tolerance: a misfit, or the paper method's "
-    "offsets less certain than 0.02 deg (the verdict is recorded in the profile history).",
-)
-@record_options
-@yes_option
-@dry_run_option
-@json_option
 def cli(
-    profile_path: Path,
-    sim_world: str | None,
-    controller_url: str | None,
-    pulser_url: str | None,
-    method: str,
-    beam: str,
-    level: str,
-    postures: int | None,
-    force: bool,
-    record_path: Path | None,
-    replay_path: Path | None,
-    remeasure: bool,
-    yes: bool,
-    dry_run: bool,
-    as_json: bool,
+    call: MovingCall, method: str, beam: str, level: str, postures: int | None, force: bool
 ) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
 
@@ -144,35 +121,27 @@ def cli(
             "--level full identifies the kinematic model by least squares: it "
             "takes --method exact only"
         )
-    replayed = recorded_run(
-        "calibrate",
-        profile_path,
-        record_path,
-        replay_path,
-        remeasure,
-        {"level": "level", "max_postures": "postures"},
-    )
-    if replayed is not None:
-        record, recorded_profile = replayed
+    profile_path = call.profile_path
+
+    def job(profile: CellProfile, record: Record | None) -> Job[Any, Any, Any, Calibrated]:
+        if record is None:
+            return _job(level, profile, profile_path, method, beam, force, postures)
         options = record.options
-        job = _job(
-            options.get("level", "offsets"),
-            recorded_profile,
-            profile_path,
-            method,
-            beam,
-            False,
-            options.get("max_postures"),
-        )
-        outcome = replay_job(job, record, remeasure)
-        warn_weak(outcome)
-        finish(outcome, as_json, show_outcome)
+        recorded_level = options.get("level", "offsets")
+        max_postures = options.get("max_postures")
+        return _job(recorded_level, profile, profile_path, method, beam, False, max_postures)
+
+    fixed = {"level": "level", "max_postures": "postures"}
+    outcome = replay_outcome(call, "calibrate", fixed, job)
+    if outcome is not None:
+        warn_weak(outcome.result)
+        finish(outcome, call.as_json, show_outcome)
         return
-    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
+    cell = call.cell()
     created = False
     scratch = contextlib.ExitStack()  # holds a dry run's default profile until the run ends
     if not profile_path.exists() and cell.sim_world is not None:
-        if dry_run:
+        if call.dry_run:
             tmp = Path(scratch.enter_context(tempfile.TemporaryDirectory(prefix="ucal-")))
             (tmp / profile_path.name).write_text(
                 default_profile_text(DEFAULT_MODEL), encoding="utf-8"
@@ -183,7 +152,7 @@ def cli(
                 f"{DEFAULT_MODEL} (nothing is created)"
             )
         else:
-            check_can_confirm(cell, yes)  # before a file is created for a run that cannot ask
+            check_can_confirm(cell, call.yes)  # before a file is created for a run that cannot ask
             create_profile(profile_path, DEFAULT_MODEL)
             created = True
             # a warning, not info: a mistyped PROFILE must not silently calibrate a new cell
@@ -192,18 +161,21 @@ def cli(
     else:
         profile = load_profile(profile_path)
     with scratch:
-        job = _job(level, profile, profile_path, method, beam, force, postures)
         try:
-            outcome = run_job(job, RunOptions(cell, yes, dry_run, record_path))
+            outcome = run_job(job(profile, None), run_options(call, cell))
         except NotConfirmed as e:
             if not created:
                 raise
             # declined: nothing written means no profile either (often a mistyped name)
             real_path(profile_path).unlink(missing_ok=True)
             raise NotConfirmed(f"{e} ({profile_path}, created for the run, removed)") from None
-    outcome.result["created"] = created
-    warn_weak(outcome)
-    finish(outcome, as_json, show_outcome)
+    outcome.created = created
+    warn_weak(outcome.result)
+    finish(outcome, call.as_json, show_outcome)
+
+
+#: What ``calibrate`` finds, at either level.
+Calibrated = OffsetsResult | FullResult
 
 
 def _job(
@@ -214,39 +186,36 @@ def _job(
     beam: str,
     force: bool,
     postures: int | None,
-) -> Job[Any, Any, Any]:
+) -> Job[Any, Any, Any, Calibrated]:
     """The calibration procedure of ``level``."""
     if level == "full":
         return FullCalibration(profile, profile_path, beam, force, postures)
     return OffsetsCalibration(profile, profile_path, method, beam, force)
 
 
-def warn_weak(outcome: Outcome) -> None:
+def warn_weak(result: CalibrationResult) -> None:
     """A warning line per joint measured too weakly to write (kept at its profile value)."""
-    for j, w in outcome.result.get("weak_joints", {}).items():
-        warn(f"J{j} measured at {w['offset_deg']:+.4f} ± {w['std_deg']:.3g} deg: {w['reason']}")
+    for j, w in result.weak().items():
+        warn(f"J{j} measured at {w.offset_deg:+.4f} ± {w.std_deg:.3g} deg: {w.reason}")
 
 
-def show_outcome(outcome: Outcome) -> None:
+def show_outcome(outcome: Outcome[Calibrated]) -> None:
     """The result tables on stdout, of either level."""
-    if isinstance(outcome.shown, FullSolution):
-        show_full_result(table_console(), outcome.shown, outcome.result)
-        return
-    shown: OffsetsShown = outcome.shown
-    solved = shown.solved
-    show_result(
-        table_console(), solved.chosen, solved.exact, solved.paper, shown.truth, outcome.result
-    )
+    result = outcome.result
+    if isinstance(result, FullResult):
+        show_full_result(table_console(), result)
+    else:
+        show_result(table_console(), result)
 
 
 # -- result tables -----------------------------------------------------------------------------
 
 
-def show_result(
-    console: Console, chosen: Any, exact: Any, paper: Any, truth: Any, result: dict[str, Any]
-) -> None:
+def show_result(console: Console, result: OffsetsResult) -> None:
     """The result as tables on stdout (without --json): offsets with σ, fit quality, residual
     per measurement."""
+    solved, truth = result.solved, result.run.truth
+    chosen, exact, paper = solved.chosen, solved.exact, solved.paper
     table = Table(title=f"Joint offsets ({chosen.method} method)")
     table.add_column("joint")
     table.add_column("offset (deg)", justify="right")
@@ -257,10 +226,10 @@ def show_result(
     if truth is not None:
         table.add_column("simulator truth", justify="right")
         table.add_column("error", justify="right")
-    weak = result.get("weak_joints", {})
+    weak = solved.weak
     for j in range(6):
         unobs = j + 1 in chosen.unobservable_joints
-        kept_as = "weak" if str(j + 1) in weak else "unobservable"
+        kept_as = "weak" if j + 1 in weak else "unobservable"
         row = [
             f"J{j + 1}",
             f"{chosen.offsets_deg[j]:+.4f}" + (" (kept)" if unobs else ""),
@@ -278,50 +247,61 @@ def show_result(
     console.print(table)
     show_fit(console, exact.fit)
     console.print(
-        f"sound speed {result['sound_speed_m_s']:.2f} ± "
-        f"{result['sound_speed_std_m_s']:.2f} m/s (fitted); condition number "
-        f"{chosen.condition_number:.1f}; {result['moves']} moves, "
-        f"{result['pulser_reads']} pulser reads; profile "
-        f"{'written' if result['written'] else 'not written'}: {result['profile']}"
+        f"{_sound_speed(result)} (fitted); condition number {chosen.condition_number:.1f}; "
+        f"{_run_line(result)}"
     )
     for j, why in sorted(chosen.unobservable_reasons.items()):
-        w = weak.get(str(j))
+        w = weak.get(j)
         if w is None:
             console.print(escape(f"J{j} unobservable, kept at its profile value: {why}"))
         else:
             console.print(
-                escape(f"J{j} measured at {w['offset_deg']:+.4f} ± {w['std_deg']:.3g} deg: {why}")
+                escape(f"J{j} measured at {w.offset_deg:+.4f} ± {w.std_deg:.3g} deg: {why}")
             )
     show_approach(console, result)
     show_gauge(console, result)
 
 
-def show_approach(console: Console, result: dict[str, Any]) -> None:
+def _sound_speed(result: CalibrationResult) -> str:
+    sound = result.solved.sound
+    return f"sound speed {sound.sound_speed_m_s:.2f} ± {sound.sound_speed_std_m_s:.2f} m/s"
+
+
+def _run_line(result: CalibrationResult) -> str:
+    run = result.run
+    return (
+        f"{run.moves} moves, {run.reads} pulser reads; profile "
+        f"{'written' if run.written else 'not written'}: {run.profile_path}"
+    )
+
+
+def show_approach(console: Console, result: CalibrationResult) -> None:
     """The approach direction the offsets belong to, and what is not measured of it; what
     the unidentified quantities' tolerances allow at the tool centre."""
-    budget = result.get("unidentified_tcp_mm")
+    budget = result.solved.budget
     if budget is not None:
-        top = ", ".join(f"{k} {v:.3f}" for k, v in list(budget["by_quantity"].items())[:3])
+        top = ", ".join(f"{k} {v:.3f}" for k, v in list(budget.by_quantity.items())[:3])
         console.print(
             escape(
-                f"not identified: their tolerances allow {budget['mean']:.3f} mm mean, "
-                f"{budget['max']:.3f} mm max at the tool centre over the scanning region "
+                f"not identified: their tolerances allow {budget.mean_mm:.3f} mm mean, "
+                f"{budget.max_mm:.3f} mm max at the tool centre over the scanning region "
                 f"(one sigma{'; ' + top if top else ''})"
             )
         )
     console.print(
         escape(
-            f"approach {result['approach']}: the offsets hold for postures reached with every "
-            f"joint moving in its positive direction; {result['backlash_note']}"
+            f"approach {APPROACH}: the offsets hold for postures reached with every "
+            f"joint moving in its positive direction; {backlash_note(result.effects)}"
         )
     )
 
 
-def show_gauge(console: Console, result: dict[str, Any]) -> None:
+def show_gauge(console: Console, result: CalibrationResult) -> None:
     """How J1 is known (``ucal.calibration.gauge``) and the block the fit measured."""
-    if "gauge_note" in result:
-        console.print(escape(f"gauge ({result['gauge']}): {result['gauge_note']}"))
-    block = result.get("block")
+    gauge = result.gauge
+    if gauge is not None:
+        console.print(escape(f"gauge ({gauge.frame}): {gauge.statement()}"))
+    block = result.block
     if block:
         pos, std = block["position_mm"], block["position_std_mm"]
         console.print(
@@ -331,13 +311,14 @@ def show_gauge(console: Console, result: dict[str, Any]) -> None:
                 + " mm, tilt "
                 + ", ".join(f"{v:+.4f}" for v in block["rotation_deg"][:2])
                 + " deg, yaw as placed"
-                + (" (written to [sample])" if result["written"] else "")
+                + (" (written to [sample])" if result.run.written else "")
             )
         )
 
 
-def show_fit(console: Console, fit: Any) -> None:
+def show_fit(console: Console, fit: FitQuality | None) -> None:
     """The fit's normalised residual per measurement, its verdict and the likely cause."""
+    assert fit is not None
     res = Table(title="Fit: normalised residual per measurement (residual / its σ)")
     for col in ("measurement", "tilt a", "tilt b", "distance"):
         res.add_column(col, justify="right")
@@ -355,8 +336,9 @@ def show_fit(console: Console, fit: Any) -> None:
         console.print(escape(f"likely cause: {fit.cause}"))
 
 
-def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]) -> None:
+def show_full_result(console: Console, result: FullResult) -> None:
     """The identified parameters, offsets and fit of ``--level full`` as tables on stdout."""
+    sol = result.solved.chosen
     table = Table(title="Kinematic parameters (calibrate --level full)")
     for col in ("parameter", "value", "σ", "nominal", "status"):
         table.add_column(col, justify="right" if col != "status" else "left")
@@ -395,9 +377,4 @@ def show_full_result(console: Console, sol: FullSolution, result: dict[str, Any]
     show_approach(console, result)
     show_gauge(console, result)
     show_fit(console, sol.cell.quality)
-    console.print(
-        f"sound speed {result['sound_speed_m_s']:.2f} ± "
-        f"{result['sound_speed_std_m_s']:.2f} m/s; {result['moves']} moves, "
-        f"{result['pulser_reads']} pulser reads; profile "
-        f"{'written' if result['written'] else 'not written'}: {result['profile']}"
-    )
+    console.print(f"{_sound_speed(result)}; {_run_line(result)}")

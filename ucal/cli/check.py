@@ -2,27 +2,18 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
+import numpy as np
 from rich.table import Table
 
+from ucal.cell import CellProfile
+from ucal.check.judge import CHANGED, NOT_MEASURED, OUT
 from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckResult
-from ucal.cli.options import (
-    cell_from_options,
-    controller_option,
-    dry_run_option,
-    json_option,
-    pulser_option,
-    record_options,
-    sim_option,
-    table_console,
-    yes_option,
-)
-from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
-from ucal.procedure import Outcome, RunOptions
-from ucal.profile import load_profile
+from ucal.cli.options import MovingCall, moving_options, table_console
+from ucal.cli.procedure import run_command
+from ucal.procedure import Outcome
+from ucal.record import Record
 
 
 @click.command(
@@ -38,33 +29,15 @@ Examples:
       --pulser modbus-tcp://192.168.0.20:502
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
-@sim_option
-@controller_option
-@pulser_option
-@click.option(
-    "--baseline",
-    is_flag=True,
-    help="Record this check as the new reference, whatever the history holds (after a "
-    "repair or a deliberate change); it is judged against the profile's calibration only.",
+@moving_options(
+    click.option(
+        "--baseline",
+        is_flag=True,
+        help="Record this check as the new reference, whatever the history holds (after a "
+        "repair or a deliberate change); it is judged against the profile's calibration only.",
+    )
 )
-@record_options
-@yes_option
-@dry_run_option
-@json_option
-def cli(
-    profile_path: Path,
-    sim_world: str | None,
-    controller_url: str | None,
-    pulser_url: str | None,
-    baseline: bool,
-    record_path: Path | None,
-    replay_path: Path | None,
-    remeasure: bool,
-    yes: bool,
-    dry_run: bool,
-    as_json: bool,
-) -> None:
+def cli(call: MovingCall, baseline: bool) -> None:
     """Check the cell against its commissioning in about a minute; name what moved.
 
     Six of calibrate's normal-incidence measurements (the three faces of the block in the
@@ -79,25 +52,19 @@ def cli(
     Every check is appended to the profile's history (ucal profile history); the profile
     itself is never written.
     """
-    replayed = recorded_run(
-        "check", profile_path, record_path, replay_path, remeasure, {"baseline": "baseline"}
-    )
-    if replayed is not None:
-        record, recorded_profile = replayed
-        job = CheckJob(recorded_profile, profile_path, bool(record.options.get("baseline")))
-        finish(replay_job(job, record, remeasure), as_json, show_outcome)
-        return
-    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
-    profile = load_profile(profile_path)
-    job = CheckJob(profile, profile_path, baseline)
-    finish(run_job(job, RunOptions(cell, yes, dry_run, record_path)), as_json, show_outcome)
+
+    def job(profile: CellProfile, record: Record | None) -> CheckJob:
+        chosen = baseline if record is None else bool(record.options.get("baseline"))
+        return CheckJob(profile, call.profile_path, chosen)
+
+    run_command(call, "check", {"baseline": "baseline"}, job, show_outcome)
 
 
-def show_outcome(outcome: Outcome) -> None:
+def show_outcome(outcome: Outcome[CheckResult]) -> None:
     """The checked quantities, the verdict and the history entry on stdout."""
-    result: CheckResult = outcome.shown
-    out = outcome.result
-    ref = result.reference
+    result = outcome.result
+    found, run = result.findings, result.run
+    ref = found.reference
     title = (
         f"Check against the reference check {ref.id} ({ref.time})"
         if ref is not None
@@ -107,31 +74,29 @@ def show_outcome(outcome: Outcome) -> None:
     for col in ("quantity", "part", "value", "reference", "change", "σ", "tolerance", "verdict"):
         table.add_column(col, justify="left" if col in ("quantity", "part", "verdict") else "right")
 
-    def num(v: float | None, unit: str = "") -> str:
-        return "—" if v is None else f"{v:.4g}{(' ' + unit) if unit else ''}"
+    def known(v: float | None) -> bool:
+        return v is not None and bool(np.isfinite(v))
 
-    for q in out["quantities"]:
-        if q["verdict"] == "not measured":
+    def num(v: float | None) -> str:
+        return f"{v:.4g}" if known(v) else "—"
+
+    for q in found.quantities:
+        if q.verdict == NOT_MEASURED:
             continue
         table.add_row(
-            q["name"],
-            q["part"],
-            num(q["value"]),
-            num(q["baseline"]),
-            "—" if q["difference"] is None else f"{q['difference']:+.4g}",
-            num(q["std"]),
-            num(q["tolerance"]),
-            q["verdict"],
-            style="bold red" if q["verdict"] == "out of tolerance" else None,
+            q.name,
+            q.part,
+            num(q.value),
+            num(q.baseline),
+            f"{q.difference:+.4g}" if known(q.difference) else "—",
+            num(q.std),
+            num(q.tolerance),
+            q.verdict,
+            style="bold red" if q.verdict == OUT else None,
         )
     table_console().print(table)
-    click.echo(
-        f"{out['moves']} moves, {out['pulser_reads']} pulser reads, {out['duration_s']:.0f} s "
-        f"on the cell"
-    )
-    drifts = [
-        q["name"] for q in out["quantities"] if q["verdict"] == "changed" and q["name"] != "tof_ns"
-    ]
+    click.echo(f"{run.moves} moves, {run.reads} pulser reads, {run.duration_s:.0f} s on the cell")
+    drifts = [q.name for q in found.quantities if q.verdict == CHANGED and q.name != "tof_ns"]
     if drifts:
         click.echo(
             f"changed beyond 3 sigma, within tolerance (a drift to watch): {', '.join(drifts)}"
@@ -139,8 +104,8 @@ def show_outcome(outcome: Outcome) -> None:
     if outcome.out_of_tolerance:
         click.echo("verdict: OUT OF TOLERANCE")
     elif ref is None:
-        click.echo("verdict: ok; " + ("reference recorded" if out["recorded"] else "not recorded"))
+        click.echo("verdict: ok; " + ("reference recorded" if run.written else "not recorded"))
     else:
         click.echo("verdict: as commissioned")
-    if out["history_entry"] is not None:
-        click.echo(f"history: check {out['history_entry']} of {outcome.result['profile']}")
+    if found.entry is not None:
+        click.echo(f"history: check {found.entry.id} of {run.profile_path}")

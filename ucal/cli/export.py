@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ucal.cli.options import emit_json, info, json_option
+from ucal.cli.options import emit_json, existing_profile_argument, info, json_option, output_option
 from ucal.profile import load_profile
 from ucal.val3 import (
     APPLICATION,
@@ -39,17 +39,12 @@ Examples:
   ucal export val3 cell.toml -o val3 --json
 """,
 )
-@click.argument(
-    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
-)
-@click.option(
-    "-o",
-    "--output",
+@existing_profile_argument
+@output_option(
     "directory",
-    required=True,
-    metavar="DIR",
-    type=click.Path(file_okay=False, path_type=Path),
-    help=f"Directory to write: the VAL3 application DIR/{APPLICATION}/ and DIR/ucal_cell.json "
+    "DIR",
+    click.Path(file_okay=False, path_type=Path),
+    f"Directory to write: the VAL3 application DIR/{APPLICATION}/ and DIR/ucal_cell.json "
     "(created if missing; files there are replaced).",
 )
 @json_option

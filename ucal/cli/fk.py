@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 import numpy as np
 
-from ucal.cli.options import emit_json, json_option, parse_floats
+from ucal.cli.options import emit_json, json_option, parse_floats, profile_argument
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import matrix_to_pose
 from ucal.profile import load_profile
@@ -25,7 +25,7 @@ Examples:
   ucal fk cell.toml --joints 0,0,90,0,90,0 --json
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
+@profile_argument
 @click.option(
     "--joints",
     required=True,

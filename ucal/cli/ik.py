@@ -9,7 +9,13 @@ import click
 import numpy as np
 from rich.table import Table
 
-from ucal.cli.options import emit_json, json_option, parse_floats, table_console
+from ucal.cli.options import (
+    emit_json,
+    existing_profile_argument,
+    json_option,
+    parse_floats,
+    table_console,
+)
 from ucal.kinematics.ik import IkBranch, ik, ik_branches
 from ucal.kinematics.rotations import pose_to_matrix
 from ucal.profile import load_profile
@@ -24,9 +30,7 @@ Examples:
   ucal ik cell.toml --pose 600,300,100,180,0,0 --all --json
 """,
 )
-@click.argument(
-    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
-)
+@existing_profile_argument
 @click.option(
     "--pose",
     required=True,
@@ -61,25 +65,13 @@ def cli(
     pose_v = parse_floats(pose, 6, "--pose")
     near_v = parse_floats(near, 6, "--near") if near is not None else None
     profile = load_profile(profile_path)
-    sols = ik(
-        profile.model,
-        pose_to_matrix(pose_v),
-        tool_T=profile.tool_matrix,
-        offsets_deg=profile.joint_offsets_deg,
-        near_deg=near_v,
-        all_solutions=all_solutions,
-    )
+    target, tool, offsets = pose_to_matrix(pose_v), profile.tool_matrix, profile.joint_offsets_deg
+    sols = ik(profile.model, target, tool, offsets, near_deg=near_v, all_solutions=all_solutions)
     sols = np.atleast_2d(sols)
     rejected: list[IkBranch] = []
     names: list[str] | None = None
     if all_solutions:
-        branches = ik_branches(
-            profile.model,
-            pose_to_matrix(pose_v),
-            tool_T=profile.tool_matrix,
-            offsets_deg=profile.joint_offsets_deg,
-            near_deg=near_v,
-        )
+        branches = ik_branches(profile.model, target, tool, offsets, near_deg=near_v)
         names = [b.configuration for b in branches if b.reason is None]
         rejected = [b for b in branches if b.reason is not None]
     if as_json:

@@ -10,11 +10,13 @@ typed on the command line win over the environment (``cell_from_options``).
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import logging
 import os
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -77,27 +79,19 @@ def configure_logging(ctx: click.Context) -> None:
     logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
 
 
+def _counted(flags: list[str], text: str, flag: bool = False) -> click.Option:
+    """An option counted wherever it is typed (``_count``): a flag, or one that repeats."""
+    return click.Option(
+        flags, is_flag=flag, count=not flag, expose_value=False, callback=_count, help=text
+    )
+
+
 COMMON_OPTIONS = (
-    click.Option(
-        ["--debug"],
-        is_flag=True,
-        expose_value=False,
-        callback=_count,
-        help="Show tracebacks and debug logging.",
-    ),
-    click.Option(
-        ["-v", "--verbose"],
-        count=True,
-        expose_value=False,
-        callback=_count,
-        help="More log output (-v info, -vv debug).",
-    ),
-    click.Option(
+    _counted(["--debug"], "Show tracebacks and debug logging.", flag=True),
+    _counted(["-v", "--verbose"], "More log output (-v info, -vv debug)."),
+    _counted(
         ["-q", "--quiet"],
-        count=True,
-        expose_value=False,
-        callback=_count,
-        help="No progress or informational messages on stderr (errors and warnings still print).",
+        "No progress or informational messages on stderr (errors and warnings still print).",
     ),
 )
 
@@ -166,22 +160,24 @@ dry_run_option = click.option(
     "--dry-run", is_flag=True, help="Run against the simulator and write nothing."
 )
 
-_record_option = click.option(
+
+def _file_option(flag: str, name: str, text: str) -> Callable[[F], F]:
+    """Decorator: ``flag FILE``, one file, as the parameter ``name``; ``text`` is its help."""
+    kind = click.Path(dir_okay=False, path_type=Path)
+    return click.option(flag, name, type=kind, metavar="FILE", help=text)
+
+
+_record_option = _file_option(
     "--record",
     "record_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    metavar="FILE",
-    help="Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
+    "Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
     "call (joint readings, moves, gain, readings, times), then the measurements the solver "
     "receives and the result.",
 )
-_replay_option = click.option(
+_replay_option = _file_option(
     "--replay",
     "replay_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    metavar="FILE",
-    help="Solve the measurements of a --record FILE again; moves nothing, asks nothing, "
-    "writes nothing.",
+    "Solve the measurements of a --record FILE again; moves nothing, asks nothing, writes nothing.",
 )
 _remeasure_option = click.option(
     "--remeasure",
@@ -393,6 +389,91 @@ def _check_urls(
                 f"{_origin(ctx, 'digitizer_url')} is for a pulser that does not digitise "
                 f"(ascii://); {_origin(ctx, name)} {url} takes none"
             ) from None
+
+
+def choice_option(flag: str, choices: list[str], text: str) -> Callable[[F], F]:
+    """Decorator: ``flag`` taking one of ``choices``, the first by default (``--help`` says
+    so); ``text`` is its help."""
+    return click.option(
+        flag, type=click.Choice(choices), default=choices[0], show_default=True, help=text
+    )
+
+
+def force_option(text: str) -> Callable[[F], F]:
+    """Decorator: ``--force``, writing a result out of tolerance; ``text`` says what."""
+    return click.option("--force", is_flag=True, help=text)
+
+
+profile_argument = click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path)
+)
+#: PROFILE of a command that only reads it: it must exist (click says so, exit 2).
+existing_profile_argument = click.argument(
+    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+
+
+def output_option(name: str, metavar: str, kind: click.Path, text: str) -> Callable[[F], F]:
+    """Decorator: the required ``-o``/``--output`` a command writes, as its parameter
+    ``name`` (``kind``: a file or a directory); ``text`` is its help."""
+    return click.option(
+        "-o", "--output", name, required=True, metavar=metavar, type=kind, help=text
+    )
+
+
+@dataclass(frozen=True)
+class MovingCall:
+    """What every command that moves the robot is called with besides its own options: the
+    profile, the cell, the record, whether to ask, write and print JSON (``moving_options``)."""
+
+    profile_path: Path
+    sim_world: str | None
+    controller_url: str | None
+    pulser_url: str | None
+    record_path: Path | None
+    replay_path: Path | None
+    remeasure: bool
+    yes: bool
+    dry_run: bool
+    as_json: bool
+
+    def cell(self) -> CellChoice:
+        """The cell the options name, checked (``cell_from_options``)."""
+        return cell_from_options(
+            self.sim_world, self.controller_url, self.pulser_url, dry_run=self.dry_run
+        )
+
+
+def moving_options(*own: Callable[[F], F]) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Decorator: a moving command's PROFILE and the options every moving command takes around
+    its ``own``, in the order ``--help`` lists them: ``--sim``, ``--controller``, ``--pulser``
+    (and ``--digitizer``), the command's own, ``--record``, ``--replay``, ``--remeasure``,
+    ``--yes``, ``--dry-run``, ``--json``. The command is called with one ``MovingCall`` and its
+    own options by name."""
+    shared = [f.name for f in fields(MovingCall)]
+
+    def decorate(f: Callable[..., None]) -> Callable[..., None]:
+        @functools.wraps(f)
+        def command(**kwargs: Any) -> None:
+            call = MovingCall(**{name: kwargs.pop(name) for name in shared})
+            f(call, **kwargs)
+
+        options: list[Callable[[Any], Any]] = [
+            profile_argument,
+            sim_option,
+            controller_option,
+            pulser_option,
+            *own,
+            record_options,
+            yes_option,
+            dry_run_option,
+            json_option,
+        ]
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
 
 
 def parse_floats(text: str, n: int, what: str) -> np.ndarray:

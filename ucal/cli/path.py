@@ -14,7 +14,14 @@ import click
 import numpy as np
 
 from ucal import files
-from ucal.cli.options import check_output, emit_json, json_option, parse_floats
+from ucal.cli.options import (
+    check_output,
+    emit_json,
+    existing_profile_argument,
+    json_option,
+    output_option,
+    parse_floats,
+)
 from ucal.errors import InputError
 from ucal.kinematics.filtering import controller_targets
 from ucal.kinematics.path import cartesian_path_to_joints
@@ -107,20 +114,15 @@ Examples:
   ucal path cell.toml scan.csv -o scan_targets.csv --for-controller
 """,
 )
-@click.argument(
-    "profile_path", metavar="PROFILE", type=click.Path(exists=True, dir_okay=False, path_type=Path)
-)
+@existing_profile_argument
 @click.argument(
     "in_path", metavar="IN.csv", type=click.Path(exists=True, dir_okay=False, path_type=Path)
 )
-@click.option(
-    "-o",
-    "--output",
+@output_option(
     "out_path",
-    required=True,
-    metavar="OUT.csv",
-    type=click.Path(dir_okay=False, writable=True, path_type=Path),
-    help="File to write, one row per pose: J1..J6 readings (deg), or with --for-controller "
+    "OUT.csv",
+    click.Path(dir_okay=False, writable=True, path_type=Path),
+    "File to write, one row per pose: J1..J6 readings (deg), or with --for-controller "
     "X,Y,Z,RX,RY,RZ targets (mm, deg).",
 )
 @click.option(

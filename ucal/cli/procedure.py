@@ -3,9 +3,11 @@
 ``ConsolePresenter`` shows the plan on stderr (not with ``-q``, unless it asks), asks before
 the first motion naming the cell, and displays progress (``ucal.cli.progress``); ``run_job``
 runs a command's job through the procedure's steps; ``finish`` prints the outcome: the
-command's tables on stdout, or the one JSON object with ``--json``, and exit 1 when out of
-tolerance. ``recorded_run`` checks ``--record``/``--replay``/``--remeasure`` and loads the
-run a replay solves again; ``replay_job`` runs it.
+command's tables on stdout, or the one JSON object with ``--json``, both drawn from the
+command's typed result, and exit 1 when out of tolerance. ``recorded_run`` checks
+``--record``/``--replay``/``--remeasure`` and loads the run a replay solves again;
+``replay_job`` runs it. ``run_command`` is all of it for a moving command: the replay or the
+run on the cell its options name, then the outcome printed.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import click
 import tomlkit
@@ -22,6 +24,7 @@ from click.core import ParameterSource
 from ucal.cell import CellProfile
 from ucal.cell_choice import CellChoice
 from ucal.cli.options import (
+    MovingCall,
     ask_to_move,
     cell_options_typed,
     check_can_confirm,
@@ -31,10 +34,14 @@ from ucal.cli.options import (
 )
 from ucal.cli.progress import StepProgress
 from ucal.errors import InputError, OutOfToleranceError
-from ucal.procedure import Job, MeasuringProcedure, Outcome, RunOptions, Step
-from ucal.profile import profile_from_data
+from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunOptions, Step
+from ucal.profile import load_profile, profile_from_data
 from ucal.progress import Progress
 from ucal.record import Record, read_record
+
+R = TypeVar("R", bound=CommandResult)
+#: The job a moving command runs, made from the profile and, on a replay, the record.
+JobFor = Callable[[CellProfile, Record | None], Job[Any, Any, Any, R]]
 
 
 class ConsolePresenter:
@@ -61,10 +68,10 @@ class ConsolePresenter:
 
 
 def run_job(
-    job: Job[Any, Any, Any],
+    job: Job[Any, Any, Any, R],
     options: RunOptions,
     on_step: Callable[[Step], None] | None = None,
-) -> Outcome:
+) -> Outcome[R]:
     """Run ``job`` through the procedure's steps with the console presenter; first refuse a
     run that would have to ask before moving with no terminal to ask on (exit 2, no plan)."""
     if options.cell is not None:
@@ -73,15 +80,53 @@ def run_job(
     return MeasuringProcedure(job, options, ConsolePresenter(asks), on_step).run()
 
 
-def finish(outcome: Outcome, as_json: bool, show: Callable[[Outcome], None]) -> None:
+def finish(outcome: Outcome[R], as_json: bool, show: Callable[[Outcome[R]], None]) -> None:
     """Print the outcome: ``show`` draws the command's tables (without ``--json``); out of
     tolerance, exit 1 (with ``--json`` the CLI prints the result with the error fields)."""
     if not as_json:
         show(outcome)
     if outcome.out_of_tolerance:
-        raise OutOfToleranceError(outcome.message, outcome.result)
+        raise OutOfToleranceError(outcome.message, outcome.to_json())
     if as_json:
-        emit_json(outcome.result)
+        emit_json(outcome.to_json())
+
+
+def run_command(
+    call: MovingCall,
+    command: str,
+    fixed: dict[str, str],
+    job_for: JobFor[R],
+    show: Callable[[Outcome[R]], None],
+) -> None:
+    """Run a moving command and print its outcome (``finish``): with ``--replay``, the job
+    ``job_for`` makes of the recorded profile and the record solves it again
+    (``recorded_run``, ``fixed`` as there); else the job of PROFILE on the cell the options
+    name."""
+    outcome = replay_outcome(call, command, fixed, job_for)
+    if outcome is None:
+        cell = call.cell()
+        job = job_for(load_profile(call.profile_path), None)
+        outcome = run_job(job, run_options(call, cell))
+    finish(outcome, call.as_json, show)
+
+
+def run_options(call: MovingCall, cell: CellChoice) -> RunOptions:
+    """How a run on ``cell`` goes, as the command line says."""
+    return RunOptions(cell, call.yes, call.dry_run, call.record_path)
+
+
+def replay_outcome(
+    call: MovingCall, command: str, fixed: dict[str, str], job_for: JobFor[R]
+) -> Outcome[R] | None:
+    """With ``--replay``, the outcome of solving the record again (``recorded_run``, ``fixed``
+    as there); None without."""
+    replayed = recorded_run(
+        command, call.profile_path, call.record_path, call.replay_path, call.remeasure, fixed
+    )
+    if replayed is None:
+        return None
+    record, profile = replayed
+    return replay_job(job_for(profile, record), record, call.remeasure)
 
 
 def recorded_run(
@@ -136,9 +181,9 @@ def _shown(value: Any) -> str:
     return "(not given)" if value is None else str(value)
 
 
-def replay_job(job: Job[Any, Any, Any], record: Record, remeasure: bool) -> Outcome:
+def replay_job(job: Job[Any, Any, Any, R], record: Record, remeasure: bool) -> Outcome[R]:
     """Run ``job`` on a record (``recorded_run``): nothing moves, nothing is asked or written."""
     options = RunOptions(None, yes=True, dry_run=True, replay=record, remeasure=remeasure)
     outcome = run_job(job, options)
-    outcome.result["replayed"] = str(record.path)
+    outcome.replayed = Path(record.path)
     return outcome

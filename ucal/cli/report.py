@@ -6,7 +6,14 @@ from pathlib import Path
 
 import click
 
-from ucal.cli.options import check_output, emit_json, info, json_option
+from ucal.cli.options import (
+    check_output,
+    emit_json,
+    info,
+    json_option,
+    output_option,
+    profile_argument,
+)
 from ucal.report import gather_report, render_page, write_report
 
 
@@ -18,15 +25,12 @@ Examples:
   ucal report cell.toml -o report.html --json
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "-o",
-    "--output",
+@profile_argument
+@output_option(
     "out_path",
-    required=True,
-    metavar="FILE.html",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="The page to write (replaced if it exists).",
+    "FILE.html",
+    click.Path(dir_okay=False, path_type=Path),
+    "The page to write (replaced if it exists).",
 )
 @click.option(
     "--record",

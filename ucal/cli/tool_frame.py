@@ -3,25 +3,16 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
-from typing import Any
 
 import click
 
-from ucal.cli.options import (
-    cell_from_options,
-    controller_option,
-    dry_run_option,
-    json_option,
-    pulser_option,
-    record_options,
-    sim_option,
-    yes_option,
-)
-from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
-from ucal.procedure import Outcome, RunOptions
-from ucal.profile import load_profile
+from ucal.cell import CellProfile
+from ucal.cli.options import MovingCall, choice_option, force_option, moving_options
+from ucal.cli.procedure import run_command
+from ucal.procedure import Outcome
+from ucal.record import Record
 from ucal.toolframe.procedure import ToolFrameCalibration
+from ucal.toolframe.result import ToolFrameResult
 
 log = logging.getLogger(__name__)
 
@@ -39,52 +30,28 @@ Examples:
       --pulser modbus-tcp://192.168.0.20:502
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
-@sim_option
-@controller_option
-@pulser_option
-@click.option(
-    "--method",
-    type=click.Choice(["exact", "paper"]),
-    default="exact",
-    show_default=True,
-    help="exact: beam from normal-incidence postures, offset along the beam from "
-    "time of flight, offsets across it from edge reversal; paper: paper 002's "
-    "constrained least squares over incidence points.",
+@moving_options(
+    choice_option(
+        "--method",
+        ["exact", "paper"],
+        "exact: beam from normal-incidence postures, offset along the beam from "
+        "time of flight, offsets across it from edge reversal; paper: paper 002's "
+        "constrained least squares over incidence points.",
+    ),
+    click.option(
+        "--points",
+        type=click.IntRange(min=1),
+        default=None,
+        metavar="N",
+        help="exact: normal-incidence postures (default 4, at least 2); paper: "
+        "incidence points (default 100, at least 7).",
+    ),
+    force_option(
+        "Write the result even when it is out of tolerance or a misfit (the reason "
+        "is recorded in the profile history)."
+    ),
 )
-@click.option(
-    "--points",
-    type=click.IntRange(min=1),
-    default=None,
-    metavar="N",
-    help="exact: normal-incidence postures (default 4, at least 2); paper: "
-    "incidence points (default 100, at least 7).",
-)
-@click.option(
-    "--force",
-    is_flag=True,
-    help="Write the result even when it is out of tolerance or a misfit (the reason "
-    "is recorded in the profile history).",
-)
-@record_options
-@yes_option
-@dry_run_option
-@json_option
-def cli(
-    profile_path: Path,
-    sim_world: str | None,
-    controller_url: str | None,
-    pulser_url: str | None,
-    method: str,
-    points: int | None,
-    force: bool,
-    record_path: Path | None,
-    replay_path: Path | None,
-    remeasure: bool,
-    yes: bool,
-    dry_run: bool,
-    as_json: bool,
-) -> None:
+def cli(call: MovingCall, method: str, points: int | None, force: bool) -> None:
     """Find the tool centre point and beam direction relative to the flange.
 
     Uses the reflector plate of [reflector] points_mm and the profile's [calibration] joint
@@ -102,79 +69,63 @@ def cli(
     keeps the profile's. Nothing is written with --dry-run, on failure, or when the result is
     out of tolerance (exit 1) unless --force.
     """
-    replayed = recorded_run(
-        "tool-frame",
-        profile_path,
-        record_path,
-        replay_path,
-        remeasure,
-        {"method": "method", "points": "points"},
-    )
-    if replayed is not None:
-        record, recorded_profile = replayed
+
+    def job(profile: CellProfile, record: Record | None) -> ToolFrameCalibration:
+        if record is None:
+            return ToolFrameCalibration(profile, call.profile_path, method, points, force)
         options = record.options
-        job = ToolFrameCalibration(
-            recorded_profile, profile_path, options.get("method", "exact"), options.get("points")
+        return ToolFrameCalibration(
+            profile, call.profile_path, options.get("method", "exact"), options.get("points")
         )
-        finish(replay_job(job, record, remeasure), as_json, show_outcome)
-        return
-    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
-    profile = load_profile(profile_path)
-    job = ToolFrameCalibration(profile, profile_path, method, points, force)
-    finish(run_job(job, RunOptions(cell, yes, dry_run, record_path)), as_json, show_outcome)
+
+    run_command(call, "tool-frame", {"method": "method", "points": "points"}, job, show_outcome)
 
 
-def show_outcome(outcome: Outcome) -> None:
+def show_outcome(outcome: Outcome[ToolFrameResult]) -> None:
     """The tool frame and its fit on stdout."""
-    _print(outcome.result)
-
-
-def _print(out: dict[str, Any]) -> None:
+    result = outcome.result
+    tool, tf, run = result.tool, result.tool.fit, result.run
     fmt = ", ".join
-    std = out["std"]
-    if "fit" in out:
-        f = out["fit"]
-        along = out["along_beam"]
-        limited = ", ".join(f"{k} {100 * v:.0f} %" for k, v in along["limited_by"].items())
+    if tf is not None:
+        f = tf.quality
+        limited = ", ".join(f"{k} {100 * v:.0f} %" for k, v in tf.along_beam_limited_by.items())
         click.echo(
-            f"fit:             {f['verdict']}, chi2_r {f['chi2_reduced']:.3g} (dof "
-            f"{f['dof']}), worst {f['worst']}"
+            f"fit:             {f.verdict}, chi2_r {f.chi2_reduced:.3g} (dof "
+            f"{f.dof}), worst {f.worst}"
         )
         click.echo(
-            f"along the beam:  {along['position_mm']:.4f} ± {along['std_mm']:.4f} mm"
+            f"along the beam:  {tf.along_beam_mm:.4f} ± {tf.along_beam_std_mm:.4f} mm"
             + (f" (limited by {limited})" if limited else "")
         )
-        click.echo(
-            "across the beam: ± " + fmt(f"{v:.4f}" for v in out["across_beam_std_mm"]) + " mm"
-        )
+        click.echo("across the beam: ± " + fmt(f"{v:.4f}" for v in tf.across_beam_std_mm) + " mm")
     click.echo(
-        f"method:          {out['method']} ({out['points']} points, {out['moves']} moves, "
-        f"{out['pulser_reads']} pulser reads)"
+        f"method:          {tool.method} ({tool.points} points, {run.moves} moves, "
+        f"{run.reads} pulser reads)"
     )
     click.echo(
         "position (mm):   "
-        + fmt(f"{v:.4f}" for v in out["position_mm"])
+        + fmt(f"{v:.4f}" for v in tool.position_mm)
         + "   ± "
-        + fmt(f"{v:.4f}" for v in std["position_mm"])
+        + fmt(f"{v:.4f}" for v in tool.std_position_mm)
     )
-    click.echo("rotation (deg):  " + fmt(f"{v:.4f}" for v in out["rotation_deg"]))
+    click.echo("rotation (deg):  " + fmt(f"{v:.4f}" for v in tool.rotation_deg))
     click.echo(
         "beam (flange):   "
-        + fmt(f"{v:.6f}" for v in out["beam_direction"])
-        + f"   ± {std['beam_deg']:.4f} deg"
+        + fmt(f"{v:.6f}" for v in tool.beam)
+        + f"   ± {tool.std_beam_deg:.4f} deg"
     )
-    click.echo(f"rms residual:    {out['rms_residual_mm']:.4f} mm")
-    if "simulated_error" in out:
-        se = out["simulated_error"]
+    click.echo(f"rms residual:    {tool.rms_residual_mm:.4f} mm")
+    se = result.simulated_error
+    if se is not None:
         click.echo(
             "simulated error: "
-            + fmt(f"{v:+.4f}" for v in se["position_mm"])
-            + f" mm (along the beam {se['along_beam_mm']:+.4f}, across "
-            + fmt(f"{v:+.4f}" for v in se["across_beam_mm"])
-            + f"), beam {se['beam_deg']:.4f} deg"
+            + fmt(f"{v:+.4f}" for v in se.position_mm)
+            + f" mm (along the beam {se.along_beam_mm:+.4f}, across "
+            + fmt(f"{v:+.4f}" for v in se.across_beam_mm)
+            + f"), beam {se.beam_deg:.4f} deg"
         )
-    for n in out["notes"]:
+    for n in tool.notes:
         click.echo(f"note: {n}")
     click.echo(
-        f"profile {out['profile']}: " + ("[tool] written" if out["written"] else "not written")
+        f"profile {run.profile_path}: " + ("[tool] written" if run.written else "not written")
     )

@@ -3,31 +3,24 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
 from rich.table import Table
 
-from ucal.cli.options import (
-    cell_from_options,
-    controller_option,
-    dry_run_option,
-    json_option,
-    pulser_option,
-    record_options,
-    sim_option,
-    table_console,
-    yes_option,
-)
-from ucal.cli.procedure import finish, recorded_run, replay_job, run_job
+from ucal.cell import CellProfile
+from ucal.cli.options import MovingCall, moving_options, table_console
+from ucal.cli.procedure import run_command
 from ucal.errors import InputError
-from ucal.procedure import Outcome, RunOptions
-from ucal.profile import load_profile
+from ucal.procedure import Job, Outcome
+from ucal.record import Record
 from ucal.verify.measure import VerifyResult
 from ucal.verify.picture import verify_picture_path
 from ucal.verify.procedure import VerifyJob
-from ucal.verify.region import RegionJob, RegionResult
-from ucal.verify.result import VerifyShown
+from ucal.verify.region import RegionJob
+from ucal.verify.result import RegionCheck, Verification
+from ucal.verify.solve import tool_offset
 
 
 @click.command(
@@ -43,60 +36,45 @@ Examples:
       --pulser modbus-tcp://192.168.0.20:502 --plot report.png
 """,
 )
-@click.argument("profile_path", metavar="PROFILE", type=click.Path(dir_okay=False, path_type=Path))
-@sim_option
-@controller_option
-@pulser_option
-@click.option(
-    "--points",
-    "n_points",
-    type=click.IntRange(1, 100),
-    default=20,
-    show_default=True,
-    help="Number of nominal points, shared by the three orientations (20 = 8 straight "
-    "down, 6 turned 180 deg about the beam, 6 tilted 15 deg).",
+@moving_options(
+    click.option(
+        "--points",
+        "n_points",
+        type=click.IntRange(1, 100),
+        default=20,
+        show_default=True,
+        help="Number of nominal points, shared by the three orientations (20 = 8 straight "
+        "down, 6 turned 180 deg about the beam, 6 tilted 15 deg).",
+    ),
+    click.option(
+        "--plot",
+        "plot_path",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help="Before/after picture to write [default: PROFILE with .verify.png].",
+    ),
+    click.option(
+        "--tolerance-mm",
+        type=click.FloatRange(min=0.0, min_open=True),
+        default=None,
+        metavar="MM",
+        help="Largest deviation of any point on any axis after calibration that passes "
+        "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.",
+    ),
+    click.option(
+        "--region",
+        "region",
+        type=click.IntRange(3, 100),
+        default=None,
+        help="Instead: check the kinematic model against the block's faces from N "
+        "postures spread like a full calibration's (ucal.verify.region).",
+    ),
 )
-@click.option(
-    "--plot",
-    "plot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Before/after picture to write [default: PROFILE with .verify.png].",
-)
-@click.option(
-    "--tolerance-mm",
-    type=click.FloatRange(min=0.0, min_open=True),
-    default=None,
-    metavar="MM",
-    help="Largest deviation of any point on any axis after calibration that passes "
-    "[default: [procedure] verify_tolerance_mm, 0.5 mm]; above it: exit 1.",
-)
-@click.option(
-    "--region",
-    "region",
-    type=click.IntRange(3, 100),
-    default=None,
-    help="Instead: check the kinematic model against the block's faces from N "
-    "postures spread like a full calibration's (ucal.verify.region).",
-)
-@record_options
-@yes_option
-@dry_run_option
-@json_option
 def cli(
-    profile_path: Path,
-    sim_world: str | None,
-    controller_url: str | None,
-    pulser_url: str | None,
+    call: MovingCall,
     n_points: int,
     plot_path: Path | None,
     tolerance_mm: float | None,
     region: int | None,
-    record_path: Path | None,
-    replay_path: Path | None,
-    remeasure: bool,
-    yes: bool,
-    dry_run: bool,
-    as_json: bool,
 ) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
@@ -122,89 +100,85 @@ def cli(
     --dry-run). The run passes when no point deviates more than the tolerance on any axis after
     calibration; otherwise exit 1 (within 0.05 mm of it: "marginal").
     """
-    replayed = recorded_run(
-        "verify",
-        profile_path,
-        record_path,
-        replay_path,
-        remeasure,
-        {"points": "n_points", "region": "region"},
-    )
-    if replayed is not None:
-        record, recorded_profile = replayed
-        options = record.options
-        if options.get("region") is not None:
-            region_replay = RegionJob(
-                recorded_profile, profile_path, options["region"], tolerance_mm
-            )
-            finish(replay_job(region_replay, record, remeasure), as_json, show_region)
-            return
-        verify = VerifyJob(
-            recorded_profile,
-            profile_path,
-            options.get("points", n_points),
-            tolerance_mm,
-            recorded_inputs=record.header.get("inputs"),
-        )
-        finish(replay_job(verify, record, remeasure), as_json, show_outcome)
-        return
-    cell = cell_from_options(sim_world, controller_url, pulser_url, dry_run=dry_run)
-    profile = load_profile(profile_path)
-    run = RunOptions(cell, yes, dry_run, record_path)
-    if region is not None:
-        region_job = RegionJob(profile, profile_path, region, tolerance_mm)
-        finish(run_job(region_job, run), as_json, show_region)
-        return
-    if plot_path is None:
-        plot_path = verify_picture_path(profile_path)
-    if not plot_path.parent.is_dir():
-        raise InputError(f"--plot {plot_path}: directory {plot_path.parent} does not exist")
-    _check_plot_format(plot_path)
-    job = VerifyJob(profile, profile_path, n_points, tolerance_mm, plot_path)
-    finish(run_job(job, run), as_json, show_outcome)
+
+    def job(profile: CellProfile, record: Record | None) -> Job[Any, Any, Any, Checked]:
+        path = call.profile_path
+        if record is not None:
+            options = record.options
+            if options.get("region") is not None:
+                return RegionJob(profile, path, options["region"], tolerance_mm)
+            points = options.get("points", n_points)
+            inputs = record.header.get("inputs")
+            return VerifyJob(profile, path, points, tolerance_mm, recorded_inputs=inputs)
+        if region is not None:
+            return RegionJob(profile, path, region, tolerance_mm)
+        plot = verify_picture_path(path) if plot_path is None else plot_path
+        if not plot.parent.is_dir():
+            raise InputError(f"--plot {plot}: directory {plot.parent} does not exist")
+        _check_plot_format(plot)
+        return VerifyJob(profile, path, n_points, tolerance_mm, plot)
+
+    run_command(call, "verify", {"points": "n_points", "region": "region"}, job, show)
 
 
-def show_outcome(outcome: Outcome) -> None:
+#: What ``verify`` finds: the points before and after, or (``--region``) the model's residuals.
+Checked = Verification | RegionCheck
+
+
+def show(outcome: Outcome[Checked]) -> None:
+    """The verification's tables, or the region check's, on stdout."""
+    result = outcome.result
+    if isinstance(result, RegionCheck):
+        show_region(result)
+    else:
+        show_outcome(result)
+
+
+def show_outcome(result: Verification) -> None:
     """The deviation table, the tool check, the verdict and the simulation check on stdout."""
-    shown: VerifyShown = outcome.shown
-    out = outcome.result
-    _print_table(shown.result)
-    tool = out["tool_check"]
-    b = tool["offset_mm"]
+    solved = result.solved
+    measured = solved.result
+    _print_table(measured)
+    b = tool_offset(measured.edge_checks)
     click.echo(
         f"tool check (XY face's edges): real TCP minus the profile's, beam straight down: "
         f"X {b[0]:+.4f}  Y {b[1]:+.4f} mm, included above"
     )
-    if tool["separated"]:
-        d = tool["across_beam_flange_mm"]
+    tool = measured.tool
+    if tool is not None and tool.separated:
+        d = tool.across_mm
         click.echo(
-            f"  the tool: {tool['along_beam_mm']:+.4f} mm along the beam, "
+            f"  the tool: {tool.along_mm:+.4f} mm along the beam, "
             f"({d[0]:+.4f}, {d[1]:+.4f}, {d[2]:+.4f}) mm across it (flange frame), from the "
-            f"scans in both senses about the beam (misfit {tool['misfit_mm']:.4f} mm)"
+            f"scans in both senses about the beam (misfit {tool.misfit_mm:.4f} mm)"
         )
-    for g in out["groups"]:
-        if g["after_max_mm"] is not None:
-            worst = max(g["after_max_mm"])
+    plan = measured.plan
+    for n, g in enumerate(plan.groups):
+        after = measured.group_after_max_mm(n)
+        if after is not None:
+            points = [k for k in plan.group_of if k == n]
             click.echo(
-                f"  after, {len(g['points'])} points {g['orientation']} "
-                f"({g['height_mm']:g} mm above the face): largest deviation {worst:.4f} mm"
+                f"  after, {len(points)} points {g.description} "
+                f"({g.height_mm:g} mm above the face): largest deviation {max(after):.4f} mm"
             )
-    click.echo(f"before: {shown.before.source}")
-    for why in out["skipped"]:
-        click.echo(why)
-    click.echo(f"sound speed: {shown.sound.source}")
+    click.echo(f"before: {solved.before.source}")
+    for skipped in measured.skipped:
+        click.echo(skipped.reason())
+    click.echo(f"sound speed: {solved.sound.source}")
     click.echo(
-        f"after: largest deviation {shown.worst_mm:.4f} mm, tolerance {shown.tolerance_mm:g} mm: "
-        + ("passed" if out["passed"] else "FAILED")
+        f"after: largest deviation {solved.worst_mm:.4f} mm, tolerance "
+        f"{solved.tolerance_mm:g} mm: "
+        + ("passed" if solved.passed else "FAILED")
         + (
             " (marginal: within what verify measures to of the tolerance)"
-            if out["marginal"]
+            if result.marginal
             else ""
         )
     )
-    click.echo(out["gauge_note"][:1].upper() + out["gauge_note"][1:])
-    if shown.truth is not None:
-        chk = shown.truth
+    note = solved.gauge.statement()
+    click.echo(note[:1].upper() + note[1:])
+    if result.truth is not None:
+        chk = result.truth
         click.echo(
             "simulation check, measured minus true reached points: common bias "
             + ", ".join(
@@ -221,7 +195,7 @@ def show_outcome(outcome: Outcome) -> None:
             "  true largest deviation after, relative to the block: "
             + _xyz(chk["after_mm"]["max"])
             + " (reported: "
-            + _xyz(out["after_mm"]["max"])
+            + _xyz(measured.stats("after")["max"])
             + ")"
         )
         if "absolute_after_max_mm" in chk:
@@ -229,8 +203,8 @@ def show_outcome(outcome: Outcome) -> None:
                 "  in the robot's base frame (not checked by verify): "
                 + _xyz(chk["absolute_after_max_mm"])
             )
-    click.echo(f"picture: {shown.plot_path}" if shown.plot_path else "picture: not written")
-    for note in out["notes"]:
+    click.echo(f"picture: {result.plot_path}" if result.plot_path else "picture: not written")
+    for note in result.notes:
         click.echo(f"note: {note}")
 
 
@@ -239,9 +213,9 @@ def _xyz(values: list[float]) -> str:
     return ", ".join(f"{a} {v:.4f}" for a, v in zip("XYZ", values, strict=True)) + " mm"
 
 
-def show_region(outcome: Outcome) -> None:
+def show_region(result: RegionCheck) -> None:
     """The region check's residuals and verdict on stdout."""
-    r: RegionResult = outcome.shown
+    r = result.region
     click.echo(
         f"region: {r.postures} postures; along the face normals rms {r.rms_distance_mm:.4f} mm, "
         f"max {r.max_distance_mm:.4f} mm; beam tilt rms {r.rms_tilt_deg:.4f} deg, max "

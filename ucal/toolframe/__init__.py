@@ -7,7 +7,7 @@ along the beam from time of flight, offsets across the beam from edge reversal);
 sound speed and an electronic delay as unknowns with the profile's tolerances as priors (what a
 run reports and writes). The command over them, of the shape of every procedure package:
 ``plan`` (the targets, checked before the first motion), ``measure`` (the postures and edge
-scans with the rig), ``solve`` (the tool frame from the measurements), ``result`` (the ``[tool]``
-keys, the refusal, the ``--json`` object) and ``procedure`` (the command's job on
-``ucal.procedure``).
+scans with the rig), ``solve`` (the tool frame from the measurements), ``result`` (the
+``[tool]`` keys, the refusal, the typed result the tables and ``--json`` are drawn from) and
+``procedure`` (the command's job on ``ucal.procedure``).
 """

@@ -11,14 +11,20 @@ from pathlib import Path
 from typing import Any
 
 from ucal.cell import CellProfile
-from ucal.procedure import Measured, Outcome, ProfileJob
+from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import EDGE_SCAN, NO_SEARCH, PLATE_PEAK, DurationEstimate, estimate_run
 from ucal.toolframe.measure import ToolFrameMeasurements, measure_tool_frame
 from ucal.toolframe.plan import ToolFramePlan, plan_tool_frame
-from ucal.toolframe.result import NOT_WRITTEN, refusal, result_object, tool_keys
+from ucal.toolframe.result import (
+    NOT_WRITTEN,
+    SimulatedError,
+    ToolFrameResult,
+    refusal,
+    tool_keys,
+)
 from ucal.toolframe.solve import ToolFrameRun, solve_measured
 
 
@@ -87,18 +93,16 @@ class ToolFrameCalibration(ProfileJob):
         measured: Measured[ToolFrameMeasurements],
         run: ToolFrameRun,
         written: bool,
-    ) -> Outcome:
-        out = result_object(
-            run, self.profile, self.profile_path, written, measured.truth, measured.duration_s
+    ) -> Outcome[ToolFrameResult]:
+        truth = measured.truth
+        result = ToolFrameResult(
+            run,
+            RunFacts.of(measured, self.profile_path, written),
+            None if truth is None else SimulatedError.of(run, self.profile, truth),
         )
         message = refusal(run)
         if written and not run.in_tolerance:
             message = message.replace(NOT_WRITTEN, "") + " (written with --force)"
         return Outcome(
-            self.command,
-            out,
-            written,
-            out_of_tolerance=not run.in_tolerance,
-            message=message,
-            shown=run,
+            self.command, result, written, out_of_tolerance=not run.in_tolerance, message=message
         )

@@ -1,21 +1,19 @@
 """The tool-frame run as the command reports it: the ``[tool]`` keys it writes, why a run is
-out of tolerance, and the ``--json`` object."""
+out of tolerance, and the typed result (``ToolFrameResult``) the tables and ``--json`` are
+drawn from."""
 
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import angle_between_deg
-from ucal.toolframe.exact import (
-    tangent_basis,
-)
-from ucal.toolframe.fit import (
-    truth_in_profile_flange,
-)
+from ucal.procedure import RunFacts
+from ucal.toolframe.exact import tangent_basis
+from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
 from ucal.toolframe.solve import ToolFrameRun
 
 TOOL_STD_LIMITS = {"position_std_mm": 100.0, "rotation_std_deg": 10.0}
@@ -57,67 +55,99 @@ def tool_keys(run: ToolFrameRun) -> tuple[dict[str, Any], str]:
     return keys, "; ".join(notes)
 
 
-def result_object(
-    run: ToolFrameRun,
-    profile: CellProfile,
-    profile_path: Path,
-    written: bool,
-    truth: WorldTruth | None,
-    duration_s: float,
-) -> dict[str, Any]:
-    """The ``tool-frame --json`` object of SPEC.md (and more)."""
-    tf = run.fit
-    out: dict[str, Any] = {
-        "position_mm": run.position_mm,
-        "rotation_deg": run.rotation_deg,
-        "beam_direction": run.beam,
-        "position_std_mm": run.std_position_mm,
-        "rotation_std_deg": None if tf is None else tf.rotation_std_deg,
-        "beam_std_deg": run.std_beam_deg,
-        "rms_residual_mm": run.rms_residual_mm,
-        "points": run.points,
-        "written": written,
-        "method": run.method,
-        "std": {"position_mm": run.std_position_mm, "beam_deg": run.std_beam_deg},
-        "moves": run.moves,
-        "pulser_reads": run.reads,
-        # time the run took on the cell: simulated time on the simulated cell
-        "duration_s": duration_s,
-        "profile": str(profile_path),
-        "notes": run.notes,
-    }
-    if tf is not None:
-        out["fit"] = tf.quality.to_json()
-        out["along_beam"] = {
-            "position_mm": tf.along_beam_mm,
-            "std_mm": tf.along_beam_std_mm,
-            "limited_by": tf.along_beam_limited_by,
-        }
-        out["across_beam_std_mm"] = tf.across_beam_std_mm
-        out["plate_height_mm"] = {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm}
-        out["delay_ns"] = {"value": tf.delay_ns, "std": tf.delay_std_ns}
-        out["sound_speed_m_s"] = tf.sound_speed_m_s
-        out["sound_speed_std_m_s"] = tf.sound_speed_std_m_s
-    if run.method == "exact":
-        out["normal_incidence_postures"] = len(run.peaks)
-        out["edge_crossings"] = len(run.crossings)
-    if run.paper is not None:
-        out["paper"] = {
-            "iterations": run.paper.iterations,
-            "converged": run.paper.converged,
-            "second_order_ok": run.paper.second_order_ok,
-            "multiplier": run.paper.multiplier,
-            "condition": run.paper.condition,
-        }
-    if truth is not None:  # the simulator's hidden truth: how far off the result is
+@dataclass(frozen=True)
+class SimulatedError:
+    """How far the result is from the simulator's hidden truth (in the flange of the profile's
+    J6 offset and last DH link)."""
+
+    position_mm: np.ndarray
+    along_beam_mm: float
+    across_beam_mm: np.ndarray
+    beam_deg: float
+
+    @classmethod
+    def of(cls, run: ToolFrameRun, profile: CellProfile, truth: WorldTruth) -> SimulatedError:
         true_tool = truth_in_profile_flange(profile, truth)
         err = np.asarray(run.position_mm) - true_tool[:3, 3]
         beam = np.asarray(run.beam)
-        out["simulated_error"] = {
-            "position_mm": err,
-            "along_beam_mm": float(beam @ err),
-            "across_beam_mm": tangent_basis(beam) @ err,
-            "beam_deg": float(angle_between_deg(beam, true_tool[:3, 2])),
+        return cls(
+            err,
+            float(beam @ err),
+            tangent_basis(beam) @ err,
+            float(angle_between_deg(beam, true_tool[:3, 2])),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "position_mm": self.position_mm,
+            "along_beam_mm": self.along_beam_mm,
+            "across_beam_mm": self.across_beam_mm,
+            "beam_deg": self.beam_deg,
             "frame": "flange of the profile's J6 offset and last DH link",
         }
-    return out
+
+
+@dataclass(frozen=True)
+class ToolFrameResult:
+    """``tool-frame``'s result: the tool frame and how it was found, what became of the run,
+    and on a simulated cell how far off it is; the tables and ``--json`` are drawn from it."""
+
+    tool: ToolFrameRun
+    run: RunFacts
+    simulated_error: SimulatedError | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``tool-frame --json`` object of SPEC.md (and more)."""
+        tool, tf = self.tool, self.tool.fit
+        out: dict[str, Any] = {
+            "position_mm": tool.position_mm,
+            "rotation_deg": tool.rotation_deg,
+            "beam_direction": tool.beam,
+            "position_std_mm": tool.std_position_mm,
+            "rotation_std_deg": None if tf is None else tf.rotation_std_deg,
+            "beam_std_deg": tool.std_beam_deg,
+            "rms_residual_mm": tool.rms_residual_mm,
+            "points": tool.points,
+            "written": self.run.written,
+            "method": tool.method,
+            "std": {"position_mm": tool.std_position_mm, "beam_deg": tool.std_beam_deg},
+            "moves": self.run.moves,
+            "pulser_reads": self.run.reads,
+            # time the run took on the cell: simulated time on the simulated cell
+            "duration_s": self.run.duration_s,
+            "profile": str(self.run.profile_path),
+            "notes": tool.notes,
+        }
+        if tf is not None:
+            out |= fit_json(tf)
+        if tool.method == "exact":
+            out["normal_incidence_postures"] = len(tool.peaks)
+            out["edge_crossings"] = len(tool.crossings)
+        if tool.paper is not None:
+            out["paper"] = {
+                "iterations": tool.paper.iterations,
+                "converged": tool.paper.converged,
+                "second_order_ok": tool.paper.second_order_ok,
+                "multiplier": tool.paper.multiplier,
+                "condition": tool.paper.condition,
+            }
+        if self.simulated_error is not None:
+            out["simulated_error"] = self.simulated_error.to_json()
+        return out
+
+
+def fit_json(tf: ToolFrameFit) -> dict[str, Any]:
+    """The exact fit's fields of the ``--json`` object."""
+    return {
+        "fit": tf.quality.to_json(),
+        "along_beam": {
+            "position_mm": tf.along_beam_mm,
+            "std_mm": tf.along_beam_std_mm,
+            "limited_by": tf.along_beam_limited_by,
+        },
+        "across_beam_std_mm": tf.across_beam_std_mm,
+        "plate_height_mm": {"value": tf.plate_height_mm, "std": tf.plate_height_std_mm},
+        "delay_ns": {"value": tf.delay_ns, "std": tf.delay_std_ns},
+        "sound_speed_m_s": tf.sound_speed_m_s,
+        "sound_speed_std_m_s": tf.sound_speed_std_m_s,
+    }

@@ -11,7 +11,8 @@ region check (``--region N``).
   error) and the statistics of paper 000, Table 5;
 * ``result``: the typed result the tables, the picture and ``--json`` are drawn from;
 * ``picture``: the picture verify writes beside the profile;
-* ``region``: the region check, the kinematic model over spread postures;
+* ``region``: the region check, the kinematic model over spread postures (its result in
+  ``result``);
 * ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).
 
 The method and what the figures mean: docs/method/commissioning.md.
@@ -20,15 +21,17 @@ The method and what the figures mean: docs/method/commissioning.md.
 from ucal.verify.measure import VerifyResult
 from ucal.verify.picture import PICTURE_SUFFIX, verify_picture_path
 from ucal.verify.procedure import VerifyJob
-from ucal.verify.region import RegionJob, RegionResult
-from ucal.verify.result import VerifyShown
+from ucal.verify.region import RegionJob
+from ucal.verify.result import RegionCheck, RegionResult, Verification, VerifySolved
 
 __all__ = [
     "PICTURE_SUFFIX",
+    "RegionCheck",
     "RegionJob",
     "RegionResult",
+    "Verification",
     "VerifyJob",
     "VerifyResult",
-    "VerifyShown",
+    "VerifySolved",
     "verify_picture_path",
 ]

@@ -21,7 +21,7 @@ from ucal.calibration.model import (
 )
 from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
-from ucal.procedure import CheckingJob, Measured, Outcome, RunOptions
+from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report
 from ucal.record import decode, encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
@@ -40,7 +40,8 @@ from ucal.verify.picture import PictureText, plot_verify
 from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify
 from ucal.verify.result import (
     MEASURED_WITHIN_MM,
-    VerifyShown,
+    Verification,
+    VerifySolved,
     marginal,
     profile_notes,
     tool_misfit_mm,
@@ -122,48 +123,46 @@ class VerifyJob(CheckingJob):
         result: VerifyResult = measured_from_lines(lines, source, plan=plan)
         return result
 
-    def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifyShown:
+    def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifySolved:
         result = measured.data
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
-        return VerifyShown(
+        return VerifySolved(
             result,
             self.before,
             self.sound,
             self.tolerance_mm,
             float(np.max(result.stats("after")["max"])),
-            None,
-            self.plot_path,
             replace(self.gauge, reach_mm=reach),
             self.before.same_as(self.profile),
         )
 
-    def may_write(self, shown: VerifyShown) -> bool:
+    def may_write(self, solved: VerifySolved) -> bool:
         return self.plot_path is not None
 
-    def write(self, shown: VerifyShown) -> None:
+    def write(self, solved: VerifySolved) -> None:
         assert self.plot_path is not None
-        plot_verify(shown.result, self.plot_path, self.picture_text(shown))
+        plot_verify(solved.result, self.plot_path, self.picture_text(solved))
 
-    def picture_text(self, shown: VerifyShown) -> PictureText:
+    def picture_text(self, solved: VerifySolved) -> PictureText:
         """What the picture says beside its data: the profile, the verdict's terms, why
         "before" is what it is, the gauge and the notes."""
         return PictureText(
             name=self.profile_path.name,
-            tolerance_mm=shown.tolerance_mm,
-            marginal=marginal(shown),
-            before_source=shown.before.source,
-            before_is_after=shown.before_is_after,
-            gauge_note=shown.gauge.statement(),
-            notes=tuple(self.notes(shown)),
+            tolerance_mm=solved.tolerance_mm,
+            marginal=marginal(solved),
+            before_source=solved.before.source,
+            before_is_after=solved.before_is_after,
+            gauge_note=solved.gauge.statement(),
+            notes=tuple(self.notes(solved)),
         )
 
-    def notes(self, shown: VerifyShown) -> list[str]:
+    def notes(self, solved: VerifySolved) -> list[str]:
         """``notes`` of the result: what the profile says it does not know, and a tool check
         whose scans disagree."""
-        notes = profile_notes(self.profile) + tool_notes(shown.result.tool, self.profile)
-        misfit = tool_misfit_mm(shown)
+        notes = profile_notes(self.profile) + tool_notes(solved.result.tool, self.profile)
+        misfit = tool_misfit_mm(solved)
         if misfit > MEASURED_WITHIN_MM:
             notes.append(
                 f"the tool check's scans in the two senses about the beam disagree by "
@@ -174,42 +173,32 @@ class VerifyJob(CheckingJob):
         return notes
 
     def result(
-        self, plan: VerifyPlan, measured: Measured[VerifyResult], shown: VerifyShown, written: bool
-    ) -> Outcome:
-        out = shown.result.to_json(self.tolerance_mm)
-        out["before_source"] = self.before.source
-        out["sound_speed_m_s"] = self.sound.m_s
-        out["sound_speed_source"] = self.sound.source
-        out["profile"] = str(self.profile_path)
-        out["duration_s"] = measured.duration_s
-        out["gauge"] = "block"
-        out["gauge_note"] = shown.gauge.statement()
-        out["absolute_std_mm"] = shown.gauge.absolute_std_mm
-        out["j1_gauge"] = shown.gauge.j1
-        out["before_is_after"] = shown.before_is_after
-        out["notes"] = self.notes(shown)
-        out["marginal"] = marginal(shown)
-        out["plot"] = str(self.plot_path) if written else None
+        self,
+        plan: VerifyPlan,
+        measured: Measured[VerifyResult],
+        solved: VerifySolved,
+        written: bool,
+    ) -> Outcome[Verification]:
+        truth = None
         if measured.truth is not None:
             # a simulated cell: the true reached points, from the simulator's hidden truth
-            shown.truth = verify_truth(
+            truth = verify_truth(
                 measured.truth,
-                shown.result.points,
-                shown.result.stats("after")["max"],
+                solved.result.points,
+                solved.result.stats("after")["max"],
                 self.profile.sample_matrix,
             )
-            out["truth"] = shown.truth
-        if not written:
-            shown.plot_path = None
-        message = (
-            f"verify: a point deviates {shown.worst_mm:.3f} mm after calibration, above the "
-            f"tolerance of {self.tolerance_mm:g} mm"
+        result = Verification(
+            solved,
+            RunFacts.of(measured, self.profile_path, written),
+            self.notes(solved),
+            self.plot_path if written else None,
+            truth,
         )
         return Outcome(
             self.command,
-            out,
+            result,
             written,
-            out_of_tolerance=not out["passed"],
-            message=message,
-            shown=shown,
+            out_of_tolerance=not solved.passed,
+            message=result.message(),
         )

@@ -17,7 +17,7 @@ the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,10 +29,11 @@ from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.procedure import estimate_postures, plan_rows
 from ucal.cell import CellProfile
-from ucal.procedure import CheckingJob, Measured, Outcome
+from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
+from ucal.verify.result import RegionCheck, RegionResult
 
 #: Joint-space weights of the farthest-point spread (deg of J1, J2, J3; a face change = 30°).
 _SPREAD_FACE_DEG = 30.0
@@ -66,50 +67,6 @@ def plan_region(
     return FullPlan(
         tuple(postures), len(cands), float("nan"), float("nan"), (float(min(j1)), float(max(j1)))
     )
-
-
-@dataclass(frozen=True)
-class RegionResult:
-    """The model's residuals over the region (block pose and sound speed fitted)."""
-
-    postures: int
-    rms_distance_mm: float
-    max_distance_mm: float
-    rms_tilt_deg: float
-    max_tilt_deg: float
-    chi2_reduced: float
-    verdict: str
-    worst: str
-    tolerance_mm: float
-    #: What the last calibration's unidentified quantities allow at the tool centre, one sigma
-    #: (mm, mean and max over the scanning region; ``ucal.calibration.budget``): across the
-    #: beam, where these echoes do not look either. None: the profile states none.
-    unidentified_tcp_mm: tuple[float, float] | None = None
-
-    @property
-    def passed(self) -> bool:
-        return self.verdict == "ok" and self.max_distance_mm <= self.tolerance_mm
-
-    def to_json(self) -> dict:
-        return {
-            "region": {
-                "postures": self.postures,
-                "rms_distance_mm": self.rms_distance_mm,
-                "max_distance_mm": self.max_distance_mm,
-                "rms_tilt_deg": self.rms_tilt_deg,
-                "max_tilt_deg": self.max_tilt_deg,
-                "chi2_reduced": self.chi2_reduced,
-                "verdict": self.verdict,
-                "worst": self.worst,
-                "unidentified_tcp_mm": (
-                    None
-                    if self.unidentified_tcp_mm is None
-                    else dict(zip(("mean", "max"), self.unidentified_tcp_mm, strict=True))
-                ),
-            },
-            "tolerance_mm": self.tolerance_mm,
-            "passed": self.passed,
-        }
 
 
 def judge_region(
@@ -213,23 +170,11 @@ class RegionJob(CheckingJob):
 
     def result(
         self, plan: FullPlan, measured: Measured[FullRun], solved: RegionResult, written: bool
-    ) -> Outcome:
-        out = solved.to_json()
-        out["profile"] = str(self.profile_path)
-        out["moves"] = measured.data.moves
-        out["pulser_reads"] = measured.data.reads
-        out["duration_s"] = measured.duration_s
-        message = (
-            f"region check failed: the model leaves {solved.max_distance_mm:.4f} mm (rms "
-            f"{solved.rms_distance_mm:.4f}) along the face normals and "
-            f"{solved.max_tilt_deg:.4f} deg of beam tilt over {solved.postures} postures (χ²ᵣ "
-            f"{solved.chi2_reduced:.3g}, worst {solved.worst}); calibrate with --level full"
-        )
+    ) -> Outcome[RegionCheck]:
         return Outcome(
             self.command,
-            out,
+            RegionCheck(solved, RunFacts.of(measured, self.profile_path, written=False)),
             written=False,
             out_of_tolerance=not solved.passed,
-            message=message,
-            shown=solved,
+            message=solved.message(),
         )

@@ -11,9 +11,10 @@ from typing import Any
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.procedure import RunFacts
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
 from ucal.verify.measure import VerifyResult
-from ucal.verify.solve import ToolOffset
+from ucal.verify.solve import ToolOffset, passed
 
 #: How far verify's reached TCP may be from the real one (mm), set from the commissioning
 #: benchmark (``benchmarks/commissioning.py`` prints the largest difference on fresh cells). A
@@ -46,20 +47,139 @@ def profile_notes(profile: CellProfile) -> list[str]:
     ]
 
 
-@dataclass
-class VerifyShown:
-    """What the result tables are drawn from."""
+@dataclass(frozen=True)
+class VerifySolved:
+    """What verify's solve step concludes: the measured run, what "before" and the sound speed
+    were, the tolerance and the largest deviation after calibration, the gauge."""
 
     result: VerifyResult
     before: BeforeProfile
     sound: SoundSpeed
     tolerance_mm: float
     worst_mm: float
-    truth: dict[str, Any] | None
-    plot_path: Path | None
     gauge: VerifyGauge = field(default_factory=lambda: VerifyGauge(None, 0.0))
     #: "before" is the profile as it is (no calibration in its history): both passes alike
     before_is_after: bool = False
+
+    @property
+    def passed(self) -> bool:
+        return passed(self.result.stats("after"), self.tolerance_mm)
+
+
+@dataclass(frozen=True)
+class Verification:
+    """``verify``'s result: what was solved, what became of the run, the notes, the picture
+    written (None: not written) and, on a simulated cell, the true reached points
+    (``ucal.sim.truth.verify_truth``); the tables and ``--json`` are drawn from it."""
+
+    solved: VerifySolved
+    run: RunFacts
+    notes: list[str]
+    plot_path: Path | None
+    truth: dict[str, Any] | None = None
+
+    @property
+    def marginal(self) -> bool:
+        return marginal(self.solved)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
+        solved, run = self.solved, self.run
+        out: dict[str, Any] = solved.result.to_json(solved.tolerance_mm)
+        out["before_source"] = solved.before.source
+        out["sound_speed_m_s"] = solved.sound.m_s
+        out["sound_speed_source"] = solved.sound.source
+        out["profile"] = str(run.profile_path)
+        out["duration_s"] = run.duration_s
+        out["gauge"] = "block"
+        out["gauge_note"] = solved.gauge.statement()
+        out["absolute_std_mm"] = solved.gauge.absolute_std_mm
+        out["j1_gauge"] = solved.gauge.j1
+        out["before_is_after"] = solved.before_is_after
+        out["notes"] = self.notes
+        out["marginal"] = self.marginal
+        out["plot"] = None if self.plot_path is None else str(self.plot_path)
+        if self.truth is not None:
+            out["truth"] = self.truth
+        return out
+
+    def message(self) -> str:
+        """The one-line error of a run out of tolerance."""
+        return (
+            f"verify: a point deviates {self.solved.worst_mm:.3f} mm after calibration, above "
+            f"the tolerance of {self.solved.tolerance_mm:g} mm"
+        )
+
+
+@dataclass(frozen=True)
+class RegionResult:
+    """The model's residuals over the region (block pose and sound speed fitted)."""
+
+    postures: int
+    rms_distance_mm: float
+    max_distance_mm: float
+    rms_tilt_deg: float
+    max_tilt_deg: float
+    chi2_reduced: float
+    verdict: str
+    worst: str
+    tolerance_mm: float
+    #: What the last calibration's unidentified quantities allow at the tool centre, one sigma
+    #: (mm, mean and max over the scanning region; ``ucal.calibration.budget``): across the
+    #: beam, where these echoes do not look either. None: the profile states none.
+    unidentified_tcp_mm: tuple[float, float] | None = None
+
+    @property
+    def passed(self) -> bool:
+        return self.verdict == "ok" and self.max_distance_mm <= self.tolerance_mm
+
+    def message(self) -> str:
+        """The one-line error of a failed check."""
+        return (
+            f"region check failed: the model leaves {self.max_distance_mm:.4f} mm (rms "
+            f"{self.rms_distance_mm:.4f}) along the face normals and "
+            f"{self.max_tilt_deg:.4f} deg of beam tilt over {self.postures} postures (χ²ᵣ "
+            f"{self.chi2_reduced:.3g}, worst {self.worst}); calibrate with --level full"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "region": {
+                "postures": self.postures,
+                "rms_distance_mm": self.rms_distance_mm,
+                "max_distance_mm": self.max_distance_mm,
+                "rms_tilt_deg": self.rms_tilt_deg,
+                "max_tilt_deg": self.max_tilt_deg,
+                "chi2_reduced": self.chi2_reduced,
+                "verdict": self.verdict,
+                "worst": self.worst,
+                "unidentified_tcp_mm": (
+                    None
+                    if self.unidentified_tcp_mm is None
+                    else dict(zip(("mean", "max"), self.unidentified_tcp_mm, strict=True))
+                ),
+            },
+            "tolerance_mm": self.tolerance_mm,
+            "passed": self.passed,
+        }
+
+
+@dataclass(frozen=True)
+class RegionCheck:
+    """``verify --region``'s result: the model's residuals and what became of the run."""
+
+    region: RegionResult
+    run: RunFacts
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``verify --region --json`` object."""
+        return {
+            **self.region.to_json(),
+            "profile": str(self.run.profile_path),
+            "moves": self.run.moves,
+            "pulser_reads": self.run.reads,
+            "duration_s": self.run.duration_s,
+        }
 
 
 def tool_notes(tool: ToolOffset | None, profile: CellProfile) -> list[str]:
@@ -96,15 +216,15 @@ def tool_notes(tool: ToolOffset | None, profile: CellProfile) -> list[str]:
     return notes
 
 
-def tool_misfit_mm(shown: VerifyShown) -> float:
+def tool_misfit_mm(solved: VerifySolved) -> float:
     """The tool check's largest misfit (mm; 0 without a tool check)."""
-    tool = shown.result.tool
+    tool = solved.result.tool
     return 0.0 if tool is None else tool.misfit_mm
 
 
-def marginal(shown: VerifyShown) -> bool:
+def marginal(solved: VerifySolved) -> bool:
     """The verdict could go the other way within what verify measures to (plus the tool
     check's misfit)."""
     return bool(
-        abs(shown.worst_mm - shown.tolerance_mm) <= MEASURED_WITHIN_MM + tool_misfit_mm(shown)
+        abs(solved.worst_mm - solved.tolerance_mm) <= MEASURED_WITHIN_MM + tool_misfit_mm(solved)
     )

@@ -3,7 +3,6 @@ anywhere, and usage errors refused before any plan or prompt (SPEC.md)."""
 
 from __future__ import annotations
 
-import io
 import json
 import logging
 import sys
@@ -13,25 +12,12 @@ from pathlib import Path
 import click
 import pytest
 
-from ucal.profile import default_profile_text
-
 from doubles import terminal_typed
 
 CONTROLLER = "tcp://192.0.2.7:11000"
 PULSER = "modbus-tcp://192.0.2.8:502"
 
 RunMain = Callable[[list[str]], tuple[int, str, str]]
-
-
-@pytest.fixture
-def profile(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """A profile in a temporary directory; stdin is not a terminal; no cell in the environment."""
-    for name in ("UCAL_SIM", "UCAL_CONTROLLER", "UCAL_PULSER"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
-    path = tmp_path / "cell.toml"
-    path.write_text(default_profile_text("tx90l"), encoding="utf-8")
-    return path
 
 
 def one_error(err: str) -> str:
