@@ -1,4 +1,4 @@
-"""The approach discipline: every static posture reached with each joint moving up.
+"""The approach discipline: every static posture reached with each joint moving one way.
 
 A joint with backlash (lost motion) leaves its link behind the encoder by half the lost
 motion, against the direction of its last motion. If every posture a command measures at is
@@ -6,11 +6,16 @@ reached the same way, the lag is the same everywhere: in the calibration it beco
 the offset instead of a configuration-dependent error, and a command measuring later (verify,
 check, tool-frame) sees the arm as the calibration did (``[calibration] approach =
 "positive"``). ``FinalApproachRig`` is that discipline, for every command's static postures:
-the face searches' probes and water paths, the plate's, the edge scans' probes.
+the face searches' probes and water paths, the plate's, the edge scans' probes. A plan that
+measures the lost motion reaches some postures from above (``direction = -1``): the same
+readings, each joint's link on the other side of its lost motion.
 
 What a rig reads while it moves (acquisition lines, centring sweeps) only finds an echo; the
 rig's ``approach`` still gives the sign of each joint's last motion at any reading, and every
-measurement carries it, so a solver can model the lost motion.
+measurement carries it, so a solver can model the lost motion. A sweep that ends moving a
+joint the other way leaves that joint's sign wrong until the next move turns it: a static
+move therefore approaches afresh whenever any joint's last motion was the other way, even a
+joint the move leaves where it is.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ import numpy as np
 from ucal import interrupt
 from ucal.rig import Rig
 
-#: Final approach of every move (deg below the target on each joint), larger than any backlash.
+#: Final approach of every move (deg short of the target on each joint), larger than any backlash.
 APPROACH_DEG = 0.05
 
 
@@ -33,21 +38,27 @@ else:
 
 
 class FinalApproachRig(_RigProxy):
-    """A ``Rig`` whose moves finish with a short approach from the negative side of each joint.
+    """A ``Rig`` whose moves finish with a short approach in ``direction`` on every joint.
 
-    A joint with backlash leaves its link behind the encoder by half the lost motion, against
-    the direction of its last motion. If a move would bring any joint down onto its target, the
-    robot first goes ``APPROACH_DEG`` below the target on every joint, then up to it: all
-    static postures are then reached from below. The two segments are one move in the counters.
-    Everything else is the wrapped rig's.
+    ``direction`` +1 (the default): from below. A joint with backlash leaves its link behind
+    the encoder by half the lost motion, against the direction of its last motion. If a move
+    would bring any joint against ``direction`` onto its target, or any joint last moved
+    against it (a sweep that ended the other way), the robot first goes ``APPROACH_DEG``
+    short of the target on every joint, then onto it: all static postures are then reached
+    the same way. The two segments are one move in the counters. Everything else is the
+    wrapped rig's.
     """
 
     _rig: Rig
     _approach_deg: float
+    _direction: float
 
-    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG):
+    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG, direction: int = 1):
+        if direction not in (1, -1):
+            raise ValueError(f"direction must be +1 or -1, got {direction!r}")
         object.__setattr__(self, "_rig", rig)
         object.__setattr__(self, "_approach_deg", approach_deg)
+        object.__setattr__(self, "_direction", float(direction))
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._rig, name)
@@ -55,14 +66,28 @@ class FinalApproachRig(_RigProxy):
     def __setattr__(self, name: str, value: object) -> None:
         setattr(self._rig, name, value)
 
+    @property
+    def direction(self) -> int:
+        """+1: every posture reached from below; −1: from above."""
+        return int(self._direction)
+
     def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
-        """Move to ``q`` (deg), arriving from below on every joint; return the settled readings."""
-        rig = self._rig
+        """Move to ``q`` (deg), arriving in ``direction`` on every joint; return the settled
+        readings."""
+        rig, sign = self._rig, self._direction
         q = np.asarray(q, float)
         here = rig.controller.read_joints()
-        if np.any(q < here - 1e-6):
-            below = np.maximum(q - self._approach_deg, rig.joint_min_deg)
+        against = sign * (q - here) < -1e-6
+        if np.any(against) or np.any(rig.approach != sign):
+            short = np.clip(q - sign * self._approach_deg, rig.joint_min_deg, rig.joint_max_deg)
             interrupt.check()
-            rig.controller.move_joints(below, speed or rig.speed, rig.move_timeout_s)
-            rig.moved_to(below, here)
+            rig.controller.move_joints(short, speed or rig.speed, rig.move_timeout_s)
+            rig.moved_to(short, here)
         return rig.move(q, speed)
+
+
+def approaching(rig: Rig, direction: int) -> Rig:
+    """``rig`` reaching every static posture in ``direction`` (+1 from below, −1 from above):
+    a ``FinalApproachRig`` of the rig ``rig`` wraps, if it wraps one."""
+    inner = rig._rig if isinstance(rig, FinalApproachRig) else rig
+    return FinalApproachRig(inner, direction=direction)

@@ -15,7 +15,7 @@ from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
-from ucal.measure.approach import FinalApproachRig
+from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import SearchMode
 from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
@@ -296,6 +296,37 @@ def test_rig_records_each_joints_last_motion_and_the_minutes_since_the_first_rea
     assert rig.approach.tolist() == [1.0] * 6
     assert rig.controller.read_joints().tolist() == [0.2, 1.0, 4.0, 4.0, 5.0, 6.0]
     assert rig.counters.moves == 3
+
+
+def test_a_posture_is_reached_from_the_side_asked_even_after_a_sweep_ends_the_other_way() -> None:
+    rig = rig_with(lambda n: (0.5, 1000.0))
+    controller = rig.controller
+    assert isinstance(controller, FakeController)
+    below = FinalApproachRig(rig)
+    q0 = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    below.move(q0)  # up on every joint: straight there
+    assert controller.moves == 1 and rig.approach.tolist() == [1.0] * 6
+    # a centring sweep that ends moving J4 down
+    swept = q0 - np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])
+    rig.sweep(swept)
+    assert rig.approach[3] == -1.0
+    # a static move that raises J5 only: J4 stays where the sweep left it, approached afresh
+    q = swept + np.array([0.0, 0.0, 0.0, 0.0, 0.1, 0.0])
+    moves, segments = rig.counters.moves, controller.moves
+    below.move(q)
+    assert rig.approach.tolist() == [1.0] * 6
+    assert (rig.counters.moves, controller.moves) == (moves + 1, segments + 2)
+    # from above: every joint ends moving down, the overshoot and the approach one move
+    above = approaching(below, -1)
+    assert isinstance(above, FinalApproachRig) and above.direction == -1
+    above.move(q + 0.01)
+    assert rig.approach.tolist() == [-1.0] * 6
+    assert np.allclose(controller.read_joints(), q + 0.01)
+    assert (rig.counters.moves, controller.moves) == (moves + 2, segments + 4)
+    above.move(q)  # down on every joint, already from above: straight there
+    assert controller.moves == segments + 5 and rig.approach.tolist() == [-1.0] * 6
+    with pytest.raises(ValueError, match="direction"):
+        FinalApproachRig(rig, direction=0)
 
 
 def test_open_water_turns_the_joint_up_or_down_where_up_leaves_its_range() -> None:
