@@ -90,6 +90,12 @@ class CalibrationPlan:
     sound_speed_gain_deg_per_m_s: np.ndarray | None = None
     #: Offset std (deg) per 1 µm of water-path noise on every measurement, per joint.
     distance_noise_gain_deg_per_um: np.ndarray | None = None
+    #: Read the first face's water path again at the end, where it was read (the tank's
+    #: drift: ``ucal.calibration.sequence``).
+    path_again: bool = True
+    #: Targets measured again from above at the end (each joint's lost motion:
+    #: ``ucal.calibration.sequence.with_lost_motion``); none by default.
+    above: tuple[PlannedTarget, ...] = ()
 
     @property
     def configs(self) -> tuple[Configuration, ...]:

@@ -17,7 +17,17 @@ below ``[procedure] step_deg``); the plan summary prints the amplification the p
 
 Backlash: every move ends with a short final approach from the negative side of each joint
 (``FinalApproachRig``), so the links always lag the encoders the same way; a constant lag is
-then part of the offset instead of a configuration-dependent error.
+then part of the offset instead of a configuration-dependent error. A plan ``with_lost_motion``
+measures the calibration pose's three faces again at the end, every posture reached from
+above: each joint read from both sides, its lost motion measured, the offsets still those of
+the positive approach.
+
+The tank's drift: each configuration's faces are read one after the other in about half a
+minute, so their water paths barely tell a drifting sound speed from the configurations. The
+run therefore ends where it began, reading the first face's water path again at the same
+joint readings, gain and approach (``RunningEstimate.read_path_again``; ``CalibrationPlan.
+path_again``): what changed is the tank. It costs no move (the run ends at that posture
+anyway), only the water path's reads.
 
 Every target is planned and checked before the first motion (joint ranges with room for the
 wrist search, the θ5 singularity margin, the beam meeting each face inside its edges at a
@@ -29,7 +39,7 @@ face may need a wide search, the others are found near their prediction.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,6 +50,7 @@ from ucal.calibration.fit import (
 )
 from ucal.calibration.model import (
     FACE_NAMES,
+    FACE_ORDER,
     CellGeometry,
     Configuration,
     FaceMeasurement,
@@ -65,6 +76,7 @@ from ucal.calibration.safety import (
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.measure.face import SearchMode
 from ucal.measure.running import RunningEstimate
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
@@ -242,12 +254,57 @@ def run_calibration(
         label = f"face {FACE_NAMES[target.face]} ({target.label})"
         found = running.measure(target.face, start, label, target.config)
         last_wrist[target.face] = found.measurement.joints_deg
-    # Leave the robot at the calibration pose's XY posture.
-    running.rig.move(first.joints_deg)
     meas = running.refit_peaks()
+    meas += measure_above(running, plan, last_wrist)
+    if plan.path_again and running.measurements:
+        # the first water path again, where it was read: the robot ends at the calibration
+        # pose's XY posture, as it began
+        meas.append(running.read_path_again(0, f"{running.measurements[0].config}-{AGAIN}"))
+    else:
+        running.rig.move(first.joints_deg)  # leave the robot at the calibration pose's XY
     if progress:
         progress(MeasureStep("solving", total, total))
     return CalibrationRun(meas, rig.counters.moves, rig.counters.reads)
+
+
+#: What the configuration label of a measurement read again says (``read_path_again``) and of
+#: one approached from above (``with_lost_motion``), after the configuration's own.
+AGAIN, ABOVE = "again", "above"
+
+
+def with_lost_motion(plan: CalibrationPlan) -> CalibrationPlan:
+    """``plan`` measuring each joint's lost motion: the calibration pose's three faces
+    measured again at the end, every posture reached from above, in the order that ends the
+    run where it began.
+
+    Reached from above, each joint's link sits on the other side of its lost motion ``b``;
+    the three faces see the beam turned about three axes and the tool centre moved along
+    three normals, which separates ``b`` on joints 1-5 (joint 6 only where the beam is off its
+    axis). Two of the faces leave joints 1 and 3 a few thousandths of a degree apart; the
+    third brings every one to a few ten-thousandths (``tests/unit/calibration``).
+    """
+    base = [t for t in plan.targets if t.config == Configuration.BASE]
+    above = sorted(base, key=lambda t: FACE_ORDER.index(t.face), reverse=True)
+    return replace(plan, above=tuple(above))
+
+
+def measure_above(
+    running: RunningEstimate, plan: CalibrationPlan, last_wrist: dict[int, np.ndarray]
+) -> list[FaceMeasurement]:
+    """The plan's ``above`` targets measured again, every posture reached from above
+    (``with_lost_motion``): fitted at the final estimate's prediction, without refitting it
+    (the estimate's offsets are the positive approach's)."""
+    out = []
+    for target in plan.above:
+        start = np.array(target.joints_deg, float)
+        start[3:] = last_wrist.get(target.face, target.joints_deg)[3:]
+        config = f"{target.config}-{ABOVE}"
+        label = f"face {FACE_NAMES[target.face]} ({config})"
+        found = running.measure(
+            target.face, start, label, config, mode=SearchMode.DIRECT, keep=False, direction=-1
+        )
+        out.append(found.measurement)
+    return out
 
 
 def beam_fixed(beam: str) -> tuple[str, ...]:

@@ -80,7 +80,10 @@ def plan_check(
     wanted = CONFIGURATIONS if Configuration.J1 in full.configs else FALLBACK_CONFIGURATIONS
     targets = tuple(t for t in full.targets if t.config in wanted)
     echo = tuple(t.label for t in targets if t.config == ECHO_CONFIGURATION)
-    return CheckPlan(replace(full, targets=targets), echo, reference, baseline_asked)
+    # the check compares its faces with a reference's: no water path read again at the end
+    return CheckPlan(
+        replace(full, targets=targets, path_again=False), echo, reference, baseline_asked
+    )
 
 
 def ascan_transfer_s(framing: str, window_us: float = ASCAN_WINDOW_US) -> float:

@@ -26,6 +26,7 @@ prediction.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -40,16 +41,24 @@ from ucal.calibration.fit import (
     prior_from_profile,
     solve_cell,
 )
-from ucal.calibration.model import CellGeometry, Face, FaceMeasurement, beam_and_tcp
+from ucal.calibration.model import (
+    CellGeometry,
+    Face,
+    FaceMeasurement,
+    beam_and_tcp,
+    distance_joints,
+)
 from ucal.calibration.safety import MIN_WATER_PATH_MM, check_joints
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.measure.acquire import BLOCK_FACES, noise_floor
-from ucal.measure.approach import FinalApproachRig
+from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import FaceRequest, FaceResult, FaceSetup, SearchMode, make_search, measure
-from ucal.measure.search import ka_of
+from ucal.measure.search import ka_of, read_distance
 from ucal.rig import Rig
+
+log = logging.getLogger(__name__)
 
 #: Half-width (deg of beam tilt) of the main lobe at −6 dB (25 MHz, 6 mm element): a prediction
 #: that missed by more than this is not trusted for a direct fit next.
@@ -61,6 +70,10 @@ LANDED_DEG = 0.02
 #: A face whose peak posture is less certain than this (deg of tilt) is left out of the
 #: prediction (a good one is a few thousandths).
 UNCERTAIN_TILT_DEG = 0.01
+#: The tilt σ (deg) of a water path read again without a search (``read_path_again``): a
+#: thousand times a fitted peak's, so that its posture, the one measured before, is not
+#: counted twice.
+PATH_ONLY_TILT_STD_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -236,12 +249,15 @@ class RunningEstimate:
         above_mm: float = 0.0,
         mode: SearchMode | None = None,
         keep: bool = True,
+        direction: int = 1,
     ) -> FaceResult:
         """Measure ``face`` from ``start_deg`` (arm as planned, wrist where the last search
         of the face ended), its posture predicted and checked with the cell as estimated;
         ``above_mm``: the surface measured lies that far above the face (a step on it).
         ``mode``: the policy's unless given (a face measured again). ``keep``: the face
-        refits the estimate (a water path over a step does not)."""
+        refits the estimate (a water path over a step does not). ``direction``: every static
+        posture of the search reached from below (+1) or from above (−1, a reading of the
+        lost motion: ``ucal.measure.approach``)."""
         n = len(self.measurements)
         plane = self.corner_mm + above_mm * self.geometry.normal(Face.XY)
         check_prediction(
@@ -257,12 +273,39 @@ class RunningEstimate:
             mode or self.trust.mode(n, face in self.faces_seen, self.last_miss_deg),
             self.trust.radius(n),
         )
-        found = measure(self.rig, self.setup, request)
+        rig = self.rig if direction == 1 else approaching(self.rig, direction)
+        found = measure(rig, self.setup, request)
         self.last_miss_deg = found.prediction_error_deg
         if keep:
             self.measurements.append(found.measurement)
             self.refit()
         return found
+
+    def read_path_again(self, i: int, config: str) -> FaceMeasurement:
+        """The water path of measurement ``i`` read again where it was read (its readings, its
+        gain, its approach), without a search: what changed since is the tank (its drift), not
+        the arm. The posture is not measured again: its tilt rows carry no weight
+        (``PATH_ONLY_TILT_STD_DEG``). One move, the readings of one water path."""
+        m = self.measurements[i]
+        above = m.approach is not None and bool(np.all(np.asarray(m.approach) < 0))
+        rig = approaching(self.rig, -1 if above else 1)
+        settled = rig.move(distance_joints(m))
+        if m.gain_db is not None:
+            rig.configure(gain_db=m.gain_db)
+        averages = max(self.profile.procedure.tof_averages, 1)
+        path, path_std = read_distance(rig, self.profile.water_temperature_c, averages)
+        log.info("%s again (%s): water path %.4f ± %.4f mm", config, m.config, path, path_std)
+        return replace(
+            m,
+            config=config,
+            distance_mm=path,
+            distance_std_mm=max(path_std, 1e-4),
+            tilt_std_deg=PATH_ONLY_TILT_STD_DEG,
+            distance_joints_deg=np.asarray(settled, float),
+            probes=None,
+            time_min=rig.minutes(),
+            approach=rig.approach.copy(),
+        )
 
     @property
     def faces_seen(self) -> set[Face]:
