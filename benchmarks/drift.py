@@ -65,7 +65,12 @@ from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_fu
 from ucal.calibration.full_plan import MAX_POSTURES, plan_full
 from ucal.calibration.full_run import run_full
 from ucal.calibration.procedure import judge
-from ucal.calibration.sequence import calibration_pose, plan_calibration, run_calibration
+from ucal.calibration.sequence import (
+    calibration_pose,
+    plan_calibration,
+    run_calibration,
+    with_lost_motion,
+)
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
@@ -77,10 +82,13 @@ from ucal.world import load_world
 QUICK = {"worlds": 1, "jobs": 1, "postures": 8}
 #: The previous solvers: the drift and the lost motion held at 0.
 HELD = DRIFT + BACKLASH
+#: The cases of the offsets level: as planned, and with the calibration pose's faces measured
+#: again from above (``ucal.calibration.sequence.with_lost_motion``).
+OFFSETS_CASES = ("offsets", "lost-motion")
 #: Per case: the tank's drift the worlds are drawn with (±°C/min) and the one its profile
-#: declares (°C/min, one sigma).
-DRIFT_C_PER_MIN = {"offsets": 0.3, "full": 0.1}
-DECLARED_DRIFT = {"offsets": 0.15, "full": 0.05}
+#: declares (°C/min, one sigma: the default).
+DRIFT_C_PER_MIN = {"offsets": 0.3, "lost-motion": 0.3, "full": 0.1}
+DECLARED_DRIFT = {"offsets": 0.05, "lost-motion": 0.05, "full": 0.05}
 #: Largest lost motion drawn (deg, uniform from 0 per joint).
 BACKLASH_DEG = 0.02
 
@@ -92,7 +100,7 @@ def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
     directory = directory / case
     directory.mkdir()
     updates: dict = {"water": {"drift_std_c_per_min": drift_c_per_min}}
-    if case == "offsets":
+    if case in OFFSETS_CASES:
         path = realistic.make_profile(directory, fixture=True)
         updates["tool"] = {"position_std_mm": [0.05] * 3, "rotation_std_deg": [0.02] * 3}
     else:
@@ -104,7 +112,7 @@ def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
 def draw_world(rng: np.random.Generator, profile: CellProfile, case: str, index: int) -> str:
     """World-file text of a cell of ``case``: the other benchmark's world (module docstring)
     with the tank drifting and the lost motion of this one."""
-    if case == "offsets":
+    if case in OFFSETS_CASES:
         text = realistic.draw_world(rng, profile, index)
     else:
         text = full_calibration.draw_world(rng, profile, index)
@@ -124,6 +132,10 @@ class Outcome:
     refusal: str  # "" when written
     tcp_mm: np.ndarray  # TCP errors over the scanning region (mm)
     drift_z: float  # the drift's |error| / std (NaN where held)
+    #: each joint's lost motion: estimated less true (deg) and |error| / std, NaN where not
+    #: measured (read from one side, or held)
+    backlash_err_deg: np.ndarray
+    backlash_z: np.ndarray
 
 
 def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
@@ -138,6 +150,14 @@ def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
         slope = (sound_speed_m_s(t_mid + 0.01) - sound_speed_m_s(t_mid - 0.01)) / 0.02
         z.append(abs(effects.drift_m_s_per_min - slope * rate) / effects.drift_std_m_s_per_min)
     return z
+
+
+def backlash_z(cell: CellFit, world: WorldTruth) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's lost motion as fitted less the world's (deg), and |that| / its std; NaN
+    where the fit did not measure it."""
+    effects = RunEffects.of(cell)
+    err = effects.backlash_deg - np.asarray(world.backlash_deg, float)
+    return err, np.abs(err) / effects.backlash_std_deg
 
 
 def true_model(world: WorldTruth):
@@ -155,20 +175,31 @@ def solve_offsets(profile: CellProfile, world: WorldTruth, meas: list, held: tup
     qs = scanning_postures(calibration_pose(profile), 200, 1, profile.model)
     true_tcp = fk(true_model(world), qs, world.tool_matrix, truth)[:, :3, 3]
     tcp = fk(profile.model, qs, profile.tool_matrix, sol.offsets_deg)[:, :3, 3]
-    return outcome(z, verdict, sol.fit, aligned_errors_mm(tcp, true_tcp), held)
+    lost = backlash_z(sol.cell_fit, world)
+    return outcome(z, verdict, sol.fit, aligned_errors_mm(tcp, true_tcp), held, lost)
 
 
 #: What a misfit's message names, by the words it uses (the first that appears).
 CAUSES = (("a drift of the", "drift"), ("lost motion of", "lost motion"), ("DH table", "DH"))
 
 
-def outcome(z: list[float], verdict, fit: FitQuality, tcp: np.ndarray, held: tuple) -> Outcome:
+def outcome(
+    z: list[float],
+    verdict,
+    fit: FitQuality,
+    tcp: np.ndarray,
+    held: tuple,
+    lost: tuple[np.ndarray, np.ndarray],
+) -> Outcome:
+    """One solver's figures; ``lost``: ``backlash_z``'s (its z joins the coverage)."""
     refusal = ""
     if not verdict.ok:
         named = next((short for words, short in CAUSES if words in fit.cause), "other")
         refusal = f"misfit naming {named}" if fit.verdict == "misfit" else "std"
     drift_z = float("nan") if held else z[-1]
-    return Outcome(np.array(z), verdict.ok, refusal, tcp, drift_z)
+    measured = np.isfinite(lost[1])
+    z_all = np.concatenate([z, lost[1][measured]])
+    return Outcome(z_all, verdict.ok, refusal, tcp, drift_z, lost[0], lost[1])
 
 
 def solve_full_level(
@@ -194,7 +225,8 @@ def solve_full_level(
     tcp = aligned_errors_mm(
         fk(sol.model, qs, tool, sol.offsets_deg)[:, :3, 3], fk(model, qs, tool, truth)[:, :3, 3]
     )
-    return outcome(z, judge(sol, sol.cell.quality), sol.cell.quality, tcp, held)
+    lost = backlash_z(sol.cell, world)
+    return outcome(z, judge(sol, sol.cell.quality), sol.cell.quality, tcp, held, lost)
 
 
 def run_world(
@@ -207,14 +239,17 @@ def run_world(
     try:
         with open_cell(profile, str(world_path), None, None) as cell:
             check_status(cell.rig)
-            if case == "offsets":
-                run = run_calibration(profile, plan_calibration(profile), cell.rig)
+            if case in OFFSETS_CASES:
+                offsets_plan = plan_calibration(profile)
+                if case == "lost-motion":
+                    offsets_plan = with_lost_motion(offsets_plan)
+                run = run_calibration(profile, offsets_plan, cell.rig)
             else:
                 plan = plan_full(profile, max_postures=postures)
                 full_run = run_full(profile, plan, cell.rig)
     except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
         return f"{world_path.name}: stopped: {err}"
-    if case == "offsets":
+    if case in OFFSETS_CASES:
         return [solve_offsets(profile, world, run.measurements, h) for h in ((), HELD)]
     return [
         solve_full_level(
@@ -240,17 +275,33 @@ def summary(name: str, outs: list[Outcome]) -> str:
     )
     return (
         f"| {name} | {np.mean(z <= 3.0) * 100:.1f} % of {len(z)} (max |z| {np.max(z):.1f}) "
-        f"| {drift_cov} | {len(written)} / {len(outs)} | "
+        f"| {drift_cov} | {lost_motion(outs)} | {len(written)} / {len(outs)} | "
         f"{', '.join(f'{k} {v}' for k, v in sorted(refused.items())) or '—'} | {beyond} | "
         f"{np.mean([o.tcp_mm.mean() for o in outs]):.3f} / "
         f"{np.max([o.tcp_mm.max() for o in outs]):.3f} |"
     )
 
 
+def lost_motion(outs: list[Outcome]) -> str:
+    """The lost motion column: per joint measured in any run, the rms error (deg) and how
+    many of its estimates lie within 3 std; "not measured" where no run measured one."""
+    err = np.array([o.backlash_err_deg for o in outs])
+    z = np.array([o.backlash_z for o in outs])
+    cells = []
+    for j in range(6):
+        ok = np.isfinite(z[:, j])
+        if ok.any():
+            rms = float(np.sqrt(np.mean(err[ok, j] ** 2)))
+            cells.append(f"J{j + 1} {rms:.4f}° {np.sum(z[ok, j] <= 3.0)}/{ok.sum()}")
+    return ", ".join(cells) or "not measured"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worlds", type=int, default=12)
-    ap.add_argument("--case", choices=("offsets", "full", "both"), default="both")
+    ap.add_argument(
+        "--case", choices=("offsets", "lost-motion", "full", "both", "all"), default="all"
+    )
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
@@ -273,13 +324,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.set_defaults(**QUICK)
         args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-drift-"))
-    cases = ("offsets", "full") if args.case == "both" else (args.case,)
+    cases = {"both": ("offsets", "full"), "all": ("offsets", "lost-motion", "full")}.get(
+        args.case, (args.case,)
+    )
     stopped: list[str] = []
     print(
-        "| case | solver | coverage (|err| ≤ 3σ) | drift within 3σ | written | refused (why) "
-        "| written beyond 4σ | TCP error mean / max mm |"
+        "| case | solver | coverage (|err| ≤ 3σ) | drift within 3σ | lost motion: rms error, "
+        "within 3σ | written | refused (why) | written beyond 4σ | TCP error mean / max mm |"
     )
-    print("| --- " * 8 + "|")
+    print("| --- " * 9 + "|")
     for case in cases:
         declared = args.declared_drift or DECLARED_DRIFT[case]
         profile_path = make_profile(work, case, declared)

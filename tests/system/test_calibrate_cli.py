@@ -178,11 +178,12 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
         prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25],
         robot={"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0},
     )
-    # the tank warms by 0.1 °C/min during the run (twice the default tolerance)
-    world = make_world(
-        tmp_path, offsets, noise=(0.5, 0.01, 7), extra="[water]\ndrift_c_per_min = 0.1\n"
-    )
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    # the tank warms by 0.1 °C/min during the run (twice the default tolerance); the joints
+    # have lost motion, measured with the calibration pose's faces read again from above
+    backlash = np.array([0.015, 0.02, 0.008, 0.018, 0.012, 0.01])
+    extra = f"backlash_deg = {backlash.tolist()}\n[water]\ndrift_c_per_min = 0.1\n"
+    world = make_world(tmp_path, offsets, noise=(0.5, 0.01, 8), extra=extra)
+    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--lost-motion")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     assert result["written"] is True and result["fit"]["verdict"] == "ok"
@@ -194,23 +195,29 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
     )
     assert abs(drift - 0.31) <= 3 * drift_std and drift_std < 0.1, (drift, drift_std)
     assert result["joint_offsets_deg"][5] == 0.25  # the profile's value, kept
+    positive = offsets - backlash / 2  # every posture but the three from above, from below
     weak = result["weak_joints"]["6"]
     assert weak["std_deg"] > 0.02 and "off the joint-6 axis" in weak["reason"]
-    assert abs(weak["offset_deg"] - offsets[5]) <= 3 * weak["std_deg"]
+    assert abs(weak["offset_deg"] - positive[5]) <= 3 * weak["std_deg"]
     assert result["unobservable_reasons"]["6"] == weak["reason"]
     assert "warning: J6 measured at" in out.stderr
-    err = np.abs(np.array(result["joint_offsets_deg"][:5]) - offsets[:5])
+    err = np.abs(np.array(result["joint_offsets_deg"][:5]) - positive[:5])
     assert np.all(err <= 3 * np.array(result["std_deg"][:5])), (err, result["std_deg"])
-    # the offsets' approach direction, stated; lost motion not measured by this level
+    # the offsets' approach direction, stated; the lost motion measured on J1-J5
     assert result["approach"] == "positive"
-    assert result["backlash_deg"] == [None] * 6 == result["backlash_std_deg"]
+    lost = np.array([np.nan if v is None else v for v in result["backlash_deg"]])
+    lost_std = np.array([np.nan if v is None else v for v in result["backlash_std_deg"]])
+    assert np.all(np.isfinite(lost[:5])) and np.all(lost_std[:5] < 0.005), (lost, lost_std)
+    measured = np.isfinite(lost)
+    assert np.all(np.abs(lost - backlash)[measured] <= 3 * lost_std[measured]), (lost, lost_std)
+    assert "J1, J2, J3, J4, J5" in result["backlash_note"]
     cal = tomllib.loads(profile.read_text())["calibration"]
     assert cal["approach"] == "positive" and cal["unobservable_joints"] == [6]
     # a table identified on this robot: what no echo sees is the common scale, micrometres
     unseen = result["unidentified_tcp_mm"]
     assert set(unseen["by_quantity"]) <= {"sound_speed_m_s"} and unseen["max"] < 0.02
     assert cal["unidentified_tcp_mm"] == pytest.approx([unseen["mean"], unseen["max"]], abs=1e-4)
-    assert cal["backlash_deg"] == [-1.0] * 6 == cal["backlash_std_deg"]
+    assert cal["backlash_deg"] == [round(v, 6) if v == v else -1.0 for v in lost]
     assert cal["sound_speed_drift_m_s_per_min"] == round(drift, 5)
     assert cal["sound_speed_drift_m_s_per_min_std"] == round(drift_std, 5)
     np.testing.assert_allclose(cal["joint_offsets_deg"], result["joint_offsets_deg"], atol=1e-6)

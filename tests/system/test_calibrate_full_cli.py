@@ -17,6 +17,7 @@ pytestmark = pytest.mark.system
 WORLD = """
 [robot]
 joint_offsets_deg = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
+backlash_deg = [0.015, 0.02, 0.008, 0.018, 0.012, 0.01]
 dh = [
   { theta_offset_deg = 0.0, d_mm = 0.0, a_mm = 50.3, alpha_deg = -90.03 },
   { theta_offset_deg = -90.0, d_mm = 50.2, a_mm = 500.4, alpha_deg = 0.02, beta_deg = 0.04 },
@@ -78,11 +79,16 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     assert p.model.dh_source == "[calibration] dh"
     assert p.model.beta_deg[1] == pytest.approx(beta["value"], abs=1e-6)
     assert p.model.dh[1, 2] == pytest.approx(ident["parameters"]["dh2_a_mm"]["value"], abs=1e-5)
-    true = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
+    backlash = [0.015, 0.02, 0.008, 0.018, 0.012, 0.01]
+    # the offsets of the positive approach: the link lags the encoder by half the lost motion
+    true = [o - b / 2 for o, b in zip([0.3, -0.2, 0.25, -0.3, 0.2, 0.1], backlash, strict=True)]
     for j, (v, sd) in enumerate(zip(out["joint_offsets_deg"], out["std_deg"], strict=True)):
         assert p.joint_offsets_deg[j] == pytest.approx(v, abs=1e-6)
         if sd is not None:  # few postures: some stay unobservable
             assert abs(v - true[j]) < 3 * sd
+    # five postures cannot spare one to read from above: the lost motion is not measured
+    # (it would pass its prior on to the offsets), and the offsets are the positive approach's
+    assert out["backlash_deg"] == [None] * 6 and "From above" not in r.stderr
 
     # the recorded run solves again offline to the same numbers, and writes nothing
     written = profile.read_bytes()

@@ -30,10 +30,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.fit import CellPrior, prior_from_profile
+from ucal.calibration.fit import BACKLASH, OFFSETS, CellPrior, prior_from_profile
 from ucal.calibration.full import (
     Identifiability,
     data_jacobian,
+    full_table,
     ideal_measurements,
     identifiability,
 )
@@ -74,6 +75,10 @@ MAX_POSTURES = 60
 #: Room (deg) kept beyond the wrist search's on joints 4-6: the run predicts each posture with
 #: the cell as measured so far, which moves it by up to a few tenths of a degree.
 PLAN_MARGIN_DEG = 2.0
+#: Postures reached from above (``postures_from_above``) may raise an offset's planned std by
+#: this factor at most, and must leave each lost motion they see this share of its prior's.
+OFFSET_STD_GROWTH = 1.1
+LOST_MOTION_SHARE = 0.25
 #: σ assumed for planning: posture (deg) and water path (mm) of one measurement.
 PLAN_TILT_STD_DEG = 1e-3
 PLAN_DISTANCE_STD_MM = 1e-3
@@ -111,6 +116,9 @@ class FullPlan:
     #: What the data could identify from every candidate: what no posture the block allows
     #: can see (``solve_full``'s ``structure``).
     structure: Identifiability | None = None
+    #: Labels of the postures reached from above on every joint (``postures_from_above``):
+    #: each joint read from both sides, its lost motion measured.
+    above: tuple[str, ...] = ()
 
     def describe(self) -> str:
         lo, hi = self.azimuths_deg
@@ -369,4 +377,68 @@ def plan_full(
         log_det,
         (float(min(j1)), float(max(j1))),
         structure,
+        postures_from_above(prior, profile, chosen),
     )
+
+
+def postures_from_above(
+    prior: CellPrior, profile: CellProfile, postures: list[Posture], min_gain: float = MIN_GAIN
+) -> tuple[str, ...]:
+    """The postures to reach from above on every joint, so that each joint's lost motion
+    is measured (labels, in plan order; none where the plan cannot spare them).
+
+    A joint's link lags its encoder by half its lost motion ``b`` against its last motion;
+    the offsets are those of postures reached from below, and a posture reached from above
+    sees every joint at ``offset + b``: its rows gain the offsets' columns as ``b``'s
+    (scaled to ``b``'s prior σ). Greedy as the selection, on the information about ``b``
+    (``log det`` of its marginal information): the face posture that raises it most is
+    turned, while that raises it by ``min_gain`` or more and leaves every offset's std within
+    ``OFFSET_STD_GROWTH`` of the all-from-below plan's (the rest still carry the offsets).
+    The turn is kept only if it measures ``b`` where it sees it (std below ``LOST_MOTION_SHARE``
+    of the prior's on every joint it moves off the prior): a lost motion half measured would
+    pass its prior's mean (0, for a quantity that is never negative) on to the offsets. A
+    short plan turns none. Postures over the step stay from below (only their water path is
+    used).
+    """
+    if not postures:
+        return ()
+    jacs, names = posture_jacobians(prior, profile, postures)
+    table = full_table(prior)
+    stds = np.array([table.prior_stds[table.index(n)] for n in OFFSETS + BACKLASH])
+    if not np.all(np.isfinite(stds) & (stds > 0)) or not set(OFFSETS) <= set(names):
+        return ()  # no lost motion to measure (a tolerance of 0), or offsets held
+    cols = [names.index(n) for n in OFFSETS]
+    lost = jacs[:, :, cols] * (stds[6:] / stds[:6])  # the b columns of a posture from above
+    below = np.concatenate([jacs, np.zeros_like(lost)], axis=2)
+    info = np.eye(below.shape[2]) + np.einsum("nki,nkj->ij", below, below)
+    offsets_var = np.diag(np.linalg.inv(info))[cols]
+    b = slice(below.shape[2] - 6, None)
+
+    def judged(m: np.ndarray) -> tuple[float, bool, np.ndarray]:
+        """Information on b (log det of its marginal), the offsets' std kept, b's std/prior."""
+        cov = np.linalg.inv(m)
+        kept = bool(np.all(np.diag(cov)[cols] <= OFFSET_STD_GROWTH**2 * offsets_var))
+        return -float(np.linalg.slogdet(cov[b, b])[1]), kept, np.sqrt(np.diag(cov)[b])
+
+    turnable = [i for i, p in enumerate(postures) if not p.step]
+    turned: list[int] = []
+    score, _, b_std = judged(info)
+    while True:
+        best, best_gain, best_info = -1, min_gain, info
+        for i in turnable:
+            if i in turned:
+                continue
+            above = np.concatenate([jacs[i], lost[i]], axis=1)
+            trial = info - below[i].T @ below[i] + above.T @ above
+            new, kept, _ = judged(trial)
+            if kept and new - score >= best_gain:
+                best, best_gain, best_info = i, new - score, trial
+        if best < 0:
+            break
+        turned.append(best)
+        info = best_info
+        score, _, b_std = judged(info)
+    seen = b_std < 0.9  # the joints whose lost motion the turned postures see at all
+    if not seen.any() or np.max(b_std[seen]) > LOST_MOTION_SHARE:
+        return ()
+    return tuple(postures[i].label for i in sorted(turned))

@@ -4,7 +4,9 @@ Read top to bottom: noise floor and acquisition gain once; then for every planne
 (``ucal.calibration.full_plan``, visiting order) the face measured by the running estimate of
 ``ucal.measure.running`` (the posture predicted with the cell as measured so far, checked
 before moving, searched as the one trust policy says, the estimate refitted), every move
-ending from below on each joint (``FinalApproachRig``: backlash). At the end the early faces'
+ending from below on each joint (``FinalApproachRig``: backlash), or from above on the
+postures the plan turns (``FullPlan.above``: each joint read from both sides, its lost motion
+measured; the offsets stay those of the positive approach). At the end the early faces'
 probes are fitted again with the final estimate, and ``ucal.calibration.full.solve_full``
 identifies the model.
 
@@ -46,6 +48,12 @@ class FullRun:
     reads: int
 
 
+def direction(plan: FullPlan, label: str) -> int:
+    """How the posture ``label`` is reached: from above (−1) if the plan says so
+    (``FullPlan.above``: the lost motion), else from below (+1)."""
+    return -1 if label in plan.above else 1
+
+
 def run_full(
     profile: CellProfile,
     plan: FullPlan,
@@ -69,7 +77,13 @@ def run_full(
         label = f"face {posture.face_name} ({posture.label})"
         above = top if posture.step else 0.0
         found = running.measure(
-            posture.face, posture.joints_deg, label, posture.label, above, keep=not posture.step
+            posture.face,
+            posture.joints_deg,
+            label,
+            posture.label,
+            above,
+            keep=not posture.step,
+            direction=direction(plan, posture.label),
         )
         if posture.step:
             steps.append(found.measurement)
@@ -87,7 +101,15 @@ def run_full(
             "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, UNCERTAIN_TILT_DEG
         )
         q, face = posture.joints_deg, posture.face
-        again = running.measure(face, q, label, posture.label, mode=SearchMode.QUICK, keep=False)
+        again = running.measure(
+            face,
+            q,
+            label,
+            posture.label,
+            mode=SearchMode.QUICK,
+            keep=False,
+            direction=direction(plan, posture.label),
+        )
         running.replace(i, again.measurement)
     running.rig.move(first.joints_deg)
     meas = running.refit_peaks()

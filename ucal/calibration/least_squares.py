@@ -406,11 +406,18 @@ def solve_augmented(
     )
 
 
+#: A joint's lost motion is reported measured only where its std is below this share of its
+#: prior's: read from both sides, the data determine it (J6 with the beam on its axis is read
+#: from both sides and still left at its prior).
+MEASURED_SHARE = 0.5
+
+
 @dataclass(frozen=True)
 class RunEffects:
     """What a fit found of the tank's drift (m/s per min) and each joint's lost motion (deg):
     a drift no reading saw keeps its prior (0 ± its tolerance); lost motion is measured only
-    where readings approached the joint from both sides (NaN elsewhere)."""
+    where readings approached the joint from both sides and determine it (std below
+    ``MEASURED_SHARE`` of the prior's; NaN elsewhere)."""
 
     drift_m_s_per_min: float
     drift_std_m_s_per_min: float
@@ -427,7 +434,9 @@ class RunEffects:
             drift_std = cell.sigma(DRIFT[0]) if table.free[i] else float(table.prior_stds[i])
         backlash, backlash_std = np.full(6, np.nan), np.full(6, np.nan)
         for j, name in enumerate(BACKLASH):
-            if name in table.names and table.free[table.index(name)]:
+            if name not in table.names or not table.free[table.index(name)]:
+                continue
+            if cell.sigma(name) < MEASURED_SHARE * table.prior_stds[table.index(name)]:
                 backlash[j], backlash_std[j] = cell.value(name), cell.sigma(name)
         return cls(drift, drift_std, backlash, backlash_std)
 

@@ -59,6 +59,7 @@ from ucal.calibration.sequence import (
     plan_calibration,
     run_calibration,
     solve,
+    with_lost_motion,
 )
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
@@ -171,7 +172,7 @@ class PlannedPosture(Protocol):
 #: The plans' last line: how every planned posture is measured.
 WRIST_SEARCH = (
     "The wrist searches around each planned posture for the echo (joints 4-6 only); every "
-    "move ends approaching from below on each joint (backlash)."
+    "move ends approaching from below on each joint (backlash), unless said above."
 )
 
 
@@ -299,7 +300,19 @@ def plan_summary(plan: CalibrationPlan, profile: CellProfile) -> str:
         )
     lines.append("  target      J1       J2       J3       J4       J5       J6    water path")
     lines += [plan_line(f"{t.config:>4}/{FACE_NAMES[t.face]:<3}", t) for t in plan.targets]
+    if plan.above:
+        lines.append(from_above(t.label for t in plan.above) + ", measured again at the end")
+    if plan.path_again:
+        lines.append(
+            "At the end the first face's water path is read again where it was read: the "
+            "tank's drift over the run"
+        )
     return "\n".join([*lines, WRIST_SEARCH])
+
+
+def from_above(labels: Iterable[str]) -> str:
+    """The plan's line for the postures reached from above (each joint's lost motion)."""
+    return f"From above on every joint (lost motion): {', '.join(labels)}"
 
 
 class CalibrationJob(ProfileJob):
@@ -348,20 +361,22 @@ class OffsetsCalibration(CalibrationJob):
         method: str = "exact",
         beam: str = "auto",
         force: bool = False,
+        lost_motion: bool = False,
     ) -> None:
         super().__init__(profile, profile_path, beam, force)
         self.method = method
+        self.lost_motion = lost_motion  # the calibration pose's faces again, from above
 
     def plan(self) -> CalibrationPlan:
-        return plan_calibration(self.profile)
+        plan = plan_calibration(self.profile)
+        return with_lost_motion(plan) if self.lost_motion else plan
 
     def summary(self, plan: CalibrationPlan) -> str:
         return plan_summary(plan, self.profile)
 
     def estimate(self, plan: CalibrationPlan) -> DurationEstimate:
-        return estimate_run(
-            [t.joints_deg for t in plan.targets], plan.pose_deg, self.profile.procedure.speed
-        )
+        targets = [t.joints_deg for t in plan.targets + plan.above]
+        return estimate_run(targets, plan.pose_deg, self.profile.procedure.speed)
 
     def record_header(self, plan: CalibrationPlan) -> dict[str, Any]:
         return {
@@ -440,6 +455,8 @@ def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
         "  posture face     J1       J2       J3       J4       J5       J6    water path",
     ]
     lines += [plan_line(f"{p.label:>7} {p.face_name:<3}", p) for p in plan.postures]
+    if plan.above:
+        lines.append(from_above(plan.above))
     return "\n".join([*lines, WRIST_SEARCH])
 
 

@@ -91,6 +91,13 @@ Examples:
         help="--level full: at most N postures (default: as many as the D-optimal "
         "criterion finds worth measuring).",
     ),
+    click.option(
+        "--lost-motion",
+        is_flag=True,
+        help="Offsets level: measure the calibration pose's three faces again from above, so "
+        "that each joint's lost motion is measured (backlash_deg); 3 more face searches. The "
+        "full level reads some postures from above where its plan can spare them.",
+    ),
     force_option(
         "Write the result even when it is out of tolerance: a misfit, or the paper "
         "method's offsets less certain than 0.02 deg (the verdict is recorded in the profile "
@@ -98,7 +105,13 @@ Examples:
     ),
 )
 def cli(
-    call: MovingCall, method: str, beam: str, level: str, postures: int | None, force: bool
+    call: MovingCall,
+    method: str,
+    beam: str,
+    level: str,
+    postures: int | None,
+    lost_motion: bool,
+    force: bool,
 ) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
 
@@ -121,15 +134,21 @@ def cli(
             "--level full identifies the kinematic model by least squares: it "
             "takes --method exact only"
         )
+    if level == "full" and lost_motion:
+        raise InputError(
+            "--lost-motion is the offsets level's option: --level full measures the lost "
+            "motion from the postures its plan reaches from above"
+        )
     profile_path = call.profile_path
 
     def job(profile: CellProfile, record: Record | None) -> Job[Any, Any, Any, Calibrated]:
         if record is None:
-            return _job(level, profile, profile_path, method, beam, force, postures)
+            return _job(level, profile, profile_path, method, beam, force, postures, lost_motion)
         options = record.options
         recorded_level = options.get("level", "offsets")
         max_postures = options.get("max_postures")
-        return _job(recorded_level, profile, profile_path, method, beam, False, max_postures)
+        # a replay measures, if at all, the recorded plan (its faces from above among them)
+        return _job(recorded_level, profile, profile_path, method, beam, False, max_postures, False)
 
     fixed = {"level": "level", "max_postures": "postures"}
     outcome = replay_outcome(call, "calibrate", fixed, job)
@@ -186,11 +205,12 @@ def _job(
     beam: str,
     force: bool,
     postures: int | None,
+    lost_motion: bool,
 ) -> Job[Any, Any, Any, Calibrated]:
     """The calibration procedure of ``level``."""
     if level == "full":
         return FullCalibration(profile, profile_path, beam, force, postures)
-    return OffsetsCalibration(profile, profile_path, method, beam, force)
+    return OffsetsCalibration(profile, profile_path, method, beam, force, lost_motion)
 
 
 def warn_weak(result: CalibrationResult) -> None:

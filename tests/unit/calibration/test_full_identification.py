@@ -251,3 +251,32 @@ def test_a_drifting_tank_is_measured_and_named_at_the_full_level(cell):
     assert held.cell.quality.verdict == "misfit"
     assert "drift of the sound speed" in held.cell.quality.cause
     assert "--level full" not in held.cell.quality.cause
+
+
+def test_postures_reached_from_above_measure_each_joints_lost_motion(cell):
+    profile, plan = cell
+    # a few postures, each reached from above on every joint; the rest carry the offsets
+    assert 2 <= len(plan.above) <= len(plan.postures) // 2
+    assert set(plan.above) <= {p.label for p in plan.postures if not p.step}
+    offsets = np.array([0.2, -0.1, 0.15, -0.2, 0.1, 0.05])  # the positive approach's
+    backlash = np.array([0.015, 0.02, 0.008, 0.018, 0.012, 0.01])
+    args = (profile.sample_rotation_deg, profile.sample_position_mm, profile.water_temperature_c)
+    below = measure(profile, plan, profile.model, offsets, *args, seed=5)
+    # from above the link sits the whole lost motion further on
+    above = measure(profile, plan, profile.model, offsets + backlash, *args, seed=5)
+    meas = [
+        replace(a, approach=-np.ones(6))
+        if p.label in plan.above
+        else replace(b, approach=np.ones(6))
+        for p, a, b in zip(plan.postures, above, below, strict=True)
+    ]
+    sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
+    assert sol.cell.quality.verdict == "ok"
+    effects = sol.effects
+    seen = np.isfinite(effects.backlash_deg)
+    assert seen[:5].all()
+    err = np.abs(effects.backlash_deg[seen] - backlash[seen])
+    assert np.all(err <= 3 * effects.backlash_std_deg[seen]), (err, effects.backlash_std_deg)
+    assert np.all(effects.backlash_std_deg[:5] < 0.002)
+    ok = np.isfinite(sol.std_deg)
+    assert np.all(np.abs(sol.offsets_deg[ok] - offsets[ok]) <= 3 * sol.std_deg[ok])
