@@ -1,29 +1,33 @@
 """A drifting tank and an arm with lost motion: the solvers with both as unknowns, against the
 previous ones (drift and lost motion held at 0), on the same measurements of random cells.
 
-Two cases, each over ``--worlds`` simulated cells measured once against the simulated cell
+Three cases, each over ``--worlds`` simulated cells measured once against the simulated cell
 over loopback, the worlds of the benchmark each extends with the tank drifting and lost motion
-uniform in 0–0.02° per joint:
+uniform in 0–0.02° per joint, every profile declaring the default drift tolerance (0.05
+°C/min, ``[water] drift_std_c_per_min``; ``--declared-drift`` to change it):
 
 * ``offsets``: ``calibrate`` (the offsets level) on ``realistic.py --fixture``'s worlds (block
   doweled and levelled, 0.5 mm / 0.01°; the DH table within its tolerance; offsets ±3°; 8-bit
   amplitude, an unknown TOF delay), the tool measured (0.05 mm, 0.02°) and drawn within it;
-  the tank drifting uniform in ±0.3 °C/min, declared 0.15 °C/min (``[water]
-  drift_std_c_per_min``: the offsets level's few postures, each configuration's faces read one
-  after the other, see a drift little better than its prior);
+  the tank drifting uniform in ±0.3 °C/min (the first face's water path read again at the end
+  is what lets the data see it);
+* ``lost-motion``: the same with ``calibrate --lost-motion`` (the calibration pose's faces
+  measured again from above, ``ucal.calibration.sequence.with_lost_motion``);
 * ``full``: ``calibrate --level full`` on ``full_calibration.py --step``'s worlds (the DH
   tolerance declared 0.3 mm / 0.03° and drawn within twice it, lengths ±0.5 mm, twists and
   Hayati's β₂ ±0.05°; offsets ±1°; a hand-placed block; the water within ±2 °C; a step of
-  50 ± 0.002 mm); the tank drifting uniform in ±0.1 °C/min, declared 0.05 °C/min (the
-  default).
+  50 ± 0.002 mm); the tank drifting uniform in ±0.1 °C/min; a few postures reached from above
+  (``FullPlan.above``).
 
-Every posture is reached from below (``ucal.rig.FinalApproachRig``): the offsets found are the
-world's less half its lost motion, which is not measured (the plans read one side). Printed
-per case and solver:
+Every other posture is reached from below (``ucal.measure.approach.FinalApproachRig``): the
+offsets found are the world's less half its lost motion. Printed per case and solver:
 
 * coverage: share of the reported quantities within 3 std of the truth (joint offsets with a
-  std; the sound speed at the middle of the run and its drift where fitted; at the full level
-  the identified and prior-dominated DH parameters), and the largest |z|;
+  std; the sound speed at the middle of the run and its drift where fitted; each joint's lost
+  motion where measured; at the full level the identified and prior-dominated DH parameters),
+  and the largest |z|;
+* the lost motion per joint measured in any run: its rms error (deg) and how many runs have it
+  within 3 std;
 * runs written (``judge``: fit ok and every observable offset within tolerance), why the
   others are refused (a misfit: the effect its message names), and written runs with a
   quantity beyond 4 std (must be none);
@@ -31,9 +35,10 @@ per case and solver:
   wrist; 200 postures) after the best rigid alignment (the base frame is a gauge), mean of
   the runs' means / largest maximum (mm).
 
-Usage: ``python benchmarks/drift.py --worlds 12 [--case offsets|full|both] [--jobs 2]
-[--declared-drift C]`` (C: the drift tolerance both cases declare, °C/min);
-``--quick``: one world per case (the full level on 8 postures), the same code path in seconds.
+Usage: ``python benchmarks/drift.py --worlds 12 [--case offsets|lost-motion|full|both|all]
+[--jobs 2] [--declared-drift C]`` (C: the drift tolerance every case declares, °C/min);
+``--quick``: one world of the offsets and the full cases (the full level on 8 postures), the
+same code path in seconds.
 """
 
 from __future__ import annotations
@@ -79,7 +84,7 @@ from ucal.session import check_status, open_cell
 from ucal.world import load_world
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"worlds": 1, "jobs": 1, "postures": 8}
+QUICK = {"worlds": 1, "jobs": 1, "postures": 8, "case": "both"}
 #: The previous solvers: the drift and the lost motion held at 0.
 HELD = DRIFT + BACKLASH
 #: The cases of the offsets level: as planned, and with the calibration pose's faces measured
@@ -292,7 +297,7 @@ def lost_motion(outs: list[Outcome]) -> str:
         ok = np.isfinite(z[:, j])
         if ok.any():
             rms = float(np.sqrt(np.mean(err[ok, j] ** 2)))
-            cells.append(f"J{j + 1} {rms:.4f}° {np.sum(z[ok, j] <= 3.0)}/{ok.sum()}")
+            cells.append(f"J{j + 1} {rms:.1e}° {np.sum(z[ok, j] <= 3.0)}/{ok.sum()}")
     return ", ".join(cells) or "not measured"
 
 
@@ -317,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--quick",
         action="store_true",
-        help="--worlds 1 --jobs 1 --postures 8: the same code path in seconds",
+        help="--worlds 1 --jobs 1 --postures 8 --case both: the same code path in seconds",
     )
     args = ap.parse_args(argv)
     if args.quick:
