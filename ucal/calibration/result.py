@@ -29,10 +29,11 @@ from ucal.procedure import RunFacts
 #: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
 #: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
 APPROACH = "positive"
-#: Why ``backlash_deg`` is null: what the offsets level does not measure.
+#: Why ``backlash_deg`` is null: no joint was read from both sides.
 BACKLASH_NOTE = (
-    "lost motion is not measured by this level: every posture is approached from below, so the "
-    "offsets hold for that approach (a joint with lost motion b reached from above is off by b/2)"
+    "lost motion not measured: every posture was approached from below (--lost-motion, or a "
+    "full plan long enough to spare postures, reads some from above), so the offsets hold for "
+    "that approach (a joint with lost motion b reached from above is off by b/2)"
 )
 
 Solution = OffsetSolution | FullSolution
