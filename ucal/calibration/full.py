@@ -283,6 +283,11 @@ def identifiability(
     )
 
 
+def _fields_json(self: Any) -> dict[str, Any]:
+    """A plain dataclass as its JSON object: every field by name."""
+    return asdict(self)
+
+
 @dataclass(frozen=True)
 class IdentifiedParameter:
     """A kinematic parameter as the full level found it (deg or mm)."""
@@ -292,8 +297,7 @@ class IdentifiedParameter:
     nominal: float
     status: str  # "identified", "prior-dominated" or "not identifiable"
 
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+    to_json = _fields_json
 
 
 @dataclass(frozen=True)
@@ -306,8 +310,7 @@ class LengthStandard:
     tolerance_mm: float
     measurements: int  # water paths over the step
 
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+    to_json = _fields_json
 
 
 @dataclass(frozen=True)

@@ -100,6 +100,12 @@ def _solve_resonance(centre_mhz: float, fractional_bandwidth: float) -> tuple[fl
     return float(centre_mhz * sol.x[0]), float(centre_mhz * sol.x[1])
 
 
+def _within(name: str, value: float, lo: float, hi: float, unit: str = "") -> None:
+    """ValueError naming ``name`` unless ``lo <= value <= hi``."""
+    if not lo <= value <= hi:
+        raise ValueError(f"{name} {value:g}{unit} out of {lo:g}…{hi:g}")
+
+
 @dataclass(frozen=True)
 class TransducerPulse:
     """The echo of a damped immersion transducer (module docstring): centre frequency (MHz,
@@ -109,10 +115,8 @@ class TransducerPulse:
     fractional_bandwidth: float = 0.6
 
     def __post_init__(self) -> None:
-        if not 0.1 <= self.centre_frequency_mhz <= 200.0:
-            raise ValueError(f"centre frequency {self.centre_frequency_mhz} MHz out of 0.1…200")
-        if not 0.2 <= self.fractional_bandwidth <= 1.2:
-            raise ValueError(f"fractional bandwidth {self.fractional_bandwidth} out of 0.2…1.2")
+        _within("centre frequency", self.centre_frequency_mhz, 0.1, 200.0, " MHz")
+        _within("fractional bandwidth", self.fractional_bandwidth, 0.2, 1.2)
 
     def spectrum(self, f_mhz: np.ndarray) -> np.ndarray:
         """Complex spectrum of the echo at ``f_mhz`` (the response starts at t = 0)."""
@@ -131,10 +135,8 @@ class Digitiser:
     full_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        if not 1.0 <= self.sample_rate_mhz <= 10_000.0:
-            raise ValueError(f"sample rate {self.sample_rate_mhz} MS/s out of 1…10 000")
-        if not 4 <= self.bits <= 24:
-            raise ValueError(f"bits {self.bits} out of 4…24")
+        _within("sample rate", self.sample_rate_mhz, 1.0, 10_000.0, " MS/s")
+        _within("bits", self.bits, 4, 24)
         if not self.full_scale > 0.0:
             raise ValueError("full scale must be positive")
 
