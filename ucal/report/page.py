@@ -120,6 +120,16 @@ def _kv(rows: Iterable[tuple[str, str]]) -> str:
     return f'<table class="kv"><tbody>{body}</tbody></table>'
 
 
+def _part(title: str) -> str:
+    """The opening of a numbered part of the page."""
+    return f'<section class="part"><h2>{title}</h2>'
+
+
+def _empty_part(title: str, why: str) -> str:
+    """A part with nothing to show: its title and why (``why``: HTML, one paragraph)."""
+    return f"{_part(title)}\n<p>{why}</p></section>"
+
+
 def _figure(uri: str, alt: str, caption: str) -> str:
     return f'<figure><img src="{e(uri)}" alt="{e(alt)}"><figcaption>{caption}</figcaption></figure>'
 
@@ -291,7 +301,7 @@ def _dh_table(dh: np.ndarray, beta: np.ndarray | None, r: CellReport) -> str:
 
 def _cell(r: CellReport) -> str:
     p = r.profile
-    out = ['<section class="part"><h2>1. The cell</h2>', f"<h3>Robot: {e(_dh_origin(r))}</h3>"]
+    out = [_part("1. The cell"), f"<h3>Robot: {e(_dh_origin(r))}</h3>"]
     out.append(
         "<p>Standard DH rows (θ offset, α, β in degrees), the joint ranges and the joint offsets "
         "of [calibration] (actual angle = encoder reading + offset).</p>"
@@ -365,22 +375,21 @@ def _cell(r: CellReport) -> str:
 
 
 def _calibrations(r: CellReport) -> str:
-    out = ['<section class="part"><h2>2. Calibrations</h2>']
+    title = "2. Calibrations"
     if not r.calibrations:
-        out.append(
-            "<p>No calibration: the profile's history holds no calibrate write and the "
-            "profile no [calibration] offsets.</p></section>"
+        return _empty_part(
+            title,
+            "No calibration: the profile's history holds no calibrate write and the profile no "
+            "[calibration] offsets.",
         )
-        return "\n".join(out)
-    out.append(
-        _figure(
-            figures.offsets_figure(r.calibrations),
-            "joint offsets per calibrate write with 3-sigma bars",
-            "Each joint's offset as written by each calibrate (x: history write), bars ±3σ "
-            "(the true offset lies within them); an open square is a joint the run could not "
-            "determine, its offset kept from the profile.",
-        )
+    figure = _figure(
+        figures.offsets_figure(r.calibrations),
+        "joint offsets per calibrate write with 3-sigma bars",
+        "Each joint's offset as written by each calibrate (x: history write), bars ±3σ "
+        "(the true offset lies within them); an open square is a joint the run could not "
+        "determine, its offset kept from the profile.",
     )
+    out = [_part(title), figure]
     if not any(c.residuals for c in r.calibrations):
         out.append(
             _note(
@@ -499,24 +508,23 @@ def _sci(value: float | None) -> str:
 
 
 def _tools(r: CellReport) -> str:
-    out = ['<section class="part"><h2>3. Tool frame</h2>']
+    title = "3. Tool frame"
     if not r.tools:
         p = r.profile
-        out.append(
-            "<p>No tool-frame write in the history: the tool is the profile's "
+        return _empty_part(
+            title,
+            "No tool-frame write in the history: the tool is the profile's "
             f"({nums(p.tool_position_mm)} mm, {nums(p.tool_rotation_deg)} deg), from its "
-            "drawing.</p></section>"
+            "drawing.",
         )
-        return "\n".join(out)
-    out.append(
-        _figure(
-            figures.tool_figure(r.tools),
-            "tool frame per tool-frame write with 3-sigma bars",
-            "The tool frame relative to the flange as written by each tool-frame (x: history "
-            "write), bars ±3σ. The rotation about the beam (rz) is not measured by an echo: "
-            "its σ is the profile's tolerance.",
-        )
+    figure = _figure(
+        figures.tool_figure(r.tools),
+        "tool frame per tool-frame write with 3-sigma bars",
+        "The tool frame relative to the flange as written by each tool-frame (x: history "
+        "write), bars ±3σ. The rotation about the beam (rz) is not measured by an echo: "
+        "its σ is the profile's tolerance.",
     )
+    out = [_part(title), figure]
     rows = []
     for t in reversed(r.tools):
         write = f"#{t.write.entry.id}, {_state(t.write)}<br>{_when_cell(t.write.entry.time)}"
@@ -543,7 +551,7 @@ def _tools(r: CellReport) -> str:
 
 
 def _verify(r: CellReport) -> str:
-    out = ['<section class="part"><h2>4. Last verify</h2>']
+    out = [_part("4. Last verify")]
     v = r.verify
     if v is None:
         out.append(
@@ -578,7 +586,7 @@ def _verify(r: CellReport) -> str:
 
 
 def _lost_motion(r: CellReport) -> str:
-    out = ['<section class="part"><h2>5. Lost motion and drift</h2>']
+    out = [_part("5. Lost motion and drift")]
     cal = r.current_calibration
     if cal is None or cal.backlash_deg is None:
         out.append(
@@ -611,10 +619,10 @@ def _lost_motion(r: CellReport) -> str:
 
 
 def _history(r: CellReport) -> str:
-    out = ['<section class="part"><h2>6. History of writes</h2>']
+    title = "6. History of writes"
     if not r.writes:
-        out.append("<p>No recorded write: ucal never rewrote this profile.</p></section>")
-        return "\n".join(out)
+        return _empty_part(title, "No recorded write: ucal never rewrote this profile.")
+    out = [_part(title)]
     out.append(
         f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
         f"<code>{e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
