@@ -19,6 +19,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.client.base import ModbusBaseSyncClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
+from pymodbus.framer.rtu import FramerRTU
 from serial import SerialException
 
 from drivers.device import RequestLink
@@ -198,9 +199,19 @@ class ModbusLink(RequestLink):
         else:
             self._rx = bytes(data)
             log.debug("pulser %s READ: %s", self._endpoint, data.hex(" "))
-            if time.monotonic() > self._rx_deadline:
+            if time.monotonic() > self._rx_deadline and not self._whole_frame(data):
                 raise _NoFrame()
         return data
+
+    def _whole_frame(self, data: bytes) -> bool:
+        """Whether ``data`` is one whole frame (RTU: its CRC holds; TCP: the MBAP header's
+        length counts the rest): a reply that is merely late (a loaded host, the last short
+        request of a deadline) is taken as one, a stream of bytes past the deadline is not."""
+        if self._url.framing == "rtu":
+            return (
+                len(data) >= 4 and FramerRTU.compute_CRC(data[:-2]).to_bytes(2, "big") == data[-2:]
+            )
+        return len(data) >= 8 and int.from_bytes(data[4:6], "big") == len(data) - 6
 
     def _read(
         self,

@@ -257,3 +257,17 @@ def test_no_echo_reading_has_nan_tof() -> None:
     port.assert_done()
     assert not reading.has_echo and math.isnan(reading.tof_ns)
     assert reading.amplitude == 0.5
+
+
+def test_a_whole_reply_past_the_deadline_is_a_reply_and_a_stream_is_not() -> None:
+    # A loaded host can hand over the last short request's reply a few milliseconds after its
+    # deadline: that is a frame; bytes that keep coming past it and form none are a babbler.
+    from drivers.pulser.modbus_link import _NoFrame
+
+    pulser = ModbusPulser(URL, timeout_s=0.3, port=ScriptedPort([]))
+    pulser._rx_deadline = 0.0  # long past
+    assert pulser._trace_packet(False, GATE_REPLY) == GATE_REPLY
+    with pytest.raises(_NoFrame):
+        pulser._trace_packet(False, GATE_REPLY[:-1] + bytes([GATE_REPLY[-1] ^ 0x01]))
+    with pytest.raises(_NoFrame):
+        pulser._trace_packet(False, b"\x00garbage")
