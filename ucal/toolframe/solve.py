@@ -73,12 +73,16 @@ class ToolFrameRun:
 
 
 def solve_measured(
-    profile: CellProfile, plan: ToolFramePlan, measured: ToolFrameMeasurements
+    profile: CellProfile,
+    plan: ToolFramePlan,
+    measured: ToolFrameMeasurements,
+    fixed: tuple[str, ...] = (),
 ) -> ToolFrameRun:
-    """The tool frame from a run's measurements (module docstring); nothing moves."""
+    """The tool frame from a run's measurements (module docstring); nothing moves. ``fixed``:
+    unknowns of the exact method's fit held at their priors (``solve_tool_frame``)."""
     if isinstance(measured, PaperMeasurements):
         return _solve_paper(profile, plan, measured)
-    return _solve_exact(profile, plan, measured)
+    return _solve_exact(profile, plan, measured, fixed)
 
 
 def run_tool_frame(
@@ -88,7 +92,9 @@ def run_tool_frame(
     return solve_measured(profile, plan, measure_tool_frame(profile, plan, rig, progress))
 
 
-def _solve_exact(profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements) -> ToolFrameRun:
+def _solve_exact(
+    profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements, fixed: tuple[str, ...]
+) -> ToolFrameRun:
     peaks, tofs, crossings, beam_est = m.peaks, m.tofs, m.crossings, m.beam_estimate
     # First estimate with the profile's offsets and the touched plane taken as exact (the
     # formulation of ucal.toolframe.exact): the start of the fit with the priors.
@@ -101,6 +107,7 @@ def _solve_exact(profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements
         m.plate_crossings,
         offsets,
         np.concatenate([offsets.position_mm, first_rot]),
+        fixed,
     )
     notes = list(offsets.notes) + list(tf.notes)
     if tf.refusal:
@@ -136,9 +143,11 @@ def solve_plate_fit(
     crossings: list[PlateCrossing],
     first: OffsetEstimate,
     tool_start: np.ndarray,
+    fixed: tuple[str, ...] = (),
 ) -> ToolFrameFit:
     """The fit of ``ucal.toolframe.fit`` on a run's peaks and crossings (priors from the
-    profile; edges and tool started from the first estimate)."""
+    profile; edges and tool started from the first estimate; ``fixed`` held at their
+    priors)."""
     plate_peaks = []
     for i, p in enumerate(peaks):
         assert p.distance is not None and p.distance_joints_deg is not None
@@ -164,6 +173,7 @@ def solve_plate_fit(
         crossings,
         edge_start,
         tool_start,
+        fixed=fixed,
     )
 
 
