@@ -12,17 +12,26 @@ unknown as well:
   with ``b_i = R_E(q_i+δ)·a_T`` and ``e1', e2'`` the tilted plane's axes (eq. E1);
 * water path at ``q'_i`` (one row): the ray from the tool centre to the plane,
   ``L = (n·c − n·P)/(−n·b)``, against the reading ``d_i`` (computed with the profile's sound
-  speed c0): ``(L − (c/c0)·d_i + c·τ/2)/σ_d`` with the sound speed ``c`` and the electronic
-  delay ``τ`` as unknowns (eq. E2);
+  speed c0): ``(L − (c(t_i)/c0)·d_i + c·τ/2)/σ_d`` with the sound speed ``c``, its drift ``ċ``
+  (``c(t) = c + ċ·(t − t_ref)``, ``t_i`` the reading's ``time_min``, ``t_ref`` the mean of the
+  water paths' times) and the electronic delay ``τ`` as unknowns (eq. E2);
 * edge crossing at ``q_j`` shifted along the scan by the fitted 50 % point (one row):
   ``(e_k·N_j − d_k)/σ_j``, ``N_j`` the beam axis's hit on the plane, ``e_k`` the in-plane normal
   of edge k at angle ``ψ_k`` from ``e1'`` (eq. E3; ψ_k, d_k free, no prior).
+
+Every reading's joints enter at ``q + δ + (1 − approach)/2·b`` with ``b`` each joint's lost
+motion, as in the calibration solvers (``ucal.calibration.fit``): the offsets are the positive
+approach's, and ``b`` (like ``ċ``) is held at 0 where no reading sees it
+(``least_squares.hold_unseen``: a joint read from one side only, readings without a time). The
+tool-frame's own postures are all reached from below (``ucal.measure.approach``), so a run
+measures the drift and leaves the lost motion in the offsets of that approach.
 
 Priors (``CellPrior`` of the profile): tool ``[tool] position_std_mm``, ``rotation_std_deg``;
 offsets ``[calibration] std_deg`` (wide when not calibrated); DH table; sound speed; plate height
 ``[reflector] points_std_mm`` (not divided by √n: a robot not yet calibrated touches every
 point off the same way) and tilt ``points_std_mm`` over the points' rms spread along each axis;
-delay 0 ± ``DELAY_PRIOR_STD_NS``.
+delay 0 ± ``DELAY_PRIOR_STD_NS``; drift 0 ± ``[water] drift_std_c_per_min``; lost motion
+0 ± ``[robot] backlash_std_deg``.
 
 Physics of what is observable:
 
