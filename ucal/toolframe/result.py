@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.procedure import APPROACH
+from ucal.calibration.result import APPROACH
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.procedure import RunFacts
