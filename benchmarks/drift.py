@@ -63,7 +63,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-# the worlds and profiles of the two benchmarks this one extends (scripts in this folder)
+# the worlds and profiles of the benchmarks this one extends (scripts in this folder)
 import commissioning
 import full_calibration
 import numpy as np
@@ -74,8 +74,8 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import (
     BACKLASH,
-    AugmentedFit,
     DRIFT,
+    AugmentedFit,
     CellFit,
     FitQuality,
     RunEffects,
@@ -402,10 +402,10 @@ def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
         drift_z = float("nan") if held or len(z) < 7 else z[-1]
         assert tf.solution is not None
         lost_err, lost_z = backlash_z(tf.solution, world)
-        measured = np.isfinite(lost_z)
+        seen = np.isfinite(lost_z)
         outs.append(
             Outcome(
-                np.concatenate([z, lost_z[measured]]),
+                np.concatenate([z, lost_z[seen]]),
                 not tf.refusal,
                 refusal,
                 np.array([across, beam]),
