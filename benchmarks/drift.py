@@ -1,7 +1,7 @@
 """A drifting tank and an arm with lost motion: the solvers with both as unknowns, against the
 previous ones (drift and lost motion held at 0), on the same measurements of random cells.
 
-Three cases, each over ``--worlds`` simulated cells measured once against the simulated cell
+Four cases, each over ``--worlds`` simulated cells measured once against the simulated cell
 over loopback, the worlds of the benchmark each extends with the tank drifting and lost motion
 uniform in 0–0.02° per joint, every profile declaring the default drift tolerance (0.05
 °C/min, ``[water] drift_std_c_per_min``; ``--declared-drift`` to change it):
@@ -17,7 +17,19 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   tolerance declared 0.3 mm / 0.03° and drawn within twice it, lengths ±0.5 mm, twists and
   Hayati's β₂ ±0.05°; offsets ±1°; a hand-placed block; the water within ±2 °C; a step of
   50 ± 0.002 mm); the tank drifting uniform in ±0.1 °C/min; a few postures reached from above
-  (``FullPlan.above``).
+  (``FullPlan.above``);
+* ``tool-frame``: fresh commissionings, ``commissioning.py``'s cells (offsets ±2° never
+  calibrated, the tool 1.7 mm / 0.85° off its drawing, a squinting beam, the plate off its
+  touched points, the water ±3 °C) whose drawing is a tool of 80–150 mm, 2–5 mm off the flange
+  axis, in a straight, 10° or 20° holder (in turn); the tank drifting uniform in ±0.1 °C/min.
+  Each is commissioned in both orders (``--orders``): ``t-c`` tool-frame on the fresh profile,
+  ``c-t`` tool-frame after ``ucal calibrate`` wrote it (a process, as a user runs it); each
+  tool-frame run measured once and solved by the current fit and the previous one. Coverage
+  counts the tool across the beam (2) and along it, the beam's two tilts, the sound speed at
+  the middle of the run and its drift where fitted, against the true tool in the profile's
+  flange frame; the last column is the largest error across the beam (mm) and of the beam
+  (deg) of the written runs, with how many meet the targets (0.02 mm, 0.01°); each run is
+  printed with why it was refused.
 
 Every other posture is reached from below (``ucal.measure.approach.FinalApproachRig``): the
 offsets found are the world's less half its lost motion. Printed per case and solver:
@@ -35,10 +47,11 @@ offsets found are the world's less half its lost motion. Printed per case and so
   wrist; 200 postures) after the best rigid alignment (the base frame is a gauge), mean of
   the runs' means / largest maximum (mm).
 
-Usage: ``python benchmarks/drift.py --worlds 12 [--case offsets|lost-motion|full|both|all]
-[--jobs 2] [--declared-drift C]`` (C: the drift tolerance every case declares, °C/min);
-``--quick``: one world of the offsets and the full cases (the full level on 8 postures), the
-same code path in seconds.
+Usage: ``python benchmarks/drift.py --worlds 12
+[--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
+[--orders t-c|c-t|both]`` (C: the drift tolerance every calibration case declares, °C/min);
+``--quick``: one world of the offsets, the full and the tool-frame cases (the full level on 8
+postures, tool-frame in the order t-c), the same code path in seconds.
 """
 
 from __future__ import annotations
@@ -50,7 +63,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-# the worlds and profiles of the two benchmarks this one extends (scripts in this folder)
+# the worlds and profiles of the benchmarks this one extends (scripts in this folder)
+import commissioning
 import full_calibration
 import numpy as np
 import realistic
@@ -61,6 +75,7 @@ from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import (
     BACKLASH,
     DRIFT,
+    AugmentedFit,
     CellFit,
     FitQuality,
     RunEffects,
@@ -79,12 +94,18 @@ from ucal.calibration.sequence import (
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
+from ucal.kinematics.rotations import angle_between_deg
 from ucal.profile import load_profile, write_profile
 from ucal.session import check_status, open_cell
+from ucal.toolframe.exact import tangent_basis
+from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
+from ucal.toolframe.measure import measure_tool_frame
+from ucal.toolframe.plan import plan_tool_frame
+from ucal.toolframe.solve import solve_measured
 from ucal.world import load_world
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"worlds": 1, "jobs": 1, "postures": 8, "case": "both"}
+QUICK = {"worlds": 1, "jobs": 1, "postures": 8, "case": "quick", "orders": "t-c"}
 #: The previous solvers: the drift and the lost motion held at 0.
 HELD = DRIFT + BACKLASH
 #: The cases of the offsets level: as planned, and with the calibration pose's faces measured
@@ -92,10 +113,26 @@ HELD = DRIFT + BACKLASH
 OFFSETS_CASES = ("offsets", "lost-motion")
 #: Per case: the tank's drift the worlds are drawn with (±°C/min) and the one its profile
 #: declares (°C/min, one sigma: the default).
-DRIFT_C_PER_MIN = {"offsets": 0.3, "lost-motion": 0.3, "full": 0.1}
-DECLARED_DRIFT = {"offsets": 0.05, "lost-motion": 0.05, "full": 0.05}
+DRIFT_C_PER_MIN = {"offsets": 0.3, "lost-motion": 0.3, "full": 0.1, "tool-frame": 0.1}
+DECLARED_DRIFT = {"offsets": 0.05, "lost-motion": 0.05, "full": 0.05, "tool-frame": 0.05}
 #: Largest lost motion drawn (deg, uniform from 0 per joint).
 BACKLASH_DEG = 0.02
+#: The tool-frame case's tools: length (mm), distance off the flange axis (mm) and the
+#: holder's angle (deg), as its profile's [tool] states them.
+TOOL_LENGTH_MM = (80.0, 150.0)
+TOOL_OFF_AXIS_MM = (2.0, 5.0)
+HOLDERS_DEG = (0.0, 10.0, 20.0)
+#: Its orders: tool-frame on the fresh profile, or after ``calibrate`` wrote the offsets.
+ORDERS = ("t-c", "c-t")
+#: Tool-frame's targets: across the beam (mm) and the beam (deg).
+ACROSS_GOAL_MM = 0.02
+BEAM_GOAL_DEG = 0.01
+#: The cases ``--case`` runs, by the names that stand for several.
+CASES = {
+    "both": ("offsets", "full"),
+    "all": ("offsets", "lost-motion", "full", "tool-frame"),
+    "quick": ("offsets", "full", "tool-frame"),
+}
 
 
 def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
@@ -141,6 +178,9 @@ class Outcome:
     #: measured (read from one side, or held)
     backlash_err_deg: np.ndarray
     backlash_z: np.ndarray
+    #: The tool-frame case: the run (world, order, tool) and why it was refused, in words.
+    run: str = ""
+    message: str = ""
 
 
 def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
@@ -157,7 +197,7 @@ def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
     return z
 
 
-def backlash_z(cell: CellFit, world: WorldTruth) -> tuple[np.ndarray, np.ndarray]:
+def backlash_z(cell: CellFit | AugmentedFit, world: WorldTruth) -> tuple[np.ndarray, np.ndarray]:
     """Each joint's lost motion as fitted less the world's (deg), and |that| / its std; NaN
     where the fit did not measure it."""
     effects = RunEffects.of(cell)
@@ -264,6 +304,121 @@ def run_world(
     ]
 
 
+def tool_frame_world(directory: Path, rng: np.random.Generator, index: int) -> Path:
+    """A fresh commissioning of the tool-frame case in ``directory`` (its template profile
+    ``template.toml``: a fresh cell whose [tool] is a drawn tool and holder, declaring the
+    default lost motion and the drift tolerance) and its world ``world.toml``:
+    ``commissioning.py``'s fresh cell with the tank drifting and the lost motion of this
+    benchmark. Returns ``directory``."""
+    directory.mkdir()
+    template = commissioning.fresh_profile(directory / "template.toml")
+    length = rng.uniform(*TOOL_LENGTH_MM)
+    off, azimuth = rng.uniform(*TOOL_OFF_AXIS_MM), rng.uniform(0.0, 2.0 * np.pi)
+    holder = np.radians(HOLDERS_DEG[index % len(HOLDERS_DEG)])
+    position = [
+        off * np.cos(azimuth) + length * np.sin(holder),
+        off * np.sin(azimuth),
+        length * np.cos(holder),
+    ]
+    write_profile(
+        template,
+        {
+            "tool": {
+                "position_mm": [round(float(v), 3) for v in position],
+                "rotation_deg": [0.0, round(float(np.degrees(holder)), 3), 0.0],
+            },
+            "water": {"drift_std_c_per_min": DECLARED_DRIFT["tool-frame"]},
+        },
+        "the drawing",
+    )
+    world = directory / "world.toml"
+    commissioning.draw_world(rng, template, world)
+    drift = rng.uniform(-DRIFT_C_PER_MIN["tool-frame"], DRIFT_C_PER_MIN["tool-frame"])
+    backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
+    text = world.read_text().replace("[robot]\n", f"[robot]\nbacklash_deg = {backlash!r}\n", 1)
+    world.write_text(text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift!r}\n", 1))
+    return directory
+
+
+def tool_z(tf: ToolFrameFit, profile: CellProfile, world: WorldTruth) -> tuple[list, float, float]:
+    """|error| / std of the tool across the beam (2), along it, the beam's two tilts, the
+    sound speed at the fit's reference time and its drift where fitted; the largest error
+    across the beam (mm) and the beam's error (deg)."""
+    true_tool = truth_in_profile_flange(profile, world)
+    err = tf.position_mm - true_tool[:3, 3]
+    tb = tangent_basis(tf.beam)
+    across = tb @ err
+    z = list(np.abs(across) / tf.across_beam_std_mm)
+    z.append(abs(tf.beam @ err) / tf.along_beam_std_mm)
+    z += list(np.abs(np.degrees(tb @ true_tool[:3, 2])) / tf.beam_std_deg)
+    rate = world.water_drift_c_per_min
+    t_mid = world.water_temperature_c + rate * tf.time_ref_min
+    z.append(abs(tf.sound_speed_m_s - sound_speed_m_s(t_mid)) / tf.sound_speed_std_m_s)
+    effects = tf.effects
+    assert effects is not None and tf.solution is not None
+    table = tf.solution.table
+    if table.free[table.index(DRIFT[0])]:
+        slope = (sound_speed_m_s(t_mid + 0.01) - sound_speed_m_s(t_mid - 0.01)) / 0.02
+        z.append(abs(effects.drift_m_s_per_min - slope * rate) / effects.drift_std_m_s_per_min)
+    beam_deg = float(angle_between_deg(tf.beam, true_tool[:3, 2]))
+    return z, float(np.max(np.abs(across))), beam_deg
+
+
+def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
+    """Commission the cell of ``directory`` (``tool_frame_world``) in ``order``: ``t-c`` runs
+    tool-frame on the fresh profile, ``c-t`` after ``ucal calibrate`` wrote it (as a user
+    runs it); the measurements solved with the current and the previous fit."""
+    path = directory / f"{order}.toml"
+    path.write_bytes((directory / "template.toml").read_bytes())
+    world_path = directory / "world.toml"
+    if order == "c-t":
+        done = commissioning.run("calibrate", path, world_path)
+        if not done.get("written"):
+            return f"{directory.name} {order}: calibrate not written: {done.get('error', '')}"
+    profile = load_profile(path)
+    world = load_world(world_path, profile)
+    holder = float(np.degrees(np.arccos(profile.tool_matrix[2, 2])))
+    run = (
+        f"{directory.name} {order}: tool {np.linalg.norm(profile.tool_position_mm):.0f} mm, "
+        f"holder {holder:.0f}°, lost motion ≤ {np.max(world.backlash_deg):.3f}°, drift "
+        f"{world.water_drift_c_per_min:+.3f} °C/min"
+    )
+    try:
+        plan = plan_tool_frame(profile)
+        with open_cell(profile, str(world_path), None, None) as cell:
+            check_status(cell.rig)
+            measured = measure_tool_frame(profile, plan, cell.rig)
+    except (UcalError, DriverError) as err:
+        return f"{directory.name} {order}: stopped: {err}"
+    outs = []
+    for held in ((), HELD):
+        tf = solve_measured(profile, plan, measured, held).fit
+        assert tf is not None
+        z, across, beam = tool_z(tf, profile, world)
+        refusal = ""
+        if tf.refusal:
+            named = next((short for words, short in CAUSES if words in tf.quality.cause), "other")
+            refusal = f"misfit naming {named}" if tf.quality.verdict == "misfit" else "std"
+        drift_z = float("nan") if held or len(z) < 7 else z[-1]
+        assert tf.solution is not None
+        lost_err, lost_z = backlash_z(tf.solution, world)
+        seen = np.isfinite(lost_z)
+        outs.append(
+            Outcome(
+                np.concatenate([z, lost_z[seen]]),
+                not tf.refusal,
+                refusal,
+                np.array([across, beam]),
+                drift_z,
+                lost_err,
+                lost_z,
+                run,
+                tf.refusal,
+            )
+        )
+    return outs
+
+
 def summary(name: str, outs: list[Outcome]) -> str:
     if not outs:
         return f"| {name} | no run solved |"
@@ -301,11 +456,66 @@ def lost_motion(outs: list[Outcome]) -> str:
     return ", ".join(cells) or "not measured"
 
 
+def tool_summary(name: str, outs: list[Outcome]) -> str:
+    """A row of the tool-frame case: as ``summary``'s, the last column the largest error across
+    the beam (mm) and of the beam (deg) of the written runs, and how many meet the targets."""
+    row = summary(name, outs).rsplit("|", 2)[0]
+    written = [o for o in outs if o.written]
+    if not written:
+        return row + "| — |"
+    errs = np.array([o.tcp_mm for o in written])
+    goal = np.sum((errs[:, 0] <= ACROSS_GOAL_MM) & (errs[:, 1] <= BEAM_GOAL_DEG))
+    return (
+        row + f"| {errs[:, 0].max():.4f} / {errs[:, 1].max():.4f} ({goal} within "
+        f"{ACROSS_GOAL_MM:g} mm / {BEAM_GOAL_DEG:g}°) |"
+    )
+
+
+def tool_frame_case(work: Path, worlds: int, seed: int, jobs: int, orders: tuple[str, ...]) -> list:
+    """The tool-frame case (module docstring): its rows printed, its stopped runs returned."""
+    rng = np.random.default_rng(seed)
+    dirs = [tool_frame_world(work / f"tool-frame-{i:03d}", rng, i) for i in range(worlds)]
+    jobs_in = [(d, order) for d in dirs for order in orders]
+    with concurrent.futures.ProcessPoolExecutor(jobs) as pool:
+        rows = list(pool.map(run_tool_frame_world, *zip(*jobs_in, strict=True)))
+    print(
+        "\n| tool-frame, order | solver | coverage (|err| ≤ 3σ) | drift within 3σ | lost motion "
+        "| written | refused (why) | written beyond 4σ | written: across mm / beam deg, max |"
+    )
+    print("| --- " * 9 + "|")
+    declared = DECLARED_DRIFT["tool-frame"]
+    for order in orders:
+        solved = [
+            r for (_, o), r in zip(jobs_in, rows, strict=True) if o == order and isinstance(r, list)
+        ]
+        for k, solver in enumerate(("current", "previous (held at 0)")):
+            print(tool_summary(f"{order}, {declared:g} °C/min | {solver}", [r[k] for r in solved]))
+    for r in rows:
+        if isinstance(r, list):
+            now, before = r
+            print(
+                f"  {now.run}: across {now.tcp_mm[0]:.4f} mm, beam {now.tcp_mm[1]:.4f}°, "
+                f"max |z| {np.max(now.z):.1f}; "
+                + ("written" if now.written else f"refused: {now.message[:160]}")
+                + ("" if now.written == before.written else " (previous: the other way)")
+            )
+    return [r for r in rows if isinstance(r, str)]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worlds", type=int, default=12)
     ap.add_argument(
-        "--case", choices=("offsets", "lost-motion", "full", "both", "all"), default="all"
+        "--case",
+        choices=("offsets", "lost-motion", "full", "tool-frame", *CASES),
+        default="all",
+    )
+    ap.add_argument(
+        "--orders",
+        choices=(*ORDERS, "both"),
+        default="both",
+        help="the tool-frame case's orders: t-c tool-frame on the fresh profile, c-t after "
+        "calibrate",
     )
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--jobs", type=int, default=2)
@@ -322,22 +532,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--quick",
         action="store_true",
-        help="--worlds 1 --jobs 1 --postures 8 --case both: the same code path in seconds",
+        help="--worlds 1 --jobs 1 --postures 8, the offsets, full and tool-frame cases (t-c): "
+        "the same code path in seconds",
     )
     args = ap.parse_args(argv)
     if args.quick:
         ap.set_defaults(**QUICK)
         args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-drift-"))
-    cases = {"both": ("offsets", "full"), "all": ("offsets", "lost-motion", "full")}.get(
-        args.case, (args.case,)
-    )
+    chosen = CASES.get(args.case, (args.case,))
+    cases = tuple(c for c in chosen if c != "tool-frame")
     stopped: list[str] = []
-    print(
-        "| case | solver | coverage (|err| ≤ 3σ) | drift within 3σ | lost motion: rms error, "
-        "within 3σ | written | refused (why) | written beyond 4σ | TCP error mean / max mm |"
-    )
-    print("| --- " * 9 + "|")
+    if cases:
+        print(
+            "| case | solver | coverage (|err| ≤ 3σ) | drift within 3σ | lost motion: rms error, "
+            "within 3σ | written | refused (why) | written beyond 4σ | TCP error mean / max mm |"
+        )
+        print("| --- " * 9 + "|")
     for case in cases:
         declared = args.declared_drift or DECLARED_DRIFT[case]
         profile_path = make_profile(work, case, declared)
@@ -364,6 +575,9 @@ def main(argv: list[str] | None = None) -> int:
             summary(f"{case}, {declared:g} °C/min | previous (held at 0)", [r[1] for r in solved])
         )
         stopped.extend(r for r in rows if isinstance(r, str))
+    if "tool-frame" in chosen:
+        orders = ORDERS if args.orders == "both" else (args.orders,)
+        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders)
     print(f"runs stopped by the procedure: {len(stopped)}")
     for line in stopped:
         print("  ", line)

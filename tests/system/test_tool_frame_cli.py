@@ -44,13 +44,23 @@ def tool_frame(profile: Path, world_path: Path, *flags: str) -> subprocess.Compl
     return ucal("tool-frame", str(profile), "--sim", str(world_path), "--yes", "--json", *flags)
 
 
-def world(tmp_path: Path, noise: bool, offsets: list[float] = OFFSETS) -> Path:
+def world(
+    tmp_path: Path,
+    noise: bool,
+    offsets: list[float] = OFFSETS,
+    backlash_deg: list[float] | None = None,
+    drift_c_per_min: float = 0.0,
+) -> Path:
+    """The world file: the hidden tool, the arm's offsets and lost motion, the tank's drift."""
     text = f"""\
 [robot]
 joint_offsets_deg = {offsets}
+backlash_deg = {backlash_deg or [0.0] * 6}
 [tool]
 position_mm = {TRUE_POSITION.tolist()}
 rotation_deg = {TRUE_ROTATION.tolist()}
+[water]
+drift_c_per_min = {drift_c_per_min}
 """
     if noise:
         text += "[noise]\ntof_ns = 0.5\namplitude = 0.01\nseed = 11\n"
@@ -134,19 +144,31 @@ def test_exact_noise_free_recovers_hidden_tool_and_writes(tmp_path: Path, profil
 
 def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Path) -> None:
     """Tool-frame first on a fresh cell: offsets 0.6–1.5° that the profile does not know
-    (wide priors), noise, the electronic delay, the plate and water at their declared
-    tolerances. It used to end in an internal error; now the result is covered by its std."""
+    (wide priors), an arm with lost motion and a tank warming 0.1 °C/min, noise, the
+    electronic delay, the plate and water at their declared tolerances. It used to end in an
+    internal error; now the result is covered by its std, and the drift is measured."""
     profile = tmp_path / "cell.toml"
     assert ucal("profile", "init", "tx90xl", str(profile)).returncode == 0
     # the hidden tool is 3.5 mm / 1.4° off the drawing: a drawing that says so
     write_profile(profile, {"tool": {"position_std_mm": 3.0, "rotation_std_deg": 1.5}}, "drawing")
     before = profile.read_bytes()
     fresh = [0.9, -0.7, 1.1, -1.5, 0.6, 0.8]
-    r = tool_frame(profile, world(tmp_path, True, fresh), "--dry-run")
+    lost = [0.01, 0.02, 0.015, 0.01, 0.02, 0.01]
+    cell = world(tmp_path, True, fresh, lost, drift_c_per_min=0.1)
+    r = tool_frame(profile, cell, "--dry-run")
     assert r.returncode in (0, 1), r.stderr
     assert profile.read_bytes() == before
     out = json.loads(r.stdout)
     assert out["written"] is False and out["fit"]["verdict"] == "ok"
+    # every posture reached from below: the lost motion is not measured, the drift is
+    # (≈ 0.3 m/s per min at 20 °C, the profile's water)
+    assert out["approach"] == "positive"
+    assert out["backlash_deg"] == [None] * 6 and out["backlash_std_deg"] == [None] * 6
+    drift, drift_std = (
+        out["sound_speed_drift_m_s_per_min"],
+        out["sound_speed_drift_m_s_per_min_std"],
+    )
+    assert abs(drift - 0.1 * 3.0) <= 3 * drift_std + 0.03 and drift_std < 0.15
     err = out["simulated_error"]
     assert np.all(np.abs(err["across_beam_mm"]) <= 3 * np.array(out["across_beam_std_mm"]))
     assert abs(err["along_beam_mm"]) <= 3 * out["along_beam"]["std_mm"]

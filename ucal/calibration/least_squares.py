@@ -6,7 +6,7 @@ the arm's lost motion (``RunEffects``).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,6 +27,7 @@ from ucal.calibration.priors import (
 from ucal.calibration.quality import MISFIT_P, FitQuality, fit_quality, verdict
 from ucal.calibration.residuals import (
     MeasurementArrays,
+    Reading,
     cell_geometry,
     data_residuals,
     reference_time_min,
@@ -37,7 +38,7 @@ from ucal.calibration.residuals import (
 MAX_STD_DEG = 0.02
 
 
-def hold_unseen(table: ParameterTable, meas: list[FaceMeasurement]) -> None:
+def hold_unseen(table: ParameterTable, meas: Sequence[Reading]) -> None:
     """Hold at their priors (``table.free``) the unknowns no row of ``meas`` sees: the sound
     speed's drift unless two readings carry different times, and each joint's lost motion
     unless readings approach that joint from both sides.
@@ -332,6 +333,12 @@ class AugmentedFit:
     n_data: int
     chi2: float
 
+    def value(self, name: str) -> float:
+        return float(self.estimate[self.table.index(name)])
+
+    def sigma(self, name: str) -> float:
+        return float(self.std[self.table.index(name)])
+
     @property
     def dof(self) -> int:
         """Data rows less the free unknowns that have no prior row."""
@@ -425,7 +432,7 @@ class RunEffects:
     backlash_std_deg: np.ndarray  # (6,)
 
     @classmethod
-    def of(cls, cell: CellFit) -> RunEffects:
+    def of(cls, cell: CellFit | AugmentedFit) -> RunEffects:
         table = cell.table
         drift, drift_std = 0.0, float("nan")
         if DRIFT[0] in table.names:

@@ -235,16 +235,16 @@ def approach_pattern(rows: tuple[ResidualRow, ...]) -> str:
 EXPLAINED_SHARE = 0.5
 
 
-def effect_pattern(gains: dict[str, float], data_chi2: float) -> str:
+def effect_pattern(gains: dict[str, float], chi2: float) -> str:
     """The effect of the run that explains most of a misfit (``gains``: the χ² each would
     remove, freed beyond its prior), in words, or "" if none explains ``EXPLAINED_SHARE`` of
-    the data's χ² ``data_chi2``."""
+    the fit's χ² ``chi2`` (its data rows' and the nuisance priors' pulls)."""
     if not gains:
         return ""
     name, gain = max(gains.items(), key=lambda kv: kv[1])
-    if gain < max(25.0, EXPLAINED_SHARE * data_chi2):
+    if gain < max(25.0, EXPLAINED_SHARE * chi2):
         return ""
-    share = f"{100 * min(gain / data_chi2, 1.0):.0f} % of the misfit"
+    share = f"{100 * min(gain / chi2, 1.0):.0f} % of the misfit"
     if name.startswith("backlash_J"):
         joint = name.removeprefix("backlash_")
         return (
@@ -265,15 +265,15 @@ def residual_pattern(rows: tuple[ResidualRow, ...]) -> str:
     return trend_pattern(rows) or approach_pattern(rows)
 
 
-def likely_cause(
+def effect_cause(
     rows: tuple[ResidualRow, ...],
     pulls: dict[str, float],
     table: ParameterTable,
     estimate: np.ndarray,
-    prior: CellPrior,
     gains: dict[str, float] | None = None,
 ) -> str:
-    """A sentence naming the most likely cause of a misfit, from where the misfit sits.
+    """The cause of a misfit that the priors or the run's effects name, or "" (then the
+    measurements themselves disagree with the model, which each solver words for its own).
 
     If the priors carry most of the χ² (the data fit, but only by moving a quantity beyond its
     tolerance), the cell is outside its declared tolerance (block placed worse than stated,
@@ -282,18 +282,17 @@ def likely_cause(
     (``PHYSICAL_SPAN``), it is not offered as the cause: the residuals' pattern is (a drift
     over the run, lost motion), or the message says that the model does not explain the data.
     The pattern is the run's effect that would remove most of the χ² (``effect_pattern`` of
-    ``gains``), else what the residuals show by themselves (``residual_pattern``).
-    Otherwise the measurements themselves disagree with the model: residuals mostly in the
-    water paths point at the kinematic model (link lengths; at the full level, whose table
-    carries Hayati's twist, at an error the identified table does not describe), mostly in the
-    tilts at the tool frame or the block's faces.
+    ``gains``; named before any quantity it drags, however far), else what the residuals show
+    by themselves (``residual_pattern``). ``pulls``: every prior row's pull by name (the
+    offsets' are not causes and are left out).
     """
     tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
     dist2 = sum(r.distance**2 for r in rows)
     nuisance = {n: p for n, p in pulls.items() if n not in OFFSETS}
     prior2 = sum(p**2 for p in nuisance.values())
-    pattern = effect_pattern(gains or {}, tilt2 + dist2) or residual_pattern(rows)
-    full_level = BETA[0] in table.names
+    # the score test's Δχ² is the whole fit's: an effect the priors absorbed shows there
+    effect = effect_pattern(gains or {}, tilt2 + dist2 + prior2)
+    pattern = effect or residual_pattern(rows)
     if nuisance and prior2 > tilt2 + dist2:
         name, pull = max(nuisance.items(), key=lambda kv: abs(kv[1]))
         value = estimate[table.index(name)]
@@ -313,11 +312,33 @@ def likely_cause(
                     "with time), the transducer's frequency or size, or the DH table"
                 )
             )
-        if abs(pull) > FAR_PULL_SIGMA and pattern:
+        if effect or (abs(pull) > FAR_PULL_SIGMA and pattern):
             return f"{pattern} ({evidence}, absorbing it)"
         return f"{evidence}: the cell is outside {what}; correct the profile or widen its tolerance"
-    if pattern:
-        return pattern
+    return pattern
+
+
+def likely_cause(
+    rows: tuple[ResidualRow, ...],
+    pulls: dict[str, float],
+    table: ParameterTable,
+    estimate: np.ndarray,
+    prior: CellPrior,
+    gains: dict[str, float] | None = None,
+) -> str:
+    """A sentence naming the most likely cause of a misfit, from where the misfit sits: the
+    priors or the run's effects (``effect_cause``); otherwise the measurements themselves
+    disagree with the model: residuals mostly in the water paths point at the kinematic model
+    (link lengths; at the full level, whose table carries Hayati's twist, at an error the
+    identified table does not describe), mostly in the tilts at the tool frame or the block's
+    faces.
+    """
+    cause = effect_cause(rows, pulls, table, estimate, gains)
+    if cause:
+        return cause
+    tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
+    dist2 = sum(r.distance**2 for r in rows)
+    full_level = BETA[0] in table.names
     if dist2 >= tilt2 and full_level:
         return (
             "the water paths disagree with the identified kinematic model: an error the DH "

@@ -6,7 +6,9 @@ each joint against each reading's approach.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -55,7 +57,18 @@ def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) 
     return CellGeometry(model, tool, _rpy_matrix(table.get(BLOCK[3:], values)))
 
 
-def approach_signs(meas: list[FaceMeasurement]) -> np.ndarray:
+class Reading(Protocol):
+    """What the drift and the lost motion read of a measurement (a face's, the plate's): the
+    minutes since the run's first reading and each joint's approach sign, where it says."""
+
+    @property
+    def time_min(self) -> float | None: ...
+
+    @property
+    def approach(self) -> np.ndarray | None: ...
+
+
+def approach_signs(meas: Sequence[Reading]) -> np.ndarray:
     """Each reading's approach (n, 6): +1 where the joint last moved in its positive direction,
     −1 in its negative one; a reading that does not say is +1, the approach of every posture
     ``ucal.rig.FinalApproachRig`` reaches."""
@@ -66,14 +79,14 @@ def approach_signs(meas: list[FaceMeasurement]) -> np.ndarray:
     return out
 
 
-def reference_time_min(meas: list[FaceMeasurement]) -> float:
+def reference_time_min(meas: Sequence[Reading]) -> float:
     """The time the fitted sound speed is given at (min): the mean of the readings' times
     (0 when none has one), where the speed and its drift are least correlated."""
     times = [m.time_min for m in meas if m.time_min is not None]
     return float(np.mean(times)) if times else 0.0
 
 
-def two_sided_joints(meas: list[FaceMeasurement]) -> np.ndarray:
+def two_sided_joints(meas: Sequence[Reading]) -> np.ndarray:
     """(6,) bool: the joints that ``meas`` approach from both sides (their lost motion is
     seen)."""
     signs = approach_signs(meas)

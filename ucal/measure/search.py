@@ -62,6 +62,10 @@ QUANTISED_FIT_AVERAGES = 4
 #: up to 5 dB over 90 mm of path (the broadband echo falls more slowly) and faces of one block
 #: differ by a dB or two.
 SIDE_LOBE_MARGIN_DB = 12.0
+#: A quick centring whose last round still moved a joint this far (deg) has not centred: its
+#: ±0.6° crosses step at most half their reach towards a main lobe beyond it, so a centring
+#: that walks had started on a side lobe, a degree or more off normal.
+QUICK_CENTRE_WALK_DEG = 0.1
 #: The main-lobe raster's level (dB below the expected main lobe) and its line spacing (deg of
 #: beam tilt): the broadband main lobe stays above −18 dB to 0.4° off normal, so lines 0.5°
 #: apart cross it, while the side lobes a degree or more off normal (29 dB down and lower)
@@ -316,8 +320,10 @@ class PeakSearch:
         return self.rig.line(self.rig.clip(a), self.rig.clip(b), max_step_deg)
 
     def quick_centre(self, q_pred: np.ndarray) -> np.ndarray | None:
-        """Main-lobe cross at fit gain straight from a good prediction; None if no echo, or
-        if the peak it centred on is a side lobe (``side_lobe_db``)."""
+        """Main-lobe cross at fit gain straight from a good prediction; None if no echo, if
+        the crosses are still walking after three rounds (the main lobe lies beyond their
+        reach: the prediction was not good, and an echo above the threshold at it was a side
+        lobe's), or if the peak it centred on is a side lobe (``side_lobe_db``)."""
         self.last_peak = None
         self.set_fit_gain(q_pred, averages=1)
         if self.rig.read().amplitude < self.rig.threshold():
@@ -332,6 +338,11 @@ class PeakSearch:
             if np.all(np.abs(q - before) < 0.01):
                 break
             self.set_fit_gain(q, averages=1)
+        if np.any(np.abs(q - before) > QUICK_CENTRE_WALK_DEG):
+            log.info(
+                "the quick centring still walks %.2f°: not centred", np.max(np.abs(q - before))
+            )
+            return None
         below = self.side_lobe_db()
         if below is not None:
             log.info("centred on a side lobe: %.0f dB below the main lobe expected", below)

@@ -289,6 +289,23 @@ def along_beam_offset_mm(
     return mean, float(np.sqrt(1.0 / w.sum()))
 
 
+def planned_edges(
+    crossings: list[EdgeCrossing], plane: Plane, position_mm: np.ndarray, beam: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each edge (numbered 0, 1, …) as the scans met it: its in-plane normal's angle ψ (rad,
+    from ``plane.e1``) along the scan direction, and its offset d (mm) the mean of ``e·N`` over
+    its crossings, ``N`` the beam's hit for the tool centre ``position_mm`` and ``beam``."""
+    psi0, d0 = [], []
+    for k in sorted({c.edge for c in crossings}):
+        cs = [c for c in crossings if c.edge == k]
+        u = cs[0].scan_dir
+        psi = float(np.arctan2(u @ plane.e2, u @ plane.e1))
+        e = _edge_normal(psi, plane)
+        psi0.append(psi)
+        d0.append(float(np.mean([e @ _ray_hit(c.flange, position_mm, beam, plane)[0] for c in cs])))
+    return np.array(psi0), np.array(d0)
+
+
 def solve_offsets(
     beam: BeamEstimate,
     tofs: list[TofRecord],
@@ -309,14 +326,7 @@ def solve_offsets(
         raise ValueError("edges must be numbered 0, 1, … without gaps")
     n_edges = len(edges)
     p0 = np.asarray(position0_mm, float)
-    psi0, d0 = [], []
-    for k in edges:
-        cs = [c for c in crossings if c.edge == k]
-        u = cs[0].scan_dir
-        psi = float(np.arctan2(u @ plane.e2, u @ plane.e1))
-        e = _edge_normal(psi, plane)
-        psi0.append(psi)
-        d0.append(float(np.mean([e @ _ray_hit(c.flange, p0, a, plane)[0] for c in cs])))
+    psi0, d0 = planned_edges(crossings, plane, p0, a)
     x0 = np.concatenate([p0, psi0, d0])
     sol = least_squares(
         offset_residuals,

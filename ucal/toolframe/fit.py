@@ -12,17 +12,26 @@ unknown as well:
   with ``b_i = R_E(q_i+δ)·a_T`` and ``e1', e2'`` the tilted plane's axes (eq. E1);
 * water path at ``q'_i`` (one row): the ray from the tool centre to the plane,
   ``L = (n·c − n·P)/(−n·b)``, against the reading ``d_i`` (computed with the profile's sound
-  speed c0): ``(L − (c/c0)·d_i + c·τ/2)/σ_d`` with the sound speed ``c`` and the electronic
-  delay ``τ`` as unknowns (eq. E2);
+  speed c0): ``(L − (c(t_i)/c0)·d_i + c·τ/2)/σ_d`` with the sound speed ``c``, its drift ``ċ``
+  (``c(t) = c + ċ·(t − t_ref)``, ``t_i`` the reading's ``time_min``, ``t_ref`` the mean of the
+  water paths' times) and the electronic delay ``τ`` as unknowns (eq. E2);
 * edge crossing at ``q_j`` shifted along the scan by the fitted 50 % point (one row):
   ``(e_k·N_j − d_k)/σ_j``, ``N_j`` the beam axis's hit on the plane, ``e_k`` the in-plane normal
   of edge k at angle ``ψ_k`` from ``e1'`` (eq. E3; ψ_k, d_k free, no prior).
+
+Every reading's joints enter at ``q + δ + (1 − approach)/2·b`` with ``b`` each joint's lost
+motion, as in the calibration solvers (``ucal.calibration.fit``): the offsets are the positive
+approach's, and ``b`` (like ``ċ``) is held at 0 where no reading sees it
+(``least_squares.hold_unseen``: a joint read from one side only, readings without a time). The
+tool-frame's own postures are all reached from below (``ucal.measure.approach``), so a run
+measures the drift and leaves the lost motion in the offsets of that approach.
 
 Priors (``CellPrior`` of the profile): tool ``[tool] position_std_mm``, ``rotation_std_deg``;
 offsets ``[calibration] std_deg`` (wide when not calibrated); DH table; sound speed; plate height
 ``[reflector] points_std_mm`` (not divided by √n: a robot not yet calibrated touches every
 point off the same way) and tilt ``points_std_mm`` over the points' rms spread along each axis;
-delay 0 ± ``DELAY_PRIOR_STD_NS``.
+delay 0 ± ``DELAY_PRIOR_STD_NS``; drift 0 ± ``[water] drift_std_c_per_min``; lost motion
+0 ± ``[robot] backlash_std_deg``.
 
 Physics of what is observable:
 
@@ -42,13 +51,16 @@ Physics of what is observable:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from ucal.calibration.fit import (
+    BACKLASH,
     DELAY,
     DELAY_PRIOR_STD_NS,
     DH,
+    DRIFT,
     MISFIT_P,
     OFFSETS,
     PLATE,
@@ -60,10 +72,16 @@ from ucal.calibration.fit import (
     FitQuality,
     ParameterTable,
     ResidualRow,
+    RunEffects,
     _rpy_matrix,
+    hold_unseen,
+    reference_time_min,
     solve_augmented,
     verdict,
 )
+from ucal.calibration.least_squares import effect_gains
+from ucal.calibration.quality import effect_cause
+from ucal.calibration.residuals import approach_signs
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.dh import dh_matrix, fk_frames, transform
 from ucal.kinematics.rotations import rpy_to_matrix
@@ -155,10 +173,25 @@ class _Data:
     peaks: tuple[PlatePeak, ...]
     crossings: tuple[PlateCrossing, ...]
     n_edges: int
+    #: The time the fitted sound speed is given at (min): the mean of the water paths' times.
+    time_ref_min: float = 0.0
 
     @property
     def n_rows(self) -> int:
         return 3 * len(self.peaks) + len(self.crossings)
+
+    @cached_property
+    def minutes(self) -> np.ndarray:
+        """(peaks,) minutes of each water path from ``time_ref_min`` (0 without a time)."""
+        t = [p.time_min for p in self.peaks]
+        return np.array([0.0 if x is None else x - self.time_ref_min for x in t], float)
+
+    @cached_property
+    def lag(self) -> np.ndarray:
+        """(2·peaks + crossings, 6): how much of each joint's lost motion each posture's link
+        lags behind the positive approach, (1 − approach)/2, in ``data_residuals``' order."""
+        peaks = 0.5 * (1.0 - approach_signs(self.peaks))
+        return np.concatenate([peaks, peaks, 0.5 * (1.0 - approach_signs(self.crossings))])
 
 
 def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np.ndarray:
@@ -177,6 +210,8 @@ def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np
         + [p.distance_joints_deg for p in peaks]
         + [c.joints_deg for c in cross]
     ).reshape(-1, 6)
+    if BACKLASH[0] in table.names:  # the offsets are the positive approach's
+        q = q + data.lag * table.get(BACKLASH, values)
     flange = fk_frames(model, q, offsets)[:, 6]
     beam = flange[:, :3, :3] @ tool[:3, 2]
     tcp = flange[:, :3, :3] @ tool[:3, 3] + flange[:, :3, 3]
@@ -187,7 +222,7 @@ def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np
     out = []
     tilt_std = np.radians([p.tilt_std_deg for p in peaks])
     out.append((beam[:k] @ axes.T / tilt_std[:, None]).ravel())
-    c_m_s = v[SOUND[0]]
+    c_m_s = v[SOUND[0]] + v.get(DRIFT[0], 0.0) * data.minutes  # at each path's time
     d = np.array([p.path_mm for p in peaks])
     model_path = (c_m_s / prior.sound_speed_m_s) * d - c_m_s * 1e-6 * v[DELAY[0]] / 2.0
     out.append((path[k : 2 * k] - model_path) / np.array([p.path_std_mm for p in peaks]))
@@ -229,13 +264,22 @@ class ToolFrameFit:
     refusal: str = ""
     notes: tuple[str, ...] = ()
     solution: AugmentedFit | None = field(default=None, repr=False, compare=False)
+    #: The tank's drift and each joint's lost motion (held where no reading sees them), and
+    #: the time (min since the run's first reading) ``sound_speed_m_s`` is given at.
+    effects: RunEffects | None = None
+    time_ref_min: float = 0.0
 
 
 def _table(
-    prior: CellPrior, plate: PlatePrior, offsets_std_deg: np.ndarray, edge_start: np.ndarray
+    prior: CellPrior,
+    plate: PlatePrior,
+    offsets_std_deg: np.ndarray,
+    edge_start: np.ndarray,
+    data: _Data,
+    fixed: tuple[str, ...],
 ) -> ParameterTable:
     n_edges = len(edge_start) // 2
-    names = OFFSETS + TOOL + SOUND + DH + PLATE + DELAY + edge_names(n_edges)
+    names = OFFSETS + TOOL + SOUND + DH + PLATE + DELAY + DRIFT + BACKLASH + edge_names(n_edges)
     dh = prior.model.dh[:, 1:4].ravel()
     values = np.concatenate(
         [
@@ -246,6 +290,7 @@ def _table(
             dh,
             np.zeros(3),
             [0.0],
+            np.zeros(7),  # the drift and the lost motion: none unless the data show them
             edge_start,
         ]
     )
@@ -259,12 +304,15 @@ def _table(
             [plate.height_std_mm],
             plate.tilt_std_deg,
             [DELAY_PRIOR_STD_NS],
+            [prior.drift_std_m_s_per_min],
+            np.broadcast_to(prior.backlash_std_deg, 6),
             np.full(2 * n_edges, np.inf),
         ]
     )
     table = ParameterTable(names, values, stds)
-    for name in GAUGE:
+    for name in GAUGE + fixed:
         table.free[table.index(name)] = False
+    hold_unseen(table, (*data.peaks, *data.crossings))
     table.free &= table.prior_stds > 0
     return table
 
@@ -278,16 +326,25 @@ def solve_tool_frame(
     edge_start: np.ndarray,
     tool_start: np.ndarray | None = None,
     misfit_p: float = MISFIT_P,
+    fixed: tuple[str, ...] = (),
 ) -> ToolFrameFit:
     """Fit the tool frame with the cell's other quantities as unknowns (module docstring).
 
     ``edge_start``: ψ_k (deg, from the touched plane's e1) and d_k (mm) per edge to start from,
     flattened as (ψ1, d1, ψ2, d2, …); ``tool_start``: position (3) and rotation (3) to start
-    from (a first estimate), or the prior's.
+    from (a first estimate), or the prior's; ``fixed``: names held at their priors (besides
+    ``GAUGE``, and the drift and lost motion no reading sees).
     """
     n_edges = len(edge_start) // 2
-    data = _Data(prior, plate, tuple(peaks), tuple(crossings), n_edges)
-    table = _table(prior, plate, np.asarray(offsets_std_deg, float), np.asarray(edge_start, float))
+    data = _Data(prior, plate, tuple(peaks), tuple(crossings), n_edges, reference_time_min(peaks))
+    table = _table(
+        prior,
+        plate,
+        np.asarray(offsets_std_deg, float),
+        np.asarray(edge_start, float),
+        data,
+        tuple(fixed),
+    )
     start = table.values.copy()
     if tool_start is not None:
         for name, val in zip(TOOL, tool_start, strict=True):
@@ -389,6 +446,8 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
         refusal=refusal,
         notes=notes,
         solution=sol,
+        effects=RunEffects.of(sol),
+        time_ref_min=data.time_ref_min,
     )
 
 
@@ -430,12 +489,26 @@ def _rms_mm(sol: AugmentedFit, data: _Data) -> float:
 def _quality(sol: AugmentedFit, data: _Data, misfit_p: float) -> FitQuality:
     k = len(data.peaks)
     r = sol.res[: data.n_rows]
+    signs = approach_signs((*data.peaks, *data.crossings))
     rows = [
-        ResidualRow(p.label, (float(r[3 * i]), float(r[3 * i + 1])), float(r[3 * i + 2]))
+        ResidualRow(
+            p.label,
+            (float(r[3 * i]), float(r[3 * i + 1])),
+            float(r[3 * i + 2]),
+            p.time_min,
+            None if p.approach is None else tuple(signs[i]),
+        )
         for i, p in enumerate(data.peaks)
     ]
     rows += [
-        ResidualRow(c.label, (0.0, 0.0), float(r[3 * k + j])) for j, c in enumerate(data.crossings)
+        ResidualRow(
+            c.label,
+            (0.0, 0.0),
+            float(r[3 * k + j]),
+            c.time_min,
+            None if c.approach is None else tuple(signs[k + j]),
+        )
+        for j, c in enumerate(data.crossings)
     ]
     tilt_deg = (
         np.concatenate([r[3 * i : 3 * i + 2] * p.tilt_std_deg for i, p in enumerate(data.peaks)])
@@ -450,7 +523,7 @@ def _quality(sol: AugmentedFit, data: _Data, misfit_p: float) -> FitQuality:
     if abs(worst_pull[1]) > worst_row.norm:
         worst = f"prior {worst_pull[0]}"
     result = verdict(sol.chi2, sol.dof, misfit_p)
-    cause = _misfit_cause(rows, pulls, sol) if result == "misfit" else ""
+    cause = _misfit_cause(tuple(rows), pulls, sol, data) if result == "misfit" else ""
     return FitQuality(
         chi2_reduced=sol.chi2 / sol.dof,
         dof=sol.dof,
@@ -464,21 +537,23 @@ def _quality(sol: AugmentedFit, data: _Data, misfit_p: float) -> FitQuality:
     )
 
 
-def _misfit_cause(rows: list[ResidualRow], pulls: dict[str, float], sol: AugmentedFit) -> str:
-    """Where the misfit sits: a prior pulled beyond its tolerance, the edges or the peaks."""
-    pulls = {n: p for n, p in pulls.items() if n not in TOOL}
-    prior2 = sum(p**2 for p in pulls.values())
+def _misfit_cause(
+    rows: tuple[ResidualRow, ...], pulls: dict[str, float], sol: AugmentedFit, data: _Data
+) -> str:
+    """Where the misfit sits: a prior pulled beyond its tolerance or the run's effects (the
+    tank's drift, lost motion: the calibration's ``effect_cause``), else the edges or the
+    peaks."""
+    table = sol.table
+    gains = effect_gains(
+        table, sol.estimate, lambda v: data_residuals(table, v, data), sol.res, sol.jac
+    )
+    nuisance = {n: p for n, p in pulls.items() if n not in TOOL}
+    cause = effect_cause(rows, nuisance, table, sol.estimate, gains)
+    if cause:
+        return cause
     tilt2 = sum(r.tilt[0] ** 2 + r.tilt[1] ** 2 for r in rows)
     path2 = sum(r.distance**2 for r in rows if not r.label.startswith("edge"))
     edge2 = sum(r.distance**2 for r in rows if r.label.startswith("edge"))
-    if prior2 > tilt2 + path2 + edge2:
-        name, pull = max(pulls.items(), key=lambda kv: abs(kv[1]))
-        t = sol.table
-        return (
-            f"{name} fitted at {sol.estimate[t.index(name)]:.4g}, {abs(pull):.1f}σ from the "
-            f"profile's {t.prior[t.index(name)]:.4g}: the cell is outside "
-            f"{PRIOR_MEANING.get(name, name)}; correct the profile or widen its tolerance"
-        )
     if edge2 >= tilt2 + path2:
         return (
             "the edge crossings disagree between the two orientations about the beam: "
@@ -493,12 +568,14 @@ def _misfit_cause(rows: list[ResidualRow], pulls: dict[str, float], sol: Augment
 def truth_in_profile_flange(profile: CellProfile, truth: WorldTruth) -> np.ndarray:
     """Simulation only: the true tool frame (4, 4) in the flange frame the profile's J6 offset
     and last DH link define (``GAUGE``), i.e. what the tool-frame fit should find:
-    ``A6(profile)⁻¹ · A6(truth) · tool`` at the same joint-6 reading."""
+    ``A6(profile)⁻¹ · A6(truth) · tool`` at the same joint-6 reading, the link reached from
+    below (lagging its encoder by half J6's lost motion, ``ucal.measure.approach``)."""
 
     def link6(row: np.ndarray, offset_deg: float, beta_deg: float) -> np.ndarray:
         a6 = dh_matrix(np.radians(row[0] + offset_deg), row[1], row[2], np.radians(row[3]))
         return a6 @ transform(np.zeros(3), rpy_to_matrix(np.array([0.0, beta_deg, 0.0])))
 
     mine = link6(profile.model.dh[5], float(profile.joint_offsets_deg[5]), 0.0)
-    true = link6(truth.model.dh[5], float(truth.joint_offsets_deg[5]), float(truth.dh_beta_deg[5]))
+    lagged = float(truth.joint_offsets_deg[5]) - 0.5 * float(truth.backlash_deg[5])
+    true = link6(truth.model.dh[5], lagged, float(truth.dh_beta_deg[5]))
     return np.linalg.inv(mine) @ true @ truth.beam_matrix

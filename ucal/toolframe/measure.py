@@ -8,7 +8,9 @@ alternate their sense; the centring crosses sweep each wrist joint in its positi
 a cross whose readings came too far apart is swept again back, in the negative sense
 (``Rig.line``); the rig's ``approach`` says which. The edge scans read nothing in motion:
 their coarse and fine probes are static and step outward from the plate's centre
-(``ucal.measure.edges``).
+(``ucal.measure.edges``). Each edge line's wrist correction to normal incidence is centred from
+the last line's in the same orientation: on a fresh cell the prediction is a degree or two off,
+where a quick centring can start on a side lobe.
 
 Measure (exact): noise floor with the beam off the plate; at each posture the peak search of
 ``ucal.measure.search`` (acquisition raster only for the first; later postures are
@@ -89,6 +91,7 @@ class PlateRig:
     beam: np.ndarray  # (3,) running estimate of the beam, flange frame (unit)
     acq_gain: float  # acquisition gain (dB) from the noise floor
     q: np.ndarray  # (6,) the last commanded readings (deg)
+    aims: dict[float, np.ndarray]  # wrist correction (6,) of the last edge line per φ (deg)
 
     def __init__(
         self,
@@ -109,6 +112,7 @@ class PlateRig:
         self.beam = np.asarray(profile.tool_matrix[:3, 2], float).copy()
         self.acq_gain = 40.0
         self.q = np.asarray(plan.reference_deg, float)
+        self.aims = {}
 
     # -- kinematics ------------------------------------------------------------------------------
     def tool(self) -> np.ndarray:
@@ -222,9 +226,13 @@ class PlateRig:
         # tenths of a degree can put it in the first null); the wrist correction found here
         # holds along the short line. Then gain on the plate, and outward until the echo falls
         # below half.
+        # The correction found on the last line in this orientation starts the centring: the
+        # offsets turn the beam alike along neighbouring lines, and a prediction a degree or
+        # two off (a fresh cell) can put the quick centring on a side lobe.
         q0 = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
-        _, q_n = self.normal_near(q0, label, quick=True)
+        _, q_n = self.normal_near(q0 + self.aims.get(phi, 0.0), label, quick=True)
         aim = np.asarray(q_n, float) - q0
+        self.aims[phi] = aim
         self.move(q0 + aim)
         self.set_gain(EDGES.averages)
         # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam that
@@ -243,7 +251,7 @@ class PlateRig:
         # normal incidence again just inside the edge, for the fine scan
         inside = t_c - EDGES.fine_half_mm - 2.0
         q1 = self.joints(origin + inside * u, EDGE_WATER_PATH_MM, phi, label)
-        _, q_n = self.normal_near(q1, label, quick=True)
+        _, q_n = self.normal_near(q1 + aim, label, quick=True)
         aim = np.asarray(q_n, float) - q1
         ts: list[float] = []
         flanges: list[np.ndarray] = []

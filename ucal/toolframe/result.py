@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ucal.calibration.result import APPROACH
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.procedure import RunFacts
@@ -120,6 +121,17 @@ class ToolFrameResult:
         }
         if tf is not None:
             out |= fit_json(tf)
+        # SPEC.md: the drift and the lost motion where the fit measures them (null elsewhere),
+        # and the approach the tool frame holds for (every posture reached from below)
+        out |= {
+            "backlash_deg": [None] * 6,
+            "backlash_std_deg": [None] * 6,
+            "sound_speed_drift_m_s_per_min": None,
+            "sound_speed_drift_m_s_per_min_std": None,
+            "approach": APPROACH,
+        }
+        if tf is not None and tf.effects is not None:
+            out |= tf.effects.to_json()
         if tool.method == "exact":
             out["normal_incidence_postures"] = len(tool.peaks)
             out["edge_crossings"] = len(tool.crossings)

@@ -25,6 +25,7 @@ from ucal.toolframe.exact import (
     EdgeFit,
     OffsetEstimate,
     TofRecord,
+    planned_edges,
     rotation_for_beam,
     solve_offsets,
 )
@@ -73,12 +74,16 @@ class ToolFrameRun:
 
 
 def solve_measured(
-    profile: CellProfile, plan: ToolFramePlan, measured: ToolFrameMeasurements
+    profile: CellProfile,
+    plan: ToolFramePlan,
+    measured: ToolFrameMeasurements,
+    fixed: tuple[str, ...] = (),
 ) -> ToolFrameRun:
-    """The tool frame from a run's measurements (module docstring); nothing moves."""
+    """The tool frame from a run's measurements (module docstring); nothing moves. ``fixed``:
+    unknowns of the exact method's fit held at their priors (``solve_tool_frame``)."""
     if isinstance(measured, PaperMeasurements):
         return _solve_paper(profile, plan, measured)
-    return _solve_exact(profile, plan, measured)
+    return _solve_exact(profile, plan, measured, fixed)
 
 
 def run_tool_frame(
@@ -88,20 +93,33 @@ def run_tool_frame(
     return solve_measured(profile, plan, measure_tool_frame(profile, plan, rig, progress))
 
 
-def _solve_exact(profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements) -> ToolFrameRun:
+def _solve_exact(
+    profile: CellProfile, plan: ToolFramePlan, m: ExactMeasurements, fixed: tuple[str, ...]
+) -> ToolFrameRun:
     peaks, tofs, crossings, beam_est = m.peaks, m.tofs, m.crossings, m.beam_estimate
     # First estimate with the profile's offsets and the touched plane taken as exact (the
     # formulation of ucal.toolframe.exact): the start of the fit with the priors.
     offsets = solve_offsets(beam_est, tofs, crossings, plan.plane, m.position_mm)
     first_rot = rotation_for_beam(beam_est.direction, profile.tool_rotation_deg)
-    tf = solve_plate_fit(
-        profile,
-        plan.plane,
-        peaks,
-        m.plate_crossings,
-        offsets,
-        np.concatenate([offsets.position_mm, first_rot]),
-    )
+
+    def fit(edges_deg: np.ndarray, edge_offsets_mm: np.ndarray, position_mm: np.ndarray):
+        edge_start = np.column_stack([edges_deg, edge_offsets_mm]).ravel()
+        tool_start = np.concatenate([position_mm, first_rot])
+        return solve_plate_fit(
+            profile, plan.plane, peaks, m.plate_crossings, edge_start, tool_start, fixed
+        )
+
+    tf = fit(offsets.edge_angles_deg, offsets.edge_offsets_mm, offsets.position_mm)
+    if tf.quality.verdict == "misfit":
+        # The first estimate holds the profile's offsets exact: on a fresh cell with a tool
+        # far off the flange axis it can turn the edges tens of degrees from where the scans
+        # met them, too far a start. Start again from the edges as scanned and the tool the
+        # run estimated on its way, and keep the better fit.
+        psi, d = planned_edges(crossings, plan.plane, m.position_mm, beam_est.direction)
+        again = fit(np.degrees(psi), d, m.position_mm)
+        assert tf.solution is not None and again.solution is not None
+        if again.solution.chi2 < tf.solution.chi2:
+            tf = again
     notes = list(offsets.notes) + list(tf.notes)
     if tf.refusal:
         notes.append(f"out of tolerance: {tf.refusal}")
@@ -134,11 +152,13 @@ def solve_plate_fit(
     plane: Plane,
     peaks: list[PeakResult],
     crossings: list[PlateCrossing],
-    first: OffsetEstimate,
+    edge_start: np.ndarray,
     tool_start: np.ndarray,
+    fixed: tuple[str, ...] = (),
 ) -> ToolFrameFit:
     """The fit of ``ucal.toolframe.fit`` on a run's peaks and crossings (priors from the
-    profile; edges and tool started from the first estimate)."""
+    profile; edges (ψ deg, d mm per edge, flattened) and tool started as given; ``fixed`` held
+    at their priors)."""
     plate_peaks = []
     for i, p in enumerate(peaks):
         assert p.distance is not None and p.distance_joints_deg is not None
@@ -154,7 +174,6 @@ def solve_plate_fit(
                 p.approach,
             )
         )
-    edge_start = np.column_stack([first.edge_angles_deg, first.edge_offsets_mm]).ravel()
     assert profile.reflector_points_mm is not None
     return solve_tool_frame(
         prior_from_profile(profile),
@@ -164,6 +183,7 @@ def solve_plate_fit(
         crossings,
         edge_start,
         tool_start,
+        fixed=fixed,
     )
 
 

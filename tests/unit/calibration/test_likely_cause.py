@@ -53,3 +53,18 @@ def test_a_plausible_quantity_beyond_its_tolerance_stays_the_cause() -> None:
     pulls, estimate = dragged("dh2_a_mm", a + 0.3, 31.4)
     cause = likely_cause(rows([0.5, -0.3, 0.2, -0.4, 0.1, 0.3]), pulls, TABLE, estimate, PRIOR)
     assert cause.startswith("dh2_a_mm fitted at") and "outside the kinematic model" in cause
+
+
+def test_an_effect_the_priors_absorbed_is_named_before_the_quantity_it_drags() -> None:
+    """A DH length 5σ off carries most of the χ²: alone it is the cause; where the score
+    test says a drift of the tank would remove nearly all of it, the drift is named and the length
+    is the evidence that absorbed it."""
+    d = TABLE.prior[TABLE.index("dh5_d_mm")]
+    pulls, estimate = dragged("dh5_d_mm", d + 1.02, 5.1)
+    pulls |= {"dh5_a_mm": 3.0, "sound_speed_m_s": 2.1}
+    data = rows([0.9, -0.8, 0.7, -0.9, 0.8, -0.7, 0.9, -0.8])
+    assert likely_cause(data, pulls, TABLE, estimate, PRIOR).startswith("dh5_d_mm fitted at")
+    gains = {"sound_speed_drift_m_s_per_min": 47.3}
+    cause = likely_cause(data, pulls, TABLE, estimate, PRIOR, gains)
+    assert cause.startswith("a drift of the sound speed during the run explains")
+    assert cause.endswith("(dh5_d_mm fitted at 1.02, 5.1σ from the profile's 0, absorbing it)")

@@ -4,6 +4,7 @@ cell whose offsets, plate, sound speed and delay differ from the profile (no pro
 from __future__ import annotations
 
 import functools
+import re
 
 import numpy as np
 import pytest
@@ -45,10 +46,33 @@ def fresh_profile() -> CellProfile:
 
 
 def synthetic_run(
-    profile, plate_h_mm: float, plate_tilt_deg: float, water_c: float, seed: int = 1
+    profile,
+    plate_h_mm: float,
+    plate_tilt_deg: float,
+    water_c: float,
+    seed: int = 1,
+    drift_c_per_min: float = 0.0,
+    backlash_deg: np.ndarray | None = None,
+    from_above: tuple[int, ...] = (),
 ) -> tuple[list[PlatePeak], list[PlateCrossing], np.ndarray]:
-    """Peaks and edge crossings the true cell gives for the profile's plan, with noise."""
+    """Peaks and edge crossings the true cell gives for the profile's plan, with noise.
+
+    Each reading a minute after the last, the water warming by ``drift_c_per_min``; the
+    joints with lost motion ``backlash_deg`` (the link lagging its reading by half of it
+    against the approach), every other reading approaching the joints ``from_above`` (index
+    0…5) from above, the others from below."""
     rng = np.random.default_rng(seed)
+    lost = np.zeros(6) if backlash_deg is None else np.asarray(backlash_deg, float)
+    count = iter(range(1000))
+
+    def reading(q: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """The encoder's reading where the link is at ``q``, its minute and approach."""
+        i = next(count)
+        approach = np.ones(6)
+        if i % 2:
+            approach[list(from_above)] = -1.0
+        return q + approach * lost / 2, float(i), approach
+
     plan = _plan(profile.reflector_points_mm.tobytes())
     plane = plan.plane
     n = rpy_to_matrix([plate_tilt_deg, 0.0, 0.0]) @ plane.normal
@@ -57,7 +81,6 @@ def synthetic_run(
     tool[:3, :3] = rpy_to_matrix(TRUE_TOOL_DEG)
     tool[:3, 3] = TRUE_TOOL_MM
     geom = CellGeometry(profile.model, tool, np.eye(3))
-    c = sound_speed_m_s(water_c)
     c0 = sound_speed_m_s(profile.water_temperature_c)
 
     def ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -68,10 +91,12 @@ def synthetic_run(
     for t in plan.peaks:
         q = aim_wrist(geom, t.joints_deg, -n, TRUE_OFFSETS)
         _, _, path = ray(q)
+        q_read, minute, approach = reading(q)
+        c = sound_speed_m_s(water_c + drift_c_per_min * minute)
         d = (c0 / c) * (path + c * 1e-6 * DELAY_NS / 2) + rng.normal(0.0, 0.003)
-        q_seen = q.copy()
+        q_seen = q_read.copy()
         q_seen[3:5] += rng.normal(0.0, 0.0005, 2)
-        peaks.append(PlatePeak(t.label, q_seen, 0.0007, q, float(d), 0.003))
+        peaks.append(PlatePeak(t.label, q_seen, 0.0007, q_read, float(d), 0.003, minute, approach))
     crossings = []
     starts = []
     nominal = np.zeros(6)
@@ -95,9 +120,16 @@ def synthetic_run(
                 b, tcp, path = ray(q)
                 hit = tcp + path * b
                 shift = (edge_d - e @ hit) / (e @ u) * u + rng.normal(0.0, 0.003) * u
+                q_read, minute, approach = reading(q)
                 crossings.append(
                     PlateCrossing(
-                        f"edge {ep.name} {lat:+.0f} {phi:+.0f}", q, shift, ep.index, 0.003
+                        f"edge {ep.name} {lat:+.0f} {phi:+.0f}",
+                        q_read,
+                        shift,
+                        ep.index,
+                        0.003,
+                        minute,
+                        approach,
                     )
                 )
                 nominal = q
@@ -118,7 +150,9 @@ def truth(profile) -> WorldTruth:
     )
 
 
-def solve(profile, peaks, crossings, starts):
+def solve(profile, peaks, crossings, starts, fixed: tuple[str, ...] = ()):
+    """The fit of the readings (``fixed``: held at their priors, as the previous fit held the
+    drift and the lost motion)."""
     plane = fit_plane(profile.reflector_points_mm)
     return solve_tool_frame(
         prior_from_profile(profile),
@@ -127,6 +161,7 @@ def solve(profile, peaks, crossings, starts):
         peaks,
         crossings,
         starts,
+        fixed=fixed,
     )
 
 
@@ -190,3 +225,80 @@ def test_plate_above_its_touched_plane_is_carried_in_the_std_not_written_as_tool
     err = tf.position_mm - TRUE_TOOL_MM
     assert tf.along_beam_std_mm < 0.1
     assert abs(tf.beam @ err) <= 3 * tf.along_beam_std_mm
+
+
+def calibrated(profile: CellProfile, backlash_deg: np.ndarray) -> CellProfile:
+    """The profile after calibrate: the offsets of the positive approach (the world's less
+    half the lost motion) known to 0.01°."""
+    return profile.replace(
+        joint_offsets_deg=TRUE_OFFSETS - backlash_deg / 2 + 0.003,
+        joint_offsets_std_deg=np.full(6, 0.01),
+    )
+
+
+def across_z(tf, profile, backlash_deg: np.ndarray) -> np.ndarray:
+    """|error| / std of the tool across the beam against the truth (reached from below)."""
+    true = truth_in_profile_flange(profile, truth(profile).replace(backlash_deg=backlash_deg))
+    return np.abs(tangent_basis(tf.beam) @ (tf.position_mm - true[:3, 3])) / tf.across_beam_std_mm
+
+
+def test_the_tanks_drift_is_fitted_and_a_fit_without_it_names_the_drift(profile) -> None:
+    """The water warming 0.2 °C/min (four times its declared 0.05 °C/min, a minute between
+    readings): the drift is measured from the water paths' times and the tool is right; held
+    at 0, the fit is a misfit whose message names the drift, not a quantity dragged away."""
+    profile = calibrated(profile, np.zeros(6))
+    peaks, crossings, starts = synthetic_run(profile, 0.5, 0.1, 20.5, drift_c_per_min=0.2)
+    tf = solve(profile, peaks, crossings, starts)
+    assert tf.quality.verdict == "ok" and tf.in_tolerance, tf.refusal
+    assert tf.effects is not None and tf.time_ref_min == pytest.approx(1.5)
+    slope = (sound_speed_m_s(20.51) - sound_speed_m_s(20.49)) / 0.02
+    drift = tf.effects.drift_m_s_per_min
+    assert abs(drift - 0.2 * slope) <= 3 * tf.effects.drift_std_m_s_per_min
+    assert tf.effects.drift_std_m_s_per_min < 0.5 * 0.05 * slope  # the data, not its prior
+    c_mid = sound_speed_m_s(20.5 + 0.2 * tf.time_ref_min)
+    assert abs(tf.sound_speed_m_s - c_mid) <= 3 * tf.sound_speed_std_m_s
+    assert np.all(across_z(tf, profile, np.zeros(6)) <= 3)
+    assert np.all(np.isnan(tf.effects.backlash_deg))  # every reading from below: not seen
+
+    held = solve(profile, peaks, crossings, starts, ("sound_speed_drift_m_s_per_min",))
+    assert held.quality.verdict == "misfit"
+    assert "a drift of the sound speed during the run" in held.refusal, held.refusal
+    assert "fitted at" not in held.refusal
+
+
+def test_lost_motion_read_from_both_sides_is_fitted_and_a_fit_without_it_names_it(
+    profile,
+) -> None:
+    """J4 and J5 with 0.02° of lost motion, every other reading approaching them from above:
+    theirs is measured, the other joints' held (read from below only), and the tool is right;
+    held at 0, the misfit names the lost motion of a wrist joint."""
+    lost = np.array([0.0, 0.0, 0.0, 0.02, 0.02, 0.0])
+    profile = calibrated(profile, lost)
+    peaks, crossings, starts = synthetic_run(
+        profile, 0.5, 0.1, 20.5, backlash_deg=lost, from_above=(3, 4)
+    )
+    tf = solve(profile, peaks, crossings, starts)
+    assert tf.quality.verdict == "ok" and tf.in_tolerance, tf.refusal
+    assert tf.effects is not None
+    seen = np.isfinite(tf.effects.backlash_deg)
+    np.testing.assert_array_equal(seen, [False, False, False, True, True, False])
+    z = np.abs(tf.effects.backlash_deg[seen] - lost[seen]) / tf.effects.backlash_std_deg[seen]
+    assert np.all(z <= 3), z
+    assert np.all(across_z(tf, profile, lost) <= 3)
+
+    held = solve(profile, peaks, crossings, starts, tuple(f"backlash_J{j}" for j in range(1, 7)))
+    assert held.quality.verdict == "misfit"
+    assert re.search(r"lost motion of J[45] explains", held.refusal), held.refusal
+
+
+def test_lost_motion_read_from_below_only_is_held_and_the_tool_is_right(profile) -> None:
+    """Every joint with 0.02° of lost motion, every reading from below (the tool-frame's own
+    discipline): the lag is the same everywhere, the offsets of the positive approach carry
+    it, and the lost motion is not reported."""
+    lost = np.full(6, 0.02)
+    profile = calibrated(profile, lost)
+    peaks, crossings, starts = synthetic_run(profile, 0.5, 0.1, 20.5, backlash_deg=lost)
+    tf = solve(profile, peaks, crossings, starts)
+    assert tf.quality.verdict == "ok" and tf.in_tolerance, tf.refusal
+    assert tf.effects is not None and np.all(np.isnan(tf.effects.backlash_deg))
+    assert np.all(across_z(tf, profile, lost) <= 3)
