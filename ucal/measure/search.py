@@ -64,7 +64,9 @@ QUANTISED_FIT_AVERAGES = 4
 SIDE_LOBE_MARGIN_DB = 12.0
 #: A quick centring whose last round still moved a joint this far (deg) has not centred: its
 #: ±0.6° crosses step at most half their reach towards a main lobe beyond it, so a centring
-#: that walks had started on a side lobe, a degree or more off normal.
+#: that walks had started on a side lobe, a degree or more off normal. Applied where the
+#: reflector's main-lobe heights are not known (the plate); the block's faces judge a side lobe
+#: by those heights (``side_lobe_db``), and a walk that reached the main lobe is kept there.
 QUICK_CENTRE_WALK_DEG = 0.1
 #: The main-lobe raster's level (dB below the expected main lobe) and its line spacing (deg of
 #: beam tilt): the broadband main lobe stays above −18 dB to 0.4° off normal, so lines 0.5°
@@ -338,7 +340,9 @@ class PeakSearch:
             if np.all(np.abs(q - before) < 0.01):
                 break
             self.set_fit_gain(q, averages=1)
-        if np.any(np.abs(q - before) > QUICK_CENTRE_WALK_DEG):
+        if self.main_lobe is None and np.any(np.abs(q - before) > QUICK_CENTRE_WALK_DEG):
+            # no main-lobe heights to judge a side lobe by (the tool-frame plate): a centring
+            # that still walks is taken for one (on the block, ``side_lobe_db`` below judges)
             log.info(
                 "the quick centring still walks %.2f°: not centred", np.max(np.abs(q - before))
             )
