@@ -280,21 +280,17 @@ def _searched_poses(profile: CellProfile) -> Iterator[np.ndarray]:
     near = PAPER_CALIBRATION_POSE_DEG
     # an on-axis beam turned about itself turns joint 6 alone: the configurations turn it
     turns = POSE_TURNS_DEG[:1] if beam_on_flange_axis(profile) else POSE_TURNS_DEG
-    for combo in combos:
-        w = s_mat[:3, :3] @ (lever + np.array(combo)) + s_mat[:3, 3]
-        targets = []
-        for turn in turns:
-            rot = down @ rot_z(np.radians(turn))
-            flange_rot = rot @ flange_tool[:3, :3].T
-            target = np.eye(4)
-            target[:3, :3] = rot
-            target[:3, 3] = w + flange_rot @ v
-            targets.append(target)
-        sols, ok, _ = ik_solutions(
-            profile.model, np.array(targets), flange_tool, profile.joint_offsets_deg, near
-        )
-        for t in range(len(targets)):
-            yield from sols[t][ok[t]][:POSE_BRANCHES]
+    # every combination's targets in one vectorised IK call (combination, turn)
+    targets = np.tile(np.eye(4), (len(combos), len(turns), 1, 1))
+    for k, turn in enumerate(turns):
+        rot = down @ rot_z(np.radians(turn))
+        targets[:, k, :3, :3] = rot
+        wrists = (lever + np.array(combos)) @ s_mat[:3, :3].T + s_mat[:3, 3]
+        targets[:, k, :3, 3] = wrists + rot @ flange_tool[:3, :3].T @ v
+    sols, ok, _ = ik_solutions(profile.model, targets, flange_tool, profile.joint_offsets_deg, near)
+    for c in range(len(combos)):
+        for t in range(len(turns)):
+            yield from sols[c, t][ok[c, t]][:POSE_BRANCHES]
 
 
 def _pose_candidates(profile: CellProfile) -> Iterator[tuple[np.ndarray, bool]]:
