@@ -74,7 +74,7 @@ def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(tmp_path: Path) 
     # the host-timed run replays bit for bit: its reference capture's calls are replayed too
     replay = subprocess.run(
         [sys.executable, "-m", "ucal", "calibrate", str(tmp_path / "again.toml")]
-        + ["--replay", str(tmp_path / "ascii-scpi.jsonl"), "--json"],
+        + ["--replay", str(tmp_path / "ascii-scpi.jsonl"), "--remeasure", "--json"],
         capture_output=True,
         text=True,
         stdin=subprocess.DEVNULL,
