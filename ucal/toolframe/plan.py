@@ -271,25 +271,22 @@ class _Plate:
     tool: np.ndarray
     ref: np.ndarray
 
+    def parts(self) -> tuple[CellProfile, Plane, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(profile, plane, points, centre, tool, ref), for a function that uses them all."""
+        return self.profile, self.plane, self.points, self.centre, self.tool, self.ref
+
 
 def _plan_targets(
     plate: _Plate, phi0: float, method: str, n_pts: int, notes: list[str]
 ) -> tuple[list[Target], list[EdgePlan], list[Target]]:
     """The peaks and edge scans (exact method) or the incidence points (paper method) in
     orientation ``phi0`` (``SafetyError`` if one fails)."""
-    profile, plane, pts, centre, tool, ref = (
-        plate.profile,
-        plate.plane,
-        plate.points,
-        plate.centre,
-        plate.tool,
-        plate.ref,
-    )
+    profile, plane, _, centre, tool, ref = plate.parts()
     path = profile.procedure.water_path_mm
     turn = tool_turn_deg(profile)
     peaks: list[Target] = []
     if method != "exact":
-        return [], [], _plan_incidence(profile, plane, pts, centre, tool, phi0, ref, n_pts, notes)
+        return [], [], _plan_incidence(plate, phi0, n_pts, notes)
     near = ref
     for i in range(n_pts):
         phi = phi0 + 360.0 * i / n_pts
@@ -300,19 +297,11 @@ def _plan_targets(
         )
         peaks.append(Target(label, centre, path, phi, q))
         near = q
-    return peaks, _plan_edges(profile, plane, pts, centre, tool, phi0, ref, notes), []
+    return peaks, _plan_edges(plate, phi0, notes), []
 
 
-def _plan_edges(
-    profile: CellProfile,
-    plane: Plane,
-    pts: np.ndarray,
-    centre: np.ndarray,
-    tool: np.ndarray,
-    phi0: float,
-    ref: np.ndarray,
-    notes: list[str],
-) -> list[EdgePlan]:
+def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
+    profile, plane, pts, centre, tool, ref = plate.parts()
     out: list[EdgePlan] = []
     for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
         candidates = []
@@ -376,17 +365,8 @@ def _plan_edges(
     return out
 
 
-def _plan_incidence(
-    profile: CellProfile,
-    plane: Plane,
-    pts: np.ndarray,
-    centre: np.ndarray,
-    tool: np.ndarray,
-    phi0: float,
-    ref: np.ndarray,
-    n_pts: int,
-    notes: list[str],
-) -> list[Target]:
+def _plan_incidence(plate: _Plate, phi0: float, n_pts: int, notes: list[str]) -> list[Target]:
+    profile, plane, pts, centre, tool, ref = plate.parts()
     rng = np.random.default_rng(2023)  # paper 002's year: a fixed, reproducible draw
     path0 = profile.procedure.water_path_mm
     turn = tool_turn_deg(profile)
