@@ -20,7 +20,6 @@ import argparse
 import json
 import multiprocessing as mp
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -32,6 +31,7 @@ import numpy as np
 
 from ucal.profile import load_profile
 from ucal.sim.demo import demo_world
+from ucal.sim.serve import serving
 
 if TYPE_CHECKING:
     from multiprocessing.synchronize import Event
@@ -74,17 +74,8 @@ def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict
     run.mkdir()
     shutil.copy(workdir / "cell.toml", run / "cell.toml")
     workdir = run
-    served = subprocess.Popen(
-        [sys.executable, "-m", "ucal", "sim", "serve", "--profile", "cell.toml"]
-        + ["--time-scale", str(scale), "--server", "val3"],
-        cwd=workdir,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert served.stdout is not None
-        urls = json.loads(served.stdout.readline())
+    args = ("--profile", "cell.toml", "--time-scale", str(scale), "--server", "val3")
+    with serving(*args, cwd=workdir) as urls:
         return ucal(
             workdir,
             "calibrate",
@@ -96,9 +87,6 @@ def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict
             "--yes",
             *extra,
         )
-    finally:
-        served.send_signal(signal.SIGTERM)
-        served.communicate(timeout=30)
 
 
 def sigmas(

@@ -30,6 +30,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ucal.sim.serve import serving
+
 if TYPE_CHECKING:
     from multiprocessing.synchronize import Event
 
@@ -177,32 +179,10 @@ def main() -> None:
         )
         if args.no_real_time:
             return
-        serve = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "ucal",
-                "sim",
-                "serve",
-                "--profile",
-                "cell.toml",
-                "--time-scale",
-                "1",
-            ],
-            cwd=work,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
-            text=True,
-        )
-        try:
-            assert serve.stdout is not None
-            urls = json.loads(serve.stdout.readline())
+        with serving("--profile", "cell.toml", "--time-scale", "1", cwd=work) as urls:
             real_wall, real, _ = calibrate(
                 work, "--controller", urls["controller"], "--pulser", urls["pulser"]
             )
-        finally:
-            serve.terminate()
-            serve.wait(timeout=30)
         print(
             f"  against `ucal sim serve --time-scale 1` (real time): {real_wall:.1f} s wall, "
             f"{real['moves']} moves, {real['pulser_reads']} pulser reads"

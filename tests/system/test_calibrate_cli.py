@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ucal.profile import create_profile, load_profile, write_profile
+from ucal.sim.serve import serving
 
 pytestmark = pytest.mark.system
 
@@ -229,23 +230,7 @@ def test_a_block_out_of_reach_is_refused_before_any_motion(tmp_path):
     placed = tomllib.loads(profile.read_text())["sample"]["position_mm"]
     write_profile(profile, {"sample": {"position_mm": [placed[0] + 600.0, *placed[1:]]}}, "test")
     log = tmp_path / "motions.jsonl"
-    server = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "ucal",
-            "sim",
-            "serve",
-            "--profile",
-            str(profile),
-            "--log",
-            str(log),
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        urls = json.loads(server.stdout.readline())
+    with serving("--profile", str(profile), "--log", str(log)) as urls:
         before = profile.read_bytes()
         out = ucal(
             "calibrate",
@@ -260,9 +245,6 @@ def test_a_block_out_of_reach_is_refused_before_any_motion(tmp_path):
         assert "move the block" in out.stderr and "Traceback" not in out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
         assert profile.read_bytes() == before
-    finally:
-        server.send_signal(signal.SIGTERM)
-        server.wait(timeout=10)
     assert not log.exists() or log.read_text().strip() == ""  # no motion at all
 
 

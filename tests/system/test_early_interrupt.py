@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from ucal.errors import EXIT_INTERRUPTED
+from ucal.sim.serve import serving
 
 pytestmark = pytest.mark.system
 
@@ -57,18 +58,8 @@ def served(tmp_path_factory: pytest.TempPathFactory):
         capture_output=True,
     )
     log = d / "motions.jsonl"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ucal", "sim", "serve", "--profile", str(profile)]
-        + ["--log", str(log)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    assert proc.stdout is not None
-    urls = json.loads(proc.stdout.readline())
-    yield profile, log, urls
-    proc.send_signal(signal.SIGTERM)
-    proc.communicate(timeout=10)
+    with serving("--profile", str(profile), "--log", str(log)) as urls:
+        yield profile, log, urls
 
 
 @pytest.mark.parametrize("after_s", [0.1, 0.3, 0.6])

@@ -13,7 +13,6 @@ Results are asserted, not durations.
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +22,7 @@ import pytest
 
 from ucal.profile import load_profile
 from ucal.sim.demo import demo_world
+from ucal.sim.serve import serving
 
 pytestmark = pytest.mark.system
 
@@ -43,17 +43,7 @@ def test_calibrate_against_a_served_cell_on_the_host_clock(tmp_path: Path) -> No
     assert _ucal("profile", "init", "tx90", "cell.toml", cwd=tmp_path).returncode == 0
     rehearsal = tmp_path / "rehearsal.toml"
     rehearsal.write_bytes((tmp_path / "cell.toml").read_bytes())
-    served = subprocess.Popen(
-        [sys.executable, "-m", "ucal", "sim", "serve", "--profile", "cell.toml"]
-        + ["--time-scale", "0.2"],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert served.stdout is not None
-        urls = json.loads(served.stdout.readline())
+    with serving("--profile", "cell.toml", "--time-scale", "0.2", cwd=tmp_path) as urls:
         out = _ucal(
             "calibrate",
             "cell.toml",
@@ -65,9 +55,6 @@ def test_calibrate_against_a_served_cell_on_the_host_clock(tmp_path: Path) -> No
             "--json",
             cwd=tmp_path,
         )
-    finally:
-        served.send_signal(signal.SIGTERM)
-        served.communicate(timeout=30)
     assert out.returncode == 0, out.stderr[-2000:]
     real = json.loads(out.stdout)
     assert real["written"] is True

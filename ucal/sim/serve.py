@@ -20,11 +20,16 @@ clock (``ucal sim serve``) the same durations pass in real time multiplied by ``
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
+import signal
+import subprocess
+import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Self
@@ -351,3 +356,23 @@ class SimulatedCellServer(Served):
             if self._log_file is not None:
                 self._log_file.write(line + "\n")
                 self._log_file.flush()
+
+
+@contextlib.contextmanager
+def serving(*args: str, cwd: str | Path | None = None) -> Iterator[dict[str, str]]:
+    """``ucal sim serve ARGS`` in a process of its own, as a script beside a real command line
+    starts it: its URLs (the first line it prints) while the block runs, then SIGTERM and its
+    end awaited (its stderr is discarded)."""
+    served = subprocess.Popen(
+        [sys.executable, "-m", "ucal", "sim", "serve", *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert served.stdout is not None
+        yield json.loads(served.stdout.readline())
+    finally:
+        served.send_signal(signal.SIGTERM)
+        served.communicate(timeout=30)
