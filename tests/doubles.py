@@ -9,6 +9,9 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :class:`ScriptedVisaResource` — the same for a PyVISA message-based resource;
 * :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
   gate reads;
+* :func:`noisy_world` — a world file's text: the demo's offsets and noise, and ``[pulser]`` keys;
+* :func:`finished_json` — a ``ucal ... --json`` process waited for: exit 0, its JSON object;
+* :func:`std_of` — a result's ``std_deg`` with NaN where a joint was not determined;
 * :func:`measured_cell` — noisy face measurements of a true cell (a DH table, offsets, block,
   water) at a plan's postures, without a simulator;
 * :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
@@ -18,7 +21,9 @@ directory of the root ``conftest.py`` on ``sys.path``).
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TextIO
@@ -234,3 +239,28 @@ def measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, see
         )
         for m in ideal_measurements(truth, corner, postures, offsets, path_scale=scale)
     ]
+
+
+def noisy_world(**pulser: object) -> str:
+    """A world file's text: the demo cell's joint offsets and noise (``ucal.sim.demo``), and
+    the ``[pulser]`` keys given (strings quoted)."""
+    from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, DEMO_NOISE
+
+    keys = "".join(f"{k} = {json.dumps(v)}\n" for k, v in pulser.items())
+    return (
+        f"[robot]\njoint_offsets_deg = {DEMO_JOINT_OFFSETS_DEG.tolist()}\n"
+        f"[noise]\ntof_ns = {DEMO_NOISE.tof_ns}\namplitude = {DEMO_NOISE.amplitude}\n"
+        f"seed = {DEMO_NOISE.seed}\n[pulser]\n{keys}"
+    )
+
+
+def finished_json(proc: subprocess.Popen[str]) -> dict:
+    """A ``ucal ... --json`` process waited for: it exits 0; its JSON object."""
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    return json.loads(out)
+
+
+def std_of(result: dict) -> np.ndarray:
+    """``std_deg`` of a result (6,), NaN where a joint was not determined."""
+    return np.array([np.nan if v is None else v for v in result["std_deg"]])

@@ -5,7 +5,6 @@ world, and ``--json`` says how the echoes were timed."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -13,19 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG
+
+from doubles import finished_json, noisy_world, std_of
+
 pytestmark = pytest.mark.system
 
-OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
-WORLD = """\
-[robot]
-joint_offsets_deg = [0.8, -1.2, 1.5, -2.0, 1.1, 0.6]
-[noise]
-tof_ns = 0.5
-amplitude = 0.01
-seed = 20240611
-[pulser]
-bits = 12
-"""
+OFFSETS_DEG = DEMO_JOINT_OFFSETS_DEG
+WORLD = noisy_world(bits=12)
 
 
 def ucal(*args: str) -> list[str]:
@@ -47,10 +41,8 @@ def start(tmp_path: Path, timing: str) -> subprocess.Popen[str]:
 
 def result(run: subprocess.Popen[str]) -> tuple[dict, np.ndarray]:
     """The run's ``--json`` object and its ``std_deg`` (NaN where not determined)."""
-    out, err = run.communicate(timeout=300)
-    assert run.returncode == 0, err
-    got = json.loads(out)
-    return got, np.array([np.nan if v is None else v for v in got["std_deg"]])
+    got = finished_json(run)
+    return got, std_of(got)
 
 
 def test_ascan_timing_calibrates_covered_and_no_less_precise_than_the_gate(

@@ -15,28 +15,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG
+
+from doubles import finished_json, noisy_world, std_of
+
 pytestmark = pytest.mark.system
 
 RunMain = Callable[[list[str]], tuple[int, str, str]]
 
-OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
-WORLD = """\
-[robot]
-joint_offsets_deg = [0.8, -1.2, 1.5, -2.0, 1.1, 0.6]
-[noise]
-tof_ns = 0.5
-amplitude = 0.01
-seed = 20240611
-[pulser]
-kind = "{kind}"
-sample_rate_mhz = 100.0
-"""
+OFFSETS_DEG = DEMO_JOINT_OFFSETS_DEG
 
 
 def calibrate(tmp_path: Path, kind: str) -> subprocess.Popen[str]:
     """``ucal calibrate`` of a new profile against a simulated cell speaking ``kind``."""
     world = tmp_path / f"{kind}.toml"
-    world.write_text(WORLD.format(kind=kind))
+    world.write_text(noisy_world(kind=kind, sample_rate_mhz=100.0))
     return subprocess.Popen(
         [sys.executable, "-m", "ucal", "calibrate", str(tmp_path / f"cell-{kind}.toml")]
         + ["--sim", str(world), "--yes", "--json", "-q"]
@@ -48,28 +41,18 @@ def calibrate(tmp_path: Path, kind: str) -> subprocess.Popen[str]:
     )
 
 
-def finished(proc: subprocess.Popen[str]) -> dict:
-    out, err = proc.communicate(timeout=300)
-    assert proc.returncode == 0, err
-    return json.loads(out)
-
-
-def stds(result: dict) -> np.ndarray:
-    return np.array([np.nan if v is None else v for v in result["std_deg"]])
-
-
 def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(tmp_path: Path) -> None:
     runs = {kind: calibrate(tmp_path, kind) for kind in ("ascii-scpi", "modbus")}
-    host, modbus = (finished(runs[k]) for k in ("ascii-scpi", "modbus"))
+    host, modbus = (finished_json(runs[k]) for k in ("ascii-scpi", "modbus"))
     assert host["written"] and host["fit"]["verdict"] == "ok"
     assert host["unobservable_joints"] == modbus["unobservable_joints"]
-    reported = np.isfinite(stds(host))
+    reported = np.isfinite(std_of(host))
     # covered: the world's offsets within 3 reported sigmas
     error = np.abs(np.array(host["joint_offsets_deg"]) - OFFSETS_DEG)[reported]
-    assert np.all(error <= 3 * stds(host)[reported]), (error, stds(host))
+    assert np.all(error <= 3 * std_of(host)[reported]), (error, std_of(host))
     # agreement: the two back-ends' estimates differ by less than 3 sigmas of their difference
     difference = np.abs(np.subtract(host["joint_offsets_deg"], modbus["joint_offsets_deg"]))
-    both = np.hypot(stds(host), stds(modbus))[reported]
+    both = np.hypot(std_of(host), std_of(modbus))[reported]
     assert np.all(difference[reported] <= 3 * both), (difference, both)
     # the host-timed run replays bit for bit: its reference capture's calls are replayed too
     replay = subprocess.run(
