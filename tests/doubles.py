@@ -12,6 +12,7 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :func:`noisy_world` — a world file's text: the demo's offsets and noise, and ``[pulser]`` keys;
 * :func:`finished_json` — a ``ucal ... --json`` process waited for: exit 0, its JSON object;
 * :func:`std_of` — a result's ``std_deg`` with NaN where a joint was not determined;
+* :func:`noisy_face` — one face measured at normal incidence on a true cell, with noise;
 * :func:`measured_cell` — noisy face measurements of a true cell (a DH table, offsets, block,
   water) at a plan's postures, without a simulator;
 * :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
@@ -33,7 +34,7 @@ import numpy as np
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.full import ideal_measurements
-from ucal.calibration.model import CellGeometry, FaceMeasurement
+from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
 from ucal.cli import main
 from ucal.kinematics.rotations import rpy_to_matrix
@@ -264,3 +265,37 @@ def finished_json(proc: subprocess.Popen[str]) -> dict:
 def std_of(result: dict) -> np.ndarray:
     """``std_deg`` of a result (6,), NaN where a joint was not determined."""
     return np.array([np.nan if v is None else v for v in result["std_deg"]])
+
+
+def noisy_face(
+    truth: CellGeometry,
+    config: str,
+    face: int,
+    arm_deg: np.ndarray,
+    offsets_deg: np.ndarray,
+    corner_mm: np.ndarray,
+    rng: np.random.Generator,
+    tilt_std_deg: float,
+    distance_std_mm: float,
+    path_scale: float = 1.0,
+    **fields: object,
+) -> FaceMeasurement:
+    """Face ``face`` measured on the true cell from arm ``arm_deg``: the wrist aimed at normal
+    incidence with ``offsets_deg``, its two wrist readings off by ``tilt_std_deg`` of noise;
+    the water path along the normal, times ``path_scale`` (assumed over true sound speed),
+    off by ``distance_std_mm``; ``fields``: the measurement's other fields."""
+    q = aim_wrist(truth, arm_deg, -truth.normal(face), offsets_deg)
+    _, tcp = beam_and_tcp(truth, q, offsets_deg)
+    path = float(truth.normal(face) @ (tcp - corner_mm))
+    read = q.copy()
+    read[3:5] += rng.normal(0.0, tilt_std_deg, 2)
+    noisy = path * path_scale + rng.normal(0.0, distance_std_mm)
+    return FaceMeasurement(
+        config,
+        face,
+        read,
+        noisy,
+        distance_std_mm,
+        tilt_std_deg,
+        **fields,  # type: ignore[arg-type]
+    )

@@ -24,11 +24,12 @@ from ucal.calibration.fit import (
     solve_cell,
 )
 from ucal.calibration.full import full_table
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
+from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
 from ucal.models import load_model
+
+from doubles import noisy_face
 
 MODEL = load_model("tx90l")
 TOOL_MM = np.array([0.0, 0.0, 80.0])
@@ -88,20 +89,19 @@ def measure(
             for face in (2, 0, 1):
                 t = len(out) * minutes_per_reading
                 link = OFFSETS_DEG - side * b / 2 + b / 2  # positive-approach offsets + lag
-                q = aim_wrist(truth, arm, -truth.normal(face), link)
-                _, tcp = beam_and_tcp(truth, q, link)
-                path = truth.normal(face) @ (tcp - CORNER_MM)
                 c_t = sound_speed_m_s(20.0 + drift_c_per_min * t)
-                q_read = q.copy()
-                q_read[3:5] += rng.normal(0.0, sigma_tilt_deg, 2)
                 out.append(
-                    FaceMeasurement(
+                    noisy_face(
+                        truth,
                         cfg,
                         face,
-                        q_read,
-                        path * sound_speed_m_s(20.0) / c_t + rng.normal(0.0, sigma_dist_mm),
-                        sigma_dist_mm,
+                        arm,
+                        link,
+                        CORNER_MM,
+                        rng,
                         sigma_tilt_deg,
+                        sigma_dist_mm,
+                        sound_speed_m_s(20.0) / c_t,
                         time_min=t,
                         approach=np.full(6, side),
                     )

@@ -17,13 +17,14 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact, solve_exact_with_priors
 from ucal.calibration.fit import CellPrior
 from ucal.calibration.gauge import j1_relative_to_block
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.calibration.paper import solve_paper
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.models import load_model
+
+from doubles import noisy_face
 
 MODEL = load_model("tx90l")
 TOOL_MM = np.array([0.0, 0.0, 80.0])
@@ -79,19 +80,18 @@ def measure(
             arm[joint] += step
         arm[5] += turn
         for face in (2, 0, 1):
-            q = aim_wrist(truth, arm, -truth.normal(face), offsets_deg)
-            _, tcp = beam_and_tcp(truth, q, offsets_deg)
-            d = truth.normal(face) @ (tcp - corner)
-            q_read = q.copy()
-            q_read[3:5] += rng.normal(0.0, sigma_tilt_deg, 2)
             out.append(
-                FaceMeasurement(
+                noisy_face(
+                    truth,
                     cfg,
                     face,
-                    q_read,
-                    d * scale + rng.normal(0.0, sigma_dist_mm),
-                    sigma_dist_mm,
+                    arm,
+                    offsets_deg,
+                    corner,
+                    rng,
                     sigma_tilt_deg,
+                    sigma_dist_mm,
+                    scale,
                 )
             )
     return out
