@@ -312,21 +312,29 @@ def jsonable(value: Any) -> Any:
     return repr(value)
 
 
-class _RecordingProxy:
-    """A device whose recorded calls go to a ``Recorder``; everything else passes through."""
+class _DeviceCalls:
+    """The calls of a device a record holds, each under the label ``device.call``."""
 
     _prefix = ""
     _calls: frozenset[str] = frozenset()
+
+    def _label(self, name: str) -> str | None:
+        """The record's label of the call ``name`` (None: a call the record does not hold)."""
+        return f"{self._prefix}.{name}" if name in self._calls else None
+
+
+class _RecordingProxy(_DeviceCalls):
+    """A device whose recorded calls go to a ``Recorder``; everything else passes through."""
 
     def __init__(self, inner: Any, recorder: Recorder):
         self._inner = inner
         self._recorder = recorder
 
     def __getattr__(self, name: str) -> Any:
-        attr = getattr(self._inner, name)
-        if name not in self._calls or not callable(attr):
+        attr, label = getattr(self._inner, name), self._label(name)
+        if label is None or not callable(attr):
             return attr
-        recorder, label = self._recorder, f"{self._prefix}.{name}"
+        recorder = self._recorder
 
         def recorded(*args: Any, **kwargs: Any) -> Any:
             try:
@@ -586,18 +594,16 @@ class ReplayClock:
         """Nothing to wait for: the next recorded reading says what time it was."""
 
 
-class _ReplayDevice:
-    _prefix = ""
-    _calls: frozenset[str] = frozenset()
-
+class _ReplayDevice(_DeviceCalls):
     def __init__(self, replay: Replay, endpoint: str):
         self._replay = replay
         self.endpoint = endpoint
 
     def __getattr__(self, name: str) -> Any:
-        if name not in self._calls:
+        label = self._label(name)
+        if label is None:
             raise AttributeError(name)
-        replay, label = self._replay, f"{self._prefix}.{name}"
+        replay = self._replay
         return lambda *args, **kwargs: replay.next(label, args, kwargs)
 
     def __enter__(self) -> Any:
