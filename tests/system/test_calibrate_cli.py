@@ -211,7 +211,12 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
     assert np.all(np.isfinite(lost[:5])) and np.all(lost_std[:5] < 0.005), (lost, lost_std)
     measured = np.isfinite(lost)
     assert np.all(np.abs(lost - backlash)[measured] <= 3 * lost_std[measured]), (lost, lost_std)
-    assert "J1, J2, J3, J4, J5" in result["backlash_note"]
+    # the note gives each measured joint's value and std, as --json does
+    noted = re.findall(r"J(\d) (-?[\d.]+) ± ([\d.]+)°", result["backlash_note"])
+    assert [int(j) for j, _, _ in noted] == [1, 2, 3, 4, 5]
+    for j, value, std in noted:
+        assert float(value) == pytest.approx(lost[int(j) - 1], abs=6e-5)
+        assert float(std) == pytest.approx(lost_std[int(j) - 1], abs=6e-5)
     cal = tomllib.loads(profile.read_text())["calibration"]
     assert cal["approach"] == "positive" and cal["unobservable_joints"] == [6]
     # a table identified on this robot: what no echo sees is the common scale, micrometres

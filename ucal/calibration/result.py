@@ -44,7 +44,10 @@ def backlash_note(effects: RunEffects | None) -> str:
     if effects is None or not np.any(np.isfinite(effects.backlash_deg)):
         return BACKLASH_NOTE
     measured = np.flatnonzero(np.isfinite(effects.backlash_deg))
-    joints = ", ".join(f"J{j + 1}" for j in measured)
+    joints = ", ".join(
+        f"J{j + 1} {effects.backlash_deg[j]:.4f} ± {effects.backlash_std_deg[j]:.4f}°"
+        for j in measured
+    )
     return (
         f"lost motion measured on {joints} (read from both sides); the offsets are those of the "
         "positive approach"
