@@ -117,14 +117,25 @@ def noise_floor(rig: Rig, q_deg: np.ndarray, joint: int, raster: Raster) -> floa
 
 
 def side_lobe_error(
-    rig: Rig, label: str, below_db: float, moves: int, reached_deg: float | None = None
+    search: PeakSearch,
+    label: str,
+    below_db: float,
+    moves: int,
+    reached_deg: float | None = None,
 ) -> HardwareError:
-    """The search found only a side lobe (``PeakSearch.side_lobe_db``) on the face of ``label``."""
+    """The search found only a side lobe (``PeakSearch.side_lobe_db``) on the face of ``label``;
+    where the faces' heights say the transducer is not the profile's, the error says that."""
     within = "" if reached_deg is None else f" within ±{reached_deg:g}° of the predicted posture"
+    note = search.transducer_note()
     return HardwareError(
-        f"pulser at {rig.pulser.endpoint}: {label}: the peak found{within} is {below_db:.0f} dB "
-        f"below the main lobe that the faces measured so far give at its water path: a side "
-        f"lobe, and no main lobe found ({moves} moves)"
+        f"pulser at {search.rig.pulser.endpoint}: {label}: the peak found{within} is "
+        f"{below_db:.0f} dB below the main lobe that the faces measured so far give at its water "
+        "path: "
+        + (
+            f"a side lobe, and no main lobe found ({moves} moves)"
+            if note is None
+            else f"{note} ({moves} moves)"
+        )
     )
 
 
@@ -165,7 +176,7 @@ def acquire_and_centre(
                 below = search.side_lobe_db()
                 if below is None:
                     return q
-                raise side_lobe_error(rig, label, below, rig.counters.moves - first_move, r)
+                raise side_lobe_error(search, label, below, rig.counters.moves - first_move, r)
             reached = max(reached, r)
             if r >= max_radius_deg:
                 break
@@ -181,7 +192,7 @@ def acquire_and_centre(
                 q = search.centre(found[0], 3.0, gain_db)
                 below = search.side_lobe_db()
                 if below is not None:
-                    raise side_lobe_error(rig, label, below, rig.counters.moves - first_move, r)
+                    raise side_lobe_error(search, label, below, rig.counters.moves - first_move, r)
                 return q
             reached = max(reached, r)
             if r >= max_radius_deg:

@@ -178,9 +178,13 @@ def measure(rig: Rig, setup: FaceSetup, request: FaceRequest) -> FaceResult:
         height = peak.amplitude / 10 ** (rig.settings.gain_db / 20)
         below = search.side_lobe_db((height, path))
     if below is not None:
-        raise side_lobe_error(rig, label, below, rig.counters.moves - first_move)
+        raise side_lobe_error(search, label, below, rig.counters.moves - first_move)
     if peak.tilt_std_deg <= FIT_GATE_DEG:
         setup.main_lobe.add(height, path)
+        note = search.transducer_note()
+        if note is not None and not setup.main_lobe.noted:
+            log.warning("%s: %s", label, note)
+            setup.main_lobe.noted = True
     js = list(search.ja_jb)
     err = float(np.degrees(np.linalg.norm(search.m @ (peak.joints_deg[js] - q_pred[js]))))
     log.info(
