@@ -21,18 +21,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ucal.calibration import safety
 from ucal.calibration.model import FACE_NAMES, FACE_ORDER, CellGeometry, Face
 from ucal.calibration.plan import calibration_pose, geometry, tool_lever
-from ucal.calibration.safety import (
-    EDGE_MARGIN_MM,
-    MIN_WATER_PATH_MM,
-    Margins,
-    beam_on_flange_axis,
-    check_face,
-    check_joints,
-    move_advice,
-    tolerance_margins,
-)
+from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError, UnreachableError
@@ -155,7 +147,9 @@ def verify_region(
         )
     step = profile.step
     if step is not None:
-        clear = step.centre_mm[side] + 0.5 * step.size_mm + tolerance_margins(profile).block_mm
+        clear = (
+            step.centre_mm[side] + 0.5 * step.size_mm + safety.tolerance_margins(profile).block_mm
+        )
         lo = lo.copy()
         lo[side] = max(lo[side], clear)
         if hi[side] <= lo[side]:
@@ -275,7 +269,7 @@ def joints_for(
         q = ik(profile.model, pose, profile.tool_matrix, offsets_deg, near_deg=near_deg)
     except UnreachableError as e:
         raise SafetyError(f"{label}: {e}") from None
-    check_joints(profile, q, label, tolerance_deg=tolerance_deg)
+    safety.check_joints(profile, q, label, tolerance_deg=tolerance_deg)
     return q
 
 
@@ -308,7 +302,7 @@ def plan_verify(
     first: SafetyError | None = None
     sides = (0,) if profile.step is None else (0, 1)
     # turning an on-axis beam about itself turns joint 6 alone
-    turns = PLAN_TURNS_DEG[:1] if beam_on_flange_axis(profile) else PLAN_TURNS_DEG
+    turns = PLAN_TURNS_DEG[:1] if safety.beam_on_flange_axis(profile) else PLAN_TURNS_DEG
     tried = 0
     for raise_mm in PLAN_RAISES_MM:
         for walls in PLAN_WALL_PATHS_MM:
@@ -330,7 +324,7 @@ def plan_verify(
     s_mat = profile.sample_matrix
     _, lever = tool_lever(profile)
     w = s_mat[:3, :3] @ np.array([100.0, 100.0, height_mm + lever]) + s_mat[:3, 3]
-    advice = move_advice(profile, lambda moved: _plans_at_all(moved, height_mm), w)
+    advice = safety.move_advice(profile, lambda moved: _plans_at_all(moved, height_mm), w)
     raise SafetyError(
         f"{first}; none of the {tried - 1} other choices of the points' height, their area, "
         f"the tool's turn about the beam (and their side of the step) passes either: {advice}"
@@ -367,7 +361,7 @@ def _plan_choice(
     """``plan_verify`` for one choice of height, turn and layout (``SafetyError`` if a check
     fails)."""
     geom = geometry(profile)
-    margins = tolerance_margins(profile)
+    margins = safety.tolerance_margins(profile)
     groups = point_groups(n_points, height_mm, turn_deg)
     nominal = np.concatenate(
         [nominal_points(profile, n, g.height_mm, g.rotation_local, layout) for g, n in groups]
@@ -457,14 +451,14 @@ def _face_posture(
     # near it (``clearance_mm``); the walls keep the tolerances' room
     margin = 0.0 if face == Face.XY else margins.block_mm
     first: SafetyError | None = None
-    turns = FACE_J6_TURNS_DEG if not beam_on_flange_axis(profile) else FACE_J6_TURNS_DEG[:1]
+    turns = FACE_J6_TURNS_DEG if not safety.beam_on_flange_axis(profile) else FACE_J6_TURNS_DEG[:1]
     for turn in turns:
         start = q.copy()
         start[5] += turn
         try:
             qf = aim_wrist(geom, start, -geom.normal(face), offsets_deg)
-            check_joints(profile, qf, name, tolerance_deg=margins.wrist_deg)
-            check_face(seen, geom, qf, face, offsets_deg, name, margin)
+            safety.check_joints(profile, qf, name, tolerance_deg=margins.wrist_deg)
+            safety.check_face(seen, geom, qf, face, offsets_deg, name, margin)
         except SafetyError as e:
             first = first or e
             continue
