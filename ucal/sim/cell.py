@@ -79,6 +79,7 @@ from ucal.sim.geometry import (
     block_faces,
     bowed_hit,
     intersect,
+    intersect_all,
     reflector_face,
     step_face,
 )
@@ -256,7 +257,7 @@ class SimulatedCell:
         self, origin: np.ndarray, direction: np.ndarray
     ) -> tuple[FaceHit, float] | None:
         """The echoing face's hit and the footprint's share on it, or None."""
-        hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
+        hits = [h for h in intersect_all(origin, direction, self.faces) if h is not None]
         refl = self.world.reflector
         if refl is not None and refl.flatness_mm > 0.0:
             hits = [
