@@ -163,7 +163,7 @@ class Register:
         """Whether the value itself must be a whole number (a count or a code)."""
         return self.quantity.dimension in ("count", "code")
 
-    @property
+    @cached_property
     def end(self) -> int:
         """The address after its last register."""
         return self.address + self.words

@@ -335,11 +335,17 @@ class SimulatedPulser(ServedOnPort):
         return self._decoded
 
     def _put(self, entries: list[tuple[reg.Register, list[int]]]) -> None:
-        """Store registers' words in their tables."""
-        for r, words in entries:
+        """Store registers' words in their tables, each run of neighbours in one store."""
+        runs: list[tuple[str, int, list[int]]] = []
+        for r, words in sorted(entries, key=lambda e: (e[0].table, e[0].address)):
             if r.table == "holding":
                 self._decoded = None
-            self._context.setValues(_FC_TABLE[r.table], r.address, words)
+            if runs and runs[-1][0] == r.table and runs[-1][1] + len(runs[-1][2]) == r.address:
+                runs[-1][2].extend(words)
+            else:
+                runs.append((r.table, r.address, list(words)))
+        for table, address, values in runs:
+            self._context.setValues(_FC_TABLE[table], address, values)
 
     def _reset_registers(self) -> None:
         """Power-on state: default settings and threshold, zeroed measurement, identity."""
