@@ -30,7 +30,6 @@ from __future__ import annotations
 from typing import overload
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import j1, ndtr
 
 #: Marczak (1997), "Water as a standard in the measurements of speed of sound in liquids",
@@ -119,6 +118,10 @@ def directivity_half_angle_deg(
     """Tilt (deg) at which ``directivity`` falls to ``level`` (0 < level < 1) in the main lobe."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
+    # scipy.optimize (0.3 s to import) only here: a process serving the simulated cell needs
+    # nothing else of it
+    from scipy.optimize import brentq
+
     x = brentq(lambda v: piston_directivity(v) - level, 1e-9, 3.8317)  # first zero of J1
     ka = wavenumber_per_mm(frequency_mhz, temperature_c) * element_diameter_mm / 2.0
     return float(np.degrees(np.arcsin(x / ka) / 2.0))

@@ -67,7 +67,6 @@ import threading
 from enum import IntEnum
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.special import ndtr
 
 from ucal import acoustics
@@ -157,6 +156,8 @@ class SimulatedCell:
             if beta_deg == 0.0:
                 self._twists.append(None)
                 continue
+            from scipy.spatial.transform import Rotation  # only a twisted table needs it
+
             ry = np.eye(4)
             ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
             self._twists.append(ry)

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ucal.cell import Reflector, Step
 
@@ -97,6 +96,8 @@ def step_face(sample_matrix: np.ndarray, step: Step) -> Face:
     """The top of the step on the block's XY face (``ucal.cell.Step``): a square of side
     ``size_mm`` centred ``height_mm`` above the face at ``centre_mm``, tilted by ``tilt_deg``
     about the block's x and y axes, reflecting upwards (+z of the block)."""
+    from scipy.spatial.transform import Rotation  # only a block with a step needs it
+
     m = np.asarray(sample_matrix, dtype=float)
     tilt = Rotation.from_euler("xy", step.tilt_deg, degrees=True).as_matrix()
     axes = m[:3, :3] @ tilt
