@@ -118,8 +118,8 @@ def directivity_half_angle_deg(
     """Tilt (deg) at which ``directivity`` falls to ``level`` (0 < level < 1) in the main lobe."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
-    # scipy.optimize (0.3 s to import) only here: a process serving the simulated cell needs
-    # nothing else of it
+    # imported here, the one use of scipy.optimize in the simulated cell: a process that only
+    # serves the cell does not load it
     from scipy.optimize import brentq
 
     x = brentq(lambda v: piston_directivity(v) - level, 1e-9, 3.8317)  # first zero of J1
