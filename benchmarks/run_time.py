@@ -11,10 +11,15 @@
    on a fresh profile (tool-frame, calibrate, verify with 4 and 20 points, calibrate --level
    full, verify --region 12): the plan's real-cell estimate (Modbus TCP / RTU), the run's
    simulated duration and its wall time.
+5. With ``--cpu``: the CPU (user + sys, the process and its threads: the drivers and the
+   simulated cell they speak to) of ``calibrate``, ``tool-frame`` and ``calibrate --sim
+   examples/world.toml``, each on a fresh demo profile, the median of ``--runs`` runs; per
+   command and per 1000 pulser reads.
 
-Usage: python benchmarks/run_time.py [--no-real-time] [--commands]; ``--quick``: no warm-up
-run, one hog, no real-time run (step 3 is the plan's estimate and the simulated duration), and
-with ``--commands`` the smallest run of each command: in seconds.
+Usage: python benchmarks/run_time.py [--no-real-time] [--commands] [--cpu [--runs N]];
+``--quick``: no warm-up run, one hog, no real-time run (step 3 is the plan's estimate and the
+simulated duration), with ``--commands`` the smallest run of each command, with ``--cpu`` one
+run of each: in seconds.
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ import argparse
 import json
 import multiprocessing as mp
 import re
+import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -36,7 +43,7 @@ if TYPE_CHECKING:
     from multiprocessing.synchronize import Event
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"warm_up": 0, "hogs": 1, "no_real_time": True}
+QUICK = {"warm_up": 0, "hogs": 1, "no_real_time": True, "runs": 1}
 
 
 def hog(stop: Event) -> None:
@@ -118,6 +125,42 @@ def commands(quick: bool = False) -> None:
             print(f"  {name:<34} {estimate:>20} {simulated:>10} {wall:>6.1f} s", flush=True)
 
 
+#: ``--cpu``: the simulated runs, as (command, world file or None for the demo cell).
+CPU_RUNS = (
+    ("calibrate", None),
+    ("tool-frame", None),
+    ("calibrate", Path(__file__).resolve().parents[1] / "examples" / "world.toml"),
+)
+
+
+def cpu(runs: int) -> None:
+    """Step 5 of the module docstring."""
+    print(f"CPU (user + sys) of each simulated run, median of {runs}, a fresh demo profile each")
+    print(f"  {'run':<44} {'CPU':>7} {'reads':>6} {'per 1000 reads':>15}")
+    for command, world in CPU_RUNS:
+        seconds, reads = [], 0
+        for _ in range(runs):
+            with tempfile.TemporaryDirectory() as d:
+                new_profile(Path(d))
+                sim = ["--sim"] if world is None else ["--sim", str(world)]
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                out = subprocess.run(
+                    [sys.executable, "-m", "ucal", command, "cell.toml", *sim, "--yes", "--json"],
+                    cwd=d,
+                    capture_output=True,
+                    text=True,
+                    stdin=subprocess.DEVNULL,
+                )
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            if out.returncode not in (0, 1):
+                raise SystemExit(f"{command} failed ({out.returncode}): {out.stderr[-500:]}")
+            seconds.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+            reads = json.loads(out.stdout)["pulser_reads"]
+        name = f"{command} --sim" + ("" if world is None else f" examples/{world.name}")
+        median = statistics.median(seconds)
+        print(f"  {name:<44} {median:5.2f} s {reads:>6} {1000 * median / reads:11.2f} s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--no-real-time", action="store_true")
@@ -129,6 +172,8 @@ def main() -> None:
         help="untimed runs first, to warm the interpreter's caches (imports, bytecode)",
     )
     ap.add_argument("--hogs", type=int, default=2, help="busy processes beside the loaded run")
+    ap.add_argument("--cpu", action="store_true", help="step 5 instead of 1-3")
+    ap.add_argument("--runs", type=int, default=3, help="--cpu: runs of each, the median")
     ap.add_argument(
         "--quick",
         action="store_true",
@@ -141,6 +186,9 @@ def main() -> None:
         args = ap.parse_args()
     if args.commands:
         commands(args.quick)
+        return
+    if args.cpu:
+        cpu(args.runs)
         return
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)

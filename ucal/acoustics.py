@@ -30,7 +30,6 @@ from __future__ import annotations
 from typing import overload
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import j1, ndtr
 
 #: Marczak (1997), "Water as a standard in the measurements of speed of sound in liquids",
@@ -119,6 +118,10 @@ def directivity_half_angle_deg(
     """Tilt (deg) at which ``directivity`` falls to ``level`` (0 < level < 1) in the main lobe."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
+    # imported here, the one use of scipy.optimize in the simulated cell: a process that only
+    # serves the cell does not load it
+    from scipy.optimize import brentq
+
     x = brentq(lambda v: piston_directivity(v) - level, 1e-9, 3.8317)  # first zero of J1
     ka = wavenumber_per_mm(frequency_mhz, temperature_c) * element_diameter_mm / 2.0
     return float(np.degrees(np.arcsin(x / ka) / 2.0))
@@ -158,6 +161,9 @@ def rectangle_share(edge_distances_mm: np.ndarray, sigma_mm: float) -> float | n
     """
     d = np.asarray(edge_distances_mm, dtype=float)
     phi = ndtr(d / sigma_mm)
+    if phi.shape == (4,):  # one hit, at every simulated reading: the same sums on floats
+        u_min, u_max, v_min, v_max = phi.tolist()
+        return min(max(u_min + u_max - 1.0, 0.0), 1.0) * min(max(v_min + v_max - 1.0, 0.0), 1.0)
     share_u = phi[..., 0] + phi[..., 1] - 1.0
     share_v = phi[..., 2] + phi[..., 3] - 1.0
     s = np.clip(share_u, 0.0, 1.0) * np.clip(share_v, 0.0, 1.0)

@@ -100,7 +100,7 @@ class RobotMode(IntEnum):
 
 def _joint_array(values: Iterable[float], name: str) -> tuple[float, ...]:
     """Pad ``values`` with zeros to the ten elements every joint array has on the wire."""
-    out = tuple(float(v) for v in values)
+    out = tuple(map(float, values))
     if len(out) > MAX_JOINTS:
         raise ValueError(f"{name}: at most {MAX_JOINTS} joints, got {len(out)}")
     return out + (0.0,) * (MAX_JOINTS - len(out))

@@ -11,6 +11,7 @@ and a point the controller halted short of its target (``halt_timeout_s``). The 
 from __future__ import annotations
 
 import collections
+import itertools
 import logging
 import math
 import select
@@ -365,4 +366,8 @@ class StateStreamController(RobotController):
     def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
         """Streamed joint positions received at or after ``since_t_s`` (``clock`` time, s)."""
         with self._cond:
-            return [s for s in self._samples if s.t_s >= since_t_s]
+            # stamped in arrival order on a monotonic clock: the samples asked for are the
+            # newest ones, found from the end of a history of thousands
+            out = list(itertools.takewhile(lambda s: s.t_s >= since_t_s, reversed(self._samples)))
+        out.reverse()
+        return out

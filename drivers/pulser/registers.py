@@ -163,7 +163,7 @@ class Register:
         """Whether the value itself must be a whole number (a count or a code)."""
         return self.quantity.dimension in ("count", "code")
 
-    @property
+    @cached_property
     def end(self) -> int:
         """The address after its last register."""
         return self.address + self.words
@@ -397,23 +397,29 @@ class RegisterMap:
 
     def declared(self, table: str, address: int, count: int = 1) -> bool:
         """Whether every address of ``[address, address + count)`` of ``table`` is declared."""
-        addresses = self._declared[table]
-        return count > 0 and all(a in addresses for a in range(address, address + count))
+        return count > 0 and self._declared[table].issuperset(range(address, address + count))
 
     def span(self, table: str) -> int:
         """The address after the last declared one of ``table`` (0 if none)."""
         addresses = self._declared[table]
         return max(addresses) + 1 if addresses else 0
 
+    @cached_property
+    def _present(self) -> dict[tuple[tuple[str, ...], int | None], tuple[Register, ...]]:
+        return {}  # present()'s answers: the map does not change, and every reading asks
+
     def present(self, names: Iterable[str], version: int | None = None) -> list[Register]:
         """The registers of ``names`` the map has, on a device reporting ``version`` (None: the
         device's version is not known; every register counts)."""
-        out = []
-        for n in names:
-            r = self.registers.get(n)
-            if r is not None and (version is None or (r.min_version or 0) <= version):
-                out.append(r)
-        return out
+        key = (tuple(names), version)
+        found = self._present.get(key)
+        if found is None:
+            found = self._present[key] = tuple(
+                r
+                for r in map(self.registers.get, key[0])
+                if r is not None and (version is None or (r.min_version or 0) <= version)
+            )
+        return list(found)
 
     def read_requests(self, registers: Iterable[Register]) -> list[tuple[str, int, int]]:
         """The reads ``(table, address, count)`` that fetch ``registers``: neighbours share a
@@ -473,12 +479,12 @@ class RegisterMap:
         r = self.registers.get("map_version")
         return () if r is None or r.values is None else tuple(int(v) for v in r.values)
 
-    @property
+    @cached_property
     def measurement_trigger(self) -> Register:
         """The reading's register the client reads first: a read of it is an acquisition."""
         return self._first(MEASUREMENT)
 
-    @property
+    @cached_property
     def ascan_trigger(self) -> Register | None:
         """The A-scan header's register the client reads first (it freezes the A-scan)."""
         return self._first(ASCAN_HEADER) if "ascan_samples" in self.registers else None
@@ -550,17 +556,18 @@ class RegisterMap:
     # -- readings ------------------------------------------------------------------------------
     def encode_measurement(self, m: Measurement) -> list[tuple[Register, list[int]]]:
         """The words of a reading in the registers the map has (server side)."""
+        values = {
+            "counter": m.counter,
+            "device_time": m.device_time_ms,
+            "amplitude": m.amplitude,
+            "tof": m.tof_ns,
+        }
         out = []
         for r in self.present(MEASUREMENT):
             if r.name == "status":
                 raw: int | float = r.encode_status(m.status)
             else:
-                value = {
-                    "counter": m.counter,
-                    "device_time": m.device_time_ms,
-                    "amplitude": m.amplitude,
-                    "tof": m.tof_ns,
-                }[r.name]
+                value = values[r.name]
                 raw = r.device_raw(
                     0.0 if value is None else value, wrap=r.name in ("counter", "device_time")
                 )

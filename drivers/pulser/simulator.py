@@ -216,6 +216,9 @@ class SimulatedPulser(ServedOnPort):
         self._acquisitions = 0
         self._echo: tuple[float, float] = (0.0, float("nan"))  # latest raw (amp, tof_ns)
         self._fc6_echo: list[int] = []
+        # the settings and gate threshold the holding registers hold, decoded on the first
+        # acquisition after a write (every acquisition reads them, only a write changes them)
+        self._decoded: tuple[PulserSettings, float] | None = None
         self._t0 = time.monotonic()
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -300,13 +303,13 @@ class SimulatedPulser(ServedOnPort):
     def settings(self) -> PulserSettings:
         """The settings currently in the holding registers."""
         with self._lock:
-            return self._settings()
+            return self._held()[0]
 
     @property
     def gate_threshold(self) -> float:
         """The gate threshold, fraction of full screen height."""
         with self._lock:
-            return self._threshold(self._holding())
+            return self._held()[1]
 
     # --- the device -------------------------------------------------------------------------
     def _holding(self) -> list[int]:
@@ -314,21 +317,35 @@ class SimulatedPulser(ServedOnPort):
         assert isinstance(values, list)  # the whole holding block: never an exception code
         return list(values)
 
-    def _settings(self, holding: Sequence[int] | None = None) -> PulserSettings:
-        image = self._holding() if holding is None else holding
+    def _settings(self, holding: Sequence[int]) -> PulserSettings:
         present = self.register_map.present(reg.SETTINGS + reg.FRONT_END, self._version)
         return self.register_map.decode_settings(
-            {r.name: image[r.address : r.end] for r in present}
+            {r.name: holding[r.address : r.end] for r in present}
         )
 
     def _threshold(self, holding: Sequence[int]) -> float:
         r = self.register_map.get("threshold")
         return reg.DEFAULT_THRESHOLD if r is None else r.decode_value(holding[r.address : r.end])
 
+    def _held(self) -> tuple[PulserSettings, float]:
+        """The settings and the gate threshold in the holding registers (decoded once a write)."""
+        if self._decoded is None:
+            holding = self._holding()
+            self._decoded = (self._settings(holding), self._threshold(holding))
+        return self._decoded
+
     def _put(self, entries: list[tuple[reg.Register, list[int]]]) -> None:
-        """Store registers' words in their tables."""
-        for r, words in entries:
-            self._context.setValues(_FC_TABLE[r.table], r.address, words)
+        """Store registers' words in their tables, each run of neighbours in one store."""
+        runs: list[tuple[str, int, list[int]]] = []
+        for r, words in sorted(entries, key=lambda e: (e[0].table, e[0].address)):
+            if r.table == "holding":
+                self._decoded = None
+            if runs and runs[-1][0] == r.table and runs[-1][1] + len(runs[-1][2]) == r.address:
+                runs[-1][2].extend(words)
+            else:
+                runs.append((r.table, r.address, list(words)))
+        for table, address, values in runs:
+            self._context.setValues(_FC_TABLE[table], address, values)
 
     def _reset_registers(self) -> None:
         """Power-on state: default settings and threshold, zeroed measurement, identity."""
@@ -415,6 +432,7 @@ class SimulatedPulser(ServedOnPort):
                 command = next(name for name, v in c.names.items() if v == raw)
                 image[c.address : c.end] = c.encode(c.names["none"])  # write-only: reads none
             self._context.setValues(_FC_READ_HOLDING, 0, image)
+            self._decoded = None
             if func_code == _FC_WRITE_SINGLE:
                 self._fc6_echo = [int(v) for v in values]
             if command == "trigger" and not self._acquire():
@@ -426,9 +444,7 @@ class SimulatedPulser(ServedOnPort):
 
     def _acquire(self) -> bool:
         """One acquisition: call the model once, gate it, store the measurement block."""
-        holding = self._holding()
-        settings = self._settings(holding)
-        threshold = self._threshold(holding)
+        settings, threshold = self._held()
         try:
             reg.check_gate(settings)
         except ValueError:
@@ -470,7 +486,7 @@ class SimulatedPulser(ServedOnPort):
         """Synthesise the A-scan of the latest acquisition over the gate; store header+samples."""
         if self._counter == 0 and not self._acquire():
             return False
-        settings = self._settings()
+        settings = self._held()[0]
         start_ns = round(settings.gate_start_us * 1e3)
         samples = self.register_map["ascan_samples"]
         rate_hz = self.sample_rate_hz

@@ -67,7 +67,6 @@ import threading
 from enum import IntEnum
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.special import ndtr
 
 from ucal import acoustics
@@ -79,6 +78,7 @@ from ucal.sim.geometry import (
     block_faces,
     bowed_hit,
     intersect,
+    intersect_all,
     reflector_face,
     step_face,
 )
@@ -156,6 +156,8 @@ class SimulatedCell:
             if beta_deg == 0.0:
                 self._twists.append(None)
                 continue
+            from scipy.spatial.transform import Rotation  # only a twisted table needs it
+
             ry = np.eye(4)
             ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
             self._twists.append(ry)
@@ -256,7 +258,7 @@ class SimulatedCell:
         self, origin: np.ndarray, direction: np.ndarray
     ) -> tuple[FaceHit, float] | None:
         """The echoing face's hit and the footprint's share on it, or None."""
-        hits = [h for f in self.faces if (h := intersect(origin, direction, f)) is not None]
+        hits = [h for h in intersect_all(origin, direction, self.faces) if h is not None]
         refl = self.world.reflector
         if refl is not None and refl.flatness_mm > 0.0:
             hits = [

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ucal.cell import Reflector, Step
 
@@ -31,6 +31,16 @@ class Face:
     normal: np.ndarray
     u_range_mm: tuple[float, float]
     v_range_mm: tuple[float, float]
+
+    @cached_property
+    def floats(self) -> tuple[list[float], list[float], list[float], list[float]]:
+        """Normal, origin, e1 and e2 as Python floats, for ``intersect``."""
+        return (
+            _floats(self.normal),
+            _floats(self.origin_mm),
+            _floats(self.e1),
+            _floats(self.e2),
+        )
 
 
 @dataclass(frozen=True)
@@ -86,6 +96,8 @@ def step_face(sample_matrix: np.ndarray, step: Step) -> Face:
     """The top of the step on the block's XY face (``ucal.cell.Step``): a square of side
     ``size_mm`` centred ``height_mm`` above the face at ``centre_mm``, tilted by ``tilt_deg``
     about the block's x and y axes, reflecting upwards (+z of the block)."""
+    from scipy.spatial.transform import Rotation  # only a block with a step needs it
+
     m = np.asarray(sample_matrix, dtype=float)
     tilt = Rotation.from_euler("xy", step.tilt_deg, degrees=True).as_matrix()
     axes = m[:3, :3] @ tilt
@@ -160,22 +172,35 @@ def bowed_hit(
 
 def intersect(origin_mm: np.ndarray, direction: np.ndarray, face: Face) -> FaceHit | None:
     """Intersect the beam ray with a face's plane; None if parallel or behind the transducer."""
+    return intersect_all(origin_mm, direction, (face,))[0]
+
+
+def intersect_all(
+    origin_mm: np.ndarray, direction: np.ndarray, faces: tuple[Face, ...]
+) -> list[FaceHit | None]:
+    """``intersect`` of one beam ray with each of ``faces``, in their order."""
     # scalar arithmetic on Python floats: called for every face at every reading, where numpy's
     # per-call overhead on 3-vectors dominates
-    dx, dy, dz = (float(v) for v in direction)
-    nx, ny, nz = face.normal.tolist()
+    ray = (_floats(origin_mm), _floats(direction))
+    return [_intersect(*ray, face) for face in faces]
+
+
+def _floats(v: np.ndarray) -> list[float]:
+    return np.asarray(v, dtype=float).tolist()
+
+
+def _intersect(origin: list[float], direction: list[float], face: Face) -> FaceHit | None:
+    dx, dy, dz = direction
+    (nx, ny, nz), (fx, fy, fz), (e1x, e1y, e1z), (e2x, e2y, e2z) = face.floats
     cos_n = dx * nx + dy * ny + dz * nz
     if abs(cos_n) < _MIN_COS:
         return None
-    ox, oy, oz = (float(v) for v in origin_mm)
-    fx, fy, fz = face.origin_mm.tolist()
+    ox, oy, oz = origin
     t = ((fx - ox) * nx + (fy - oy) * ny + (fz - oz) * nz) / cos_n
     if t <= 0.0:
         return None
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
     qx, qy, qz = px - fx, py - fy, pz - fz
-    e1x, e1y, e1z = face.e1.tolist()
-    e2x, e2y, e2z = face.e2.tolist()
     u = qx * e1x + qy * e1y + qz * e1z
     v = qx * e2x + qy * e2y + qz * e2z
     edges = np.array(

@@ -124,6 +124,21 @@ def test_model_sees_the_configured_settings(pulser: ModbusPulser, model: EchoMod
     assert model.calls[-1] == wanted
 
 
+def test_each_write_reaches_the_next_acquisition(pulser: ModbusPulser, model: EchoModel) -> None:
+    # the simulator decodes the holding registers once per write, not once per acquisition
+    assert pulser.read_gate().has_echo
+    assert model.calls[-1] == PulserSettings()
+    wanted = PulserSettings(gain_db=40.0, gate_start_us=10.0, gate_width_us=100.0, averages=8)
+    pulser.configure(wanted)
+    pulser.set_gate_threshold(0.6)  # above the model's echo of 0.5
+    weak = pulser.read_gate()
+    assert model.calls[-1] == wanted
+    assert not weak.has_echo and weak.amplitude == 0.5
+    pulser.set_gate_threshold(0.4)
+    assert pulser.read_gate().has_echo
+    assert model.calls[-1] == wanted
+
+
 # --- readings -----------------------------------------------------------------------------------
 def test_reading_counter_advances_once_per_fresh_reading(
     pulser: ModbusPulser, sim: SimulatedPulser, model: EchoModel

@@ -90,6 +90,15 @@ def test_rectangle_share_is_the_2d_integral() -> None:
     assert share == pytest.approx(inside.mean(), abs=0.005)
 
 
+def test_one_hit_share_is_its_row_of_a_batch_bit_for_bit() -> None:
+    # a single hit (every simulated reading) takes a path of its own on Python floats
+    edges = np.random.default_rng(7).normal(0.0, 3.0, size=(400, 4))
+    batch = ac.rectangle_share(edges, 1.5)
+    singles = [ac.rectangle_share(row, 1.5) for row in edges]
+    assert singles == batch.tolist()
+    assert min(singles) == 0.0 and 0.5 < max(singles) < 1.0
+
+
 def test_gain_and_saturation() -> None:
     assert ac.gain_factor(26.0) == pytest.approx(1.9953, abs=1e-4)
     assert ac.gain_factor(20.0) == 1.0
