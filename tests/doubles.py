@@ -2,6 +2,7 @@
 directory of the root ``conftest.py`` on ``sys.path``).
 
 * :func:`exit_code` — the ``ucal`` entry point run in this process, its exit code;
+* :func:`ucal_here` — the same with its stdout and stderr, shaped as a finished process;
 * :func:`terminal_typed` — a terminal for stdin on which the user has typed an answer;
 * :func:`crc16_modbus` — the reference CRC of a Modbus RTU frame, bit by bit;
 * :class:`ScriptedPort` — a serial port that plays a dialogue of expected requests and replies,
@@ -22,6 +23,7 @@ directory of the root ``conftest.py`` on ``sys.path``).
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import subprocess
@@ -83,6 +85,20 @@ def exit_code(args: list[str]) -> int:
     except SystemExit as e:
         return 0 if e.code is None else int(e.code)
     return 0
+
+
+def ucal_here(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """``ucal ARGS`` run in this process as ``python -m ucal`` would run it: its exit code and
+    what it wrote to stdout and stderr (the same command-line code, without a new
+    interpreter's imports: for commands whose separate process is not what is tested)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(contextlib.redirect_stdout(out))
+        stack.enter_context(contextlib.redirect_stderr(err))
+        if cwd is not None:
+            stack.enter_context(contextlib.chdir(cwd))
+        code = exit_code(list(args))
+    return subprocess.CompletedProcess(["ucal", *args], code, out.getvalue(), err.getvalue())
 
 
 @contextlib.contextmanager

@@ -1,4 +1,5 @@
-"""``ucal ik`` and ``ucal path`` as a user runs them (separate processes)."""
+"""``ucal ik`` and ``ucal path`` as a user runs them: the first test in a separate process, the
+others the same command line in this one."""
 
 from __future__ import annotations
 
@@ -19,10 +20,12 @@ from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_a
 from ucal.models import load_model
 from ucal.profile import create_profile, load_profile, write_profile
 
+from doubles import ucal_here
+
 OFFSETS = [0.4, -0.3, 0.2, 0.5, -0.25, 0.1]
 
 
-def ucal(*args: str) -> subprocess.CompletedProcess[str]:
+def ucal_process(*args: str) -> subprocess.CompletedProcess[str]:
     """Run ``python -m ucal ARGS`` in a separate process."""
     return subprocess.run(
         [sys.executable, "-m", "ucal", *args],
@@ -31,6 +34,11 @@ def ucal(*args: str) -> subprocess.CompletedProcess[str]:
         text=True,
         timeout=60,
     )
+
+
+#: The other tests run the same command line in this process: a new interpreter's imports
+#: cost half a second of CPU each and test nothing of ik or path.
+ucal = ucal_here
 
 
 @pytest.fixture
@@ -61,13 +69,13 @@ def _tool_pose(path: Path, joints: np.ndarray) -> np.ndarray:
 def test_ik_json_nearest_and_all(profile_path: Path) -> None:
     q = np.array([25.0, 30.0, 100.0, 15.0, 40.0, 20.0])
     pose = _tool_pose(profile_path, q)
-    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--near", _csv(q), "--json")
+    r = ucal_process("ik", str(profile_path), "--pose", _csv(pose), "--near", _csv(q), "--json")
     assert r.returncode == 0, r.stderr
     sols = json.loads(r.stdout)["solutions"]
     assert len(sols) == 1
     np.testing.assert_allclose(sols[0], q, atol=1e-7)  # offsets taken out: readings
 
-    r = ucal("ik", str(profile_path), "--pose", _csv(pose), "--all", "--json")
+    r = ucal_process("ik", str(profile_path), "--pose", _csv(pose), "--all", "--json")
     assert r.returncode == 0, r.stderr
     sols = np.array(json.loads(r.stdout)["solutions"])
     p = load_profile(profile_path)

@@ -1,5 +1,6 @@
-"""The ``ucal profile`` and ``ucal fk`` commands as a user runs them (separate processes), and
-a non-editable install that finds its shipped robot models from any directory."""
+"""The ``ucal profile`` and ``ucal fk`` commands as a user runs them (a separate process, then
+the same command line in this one), and a non-editable install that finds its shipped robot
+models from any directory."""
 
 from __future__ import annotations
 
@@ -18,12 +19,14 @@ from ucal.kinematics.dh import fk, fk_frames, transform
 from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rpy_to_matrix
 from ucal.profile import load_profile, write_profile
 
+from doubles import ucal_here
+
 REPO = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.system
 
 
-def ucal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+def ucal_process(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     """Run ``python -m ucal ARGS`` in a separate process."""
     return subprocess.run(
         [sys.executable, "-m", "ucal", *args],
@@ -35,31 +38,36 @@ def ucal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str
     )
 
 
+#: The tests but the first two (a separate process, and its output in a pipe) run the same
+#: command line in this process: a new interpreter's imports test nothing of these commands.
+ucal = ucal_here
+
+
 def test_init_validate_show(tmp_path: Path) -> None:
     path = tmp_path / "cell.toml"
-    r = ucal("profile", "init", "tx90xl", str(path))
+    r = ucal_process("profile", "init", "tx90xl", str(path))
     assert r.returncode == 0, r.stderr
     assert r.stdout == ""
-    r = ucal("profile", "validate", str(path))
+    r = ucal_process("profile", "validate", str(path))
     assert r.returncode == 0, r.stderr
     assert "valid (tx90xl)" in r.stdout
-    r = ucal("profile", "show", str(path), "--json")
+    r = ucal_process("profile", "show", str(path), "--json")
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["robot"]["model"] == "tx90xl"
     assert len(data["robot"]["dh"]) == 6
     assert data["tool"]["position_mm"] == [0.0, 0.0, 80.0]
     assert data["calibration"] == {"joint_offsets_deg": [0.0] * 6, "unobservable_joints": []}
-    r = ucal("profile", "show", str(path))
+    r = ucal_process("profile", "show", str(path))
     assert r.returncode == 0 and "tx90xl" in r.stdout
 
 
 def test_tables_in_a_pipe_are_not_cut(tmp_path: Path) -> None:
     """stdout is a pipe here: no cell is cut at rich's default 80 columns ("unobserva…")."""
     path = tmp_path / "cell.toml"
-    assert ucal("profile", "init", "tx90l", str(path)).returncode == 0
+    assert ucal_process("profile", "init", "tx90l", str(path)).returncode == 0
     write_profile(path, {"calibration": {"unobservable_joints": [1, 6]}}, reason="test")
-    r = ucal("profile", "show", str(path))
+    r = ucal_process("profile", "show", str(path))
     assert r.returncode == 0, r.stderr
     assert r.stdout.count("0.0000 (unobservable)") == 2, r.stdout
     assert "…" not in r.stdout

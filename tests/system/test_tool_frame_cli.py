@@ -1,5 +1,6 @@
 """``ucal tool-frame`` as a user runs it: a separate process against the simulated cell over
-loopback, with a hidden tool error in the world file."""
+loopback, with a hidden tool error in the world file (the refusals before any motion: the same
+command line in this process)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ import numpy as np
 import pytest
 
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
-from ucal.profile import load_profile, write_profile
+from ucal.profile import create_profile, load_profile, write_profile
 from ucal.toolframe.exact import tangent_basis
+
+from doubles import ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -73,7 +76,7 @@ drift_c_per_min = {drift_c_per_min}
 def profile(tmp_path: Path) -> Path:
     """A cell after a joint calibration, with its plate and water well known."""
     path = tmp_path / "cell.toml"
-    assert ucal("profile", "init", "tx90xl", str(path)).returncode == 0
+    create_profile(path, "tx90xl")  # as `ucal profile init` writes it
     write_profile(
         path,
         {
@@ -148,7 +151,7 @@ def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Pa
     electronic delay, the plate and water at their declared tolerances. It used to end in an
     internal error; now the result is covered by its std, and the drift is measured."""
     profile = tmp_path / "cell.toml"
-    assert ucal("profile", "init", "tx90xl", str(profile)).returncode == 0
+    create_profile(profile, "tx90xl")
     # the hidden tool is 3.5 mm / 1.4° off the drawing: a drawing that says so
     write_profile(profile, {"tool": {"position_std_mm": 3.0, "rotation_std_deg": 1.5}}, "drawing")
     before = profile.read_bytes()
@@ -252,7 +255,7 @@ def test_bad_plate_points_exit_2(profile: Path, points: str, words: str) -> None
     end = text.index("\n]\n", start) + 3
     profile.write_text(text[:start] + f"points_mm = {points}\n" + text[end:])
     before = profile.read_bytes()
-    r = ucal("tool-frame", str(profile), "--sim", "--yes", "--json")
+    r = ucal_here("tool-frame", str(profile), "--sim", "--yes", "--json")
     assert r.returncode == 2
     assert "reflector.points_mm" in r.stderr and words in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
@@ -268,7 +271,7 @@ def test_missing_plate_exit_2(profile: Path) -> None:
     start = text.index("[reflector]")
     end = text.index("[water]")
     profile.write_text(text[:start] + text[end:])
-    r = ucal("tool-frame", str(profile), "--sim", "--yes")
+    r = ucal_here("tool-frame", str(profile), "--sim", "--yes")
     assert r.returncode == 2 and "reflector.points_mm" in r.stderr, r.stderr
 
 
@@ -283,7 +286,7 @@ def test_unreachable_plate_refused_exit_4(profile: Path) -> None:
         "test",
     )
     before = profile.read_bytes()
-    r = ucal("tool-frame", str(profile), "--sim", "--yes")
+    r = ucal_here("tool-frame", str(profile), "--sim", "--yes")
     assert r.returncode == 4, r.stderr
     assert "unreachable" in r.stderr and "Traceback" not in r.stderr
     assert profile.read_bytes() == before
@@ -336,7 +339,7 @@ def test_demo_cell_commissioned_tool_frame_first(tmp_path: Path) -> None:
     then full) with the tool it wrote as their prior; each writes, and the demo's tool is
     found by both (calibrate's tool prior is tool-frame's std: no misfit)."""
     profile = tmp_path / "cell.toml"
-    assert ucal("profile", "init", "tx90l", str(profile)).returncode == 0
+    create_profile(profile, "tx90l")
     r = ucal("tool-frame", str(profile), "--sim", "--yes", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["written"] is True
