@@ -174,7 +174,8 @@ def solve_cell(
     dof = max(1, n_data)
     chi2_red = chi2 / dof
     scale = max(1.0, chi2_red)
-    cov_scaled = cov * scale + curvature_covariance(table, jac, cov, arrays, prior)
+    sigma_c = curvature_std_m_s_per_min2(prior, arrays.minutes)
+    cov_scaled = cov * scale + curvature_covariance(table, jac, cov, arrays.minutes, sigma_c)
     std = np.full(len(table.names), np.nan)
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
 
@@ -225,27 +226,26 @@ def curvature_covariance(
     table: ParameterTable,
     jac: np.ndarray,
     cov: np.ndarray,
-    arrays: MeasurementArrays,
-    prior: CellPrior,
+    minutes: np.ndarray,
+    sigma: float,
 ) -> np.ndarray:
     """The covariance the drift's curvature adds to the free unknowns, not fitted (a
     consider parameter): a real tank does not warm at a steady rate (it approaches the room
     exponentially, a heater cycles), so each water path's sound speed departs from the fitted
-    ``c + ċ·(t − t_ref)`` by ½·c̈·(t − t_ref)², c̈ = 0 ± ``curvature_std_m_s_per_min2``. The
-    unknowns move by −(JᵀJ)⁻¹Jᵀg per unit c̈, g the face rows' derivative: the sound speed's
-    column of ``jac`` × ½(t − t_ref)². None where the drift is not free (held, or readings
-    at one time) or the sound speed is held."""
+    ``c + ċ·(t − t_ref)`` by ½·c̈·(t − t_ref)², c̈ = 0 ± ``sigma``
+    (``curvature_std_m_s_per_min2``). ``minutes`` (n,): each reading's t − t_ref, its three
+    rows (two tilts, a water path) the first 3n of ``jac``. The unknowns move by
+    −(JᵀJ)⁻¹Jᵀg per unit c̈, g those rows' derivative: the sound speed's column of ``jac`` ×
+    ½(t − t_ref)². Zero where the drift is not free (held, or readings at one time) or the
+    sound speed is held."""
     n_free = int(np.sum(table.free))
     out = np.zeros((n_free, n_free))
     names = [n for n, f in zip(table.names, table.free, strict=True) if f]
     if DRIFT[0] not in names or SOUND[0] not in names:
         return out
-    sigma = curvature_std_m_s_per_min2(prior, arrays.minutes)
     g = np.zeros(jac.shape[0])
-    n_face_rows = 3 * len(arrays.minutes)  # two tilt rows and a distance row per face
-    g[:n_face_rows] = jac[:n_face_rows, names.index(SOUND[0])] * np.repeat(
-        0.5 * arrays.minutes**2, 3
-    )
+    n_face_rows = 3 * len(minutes)  # two tilt rows and a water path's row per reading
+    g[:n_face_rows] = jac[:n_face_rows, names.index(SOUND[0])] * np.repeat(0.5 * minutes**2, 3)
     shift = cov @ (jac.T @ g)
     return np.outer(shift, shift) * sigma**2
 

@@ -26,7 +26,7 @@ from ucal.calibration.fit import (
     solve_cell,
 )
 from ucal.calibration.full import full_table
-from ucal.calibration.least_squares import curvature_std_m_s_per_min2
+from ucal.calibration.least_squares import curvature_covariance, curvature_std_m_s_per_min2
 from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
@@ -170,6 +170,24 @@ def test_a_tank_whose_rate_turns_is_within_the_stds(monkeypatch: pytest.MonkeyPa
     linear_only = solve_exact_with_priors(prior(), meas)
     assert linear_only.sound_speed_m_s == pytest.approx(sol.sound_speed_m_s)  # the same fit
     assert abs(linear_only.sound_speed_m_s - true_m_s) > 5 * linear_only.sound_speed_std_m_s
+
+
+def test_the_curvature_moves_the_sound_speed_by_a_parabolas_best_line() -> None:
+    """Three readings at −1, 0 and 1 min whose water paths see only the sound speed: a bend
+    ½·c̈·t² of the speed is [0.5, 0, 0.5]·c̈, whose best line is 1/3·c̈ flat, so the speed's
+    variance grows by (σ/3)² and the drift's not at all (the held block is not free)."""
+    table = ParameterTable(
+        ("sound_speed_m_s", DRIFT[0], "block_x_mm"), np.zeros(3), np.ones(3), [True, True, False]
+    )
+    minutes = np.array([-1.0, 0.0, 1.0])
+    jac = np.zeros((9, 2))
+    jac[2::3, 0] = 1.0  # each reading's water-path row: c + ċ·t
+    jac[2::3, 1] = minutes
+    cov = np.linalg.inv(jac.T @ jac)
+    added = curvature_covariance(table, jac, cov, minutes, 0.6)
+    np.testing.assert_allclose(added, [[(0.6 / 3) ** 2, 0.0], [0.0, 0.0]], atol=1e-15)
+    table.free[1] = False  # the drift held: no bend is carried
+    assert not curvature_covariance(table, jac[:, :1], cov[:1, :1], minutes, 0.6).any()
 
 
 def test_readings_without_time_leave_the_drift_at_its_prior() -> None:
