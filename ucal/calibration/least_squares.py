@@ -183,6 +183,9 @@ def solve_cell(
     gains = {}
     if verdict(chi2, dof, misfit_p) == "misfit":
         gains = effect_gains(table, estimate, rows, res, jac)
+        g = curvature_column(table, jac, arrays.minutes)
+        if g is not None:
+            gains.update(score_gain(CURVATURE, g, res, jac))
     quality = fit_quality(
         table,
         estimate,
@@ -238,16 +241,31 @@ def curvature_covariance(
     −(JᵀJ)⁻¹Jᵀg per unit c̈, g those rows' derivative: the sound speed's column of ``jac`` ×
     ½(t − t_ref)². Zero where the drift is not free (held, or readings at one time) or the
     sound speed is held."""
-    n_free = int(np.sum(table.free))
-    out = np.zeros((n_free, n_free))
+    g = curvature_column(table, jac, minutes)
+    if g is None:
+        n_free = int(np.sum(table.free))
+        return np.zeros((n_free, n_free))
+    shift = cov @ (jac.T @ g)
+    return np.outer(shift, shift) * sigma**2
+
+
+#: The drift's curvature c̈ (m/s per min²) where a misfit is tested against it: not an unknown.
+CURVATURE = "sound_speed_curvature_m_s_per_min2"
+
+
+def curvature_column(
+    table: ParameterTable, jac: np.ndarray, minutes: np.ndarray
+) -> np.ndarray | None:
+    """The rows' derivative by the drift's curvature c̈ (``curvature_covariance``): the sound
+    speed's column of ``jac`` × ½(t − t_ref)² on the first 3n rows, 0 on the rest; None where
+    the drift or the sound speed is not free."""
     names = [n for n, f in zip(table.names, table.free, strict=True) if f]
     if DRIFT[0] not in names or SOUND[0] not in names:
-        return out
+        return None
     g = np.zeros(jac.shape[0])
     n_face_rows = 3 * len(minutes)  # two tilt rows and a water path's row per reading
     g[:n_face_rows] = jac[:n_face_rows, names.index(SOUND[0])] * np.repeat(0.5 * minutes**2, 3)
-    shift = cov @ (jac.T @ g)
-    return np.outer(shift, shift) * sigma**2
+    return g
 
 
 #: The run's effects a misfit is tested against (``effect_gains``).
@@ -266,7 +284,6 @@ def effect_gains(
     effect's column of the data rows (``rows``: the full vector to them) and ``g⊥`` its part
     outside the fit's columns ``jac`` (residuals ``res``). An effect the readings cannot see
     (no time, one-sided approach) has no such part and is left out."""
-    basis, _ = np.linalg.qr(jac)
     base = rows(estimate)
     out: dict[str, float] = {}
     for name in EFFECTS:
@@ -278,11 +295,19 @@ def effect_gains(
         v[i] += step
         g = np.zeros(len(res))
         g[: len(base)] = (rows(v) - base) / step
-        g_perp = g - basis @ (basis.T @ g)
-        norm2 = float(g_perp @ g_perp)
-        if norm2 > 1e-9 * float(g @ g) and norm2 > 0.0:
-            out[name] = float(g_perp @ res) ** 2 / norm2
+        out.update(score_gain(name, g, res, jac))
     return out
+
+
+def score_gain(name: str, g: np.ndarray, res: np.ndarray, jac: np.ndarray) -> dict[str, float]:
+    """``{name: Δχ²}`` of the score test of one column ``g`` of the rows (``effect_gains``),
+    or {} where the fit's columns ``jac`` already hold it."""
+    basis, _ = np.linalg.qr(jac)
+    g_perp = g - basis @ (basis.T @ g)
+    norm2 = float(g_perp @ g_perp)
+    if norm2 > 1e-9 * float(g @ g) and norm2 > 0.0:
+        return {name: float(g_perp @ res) ** 2 / norm2}
+    return {}
 
 
 def _initial_corner(

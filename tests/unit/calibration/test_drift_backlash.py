@@ -172,6 +172,17 @@ def test_a_tank_whose_rate_turns_is_within_the_stds(monkeypatch: pytest.MonkeyPa
     assert abs(linear_only.sound_speed_m_s - true_m_s) > 5 * linear_only.sound_speed_std_m_s
 
 
+def test_a_tank_whose_rate_turns_fast_is_a_misfit_that_names_it() -> None:
+    """The rate turning by 0.55 °C/min over the run, eleven times the declared tolerance: the
+    water paths bend with their time, and the misfit's message says so rather than blaming a
+    quantity of the cell."""
+    meas = measure(drift_c_per_min=0.1, curvature_c_per_min2=0.1, seed=2)
+    sol = solve_exact_with_priors(prior(), meas)
+    assert sol.fit is not None and sol.fit.verdict == "misfit"
+    assert sol.fit.cause.startswith("a drift of the sound speed that turns during the run explains")
+    assert "bend with their time" in sol.fit.cause
+
+
 def test_the_curvature_moves_the_sound_speed_by_a_parabolas_best_line() -> None:
     """Three readings at −1, 0 and 1 min whose water paths see only the sound speed: a bend
     ½·c̈·t² of the speed is [0.5, 0, 0.5]·c̈, whose best line is 1/3·c̈ flat, so the speed's
