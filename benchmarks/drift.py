@@ -31,6 +31,16 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   (deg) of the written runs, with how many meet the targets (0.02 mm, 0.01°); each run is
   printed with why it was refused.
 
+``--tank``: how the tank's temperature changes over a run. ``linear`` (the default): the drift
+above, ``[water] drift_c_per_min``. The others write the tank thermometer's log beside each
+world (``[water] temperature_log``, a reading every 3 s over half an hour), the world otherwise
+the linear tank's on the same seed: ``exponential``, the water approaching the room's
+temperature with a time constant of 20–60 min, its initial rate the drift above (±0.3 °C/min
+at the offsets level, ±0.1 at the full level and for tool-frame); ``cycling``, a heater holding
+the tank, a sine of period 5–15 min and amplitude 0.05–0.2 °C at a random phase. The solvers
+still fit a linear drift: the truth of the sound speed and of its drift is the log's at the
+fit's reference time (the middle of the run).
+
 Every other posture is reached from below (``ucal.measure.approach.FinalApproachRig``): the
 offsets found are the world's less half its lost motion. Printed per case and solver:
 
@@ -45,13 +55,15 @@ offsets found are the world's less half its lost motion. Printed per case and so
   quantity beyond 4 std (must be none);
 * TCP error over the scanning region (calibration pose ± 20° on J1-J3, ± 90/30/90° on the
   wrist; 200 postures) after the best rigid alignment (the base frame is a gauge), mean of
-  the runs' means / largest maximum (mm).
+  the runs' means / largest maximum (mm);
+* then each run: its tank, its largest |z| and whether it was written.
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|both]`` (C: the drift tolerance every calibration case declares, °C/min);
-``--quick``: one world of the offsets, the full and the tool-frame cases (the full level on 8
-postures, tool-frame in the order t-c), the same code path in seconds.
+[--orders t-c|c-t|both] [--tank linear|exponential|cycling]`` (C: the drift tolerance every
+calibration case declares, °C/min); ``--quick``: one world of the offsets, the full and the
+tool-frame cases (the full level on 8 postures, tool-frame in the order t-c), the same code
+path in seconds.
 """
 
 from __future__ import annotations
@@ -115,6 +127,16 @@ OFFSETS_CASES = ("offsets", "lost-motion")
 #: declares (°C/min, one sigma: the default).
 DRIFT_C_PER_MIN = {"offsets": 0.3, "lost-motion": 0.3, "full": 0.1, "tool-frame": 0.1}
 DECLARED_DRIFT = {"offsets": 0.05, "lost-motion": 0.05, "full": 0.05, "tool-frame": 0.05}
+#: The tank's histories ``--tank`` draws (module docstring): the linear drift, or a thermometer's
+#: log of an exponential approach to the room's temperature or of a heater cycling.
+TANKS = ("linear", "exponential", "cycling")
+#: The exponential approach's time constant (min); the heater's period (min) and amplitude (°C).
+TIME_CONSTANT_MIN = (20.0, 60.0)
+HEATER_PERIOD_MIN = (5.0, 15.0)
+HEATER_AMPLITUDE_C = (0.05, 0.2)
+#: A logged tank: a reading every 3 s over half an hour (every run is shorter: held after it).
+LOG_STEP_MIN = 0.05
+LOG_SPAN_MIN = 30.0
 #: Largest lost motion drawn (deg, uniform from 0 per joint).
 BACKLASH_DEG = 0.02
 #: The tool-frame case's tools: length (mm), distance off the flange axis (mm) and the
@@ -151,18 +173,87 @@ def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
     return path
 
 
-def draw_world(rng: np.random.Generator, profile: CellProfile, case: str, index: int) -> str:
+def draw_world(
+    rng: np.random.Generator,
+    profile: CellProfile,
+    case: str,
+    index: int,
+    tank: Tank,
+    log_path: Path | None = None,
+) -> str:
     """World-file text of a cell of ``case``: the other benchmark's world (module docstring)
-    with the tank drifting and the lost motion of this one."""
+    with the tank (``Tank.into``) and the lost motion of this one."""
     if case in OFFSETS_CASES:
         text = realistic.draw_world(rng, profile, index)
     else:
         text = full_calibration.draw_world(rng, profile, index)
     drift = rng.uniform(-DRIFT_C_PER_MIN[case], DRIFT_C_PER_MIN[case])
     backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
-    text = re.sub(r"(?m)^drift_c_per_min = .*\n", "", text)
     text = re.sub(r"(?m)^backlash_deg = .*$", f"backlash_deg = {backlash!r}", text)
-    return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift!r}\n", 1)
+    return tank.into(text, drift, log_path)
+
+
+@dataclass
+class Tank:
+    """How the worlds' tanks change over a run (``--tank``): ``linear``, the drawn drift as
+    ``drift_c_per_min``; else a thermometer's log (``[water] temperature_log``) written to
+    ``log_path``: ``exponential``, from the world's temperature towards a room's with a time
+    constant uniform in ``TIME_CONSTANT_MIN``, its initial rate the drawn drift; ``cycling``, a
+    heater holding the world's temperature, a sine of period and amplitude uniform in
+    ``HEATER_PERIOD_MIN`` and ``HEATER_AMPLITUDE_C`` at a random phase. Its own draws come from
+    ``rng``, so the worlds are otherwise those of the linear tank on the same seed."""
+
+    kind: str
+    rng: np.random.Generator
+
+    def into(self, text: str, drift: float, log_path: Path | None = None) -> str:
+        """World text with this tank in its ``[water]``: the drift (°C/min, the initial rate of
+        an exponential tank), or the log written to ``log_path``."""
+        text = re.sub(r"(?m)^drift_c_per_min = .*\n", "", text)
+        if self.kind == "linear":
+            return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift!r}\n", 1)
+        assert log_path is not None
+        found = re.search(r"(?m)^temperature_c = (.*)\n", text)
+        assert found is not None
+        start_c = float(found.group(1))
+        t_min = np.arange(0.0, LOG_SPAN_MIN + 0.5 * LOG_STEP_MIN, LOG_STEP_MIN)
+        if self.kind == "exponential":
+            tau_min = self.rng.uniform(*TIME_CONSTANT_MIN)
+            room_c = start_c + drift * tau_min
+            temp_c = room_c + (start_c - room_c) * np.exp(-t_min / tau_min)
+        else:
+            period_min = self.rng.uniform(*HEATER_PERIOD_MIN)
+            amplitude_c = self.rng.uniform(*HEATER_AMPLITUDE_C)
+            phase = self.rng.uniform(0.0, 2.0 * np.pi)
+            wave = np.sin(2.0 * np.pi * t_min / period_min + phase) - np.sin(phase)
+            temp_c = start_c + amplitude_c * wave
+        rows = "".join(f"{t:.2f},{c:.5f}\n" for t, c in zip(t_min, temp_c, strict=True))
+        log_path.write_text("time_min,temperature_c\n" + rows)
+        return text.replace(found.group(0), f'temperature_log = "{log_path.name}"\n')
+
+
+def tank_at(world: WorldTruth, t_min: float) -> tuple[float, float]:
+    """The world's water at ``t_min`` minutes: its temperature (°C) and how fast it changes
+    (°C/min; a log's over a reading either side, within the log)."""
+    log = world.water_temperature_log
+    if log is None:
+        rate = world.water_drift_c_per_min
+        return world.water_temperature_c + rate * t_min, rate
+    lo = max(t_min - LOG_STEP_MIN, float(log.time_min[0]))
+    hi = min(t_min + LOG_STEP_MIN, float(log.time_min[-1]))
+    return log.at(t_min), (log.at(hi) - log.at(lo)) / (hi - lo)
+
+
+def tank_words(world: WorldTruth) -> str:
+    """The tank of a run, in words: its drift, or its logged rate at the start and the end of
+    the log."""
+    log = world.water_temperature_log
+    if log is None:
+        return f"drift {world.water_drift_c_per_min:+.3f} °C/min"
+    return (
+        f"logged tank {tank_at(world, 0.0)[1]:+.3f} °C/min at the start, "
+        f"{np.ptp(log.temperature_c[log.time_min <= 5.0]):.3f} °C over 5 min"
+    )
 
 
 @dataclass
@@ -183,17 +274,20 @@ class Outcome:
     message: str = ""
 
 
+def true_sound(world: WorldTruth, t_min: float) -> tuple[float, float]:
+    """The world's sound speed (m/s) at ``t_min`` minutes and its drift there (m/s per min)."""
+    temp_c, rate = tank_at(world, t_min)
+    slope = (sound_speed_m_s(temp_c + 0.01) - sound_speed_m_s(temp_c - 0.01)) / 0.02
+    return float(sound_speed_m_s(temp_c)), slope * rate
+
+
 def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
     """|error| / std of the sound speed at the fit's reference time and of its drift."""
-    rate = world.water_drift_c_per_min
-    t_mid = world.water_temperature_c + rate * cell.time_ref_min
+    c_m_s, drift = true_sound(world, cell.time_ref_min)
     effects = RunEffects.of(cell)
-    z = [
-        abs(cell.value("sound_speed_m_s") - sound_speed_m_s(t_mid)) / cell.sigma("sound_speed_m_s")
-    ]
+    z = [abs(cell.value("sound_speed_m_s") - c_m_s) / cell.sigma("sound_speed_m_s")]
     if cell.table.free[cell.table.index(DRIFT[0])]:
-        slope = (sound_speed_m_s(t_mid + 0.01) - sound_speed_m_s(t_mid - 0.01)) / 0.02
-        z.append(abs(effects.drift_m_s_per_min - slope * rate) / effects.drift_std_m_s_per_min)
+        z.append(abs(effects.drift_m_s_per_min - drift) / effects.drift_std_m_s_per_min)
     return z
 
 
@@ -295,16 +389,20 @@ def run_world(
     except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
         return f"{world_path.name}: stopped: {err}"
     if case in OFFSETS_CASES:
-        return [solve_offsets(profile, world, run.measurements, h) for h in ((), HELD)]
-    return [
-        solve_full_level(
-            profile, world, full_run.measurements, full_run.steps, plan.structure, held
-        )
-        for held in ((), HELD)
-    ]
+        outs = [solve_offsets(profile, world, run.measurements, h) for h in ((), HELD)]
+    else:
+        outs = [
+            solve_full_level(
+                profile, world, full_run.measurements, full_run.steps, plan.structure, held
+            )
+            for held in ((), HELD)
+        ]
+    for o in outs:
+        o.run = f"{world_path.stem}: {tank_words(world)}"
+    return outs
 
 
-def tool_frame_world(directory: Path, rng: np.random.Generator, index: int) -> Path:
+def tool_frame_world(directory: Path, rng: np.random.Generator, index: int, tank: Tank) -> Path:
     """A fresh commissioning of the tool-frame case in ``directory`` (its template profile
     ``template.toml``: a fresh cell whose [tool] is a drawn tool and holder, declaring the
     default lost motion and the drift tolerance) and its world ``world.toml``:
@@ -336,7 +434,7 @@ def tool_frame_world(directory: Path, rng: np.random.Generator, index: int) -> P
     drift = rng.uniform(-DRIFT_C_PER_MIN["tool-frame"], DRIFT_C_PER_MIN["tool-frame"])
     backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
     text = world.read_text().replace("[robot]\n", f"[robot]\nbacklash_deg = {backlash!r}\n", 1)
-    world.write_text(text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift!r}\n", 1))
+    world.write_text(tank.into(text, drift, directory / "tank.csv"))
     return directory
 
 
@@ -351,15 +449,13 @@ def tool_z(tf: ToolFrameFit, profile: CellProfile, world: WorldTruth) -> tuple[l
     z = list(np.abs(across) / tf.across_beam_std_mm)
     z.append(abs(tf.beam @ err) / tf.along_beam_std_mm)
     z += list(np.abs(np.degrees(tb @ true_tool[:3, 2])) / tf.beam_std_deg)
-    rate = world.water_drift_c_per_min
-    t_mid = world.water_temperature_c + rate * tf.time_ref_min
-    z.append(abs(tf.sound_speed_m_s - sound_speed_m_s(t_mid)) / tf.sound_speed_std_m_s)
+    c_m_s, drift = true_sound(world, tf.time_ref_min)
+    z.append(abs(tf.sound_speed_m_s - c_m_s) / tf.sound_speed_std_m_s)
     effects = tf.effects
     assert effects is not None and tf.solution is not None
     table = tf.solution.table
     if table.free[table.index(DRIFT[0])]:
-        slope = (sound_speed_m_s(t_mid + 0.01) - sound_speed_m_s(t_mid - 0.01)) / 0.02
-        z.append(abs(effects.drift_m_s_per_min - slope * rate) / effects.drift_std_m_s_per_min)
+        z.append(abs(effects.drift_m_s_per_min - drift) / effects.drift_std_m_s_per_min)
     beam_deg = float(angle_between_deg(tf.beam, true_tool[:3, 2]))
     return z, float(np.max(np.abs(across))), beam_deg
 
@@ -380,8 +476,8 @@ def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
     holder = float(np.degrees(np.arccos(profile.tool_matrix[2, 2])))
     run = (
         f"{directory.name} {order}: tool {np.linalg.norm(profile.tool_position_mm):.0f} mm, "
-        f"holder {holder:.0f}°, lost motion ≤ {np.max(world.backlash_deg):.3f}°, drift "
-        f"{world.water_drift_c_per_min:+.3f} °C/min"
+        f"holder {holder:.0f}°, lost motion ≤ {np.max(world.backlash_deg):.3f}°, "
+        f"{tank_words(world)}"
     )
     try:
         plan = plan_tool_frame(profile)
@@ -471,10 +567,13 @@ def tool_summary(name: str, outs: list[Outcome]) -> str:
     )
 
 
-def tool_frame_case(work: Path, worlds: int, seed: int, jobs: int, orders: tuple[str, ...]) -> list:
+def tool_frame_case(
+    work: Path, worlds: int, seed: int, jobs: int, orders: tuple[str, ...], tank: str
+) -> list:
     """The tool-frame case (module docstring): its rows printed, its stopped runs returned."""
     rng = np.random.default_rng(seed)
-    dirs = [tool_frame_world(work / f"tool-frame-{i:03d}", rng, i) for i in range(worlds)]
+    drawn = Tank(tank, np.random.default_rng([seed, 1]))
+    dirs = [tool_frame_world(work / f"tool-frame-{i:03d}", rng, i, drawn) for i in range(worlds)]
     jobs_in = [(d, order) for d in dirs for order in orders]
     with concurrent.futures.ProcessPoolExecutor(jobs) as pool:
         rows = list(pool.map(run_tool_frame_world, *zip(*jobs_in, strict=True)))
@@ -488,8 +587,9 @@ def tool_frame_case(work: Path, worlds: int, seed: int, jobs: int, orders: tuple
         solved = [
             r for (_, o), r in zip(jobs_in, rows, strict=True) if o == order and isinstance(r, list)
         ]
+        name = f"{order}, {declared:g} °C/min, {tank} tank"
         for k, solver in enumerate(("current", "previous (held at 0)")):
-            print(tool_summary(f"{order}, {declared:g} °C/min | {solver}", [r[k] for r in solved]))
+            print(tool_summary(f"{name} | {solver}", [r[k] for r in solved]))
     for r in rows:
         if isinstance(r, list):
             now, before = r
@@ -518,6 +618,13 @@ def main(argv: list[str] | None = None) -> int:
         "calibrate",
     )
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument(
+        "--tank",
+        choices=TANKS,
+        default="linear",
+        help="the tank's history: a linear drift, or a thermometer's log of an exponential "
+        "approach to the room's temperature or of a heater cycling",
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
         "--declared-drift",
@@ -554,10 +661,11 @@ def main(argv: list[str] | None = None) -> int:
         profile_path = make_profile(work, case, declared)
         profile = load_profile(profile_path)
         rng = np.random.default_rng(args.seed)
+        tank = Tank(args.tank, np.random.default_rng([args.seed, 1]))
         worlds = []
         for i in range(args.worlds):
             path = work / f"{case}-{i:03d}.toml"
-            path.write_text(draw_world(rng, profile, case, i))
+            path.write_text(draw_world(rng, profile, case, i, tank, path.with_suffix(".csv")))
             worlds.append(path)
         with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
             rows = list(
@@ -570,14 +678,15 @@ def main(argv: list[str] | None = None) -> int:
                 )
             )
         solved = [r for r in rows if not isinstance(r, str)]
-        print(summary(f"{case}, {declared:g} °C/min | current", [r[0] for r in solved]))
-        print(
-            summary(f"{case}, {declared:g} °C/min | previous (held at 0)", [r[1] for r in solved])
-        )
+        name = f"{case}, {declared:g} °C/min, {args.tank} tank"
+        print(summary(f"{name} | current", [r[0] for r in solved]))
+        print(summary(f"{name} | previous (held at 0)", [r[1] for r in solved]))
+        for now, _ in solved:
+            print(f"  {now.run}: max |z| {np.max(now.z):.1f}, " + (now.refusal or "written"))
         stopped.extend(r for r in rows if isinstance(r, str))
     if "tool-frame" in chosen:
         orders = ORDERS if args.orders == "both" else (args.orders,)
-        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders)
+        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders, args.tank)
     print(f"runs stopped by the procedure: {len(stopped)}")
     for line in stopped:
         print("  ", line)

@@ -256,6 +256,24 @@ class PulserTruth:
 
 
 @dataclass(frozen=True)
+class TemperatureLog:
+    """What the tank's thermometer read over the run (``[water] temperature_log``).
+
+    ``time_min`` (n,): minutes of simulated time since the cell started, strictly increasing;
+    ``temperature_c`` (n,): the readings (°C). Between readings the water follows the straight
+    line between them; before the first and after the last it stays at that reading.
+    """
+
+    path: Path
+    time_min: np.ndarray
+    temperature_c: np.ndarray
+
+    def at(self, t_min: float) -> float:
+        """The water's temperature (°C) ``t_min`` minutes after the cell started."""
+        return float(np.interp(t_min, self.time_min, self.temperature_c))
+
+
+@dataclass(frozen=True)
 class WorldTruth:
     """The truth a real cell hides (world file of SPEC.md, missing keys = as the profile says)."""
 
@@ -280,6 +298,9 @@ class WorldTruth:
     backlash_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
     #: Linear drift of the water temperature with simulated time (°C per minute).
     water_drift_c_per_min: float = 0.0
+    #: The thermometer's log: the water's temperature over simulated time, in place of
+    #: ``water_temperature_c`` (then its value at the start) and the linear drift.
+    water_temperature_log: TemperatureLog | None = None
     pulser: PulserTruth = field(default_factory=PulserTruth)
     #: Beam squint (deg): the acoustic axis leaves the tool centre tilted this much from the
     #: housing's z axis (the tool frame of a drawing), towards ``beam_squint_azimuth_deg`` from

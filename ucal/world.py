@@ -14,6 +14,12 @@ the solvers do not model:
   half of it, against the direction of the joint's last motion;
 * ``[water] drift_c_per_min`` — the tank warms (+) or cools linearly in simulated time
   (|drift| <= 10 °C/min; ``temperature_c`` is the temperature at the start of the run);
+  ``temperature_log`` — in place of both, what the tank's thermometer read over the run: a
+  CSV file (relative to the world file) of rows ``minutes,°C``, the minutes of simulated time
+  since the cell started (the drift's time base), strictly increasing, 0–60 °C; an optional
+  first line ``time_min,temperature_c``, blank lines and ``#`` comments are skipped; at least
+  one row. The water follows the straight line between readings and stays at the first
+  (last) reading before (after) them (:class:`ucal.cell.TemperatureLog`);
 * ``[pulser] amplitude_bits`` (0…24; 0 = not quantised), ``gain_error_db`` (one sigma, 0…6 dB)
   and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
   ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`;
@@ -50,6 +56,8 @@ Extra keys beyond SPEC.md:
 
 from __future__ import annotations
 
+import csv
+import math
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -58,7 +66,16 @@ from typing import Any
 import numpy as np
 
 from drivers.controller.simulator import SERVERS
-from ucal.cell import CellProfile, CellTiming, Noise, PulserTruth, Reflector, WorldTruth
+from ucal.cell import (
+    CellProfile,
+    CellTiming,
+    Noise,
+    PulserTruth,
+    Reflector,
+    TemperatureLog,
+    WorldTruth,
+)
+from ucal.errors import ProfileError
 from ucal.profile import (
     before_measurement,
     read_robot,
@@ -89,7 +106,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "reflector": frozenset(
         {"point_mm", "normal", "size_mm", "edge_direction", "edge_radius_mm", "flatness_mm"}
     ),
-    "water": frozenset({"temperature_c", "drift_c_per_min"}),
+    "water": frozenset({"temperature_c", "drift_c_per_min", "temperature_log"}),
     "transducer": frozenset(
         {"frequency_mhz", "element_diameter_mm", "squint_deg", "squint_azimuth_deg", "near_field"}
     ),
@@ -209,6 +226,11 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
         changes["step"] = read_step(r, step, face_mm, world.step, profile=False)
 
     water = r.table("water")
+    v = r.get(water, "water.temperature_log")
+    if water is not None and v is not None:
+        log = _temperature_log(r, water, v)
+        changes["water_temperature_log"] = log
+        changes["water_temperature_c"] = log.at(0.0)
     water_c = read_water(r, water, "water", required=False)
     if water_c is not None:
         changes["water_temperature_c"] = water_c
@@ -282,6 +304,65 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
             seed=d.seed if seed is None else r.integer("noise.seed", seed, lo=0, hi=2**63 - 1),
         )
     return world.replace(**changes)
+
+
+#: The header a temperature log may start with (its columns: minutes, °C).
+TEMPERATURE_LOG_HEADER = ("time_min", "temperature_c")
+
+
+def _temperature_log(r: Reader, water: Mapping[str, Any], value: Any) -> TemperatureLog:
+    """``[water] temperature_log``: a CSV file (relative to the world file) of the tank
+    thermometer's readings, one ``minutes,°C`` row each (module docstring). It replaces
+    ``temperature_c`` and ``drift_c_per_min``, which may not be given with it."""
+    key = "water.temperature_log"
+    for other in ("temperature_c", "drift_c_per_min"):
+        if other in water:
+            raise r.error(
+                f"water.{other}",
+                f"not with {key}: the log gives the water's temperature over the run",
+            )
+    p = Path(r.string(key, value)).expanduser()
+    if not p.is_absolute():
+        p = r.path.parent / p
+
+    def bad(where: str | None, message: str) -> ProfileError:
+        return ProfileError(p, where, f"{message} ({key} in {r.path})")
+
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise bad(None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    rows: list[tuple[float, float]] = []
+    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
+        cells = [f.strip() for f in fields]
+        if not "".join(cells) or cells[0].startswith("#"):
+            continue  # blank lines and comments
+        if not rows and tuple(cells) == TEMPERATURE_LOG_HEADER:
+            continue
+        try:
+            t_min, temp_c = (float(c) for c in cells)
+        except ValueError:
+            header = f" (a header is {','.join(TEMPERATURE_LOG_HEADER)})" if not rows else ""
+            raise bad(
+                f"row {lineno}",
+                f"expected two numbers, minutes and °C, got {','.join(cells)!r}{header}",
+            ) from None
+        if not (math.isfinite(t_min) and 0.0 <= temp_c <= 60.0):
+            raise bad(
+                f"row {lineno}",
+                f"expected a finite time and 0-60 °C (the sound speed's range), got "
+                f"{t_min:g} min, {temp_c:g} °C",
+            )
+        if rows and not t_min > rows[-1][0]:
+            raise bad(
+                f"row {lineno}",
+                f"times must increase: {t_min:g} min after {rows[-1][0]:g} min",
+            )
+        rows.append((t_min, temp_c))
+    if not rows:
+        raise bad(None, "no readings: expected rows of minutes,°C")
+    table = np.array(rows)
+    return TemperatureLog(path=p, time_min=table[:, 0], temperature_c=table[:, 1])
 
 
 def _split_beta(r: Reader, robot: Mapping[str, Any]) -> tuple[Mapping[str, Any], np.ndarray | None]:

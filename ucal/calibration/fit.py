@@ -33,7 +33,12 @@ returns its own (forward-difference) Jacobian ``J`` of the whole augmented probl
 Uncertainty: ``Cov = (JᵀJ)⁻¹`` of the augmented problem is the covariance of every unknown
 with the nuisance unknowns marginalised (their priors enter as rows, so the declared
 tolerances propagate into the offsets' std), multiplied by ``max(1, χ²ᵣ)`` when the data
-disagree with the model. Physics decides what that std carries:
+disagree with the model, plus what the drift's curvature moves them by
+(``least_squares.curvature_covariance``): a real tank does not warm at a steady rate (it
+approaches the room's temperature, a heater cycles), so each reading's sound speed is off the
+fitted line by ½·c̈·(t − t_ref)²; c̈ is not fitted but carried as 0 ± |dc/dT|·``[water]
+drift_std_c_per_min`` / D, the rate turning by its declared tolerance over the run's D
+minutes. Physics decides what that std carries:
 
 * the block's yaw and δ1 are one rotation about the base axis: no measurement separates them,
   so ``std(δ1) ≥ rotation_std_deg[2]`` in the robot's base frame; the callers hold the yaw as

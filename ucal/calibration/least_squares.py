@@ -174,7 +174,8 @@ def solve_cell(
     dof = max(1, n_data)
     chi2_red = chi2 / dof
     scale = max(1.0, chi2_red)
-    cov_scaled = cov * scale
+    sigma_c = curvature_std_m_s_per_min2(prior, arrays.minutes)
+    cov_scaled = cov * scale + curvature_covariance(table, jac, cov, arrays.minutes, sigma_c)
     std = np.full(len(table.names), np.nan)
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
 
@@ -182,6 +183,9 @@ def solve_cell(
     gains = {}
     if verdict(chi2, dof, misfit_p) == "misfit":
         gains = effect_gains(table, estimate, rows, res, jac)
+        g = curvature_column(table, jac, arrays.minutes)
+        if g is not None:
+            gains.update(score_gain(CURVATURE, g, res, jac))
     quality = fit_quality(
         table,
         estimate,
@@ -209,6 +213,61 @@ def solve_cell(
     )
 
 
+def curvature_std_m_s_per_min2(prior: CellPrior, minutes: np.ndarray) -> float:
+    """One sigma of the drift's curvature c̈ over a run whose readings span ``minutes``: the
+    declared drift tolerance is how much the rate may differ from a steady one, so over the
+    run's D minutes the rate may turn by it, |dc/dT|·``drift_std_c_per_min`` / D (m/s per
+    min²; 0 for readings at one time). The sound speed then departs from its fitted line by
+    about c̈·D²/8, an eighth of the declared drift over the run."""
+    span_min = float(np.ptp(minutes)) if len(minutes) else 0.0
+    if span_min <= 0.0:
+        return 0.0
+    return prior.drift_std_m_s_per_min / span_min
+
+
+def curvature_covariance(
+    table: ParameterTable,
+    jac: np.ndarray,
+    cov: np.ndarray,
+    minutes: np.ndarray,
+    sigma: float,
+) -> np.ndarray:
+    """The covariance the drift's curvature adds to the free unknowns, not fitted (a
+    consider parameter): a real tank does not warm at a steady rate (it approaches the room
+    exponentially, a heater cycles), so each water path's sound speed departs from the fitted
+    ``c + ċ·(t − t_ref)`` by ½·c̈·(t − t_ref)², c̈ = 0 ± ``sigma``
+    (``curvature_std_m_s_per_min2``). ``minutes`` (n,): each reading's t − t_ref, its three
+    rows (two tilts, a water path) the first 3n of ``jac``. The unknowns move by
+    −(JᵀJ)⁻¹Jᵀg per unit c̈, g those rows' derivative: the sound speed's column of ``jac`` ×
+    ½(t − t_ref)². Zero where the drift is not free (held, or readings at one time) or the
+    sound speed is held."""
+    g = curvature_column(table, jac, minutes)
+    if g is None:
+        n_free = int(np.sum(table.free))
+        return np.zeros((n_free, n_free))
+    shift = cov @ (jac.T @ g)
+    return np.outer(shift, shift) * sigma**2
+
+
+#: The drift's curvature c̈ (m/s per min²) where a misfit is tested against it: not an unknown.
+CURVATURE = "sound_speed_curvature_m_s_per_min2"
+
+
+def curvature_column(
+    table: ParameterTable, jac: np.ndarray, minutes: np.ndarray
+) -> np.ndarray | None:
+    """The rows' derivative by the drift's curvature c̈ (``curvature_covariance``): the sound
+    speed's column of ``jac`` × ½(t − t_ref)² on the first 3n rows, 0 on the rest; None where
+    the drift or the sound speed is not free."""
+    names = [n for n, f in zip(table.names, table.free, strict=True) if f]
+    if DRIFT[0] not in names or SOUND[0] not in names:
+        return None
+    g = np.zeros(jac.shape[0])
+    n_face_rows = 3 * len(minutes)  # two tilt rows and a water path's row per reading
+    g[:n_face_rows] = jac[:n_face_rows, names.index(SOUND[0])] * np.repeat(0.5 * minutes**2, 3)
+    return g
+
+
 #: The run's effects a misfit is tested against (``effect_gains``).
 EFFECTS = DRIFT + BACKLASH
 
@@ -225,7 +284,6 @@ def effect_gains(
     effect's column of the data rows (``rows``: the full vector to them) and ``g⊥`` its part
     outside the fit's columns ``jac`` (residuals ``res``). An effect the readings cannot see
     (no time, one-sided approach) has no such part and is left out."""
-    basis, _ = np.linalg.qr(jac)
     base = rows(estimate)
     out: dict[str, float] = {}
     for name in EFFECTS:
@@ -237,11 +295,19 @@ def effect_gains(
         v[i] += step
         g = np.zeros(len(res))
         g[: len(base)] = (rows(v) - base) / step
-        g_perp = g - basis @ (basis.T @ g)
-        norm2 = float(g_perp @ g_perp)
-        if norm2 > 1e-9 * float(g @ g) and norm2 > 0.0:
-            out[name] = float(g_perp @ res) ** 2 / norm2
+        out.update(score_gain(name, g, res, jac))
     return out
+
+
+def score_gain(name: str, g: np.ndarray, res: np.ndarray, jac: np.ndarray) -> dict[str, float]:
+    """``{name: Δχ²}`` of the score test of one column ``g`` of the rows (``effect_gains``),
+    or {} where the fit's columns ``jac`` already hold it."""
+    basis, _ = np.linalg.qr(jac)
+    g_perp = g - basis @ (basis.T @ g)
+    norm2 = float(g_perp @ g_perp)
+    if norm2 > 1e-9 * float(g @ g) and norm2 > 0.0:
+        return {name: float(g_perp @ res) ** 2 / norm2}
+    return {}
 
 
 def _initial_corner(

@@ -252,6 +252,14 @@ def effect_pattern(gains: dict[str, float], chi2: float) -> str:
             f"{joint} (readings reached from above against those from below) beyond [robot] "
             "backlash_std_deg; state it, or approach every posture from one side"
         )
+    if name.startswith("sound_speed_curvature"):
+        return (
+            f"a drift of the sound speed that turns during the run explains {share}: the "
+            "water-path residuals bend with their time, the tank's rate changing (water "
+            "settling towards the room, a heater cycling) faster than [water] "
+            "drift_std_c_per_min allows over the run; let the water settle or hold the heater "
+            "off while measuring"
+        )
     return (
         f"a drift of the sound speed during the run explains {share}: the water-path "
         "residuals trend with their time, the tank warming or cooling faster than [water] "

@@ -13,7 +13,8 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    does not reflect, and where the beam axis crosses it, it hides the faces behind it;
 3. the echo arrives at ``2 L / c(T(t)) + delay`` with L the water path from the TCP to the axis
    hit point, ``T(t) = temperature_c + drift_c_per_min · t_s / 60`` (Marczak's c) at the
-   simulated time ``t_s`` of the reading, and the pulser's fixed electronic ``delay_ns``;
+   simulated time ``t_s`` of the reading, or the thermometer's ``temperature_log`` at
+   ``t_s / 60`` minutes where the world gives one, and the pulser's fixed ``delay_ns``;
 4. the receiver (``ucal.sim.receiver``) synthesises the sampled broadband echo (piston
    directivity and water absorption per frequency, so not the centre-frequency directivity
    and absorption that the search fits: the main lobe widens with the water path, and the
@@ -242,12 +243,16 @@ class SimulatedCell:
         return None if found is None else found[0]
 
     def water_temperature_c(self, t_s: float = 0.0) -> float:
-        """Water temperature (°C) ``t_s`` seconds of simulated time after the cell started."""
+        """Water temperature (°C) ``t_s`` seconds of simulated time after the cell started:
+        the thermometer's log where the world gives one, else the linear drift."""
+        log = self.world.water_temperature_log
+        if log is not None:
+            return log.at(t_s / 60.0)
         return self.world.water_temperature_c + self.world.water_drift_c_per_min * t_s / 60.0
 
     def sound_speed_m_s(self, t_s: float = 0.0) -> float:
         """Speed of sound in the tank (m/s, Marczak) ``t_s`` seconds after the cell started."""
-        if self.world.water_drift_c_per_min == 0.0:
+        if self.world.water_drift_c_per_min == 0.0 and self.world.water_temperature_log is None:
             return self._c_m_s
         c = 0.0
         for coeff in reversed(acoustics.MARCZAK_COEFFS_M_S):  # Horner on a float: fast

@@ -9,8 +9,10 @@ and readings from one side leave it unmeasured without inflating the offsets' st
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ucal.acoustics import sound_speed_m_s
+from ucal.calibration import least_squares
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import (
     BACKLASH,
@@ -24,6 +26,7 @@ from ucal.calibration.fit import (
     solve_cell,
 )
 from ucal.calibration.full import full_table
+from ucal.calibration.least_squares import curvature_covariance, curvature_std_m_s_per_min2
 from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
@@ -42,6 +45,11 @@ CONFIGS = (
     ("j2", 1, 5.0, -90.0),
     ("j1", 0, 6.0, 0.0),
 )
+
+
+#: The tank's rate turning (°C/min²) in the curving tank's test: 0.11 °C/min over its 5.5 min,
+#: 2.2 times the curvature's std the declared drift tolerance gives.
+CURVATURE_C_PER_MIN2 = 0.02
 
 
 def prior(backlash_std_deg: float = 0.01, drift_std_c_per_min: float = 0.05) -> CellPrior:
@@ -73,9 +81,11 @@ def measure(
     sigma_tilt_deg: float = 5e-4,
     sigma_dist_mm: float = 5e-4,
     seed: int = 0,
+    curvature_c_per_min2: float = 0.0,
 ) -> list[FaceMeasurement]:
-    """Face measurements of a true cell at 20 °C drifting ``drift_c_per_min``, each reading
-    ``minutes_per_reading`` after the previous, every posture read from each of ``sides``."""
+    """Face measurements of a true cell at 20 °C drifting ``drift_c_per_min`` (its rate turning
+    by ``curvature_c_per_min2``), each reading ``minutes_per_reading`` after the previous,
+    every posture read from each of ``sides``."""
     b = np.zeros(6) if backlash_deg is None else np.asarray(backlash_deg, float)
     truth = CellGeometry(MODEL, transform(TOOL_MM, np.eye(3)), np.eye(3))
     rng = np.random.default_rng(seed)
@@ -89,7 +99,9 @@ def measure(
             for face in (2, 0, 1):
                 t = len(out) * minutes_per_reading
                 link = OFFSETS_DEG - side * b / 2 + b / 2  # positive-approach offsets + lag
-                c_t = sound_speed_m_s(20.0 + drift_c_per_min * t)
+                c_t = sound_speed_m_s(
+                    20.0 + drift_c_per_min * t + 0.5 * curvature_c_per_min2 * t**2
+                )
                 out.append(
                     noisy_face(
                         truth,
@@ -135,6 +147,58 @@ def test_a_drifting_tank_is_recovered_from_the_trend_of_the_water_paths() -> Non
     assert np.max(z_scores(held, OFFSETS_DEG)) > 3.0
     assert held.fit is not None and held.fit.verdict == "misfit"
     assert "trend with their time" in held.fit.cause, held.fit.cause
+
+
+def test_a_tank_whose_rate_turns_is_within_the_stds(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A tank warming ever faster (a curvature the linear drift does not model): the rate
+    may turn by its declared tolerance over the run (``curvature_std_m_s_per_min2``); the
+    stds carry it, where the linear drift alone reports the sound speed of the middle of the
+    run 5σ off."""
+    k = CURVATURE_C_PER_MIN2
+    meas = measure(drift_c_per_min=0.1, curvature_c_per_min2=k, seed=2)
+    span_min = max(m.time_min or 0.0 for m in meas)
+    slope = prior().sound_speed_slope_m_s_per_c
+    assert curvature_std_m_s_per_min2(prior(), np.array([0.0, span_min])) == pytest.approx(
+        slope * 0.05 / span_min
+    )
+    middle = float(np.mean([m.time_min for m in meas]))
+    true_m_s = sound_speed_m_s(20.0 + 0.1 * middle + 0.5 * k * middle**2)
+    sol = solve_exact_with_priors(prior(), meas)
+    assert abs(sol.sound_speed_m_s - true_m_s) <= 3 * sol.sound_speed_std_m_s
+    assert np.all(z_scores(sol, OFFSETS_DEG) <= 3.0), z_scores(sol, OFFSETS_DEG)
+    monkeypatch.setattr(least_squares, "curvature_std_m_s_per_min2", lambda *_: 0.0)
+    linear_only = solve_exact_with_priors(prior(), meas)
+    assert linear_only.sound_speed_m_s == pytest.approx(sol.sound_speed_m_s)  # the same fit
+    assert abs(linear_only.sound_speed_m_s - true_m_s) > 5 * linear_only.sound_speed_std_m_s
+
+
+def test_a_tank_whose_rate_turns_fast_is_a_misfit_that_names_it() -> None:
+    """The rate turning by 0.55 °C/min over the run, eleven times the declared tolerance: the
+    water paths bend with their time, and the misfit's message says so rather than blaming a
+    quantity of the cell."""
+    meas = measure(drift_c_per_min=0.1, curvature_c_per_min2=0.1, seed=2)
+    sol = solve_exact_with_priors(prior(), meas)
+    assert sol.fit is not None and sol.fit.verdict == "misfit"
+    assert sol.fit.cause.startswith("a drift of the sound speed that turns during the run explains")
+    assert "bend with their time" in sol.fit.cause
+
+
+def test_the_curvature_moves_the_sound_speed_by_a_parabolas_best_line() -> None:
+    """Three readings at −1, 0 and 1 min whose water paths see only the sound speed: a bend
+    ½·c̈·t² of the speed is [0.5, 0, 0.5]·c̈, whose best line is 1/3·c̈ flat, so the speed's
+    variance grows by (σ/3)² and the drift's not at all (the held block is not free)."""
+    table = ParameterTable(
+        ("sound_speed_m_s", DRIFT[0], "block_x_mm"), np.zeros(3), np.ones(3), [True, True, False]
+    )
+    minutes = np.array([-1.0, 0.0, 1.0])
+    jac = np.zeros((9, 2))
+    jac[2::3, 0] = 1.0  # each reading's water-path row: c + ċ·t
+    jac[2::3, 1] = minutes
+    cov = np.linalg.inv(jac.T @ jac)
+    added = curvature_covariance(table, jac, cov, minutes, 0.6)
+    np.testing.assert_allclose(added, [[(0.6 / 3) ** 2, 0.0], [0.0, 0.0]], atol=1e-15)
+    table.free[1] = False  # the drift held: no bend is carried
+    assert not curvature_covariance(table, jac[:, :1], cov[:1, :1], minutes, 0.6).any()
 
 
 def test_readings_without_time_leave_the_drift_at_its_prior() -> None:

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import tomlkit
 from scipy.optimize import least_squares
 
 from ucal import acoustics as ac
-from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, Noise, Reflector, WorldTruth
+from ucal.cell import (
+    DEFAULT_PULSER_DELAY_NS,
+    CellProfile,
+    Noise,
+    Reflector,
+    TemperatureLog,
+    WorldTruth,
+)
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.models import load_model
@@ -375,6 +384,23 @@ def test_water_drift_changes_the_tof_over_simulated_time(
     assert np.all(np.diff(tofs) < -30.0)  # warming: sound faster, TOF shorter, ~34 ns per 30 s
     cooling = SimulatedCell(world.replace(water_drift_c_per_min=-0.5))
     assert cooling.ideal_echo(q, t_s=60.0)[1] > cell.ideal_echo(q)[1]
+
+
+def test_the_tof_follows_the_thermometers_log(world: WorldTruth, cell: SimulatedCell) -> None:
+    """A logged tank: the water between two readings is on the line between them, and held at
+    the first and the last outside them, in minutes of simulated time since the cell started."""
+    q = normal_pose(cell, "z")
+    log = TemperatureLog(Path("t.csv"), np.array([0.0, 1.0, 3.0]), np.array([20.0, 22.0, 21.0]))
+    logged = SimulatedCell(world.replace(water_temperature_log=log, water_drift_c_per_min=0.3))
+    for t_s, temp_c in ((0.0, 20.0), (30.0, 21.0), (60.0, 22.0), (150.0, 21.25), (900.0, 21.0)):
+        assert logged.water_temperature_c(t_s) == pytest.approx(temp_c, abs=1e-12)
+        at_temp = SimulatedCell(world.replace(water_temperature_c=temp_c))
+        assert logged.ideal_echo(q, t_s=t_s)[1] == pytest.approx(at_temp.ideal_echo(q)[1], abs=1e-6)
+    # 2 °C warmer at one minute: the sound faster by ~7.7 m/s, the 67.5 µs round trip ~0.35 µs
+    # shorter; the linear drift the world also states is not added to the log's temperature
+    assert logged.ideal_echo(q)[1] - logged.ideal_echo(q, t_s=60.0)[1] == pytest.approx(
+        266.0, abs=10.0
+    )
 
 
 def test_amplitude_is_quantised_to_levels_of_full_screen(
