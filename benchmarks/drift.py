@@ -49,7 +49,8 @@ offsets found are the world's less half its lost motion. Printed per case and so
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|both]`` (C: the drift tolerance every calibration case declares, °C/min);
+[--orders t-c|c-t|both] [--only I,J]`` (C: the drift tolerance every calibration case declares,
+°C/min; ``--only``: the tool-frame case's worlds of those indices, drawn as in the whole sweep);
 ``--quick``: one world of the offsets, the full and the tool-frame cases (the full level on 8
 postures, tool-frame in the order t-c), the same code path in seconds.
 """
@@ -471,10 +472,19 @@ def tool_summary(name: str, outs: list[Outcome]) -> str:
     )
 
 
-def tool_frame_case(work: Path, worlds: int, seed: int, jobs: int, orders: tuple[str, ...]) -> list:
-    """The tool-frame case (module docstring): its rows printed, its stopped runs returned."""
+def tool_frame_case(
+    work: Path,
+    worlds: int,
+    seed: int,
+    jobs: int,
+    orders: tuple[str, ...],
+    only: frozenset[int] | None = None,
+) -> list:
+    """The tool-frame case (module docstring): its rows printed, its stopped runs returned;
+    ``only``: the indices of the worlds run (every world is drawn, so each keeps its draws)."""
     rng = np.random.default_rng(seed)
     dirs = [tool_frame_world(work / f"tool-frame-{i:03d}", rng, i) for i in range(worlds)]
+    dirs = [d for i, d in enumerate(dirs) if only is None or i in only]
     jobs_in = [(d, order) for d in dirs for order in orders]
     with concurrent.futures.ProcessPoolExecutor(jobs) as pool:
         rows = list(pool.map(run_tool_frame_world, *zip(*jobs_in, strict=True)))
@@ -518,6 +528,12 @@ def main(argv: list[str] | None = None) -> int:
         "calibrate",
     )
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument(
+        "--only",
+        type=lambda text: frozenset(int(i) for i in text.split(",")),
+        help="the tool-frame case: run only these worlds (indices from 0, comma-separated; "
+        "each drawn as in the whole sweep)",
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
         "--declared-drift",
@@ -577,7 +593,7 @@ def main(argv: list[str] | None = None) -> int:
         stopped.extend(r for r in rows if isinstance(r, str))
     if "tool-frame" in chosen:
         orders = ORDERS if args.orders == "both" else (args.orders,)
-        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders)
+        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders, args.only)
     print(f"runs stopped by the procedure: {len(stopped)}")
     for line in stopped:
         print("  ", line)

@@ -162,13 +162,19 @@ def solve_target(
     label: str,
     wrist_margin: float,
     tolerance_deg: float = 0.0,
+    turn: np.ndarray | None = None,
 ) -> np.ndarray:
     """Checked joint readings for a target (``SafetyError`` naming ``label``), ``wrist_margin``
-    and ``tolerance_deg`` kept on the wrist (``check_joints``)."""
+    and ``tolerance_deg`` kept on the wrist (``check_joints``); ``turn``: a rotation (3, 3,
+    base frame) of the tool about its centre from the planned orientation (a correction to
+    normal incidence found on the way)."""
+    pose = tcp_pose(plane, point, path, phi)
+    if turn is not None:
+        pose[:3, :3] = turn @ pose[:3, :3]
     try:
         q = ik(
             profile.model,
-            tcp_pose(plane, point, path, phi),
+            pose,
             tool,
             profile.joint_offsets_deg,
             near_deg=near,
