@@ -506,7 +506,7 @@ def tool_frame_case(
             print(
                 f"  {now.run}: across {now.tcp_mm[0]:.4f} mm, beam {now.tcp_mm[1]:.4f}°, "
                 f"max |z| {np.max(now.z):.1f}; "
-                + ("written" if now.written else f"refused: {now.message[:160]}")
+                + ("written" if now.written else f"refused: {now.message.split('; ')[0][:240]}")
                 + ("" if now.written == before.written else " (previous: the other way)")
             )
     return [r for r in rows if isinstance(r, str)]
