@@ -97,15 +97,7 @@ def check_joints(
             f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
             f"range (keeping {room:.3g} deg on joints 4-6 {why})"
         )
-    check_wrist_singularity(profile, q, label, tolerance_deg)
-
-
-def check_wrist_singularity(
-    profile: CellProfile, q: np.ndarray, label: str, tolerance_deg: float = 0.0
-) -> None:
-    """θ5 (kinematic, offsets applied) of readings ``q`` (deg) at least the profile's
-    singularity margin and ``tolerance_deg`` more from 0 (``SafetyError`` naming ``label``)."""
-    theta5 = q[4] + profile.model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
+    theta5 = q[4] + model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
     margin = profile.procedure.singularity_margin_deg + tolerance_deg
     if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
         raise SafetyError(

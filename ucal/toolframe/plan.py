@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.safety import check_joints, check_wrist_singularity, reach_advice
+from ucal.calibration.safety import check_joints, reach_advice
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import InputError, SafetyError
 from ucal.kinematics.dh import transform
@@ -312,11 +312,6 @@ def _plan_targets(
 
 def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
     profile, plane, pts, centre, tool, ref = plate.parts()
-    # The lines are scanned with the beam the peaks measure, which the tool's declared
-    # tolerance lets differ from the drawing's and turn joint 5 by as much: kept that much
-    # farther from the singularity (a 20° holder turned 180° brings joint 5 near it), as the
-    # peaks are.
-    turn = tool_turn_deg(profile)
     out: list[EdgePlan] = []
     for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
         candidates = []
@@ -349,7 +344,6 @@ def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
                                 f"edge {name}",
                                 0.0,
                             )
-                            check_wrist_singularity(profile, near, f"edge {name}", turn)
                         except SafetyError:
                             ok = False
                             break
