@@ -60,9 +60,10 @@ offsets found are the world's less half its lost motion. Printed per case and so
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|both] [--tank linear|exponential|cycling]`` (C: the drift tolerance every
-calibration case declares, °C/min); ``--quick``: one world of the offsets, the full and the
-tool-frame cases (the full level on 8 postures, tool-frame in the order t-c), the same code
+[--orders t-c|c-t|both] [--tank linear|exponential|cycling] [--only I,J]`` (C: the drift
+tolerance every calibration case declares, °C/min; ``--only``: the tool-frame case's worlds of
+those indices, drawn as in the whole sweep); ``--quick``: one world of the offsets, the full and
+the tool-frame cases (the full level on 8 postures, tool-frame in the order t-c), the same code
 path in seconds.
 """
 
@@ -568,12 +569,20 @@ def tool_summary(name: str, outs: list[Outcome]) -> str:
 
 
 def tool_frame_case(
-    work: Path, worlds: int, seed: int, jobs: int, orders: tuple[str, ...], tank: str
+    work: Path,
+    worlds: int,
+    seed: int,
+    jobs: int,
+    orders: tuple[str, ...],
+    tank: str,
+    only: frozenset[int] | None = None,
 ) -> list:
-    """The tool-frame case (module docstring): its rows printed, its stopped runs returned."""
+    """The tool-frame case (module docstring): its rows printed, its stopped runs returned;
+    ``only``: the indices of the worlds run (every world is drawn, so each keeps its draws)."""
     rng = np.random.default_rng(seed)
     drawn = Tank(tank, np.random.default_rng([seed, 1]))
     dirs = [tool_frame_world(work / f"tool-frame-{i:03d}", rng, i, drawn) for i in range(worlds)]
+    dirs = [d for i, d in enumerate(dirs) if only is None or i in only]
     jobs_in = [(d, order) for d in dirs for order in orders]
     with concurrent.futures.ProcessPoolExecutor(jobs) as pool:
         rows = list(pool.map(run_tool_frame_world, *zip(*jobs_in, strict=True)))
@@ -596,7 +605,7 @@ def tool_frame_case(
             print(
                 f"  {now.run}: across {now.tcp_mm[0]:.4f} mm, beam {now.tcp_mm[1]:.4f}°, "
                 f"max |z| {np.max(now.z):.1f}; "
-                + ("written" if now.written else f"refused: {now.message[:160]}")
+                + ("written" if now.written else f"refused: {now.message.split('; ')[0][:240]}")
                 + ("" if now.written == before.written else " (previous: the other way)")
             )
     return [r for r in rows if isinstance(r, str)]
@@ -624,6 +633,12 @@ def main(argv: list[str] | None = None) -> int:
         default="linear",
         help="the tank's history: a linear drift, or a thermometer's log of an exponential "
         "approach to the room's temperature or of a heater cycling",
+    )
+    ap.add_argument(
+        "--only",
+        type=lambda text: frozenset(int(i) for i in text.split(",")),
+        help="the tool-frame case: run only these worlds (indices from 0, comma-separated; "
+        "each drawn as in the whole sweep)",
     )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument(
@@ -686,7 +701,9 @@ def main(argv: list[str] | None = None) -> int:
         stopped.extend(r for r in rows if isinstance(r, str))
     if "tool-frame" in chosen:
         orders = ORDERS if args.orders == "both" else (args.orders,)
-        stopped += tool_frame_case(work, args.worlds, args.seed, args.jobs, orders, args.tank)
+        stopped += tool_frame_case(
+            work, args.worlds, args.seed, args.jobs, orders, args.tank, args.only
+        )
     print(f"runs stopped by the procedure: {len(stopped)}")
     for line in stopped:
         print("  ", line)

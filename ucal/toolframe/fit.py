@@ -62,6 +62,7 @@ from ucal.calibration.fit import (
     DH,
     DRIFT,
     MISFIT_P,
+    OFFSET_PRIOR_STD_DEG,
     OFFSETS,
     PLATE,
     PRIOR_MEANING,
@@ -420,7 +421,8 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
                 f"{TOLERANCE_BEAM_DEG} deg)"
             )
             shares = sol.shares(sol.gradient({n: np.ones(1) for n in TOOL[3:5]}))
-        refusal = what + ": " + _cause(shares)
+        offsets_std = table.prior_stds[[table.index(n) for n in OFFSETS]]
+        refusal = what + ": " + _cause(shares, bool(np.all(offsets_std < OFFSET_PRIOR_STD_DEG)))
     rms = _rms_mm(sol, data)
     v = dict(zip(table.names, est, strict=True))
     return ToolFrameFit(
@@ -451,27 +453,52 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
     )
 
 
-def _cause(shares: dict[str, float]) -> str:
-    """Name what a std comes from: the data's noise, or the priors that carry most of it."""
-    priors = sorted(((n, v) for n, v in shares.items() if n != "data"), key=lambda kv: -kv[1])
-    if shares.get("data", 0.0) >= 0.5 or not priors:
+def _cause(shares: dict[str, float], calibrated: bool) -> str:
+    """Name what a std comes from: the data's noise, or the tolerances that carry most of it
+    (the priors grouped by what they stand for), with the physical reason where a tolerance
+    of the arm's model carries it and what to do; ``calibrated``: the profile's joint
+    offsets were measured (``[calibration] std_deg``)."""
+    noise = shares.get("data", 0.0)
+    groups: dict[str, tuple[float, list[str]]] = {}
+    for name, share in shares.items():
+        if name != "data":
+            meaning = PRIOR_MEANING.get(name, name)
+            total, names = groups.get(meaning, (0.0, []))
+            groups[meaning] = (total + share, [*names, name])
+    ranked = sorted(groups.items(), key=lambda kv: -kv[1][0])
+    if noise >= 0.5 or not ranked:
         return (
-            f"{100 * shares.get('data', 0.0):.0f} % of its variance is measurement noise: "
+            f"{100 * noise:.0f} % of its variance is measurement noise: "
             "more postures (--points) or more averaging"
         )
-    top, total = [], 0.0
-    for name, share in priors:
+    top, total, named = [], 0.0, []
+    for meaning, (share, names) in ranked:
         if total >= 0.5 or share < 0.05:
             break
-        top.append(f"{PRIOR_MEANING.get(name, name)} {100 * share:.0f} %")
+        top.append(f"{meaning} {100 * share:.0f} %")
+        named += names
         total += share
+    if noise >= 0.05:
+        top.append(f"measurement noise {100 * noise:.0f} %")
     hint = ""
-    if any(n in OFFSETS for n, _ in priors[: len(top)]):
+    if any(n in DH for n in named):
         hint = (
+            "; turned 180° about the beam, the tool puts the wrist in another posture, and "
+            "link lengths and twists within the DH table's tolerance move the flange between "
+            "the two as a tool off the beam would"
+        )
+        hint += (
+            ": with the joint offsets measured, the same postures pin those links and the tool "
+            "better: run ucal calibrate first, then tool-frame again"
+            if not calibrated
+            else ": the arm's model allows the tool-frame no better on this plate"
+        )
+    elif any(n in OFFSETS for n in named):
+        hint += (
             "; calibrate the joint offsets first (ucal calibrate), or state them with "
             "[calibration] std_deg"
         )
-    if any(n.startswith("plate_") for n, _ in priors[: len(top)]):
+    if any(n.startswith("plate_") for n in named):
         hint += "; a plate touched more precisely ([reflector] points_std_mm) helps"
     return "its variance comes from " + ", ".join(top) + hint
 

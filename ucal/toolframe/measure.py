@@ -8,9 +8,10 @@ alternate their sense; the centring crosses sweep each wrist joint in its positi
 a cross whose readings came too far apart is swept again back, in the negative sense
 (``Rig.line``); the rig's ``approach`` says which. The edge scans read nothing in motion:
 their coarse and fine probes are static and step outward from the plate's centre
-(``ucal.measure.edges``). Each edge line's wrist correction to normal incidence is centred from
-the last line's in the same orientation: on a fresh cell the prediction is a degree or two off,
-where a quick centring can start on a side lobe.
+(``ucal.measure.edges``). Each edge line's correction to normal incidence is centred from the
+last line's in the same orientation (on a fresh cell the prediction is a degree or two off,
+where a quick centring can start on a side lobe), and held along the line as a rotation of the
+tool about its centre, not as joint increments (``PlateRig.edge_scan``).
 
 Measure (exact): noise floor with the beam off the plate; at each posture the peak search of
 ``ucal.measure.search`` (acquisition raster only for the first; later postures are
@@ -91,7 +92,8 @@ class PlateRig:
     beam: np.ndarray  # (3,) running estimate of the beam, flange frame (unit)
     acq_gain: float  # acquisition gain (dB) from the noise floor
     q: np.ndarray  # (6,) the last commanded readings (deg)
-    aims: dict[float, np.ndarray]  # wrist correction (6,) of the last edge line per φ (deg)
+    aims: dict[float, np.ndarray]  # correction (3, 3) to normal incidence of the last edge
+    # line per φ: the tool's rotation about its centre, base frame
 
     def __init__(
         self,
@@ -123,11 +125,33 @@ class PlateRig:
         return fk(self.profile.model, q, offsets_deg=self.offsets)
 
     def joints(
-        self, point: np.ndarray, path: float, phi: float, label: str, wrist_margin: float = 0.0
+        self,
+        point: np.ndarray,
+        path: float,
+        phi: float,
+        label: str,
+        wrist_margin: float = 0.0,
+        turn: np.ndarray | None = None,
     ) -> np.ndarray:
+        """Checked readings for a tool pose (``plan.solve_target``; ``turn`` the tool's
+        rotation about its centre from the planned orientation, base frame)."""
         return solve_target(
-            self.profile, self.plane, self.tool(), point, path, phi, self.q, label, wrist_margin
+            self.profile,
+            self.plane,
+            self.tool(),
+            point,
+            path,
+            phi,
+            self.q,
+            label,
+            wrist_margin,
+            turn=turn,
         )
+
+    def turn_between(self, q_to: np.ndarray, q_from: np.ndarray) -> np.ndarray:
+        """The rotation (3, 3, base frame) that takes the tool's orientation at readings
+        ``q_from`` to that at ``q_to`` (the model's flange; the tool turns with it)."""
+        return self.flange(q_to)[:3, :3] @ self.flange(q_from)[:3, :3].T
 
     def move(self, q: np.ndarray) -> np.ndarray:
         self.q = np.asarray(q, float)
@@ -204,15 +228,24 @@ class PlateRig:
         label = f"edge {ep.name}"
         # each probe: t, amplitude, settled readings, minutes since the first reading, approach
         rows: list[tuple[float, float, np.ndarray, float, np.ndarray]] = []
-        aim = np.zeros(6)  # wrist correction to normal incidence on this line
+        turn = self.aims.get(phi, np.eye(3))  # correction to normal incidence on this line
+
+        def at(t: float) -> np.ndarray:
+            return self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label, turn=turn)
 
         def probe(t: float, averages: int) -> float:
-            q = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label) + aim
-            settled = self.move(q)
+            settled = self.move(at(t))
             a = self.rig.normalised_amplitude(averages)
             rig = self.rig
             rows.append((t, a, np.asarray(settled, float), rig.minutes(), rig.approach.copy()))
             return a
+
+        def centre_at(t: float) -> np.ndarray:
+            """Normal incidence near ``t`` from the current correction: the correction found
+            (a rotation of the tool about its centre, base frame)."""
+            planned = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
+            _, q_n = self.normal_near(at(t), label, quick=True)
+            return self.turn_between(q_n, planned)
 
         hi = ep.start_mm + ep.search_mm
         if guess is None:
@@ -221,19 +254,21 @@ class PlateRig:
         else:
             t = max(ep.start_mm, guess - 20.0)
             step = 0.75 * EDGES.coarse_step_mm
-        # normal incidence at the line's start: with joint offsets not yet calibrated the
+        # Normal incidence at the line's start: with joint offsets not yet calibrated the
         # beam turns differently in this arm configuration than at the plate centre (a few
-        # tenths of a degree can put it in the first null); the wrist correction found here
-        # holds along the short line. Then gain on the plate, and outward until the echo falls
-        # below half.
-        # The correction found on the last line in this orientation starts the centring: the
-        # offsets turn the beam alike along neighbouring lines, and a prediction a degree or
-        # two off (a fresh cell) can put the quick centring on a side lobe.
-        q0 = self.joints(origin + t * u, EDGE_WATER_PATH_MM, phi, label)
-        _, q_n = self.normal_near(q0 + self.aims.get(phi, 0.0), label, quick=True)
-        aim = np.asarray(q_n, float) - q0
-        self.aims[phi] = aim
-        self.move(q0 + aim)
+        # tenths of a degree can put it in the first null). The correction found on the last
+        # line in this orientation starts the centring: the offsets turn the beam alike along
+        # neighbouring lines, and a prediction a degree or two off (a fresh cell) can put the
+        # quick centring on a side lobe. The correction is held along the line as a rotation
+        # of the tool about its centre, not as the wrist joints' increments the centring
+        # found: near the wrist's singularity (joint 5 a dozen degrees from 0, as a 20° holder
+        # turned 180° puts it) the correction takes several degrees on joints 4 and 5, and the
+        # same increments turn the beam off normal as the line turns joint 4 (0.017°/mm: the
+        # echo fades to half before the edge), where the rotation keeps it within hundredths.
+        # Then gain on the plate, and outward until the echo falls below half.
+        turn = centre_at(t)
+        self.aims[phi] = turn
+        self.move(at(t))
         self.set_gain(EDGES.averages)
         # the edge: a fall to half within a few steps (the footprint's 4σ = 6 mm); a beam that
         # drifts off normal along the line (offsets not yet calibrated) fades slowly
@@ -249,10 +284,7 @@ class PlateRig:
         # fine scan across the coarse crossing; once more twice as wide if it does not cross
         # (the coarse fall was a dip of the echo on the plate, e.g. a bow or a scratch)
         # normal incidence again just inside the edge, for the fine scan
-        inside = t_c - EDGES.fine_half_mm - 2.0
-        q1 = self.joints(origin + inside * u, EDGE_WATER_PATH_MM, phi, label)
-        _, q_n = self.normal_near(q1 + aim, label, quick=True)
-        aim = np.asarray(q_n, float) - q1
+        turn = centre_at(t_c - EDGES.fine_half_mm - 2.0)
         ts: list[float] = []
         flanges: list[np.ndarray] = []
 

@@ -162,21 +162,31 @@ def solve_target(
     label: str,
     wrist_margin: float,
     tolerance_deg: float = 0.0,
+    turn: np.ndarray | None = None,
 ) -> np.ndarray:
     """Checked joint readings for a target (``SafetyError`` naming ``label``), ``wrist_margin``
-    and ``tolerance_deg`` kept on the wrist (``check_joints``)."""
+    and ``tolerance_deg`` kept on the wrist (``check_joints``); ``turn``: a rotation (3, 3,
+    base frame) of the tool about its centre from the planned orientation, a correction to
+    normal incidence the wrist search reached on the way: the readings of the turned pose
+    nearest the checked planned ones, inside the joint ranges."""
+    q = _ik(profile, tcp_pose(plane, point, path, phi), tool, near, label)
+    check_joints(profile, q, label, wrist_margin, tolerance_deg)
+    if turn is None:
+        return q
+    pose = tcp_pose(plane, point, path, phi)
+    pose[:3, :3] = turn @ pose[:3, :3]
+    return _ik(profile, pose, tool, q, label)
+
+
+def _ik(
+    profile: CellProfile, pose: np.ndarray, tool: np.ndarray, near: np.ndarray, label: str
+) -> np.ndarray:
+    """Readings inside the joint ranges for a tool pose, nearest ``near`` (``SafetyError``
+    naming ``label``)."""
     try:
-        q = ik(
-            profile.model,
-            tcp_pose(plane, point, path, phi),
-            tool,
-            profile.joint_offsets_deg,
-            near_deg=near,
-        )
+        return ik(profile.model, pose, tool, profile.joint_offsets_deg, near_deg=near)
     except SafetyError as e:
         raise SafetyError(f"plan {label}: {e}") from None
-    check_joints(profile, q, label, wrist_margin, tolerance_deg)
-    return q
 
 
 def _inside_hull(plane: Plane, points: np.ndarray, x: np.ndarray, margin: float) -> bool:

@@ -22,6 +22,7 @@ from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import (
     PlateCrossing,
     PlatePeak,
+    _cause,
     plate_prior,
     solve_tool_frame,
     truth_in_profile_flange,
@@ -302,3 +303,31 @@ def test_lost_motion_read_from_below_only_is_held_and_the_tool_is_right(profile)
     assert tf.quality.verdict == "ok" and tf.in_tolerance, tf.refusal
     assert tf.effects is not None and np.all(np.isnan(tf.effects.backlash_deg))
     assert np.all(across_z(tf, profile, lost) <= 3)
+
+
+@pytest.mark.parametrize("calibrated", [False, True])
+def test_a_std_the_dh_tolerance_carries_is_refused_naming_the_arms_links(calibrated) -> None:
+    """The across-beam variance of a fresh cell with a 20° holder (``benchmarks/drift.py``,
+    seed 8, world 5): the DH table's tolerance in several parameters, the rest noise."""
+    shares = {
+        "data": 0.31,
+        "dh4_a_mm": 0.33,
+        "dh5_d_mm": 0.22,
+        "dh1_alpha_deg": 0.06,
+        "dh3_alpha_deg": 0.05,
+        "plate_t2_deg": 0.02,
+        "J2": 0.01,
+    }
+    text = _cause(shares, calibrated)
+    # one tolerance, its parameters' shares summed; the noise named too
+    assert "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg) 66 %" in (
+        text
+    )
+    assert text.count("kinematic model") == 1 and "measurement noise 31 %" in text
+    assert "link lengths and twists within the DH table's tolerance" in text
+    assert ("run ucal calibrate first" in text) is not calibrated
+    assert "points_std_mm" not in text and "[calibration] std_deg" not in text
+    # noise first: more data
+    assert _cause({"data": 0.7, "dh4_a_mm": 0.3}, calibrated).startswith(
+        "70 % of its variance is measurement noise"
+    )

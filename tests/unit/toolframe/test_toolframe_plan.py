@@ -14,7 +14,7 @@ from ucal.cell import CellProfile
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import matrix_to_rpy
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.toolframe.plan import WRIST_MARGIN_DEG, plan_tool_frame, tcp_pose
+from ucal.toolframe.plan import WRIST_MARGIN_DEG, plan_tool_frame, solve_target, tcp_pose
 
 
 def on_holder(model: str, holder_deg: float, axis: tuple[float, float, float]) -> CellProfile:
@@ -38,3 +38,25 @@ def test_a_twenty_degree_holder_plans_its_peaks_and_edge_scans(model, axis) -> N
         assert np.allclose(reached, tcp_pose(plan.plane, t.point_mm, t.water_path_mm, t.phi_deg))
     for e in plan.edges:
         assert e.search_mm >= 20.0, e  # main refused: "beyond 0 mm"
+
+
+def test_a_turned_target_holds_the_tool_centre_and_is_checked_as_planned() -> None:
+    """An edge line's correction to normal incidence: the tool turned 6° about its centre
+    from the planned orientation, taking joint 5 from 14.5° to 9.3°, within the 10° the plan
+    keeps from the singularity; the check is the planned posture's, as the wrist search
+    already reached the corrected one."""
+    profile = on_holder("tx90l", 20.0, (0.0, 1.0, 0.0))
+    plan = plan_tool_frame(profile, "exact", 4)
+    point = plan.centre_mm + 60.0 * plan.edges[0].direction
+    phi = plan.phi0_deg + 180.0
+    turn = Rotation.from_rotvec(np.radians(6.0) * np.array([-1.0, 0.0, 0.0])).as_matrix()
+    near = plan.peaks[0].joints_deg
+    planned = solve_target(profile, plan.plane, profile.tool_matrix, point, 50.0, phi, near, "e", 0)
+    q = solve_target(
+        profile, plan.plane, profile.tool_matrix, point, 50.0, phi, near, "e", 0, turn=turn
+    )
+    assert planned[4] == pytest.approx(14.52, abs=0.01) and q[4] == pytest.approx(9.32, abs=0.01)
+    reached = fk(profile.model, q, profile.tool_matrix)
+    pose = tcp_pose(plan.plane, point, 50.0, phi)
+    assert np.allclose(reached[:3, 3], pose[:3, 3], atol=1e-6)
+    assert np.allclose(reached[:3, :3], turn @ pose[:3, :3], atol=1e-9)
