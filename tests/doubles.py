@@ -90,7 +90,9 @@ def exit_code(args: list[str]) -> int:
 def ucal_here(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     """``ucal ARGS`` run in this process as ``python -m ucal`` would run it: its exit code and
     what it wrote to stdout and stderr (the same command-line code, without a new
-    interpreter's imports: for commands whose separate process is not what is tested)."""
+    interpreter's imports: for commands whose separate process is not what is tested). Its
+    log lines (warnings) go to pytest's log capture, which holds the root logger: a test that
+    reads one runs a process."""
     out, err = io.StringIO(), io.StringIO()
     with contextlib.ExitStack() as stack:
         stack.enter_context(contextlib.redirect_stdout(out))

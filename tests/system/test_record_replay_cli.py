@@ -18,6 +18,8 @@ import pytest
 from ucal.profile import default_profile_text
 from ucal.record import read_record
 
+from doubles import ucal_here
+
 pytestmark = pytest.mark.system
 
 Examples = Callable[[list[str]], list[tuple[dict, list[str]]]]
@@ -104,7 +106,9 @@ def test_replay_with_remeasure_searches_again_on_the_traffic(recorded: tuple[Pat
     assert record.result is not None
     assert record.result["joint_offsets_deg"] == result["joint_offsets_deg"]
     assert len(record.calls) > result["pulser_reads"]  # every reading, and more
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--remeasure", "--json", cwd=d)
+    out = ucal_here(
+        "calibrate", "cell.toml", "--replay", "run.jsonl", "--remeasure", "--json", cwd=d
+    )
     assert out.returncode in (0, 1), out.stderr
     again = json.loads(out.stdout)
     assert again["joint_offsets_deg"] == result["joint_offsets_deg"]  # bit for bit
@@ -128,7 +132,7 @@ def test_replay_with_another_method_solves_the_same_measurements(
         "paper",
         "--json",
     ]
-    out = ucal(*args, cwd=d)
+    out = ucal_here(*args, cwd=d)
     assert out.returncode in (0, 1), out.stderr
     paper = json.loads(out.stdout)
     assert paper["method"] == "paper"
@@ -137,7 +141,7 @@ def test_replay_with_another_method_solves_the_same_measurements(
 
 def test_replay_takes_no_cell(recorded: tuple[Path, dict]) -> None:
     d, _ = recorded
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--sim", cwd=d)
+    out = ucal_here("calibrate", "cell.toml", "--replay", "run.jsonl", "--sim", cwd=d)
     assert out.returncode == 2
     assert "--replay" in out.stderr and "Traceback" not in out.stderr
 
@@ -145,7 +149,7 @@ def test_replay_takes_no_cell(recorded: tuple[Path, dict]) -> None:
 def test_replay_asked_for_another_level_says_so(recorded: tuple[Path, dict]) -> None:
     d, _ = recorded
     before = sorted(p.name for p in d.iterdir())
-    out = ucal(
+    out = ucal_here(
         "calibrate", "cell.toml", "--replay", "run.jsonl", "--level", "full", "--json", cwd=d
     )
     assert out.returncode == 2, out.stderr
@@ -153,10 +157,10 @@ def test_replay_asked_for_another_level_says_so(recorded: tuple[Path, dict]) -> 
     assert err["exit_code"] == 2
     assert "--level offsets" in err["error"] and "--level full" in err["error"]
     assert "run.jsonl" in err["error"] and "Traceback" not in out.stderr
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--postures", "5", cwd=d)
+    out = ucal_here("calibrate", "cell.toml", "--replay", "run.jsonl", "--postures", "5", cwd=d)
     assert out.returncode == 2 and "--postures" in out.stderr
     # the level it was recorded at, typed, is no mismatch
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", "--level", "offsets", cwd=d)
+    out = ucal_here("calibrate", "cell.toml", "--replay", "run.jsonl", "--level", "offsets", cwd=d)
     assert out.returncode in (0, 1), out.stderr
     assert sorted(p.name for p in d.iterdir()) == before  # a replay writes nothing
 
@@ -197,7 +201,7 @@ def test_a_run_killed_mid_way_leaves_a_readable_record(tmp_path: Path) -> None:
     cut = read_record(record)
     assert cut.result is None and len(cut.calls) > 100
     assert any(c["call"] == "pulser.read_gate" for c in cut.calls)
-    out = ucal("calibrate", "cell.toml", "--replay", "run.jsonl", cwd=tmp_path)
+    out = ucal_here("calibrate", "cell.toml", "--replay", "run.jsonl", cwd=tmp_path)
     assert out.returncode == 2
     assert "cut off" in out.stderr
 
@@ -216,7 +220,7 @@ def test_a_version_1_record_still_replays(recorded: tuple[Path, dict]) -> None:
         elif kind == "result":
             v1.append({"end": obj["result"]})
     (d / "v1.jsonl").write_text("".join(json.dumps(o) + "\n" for o in v1))
-    out = ucal("calibrate", "cell.toml", "--replay", "v1.jsonl", "--json", cwd=d)
+    out = ucal("calibrate", "cell.toml", "--replay", "v1.jsonl", "--json", cwd=d)  # a warning
     assert out.returncode in (0, 1), out.stderr
     assert "version 1" in out.stderr and "replaying its device traffic" in out.stderr
     again = json.loads(out.stdout)
