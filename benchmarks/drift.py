@@ -209,8 +209,10 @@ class Outcome:
     run: str = ""
     message: str = ""
     #: The full level: what the unidentified priors allow at the tool centre over the
-    #: scanning region, one sigma (mean, max; mm: ``ucal.calibration.budget``).
+    #: scanning region, one sigma (mean, max; mm: ``ucal.calibration.budget``), and the
+    #: quantities that allow most (name: largest displacement, mm).
     budget_mm: tuple[float, float] | None = None
+    budget_by: str = ""
 
 
 def sound_z(cell: CellFit, world: WorldTruth) -> list[float]:
@@ -304,7 +306,9 @@ def solve_full_level(
     verdict = judge(sol, sol.cell.quality)
     out = outcome(z, verdict, sol.cell.quality, tcp, held, lost)
     budget = calibration_budget(profile, sol.cell, meas, steps)
-    out.budget_mm = None if budget is None else (budget.mean_mm, budget.max_mm)
+    if budget is not None:
+        out.budget_mm = (budget.mean_mm, budget.max_mm)
+        out.budget_by = ", ".join(f"{k} {v:.3f}" for k, v in list(budget.by_quantity.items())[:3])
     out.message = "" if verdict.ok else verdict.message or sol.cell.quality.cause
     return out
 
@@ -491,7 +495,7 @@ def world_line(o: Outcome) -> str:
     budget = (
         ""
         if o.budget_mm is None
-        else f" (priors allow {o.budget_mm[0]:.3f} / {o.budget_mm[1]:.3f})"
+        else f" (priors allow {o.budget_mm[0]:.3f} / {o.budget_mm[1]:.3f}: {o.budget_by})"
     )
     return (
         f"{o.run}; {'written' if o.written else 'refused: ' + o.message[:200]}; TCP "
