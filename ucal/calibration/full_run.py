@@ -67,19 +67,22 @@ def direction(plan: FullPlan, label: str) -> int:
 def retarget(profile: CellProfile, running: RunningEstimate, posture: Posture) -> np.ndarray:
     """The readings (6,) that put the tool where ``posture`` puts it relative to the block on
     the profile's cell, on the cell as ``running`` has measured it so far (its offsets,
-    block and tool); the planned readings where no solution reaches that pose."""
+    block and tool), joint 6 as planned (the turn about the beam is free: near the wrist's
+    singularity the estimated tool's orientation would swing joints 4 and 6 by degrees out
+    of the room planned for the search; the run aims joints 4 and 5); the planned readings
+    where no solution reaches that pose."""
     rel = np.linalg.inv(profile.sample_matrix) @ fk(
         profile.model, posture.joints_deg, profile.tool_matrix, profile.joint_offsets_deg
     )
     geom = running.geometry
     block = transform(running.corner_mm, geom.block_rotation)
     try:
-        return ik(
-            geom.model, block @ rel, geom.tool_matrix, running.offsets_deg, posture.joints_deg
-        )
+        q = ik(geom.model, block @ rel, geom.tool_matrix, running.offsets_deg, posture.joints_deg)
     except UcalError as e:
         log.info("%s: kept as planned (%s)", posture.label, e)
         return posture.joints_deg
+    q[5] = posture.joints_deg[5]
+    return q
 
 
 def run_full(
