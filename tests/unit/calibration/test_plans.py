@@ -205,3 +205,16 @@ def test_a_posture_is_retargeted_onto_the_cell_as_measured() -> None:
         np.testing.assert_allclose(there[:3, 2], planned[:3, 2], atol=1e-9)
         assert q[5] == p.joints_deg[5]
         assert np.max(np.abs(q[:3] - p.joints_deg[:3])) > 0.3  # the arm moved, not the wrist
+
+
+def test_a_block_turned_off_the_base_axes_leaves_what_no_beam_sees_unidentifiable() -> None:
+    """d5, a5 and link 6's a move the flange across every beam: on a block turned by a
+    fraction of a degree their columns are rounding (5e-7), not weak information, and they
+    stay held at their values as on a block square to the base."""
+    square = plan_full(template("tx90l")).structure
+    turned = plan_full(template("tx90l").replace(sample_rotation_deg=np.array([0.8, -0.6, 0.3])))
+    assert square is not None and turned.structure is not None
+    unseen = {"dh5_d_mm", "dh5_a_mm", "dh6_a_mm"}
+    assert unseen <= set(square.redundant) and unseen <= set(turned.structure.redundant)
+    assert not unseen & set(turned.structure.weak)
+    assert turned.structure.rank == square.rank
