@@ -17,7 +17,13 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   tolerance declared 0.3 mm / 0.03° and drawn within twice it, lengths ±0.5 mm, twists and
   Hayati's β₂ ±0.05°; offsets ±1°; a hand-placed block; the water within ±2 °C; a step of
   50 ± 0.002 mm); the tank drifting uniform in ±0.1 °C/min; a few postures reached from above
-  (``FullPlan.above``);
+  (``FullPlan.above``). ``--model`` runs it on another shipped model's template (its block,
+  calibration pose and the same step); ``--placed`` gives each world a profile of its own whose
+  declared block is where a technician put it, uniform within ±2σ of the template's (as
+  ``plans.py``'s blocks), the plan made on it and the true block drawn about it. Each world
+  is printed on a line of its own: its plan, written or why not, the TCP error beside what the
+  unidentified priors allow (``ucal.calibration.budget``, one sigma), its coverage; a plan
+  refused before any motion is listed with the stopped runs, with its message;
 * ``tool-frame``: fresh commissionings, ``commissioning.py``'s cells (offsets ±2° never
   calibrated, the tool 1.7 mm / 0.85° off its drawing, a squinting beam, the plate off its
   touched points, the water ±3 °C) whose drawing is a tool of 80–150 mm, 2–5 mm off the flange
@@ -60,11 +66,11 @@ offsets found are the world's less half its lost motion. Printed per case and so
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|both] [--tank linear|exponential|cycling] [--only I,J]`` (C: the drift
-tolerance every calibration case declares, °C/min; ``--only``: the tool-frame case's worlds of
-those indices, drawn as in the whole sweep); ``--quick``: one world of the offsets, the full and
-the tool-frame cases (the full level on 8 postures, tool-frame in the order t-c), the same code
-path in seconds.
+[--orders t-c|c-t|both] [--tank linear|exponential|cycling] [--only I,J] [--model tx90xl
+--placed]`` (C: the drift tolerance every calibration case declares, °C/min; ``--only``: the
+tool-frame case's worlds of those indices, drawn as in the whole sweep); ``--quick``: one world
+of the offsets, the full and the tool-frame cases (the full level on 8 postures, tool-frame in
+the order t-c), the same code path in seconds.
 """
 
 from __future__ import annotations
@@ -84,6 +90,7 @@ import realistic
 
 from drivers.errors import DriverError
 from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.budget import calibration_budget
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import (
     BACKLASH,
@@ -108,6 +115,7 @@ from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
+from ucal.models import KNOWN_MODELS
 from ucal.profile import load_profile, write_profile
 from ucal.session import check_status, open_cell
 from ucal.toolframe.exact import tangent_basis
@@ -158,10 +166,12 @@ CASES = {
 }
 
 
-def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
+def make_profile(
+    directory: Path, case: str, drift_c_per_min: float, model: str = full_calibration.MODEL
+) -> Path:
     """The profile of ``case`` (module docstring), declaring the tank's drift tolerance:
     ``realistic.py``'s with a fixture and a measured tool, ``full_calibration.py``'s with the
-    step."""
+    step (on ``model``)."""
     directory = directory / case
     directory.mkdir()
     updates: dict = {"water": {"drift_std_c_per_min": drift_c_per_min}}
@@ -169,8 +179,24 @@ def make_profile(directory: Path, case: str, drift_c_per_min: float) -> Path:
         path = realistic.make_profile(directory, fixture=True)
         updates["tool"] = {"position_std_mm": [0.05] * 3, "rotation_std_deg": [0.02] * 3}
     else:
-        path = full_calibration.make_profile(directory, 2.0, step=True)
+        path = full_calibration.make_profile(directory, 2.0, step=True, model=model)
     write_profile(path, updates, "benchmark")
+    return path
+
+
+def placed_profile(rng: np.random.Generator, template: Path, path: Path) -> Path:
+    """A copy of ``template`` at ``path`` whose declared block is where a technician put it:
+    uniform within ±2σ of the template's declared corner and orientation (``plans.py``'s
+    blocks), the cell's true block then drawn about it."""
+    path.write_bytes(template.read_bytes())
+    profile = load_profile(path)
+    pos2 = 2.0 * np.broadcast_to(profile.sample_position_std_mm, 3)
+    rot2 = 2.0 * np.broadcast_to(profile.sample_rotation_std_deg, 3)
+    sample = {
+        "position_mm": (profile.sample_position_mm + rng.uniform(-pos2, pos2)).round(3).tolist(),
+        "rotation_deg": (profile.sample_rotation_deg + rng.uniform(-rot2, rot2)).round(4).tolist(),
+    }
+    write_profile(path, {"sample": sample}, "placed by hand")
     return path
 
 
@@ -270,9 +296,14 @@ class Outcome:
     #: measured (read from one side, or held)
     backlash_err_deg: np.ndarray
     backlash_z: np.ndarray
-    #: The tool-frame case: the run (world, order, tool) and why it was refused, in words.
+    #: The run (world and plan, or world, order and tool) and why it was refused, in words.
     run: str = ""
     message: str = ""
+    #: The full level: what the unidentified priors allow at the tool centre over the
+    #: scanning region, one sigma (mean, max; mm: ``ucal.calibration.budget``), and the
+    #: quantities that allow most (name: largest displacement, mm).
+    budget_mm: tuple[float, float] | None = None
+    budget_by: str = ""
 
 
 def true_sound(world: WorldTruth, t_min: float) -> tuple[float, float]:
@@ -366,7 +397,14 @@ def solve_full_level(
         fk(sol.model, qs, tool, sol.offsets_deg)[:, :3, 3], fk(model, qs, tool, truth)[:, :3, 3]
     )
     lost = backlash_z(sol.cell, world)
-    return outcome(z, judge(sol, sol.cell.quality), sol.cell.quality, tcp, held, lost)
+    verdict = judge(sol, sol.cell.quality)
+    out = outcome(z, verdict, sol.cell.quality, tcp, held, lost)
+    budget = calibration_budget(profile, sol.cell, meas, steps)
+    if budget is not None:
+        out.budget_mm = (budget.mean_mm, budget.max_mm)
+        out.budget_by = ", ".join(f"{k} {v:.3f}" for k, v in list(budget.by_quantity.items())[:3])
+    out.message = "" if verdict.ok else verdict.message or sol.cell.quality.cause
+    return out
 
 
 def run_world(
@@ -377,15 +415,20 @@ def run_world(
     profile = load_profile(profile_path)
     world = load_world(world_path, profile)
     try:
+        if case in OFFSETS_CASES:
+            offsets_plan = plan_calibration(profile)
+            if case == "lost-motion":
+                offsets_plan = with_lost_motion(offsets_plan)
+        else:
+            plan = plan_full(profile, max_postures=postures)
+    except UcalError as err:
+        return f"{world_path.name}: refused before motion: {err}"
+    try:
         with open_cell(profile, str(world_path), None, None) as cell:
             check_status(cell.rig)
             if case in OFFSETS_CASES:
-                offsets_plan = plan_calibration(profile)
-                if case == "lost-motion":
-                    offsets_plan = with_lost_motion(offsets_plan)
                 run = run_calibration(profile, offsets_plan, cell.rig)
             else:
-                plan = plan_full(profile, max_postures=postures)
                 full_run = run_full(profile, plan, cell.rig)
     except (UcalError, DriverError) as err:  # as a row: a driver's error does not pickle
         return f"{world_path.name}: stopped: {err}"
@@ -400,6 +443,8 @@ def run_world(
         ]
     for o in outs:
         o.run = f"{world_path.stem}: {tank_words(world)}"
+        if case not in OFFSETS_CASES:
+            o.run += f", planned {len(plan.postures)} postures"
     return outs
 
 
@@ -539,6 +584,22 @@ def summary(name: str, outs: list[Outcome]) -> str:
     )
 
 
+def world_line(o: Outcome) -> str:
+    """One world of the full case: its plan, written or why not, the TCP error over the
+    scanning region beside what the unidentified priors allow, its coverage."""
+    budget = (
+        ""
+        if o.budget_mm is None
+        else f" (priors allow {o.budget_mm[0]:.3f} / {o.budget_mm[1]:.3f}: {o.budget_by})"
+    )
+    return (
+        f"{o.run}; {'written' if o.written else 'refused: ' + o.message[:200]}; TCP "
+        f"{o.tcp_mm.mean():.3f} / {o.tcp_mm.max():.3f} mm{budget}; "
+        f"{np.mean(o.z <= 3.0) * 100:.0f} % of {len(o.z)} within 3σ (max |z| {np.max(o.z):.1f})"
+        + ("; beyond 4σ" if o.written and np.any(o.z > 4.0) else "")
+    )
+
+
 def lost_motion(outs: list[Outcome]) -> str:
     """The lost motion column: per joint measured in any run, the rms error (deg) and how
     many of its estimates lie within 3 std; "not measured" where no run measured one."""
@@ -652,6 +713,18 @@ def main(argv: list[str] | None = None) -> int:
         "--postures", type=int, default=MAX_POSTURES, help="at most N postures at the full level"
     )
     ap.add_argument(
+        "--model",
+        choices=KNOWN_MODELS,
+        default=full_calibration.MODEL,
+        help="the full case's robot (its template's block, calibration pose and step)",
+    )
+    ap.add_argument(
+        "--placed",
+        action="store_true",
+        help="the full case: each world's profile declares its block where a technician put "
+        "it, uniform within ±2σ of the template's, and plans on it",
+    )
+    ap.add_argument(
         "--quick",
         action="store_true",
         help="--worlds 1 --jobs 1 --postures 8, the offsets, full and tool-frame cases (t-c): "
@@ -673,31 +746,38 @@ def main(argv: list[str] | None = None) -> int:
         print("| --- " * 9 + "|")
     for case in cases:
         declared = args.declared_drift or DECLARED_DRIFT[case]
-        profile_path = make_profile(work, case, declared)
-        profile = load_profile(profile_path)
+        profile_path = make_profile(work, case, declared, args.model)
         rng = np.random.default_rng(args.seed)
         tank = Tank(args.tank, np.random.default_rng([args.seed, 1]))
-        worlds = []
+        worlds, profiles = [], []
         for i in range(args.worlds):
+            placed = args.placed and case not in OFFSETS_CASES
             path = work / f"{case}-{i:03d}.toml"
-            path.write_text(draw_world(rng, profile, case, i, tank, path.with_suffix(".csv")))
+            own = work / case / f"cell-{i:03d}.toml"
+            profiles.append(placed_profile(rng, profile_path, own) if placed else profile_path)
+            cell = load_profile(profiles[-1])
+            path.write_text(draw_world(rng, cell, case, i, tank, path.with_suffix(".csv")))
             worlds.append(path)
         with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
             rows = list(
                 pool.map(
                     run_world,
                     [case] * len(worlds),
-                    [profile_path] * len(worlds),
+                    profiles,
                     worlds,
                     [args.postures] * len(worlds),
                 )
             )
         solved = [r for r in rows if not isinstance(r, str)]
-        name = f"{case}, {declared:g} °C/min, {args.tank} tank"
+        name = case if case in OFFSETS_CASES else f"{case} {args.model}"
+        name = f"{name}, {declared:g} °C/min, {args.tank} tank"
         print(summary(f"{name} | current", [r[0] for r in solved]))
         print(summary(f"{name} | previous (held at 0)", [r[1] for r in solved]))
         for now, _ in solved:
-            print(f"  {now.run}: max |z| {np.max(now.z):.1f}, " + (now.refusal or "written"))
+            if case in OFFSETS_CASES:
+                print(f"  {now.run}: max |z| {np.max(now.z):.1f}, " + (now.refusal or "written"))
+            else:
+                print("  " + world_line(now))
         stopped.extend(r for r in rows if isinstance(r, str))
     if "tool-frame" in chosen:
         orders = ORDERS if args.orders == "both" else (args.orders,)

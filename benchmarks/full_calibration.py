@@ -2,11 +2,11 @@
 
 Each world differs from its TX90L profile the way a real robot does: DH lengths (every non-zero
 length of links 1-5) uniform in ±0.5 mm, twists in ±0.05°, Hayati's β₂ in ±0.05°, joint offsets
-in ±1°, backlash ≤ 0.01°, the block within its declared tolerance (hand-placed: 5 mm, 0.5°),
-the water within the thermometer's (``--thermometer``, one sigma in °C, uniform ±2σ), TOF noise
-0.5 ns and amplitude noise 1 %, the pulser's 8 ns delay. Link 6 and the tool are one rigid body
-that ``tool-frame`` measures; they are nominal here. The profile declares the DH tolerance
-(0.3 mm, 0.03°: the σ of those uniform draws).
+in ±1°, backlash ≤ 0.01°, the block within its declared tolerance (hand-placed: 5 mm, 0.5°;
+normal, clipped at 2σ), the water within the thermometer's (``--thermometer``, one sigma in °C,
+uniform ±2σ), TOF noise 0.5 ns and amplitude noise 1 %, the pulser's 8 ns delay. Link 6 and the
+tool are one rigid body that ``tool-frame`` measures; they are nominal here. The profile
+declares the DH tolerance (0.3 mm, 0.03°: the σ of those uniform draws).
 
 Every world is measured once with ``calibrate --level full``'s plan and run (the whole sequence
 against the simulated cell over loopback), then solved twice from the same measurements: the
@@ -65,9 +65,11 @@ QUICK = {"worlds": 1, "jobs": 1, "postures": 8}
 STEP = {"height_mm": 50.0, "height_std_mm": 0.002, "centre_mm": [250.0, 250.0], "size_mm": 60.0}
 
 
-def make_profile(directory: Path, thermometer_c: float, step: bool = False) -> Path:
+def make_profile(
+    directory: Path, thermometer_c: float, step: bool = False, model: str = MODEL
+) -> Path:
     path = directory / "cell.toml"
-    create_profile(path, MODEL, force=True)
+    create_profile(path, model, force=True)
     updates: dict = {
         "robot": {"dh_length_std_mm": 0.3, "dh_angle_std_deg": 0.03},
         "water": {"temperature_std_c": thermometer_c},
@@ -91,8 +93,11 @@ def draw_world(rng: np.random.Generator, profile, index: int, nominal: bool = Fa
         f"alpha_deg = {r[3]!r}" + (f", beta_deg = {beta!r}" if i == 1 else "") + " }"
         for i, r in enumerate(dh.tolist())
     )
-    pos = profile.sample_position_mm + rng.normal(0.0, profile.sample_position_std_mm, 3)
-    rot = profile.sample_rotation_deg + rng.normal(0.0, profile.sample_rotation_std_deg, 3)
+    # placed by hand within its declared tolerance: normal, clipped at 2σ
+    pos_std = np.broadcast_to(profile.sample_position_std_mm, 3)
+    rot_std = np.broadcast_to(profile.sample_rotation_std_deg, 3)
+    pos = profile.sample_position_mm + np.clip(rng.normal(0.0, pos_std), -2 * pos_std, 2 * pos_std)
+    rot = profile.sample_rotation_deg + np.clip(rng.normal(0.0, rot_std), -2 * rot_std, 2 * rot_std)
     t_std = profile.water_temperature_std_c
     step = ""
     if profile.step is not None:  # placed by hand, height within its certificate, top not flat

@@ -19,6 +19,7 @@ Run::
     python benchmarks/plans.py              # 3 models x 4 blocks x 4 tools x 3 holders x 2
     python benchmarks/plans.py --quick      # one block, one tool per model x holder: 9 cells
     python benchmarks/plans.py --model tx90xl --blocks 8 --json
+    python benchmarks/plans.py --model tx90xl --blocks 12 --planner "calibrate --level full"
 """
 
 from __future__ import annotations
@@ -144,17 +145,19 @@ def mask(message: str) -> str:
     return re.sub(r"-?\d+(\.\d+)?", "#", message)
 
 
-def sweep(all_cases: list[Case]) -> dict:
-    """Run the four planners on every case; counts, refusals grouped, CPU time."""
+def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) -> dict:
+    """Run the planners (by name, all four by default) on every case; counts, refusals
+    grouped, CPU time."""
+    chosen = {name: PLANNERS[name] for name in planners}
     bases = {m: template(m) for m in dict.fromkeys(c.model for c in all_cases)}
-    counts: dict[str, Counter[str]] = {name: Counter() for name in PLANNERS}
-    grouped: dict[str, Counter[str]] = {name: Counter() for name in PLANNERS}
+    counts: dict[str, Counter[str]] = {name: Counter() for name in chosen}
+    grouped: dict[str, Counter[str]] = {name: Counter() for name in chosen}
     example: dict[tuple[str, str], str] = {}
     by_model: dict[str, Counter[str]] = defaultdict(Counter)
     t0 = time.process_time()
     for case in all_cases:
         profile = profile_of(case, bases[case.model])
-        for name, plan in PLANNERS.items():
+        for name, plan in chosen.items():
             try:
                 plan(profile)
             except (SafetyError, UcalError) as e:
@@ -178,7 +181,7 @@ def sweep(all_cases: list[Case]) -> dict:
                     for key, n in grouped[name].most_common()
                 ],
             }
-            for name in PLANNERS
+            for name in chosen
         },
         "by_model": {m: dict(c) for m, c in by_model.items()},
     }
@@ -196,17 +199,26 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the step on the 10-degree holder's cells only, instead of with and without it",
     )
+    p.add_argument(
+        "--planner",
+        choices=PLANNERS,
+        action="append",
+        help="only this planner (again for more; default: all four)",
+    )
     p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1 --one-step: 9 cells")
     args = p.parse_args(argv)
     if args.quick:
         p.set_defaults(**QUICK)
         args = p.parse_args(argv)
     models = tuple(args.model or KNOWN_MODELS)
-    result = sweep(cases(models, args.blocks, args.tools, args.seed, args.one_step))
+    planners = tuple(args.planner or PLANNERS)
+    result = sweep(cases(models, args.blocks, args.tools, args.seed, args.one_step), planners)
     if args.json:
         print(json.dumps(result))
         return 0
-    print(f"{result['cases']} cells, four planners each: {result['cpu_s']:.1f} s of CPU")
+    print(
+        f"{result['cases']} cells, {len(planners)} planner(s) each: {result['cpu_s']:.1f} s of CPU"
+    )
     for name, r in result["planners"].items():
         print(f"{name}: {r['planned']} planned, {r['refused']} refused")
         for g in r["refusals"]:

@@ -94,6 +94,10 @@ KINEMATIC = DH + BETA
 #: A kinematic column whose residual after projection on the kept columns is below this share
 #: of its norm duplicates them (redundant or a gauge).
 REDUNDANT_REL = 1e-3
+#: A kinematic column whose norm (every measurement's residual, per σ, for one prior σ of the
+#: parameter) is below this is seen by none: what is left is the rounding of a translation
+#: across every beam (d5, a5 on a block turned off the base axes: 5e-7), not information.
+UNSEEN_NORM = 1e-3
 
 #: A parameter whose std is above this share of its tolerance is reported prior-dominated.
 PRIOR_DOMINATED = 0.5
@@ -243,6 +247,8 @@ def identifiability(
             continue
         cols = np.column_stack([col[n] for n in kept])
         share, coef = _residual_share(cols, col[name])
+        if np.linalg.norm(col[name]) < UNSEEN_NORM:
+            share, coef = 0.0, np.zeros(len(kept))
         if share < redundant_rel:
             order = np.argsort(-np.abs(coef))
             partners = [kept[i] for i in order[:2] if abs(coef[i]) > 0.1 * np.abs(coef).max()]
@@ -271,7 +277,9 @@ def identifiability(
                 "sound speed does not enter: the step's height tolerance sets the common "
                 "scale of every length and of the sound speed"
             )
-    s = np.linalg.svd(js / np.maximum(np.linalg.norm(js, axis=0), 1e-300), compute_uv=False)
+    norms = np.linalg.norm(js, axis=0)
+    seen = np.where(norms < UNSEEN_NORM, 0.0, js / np.maximum(norms, 1e-300))
+    s = np.linalg.svd(seen, compute_uv=False)
     rank = int(np.sum(s > redundant_rel * s[0]))
     return Identifiability(
         rank,

@@ -21,6 +21,20 @@ mean log of how many times the plan shrinks the prior's σ (geometric mean). Sel
 greedy (Fedorov's exchange without the exchange): the candidate that raises ``log det M`` most,
 ``log det(I₃ + Jᵢ M⁻¹ Jᵢᵀ)`` (matrix determinant lemma), is added until the next one adds less
 than ``MIN_GAIN`` (then more postures buy little: fewer moves for the same criterion).
+
+Order. The run moves each posture's arm so that the tool stands where the plan put it relative
+to the cell as measured so far (``ucal.calibration.full_run.retarget``); what it does not know
+yet moves the tool from there. Each posture, when the run gets to it, must keep room for three
+sigma of that (``visit_order``): what the block's tolerance and the offsets' uncertainty move
+the tool centre by along each block axis (``ucal.calibration.safety.offsets_margins_mm``: a
+fresh cell's offsets are known to a degree, tens of millimetres on a TX90XL), times the share
+of the posture's water-path std that the faces measured before it leave (the run's estimate,
+prior-augmented, has error covariance ``M⁻¹(P + HᵀH)M⁻¹`` with ``M = I + HᵀH`` and ``P`` the
+cell's real spread in units of the fit's priors). The water path stays between
+``MIN_WATER_PATH_MM`` and the echo's ``STEPPED_PATH_RANGE_MM`` bound, the beam inside the
+face's edges and the step's top. The postures are visited lowest J1 first, then nearest next,
+among those that have the room; where none has it yet, the candidate that has it and adds most
+information is visited first (a lead-in).
 """
 
 from __future__ import annotations
@@ -44,7 +58,10 @@ from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
     SEARCH_MARGIN_DEG,
+    TOLERANCE_SIGMAS,
     check_joints,
+    offsets_margins_mm,
+    offsets_std_deg,
     reach_advice,
     step_blocked,
     tolerance_margins,
@@ -184,16 +201,21 @@ def _arm_clear(profile: CellProfile, q: np.ndarray) -> tuple[np.ndarray, np.ndar
     return ok, local, tcp
 
 
-def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray, margin_mm: float) -> np.ndarray:
+def _clear(
+    profile: CellProfile, q: np.ndarray, faces: np.ndarray, margin_mm: float | np.ndarray
+) -> np.ndarray:
     """Which postures (n, 6) keep the arm clear of the block (``_arm_clear``), with the beam
-    meeting its face (n,) ``margin_mm`` more than ``EDGE_MARGIN_MM`` inside the edges."""
+    meeting its face (n,) ``margin_mm`` more than ``EDGE_MARGIN_MM`` inside the edges (one
+    value, or one per posture and block axis (n, 3): how far the tool centre may stand from
+    where it is planned)."""
     s = profile.sample_matrix
     size = profile.sample_face_size_mm
     ok, local, tcp = _arm_clear(profile, q)
     here = local[:, 5]
     beam = tcp[:, :3, 2] @ s[:3, :3]
     hit = here + here[np.arange(len(q)), faces][:, None] * beam
-    edge = EDGE_MARGIN_MM + margin_mm
+    margin = np.broadcast_to(np.asarray(margin_mm, float), hit.shape)
+    edge = EDGE_MARGIN_MM + margin
     inside = (hit >= edge) & (hit <= size - edge)
     inside[np.arange(len(q)), faces] = True
     ok &= np.all(inside, 1)
@@ -201,9 +223,11 @@ def _clear(profile: CellProfile, q: np.ndarray, faces: np.ndarray, margin_mm: fl
     if step is not None:
         # the beam meets the step's top well inside it, or passes the step well clear
         half = 0.5 * step.size_mm
-        on_top = (faces == 2) & np.all(np.abs(hit[:, :2] - step.centre_mm) <= half, 1)
-        ok &= ~on_top | np.all(np.abs(hit[:, :2] - step.centre_mm) <= half - STEP_INSIDE_MM, 1)
-        crosses = step_blocked(step, here, beam, faces, max(STEP_MARGIN_MM, margin_mm))
+        centre = np.abs(hit[:, :2] - step.centre_mm)
+        on_top = (faces == 2) & np.all(centre <= half, 1)
+        ok &= ~on_top | np.all(centre <= half - STEP_INSIDE_MM - margin[:, :2], 1)
+        across = np.maximum(STEP_MARGIN_MM, margin[:, :2].max(1))
+        crosses = step_blocked(step, here, beam, faces, across)
         ok &= ~crosses | on_top
     return ok
 
@@ -326,19 +350,121 @@ def select_postures(
     return chosen, log_det
 
 
+#: Weights of each joint's travel in the visiting order (J1 first: the longest moves).
+TRAVEL_WEIGHTS = np.array([3.0, 2.0, 2.0, 1.0, 1.0, 0.5])
+
+
+def _next(options: list[Posture], last: Posture | None) -> int:
+    """Index in ``options`` of the posture to visit next: the lowest J1 first, then the
+    nearest (``TRAVEL_WEIGHTS``)."""
+    if last is None:
+        return int(np.argmin([p.joints_deg[0] for p in options]))
+    here = last.joints_deg
+    return int(np.argmin([np.sum(TRAVEL_WEIGHTS * np.abs(p.joints_deg - here)) for p in options]))
+
+
 def order_postures(postures: list[Posture]) -> list[Posture]:
     """Visit order: nearest next in J1, then the other joints (fewer, shorter moves)."""
-    if not postures:
-        return []
     left = list(postures)
-    left.sort(key=lambda p: p.joints_deg[0])
-    out = [left.pop(0)]
-    weights = np.array([3.0, 2.0, 2.0, 1.0, 1.0, 0.5])
+    out: list[Posture] = []
     while left:
-        here = out[-1].joints_deg
-        i = int(np.argmin([np.sum(weights * np.abs(p.joints_deg - here)) for p in left]))
-        out.append(left.pop(i))
+        out.append(left.pop(_next(left, out[-1] if out else None)))
     return out
+
+
+def unknown_spread(profile: CellProfile, prior: CellPrior, names: tuple[str, ...]) -> np.ndarray:
+    """Per unknown of the planning Jacobian (``names``), how far the cell may really be from
+    the profile over the prior σ the fit gives it: the offsets' planning std
+    (``ucal.calibration.safety.offsets_std_deg``: a fresh cell's degree, not the fit's broad
+    prior) over the fit's; 1 for every other unknown (its prior is the declared tolerance)."""
+    table = full_table(prior)
+    spread = np.ones(len(names))
+    planning = offsets_std_deg(profile)
+    for j, name in enumerate(OFFSETS):
+        if name in names:
+            spread[names.index(name)] = planning[j] / table.prior_stds[table.index(name)]
+    return spread
+
+
+def visit_order(
+    profile: CellProfile,
+    cands: list[Posture],
+    jacs: np.ndarray,
+    spread: np.ndarray,
+    chosen: list[int],
+    max_postures: int = MAX_POSTURES,
+) -> list[int]:
+    """The order the run visits the ``chosen`` candidates (indices into ``cands``, in the
+    order chosen), each with the room the run needs when it gets there (module docstring:
+    the room the tolerances and the offsets give, ``offsets_margins_mm``, times the share of
+    its water path's prior std the faces measured before it leave); where no chosen posture
+    has that room yet, the candidate with it that adds most information is visited first (a
+    lead-in, added to the plan; at ``max_postures`` it takes the place of the last chosen).
+    ``SafetyError`` naming what to do when no candidate has it."""
+    q = np.array([c.joints_deg for c in cands])
+    faces = np.array([int(c.face) for c in cands])
+    paths = np.array([c.water_path_mm for c in cands])
+    on_step = np.array([c.step for c in cands], bool)
+    room_prior = np.hypot(tolerance_margins(profile).block_mm, offsets_margins_mm(profile, q))
+    rows = jacs[:, 2, :]  # each posture's water path (per σ) against the unknowns (per prior σ)
+    spread_cov = np.diag(spread**2)
+    prior_var = np.einsum("np,pq,nq->n", rows, spread_cov, rows)
+    p = jacs.shape[-1]
+    info = np.eye(p)
+    left = list(chosen)
+    out: list[int] = []
+    used = np.zeros(len(cands), bool)
+    while left:
+        # the run's estimate after the faces so far: error M⁻¹(P + HᵀH)M⁻¹ (P: the spread)
+        m_inv = np.linalg.inv(info)
+        a = rows @ m_inv
+        var = np.einsum("np,pq,nq->n", a, spread_cov + info - np.eye(p), a)
+        share = np.sqrt(np.clip(var / np.maximum(prior_var, 1e-300), 0.0, 1.0))
+        room = room_prior * share[:, None]
+        along = room[np.arange(len(cands)), faces]
+        ok = (
+            (paths - along >= MIN_WATER_PATH_MM)
+            & (paths + along <= STEPPED_PATH_RANGE_MM[1])
+            & _clear(profile, q, faces, room)
+        )
+        passing = [i for i in left if ok[i]]
+        if passing:
+            k = passing[_next([cands[i] for i in passing], cands[out[-1]] if out else None)]
+            left.remove(k)
+        else:
+            spare = np.flatnonzero(ok & ~used & ~on_step)
+            if not spare.size:
+                raise SafetyError(_unroomy(profile, room_prior, faces))
+            s = (jacs[spare] @ m_inv) @ jacs[spare].transpose(0, 2, 1) + np.eye(3)
+            k = int(spare[np.argmax(np.linalg.slogdet(s)[1])])
+            log.info("full plan: candidate %s first, where the offsets leave room", cands[k].label)
+            if len(out) + len(left) >= max_postures:
+                left.pop()  # the last chosen: the least information
+        out.append(k)
+        used[k] = True
+        if not on_step[k]:  # a water path over the step does not refit the run's estimate
+            info = info + jacs[k].T @ jacs[k]
+    return out
+
+
+def _unroomy(profile: CellProfile, room_mm: np.ndarray, faces: np.ndarray) -> str:
+    """The refusal when no posture keeps the room the unknown offsets need (``visit_order``)."""
+    along = room_mm[np.arange(len(faces)), faces]
+    std = offsets_std_deg(profile)
+    s_mat = profile.sample_matrix
+    middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
+    return (
+        "plan --level full: with the joint offsets known to "
+        f"±{TOLERANCE_SIGMAS * np.max(std):.3g}° ({TOLERANCE_SIGMAS:g}σ; "
+        + ("not calibrated" if profile.joint_offsets_std_deg is None else "[calibration] std_deg")
+        + f") the tool centre may stand {np.min(along):.0f}-{np.max(along):.0f} mm from where "
+        f"it is planned, and no posture keeps it {MIN_WATER_PATH_MM:g} mm from the face, the "
+        f"echo within {STEPPED_PATH_RANGE_MM[1]:g} mm and the beam inside the face's edges: "
+        "calibrate the offsets first (`ucal calibrate PROFILE`), or "
+        + reach_advice(
+            profile, middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2], "the block"
+        )
+    )
 
 
 def plan_full(
@@ -359,12 +485,21 @@ def plan_full(
         )
     prior = prior_from_profile(profile)
     jacs, names = posture_jacobians(prior, profile, cands)
-    idx, log_det = select_postures(jacs, min_gain, max_postures)
-    chosen = order_postures([cands[i] for i in idx])
+    idx, _ = select_postures(jacs, min_gain, max_postures)
+    spread = unknown_spread(profile, prior, names)
+    order = visit_order(profile, cands, jacs, spread, idx, max_postures)
     chosen = [
-        Posture(f"p{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm, p.step)
-        for i, p in enumerate(chosen)
+        Posture(
+            f"p{i + 1:02d}",
+            cands[k].face,
+            cands[k].joints_deg,
+            cands[k].water_path_mm,
+            cands[k].step,
+        )
+        for i, k in enumerate(order)
     ]
+    taken = jacs[order].reshape(-1, jacs.shape[-1])  # lead-ins add their information
+    log_det = float(np.linalg.slogdet(np.eye(jacs.shape[-1]) + taken.T @ taken)[1])
     j1 = [p.joints_deg[0] for p in chosen]
     # R of the candidates' Jacobian (J = QR): the same column norms, regressions and singular
     # values as J, in p rows instead of three per candidate

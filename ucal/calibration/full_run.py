@@ -10,8 +10,13 @@ measured; the offsets stay those of the positive approach). At the end the early
 probes are fitted again with the final estimate, and ``ucal.calibration.full.solve_full``
 identifies the model.
 
-The prediction holds the DH table at the profile's (a few tenths of a millimetre move a posture
-by hundredths of a degree): the search around each prediction absorbs that. A face whose peak
+Each posture is moved first so that the tool centre stands where the plan put it relative to
+the block as the run has measured it so far (``retarget``): the plan's arm joints on a cell
+whose offsets are a degree off would put it tens of millimetres from there on a TX90XL, which
+the wrist's aim alone does not correct (the plan keeps room for what the run does not know yet,
+``ucal.calibration.full_plan.visit_order``). The prediction holds the DH table at the profile's
+(a few tenths of a millimetre move a posture by hundredths of a degree): the search around
+each prediction absorbs that. A face whose peak
 came out uncertain (``ucal.measure.running.UNCERTAIN_TILT_DEG``) is left out of the
 predictions and measured again at the end.
 
@@ -26,10 +31,15 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from ucal.calibration.full_plan import FullPlan
+import numpy as np
+
+from ucal.calibration.full_plan import FullPlan, Posture
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.sequence import geometry
 from ucal.cell import CellProfile
+from ucal.errors import UcalError
+from ucal.kinematics.dh import fk, transform
+from ucal.kinematics.ik import ik
 from ucal.measure.face import SearchMode
 from ucal.measure.running import UNCERTAIN_TILT_DEG, RunningEstimate
 from ucal.progress import MeasureStep, Report
@@ -52,6 +62,27 @@ def direction(plan: FullPlan, label: str) -> int:
     """How the posture ``label`` is reached: from above (−1) if the plan says so
     (``FullPlan.above``: the lost motion), else from below (+1)."""
     return -1 if label in plan.above else 1
+
+
+def retarget(profile: CellProfile, running: RunningEstimate, posture: Posture) -> np.ndarray:
+    """The readings (6,) that put the tool where ``posture`` puts it relative to the block on
+    the profile's cell, on the cell as ``running`` has measured it so far (its offsets,
+    block and tool), joint 6 as planned (the turn about the beam is free: near the wrist's
+    singularity the estimated tool's orientation would swing joints 4 and 6 by degrees out
+    of the room planned for the search; the run aims joints 4 and 5); the planned readings
+    where no solution reaches that pose."""
+    rel = np.linalg.inv(profile.sample_matrix) @ fk(
+        profile.model, posture.joints_deg, profile.tool_matrix, profile.joint_offsets_deg
+    )
+    geom = running.geometry
+    block = transform(running.corner_mm, geom.block_rotation)
+    try:
+        q = ik(geom.model, block @ rel, geom.tool_matrix, running.offsets_deg, posture.joints_deg)
+    except UcalError as e:
+        log.info("%s: kept as planned (%s)", posture.label, e)
+        return posture.joints_deg
+    q[5] = posture.joints_deg[5]
+    return q
 
 
 def run_full(
@@ -78,7 +109,7 @@ def run_full(
         above = top if posture.step else 0.0
         found = running.measure(
             posture.face,
-            posture.joints_deg,
+            retarget(profile, running, posture),
             label,
             posture.label,
             above,
@@ -100,7 +131,7 @@ def run_full(
         log.info(
             "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, UNCERTAIN_TILT_DEG
         )
-        q, face = posture.joints_deg, posture.face
+        q, face = retarget(profile, running, posture), posture.face
         again = running.measure(
             face,
             q,

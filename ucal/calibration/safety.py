@@ -10,6 +10,14 @@ water path and hit point (its faces shift). ``tolerance_margins`` turns the prof
 tolerances into what three sigma of them can move a posture, and the plans keep that much
 room beyond the wrist search's and the clearances above, so that a block anywhere within its
 tolerance plans and is measured without a check failing on the way.
+
+The joint offsets. A plan's arm joints are the ones the run commands; the run re-aims the wrist
+with the cell as measured so far, but the arm stands where the true offsets put it. A profile
+that ``calibrate`` has not written knows its offsets to a degree or so
+(``FRESH_OFFSET_STD_DEG``), which moves the tool centre by each joint's lever arm:
+``offsets_margins_mm`` gives three sigma of that along the block's axes, posture by posture,
+for the water path and the hit point of a plan that may run before the offsets are calibrated
+(``ucal.calibration.full_plan``).
 """
 
 from __future__ import annotations
@@ -32,6 +40,10 @@ MIN_WATER_PATH_MM = 20.0
 EDGE_MARGIN_MM = 20.0
 #: The margins cover this many sigma of the declared tolerances.
 TOLERANCE_SIGMAS = 3.0
+#: One sigma of a joint's zero offset that ``calibrate`` has not determined (deg): a fresh
+#: cell's zeros are within 1-3° of the controller's (encoders set at the factory, a motor
+#: replaced); three sigma cover that.
+FRESH_OFFSET_STD_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +76,35 @@ def tolerance_margins(profile: CellProfile) -> Margins:
         + tilt_mm**2
     )
     return Margins(float(k * rot), float(k * shift))
+
+
+def offsets_std_deg(profile: CellProfile) -> np.ndarray:
+    """How well a profile knows each joint's zero offset, for planning (deg, one sigma):
+    ``[calibration] std_deg`` where ``calibrate`` determined it, ``FRESH_OFFSET_STD_DEG`` for a
+    joint it did not (or a profile never calibrated)."""
+    std = profile.joint_offsets_std_deg
+    if std is None:
+        return np.full(6, FRESH_OFFSET_STD_DEG)
+    std = np.asarray(std, float)
+    return np.where(np.isfinite(std) & (std > 0), std, FRESH_OFFSET_STD_DEG)
+
+
+def offsets_margins_mm(profile: CellProfile, q: np.ndarray) -> np.ndarray:
+    """``TOLERANCE_SIGMAS`` of the tool centre's displacement (mm) along each block axis
+    (n, 3) that the offsets' uncertainty (``offsets_std_deg``) causes at readings ``q``
+    (n, 6): per joint its std times the tool centre's motion per degree of it (the joint's
+    lever arm), the joints' contributions added in variance."""
+    geom = CellGeometry(profile.model, profile.tool_matrix, profile.sample_matrix[:3, :3])
+    offsets = np.asarray(profile.joint_offsets_deg, float)
+    q = np.atleast_2d(np.asarray(q, float))
+    var = np.zeros((len(q), 3))
+    for j, std in enumerate(offsets_std_deg(profile)):
+        h = np.zeros(6)
+        h[j] = 1e-3
+        _, ahead = beam_and_tcp(geom, q, offsets + h)
+        _, behind = beam_and_tcp(geom, q, offsets - h)
+        var += ((ahead - behind) @ geom.block_rotation * (std / 2e-3)) ** 2
+    return TOLERANCE_SIGMAS * np.sqrt(var)
 
 
 def beam_on_flange_axis(profile: CellProfile, tol_deg: float = 1.0) -> bool:
@@ -185,20 +226,25 @@ def beam_meets_step(
 
 
 def step_blocked(
-    step: Step, tcp_local: np.ndarray, beam_local: np.ndarray, faces: np.ndarray, margin_mm: float
+    step: Step,
+    tcp_local: np.ndarray,
+    beam_local: np.ndarray,
+    faces: np.ndarray,
+    margin_mm: float | np.ndarray,
 ) -> np.ndarray:
-    """Which beams (n,) come within ``margin_mm`` of ``step`` between the tool centre and the
-    face they are aimed at: the step's top and sides, grown by the margin, against points
-    along each beam (tool centres (n, 3) and beam directions (n, 3) in block coordinates,
-    ``faces`` (n,) the face each meets). A beam aimed at the XY face beside the step, a
-    tool over it or a beam to a wall that grazes it are all blocked."""
+    """Which beams (n,) come within ``margin_mm`` (one value, or one per beam) of ``step``
+    between the tool centre and the face they are aimed at: the step's top and sides, grown
+    by the margin, against points along each beam (tool centres (n, 3) and beam directions
+    (n, 3) in block coordinates, ``faces`` (n,) the face each meets). A beam aimed at the XY
+    face beside the step, a tool over it or a beam to a wall that grazes it are all blocked."""
     n = len(tcp_local)
     depth = tcp_local[np.arange(n), faces]
     t = np.linspace(0.0, 1.0, 24)
     path = tcp_local[:, None, :] + t[None, :, None] * depth[:, None, None] * beam_local[:, None]
-    half = 0.5 * step.size_mm + margin_mm
+    margin = np.reshape(np.asarray(margin_mm, float), (-1, 1))
+    half = 0.5 * step.size_mm + margin[..., None]
     near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half, -1)
-    return np.any(near & (path[..., 2] < step.height_mm + margin_mm), 1)
+    return np.any(near & (path[..., 2] < step.height_mm + margin), 1)
 
 
 def reach_advice(profile: CellProfile, point_mm: np.ndarray, what: str) -> str:

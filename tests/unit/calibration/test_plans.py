@@ -8,11 +8,15 @@ full level — still inside them when the block really stands 3σ off its declar
 
 from __future__ import annotations
 
+import itertools
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.full_plan import plan_full
+from ucal.calibration.full_plan import order_postures, plan_full
+from ucal.calibration.full_run import retarget
 from ucal.calibration.model import CellGeometry, Configuration, beam_and_tcp
 from ucal.calibration.plan import calibration_pose, geometry, plan_calibration
 from ucal.calibration.safety import (
@@ -21,12 +25,14 @@ from ucal.calibration.safety import (
     SEARCH_MARGIN_DEG,
     check_joints,
     face_hit,
+    offsets_margins_mm,
     step_blocked,
     tolerance_margins,
 )
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk, fk_frames
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import default_profile_text, profile_from_data
 
@@ -122,3 +128,93 @@ def test_a_block_out_of_reach_is_refused_naming_how_far_to_move_it() -> None:
     assert "calibration poses tried passes either: move the block about" in words
     shift = float(words.split("move the block about ")[1].split(" mm")[0])
     assert 100.0 <= shift <= 300.0 and words.endswith("mm towards the robot")
+
+
+def test_the_offsets_margin_is_three_sigma_of_each_joints_lever_arm() -> None:
+    """Only J2 unknown (1°): the tool centre moves by its distance from J2's axis per radian,
+    three sigma of it; a calibrated profile's offsets leave hundredths of a millimetre."""
+    profile = template("tx90xl")
+    q = calibration_pose(profile)
+    only_j2 = profile.replace(joint_offsets_std_deg=np.array([1e-9, 1.0, 1e-9, 1e-9, 1e-9, 1e-9]))
+    frames = fk_frames(profile.model, q, profile.joint_offsets_deg)
+    tcp = (frames[6] @ profile.tool_matrix)[:3, 3]
+    axis, origin = frames[1, :3, 2], frames[1, :3, 3]  # joint 2 turns about frame 1's z
+    lever = np.linalg.norm(np.cross(axis, tcp - origin))
+    margin = offsets_margins_mm(only_j2, q[None])[0]
+    assert np.linalg.norm(margin) == pytest.approx(3.0 * np.radians(1.0) * lever, rel=1e-5)
+    assert np.linalg.norm(margin) > 30.0  # a TX90XL's reach: 0.76 m from J2, 13 mm a degree
+    fresh = offsets_margins_mm(profile, q[None])[0]  # never calibrated: a degree each
+    assert np.all(fresh > np.abs(margin) - 1e-9)
+    calibrated = profile.replace(joint_offsets_std_deg=np.full(6, 0.003))
+    assert np.all(offsets_margins_mm(calibrated, q[None]) < 0.2)
+
+
+def test_a_fresh_tx90xl_full_plan_starts_where_offsets_of_3_degrees_keep_the_tool_clear() -> None:
+    """The first posture is reached on the profile's offsets, before anything is measured:
+    with the true offsets three sigma off (a fresh cell's 1°) together on J1-J3, each sign,
+    the tool centre still stands 20 mm from the face, and the beam meets the face inside its
+    edges; the posture over the step comes once the faces before it leave it room."""
+    profile = at_two_sigma(template("tx90xl")).replace(step=README_STEP)
+    plan = plan_full(profile)
+    first = plan.postures[0]
+    geom = geometry(profile)
+    corner = profile.sample_matrix[:3, 3]
+    for signs in itertools.product((-1.0, 1.0), repeat=3):
+        true = np.array([*signs, 0.0, 0.0, 0.0]) * 3.0 / np.sqrt(3.0)
+        path, edge = face_hit(geom, first.joints_deg, true, corner, first.face, 500.0)
+        assert path >= MIN_WATER_PATH_MM and edge >= EDGE_MARGIN_MM, signs
+    assert any(p.step for p in plan.postures) and not first.step
+
+
+def test_a_calibrated_profile_keeps_its_plan_in_travel_order() -> None:
+    """Offsets known to thousandths of a degree need no room: the chosen postures in the
+    nearest-next order, no lead-in."""
+    profile = template("tx90xl").replace(step=README_STEP, joint_offsets_std_deg=np.full(6, 0.003))
+    plan = plan_full(profile)
+    again = order_postures(list(plan.postures))
+    assert [p.label for p in again] == [p.label for p in plan.postures]
+
+
+def test_offsets_too_uncertain_for_any_posture_are_refused_naming_the_cure() -> None:
+    profile = template("tx90xl").replace(joint_offsets_std_deg=np.full(6, 5.0))
+    with pytest.raises(SafetyError) as e:
+        plan_full(profile)
+    words = str(e.value)
+    assert "joint offsets known to ±15°" in words
+    assert "calibrate the offsets first (`ucal calibrate PROFILE`)" in words
+    assert "the block" in words
+
+
+def test_a_posture_is_retargeted_onto_the_cell_as_measured() -> None:
+    """Offsets of a degree and a block 5 mm off, as the run has measured them: the retargeted
+    readings, the wrist aimed as the run aims it, put the tool centre where the plan put it
+    relative to that block, beam along the same normal, joint 6 as planned."""
+    profile = template("tx90xl")
+    plan = plan_full(profile.replace(joint_offsets_std_deg=np.full(6, 0.003)), max_postures=3)
+    offsets = np.array([0.5, -1.0, 1.0, 0.3, -0.4, 0.0])
+    corner = profile.sample_position_mm + np.array([5.0, -3.0, 2.0])
+    geom = geometry(profile)
+    running = SimpleNamespace(offsets_deg=offsets, corner_mm=corner, geometry=geom)
+    for p in plan.postures:
+        q = aim_wrist(geom, retarget(profile, running, p), -geom.normal(p.face), offsets)
+        planned = fk(profile.model, p.joints_deg, profile.tool_matrix)
+        there = fk(profile.model, q, profile.tool_matrix, offsets)
+        np.testing.assert_allclose(
+            there[:3, 3] - corner, planned[:3, 3] - profile.sample_position_mm, atol=1e-6
+        )
+        np.testing.assert_allclose(there[:3, 2], planned[:3, 2], atol=1e-9)
+        assert q[5] == p.joints_deg[5]
+        assert np.max(np.abs(q[:3] - p.joints_deg[:3])) > 0.3  # the arm moved, not the wrist
+
+
+def test_a_block_turned_off_the_base_axes_leaves_what_no_beam_sees_unidentifiable() -> None:
+    """d5, a5 and link 6's a move the flange across every beam: on a block turned by a
+    fraction of a degree their columns are rounding (5e-7), not weak information, and they
+    stay held at their values as on a block square to the base."""
+    square = plan_full(template("tx90l")).structure
+    turned = plan_full(template("tx90l").replace(sample_rotation_deg=np.array([0.8, -0.6, 0.3])))
+    assert square is not None and turned.structure is not None
+    unseen = {"dh5_d_mm", "dh5_a_mm", "dh6_a_mm"}
+    assert unseen <= set(square.redundant) and unseen <= set(turned.structure.redundant)
+    assert not unseen & set(turned.structure.weak)
+    assert turned.structure.rank == square.rank
