@@ -159,15 +159,10 @@ def draw_world(rng: np.random.Generator, profile: CellProfile, case: str, index:
     else:
         text = full_calibration.draw_world(rng, profile, index)
     drift = rng.uniform(-DRIFT_C_PER_MIN[case], DRIFT_C_PER_MIN[case])
-    return with_drift_and_backlash(text, drift, rng.uniform(0.0, BACKLASH_DEG, 6).tolist())
-
-
-def with_drift_and_backlash(text: str, drift_c_per_min: float, backlash_deg: list[float]) -> str:
-    """World-file text ``text`` (one with a ``backlash_deg`` line) with the tank drifting at
-    ``drift_c_per_min`` and each joint's lost motion ``backlash_deg`` in place of its own."""
+    backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
     text = re.sub(r"(?m)^drift_c_per_min = .*\n", "", text)
-    text = re.sub(r"(?m)^backlash_deg = .*$", f"backlash_deg = {backlash_deg!r}", text)
-    return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift_c_per_min!r}\n", 1)
+    text = re.sub(r"(?m)^backlash_deg = .*$", f"backlash_deg = {backlash!r}", text)
+    return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift!r}\n", 1)
 
 
 @dataclass

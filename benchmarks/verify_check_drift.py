@@ -5,9 +5,9 @@ Each of ``--worlds`` cells is ``realistic.py --fixture``'s (block doweled and le
 0.01°; the DH table within its tolerance; offsets ±3°; 8-bit amplitude, an unknown TOF delay;
 the tool measured, 0.05 mm / 0.02°), its profile declaring the default drift and lost motion
 tolerances (0.05 °C/min, 0.01°), in two states: ``drifting`` (the tank drifting uniform in
-±0.1 °C/min, lost motion uniform in 0–0.02° per joint: ``drift.py``'s) and ``still`` (the same
-cell with neither). Each state is commissioned and checked by the commands, as processes, in
-the order a user runs them:
+±0.1 °C/min, lost motion uniform in 0–0.02° per joint: ``drift.py``'s linear tank) and
+``still`` (the same cell with neither). Each state is commissioned and checked by the
+commands, as processes, in the order a user runs them:
 
 1. ``calibrate`` (the offsets level), written into a fresh copy of the profile;
 2. ``verify --points N`` and ``verify --region M`` on the cell as commissioned;
@@ -91,9 +91,17 @@ def draw_cells(rng: np.random.Generator, profile, index: int) -> dict[str, str]:
     rate = rng.uniform(-DRIFT_C_PER_MIN, DRIFT_C_PER_MIN)
     backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
     return {
-        "drifting": drift.with_drift_and_backlash(text, rate, backlash),
-        "still": drift.with_drift_and_backlash(text, 0.0, [0.0] * 6),
+        "drifting": with_tank_and_arm(text, rate, backlash),
+        "still": with_tank_and_arm(text, 0.0, [0.0] * 6),
     }
+
+
+def with_tank_and_arm(text: str, drift_c_per_min: float, backlash_deg: list[float]) -> str:
+    """World-file text ``text`` with the tank drifting at ``drift_c_per_min`` and each joint's
+    lost motion ``backlash_deg`` in place of its own."""
+    text = re.sub(r"(?m)^drift_c_per_min = .*\n", "", text)
+    text = re.sub(r"(?m)^backlash_deg = .*$", f"backlash_deg = {backlash_deg!r}", text)
+    return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift_c_per_min!r}\n", 1)
 
 
 def moved(text: str) -> str:
