@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import tomlkit
@@ -368,6 +371,11 @@ def test_a_before_point_the_measured_points_put_into_the_block_is_skipped(
     assert out["after_mm"]["max"] == pytest.approx([0.01, 0.01, 0.01])
     assert out["passed"]
     assert plot_verify(result, tmp_path / "v.png").stat().st_size > 0
+    # every "before" point skipped: its statistics null, the verdict the "after" points'
+    none = replace(result, points=result.points[1:], skipped=(*result.skipped, result.skipped[0]))
+    out = json.loads(json.dumps(none.to_json(0.5), allow_nan=False))
+    assert out["before_mm"]["max"] == [None] * 3 and out["measured_points"]["before"] == []
+    assert out["after_mm"]["max"] == pytest.approx([0.01, 0.01, 0.01]) and out["passed"]
 
 
 def test_before_points_the_current_offsets_put_into_the_block_are_flagged(profile) -> None:

@@ -113,6 +113,7 @@ from ucal.calibration.residuals import (
     cell_geometry,
     data_residuals,
     measurement_label,
+    readings_approach,
     reference_time_min,
     table_geometry,
 )
@@ -154,6 +155,7 @@ __all__ = [
     "offsets_prior_std_deg",
     "physically_possible",
     "prior_from_profile",
+    "readings_approach",
     "reference_time_min",
     "residual_pattern",
     "solve_augmented",

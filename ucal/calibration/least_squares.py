@@ -51,13 +51,17 @@ def hold_unseen(table: ParameterTable, meas: Sequence[Reading]) -> None:
     std for nothing the data could tell apart; held at 0, the offsets are those of the
     approach the readings had, with the std the data give them.
     """
-    times = {m.time_min for m in meas if m.time_min is not None}
-    if DRIFT[0] in table.names and len(times) < 2:
+    if DRIFT[0] in table.names and not sees_drift(meas):
         table.free[table.index(DRIFT[0])] = False
     if BACKLASH[0] in table.names:
         for name, seen in zip(BACKLASH, two_sided_joints(meas), strict=True):
             if not seen:
                 table.free[table.index(name)] = False
+
+
+def sees_drift(meas: Sequence[Reading]) -> bool:
+    """Whether ``meas`` see the sound speed's drift: two readings at different times."""
+    return len({m.time_min for m in meas if m.time_min is not None}) >= 2
 
 
 @dataclass(frozen=True)

@@ -79,6 +79,17 @@ def approach_signs(meas: Sequence[Reading]) -> np.ndarray:
     return out
 
 
+def readings_approach(meas: Sequence[Reading]) -> str:
+    """The approach ``meas`` were read from, in SPEC.md's words: ``"positive"`` when every
+    joint of every reading ended its move in its positive direction (the approach the offsets
+    of ``[calibration]`` belong to), ``"negative"`` when every one ended it in its negative
+    one, else ``"both"`` (some joints read from either side: their lost motion is seen)."""
+    signs = approach_signs(meas)
+    if np.all(signs > 0):
+        return "positive"
+    return "negative" if np.all(signs < 0) else "both"
+
+
 def reference_time_min(meas: Sequence[Reading]) -> float:
     """The time the fitted sound speed is given at (min): the mean of the readings' times
     (0 when none has one), where the speed and its drift are least correlated."""

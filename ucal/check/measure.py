@@ -214,7 +214,8 @@ def read_echo_band(rig: Rig, echo_tof_ns: float) -> EchoEstimate | None:
 
 
 def faces_to_json(faces: list[FaceMeasurement]) -> list[dict[str, Any]]:
-    """Face measurements as a history entry keeps them: what the solver receives."""
+    """Face measurements as a history entry keeps them: what the solver receives, with each
+    reading's time and approach (the drift and the lost motion the solver sees)."""
     return [
         {
             "config": str(m.config),
@@ -228,6 +229,8 @@ def faces_to_json(faces: list[FaceMeasurement]) -> list[dict[str, Any]]:
             "distance_joints_deg": (
                 None if m.distance_joints_deg is None else [float(v) for v in m.distance_joints_deg]
             ),
+            "time_min": None if m.time_min is None else float(m.time_min),
+            "approach": None if m.approach is None else [float(v) for v in m.approach],
         }
         for m in faces
     ]
@@ -246,6 +249,9 @@ def faces_from_json(rows: list[dict[str, Any]]) -> list[FaceMeasurement]:
             float("nan") if r["amplitude"] is None else float(r["amplitude"]),
             None if r["distance_joints_deg"] is None else np.asarray(r["distance_joints_deg"]),
             gain_db=r["gain_db"],
+            # an entry written before they were kept: no time (no drift seen), from below
+            time_min=None if r.get("time_min") is None else float(r["time_min"]),
+            approach=None if r.get("approach") is None else np.asarray(r["approach"], float),
         )
         for r in rows
     ]

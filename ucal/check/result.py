@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import CellPrior
+from ucal.calibration.fit import CellPrior, readings_approach
 from ucal.check.history import CheckEntry
 from ucal.check.judge import (
     CHANGED,
@@ -106,6 +106,8 @@ class CheckFindings:
             "records_reference": self.becomes_reference,
             "quantities": [q.to_json() for q in self.quantities],
         }
+        if self.run is not None:  # every face read from below: as calibrate's offsets hold
+            out["approach"] = readings_approach(self.run.faces)
         if self.geometry is not None:
             g = self.geometry
             out["fit"] = {

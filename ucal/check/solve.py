@@ -2,11 +2,13 @@
 
 The geometry (``compare_geometry``). The reference's face measurements and the check's enter
 one fit (``ChangeFit``): the cell's unknowns of ``ucal.calibration.fit`` (joint offsets, block
-pose, tool frame, sound speed, with the profile's values and tolerances as priors; the DH table
-held) are shared by both sets, and a *suspect* — a joint's offset, the tool frame, the block
-pose, the water's sound speed — may add a change to the check's. What cannot be told apart
-stays so: a joint-1 offset and a turn of the block about the base axis are one rotation, and
-both are named.
+pose, tool frame, sound speed and each joint's lost motion, with the profile's values and
+tolerances as priors; the DH table held as the reference's own fit puts it) are shared by
+both sets, each set has its own drift of the sound speed (the tank warms or cools at its own
+rate in each run, against each reading's ``time_min``), and a *suspect* — a joint's offset,
+the tool frame, the block pose, the water's sound speed — may add a change to the check's.
+What cannot be told apart stays so: a joint-1 offset and a turn of the block about the base
+axis are one rotation, and both are named.
 
 The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
 
@@ -54,8 +56,10 @@ from scipy.special import chdtrc, chdtri
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import (
+    BACKLASH,
     BLOCK,
     DH,
+    DRIFT,
     MISFIT_P,
     OFFSETS,
     PARAMETERS,
@@ -69,7 +73,9 @@ from ucal.calibration.fit import (
     offsets_prior_std_deg,
     solve_cell,
 )
+from ucal.calibration.least_squares import sees_drift
 from ucal.calibration.model import FaceMeasurement
+from ucal.calibration.residuals import two_sided_joints
 from ucal.cell import CellProfile
 
 log = logging.getLogger(__name__)
@@ -92,6 +98,9 @@ JOINT_CHANGE_STD_DEG = 1.0
 POSITION_CHANGE_STD_MM = 5.0
 ROTATION_CHANGE_STD_DEG = 1.0
 SOUND_CHANGE_STD_M_S = 30.0
+#: The sound speed's drift during the check's run (m/s per min): the reference's run has its
+#: own (``DRIFT``), both with the profile's prior (``[water] drift_std_c_per_min``).
+CHECK_DRIFT = "check_" + DRIFT[0]
 
 
 @dataclass(frozen=True)
@@ -165,8 +174,10 @@ class GeometryComparison:
 
 class ChangeFit:
     """The reference's and the check's face measurements in one prior-augmented fit: the cell's
-    unknowns shared (``ucal.calibration.fit.PARAMETERS``, the DH table held), each suspect's
-    change added to the check's (module docstring)."""
+    unknowns shared (``ucal.calibration.fit.PARAMETERS``, the DH table held at the
+    reference's fit), each suspect's change added to the check's, and each run its own drift
+    of the sound speed (``CHECK_DRIFT``: the tank warms or cools at its own rate in each;
+    module docstring)."""
 
     def __init__(
         self,
@@ -178,11 +189,24 @@ class ChangeFit:
         self.prior = prior
         self.suspects = all_suspects
         self.changed = tuple(p for s in all_suspects for p in s.parameters)
-        names = PARAMETERS + tuple(change_name(p) for p in self.changed)
-        values = np.concatenate([prior.values(), np.zeros(len(self.changed))])
-        stds = np.concatenate([prior.stds(), [v for s in all_suspects for v in s.change_std]])
+        names = PARAMETERS + (CHECK_DRIFT,) + tuple(change_name(p) for p in self.changed)
+        drift_std = prior.drift_std_m_s_per_min
+        values = np.concatenate([prior.values(), [0.0], np.zeros(len(self.changed))])
+        stds = np.concatenate(
+            [prior.stds(), [drift_std], [v for s in all_suspects for v in s.change_std]]
+        )
         self.table = ParameterTable(names, values, stds)
-        self.base_free = np.array([n not in DH for n in PARAMETERS])
+        # the cell's unknowns with their priors, the DH table held where the reference's own fit
+        # puts it (``start``: the two runs read the same postures, so its error is common to
+        # both; freed in the joint fit, it takes up the changes themselves); each run's drift
+        # where its readings carry times, each joint's lost motion where either run reads it
+        # from both sides (``ucal.calibration.least_squares.hold_unseen``)
+        seen = dict(zip(BACKLASH, two_sided_joints([*reference, *check]), strict=True))
+        seen[DRIFT[0]] = sees_drift(reference)
+        seen.update(dict.fromkeys(DH, False))
+        self.base_free = np.array([*(seen.get(n, True) for n in PARAMETERS), sees_drift(check)])
+        self.drift_idx = self.table.index(DRIFT[0])
+        self.check_drift_idx = self.table.index(CHECK_DRIFT)
         self.base_idx = np.array([self.table.index(p) for p in self.changed])
         self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
         self.reference = reference
@@ -197,6 +221,7 @@ class ChangeFit:
         r_ref = data_residuals(self.table, values, model, self._ref, c0)
         moved = values.copy()
         moved[self.base_idx] += values[self.change_idx]
+        moved[self.drift_idx] = values[self.check_drift_idx]
         r_chk = data_residuals(self.table, moved, model, self._chk, c0)
         return np.concatenate([r_ref.ravel(), r_chk.ravel()])
 
@@ -207,9 +232,10 @@ class ChangeFit:
         return np.concatenate([self.base_free, changes])
 
     def start(self) -> np.ndarray:
-        """A full value vector to start from: the reference's own fit, nothing changed."""
-        estimate = solve_cell(self.prior, self.reference, fixed=DH).estimate
-        return np.concatenate([estimate, np.zeros(len(self.changed))])
+        """A full value vector to start from: the reference's own fit (its DH table within
+        the profile's tolerance, as calibrate fits it, then held), nothing changed."""
+        estimate = solve_cell(self.prior, self.reference).estimate
+        return np.concatenate([estimate, np.zeros(1 + len(self.changed))])
 
     def chi2(self, values: np.ndarray, chosen: list[str]) -> float:
         """χ² of the data and of the priors of the unknowns free with ``chosen``."""
@@ -432,7 +458,9 @@ def compare_to_profile(
     stds = prior.stds()
     stds[: len(OFFSETS)] = offsets_prior_std_deg(profile)
     table = ParameterTable(PARAMETERS, prior.values(), stds)
-    cell = solve_cell(prior, check, fixed=DH, table=table)
+    # the DH table, the drift and the lost motion free with their priors, as calibrate fits
+    # them: held exact, a table within its tolerance misfits the check's faces
+    cell = solve_cell(prior, check, table=table)
     q = cell.quality
     return ProfileComparison(
         np.array([cell.value(n) for n in OFFSETS]),

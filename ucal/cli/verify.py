@@ -260,7 +260,8 @@ def _print_table(result: VerifyResult) -> None:
             ("std", "std |Δ|"),
             ("signed_mean", "mean Δ (bias)"),
         ):
-            table.add_row(p if key == "mean" else "", name, *[f"{v:.4f}" for v in st[key]])
+            cells = [f"{v:.4f}" if np.isfinite(v) else "-" for v in st[key]]
+            table.add_row(p if key == "mean" else "", name, *cells)
         table.add_section()
     before = np.array(result.stats("before")["mean"])
     after = np.array(result.stats("after")["mean"])

@@ -167,7 +167,12 @@ class VerifyResult:
 
     def to_json(self, tolerance_mm: float | None = None) -> dict:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
-        out: dict = {f"{p}_mm": self.stats(p) for p in PASSES}
+        # a pass without a measured point (every "before" point skipped): null statistics
+        out: dict = {
+            f"{p}_mm": {k: [v if np.isfinite(v) else None for v in vs] for k, vs in st.items()}
+            for p in PASSES
+            for st in (self.stats(p),)
+        }
         out["points"] = self.plan.points
         if tolerance_mm is not None:
             out["tolerance_mm"] = float(tolerance_mm)

@@ -23,7 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import DH, OFFSETS, TOOL, prior_from_profile, solve_cell
+from ucal.calibration.fit import (
+    DH,
+    OFFSETS,
+    TOOL,
+    prior_from_profile,
+    readings_approach,
+    solve_cell,
+)
 from ucal.calibration.full_plan import FullPlan, Posture, candidate_postures, order_postures
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FaceMeasurement
@@ -95,6 +102,7 @@ def judge_region(
         q.verdict,
         q.worst,
         tolerance_mm,
+        approach=readings_approach(meas),
     )
 
 

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ucal.calibration.fit import readings_approach
 from ucal.cell import CellProfile
 from ucal.procedure import RunFacts
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
@@ -98,6 +99,8 @@ class Verification:
         out["before_is_after"] = solved.before_is_after
         out["notes"] = self.notes
         out["marginal"] = self.marginal
+        # the approach of every reading: calibrate's offsets hold for the positive one
+        out["approach"] = readings_approach([m for p in solved.result.points for m in p.faces])
         out["plot"] = None if self.plot_path is None else str(self.plot_path)
         if self.truth is not None:
             out["truth"] = self.truth
@@ -128,6 +131,8 @@ class RegionResult:
     #: (mm, mean and max over the scanning region; ``ucal.calibration.budget``): across the
     #: beam, where these echoes do not look either. None: the profile states none.
     unidentified_tcp_mm: tuple[float, float] | None = None
+    #: The approach the readings had (``ucal.calibration.fit.readings_approach``).
+    approach: str = "positive"
 
     @property
     def passed(self) -> bool:
@@ -153,6 +158,7 @@ class RegionResult:
                 "chi2_reduced": self.chi2_reduced,
                 "verdict": self.verdict,
                 "worst": self.worst,
+                "approach": self.approach,
                 "unidentified_tcp_mm": (
                     None
                     if self.unidentified_tcp_mm is None

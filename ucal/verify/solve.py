@@ -118,13 +118,20 @@ def reached_from_peaks(
     return w_local, orient, reached_tcp_local(geom, w_local, orient, commanded_deg, v)
 
 
+#: The statistics of ``deviation_stats``, in its order.
+STATISTICS = ("mean", "max", "std", "signed_mean", "signed_std")
+
+
 def deviation_stats(deviations_mm: np.ndarray) -> dict[str, list[float]]:
     """Per-axis statistics (paper 000, Table 5) of deviations (n, 3) mm.
 
     ``mean``, ``max``, ``std``: of the absolute deviations (std with ddof = 0); ``signed_mean``
-    and ``signed_std``: of the signed deviations (bias and scatter).
+    and ``signed_std``: of the signed deviations (bias and scatter). NaN for a pass with no
+    point measured (every "before" point skipped: offsets before calibration far off).
     """
     d = np.asarray(deviations_mm, float).reshape(-1, 3)
+    if not len(d):
+        return {k: [float("nan")] * 3 for k in STATISTICS}
     a = np.abs(d)
     return {
         "mean": a.mean(0).tolist(),

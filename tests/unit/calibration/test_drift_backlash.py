@@ -23,6 +23,7 @@ from ucal.calibration.fit import (
     ResidualRow,
     RunEffects,
     likely_cause,
+    readings_approach,
     solve_cell,
 )
 from ucal.calibration.full import full_table
@@ -284,3 +285,14 @@ def test_residuals_that_trend_with_time_name_the_tank() -> None:
     cause = likely_cause(rows_of(dist, times), {}, table, table.prior, p)
     assert "trend with their time" in cause and "tank" in cause
     assert "drift_std_c_per_min" in cause
+
+
+def test_the_approach_of_the_readings_is_named_as_spec_names_it() -> None:
+    def reading(approach: list[float] | None) -> FaceMeasurement:
+        signs = None if approach is None else np.asarray(approach, float)
+        return FaceMeasurement("base", 0, np.zeros(6), 100.0, approach=signs)
+
+    below, above = [1.0] * 6, [-1.0] * 6
+    assert readings_approach([reading(below), reading(None)]) == "positive"
+    assert readings_approach([reading(above), reading(above)]) == "negative"
+    assert readings_approach([reading(below), reading([1.0, -1.0, 1.0, 1.0, 1.0, 1.0])]) == "both"

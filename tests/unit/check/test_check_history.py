@@ -8,8 +8,18 @@ import shutil
 import stat
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from ucal.calibration.fit import (
+    BACKLASH,
+    DRIFT,
+    PARAMETERS,
+    ParameterTable,
+    data_residuals,
+    prior_from_profile,
+)
+from ucal.calibration.model import FaceMeasurement
 from ucal.check.history import (
     CheckEntry,
     append_check,
@@ -18,6 +28,7 @@ from ucal.check.history import (
     read_checks,
     reference_check,
 )
+from ucal.check.measure import faces_from_json, faces_to_json
 from ucal.errors import ProfileError
 from ucal.profile import load_profile, profile_history, undo_profile, write_profile
 
@@ -77,3 +88,44 @@ def test_an_unreadable_index_names_the_file(profile_path: Path) -> None:
     checks_path(profile_path).write_text("{not json")
     with pytest.raises(ProfileError, match=r"checks\.json: unreadable checks index"):
         read_checks(profile_path)
+
+
+def test_a_reference_keeps_each_readings_time_and_approach_for_the_solver(
+    profile_path: Path,
+) -> None:
+    rng = np.random.default_rng(4)
+    faces = [
+        FaceMeasurement(
+            "base",
+            i % 3,
+            rng.normal(size=6) * 30.0,
+            100.0 + rng.normal(),
+            time_min=1.5 * i,
+            approach=np.where(rng.uniform(size=6) < 0.5, -1.0, 1.0),
+        )
+        for i in range(4)
+    ]
+    back = faces_from_json(json.loads(json.dumps(faces_to_json(faces), allow_nan=False)))
+    assert [m.time_min for m in back] == [0.0, 1.5, 3.0, 4.5]
+    assert all(np.array_equal(a.approach, b.approach) for a, b in zip(faces, back, strict=True))
+    # the solver sees the drift and the lost motion in the reference as in the run itself
+    prior = prior_from_profile(load_profile(profile_path))
+    table = ParameterTable(PARAMETERS, prior.values(), prior.stds())
+    values = table.values.copy()
+    values[table.index(DRIFT[0])] = 0.3  # m/s per min
+    values[[table.index(n) for n in BACKLASH]] = 0.02  # deg
+    c0 = prior.sound_speed_m_s
+    assert np.array_equal(
+        data_residuals(table, values, prior.model, back, c0),
+        data_residuals(table, values, prior.model, faces, c0),
+    )
+    # an entry written before they were kept reads as no time, every joint from below
+    old = [
+        {k: v for k, v in row.items() if k not in ("time_min", "approach")}
+        for row in faces_to_json(faces)
+    ]
+    assert all(m.time_min is None and m.approach is None for m in faces_from_json(old))
+    assert not np.array_equal(
+        data_residuals(table, values, prior.model, faces_from_json(old), c0),
+        data_residuals(table, values, prior.model, faces, c0),
+    )

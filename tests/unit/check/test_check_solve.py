@@ -6,6 +6,7 @@ true peak postures and water paths, with a little noise), at the postures a chec
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from ucal.check.measure import EchoReading
 from ucal.check.plan import plan_check
 from ucal.check.solve import (
     compare_geometry,
+    compare_to_profile,
 )
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import rpy_to_matrix
@@ -33,6 +35,20 @@ from ucal.profile import load_profile
 
 EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"
 TRUE_OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
+#: Minutes between two faces' readings (a check reads six in about 25 s on a real cell; the
+#: simulated cell's runs take minutes of simulated time).
+MINUTES_PER_FACE = 0.5
+#: A DH table within the profile's tolerance (0.2 mm, 0.02°): d, a (mm), alpha (deg) per joint.
+DH_ERROR = np.array(
+    [
+        [0.0, 0.15, -0.015],
+        [0.12, -0.2, 0.01],
+        [0.0, 0.0, 0.018],
+        [0.1, 0.0, -0.012],
+        [0.0, 0.0, 0.015],
+        [-0.1, 0.0, 0.0],
+    ]
+)
 
 
 @pytest.fixture(scope="module")
@@ -41,32 +57,53 @@ def cell():
     return profile, plan_check(profile, None).targets
 
 
-def measure(cell, seed, offsets=TRUE_OFFSETS_DEG, block_mm=(1.5, -1.0, 0.8), temperature_c=20.0):
-    """Normal-incidence measurements of the planned faces on the true cell."""
+def measure(
+    cell,
+    seed,
+    offsets=TRUE_OFFSETS_DEG,
+    block_mm=(1.5, -1.0, 0.8),
+    temperature_c=20.0,
+    drift_c_per_min=0.0,
+    dh_error=None,
+):
+    """Normal-incidence measurements of the planned faces on the true cell: its DH table the
+    profile's plus ``dh_error`` ((6, 3): d, a mm, alpha deg), the tank at ``temperature_c``
+    drifting ``drift_c_per_min``, a face read every ``MINUTES_PER_FACE`` from the first."""
     profile, targets = cell
     rng = np.random.default_rng(seed)
     tool = transform(
         profile.tool_position_mm + [0.3, -0.2, 0.4],
         rpy_to_matrix(profile.tool_rotation_deg + [0.2, -0.22, 0.0]),
     )
-    geom = CellGeometry(profile.model, tool, rpy_to_matrix(profile.sample_rotation_deg))
+    model = profile.model
+    if dh_error is not None:
+        dh = model.dh.copy()
+        dh[:, 1:4] += dh_error
+        model = model.with_dh(dh)
+    geom = CellGeometry(model, tool, rpy_to_matrix(profile.sample_rotation_deg))
     corner = profile.sample_position_mm + np.asarray(block_mm)
-    scale = sound_speed_m_s(profile.water_temperature_c) / sound_speed_m_s(temperature_c)
+    c0 = sound_speed_m_s(profile.water_temperature_c)
     out = []
-    for t in targets:
+    for i, t in enumerate(targets):
+        minutes = MINUTES_PER_FACE * i
+        scale = c0 / sound_speed_m_s(temperature_c + drift_c_per_min * minutes)
         q = aim_wrist(geom, t.joints_deg, -geom.normal(t.face), np.asarray(offsets, float))
         _, tcp = beam_and_tcp(geom, q, np.asarray(offsets, float))
         path = float(geom.normal(t.face) @ (tcp - corner)) * scale
         q = q + np.r_[0.0, 0.0, 0.0, rng.normal(0.0, 2e-4, 3)]
-        out.append(FaceMeasurement(t.config, t.face, q, path + rng.normal(0.0, 3e-4), 5e-4, 5e-4))
+        out.append(
+            FaceMeasurement(
+                t.config,
+                t.face,
+                q,
+                path + rng.normal(0.0, 3e-4),
+                5e-4,
+                5e-4,
+                time_min=minutes,
+                approach=np.ones(6),
+            )
+        )
     return out
-
-
-def test_an_unchanged_cell_names_nothing(cell) -> None:
-    prior = prior_from_profile(cell[0])
-    result = compare_geometry(prior, measure(cell, 1), measure(cell, 2))
-    assert result.chosen == [] and not result.unexplained
-    assert all(q.verdict == OK for q in geometry_quantities(result, prior))
 
 
 def test_joint_2_and_the_water_are_told_apart(cell) -> None:
@@ -85,6 +122,54 @@ def test_joint_2_and_the_water_are_told_apart(cell) -> None:
     assert q["water_temperature_c"].verdict == CHANGED
     assert abs(q["water_temperature_c"].difference - 1.0) < 0.01
     assert [n for n, v in q.items() if v.verdict == OUT] == ["J2"]
+
+
+def test_an_unchanged_cell_names_nothing(cell) -> None:
+    prior = prior_from_profile(cell[0])
+    result = compare_geometry(prior, measure(cell, 1), measure(cell, 2))
+    assert result.chosen == [] and not result.unexplained
+    assert all(q.verdict == OK for q in geometry_quantities(result, prior))
+
+
+def test_a_warming_tank_and_a_dh_table_off_within_tolerance_name_nothing(cell) -> None:
+    """The tank warming at its own rate in each run (0.1 °C/min, then cooling at 0.08) on an
+    arm whose DH table is off within its tolerance: the unchanged cell names nothing out of
+    tolerance, each run's drift its own unknown and the table where the reference's own fit
+    puts it; the water's change between the two runs' middles is within 3σ of the true one."""
+    prior = prior_from_profile(cell[0])
+    reference = measure(cell, 1, drift_c_per_min=0.1, dh_error=DH_ERROR)
+    check = measure(cell, 2, temperature_c=20.3, drift_c_per_min=-0.08, dh_error=DH_ERROR)
+    result = compare_geometry(prior, reference, check)
+    assert result.chosen in ([], ["water"]) and not result.unexplained
+    q = {q.name: q for q in geometry_quantities(result, prior)}
+    assert not [n for n, v in q.items() if v.verdict == OUT]
+    middle = MINUTES_PER_FACE * (len(check) - 1) / 2
+    true_change = sound_speed_m_s(20.3 - 0.08 * middle) - sound_speed_m_s(20.0 + 0.1 * middle)
+    water = q["sound_speed_m_s"]
+    assert abs(water.difference - true_change) < 3 * water.std
+
+
+def test_a_first_check_on_a_dh_table_off_within_tolerance_agrees_with_the_profile(cell) -> None:
+    """The first check after a calibration fits the DH table within its tolerance as calibrate
+    does: the cell as calibrated is no misfit, one with joint 2 moved by 0.05° is."""
+    profile = cell[0]
+    calibrated = replace(
+        profile,
+        joint_offsets_deg=TRUE_OFFSETS_DEG,
+        joint_offsets_std_deg=np.full(6, 0.003),
+        water_temperature_c=20.0,
+    )
+    prior = prior_from_profile(calibrated)
+    fit = compare_to_profile(
+        calibrated, prior, measure(cell, 1, drift_c_per_min=0.1, dh_error=DH_ERROR)
+    )
+    assert not fit.misfit
+    assert np.all(np.abs(fit.offsets_deg - TRUE_OFFSETS_DEG) < 3 * fit.offsets_std_deg)
+    moved = TRUE_OFFSETS_DEG + [0.0, 0.05, 0.0, 0.0, 0.0, 0.0]
+    fit = compare_to_profile(
+        calibrated, prior, measure(cell, 1, moved, drift_c_per_min=0.1, dh_error=DH_ERROR)
+    )
+    assert fit.misfit
 
 
 def test_joint_1_and_the_block_yaw_are_named_together(cell) -> None:

@@ -267,6 +267,7 @@ def verify_case(path: Path, cell: CellProfile) -> Case:
             },
             "passed": True,
             "marginal": False,
+            "approach": "positive",
             "before_source": "no calibration in the profile's history: zero offsets",
             "plot": str(picture),
             "notes": ["a note"],
@@ -300,6 +301,7 @@ def region_case(path: Path, cell: CellProfile) -> Case:
                 "chi2_reduced": 0.265,
                 "verdict": "ok",
                 "worst": "r05/YZ",
+                "approach": "positive",
                 "unidentified_tcp_mm": {"mean": 0.2274, "max": 0.41},
             },
             "tolerance_mm": 0.5,
@@ -331,6 +333,7 @@ def check_case(path: Path, cell: CellProfile) -> Case:
             "postures": ["base/XY"],
             "estimated_s": {"tcp": estimate.tcp_s, "rtu": estimate.rtu_s},
             "quantities": [q.to_json() for q in quantities],
+            "approach": "positive",
         },
         [
             "Reference check (against the profile's calibration)",

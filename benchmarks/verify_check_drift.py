@@ -1,0 +1,291 @@
+"""``verify`` and ``check`` on an arm with lost motion and a warming tank, against the same cells
+still: what they report and the verdicts they reach, on cells commissioned as a user does.
+
+Each of ``--worlds`` cells is ``realistic.py --fixture``'s (block doweled and levelled, 0.5 mm /
+0.01°; the DH table within its tolerance; offsets ±3°; 8-bit amplitude, an unknown TOF delay;
+the tool measured, 0.05 mm / 0.02°), its profile declaring the default drift and lost motion
+tolerances (0.05 °C/min, 0.01°), in two states: ``drifting`` (the tank drifting uniform in
+±0.1 °C/min, lost motion uniform in 0–0.02° per joint: ``drift.py``'s linear tank) and
+``still`` (the same cell with neither). Each state is commissioned and checked by the
+commands, as processes, in the order a user runs them:
+
+1. ``calibrate`` (the offsets level), written into a fresh copy of the profile;
+2. ``verify --points N`` and ``verify --region M`` on the cell as commissioned;
+3. ``check`` three times: the reference (the first after the calibration), the same cell
+   again (a good cell: it must pass), and the cell with joint 2 moved by ``MOVED_DEG`` after
+   the commissioning (it must fail, naming J2); then ``verify --points N`` on that moved cell.
+
+Printed per state:
+
+* check's coverage: the share of the quantities it reports with a std within 3 std of the
+  simulator's truth, and the largest |z| (the reference's offsets, against the world's less
+  half its lost motion, every posture being reached from below, and its sound speed at the
+  middle of its run; the compared checks' changes of every suspect, joints, tool, block and
+  sound speed, against the true change, 0 but for the moved joint and the water's drift
+  between the two runs' middles);
+* check's verdicts: false alarms (the reference or the good check not passing, with what it
+  named) and misses (the moved cell passing, or failing without naming J2);
+* verify: its "after" figure against the true one (``truth``: largest error, mm, against the
+  0.05 mm it promises), its verdicts on the good and the moved cell (and whether the truth's
+  agrees), and the region check's verdicts with its χ²ᵣ.
+
+Usage: ``python benchmarks/verify_check_drift.py --worlds 12 [--jobs 1] [--points 3]
+[--region 4] [--state drifting|still|both]``; ``--quick``: one world, drifting only, verify on
+one point and the region on three postures, the same code path in half a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import json
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import commissioning
+import drift
+import numpy as np
+import realistic
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.fit import BLOCK, OFFSETS, TOOL
+from ucal.check.history import read_checks
+from ucal.profile import load_profile
+from ucal.world import load_world
+
+#: ``--quick``: the defaults it changes (an option given on the command line still wins).
+QUICK = {"worlds": 1, "jobs": 1, "state": "drifting", "points": 1, "region": 3}
+#: The tank's drift (±°C/min, uniform) and the largest lost motion (deg, uniform from 0).
+DRIFT_C_PER_MIN = 0.1
+BACKLASH_DEG = 0.02
+#: The joint moved after the commissioning, and by how much (deg).
+MOVED_JOINT = 2
+MOVED_DEG = 0.05
+STATES = ("drifting", "still")
+#: The unknowns of check's suspects but the water's (``ucal.check.solve.suspects``).
+SUSPECTED = OFFSETS + TOOL + BLOCK
+
+
+@dataclass
+class Figures:
+    """One cell in one state: what the commands reported against the truth."""
+
+    name: str
+    calibrated: bool = False
+    z: list[float] = field(default_factory=list)  # check: |error| / std of every quantity
+    z_names: list[str] = field(default_factory=list)
+    #: check's verdicts: (exit code, verdict, what it named) of the reference, good, moved
+    checks: list[tuple[int, str, str]] = field(default_factory=list)
+    #: verify on the good and the moved cell: (passed, truly within, after error max mm)
+    verify: list[tuple[bool, bool, float]] = field(default_factory=list)
+    region: tuple[bool, float] | None = None  # (passed, χ²ᵣ)
+    errors: list[str] = field(default_factory=list)
+
+
+def draw_cells(rng: np.random.Generator, profile, index: int) -> dict[str, str]:
+    """World-file text of one cell in each state (module docstring)."""
+    text = realistic.draw_world(rng, profile, index)
+    rate = rng.uniform(-DRIFT_C_PER_MIN, DRIFT_C_PER_MIN)
+    backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
+    return {
+        "drifting": with_tank_and_arm(text, rate, backlash),
+        "still": with_tank_and_arm(text, 0.0, [0.0] * 6),
+    }
+
+
+def with_tank_and_arm(text: str, drift_c_per_min: float, backlash_deg: list[float]) -> str:
+    """World-file text ``text`` with the tank drifting at ``drift_c_per_min`` and each joint's
+    lost motion ``backlash_deg`` in place of its own."""
+    text = re.sub(r"(?m)^drift_c_per_min = .*\n", "", text)
+    text = re.sub(r"(?m)^backlash_deg = .*$", f"backlash_deg = {backlash_deg!r}", text)
+    return text.replace("[water]\n", f"[water]\ndrift_c_per_min = {drift_c_per_min!r}\n", 1)
+
+
+def moved(text: str) -> str:
+    """The world ``text`` with joint ``MOVED_JOINT``'s offset moved by ``MOVED_DEG``."""
+    line = re.search(r"(?m)^joint_offsets_deg = (.*)$", text)
+    assert line is not None
+    offsets = json.loads(line.group(1))
+    offsets[MOVED_JOINT - 1] += MOVED_DEG
+    return text.replace(line.group(0), f"joint_offsets_deg = {offsets!r}")
+
+
+def speed_at(world, entry) -> float:
+    """The true sound speed (m/s) at the middle of a check's run (its faces' mean time)."""
+    times = [f["time_min"] for f in entry.faces if f.get("time_min") is not None]
+    t_mid = float(np.mean(times)) if times else 0.0
+    return float(sound_speed_m_s(world.water_temperature_c + world.water_drift_c_per_min * t_mid))
+
+
+def check_z(figures: Figures, out: dict, truth: dict[str, float]) -> None:
+    """Add the |error| / std of every quantity of a check's ``out`` (``--json``) that has a
+    std and a truth (``truth``: by name, the true value of a reference's quantity or the true
+    change of a compared check's)."""
+    for q in out.get("quantities", []):
+        name, std = q["name"], q["std"]
+        if name not in truth or std is None or not std > 0:
+            continue
+        reported = q["value"] if q["verdict"] == "recorded" else q["difference"]
+        if reported is None:
+            continue
+        figures.z.append(abs(reported - truth[name]) / std)
+        figures.z_names.append(f"{'ref ' if q['verdict'] == 'recorded' else ''}{name}")
+
+
+def run_cell(template: Path, directory: Path, name: str, text: str, points: int, region: int):
+    """Commission and check one cell (module docstring, steps 1-3) in ``directory``."""
+    directory.mkdir()
+    profile_path = directory / "cell.toml"
+    shutil.copy(template, profile_path)
+    world_path, moved_path = directory / "world.toml", directory / "moved.toml"
+    world_path.write_text(text)
+    moved_path.write_text(moved(text))
+    fig = Figures(name)
+    done = commissioning.run("calibrate", profile_path, world_path)
+    fig.calibrated = bool(done.get("written"))
+    if not fig.calibrated:
+        fig.errors.append(f"calibrate not written: {done.get('error', '')[:200]}")
+        return fig
+    profile = load_profile(profile_path)
+    world = load_world(world_path, profile)
+    fig.verify.append(verify_figures(profile_path, world_path, points, fig))
+    out = commissioning.run("verify", profile_path, world_path, "--region", str(region))
+    if "region" in out:
+        fig.region = (bool(out["passed"]), float(out["region"]["chi2_reduced"]))
+    else:
+        fig.errors.append(f"region: {out.get('error', '')[:200]}")
+    reached = world.joint_offsets_deg - 0.5 * np.asarray(world.backlash_deg, float)
+    for k, path in enumerate((world_path, world_path, moved_path)):
+        out = commissioning.run("check", profile_path, path)
+        fig.checks.append(
+            (out["returncode"], out.get("verdict", "error"), "; ".join(out.get("moved", [])))
+        )
+        if "quantities" not in out:
+            fig.errors.append(f"check {k}: {out.get('error', '')[:200]}")
+            continue
+        entries = {e.id: e for e in read_checks(profile_path)}
+        this = entries[max(entries)]
+        if out["reference"] is None:  # a reference: the fitted offsets and sound speed
+            truth = {f"J{j + 1}": float(reached[j]) for j in range(6)}
+            truth["sound_speed_m_s"] = speed_at(world, this)
+        else:  # the changes since the reference
+            truth = dict.fromkeys(SUSPECTED, 0.0)
+            truth["sound_speed_m_s"] = speed_at(world, this) - speed_at(
+                world, entries[out["reference"]["id"]]
+            )
+            if path == moved_path:
+                truth[f"J{MOVED_JOINT}"] = MOVED_DEG
+        check_z(fig, out, truth)
+    fig.verify.append(verify_figures(profile_path, moved_path, points, fig))
+    return fig
+
+
+def verify_figures(
+    profile_path: Path, world_path: Path, points: int, fig: Figures
+) -> tuple[bool, bool, float]:
+    """``verify --points``'s verdict, the truth's (every true "after" deviation within the
+    tolerance) and how far its "after" points are from the true reached ones (mm)."""
+    out = commissioning.run("verify", profile_path, world_path, "--points", str(points))
+    truth = out.get("truth")
+    if truth is None:
+        fig.errors.append(f"verify: {out.get('error', '')[:200]}")
+        return False, False, float("nan")
+    within = bool(np.max(truth["after_mm"]["max"]) <= out["tolerance_mm"])
+    return bool(out["passed"]), within, float(np.max(truth["after_error_max_mm"]))
+
+
+def summary(state: str, figs: list[Figures]) -> list[str]:
+    """The rows of one state (module docstring)."""
+    done = [f for f in figs if f.calibrated]
+    z = np.array([v for f in done for v in f.z])
+    worst = max(((v, n) for f in done for v, n in zip(f.z, f.z_names, strict=True)), default=None)
+    cover = (
+        f"{np.mean(z <= 3.0) * 100:.1f} % of {z.size} (max |z| {worst[0]:.1f}, {worst[1]})"
+        if worst
+        else "—"
+    )
+    alarms = [
+        f"{f.name} {('reference', 'good')[k]}: {c[1]} ({c[2] or 'nothing named'})"
+        for f in done
+        for k, c in enumerate(f.checks[:2])
+        if c[0] != 0
+    ]
+    misses = [
+        f"{f.name}: {f.checks[2][1]} ({f.checks[2][2] or 'nothing named'})"
+        for f in done
+        if len(f.checks) == 3 and (f.checks[2][0] == 0 or f"J{MOVED_JOINT}" not in f.checks[2][2])
+    ]
+    good = [f.verify[0] for f in done if f.verify]
+    bad = [f.verify[1] for f in done if len(f.verify) == 2]
+    errs = [v[2] for v in good + bad if np.isfinite(v[2])]
+    regions = [f.region for f in done if f.region is not None]
+    rows = [
+        f"| {state} | {len(done)} / {len(figs)} | {cover} | "
+        f"{sum(1 for f in done for c in f.checks[:2] if c[0] != 0)} of {2 * len(done)} | "
+        f"{len(misses)} of {len(done)} | "
+        f"{sum(p for p, _, _ in good)} / {len(good)} ({sum(p == w for p, w, _ in good)} agree) | "
+        f"{sum(p for p, _, _ in bad)} / {len(bad)} ({sum(p == w for p, w, _ in bad)} agree) | "
+        f"{max(errs, default=float('nan')):.4f} | "
+        f"{sum(p for p, _ in regions)} / {len(regions)} (χ²ᵣ median "
+        f"{np.median([c for _, c in regions]) if regions else float('nan'):.3g}) |"
+    ]
+    rows += [f"  false alarm: {a}" for a in alarms]
+    rows += [f"  miss: {m}" for m in misses]
+    rows += [f"  {f.name}: {e}" for f in figs for e in f.errors]
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--worlds", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--points", type=int, default=3, help="verify's points")
+    ap.add_argument("--region", type=int, default=4, help="verify --region's postures")
+    ap.add_argument("--state", choices=(*STATES, "both"), default="both")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="--worlds 1 --jobs 1 --state drifting --points 1 --region 3: the same code path "
+        "in half a minute",
+    )
+    args = ap.parse_args(argv)
+    if args.quick:
+        ap.set_defaults(**QUICK)
+        args = ap.parse_args(argv)
+    work = Path(tempfile.mkdtemp(prefix="ucal-vcdrift-"))
+    template = drift.make_profile(work, "offsets", drift.DECLARED_DRIFT["offsets"])
+    profile = load_profile(template)
+    rng = np.random.default_rng(args.seed)
+    cells = [draw_cells(rng, profile, i) for i in range(args.worlds)]
+    states = STATES if args.state == "both" else (args.state,)
+    jobs = [(s, i) for i in range(args.worlds) for s in states]
+    with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+        figs = list(
+            pool.map(
+                run_cell,
+                [template] * len(jobs),
+                [work / f"{s}-{i:03d}" for s, i in jobs],
+                [f"world {i}" for _, i in jobs],
+                [cells[i][s] for s, i in jobs],
+                [args.points] * len(jobs),
+                [args.region] * len(jobs),
+            )
+        )
+    print(
+        "| state | calibrated | check: coverage (|err| ≤ 3σ) | check: false alarms | "
+        f"check: misses (J{MOVED_JOINT} +{MOVED_DEG:g}°) | verify good: passed (truth agrees) "
+        "| verify moved: passed (truth agrees) | verify: after − true, max mm | region: passed |"
+    )
+    print("| --- " * 9 + "|")
+    for state in states:
+        for row in summary(state, [f for (s, _), f in zip(jobs, figs, strict=True) if s == state]):
+            print(row)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
