@@ -30,7 +30,8 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   axis, in a straight, 10° or 20° holder (in turn); the tank drifting uniform in ±0.1 °C/min.
   Each is commissioned in both orders (``--orders``): ``t-c`` tool-frame on the fresh profile,
   ``c-t`` tool-frame after ``ucal calibrate`` wrote it (a process, as a user runs it), ``f-t``
-  after ``ucal calibrate --level full`` wrote the offsets and the DH table with its stds; each
+  after ``ucal calibrate --level full`` wrote the offsets and the DH table with its stds, ``cf-t``
+  after the offsets level and then the full level (as the method note advises); each
   tool-frame run measured once and solved by the current fit and the previous one. Coverage
   counts the tool across the beam (2) and along it, the beam's two tilts, the sound speed at
   the middle of the run and its drift where fitted, against the true tool in the profile's
@@ -67,7 +68,7 @@ offsets found are the world's less half its lost motion. Printed per case and so
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|f-t|both] [--tank linear|exponential|cycling] [--only I,J] [--model tx90xl
+[--orders t-c|c-t|f-t|cf-t|both] [--tank linear|exponential|cycling] [--only I,J] [--model tx90xl
 --placed]`` (C: the drift tolerance every calibration case declares, °C/min; ``--only``: the
 tool-frame case's worlds of those indices, drawn as in the whole sweep); ``--quick``: one world
 of the offsets, the full and the tool-frame cases (the full level on 8 postures, tool-frame in
@@ -155,9 +156,15 @@ TOOL_LENGTH_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (2.0, 5.0)
 HOLDERS_DEG = (0.0, 10.0, 20.0)
 #: Its orders: tool-frame on the fresh profile, or after ``calibrate`` wrote the offsets
-#: (``--orders both``); ``f-t``: after ``calibrate --level full`` wrote the offsets and the table.
+#: (``--orders both``); and the calibrations each order runs before tool-frame: ``f-t``
+#: ``calibrate --level full`` (the offsets and the table), ``cf-t`` the offsets level first.
 ORDERS = ("t-c", "c-t")
-FULL_ORDER = "f-t"
+CALIBRATIONS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "t-c": (),
+    "c-t": ((),),
+    "f-t": (("--level", "full"),),
+    "cf-t": ((), ("--level", "full")),
+}
 #: Tool-frame's targets: across the beam (mm) and the beam (deg).
 ACROSS_GOAL_MM = 0.02
 BEAM_GOAL_DEG = 0.01
@@ -518,11 +525,13 @@ def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
     path = directory / f"{order}.toml"
     path.write_bytes((directory / "template.toml").read_bytes())
     world_path = directory / "world.toml"
-    if order in ("c-t", FULL_ORDER):
-        level = ("--level", "full") if order == FULL_ORDER else ()
+    for level in CALIBRATIONS[order]:
         done = commissioning.run("calibrate", path, world_path, *level)
         if not done.get("written"):
-            return f"{directory.name} {order}: calibrate not written: {done.get('error', '')}"
+            return (
+                f"{directory.name} {order}: calibrate {' '.join(level)} not written: "
+                f"{done.get('error', '')}"
+            )
     profile = load_profile(path)
     world = load_world(world_path, profile)
     holder = float(np.degrees(np.arccos(profile.tool_matrix[2, 2])))
@@ -690,10 +699,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--orders",
-        choices=(*ORDERS, FULL_ORDER, "both"),
+        choices=(*CALIBRATIONS, "both"),
         default="both",
         help="the tool-frame case's orders: t-c tool-frame on the fresh profile, c-t after "
-        "calibrate, f-t after calibrate --level full (both: t-c and c-t)",
+        "calibrate, f-t after calibrate --level full, cf-t after both levels (both: t-c and c-t)",
     )
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument(
