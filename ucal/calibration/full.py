@@ -397,7 +397,7 @@ class FullSolution:
         for name in KINEMATIC:
             row, col = _position(name)
             v = std[row, col]
-            rows[row][_STD_KEYS[col]] = float(f"{v * 1.001:.4g}") if np.isfinite(v) else -1.0
+            rows[row][_STD_KEYS[col]] = _round_up(v) if np.isfinite(v) else -1.0
         return rows
 
     def to_json(self) -> dict:
@@ -415,6 +415,14 @@ class FullSolution:
         }
 
 
+def _round_up(std: float) -> float:
+    """``std`` to four significant digits, never below it (a std written is a promise)."""
+    out = float(f"{std:.4g}")
+    if out < std:
+        out = float(f"{out + 10.0 ** (np.floor(np.log10(std)) - 3):.4g}")
+    return out
+
+
 def _position(name: str) -> tuple[int, int]:
     """Row (0-based link) and ``_STD_KEYS`` column of a kinematic parameter (``dh2_a_mm``)."""
     return int(name[2]) - 1, _STD_KEYS.index(name.split("_", 1)[1])
@@ -430,9 +438,10 @@ def written_dh_std(cell: CellFit, params: dict[str, IdentifiedParameter]) -> np.
     correlated (the upper arm and the forearm share the scale of every length): a diagonal
     covariance ``k·diag(C)`` covers ``C`` in every direction when ``k`` is the largest
     eigenvalue of the parameters' correlation matrix, so each std is inflated by √k (about 2
-    on the example cell). A parameter whose inflated std would reach its prior (the [robot]
-    tolerance: a prior-dominated one) is not determined: the tolerance stands, as for a
-    parameter not identifiable (kept at its nominal value, its effect absorbed by others).
+    on the example cell), up to its prior's (the [robot] tolerance, or what an earlier full
+    level wrote: a prior-dominated parameter keeps it). A parameter not identifiable (kept at
+    its nominal value, its effect absorbed by others) is not determined: NaN, and the [robot]
+    tolerance stands.
     """
     out = np.full((6, 4), np.nan)
     names = [n for n, p in params.items() if p.std is not None and np.isfinite(p.std)]
@@ -444,9 +453,8 @@ def written_dh_std(cell: CellFit, params: dict[str, IdentifiedParameter]) -> np.
     s = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     k = max(1.0, float(np.linalg.eigvalsh(cov / np.outer(s, s)).max()))
     for name in names:
-        std = float(np.sqrt(k) * cell.sigma(name))
-        if std < cell.table.prior_stds[cell.table.index(name)]:
-            out[_position(name)] = std
+        prior = float(cell.table.prior_stds[cell.table.index(name)])
+        out[_position(name)] = min(float(np.sqrt(k) * cell.sigma(name)), prior)
     return out
 
 

@@ -32,7 +32,7 @@ REDUNDANT = ("dh1_d_mm", "dh3_d_mm", "dh5_d_mm", "dh5_a_mm", "dh6_d_mm", "dh6_a_
 #: correlation matrix is then 1.6, every std written √1.6 times its marginal one.
 CORRELATED = {"dh3_a_mm": 0.004, "dh4_a_mm": 0.003}
 RHO = 0.6
-#: A parameter at 0.9 of its tolerance: inflated, it would reach it (not determined).
+#: A parameter at 0.9 of its tolerance: inflated, it would pass it (its prior's std is kept).
 WEAK = "dh4_d_mm"
 QUALITY = FitQuality(1.0, 100, 1e-4, 1e-3, "p01", "ok")
 
@@ -82,7 +82,10 @@ def expected_std() -> np.ndarray:
     k = np.sqrt(1.0 + RHO)
     std = np.full((6, 4), np.nan)
     for name in KINEMATIC:
-        if name in REDUNDANT or name == WEAK:
+        if name in REDUNDANT:
+            continue
+        if name == WEAK:
+            std[3, 0] = 0.2
             continue
         col = ("d_mm", "a_mm", "alpha_deg", "beta_deg").index(name.split("_", 1)[1])
         std[int(name[2]) - 1, col] = k * CORRELATED.get(
@@ -99,7 +102,7 @@ def test_full_level_writes_each_identified_std_inflated_for_the_correlations(pat
     rows = cal["dh_std"]
     assert len(rows) == 6 and set(rows[1]) == {"d_mm", "a_mm", "alpha_deg", "beta_deg"}
     assert rows[0]["d_mm"] == -1.0 and rows[4]["a_mm"] == -1.0  # not identifiable
-    assert rows[3]["d_mm"] == -1.0  # WEAK: inflated it would reach its tolerance
+    assert rows[3]["d_mm"] == 0.2  # WEAK: its tolerance
     assert rows[2]["a_mm"] == pytest.approx(np.sqrt(1.6) * 0.004, rel=2e-3)
     assert rows[2]["a_mm"] >= np.sqrt(1.6) * 0.004  # rounded up, never down
     loaded = load_profile(path)
