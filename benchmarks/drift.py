@@ -29,7 +29,9 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   touched points, the water ±3 °C) whose drawing is a tool of 80–150 mm, 2–5 mm off the flange
   axis, in a straight, 10° or 20° holder (in turn); the tank drifting uniform in ±0.1 °C/min.
   Each is commissioned in both orders (``--orders``): ``t-c`` tool-frame on the fresh profile,
-  ``c-t`` tool-frame after ``ucal calibrate`` wrote it (a process, as a user runs it); each
+  ``c-t`` tool-frame after ``ucal calibrate`` wrote it (a process, as a user runs it), ``f-t``
+  after ``ucal calibrate --level full`` wrote the offsets and the DH table with its stds, ``cf-t``
+  after the offsets level and then the full level (as the method note advises); each
   tool-frame run measured once and solved by the current fit and the previous one. Coverage
   counts the tool across the beam (2) and along it, the beam's two tilts, the sound speed at
   the middle of the run and its drift where fitted, against the true tool in the profile's
@@ -66,7 +68,7 @@ offsets found are the world's less half its lost motion. Printed per case and so
 
 Usage: ``python benchmarks/drift.py --worlds 12
 [--case offsets|lost-motion|full|tool-frame|both|all] [--jobs 2] [--declared-drift C]
-[--orders t-c|c-t|both] [--tank linear|exponential|cycling] [--only I,J] [--model tx90xl
+[--orders t-c|c-t|f-t|cf-t|both] [--tank linear|exponential|cycling] [--only I,J] [--model tx90xl
 --placed]`` (C: the drift tolerance every calibration case declares, °C/min; ``--only``: the
 tool-frame case's worlds of those indices, drawn as in the whole sweep); ``--quick``: one world
 of the offsets, the full and the tool-frame cases (the full level on 8 postures, tool-frame in
@@ -153,8 +155,16 @@ BACKLASH_DEG = 0.02
 TOOL_LENGTH_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (2.0, 5.0)
 HOLDERS_DEG = (0.0, 10.0, 20.0)
-#: Its orders: tool-frame on the fresh profile, or after ``calibrate`` wrote the offsets.
+#: Its orders: tool-frame on the fresh profile, or after ``calibrate`` wrote the offsets
+#: (``--orders both``); and the calibrations each order runs before tool-frame: ``f-t``
+#: ``calibrate --level full`` (the offsets and the table), ``cf-t`` the offsets level first.
 ORDERS = ("t-c", "c-t")
+CALIBRATIONS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "t-c": (),
+    "c-t": ((),),
+    "f-t": (("--level", "full"),),
+    "cf-t": ((), ("--level", "full")),
+}
 #: Tool-frame's targets: across the beam (mm) and the beam (deg).
 ACROSS_GOAL_MM = 0.02
 BEAM_GOAL_DEG = 0.01
@@ -304,6 +314,8 @@ class Outcome:
     #: quantities that allow most (name: largest displacement, mm).
     budget_mm: tuple[float, float] | None = None
     budget_by: str = ""
+    #: The tool-frame case: the larger of the tool's two stds across the beam (mm).
+    across_std_mm: float = float("nan")
 
 
 def true_sound(world: WorldTruth, t_min: float) -> tuple[float, float]:
@@ -513,10 +525,13 @@ def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
     path = directory / f"{order}.toml"
     path.write_bytes((directory / "template.toml").read_bytes())
     world_path = directory / "world.toml"
-    if order == "c-t":
-        done = commissioning.run("calibrate", path, world_path)
+    for level in CALIBRATIONS[order]:
+        done = commissioning.run("calibrate", path, world_path, *level)
         if not done.get("written"):
-            return f"{directory.name} {order}: calibrate not written: {done.get('error', '')}"
+            return (
+                f"{directory.name} {order}: calibrate {' '.join(level)} not written: "
+                f"{done.get('error', '')}"
+            )
     profile = load_profile(path)
     world = load_world(world_path, profile)
     holder = float(np.degrees(np.arccos(profile.tool_matrix[2, 2])))
@@ -556,6 +571,7 @@ def run_tool_frame_world(directory: Path, order: str) -> list[Outcome] | str:
                 lost_z,
                 run,
                 tf.refusal,
+                across_std_mm=float(np.max(tf.across_beam_std_mm)),
             )
         )
     return outs
@@ -664,7 +680,8 @@ def tool_frame_case(
         if isinstance(r, list):
             now, before = r
             print(
-                f"  {now.run}: across {now.tcp_mm[0]:.4f} mm, beam {now.tcp_mm[1]:.4f}°, "
+                f"  {now.run}: across {now.tcp_mm[0]:.4f} mm (std {now.across_std_mm:.4f}), "
+                f"beam {now.tcp_mm[1]:.4f}°, "
                 f"max |z| {np.max(now.z):.1f}; "
                 + ("written" if now.written else f"refused: {now.message.split('; ')[0][:240]}")
                 + ("" if now.written == before.written else " (previous: the other way)")
@@ -682,10 +699,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--orders",
-        choices=(*ORDERS, "both"),
+        choices=(*CALIBRATIONS, "both"),
         default="both",
         help="the tool-frame case's orders: t-c tool-frame on the fresh profile, c-t after "
-        "calibrate",
+        "calibrate, f-t after calibrate --level full, cf-t after both levels (both: t-c and c-t)",
     )
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument(

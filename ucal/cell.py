@@ -127,6 +127,10 @@ class CellProfile:
     #: ``[calibration] std_deg`` as written with the offsets (NaN: not determined); None: never
     #: calibrated.
     joint_offsets_std_deg: np.ndarray | None = None
+    #: ``[calibration] dh_std`` as written with the identified table: one sigma of each row's
+    #: ``d_mm, a_mm, alpha_deg, beta_deg`` (6, 4), NaN where not determined (the [robot]
+    #: tolerance stands); None: no table identified.
+    dh_std: np.ndarray | None = None
     unobservable_joints: tuple[int, ...] = ()
     procedure: Procedure = field(default_factory=Procedure)
     controller: ControllerTimeouts = field(default_factory=ControllerTimeouts)

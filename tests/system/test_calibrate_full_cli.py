@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ucal.profile import create_profile, load_profile
@@ -79,6 +80,10 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     assert p.model.dh_source == "[calibration] dh"
     assert p.model.beta_deg[1] == pytest.approx(beta["value"], abs=1e-6)
     assert p.model.dh[1, 2] == pytest.approx(ident["parameters"]["dh2_a_mm"]["value"], abs=1e-5)
+    # each identified parameter's std beside the table, at least the fit's; not identifiable: none
+    assert p.dh_std is not None
+    assert p.dh_std[1, 3] == out["dh_std"][1]["beta_deg"] and p.dh_std[1, 3] >= beta["std"]
+    assert np.isnan(p.dh_std[0, 0]) and out["dh_std"][0]["d_mm"] is None  # d1: not identifiable
     backlash = [0.015, 0.02, 0.008, 0.018, 0.012, 0.01]
     # the offsets of the positive approach: the link lags the encoder by half the lost motion
     true = [o - b / 2 for o, b in zip([0.3, -0.2, 0.25, -0.3, 0.2, 0.1], backlash, strict=True)]
@@ -96,7 +101,7 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     assert r.returncode == 0, r.stderr[-2000:]
     again = json.loads(r.stdout)
     assert again["level"] == "full" and again["written"] is False
-    for key in ("joint_offsets_deg", "std_deg", "dh", "identification", "plan", "fit"):
+    for key in ("joint_offsets_deg", "std_deg", "dh", "dh_std", "identification", "plan", "fit"):
         assert again[key] == out[key], key
     assert again["pulser_reads"] == out["pulser_reads"] and again["moves"] == out["moves"]
     assert profile.read_bytes() == written

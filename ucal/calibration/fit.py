@@ -9,9 +9,10 @@ with the profile's declared one-sigma tolerance (``[sample] position_std_mm``,
 ``rotation_std_deg``; ``[tool]`` likewise; the sound speed from ``[water] temperature_c`` ±
 ``temperature_std_c`` through Marczak's c(T), the drift 0 ± |dc/dT|·``[water]
 drift_std_c_per_min``; ``[robot] dh_length_std_mm``, ``dh_angle_std_deg`` for a table that was
-not identified on this robot; the lost motion 0 ± ``[robot] backlash_std_deg``); the offsets get
-a broad prior (``OFFSET_PRIOR_STD_DEG``) that only regularises what the data cannot see. Each
-face measurement (``ucal.calibration.model``) contributes three rows
+not identified on this robot, ``[calibration] dh_std`` for each parameter the full level
+identified; the lost motion 0 ± ``[robot] backlash_std_deg``); the offsets get a broad prior
+(``OFFSET_PRIOR_STD_DEG``) that only regularises what the data cannot see. Each face
+measurement (``ucal.calibration.model``) contributes three rows
 
     r_tilt = tilt_components(b(q+δ)) / σ_tilt                         model eq. (1), two rows
     r_dist = (n_k·(p(q'+δ) − c)/cos θ − (c_w(t)/c_0)·d) / σ_d        model eq. (2)

@@ -103,6 +103,8 @@ UNSEEN_NORM = 1e-3
 PRIOR_DOMINATED = 0.5
 
 _ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
+#: The columns of ``[calibration] dh_std`` (``ucal.profile.read.DH_STD_KEYS``).
+_STD_KEYS = (*_ROW_KEYS, "beta_deg")
 
 
 def twists_deg(model: RobotModel) -> np.ndarray:
@@ -111,12 +113,12 @@ def twists_deg(model: RobotModel) -> np.ndarray:
 
 
 def full_table(prior: CellPrior) -> ParameterTable:
-    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one;
-    the step's is 0, known, when the cell has none)."""
+    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one,
+    or what an earlier full level identified; the step's is 0, known, when the cell has none)."""
     return ParameterTable(
         FULL_PARAMETERS,
         np.append(prior.values(), [twists_deg(prior.model)[1], prior.step_mm]),
-        np.append(prior.stds(), [prior.dh_angle_std_deg, prior.step_std_mm]),
+        np.append(prior.stds(), [prior.dh_stds()[1, 3], prior.step_std_mm]),
     )
 
 
@@ -381,6 +383,23 @@ class FullSolution:
             rows.append(r)
         return rows
 
+    def dh_std(self) -> np.ndarray:
+        """The identified table's one sigmas as later solvers may take them as priors (6, 4:
+        each row's ``d_mm, a_mm, alpha_deg, beta_deg``; NaN: not determined,
+        ``written_dh_std``)."""
+        return written_dh_std(self.cell, self.parameters)
+
+    def dh_std_rows(self) -> list[dict[str, float]]:
+        """``dh_std`` as ``[calibration] dh_std`` rows: every kinematic parameter of the row,
+        −1 where not determined (the [robot] tolerance stands)."""
+        std = self.dh_std()
+        rows: list[dict[str, float]] = [{} for _ in range(6)]
+        for name in KINEMATIC:
+            row, col = _position(name)
+            v = std[row, col]
+            rows[row][_STD_KEYS[col]] = _round_up(v) if np.isfinite(v) else -1.0
+        return rows
+
     def to_json(self) -> dict:
         """The ``identification`` object of ``calibrate --level full --json``."""
         return {
@@ -394,6 +413,49 @@ class FullSolution:
                 None if self.length_standard is None else self.length_standard.to_json()
             ),
         }
+
+
+def _round_up(std: float) -> float:
+    """``std`` to four significant digits, never below it (a std written is a promise)."""
+    out = float(f"{std:.4g}")
+    if out < std:
+        out = float(f"{out + 10.0 ** (np.floor(np.log10(std)) - 3):.4g}")
+    return out
+
+
+def _position(name: str) -> tuple[int, int]:
+    """Row (0-based link) and ``_STD_KEYS`` column of a kinematic parameter (``dh2_a_mm``)."""
+    return int(name[2]) - 1, _STD_KEYS.index(name.split("_", 1)[1])
+
+
+def written_dh_std(cell: CellFit, params: dict[str, IdentifiedParameter]) -> np.ndarray:
+    """One sigma of each kinematic parameter the full level determined (6, 4: each row's
+    ``d_mm, a_mm, alpha_deg, beta_deg``; NaN elsewhere), for later solvers to take as
+    independent priors in place of the [robot] tolerance.
+
+    A prior per parameter drops the correlations between them. Alone, the marginal stds would
+    then promise more than the fit knows of a combination whose parameters are positively
+    correlated (the upper arm and the forearm share the scale of every length): a diagonal
+    covariance ``k·diag(C)`` covers ``C`` in every direction when ``k`` is the largest
+    eigenvalue of the parameters' correlation matrix, so each std is inflated by √k (about 2
+    on the example cell), up to its prior's (the [robot] tolerance, or what an earlier full
+    level wrote: a prior-dominated parameter keeps it). A parameter not identifiable (kept at
+    its nominal value, its effect absorbed by others) is not determined: NaN, and the [robot]
+    tolerance stands.
+    """
+    out = np.full((6, 4), np.nan)
+    names = [n for n, p in params.items() if p.std is not None and np.isfinite(p.std)]
+    if not names:
+        return out
+    free = cell.table.free_names
+    idx = [free.index(n) for n in names]
+    cov = cell.cov[np.ix_(idx, idx)]
+    s = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    k = max(1.0, float(np.linalg.eigvalsh(cov / np.outer(s, s)).max()))
+    for name in names:
+        prior = float(cell.table.prior_stds[cell.table.index(name)])
+        out[_position(name)] = min(float(np.sqrt(k) * cell.sigma(name)), prior)
+    return out
 
 
 def solve_full(
@@ -454,11 +516,11 @@ def solve_full(
         params[name] = IdentifiedParameter(
             value, sigma, nominal, "prior-dominated" if weak else "identified"
         )
+        row, col = _position(name)
         if name in BETA:
-            beta[1] = value
+            beta[row] = value
         else:
-            row, key = int(name[2]) - 1, name.split("_", 1)[1]
-            dh[row, 1 + _ROW_KEYS.index(key)] = value
+            dh[row, 1 + col] = value
     model = prior.model.with_dh(dh, beta, "calibrate --level full")
     standard = None
     if steps:

@@ -93,6 +93,9 @@ class CellPrior:
     water_temperature_std_c: float = 2.0
     dh_length_std_mm: float = 0.2
     dh_angle_std_deg: float = 0.02
+    #: One sigma of each row's ``d_mm, a_mm, alpha_deg, beta_deg`` (6, 4) where the full level
+    #: identified them (``[calibration] dh_std``), NaN elsewhere; None: none identified.
+    dh_std: np.ndarray | None = None
     #: Height of the step on the block's XY face (mm) and its one sigma (0: no step; the cell
     #: then has no length standard).
     step_mm: float = 0.0
@@ -123,6 +126,20 @@ class CellPrior:
         """One sigma of the sound speed's drift: |dc/dT|·``drift_std_c_per_min``."""
         return self.sound_speed_slope_m_s_per_c * self.drift_std_c_per_min
 
+    def dh_stds(self) -> np.ndarray:
+        """Prior one-sigmas of the DH table (6, 4: each row's ``d_mm, a_mm, alpha_deg,
+        beta_deg``): what the full level identified (``dh_std``) where it did, the [robot]
+        tolerances (``dh_length_std_mm``, ``dh_angle_std_deg``) elsewhere."""
+        length, angle = self.dh_length_std_mm, self.dh_angle_std_deg
+        tolerance = np.tile([length, length, angle, angle], (6, 1))
+        if self.dh_std is None:
+            return tolerance
+        return np.where(np.isfinite(self.dh_std), self.dh_std, tolerance)
+
+    def dh_prior_stds(self) -> np.ndarray:
+        """Prior one-sigmas of the unknowns ``DH`` (18,: each row's d, a, α), ``dh_stds``."""
+        return self.dh_stds()[:, :3].ravel()
+
     def values(self) -> np.ndarray:
         """Prior values in ``PARAMETERS`` order."""
         dh = self.model.dh[:, 1:4].ravel()
@@ -150,7 +167,7 @@ class CellPrior:
                 self.tool_position_std_mm,
                 self.tool_rotation_std_deg,
                 [self.sound_speed_std_m_s],
-                np.tile([self.dh_length_std_mm, self.dh_length_std_mm, self.dh_angle_std_deg], 6),
+                self.dh_prior_stds(),
                 [self.drift_std_m_s_per_min],
                 np.broadcast_to(self.backlash_std_deg, 6),
             ]
@@ -158,7 +175,8 @@ class CellPrior:
 
 
 def prior_from_profile(profile: CellProfile) -> CellPrior:
-    """The ``CellPrior`` of a ``CellProfile`` (tolerances from its std keys)."""
+    """The ``CellPrior`` of a ``CellProfile`` (tolerances from its std keys; the DH table's
+    from ``[calibration] dh_std`` where the full level identified it, ``CellPrior.dh_stds``)."""
     p = profile
     return CellPrior(
         model=p.model,
@@ -175,6 +193,7 @@ def prior_from_profile(profile: CellProfile) -> CellPrior:
         water_temperature_std_c=float(p.water_temperature_std_c),
         dh_length_std_mm=float(p.dh_length_std_mm),
         dh_angle_std_deg=float(p.dh_angle_std_deg),
+        dh_std=None if p.dh_std is None else np.asarray(p.dh_std, float),
         step_mm=0.0 if p.step is None else float(p.step.height_mm),
         step_std_mm=0.0 if p.step is None else float(p.step.height_std_mm),
         drift_std_c_per_min=float(p.drift_std_c_per_min),

@@ -533,6 +533,9 @@ class FullCalibration(CalibrationJob):
                 **written_keys(sol, sol, solved.fit),
                 "level": "full",
                 "dh": sol.dh_rows(),
+                # each identified parameter's std: the later solvers' prior in place of the
+                # [robot] tolerance (an offsets level keeps both keys: it fits on this table)
+                "dh_std": sol.dh_std_rows(),
                 **budget_keys(solved.budget),
             },
             block_written(sol.cell, self.profile),

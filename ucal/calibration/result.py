@@ -261,6 +261,9 @@ class FullResult(CalibrationResult[FullSolved]):
         sol, plan = self.solved.chosen, self.plan
         return {
             "dh": sol.dh_rows(),
+            "dh_std": [
+                {k: (None if v < 0 else v) for k, v in row.items()} for row in sol.dh_std_rows()
+            ],
             "identification": sol.to_json(),
             "unidentified_tcp_mm": self.budget_json(),
             "plan": {

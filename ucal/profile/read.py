@@ -174,6 +174,7 @@ def profile_from_data(
     offsets = np.zeros(6)
     unobservable: tuple[int, ...] = ()
     offsets_std = None
+    dh_std = None
     if cal is not None:
         v = r.get(cal, "calibration.joint_offsets_deg")
         if v is not None:
@@ -190,6 +191,15 @@ def profile_from_data(
             # the table identified by `calibrate --level full` replaces [robot] dh everywhere
             rows, beta = r.split_beta("calibration.dh", v, MAX_CALIBRATED_BETA_DEG)
             model = model.with_dh(r.dh_table("calibration.dh", rows), beta, "[calibration] dh")
+        v = r.get(cal, "calibration.dh_std")
+        if v is not None:
+            if r.get(cal, "calibration.dh") is None:
+                raise r.error(
+                    "calibration.dh_std",
+                    "written with [calibration] dh by calibrate --level full: without dh it "
+                    "describes no table (remove it, or restore dh)",
+                )
+            dh_std = read_dh_std(r, "calibration.dh_std", v)
 
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
@@ -206,6 +216,7 @@ def profile_from_data(
         reflector_points_std_mm=points_std,
         step=step,
         joint_offsets_std_deg=offsets_std,
+        dh_std=dh_std,
         water_temperature_c=water_c,
         frequency_mhz=freq,
         element_diameter_mm=diam,
@@ -217,6 +228,31 @@ def profile_from_data(
         path=Path(path),
         **tolerances,
     )
+
+
+#: The columns of ``[calibration] dh_std``: one sigma of each row's lengths (mm) and twists (deg).
+DH_STD_KEYS = ("d_mm", "a_mm", "alpha_deg", "beta_deg")
+
+
+def read_dh_std(r: Reader, key: str, raw: Any) -> np.ndarray:
+    """``[calibration] dh_std``: six rows, each a table of some of ``DH_STD_KEYS`` (one sigma,
+    up to 10 mm / 1 deg, as the [robot] tolerances; negative: not determined) → (6, 4), NaN
+    where not determined or left out (the [robot] tolerance then stands)."""
+    out = np.full((6, 4), np.nan)
+    for i, row in enumerate(r.array(key, raw, 6)):
+        rkey = f"{key}[{i}]"
+        if not isinstance(row, Mapping):
+            raise r.error(rkey, f"must be a table of {', '.join(DH_STD_KEYS)}")
+        r.refuse_misspelt(rkey, row, DH_STD_KEYS, "column")
+        extra = sorted(set(row) - set(DH_STD_KEYS))
+        if extra:
+            raise r.error(f"{rkey}.{extra[0]}", f"unknown column (known: {', '.join(DH_STD_KEYS)})")
+        for j, name in enumerate(DH_STD_KEYS):
+            if name in row:
+                hi, unit = (10.0, "mm") if name.endswith("_mm") else (1.0, "deg")
+                v = r.number(f"{rkey}.{name}", row[name], hi=hi, unit=unit)
+                out[i, j] = v if v >= 0.0 else np.nan
+    return out
 
 
 def read_tolerances(

@@ -397,12 +397,12 @@ def _tool(write: Write, table: Any) -> ToolCalibration:
 
 def _nominal_model(data: Mapping[str, Any], path: Path) -> RobotModel:
     """The model of ``[robot]`` alone: the shipped or ``[robot] dh`` table, which an identified
-    ``[calibration] dh`` replaces."""
+    ``[calibration] dh`` replaces (with its stds, ``dh_std``)."""
     cal = data.get("calibration")
     if not isinstance(cal, Mapping) or "dh" not in cal:
         return profile_from_data(data, path).model
     without = dict(data)
-    without["calibration"] = {k: v for k, v in cal.items() if k != "dh"}
+    without["calibration"] = {k: v for k, v in cal.items() if k not in ("dh", "dh_std")}
     return profile_from_data(without, path).model
 
 

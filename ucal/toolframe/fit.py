@@ -301,7 +301,7 @@ def _table(
             prior.tool_position_std_mm,
             prior.tool_rotation_std_deg,
             [prior.sound_speed_std_m_s],
-            np.tile([prior.dh_length_std_mm, prior.dh_length_std_mm, prior.dh_angle_std_deg], 6),
+            prior.dh_prior_stds(),
             [plate.height_std_mm],
             plate.tilt_std_deg,
             [DELAY_PRIOR_STD_NS],

@@ -172,7 +172,13 @@ def test_undone_identified_and_verify_picture(tmp_path: Path) -> None:
     ]
     write_profile(
         profile,
-        {"calibration": {"joint_offsets_deg": [0.0, 0.5, 0.25, 0.0, 0.0, 0.0], "dh": dh}},
+        {
+            "calibration": {
+                "joint_offsets_deg": [0.0, 0.5, 0.25, 0.0, 0.0, 0.0],
+                "dh": dh,
+                "dh_std": [{"d_mm": -1.0, "a_mm": 0.01, "alpha_deg": 0.001}] * 6,
+            }
+        },
         "calibrate --method exact --level full: fit ok (χ²ᵣ 0.9)",
     )
     report = gather_report(profile)
