@@ -1,4 +1,4 @@
-"""Planning sweep: which cells the four planners plan, and why the others are refused.
+"""Planning sweep: which cells the five planners plan, and why the others are refused.
 
 For every shipped model (``ucal profile init MODEL``: its block, plate and calibration pose),
 the profile is changed as a technician changes it before a first run: the block's corner and
@@ -9,7 +9,10 @@ an axis across it), and the README's step (``docs/method/full-calibration.md``: 
 60 mm square, at the XY face's centre) declared or not. On each such profile the four
 planners run exactly as the commands run them before moving, on the profile's nominal values:
 ``calibrate`` (``plan_calibration``), ``calibrate --level full`` (``plan_full``),
-``tool-frame`` (``plan_tool_frame``) and ``verify`` (``plan_verify``). Nothing moves.
+``tool-frame`` (``plan_tool_frame``), ``verify`` (``plan_verify``) and ``verify --region 12``
+(``plan_region``). Nothing moves. The profiles are never calibrated (each joint offset known
+to a degree, ``ucal.calibration.safety.FRESH_OFFSET_STD_DEG``); ``--calibrated`` declares
+``[calibration] std_deg`` as ``calibrate`` writes it (``CALIBRATED_STD_DEG``).
 
 The sweep prints how many plans each planner finds and how many it refuses, and the refusals
 grouped by their message (numbers masked, so that one cause is one line).
@@ -20,6 +23,7 @@ Run::
     python benchmarks/plans.py --quick      # one block, one tool per model x holder: 9 cells
     python benchmarks/plans.py --model tx90xl --blocks 8 --json
     python benchmarks/plans.py --model tx90xl --blocks 12 --planner "calibrate --level full"
+    python benchmarks/plans.py --planner "verify --region" --calibrated
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.plan import plan_tool_frame
 from ucal.verify.plan import plan_verify
+from ucal.verify.region import plan_region
 
 #: The README's example step (docs/method/full-calibration.md).
 README_STEP = Step(50.0, np.array([250.0, 250.0]), 60.0, 0.002)
@@ -54,12 +59,17 @@ TOOL_LENGTHS_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (0.0, 5.0)
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
 QUICK = {"blocks": 1, "tools": 1, "one_step": True}
+#: Postures of the region check (the `verify --region 12` of the CLI's examples).
+REGION_POSTURES = 12
+#: ``--calibrated``: each offset's std (deg) as ``calibrate`` writes it on a simulated cell.
+CALIBRATED_STD_DEG = 0.003
 
 PLANNERS: dict[str, Callable[[CellProfile], object]] = {
     "calibrate": plan_calibration,
     "calibrate --level full": plan_full,
     "tool-frame": plan_tool_frame,
     "verify": plan_verify,
+    "verify --region": lambda profile: plan_region(profile, REGION_POSTURES),
 }
 
 
@@ -89,8 +99,9 @@ def template(model: str) -> CellProfile:
     return profile_from_data(tomlkit.parse(default_profile_text(model)), f"{model}.toml")
 
 
-def profile_of(case: Case, base: CellProfile) -> CellProfile:
-    """``base`` with the case's block, tool and step declared."""
+def profile_of(case: Case, base: CellProfile, calibrated: bool = False) -> CellProfile:
+    """``base`` with the case's block, tool and step declared (``calibrated``: and the
+    offsets' std, ``CALIBRATED_STD_DEG``)."""
     axis = np.radians(case.holder_axis_deg)
     holder = Rotation.from_rotvec(
         np.radians(case.holder_deg) * np.array([np.cos(axis), np.sin(axis), 0.0])
@@ -101,6 +112,9 @@ def profile_of(case: Case, base: CellProfile) -> CellProfile:
         tool_position_mm=np.asarray(case.tool_mm, float),
         tool_rotation_deg=matrix_to_rpy(holder),
         step=README_STEP if case.step else None,
+        joint_offsets_std_deg=(
+            np.full(6, CALIBRATED_STD_DEG) if calibrated else base.joint_offsets_std_deg
+        ),
     )
 
 
@@ -145,9 +159,11 @@ def mask(message: str) -> str:
     return re.sub(r"-?\d+(\.\d+)?", "#", message)
 
 
-def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) -> dict:
-    """Run the planners (by name, all four by default) on every case; counts, refusals
-    grouped, CPU time."""
+def sweep(
+    all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS), calibrated: bool = False
+) -> dict:
+    """Run the planners (by name, all five by default) on every case (``calibrated``: its
+    profile with the offsets' std ``calibrate`` writes); counts, refusals grouped, CPU time."""
     chosen = {name: PLANNERS[name] for name in planners}
     bases = {m: template(m) for m in dict.fromkeys(c.model for c in all_cases)}
     counts: dict[str, Counter[str]] = {name: Counter() for name in chosen}
@@ -156,7 +172,7 @@ def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) ->
     by_model: dict[str, Counter[str]] = defaultdict(Counter)
     t0 = time.process_time()
     for case in all_cases:
-        profile = profile_of(case, bases[case.model])
+        profile = profile_of(case, bases[case.model], calibrated)
         for name, plan in chosen.items():
             try:
                 plan(profile)
@@ -203,7 +219,13 @@ def main(argv: list[str] | None = None) -> int:
         "--planner",
         choices=PLANNERS,
         action="append",
-        help="only this planner (again for more; default: all four)",
+        help="only this planner (again for more; default: all five)",
+    )
+    p.add_argument(
+        "--calibrated",
+        action="store_true",
+        help="profiles with [calibration] std_deg as calibrate writes it (default: never "
+        "calibrated, each offset known to a degree)",
     )
     p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1 --one-step: 9 cells")
     args = p.parse_args(argv)
@@ -212,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         args = p.parse_args(argv)
     models = tuple(args.model or KNOWN_MODELS)
     planners = tuple(args.planner or PLANNERS)
-    result = sweep(cases(models, args.blocks, args.tools, args.seed, args.one_step), planners)
+    all_cases = cases(models, args.blocks, args.tools, args.seed, args.one_step)
+    result = sweep(all_cases, planners, args.calibrated)
     if args.json:
         print(json.dumps(result))
         return 0
