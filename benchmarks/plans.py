@@ -15,7 +15,12 @@ to a degree, ``ucal.calibration.safety.FRESH_OFFSET_STD_DEG``); ``--calibrated``
 ``[calibration] std_deg`` as ``calibrate`` writes it (``CALIBRATED_STD_DEG``).
 
 The sweep prints how many plans each planner finds and how many it refuses, and the refusals
-grouped by their message (numbers masked, so that one cause is one line).
+grouped by their message (numbers masked, so that one cause is one line). For the planners
+whose run re-places its postures on the block as measured (the full level, the region check),
+it checks where each plan's first posture, reached before anything is measured, meets its
+face with the offsets of J1-J3 three sigma off together (each sign; ``first_room``): how many
+plans put the tool centre within ``MIN_WATER_PATH_MM`` of the face or the beam within
+``EDGE_MARGIN_MM`` of the face's edge, and the least water path and edge distance (mm).
 
 Run::
 
@@ -29,6 +34,7 @@ Run::
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import re
 import sys
@@ -41,7 +47,9 @@ import numpy as np
 import tomlkit
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.full_plan import plan_full
+from ucal.calibration.full_plan import FullPlan, plan_full
+from ucal.calibration.plan import geometry
+from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.calibration.sequence import plan_calibration
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError, UcalError
@@ -154,9 +162,38 @@ def cases(
     return out
 
 
+def first_room(profile: CellProfile, plan: FullPlan) -> tuple[float, float]:
+    """The least water path and distance of the beam's hit from the face's edge (mm) of the
+    first posture at its planned readings, over true offsets of J1-J3 three sigma off
+    together (each joint ``offsets_std_deg`` × 3/√3, each sign), the block as declared."""
+    first = plan.postures[0]
+    std = offsets_std_deg(profile)
+    geom = geometry(profile)
+    corner = profile.sample_matrix[:3, 3]
+    hits = []
+    for signs in itertools.product((-1.0, 1.0), repeat=3):
+        true = np.array(profile.joint_offsets_deg, float)
+        true[:3] += np.sqrt(3.0) * np.array(signs) * std[:3]  # 3σ together: 3/√3 σ each
+        size = profile.sample_face_size_mm
+        hits.append(face_hit(geom, first.joints_deg, true, corner, first.face, size))
+    return min(h[0] for h in hits), min(h[1] for h in hits)
+
+
 def mask(message: str) -> str:
     """A refusal's message with its numbers masked: one cause, one line."""
     return re.sub(r"-?\d+(\.\d+)?", "#", message)
+
+
+def first_rooms(rooms: list[tuple[float, float]]) -> dict:
+    """What ``first_room`` found over a planner's plans (nothing for a planner without it)."""
+    if not rooms:
+        return {}
+    path, edge = np.array(rooms).T
+    return {
+        "first_short": int(np.sum((path < MIN_WATER_PATH_MM) | (edge < EDGE_MARGIN_MM))),
+        "first_min_path_mm": float(path.min()),
+        "first_min_edge_mm": float(edge.min()),
+    }
 
 
 def sweep(
@@ -170,12 +207,13 @@ def sweep(
     grouped: dict[str, Counter[str]] = {name: Counter() for name in chosen}
     example: dict[tuple[str, str], str] = {}
     by_model: dict[str, Counter[str]] = defaultdict(Counter)
+    rooms: dict[str, list[tuple[float, float]]] = defaultdict(list)
     t0 = time.process_time()
     for case in all_cases:
         profile = profile_of(case, bases[case.model], calibrated)
         for name, plan in chosen.items():
             try:
-                plan(profile)
+                found = plan(profile)
             except (SafetyError, UcalError) as e:
                 counts[name]["refused"] += 1
                 key = mask(str(e))
@@ -185,6 +223,8 @@ def sweep(
             else:
                 counts[name]["planned"] += 1
                 by_model[case.model][f"{name} planned"] += 1
+                if isinstance(found, FullPlan) and found.postures:
+                    rooms[name].append(first_room(profile, found))
     return {
         "cases": len(all_cases),
         "cpu_s": time.process_time() - t0,
@@ -196,6 +236,7 @@ def sweep(
                     {"count": n, "message": key, "example": example[(name, key)]}
                     for key, n in grouped[name].most_common()
                 ],
+                **first_rooms(rooms[name]),
             }
             for name in chosen
         },
@@ -244,6 +285,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     for name, r in result["planners"].items():
         print(f"{name}: {r['planned']} planned, {r['refused']} refused")
+        if "first_short" in r:
+            print(
+                f"  first posture, J1-J3 offsets 3 sigma off: {r['first_short']} within "
+                f"{MIN_WATER_PATH_MM:g} mm of the face or {EDGE_MARGIN_MM:g} mm of its edge; "
+                f"least water path {r['first_min_path_mm']:.1f} mm, edge "
+                f"{r['first_min_edge_mm']:.1f} mm"
+            )
         for g in r["refusals"]:
             print(f"  {g['count']:4d} x {g['message']}")
             print(f"         e.g. {g['example']}", file=sys.stderr)
