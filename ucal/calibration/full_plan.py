@@ -34,7 +34,8 @@ cell's real spread in units of the fit's priors). The water path stays between
 ``MIN_WATER_PATH_MM`` and the echo's ``STEPPED_PATH_RANGE_MM`` bound, the beam inside the
 face's edges and the step's top. The postures are visited lowest J1 first, then nearest next,
 among those that have the room; where none has it yet, the candidate that has it and adds most
-information is visited first (a lead-in).
+information is visited first (a lead-in). The region check (``ucal.verify.region``), measured
+by the same run, orders its spread postures here too.
 """
 
 from __future__ import annotations
