@@ -1,4 +1,4 @@
-"""Planning sweep: which cells the four planners plan, and why the others are refused.
+"""Planning sweep: which cells the five planners plan, and why the others are refused.
 
 For every shipped model (``ucal profile init MODEL``: its block, plate and calibration pose),
 the profile is changed as a technician changes it before a first run: the block's corner and
@@ -9,10 +9,18 @@ an axis across it), and the README's step (``docs/method/full-calibration.md``: 
 60 mm square, at the XY face's centre) declared or not. On each such profile the four
 planners run exactly as the commands run them before moving, on the profile's nominal values:
 ``calibrate`` (``plan_calibration``), ``calibrate --level full`` (``plan_full``),
-``tool-frame`` (``plan_tool_frame``) and ``verify`` (``plan_verify``). Nothing moves.
+``tool-frame`` (``plan_tool_frame``), ``verify`` (``plan_verify``) and ``verify --region 12``
+(``plan_region``). Nothing moves. The profiles are never calibrated (each joint offset known
+to a degree, ``ucal.calibration.safety.FRESH_OFFSET_STD_DEG``); ``--calibrated`` declares
+``[calibration] std_deg`` as ``calibrate`` writes it (``CALIBRATED_STD_DEG``).
 
 The sweep prints how many plans each planner finds and how many it refuses, and the refusals
-grouped by their message (numbers masked, so that one cause is one line).
+grouped by their message (numbers masked, so that one cause is one line). For the planners
+whose run re-places its postures on the block as measured (the full level, the region check),
+it checks where each plan's first posture, reached before anything is measured, meets its
+face with the offsets of J1-J3 three sigma off together (each sign; ``first_room``): how many
+plans put the tool centre within ``MIN_WATER_PATH_MM`` of the face or the beam within
+``EDGE_MARGIN_MM`` of the face's edge, and the least water path and edge distance (mm).
 
 Run::
 
@@ -20,11 +28,13 @@ Run::
     python benchmarks/plans.py --quick      # one block, one tool per model x holder: 9 cells
     python benchmarks/plans.py --model tx90xl --blocks 8 --json
     python benchmarks/plans.py --model tx90xl --blocks 12 --planner "calibrate --level full"
+    python benchmarks/plans.py --planner "verify --region" --calibrated
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import re
 import sys
@@ -37,7 +47,9 @@ import numpy as np
 import tomlkit
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.full_plan import plan_full
+from ucal.calibration.full_plan import FullPlan, plan_full
+from ucal.calibration.plan import geometry
+from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.calibration.sequence import plan_calibration
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError, UcalError
@@ -46,6 +58,7 @@ from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.plan import plan_tool_frame
 from ucal.verify.plan import plan_verify
+from ucal.verify.region import plan_region
 
 #: The README's example step (docs/method/full-calibration.md).
 README_STEP = Step(50.0, np.array([250.0, 250.0]), 60.0, 0.002)
@@ -54,12 +67,17 @@ TOOL_LENGTHS_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (0.0, 5.0)
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
 QUICK = {"blocks": 1, "tools": 1, "one_step": True}
+#: Postures of the region check (the `verify --region 12` of the CLI's examples).
+REGION_POSTURES = 12
+#: ``--calibrated``: each offset's std (deg) as ``calibrate`` writes it on a simulated cell.
+CALIBRATED_STD_DEG = 0.003
 
 PLANNERS: dict[str, Callable[[CellProfile], object]] = {
     "calibrate": plan_calibration,
     "calibrate --level full": plan_full,
     "tool-frame": plan_tool_frame,
     "verify": plan_verify,
+    "verify --region": lambda profile: plan_region(profile, REGION_POSTURES),
 }
 
 
@@ -89,8 +107,9 @@ def template(model: str) -> CellProfile:
     return profile_from_data(tomlkit.parse(default_profile_text(model)), f"{model}.toml")
 
 
-def profile_of(case: Case, base: CellProfile) -> CellProfile:
-    """``base`` with the case's block, tool and step declared."""
+def profile_of(case: Case, base: CellProfile, calibrated: bool = False) -> CellProfile:
+    """``base`` with the case's block, tool and step declared (``calibrated``: and the
+    offsets' std, ``CALIBRATED_STD_DEG``)."""
     axis = np.radians(case.holder_axis_deg)
     holder = Rotation.from_rotvec(
         np.radians(case.holder_deg) * np.array([np.cos(axis), np.sin(axis), 0.0])
@@ -101,6 +120,9 @@ def profile_of(case: Case, base: CellProfile) -> CellProfile:
         tool_position_mm=np.asarray(case.tool_mm, float),
         tool_rotation_deg=matrix_to_rpy(holder),
         step=README_STEP if case.step else None,
+        joint_offsets_std_deg=(
+            np.full(6, CALIBRATED_STD_DEG) if calibrated else base.joint_offsets_std_deg
+        ),
     )
 
 
@@ -140,26 +162,58 @@ def cases(
     return out
 
 
+def first_room(profile: CellProfile, plan: FullPlan) -> tuple[float, float]:
+    """The least water path and distance of the beam's hit from the face's edge (mm) of the
+    first posture at its planned readings, over true offsets of J1-J3 three sigma off
+    together (each joint ``offsets_std_deg`` × 3/√3, each sign), the block as declared."""
+    first = plan.postures[0]
+    std = offsets_std_deg(profile)
+    geom = geometry(profile)
+    corner = profile.sample_matrix[:3, 3]
+    hits = []
+    for signs in itertools.product((-1.0, 1.0), repeat=3):
+        true = np.array(profile.joint_offsets_deg, float)
+        true[:3] += np.sqrt(3.0) * np.array(signs) * std[:3]  # 3σ together: 3/√3 σ each
+        size = profile.sample_face_size_mm
+        hits.append(face_hit(geom, first.joints_deg, true, corner, first.face, size))
+    return min(h[0] for h in hits), min(h[1] for h in hits)
+
+
 def mask(message: str) -> str:
     """A refusal's message with its numbers masked: one cause, one line."""
     return re.sub(r"-?\d+(\.\d+)?", "#", message)
 
 
-def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) -> dict:
-    """Run the planners (by name, all four by default) on every case; counts, refusals
-    grouped, CPU time."""
+def first_rooms(rooms: list[tuple[float, float]]) -> dict:
+    """What ``first_room`` found over a planner's plans (nothing for a planner without it)."""
+    if not rooms:
+        return {}
+    path, edge = np.array(rooms).T
+    return {
+        "first_short": int(np.sum((path < MIN_WATER_PATH_MM) | (edge < EDGE_MARGIN_MM))),
+        "first_min_path_mm": float(path.min()),
+        "first_min_edge_mm": float(edge.min()),
+    }
+
+
+def sweep(
+    all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS), calibrated: bool = False
+) -> dict:
+    """Run the planners (by name, all five by default) on every case (``calibrated``: its
+    profile with the offsets' std ``calibrate`` writes); counts, refusals grouped, CPU time."""
     chosen = {name: PLANNERS[name] for name in planners}
     bases = {m: template(m) for m in dict.fromkeys(c.model for c in all_cases)}
     counts: dict[str, Counter[str]] = {name: Counter() for name in chosen}
     grouped: dict[str, Counter[str]] = {name: Counter() for name in chosen}
     example: dict[tuple[str, str], str] = {}
     by_model: dict[str, Counter[str]] = defaultdict(Counter)
+    rooms: dict[str, list[tuple[float, float]]] = defaultdict(list)
     t0 = time.process_time()
     for case in all_cases:
-        profile = profile_of(case, bases[case.model])
+        profile = profile_of(case, bases[case.model], calibrated)
         for name, plan in chosen.items():
             try:
-                plan(profile)
+                found = plan(profile)
             except (SafetyError, UcalError) as e:
                 counts[name]["refused"] += 1
                 key = mask(str(e))
@@ -169,6 +223,8 @@ def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) ->
             else:
                 counts[name]["planned"] += 1
                 by_model[case.model][f"{name} planned"] += 1
+                if isinstance(found, FullPlan) and found.postures:
+                    rooms[name].append(first_room(profile, found))
     return {
         "cases": len(all_cases),
         "cpu_s": time.process_time() - t0,
@@ -180,6 +236,7 @@ def sweep(all_cases: list[Case], planners: tuple[str, ...] = tuple(PLANNERS)) ->
                     {"count": n, "message": key, "example": example[(name, key)]}
                     for key, n in grouped[name].most_common()
                 ],
+                **first_rooms(rooms[name]),
             }
             for name in chosen
         },
@@ -203,7 +260,13 @@ def main(argv: list[str] | None = None) -> int:
         "--planner",
         choices=PLANNERS,
         action="append",
-        help="only this planner (again for more; default: all four)",
+        help="only this planner (again for more; default: all five)",
+    )
+    p.add_argument(
+        "--calibrated",
+        action="store_true",
+        help="profiles with [calibration] std_deg as calibrate writes it (default: never "
+        "calibrated, each offset known to a degree)",
     )
     p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1 --one-step: 9 cells")
     args = p.parse_args(argv)
@@ -212,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
         args = p.parse_args(argv)
     models = tuple(args.model or KNOWN_MODELS)
     planners = tuple(args.planner or PLANNERS)
-    result = sweep(cases(models, args.blocks, args.tools, args.seed, args.one_step), planners)
+    all_cases = cases(models, args.blocks, args.tools, args.seed, args.one_step)
+    result = sweep(all_cases, planners, args.calibrated)
     if args.json:
         print(json.dumps(result))
         return 0
@@ -221,6 +285,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     for name, r in result["planners"].items():
         print(f"{name}: {r['planned']} planned, {r['refused']} refused")
+        if "first_short" in r:
+            print(
+                f"  first posture, J1-J3 offsets 3 sigma off: {r['first_short']} within "
+                f"{MIN_WATER_PATH_MM:g} mm of the face or {EDGE_MARGIN_MM:g} mm of its edge; "
+                f"least water path {r['first_min_path_mm']:.1f} mm, edge "
+                f"{r['first_min_edge_mm']:.1f} mm"
+            )
         for g in r["refusals"]:
             print(f"  {g['count']:4d} x {g['message']}")
             print(f"         e.g. {g['example']}", file=sys.stderr)

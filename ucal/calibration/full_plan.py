@@ -34,7 +34,8 @@ cell's real spread in units of the fit's priors). The water path stays between
 ``MIN_WATER_PATH_MM`` and the echo's ``STEPPED_PATH_RANGE_MM`` bound, the beam inside the
 face's edges and the step's top. The postures are visited lowest J1 first, then nearest next,
 among those that have the room; where none has it yet, the candidate that has it and adds most
-information is visited first (a lead-in).
+information is visited first (a lead-in). The region check (``ucal.verify.region``), measured
+by the same run, orders its spread postures here too.
 """
 
 from __future__ import annotations
@@ -393,6 +394,7 @@ def visit_order(
     spread: np.ndarray,
     chosen: list[int],
     max_postures: int = MAX_POSTURES,
+    command: str = "plan --level full",
 ) -> list[int]:
     """The order the run visits the ``chosen`` candidates (indices into ``cands``, in the
     order chosen), each with the room the run needs when it gets there (module docstring:
@@ -400,7 +402,8 @@ def visit_order(
     its water path's prior std the faces measured before it leave); where no chosen posture
     has that room yet, the candidate with it that adds most information is visited first (a
     lead-in, added to the plan; at ``max_postures`` it takes the place of the last chosen).
-    ``SafetyError`` naming what to do when no candidate has it."""
+    ``SafetyError`` naming what to do when no candidate has it (its message begins with
+    ``command``, the plan refused)."""
     q = np.array([c.joints_deg for c in cands])
     faces = np.array([int(c.face) for c in cands])
     paths = np.array([c.water_path_mm for c in cands])
@@ -434,10 +437,10 @@ def visit_order(
         else:
             spare = np.flatnonzero(ok & ~used & ~on_step)
             if not spare.size:
-                raise SafetyError(_unroomy(profile, room_prior, faces))
+                raise SafetyError(_unroomy(profile, room_prior, faces, command))
             s = (jacs[spare] @ m_inv) @ jacs[spare].transpose(0, 2, 1) + np.eye(3)
             k = int(spare[np.argmax(np.linalg.slogdet(s)[1])])
-            log.info("full plan: candidate %s first, where the offsets leave room", cands[k].label)
+            log.info("%s: %s first, where the offsets leave room", command, cands[k].label)
             if len(out) + len(left) >= max_postures:
                 left.pop()  # the last chosen: the least information
         out.append(k)
@@ -447,23 +450,35 @@ def visit_order(
     return out
 
 
-def _unroomy(profile: CellProfile, room_mm: np.ndarray, faces: np.ndarray) -> str:
+def _unroomy(profile: CellProfile, room_mm: np.ndarray, faces: np.ndarray, command: str) -> str:
     """The refusal when no posture keeps the room the unknown offsets need (``visit_order``)."""
     along = room_mm[np.arange(len(faces)), faces]
     std = offsets_std_deg(profile)
-    s_mat = profile.sample_matrix
-    middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
     return (
-        "plan --level full: with the joint offsets known to "
+        f"{command}: with the joint offsets known to "
         f"±{TOLERANCE_SIGMAS * np.max(std):.3g}° ({TOLERANCE_SIGMAS:g}σ; "
         + ("not calibrated" if profile.joint_offsets_std_deg is None else "[calibration] std_deg")
         + f") the tool centre may stand {np.min(along):.0f}-{np.max(along):.0f} mm from where "
         f"it is planned, and no posture keeps it {MIN_WATER_PATH_MM:g} mm from the face, the "
         f"echo within {STEPPED_PATH_RANGE_MM[1]:g} mm and the beam inside the face's edges: "
-        "calibrate the offsets first (`ucal calibrate PROFILE`), or "
-        + reach_advice(
-            profile, middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2], "the block"
-        )
+        "calibrate the offsets first (`ucal calibrate PROFILE`), or " + _block_advice(profile)
+    )
+
+
+def _block_advice(profile: CellProfile) -> str:
+    """Where to move the block for the arm to reach over its XY face's middle."""
+    s_mat = profile.sample_matrix
+    middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
+    point = middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2]
+    return reach_advice(profile, point, "the block")
+
+
+def no_candidates(profile: CellProfile, command: str) -> SafetyError:
+    """The refusal of a plan (``command``) when the block leaves no candidate posture."""
+    return SafetyError(
+        f"{command}: no posture normal to a block face passes the checks (joint ranges, "
+        "singularity margin, clearance, face edges, with the room the declared tolerances "
+        "need): " + _block_advice(profile)
     )
 
 
@@ -473,16 +488,7 @@ def plan_full(
     """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
     cands = candidate_postures(profile)
     if not cands:
-        s_mat = profile.sample_matrix
-        middle = s_mat[:3, :3] @ np.array([0.5, 0.5, 0.0]) * profile.sample_face_size_mm
-        raise SafetyError(
-            "plan --level full: no posture normal to a block face passes the "
-            "checks (joint ranges, singularity margin, clearance, face edges, with the room "
-            "the declared tolerances need): "
-            + reach_advice(
-                profile, middle + s_mat[:3, 3] + WATER_PATHS_MM[1] * s_mat[:3, 2], "the block"
-            )
-        )
+        raise no_candidates(profile, "plan --level full")
     prior = prior_from_profile(profile)
     jacs, names = posture_jacobians(prior, profile, cands)
     idx, _ = select_postures(jacs, min_gain, max_postures)

@@ -12,6 +12,14 @@ kinematics), so what remains
 is the model's error in the directions ultrasound sees: the beam's tilt (deg) and the distance
 along each face's normal (mm). A χ² test against the measurements' own noise gives the verdict;
 the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
+
+The run is the full level's (``ucal.calibration.full_run.run_full``): each posture's arm is
+re-placed onto the block as measured so far (``retarget``). So the postures keep the full
+plan's room for what the run does not know yet (``ucal.calibration.full_plan.visit_order``):
+three sigma of the block's tolerance and of the joint offsets' std (``[calibration] std_deg``;
+a fresh cell's degree where ``calibrate`` has not written it, so after a calibrate the room
+shrinks to what is left), visited in an order where each has it, or the plan is refused before
+any motion naming the cure (calibrate the offsets first, or where to move the block).
 """
 
 from __future__ import annotations
@@ -31,7 +39,15 @@ from ucal.calibration.fit import (
     readings_approach,
     solve_cell,
 )
-from ucal.calibration.full_plan import FullPlan, Posture, candidate_postures, order_postures
+from ucal.calibration.full_plan import (
+    FullPlan,
+    Posture,
+    candidate_postures,
+    no_candidates,
+    posture_jacobians,
+    unknown_spread,
+    visit_order,
+)
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.procedure import estimate_postures, plan_rows
@@ -44,19 +60,25 @@ from ucal.verify.result import RegionCheck, RegionResult
 
 #: Joint-space weights of the farthest-point spread (deg of J1, J2, J3; a face change = 30°).
 _SPREAD_FACE_DEG = 30.0
+#: What a refused plan names.
+_COMMAND = "plan verify --region"
 
 
 def plan_region(
     profile: CellProfile, n: int, seed: int = 0, exclude: tuple[Posture, ...] = ()
 ) -> FullPlan:
     """``n`` checked postures spread farthest apart (J1-J3 and face) over the candidates,
-    starting from a seeded random one, none within 1° of an ``exclude`` posture."""
+    starting from a seeded random one, none within 1° of an ``exclude`` posture, visited in
+    an order where each keeps the room the run needs (module docstring; ``SafetyError``
+    naming the cure where none has it, or where the block leaves no candidate)."""
     cands = [
         c
         for c in candidate_postures(profile)
         if not c.step  # the faces only: the model is judged, not the step
         and all(np.max(np.abs(c.joints_deg - e.joints_deg)) > 1.0 for e in exclude)
     ]
+    if not cands:
+        raise no_candidates(profile, _COMMAND)
     key = np.array([np.append(c.joints_deg[:3], _SPREAD_FACE_DEG * c.face) for c in cands])
     rng = np.random.default_rng(seed)
     chosen = [int(rng.integers(len(cands)))]
@@ -65,10 +87,13 @@ def plan_region(
         i = int(np.argmax(dist))
         chosen.append(i)
         dist = np.minimum(dist, np.linalg.norm(key - key[i], axis=1))
-    postures = order_postures([cands[i] for i in chosen])
+    prior = prior_from_profile(profile)
+    jacs, names = posture_jacobians(prior, profile, cands)
+    spread = unknown_spread(profile, prior, names)
+    order = visit_order(profile, cands, jacs, spread, chosen, len(chosen), _COMMAND)
     postures = [
-        Posture(f"r{i + 1:02d}", p.face, p.joints_deg, p.water_path_mm)
-        for i, p in enumerate(postures)
+        Posture(f"r{i + 1:02d}", cands[k].face, cands[k].joints_deg, cands[k].water_path_mm)
+        for i, k in enumerate(order)
     ]
     j1 = [p.joints_deg[0] for p in postures]
     return FullPlan(

@@ -1,5 +1,6 @@
-"""The offsets level's and the full level's plans on cells the template does not lay out: a
-block declared 2σ off, the README's step on the XY face, a block out of reach (no processes).
+"""The offsets level's, the full level's and the region check's plans on cells the template
+does not lay out: a block declared 2σ off, the README's step on the XY face, a block out of
+reach, offsets not yet calibrated (no processes).
 
 Each found plan is checked as the run checks it: every posture inside the joint ranges with
 the wrist search's room and the declared tolerances' (``tolerance_margins``), and — for the
@@ -35,6 +36,7 @@ from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk, fk_frames
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import default_profile_text, profile_from_data
+from ucal.verify.region import plan_region
 
 #: The README's example step (docs/method/full-calibration.md).
 README_STEP = Step(50.0, np.array([250.0, 250.0]), 60.0, 0.002)
@@ -218,3 +220,62 @@ def test_a_block_turned_off_the_base_axes_leaves_what_no_beam_sees_unidentifiabl
     assert unseen <= set(square.redundant) and unseen <= set(turned.structure.redundant)
     assert not unseen & set(turned.structure.weak)
     assert turned.structure.rank == square.rank
+
+
+def offsets_box_hits(profile: CellProfile, q: np.ndarray, face: int) -> tuple[float, float]:
+    """The least water path and distance of the beam's hit from the face's edge (mm) at
+    readings ``q``, over true offsets of J1-J3 anywhere on the corners and edges of the box of
+    three sigma each (a never-calibrated profile's 1°), the declared block."""
+    geom = geometry(profile)
+    corner = profile.sample_matrix[:3, 3]
+    hits = [
+        face_hit(geom, q, 3.0 * np.array([*s, 0.0, 0.0, 0.0]), corner, face, 500.0)
+        for s in itertools.product((-1.0, 0.0, 1.0), repeat=3)
+    ]
+    return min(h[0] for h in hits), min(h[1] for h in hits)
+
+
+def test_a_fresh_region_plan_starts_where_the_offsets_leave_the_beam_on_the_face() -> None:
+    """A never-calibrated TX90: the region's postures in travel order alone (lowest J1 first,
+    the old plan) would meet the face with the beam off its edge under offsets of 3° on J1-J3;
+    the plan leads with a posture that keeps the water path and the edge's margin there."""
+    profile = template("tx90")
+    plan = plan_region(profile, 12)
+    assert len(plan.postures) == 12
+    first = plan.postures[0]
+    path, edge = offsets_box_hits(profile, first.joints_deg, first.face)
+    assert path >= MIN_WATER_PATH_MM and edge >= EDGE_MARGIN_MM
+    old = order_postures(list(plan.postures))[0]
+    assert old.label != first.label
+    assert offsets_box_hits(profile, old.joints_deg, old.face)[1] < 0.0  # off the face
+
+
+def test_a_calibrated_region_plan_keeps_its_travel_order() -> None:
+    """Offsets known to thousandths of a degree (after ``calibrate``) leave hundredths of a
+    millimetre of room to keep: the spread postures in the nearest-next order, no lead-in."""
+    profile = template("tx90").replace(joint_offsets_std_deg=np.full(6, 0.003))
+    plan = plan_region(profile, 12)
+    assert [p.label for p in plan.postures] == [f"r{i + 1:02d}" for i in range(12)]
+    again = order_postures(list(plan.postures))
+    assert [p.label for p in again] == [p.label for p in plan.postures]
+    assert len({tuple(p.joints_deg) for p in plan.postures}) == 12
+
+
+def test_a_region_plan_without_room_for_the_offsets_is_refused_naming_the_cure() -> None:
+    profile = template("tx90xl").replace(joint_offsets_std_deg=np.full(6, 5.0))
+    with pytest.raises(SafetyError) as e:
+        plan_region(profile, 12)
+    words = str(e.value)
+    assert words.startswith("plan verify --region: with the joint offsets known to ±15°")
+    assert "calibrate the offsets first (`ucal calibrate PROFILE`)" in words
+
+
+def test_a_region_plan_with_the_block_out_of_reach_is_refused_naming_how_far_to_move_it() -> None:
+    profile = template("tx90l")
+    corner = profile.sample_position_mm
+    outward = np.array([corner[0], corner[1], 0.0]) / np.hypot(corner[0], corner[1])
+    with pytest.raises(SafetyError) as e:
+        plan_region(profile.replace(sample_position_mm=corner + 1000.0 * outward), 12)
+    words = str(e.value)
+    assert words.startswith("plan verify --region: no posture normal to a block face passes")
+    assert words.endswith("mm towards the robot") and "move the block about " in words
