@@ -3,7 +3,8 @@
 The README's rehearsal block, line by line as written (each with ``--json`` added to read its
 result): a fresh profile, then ``calibrate``, ``tool-frame`` and ``verify`` with ``--sim`` (the
 demo truth of ``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
-``ucal.calibration.gauge``), with the simulator's truth confirming the "after" figure; then the
+``ucal.calibration.gauge``), marginal within what the DH table left unidentified allows, with
+the simulator's truth confirming the "after" figure; then the
 shipped world with faults, which must fail. One test, because the whole workflow costs tens of
 seconds of CPU; ``test_readme_examples`` leaves this block to it.
 """
@@ -96,7 +97,14 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     assert out["absolute_std_mm"] > 1.0  # the yaw as placed, at the points' reach
     assert "relative to the block as placed" in out["gauge_note"]
     after = np.array(out["after_mm"]["max"])
-    assert np.max(after) < 0.5 - MEASURED_WITHIN_MM and not out["marginal"]
+    assert np.max(after) < 0.5 - MEASURED_WITHIN_MM
+    # the offsets level leaves the DH table at its tolerance (0.2 mm, 0.02°): what it allows
+    # at the tool centre is in verify's figure as in the robot's, and the pass is marginal
+    assert out["measured_within_mm"] == pytest.approx(
+        MEASURED_WITHIN_MM + 2.0 * out["unidentified_tcp_mm"]["max"]
+    )
+    assert out["measured_within_mm"] > 0.5 and out["marginal"] is True
+    assert any("DH table is not identified" in n for n in out["notes"])
     assert np.max(out["before_mm"]["max"]) > 5.0  # the profile before its calibration
     # the simulator's truth of the same points, relative to the true block: the figure is
     # honest to what verify says it measures to, and the truth passes too

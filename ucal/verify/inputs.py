@@ -162,3 +162,19 @@ def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> So
             )
     c = float(sound_speed_m_s(temp))
     return SoundSpeed(c, temp, f"[water] temperature_c = {temp:g} °C ({c:.2f} m/s, Marczak)")
+
+
+def written_budget(profile_path: Path) -> tuple[float, float] | None:
+    """``[calibration] unidentified_tcp_mm`` of the profile (mean, max), or None."""
+    try:
+        with open(profile_path, "rb") as f:
+            value = tomllib.load(f).get("calibration", {}).get("unidentified_tcp_mm")
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    if not (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        return None
+    return float(value[0]), float(value[1])

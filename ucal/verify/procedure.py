@@ -34,6 +34,7 @@ from ucal.verify.inputs import (
     calibration_gauge,
     offsets_before_calibration,
     sound_speed_for_verify,
+    written_budget,
 )
 from ucal.verify.measure import VerifyResult, run_verify
 from ucal.verify.picture import PictureText, plot_verify
@@ -44,6 +45,7 @@ from ucal.verify.result import (
     VerifySolved,
     marginal,
     profile_notes,
+    table_note,
     tool_misfit_mm,
     tool_notes,
 )
@@ -71,18 +73,21 @@ class VerifyJob(CheckingJob):
         self.before = BeforeProfile(np.zeros(6), "")
         self.sound = SoundSpeed(0.0, 0.0, "")
         self.gauge = VerifyGauge(None, 0.0)
+        self.unidentified: tuple[float, float] | None = None
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets and block from the profile's history, the sound speed of its
-        last calibration and its J1 gauge (a replay's: as recorded); nothing is held (the
-        profile is not written)."""
+        last calibration, its J1 gauge and what it left unidentified (a replay's: as
+        recorded); nothing is held (the profile is not written)."""
         if self.recorded_inputs is not None:
             inputs = decode(self.recorded_inputs)
             self.before, self.sound, self.gauge = inputs["before"], inputs["sound"], inputs["gauge"]
+            self.unidentified = inputs.get("unidentified")
         else:
             self.before = offsets_before_calibration(self.profile_path)
             self.sound = sound_speed_for_verify(self.profile, self.profile_path)
             self.gauge = calibration_gauge(self.profile, self.profile_path)
+            self.unidentified = written_budget(self.profile_path)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
@@ -105,7 +110,12 @@ class VerifyJob(CheckingJob):
 
     def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
         # what the run read from the profile's history: a replay reads these instead
-        inputs = {"before": self.before, "sound": self.sound, "gauge": self.gauge}
+        inputs = {
+            "before": self.before,
+            "sound": self.sound,
+            "gauge": self.gauge,
+            "unidentified": self.unidentified,
+        }
         return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
 
     def measure(self, plan: VerifyPlan, session: CellSession, report: Report) -> VerifyResult:
@@ -136,6 +146,7 @@ class VerifyJob(CheckingJob):
             float(np.max(result.stats("after")["max"])),
             replace(self.gauge, reach_mm=reach),
             self.before.same_as(self.profile),
+            self.unidentified,
         )
 
     def may_write(self, solved: VerifySolved) -> bool:
@@ -159,16 +170,24 @@ class VerifyJob(CheckingJob):
         )
 
     def notes(self, solved: VerifySolved) -> list[str]:
-        """``notes`` of the result: what the profile says it does not know, and a tool check
-        whose scans disagree."""
-        notes = profile_notes(self.profile) + tool_notes(solved.result.tool, self.profile)
+        """``notes`` of the result: what the profile says it does not know (its joints, its DH
+        table), and a tool check off or whose scans disagree beyond what verify measures to."""
+        within = solved.measured_within_mm
+        notes = profile_notes(self.profile) + table_note(solved)
+        notes += tool_notes(solved.result.tool, self.profile, within)
         misfit = tool_misfit_mm(solved)
         if misfit > MEASURED_WITHIN_MM:
             notes.append(
                 f"the tool check's scans in the two senses about the beam disagree by "
-                f"{misfit:.3f} mm: the beam is not where the profile's [tool] puts it in the "
-                "flange (not yet measured?), and every 'after' figure may be off by as much; "
-                "run `ucal tool-frame`"
+                f"{misfit:.3f} mm: "
+                + (
+                    "the DH table not identified (above) or "
+                    if misfit <= within and solved.table_unidentified
+                    else ""
+                )
+                + "the beam is not where the profile's [tool] puts it in the flange (not yet "
+                "measured?), and every 'after' figure may be off by as much; run `ucal "
+                "tool-frame`"
             )
         return notes
 

@@ -24,7 +24,6 @@ any motion naming the cure (calibrate the offsets first, or where to move the bl
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -56,6 +55,7 @@ from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
+from ucal.verify.inputs import written_budget
 from ucal.verify.result import RegionCheck, RegionResult
 
 #: Joint-space weights of the farthest-point spread (deg of J1, J2, J3; a face change = 30°).
@@ -129,22 +129,6 @@ def judge_region(
         tolerance_mm,
         approach=readings_approach(meas),
     )
-
-
-def written_budget(profile_path: Path) -> tuple[float, float] | None:
-    """``[calibration] unidentified_tcp_mm`` of the profile (mean, max), or None."""
-    try:
-        with open(profile_path, "rb") as f:
-            value = tomllib.load(f).get("calibration", {}).get("unidentified_tcp_mm")
-    except (OSError, tomllib.TOMLDecodeError):
-        return None
-    if not (
-        isinstance(value, list)
-        and len(value) == 2
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        return None
-    return float(value[0]), float(value[1])
 
 
 def plan_summary(plan: FullPlan, profile_path: Path) -> str:
