@@ -16,7 +16,8 @@ from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import acquisition_gain
 from ucal.measure.approach import FinalApproachRig
 from ucal.measure.face import FaceRequest, FaceSetup, SearchMode, measure
-from ucal.measure.search import MainLobe, PeakSearch, ka_of
+from ucal.measure.lobe import MainLobe
+from ucal.measure.search import PeakSearch, ka_of
 from ucal.profile import create_profile, load_profile
 from ucal.session import open_cell
 from ucal.sim.cell import SimulatedCell

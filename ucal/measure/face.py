@@ -44,7 +44,8 @@ from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
 from ucal.measure.acquire import acquire_and_centre, side_lobe_error
-from ucal.measure.search import MainLobe, PeakSearch, read_distance
+from ucal.measure.lobe import MainLobe
+from ucal.measure.search import PeakSearch, read_distance
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)

@@ -9,7 +9,8 @@ import pytest
 
 from ucal.acoustics import water_absorption_np_per_mm
 from ucal.cell import CellProfile, WorldTruth
-from ucal.measure.search import SIDE_LOBE_MARGIN_DB, MainLobe
+from ucal.measure.lobe import MainLobe
+from ucal.measure.search import SIDE_LOBE_MARGIN_DB
 from ucal.models import load_model
 from ucal.sim.cell import SimulatedCell
 
