@@ -6,6 +6,7 @@ Hardware tests run only when the cell's addresses are given, e.g.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 import pytest
@@ -44,11 +45,15 @@ def run_main(capsys: pytest.CaptureFixture[str]) -> Callable[[list[str]], tuple[
     from ucal.cli import main
 
     def run(args: list[str]) -> tuple[int, str, str]:
+        root = logging.getLogger()
+        level = root.level  # -q sets ERROR, -v INFO: not for the tests after this one
         try:
             main(args)
             code = 0
         except SystemExit as e:
             code = 0 if e.code is None else int(e.code)
+        finally:
+            root.setLevel(level)
         out, err = capsys.readouterr()
         return code, out, err
 

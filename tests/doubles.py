@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import logging
 import os
 import subprocess
 from collections.abc import Iterator
@@ -79,11 +80,17 @@ def calibrated_profile(
 
 
 def exit_code(args: list[str]) -> int:
-    """Exit code of ``ucal ARGS`` run in this process (output goes to pytest's capture)."""
+    """Exit code of ``ucal ARGS`` run in this process (output goes to pytest's capture). The
+    root logger's level is put back after: ``-q`` sets ERROR, and a later test's warnings would
+    not reach its log capture."""
+    root = logging.getLogger()
+    level = root.level
     try:
         main(args)
     except SystemExit as e:
         return 0 if e.code is None else int(e.code)
+    finally:
+        root.setLevel(level)
     return 0
 
 

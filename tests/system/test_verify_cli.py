@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import tomlkit
 
+from ucal.acoustics import sound_speed_m_s
 from ucal.profile import create_profile, write_profile
 
 pytestmark = pytest.mark.system
@@ -53,8 +54,12 @@ def make_profile(tmp_path: Path, name: str, offsets_deg: list[float] | None) -> 
         "fixtured block",
     )
     if offsets_deg is not None:
-        # as `ucal calibrate` would have written it
-        cal = {"joint_offsets_deg": offsets_deg, "unidentified_tcp_mm": [0.12, 0.25]}
+        # as `ucal calibrate` would have written it, the sound speed of the tank measured
+        cal = {
+            "joint_offsets_deg": offsets_deg,
+            "unidentified_tcp_mm": [0.12, 0.25],
+            "sound_speed_m_s": round(float(sound_speed_m_s(20.0)), 3),
+        }
         write_profile(path, {"calibration": cal}, "calibrate")
     return path
 

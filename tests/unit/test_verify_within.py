@@ -5,17 +5,26 @@ off its table moves the reconstructed TCP across the beam, not along it), the bo
 from __future__ import annotations
 
 from dataclasses import replace
+from datetime import datetime, timedelta
 
 import numpy as np
 import pytest
 import tomlkit
 
 from ucal.calibration.model import beam_and_tcp
+from ucal.calibration.priors import prior_from_profile
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import aim_wrist
-from ucal.profile import default_profile_text, profile_from_data
+from ucal.profile import (
+    create_profile,
+    default_profile_text,
+    load_profile,
+    profile_from_data,
+    profile_history,
+    write_profile,
+)
 from ucal.record import decode, encode
-from ucal.verify.inputs import BeforeProfile, SoundSpeed
+from ucal.verify.inputs import BeforeProfile, SoundSpeed, sound_speed_for_verify
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import plan_verify, tool_lever
 from ucal.verify.result import (
@@ -26,6 +35,7 @@ from ucal.verify.result import (
     measured_within_mm,
     table_note,
     tool_notes,
+    water_note,
 )
 from ucal.verify.solve import (
     ToolOffset,
@@ -153,3 +163,47 @@ def test_the_tables_share_is_not_called_a_tool_error(profile) -> None:
 def test_the_budget_verify_used_is_recorded_for_its_replay() -> None:
     inputs = {"unidentified": UNIDENTIFIED, "none": None}
     assert decode(encode(inputs)) == inputs
+
+
+def test_the_tanks_sound_speed_since_calibrate_is_in_the_promise(tmp_path) -> None:
+    """verify reads its water paths with the sound speed calibrate measured: the tank may have
+    warmed or cooled since by the profile's drift tolerance a minute, at most its thermometer's
+    tolerance; a wall's 150 mm carries that into the promise, in quadrature with the table."""
+    path = tmp_path / "cell.toml"
+    create_profile(path, "tx90l")
+    write_profile(path, {"water": {"drift_std_c_per_min": 0.02}}, "the tank")
+    assert sound_speed_for_verify(load_profile(path), path).std_m_s == pytest.approx(
+        prior_from_profile(load_profile(path)).sound_speed_std_m_s  # never calibrated: ±2 °C
+    )
+    write_profile(path, {"calibration": {"sound_speed_m_s": 1482.4}}, "calibrate")
+    profile = load_profile(path)
+    written = datetime.fromisoformat(profile_history(path)[-1].time)
+    slope = prior_from_profile(profile).sound_speed_slope_m_s_per_c
+    sounds = {}
+    for minutes, warmed_c in ((0.0, 0.0), (10.0, 0.2), (60.0, 1.2), (600.0, 2.0)):
+        sound = sound_speed_for_verify(profile, path, written + timedelta(minutes=minutes))
+        assert sound.m_s == 1482.4 and sound.age_min == pytest.approx(minutes)
+        assert sound.std_m_s == pytest.approx(slope * warmed_c)
+        assert f"{minutes:.0f} min ago" in sound.source
+        sounds[minutes] = sound
+    # an hour after: 1.2 °C, 3.7 m/s, 0.37 mm on a wall's 150 mm
+    water = sounds[60.0].path_std_mm(150.0)
+    assert water == pytest.approx(150.0 * slope * 1.2 / 1482.4) and 0.35 < water < 0.39
+    assert measured_within_mm(UNIDENTIFIED, water) == pytest.approx(
+        MEASURED_WITHIN_MM + 2.0 * np.hypot(UNIDENTIFIED[1], water)
+    )
+    assert measured_within_mm(UNIDENTIFIED, 0.0) == measured_within_mm(UNIDENTIFIED)
+
+
+def test_a_tank_unknown_since_is_said_in_the_notes_and_makes_a_verdict_marginal(
+    profile,
+) -> None:
+    """0.6 mm against 0.5 with the table identified: a plain fail on a tank measured a minute
+    ago; an hour later (3.7 m/s, 0.37 mm on a wall) marginal, the note naming the water."""
+    solved = solved_with(profile, 0.6, None)
+    assert not marginal(solved) and water_note(solved) == []
+    sound = SoundSpeed(1482.4, 20.0, "[calibration] sound_speed_m_s", 3.7, 60.0)
+    later = replace(solved, sound=sound)
+    assert later.water_unknown and not later.table_unidentified and marginal(later)
+    (note,) = water_note(later)
+    assert "60 min ago" in note and "±0.37 mm" in note and "`ucal calibrate`" in note

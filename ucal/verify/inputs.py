@@ -7,14 +7,16 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import brentq
 
 from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.priors import prior_from_profile
 from ucal.cell import CellProfile
-from ucal.profile import history_dir, load_profile, profile_history
+from ucal.profile import HistoryEntry, history_dir, load_profile, profile_history
 
 
 @dataclass(frozen=True)
@@ -52,28 +54,42 @@ def offsets_before_calibration(profile_path: str | Path) -> BeforeProfile:
     ``calibrate`` write (its history); zero offsets and the current block when the history
     holds none (a profile calibrated by hand, or never)."""
 
-    for entry in reversed(profile_history(profile_path)):
-        if entry.reason.startswith("calibrate") and not entry.undone:
-            before = history_dir(profile_path) / entry.before
-            if before.exists():
-                old = load_profile(before, base_dir=Path(profile_path).parent)
-                return BeforeProfile(
-                    np.asarray(old.joint_offsets_deg, float),
-                    f"history entry {entry.id} ({entry.time}): the profile "
-                    "before its last calibration (its offsets and block pose)",
-                    np.asarray(old.sample_position_mm, float),
-                    np.asarray(old.sample_rotation_deg, float),
-                )
+    entry = last_calibration(profile_path)
+    if entry is not None:
+        before = history_dir(profile_path) / entry.before
+        if before.exists():
+            old = load_profile(before, base_dir=Path(profile_path).parent)
+            return BeforeProfile(
+                np.asarray(old.joint_offsets_deg, float),
+                f"history entry {entry.id} ({entry.time}): the profile "
+                "before its last calibration (its offsets and block pose)",
+                np.asarray(old.sample_position_mm, float),
+                np.asarray(old.sample_rotation_deg, float),
+            )
     return BeforeProfile(np.zeros(6), "no calibration in the profile's history: zero offsets")
 
 
 @dataclass(frozen=True)
 class SoundSpeed:
-    """The sound speed verify converts times of flight with, and where it comes from."""
+    """The sound speed verify converts times of flight with, and where it comes from.
+
+    ``std_m_s``: one sigma of the tank's sound speed now about ``m_s``. The calibration
+    measured it ``age_min`` minutes ago; since, the tank may have warmed or cooled by the
+    profile's drift tolerance a minute (``[water] drift_std_c_per_min``), at most by its
+    thermometer's tolerance (``temperature_std_c``: the water is no further from what the
+    profile says than that). A water path of ``d`` mm read with a sound speed off by δc is off
+    by ``d·δc/c``: 0.3 mm at a wall's 150 mm for 1 °C. 0: not stated (a record made before).
+    """
 
     m_s: float
     temperature_c: float  # the water temperature Marczak's c(T) gives it at
     source: str
+    std_m_s: float = 0.0
+    age_min: float | None = None
+
+    def path_std_mm(self, path_mm: float) -> float:
+        """One sigma of a water path of ``path_mm`` from ``std_m_s`` (mm)."""
+        return path_mm * self.std_m_s / self.m_s if self.m_s > 0.0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -136,32 +152,70 @@ def calibration_gauge(profile: CellProfile, profile_path: str | Path) -> VerifyG
     return VerifyGauge(j1 if j1 in ("block", "base") else None, yaw)
 
 
-def sound_speed_for_verify(profile: CellProfile, profile_path: str | Path) -> SoundSpeed:
+def sound_speed_for_verify(
+    profile: CellProfile, profile_path: str | Path, now: datetime | None = None
+) -> SoundSpeed:
     """The sound speed ``calibrate`` measured with the offsets (``[calibration]
-    sound_speed_m_s``), else Marczak's at the profile's ``[water] temperature_c``.
+    sound_speed_m_s``), else Marczak's at the profile's ``[water] temperature_c``, with what
+    the tank may have done since (``SoundSpeed.std_m_s``; ``now``: the time of the check).
 
     The thermometer's tolerance (±2 °C, 6 m/s) is 0.4 % of every water path: 0.6 mm at the
     150 mm of a wall, different at every point; the calibration's fitted speed is known to
-    tenths of a m/s.
+    tenths of a m/s when it is measured, and as the tank warms or cools after (0.05 °C a minute,
+    the default drift tolerance, is 0.15 m/s a minute: 0.3 mm on a wall within the hour).
     """
 
     temp = float(profile.water_temperature_c)
+    now = datetime.now(UTC) if now is None else now
     try:
         with open(profile_path, "rb") as f:
             measured = tomllib.load(f).get("calibration", {}).get("sound_speed_m_s")
     except (OSError, tomllib.TOMLDecodeError):
         measured = None
+    prior = prior_from_profile(profile)
     if isinstance(measured, int | float) and np.isfinite(measured):
         c = float(measured)
         lo, hi = 0.0, 70.0  # c(T) rises monotonically here
         c_lo, c_hi = (float(sound_speed_m_s(t)) for t in (lo, hi))
         if c_lo < c < c_hi:
             t_eq = float(brentq(lambda t: float(sound_speed_m_s(t)) - c, lo, hi, xtol=1e-9))
+            age = minutes_since_calibration(profile_path, now)
+            warmed_c = (
+                profile.water_temperature_std_c
+                if age is None
+                else min(profile.drift_std_c_per_min * age, profile.water_temperature_std_c)
+            )
+            since = "" if age is None else f" {age:.0f} min ago"
             return SoundSpeed(
-                c, t_eq, f"[calibration] sound_speed_m_s, measured with the offsets ({c:.2f} m/s)"
+                c,
+                t_eq,
+                f"[calibration] sound_speed_m_s, measured with the offsets{since} ({c:.2f} m/s)",
+                prior.sound_speed_slope_m_s_per_c * warmed_c,
+                age,
             )
     c = float(sound_speed_m_s(temp))
-    return SoundSpeed(c, temp, f"[water] temperature_c = {temp:g} °C ({c:.2f} m/s, Marczak)")
+    return SoundSpeed(
+        c,
+        temp,
+        f"[water] temperature_c = {temp:g} °C ({c:.2f} m/s, Marczak)",
+        prior.sound_speed_std_m_s,
+    )
+
+
+def last_calibration(profile_path: str | Path) -> HistoryEntry | None:
+    """The profile's last ``calibrate`` write that was not undone (its history); None."""
+    for entry in reversed(profile_history(profile_path)):
+        if entry.reason.startswith("calibrate") and not entry.undone:
+            return entry
+    return None
+
+
+def minutes_since_calibration(profile_path: str | Path, now: datetime) -> float | None:
+    """Minutes from the profile's last ``calibrate`` write to ``now``; None without one."""
+    entry = last_calibration(profile_path)
+    if entry is None:
+        return None
+    return max((now - datetime.fromisoformat(entry.time)).total_seconds() / 60.0, 0.0)
 
 
 def written_budget(profile_path: Path) -> tuple[float, float] | None:

@@ -48,6 +48,7 @@ from ucal.verify.result import (
     table_note,
     tool_misfit_mm,
     tool_notes,
+    water_note,
 )
 
 
@@ -173,7 +174,7 @@ class VerifyJob(CheckingJob):
         """``notes`` of the result: what the profile says it does not know (its joints, its DH
         table), and a tool check off or whose scans disagree beyond what verify measures to."""
         within = solved.measured_within_mm
-        notes = profile_notes(self.profile) + table_note(solved)
+        notes = profile_notes(self.profile) + table_note(solved) + water_note(solved)
         notes += tool_notes(solved.result.tool, self.profile, within)
         misfit = tool_misfit_mm(solved)
         if misfit > MEASURED_WITHIN_MM:

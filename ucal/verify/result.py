@@ -15,6 +15,7 @@ from ucal.cell import CellProfile
 from ucal.procedure import RunFacts
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
 from ucal.verify.measure import VerifyResult
+from ucal.verify.plan import WALL_PATH_MM
 from ucal.verify.solve import ToolOffset, passed
 
 #: How far verify's reached TCP may be from the real one (mm) with the profile's DH table
@@ -29,7 +30,9 @@ MEASURED_WITHIN_MM = 0.05
 UNIDENTIFIED_SIGMAS = 2.0
 
 
-def measured_within_mm(unidentified_tcp_mm: tuple[float, float] | None) -> float:
+def measured_within_mm(
+    unidentified_tcp_mm: tuple[float, float] | None, water_std_mm: float = 0.0
+) -> float:
     """How far verify's reached TCP may be from the real one (mm), with the DH table the last
     calibration left unidentified (``unidentified_tcp_mm``: its mean and largest one sigma at
     the tool centre over the scanning region, ``ucal.calibration.budget``; None: none stated).
@@ -44,10 +47,14 @@ def measured_within_mm(unidentified_tcp_mm: tuple[float, float] | None) -> float
     the TCP across the commanded beam without that table. So the DH table's share is not taken
     out of verify's figure but stated with it: ``MEASURED_WITHIN_MM`` plus
     ``UNIDENTIFIED_SIGMAS`` times the largest one sigma the unidentified priors allow.
+
+    The tank's sound speed is the other share no echo at these points measures: verify reads
+    its water paths with the speed the calibration measured (``SoundSpeed``), and
+    ``water_std_mm`` is one sigma of its farthest path (a wall's) from what the tank may have
+    done since. The two are independent: their sigmas add in quadrature.
     """
-    if unidentified_tcp_mm is None:
-        return MEASURED_WITHIN_MM
-    return MEASURED_WITHIN_MM + UNIDENTIFIED_SIGMAS * float(unidentified_tcp_mm[1])
+    table = 0.0 if unidentified_tcp_mm is None else float(unidentified_tcp_mm[1])
+    return MEASURED_WITHIN_MM + UNIDENTIFIED_SIGMAS * float(np.hypot(table, water_std_mm))
 
 
 def profile_notes(profile: CellProfile) -> list[str]:
@@ -99,13 +106,21 @@ class VerifySolved:
     @property
     def measured_within_mm(self) -> float:
         """How far each reached TCP may be from the real one (mm; ``measured_within_mm``)."""
-        return measured_within_mm(self.unidentified_tcp_mm)
+        water = self.sound.path_std_mm(max(WALL_PATH_MM))
+        return measured_within_mm(self.unidentified_tcp_mm, water)
 
     @property
     def table_unidentified(self) -> bool:
         """The DH table the last calibration left unidentified weighs more in verify's figure
         than verify's own measurement."""
-        return self.measured_within_mm > 2.0 * MEASURED_WITHIN_MM
+        return measured_within_mm(self.unidentified_tcp_mm) > 2.0 * MEASURED_WITHIN_MM
+
+    @property
+    def water_unknown(self) -> bool:
+        """The tank's sound speed since the calibration weighs more in verify's figure than
+        verify's own measurement."""
+        water = self.sound.path_std_mm(max(WALL_PATH_MM))
+        return UNIDENTIFIED_SIGMAS * water > MEASURED_WITHIN_MM
 
 
 @dataclass(frozen=True)
@@ -131,6 +146,7 @@ class Verification:
         out["before_source"] = solved.before.source
         out["sound_speed_m_s"] = solved.sound.m_s
         out["sound_speed_source"] = solved.sound.source
+        out["sound_speed_std_m_s"] = solved.sound.std_m_s
         out["profile"] = str(run.profile_path)
         out["duration_s"] = run.duration_s
         out["gauge"] = "block"
@@ -255,6 +271,26 @@ def table_note(solved: VerifySolved) -> list[str]:
         "moves to the edges are computed with it, so each 'after' point and the tool check are "
         f"known to ±{solved.measured_within_mm:.2f} mm, not ±{MEASURED_WITHIN_MM:g}; "
         "`ucal calibrate --level full` identifies it"
+    ]
+
+
+def water_note(solved: VerifySolved) -> list[str]:
+    """What the tank may have done since the calibration measured its sound speed, when it
+    weighs more than verify's own measurement (``measured_within_mm``), for ``notes``."""
+    if not solved.water_unknown:
+        return []
+    sound, far = solved.sound, max(WALL_PATH_MM)
+    why = (
+        "its thermometer's tolerance, [water] temperature_std_c"
+        if sound.age_min is None
+        else f"the tank may have changed since the calibration {sound.age_min:.0f} min ago: "
+        "[water] drift_std_c_per_min, at most temperature_std_c"
+    )
+    return [
+        f"the water paths are read with the sound speed of {sound.source}, known to "
+        f"±{sound.std_m_s:.2f} m/s (one sigma; {why}), which moves a wall's {far:g} mm by "
+        f"±{sound.path_std_mm(far):.2f} mm: each 'after' point is known to "
+        f"±{solved.measured_within_mm:.2f} mm; `ucal calibrate` measures the water"
     ]
 
 

@@ -3,6 +3,7 @@ anywhere, and usage errors refused before any plan or prompt (SPEC.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sys
@@ -11,6 +12,8 @@ from pathlib import Path
 
 import click
 import pytest
+
+from ucal.cli import main
 
 from doubles import terminal_typed
 
@@ -186,14 +189,19 @@ def test_verbose_after_the_subcommand(profile: Path, run_main: RunMain) -> None:
         (["-q"], logging.ERROR),
     ],
 )
-def test_log_level_from_flags_anywhere(
-    profile: Path, run_main: RunMain, flags: list[str], level: int
-) -> None:
-    for args in ([*flags, "fk", str(profile)], ["fk", str(profile), *flags]):
-        code, _, _ = run_main([*args, "--joints", "0,0,90,0,90,0"])
-        assert code == 0 and logging.getLogger().level == level
-        # pymodbus reports its own retries; ucal reports faults once, itself
-        assert logging.getLogger("pymodbus").level == logging.CRITICAL
+def test_log_level_from_flags_anywhere(profile: Path, flags: list[str], level: int) -> None:
+    root = logging.getLogger()
+    before = root.level  # put back after, as run_main does (it would hide the level set)
+    try:
+        for args in ([*flags, "fk", str(profile)], ["fk", str(profile), *flags]):
+            root.setLevel(logging.NOTSET)
+            with contextlib.suppress(SystemExit):
+                main([*args, "--joints", "0,0,90,0,90,0"])
+            assert root.level == level
+            # pymodbus reports its own retries; ucal reports faults once, itself
+            assert logging.getLogger("pymodbus").level == logging.CRITICAL
+    finally:
+        root.setLevel(before)
 
 
 @pytest.mark.parametrize("answer", ["n\n", "\n", "\x04"], ids=["no", "default", "end of input"])
