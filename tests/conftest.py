@@ -18,6 +18,13 @@ settings.register_profile("ucal", deadline=None)
 settings.load_profile("ucal")
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests marked ``long`` first, the rest in their order: the workers share the rest
+    out while the long ones run, instead of one worker running a long one after the others
+    are done."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--controller-url", default=None, help="URL of a real robot controller")
     parser.addoption("--pulser-url", default=None, help="URL of a real pulser-receiver")

@@ -73,6 +73,7 @@ def gate(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[], dict
         proc.communicate()
 
 
+@pytest.mark.long
 def test_ascan_timing_calibrates_covered_and_no_less_precise_than_the_gate(
     tmp_path: Path, gate: Callable[[], dict]
 ) -> None:
@@ -97,6 +98,7 @@ def test_ascan_timing_calibrates_covered_and_no_less_precise_than_the_gate(
     assert ascan["fit"]["rms_distance_mm"] <= gate()["fit"]["rms_distance_mm"] * 1.15
 
 
+@pytest.mark.long
 def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(
     tmp_path: Path, gate: Callable[[], dict]
 ) -> None:

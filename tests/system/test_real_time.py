@@ -39,6 +39,7 @@ def _ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.long
 def test_calibrate_against_a_served_cell_on_the_host_clock(tmp_path: Path) -> None:
     assert _ucal("profile", "init", "tx90", "cell.toml", cwd=tmp_path).returncode == 0
     rehearsal = tmp_path / "rehearsal.toml"

@@ -54,6 +54,7 @@ def rehearsal_lines() -> list[list[str]]:
     return [shlex.split(ln)[1:] for ln in block.splitlines() if ln.strip()]
 
 
+@pytest.mark.long
 @pytest.mark.timeout(420)
 def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path) -> None:
     lines = rehearsal_lines()

@@ -334,6 +334,7 @@ def test_ctrl_c_stops_and_leaves_profile(tmp_path: Path, profile: Path) -> None:
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.long
 def test_demo_cell_commissioned_tool_frame_first(tmp_path: Path) -> None:
     """The README's workflow on the built-in demo cell: tool-frame, then calibrate (offsets,
     then full) with the tool it wrote as their prior; each writes, and the demo's tool is
