@@ -164,6 +164,8 @@ def test_status_round_trip_and_estop_refusal(sim_controller, controller_client):
         controller_client.start_move(TARGET)
 
     sim_controller.set_fault(in_error=False, error_code=0)
+    # the cleared fault reaches the client with the next STATUS, as the fault did
+    assert _wait_until(lambda: controller_client.status().in_error is False)
     controller_client.move_joints(TARGET, timeout_s=5.0)
     assert sim_controller.moves_executed == 1
 
