@@ -6,7 +6,6 @@ Hardware tests run only when the cell's addresses are given, e.g.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable
 
 import pytest
@@ -49,18 +48,10 @@ def pulser_url(request: pytest.FixtureRequest) -> str:
 @pytest.fixture
 def run_main(capsys: pytest.CaptureFixture[str]) -> Callable[[list[str]], tuple[int, str, str]]:
     """Run ``ucal ARGS`` in this process: ``(exit code, stdout, stderr)``."""
-    from ucal.cli import main
+    from doubles import exit_code
 
     def run(args: list[str]) -> tuple[int, str, str]:
-        root = logging.getLogger()
-        level = root.level  # -q sets ERROR, -v INFO: not for the tests after this one
-        try:
-            main(args)
-            code = 0
-        except SystemExit as e:
-            code = 0 if e.code is None else int(e.code)
-        finally:
-            root.setLevel(level)
+        code = exit_code(args)  # the root logger's level put back after
         out, err = capsys.readouterr()
         return code, out, err
 

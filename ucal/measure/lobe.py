@@ -62,23 +62,17 @@ class MainLobe:
         heights span ``FALL_SPAN_MM``, the median slope of their logarithms over the pairs at
         least half that far apart (Theil-Sen: one poor height cannot bend it); before, the
         round trip's absorption ``2·absorption_np_per_mm``."""
-        if len(self.peaks) >= 2:
-            heights, paths = self._envelope()
-            if np.ptp(paths) >= FALL_SPAN_MM:
-                i, j = np.triu_indices(len(paths), 1)
-                apart = np.abs(paths[j] - paths[i]) >= 0.5 * FALL_SPAN_MM
-                if np.any(apart):
-                    drop = np.log(heights[i] / heights[j])[apart] / (paths[j] - paths[i])[apart]
-                    return float(np.median(drop))
-        return 2.0 * absorption_np_per_mm
+        if not self.peaks:
+            return 2.0 * absorption_np_per_mm
+        return _fall(*self._envelope(), absorption_np_per_mm)
 
     def expected(self, path_mm: float, absorption_np_per_mm: float) -> float | None:
         """Main-lobe amplitude (0 dB gain) expected at ``path_mm``, carried from the heights
         within ``FALL_SPAN_MM`` of the nearest one in path; None before the first."""
         if not self.peaks:
             return None
-        fall = self.fall_np_per_mm(absorption_np_per_mm)
         heights, paths = self._envelope()
+        fall = _fall(heights, paths, absorption_np_per_mm)
         away = np.abs(path_mm - paths)
         near = away <= away.min() + FALL_SPAN_MM
         return float(np.max(heights[near] * np.exp(-fall * (path_mm - paths[near]))))
@@ -100,3 +94,14 @@ class MainLobe:
 
     def typical_path_mm(self) -> float:
         return float(np.median([p for _, p in self.peaks]))
+
+
+def _fall(heights: np.ndarray, paths: np.ndarray, absorption_np_per_mm: float) -> float:
+    """``MainLobe.fall_np_per_mm`` of the envelope's heights at their paths."""
+    if np.ptp(paths) >= FALL_SPAN_MM:
+        i, j = np.triu_indices(len(paths), 1)
+        apart = np.abs(paths[j] - paths[i]) >= 0.5 * FALL_SPAN_MM
+        if np.any(apart):
+            drop = np.log(heights[i] / heights[j])[apart] / (paths[j] - paths[i])[apart]
+            return float(np.median(drop))
+    return 2.0 * absorption_np_per_mm

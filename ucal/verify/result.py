@@ -106,8 +106,13 @@ class VerifySolved:
     @property
     def measured_within_mm(self) -> float:
         """How far each reached TCP may be from the real one (mm; ``measured_within_mm``)."""
-        water = self.sound.path_std_mm(max(WALL_PATH_MM))
-        return measured_within_mm(self.unidentified_tcp_mm, water)
+        return measured_within_mm(self.unidentified_tcp_mm, self.water_std_mm)
+
+    @property
+    def water_std_mm(self) -> float:
+        """One sigma of the farthest water path (a wall's) from the tank's sound speed since
+        the calibration measured it (``SoundSpeed.std_m_s``)."""
+        return self.sound.path_std_mm(max(WALL_PATH_MM))
 
     @property
     def table_unidentified(self) -> bool:
@@ -119,8 +124,7 @@ class VerifySolved:
     def water_unknown(self) -> bool:
         """The tank's sound speed since the calibration weighs more in verify's figure than
         verify's own measurement."""
-        water = self.sound.path_std_mm(max(WALL_PATH_MM))
-        return UNIDENTIFIED_SIGMAS * water > MEASURED_WITHIN_MM
+        return UNIDENTIFIED_SIGMAS * self.water_std_mm > MEASURED_WITHIN_MM
 
 
 @dataclass(frozen=True)
@@ -289,7 +293,7 @@ def water_note(solved: VerifySolved) -> list[str]:
     return [
         f"the water paths are read with the sound speed of {sound.source}, known to "
         f"±{sound.std_m_s:.2f} m/s (one sigma; {why}), which moves a wall's {far:g} mm by "
-        f"±{sound.path_std_mm(far):.2f} mm: each 'after' point is known to "
+        f"±{solved.water_std_mm:.2f} mm: each 'after' point is known to "
         f"±{solved.measured_within_mm:.2f} mm; `ucal calibrate` measures the water"
     ]
 
