@@ -16,6 +16,7 @@ from drivers.controller.client import DEFAULT_TIMEOUTS
 from drivers.pulser.registers import RegisterMap
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.thermometer import TemperatureLog
 
 if TYPE_CHECKING:  # the A-scan code (scipy.signal) loads only where echoes are timed
     from ucal.echo.ascan import ReferenceEcho
@@ -119,6 +120,13 @@ class CellProfile:
     dh_angle_std_deg: float = 0.02
     #: How fast the tank may warm or cool during a run (°C/min, one sigma; ``[water]``).
     drift_std_c_per_min: float = 0.05
+    #: How well the tank's thermometer follows a change of the water the beam crosses (°C, one
+    #: sigma; ``[water] thermometer_std_c``): what its log leaves of the drift
+    #: (``ucal.thermometer``).
+    thermometer_std_c: float = 0.02
+    #: Not a profile key: set for a run whose water paths a thermometer's log has corrected
+    #: (``ucal.thermometer``), whose drift then turns no more than ``thermometer_std_c`` allows.
+    tank_logged: bool = False
     #: Lost motion each joint may have (deg, one sigma, (6,); ``[robot] backlash_std_deg``).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
     frequency_mhz: float = 25.0
@@ -257,24 +265,6 @@ class PulserTruth:
     kind: str = "modbus"
     sample_rate_mhz: float = 200.0
     bits: int = 12
-
-
-@dataclass(frozen=True)
-class TemperatureLog:
-    """What the tank's thermometer read over the run (``[water] temperature_log``).
-
-    ``time_min`` (n,): minutes of simulated time since the cell started, strictly increasing;
-    ``temperature_c`` (n,): the readings (°C). Between readings the water follows the straight
-    line between them; before the first and after the last it stays at that reading.
-    """
-
-    path: Path
-    time_min: np.ndarray
-    temperature_c: np.ndarray
-
-    def at(self, t_min: float) -> float:
-        """The water's temperature (°C) ``t_min`` minutes after the cell started."""
-        return float(np.interp(t_min, self.time_min, self.temperature_c))
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,13 @@ from ucal.record import (
     sha256_text,
 )
 from ucal.session import CellSession, check_status, open_cell, replay_cell
+from ucal.thermometer import (
+    TemperatureLog,
+    Thermometer,
+    check_time_base,
+    on_run,
+    reading_span_min,
+)
 from ucal.timing import DurationEstimate
 
 log = logging.getLogger(__name__)
@@ -113,6 +120,8 @@ class RunOptions:
     record_path: Path | None = None
     replay: Record | None = None  # a recorded run answers instead of a cell; nothing moves
     remeasure: bool = False  # replay the recorded device traffic, not the measurements
+    #: The tank's thermometer log (``--thermometer``), read when the run is solved.
+    thermometer: TemperatureLog | None = None
 
     @property
     def writes(self) -> bool:
@@ -144,6 +153,8 @@ class Measured(Generic[MeasuredT]):
     truth: WorldTruth | None  # the simulator's hidden truth, for reporting
     #: How the echoes were timed: ``"timing"`` and ``"reference_echo"`` of the result.
     echo_timing: dict[str, Any] = field(default_factory=dict)
+    #: The tank's thermometer on the run's clock (``ucal.thermometer``), if one was given.
+    thermometer: Thermometer | None = None
 
 
 class Counted(Protocol):
@@ -192,6 +203,8 @@ class Outcome(Generic[ResultT_co]):
     echo_timing: dict[str, object] = field(default_factory=dict)
     created: bool | None = None  # the profile was created for the run (``calibrate``)
     replayed: Path | None = None  # the record a replay solved again
+    #: What the tank's thermometer said of the run (``ucal.thermometer.summary``), if given.
+    thermometer: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object of SPEC.md (and more): the result's, then how the run went."""
@@ -200,6 +213,8 @@ class Outcome(Generic[ResultT_co]):
             out["created"] = self.created
         if self.replayed is not None:
             out["replayed"] = str(self.replayed)
+        if self.thermometer is not None:
+            out["thermometer"] = self.thermometer
         return out
 
 
@@ -349,6 +364,8 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
         """Check, plan, show, confirm, open, measure, solve, write; the outcome."""
         job, options = self.job, self.options
         self._enter(Step.CHECK)
+        if options.thermometer is not None and options.cell is not None:
+            check_time_base(options.thermometer, options.cell.sim_world is not None)
         with job.check(options):
             self._enter(Step.PLAN)
             plan = self._plan()
@@ -365,6 +382,10 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                 else:
                     measured = self._measure(plan, estimate, recorder)
                 self._enter(Step.SOLVE)
+                water = measured.thermometer
+                if water is not None:  # the tank's turns taken out of every water path
+                    job.profile = water.profile(job.profile, measured.data)
+                    measured.data = water.corrected(measured.data)
                 solved = job.solve(plan, measured)
                 self._enter(Step.WRITE)
                 written = options.writes and job.may_write(solved)
@@ -373,6 +394,8 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                 self._enter(Step.RESULT)
                 outcome = job.result(plan, measured, solved, written)
                 outcome.echo_timing = measured.echo_timing
+                if water is not None:
+                    outcome.thermometer = water.summary(measured.data)
                 if recorder is not None:
                     recorder.end(outcome.to_json())
         return outcome
@@ -428,7 +451,14 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
         session = record.session()
         data = self.job.measured_from(record.measurements, plan, str(record.path))
         echo_timing = dict(session.get("echo_timing", {}))
-        return Measured(data, float(session.get("duration_s", 0.0)), None, echo_timing)
+        water = session.get("thermometer")
+        return Measured(
+            data,
+            float(session.get("duration_s", 0.0)),
+            None,
+            echo_timing,
+            None if water is None else Thermometer.from_json(water),
+        )
 
     def _check_plan(self, plan: PlanT, record: Record) -> None:
         """Refuse a replay whose plan the recorded run did not measure: a header key the job
@@ -481,11 +511,30 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
 
                 data = self.job.measure(plan, session, report)
             measured = Measured(
-                data, session.elapsed_s, session.truth, session.echo_timing.as_json()
+                data,
+                session.elapsed_s,
+                session.truth,
+                session.echo_timing.as_json(),
+                self._thermometer(session, data),
             )
         if recorder is not None:
             self._record_measurements(recorder, measured)
         return measured
+
+    def _thermometer(self, session: CellSession, data: Any) -> Thermometer | None:
+        """The thermometer's log on the run's clock (``ucal.thermometer.on_run``), if one was
+        given: its wall-clock times meet the run at the first reading's wall time; a
+        simulated cell's minutes at its clock (``check_time_base``)."""
+        log_ = self.options.thermometer
+        rig = session.rig
+        if log_ is None or rig.first_read_s is None:
+            return None
+        if log_.wall_clock:
+            assert rig.first_read_wall_s is not None
+            first_min = rig.first_read_wall_s / 60.0
+        else:
+            first_min = (rig.first_read_s - session.started_s) / 60.0
+        return on_run(log_, self.job.profile.thermometer_std_c, first_min, reading_span_min(data))
 
     def _record_measurements(self, recorder: Recorder, measured: Measured[MeasuredT]) -> None:
         """Write the measurement lines; measurements a record cannot hold (a value of a type it
@@ -497,6 +546,9 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                     "of": SESSION,
                     "duration_s": measured.duration_s,
                     "echo_timing": plain_json(measured.echo_timing),
+                    "thermometer": None
+                    if measured.thermometer is None
+                    else measured.thermometer.as_json(),
                 }
             )
         except (TypeError, ValueError) as e:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -166,6 +167,9 @@ class Rig:
         # Pulser clock (s) at the run's first reading and at the last one (``minutes``).
         self._first_read_s: float | None = None
         self._last_read_s: float | None = None
+        # The host's wall clock (s since the epoch) when the first reading was stamped: where
+        # a real cell's thermometer log (wall-clock times) meets the run's clock.
+        self.first_read_wall_s: float | None = None
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.joint_min_deg, self.joint_max_deg)
@@ -190,7 +194,15 @@ class Rig:
         """Note the pulser clock of a reading (``minutes``)."""
         if self._first_read_s is None:
             self._first_read_s = reading.host_time_s
+            clock = getattr(self.controller, "clock", None)
+            age_s = 0.0 if clock is None else clock.now() - reading.host_time_s
+            self.first_read_wall_s = time.time() - max(age_s, 0.0)
         self._last_read_s = reading.host_time_s
+
+    @property
+    def first_read_s(self) -> float | None:
+        """The pulser clock (s) at the run's first reading; None before it."""
+        return self._first_read_s
 
     def minutes(self) -> float:
         """Minutes from the run's first reading to the last one, on the pulser's clock (the

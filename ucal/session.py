@@ -69,6 +69,11 @@ class CellSession:
         """Time since the cell was opened (simulated time on the simulated cell)."""
         return self.clock.now() - self._t0
 
+    @property
+    def started_s(self) -> float:
+        """The clock when the cell was opened: a simulated cell's clock starts there."""
+        return self._t0
+
     def __post_init__(self) -> None:
         self._t0 = self.clock.now()
 

@@ -19,7 +19,7 @@ the solvers do not model:
   since the cell started (the drift's time base), strictly increasing, 0–60 °C; an optional
   first line ``time_min,temperature_c``, blank lines and ``#`` comments are skipped; at least
   one row. The water follows the straight line between readings and stays at the first
-  (last) reading before (after) them (:class:`ucal.cell.TemperatureLog`);
+  (last) reading before (after) them (:class:`ucal.thermometer.TemperatureLog`);
 * ``[pulser] amplitude_bits`` (0…24; 0 = not quantised), ``gain_error_db`` (one sigma, 0…6 dB)
   and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
   ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`;
@@ -56,8 +56,6 @@ Extra keys beyond SPEC.md:
 
 from __future__ import annotations
 
-import csv
-import math
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -72,10 +70,8 @@ from ucal.cell import (
     Noise,
     PulserTruth,
     Reflector,
-    TemperatureLog,
     WorldTruth,
 )
-from ucal.errors import ProfileError
 from ucal.profile import (
     before_measurement,
     read_robot,
@@ -83,6 +79,7 @@ from ucal.profile import (
     read_transducer,
     read_water,
 )
+from ucal.thermometer import TemperatureLog, read_log
 from ucal.validation import Reader, describe_unknown, read_toml, refuse_misspelt_keys, unknown_keys
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`; one that is a
@@ -306,10 +303,6 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
     return world.replace(**changes)
 
 
-#: The header a temperature log may start with (its columns: minutes, °C).
-TEMPERATURE_LOG_HEADER = ("time_min", "temperature_c")
-
-
 def _temperature_log(r: Reader, water: Mapping[str, Any], value: Any) -> TemperatureLog:
     """``[water] temperature_log``: a CSV file (relative to the world file) of the tank
     thermometer's readings, one ``minutes,°C`` row each (module docstring). It replaces
@@ -324,45 +317,7 @@ def _temperature_log(r: Reader, water: Mapping[str, Any], value: Any) -> Tempera
     p = Path(r.string(key, value)).expanduser()
     if not p.is_absolute():
         p = r.path.parent / p
-
-    def bad(where: str | None, message: str) -> ProfileError:
-        return ProfileError(p, where, f"{message} ({key} in {r.path})")
-
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise bad(None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
-    rows: list[tuple[float, float]] = []
-    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
-        cells = [f.strip() for f in fields]
-        if not "".join(cells) or cells[0].startswith("#"):
-            continue  # blank lines and comments
-        if not rows and tuple(cells) == TEMPERATURE_LOG_HEADER:
-            continue
-        try:
-            t_min, temp_c = (float(c) for c in cells)
-        except ValueError:
-            header = f" (a header is {','.join(TEMPERATURE_LOG_HEADER)})" if not rows else ""
-            raise bad(
-                f"row {lineno}",
-                f"expected two numbers, minutes and °C, got {','.join(cells)!r}{header}",
-            ) from None
-        if not (math.isfinite(t_min) and 0.0 <= temp_c <= 60.0):
-            raise bad(
-                f"row {lineno}",
-                f"expected a finite time and 0-60 °C (the sound speed's range), got "
-                f"{t_min:g} min, {temp_c:g} °C",
-            )
-        if rows and not t_min > rows[-1][0]:
-            raise bad(
-                f"row {lineno}",
-                f"times must increase: {t_min:g} min after {rows[-1][0]:g} min",
-            )
-        rows.append((t_min, temp_c))
-    if not rows:
-        raise bad(None, "no readings: expected rows of minutes,°C")
-    table = np.array(rows)
-    return TemperatureLog(path=p, time_min=table[:, 0], temperature_c=table[:, 1])
+    return read_log(p, f"{key} in {r.path}", wall_clock=False)
 
 
 def _split_beta(r: Reader, robot: Mapping[str, Any]) -> tuple[Mapping[str, Any], np.ndarray | None]:

@@ -222,11 +222,17 @@ def curvature_std_m_s_per_min2(prior: CellPrior, minutes: np.ndarray) -> float:
     declared drift tolerance is how much the rate may differ from a steady one, so over the
     run's D minutes the rate may turn by it, |dc/dT|·``drift_std_c_per_min`` / D (m/s per
     min²; 0 for readings at one time). The sound speed then departs from its fitted line by
-    about c̈·D²/8, an eighth of the declared drift over the run."""
+    about c̈·D²/8, an eighth of the declared drift over the run. With a thermometer's log that
+    has taken the turns out of the paths (``ucal.thermometer``), the departure left is the
+    thermometer's, |dc/dT|·``logged_departure_std_c``: c̈ = 8·|dc/dT|·σ_th/D² where smaller."""
     span_min = float(np.ptp(minutes)) if len(minutes) else 0.0
     if span_min <= 0.0:
         return 0.0
-    return prior.drift_std_m_s_per_min / span_min
+    declared = prior.drift_std_m_s_per_min / span_min
+    if prior.logged_departure_std_c is None:
+        return declared
+    logged = 8.0 * prior.sound_speed_slope_m_s_per_c * prior.logged_departure_std_c / span_min**2
+    return min(declared, logged)
 
 
 def curvature_covariance(

@@ -102,6 +102,9 @@ class CellPrior:
     step_std_mm: float = 0.0
     #: How fast the tank may warm or cool during a run (°C/min, one sigma).
     drift_std_c_per_min: float = 0.05
+    #: With a thermometer's log (``ucal.thermometer``): how far the tank may still depart from a
+    #: steady drift over the run (°C, one sigma: ``[water] thermometer_std_c``); None without.
+    logged_departure_std_c: float | None = None
     #: Lost motion each joint may have (deg, one sigma; (6,)).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
 
@@ -197,6 +200,7 @@ def prior_from_profile(profile: CellProfile) -> CellPrior:
         step_mm=0.0 if p.step is None else float(p.step.height_mm),
         step_std_mm=0.0 if p.step is None else float(p.step.height_std_mm),
         drift_std_c_per_min=float(p.drift_std_c_per_min),
+        logged_departure_std_c=float(p.thermometer_std_c) if p.tank_logged else None,
         backlash_std_deg=np.broadcast_to(p.backlash_std_deg, 6).astype(float),
     )
 

@@ -36,6 +36,7 @@ from ucal.cli.options import (
     force_option,
     moving_options,
     table_console,
+    thermometer_option,
     warn,
 )
 from ucal.cli.procedure import finish, replay_outcome, run_job, run_options
@@ -98,6 +99,7 @@ Examples:
         "that each joint's lost motion is measured (backlash_deg); 3 more face searches. The "
         "full level reads some postures from above where its plan can spare them.",
     ),
+    thermometer_option,
     force_option(
         "Write the result even when it is out of tolerance: a misfit, or the paper "
         "method's offsets less certain than 0.02 deg (the verdict is recorded in the profile "
@@ -111,6 +113,7 @@ def cli(
     level: str,
     postures: int | None,
     lost_motion: bool,
+    thermometer: Path | None,
     force: bool,
 ) -> None:
     """Find the six joint zero offsets with the ultrasonic transducer and write them.
@@ -181,7 +184,7 @@ def cli(
         profile = load_profile(profile_path)
     with scratch:
         try:
-            outcome = run_job(job(profile, None), run_options(call, cell))
+            outcome = run_job(job(profile, None), run_options(call, cell, thermometer))
         except NotConfirmed as e:
             if not created:
                 raise

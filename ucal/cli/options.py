@@ -36,6 +36,7 @@ ENV_SIM = "UCAL_SIM"
 ENV_CONTROLLER = "UCAL_CONTROLLER"
 ENV_PULSER = "UCAL_PULSER"
 ENV_DIGITIZER = "UCAL_DIGITIZER"
+ENV_THERMOMETER = "UCAL_THERMOMETER"
 #: ``UCAL_SIM`` values meaning "the simulated cell with the demo truth" / "no simulated cell".
 SIM_ENV_ON = frozenset({"1", "yes", "true", "on"})
 SIM_ENV_OFF = frozenset({"", "0", "no", "false", "off"})
@@ -183,6 +184,20 @@ _remeasure_option = click.option(
     "--remeasure",
     is_flag=True,
     help="With --replay: run the search again on the recorded device traffic instead.",
+)
+
+
+thermometer_option = click.option(
+    "--thermometer",
+    "thermometer",
+    type=click.Path(dir_okay=False, path_type=Path),
+    metavar="FILE",
+    envvar=ENV_THERMOMETER,
+    show_envvar=True,
+    help="The tank thermometer's log (CSV: time,temperature_c with ISO 8601 times; on a "
+    "simulated cell time_min,temperature_c in minutes of its clock), read when the run is "
+    "solved: every water path is moved to the middle of the run by the change it logged, and "
+    "the drift left to fit is what [water] thermometer_std_c allows.",
 )
 
 

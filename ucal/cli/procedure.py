@@ -38,6 +38,7 @@ from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunO
 from ucal.profile import load_profile, profile_from_data
 from ucal.progress import Progress
 from ucal.record import Record, read_record
+from ucal.thermometer import read_log
 
 R = TypeVar("R", bound=CommandResult)
 #: The job a moving command runs, made from the profile and, on a replay, the record.
@@ -97,22 +98,26 @@ def run_command(
     fixed: dict[str, str],
     job_for: JobFor[R],
     show: Callable[[Outcome[R]], None],
+    thermometer: Path | None = None,
 ) -> None:
     """Run a moving command and print its outcome (``finish``): with ``--replay``, the job
     ``job_for`` makes of the recorded profile and the record solves it again
-    (``recorded_run``, ``fixed`` as there); else the job of PROFILE on the cell the options
-    name."""
+    (``recorded_run``, ``fixed`` as there; the record holds the thermometer's log the run
+    was solved with); else the job of PROFILE on the cell the options name (with the tank
+    thermometer's log ``thermometer``)."""
     outcome = replay_outcome(call, command, fixed, job_for)
     if outcome is None:
         cell = call.cell()
         job = job_for(load_profile(call.profile_path), None)
-        outcome = run_job(job, run_options(call, cell))
+        outcome = run_job(job, run_options(call, cell, thermometer))
     finish(outcome, call.as_json, show)
 
 
-def run_options(call: MovingCall, cell: CellChoice) -> RunOptions:
-    """How a run on ``cell`` goes, as the command line says."""
-    return RunOptions(cell, call.yes, call.dry_run, call.record_path)
+def run_options(call: MovingCall, cell: CellChoice, thermometer: Path | None = None) -> RunOptions:
+    """How a run on ``cell`` goes, as the command line says (``thermometer``: the tank
+    thermometer's log, read and checked now: ``ProfileError``, exit 2)."""
+    log_ = None if thermometer is None else read_log(thermometer, "--thermometer")
+    return RunOptions(cell, call.yes, call.dry_run, call.record_path, thermometer=log_)
 
 
 def replay_outcome(

@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import click
 
 from ucal.cell import CellProfile
-from ucal.cli.options import MovingCall, choice_option, force_option, moving_options
+from ucal.cli.options import (
+    MovingCall,
+    choice_option,
+    force_option,
+    moving_options,
+    thermometer_option,
+)
 from ucal.cli.procedure import run_command
 from ucal.procedure import Outcome
 from ucal.record import Record
@@ -46,12 +53,19 @@ Examples:
         help="exact: normal-incidence postures (default 4, at least 2); paper: "
         "incidence points (default 100, at least 7).",
     ),
+    thermometer_option,
     force_option(
         "Write the result even when it is out of tolerance or a misfit (the reason "
         "is recorded in the profile history)."
     ),
 )
-def cli(call: MovingCall, method: str, points: int | None, force: bool) -> None:
+def cli(
+    call: MovingCall,
+    method: str,
+    points: int | None,
+    thermometer: Path | None,
+    force: bool,
+) -> None:
     """Find the tool centre point and beam direction relative to the flange.
 
     Uses the reflector plate of [reflector] points_mm and the profile's [calibration] joint
@@ -78,7 +92,8 @@ def cli(call: MovingCall, method: str, points: int | None, force: bool) -> None:
             profile, call.profile_path, options.get("method", "exact"), options.get("points")
         )
 
-    run_command(call, "tool-frame", {"method": "method", "points": "points"}, job, show_outcome)
+    fixed = {"method": "method", "points": "points"}
+    run_command(call, "tool-frame", fixed, job, show_outcome, thermometer)
 
 
 def show_outcome(outcome: Outcome[ToolFrameResult]) -> None:

@@ -62,7 +62,9 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     ),
     "reflector": frozenset({"points_mm", "points_std_mm"}),
     "step": frozenset({"height_mm", "height_std_mm", "centre_mm", "size_mm"}),
-    "water": frozenset({"temperature_c", "temperature_std_c", "drift_std_c_per_min"}),
+    "water": frozenset(
+        {"temperature_c", "temperature_std_c", "drift_std_c_per_min", "thermometer_std_c"}
+    ),
     "transducer": frozenset({"frequency_mhz", "element_diameter_mm"}),
     "calibration": None,  # ucal writes run metadata next to the results
     "procedure": frozenset(
@@ -265,8 +267,8 @@ def read_tolerances(
     """One-sigma tolerances: ``[tool]`` / ``[sample]`` ``position_std_mm`` and
     ``rotation_std_deg`` (a number or three, >= 0, mm / deg), ``[robot] backlash_std_deg`` (a
     number or six, 0–1 deg), ``[water] temperature_std_c`` (0–20 °C), ``drift_std_c_per_min``
-    (0–10 °C/min) and ``[robot] dh_length_std_mm`` (0–10 mm), ``dh_angle_std_deg`` (0–1 deg);
-    missing keys keep ``CellProfile``'s defaults (SPEC.md)."""
+    (0–10 °C/min), ``thermometer_std_c`` (0–5 °C) and ``[robot] dh_length_std_mm`` (0–10
+    mm), ``dh_angle_std_deg`` (0–1 deg); missing keys keep ``CellProfile``'s defaults (SPEC.md)."""
     out: dict[str, Any] = {}
     for table, tname, key, attr, size, hi, unit in (
         (tool, "tool", "position_std_mm", "tool_position_std_mm", 3, 100.0, "mm"),
@@ -285,6 +287,7 @@ def read_tolerances(
     for table, key, attr, hi, unit in (
         (water, "water.temperature_std_c", "water_temperature_std_c", 20.0, "degC"),
         (water, "water.drift_std_c_per_min", "drift_std_c_per_min", 10.0, "degC/min"),
+        (water, "water.thermometer_std_c", "thermometer_std_c", 5.0, "degC"),
         (robot, "robot.dh_length_std_mm", "dh_length_std_mm", 10.0, "mm"),
         (robot, "robot.dh_angle_std_deg", "dh_angle_std_deg", 1.0, "deg"),
     ):

@@ -1,0 +1,138 @@
+"""The tank's thermometer log: read, placed on the run's clock, and taking the tank's turns out
+of the water paths (``ucal.thermometer``)."""
+
+from __future__ import annotations
+
+import logging
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.model import FaceMeasurement
+from ucal.calibration.sequence import CalibrationRun
+from ucal.errors import InputError, ProfileError
+from ucal.thermometer import Thermometer, check_time_base, on_run, read_log
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "t.csv"
+    path.write_text(text)
+    return path
+
+
+def test_a_logger_file_is_read_on_the_wall_clock(tmp_path: Path) -> None:
+    path = _write(
+        tmp_path,
+        "time,temperature_c\n2026-11-26T07:00:00Z,20.10\n# a comment\n"
+        "2026-11-26 08:01:30+01:00,20.15\n",
+    )
+    log = read_log(path)
+    assert log.wall_clock
+    start = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp() / 60.0
+    assert log.time_min - start == pytest.approx([0.0, 1.5])
+    assert log.temperature_c.tolist() == [20.10, 20.15]
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "words"),
+    [
+        ("2026-11-26T07:00:00Z,20\n", "row 1", "expected the header time_min,temperature_c or"),
+        ("time,temperature_c\nnoon,20\n", "row 2", "expected an ISO 8601 time and °C"),
+        (
+            "time,temperature_c\n2026-11-26T07:00:00Z,20\n2026-11-26T06:59:00Z,20\n",
+            "row 3",
+            "times must increase",
+        ),
+        ("time_min,temperature_c\n0,20\n1,75\n", "row 3", "0-60 °C"),
+    ],
+)
+def test_a_bad_log_names_its_file_and_row(tmp_path: Path, text: str, where: str, words: str):
+    path = _write(tmp_path, text)
+    with pytest.raises(ProfileError) as err:
+        read_log(path, "--thermometer")
+    assert f"{path}: {where}: " in str(err.value)
+    assert words in str(err.value)
+    assert str(err.value).endswith("(--thermometer)")
+    assert err.value.exit_code == 2
+
+
+def test_a_world_log_takes_minutes_only(tmp_path: Path) -> None:
+    """A world file's log is on the simulated cell's clock: minutes, its header optional."""
+    assert read_log(_write(tmp_path, "0,20\n2,21\n"), wall_clock=False).at(1.0) == 20.5
+    with pytest.raises(ProfileError, match="expected two numbers, minutes and °C"):
+        read_log(_write(tmp_path, "time,temperature_c\n"), wall_clock=False)
+
+
+def test_a_log_on_another_clock_than_the_cells_is_refused(tmp_path: Path) -> None:
+    wall = read_log(_write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20\n"))
+    with pytest.raises(InputError, match="the simulated cell runs on its own clock"):
+        check_time_base(wall, simulated=True)
+    check_time_base(wall, simulated=False)
+    cell = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n"))
+    with pytest.raises(InputError, match="give the logger's times"):
+        check_time_base(cell, simulated=False)
+
+
+def test_a_log_is_placed_on_the_runs_clock_or_not_used(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    log = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n10,21\n20,22\n"))
+    water = on_run(log, 0.02, first_read_min=5.0, span_min=4.0)
+    assert water is not None
+    assert water.at(0.0) == pytest.approx(20.5)  # the run's first reading, 5 min in
+    with caplog.at_level(logging.WARNING):
+        assert on_run(log, 0.02, first_read_min=15.0, span_min=8.0) is None
+    assert "ends 3.0 min before the run's last reading" in caplog.text
+
+
+def _tank_run(temps: np.ndarray, times: np.ndarray, path_mm: float = 120.0) -> CalibrationRun:
+    """Face readings of one true path at ``times``, each read with 20 °C's sound speed in a
+    tank at ``temps``."""
+    c0 = float(sound_speed_m_s(20.0))
+    faces = [
+        FaceMeasurement(
+            "base",
+            i % 3,
+            np.zeros(6),
+            path_mm * c0 / float(sound_speed_m_s(temp)),
+            time_min=float(t),
+        )
+        for i, (t, temp) in enumerate(zip(times, temps, strict=True))
+    ]
+    return CalibrationRun(faces, moves=len(faces), reads=len(faces))
+
+
+def test_the_log_takes_the_tanks_turn_out_of_every_path() -> None:
+    """A heater turning the tank during the run: every corrected path is what the tank on the
+    straight line fitted to the log would have given, which the solvers' steady drift fits."""
+    log_t = np.arange(0.0, 12.0, 0.05)
+    log_c = 20.0 + 0.2 * np.sin(2.0 * np.pi * log_t / 4.0)
+    water = Thermometer(log_t, np.round(log_c, 3), 0.02, "t.csv")
+    times = np.linspace(1.0, 6.0, 12)
+    run = _tank_run(20.0 + 0.2 * np.sin(2.0 * np.pi * times / 4.0), times)
+    assert water.turns(run)
+    fixed = water.corrected(run)
+    c0 = float(sound_speed_m_s(20.0))
+    speeds = np.array([m.distance_mm for m in fixed.measurements]) / c0  # ∝ 1/c
+    line = np.polyval(np.polyfit(times, 1.0 / speeds, 1), times)
+    assert np.max(np.abs(1.0 / speeds - line) / line) < 2e-6  # a straight line: no turn
+    raw = np.array([m.distance_mm for m in run.measurements]) / c0
+    bent = np.polyval(np.polyfit(times, 1.0 / raw, 1), times)
+    assert np.max(np.abs(1.0 / raw - bent) / bent) > 1e-4  # the tank did turn
+    assert all(m.distance_std_mm > 0.01 for m in fixed.measurements)  # the log's noise added
+    assert fixed.moves == run.moves
+
+
+def test_a_log_that_sees_no_turn_leaves_the_paths_alone() -> None:
+    """A steady drift (the solvers fit it) logged with a 0.01 °C resolution: its departure
+    from a straight line is its noise, and correcting by it would only add that noise."""
+    log_t = np.arange(0.0, 12.0, 0.05)
+    water = Thermometer(log_t, np.round(20.0 + 0.05 * log_t, 2), 0.02, "t.csv")
+    times = np.linspace(1.0, 6.0, 12)
+    run = _tank_run(20.0 + 0.05 * times, times)
+    assert not water.turns(run)
+    assert water.corrected(run) is run
+    assert water.noise_c(run) == pytest.approx(0.01 / np.sqrt(12.0), rel=0.5)

@@ -1,0 +1,398 @@
+"""The tank's thermometer as a measurement of how the water changed during a run.
+
+A tank with a logging thermometer gives its log to ``calibrate`` and ``tool-frame``
+(``--thermometer FILE``, ``UCAL_THERMOMETER``). The file is the logger's CSV: a header, then one
+reading a row, times strictly increasing, 0–60 °C (the sound speed's range); blank lines and
+``#`` comments are skipped. The header names the time base:
+
+* ``time,temperature_c``: wall-clock times, ISO 8601, as a logger writes them
+  (``2026-11-26T07:31:02Z``, ``2026-11-26 08:31:02+01:00``; without a zone, the host's local
+  time). A real cell's log.
+* ``time_min,temperature_c``: minutes of the simulated cell's clock since it started, the time
+  base of a world file's ``[water] temperature_log``: a rehearsal's thermometer on
+  ``--sim WORLD`` (that clock is not the wall clock).
+
+What a thermometer measures is the tank's *change*, and what the water paths cannot see for
+themselves is how that change turns during a run. The solvers fit the sound speed at the
+middle of the run and a steady drift from the paths (a face read again, the steps, the wrist's
+postures); a real tank does not drift steadily (it approaches the room's temperature, a heater
+cycles), and without a log they can only carry that turn as an uncertainty
+(``ucal.calibration.least_squares.curvature_std_m_s_per_min2``: a turn of the declared drift
+tolerance over the run). The log measures it. Its absolute reading is off by its calibration
+(``[water] temperature_std_c``, which the sound speed's prior keeps) and its probe sits
+elsewhere in the tank than the beam, so only its departure from a straight line is taken:
+with ``c_M`` Marczak's, ``T`` the log interpolated at a path's time ``t``, and ``a + b·(t −
+t_ref)`` the straight line fitted to ``c_M(T(t_i))`` over the run's paths (``t_ref`` the time
+the solvers give the sound speed at, the mean of the face readings' times),
+
+    n(t) = c_M(T(t)) − a − b·(t − t_ref),     d' = d·(1 + n(t)/c_M(T(t)))
+
+is the path ``d`` (read with the profile's speed) as the tank on that straight line would have
+given it (``Thermometer.corrected``). The solvers then fit the sound speed and the steady drift
+as before, with the declared drift tolerance as the drift's prior (the reported drift is the
+tank's), and the turn they carry is what the thermometer leaves: a departure of ``σ_th`` =
+``[water] thermometer_std_c`` (one sigma: its resolution, its lag, where its probe sits), a
+curvature of 8·|dc/dT|·σ_th/D² over a run of D minutes where that is less than the declared
+tolerance's (``CellProfile.tank_logged``, ``CellPrior.logged_departure_std_c``).
+
+A log that does not cover the run's readings (it starts after the first or ends before the last,
+by more than ``EDGE_SLACK_MIN``) is not used: a warning names the file and the gap, and the run
+is solved as without a thermometer (the readings are not lost for a late logger).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ucal.acoustics import sound_speed_m_s
+from ucal.errors import InputError, ProfileError
+
+if TYPE_CHECKING:
+    from ucal.cell import CellProfile
+
+log = logging.getLogger(__name__)
+
+#: The headers a log may start with: minutes of a simulated cell's clock, or wall-clock times.
+CELL_CLOCK_HEADER = ("time_min", "temperature_c")
+WALL_CLOCK_HEADER = ("time", "temperature_c")
+#: How far past the log's ends a reading may lie and still take the end's temperature (min).
+EDGE_SLACK_MIN = 0.5
+
+
+@dataclass(frozen=True)
+class TemperatureLog:
+    """A thermometer's log as read from its file.
+
+    ``time_min`` (n,): strictly increasing; minutes of the simulated cell's clock since it
+    started (``wall_clock`` False: a world file's ``[water] temperature_log``, a rehearsal's
+    thermometer), or minutes since the Unix epoch (``wall_clock`` True: a logger's times);
+    ``temperature_c`` (n,): the readings (°C). Between readings the water follows the straight
+    line between them; before the first and after the last it stays at that reading.
+    """
+
+    path: Path
+    time_min: np.ndarray
+    temperature_c: np.ndarray
+    wall_clock: bool = False
+
+    def at(self, t_min: float) -> float:
+        """The temperature (°C) the log gives at ``t_min`` (its own time base)."""
+        return float(np.interp(t_min, self.time_min, self.temperature_c))
+
+
+def read_log(path: Path, context: str = "", wall_clock: bool = True) -> TemperatureLog:
+    """A thermometer's log (module docstring); ``ProfileError`` (exit 2) names the file, the row
+    and what is wrong, with ``context`` (where the file was named) appended. ``wall_clock``
+    False: only minutes (a world file's log, whose first line may be left out)."""
+    suffix = f" ({context})" if context else ""
+
+    def bad(where: str | None, message: str) -> ProfileError:
+        return ProfileError(path, where, message + suffix)
+
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise bad(None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    headers = (CELL_CLOCK_HEADER, WALL_CLOCK_HEADER) if wall_clock else (CELL_CLOCK_HEADER,)
+    expected = " or ".join(",".join(h) for h in headers)
+    header: tuple[str, ...] | None = None if wall_clock else CELL_CLOCK_HEADER
+    rows: list[tuple[float, float]] = []
+    last = ""
+    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
+        cells = tuple(f.strip() for f in fields)
+        if not "".join(cells) or cells[0].startswith("#"):
+            continue  # blank lines and comments
+        if not rows and cells in headers:
+            header = cells
+            continue
+        if header is None:
+            raise bad(f"row {lineno}", f"expected the header {expected}, got {','.join(cells)!r}")
+        row = _row(cells, header == WALL_CLOCK_HEADER)
+        if row is None:
+            hint = f" (a header is {expected})" if not rows else ""
+            what = (
+                "an ISO 8601 time and °C"
+                if header == WALL_CLOCK_HEADER
+                else "two numbers, minutes and °C"
+            )
+            raise bad(f"row {lineno}", f"expected {what}, got {','.join(cells)!r}{hint}")
+        t_min, temp_c = row
+        if not (math.isfinite(t_min) and 0.0 <= temp_c <= 60.0):
+            raise bad(
+                f"row {lineno}",
+                f"expected a finite time and 0-60 °C (the sound speed's range), got "
+                f"{','.join(cells)!r}",
+            )
+        shown = cells[0] if header == WALL_CLOCK_HEADER else f"{t_min:g} min"
+        if rows and not t_min > rows[-1][0]:
+            raise bad(f"row {lineno}", f"times must increase: {shown} after {last}")
+        rows.append((t_min, temp_c))
+        last = shown
+    if not rows:
+        raise bad(None, f"no readings: expected rows of {expected}")
+    table = np.array(rows)
+    return TemperatureLog(path, table[:, 0], table[:, 1], header == WALL_CLOCK_HEADER)
+
+
+def _row(cells: tuple[str, ...], wall_clock: bool) -> tuple[float, float] | None:
+    """A row's time (minutes of its time base) and temperature, or None if malformed."""
+    if len(cells) != 2:
+        return None
+    try:
+        temp_c = float(cells[1])
+        if not wall_clock:
+            return float(cells[0]), temp_c
+        when = datetime.fromisoformat(cells[0])
+    except ValueError:
+        return None
+    return when.astimezone().timestamp() / 60.0, temp_c
+
+
+@dataclass(frozen=True)
+class Thermometer:
+    """A thermometer's log on a run's own clock: what the solvers correct the water paths with.
+
+    ``time_min`` (n,): minutes since the run's first reading (the readings' ``time_min``);
+    ``temperature_c`` (n,); ``std_c``: ``[water] thermometer_std_c``; ``source``: the file.
+    """
+
+    time_min: np.ndarray
+    temperature_c: np.ndarray
+    std_c: float
+    source: str
+
+    def at(self, t_min: float) -> float:
+        return float(np.interp(t_min, self.time_min, self.temperature_c))
+
+    def change_c(self, start_min: float, end_min: float) -> float:
+        """How much the log says the tank warmed (°C) from ``start_min`` to ``end_min``."""
+        return self.at(end_min) - self.at(start_min)
+
+    def corrected(self, data: Any) -> Any:
+        """``data`` (a measure step's dataclass) with every water path taken to the tank on a
+        straight line (module docstring), its std widened by what the log's own noise leaves
+        in it (``noise_c``): each dataclass within it with a ``time_min`` and a path
+        (``distance_mm`` and ``distance_std_mm``, or ``distance`` as (path, std)). Unchanged
+        when the log turns no more than three times its noise over the run (``turns``)."""
+        t_ref = _reference_time(data)
+        if t_ref is None or not self.turns(data):
+            return data
+        times = np.array([t for t in _times(data) if t is not None], float)
+        b, a = np.polyfit(times - t_ref, self.speeds_m_s(times), 1)
+        noise_m_s = self.slope_m_s_per_c * self.noise_c(data)
+
+        def factor(t: float) -> float:
+            c = float(self.speeds_m_s(np.array([t]))[0])
+            return 1.0 + (c - a - b * (t - t_ref)) / c
+
+        return _corrected(data, factor, lambda d: d * noise_m_s / float(a))
+
+    def turns(self, data: Any) -> bool:
+        """Whether the log sees the tank turn during ``data``'s run: its departure from a
+        straight line exceeds three times its own noise."""
+        return self.departure_c(data) > 3.0 * self.noise_c(data)
+
+    def noise_c(self, data: Any) -> float:
+        """One sigma of a logged temperature about the tank's smooth course over ``data``'s
+        run (°C): the scatter of its second differences over √6 (the tank's course is smooth
+        over three readings, independent noise is not), at least the logger's resolution over
+        √12."""
+        times = [t for t in _times(data) if t is not None]
+        lo, hi = (min(times), max(times)) if times else (0.0, 0.0)
+        inside = (self.time_min >= lo - 1.0) & (self.time_min <= hi + 1.0)
+        temps = self.temperature_c[inside]
+        steps = np.abs(np.diff(np.unique(self.temperature_c)))
+        resolution = float(np.min(steps)) if len(steps) else 0.0
+        scatter = float(np.std(np.diff(temps, 2)) / np.sqrt(6.0)) if len(temps) > 3 else 0.0
+        return max(scatter, resolution / np.sqrt(12.0))
+
+    @property
+    def slope_m_s_per_c(self) -> float:
+        """|dc/dT| at the log's middle temperature (m/s per °C, Marczak)."""
+        t = float(np.median(self.temperature_c))
+        return abs(float(sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01))) / 0.02
+
+    def speeds_m_s(self, t_min: np.ndarray) -> np.ndarray:
+        """Marczak's sound speed (m/s) at the logged temperature at each of ``t_min``."""
+        return np.asarray(sound_speed_m_s(np.interp(t_min, self.time_min, self.temperature_c)))
+
+    def departure_c(self, data: Any) -> float:
+        """How far the log departs from a straight line over ``data``'s paths (°C, largest):
+        the turn of the tank during the run that the log took out."""
+        times = np.array([t for t in _times(data) if t is not None], float)
+        if len(times) < 2 or np.ptp(times) <= 0.0:
+            return 0.0
+        temps = np.interp(times, self.time_min, self.temperature_c)
+        line = np.polyval(np.polyfit(times, temps, 1), times)
+        return float(np.max(np.abs(temps - line)))
+
+    def profile(self, profile: CellProfile, data: Any) -> CellProfile:
+        """``profile`` for ``data``'s paths once ``corrected``: where the log took the tank's
+        turns out of them, the drift turns no more than the thermometer allows
+        (``CellProfile.tank_logged``)."""
+        return dataclasses.replace(profile, tank_logged=self.turns(data))
+
+    def summary(self, data: Any) -> dict[str, Any]:
+        """What the log said of the run whose readings are ``data`` (``--json``'s
+        ``thermometer``): the file, the tank's change over the readings (°C), how far it turned
+        from a straight line (``departure_c``) against the log's own noise (``noise_c``),
+        whether the paths were corrected (``applied``: ``turns``), the readings' span (min),
+        ``std_c``."""
+        times = [t for t in _times(data) if t is not None]
+        start, end = (min(times), max(times)) if times else (0.0, 0.0)
+        return {
+            "file": self.source,
+            "change_c": round(self.change_c(start, end), 4),
+            "departure_c": round(self.departure_c(data), 4),
+            "noise_c": round(self.noise_c(data), 4),
+            "applied": self.turns(data),
+            "span_min": round(end - start, 3),
+            "std_c": self.std_c,
+        }
+
+    def as_json(self) -> dict[str, Any]:
+        """The thermometer as a record's session line holds it."""
+        return {
+            "time_min": self.time_min.tolist(),
+            "temperature_c": self.temperature_c.tolist(),
+            "std_c": self.std_c,
+            "source": self.source,
+        }
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any]) -> Thermometer:
+        return cls(
+            np.asarray(obj["time_min"], float),
+            np.asarray(obj["temperature_c"], float),
+            float(obj["std_c"]),
+            str(obj["source"]),
+        )
+
+
+def on_run(
+    log_: TemperatureLog,
+    std_c: float,
+    first_read_min: float,
+    span_min: float,
+) -> Thermometer | None:
+    """``log_`` on a run's clock: ``first_read_min`` is the run's first reading in the log's
+    time base (wall-clock minutes since the epoch, or the simulated cell's minutes since it
+    started), ``span_min`` the run's readings' span. None, with a warning naming the file and
+    the gap, when the log does not cover the readings (module docstring)."""
+    t = log_.time_min - first_read_min
+    before = float(t[0])  # > 0: the log starts after the first reading
+    after = span_min - float(t[-1])  # > 0: it ends before the last
+    if before > EDGE_SLACK_MIN or after > EDGE_SLACK_MIN:
+        gap = (
+            f"it starts {before:.1f} min after the run's first reading"
+            if before > EDGE_SLACK_MIN
+            else f"it ends {after:.1f} min before the run's last reading"
+        )
+        log.warning(
+            "%s does not cover the run (%s): the tank's drift is fitted without it",
+            log_.path,
+            gap,
+        )
+        return None
+    keep = (t >= -EDGE_SLACK_MIN - 1.0) & (t <= span_min + EDGE_SLACK_MIN + 1.0)
+    keep |= np.roll(keep, 1) | np.roll(keep, -1)  # the readings just outside, to interpolate
+    return Thermometer(t[keep], log_.temperature_c[keep], float(std_c), str(log_.path))
+
+
+def check_time_base(log_: TemperatureLog, simulated: bool) -> None:
+    """Refuse, before anything moves, a log whose time base is not the cell's: a simulated cell
+    runs on its own clock (minutes, ``time_min``), a real one on the wall clock (``time``)
+    (``InputError``, exit 2, naming the file)."""
+    if log_.wall_clock == simulated:
+        raise InputError(
+            f"{log_.path}: "
+            + (
+                "wall-clock times (column time), but the simulated cell runs on its own clock: "
+                "give its log in minutes since the cell started (column time_min)"
+                if simulated
+                else "minutes of a simulated cell's clock (column time_min), but this cell runs "
+                "on the wall clock: give the logger's times (column time, ISO 8601)"
+            )
+        )
+
+
+def reading_span_min(data: Any) -> float:
+    """The span (min) of the water paths' times within a measure step's ``data``."""
+    times = [t for t in _times(data) if t is not None]
+    return float(np.ptp(times)) if times else 0.0
+
+
+def _reference_time(data: Any) -> float | None:
+    """The time the solvers give the sound speed at (``reference_time_min``): the mean time of
+    the first list of water paths in ``data`` (the faces; a full level's steps are referred to
+    their time too; tool-frame's peaks); None when no path has a time."""
+    if not dataclasses.is_dataclass(data) or isinstance(data, type):
+        return None
+    for f in dataclasses.fields(data):
+        value = getattr(data, f.name)
+        if isinstance(value, list | tuple) and value and _is_path_reading(value[0]):
+            times = [t for t in _times(value) if t is not None]
+            if times:
+                return float(np.mean(times))
+    return None
+
+
+def _is_path_reading(data: Any) -> bool:
+    """Whether ``data`` is a dataclass instance that holds one water path and its time."""
+    if not dataclasses.is_dataclass(data) or isinstance(data, type):
+        return False
+    names = {f.name for f in dataclasses.fields(data)}
+    return "time_min" in names and bool({"distance_mm", "distance"} & names)
+
+
+def _times(data: Any) -> list[float | None]:
+    """Every water path's ``time_min`` within ``data``."""
+    if isinstance(data, list | tuple):
+        return [t for v in data for t in _times(v)]
+    if _is_path_reading(data):
+        return [data.time_min]
+    if not dataclasses.is_dataclass(data) or isinstance(data, type):
+        return []
+    return [t for f in dataclasses.fields(data) for t in _times(getattr(data, f.name))]
+
+
+def _corrected(
+    data: Any, factor: Callable[[float], float], std_mm: Callable[[float], float]
+) -> Any:
+    """``Thermometer.corrected`` below the top: lists, tuples and dataclasses rebuilt, each
+    water path ``d`` at ``t`` made ``d·factor(t)``, ``std_mm(d)`` added to its std in
+    quadrature."""
+    if isinstance(data, list | tuple):
+        return type(data)(_corrected(v, factor, std_mm) for v in data)
+    if _is_path_reading(data):
+        t = data.time_min
+        if t is None:
+            return data
+        k = factor(t)
+        if hasattr(data, "distance_mm"):
+            d, s = data.distance_mm, data.distance_std_mm
+            return dataclasses.replace(
+                data, distance_mm=d * k, distance_std_mm=math.hypot(s, std_mm(d))
+            )
+        if data.distance is None:
+            return data
+        d, s = data.distance
+        return dataclasses.replace(data, distance=(d * k, math.hypot(s, std_mm(d))))
+    if not dataclasses.is_dataclass(data) or isinstance(data, type):
+        return data
+    changes = {
+        f.name: _corrected(getattr(data, f.name), factor, std_mm)
+        for f in dataclasses.fields(data)
+        if f.init
+    }
+    return dataclasses.replace(data, **changes)
