@@ -20,8 +20,10 @@ cycles), and without a log they can only carry that turn as an uncertainty
 (``ucal.calibration.least_squares.curvature_std_m_s_per_min2``: a turn of the declared drift
 tolerance over the run). The log measures it. Its absolute reading is off by its calibration
 (``[water] temperature_std_c``, which the sound speed's prior keeps) and its probe sits
-elsewhere in the tank than the beam, so only its departure from a straight line is taken:
-with ``c_M`` Marczak's, ``T`` the log interpolated at a path's time ``t``, and ``a + b·(t −
+elsewhere in the tank than the beam, so only its departure from a straight line is taken.
+The log's *course* is the log smoothed over ``SMOOTHING_MIN`` (a quadratic about each reading,
+Savitzky–Golay: a heater's turn kept, the readings' noise and the logger's steps averaged);
+with ``c_M`` Marczak's, ``T`` the course interpolated at a path's time ``t``, and ``a + b·(t −
 t_ref)`` the straight line fitted to ``c_M(T(t_i))`` over the run's paths (``t_ref`` the time
 the solvers give the sound speed at, the mean of the face readings' times),
 
@@ -35,6 +37,12 @@ tank's), and the turn they carry is what the thermometer leaves: a departure of 
 curvature of 8·|dc/dT|·σ_th/D² over a run of D minutes where that is less than the declared
 tolerance's (``CellProfile.tank_logged``, ``CellPrior.logged_departure_std_c``).
 
+The course is taken out only where it sees a turn: where it departs from the straight line
+by more than three times its own noise (``Thermometer.turns``; the noise from the log's second
+differences, at least its resolution, through the smoothing). On a shorter or steadier run the
+paths see the drift better than the log would, and correcting by the log would add its noise.
+Where it is taken out, each path's std gains what the course's noise leaves in it.
+
 A log that does not cover the run's readings (it starts after the first or ends before the last,
 by more than ``EDGE_SLACK_MIN``) is not used: a warning names the file and the gap, and the run
 is solved as without a thermometer (the readings are not lost for a late logger).
@@ -44,6 +52,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -53,6 +62,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.errors import InputError, ProfileError
@@ -67,6 +77,9 @@ CELL_CLOCK_HEADER = ("time_min", "temperature_c")
 WALL_CLOCK_HEADER = ("time", "temperature_c")
 #: How far past the log's ends a reading may lie and still take the end's temperature (min).
 EDGE_SLACK_MIN = 0.5
+#: The log's course is the log smoothed over this window (min): a quadratic fitted about each
+#: reading (Savitzky–Golay), which keeps a heater's turn and averages the reading noise.
+SMOOTHING_MIN = 0.5
 
 
 @dataclass(frozen=True)
@@ -189,7 +202,7 @@ class Thermometer:
             return data
         times = np.array([t for t in _times(data) if t is not None], float)
         b, a = np.polyfit(times - t_ref, self.speeds_m_s(times), 1)
-        noise_m_s = self.slope_m_s_per_c * self.noise_c(data)
+        noise_m_s = self.slope_m_s_per_c * self.course_noise_c(data)
 
         def factor(t: float) -> float:
             c = float(self.speeds_m_s(np.array([t]))[0])
@@ -198,14 +211,14 @@ class Thermometer:
         return _corrected(data, factor, lambda d: d * noise_m_s / float(a))
 
     def turns(self, data: Any) -> bool:
-        """Whether the log sees the tank turn during ``data``'s run: its departure from a
-        straight line exceeds three times its own noise."""
-        return self.departure_c(data) > 3.0 * self.noise_c(data)
+        """Whether the log sees the tank turn during ``data``'s run: its course departs from a
+        straight line by more than three times the course's own noise."""
+        return self.departure_c(data) > 3.0 * self.course_noise_c(data)
 
     def noise_c(self, data: Any) -> float:
-        """One sigma of a logged temperature about the tank's smooth course over ``data``'s
-        run (°C): the scatter of its second differences over √6 (the tank's course is smooth
-        over three readings, independent noise is not), at least the logger's resolution over
+        """One sigma of a logged reading about the tank's smooth course over ``data``'s run
+        (°C): the scatter of its second differences over √6 (the tank's course is smooth over
+        three readings, independent noise is not), at least the logger's resolution over
         √12."""
         times = [t for t in _times(data) if t is not None]
         lo, hi = (min(times), max(times)) if times else (0.0, 0.0)
@@ -216,6 +229,34 @@ class Thermometer:
         scatter = float(np.std(np.diff(temps, 2)) / np.sqrt(6.0)) if len(temps) > 3 else 0.0
         return max(scatter, resolution / np.sqrt(12.0))
 
+    def course_noise_c(self, data: Any) -> float:
+        """One sigma of the log's course (``course_c``) over ``data``'s run (°C): the readings'
+        noise through the smoothing."""
+        return self.noise_c(data) * self._course[1]
+
+    def course_c(self, t_min: np.ndarray) -> np.ndarray:
+        """The tank's temperature (°C) at each of ``t_min`` as the log's course gives it: the
+        log smoothed over ``SMOOTHING_MIN`` (as logged where its readings are too few or not
+        evenly spaced), interpolated."""
+        return np.interp(t_min, self.time_min, self._course[0])
+
+    @functools.cached_property
+    def _course(self) -> tuple[np.ndarray, float]:
+        """The smoothed log and the smoothing's noise gain (1: not smoothed)."""
+        raw = self.temperature_c
+        if len(raw) < 5:
+            return raw, 1.0
+        step = np.diff(self.time_min)
+        median = float(np.median(step))
+        if np.ptp(step) > 0.2 * median:
+            return raw, 1.0
+        window = round(SMOOTHING_MIN / median) // 2 * 2 + 1
+        window = min(window, len(raw) - (1 - len(raw) % 2))
+        if window < 5:
+            return raw, 1.0
+        gain = float(np.linalg.norm(savgol_coeffs(window, 2)))
+        return savgol_filter(raw, window, 2), gain
+
     @property
     def slope_m_s_per_c(self) -> float:
         """|dc/dT| at the log's middle temperature (m/s per °C, Marczak)."""
@@ -223,16 +264,16 @@ class Thermometer:
         return abs(float(sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01))) / 0.02
 
     def speeds_m_s(self, t_min: np.ndarray) -> np.ndarray:
-        """Marczak's sound speed (m/s) at the logged temperature at each of ``t_min``."""
-        return np.asarray(sound_speed_m_s(np.interp(t_min, self.time_min, self.temperature_c)))
+        """Marczak's sound speed (m/s) at the log's course at each of ``t_min``."""
+        return np.asarray(sound_speed_m_s(self.course_c(t_min)))
 
     def departure_c(self, data: Any) -> float:
-        """How far the log departs from a straight line over ``data``'s paths (°C, largest):
-        the turn of the tank during the run that the log took out."""
+        """How far the log's course departs from a straight line over ``data``'s paths (°C,
+        largest): the turn of the tank during the run that the log takes out."""
         times = np.array([t for t in _times(data) if t is not None], float)
         if len(times) < 2 or np.ptp(times) <= 0.0:
             return 0.0
-        temps = np.interp(times, self.time_min, self.temperature_c)
+        temps = self.course_c(times)
         line = np.polyval(np.polyfit(times, temps, 1), times)
         return float(np.max(np.abs(temps - line)))
 
@@ -254,7 +295,7 @@ class Thermometer:
             "file": self.source,
             "change_c": round(self.change_c(start, end), 4),
             "departure_c": round(self.departure_c(data), 4),
-            "noise_c": round(self.noise_c(data), 4),
+            "noise_c": round(self.course_noise_c(data), 4),
             "applied": self.turns(data),
             "span_min": round(end - start, 3),
             "std_c": self.std_c,

@@ -136,3 +136,24 @@ def test_a_log_that_sees_no_turn_leaves_the_paths_alone() -> None:
     assert not water.turns(run)
     assert water.corrected(run) is run
     assert water.noise_c(run) == pytest.approx(0.01 / np.sqrt(12.0), rel=0.5)
+
+
+def test_tool_frames_peaks_are_corrected_as_the_faces_are() -> None:
+    """Tool-frame's peaks carry their path as ``distance`` (path, std): the same correction,
+    and the peaks' order of the run's lists is the reference time's."""
+    from ucal.measure.search import PeakResult
+
+    log_t = np.arange(0.0, 12.0, 0.05)
+    water = Thermometer(log_t, 20.0 + 0.2 * np.sin(2.0 * np.pi * log_t / 4.0), 0.02, "t.csv")
+    times = np.linspace(1.0, 6.0, 6)
+    faces = _tank_run(20.0 + 0.2 * np.sin(2.0 * np.pi * times / 4.0), times)
+    peaks = [
+        PeakResult(np.zeros(6), 1.0, 0.01, 0.0, (m.distance_mm, 0.01), time_min=m.time_min)
+        for m in faces.measurements
+    ]
+    fixed_faces = water.corrected(faces).measurements
+    fixed_peaks = water.corrected(CalibrationRun(peaks, 6, 6)).measurements  # type: ignore[arg-type]
+    assert [p.distance[0] for p in fixed_peaks] == pytest.approx(
+        [m.distance_mm for m in fixed_faces], abs=1e-12
+    )
+    assert fixed_peaks[0].distance[1] > 0.01
