@@ -49,6 +49,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from _quick import parse_args
 
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.toolframe.exact import tangent_basis
@@ -289,10 +290,7 @@ def main() -> None:
         action="store_true",
         help="--worlds 1 --jobs 1 --order c-t: the same code path in seconds",
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     orders = tuple(ORDERS) if args.order == "both" else (args.order,)
     if args.summary:
         rows_saved = [json.loads(line) for line in args.summary.read_text().splitlines()]

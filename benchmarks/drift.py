@@ -89,6 +89,7 @@ import commissioning
 import full_calibration
 import numpy as np
 import realistic
+from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.acoustics import sound_speed_m_s
@@ -747,10 +748,7 @@ def main(argv: list[str] | None = None) -> int:
         help="--worlds 1 --jobs 1 --postures 8, the offsets, full and tool-frame cases (t-c): "
         "the same code path in seconds",
     )
-    args = ap.parse_args(argv)
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args(argv)
+    args = parse_args(ap, QUICK, argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-drift-"))
     chosen = CASES.get(args.case, (args.case,))
     cases = tuple(c for c in chosen if c != "tool-frame")

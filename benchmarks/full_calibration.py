@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.calibration.exact import solve_exact_with_priors
@@ -268,10 +269,7 @@ def main() -> None:
         action="store_true",
         help="--worlds 1 --jobs 1 --postures 8: the same code path in seconds",
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     work = Path(tempfile.mkdtemp(prefix="ucal-full-bench-"))
     profile_path = make_profile(work, args.thermometer, args.step)
     profile = load_profile(profile_path)

@@ -25,6 +25,7 @@ import time
 from typing import TYPE_CHECKING
 
 import numpy as np
+from _quick import parse_args
 
 from ucal.kinematics.dh import RobotModel, fk
 from ucal.kinematics.ik import ik_all, wrap_deg
@@ -161,10 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="--poses 1000 --lm-poses 10: the same code path in seconds",
     )
-    args = p.parse_args(argv)
-    if args.quick:
-        p.set_defaults(**QUICK)
-        args = p.parse_args(argv)
+    args = parse_args(p, QUICK, argv)
 
     model = load_model(args.model)
     q, poses = random_poses(model, args.poses, args.seed)

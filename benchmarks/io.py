@@ -23,6 +23,7 @@ import logging
 import time
 
 import numpy as np
+from _quick import parse_args
 
 from drivers.controller.client import SimpleMessageController
 from drivers.controller.simulator import SimulatedController
@@ -59,10 +60,7 @@ def main() -> None:
     ap.add_argument(
         "--quick", action="store_true", help="--calls 10: the same code path in seconds"
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     start = np.array([30.0, 30.0, 110.0, 0.0, 40.0, 30.0])
     with (

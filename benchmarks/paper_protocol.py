@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _quick import parse_args
 
 from ucal.calibration.sequence import plan_calibration, run_calibration, solve
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, Noise, WorldTruth
@@ -152,10 +153,7 @@ def main() -> None:
         action="store_true",
         help="--groups 5 --noise-only --no-baseline: the same code path in seconds",
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     logging.basicConfig(level=logging.WARNING)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     groups = [float(g) for g in args.groups.split(",")]

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import tomlkit
+from _quick import parse_args
 from scipy.spatial.transform import Rotation
 
 from ucal.calibration.full_plan import FullPlan, plan_full
@@ -269,10 +270,7 @@ def main(argv: list[str] | None = None) -> int:
         "calibrated, each offset known to a degree)",
     )
     p.add_argument("--quick", action="store_true", help="--blocks 1 --tools 1 --one-step: 9 cells")
-    args = p.parse_args(argv)
-    if args.quick:
-        p.set_defaults(**QUICK)
-        args = p.parse_args(argv)
+    args = parse_args(p, QUICK, argv)
     models = tuple(args.model or KNOWN_MODELS)
     planners = tuple(args.planner or PLANNERS)
     all_cases = cases(models, args.blocks, args.tools, args.seed, args.one_step)

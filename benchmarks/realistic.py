@@ -36,6 +36,7 @@ from dataclasses import replace as dc_replace
 from pathlib import Path
 
 import numpy as np
+from _quick import parse_args
 
 from ucal.calibration.exact import OffsetSolution, solve_exact
 from ucal.calibration.procedure import TOLERANCE_STD_DEG, judge
@@ -237,10 +238,7 @@ def main() -> None:
     ap.add_argument(
         "--quick", action="store_true", help="--worlds 1 --jobs 1: the same code path in seconds"
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     work = args.cache or Path(tempfile.mkdtemp(prefix="ucal-realistic-"))
     work.mkdir(parents=True, exist_ok=True)
     profile_path = make_profile(work, args.fixture)

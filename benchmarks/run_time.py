@@ -37,6 +37,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from _quick import parse_args
+
 from ucal.sim.serve import serving
 
 if TYPE_CHECKING:
@@ -180,10 +182,7 @@ def main() -> None:
         help="--warm-up 0 --hogs 1 --no-real-time (with --commands: the smallest run of each "
         "command): the same code paths in seconds",
     )
-    args = ap.parse_args()
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args()
+    args = parse_args(ap, QUICK)
     if args.commands:
         commands(args.quick)
         return

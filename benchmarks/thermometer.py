@@ -35,6 +35,7 @@ from pathlib import Path
 
 import drift
 import numpy as np
+from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.calibration.full_plan import MAX_POSTURES, FullPlan, plan_full
@@ -123,10 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--postures", type=int, default=MAX_POSTURES)
     ap.add_argument("--quick", action="store_true", help="one world per case, 8 postures")
-    args = ap.parse_args(argv)
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args(argv)
+    args = parse_args(ap, QUICK, argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-thermometer-"))
     cases = ("offsets", "full") if args.case == "both" else (args.case,)
     print(

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _quick import parse_args
 
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.profile import create_profile, load_profile, write_profile
@@ -78,10 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="--paper-points 20 --exact-postures 3: the same code path in seconds",
     )
-    args = ap.parse_args(argv)
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args(argv)
+    args = parse_args(ap, QUICK, argv)
 
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)

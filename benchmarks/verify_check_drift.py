@@ -51,6 +51,7 @@ import commissioning
 import drift
 import numpy as np
 import realistic
+from _quick import parse_args
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import BLOCK, OFFSETS, TOOL
@@ -275,10 +276,7 @@ def main(argv: list[str] | None = None) -> int:
         help="--worlds 1 --jobs 1 --state drifting --points 1 --region 3: the same code path "
         "in half a minute",
     )
-    args = ap.parse_args(argv)
-    if args.quick:
-        ap.set_defaults(**QUICK)
-        args = ap.parse_args(argv)
+    args = parse_args(ap, QUICK, argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-vcdrift-"))
     template = drift.make_profile(work, "offsets", drift.DECLARED_DRIFT["offsets"])
     profile = load_profile(template)

@@ -22,7 +22,7 @@ import pytest
 pytestmark = pytest.mark.system
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-SCRIPTS = sorted(BENCHMARKS.glob("*.py"))
+SCRIPTS = sorted(p for p in BENCHMARKS.glob("*.py") if not p.name.startswith("_"))
 #: Below the suite's per-test timeout, so that a hung benchmark is reported with its output.
 TIMEOUT_S = 100
 
