@@ -22,7 +22,8 @@ written beyond 4 std, the TCP error over the scanning region; then each world wi
 |z| both ways and the drift's std both ways.
 
 Usage: ``python benchmarks/thermometer.py --worlds 8 [--case offsets|full|both] [--tank
-linear|exponential|cycling] [--jobs 2] [--postures N]``; ``--quick``: one world of each case
+linear|exponential|cycling] [--jobs 2] [--postures N] [--resolution C] [--noise C]`` (the
+logger's resolution and reading noise, °C); ``--quick``: one world of each case
 (the full level on 8 postures), the same code path in seconds.
 """
 
@@ -59,20 +60,32 @@ THERMOMETER_OFFSET_C = 0.5
 THERMOMETER_STD_C = 0.02
 
 
-def thermometer_log(world_path: Path, profile_path: Path, seed: int) -> TemperatureLog:
-    """The probe's log of the world's tank (module docstring), on the simulated cell's clock."""
+def thermometer_log(
+    world_path: Path,
+    profile_path: Path,
+    seed: int,
+    resolution_c: float = RESOLUTION_C,
+    noise_c: float = THERMOMETER_NOISE_C,
+) -> TemperatureLog:
+    """The probe's log of the world's tank (module docstring), on the simulated cell's clock:
+    ``resolution_c`` the logger's, ``noise_c`` its reading noise (one sigma)."""
     world = load_world(world_path, load_profile(profile_path))
     rng = np.random.default_rng([seed, 2])
     lag = rng.uniform(*THERMOMETER_LAG_MIN)
     offset = rng.uniform(-THERMOMETER_OFFSET_C, THERMOMETER_OFFSET_C)
     t = np.arange(0.0, drift.LOG_SPAN_MIN + 0.5 * drift.LOG_STEP_MIN, drift.LOG_STEP_MIN)
     truth = np.array([drift.tank_at(world, max(ti - lag, 0.0))[0] for ti in t])
-    read = truth + offset + THERMOMETER_NOISE_C * rng.standard_normal(len(t))
-    return TemperatureLog(world_path, t, np.round(read / RESOLUTION_C) * RESOLUTION_C)
+    read = truth + offset + noise_c * rng.standard_normal(len(t))
+    return TemperatureLog(world_path, t, np.round(read / resolution_c) * resolution_c)
 
 
 def run_world(
-    case: str, profile_path: Path, world_path: Path, postures: int, seed: int
+    case: str,
+    profile_path: Path,
+    world_path: Path,
+    postures: int,
+    seed: int,
+    logger: tuple[float, float] = (RESOLUTION_C, THERMOMETER_NOISE_C),
 ) -> list[drift.Outcome] | str:
     """Measure one world once; solve it with the thermometer's log and without."""
     profile = load_profile(profile_path)
@@ -94,7 +107,7 @@ def run_world(
             first_min = (cell.rig.first_read_s - cell.started_s) / 60.0
     except (UcalError, DriverError) as err:
         return f"{world_path.name}: stopped: {err}"
-    log = thermometer_log(world_path, profile_path, seed)
+    log = thermometer_log(world_path, profile_path, seed, *logger)
     water = on_run(log, profile.thermometer_std_c, first_min, reading_span_min(data))
     assert water is not None, "the log covers every run"
     logged, logged_profile = water.corrected(data), water.profile(profile, data)
@@ -109,7 +122,11 @@ def run_world(
         out.run = (
             f"{world_path.stem}: {drift.tank_words(world)}, readings over "
             f"{reading_span_min(data):.1f} min, logged change "
-            f"{water.summary(data)['change_c']:+.3f} °C"
+            f"{water.summary(data)['change_c']:+.3f} °C, turning "
+            f"{water.departure_c(data):.4f} °C against its noise "
+            f"{water.course_noise_c(data):.4f} ("
+            + ("applied" if water.turns(data) else "not applied")
+            + ")"
         )
         outs.append(out)
     return outs
@@ -123,6 +140,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--postures", type=int, default=MAX_POSTURES)
+    ap.add_argument(
+        "--resolution", type=float, default=RESOLUTION_C, help="the logger's resolution (°C)"
+    )
+    ap.add_argument(
+        "--noise", type=float, default=THERMOMETER_NOISE_C, help="its reading noise (°C)"
+    )
     ap.add_argument("--quick", action="store_true", help="one world per case, 8 postures")
     args = parse_args(ap, QUICK, argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-thermometer-"))
@@ -155,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
                     worlds,
                     [args.postures] * n,
                     [args.seed * 1000 + i for i in range(n)],
+                    [(args.resolution, args.noise)] * n,
                 )
             )
         solved = [r for r in rows if not isinstance(r, str)]

@@ -53,6 +53,7 @@ def test_quick_mode_runs_and_prints_figures(script: Path, tmp_path: Path) -> Non
 def test_a_missing_baseline_library_is_said_and_skipped(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    monkeypatch.syspath_prepend(str(BENCHMARKS))  # its siblings, as a script run there has
     spec = importlib.util.spec_from_file_location("benchmark_ik", BENCHMARKS / "ik.py")
     assert spec is not None and spec.loader is not None
     ik = importlib.util.module_from_spec(spec)
