@@ -4,7 +4,9 @@ A background thread reads the state port (``_state_loop``) and keeps the latest 
 STATUS and a bounded history of timestamped joint samples; messages of other types are skipped
 (REP-I0006). Every call that needs state waits on it (``_wait_for``) and, while it waits,
 checks the stream: closed, broken or silent (``first_state_timeout_s``, ``state_timeout_s``),
-and a point the controller halted short of its target (``halt_timeout_s``). The motion side,
+and a point the controller halted short of its target (``halt_timeout_s``; what the controller
+says of it is a STATUS received after the point was accepted: one from before says nothing of
+the motion, so a halt waits up to a second ``halt_timeout_s`` for a fresh one). The motion side,
 ``drivers.controller.client.SimpleMessageController``, derives from it.
 """
 
@@ -288,7 +290,15 @@ class StateStreamController(RobotController):
         if (
             stalled_s >= self.halt_timeout_s or idle_s >= self.halt_timeout_s
         ) and not self._stream_behind():
-            said = "no status yet" if st is None else describe_status(st)
+            fresh = st is not None and self._status_t > self._accepted_t
+            if st is not None and not fresh and stalled_s < 2.0 * self.halt_timeout_s:
+                return  # a STATUS from before the point says nothing of it: wait for one
+            if st is None:
+                said = "no status yet"
+            elif fresh:
+                said = describe_status(st)
+            else:
+                said = f"no status since the point was accepted (before it: {describe_status(st)})"
             raise DeviceError(
                 self.device,
                 self.endpoint,
