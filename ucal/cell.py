@@ -127,6 +127,9 @@ class CellProfile:
     #: Not a profile key: set for a run whose water paths a thermometer's log has corrected
     #: (``ucal.thermometer``), whose drift then turns no more than ``thermometer_std_c`` allows.
     tank_logged: bool = False
+    #: Not a profile key: the tank's drift over the run as its thermometer's log measured it
+    #: (°C/min; ``ucal.thermometer``), the drift's prior mean; 0 without a log.
+    logged_drift_c_per_min: float = 0.0
     #: Lost motion each joint may have (deg, one sigma, (6,); ``[robot] backlash_std_deg``).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
     frequency_mhz: float = 25.0

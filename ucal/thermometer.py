@@ -217,16 +217,22 @@ class Thermometer:
 
     def noise_c(self, data: Any) -> float:
         """One sigma of a logged reading about the tank's smooth course over ``data``'s run
-        (°C): the scatter of its second differences over √6 (the tank's course is smooth over
-        three readings, independent noise is not), at least the logger's resolution over
-        √12."""
+        (°C): the scatter of the readings about the course within a minute of the run's paths
+        (over √(1 − h), h the smoothing's own weight of a reading: a heater's turn is in the
+        course, not in the scatter; a log not smoothed, its second differences' scatter over
+        √6), at least the logger's resolution over √12."""
         times = [t for t in _times(data) if t is not None]
         lo, hi = (min(times), max(times)) if times else (0.0, 0.0)
         inside = (self.time_min >= lo - 1.0) & (self.time_min <= hi + 1.0)
-        temps = self.temperature_c[inside]
+        course, _, own = self._course
+        residual = (self.temperature_c - course)[inside]
+        if own < 1.0 and residual.size:
+            scatter = float(np.sqrt(np.mean(residual**2) / (1.0 - own)))
+        else:  # not smoothed: the second differences' scatter over √6
+            temps = self.temperature_c[inside]
+            scatter = float(np.std(np.diff(temps, 2)) / np.sqrt(6.0)) if temps.size > 3 else 0.0
         steps = np.abs(np.diff(np.unique(self.temperature_c)))
         resolution = float(np.min(steps)) if len(steps) else 0.0
-        scatter = float(np.std(np.diff(temps, 2)) / np.sqrt(6.0)) if len(temps) > 3 else 0.0
         return max(scatter, resolution / np.sqrt(12.0))
 
     def course_noise_c(self, data: Any) -> float:
@@ -241,21 +247,21 @@ class Thermometer:
         return np.interp(t_min, self.time_min, self._course[0])
 
     @functools.cached_property
-    def _course(self) -> tuple[np.ndarray, float]:
-        """The smoothed log and the smoothing's noise gain (1: not smoothed)."""
+    def _course(self) -> tuple[np.ndarray, float, float]:
+        """The smoothed log, the smoothing's noise gain and its weight of the reading it is
+        centred on (1, 1: not smoothed; the scatter about the course then says nothing)."""
         raw = self.temperature_c
-        if len(raw) < 5:
-            return raw, 1.0
         step = np.diff(self.time_min)
-        median = float(np.median(step))
-        if np.ptp(step) > 0.2 * median:
-            return raw, 1.0
+        median = float(np.median(step)) if len(step) else 0.0
+        if len(raw) < 5 or np.ptp(step) > 0.2 * median:
+            return raw, 1.0, 1.0
         window = round(SMOOTHING_MIN / median) // 2 * 2 + 1
         window = min(window, len(raw) - (1 - len(raw) % 2))
         if window < 5:
-            return raw, 1.0
-        gain = float(np.linalg.norm(savgol_coeffs(window, 2)))
-        return savgol_filter(raw, window, 2), gain
+            return raw, 1.0, 1.0
+        coeffs = savgol_coeffs(window, 2)
+        own = float(coeffs[window // 2])
+        return savgol_filter(raw, window, 2), float(np.linalg.norm(coeffs)), own
 
     @property
     def slope_m_s_per_c(self) -> float:
@@ -278,14 +284,27 @@ class Thermometer:
         return float(np.max(np.abs(temps - line)))
 
     def profile(self, profile: CellProfile, data: Any) -> CellProfile:
-        """``profile`` for ``data``'s paths once ``corrected``: where the log took the tank's
-        turns out of them, the drift turns no more than the thermometer allows
-        (``CellProfile.tank_logged``)."""
-        return dataclasses.replace(profile, tank_logged=self.turns(data))
+        """``profile`` for ``data``'s paths once ``corrected``: the drift's prior mean the log's
+        (``drift_c_per_min``), and where the log took the tank's turns out of the paths, a
+        drift that turns no more than the thermometer allows (``CellProfile.tank_logged``)."""
+        return dataclasses.replace(
+            profile,
+            tank_logged=self.turns(data),
+            logged_drift_c_per_min=self.drift_c_per_min(data),
+        )
+
+    def drift_c_per_min(self, data: Any) -> float:
+        """The tank's drift over ``data``'s paths as the log's course says (°C/min): the slope
+        of the straight line through it at the paths' times (0 for paths at one time)."""
+        times = np.array([t for t in _times(data) if t is not None], float)
+        if len(times) < 2 or np.ptp(times) <= 0.0:
+            return 0.0
+        return float(np.polyfit(times, self.course_c(times), 1)[0])
 
     def summary(self, data: Any) -> dict[str, Any]:
         """What the log said of the run whose readings are ``data`` (``--json``'s
-        ``thermometer``): the file, the tank's change over the readings (°C), how far it turned
+        ``thermometer``): the file, the tank's change over the readings (°C), its drift
+        (``drift_c_per_min``, the drift's prior mean), how far it turned
         from a straight line (``departure_c``) against the log's own noise (``noise_c``),
         whether the paths were corrected (``applied``: ``turns``), the readings' span (min),
         ``std_c``."""
@@ -294,6 +313,7 @@ class Thermometer:
         return {
             "file": self.source,
             "change_c": round(self.change_c(start, end), 4),
+            "drift_c_per_min": round(self.drift_c_per_min(data), 5),
             "departure_c": round(self.departure_c(data), 4),
             "noise_c": round(self.course_noise_c(data), 4),
             "applied": self.turns(data),

@@ -157,3 +157,22 @@ def test_tool_frames_peaks_are_corrected_as_the_faces_are() -> None:
         [m.distance_mm for m in fixed_faces], abs=1e-12
     )
     assert fixed_peaks[0].distance[1] > 0.01
+
+
+def test_the_logs_drift_is_the_drifts_prior_mean() -> None:
+    """The log measures the tank's drift over the run: every solver's drift prior is centred on
+    it (its tolerance the declared one), in m/s per minute through Marczak's slope."""
+    from ucal.calibration.priors import prior_from_profile
+    from ucal.cell import CellProfile
+    from ucal.models import load_model
+
+    log_t = np.arange(0.0, 12.0, 0.05)
+    water = Thermometer(log_t, np.round(20.0 + 0.3 * log_t, 3), 0.02, "t.csv")
+    times = np.linspace(1.0, 3.0, 9)
+    run = _tank_run(20.0 + 0.3 * times, times)
+    profile = water.profile(CellProfile(model=load_model("tx90l")), run)
+    assert profile.logged_drift_c_per_min == pytest.approx(0.3, rel=1e-3)
+    assert not profile.tank_logged  # a steady drift: nothing to take out
+    prior = prior_from_profile(profile)
+    assert prior.drift_prior_m_s_per_min == pytest.approx(0.3 * prior.sound_speed_slope_m_s_per_c)
+    assert prior.values()[-7] == pytest.approx(prior.drift_prior_m_s_per_min)

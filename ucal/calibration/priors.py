@@ -105,6 +105,9 @@ class CellPrior:
     #: With a thermometer's log (``ucal.thermometer``): how far the tank may still depart from a
     #: steady drift over the run (°C, one sigma: ``[water] thermometer_std_c``); None without.
     logged_departure_std_c: float | None = None
+    #: The drift's prior mean (°C/min): the tank's drift as a thermometer's log measured it over
+    #: the run (``ucal.thermometer``); 0 without a log.
+    drift_prior_c_per_min: float = 0.0
     #: Lost motion each joint may have (deg, one sigma; (6,)).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
 
@@ -123,6 +126,11 @@ class CellPrior:
     def sound_speed_std_m_s(self) -> float:
         """One sigma of c_0 from the temperature tolerance: |dc/dT|·σ_T."""
         return self.sound_speed_slope_m_s_per_c * self.water_temperature_std_c
+
+    @property
+    def drift_prior_m_s_per_min(self) -> float:
+        """The drift's prior mean in m/s per min (``drift_prior_c_per_min``)."""
+        return self.sound_speed_slope_m_s_per_c * self.drift_prior_c_per_min
 
     @property
     def drift_std_m_s_per_min(self) -> float:
@@ -155,7 +163,9 @@ class CellPrior:
                 self.tool_rotation_deg,
                 [self.sound_speed_m_s],
                 dh,
-                [0.0],  # the drift and the lost motion: none unless the data show them
+                # the drift (its log's, else none) and the lost motion: none unless the data
+                # show them
+                [self.drift_prior_m_s_per_min],
                 np.zeros(6),
             ]
         ).astype(float)
@@ -201,6 +211,7 @@ def prior_from_profile(profile: CellProfile) -> CellPrior:
         step_std_mm=0.0 if p.step is None else float(p.step.height_std_mm),
         drift_std_c_per_min=float(p.drift_std_c_per_min),
         logged_departure_std_c=float(p.thermometer_std_c) if p.tank_logged else None,
+        drift_prior_c_per_min=float(p.logged_drift_c_per_min),
         backlash_std_deg=np.broadcast_to(p.backlash_std_deg, 6).astype(float),
     )
 

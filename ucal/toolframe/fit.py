@@ -30,8 +30,8 @@ Priors (``CellPrior`` of the profile): tool ``[tool] position_std_mm``, ``rotati
 offsets ``[calibration] std_deg`` (wide when not calibrated); DH table; sound speed; plate height
 ``[reflector] points_std_mm`` (not divided by √n: a robot not yet calibrated touches every
 point off the same way) and tilt ``points_std_mm`` over the points' rms spread along each axis;
-delay 0 ± ``DELAY_PRIOR_STD_NS``; drift 0 ± ``[water] drift_std_c_per_min``; lost motion
-0 ± ``[robot] backlash_std_deg``.
+delay 0 ± ``DELAY_PRIOR_STD_NS``; drift 0 (a thermometer log's, ``ucal.thermometer``) ±
+``[water] drift_std_c_per_min``; lost motion 0 ± ``[robot] backlash_std_deg``.
 
 Physics of what is observable:
 
@@ -291,7 +291,8 @@ def _table(
             dh,
             np.zeros(3),
             [0.0],
-            np.zeros(7),  # the drift and the lost motion: none unless the data show them
+            [prior.drift_prior_m_s_per_min],  # the drift: its log's, else none
+            np.zeros(6),  # the lost motion: none unless the data show it
             edge_start,
         ]
     )
