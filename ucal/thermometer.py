@@ -365,9 +365,10 @@ def on_run(
             gap,
         )
         return None
-    keep = (t >= -EDGE_SLACK_MIN - 1.0) & (t <= span_min + EDGE_SLACK_MIN + 1.0)
-    keep |= np.roll(keep, 1) | np.roll(keep, -1)  # the readings just outside, to interpolate
-    return Thermometer(t[keep], log_.temperature_c[keep], float(std_c), str(log_.path))
+    # the readings within a minute and a half of the run, and one more each side to interpolate
+    near = np.flatnonzero((t >= -EDGE_SLACK_MIN - 1.0) & (t <= span_min + EDGE_SLACK_MIN + 1.0))
+    lo, hi = (max(near[0] - 1, 0), min(near[-1] + 2, len(t))) if near.size else (0, len(t))
+    return Thermometer(t[lo:hi], log_.temperature_c[lo:hi], float(std_c), str(log_.path))
 
 
 def check_time_base(log_: TemperatureLog, simulated: bool) -> None:

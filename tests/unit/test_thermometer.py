@@ -176,3 +176,17 @@ def test_the_logs_drift_is_the_drifts_prior_mean() -> None:
     prior = prior_from_profile(profile)
     assert prior.drift_prior_m_s_per_min == pytest.approx(0.3 * prior.sound_speed_slope_m_s_per_c)
     assert prior.values()[-7] == pytest.approx(prior.drift_prior_m_s_per_min)
+
+
+def test_the_run_keeps_an_evenly_spaced_stretch_of_the_log() -> None:
+    """The run's stretch of the log (a minute and a half either side, one reading more) stays
+    evenly spaced, so that it is smoothed: no reading from the log's far end."""
+    t = np.arange(0.0, 30.0, 0.05)
+    from ucal.thermometer import TemperatureLog
+
+    water = on_run(TemperatureLog(Path("t.csv"), t, 20.0 + 0.0 * t), 0.02, 5.0, 1.0)
+    assert water is not None
+    steps = np.diff(water.time_min)
+    assert np.allclose(steps, 0.05)
+    assert water.time_min[0] < -1.5 and water.time_min[-1] > 2.5
+    assert water.time_min[-1] < 3.0
