@@ -84,7 +84,7 @@ from ucal.calibration.fit import (
     solve_augmented,
     verdict,
 )
-from ucal.calibration.least_squares import Curvature, effect_gains
+from ucal.calibration.least_squares import CURVATURE, Curvature, effect_gains
 from ucal.calibration.quality import effect_cause
 from ucal.calibration.residuals import approach_signs
 from ucal.cell import CellProfile, WorldTruth
@@ -180,6 +180,8 @@ class _Data:
     n_edges: int
     #: The time the fitted sound speed is given at (min): the mean of the water paths' times.
     time_ref_min: float = 0.0
+    #: The drift's curvature held at 0 (``CURVATURE`` among the names held): not carried.
+    straight: bool = False
 
     @property
     def n_rows(self) -> int:
@@ -192,10 +194,12 @@ class _Data:
         return np.array([0.0 if x is None else x - self.time_ref_min for x in t], float)
 
     @cached_property
-    def curvature(self) -> Curvature:
+    def curvature(self) -> Curvature | None:
         """The drift's curvature over the run (``ucal.calibration.least_squares.Curvature``):
         each peak's rows at its water path's time, an edge crossing's row (no sound speed in
-        it) at 0, c̈'s std from the water paths' span."""
+        it) at 0, c̈'s std from the water paths' span; None where it is held."""
+        if self.straight:
+            return None
         rows = np.concatenate([np.repeat(self.minutes, 3), np.zeros(len(self.crossings))])
         return Curvature.of(self.prior, self.minutes, rows)
 
@@ -324,7 +328,8 @@ def _table(
     )
     table = ParameterTable(names, values, stds)
     for name in GAUGE + fixed:
-        table.free[table.index(name)] = False
+        if name != CURVATURE:  # not an unknown: held, it is not carried
+            table.free[table.index(name)] = False
     hold_unseen(table, (*data.peaks, *data.crossings))
     table.free &= table.prior_stds > 0
     return table
@@ -346,10 +351,19 @@ def solve_tool_frame(
     ``edge_start``: ψ_k (deg, from the touched plane's e1) and d_k (mm) per edge to start from,
     flattened as (ψ1, d1, ψ2, d2, …); ``tool_start``: position (3) and rotation (3) to start
     from (a first estimate), or the prior's; ``fixed``: names held at their priors (besides
-    ``GAUGE``, and the drift and lost motion no reading sees).
+    ``GAUGE``, and the drift and lost motion no reading sees; ``CURVATURE``: the drift's
+    curvature not carried, as the fit was before it carried it).
     """
     n_edges = len(edge_start) // 2
-    data = _Data(prior, plate, tuple(peaks), tuple(crossings), n_edges, reference_time_min(peaks))
+    data = _Data(
+        prior,
+        plate,
+        tuple(peaks),
+        tuple(crossings),
+        n_edges,
+        reference_time_min(peaks),
+        CURVATURE in fixed,
+    )
     table = _table(
         prior,
         plate,
