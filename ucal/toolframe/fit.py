@@ -84,7 +84,12 @@ from ucal.calibration.fit import (
     solve_augmented,
     verdict,
 )
-from ucal.calibration.least_squares import CURVATURE, Curvature, effect_gains
+from ucal.calibration.least_squares import (
+    CURVATURE,
+    Curvature,
+    effect_gains,
+    face_row_minutes,
+)
 from ucal.calibration.quality import effect_cause
 from ucal.calibration.residuals import approach_signs
 from ucal.cell import CellProfile, WorldTruth
@@ -200,7 +205,7 @@ class _Data:
         it) at 0, c̈'s std from the water paths' span; None where it is held."""
         if self.straight:
             return None
-        rows = np.concatenate([np.repeat(self.minutes, 3), np.zeros(len(self.crossings))])
+        rows = np.concatenate([face_row_minutes(self.minutes), np.zeros(len(self.crossings))])
         return Curvature.of(self.prior, self.minutes, rows)
 
     @cached_property
