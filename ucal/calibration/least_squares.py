@@ -178,18 +178,15 @@ def solve_cell(
     dof = max(1, n_data)
     chi2_red = chi2 / dof
     scale = max(1.0, chi2_red)
-    sigma_c = curvature_std_m_s_per_min2(prior, arrays.minutes)
-    cov_scaled = cov * scale + curvature_covariance(table, jac, cov, arrays.minutes, sigma_c)
+    curvature = Curvature.of(prior, arrays.minutes, face_row_minutes(arrays.minutes))
+    cov_scaled = cov * scale + curvature.covariance(table, jac, cov)
     std = np.full(len(table.names), np.nan)
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
 
     shares = _variance_shares(table, jac, cov, n_data)
     gains = {}
     if verdict(chi2, dof, misfit_p) == "misfit":
-        gains = effect_gains(table, estimate, rows, res, jac)
-        g = curvature_column(table, jac, arrays.minutes)
-        if g is not None:
-            gains.update(score_gain(CURVATURE, g, res, jac))
+        gains = effect_gains(table, estimate, rows, res, jac, curvature)
     quality = fit_quality(
         table,
         estimate,
@@ -218,13 +215,14 @@ def solve_cell(
 
 
 def curvature_std_m_s_per_min2(prior: CellPrior, minutes: np.ndarray) -> float:
-    """One sigma of the drift's curvature c̈ over a run whose readings span ``minutes``: the
-    declared drift tolerance is how much the rate may differ from a steady one, so over the
-    run's D minutes the rate may turn by it, |dc/dT|·``drift_std_c_per_min`` / D (m/s per
-    min²; 0 for readings at one time). The sound speed then departs from its fitted line by
-    about c̈·D²/8, an eighth of the declared drift over the run. With a thermometer's log that
-    has taken the turns out of the paths (``ucal.thermometer``), the departure left is the
-    thermometer's, |dc/dT|·``logged_departure_std_c``: c̈ = 8·|dc/dT|·σ_th/D² where smaller."""
+    """One sigma of the drift's curvature c̈ over a run whose water paths were read at
+    ``minutes``: the declared drift tolerance is how much the rate may differ from a steady
+    one, so over the run's D minutes the rate may turn by it, |dc/dT|·``drift_std_c_per_min``
+    / D (m/s per min²; 0 for readings at one time). The sound speed then departs from its
+    fitted line by about c̈·D²/8, an eighth of the declared drift over the run. With a
+    thermometer's log that has taken the turns out of the paths (``ucal.thermometer``), the
+    departure left is the thermometer's, |dc/dT|·``logged_departure_std_c``: c̈ =
+    8·|dc/dT|·σ_th/D² where smaller."""
     span_min = float(np.ptp(minutes)) if len(minutes) else 0.0
     if span_min <= 0.0:
         return 0.0
@@ -235,28 +233,53 @@ def curvature_std_m_s_per_min2(prior: CellPrior, minutes: np.ndarray) -> float:
     return min(declared, logged)
 
 
+def face_row_minutes(minutes: np.ndarray) -> np.ndarray:
+    """Each row's t − t_ref for face readings at ``minutes`` (n,): two tilts and a water path
+    per reading (``ucal.calibration.residuals.data_residuals``' order), (3n,)."""
+    return np.repeat(np.asarray(minutes, float), 3)
+
+
+def curvature_rows(sound_column: np.ndarray, row_minutes: np.ndarray) -> np.ndarray:
+    """The rows' derivative by the drift's curvature c̈: each row's derivative by the sound
+    speed (``sound_column``, a column of the Jacobian) × ½(t − t_ref)², ``row_minutes``
+    giving t − t_ref for the first rows (0 for a row without a time), 0 on the rest (the
+    priors' rows). A row the sound speed does not enter (a tilt, an edge crossing) is 0."""
+    g = np.zeros(len(sound_column))
+    n = len(row_minutes)
+    g[:n] = sound_column[:n] * 0.5 * np.asarray(row_minutes, float) ** 2
+    return g
+
+
+def considered_covariance(
+    jac: np.ndarray, cov: np.ndarray, g: np.ndarray, sigma: float
+) -> np.ndarray:
+    """The covariance a parameter not fitted (a consider parameter, 0 ± ``sigma``) adds to
+    the fitted unknowns: they move by −(JᵀJ)⁻¹Jᵀg per unit of it, ``g`` the rows' derivative
+    by it, ``cov`` = (JᵀJ)⁻¹ (unscaled)."""
+    shift = cov @ (jac.T @ g)
+    return np.outer(shift, shift) * sigma**2
+
+
 def curvature_covariance(
     table: ParameterTable,
     jac: np.ndarray,
     cov: np.ndarray,
-    minutes: np.ndarray,
+    row_minutes: np.ndarray,
     sigma: float,
 ) -> np.ndarray:
     """The covariance the drift's curvature adds to the free unknowns, not fitted (a
     consider parameter): a real tank does not warm at a steady rate (it approaches the room
     exponentially, a heater cycles), so each water path's sound speed departs from the fitted
     ``c + ċ·(t − t_ref)`` by ½·c̈·(t − t_ref)², c̈ = 0 ± ``sigma``
-    (``curvature_std_m_s_per_min2``). ``minutes`` (n,): each reading's t − t_ref, its three
-    rows (two tilts, a water path) the first 3n of ``jac``. The unknowns move by
-    −(JᵀJ)⁻¹Jᵀg per unit c̈, g those rows' derivative: the sound speed's column of ``jac`` ×
-    ½(t − t_ref)². Zero where the drift is not free (held, or readings at one time) or the
-    sound speed is held."""
-    g = curvature_column(table, jac, minutes)
+    (``curvature_std_m_s_per_min2``). ``row_minutes``: each data row's t − t_ref, the first
+    rows of ``jac`` (``face_row_minutes`` for face readings; tool-frame's peaks and edge
+    crossings give their own). Zero where the drift is not free (held, or readings at one
+    time) or the sound speed is held."""
+    g = curvature_column(table, jac, row_minutes)
     if g is None:
         n_free = int(np.sum(table.free))
         return np.zeros((n_free, n_free))
-    shift = cov @ (jac.T @ g)
-    return np.outer(shift, shift) * sigma**2
+    return considered_covariance(jac, cov, g, sigma)
 
 
 #: The drift's curvature c̈ (m/s per min²) where a misfit is tested against it: not an unknown.
@@ -264,18 +287,33 @@ CURVATURE = "sound_speed_curvature_m_s_per_min2"
 
 
 def curvature_column(
-    table: ParameterTable, jac: np.ndarray, minutes: np.ndarray
+    table: ParameterTable, jac: np.ndarray, row_minutes: np.ndarray
 ) -> np.ndarray | None:
-    """The rows' derivative by the drift's curvature c̈ (``curvature_covariance``): the sound
-    speed's column of ``jac`` × ½(t − t_ref)² on the first 3n rows, 0 on the rest; None where
-    the drift or the sound speed is not free."""
-    names = [n for n, f in zip(table.names, table.free, strict=True) if f]
+    """The rows' derivative by the drift's curvature c̈ (``curvature_rows`` of the sound
+    speed's column of ``jac``); None where the drift or the sound speed is not free."""
+    names = table.free_names
     if DRIFT[0] not in names or SOUND[0] not in names:
         return None
-    g = np.zeros(jac.shape[0])
-    n_face_rows = 3 * len(minutes)  # two tilt rows and a water path's row per reading
-    g[:n_face_rows] = jac[:n_face_rows, names.index(SOUND[0])] * np.repeat(0.5 * minutes**2, 3)
-    return g
+    return curvature_rows(jac[:, names.index(SOUND[0])], row_minutes)
+
+
+@dataclass(frozen=True)
+class Curvature:
+    """The drift's curvature over one run, a consider parameter of its fit: each data row's
+    t − t_ref (``curvature_covariance``) and c̈'s one sigma (``curvature_std_m_s_per_min2``)."""
+
+    row_minutes: np.ndarray
+    std_m_s_per_min2: float
+
+    @classmethod
+    def of(cls, prior: CellPrior, minutes: np.ndarray, row_minutes: np.ndarray) -> Curvature:
+        """The curvature of a run whose water paths were read at ``minutes`` (t − t_ref), its
+        data rows at ``row_minutes``."""
+        return cls(np.asarray(row_minutes, float), curvature_std_m_s_per_min2(prior, minutes))
+
+    def covariance(self, table: ParameterTable, jac: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """What it adds to the free unknowns' covariance (``curvature_covariance``)."""
+        return curvature_covariance(table, jac, cov, self.row_minutes, self.std_m_s_per_min2)
 
 
 #: The run's effects a misfit is tested against (``effect_gains``).
@@ -288,12 +326,14 @@ def effect_gains(
     rows: Callable[[np.ndarray], np.ndarray],
     res: np.ndarray,
     jac: np.ndarray,
+    curvature: Curvature | None = None,
 ) -> dict[str, float]:
-    """How much of the χ² each of the run's effects (``EFFECTS``) would remove, were it free
-    beyond its prior: the score test at the solution, Δχ² = (g⊥·r)²/|g⊥|², with ``g`` the
-    effect's column of the data rows (``rows``: the full vector to them) and ``g⊥`` its part
-    outside the fit's columns ``jac`` (residuals ``res``). An effect the readings cannot see
-    (no time, one-sided approach) has no such part and is left out."""
+    """How much of the χ² each of the run's effects (``EFFECTS``, and the drift's
+    ``curvature`` where given) would remove, were it free beyond its prior: the score test at
+    the solution, Δχ² = (g⊥·r)²/|g⊥|², with ``g`` the effect's column of the data rows
+    (``rows``: the full vector to them; the curvature's ``curvature_column``) and ``g⊥`` its
+    part outside the fit's columns ``jac`` (residuals ``res``). An effect the readings cannot
+    see (no time, one-sided approach) has no such part and is left out."""
     base = rows(estimate)
     out: dict[str, float] = {}
     for name in EFFECTS:
@@ -306,6 +346,9 @@ def effect_gains(
         g = np.zeros(len(res))
         g[: len(base)] = (rows(v) - base) / step
         out.update(score_gain(name, g, res, jac))
+    bend = None if curvature is None else curvature_column(table, jac, curvature.row_minutes)
+    if bend is not None:
+        out.update(score_gain(CURVATURE, bend, res, jac))
     return out
 
 
@@ -459,13 +502,15 @@ def solve_augmented(
     tol: float = 1e-12,
     max_nfev: int = 200,
     measured: tuple[str, ...] = (),
+    curvature: Curvature | None = None,
 ) -> AugmentedFit:
     """Minimise ``|data_fn(v)|² + Σ ((v − prior)/σ)²`` over the free parameters of ``table``
     (``data_fn`` takes the full value vector and returns normalised data residuals).
 
     ``measured`` names the quantities the run exists to measure: their priors (a drawing's
     tolerance) still enter the solution, but their pulls are not counted in the χ² that
-    judges the fit and scales the covariance."""
+    judges the fit and scales the covariance. ``curvature``: the drift's curvature over the
+    data rows, added to the covariance as in ``solve_cell`` (not fitted)."""
     has_prior = np.isfinite(table.prior_stds) & table.free
     n_data = len(data_fn(table.expand(x0)))
 
@@ -482,6 +527,8 @@ def solve_augmented(
     chi2 = float(sol.fun[counted] @ sol.fun[counted])
     no_prior = int(np.sum(table.free & ~np.isfinite(table.prior_stds)))
     cov_scaled = cov * max(1.0, chi2 / max(1, n_data - no_prior))
+    if curvature is not None:
+        cov_scaled = cov_scaled + curvature.covariance(table, sol.jac, cov)
     std = np.full(len(table.names), np.nan)
     std[table.free] = np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None))
     return AugmentedFit(

@@ -5,8 +5,10 @@ one fit (``ChangeFit``): the cell's unknowns of ``ucal.calibration.fit`` (joint 
 pose, tool frame, sound speed and each joint's lost motion, with the profile's values and
 tolerances as priors; the DH table held as the reference's own fit puts it) are shared by
 both sets, each set has its own drift of the sound speed (the tank warms or cools at its own
-rate in each run, against each reading's ``time_min``), and a *suspect* — a joint's offset,
-the tool frame, the block pose, the water's sound speed — may add a change to the check's.
+rate in each run, against each reading's ``time_min``; its curvature, not fitted, carried in
+the covariance about that run's own reference time as calibrate carries it), and a *suspect* —
+a joint's offset, the tool frame, the block pose, the water's sound speed — may add a change
+to the check's.
 What cannot be told apart stays so: a joint-1 offset and a turn of the block about the base
 axis are one rotation, and both are named.
 
@@ -73,7 +75,13 @@ from ucal.calibration.fit import (
     offsets_prior_std_deg,
     solve_cell,
 )
-from ucal.calibration.least_squares import sees_drift
+from ucal.calibration.least_squares import (
+    Curvature,
+    considered_covariance,
+    curvature_rows,
+    face_row_minutes,
+    sees_drift,
+)
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.residuals import two_sided_joints
 from ucal.cell import CellProfile
@@ -214,6 +222,21 @@ class ChangeFit:
         self._ref = MeasurementArrays.of(reference)
         self._chk = MeasurementArrays.of(check)
         self.n_data = 3 * (len(reference) + len(check))
+        # each run's drift curving about its own reference time, over its own rows
+        ref_rows, chk_rows = (
+            face_row_minutes(self._ref.minutes),
+            face_row_minutes(self._chk.minutes),
+        )
+        self.curvatures = (
+            (
+                self.drift_idx,
+                Curvature.of(prior, self._ref.minutes, np.r_[ref_rows, np.zeros(chk_rows.size)]),
+            ),
+            (
+                self.check_drift_idx,
+                Curvature.of(prior, self._chk.minutes, np.r_[np.zeros(ref_rows.size), chk_rows]),
+            ),
+        )
 
     def data(self, values: np.ndarray) -> np.ndarray:
         """Normalised residuals of the reference's measurements, then of the check's."""
@@ -224,6 +247,26 @@ class ChangeFit:
         moved[self.drift_idx] = values[self.check_drift_idx]
         r_chk = data_residuals(self.table, moved, model, self._chk, c0)
         return np.concatenate([r_ref.ravel(), r_chk.ravel()])
+
+    def curvature_covariance(
+        self, jac: np.ndarray, cov: np.ndarray, cols: np.ndarray
+    ) -> np.ndarray:
+        """What each run's drift curvature adds to the covariance ``cov`` (unscaled) of the
+        unknowns ``cols`` (indices into the value vector, the columns of ``jac``: the data
+        rows, then the priors'): each run's c̈ a consider parameter of its own, 0 ± the std
+        its span gives, through its own water paths
+        (``ucal.calibration.least_squares.curvature_covariance``); none for a run whose
+        drift is held, or with the sound speed held."""
+        out = np.zeros((cols.size, cols.size))
+        where = {int(i): k for k, i in enumerate(cols)}
+        sound = where.get(self.table.index(SOUND[0]))
+        if sound is None:
+            return out
+        for drift, curvature in self.curvatures:
+            if drift in where:
+                g = curvature_rows(jac[:, sound], curvature.row_minutes)
+                out += considered_covariance(jac, cov, g, curvature.std_m_s_per_min2)
+        return out
 
     def free_mask(self, chosen: list[str]) -> np.ndarray:
         """The unknowns free when ``chosen`` suspects may have changed."""
@@ -273,7 +316,8 @@ class Linearised:
         """The least-squares step with ``chosen`` suspects changed (the changes of the others
         held at zero): its χ² (data and the priors of the free unknowns), the value vector it
         reaches, the free unknowns (indices into that vector) and their covariance (scaled by
-        ``max(1, χ²ᵣ)``)."""
+        ``max(1, χ²ᵣ)``, plus what each run's drift curvature adds,
+        ``ChangeFit.curvature_covariance``)."""
         free = self.problem.free_mask(chosen)
         mask = free[self.cols]
         cols = self.cols[mask]
@@ -285,7 +329,8 @@ class Linearised:
         step, *_ = np.linalg.lstsq(a, -r, rcond=None)
         res = r + a @ step
         chi2 = float(res @ res)
-        cov = np.linalg.pinv(a.T @ a) * max(1.0, chi2 / self.r0.size)
+        cov = np.linalg.pinv(a.T @ a)
+        cov = cov * max(1.0, chi2 / self.r0.size) + self.problem.curvature_covariance(a, cov, cols)
         values = self.values.copy()
         values[self.cols[held]] = 0.0
         values[cols] += step

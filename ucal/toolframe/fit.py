@@ -24,7 +24,11 @@ motion, as in the calibration solvers (``ucal.calibration.fit``): the offsets ar
 approach's, and ``b`` (like ``ċ``) is held at 0 where no reading sees it
 (``least_squares.hold_unseen``: a joint read from one side only, readings without a time). The
 tool-frame's own postures are all reached from below (``ucal.measure.approach``), so a run
-measures the drift and leaves the lost motion in the offsets of that approach.
+measures the drift and leaves the lost motion in the offsets of that approach. The drift's
+curvature c̈ is not fitted but carried in the covariance as calibrate carries it
+(``ucal.calibration.least_squares.curvature_covariance``: 0 ± |dc/dT|·``[water]
+drift_std_c_per_min`` / D over the water paths' D minutes, through the peaks' path rows, the
+edge crossings holding no sound speed), and a misfit it explains is named as a drift that turns.
 
 Priors (``CellPrior`` of the profile): tool ``[tool] position_std_mm``, ``rotation_std_deg``;
 offsets ``[calibration] std_deg`` (wide when not calibrated); DH table; sound speed; plate height
@@ -80,7 +84,12 @@ from ucal.calibration.fit import (
     solve_augmented,
     verdict,
 )
-from ucal.calibration.least_squares import effect_gains
+from ucal.calibration.least_squares import (
+    CURVATURE,
+    Curvature,
+    effect_gains,
+    face_row_minutes,
+)
 from ucal.calibration.quality import effect_cause
 from ucal.calibration.residuals import approach_signs
 from ucal.cell import CellProfile, WorldTruth
@@ -176,6 +185,8 @@ class _Data:
     n_edges: int
     #: The time the fitted sound speed is given at (min): the mean of the water paths' times.
     time_ref_min: float = 0.0
+    #: The drift's curvature held at 0 (``CURVATURE`` among the names held): not carried.
+    straight: bool = False
 
     @property
     def n_rows(self) -> int:
@@ -186,6 +197,16 @@ class _Data:
         """(peaks,) minutes of each water path from ``time_ref_min`` (0 without a time)."""
         t = [p.time_min for p in self.peaks]
         return np.array([0.0 if x is None else x - self.time_ref_min for x in t], float)
+
+    @cached_property
+    def curvature(self) -> Curvature | None:
+        """The drift's curvature over the run (``ucal.calibration.least_squares.Curvature``):
+        each peak's rows at its water path's time, an edge crossing's row (no sound speed in
+        it) at 0, c̈'s std from the water paths' span; None where it is held."""
+        if self.straight:
+            return None
+        rows = np.concatenate([face_row_minutes(self.minutes), np.zeros(len(self.crossings))])
+        return Curvature.of(self.prior, self.minutes, rows)
 
     @cached_property
     def lag(self) -> np.ndarray:
@@ -313,7 +334,8 @@ def _table(
     )
     table = ParameterTable(names, values, stds)
     for name in GAUGE + fixed:
-        table.free[table.index(name)] = False
+        if name != CURVATURE:  # not an unknown: held, it is not carried
+            table.free[table.index(name)] = False
     hold_unseen(table, (*data.peaks, *data.crossings))
     table.free &= table.prior_stds > 0
     return table
@@ -335,10 +357,19 @@ def solve_tool_frame(
     ``edge_start``: ψ_k (deg, from the touched plane's e1) and d_k (mm) per edge to start from,
     flattened as (ψ1, d1, ψ2, d2, …); ``tool_start``: position (3) and rotation (3) to start
     from (a first estimate), or the prior's; ``fixed``: names held at their priors (besides
-    ``GAUGE``, and the drift and lost motion no reading sees).
+    ``GAUGE``, and the drift and lost motion no reading sees; ``CURVATURE``: the drift's
+    curvature not carried, as the fit was before it carried it).
     """
     n_edges = len(edge_start) // 2
-    data = _Data(prior, plate, tuple(peaks), tuple(crossings), n_edges, reference_time_min(peaks))
+    data = _Data(
+        prior,
+        plate,
+        tuple(peaks),
+        tuple(crossings),
+        n_edges,
+        reference_time_min(peaks),
+        CURVATURE in fixed,
+    )
     table = _table(
         prior,
         plate,
@@ -358,6 +389,7 @@ def solve_tool_frame(
         tol=1e-10,
         max_nfev=100,
         measured=TOOL,
+        curvature=data.curvature,
     )
     return _conclude(sol, data, misfit_p)
 
@@ -573,7 +605,12 @@ def _misfit_cause(
     peaks."""
     table = sol.table
     gains = effect_gains(
-        table, sol.estimate, lambda v: data_residuals(table, v, data), sol.res, sol.jac
+        table,
+        sol.estimate,
+        lambda v: data_residuals(table, v, data),
+        sol.res,
+        sol.jac,
+        data.curvature,
     )
     nuisance = {n: p for n, p in pulls.items() if n not in TOOL}
     cause = effect_cause(rows, nuisance, table, sol.estimate, gains)

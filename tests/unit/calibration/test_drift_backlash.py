@@ -27,7 +27,11 @@ from ucal.calibration.fit import (
     solve_cell,
 )
 from ucal.calibration.full import full_table
-from ucal.calibration.least_squares import curvature_covariance, curvature_std_m_s_per_min2
+from ucal.calibration.least_squares import (
+    curvature_covariance,
+    curvature_std_m_s_per_min2,
+    face_row_minutes,
+)
 from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
@@ -196,10 +200,11 @@ def test_the_curvature_moves_the_sound_speed_by_a_parabolas_best_line() -> None:
     jac[2::3, 0] = 1.0  # each reading's water-path row: c + ċ·t
     jac[2::3, 1] = minutes
     cov = np.linalg.inv(jac.T @ jac)
-    added = curvature_covariance(table, jac, cov, minutes, 0.6)
+    added = curvature_covariance(table, jac, cov, face_row_minutes(minutes), 0.6)
     np.testing.assert_allclose(added, [[(0.6 / 3) ** 2, 0.0], [0.0, 0.0]], atol=1e-15)
     table.free[1] = False  # the drift held: no bend is carried
-    assert not curvature_covariance(table, jac[:, :1], cov[:1, :1], minutes, 0.6).any()
+    rows = face_row_minutes(minutes)
+    assert not curvature_covariance(table, jac[:, :1], cov[:1, :1], rows, 0.6).any()
 
 
 def test_readings_without_time_leave_the_drift_at_its_prior() -> None:

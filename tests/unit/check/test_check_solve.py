@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.fit import prior_from_profile
+from ucal.calibration import least_squares
+from ucal.calibration.fit import SOUND, prior_from_profile
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
 from ucal.check.judge import (
@@ -65,10 +66,12 @@ def measure(
     temperature_c=20.0,
     drift_c_per_min=0.0,
     dh_error=None,
+    curvature_c_per_min2=0.0,
 ):
     """Normal-incidence measurements of the planned faces on the true cell: its DH table the
     profile's plus ``dh_error`` ((6, 3): d, a mm, alpha deg), the tank at ``temperature_c``
-    drifting ``drift_c_per_min``, a face read every ``MINUTES_PER_FACE`` from the first."""
+    drifting ``drift_c_per_min`` (its rate turning by ``curvature_c_per_min2`` about the
+    run's middle), a face read every ``MINUTES_PER_FACE`` from the first."""
     profile, targets = cell
     rng = np.random.default_rng(seed)
     tool = transform(
@@ -86,7 +89,10 @@ def measure(
     out = []
     for i, t in enumerate(targets):
         minutes = MINUTES_PER_FACE * i
-        scale = c0 / sound_speed_m_s(temperature_c + drift_c_per_min * minutes)
+        bend = (
+            0.5 * curvature_c_per_min2 * (minutes - MINUTES_PER_FACE * (len(targets) - 1) / 2) ** 2
+        )
+        scale = c0 / sound_speed_m_s(temperature_c + drift_c_per_min * minutes + bend)
         q = aim_wrist(geom, t.joints_deg, -geom.normal(t.face), np.asarray(offsets, float))
         _, tcp = beam_and_tcp(geom, q, np.asarray(offsets, float))
         path = float(geom.normal(t.face) @ (tcp - corner)) * scale
@@ -147,6 +153,40 @@ def test_a_warming_tank_and_a_dh_table_off_within_tolerance_name_nothing(cell) -
     true_change = sound_speed_m_s(20.3 - 0.08 * middle) - sound_speed_m_s(20.0 + 0.1 * middle)
     water = q["sound_speed_m_s"]
     assert abs(water.difference - true_change) < 3 * water.std
+
+
+def test_each_runs_curving_drift_widens_the_waters_change_by_what_it_moves(
+    cell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each run's drift may turn (its curvature not fitted, carried as calibrate carries it,
+    about the run's own middle): the water's change between the runs has its variance grown by
+    what a bend of each run moves it (measured by solving the same readings with one run bent
+    by 0.005 °C/min²) times that run's curvature std (0.05 °C/min over its 2.5 minutes)."""
+    prior = prior_from_profile(cell[0])
+
+    def water(reference, check):
+        result = compare_geometry(prior, reference, check)
+        assert result.chosen == []
+        return next(c for c in result.changes if c.parameter == SOUND[0])
+
+    k = 0.005
+    slope = (sound_speed_m_s(20.01) - sound_speed_m_s(19.99)) / 0.02
+    flat = water(measure(cell, 1), measure(cell, 2))
+    moved = [
+        (water(*runs).change - flat.change) / (slope * k)
+        for runs in (
+            (measure(cell, 1, curvature_c_per_min2=k), measure(cell, 2)),
+            (measure(cell, 1), measure(cell, 2, curvature_c_per_min2=k)),
+        )
+    ]
+    span_min = MINUTES_PER_FACE * (len(cell[1]) - 1)
+    sigma = prior.drift_std_m_s_per_min / span_min
+    monkeypatch.setattr(least_squares, "curvature_std_m_s_per_min2", lambda *_: 0.0)
+    linear_only = water(measure(cell, 1), measure(cell, 2))
+    assert linear_only.change == pytest.approx(flat.change)  # the same fit
+    added = flat.std**2 - linear_only.std**2
+    assert added > linear_only.std**2
+    assert added == pytest.approx(sum((m * sigma) ** 2 for m in moved), rel=0.02)
 
 
 def test_a_first_check_on_a_dh_table_off_within_tolerance_agrees_with_the_profile(cell) -> None:

@@ -3,6 +3,7 @@ cell whose offsets, plate, sound speed and delay differ from the profile (no pro
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 
@@ -11,7 +12,9 @@ import pytest
 import tomlkit
 
 from ucal.acoustics import sound_speed_m_s
+from ucal.calibration import least_squares
 from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
+from ucal.calibration.least_squares import CURVATURE
 from ucal.calibration.model import CellGeometry, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile, WorldTruth
@@ -34,6 +37,8 @@ TRUE_OFFSETS = np.array([0.8, -0.6, 0.9, -1.2, 0.7, 0.5])
 TRUE_TOOL_MM = np.array([2.5, -3.0, 82.0])
 TRUE_TOOL_DEG = np.array([1.0, -0.8, 0.0])
 DELAY_NS = 8.0
+#: The middle of the synthetic run's water paths (its four peaks read at 0-3 min).
+PATHS_MIDDLE_MIN = 1.5
 
 
 @functools.lru_cache
@@ -55,10 +60,12 @@ def synthetic_run(
     drift_c_per_min: float = 0.0,
     backlash_deg: np.ndarray | None = None,
     from_above: tuple[int, ...] = (),
+    curvature_c_per_min2: float = 0.0,
 ) -> tuple[list[PlatePeak], list[PlateCrossing], np.ndarray]:
     """Peaks and edge crossings the true cell gives for the profile's plan, with noise.
 
-    Each reading a minute after the last, the water warming by ``drift_c_per_min``; the
+    Each reading a minute after the last, the water warming by ``drift_c_per_min`` (its rate
+    turning by ``curvature_c_per_min2`` about ``PATHS_MIDDLE_MIN``); the
     joints with lost motion ``backlash_deg`` (the link lagging its reading by half of it
     against the approach), every other reading approaching the joints ``from_above`` (index
     0…5) from above, the others from below."""
@@ -93,7 +100,11 @@ def synthetic_run(
         q = aim_wrist(geom, t.joints_deg, -n, TRUE_OFFSETS)
         _, _, path = ray(q)
         q_read, minute, approach = reading(q)
-        c = sound_speed_m_s(water_c + drift_c_per_min * minute)
+        c = sound_speed_m_s(
+            water_c
+            + drift_c_per_min * minute
+            + 0.5 * curvature_c_per_min2 * (minute - PATHS_MIDDLE_MIN) ** 2
+        )
         d = (c0 / c) * (path + c * 1e-6 * DELAY_NS / 2) + rng.normal(0.0, 0.003)
         q_seen = q_read.copy()
         q_seen[3:5] += rng.normal(0.0, 0.0005, 2)
@@ -265,6 +276,53 @@ def test_the_tanks_drift_is_fitted_and_a_fit_without_it_names_the_drift(profile)
     assert held.quality.verdict == "misfit"
     assert "a drift of the sound speed during the run" in held.refusal, held.refusal
     assert "fitted at" not in held.refusal
+
+
+def test_a_tank_whose_rate_turns_widens_the_tool_across_the_beam_by_what_it_moves(
+    profile,
+) -> None:
+    """The drift's curvature, not fitted, is carried in the covariance as calibrate carries
+    it: each across-beam variance grows by the square of what a bend of the tank moves that
+    component (measured here by solving the same readings bent by 0.02 °C/min²) times the
+    curvature's std (the declared 0.05 °C/min over the water paths' 3 minutes)."""
+    profile = calibrated(profile, np.zeros(6))
+    k = 0.02
+    peaks, crossings, starts = synthetic_run(profile, 0.5, 0.1, 20.5, drift_c_per_min=0.1)
+    bent = synthetic_run(profile, 0.5, 0.1, 20.5, drift_c_per_min=0.1, curvature_c_per_min2=k)
+    tf, tf_bent = solve(profile, peaks, crossings, starts), solve(profile, *bent)
+    assert tf.quality.verdict == tf_bent.quality.verdict == "ok"
+    # the sound speed bent by ½·c̈·(t − 1.5)², c̈ = dc/dT·k about the middle temperature
+    slope = (sound_speed_m_s(20.66) - sound_speed_m_s(20.64)) / 0.02
+    moved = tangent_basis(tf.beam) @ (tf_bent.position_mm - tf.position_mm) / (slope * k)
+    sigma = 0.05 * prior_from_profile(profile).sound_speed_slope_m_s_per_c / 3.0
+    linear_only = solve(profile, peaks, crossings, starts, (CURVATURE,))  # held: as before
+    np.testing.assert_allclose(linear_only.position_mm, tf.position_mm)  # the same fit
+    added = tf.across_beam_std_mm**2 - linear_only.across_beam_std_mm**2
+    assert np.max(added / linear_only.across_beam_std_mm**2) > 0.2  # a fifth more at least
+    assert np.sum(added) == pytest.approx(np.sum((moved * sigma) ** 2), rel=0.02)
+
+
+def test_readings_at_one_time_carry_no_curvature(profile, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every water path read at the same minute: the drift is not seen (held) and its
+    curvature adds nothing to any std."""
+    profile = calibrated(profile, np.zeros(6))
+    peaks, crossings, starts = synthetic_run(profile, 0.5, 0.1, 20.5)
+    peaks = [dataclasses.replace(p, time_min=2.0) for p in peaks]
+    tf = solve(profile, peaks, crossings, starts)
+    monkeypatch.setattr(least_squares, "curvature_std_m_s_per_min2", lambda *_: 1.0)
+    steep = solve(profile, peaks, crossings, starts)  # a bend of 1 m/s per min² if one counted
+    assert tf.solution is not None and steep.solution is not None
+    np.testing.assert_array_equal(steep.solution.std, tf.solution.std)
+
+
+def test_a_tank_whose_rate_turns_fast_is_a_misfit_that_names_the_turn(profile) -> None:
+    """The rate turning by 0.9 °C/min over the water paths' 3 minutes, eighteen times the
+    declared tolerance: the misfit's message names a drift that turns, not its rate."""
+    profile = calibrated(profile, np.zeros(6))
+    run = synthetic_run(profile, 0.5, 0.1, 20.5, drift_c_per_min=0.1, curvature_c_per_min2=0.3)
+    tf = solve(profile, *run)
+    assert tf.quality.verdict == "misfit"
+    assert "a drift of the sound speed that turns during the run explains" in tf.refusal, tf.refusal
 
 
 def test_lost_motion_read_from_both_sides_is_fitted_and_a_fit_without_it_names_it(
