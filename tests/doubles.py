@@ -37,7 +37,6 @@ import numpy as np
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.full import ideal_measurements
-from ucal.calibration.full_plan import first_postures
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
 from ucal.cli import main
@@ -251,11 +250,11 @@ def measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, see
     """Measurements of the true cell (``model``, ``offsets``, the block at ``corner`` turned by
     ``block_rpy``, water at ``water_c``) at ``plan``'s postures: the wrist aimed at normal
     incidence and the water path along the normal, each with seeded noise of ``sigma`` (deg of
-    posture, mm of path); the offsets level's faces first where the plan measures them."""
+    posture, mm of path)."""
     rng = np.random.default_rng(seed)
     truth = CellGeometry(model, profile.tool_matrix, rpy_to_matrix(block_rpy))
     postures = []
-    for p in first_postures(plan.first) + list(plan.postures):
+    for p in plan.postures:
         q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), offsets)
         q[3:5] += rng.normal(0.0, sigma, 2)
         postures.append((p.label, p.face, q))

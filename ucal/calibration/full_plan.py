@@ -51,9 +51,11 @@ full level on such a profile first measures what the offsets level measures
 (``offsets_first``: its plan, the calibration pose's faces with J3, J2 and J1 stepped, the
 steps chosen as the run goes), the sequence made to find a fresh cell's faces from its nominal
 offsets: every posture after it is placed with measured offsets, its room computed with their
-information (``visit_order``'s ``known``), and their faces enter the identification and the
-choice of postures (``select_postures``' ``known``). A profile on which no calibration pose
-reaches the block is refused before any motion, naming where to move it.
+information (``visit_order``'s ``known``). The model is identified from the postures' faces,
+chosen as before (solved with them too, the calibration pose's faces pulled offsets beyond
+three sigma of a simulated cell's truth: what the model lacks there outweighs their share of
+the information). A profile on which no calibration pose reaches the block is
+refused before any motion, naming where to move it.
 """
 
 from __future__ import annotations
@@ -373,16 +375,11 @@ def posture_jacobians(
 
 
 def select_postures(
-    jacs: np.ndarray,
-    min_gain: float = MIN_GAIN,
-    max_postures: int = MAX_POSTURES,
-    known: np.ndarray | None = None,
+    jacs: np.ndarray, min_gain: float = MIN_GAIN, max_postures: int = MAX_POSTURES
 ) -> tuple[list[int], float]:
-    """Greedy D-optimal choice (module docstring): indices in the order chosen, the gain in
-    log det M; ``known``: the information M the run has before the first of them (the
-    priors' identity where None)."""
+    """Greedy D-optimal choice (module docstring): indices in the order chosen, log det M."""
     p = jacs.shape[-1]
-    m_inv = np.eye(p) if known is None else np.linalg.inv(known)
+    m_inv = np.eye(p)
     log_det = 0.0
     chosen: list[int] = []
     available = np.ones(len(jacs), bool)
@@ -574,7 +571,7 @@ def plan_full(
     jacs, names = posture_jacobians(prior, profile, cands + lead)
     jacs, lead_jacs = jacs[: len(cands)], jacs[len(cands) :].reshape(-1, jacs.shape[-1])
     known = np.eye(jacs.shape[-1]) + lead_jacs.T @ lead_jacs
-    idx, _ = select_postures(jacs, min_gain, max_postures, known)
+    idx, _ = select_postures(jacs, min_gain, max_postures)
     spread = unknown_spread(profile, prior, names)
     order = visit_order(profile, cands, jacs, spread, idx, max_postures, known=known)
     chosen = [
@@ -588,7 +585,7 @@ def plan_full(
         for i, k in enumerate(order)
     ]
     taken = jacs[order].reshape(-1, jacs.shape[-1])  # lead-ins add their information
-    log_det = float(np.linalg.slogdet(known + taken.T @ taken)[1])
+    log_det = float(np.linalg.slogdet(np.eye(jacs.shape[-1]) + taken.T @ taken)[1])
     j1 = [p.joints_deg[0] for p in chosen]
     # R of the candidates' Jacobian (J = QR): the same column norms, regressions and singular
     # values as J, in p rows instead of three per candidate

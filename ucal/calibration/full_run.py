@@ -3,7 +3,8 @@
 Read top to bottom: noise floor and acquisition gain once; on a profile whose offsets were
 never calibrated, the offsets level's faces first (``FullPlan.first``,
 ``ucal.calibration.sequence.measure_targets``: the calibration pose, J3, J2 and J1 stepped),
-the running estimate carried on from them; then for every planned posture
+the running estimate carried on from them (they place the postures; the model is identified
+from the postures' faces, ``FullRun.first`` keeps them apart); then for every planned posture
 (``ucal.calibration.full_plan``, visiting order) the face measured by the running estimate of
 ``ucal.measure.running`` (the posture predicted with the cell as measured so far, checked
 before moving, searched as the one trust policy says, the estimate refitted), every move
@@ -32,7 +33,7 @@ with the step's height (``ucal.calibration.full.step_residuals``).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -53,12 +54,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FullRun:
-    """What the full level's run measured: the faces, the water paths over the step."""
+    """What the full level's run measured: the postures' faces (what is identified from), the
+    water paths over the step, and the offsets level's faces measured first where the plan
+    has them (``FullPlan.first``: they placed the postures)."""
 
     measurements: list[FaceMeasurement]
     steps: list[FaceMeasurement]
     moves: int
     reads: int
+    first: list[FaceMeasurement] = field(default_factory=list)
 
 
 def direction(plan: FullPlan, label: str) -> int:
@@ -169,4 +173,5 @@ def run_full(
     meas = running.refit_peaks()
     if progress:
         progress(MeasureStep("solving", total, total))
-    return FullRun(meas, steps, rig.counters.moves, rig.counters.reads)
+    n = taken.count(-1)  # the offsets level's faces come first
+    return FullRun(meas[n:], steps, rig.counters.moves, rig.counters.reads, meas[:n])

@@ -20,7 +20,7 @@ from ucal.calibration.full import (
     scanning_postures,
     solve_full,
 )
-from ucal.calibration.full_plan import candidate_postures, first_postures, plan_full
+from ucal.calibration.full_plan import candidate_postures, plan_full
 from ucal.calibration.gauge import j1_relative_to_block
 from ucal.calibration.sequence import calibration_pose
 from ucal.cell import Step
@@ -268,9 +268,7 @@ def test_postures_reached_from_above_measure_each_joints_lost_motion(cell):
         replace(a, approach=-np.ones(6))
         if p.label in plan.above
         else replace(b, approach=np.ones(6))
-        for p, a, b in zip(
-            first_postures(plan.first) + list(plan.postures), above, below, strict=True
-        )
+        for p, a, b in zip(plan.postures, above, below, strict=True)
     ]
     sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
     assert sol.cell.quality.verdict == "ok"
