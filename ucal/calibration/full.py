@@ -48,6 +48,7 @@ relative to the block as placed (the block gauge, ``ucal.calibration.gauge``), u
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -83,6 +84,8 @@ from ucal.calibration.model import (
     distance_joints,
 )
 from ucal.kinematics.dh import RobotModel
+
+log = logging.getLogger(__name__)
 
 #: Height of the step on the block's XY face (mm): the length standard.
 STEP = ("step_mm",)
@@ -491,14 +494,33 @@ def solve_full(
         tuple(f"{m.config}/step" for m in steps),
     )
     # the block gauge (ucal.calibration.gauge): the block's yaw held as placed, J1 relative
-    cell = solve_cell(
-        prior,
-        meas,
-        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,),
-        max_std_deg=max_std_deg,
-        table=table,
-        extra=extra if steps else None,
-    )
+    held = fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,)
+
+    def fit_cell(table: ParameterTable, held: tuple[str, ...], start: np.ndarray | None) -> CellFit:
+        return solve_cell(
+            prior,
+            meas,
+            fixed=held,
+            max_std_deg=max_std_deg,
+            start=start,
+            table=table,
+            extra=extra if steps else None,
+        )
+
+    cell = fit_cell(table, held, None)
+    if cell.quality.verdict == "misfit":
+        # From the profile's offsets, degrees from a fresh cell's, with the table free too,
+        # the trust region can spend its evaluations far from the minimum and stop there:
+        # the offsets level's model first (the table held), the full model from its solution.
+        offsets_model = fit_cell(full_table(prior), held + KINEMATIC, None)
+        again = fit_cell(full_table(prior), held, offsets_model.estimate)
+        if again.quality.chi2_reduced < cell.quality.chi2_reduced:
+            log.info(
+                "full fit started from the offsets model: χ²ᵣ %.3g instead of %.3g",
+                again.quality.chi2_reduced,
+                cell.quality.chi2_reduced,
+            )
+            cell, table = again, again.table
     gauged = gauged_offsets(
         cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg
     )
