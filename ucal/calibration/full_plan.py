@@ -54,8 +54,9 @@ offsets: every posture after it is placed with measured offsets, its room comput
 information (``visit_order``'s ``known``). The model is identified from the postures' faces,
 chosen as before (solved with them too, the calibration pose's faces pulled offsets beyond
 three sigma of a simulated cell's truth: what the model lacks there outweighs their share of
-the information). A profile on which no calibration pose reaches the block is
-refused before any motion, naming where to move it.
+the information). Where no calibration pose reaches the block (the offsets level would refuse
+it), the plan says so and goes without, each posture keeping the room the unknown offsets
+need as below.
 """
 
 from __future__ import annotations
@@ -536,17 +537,20 @@ def no_candidates(profile: CellProfile, command: str) -> SafetyError:
 def offsets_first(profile: CellProfile) -> CalibrationPlan | None:
     """The offsets level's plan, measured before the full level's postures on a profile whose
     offsets were never calibrated (module docstring, "Offsets first"), its tank read by the
-    postures that follow (no water path read again); None on a profile ``calibrate`` wrote.
-    ``SafetyError`` naming where to move the block where no calibration pose reaches it."""
+    postures that follow (no water path read again); None on a profile ``calibrate`` wrote,
+    and where no calibration pose reaches the block (said: the postures then keep the room
+    the offsets need, ``visit_order``)."""
     if profile.joint_offsets_std_deg is not None:
         return None
     try:
         plan = plan_calibration(profile)
     except SafetyError as e:
-        raise SafetyError(
-            "plan --level full: the joint offsets were never calibrated, and the calibration "
-            f"pose's faces that measure them before the first posture cannot be reached: {e}"
-        ) from e
+        log.warning(
+            "plan --level full: the offsets were never calibrated and no calibration pose "
+            "measures them first (%s); each posture keeps the room they need",
+            e,
+        )
+        return None
     return replace(plan, path_again=False)
 
 
