@@ -48,7 +48,6 @@ relative to the block as placed (the block gauge, ``ucal.calibration.gauge``), u
 
 from __future__ import annotations
 
-import logging
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -85,8 +84,12 @@ from ucal.calibration.model import (
 )
 from ucal.kinematics.dh import RobotModel
 
-log = logging.getLogger(__name__)
-
+#: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
+#: degrees from the profile's, with the table free, the trust region crawls along the
+#: offsets' and the links' correlations for hundreds of them (the offsets level's 200 left
+#: fits far from their minimum, called misfits, their tool dragged 4σ); one that converges
+#: sooner stops there.
+FULL_MAX_EVALUATIONS = 2000
 #: Height of the step on the block's XY face (mm): the length standard.
 STEP = ("step_mm",)
 #: The unknowns of the full level: the offsets level's, Hayati's twist of axes 2-3 and the
@@ -494,33 +497,15 @@ def solve_full(
         tuple(f"{m.config}/step" for m in steps),
     )
     # the block gauge (ucal.calibration.gauge): the block's yaw held as placed, J1 relative
-    held = fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,)
-
-    def fit_cell(table: ParameterTable, held: tuple[str, ...], start: np.ndarray | None) -> CellFit:
-        return solve_cell(
-            prior,
-            meas,
-            fixed=held,
-            max_std_deg=max_std_deg,
-            start=start,
-            table=table,
-            extra=extra if steps else None,
-        )
-
-    cell = fit_cell(table, held, None)
-    if cell.quality.verdict == "misfit":
-        # From the profile's offsets, degrees from a fresh cell's, with the table free too,
-        # the trust region can spend its evaluations far from the minimum and stop there:
-        # the offsets level's model first (the table held), the full model from its solution.
-        offsets_model = fit_cell(full_table(prior), held + KINEMATIC, None)
-        again = fit_cell(full_table(prior), held, offsets_model.estimate)
-        if again.quality.chi2_reduced < cell.quality.chi2_reduced:
-            log.info(
-                "full fit started from the offsets model: χ²ᵣ %.3g instead of %.3g",
-                again.quality.chi2_reduced,
-                cell.quality.chi2_reduced,
-            )
-            cell, table = again, again.table
+    cell = solve_cell(
+        prior,
+        meas,
+        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,),
+        max_std_deg=max_std_deg,
+        table=table,
+        extra=extra if steps else None,
+        max_evaluations=FULL_MAX_EVALUATIONS,
+    )
     gauged = gauged_offsets(
         cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg
     )

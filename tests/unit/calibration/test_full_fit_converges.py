@@ -1,6 +1,6 @@
 """The full level's fit on a fresh cell's faces: from the profile's offsets, degrees from the
-cell's, the trust region can stop on its evaluation limit far from the minimum and call the
-run a misfit; the fit then starts again from the offsets level's model (no processes).
+cell's, with the DH table free, the trust region needs hundreds of evaluations; stopped at the
+offsets level's 200 it called the run a misfit (``FULL_MAX_EVALUATIONS``; no processes).
 
 The faces are those of ``benchmarks/drift.py --case tool-frame --seed 8``'s world 12 (a
 fresh TX90L, offsets ±2°, a hand-placed block, lost motion, a drifting tank), measured on the
@@ -27,9 +27,8 @@ TRUE_BACKLASH_DEG = np.array([0.00384, 0.01294, 0.01460, 0.00868, 0.01340, 0.013
 
 
 def test_a_fresh_cells_faces_are_fitted_to_their_minimum_not_called_a_misfit() -> None:
-    """From the profile's zeros the fit stopped at χ²ᵣ 4.1 with the tool dragged 4σ off its
-    drawing; started from the offsets level's model it reaches the data's noise, every offset
-    it reports within 3σ of the truth."""
+    """Stopped at 200 evaluations the fit was χ²ᵣ 4.1, the tool dragged 4σ off its drawing;
+    at its minimum it is the data's noise, every offset it reports within 3σ of the truth."""
     lines = [decode(json.loads(line)) for line in (DATA / "fresh_full_faces.jsonl").open()]
     structure, meas = lines[0], lines[1:]
     profile = load_profile(DATA / "fresh_tx90l.toml")
