@@ -49,12 +49,12 @@ from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.calibration.full_plan import MAX_POSTURES, plan_full
 from ucal.calibration.full_run import FullRun, run_full
+from ucal.calibration.procedure import estimate_postures
 from ucal.calibration.sequence import calibration_pose
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import check_status, open_cell
-from ucal.timing import estimate_run
 from ucal.world import load_world
 
 MODEL = "tx90l"
@@ -214,9 +214,7 @@ def measure_world(
     }
     true_p["dh2_beta_deg"] = twists_deg(true_model)[1]
     z += [(v.value - true_p[n]) / v.std for n, v in full.parameters.items() if v.std is not None]
-    est = estimate_run(
-        [p.joints_deg for p in plan.postures], plan.postures[0].joints_deg, profile.procedure.speed
-    )
+    est = estimate_postures(plan, profile)
     return {
         "full": (err_full.mean(), err_full.max()),
         "offsets": (err_l1.mean(), err_l1.max()),

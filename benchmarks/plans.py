@@ -48,7 +48,7 @@ import tomlkit
 from _quick import parse_args
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.full_plan import FullPlan, plan_full
+from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
 from ucal.calibration.plan import geometry
 from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.calibration.sequence import plan_calibration
@@ -165,9 +165,10 @@ def cases(
 
 def first_room(profile: CellProfile, plan: FullPlan) -> tuple[float, float]:
     """The least water path and distance of the beam's hit from the face's edge (mm) of the
-    first posture at its planned readings, over true offsets of J1-J3 three sigma off
-    together (each joint ``offsets_std_deg`` × 3/√3, each sign), the block as declared."""
-    first = plan.postures[0]
+    first posture the run reaches (the offsets level's first face where the plan measures it
+    first) at its planned readings, over true offsets of J1-J3 three sigma off together (each
+    joint ``offsets_std_deg`` × 3/√3, each sign), the block as declared."""
+    first = (first_postures(plan.first) + list(plan.postures))[0]
     std = offsets_std_deg(profile)
     geom = geometry(profile)
     corner = profile.sample_matrix[:3, 3]

@@ -123,7 +123,11 @@ def test_calibrate_full_goes_through_the_same_steps(profile_path: Path) -> None:
     check_run(steps, presenter, outcome, "calibrate")
     assert "3 postures chosen" in presenter.events[0][1]
     seen = presenter.progress_seen
-    assert [p.step.configuration for p in seen[:-1]] == ["p01", "p02", "p03"]
+    configs = [p.step.configuration for p in seen[:-1]]
+    # never calibrated: the offsets level's faces first, then the postures
+    assert configs[-3:] == ["p01", "p02", "p03"] and configs[0] == "base"
+    assert {str(c) for c in configs[:-3]} == {"base", "j3", "j2", "j1"}
+    assert [p.step.done for p in seen] == list(range(len(seen)))  # of one total
     assert all(p.step.face in {"XY", "YZ", "XZ", "step"} for p in seen[:-1])
     assert outcome.to_json()["level"] == "full" and outcome.to_json()["plan"]["postures"] == 3
     assert outcome.to_json()["moves"] == seen[-1].moves

@@ -84,6 +84,12 @@ from ucal.calibration.model import (
 )
 from ucal.kinematics.dh import RobotModel
 
+#: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
+#: degrees from the profile's, with the table free, the trust region crawls along the
+#: offsets' and the links' correlations for hundreds of them (the offsets level's 200 left
+#: fits far from their minimum, called misfits, their tool dragged 4σ); one that converges
+#: sooner stops there.
+FULL_MAX_EVALUATIONS = 2000
 #: Height of the step on the block's XY face (mm): the length standard.
 STEP = ("step_mm",)
 #: The unknowns of the full level: the offsets level's, Hayati's twist of axes 2-3 and the
@@ -498,6 +504,7 @@ def solve_full(
         max_std_deg=max_std_deg,
         table=table,
         extra=extra if steps else None,
+        max_evaluations=FULL_MAX_EVALUATIONS,
     )
     gauged = gauged_offsets(
         cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg

@@ -7,7 +7,8 @@ a grid of points inside its edges (``EDGE_MARGIN_MM``), at water paths across
 inverse kinematics (shoulder, elbow, wrist flip) of each such tool pose is a candidate. So the
 candidates differ in J1 azimuth (where on a face), in J2/J3 (water path, height, elbow
 branch) and in the wrist (turn about the beam, flip). Each passes the checks of the offsets
-level before it is considered: joint ranges with room for the wrist search, the θ5 singularity
+level before it is considered: joint ranges with room for the wrist search (and on joints 1-3
+for the offsets' error, ``_arm_room``), the θ5 singularity
 margin, the beam inside the face, and a tool that keeps ``CLEARANCE_MM`` from every face's
 plane where the face is (no collision with the block), each with the room three sigma of the
 declared tolerances can move a posture by (``ucal.calibration.safety.tolerance_margins``): a
@@ -36,6 +37,26 @@ face's edges and the step's top. The postures are visited lowest J1 first, then 
 among those that have the room; where none has it yet, the candidate that has it and adds most
 information is visited first (a lead-in). The region check (``ucal.verify.region``), measured
 by the same run, orders its spread postures here too.
+
+Offsets first. On a profile whose offsets were never calibrated (no ``[calibration] std_deg``)
+the plan's arm joints are the nominal offsets', and a fresh cell's are degrees from them: the
+tool centre stands tens of millimetres from where the plan put it, the beam degrees off
+normal. The run re-places each posture with the offsets measured so far, but the faces of two
+or three postures far apart do not yet measure six offsets, the block and the tool: the
+prior-augmented estimate puts the directions they leave free wherever their noise and what
+the model lacks (the beam's squint) push it, degrees on J2-J5; the next posture is re-placed
+tens of millimetres and degrees off, and its search, ±8° about that prediction, centres on a
+side lobe, or near a face's edge on the neighbouring face's echo, and the run stops. So the
+full level on such a profile first measures what the offsets level measures
+(``offsets_first``: its plan, the calibration pose's faces with J3, J2 and J1 stepped, the
+steps chosen as the run goes), the sequence made to find a fresh cell's faces from its nominal
+offsets: every posture after it is placed with measured offsets, its room computed with their
+information (``visit_order``'s ``known``). The model is identified from the postures' faces,
+chosen as before (solved with them too, the calibration pose's faces pulled offsets beyond
+three sigma of a simulated cell's truth: what the model lacks there outweighs their share of
+the information). Where no calibration pose reaches the block (the offsets level would refuse
+it), the plan says so and goes without, each posture keeping the room the unknown offsets
+need as below.
 """
 
 from __future__ import annotations
@@ -54,7 +75,13 @@ from ucal.calibration.full import (
     identifiability,
 )
 from ucal.calibration.model import FACE_NAMES, Face
-from ucal.calibration.plan import STEPPED_PATH_RANGE_MM, calibration_pose, geometry
+from ucal.calibration.plan import (
+    STEPPED_PATH_RANGE_MM,
+    CalibrationPlan,
+    calibration_pose,
+    geometry,
+    plan_calibration,
+)
 from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
@@ -137,11 +164,20 @@ class FullPlan:
     #: Labels of the postures reached from above on every joint (``postures_from_above``):
     #: each joint read from both sides, its lost motion measured.
     above: tuple[str, ...] = ()
+    #: The offsets level's plan, measured before the postures on a profile whose offsets
+    #: were never calibrated (``offsets_first``); None where ``calibrate`` wrote them.
+    first: CalibrationPlan | None = None
 
     def describe(self) -> str:
         lo, hi = self.azimuths_deg
+        first = (
+            ""
+            if self.first is None
+            else f"the calibration pose's {len(self.first.targets)} faces first (the offsets "
+            "never calibrated), then "
+        )
         return (
-            f"{len(self.postures)} postures chosen from {self.candidates} candidates by "
+            f"{first}{len(self.postures)} postures chosen from {self.candidates} candidates by "
             f"D-optimality: log det M = {self.log_det:.1f}, D = {self.d_criterion:.3f} "
             f"(prior σ shrunk {np.exp(self.d_criterion):.1f}× on geometric mean); J1 from "
             f"{lo:.1f} to {hi:.1f} deg"
@@ -233,6 +269,20 @@ def _clear(
     return ok
 
 
+def _arm_room(profile: CellProfile, q: np.ndarray) -> np.ndarray:
+    """Which postures (n, 6) keep joints 1-3 ``TOLERANCE_SIGMAS`` of the offsets' planning std
+    (``offsets_std_deg``) inside their ranges: the run re-places each posture's arm with the
+    offsets as measured (``ucal.calibration.full_run.retarget``), which moves those joints by
+    the offsets' error in the profile; a posture at a limit would have no solution on its
+    branch."""
+    room = TOLERANCE_SIGMAS * offsets_std_deg(profile)[:3]
+    model = profile.model
+    arm = q[:, :3]
+    return np.all(
+        (arm >= model.joint_min_deg[:3] + room) & (arm <= model.joint_max_deg[:3] - room), 1
+    )
+
+
 def candidate_postures(profile: CellProfile) -> list[Posture]:
     """Every checked candidate (module docstring), labelled ``c<n>``."""
     s = profile.sample_matrix
@@ -273,7 +323,7 @@ def candidate_postures(profile: CellProfile) -> list[Posture]:
     q = sols[pose_i, branch]
     faces = np.array([keys[i][0] for i in pose_i], int)
     margins = tolerance_margins(profile)
-    passed = _clear(profile, q, faces, margins.block_mm)
+    passed = _clear(profile, q, faces, margins.block_mm) & _arm_room(profile, q)
     out: list[Posture] = []
     for i in np.flatnonzero(passed):
         try:
@@ -395,11 +445,13 @@ def visit_order(
     chosen: list[int],
     max_postures: int = MAX_POSTURES,
     command: str = "plan --level full",
+    known: np.ndarray | None = None,
 ) -> list[int]:
     """The order the run visits the ``chosen`` candidates (indices into ``cands``, in the
     order chosen), each with the room the run needs when it gets there (module docstring:
     the room the tolerances and the offsets give, ``offsets_margins_mm``, times the share of
-    its water path's prior std the faces measured before it leave); where no chosen posture
+    its water path's prior std the faces measured before it leave, ``known``: the information
+    of the faces measured before the first posture, ``offsets_first``); where no chosen posture
     has that room yet, the candidate with it that adds most information is visited first (a
     lead-in, added to the plan; at ``max_postures`` it takes the place of the last chosen).
     ``SafetyError`` naming what to do when no candidate has it (its message begins with
@@ -413,7 +465,7 @@ def visit_order(
     spread_cov = np.diag(spread**2)
     prior_var = np.einsum("np,pq,nq->n", rows, spread_cov, rows)
     p = jacs.shape[-1]
-    info = np.eye(p)
+    info = np.eye(p) if known is None else known.copy()
     left = list(chosen)
     out: list[int] = []
     used = np.zeros(len(cands), bool)
@@ -482,18 +534,50 @@ def no_candidates(profile: CellProfile, command: str) -> SafetyError:
     )
 
 
+def offsets_first(profile: CellProfile) -> CalibrationPlan | None:
+    """The offsets level's plan, measured before the full level's postures on a profile whose
+    offsets were never calibrated (module docstring, "Offsets first"), its tank read by the
+    postures that follow (no water path read again); None on a profile ``calibrate`` wrote,
+    and where no calibration pose reaches the block (said: the postures then keep the room
+    the offsets need, ``visit_order``)."""
+    if profile.joint_offsets_std_deg is not None:
+        return None
+    try:
+        plan = plan_calibration(profile)
+    except SafetyError as e:
+        log.warning(
+            "plan --level full: the offsets were never calibrated and no calibration pose "
+            "measures them first (%s); each posture keeps the room they need",
+            e,
+        )
+        return None
+    return replace(plan, path_again=False)
+
+
+def first_postures(first: CalibrationPlan | None) -> list[Posture]:
+    """The targets of ``offsets_first``'s plan as postures (none without it)."""
+    if first is None:
+        return []
+    return [Posture(t.label, t.face, t.joints_deg, t.water_path_mm) for t in first.targets]
+
+
 def plan_full(
     profile: CellProfile, min_gain: float = MIN_GAIN, max_postures: int = MAX_POSTURES
 ) -> FullPlan:
-    """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate)."""
+    """Plan ``calibrate --level full`` (``SafetyError`` if the block leaves no candidate, or
+    no calibration pose where the offsets must be measured first)."""
     cands = candidate_postures(profile)
     if not cands:
         raise no_candidates(profile, "plan --level full")
+    first = offsets_first(profile)
+    lead = first_postures(first)
     prior = prior_from_profile(profile)
-    jacs, names = posture_jacobians(prior, profile, cands)
+    jacs, names = posture_jacobians(prior, profile, cands + lead)
+    jacs, lead_jacs = jacs[: len(cands)], jacs[len(cands) :].reshape(-1, jacs.shape[-1])
+    known = np.eye(jacs.shape[-1]) + lead_jacs.T @ lead_jacs
     idx, _ = select_postures(jacs, min_gain, max_postures)
     spread = unknown_spread(profile, prior, names)
-    order = visit_order(profile, cands, jacs, spread, idx, max_postures)
+    order = visit_order(profile, cands, jacs, spread, idx, max_postures, known=known)
     chosen = [
         Posture(
             f"p{i + 1:02d}",
@@ -519,6 +603,7 @@ def plan_full(
         (float(min(j1)), float(max(j1))),
         structure,
         postures_from_above(prior, profile, chosen),
+        first,
     )
 
 

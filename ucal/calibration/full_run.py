@@ -1,6 +1,10 @@
 """The measuring run of ``calibrate --level full``: the planned postures, one face search each.
 
-Read top to bottom: noise floor and acquisition gain once; then for every planned posture
+Read top to bottom: noise floor and acquisition gain once; on a profile whose offsets were
+never calibrated, the offsets level's faces first (``FullPlan.first``,
+``ucal.calibration.sequence.measure_targets``: the calibration pose, J3, J2 and J1 stepped),
+the running estimate carried on from them (they place the postures; the model is identified
+from the postures' faces, ``FullRun.first`` keeps them apart); then for every planned posture
 (``ucal.calibration.full_plan``, visiting order) the face measured by the running estimate of
 ``ucal.measure.running`` (the posture predicted with the cell as measured so far, checked
 before moving, searched as the one trust policy says, the estimate refitted), every move
@@ -29,13 +33,13 @@ with the step's height (``ucal.calibration.full.step_residuals``).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ucal.calibration.full_plan import FullPlan, Posture
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.sequence import geometry
+from ucal.calibration.model import FACE_NAMES, Face, FaceMeasurement
+from ucal.calibration.sequence import geometry, measure_targets, start_running
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk, transform
@@ -50,12 +54,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FullRun:
-    """What the full level's run measured: the faces, the water paths over the step."""
+    """What the full level's run measured: the postures' faces (what is identified from), the
+    water paths over the step, and the offsets level's faces measured first where the plan
+    has them (``FullPlan.first``: they placed the postures)."""
 
     measurements: list[FaceMeasurement]
     steps: list[FaceMeasurement]
     moves: int
     reads: int
+    first: list[FaceMeasurement] = field(default_factory=list)
 
 
 def direction(plan: FullPlan, label: str) -> int:
@@ -64,13 +71,18 @@ def direction(plan: FullPlan, label: str) -> int:
     return -1 if label in plan.above else 1
 
 
+#: A re-placed posture's joints 1-3 further than this (deg) from the plan's are on another
+#: branch of the inverse kinematics (the offsets and the block move them by a few degrees).
+BRANCH_DEG = 20.0
+
+
 def retarget(profile: CellProfile, running: RunningEstimate, posture: Posture) -> np.ndarray:
     """The readings (6,) that put the tool where ``posture`` puts it relative to the block on
     the profile's cell, on the cell as ``running`` has measured it so far (its offsets,
     block and tool), joint 6 as planned (the turn about the beam is free: near the wrist's
     singularity the estimated tool's orientation would swing joints 4 and 6 by degrees out
     of the room planned for the search; the run aims joints 4 and 5); the planned readings
-    where no solution reaches that pose."""
+    where no solution on the planned branch reaches that pose (``BRANCH_DEG``)."""
     rel = np.linalg.inv(profile.sample_matrix) @ fk(
         profile.model, posture.joints_deg, profile.tool_matrix, profile.joint_offsets_deg
     )
@@ -80,6 +92,12 @@ def retarget(profile: CellProfile, running: RunningEstimate, posture: Posture) -
         q = ik(geom.model, block @ rel, geom.tool_matrix, running.offsets_deg, posture.joints_deg)
     except UcalError as e:
         log.info("%s: kept as planned (%s)", posture.label, e)
+        return posture.joints_deg
+    arm = np.abs(q[:3] - posture.joints_deg[:3])
+    if np.max(arm) > BRANCH_DEG:
+        # its own branch out of range: the nearest in range is another shoulder or elbow,
+        # the arm swung over the base or folded to reach it; the plan's stays
+        log.info("%s: kept as planned (another branch, joints 1-3 %s° away)", posture.label, arm)
         return posture.joints_deg
     q[5] = posture.joints_deg[5]
     return q
@@ -93,17 +111,26 @@ def run_full(
 ) -> FullRun:
     """Measure every planned posture (module docstring), reporting each as it starts and the
     final refit. The caller owns the connection, STOP and the profile."""
-    first = plan.postures[0]
-    # the noise floor off the first posture, J5 turned (the beam in open water)
-    running = RunningEstimate.start(profile, rig, geometry(profile), first.joints_deg, 4)
-    taken: list[int] = []  # plan index of each face measurement
+    lead = 0 if plan.first is None else len(plan.first.targets)
+    total = lead + len(plan.postures)
+    if plan.first is None:
+        home = plan.postures[0].joints_deg
+        # the noise floor off the first posture, J5 turned (the beam in open water)
+        running = RunningEstimate.start(profile, rig, geometry(profile), home, 4)
+    else:  # the offsets measured first (module docstring), as the offsets level does
+        home = plan.first.targets[0].joints_deg
+        running = start_running(profile, plan.first, rig)
+        measure_targets(running, plan.first, progress, total)
+    # plan index of each face measurement after the offsets level's (theirs: -1)
+    taken: list[int] = [-1] * len(running.measurements)
     steps: list[FaceMeasurement] = []
     top = 0.0 if profile.step is None else profile.step.height_mm
-    total = len(plan.postures)
     for i, posture in enumerate(plan.postures):
         if progress:
             progress(
-                MeasureStep(f"posture {posture.label}", i, total, posture.label, posture.face_name)
+                MeasureStep(
+                    f"posture {posture.label}", lead + i, total, posture.label, posture.face_name
+                )
             )
         label = f"face {posture.face_name} ({posture.label})"
         above = top if posture.step else 0.0
@@ -123,27 +150,28 @@ def run_full(
     # Faces whose peak came out uncertain (found from a poor early prediction, where side
     # lobes and a neighbouring face's echo crowd the search) are measured again, now that the
     # prediction is good to hundredths of a degree.
+    # (an offsets level's face is measured again where its peak was found)
     for i, m in enumerate(list(running.measurements)):
         if m.tilt_std_deg <= UNCERTAIN_TILT_DEG:
             continue
-        posture = plan.postures[taken[i]]
-        label = f"face {posture.face_name} ({posture.label}, again)"
+        if taken[i] < 0:
+            face, name, config, sign = Face(m.face), FACE_NAMES[m.face], m.config, 1
+            q = np.array(m.joints_deg, float)
+        else:
+            posture = plan.postures[taken[i]]
+            face, name, config = posture.face, posture.face_name, posture.label
+            q, sign = retarget(profile, running, posture), direction(plan, posture.label)
+        label = f"face {name} ({config}, again)"
         log.info(
             "%s: tilt σ %.3f° above %g°, measuring again", label, m.tilt_std_deg, UNCERTAIN_TILT_DEG
         )
-        q, face = retarget(profile, running, posture), posture.face
         again = running.measure(
-            face,
-            q,
-            label,
-            posture.label,
-            mode=SearchMode.QUICK,
-            keep=False,
-            direction=direction(plan, posture.label),
+            face, q, label, config, mode=SearchMode.QUICK, keep=False, direction=sign
         )
         running.replace(i, again.measurement)
-    running.rig.move(first.joints_deg)
+    running.rig.move(home)
     meas = running.refit_peaks()
     if progress:
         progress(MeasureStep("solving", total, total))
-    return FullRun(meas, steps, rig.counters.moves, rig.counters.reads)
+    n = taken.count(-1)  # the offsets level's faces come first
+    return FullRun(meas[n:], steps, rig.counters.moves, rig.counters.reads, meas[:n])

@@ -36,6 +36,8 @@ from ucal.calibration.residuals import (
 
 #: A joint whose std exceeds this and comes mainly from a prior is reported unobservable.
 MAX_STD_DEG = 0.02
+#: Evaluations of the residuals a fit may spend (the offsets level's converges in tens).
+MAX_EVALUATIONS = 200
 
 
 def hold_unseen(table: ParameterTable, meas: Sequence[Reading]) -> None:
@@ -128,6 +130,7 @@ def solve_cell(
     tol: float = 1e-12,
     table: ParameterTable | None = None,
     extra: ExtraRows | None = None,
+    max_evaluations: int = MAX_EVALUATIONS,
 ) -> CellFit:
     """Fit offsets, block, tool, sound speed and DH table to ``meas`` with the priors (module
     docstring).
@@ -136,7 +139,9 @@ def solve_cell(
     postures during a run); ``start`` is a full parameter vector to start from (a previous
     estimate), ``tol`` the solver's tolerances; ``table`` the unknowns if not ``PARAMETERS``
     with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist);
-    ``extra`` the rows of other measurements (``ucal.calibration.full``'s edge crossings).
+    ``extra`` the rows of other measurements (``ucal.calibration.full``'s edge crossings);
+    ``max_evaluations`` of the residuals at most (the trust region stops there, converged or
+    not).
     The sound speed's drift and each joint's lost motion are held where no reading sees them
     (``hold_unseen``).
     """
@@ -168,7 +173,7 @@ def solve_cell(
         # Start the corner where eq. (2) puts it with the prior offsets (a hand-placed block
         # can be centimetres off; the least-squares start should not depend on that).
         x0 = _initial_corner(table, prior, meas, table.values[table.free].copy())
-    sol = _least_squares_with_priors(fun, x0, table, tol, 200)
+    sol = _least_squares_with_priors(fun, x0, table, tol, max_evaluations)
     jac = sol.jac
     res = sol.fun
     estimate = table.expand(sol.x)

@@ -32,7 +32,7 @@ from ucal.calibration.fit import (
     prior_from_profile,
 )
 from ucal.calibration.full import solve_full
-from ucal.calibration.full_plan import FullPlan, plan_full
+from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
 from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.gauge import (
     J1Gauge,
@@ -454,6 +454,8 @@ def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
         ),
         "  posture face     J1       J2       J3       J4       J5       J6    water path",
     ]
+    if plan.first is not None:  # the offsets level's faces, never calibrated: measured first
+        lines += [plan_line(f"{t.label:>11}", t) for t in plan.first.targets]
     lines += [plan_line(f"{p.label:>7} {p.face_name:<3}", p) for p in plan.postures]
     if plan.above:
         lines.append(from_above(plan.above))
@@ -461,12 +463,10 @@ def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
 
 
 def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
-    """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does."""
-    return estimate_run(
-        [p.joints_deg for p in plan.postures],
-        plan.postures[0].joints_deg,
-        profile.procedure.speed,
-    )
+    """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does
+    (the offsets level's faces first where the plan has them)."""
+    targets = [p.joints_deg for p in first_postures(plan.first) + list(plan.postures)]
+    return estimate_run(targets, targets[0], profile.procedure.speed)
 
 
 class FullCalibration(CalibrationJob):
@@ -503,7 +503,7 @@ class FullCalibration(CalibrationJob):
                 "level": "full",
                 "max_postures": self.max_postures,
             },
-            "plan": plan_rows(plan.postures),
+            "plan": plan_rows(first_postures(plan.first) + list(plan.postures)),
         }
 
     def measure(self, plan: FullPlan, session: CellSession, report: Report) -> FullRun:

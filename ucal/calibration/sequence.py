@@ -204,19 +204,18 @@ def _stepped_clearance(
     return min(paths)
 
 
-def run_calibration(
-    profile: CellProfile,
+def measure_targets(
+    running: RunningEstimate,
     plan: CalibrationPlan,
-    rig: Rig,
     progress: Report | None = None,
-) -> CalibrationRun:
-    """Measure the planned faces (``solve`` turns them into offsets) with the running estimate
-    of ``ucal.measure.running``, reporting each face as it starts and the final refit. The
-    caller owns the connection, STOP and the profile."""
-    first = plan.targets[0]
-    geom = geometry(profile)
-    running = RunningEstimate.start(profile, rig, geom, first.joints_deg, first.search_joints[1])
-    total = len(plan.targets)
+    total: int | None = None,
+) -> dict[int, np.ndarray]:
+    """Measure ``plan``'s targets with ``running``, configuration by configuration, each
+    stepped as far as the offsets measured so far keep the tool clear (``choose_step``; a
+    second azimuth that cannot be stepped is skipped), reporting each face as it starts (of
+    ``total``, the plan's targets unless given). Returns each face's last peak posture (the
+    start of its wrist for a later search of it)."""
+    total = len(plan.targets) if total is None else total
     last_wrist: dict[int, np.ndarray] = {}
     steps: dict[Configuration, float] = {}
     skipped: set[Configuration] = set()
@@ -232,7 +231,7 @@ def run_calibration(
         if target.config not in steps:
             try:
                 steps[target.config] = choose_step(
-                    profile,
+                    running.profile,
                     running.geometry,
                     plan,
                     target.config,
@@ -254,6 +253,31 @@ def run_calibration(
         label = f"face {FACE_NAMES[target.face]} ({target.label})"
         found = running.measure(target.face, start, label, target.config)
         last_wrist[target.face] = found.measurement.joints_deg
+    return last_wrist
+
+
+def start_running(profile: CellProfile, plan: CalibrationPlan, rig: Rig) -> RunningEstimate:
+    """The running estimate of a run that begins with ``plan``'s first target (the noise
+    floor read there, its second search joint turned)."""
+    first = plan.targets[0]
+    return RunningEstimate.start(
+        profile, rig, geometry(profile), first.joints_deg, first.search_joints[1]
+    )
+
+
+def run_calibration(
+    profile: CellProfile,
+    plan: CalibrationPlan,
+    rig: Rig,
+    progress: Report | None = None,
+) -> CalibrationRun:
+    """Measure the planned faces (``solve`` turns them into offsets) with the running estimate
+    of ``ucal.measure.running``, reporting each face as it starts and the final refit. The
+    caller owns the connection, STOP and the profile."""
+    first = plan.targets[0]
+    running = start_running(profile, plan, rig)
+    total = len(plan.targets)
+    last_wrist = measure_targets(running, plan, progress)
     meas = running.refit_peaks()
     meas += measure_above(running, plan, last_wrist)
     if plan.path_again and running.measurements:

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.full_plan import order_postures, plan_full
+from ucal.calibration.full_plan import Posture, order_postures, plan_full
 from ucal.calibration.full_run import retarget
-from ucal.calibration.model import CellGeometry, Configuration, beam_and_tcp
+from ucal.calibration.model import CellGeometry, Configuration, Face, beam_and_tcp
 from ucal.calibration.plan import calibration_pose, geometry, plan_calibration
 from ucal.calibration.safety import (
     EDGE_MARGIN_MM,
@@ -34,6 +34,7 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk, fk_frames
+from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.region import plan_region
@@ -151,21 +152,45 @@ def test_the_offsets_margin_is_three_sigma_of_each_joints_lever_arm() -> None:
     assert np.all(offsets_margins_mm(calibrated, q[None]) < 0.2)
 
 
-def test_a_fresh_tx90xl_full_plan_starts_where_offsets_of_3_degrees_keep_the_tool_clear() -> None:
-    """The first posture is reached on the profile's offsets, before anything is measured:
-    with the true offsets three sigma off (a fresh cell's 1°) together on J1-J3, each sign,
-    the tool centre still stands 20 mm from the face, and the beam meets the face inside its
-    edges; the posture over the step comes once the faces before it leave it room."""
+def test_a_fresh_full_plan_measures_the_offsets_first_then_postures_with_room_for_them() -> None:
+    """A profile whose offsets were never calibrated: the run first measures the offsets
+    level's faces (its plan's targets; the tank read by the postures after them), its first
+    face reached before anything is measured with the tool 20 mm from the face and the beam
+    on it under true offsets of 3° on J1-J3 (a fresh cell's 3σ), so that every posture after
+    them is placed with measured offsets; the postures keep that 3σ on J1-J3 inside their
+    ranges (the re-placed arm stays on its branch); a calibrated profile goes straight to its
+    postures."""
     profile = at_two_sigma(template("tx90xl")).replace(step=README_STEP)
     plan = plan_full(profile)
-    first = plan.postures[0]
+    assert plan.first is not None and not plan.first.path_again
+    offsets = plan_calibration(profile)
+    assert [t.label for t in plan.first.targets] == [t.label for t in offsets.targets]
+    first = plan.first.targets[0]
+    path, edge = offsets_box_hits(profile, first.joints_deg, first.face)
+    assert path >= MIN_WATER_PATH_MM and edge >= EDGE_MARGIN_MM
+    arm = np.array([p.joints_deg[:3] for p in plan.postures])
+    assert np.all(arm >= profile.model.joint_min_deg[:3] + 3.0)
+    assert np.all(arm <= profile.model.joint_max_deg[:3] - 3.0)
+    assert any(p.step for p in plan.postures) and not plan.postures[0].step
+    assert plan_full(profile.replace(joint_offsets_std_deg=np.full(6, 0.003))).first is None
+
+
+def test_a_posture_whose_branch_the_measured_offsets_leave_is_kept_as_planned() -> None:
+    """J3 0.9° from its limit and measured offsets that need 1.3° more: the nearest solution
+    in range is the other shoulder (J1 163° away, the arm swung over the base); the run keeps
+    the plan's readings instead."""
+    profile = template("tx90l")
+    planned = np.array([15.31, -2.65, 144.13, -173.89, -58.01, 11.18])
+    offsets = np.array([-1.6, -1.8, -1.34, 0.77, -0.6, 1.2])
     geom = geometry(profile)
-    corner = profile.sample_matrix[:3, 3]
-    for signs in itertools.product((-1.0, 1.0), repeat=3):
-        true = np.array([*signs, 0.0, 0.0, 0.0]) * 3.0 / np.sqrt(3.0)
-        path, edge = face_hit(geom, first.joints_deg, true, corner, first.face, 500.0)
-        assert path >= MIN_WATER_PATH_MM and edge >= EDGE_MARGIN_MM, signs
-    assert any(p.step for p in plan.postures) and not first.step
+    running = SimpleNamespace(
+        offsets_deg=offsets, corner_mm=profile.sample_position_mm, geometry=geom
+    )
+    q = retarget(profile, running, Posture("p20", Face.XY, planned, 140.0))
+    np.testing.assert_array_equal(q, planned)
+    target = fk(profile.model, planned, geom.tool_matrix, profile.joint_offsets_deg)
+    nearest = ik(geom.model, target, geom.tool_matrix, offsets, planned)
+    assert abs(nearest[0] - planned[0]) > 150.0  # what the arm would have been sent to
 
 
 def test_a_calibrated_profile_keeps_its_plan_in_travel_order() -> None:
