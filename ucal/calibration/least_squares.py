@@ -7,7 +7,7 @@ the arm's lost motion (``RunEffects``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -205,6 +205,8 @@ def solve_cell(
         () if extra is None else extra.labels,
         gains,
     )
+    if sol.status == 0 and quality.verdict == "misfit":  # stopped at max_evaluations
+        quality = replace(quality, cause=unconverged_cause(max_evaluations, quality.cause))
     return CellFit(
         table,
         estimate,
@@ -498,6 +500,17 @@ class AugmentedFit:
         for r, name in enumerate(self.prior_rows):
             out[name] = float(contrib[self.n_data + r]) / total
         return out
+
+
+def unconverged_cause(evaluations: int, cause: str) -> str:
+    """A misfit's cause when the fit stopped at its limit of ``evaluations`` before it
+    converged: its residuals are then the fit's as much as the cell's, and what they would
+    name (``cause``) is said as such."""
+    return (
+        f"the fit stopped at its limit of {evaluations} evaluations before it converged (a "
+        "start far from the cell: a fresh profile's offsets, a block far from where it is "
+        f"declared), so the misfit may be the fit's, not the cell's; its residuals say: {cause}"
+    )
 
 
 def solve_augmented(

@@ -188,6 +188,17 @@ def test_a_tank_whose_rate_turns_fast_is_a_misfit_that_names_it() -> None:
     assert "bend with their time" in sol.fit.cause
 
 
+def test_a_fit_stopped_before_it_converged_says_so() -> None:
+    """A misfit whose fit ran out of evaluations is not blamed on the cell alone: the message
+    says the fit stopped first, then what the residuals would name."""
+    meas = measure(drift_c_per_min=0.1, curvature_c_per_min2=0.1, seed=2)
+    stopped = solve_cell(prior(), meas, max_evaluations=3)
+    assert stopped.quality.verdict == "misfit"
+    assert stopped.quality.cause.startswith("the fit stopped at its limit of 3 evaluations")
+    converged = solve_cell(prior(), meas)
+    assert not converged.quality.cause.startswith("the fit stopped")
+
+
 def test_the_curvature_moves_the_sound_speed_by_a_parabolas_best_line() -> None:
     """Three readings at −1, 0 and 1 min whose water paths see only the sound speed: a bend
     ½·c̈·t² of the speed is [0.5, 0, 0.5]·c̈, whose best line is 1/3·c̈ flat, so the speed's
