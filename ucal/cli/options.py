@@ -196,8 +196,9 @@ thermometer_option = click.option(
     show_envvar=True,
     help="The tank thermometer's log (CSV: time,temperature_c with ISO 8601 times; on a "
     "simulated cell time_min,temperature_c in minutes of its clock), read when the run is "
-    "solved: every water path is moved to the middle of the run by the change it logged, and "
-    "the drift left to fit is what [water] thermometer_std_c allows.",
+    "solved: its slope over the run is the drift's prior, and where the tank turned during the "
+    "run beyond the log's noise, the turn is taken out of every water path ([water] "
+    "thermometer_std_c: how well it follows the water).",
 )
 
 
