@@ -58,10 +58,12 @@ PRIOR_MEANING = {
     "tool_ry_deg": "the tool orientation tolerance",
     "tool_rz_deg": "the tool orientation tolerance",
     "sound_speed_m_s": "the water temperature tolerance",
-    "sound_speed_drift_m_s_per_min": "the tank's drift tolerance ([water] drift_std_c_per_min)",
+    "sound_speed_drift_m_s_per_min": "the tank's drift tolerance ([water] drift_std_c_per_min; "
+    "about a thermometer log's drift where one was given)",
     **{n: "the lost motion tolerance ([robot] backlash_std_deg)" for n in BACKLASH},
     **{
-        n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg)"
+        n: "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg; "
+        "[calibration] dh_std where the full level identified it)"
         for n in DH + BETA
     },
     "plate_h_mm": "the plate height tolerance ([reflector] points_std_mm)",

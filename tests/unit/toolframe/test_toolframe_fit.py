@@ -378,9 +378,10 @@ def test_a_std_the_dh_tolerance_carries_is_refused_naming_the_arms_links(calibra
     }
     text = _cause(shares, calibrated)
     # one tolerance, its parameters' shares summed; the noise named too
-    assert "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg) 66 %" in (
-        text
-    )
+    assert (
+        "the kinematic model's tolerance ([robot] dh_length_std_mm, dh_angle_std_deg; "
+        "[calibration] dh_std where the full level identified it) 66 %"
+    ) in text
     assert text.count("kinematic model") == 1 and "measurement noise 31 %" in text
     assert "link lengths and twists within the DH table's tolerance" in text
     assert ("run ucal calibrate first" in text) is not calibrated
