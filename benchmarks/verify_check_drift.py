@@ -31,9 +31,21 @@ Printed per state:
   truth's agrees, and how many it calls marginal), and the region check's verdicts with its
   χ²ᵣ.
 
+``--level full``: the same on ``drift.py``'s full-level cells (``full_calibration.py --step``'s
+worlds: the DH table within twice its declared 0.3 mm / 0.03°, offsets ±1°, a hand-placed
+block, the water within ±2 °C, a step of 50 ± 0.002 mm; lost motion up to 0.01° per joint in
+the world, 0.02° drawn here), commissioned with ``calibrate --level full``: what verify promises
+with the DH table identified, and whether the truth lies within it.
+
+Printed with verify's figures: how many of its runs read the tank again and what they saw
+(``tank`` in its ``--json``), and the sound speed it read at its start against the simulator's
+(its largest |z|; the simulated tank starts each command at its world's temperature, so
+verify's run begins where calibrate's began, the tank having drifted over calibrate's run).
+
 Usage: ``python benchmarks/verify_check_drift.py --worlds 12 [--jobs 1] [--points 3]
-[--region 4] [--state drifting|still|both]``; ``--quick``: one world, drifting only, verify on
-one point and the region on three postures, the same code path in half a minute.
+[--region 4] [--state drifting|still|both] [--level offsets|full]``; ``--quick``: one world,
+drifting only, verify on one point and the region on three postures, the same code path in
+half a minute.
 """
 
 from __future__ import annotations
@@ -49,6 +61,7 @@ from pathlib import Path
 
 import commissioning
 import drift
+import full_calibration
 import numpy as np
 import realistic
 
@@ -84,13 +97,19 @@ class Figures:
     #: verify on the good and the moved cell: (passed, truly within, after error max mm,
     #: marginal, what it promises its figure to: ``measured_within_mm``)
     verify: list[tuple[bool, bool, float, bool, float]] = field(default_factory=list)
+    #: verify's tank read again: what it saw ("sound speed", "moved") and the |z| of its
+    #: sound speed at the start against the simulator's (None: not read again)
+    tanks: list[tuple[str, float] | None] = field(default_factory=list)
     region: tuple[bool, float] | None = None  # (passed, χ²ᵣ)
     errors: list[str] = field(default_factory=list)
 
 
-def draw_cells(rng: np.random.Generator, profile, index: int) -> dict[str, str]:
-    """World-file text of one cell in each state (module docstring)."""
-    text = realistic.draw_world(rng, profile, index)
+def draw_cells(rng: np.random.Generator, profile, index: int, level: str) -> dict[str, str]:
+    """World-file text of one cell of ``level`` in each state (module docstring)."""
+    if level == "full":
+        text = full_calibration.draw_world(rng, profile, index)
+    else:
+        text = realistic.draw_world(rng, profile, index)
     rate = rng.uniform(-DRIFT_C_PER_MIN, DRIFT_C_PER_MIN)
     backlash = rng.uniform(0.0, BACKLASH_DEG, 6).tolist()
     return {
@@ -138,7 +157,9 @@ def check_z(figures: Figures, out: dict, truth: dict[str, float]) -> None:
         figures.z_names.append(f"{'ref ' if q['verdict'] == 'recorded' else ''}{name}")
 
 
-def run_cell(template: Path, directory: Path, name: str, text: str, points: int, region: int):
+def run_cell(
+    template: Path, directory: Path, name: str, text: str, points: int, region: int, level: str
+):
     """Commission and check one cell (module docstring, steps 1-3) in ``directory``."""
     directory.mkdir()
     profile_path = directory / "cell.toml"
@@ -147,14 +168,14 @@ def run_cell(template: Path, directory: Path, name: str, text: str, points: int,
     world_path.write_text(text)
     moved_path.write_text(moved(text))
     fig = Figures(name)
-    done = commissioning.run("calibrate", profile_path, world_path)
+    done = commissioning.run("calibrate", profile_path, world_path, "--level", level)
     fig.calibrated = bool(done.get("written"))
     if not fig.calibrated:
         fig.errors.append(f"calibrate not written: {done.get('error', '')[:200]}")
         return fig
     profile = load_profile(profile_path)
     world = load_world(world_path, profile)
-    fig.verify.append(verify_figures(profile_path, world_path, points, fig))
+    fig.verify.append(verify_figures(profile_path, world_path, points, fig, world))
     out = commissioning.run("verify", profile_path, world_path, "--region", str(region))
     if "region" in out:
         fig.region = (bool(out["passed"]), float(out["region"]["chi2_reduced"]))
@@ -182,21 +203,32 @@ def run_cell(template: Path, directory: Path, name: str, text: str, points: int,
             if path == moved_path:
                 truth[f"J{MOVED_JOINT}"] = MOVED_DEG
         check_z(fig, out, truth)
-    fig.verify.append(verify_figures(profile_path, moved_path, points, fig))
+    fig.verify.append(verify_figures(profile_path, moved_path, points, fig, world))
     return fig
 
 
 def verify_figures(
-    profile_path: Path, world_path: Path, points: int, fig: Figures
+    profile_path: Path, world_path: Path, points: int, fig: Figures, world
 ) -> tuple[bool, bool, float, bool, float]:
     """``verify --points``'s verdict, the truth's (every true "after" deviation within the
     tolerance), how far its "after" points are from the true reached ones (mm), whether it
-    called the verdict marginal and what it promises its figure to (mm)."""
+    called the verdict marginal and what it promises its figure to (mm); the tank it read
+    again into ``fig.tanks``."""
     out = commissioning.run("verify", profile_path, world_path, "--points", str(points))
     truth = out.get("truth")
     if truth is None:
         fig.errors.append(f"verify: {out.get('error', '')[:200]}")
         return False, False, float("nan"), False, float("nan")
+    tank = out.get("tank")
+    if tank is None:
+        fig.tanks.append(None)
+    else:
+        start = tank["start"]
+        true_c = sound_speed_m_s(
+            world.water_temperature_c + world.water_drift_c_per_min * start["time_min"]
+        )
+        z = abs(start["sound_speed_m_s"] - true_c) / tank["sound_speed_std_m_s"]
+        fig.tanks.append((tank["seen"], float(z)))
     within = bool(np.max(truth["after_mm"]["max"]) <= out["tolerance_mm"])
     return (
         bool(out["passed"]),
@@ -244,6 +276,13 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
     errs = [v[2] for v in good + bad if np.isfinite(v[2])]
     kept = sum(v[2] <= v[4] for v in good + bad if np.isfinite(v[2]))
     regions = [f.region for f in done if f.region is not None]
+    tanks = [t for f in done for t in f.tanks]
+    read = [t for t in tanks if t is not None]
+    tank = (
+        f"{len(read)} of {len(tanks)} ({sum(t[0] == 'sound speed' for t in read)} the water, "
+        f"{sum(t[0] == 'moved' for t in read)} moved; |z| max "
+        f"{max((t[1] for t in read), default=float('nan')):.1f})"
+    )
     rows = [
         f"| {state} | {len(done)} / {len(figs)} | {cover} | "
         f"{sum(1 for f in done for c in f.checks[:2] if c[0] != 0)} of {2 * len(done)} | "
@@ -253,7 +292,7 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
         f"±{min((v[4] for v in good + bad), default=float('nan')):.2f}–"
         f"{max((v[4] for v in good + bad), default=float('nan')):.2f}) | "
         f"{sum(p for p, _ in regions)} / {len(regions)} (χ²ᵣ median "
-        f"{np.median([c for _, c in regions]) if regions else float('nan'):.3g}) |"
+        f"{np.median([c for _, c in regions]) if regions else float('nan'):.3g}) | {tank} |"
     ]
     rows += [f"  false alarm: {a}" for a in alarms]
     rows += [f"  miss: {m}" for m in misses]
@@ -270,6 +309,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--region", type=int, default=4, help="verify --region's postures")
     ap.add_argument("--state", choices=(*STATES, "both"), default="both")
     ap.add_argument(
+        "--level",
+        choices=("offsets", "full"),
+        default="offsets",
+        help="the calibration's level, and its benchmark's cells (module docstring)",
+    )
+    ap.add_argument(
         "--quick",
         action="store_true",
         help="--worlds 1 --jobs 1 --state drifting --points 1 --region 3: the same code path "
@@ -280,10 +325,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.set_defaults(**QUICK)
         args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="ucal-vcdrift-"))
-    template = drift.make_profile(work, "offsets", drift.DECLARED_DRIFT["offsets"])
+    template = drift.make_profile(work, args.level, drift.DECLARED_DRIFT[args.level])
     profile = load_profile(template)
     rng = np.random.default_rng(args.seed)
-    cells = [draw_cells(rng, profile, i) for i in range(args.worlds)]
+    cells = [draw_cells(rng, profile, i, args.level) for i in range(args.worlds)]
     states = STATES if args.state == "both" else (args.state,)
     jobs = [(s, i) for i in range(args.worlds) for s in states]
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
@@ -296,15 +341,16 @@ def main(argv: list[str] | None = None) -> int:
                 [cells[i][s] for s, i in jobs],
                 [args.points] * len(jobs),
                 [args.region] * len(jobs),
+                [args.level] * len(jobs),
             )
         )
     print(
         "| state | calibrated | check: coverage (|err| ≤ 3σ) | check: false alarms | "
         f"check: misses (J{MOVED_JOINT} +{MOVED_DEG:g}°) | verify good: passed (truth agrees) "
         "| verify moved: passed (truth agrees) | verify: after − true, max mm (within its ±) "
-        "| region: passed |"
+        "| region: passed | verify: tank read again (|z| of its sound speed) |"
     )
-    print("| --- " * 9 + "|")
+    print("| --- " * 10 + "|")
     for state in states:
         for row in summary(state, [f for (s, _), f in zip(jobs, figs, strict=True) if s == state]):
             print(row)
