@@ -69,6 +69,7 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import BLOCK, OFFSETS, TOOL
 from ucal.check.history import read_checks
 from ucal.profile import load_profile
+from ucal.verify.result import MEASURED_WITHIN_MM
 from ucal.world import load_world
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
@@ -97,9 +98,14 @@ class Figures:
     #: verify on the good and the moved cell: (passed, truly within, after error max mm,
     #: marginal, what it promises its figure to: ``measured_within_mm``)
     verify: list[tuple[bool, bool, float, bool, float]] = field(default_factory=list)
-    #: verify's tank read again: what it saw ("sound speed", "moved") and the |z| of its
-    #: sound speed at the start against the simulator's (None: not read again)
-    tanks: list[tuple[str, float] | None] = field(default_factory=list)
+    #: verify's tank read again: what it saw ("sound speed", "moved"), the |z| of its sound
+    #: speed at the start and of its change since calibrate's readings against the simulator's
+    #: (None: not read again)
+    tanks: list[tuple[str, float, float] | None] = field(default_factory=list)
+    #: verify's water share of its promise (two sigma of a wall's path, mm) and its "after"
+    #: figure's largest error along the down points' beam (Z, mm: the XY face's water path,
+    #: free of the DH table)
+    water: list[tuple[float, float]] = field(default_factory=list)
     region: tuple[bool, float] | None = None  # (passed, χ²ᵣ)
     errors: list[str] = field(default_factory=list)
 
@@ -219,6 +225,10 @@ def verify_figures(
     if truth is None:
         fig.errors.append(f"verify: {out.get('error', '')[:200]}")
         return False, False, float("nan"), False, float("nan")
+    table = (out.get("unidentified_tcp_mm") or {}).get("max", 0.0)
+    half = (out["measured_within_mm"] - MEASURED_WITHIN_MM) / 2.0
+    share = 2.0 * float(np.sqrt(max(half**2 - table**2, 0.0)))
+    fig.water.append((share, float(truth["after_error_max_mm"][2])))
     tank = out.get("tank")
     if tank is None:
         fig.tanks.append(None)
@@ -228,7 +238,14 @@ def verify_figures(
             world.water_temperature_c + world.water_drift_c_per_min * start["time_min"]
         )
         z = abs(start["sound_speed_m_s"] - true_c) / tank["sound_speed_std_m_s"]
-        fig.tanks.append((tank["seen"], float(z)))
+        # the change since calibrate's readings, against the tank's (calibrate's run started
+        # at the world's temperature too)
+        then_c = sound_speed_m_s(
+            world.water_temperature_c + world.water_drift_c_per_min * tank["calibrate_time_min"]
+        )
+        change = start["sound_speed_m_s"] - tank["calibrate_sound_speed_m_s"]
+        z_change = abs(change - (true_c - then_c)) / tank["change_std_m_s"]
+        fig.tanks.append((tank["seen"], float(z), float(z_change)))
     within = bool(np.max(truth["after_mm"]["max"]) <= out["tolerance_mm"])
     return (
         bool(out["passed"]),
@@ -278,10 +295,16 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
     regions = [f.region for f in done if f.region is not None]
     tanks = [t for f in done for t in f.tanks]
     read = [t for t in tanks if t is not None]
+    water_seen = [t for t in read if t[0] == "sound speed"]
+    water = [w for f in done for w in f.water]
     tank = (
-        f"{len(read)} of {len(tanks)} ({sum(t[0] == 'sound speed' for t in read)} the water, "
+        f"{len(read)} of {len(tanks)} ({len(water_seen)} the water, "
         f"{sum(t[0] == 'moved' for t in read)} moved; |z| max "
-        f"{max((t[1] for t in read), default=float('nan')):.1f})"
+        f"{max((t[1] for t in water_seen), default=float('nan')):.1f}, of the change "
+        f"{max((t[2] for t in water_seen), default=float('nan')):.1f}); water share "
+        f"±{min((w[0] for w in water), default=float('nan')):.3f}–"
+        f"{max((w[0] for w in water), default=float('nan')):.3f} mm, Z error max "
+        f"{max((w[1] for w in water), default=float('nan')):.4f} mm"
     )
     rows = [
         f"| {state} | {len(done)} / {len(figs)} | {cover} | "
@@ -348,7 +371,8 @@ def main(argv: list[str] | None = None) -> int:
         "| state | calibrated | check: coverage (|err| ≤ 3σ) | check: false alarms | "
         f"check: misses (J{MOVED_JOINT} +{MOVED_DEG:g}°) | verify good: passed (truth agrees) "
         "| verify moved: passed (truth agrees) | verify: after − true, max mm (within its ±) "
-        "| region: passed | verify: tank read again (|z| of its sound speed) |"
+        "| region: passed | verify: tank read again (|z| of its sound speed, of its change "
+        "since calibrate); water share, Z error |"
     )
     print("| --- " * 10 + "|")
     for state in states:

@@ -83,6 +83,9 @@ def test_a_sound_speed_change_and_its_drift_are_recovered() -> None:
     assert tank.drift_m_s_per_min == pytest.approx(0.1, abs=1e-7)
     assert tank.speed_at(5.0) == pytest.approx(start_c + 0.45, abs=1e-6)
     assert tank.extra_moves == 6
+    # relative to calibrate's speed at its readings' mean time
+    assert tank.then_time_min == pytest.approx(np.mean(TIMES_MIN))
+    assert tank.then_m_s == pytest.approx(C_CAL + DRIFT_CAL * (np.mean(TIMES_MIN) - T_REF))
     # one sigma: the readings' noise and the arm's repeatability over the three paths
     sigma = np.sqrt(0.001**2 + REPEAT_STD_MM**2)
     assert tank.start.std_m_s == pytest.approx(start_c * sigma / np.linalg.norm(PATHS_MM), 1e-2)
@@ -131,8 +134,11 @@ def test_a_run_with_the_tank_read_again_promises_its_sound_speed() -> None:
         tank=tank,
     )
     assert solved.tank_used is tank
-    assert solved.water_std_mm == pytest.approx(max(WALL_PATH_MM) * tank.std_m_s / tank.m_s)
+    # what the water did since calibrate: its own std of the speed is in MEASURED_WITHIN_MM
+    assert solved.water_std_mm == pytest.approx(max(WALL_PATH_MM) * tank.change_std_m_s / C_CAL)
     assert solved.water_std_mm < 0.02
+    # as a sound speed, the calibration's std of its own (0.3 m/s) is in the speed's
+    assert tank.std_m_s == pytest.approx(np.hypot(tank.change_std_m_s, 0.3), rel=1e-6)
     (note,) = water_note(solved)
     assert "read again" in note and f"{tank.m_s:.2f}" in note
 

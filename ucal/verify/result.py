@@ -351,9 +351,10 @@ def tank_note(solved: VerifySolved) -> list[str]:
     )
     return [
         f"the tank's sound speed, from {read}: {tank.m_s:.2f} ± {tank.std_m_s:.2f} m/s at the "
-        f"start (calibrate's {solved.sound.m_s:.2f}){within}; each water path is read with the "
-        f"speed of its time, which leaves a wall's {max(WALL_PATH_MM):g} mm known to "
-        f"±{solved.water_std_mm:.3f} mm"
+        f"start (calibrate's {solved.sound.m_s:.2f}, changed by "
+        f"{tank.m_s - solved.sound.m_s:+.2f} ± {tank.change_std_m_s:.2f}){within}; each water "
+        f"path is read with the speed of its time, which leaves a wall's "
+        f"{max(WALL_PATH_MM):g} mm known to ±{solved.water_std_mm:.3f} mm since calibrate"
     ]
 
 

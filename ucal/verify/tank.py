@@ -116,11 +116,14 @@ class TankEstimate:
     steady may leave between them.
 
     ``common_std_m_s``: what the calibration's fitted drift leaves uncertain of its speed at
-    the readings' times, carried to the speed now (both sets alike; the std of the fit's
-    speed at its reference time is part of ``MEASURED_WITHIN_MM``, as for a verify run
-    right after the calibration); ``curvature_std_m_s``: the drift turning by the profile's
-    drift tolerance over the run (``ucal.calibration.least_squares.curvature_std_m_s_per_min2``:
-    at most an eighth of the declared drift over the run from the line between the ends).
+    the readings' times, carried to the speed now (both sets alike);
+    ``calibration_std_m_s``: the calibration's std of its speed itself, carried to the speed
+    now: in the speed's own std (``std_m_s``), not in what the water did since
+    (``change_std_m_s``, verify's promise: a run right after the calibration has that std in
+    ``MEASURED_WITHIN_MM``, set on such runs); ``curvature_std_m_s``: the drift turning by
+    the profile's drift tolerance over the run
+    (``ucal.calibration.least_squares.curvature_std_m_s_per_min2``: at most an eighth of the
+    declared drift over the run from the line between the ends).
     """
 
     source: str
@@ -129,6 +132,11 @@ class TankEstimate:
     end: TankSet | None
     common_std_m_s: float
     curvature_std_m_s: float = 0.0
+    calibration_std_m_s: float = 0.0
+    #: the calibration's speed at its readings' mean time (m/s), and that time (min, its run's
+    #: clock): the speed the paths' ratio is relative to
+    then_m_s: float = float("nan")
+    then_time_min: float | None = None
 
     @property
     def sets(self) -> tuple[TankSet, ...]:
@@ -176,11 +184,18 @@ class TankEstimate:
         return self.start.m_s + self.drift_m_s_per_min * (time_min - self.start.time_min)
 
     @property
-    def std_m_s(self) -> float:
-        """One sigma of ``speed_at`` over the run: the sets' noise (the larger), the
-        calibration's and the drift's curvature."""
+    def change_std_m_s(self) -> float:
+        """One sigma of ``speed_at`` over the run about the calibration's speed carried by the
+        paths' ratio: the sets' noise (the larger), the calibration's drift and the drift's
+        curvature. What verify's promise adds for the water (``path_std_mm``)."""
         noise = max(s.std_m_s for s in self.sets)
         return float(np.sqrt(noise**2 + self.common_std_m_s**2 + self.curvature_std_m_s**2))
+
+    @property
+    def std_m_s(self) -> float:
+        """One sigma of ``speed_at`` as a sound speed: ``change_std_m_s`` and the
+        calibration's std of its own speed."""
+        return float(np.hypot(self.change_std_m_s, self.calibration_std_m_s))
 
     @property
     def m_s(self) -> float:
@@ -188,8 +203,9 @@ class TankEstimate:
         return self.start.m_s
 
     def path_std_mm(self, path_mm: float) -> float:
-        """One sigma of a water path of ``path_mm`` from ``std_m_s`` (mm)."""
-        return path_mm * self.std_m_s / self.m_s
+        """One sigma of a water path of ``path_mm`` from what the water did since the
+        calibration (``change_std_m_s``; mm)."""
+        return path_mm * self.change_std_m_s / self.m_s
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -200,6 +216,9 @@ class TankEstimate:
             "extra_moves": self.extra_moves,
             "sound_speed_m_s": self.m_s,
             "sound_speed_std_m_s": self.std_m_s,
+            "change_std_m_s": self.change_std_m_s,
+            "calibrate_sound_speed_m_s": self.then_m_s,
+            "calibrate_time_min": self.then_time_min,
             "drift_m_s_per_min": self.drift_m_s_per_min,
             "drift_std_m_s_per_min": self.drift_std_m_s_per_min,
             **{k: s.to_json() for k, s in zip(MOMENTS, self.sets, strict=False)},
@@ -232,12 +251,14 @@ def estimate_tank(
         )
     start = sets[0]
     end = sets[1] if len(sets) > 1 else None
-    # what the calibration's drift leaves of its speed at the readings' times; the std of
-    # its speed itself is in MEASURED_WITHIN_MM (ucal.verify.result), as at age 0
+    # what the calibration's drift leaves of its speed at the readings' times
     worst = max(
         reference.drift_std_at(m.time_min) / reference.speed_at(m.time_min) for m in reference.faces
     )
     span = 0.0 if end is None else end.time_min - start.time_min
+    own = reference.sound_speed_std_m_s / reference.sound_speed_m_s
+    stamps = [m.time_min for m in reference.faces if m.time_min is not None]
+    then_time = float(np.mean(stamps)) if stamps else None
     return TankEstimate(
         reference.source,
         n,
@@ -245,6 +266,9 @@ def estimate_tank(
         end,
         start.m_s * worst,
         drift_tolerance_m_s_per_min * span / 8.0,
+        start.m_s * own if np.isfinite(own) else 0.0,
+        reference.speed_at(then_time),
+        then_time,
     )
 
 
