@@ -25,7 +25,7 @@ from ucal.profile import (
 from ucal.record import measured_from_lines, measurement_lines
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, repeated_faces, tank_reference
 from ucal.verify.measure import PointResult, VerifyResult
-from ucal.verify.plan import WALL_PATH_MM, plan_verify
+from ucal.verify.plan import WALL_PATH_MM, plan_summary, plan_verify, with_tank
 from ucal.verify.procedure import VerifyJob
 from ucal.verify.result import VerifySolved, water_note
 from ucal.verify.tank import REPEAT_STD_MM, estimate_tank, tank_corrected
@@ -221,3 +221,20 @@ def test_a_replay_reads_the_tank_as_the_run_did(tmp_path) -> None:
     assert [m.distance_mm for m in back.tank_readings] == [
         m.distance_mm for m in result.tank_readings
     ]
+
+
+def test_the_plan_says_the_six_moves_it_adds(tmp_path) -> None:
+    """The three postures are checked before motion and the plan and its estimate count the
+    six moves and their readings; a posture outside the joint ranges keeps the plan without."""
+    profile = profile_from_data(tomlkit.parse(default_profile_text("tx90l")), "cell.toml")
+    plan = plan_verify(profile, 1)
+    faces = calibration().faces
+    tanked = with_tank(plan, profile, faces)
+    assert tanked.tank_faces == faces
+    job = VerifyJob(profile, tmp_path / "cell.toml")
+    extra = job.estimate(tanked).moves - job.estimate(plan).moves
+    assert extra == 6
+    assert job.estimate(tanked).reads - job.estimate(plan).reads == 6 * 8
+    assert "(6 moves more)" in plan_summary(tanked, tmp_path / "cell.toml")
+    out_of_range = replace(faces[0], joints_deg=np.array([0.0, 10.0, 80.0, 0.0, 170.0, 0.0]))
+    assert with_tank(plan, profile, (out_of_range, *faces[1:])).tank_faces == ()
