@@ -106,6 +106,8 @@ class Figures:
     #: figure's largest error along the down points' beam (Z, mm: the XY face's water path,
     #: free of the DH table)
     water: list[tuple[float, float]] = field(default_factory=list)
+    #: one line per verify run: its error per axis, its promise and what its tank read
+    lines: list[str] = field(default_factory=list)
     region: tuple[bool, float] | None = None  # (passed, χ²ᵣ)
     errors: list[str] = field(default_factory=list)
 
@@ -246,6 +248,19 @@ def verify_figures(
         change = start["sound_speed_m_s"] - tank["calibrate_sound_speed_m_s"]
         z_change = abs(change - (true_c - then_c)) / tank["change_std_m_s"]
         fig.tanks.append((tank["seen"], float(z), float(z_change)))
+    err = np.round(truth["after_error_max_mm"], 4).tolist()
+    read = (
+        "not read again"
+        if tank is None
+        else f"tank: {tank['seen']}, speed now − true {start['sound_speed_m_s'] - true_c:+.3f} "
+        f"(±{tank['sound_speed_std_m_s']:.3f}), change − true "
+        f"{change - (true_c - then_c):+.3f} (±{tank['change_std_m_s']:.3f}) m/s, drift in run "
+        f"{tank['drift_m_s_per_min']:+.3f} m/s/min"
+    )
+    fig.lines.append(
+        f"{fig.name} {world_path.stem}: after − true {err} mm, promise ±"
+        f"{out['measured_within_mm']:.3f} (water ±{share:.3f}); {read}"
+    )
     within = bool(np.max(truth["after_mm"]["max"]) <= out["tolerance_mm"])
     return (
         bool(out["passed"]),
@@ -320,6 +335,7 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
     rows += [f"  false alarm: {a}" for a in alarms]
     rows += [f"  miss: {m}" for m in misses]
     rows += [f"  {f.name}: {e}" for f in figs for e in f.errors]
+    rows += [f"  {line}" for f in figs for line in f.lines]
     return rows
 
 
