@@ -13,7 +13,10 @@ commands, as processes, in the order a user runs them:
 2. ``verify --points N`` and ``verify --region M`` on the cell as commissioned;
 3. ``check`` three times: the reference (the first after the calibration), the same cell
    again (a good cell: it must pass), and the cell with joint 2 moved by ``MOVED_DEG`` after
-   the commissioning (it must fail, naming J2); then ``verify --points N`` on that moved cell.
+   the commissioning (it must fail, naming J2); then ``verify --points N`` on that moved cell;
+4. with ``--warm C``, ``verify --points N`` once more on the good cell with its tank C °C
+   warmer than calibrate found it (the water since: an hour of a slow drift, or a tank
+   refilled), printed on a line of its own.
 
 Printed per state:
 
@@ -43,9 +46,9 @@ Printed with verify's figures: how many of its runs read the tank again and what
 verify's run begins where calibrate's began, the tank having drifted over calibrate's run).
 
 Usage: ``python benchmarks/verify_check_drift.py --worlds 12 [--jobs 1] [--points 3]
-[--region 4] [--state drifting|still|both] [--level offsets|full]``; ``--quick``: one world,
-drifting only, verify on one point and the region on three postures, the same code path in
-half a minute.
+[--region 4] [--state drifting|still|both] [--level offsets|full] [--warm C]``;
+``--quick``: one world, drifting only, verify on one point and the region on three postures,
+the same code path in half a minute.
 """
 
 from __future__ import annotations
@@ -109,6 +112,8 @@ class Figures:
     #: one line per verify run: its error per axis, its promise and what its tank read
     lines: list[str] = field(default_factory=list)
     region: tuple[bool, float] | None = None  # (passed, χ²ᵣ)
+    #: verify on the good cell with its tank warmer than calibrate left it (``--warm``)
+    warm: list[tuple[bool, bool, float, bool, float]] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
 
 
@@ -166,9 +171,16 @@ def check_z(figures: Figures, out: dict, truth: dict[str, float]) -> None:
 
 
 def run_cell(
-    template: Path, directory: Path, name: str, text: str, points: int, region: int, level: str
+    template: Path,
+    directory: Path,
+    name: str,
+    text: str,
+    points: int,
+    region: int,
+    level: str,
+    warm_c: float = 0.0,
 ):
-    """Commission and check one cell (module docstring, steps 1-3) in ``directory``."""
+    """Commission and check one cell (module docstring, steps 1-4) in ``directory``."""
     directory.mkdir()
     profile_path = directory / "cell.toml"
     shutil.copy(template, profile_path)
@@ -212,16 +224,30 @@ def run_cell(
                 truth[f"J{MOVED_JOINT}"] = MOVED_DEG
         check_z(fig, out, truth)
     fig.verify.append(verify_figures(profile_path, moved_path, points, fig, world))
+    if warm_c:
+        warm_path = directory / "warm.toml"
+        warm_path.write_text(warmed(text, warm_c))
+        warm = load_world(warm_path, profile)
+        fig.warm.append(verify_figures(profile_path, warm_path, points, fig, warm, world))
     return fig
 
 
+def warmed(text: str, warm_c: float) -> str:
+    """The world ``text`` with its tank ``warm_c`` warmer than calibrate found it."""
+    line = re.search(r"(?m)^temperature_c = (.*)$", text)
+    assert line is not None
+    return text.replace(line.group(0), f"temperature_c = {float(line.group(1)) + warm_c!r}")
+
+
 def verify_figures(
-    profile_path: Path, world_path: Path, points: int, fig: Figures, world
+    profile_path: Path, world_path: Path, points: int, fig: Figures, world, then=None
 ) -> tuple[bool, bool, float, bool, float]:
     """``verify --points``'s verdict, the truth's (every true "after" deviation within the
     tolerance), how far its "after" points are from the true reached ones (mm), whether it
     called the verdict marginal and what it promises its figure to (mm); the tank it read
-    again into ``fig.tanks``."""
+    again into ``fig.tanks`` (``world``: the cell verified, ``then``: the cell calibrate
+    measured, if another)."""
+    then = world if then is None else then
     out = commissioning.run("verify", profile_path, world_path, "--points", str(points))
     truth = out.get("truth")
     if truth is None:
@@ -243,7 +269,7 @@ def verify_figures(
         # the change since calibrate's readings, against the tank's (calibrate's run started
         # at the world's temperature too)
         then_c = sound_speed_m_s(
-            world.water_temperature_c + world.water_drift_c_per_min * tank["calibrate_time_min"]
+            then.water_temperature_c + then.water_drift_c_per_min * tank["calibrate_time_min"]
         )
         change = start["sound_speed_m_s"] - tank["calibrate_sound_speed_m_s"]
         z_change = abs(change - (true_c - then_c)) / tank["change_std_m_s"]
@@ -332,6 +358,13 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
         f"{sum(p for p, _ in regions)} / {len(regions)} (χ²ᵣ median "
         f"{np.median([c for _, c in regions]) if regions else float('nan'):.3g}) | {tank} |"
     ]
+    warm = [v for f in done for v in f.warm if np.isfinite(v[2])]
+    if warm:
+        rows.append(
+            f"  warmer tank: verify after − true max {max(v[2] for v in warm):.4f} mm, "
+            f"{sum(v[2] <= v[4] for v in warm)} of {len(warm)} within its ±"
+            f"{min(v[4] for v in warm):.3f}–{max(v[4] for v in warm):.3f}"
+        )
     rows += [f"  false alarm: {a}" for a in alarms]
     rows += [f"  miss: {m}" for m in misses]
     rows += [f"  {f.name}: {e}" for f in figs for e in f.errors]
@@ -347,6 +380,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", type=int, default=3, help="verify's points")
     ap.add_argument("--region", type=int, default=4, help="verify --region's postures")
     ap.add_argument("--state", choices=(*STATES, "both"), default="both")
+    ap.add_argument(
+        "--warm",
+        type=float,
+        default=0.0,
+        help="verify once more with the tank this much warmer (°C) than calibrate left it",
+    )
     ap.add_argument(
         "--level",
         choices=("offsets", "full"),
@@ -381,6 +420,7 @@ def main(argv: list[str] | None = None) -> int:
                 [args.points] * len(jobs),
                 [args.region] * len(jobs),
                 [args.level] * len(jobs),
+                [args.warm] * len(jobs),
             )
         )
     print(
