@@ -228,8 +228,9 @@ def test_the_plan_says_the_six_moves_it_adds(tmp_path) -> None:
     six moves and their readings; a posture outside the joint ranges keeps the plan without."""
     profile = profile_from_data(tomlkit.parse(default_profile_text("tx90l")), "cell.toml")
     plan = plan_verify(profile, 1)
-    faces = calibration().faces
-    tanked = with_tank(plan, profile, faces)
+    cal = calibration()
+    faces = cal.faces
+    tanked = with_tank(plan, profile, cal)
     assert tanked.tank_faces == faces
     job = VerifyJob(profile, tmp_path / "cell.toml")
     extra = job.estimate(tanked).moves - job.estimate(plan).moves
@@ -237,4 +238,5 @@ def test_the_plan_says_the_six_moves_it_adds(tmp_path) -> None:
     assert job.estimate(tanked).reads - job.estimate(plan).reads == 6 * 8
     assert "(6 moves more)" in plan_summary(tanked, tmp_path / "cell.toml")
     out_of_range = replace(faces[0], joints_deg=np.array([0.0, 10.0, 80.0, 0.0, 170.0, 0.0]))
-    assert with_tank(plan, profile, (out_of_range, *faces[1:])).tank_faces == ()
+    kept = with_tank(plan, profile, replace(cal, faces=(out_of_range, *faces[1:])))
+    assert kept.tank_faces == ()

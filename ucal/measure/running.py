@@ -240,6 +240,12 @@ class RunningEstimate:
         setup = FaceSetup(profile, ka, gain)
         return cls(profile, FinalApproachRig(rig), setup, prior_from_profile(profile), geom)
 
+    def converting_at(self, temperature_c: float) -> None:
+        """Convert the water paths measured from now on at ``temperature_c`` (the tank's
+        sound speed as read since the run began, as Marczak's temperature)."""
+        self.profile = self.profile.replace(water_temperature_c=temperature_c)
+        self.setup = replace(self.setup, profile=self.profile)
+
     def measure(
         self,
         face: Face,

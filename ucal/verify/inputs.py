@@ -12,9 +12,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import brentq
 
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.priors import prior_from_profile
 from ucal.calibration.readings import CalibrationReadings, read_readings
@@ -178,10 +177,8 @@ def sound_speed_for_verify(
     prior = prior_from_profile(profile)
     if isinstance(measured, int | float) and np.isfinite(measured):
         c = float(measured)
-        lo, hi = 0.0, 70.0  # c(T) rises monotonically here
-        c_lo, c_hi = (float(sound_speed_m_s(t)) for t in (lo, hi))
-        if c_lo < c < c_hi:
-            t_eq = float(brentq(lambda t: float(sound_speed_m_s(t)) - c, lo, hi, xtol=1e-9))
+        t_eq = temperature_for_speed_c(c)
+        if t_eq is not None:
             age = minutes_since_calibration(profile_path, now)
             warmed_c = (
                 profile.water_temperature_std_c

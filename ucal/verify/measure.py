@@ -62,6 +62,7 @@ from ucal.verify.solve import (
     solve_tool_offset,
     tool_offset,
 )
+from ucal.verify.tank import start_speed
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +136,9 @@ class VerifyResult:
     tool: ToolOffset | None = None
     #: ``plan.tank_faces`` read again at the start, then at the end (``ucal.verify.tank``)
     tank_readings: tuple[FaceMeasurement, ...] = ()
+    #: the sound speed the points' water paths were converted at (m/s): the tank's at the
+    #: start (``ucal.verify.tank.start_speed``); None: the profile's (calibrate's)
+    points_speed_m_s: float | None = None
 
     def indices(self, pass_name: str) -> list[int]:
         """0-based indices of the points measured in one pass, in order."""
@@ -255,6 +259,11 @@ def run_verify(
 
     tank = read_tank("start", 0)
     first_point = 1 if tank else 0
+    # the points' water paths at the tank's speed as the start read it: the wrist map and the
+    # tool check's edges are carried from the points' W (ucal.verify.tank)
+    speed = None if plan.tank is None or not tank else start_speed(plan.tank, tank, profile)
+    if speed is not None:
+        running.converting_at(speed[1])
     last_wrist: dict[int, np.ndarray] = {}
     results: list[PointResult] = []
     skipped: list[SkippedPoint] = []
@@ -368,6 +377,7 @@ def run_verify(
         tuple(skipped),
         tool,
         tuple(tank),
+        None if speed is None else speed[0],
     )
 
 

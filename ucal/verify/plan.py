@@ -32,6 +32,7 @@ from ucal.calibration.model import (
     distance_joints,
 )
 from ucal.calibration.plan import calibration_pose, geometry, tool_lever
+from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
@@ -235,8 +236,12 @@ class VerifyPlan:
     groups: tuple[PointGroup, ...] = ()
     group_of: tuple[int, ...] = ()  # each point's group
     #: calibrate's readings whose water paths are read again at the start and the end (one
-    #: per face, ``ucal.verify.inputs.tank_reference``); empty: none in the history
-    tank_faces: tuple[FaceMeasurement, ...] = ()
+    #: per face, ``ucal.verify.inputs.tank_reference``); None: none in the history
+    tank: CalibrationReadings | None = None
+
+    @property
+    def tank_faces(self) -> tuple[FaceMeasurement, ...]:
+        return () if self.tank is None else self.tank.faces
 
     @property
     def points(self) -> int:
@@ -488,19 +493,17 @@ def edge_label(axis: int, group: PointGroup) -> str:
     )
 
 
-def with_tank(
-    plan: VerifyPlan, profile: CellProfile, faces: tuple[FaceMeasurement, ...]
-) -> VerifyPlan:
-    """``plan`` reading calibrate's water paths ``faces`` again at its start and end, each
-    posture checked inside the joint ranges and the θ5 margin (no wrist search there, so no
-    search margin); a posture that fails keeps the plan as it was, with a warning."""
-    for m in faces:
+def with_tank(plan: VerifyPlan, profile: CellProfile, tank: CalibrationReadings) -> VerifyPlan:
+    """``plan`` reading calibrate's water paths ``tank.faces`` again at its start and end,
+    each posture checked inside the joint ranges and the θ5 margin (no wrist search there, so
+    no search margin); a posture that fails keeps the plan as it was, with a warning."""
+    for m in tank.faces:
         try:
             safety.check_joints(profile, distance_joints(m), f"tank {m.config}", 0.0)
         except SafetyError as e:
             log.warning("the tank's sound speed is not read again: %s", e)
             return plan
-    return replace(plan, tank_faces=tuple(faces))
+    return replace(plan, tank=tank)
 
 
 def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:

@@ -107,7 +107,7 @@ class VerifyJob(CheckingJob):
             before_offsets_deg=self.before.offsets_deg,
             before_placed=self.before.placed(self.profile),
         )
-        return plan if self.tank is None else with_tank(plan, self.profile, self.tank.faces)
+        return plan if self.tank is None else with_tank(plan, self.profile, self.tank)
 
     def summary(self, plan: VerifyPlan) -> str:
         return plan_summary(plan, self.profile_path)
@@ -159,7 +159,8 @@ class VerifyJob(CheckingJob):
             drift = prior_from_profile(self.profile).drift_std_m_s_per_min
             tank = estimate_tank(self.tank, result.tank_readings, conversion, drift)
             if tank.used:
-                result = tank_corrected(result, tank, conversion)
+                # the points' paths were converted at the speed the start read (measure)
+                result = tank_corrected(result, tank, result.points_speed_m_s or conversion)
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))

@@ -23,15 +23,19 @@ within the readings' noise moves each reading by no more than the arm's repeatab
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.stats import chi2
 
+from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
 from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.readings import CalibrationReadings
-from ucal.verify.measure import PointResult, VerifyResult
+from ucal.cell import CellProfile
 from ucal.verify.solve import solve_tool_offset
+
+if TYPE_CHECKING:  # measure reads the start's speed here
+    from ucal.verify.measure import PointResult, VerifyResult
 
 #: One sigma of a water path read again at the same joints, each joint reached from the same
 #: side (mm): the arm's repeatability, about 0.02 mm, taken as two sigma.
@@ -107,6 +111,35 @@ def speed_from_repeats(
         len(then) - 1,
         tuple(float(v) for v in misfit),
     )
+
+
+def tank_set(
+    reference: CalibrationReadings,
+    again: tuple[FaceMeasurement, ...] | list[FaceMeasurement],
+    conversion_m_s: float,
+) -> TankSet:
+    """What ``reference.faces`` read ``again`` (in their order, converted with
+    ``conversion_m_s``) say of the tank's sound speed."""
+    times = [m.time_min for m in again if m.time_min is not None]
+    return speed_from_repeats(
+        np.array([reference.path_mm(m) for m in reference.faces]),
+        np.array([m.distance_mm for m in again]),
+        np.array([m.distance_std_mm for m in again]),
+        conversion_m_s,
+        float(np.mean(times)) if times else 0.0,
+    )
+
+
+def start_speed(
+    reference: CalibrationReadings, start: list[FaceMeasurement], profile: CellProfile
+) -> tuple[float, float] | None:
+    """The tank's sound speed (m/s) the start's readings give, and Marczak's temperature for
+    it (°C): what the points' water paths are converted at (their paths read at the
+    profile's ``[water] temperature_c``); None where they changed unlike the water."""
+    conversion = float(sound_speed_m_s(profile.water_temperature_c))
+    found = tank_set(reference, start, conversion)
+    temperature = temperature_for_speed_c(found.m_s)
+    return None if found.moved or temperature is None else (found.m_s, temperature)
 
 
 @dataclass(frozen=True)
@@ -235,20 +268,10 @@ def estimate_tank(
     at the start, then (if read) at the end, converted with ``conversion_m_s``;
     ``drift_tolerance_m_s_per_min``: the profile's (``[water] drift_std_c_per_min`` as m/s)."""
     n = len(reference.faces)
-    then = np.array([reference.path_mm(m) for m in reference.faces])
-    sets = []
-    for k in range(len(again) // n):
-        now = again[k * n : (k + 1) * n]
-        times = [m.time_min for m in now if m.time_min is not None]
-        sets.append(
-            speed_from_repeats(
-                then,
-                np.array([m.distance_mm for m in now]),
-                np.array([m.distance_std_mm for m in now]),
-                conversion_m_s,
-                float(np.mean(times)) if times else 0.0,
-            )
-        )
+    sets = [
+        tank_set(reference, again[k * n : (k + 1) * n], conversion_m_s)
+        for k in range(len(again) // n)
+    ]
     start = sets[0]
     end = sets[1] if len(sets) > 1 else None
     # what the calibration's drift leaves of its speed at the readings' times
