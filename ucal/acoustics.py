@@ -30,6 +30,7 @@ from __future__ import annotations
 from typing import overload
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.special import j1, ndtr
 
 #: Marczak (1997), "Water as a standard in the measurements of speed of sound in liquids",
@@ -63,6 +64,15 @@ def sound_speed_m_s(temperature_c: float | np.ndarray) -> float | np.ndarray:
     for coeff in reversed(MARCZAK_COEFFS_M_S):  # Horner
         c = c * t + coeff
     return float(c) if c.ndim == 0 else c
+
+
+def temperature_for_speed_c(speed_m_s: float) -> float | None:
+    """The water temperature (°C, 0…70) at which Marczak's c(T) is ``speed_m_s``: the
+    temperature a measured sound speed is converted with; None outside that range."""
+    lo, hi = 0.0, 70.0  # c(T) rises monotonically here
+    if not float(sound_speed_m_s(lo)) < speed_m_s < float(sound_speed_m_s(hi)):
+        return None
+    return float(brentq(lambda t: float(sound_speed_m_s(t)) - speed_m_s, lo, hi, xtol=1e-9))
 
 
 def tof_ns(water_path_mm: float | np.ndarray, temperature_c: float) -> float | np.ndarray:

@@ -101,8 +101,10 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     assert np.max(after) < 0.5 - MEASURED_WITHIN_MM
     # the offsets level leaves the DH table at its tolerance (0.2 mm, 0.02°): what it allows
     # at the tool centre is in verify's figure as in the robot's, and the pass is marginal
-    # and the tank's sound speed since calibrate measured it, a minute ago: a wall's 150 mm
-    water = 150.0 * out["sound_speed_std_m_s"] / out["sound_speed_m_s"]
+    # and what the tank did since calibrate, read again at calibrate's readings at the start
+    # and the end of the run (six moves), as a wall's 150 mm
+    assert out["tank"]["used"] and out["tank"]["extra_moves"] == 6
+    water = 150.0 * out["tank"]["change_std_m_s"] / out["sound_speed_now_m_s"]
     assert 0.0 < water < 0.02
     assert out["measured_within_mm"] == pytest.approx(
         MEASURED_WITHIN_MM + 2.0 * np.hypot(out["unidentified_tcp_mm"]["max"], water)

@@ -290,6 +290,18 @@ def test_calibrate_then_verify(tmp_path: Path, world: Path) -> None:
     check_shape(out, 2)
     assert np.max(out["before_mm"]["mean"]) > 1.0
     assert np.max(out["after_mm"]["max"]) < 0.1, out["after_mm"]
+    # calibrate kept its readings beside its write; verify read the calibration pose's three
+    # faces again at its start and end (six moves): the tank as it was, 20 °C, still
+    assert (profile.parent / "cell.toml.history" / "0002-readings.json").exists()
+    tank = out["tank"]
+    assert tank["seen"] == "sound speed" and tank["used"] and tank["extra_moves"] == 6
+    assert [tank[k]["dof"] for k in ("start", "end")] == [2, 2]
+    # the speed as calibrate measured it (±0.4 m/s), changed by nothing since
+    c_now, c_std = out["sound_speed_now_m_s"], out["sound_speed_now_std_m_s"]
+    assert abs(c_now - float(sound_speed_m_s(20.0))) < 3 * c_std < 1.5
+    assert abs(c_now - out["sound_speed_m_s"]) < 3 * tank["change_std_m_s"] < 0.3
+    assert abs(out["sound_speed_run_drift_m_s_per_min"]) < 3 * tank["drift_std_m_s_per_min"]
+    assert any("read again" in n for n in out["notes"])
 
 
 @pytest.mark.timeout(120)

@@ -39,7 +39,8 @@ from ucal.calibration.gauge import (
     block_keys,
     block_pose,
 )
-from ucal.calibration.model import FACE_NAMES
+from ucal.calibration.model import FACE_NAMES, FaceMeasurement
+from ucal.calibration.readings import CalibrationReadings, calibration_readings, write_readings
 from ucal.calibration.result import (
     APPROACH,
     CalibrationResult,
@@ -48,6 +49,7 @@ from ucal.calibration.result import (
     Judged,
     OffsetsResult,
     OffsetsSolved,
+    Solution,
     SolvedT,
     Verdict,
     run_effects,
@@ -197,15 +199,19 @@ def write_calibration(
     verdict: Verdict,
     keys: dict[str, Any],
     block: dict[str, Any] | None = None,
+    readings: CalibrationReadings | None = None,
 ) -> None:
     """Write ``keys`` as ``[calibration]`` (and ``block`` as ``[sample]``: the block as the
     fit measured it), the history naming the ``run``, its fit and, when written with
-    ``--force``, why it was out of tolerance."""
+    ``--force``, why it was out of tolerance; ``readings`` (what the fit received) beside its
+    history entry (``ucal.calibration.readings``: verify reads the tank again at them)."""
     reason = f"{run}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
     if not verdict.ok:
         reason += f", written with --force: {verdict.message}"
     updates = {"calibration": keys} if block is None else {"calibration": keys, "sample": block}
-    write_profile(profile_path, updates, reason=reason)
+    entry = write_profile(profile_path, updates, reason=reason)
+    if entry is not None and readings is not None:
+        write_readings(profile_path, entry, readings)
 
 
 def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
@@ -327,6 +333,13 @@ class CalibrationJob(ProfileJob):
         super().__init__(profile, profile_path)
         self.beam = beam
         self.force = force
+        self.faces: list[FaceMeasurement] = []  # what the fit received (solve)
+
+    def readings(self, sound: Solution) -> CalibrationReadings:
+        """The faces the fit received, with what ``sound`` found of the tank, as the history
+        keeps them beside the write."""
+        conversion = float(sound_speed_m_s(self.profile.water_temperature_c))
+        return calibration_readings(self.faces, conversion, sound)
 
     def may_write(self, solved: Judged) -> bool:
         return solved.verdict.ok or self.force
@@ -390,6 +403,7 @@ class OffsetsCalibration(CalibrationJob):
         return run_calibration(self.profile, plan, session.rig, progress=report)
 
     def solve(self, plan: CalibrationPlan, measured: Measured[CalibrationRun]) -> OffsetsSolved:
+        self.faces = list(measured.data.measurements)
         exact, paper = solve(self.profile, measured.data, self.beam)
         chosen = exact if self.method == "exact" else paper
         if chosen is None:
@@ -421,6 +435,7 @@ class OffsetsCalibration(CalibrationJob):
             },
             # the block the offsets were fitted with (the paper's equations measure none)
             block_written(chosen.cell_fit, self.profile),
+            self.readings(solved.exact),
         )
 
     def result(
@@ -511,6 +526,7 @@ class FullCalibration(CalibrationJob):
 
     def solve(self, plan: FullPlan, measured: Measured[FullRun]) -> FullSolved:
         run = measured.data
+        self.faces = list(run.measurements)
         solution = solve_full(
             prior_from_profile(self.profile),
             run.measurements,
@@ -539,6 +555,7 @@ class FullCalibration(CalibrationJob):
                 **budget_keys(solved.budget),
             },
             block_written(sol.cell, self.profile),
+            self.readings(sol),
         )
 
     def result(

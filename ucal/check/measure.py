@@ -22,6 +22,7 @@ import numpy as np
 from ucal.acoustics import tof_ns
 from ucal.calibration.fit import measurement_label
 from ucal.calibration.model import FaceMeasurement
+from ucal.calibration.readings import number
 from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
@@ -31,11 +32,6 @@ from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
-
-
-def number(value: float | None) -> float | None:
-    """A JSON number, or null for what is not one (NaN, ±inf)."""
-    return None if value is None or not np.isfinite(value) else float(value)
 
 
 @dataclass(frozen=True)
@@ -211,47 +207,3 @@ def read_echo_band(rig: Rig, echo_tof_ns: float) -> EchoEstimate | None:
         estimate.bandwidth_mhz,
     )
     return estimate
-
-
-def faces_to_json(faces: list[FaceMeasurement]) -> list[dict[str, Any]]:
-    """Face measurements as a history entry keeps them: what the solver receives, with each
-    reading's time and approach (the drift and the lost motion the solver sees)."""
-    return [
-        {
-            "config": str(m.config),
-            "face": int(m.face),
-            "joints_deg": [float(v) for v in m.joints_deg],
-            "distance_mm": float(m.distance_mm),
-            "distance_std_mm": float(m.distance_std_mm),
-            "tilt_std_deg": float(m.tilt_std_deg),
-            "amplitude": number(m.amplitude),
-            "gain_db": None if m.gain_db is None else float(m.gain_db),
-            "distance_joints_deg": (
-                None if m.distance_joints_deg is None else [float(v) for v in m.distance_joints_deg]
-            ),
-            "time_min": None if m.time_min is None else float(m.time_min),
-            "approach": None if m.approach is None else [float(v) for v in m.approach],
-        }
-        for m in faces
-    ]
-
-
-def faces_from_json(rows: list[dict[str, Any]]) -> list[FaceMeasurement]:
-    """The face measurements of a history entry."""
-    return [
-        FaceMeasurement(
-            r["config"],
-            r["face"],
-            np.asarray(r["joints_deg"], float),
-            float(r["distance_mm"]),
-            float(r["distance_std_mm"]),
-            float(r["tilt_std_deg"]),
-            float("nan") if r["amplitude"] is None else float(r["amplitude"]),
-            None if r["distance_joints_deg"] is None else np.asarray(r["distance_joints_deg"]),
-            gain_db=r["gain_db"],
-            # an entry written before they were kept: no time (no drift seen), from below
-            time_min=None if r.get("time_min") is None else float(r["time_min"]),
-            approach=None if r.get("approach") is None else np.asarray(r["approach"], float),
-        )
-        for r in rows
-    ]

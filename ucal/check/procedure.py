@@ -13,6 +13,7 @@ from typing import Any
 
 from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.procedure import plan_rows
+from ucal.calibration.readings import faces_from_json
 from ucal.cell import CellProfile
 from ucal.check.history import append_check, model_digest, reference_check
 from ucal.check.judge import (
@@ -21,7 +22,7 @@ from ucal.check.judge import (
     geometry_quantities,
     profile_quantities,
 )
-from ucal.check.measure import CheckRun, EchoReading, faces_from_json, run_check
+from ucal.check.measure import CheckRun, EchoReading, run_check
 from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
 from ucal.check.result import (
     CheckFindings,

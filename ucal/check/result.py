@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ucal.calibration.fit import CellPrior, readings_approach
+from ucal.calibration.readings import faces_to_json
 from ucal.check.history import CheckEntry
 from ucal.check.judge import (
     CHANGED,
@@ -22,7 +23,7 @@ from ucal.check.judge import (
     Quantity,
     unit_of,
 )
-from ucal.check.measure import CheckRun, faces_to_json
+from ucal.check.measure import CheckRun
 from ucal.check.solve import (
     GeometryComparison,
     ProfileComparison,

@@ -240,6 +240,12 @@ class RunningEstimate:
         setup = FaceSetup(profile, ka, gain)
         return cls(profile, FinalApproachRig(rig), setup, prior_from_profile(profile), geom)
 
+    def converting_at(self, temperature_c: float) -> None:
+        """Convert the water paths measured from now on at ``temperature_c`` (the tank's
+        sound speed as read since the run began, as Marczak's temperature)."""
+        self.profile = self.profile.replace(water_temperature_c=temperature_c)
+        self.setup = replace(self.setup, profile=self.profile)
+
     def measure(
         self,
         face: Face,
@@ -286,26 +292,7 @@ class RunningEstimate:
         gain, its approach), without a search: what changed since is the tank (its drift), not
         the arm. The posture is not measured again: its tilt rows carry no weight
         (``PATH_ONLY_TILT_STD_DEG``). One move, the readings of one water path."""
-        m = self.measurements[i]
-        above = m.approach is not None and bool(np.all(np.asarray(m.approach) < 0))
-        rig = approaching(self.rig, -1 if above else 1)
-        settled = rig.move(distance_joints(m))
-        if m.gain_db is not None:
-            rig.configure(gain_db=m.gain_db)
-        averages = max(self.profile.procedure.tof_averages, 1)
-        path, path_std = read_distance(rig, self.profile.water_temperature_c, averages)
-        log.info("%s again (%s): water path %.4f ± %.4f mm", config, m.config, path, path_std)
-        return replace(
-            m,
-            config=config,
-            distance_mm=path,
-            distance_std_mm=max(path_std, 1e-4),
-            tilt_std_deg=PATH_ONLY_TILT_STD_DEG,
-            distance_joints_deg=np.asarray(settled, float),
-            probes=None,
-            time_min=rig.minutes(),
-            approach=rig.approach.copy(),
-        )
+        return read_path_at(self.rig, self.profile, self.measurements[i], config)
 
     @property
     def faces_seen(self) -> set[Face]:
@@ -329,3 +316,32 @@ class RunningEstimate:
         return refit_peaks(
             self.rig, self.profile, self.measurements, self.setup.ka, self.prior, self.vector
         )
+
+
+def read_path_at(
+    rig: Rig, profile: CellProfile, m: FaceMeasurement, config: str
+) -> FaceMeasurement:
+    """The water path of ``m`` read again where it was read (its readings, its gain, each
+    joint reached from the side it was), without a search, converted at the profile's
+    ``[water] temperature_c``: ``m`` with that path, its time and ``config``. One move, the
+    readings of one water path; the posture is not measured again (its tilt rows carry no
+    weight, ``PATH_ONLY_TILT_STD_DEG``)."""
+    above = m.approach is not None and bool(np.all(np.asarray(m.approach) < 0))
+    rig = approaching(rig, -1 if above else 1)
+    settled = rig.move(distance_joints(m))
+    if m.gain_db is not None:
+        rig.configure(gain_db=m.gain_db)
+    averages = max(profile.procedure.tof_averages, 1)
+    path, path_std = read_distance(rig, profile.water_temperature_c, averages)
+    log.info("%s again (%s): water path %.4f ± %.4f mm", config, m.config, path, path_std)
+    return replace(
+        m,
+        config=config,
+        distance_mm=path,
+        distance_std_mm=max(path_std, 1e-4),
+        tilt_std_deg=PATH_ONLY_TILT_STD_DEG,
+        distance_joints_deg=np.asarray(settled, float),
+        probes=None,
+        time_min=rig.minutes(),
+        approach=rig.approach.copy(),
+    )

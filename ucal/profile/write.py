@@ -17,7 +17,7 @@ from tomlkit.items import Array, InlineTable, Table
 
 from ucal.errors import ProfileError
 from ucal.profile.disk import atomic_write, real_path
-from ucal.profile.history import _replace_with_history
+from ucal.profile.history import HistoryEntry, _replace_with_history
 from ucal.profile.lock import profile_lock
 from ucal.profile.read import profile_from_data
 from ucal.profile.template import default_profile_text
@@ -109,14 +109,17 @@ def render_update(text: str, updates: Mapping[str, Mapping[str, Any]]) -> str:
     return tomlkit.dumps(doc)
 
 
-def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]], reason: str) -> None:
+def write_profile(
+    path: str | Path, updates: Mapping[str, Mapping[str, Any]], reason: str
+) -> HistoryEntry | None:
     """Write ``updates`` (e.g. ``{"calibration": {"joint_offsets_deg": offsets}}``) into the
     profile at ``path``, atomically, keeping comments and key order, and record the replaced
     bytes in the history with ``reason`` (e.g. ``"calibrate"``).
 
     The result is validated as a profile first. Any failure raises :class:`ProfileError`
     (exit 2) and leaves the profile byte-for-byte unchanged. A symlinked profile is written
-    through the link (the link stays a link; the history sits beside the real file).
+    through the link (the link stays a link; the history sits beside the real file). Returns
+    the history entry of the write (None: nothing changed, nothing written).
     """
     p = real_path(path)
     try:
@@ -128,8 +131,8 @@ def write_profile(path: str | Path, updates: Mapping[str, Mapping[str, Any]], re
     profile_from_data(parse_toml_bytes(after, p), p)
     if after == before:
         log.info("%s: nothing to change", p)
-        return
-    _replace_with_history(p, after, reason, before)
+        return None
+    return _replace_with_history(p, after, reason, before)
 
 
 def create_profile(path: str | Path, model: str, force: bool = False) -> Path:

@@ -1,20 +1,22 @@
 """What verify reads from the profile's files beside its model: the offsets and block pose it had
-before its last calibration (its history), the sound speed that calibration measured, and how it
-calibrated J1 (the gauge the figures are relative to)."""
+before its last calibration (its history), the sound speed that calibration measured and the
+readings it measured it at (to read the tank again), and how it calibrated J1 (the gauge the
+figures are relative to)."""
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import brentq
 
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
+from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.priors import prior_from_profile
+from ucal.calibration.readings import CalibrationReadings, read_readings
 from ucal.cell import CellProfile
 from ucal.profile import HistoryEntry, history_dir, load_profile, profile_history
 
@@ -175,10 +177,8 @@ def sound_speed_for_verify(
     prior = prior_from_profile(profile)
     if isinstance(measured, int | float) and np.isfinite(measured):
         c = float(measured)
-        lo, hi = 0.0, 70.0  # c(T) rises monotonically here
-        c_lo, c_hi = (float(sound_speed_m_s(t)) for t in (lo, hi))
-        if c_lo < c < c_hi:
-            t_eq = float(brentq(lambda t: float(sound_speed_m_s(t)) - c, lo, hi, xtol=1e-9))
+        t_eq = temperature_for_speed_c(c)
+        if t_eq is not None:
             age = minutes_since_calibration(profile_path, now)
             warmed_c = (
                 profile.water_temperature_std_c
@@ -232,3 +232,33 @@ def written_budget(profile_path: Path) -> tuple[float, float] | None:
     ):
         return None
     return float(value[0]), float(value[1])
+
+
+def tank_reference(profile_path: str | Path) -> CalibrationReadings | None:
+    """The readings of the profile's last ``calibrate`` write that verify reads again
+    (``ucal.verify.tank``): one per face (``repeated_faces``); None where that write kept none
+    (a calibration from before they were kept, or none)."""
+    entry = last_calibration(profile_path)
+    readings = None if entry is None else read_readings(profile_path, entry)
+    if readings is None:
+        return None
+    faces = repeated_faces(readings.faces)
+    return None if faces is None else replace(readings, faces=faces)
+
+
+def repeated_faces(
+    faces: tuple[FaceMeasurement, ...],
+) -> tuple[FaceMeasurement, ...] | None:
+    """One reading per face, each reached from below on every joint (as verify reaches its
+    postures): the first posture of the arm that read all three (the calibration pose: the
+    wrist turns between them), else each face's longest path (the sound speed's ratio best
+    read); None where a face has none."""
+    below = [m for m in faces if m.approach is None or bool(np.all(np.asarray(m.approach) > 0))]
+    for config in dict.fromkeys(m.config for m in below):
+        mine = {int(m.face): m for m in reversed(below) if m.config == config}
+        if len(mine) == 3:
+            return tuple(mine[k] for k in range(3))
+    longest = {}
+    for m in sorted(below, key=lambda m: m.distance_mm):
+        longest[int(m.face)] = m
+    return tuple(longest[k] for k in range(3)) if len(longest) == 3 else None

@@ -37,7 +37,7 @@ from ucal.cell import CellProfile
 from ucal.errors import HardwareError, SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
-from ucal.measure.running import RunningEstimate
+from ucal.measure.running import RunningEstimate, read_path_at
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 from ucal.verify.plan import (
@@ -62,6 +62,7 @@ from ucal.verify.solve import (
     solve_tool_offset,
     tool_offset,
 )
+from ucal.verify.tank import start_speed
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +134,11 @@ class VerifyResult:
     edge_checks: tuple[EdgeCheck, ...] = ()
     skipped: tuple[SkippedPoint, ...] = ()
     tool: ToolOffset | None = None
+    #: ``plan.tank_faces`` read again at the start, then at the end (``ucal.verify.tank``)
+    tank_readings: tuple[FaceMeasurement, ...] = ()
+    #: the sound speed the points' water paths were converted at (m/s): the tank's at the
+    #: start (``ucal.verify.tank.start_speed``); None: the profile's (calibrate's)
+    points_speed_m_s: float | None = None
 
     def indices(self, pass_name: str) -> list[int]:
         """0-based indices of the points measured in one pass, in order."""
@@ -241,13 +247,28 @@ def run_verify(
     )
     running = RunningEstimate.start(profile, rig, geom, first.joints_deg, js0[1])
     approach = running.rig
+    total = len(plan.targets) + len(plan.edge_points) + (2 if plan.tank_faces else 0)
 
+    def read_tank(moment: str, done: int) -> list[FaceMeasurement]:
+        """calibrate's water paths of ``plan.tank_faces`` read again where it read them."""
+        if not plan.tank_faces:
+            return []
+        if progress:
+            progress(MeasureStep(f"tank at the {moment}", done, total))
+        return [read_path_at(rig, profile, m, f"tank {moment}") for m in plan.tank_faces]
+
+    tank = read_tank("start", 0)
+    first_point = 1 if tank else 0
+    # the points' water paths at the tank's speed as the start read it: the wrist map and the
+    # tool check's edges are carried from the points' W (ucal.verify.tank)
+    speed = None if plan.tank is None or not tank else start_speed(plan.tank, tank, profile)
+    if speed is not None:
+        running.converting_at(speed[1])
     last_wrist: dict[int, np.ndarray] = {}
     results: list[PointResult] = []
     skipped: list[SkippedPoint] = []
     orientations: dict[int, WristOrientation] = {}  # of the "after" points
-    total = len(plan.targets) + len(plan.edge_points)
-    for n_done, target in enumerate(plan.targets):
+    for n_done, target in enumerate(plan.targets, start=first_point):
         if progress:
             what = f"{target.pass_name} point {target.index + 1}"
             progress(MeasureStep(what, n_done, total, target.pass_name))
@@ -322,7 +343,9 @@ def run_verify(
     for n_scan, (axis, i) in enumerate(plan.edge_points):
         if progress:
             what = edge_label(axis, plan.groups[plan.group_of[i]])
-            progress(MeasureStep(what, len(plan.targets) + n_scan, total, "after", "XY"))
+            progress(
+                MeasureStep(what, first_point + len(plan.targets) + n_scan, total, "after", "XY")
+            )
         scans.append(
             scan_edge(
                 rig, approach.move, geom, profile, plan, after[i], orientations[i], wrist, axis, v
@@ -339,6 +362,7 @@ def run_verify(
         "" if tool.separated else " (one sense about the beam: one quantity)",
     )
     results = [replace(p, reached_mm=p.reached_mm + tool.bias(p.flange_local)) for p in results]
+    tank += read_tank("end", total - 1)
     # Leave the robot at the last commanded point (beam down, clear of the block).
     approach.move(plan.targets[-1].joints_deg)
     if progress:
@@ -352,6 +376,8 @@ def run_verify(
         checks,
         tuple(skipped),
         tool,
+        tuple(tank),
+        None if speed is None else speed[0],
     )
 
 

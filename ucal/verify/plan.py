@@ -14,22 +14,33 @@ current ones. The method: docs/method/commissioning.md.
 
 from __future__ import annotations
 
+import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ucal.calibration import safety
-from ucal.calibration.model import FACE_NAMES, FACE_ORDER, CellGeometry, Face
+from ucal.calibration.model import (
+    FACE_NAMES,
+    FACE_ORDER,
+    CellGeometry,
+    Face,
+    FaceMeasurement,
+    distance_joints,
+)
 from ucal.calibration.plan import calibration_pose, geometry, tool_lever
+from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError, UnreachableError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik
+
+log = logging.getLogger(__name__)
 
 #: Paper 000, §5.2: the plane of the nominal points is 30 mm from the block's XY face.
 VERIFY_HEIGHT_MM = 30.0
@@ -224,6 +235,13 @@ class VerifyPlan:
     edge_points: tuple[tuple[int, int], ...] = ((0, 0), (1, 0))
     groups: tuple[PointGroup, ...] = ()
     group_of: tuple[int, ...] = ()  # each point's group
+    #: calibrate's readings whose water paths are read again at the start and the end (one
+    #: per face, ``ucal.verify.inputs.tank_reference``); None: none in the history
+    tank: CalibrationReadings | None = None
+
+    @property
+    def tank_faces(self) -> tuple[FaceMeasurement, ...]:
+        return () if self.tank is None else self.tank.faces
 
     @property
     def points(self) -> int:
@@ -475,6 +493,19 @@ def edge_label(axis: int, group: PointGroup) -> str:
     )
 
 
+def with_tank(plan: VerifyPlan, profile: CellProfile, tank: CalibrationReadings) -> VerifyPlan:
+    """``plan`` reading calibrate's water paths ``tank.faces`` again at its start and end,
+    each posture checked inside the joint ranges and the θ5 margin (no wrist search there, so
+    no search margin); a posture that fails keeps the plan as it was, with a warning."""
+    for m in tank.faces:
+        try:
+            safety.check_joints(profile, distance_joints(m), f"tank {m.config}", 0.0)
+        except SafetyError as e:
+            log.warning("the tank's sound speed is not read again: %s", e)
+            return plan
+    return replace(plan, tank=tank)
+
+
 def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
     """The plan in words for the confirmation (stderr)."""
     lines = [
@@ -490,4 +521,11 @@ def plan_summary(plan: VerifyPlan, profile_path: Path) -> str:
         )
     senses = "in both senses about the beam" if len(plan.edge_points) > 2 else "straight down"
     lines.append(f"then a tool check across the XY face's two far edges, {senses}.")
+    if plan.tank_faces:
+        where = ", ".join(f"{m.config}/{FACE_NAMES[m.face]}" for m in plan.tank_faces)
+        lines.append(
+            f"The tank's sound speed: {len(plan.tank_faces)} of calibrate's water paths read "
+            f"again where it read them ({where}), at the start and at the end "
+            f"({2 * len(plan.tank_faces)} moves more)."
+        )
     return "\n".join(lines)

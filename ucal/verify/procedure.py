@@ -16,9 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.model import (
-    FACE_ORDER,
-)
+from ucal.acoustics import sound_speed_m_s
+from ucal.calibration.model import FACE_ORDER, distance_joints
+from ucal.calibration.priors import prior_from_profile
+from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
@@ -26,7 +27,7 @@ from ucal.progress import Report
 from ucal.record import decode, encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
 from ucal.sim.truth import verify_truth
-from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, estimate_run
+from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, SearchCost, estimate_run
 from ucal.verify.inputs import (
     BeforeProfile,
     SoundSpeed,
@@ -34,11 +35,12 @@ from ucal.verify.inputs import (
     calibration_gauge,
     offsets_before_calibration,
     sound_speed_for_verify,
+    tank_reference,
     written_budget,
 )
 from ucal.verify.measure import VerifyResult, run_verify
 from ucal.verify.picture import PictureText, plot_verify
-from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify
+from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify, with_tank
 from ucal.verify.result import (
     MEASURED_WITHIN_MM,
     Verification,
@@ -50,6 +52,10 @@ from ucal.verify.result import (
     tool_notes,
     water_note,
 )
+from ucal.verify.tank import estimate_tank, tank_corrected
+
+#: A water path read again where calibrate read it: no search, the readings of one path.
+PATH_READ = SearchCost(moves=0, reads=8, motion_s=0.0)
 
 
 class VerifyJob(CheckingJob):
@@ -75,6 +81,7 @@ class VerifyJob(CheckingJob):
         self.sound = SoundSpeed(0.0, 0.0, "")
         self.gauge = VerifyGauge(None, 0.0)
         self.unidentified: tuple[float, float] | None = None
+        self.tank: CalibrationReadings | None = None
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets and block from the profile's history, the sound speed of its
@@ -84,20 +91,23 @@ class VerifyJob(CheckingJob):
             inputs = decode(self.recorded_inputs)
             self.before, self.sound, self.gauge = inputs["before"], inputs["sound"], inputs["gauge"]
             self.unidentified = inputs.get("unidentified")
+            self.tank = inputs.get("tank")
         else:
             self.before = offsets_before_calibration(self.profile_path)
             self.sound = sound_speed_for_verify(self.profile, self.profile_path)
             self.gauge = calibration_gauge(self.profile, self.profile_path)
             self.unidentified = written_budget(self.profile_path)
+            self.tank = tank_reference(self.profile_path)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
-        return plan_verify(
+        plan = plan_verify(
             self.profile,
             self.n_points,
             before_offsets_deg=self.before.offsets_deg,
             before_placed=self.before.placed(self.profile),
         )
+        return plan if self.tank is None else with_tank(plan, self.profile, self.tank)
 
     def summary(self, plan: VerifyPlan) -> str:
         return plan_summary(plan, self.profile_path)
@@ -107,7 +117,13 @@ class VerifyJob(CheckingJob):
         postures = [t.face_joints_deg[k] for t in plan.targets for k in FACE_ORDER]
         faces = estimate_run(postures, calibration_pose(self.profile), speed)
         edges = [plan.targets[-1].joints_deg] * len(plan.edge_points)
-        return faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
+        total = faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
+        if plan.tank_faces:
+            # the tank read again at the start and the end: a move and a water path each
+            tank = [distance_joints(m) for m in plan.tank_faces]
+            once = estimate_run(tank, postures[0], speed, search=PATH_READ, first=NO_SEARCH)
+            total = total + once + once
+        return total
 
     def record_header(self, plan: VerifyPlan) -> dict[str, Any]:
         # what the run read from the profile's history: a replay reads these instead
@@ -116,6 +132,7 @@ class VerifyJob(CheckingJob):
             "sound": self.sound,
             "gauge": self.gauge,
             "unidentified": self.unidentified,
+            "tank": self.tank,
         }
         return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
 
@@ -136,6 +153,14 @@ class VerifyJob(CheckingJob):
 
     def solve(self, plan: VerifyPlan, measured: Measured[VerifyResult]) -> VerifySolved:
         result = measured.data
+        tank = None
+        if self.tank is not None and result.tank_readings:
+            conversion = float(sound_speed_m_s(self.sound.temperature_c))
+            drift = prior_from_profile(self.profile).drift_std_m_s_per_min
+            tank = estimate_tank(self.tank, result.tank_readings, conversion, drift)
+            if tank.used:
+                # the points' paths were converted at the speed the start read (measure)
+                result = tank_corrected(result, tank, result.points_speed_m_s or conversion)
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
@@ -148,6 +173,7 @@ class VerifyJob(CheckingJob):
             replace(self.gauge, reach_mm=reach),
             self.before.same_as(self.profile),
             self.unidentified,
+            tank,
         )
 
     def may_write(self, solved: VerifySolved) -> bool:

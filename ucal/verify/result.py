@@ -17,6 +17,7 @@ from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
 from ucal.verify.measure import VerifyResult
 from ucal.verify.plan import WALL_PATH_MM
 from ucal.verify.solve import ToolOffset, passed
+from ucal.verify.tank import TankEstimate
 
 #: How far verify's reached TCP may be from the real one (mm) with the profile's DH table
 #: right, set from the commissioning benchmark (``benchmarks/commissioning.py`` prints the
@@ -98,6 +99,9 @@ class VerifySolved:
     #: ``[calibration] unidentified_tcp_mm`` (mean, max; mm, one sigma) when the run was
     #: measured (``ucal.verify.inputs.written_budget``); None: the profile states none
     unidentified_tcp_mm: tuple[float, float] | None = None
+    #: the tank's sound speed read again within the run (``ucal.verify.tank``); None: the
+    #: history keeps no readings of the last calibration's
+    tank: TankEstimate | None = None
 
     @property
     def passed(self) -> bool:
@@ -109,9 +113,19 @@ class VerifySolved:
         return measured_within_mm(self.unidentified_tcp_mm, self.water_std_mm)
 
     @property
+    def tank_used(self) -> TankEstimate | None:
+        """The tank's sound speed read within the run, where the paths are converted with it
+        (the readings changed as the water changes them)."""
+        return self.tank if self.tank is not None and self.tank.used else None
+
+    @property
     def water_std_mm(self) -> float:
-        """One sigma of the farthest water path (a wall's) from the tank's sound speed since
-        the calibration measured it (``SoundSpeed.std_m_s``)."""
+        """One sigma of the farthest water path (a wall's) from the tank's sound speed: as
+        read within the run (``TankEstimate.std_m_s``), else since the calibration measured
+        it (``SoundSpeed.std_m_s``)."""
+        tank = self.tank_used
+        if tank is not None:
+            return tank.path_std_mm(max(WALL_PATH_MM))
         return self.sound.path_std_mm(max(WALL_PATH_MM))
 
     @property
@@ -151,6 +165,14 @@ class Verification:
         out["sound_speed_m_s"] = solved.sound.m_s
         out["sound_speed_source"] = solved.sound.source
         out["sound_speed_std_m_s"] = solved.sound.std_m_s
+        tank = solved.tank_used
+        out["sound_speed_now_m_s"] = None if tank is None else tank.m_s
+        out["sound_speed_now_std_m_s"] = None if tank is None else tank.std_m_s
+        out["sound_speed_run_drift_m_s_per_min"] = None if tank is None else tank.drift_m_s_per_min
+        out["sound_speed_run_drift_std_m_s_per_min"] = (
+            None if tank is None else tank.drift_std_m_s_per_min
+        )
+        out["tank"] = None if solved.tank is None else solved.tank.to_json()
         out["profile"] = str(run.profile_path)
         out["duration_s"] = run.duration_s
         out["gauge"] = "block"
@@ -279,10 +301,18 @@ def table_note(solved: VerifySolved) -> list[str]:
 
 
 def water_note(solved: VerifySolved) -> list[str]:
-    """What the tank may have done since the calibration measured its sound speed, when it
-    weighs more than verify's own measurement (``measured_within_mm``), for ``notes``."""
+    """What verify knows of the tank's sound speed, for ``notes``: as read again within the run
+    (``tank_note``), else what the tank may have done since the calibration measured it, when
+    that weighs more than verify's own measurement (``measured_within_mm``)."""
+    if solved.tank is not None:
+        return tank_note(solved)
     if not solved.water_unknown:
         return []
+    return [age_text(solved)]
+
+
+def age_text(solved: VerifySolved) -> str:
+    """The sound speed's promise from its age, in words."""
     sound, far = solved.sound, max(WALL_PATH_MM)
     why = (
         "its thermometer's tolerance, [water] temperature_std_c"
@@ -290,11 +320,41 @@ def water_note(solved: VerifySolved) -> list[str]:
         else f"the tank may have changed since the calibration {sound.age_min:.0f} min ago: "
         "[water] drift_std_c_per_min, at most temperature_std_c"
     )
-    return [
+    return (
         f"the water paths are read with the sound speed of {sound.source}, known to "
         f"±{sound.std_m_s:.2f} m/s (one sigma; {why}), which moves a wall's {far:g} mm by "
         f"±{solved.water_std_mm:.2f} mm: each 'after' point is known to "
         f"±{solved.measured_within_mm:.2f} mm; `ucal calibrate` measures the water"
+    )
+
+
+def tank_note(solved: VerifySolved) -> list[str]:
+    """The tank's sound speed as read again within the run, or why it was not used."""
+    tank = solved.tank
+    assert tank is not None
+    read = (
+        f"{tank.readings} of calibrate's water paths ({tank.source}) read again where it read "
+        f"them, at the start and the end of the run ({tank.extra_moves} moves)"
+    )
+    if not tank.used:
+        moved = max(abs(v) for s in tank.sets for v in s.misfit_mm)
+        return [
+            f"{read} changed otherwise than a sound speed change changes them (up to "
+            f"{moved:.3f} mm not in proportion to their paths): the block or the arm moved "
+            "since calibrate, which the water cannot be told from here; " + age_text(solved)
+        ]
+    drift = tank.drift_std_m_s_per_min
+    within = (
+        ""
+        if drift is None
+        else f", drifting {tank.drift_m_s_per_min:+.3f} ± {drift:.3f} m/s a minute within the run"
+    )
+    return [
+        f"the tank's sound speed, from {read}: {tank.m_s:.2f} ± {tank.std_m_s:.2f} m/s at the "
+        f"start (calibrate's {solved.sound.m_s:.2f}, changed by "
+        f"{tank.m_s - solved.sound.m_s:+.2f} ± {tank.change_std_m_s:.2f}){within}; each water "
+        f"path is read with the speed of its time, which leaves a wall's "
+        f"{max(WALL_PATH_MM):g} mm known to ±{solved.water_std_mm:.3f} mm since calibrate"
     ]
 
 

@@ -20,6 +20,7 @@ from ucal.calibration.fit import (
     prior_from_profile,
 )
 from ucal.calibration.model import FaceMeasurement
+from ucal.calibration.readings import faces_from_json, faces_to_json
 from ucal.check.history import (
     CheckEntry,
     append_check,
@@ -28,7 +29,6 @@ from ucal.check.history import (
     read_checks,
     reference_check,
 )
-from ucal.check.measure import faces_from_json, faces_to_json
 from ucal.errors import ProfileError
 from ucal.profile import load_profile, profile_history, undo_profile, write_profile
 
