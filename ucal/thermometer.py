@@ -62,7 +62,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.errors import InputError, ProfileError
@@ -259,6 +258,8 @@ class Thermometer:
         window = min(window, len(raw) - (1 - len(raw) % 2))
         if window < 5:
             return raw, 1.0, 1.0
+        from scipy.signal import savgol_coeffs, savgol_filter  # a second at import: when used
+
         coeffs = savgol_coeffs(window, 2)
         own = float(coeffs[window // 2])
         return savgol_filter(raw, window, 2), float(np.linalg.norm(coeffs)), own
