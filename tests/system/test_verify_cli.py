@@ -16,21 +16,18 @@ import tomlkit
 from ucal.acoustics import sound_speed_m_s
 from ucal.profile import create_profile, write_profile
 
+from doubles import ucal_here
+
 pytestmark = pytest.mark.system
 
 TRUE_OFFSETS_DEG = [0.4, -0.5, 0.6, -0.7, 0.5, 0.3]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def run_ucal(*args: str, timeout: float = 280.0) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "ucal", *args],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )
+def run_ucal(*args: str) -> subprocess.CompletedProcess:
+    """``ucal ARGS`` in this process (``doubles.ucal_here``: the same command line without a
+    new interpreter's imports); the tests that read a logged warning run a process."""
+    return ucal_here(*args)
 
 
 @pytest.fixture
