@@ -17,6 +17,8 @@ import pytest
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.sim.serve import serving
 
+from doubles import ucal_here
+
 pytestmark = pytest.mark.system
 
 
@@ -141,7 +143,7 @@ def test_on_axis_beam_reports_joint6_unobservable_and_keeps_its_value(tmp_path):
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     profile = make_profile(tmp_path, prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25])
     world = make_world(tmp_path, offsets)
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     assert result["unobservable_joints"] == [6]
@@ -154,7 +156,7 @@ def test_errors_under_noise_are_within_three_reported_sigmas(tmp_path):
     offsets = np.array([-2.0, 1.5, -1.0, 3.0, -2.5, 2.0])
     profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0))
     world = make_world(tmp_path, offsets, noise=(0.5, 0.01, 7))
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
     assert out.returncode in (0, 1), out.stderr
     result = json.loads(out.stdout)
     assert result["written"] is False  # --dry-run writes nothing
@@ -378,7 +380,7 @@ def test_paper_method_reports_its_half_step_bias_in_its_std_and_refuses(tmp_path
     # sound speed as exact, cannot separate joint 3 from it.
     profile = make_profile(tmp_path, water_std=0.1)
     world = make_world(tmp_path, offsets)
-    out = ucal(
+    out = ucal_here(
         "calibrate",
         str(profile),
         "--sim",
@@ -423,7 +425,7 @@ def misfit_cell(tmp_path: Path) -> tuple[Path, Path]:
 def test_misfit_exits_1_and_writes_nothing(tmp_path):
     profile, world = misfit_cell(tmp_path)
     before = profile.read_bytes()
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 1, out.stderr
     result = json.loads(out.stdout)
     assert result["written"] is False and result["exit_code"] == 1
@@ -436,7 +438,7 @@ def test_misfit_exits_1_and_writes_nothing(tmp_path):
 def test_force_writes_a_misfit_and_records_the_verdict(tmp_path):
     profile, world = misfit_cell(tmp_path)
     before = profile.read_bytes()
-    forced = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--force")
+    forced = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--force")
     assert forced.returncode == 1, forced.stderr
     assert json.loads(forced.stdout)["written"] is True
     assert profile.read_bytes() != before
@@ -462,7 +464,7 @@ def test_warm_water_and_a_yawed_hand_placed_block(tmp_path):
             "[water]\ntemperature_c = 24.0\n"
         ),
     )
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "--dry-run")
     assert out.returncode in (0, 1), out.stderr
     result = json.loads(out.stdout)
     c = sound_speed_m_s(24.0)
@@ -520,7 +522,7 @@ def test_a_declared_step_is_planned_around_and_the_offsets_recovered(tmp_path):
     create_profile(path, "tx90l")
     step = {"height_mm": 50.0, "height_std_mm": 0.002, "centre_mm": [250.0, 250.0]}
     write_profile(path, {"step": {**step, "size_mm": 60.0}}, "test setup")
-    r = ucal("calibrate", str(path), "--sim", "--yes", "--json")
+    r = ucal_here("calibrate", str(path), "--sim", "--yes", "--json")
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     assert out["written"] and out["moves"] < 250
