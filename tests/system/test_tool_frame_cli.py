@@ -43,8 +43,10 @@ def ucal(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
 
 
 def tool_frame(profile: Path, world_path: Path, *flags: str) -> subprocess.CompletedProcess[str]:
-    """``ucal tool-frame PROFILE --sim WORLD --yes --json`` with ``flags``."""
-    return ucal("tool-frame", str(profile), "--sim", str(world_path), "--yes", "--json", *flags)
+    """``ucal tool-frame PROFILE --sim WORLD --yes --json`` with ``flags``, in this process."""
+    return ucal_here(
+        "tool-frame", str(profile), "--sim", str(world_path), "--yes", "--json", *flags
+    )
 
 
 def world(
@@ -341,14 +343,14 @@ def test_demo_cell_commissioned_tool_frame_first(tmp_path: Path) -> None:
     found by both (calibrate's tool prior is tool-frame's std: no misfit)."""
     profile = tmp_path / "cell.toml"
     create_profile(profile, "tx90l")
-    r = ucal("tool-frame", str(profile), "--sim", "--yes", "--json")
+    r = ucal_here("tool-frame", str(profile), "--sim", "--yes", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["written"] is True
     tool = load_profile(profile).tool_rotation_deg
     np.testing.assert_allclose(tool[:2], [0.2, -0.22], atol=0.005)  # the demo's beam tilt
     # the full level on ten postures: enough to see every joint, a third of its plan's cost
     for level in (["offsets"], ["full", "--postures", "10"]):
-        r = ucal("calibrate", str(profile), "--sim", "--yes", "--json", "--level", *level)
+        r = ucal_here("calibrate", str(profile), "--sim", "--yes", "--json", "--level", *level)
         assert r.returncode == 0, r.stderr
         out = json.loads(r.stdout)
         assert out["written"] is True and out["fit"]["verdict"] == "ok"
