@@ -5,8 +5,9 @@ result): a fresh profile, then ``calibrate``, ``tool-frame`` and ``verify`` with
 demo truth of ``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
 ``ucal.calibration.gauge``), marginal within what the DH table left unidentified allows, with
 the simulator's truth confirming the "after" figure; then the
-shipped world with faults, which must fail. One test, because the whole workflow costs tens of
-seconds of CPU; ``test_readme_examples`` leaves this block to it.
+shipped world with faults, which must fail. Each line runs the command line in the test's
+process (the same code a shell runs, without a new interpreter's imports). One test, because
+the whole workflow costs seconds of CPU; ``test_readme_examples`` leaves this block to it.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import json
 import shlex
 import shutil
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 
 from ucal.verify.result import MEASURED_WITHIN_MM
+
+from doubles import ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -32,15 +34,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def ucal(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "ucal", *args],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=360,
-        stdin=subprocess.DEVNULL,
-    )
+    """``ucal ARGS`` in ``cwd``, in this process (``doubles.ucal_here``: the command line a
+    user runs, without a new interpreter's imports for each line)."""
+    return ucal_here(*args, cwd=cwd)
 
 
 #: The first line of the README's rehearsal block, which names it.
