@@ -71,6 +71,7 @@ from ucal.session import CellSession, check_status, open_cell, replay_cell
 from ucal.thermometer import (
     TemperatureLog,
     Thermometer,
+    again,
     check_time_base,
     on_run,
     reading_span_min,
@@ -523,12 +524,14 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
 
     def _thermometer(self, session: CellSession, data: Any) -> Thermometer | None:
         """The thermometer's log on the run's clock (``ucal.thermometer.on_run``), if one was
-        given: its wall-clock times meet the run at the first reading's wall time; a
-        simulated cell's minutes at its clock (``check_time_base``)."""
+        given, read again now that the run has measured (``ucal.thermometer.again``): its
+        wall-clock times meet the run at the first reading's wall time; a simulated cell's
+        minutes at its clock (``check_time_base``)."""
         log_ = self.options.thermometer
         rig = session.rig
         if log_ is None or rig.first_read_s is None:
             return None
+        log_ = again(log_)  # the logger wrote on during the run
         if log_.wall_clock:
             assert rig.first_read_wall_s is not None
             first_min = rig.first_read_wall_s / 60.0

@@ -156,6 +156,18 @@ def read_log(path: Path, context: str = "", wall_clock: bool = True) -> Temperat
     return TemperatureLog(path, table[:, 0], table[:, 1], header == WALL_CLOCK_HEADER)
 
 
+def again(log_: TemperatureLog) -> TemperatureLog:
+    """``log_`` read again from its file, as the logger has written it since (a run is solved
+    after it measured; the file was read and checked before anything moved). A file that no
+    longer reads (a row cut off as the logger writes it) keeps what was read, with a warning
+    naming it."""
+    try:
+        return read_log(log_.path, "--thermometer", wall_clock=log_.wall_clock)
+    except ProfileError as e:
+        log.warning("%s: the log as read before the run is used", e)
+        return log_
+
+
 def _row(cells: tuple[str, ...], wall_clock: bool) -> tuple[float, float] | None:
     """A row's time (minutes of its time base) and temperature, or None if malformed."""
     if len(cells) != 2:

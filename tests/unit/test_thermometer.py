@@ -190,3 +190,22 @@ def test_the_run_keeps_an_evenly_spaced_stretch_of_the_log() -> None:
     assert np.allclose(steps, 0.05)
     assert water.time_min[0] < -1.5 and water.time_min[-1] > 2.5
     assert water.time_min[-1] < 3.0
+
+
+def test_the_log_is_read_again_as_the_logger_wrote_it_during_the_run(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Read before anything moves, the log is read again when the run is solved: the rows the
+    logger wrote since are there; a row cut off as it writes keeps what was read, said."""
+    from ucal.thermometer import again
+
+    path = _write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20.00\n")
+    first = read_log(path)
+    with path.open("a") as f:
+        f.write("2026-11-26T07:00:03Z,20.01\n")
+    assert again(first).temperature_c.tolist() == [20.0, 20.01]
+    with path.open("a") as f:
+        f.write("2026-11-26T07:0")
+    with caplog.at_level(logging.WARNING):
+        assert again(first) is first
+    assert "the log as read before the run is used" in caplog.text
