@@ -15,6 +15,8 @@ import pytest
 
 from ucal.profile import create_profile, write_profile
 
+from doubles import ucal_here
+
 pytestmark = pytest.mark.system
 
 SHIFTED_MAP_PATH = Path(__file__).resolve().parents[1] / "data" / "shifted_pulser_map.toml"
@@ -61,7 +63,8 @@ def make_world(directory: Path, extra: str = "") -> Path:
 
 
 def calibrate(profile: Path, world: Path) -> dict:
-    out = ucal("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
+    """``ucal calibrate --json`` on the simulated cell, in this process."""
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json")
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
 
