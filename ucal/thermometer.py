@@ -12,6 +12,10 @@ reading a row, times strictly increasing, 0–60 °C (the sound speed's range); 
   base of a world file's ``[water] temperature_log``: a rehearsal's thermometer on
   ``--sim WORLD`` (that clock is not the wall clock).
 
+The file is read and checked before anything moves (a bad row, or a time base that is not the
+cell's, exits 2 naming the file), and read again when the run is solved (``again``): the logger
+writes on during the run.
+
 What a thermometer measures is the tank's *change*, and what the water paths cannot see for
 themselves is how that change turns during a run. The solvers fit the sound speed at the
 middle of the run and a steady drift from the paths (a face read again, the steps, the wrist's
