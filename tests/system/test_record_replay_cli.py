@@ -41,7 +41,7 @@ def ucal(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     d = tmp_path_factory.mktemp("record")
-    out = ucal(
+    out = ucal_here(
         "calibrate",
         "cell.toml",
         "--sim",
@@ -241,7 +241,7 @@ def recorded_command(
     few = {"tool-frame": ["--points", "2"], "verify": ["--points", "1"], "check": []}[command]
     dry_run = [] if command == "check" else ["--dry-run"]
     args = [command, "cell.toml", "--sim", "--yes", "--json", *dry_run, *few]
-    out = ucal(*args, "--record", "run.jsonl", cwd=d)
+    out = ucal_here(*args, "--record", "run.jsonl", cwd=d)
     assert out.returncode in (0, 1), out.stderr
     return command, d, json.loads(out.stdout), out.returncode
 
