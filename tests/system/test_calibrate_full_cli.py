@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from ucal.profile import create_profile, load_profile
+
+from doubles import ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -35,14 +36,8 @@ seed = 3
 
 
 def ucal(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "ucal", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        stdin=subprocess.DEVNULL,
-        check=False,
-    )
+    """``ucal ARGS`` in this process (``doubles.ucal_here``)."""
+    return ucal_here(*args)
 
 
 def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> None:
