@@ -93,7 +93,7 @@ import realistic
 from _quick import parse_args
 
 from drivers.errors import DriverError
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.budget import calibration_budget
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.fit import (
@@ -328,7 +328,7 @@ class Outcome:
 def true_sound(world: WorldTruth, t_min: float) -> tuple[float, float]:
     """The world's sound speed (m/s) at ``t_min`` minutes and its drift there (m/s per min)."""
     temp_c, rate = tank_at(world, t_min)
-    slope = (sound_speed_m_s(temp_c + 0.01) - sound_speed_m_s(temp_c - 0.01)) / 0.02
+    slope = sound_speed_slope_m_s_per_c(temp_c)
     return float(sound_speed_m_s(temp_c)), slope * rate
 
 

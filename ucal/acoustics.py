@@ -66,6 +66,13 @@ def sound_speed_m_s(temperature_c: float | np.ndarray) -> float | np.ndarray:
     return float(c) if c.ndim == 0 else c
 
 
+def sound_speed_slope_m_s_per_c(temperature_c: float) -> float:
+    """dc/dT of Marczak's c(T) at ``temperature_c`` (m/s per °C; ≈ 3.0 at 20 °C, 0 near
+    74 °C), a central difference over ±0.01 °C."""
+    t = float(temperature_c)
+    return (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
+
+
 def temperature_for_speed_c(speed_m_s: float) -> float | None:
     """The water temperature (°C, 0…70) at which Marczak's c(T) is ``speed_m_s``: the
     temperature a measured sound speed is converted with; None outside that range."""

@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.errors import InputError, ProfileError
 
 if TYPE_CHECKING:
@@ -283,8 +283,7 @@ class Thermometer:
     @property
     def slope_m_s_per_c(self) -> float:
         """|dc/dT| at the log's middle temperature (m/s per °C, Marczak)."""
-        t = float(np.median(self.temperature_c))
-        return abs(float(sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01))) / 0.02
+        return abs(sound_speed_slope_m_s_per_c(float(np.median(self.temperature_c))))
 
     def speeds_m_s(self, t_min: np.ndarray) -> np.ndarray:
         """Marczak's sound speed (m/s) at the log's course at each of ``t_min``."""

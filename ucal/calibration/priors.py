@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel
 
@@ -121,8 +121,7 @@ class CellPrior:
     @property
     def sound_speed_slope_m_s_per_c(self) -> float:
         """|dc/dT| at the profile's temperature (m/s per °C; ≈ 3 at 20 °C, Marczak)."""
-        t = self.water_temperature_c
-        return float(abs(sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02)
+        return abs(sound_speed_slope_m_s_per_c(self.water_temperature_c))
 
     @property
     def sound_speed_std_m_s(self) -> float:

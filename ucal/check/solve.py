@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ucal.acoustics import sound_speed_m_s
+from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.fit import (
     BACKLASH,
     BLOCK,
@@ -524,9 +524,7 @@ def compare_to_profile(
 def temperature_change_c(prior: CellPrior, sound_change_m_s: float) -> float:
     """The water temperature change (°C) that a sound speed change (m/s) means, at the
     profile's temperature (Marczak's c(T))."""
-    t = prior.water_temperature_c
-    slope = (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
-    return float(sound_change_m_s / slope)
+    return float(sound_change_m_s / sound_speed_slope_m_s_per_c(prior.water_temperature_c))
 
 
 def chi2_threshold(k: int) -> float:
@@ -539,8 +537,7 @@ def temperature_of(prior: CellPrior, speed_m_s: float) -> float:
     profile's temperature; Newton's method)."""
     t = prior.water_temperature_c
     for _ in range(20):
-        slope = (sound_speed_m_s(t + 0.01) - sound_speed_m_s(t - 0.01)) / 0.02
-        step = (speed_m_s - sound_speed_m_s(t)) / slope
+        step = (speed_m_s - sound_speed_m_s(t)) / sound_speed_slope_m_s_per_c(t)
         t += step
         if abs(step) < 1e-9:
             break
