@@ -267,7 +267,8 @@ def test_a_checks_thermometer_log_goes_into_its_history_and_the_next_checks_fit(
     calibration, and its history entry keeps the log's drift and the thermometer's std
     (0.005 °C). The next check, without a log, fits the reference's run with them (its drift's
     prior mean the log's, its turn 8·|c'|·σ_th/D² over the 2.5 min) and its own with the
-    declared tolerance (0 ± 0.05 °C/min, a turn of |c'|·0.05/D), and passes."""
+    declared tolerance (0 ± 0.05 °C/min, a turn of |c'|·0.05/D), and passes: the water's
+    change is that of the tank's mean sound speed over each run, as without a log."""
     path = tmp_path / "cell.toml"
     shutil.copy(EXAMPLE, path)
     profile = replace(
@@ -305,6 +306,15 @@ def test_a_checks_thermometer_log_goes_into_its_history_and_the_next_checks_fit(
     run = CheckRun(measure(cell, 2, drift_c_per_min=-0.03), [], None, 0, 0)
     found = job.solve(plan, Measured(run, 60.0, None))
     assert not found.out_of_tolerance, found.message()
+    # the turn taken out of the reference's paths, nothing is taken for it (without the log the
+    # block is, "or a drift of the sound speed that turns during the reference's run"), and the
+    # water's change is that of the tank's mean sound speed over each run's faces
+    assert found.geometry is not None and found.geometry.chosen in ([], ["water"])
+    times = np.array([m.time_min for m in run.faces])  # both runs' faces at these times
+    tank_then = np.interp(times, t_min, tank_c)
+    change = np.mean(sound_speed_m_s(20.0 - 0.03 * times)) - np.mean(sound_speed_m_s(tank_then))
+    water = next(c for c in found.geometry.changes if c.parameter == SOUND[0])
+    assert abs(water.change - change) < 3 * water.std
     ((prior, reference, check, reference_prior),) = seen
     assert (prior.logged_departure_std_c, prior.drift_prior_c_per_min) == (None, 0.0)
     assert reference_prior.logged_departure_std_c == 0.005
