@@ -45,8 +45,19 @@ Printed with verify's figures: how many of its runs read the tank again and what
 (its largest |z|; the simulated tank starts each command at its world's temperature, so
 verify's run begins where calibrate's began, the tank having drifted over calibrate's run).
 
+``--tank cycling``: the drifting cells' tank is ``drift.py``'s heater (a sine of period 5–15 min
+and 0.05–0.2 °C) in place of their drift, their lost motion kept. Each cell is then
+commissioned with the tank thermometer's log (``thermometer.py``'s probe: a reading every 3 s,
+3–9 s behind the tank, 0.5 °C off, 0.003 °C noise, at ``--thermometer C`` resolution,
+0.01 °C by default), and checked twice from the commissioned profile (a copy each, with its
+history): with the probe's log (``check --thermometer``) and without. Each of the three checks
+meets the heater at a phase of its own (its log started 0–20 min in, as another hour of the day
+would), so the water changes between them; the truth of the sound speed is the tank's at the
+middle of each run. A row per way of checking.
+
 Usage: ``python benchmarks/verify_check_drift.py --worlds 12 [--jobs 1] [--points 3]
-[--region 4] [--state drifting|still|both] [--level offsets|full] [--warm C]``;
+[--region 4] [--state drifting|still|both] [--level offsets|full] [--warm C] [--tank
+linear|cycling] [--thermometer C]``;
 ``--quick``: one world, drifting only, verify on one point and the region on three postures,
 the same code path in half a minute.
 """
@@ -67,12 +78,14 @@ import drift
 import full_calibration
 import numpy as np
 import realistic
+import thermometer
 from _quick import parse_args
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.fit import BLOCK, OFFSETS, TOOL
 from ucal.check.history import read_checks
 from ucal.profile import load_profile
+from ucal.thermometer import read_log
 from ucal.verify.result import MEASURED_WITHIN_MM
 from ucal.world import load_world
 
@@ -87,6 +100,32 @@ MOVED_DEG = 0.05
 STATES = ("drifting", "still")
 #: The unknowns of check's suspects but the water's (``ucal.check.solve.suspects``).
 SUSPECTED = OFFSETS + TOOL + BLOCK
+#: ``--tank cycling``: each check meets the heater this many minutes (uniform) into its log, a
+#: phase of its own (calibrate and verify meet it at 0); the two ways each cell is checked.
+CHECK_SHIFT_MIN = (0.0, 20.0)
+LOGGED, BARE = "with the log", "without"
+
+
+@dataclass
+class Heated:
+    """``--tank cycling``'s drifting cell: its tank's log (``drift.Tank``'s heater), the probe's
+    resolution (°C, ``thermometer.thermometer_log``'s probe, its seed) and each check's shift
+    into the log (min: reference, good, moved)."""
+
+    log_path: Path
+    resolution_c: float
+    seed: int
+    shifts_min: tuple[float, ...]
+
+
+@dataclass
+class Checks:
+    """A cell's three checks (reference, good, moved) in one way of checking it."""
+
+    z: list[float] = field(default_factory=list)  # |error| / std of every quantity
+    z_names: list[str] = field(default_factory=list)
+    #: (exit code, verdict, what it named) of the reference, good, moved
+    checks: list[tuple[int, str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -95,10 +134,9 @@ class Figures:
 
     name: str
     calibrated: bool = False
-    z: list[float] = field(default_factory=list)  # check: |error| / std of every quantity
-    z_names: list[str] = field(default_factory=list)
-    #: check's verdicts: (exit code, verdict, what it named) of the reference, good, moved
-    checks: list[tuple[int, str, str]] = field(default_factory=list)
+    #: check's figures, by the way the cell was checked ("": the one way; ``--tank cycling``:
+    #: ``LOGGED`` and ``BARE``)
+    arms: dict[str, Checks] = field(default_factory=dict)
     #: verify on the good and the moved cell: (passed, truly within, after error max mm,
     #: marginal, what it promises its figure to: ``measured_within_mm``)
     verify: list[tuple[bool, bool, float, bool, float]] = field(default_factory=list)
@@ -152,11 +190,48 @@ def moved(text: str) -> str:
 def speed_at(world, entry) -> float:
     """The true sound speed (m/s) at the middle of a check's run (its faces' mean time)."""
     times = [f["time_min"] for f in entry.faces if f.get("time_min") is not None]
-    t_mid = float(np.mean(times)) if times else 0.0
-    return float(sound_speed_m_s(world.water_temperature_c + world.water_drift_c_per_min * t_mid))
+    return true_speed(world, float(np.mean(times)) if times else 0.0)
 
 
-def check_z(figures: Figures, out: dict, truth: dict[str, float]) -> None:
+def true_speed(world, t_min: float) -> float:
+    """The world's sound speed (m/s) at ``t_min`` of a run (its drift, or its log)."""
+    return float(sound_speed_m_s(drift.tank_at(world, t_min)[0]))
+
+
+def heated(rng: np.random.Generator, tank: drift.Tank, text: str, path: Path, resolution_c: float):
+    """The drifting cell ``text`` with ``--tank cycling``'s heater in place of its drift, the log
+    written to ``path`` (named in the text by its full path), and its ``Heated``."""
+    text = tank.into(text, 0.0, path).replace(f'"{path.name}"', json.dumps(str(path)))
+    shifts = tuple(float(v) for v in rng.uniform(*CHECK_SHIFT_MIN, 3))
+    return text, Heated(path, resolution_c, int(rng.integers(1 << 30)), shifts)
+
+
+def shifted(text: str, heat: Heated, k: int, directory: Path) -> str:
+    """The world ``text`` with its tank's log started ``heat.shifts_min[k]`` minutes in: the
+    heater at another phase, as another run meets it."""
+    log = read_log(heat.log_path, wall_clock=False)
+    t_min = log.time_min[log.time_min <= log.time_min[-1] - heat.shifts_min[k]]
+    temp_c = np.interp(t_min + heat.shifts_min[k], log.time_min, log.temperature_c)
+    path = directory / f"tank-{k}.csv"
+    write_log(path, t_min, temp_c)
+    return text.replace(json.dumps(str(heat.log_path)), json.dumps(str(path)))
+
+
+def write_log(path: Path, t_min: np.ndarray, temp_c: np.ndarray) -> Path:
+    """A log (``time_min,temperature_c``) at ``path``."""
+    rows = "".join(f"{t:.4f},{c:.5f}\n" for t, c in zip(t_min, temp_c, strict=True))
+    path.write_text("time_min,temperature_c\n" + rows)
+    return path
+
+
+def probe(world_path: Path, profile_path: Path, heat: Heated, name: str) -> Path:
+    """The tank thermometer's log of the world at ``world_path`` (``thermometer.py``'s probe:
+    lagging, offset, noisy, at ``heat.resolution_c``), written beside it as ``name``."""
+    log = thermometer.thermometer_log(world_path, profile_path, heat.seed, heat.resolution_c)
+    return write_log(world_path.parent / name, log.time_min, log.temperature_c)
+
+
+def check_z(figures: Checks, out: dict, truth: dict[str, float]) -> None:
     """Add the |error| / std of every quantity of a check's ``out`` (``--json``) that has a
     std and a truth (``truth``: by name, the true value of a reference's quantity or the true
     change of a compared check's)."""
@@ -180,8 +255,11 @@ def run_cell(
     region: int,
     level: str,
     warm_c: float = 0.0,
+    heat: Heated | None = None,
 ):
-    """Commission and check one cell (module docstring, steps 1-4) in ``directory``."""
+    """Commission and check one cell (module docstring, steps 1-4) in ``directory``; a
+    ``heat``ed one (``--tank cycling``) commissioned with its thermometer's log and checked
+    both with it and without."""
     directory.mkdir()
     profile_path = directory / "cell.toml"
     shutil.copy(template, profile_path)
@@ -189,7 +267,12 @@ def run_cell(
     world_path.write_text(text)
     moved_path.write_text(moved(text))
     fig = Figures(name)
-    done = commissioning.run("calibrate", profile_path, world_path, "--level", level)
+    logged = (
+        ()
+        if heat is None
+        else ("--thermometer", str(probe(world_path, template, heat, "probe.csv")))
+    )
+    done = commissioning.run("calibrate", profile_path, world_path, "--level", level, *logged)
     fig.calibrated = bool(done.get("written"))
     if not fig.calibrated:
         fig.errors.append(f"calibrate not written: {done.get('error', '')[:200]}")
@@ -202,28 +285,22 @@ def run_cell(
         fig.region = (bool(out["passed"]), float(out["region"]["chi2_reduced"]))
     else:
         fig.errors.append(f"region: {out.get('error', '')[:200]}")
-    reached = world.joint_offsets_deg - 0.5 * np.asarray(world.backlash_deg, float)
-    for k, path in enumerate((world_path, world_path, moved_path)):
-        out = commissioning.run("check", profile_path, path)
-        fig.checks.append(
-            (out["returncode"], out.get("verdict", "error"), "; ".join(out.get("moved", [])))
-        )
-        if "quantities" not in out:
-            fig.errors.append(f"check {k}: {out.get('error', '')[:200]}")
-            continue
-        entries = {e.id: e for e in read_checks(profile_path)}
-        this = entries[max(entries)]
-        if out["reference"] is None:  # a reference: the fitted offsets and sound speed
-            truth = {f"J{j + 1}": float(reached[j]) for j in range(6)}
-            truth["sound_speed_m_s"] = speed_at(world, this)
-        else:  # the changes since the reference
-            truth = dict.fromkeys(SUSPECTED, 0.0)
-            truth["sound_speed_m_s"] = speed_at(world, this) - speed_at(
-                world, entries[out["reference"]["id"]]
-            )
-            if path == moved_path:
-                truth[f"J{MOVED_JOINT}"] = MOVED_DEG
-        check_z(fig, out, truth)
+    if heat is None:
+        fig.arms[""] = run_checks(profile_path, [world_path, world_path, moved_path], [], fig)
+    else:  # each check at its own phase of the heater, in a copy of the commissioned cell
+        worlds, probes = [], []
+        for k in range(3):
+            path = directory / f"check-{k}.toml"
+            path.write_text(shifted(moved(text) if k == 2 else text, heat, k, directory))
+            worlds.append(path)
+            probes.append(probe(path, template, heat, f"probe-{k}.csv"))
+        for arm, logs in ((LOGGED, probes), (BARE, [])):
+            copy = directory / arm.replace(" ", "-") / "cell.toml"
+            copy.parent.mkdir()
+            shutil.copy(profile_path, copy)
+            history = profile_path.with_name(profile_path.name + ".history")
+            shutil.copytree(history, copy.with_name(history.name))
+            fig.arms[arm] = run_checks(copy, worlds, logs, fig)
     fig.verify.append(verify_figures(profile_path, moved_path, points, fig, world))
     if warm_c:
         warm_path = directory / "warm.toml"
@@ -231,6 +308,42 @@ def run_cell(
         warm = load_world(warm_path, profile)
         fig.warm.append(verify_figures(profile_path, warm_path, points, fig, warm, world))
     return fig
+
+
+def run_checks(profile_path: Path, worlds: list[Path], logs: list[Path], fig: Figures) -> Checks:
+    """``check`` three times on ``profile_path`` (module docstring, step 3): the reference and
+    the good cell on ``worlds[0]`` and ``[1]``, the moved one on ``[2]``, each with its
+    thermometer's log of ``logs`` if given; against the truth."""
+    found = Checks()
+    profile = load_profile(profile_path)
+    truths = [load_world(w, profile) for w in worlds]
+    reached = truths[0].joint_offsets_deg - 0.5 * np.asarray(truths[0].backlash_deg, float)
+    world_of: dict[int, object] = {}  # each check's world, by its history entry
+    for k, path in enumerate(worlds):
+        logged = ("--thermometer", str(logs[k])) if logs else ()
+        out = commissioning.run("check", profile_path, path, *logged)
+        found.checks.append(
+            (out["returncode"], out.get("verdict", "error"), "; ".join(out.get("moved", [])))
+        )
+        if "quantities" not in out:
+            fig.errors.append(f"check {k}: {out.get('error', '')[:200]}")
+            continue
+        entries = {e.id: e for e in read_checks(profile_path)}
+        this = entries[max(entries)]
+        world_of[this.id] = truths[k]
+        if out["reference"] is None:  # a reference: the fitted offsets and sound speed
+            truth = {f"J{j + 1}": float(reached[j]) for j in range(6)}
+            truth["sound_speed_m_s"] = speed_at(truths[k], this)
+        else:  # the changes since the reference
+            ref = out["reference"]["id"]
+            truth = dict.fromkeys(SUSPECTED, 0.0)
+            truth["sound_speed_m_s"] = speed_at(truths[k], this) - speed_at(
+                world_of[ref], entries[ref]
+            )
+            if k == 2:
+                truth[f"J{MOVED_JOINT}"] = MOVED_DEG
+        check_z(found, out, truth)
+    return found
 
 
 def warmed(text: str, warm_c: float) -> str:
@@ -263,15 +376,11 @@ def verify_figures(
         fig.tanks.append(None)
     else:
         start = tank["start"]
-        true_c = sound_speed_m_s(
-            world.water_temperature_c + world.water_drift_c_per_min * start["time_min"]
-        )
+        true_c = true_speed(world, start["time_min"])
         z = abs(start["sound_speed_m_s"] - true_c) / tank["sound_speed_std_m_s"]
         # the change since calibrate's readings, against the tank's (calibrate's run started
         # at the world's temperature too)
-        then_c = sound_speed_m_s(
-            then.water_temperature_c + then.water_drift_c_per_min * tank["calibrate_time_min"]
-        )
+        then_c = true_speed(then, tank["calibrate_time_min"])
         change = start["sound_speed_m_s"] - tank["calibrate_sound_speed_m_s"]
         z_change = abs(change - (true_c - then_c)) / tank["change_std_m_s"]
         fig.tanks.append((tank["seen"], float(z), float(z_change)))
@@ -309,27 +418,44 @@ def verdicts(runs: list[tuple[bool, bool, float, bool, float]]) -> str:
     )
 
 
-def summary(state: str, figs: list[Figures]) -> list[str]:
-    """The rows of one state (module docstring)."""
-    done = [f for f in figs if f.calibrated]
-    z = np.array([v for f in done for v in f.z])
-    worst = max(((v, n) for f in done for v, n in zip(f.z, f.z_names, strict=True)), default=None)
+def check_columns(name: str, done: list[Figures], arm: str) -> tuple[str, list[str], list[str]]:
+    """The check's columns of one way of checking (``arm``) the ``done`` cells: coverage, false
+    alarms and misses, and the lines naming each alarm and miss."""
+    checked = [(f, f.arms[arm]) for f in done if arm in f.arms]
+    z = np.array([v for _, c in checked for v in c.z])
+    worst = max(
+        ((v, n) for _, c in checked for v, n in zip(c.z, c.z_names, strict=True)), default=None
+    )
     cover = (
         f"{np.mean(z <= 3.0) * 100:.1f} % of {z.size} (max |z| {worst[0]:.1f}, {worst[1]})"
         if worst
         else "—"
     )
     alarms = [
-        f"{f.name} {('reference', 'good')[k]}: {c[1]} ({c[2] or 'nothing named'})"
-        for f in done
-        for k, c in enumerate(f.checks[:2])
-        if c[0] != 0
+        f"false alarm: {f.name} {('reference', 'good')[k]}: {v[1]} ({v[2] or 'nothing named'})"
+        for f, c in checked
+        for k, v in enumerate(c.checks[:2])
+        if v[0] != 0
     ]
     misses = [
-        f"{f.name}: {f.checks[2][1]} ({f.checks[2][2] or 'nothing named'})"
-        for f in done
-        if len(f.checks) == 3 and (f.checks[2][0] == 0 or f"J{MOVED_JOINT}" not in f.checks[2][2])
+        f"miss: {f.name}: {c.checks[2][1]} ({c.checks[2][2] or 'nothing named'})"
+        for f, c in checked
+        if len(c.checks) == 3 and (c.checks[2][0] == 0 or f"J{MOVED_JOINT}" not in c.checks[2][2])
     ]
+    row = (
+        f"| {name} | {len(done)} | {cover} | {len(alarms)} of {2 * len(checked)} | "
+        f"{len(misses)} of {len(checked)} |"
+    )
+    return (
+        row,
+        [f"  {arm + ': ' if arm else ''}{line}" for line in alarms],
+        [f"  {arm + ': ' if arm else ''}{line}" for line in misses],
+    )
+
+
+def summary(state: str, figs: list[Figures]) -> list[str]:
+    """The rows of one state (module docstring): one per way its cells were checked."""
+    done = [f for f in figs if f.calibrated]
     good = [f.verify[0] for f in done if f.verify]
     bad = [f.verify[1] for f in done if len(f.verify) == 2]
     errs = [v[2] for v in good + bad if np.isfinite(v[2])]
@@ -348,17 +474,22 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
         f"{max((w[0] for w in water), default=float('nan')):.3f} mm, Z error max "
         f"{max((w[1] for w in water), default=float('nan')):.4f} mm"
     )
-    rows = [
-        f"| {state} | {len(done)} / {len(figs)} | {cover} | "
-        f"{sum(1 for f in done for c in f.checks[:2] if c[0] != 0)} of {2 * len(done)} | "
-        f"{len(misses)} of {len(done)} | "
-        f"{verdicts(good)} | {verdicts(bad)} | "
+    verify = (
+        f" {verdicts(good)} | {verdicts(bad)} | "
         f"{max(errs, default=float('nan')):.4f} ({kept} of {len(errs)} within "
         f"±{min((v[4] for v in good + bad), default=float('nan')):.2f}–"
         f"{max((v[4] for v in good + bad), default=float('nan')):.2f}) | "
         f"{sum(p for p, _ in regions)} / {len(regions)} (χ²ᵣ median "
         f"{np.median([c for _, c in regions]) if regions else float('nan'):.3g}) | {tank} |"
-    ]
+    )
+    arms = list(dict.fromkeys(a for f in done for a in f.arms)) or [""]
+    rows, notes = [], []
+    for k, arm in enumerate(arms):
+        name = f"{state}, check {arm}" if arm else state
+        row, alarms, misses = check_columns(name, done, arm)
+        rows.append(row.replace(f"| {len(done)} |", f"| {len(done)} / {len(figs)} |", 1))
+        rows[-1] += verify if k == 0 else " as above |" * 5
+        notes += alarms + misses
     warm = [v for f in done for v in f.warm if np.isfinite(v[2])]
     if warm:
         rows.append(
@@ -366,8 +497,7 @@ def summary(state: str, figs: list[Figures]) -> list[str]:
             f"{sum(v[2] <= v[4] for v in warm)} of {len(warm)} within its ±"
             f"{min(v[4] for v in warm):.3f}–{max(v[4] for v in warm):.3f}"
         )
-    rows += [f"  false alarm: {a}" for a in alarms]
-    rows += [f"  miss: {m}" for m in misses]
+    rows += notes
     rows += [f"  {f.name}: {e}" for f in figs for e in f.errors]
     rows += [f"  {line}" for f in figs for line in f.lines]
     return rows
@@ -394,17 +524,42 @@ def main(argv: list[str] | None = None) -> int:
         help="the calibration's level, and its benchmark's cells (module docstring)",
     )
     ap.add_argument(
+        "--tank",
+        choices=("linear", "cycling"),
+        default="linear",
+        help="the drifting cells' tank: a steady drift, or a heater cycling (drift.py's), the "
+        "cell then commissioned with its thermometer's log and checked with it and without",
+    )
+    ap.add_argument(
+        "--thermometer",
+        type=float,
+        default=thermometer.RESOLUTION_C,
+        metavar="C",
+        help="--tank cycling: the thermometer logger's resolution (°C)",
+    )
+    ap.add_argument(
         "--quick",
         action="store_true",
         help="--worlds 1 --jobs 1 --state drifting --points 1 --region 3: the same code path "
         "in half a minute",
     )
     args = parse_args(ap, QUICK, argv)
+    if args.warm and args.tank != "linear":
+        ap.error("--warm warms a steady tank: it takes --tank linear")
     work = Path(tempfile.mkdtemp(prefix="ucal-vcdrift-"))
     template = drift.make_profile(work, args.level, drift.DECLARED_DRIFT[args.level])
     profile = load_profile(template)
     rng = np.random.default_rng(args.seed)
     cells = [draw_cells(rng, profile, i, args.level) for i in range(args.worlds)]
+    heats: dict[int, Heated] = {}
+    if args.tank == "cycling":  # the drifting cells' tank a heater (their lost motion kept)
+        tank = drift.Tank("cycling", np.random.default_rng([args.seed, 1]))
+        heat_rng = np.random.default_rng([args.seed, 2])
+        for i, cell in enumerate(cells):
+            path = work / f"tank-{i:03d}.csv"
+            cell["drifting"], heats[i] = heated(
+                heat_rng, tank, cell["drifting"], path, args.thermometer
+            )
     states = STATES if args.state == "both" else (args.state,)
     jobs = [(s, i) for i in range(args.worlds) for s in states]
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
@@ -419,6 +574,7 @@ def main(argv: list[str] | None = None) -> int:
                 [args.region] * len(jobs),
                 [args.level] * len(jobs),
                 [args.warm] * len(jobs),
+                [heats.get(i) if s == "drifting" else None for s, i in jobs],
             )
         )
     print(

@@ -238,7 +238,16 @@ def recorded_command(
     (d / "cell.toml").write_text(default_profile_text("tx90l"), encoding="utf-8")
     # the check is the profile's first: it goes into the history as the reference, which its
     # replay must not then compare it against
-    few = {"tool-frame": ["--points", "2"], "verify": ["--points", "1"], "check": []}[command]
+    # the check takes the tank thermometer's log: a heater turning the tank by 0.02 °C
+    t_min = np.arange(0.0, 30.0, 0.05)
+    tank_c = 20.0 + 0.02 * np.sin(2.0 * np.pi * t_min / 3.0)
+    rows = "".join(f"{t:.2f},{c:.4f}\n" for t, c in zip(t_min, tank_c, strict=True))
+    (d / "probe.csv").write_text("time_min,temperature_c\n" + rows)
+    few = {
+        "tool-frame": ["--points", "2"],
+        "verify": ["--points", "1"],
+        "check": ["--thermometer", "probe.csv"],
+    }[command]
     dry_run = [] if command == "check" else ["--dry-run"]
     args = [command, "cell.toml", "--sim", "--yes", "--json", *dry_run, *few]
     out = ucal_here(*args, "--record", "run.jsonl", cwd=d)
@@ -268,6 +277,12 @@ def test_other_commands_replay_their_measurements_to_their_recorded_result(
     again = json.loads(out)
     if command == "check":  # the recorded check went into the history, its replay does not
         assert result["recorded"] and result["history_entry"] == 1
+        # the log, on the run's clock in the record, was taken out of the paths the entry keeps
+        assert result["thermometer"]["file"] == "probe.csv" and result["thermometer"]["applied"]
+        (entry,) = json.loads((d / "cell.toml.history" / "checks.json").read_text())["checks"]
+        assert entry["logged_departure_std_c"] == 0.02
+        drift = result["thermometer"]["drift_c_per_min"]  # as --json rounds it
+        assert entry["drift_prior_c_per_min"] == pytest.approx(drift, abs=1e-5)
         assert again.pop("recorded") is False and again.pop("history_entry") is None
         result = {k: v for k, v in result.items() if k not in ("recorded", "history_entry")}
     same_result(again, result)

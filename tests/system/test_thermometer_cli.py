@@ -86,21 +86,24 @@ def test_the_record_replays_with_the_log_and_without_it_does_not_cover(
 
 
 @pytest.mark.parametrize(
-    ("log", "words"),
+    ("command", "log", "words"),
     [
-        ("2026-11-26T07:00:00Z,twenty", "probe.csv: row 2: expected an ISO 8601 time and °C"),
-        ("2026-11-26T07:00:00Z,20", "the simulated cell runs on its own clock"),
+        ("calibrate", "2026-11-26T07:00:00Z,twenty", "probe.csv: row 2: expected an ISO 8601"),
+        ("calibrate", "2026-11-26T07:00:00Z,20", "the simulated cell runs on its own clock"),
+        ("check", "2026-11-26T07:00:00Z,twenty", "probe.csv: row 2: expected an ISO 8601 time"),
     ],
 )
-def test_a_bad_log_is_refused_before_anything_moves(tmp_path: Path, log: str, words: str):
+def test_a_bad_log_is_refused_before_anything_moves(
+    tmp_path: Path, command: str, log: str, words: str
+):
     """A log that cannot be read, or whose times are not the cell's clock: exit 2, naming the
     file, before the plan (nothing moved)."""
     (tmp_path / "cell.toml").write_text(default_profile_text("tx90l"))
     (tmp_path / "probe.csv").write_text(f"time,temperature_c\n{log}\n")
     out = ucal_here(
-        "calibrate", "cell.toml", "--sim", "--thermometer", "probe.csv", "--yes", "--json",
+        command, "cell.toml", "--sim", "--thermometer", "probe.csv", "--yes", "--json",
         cwd=tmp_path,
     )  # fmt: skip
     assert out.returncode == 2
     assert words in json.loads(out.stdout)["error"]
-    assert "Calibration plan" not in out.stderr
+    assert {"calibrate": "Calibration plan", "check": "Check plan"}[command] not in out.stderr

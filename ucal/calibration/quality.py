@@ -235,10 +235,11 @@ def approach_pattern(rows: tuple[ResidualRow, ...]) -> str:
 EXPLAINED_SHARE = 0.5
 
 
-def effect_pattern(gains: dict[str, float], chi2: float) -> str:
+def effect_pattern(gains: dict[str, float], chi2: float, run: str = "the run") -> str:
     """The effect of the run that explains most of a misfit (``gains``: the χ² each would
     remove, freed beyond its prior), in words, or "" if none explains ``EXPLAINED_SHARE`` of
-    the fit's χ² ``chi2`` (its data rows' and the nuisance priors' pulls)."""
+    the fit's χ² ``chi2`` (its data rows' and the nuisance priors' pulls); ``run`` names the
+    run the tank's effects belong to (a check fits two)."""
     if not gains:
         return ""
     name, gain = max(gains.items(), key=lambda kv: kv[1])
@@ -254,14 +255,14 @@ def effect_pattern(gains: dict[str, float], chi2: float) -> str:
         )
     if name.startswith("sound_speed_curvature"):
         return (
-            f"a drift of the sound speed that turns during the run explains {share}: the "
+            f"a drift of the sound speed that turns during {run} explains {share}: the "
             "water-path residuals bend with their time, the tank's rate changing (water "
             "settling towards the room, a heater cycling) faster than [water] "
             "drift_std_c_per_min allows over the run; let the water settle or hold the heater "
             "off while measuring"
         )
     return (
-        f"a drift of the sound speed during the run explains {share}: the water-path "
+        f"a drift of the sound speed during {run} explains {share}: the water-path "
         "residuals trend with their time, the tank warming or cooling faster than [water] "
         "drift_std_c_per_min allows; let the water settle, or state its drift"
     )

@@ -11,4 +11,9 @@
 * ``result``: the typed result, the message naming what moved, the history entry;
 * ``history``: the checks in the profile's history directory (``checks.json``);
 * ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).
+
+With the tank thermometer's log (``check --thermometer``) the procedure takes the tank's turns
+out of the check's water paths and gives its drift the log's prior, as for calibrate
+(``ucal.thermometer``); the history entry keeps what the log gave, and a later check fits the
+reference's run with it (``solve``).
 """

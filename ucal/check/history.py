@@ -47,7 +47,9 @@ class CheckEntry:
     words; ``reference``: later checks compare against this one; ``quantities``: each checked
     quantity (``ucal.check.judge.Quantity.to_json``); ``faces`` and ``echoes``: what it
     measured (``ucal.check.measure``), so that a later check solves against the measurements
-    themselves.
+    themselves; ``logged_departure_std_c`` and ``drift_prior_c_per_min``: its water as the
+    tank thermometer's log left it (``ucal.calibration.priors.CellPrior``'s fields: None and
+    0 without a log), which a later check's fit gives this run's drift.
     """
 
     id: int
@@ -64,6 +66,8 @@ class CheckEntry:
     faces: list[dict[str, Any]] = field(default_factory=list)
     echoes: list[dict[str, Any]] = field(default_factory=list)
     floor_per_gain: float | None = None
+    logged_departure_std_c: float | None = None
+    drift_prior_c_per_min: float = 0.0
 
 
 def model_digest(profile: CellProfile) -> str:

@@ -4,10 +4,14 @@ Check the files (the profile held for the run: the check is appended to its hist
 (``ucal.check.plan``: the postures, the reference to compare against), measure
 (``ucal.check.measure``), solve (``ucal.check.solve``: what moved), write (the history entry:
 ``ucal.check.history``; the profile itself is never written), result (``ucal.check.result``).
+With the tank thermometer's log (``--thermometer``) the measuring procedure has taken its turns
+out of the water paths and set the drift's prior before ``solve`` (``ucal.procedure``); the
+history entry keeps that run's water, and a later check fits the reference's drift with it.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +98,13 @@ class CheckJob(ProfileJob):
                 unexplained=misfit_text(fit) if fit.misfit else "",
                 run=run,
             )
-        geometry = compare_geometry(prior, faces_from_json(ref.faces), run.faces)
+        # the reference run's water as its own thermometer's log left it (or none)
+        reference_prior = replace(
+            prior,
+            logged_departure_std_c=ref.logged_departure_std_c,
+            drift_prior_c_per_min=ref.drift_prior_c_per_min,
+        )
+        geometry = compare_geometry(prior, faces_from_json(ref.faces), run.faces, reference_prior)
         echo = echo_quantities([EchoReading.from_json(e) for e in ref.echoes], run.echoes)
         named, moved = named_changes(geometry, echo, prior)
         return CheckFindings(
@@ -111,7 +121,7 @@ class CheckJob(ProfileJob):
         return True  # every check goes into the history: a drift shows as a trend
 
     def write(self, solved: CheckFindings) -> None:
-        entry = solved.history_entry(self.digest, self.duration_s)
+        entry = solved.history_entry(self.digest, self.duration_s, prior_from_profile(self.profile))
         solved.entry = append_check(self.profile_path, entry)
 
     def result(

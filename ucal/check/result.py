@@ -114,11 +114,13 @@ class CheckFindings:
             out["fit"] = {
                 "chosen": g.chosen,
                 "alike": {k: list(v) for k, v in g.alike.items()},
+                "tank_alike": g.tank,
                 "chi2_unchanged": g.chi2_null,
                 "chi2": g.chi2,
                 "dof": g.dof,
                 "unexplained": g.unexplained,
                 "worst": g.worst,
+                "cause": g.cause,
             }
         if self.profile_fit is not None:
             p = self.profile_fit
@@ -130,8 +132,10 @@ class CheckFindings:
             }
         return out
 
-    def history_entry(self, digest: str, duration_s: float) -> CheckEntry:
-        """The entry this check adds to the profile's history (id and time set on append)."""
+    def history_entry(self, digest: str, duration_s: float, prior: CellPrior) -> CheckEntry:
+        """The entry this check adds to the profile's history (id and time set on append);
+        ``prior``: the check's, whose water (its thermometer's log, or none) the entry keeps
+        for a later check to compare with."""
         run = self.run
         assert run is not None
         return CheckEntry(
@@ -149,6 +153,8 @@ class CheckFindings:
             faces=faces_to_json(run.faces),
             echoes=[e.to_json() for e in run.echoes],
             floor_per_gain=run.floor_per_gain,
+            logged_departure_std_c=prior.logged_departure_std_c,
+            drift_prior_c_per_min=prior.drift_prior_c_per_min,
         )
 
 
@@ -210,12 +216,10 @@ def named_changes(
             out = [c for c in geometry.changes if c.suspect == suspect and c.out_of_tolerance]
             if not out:
                 continue
-            alike = geometry.alike.get(suspect, ())
-            also = (
-                f" (or {' or '.join(words[a] for a in alike)}: the check cannot tell them apart)"
-                if alike
-                else ""
-            )
+            alike = [words[a] for a in geometry.alike.get(suspect, ())]
+            tank = geometry.tank.get(suspect)
+            alike += [] if tank is None else [tank]
+            also = f" (or {' or '.join(alike)}: the check cannot tell them apart)" if alike else ""
             if suspect.startswith("J"):
                 c = out[0]
                 text = (
@@ -257,8 +261,8 @@ def unexplained_text(geometry: GeometryComparison) -> str:
     return (
         f"the measurements disagree with the reference's beyond what a change of a joint, the "
         f"tool, the block or the water explains (χ² {geometry.chi2:.1f} on {geometry.dof} "
-        f"measurements; worst {geometry.worst}): check the block's faces and the kinematic "
-        "model (calibrate again)"
+        f"measurements; worst {geometry.worst}): "
+        + (geometry.cause or "check the block's faces and the kinematic model (calibrate again)")
     )
 
 

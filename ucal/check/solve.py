@@ -22,7 +22,9 @@ The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
    significantly (the others now explain it); repeat. Each step is linearised at the
    Gauss–Newton fit of the suspects chosen so far (``fit``). A suspect that, in place of a
    chosen one, explains the data within ``ALIKE_CHI2`` = 9 (3σ) cannot be told apart from it
-   and is named with it (``alike``).
+   and is named with it (``alike``); so is the tank's effect, a run's drift beyond its prior
+   or its turn (calibrate's score test, ``tank_alike``), that does: over a check's few faces
+   a tank that turns looks like the block, or the water, moved.
 2. **By how much** — the chosen suspects' changes and their one-sigma from that fit, the
    covariance scaled by ``max(1, χ²ᵣ)``.
 3. **Out of tolerance** — an unknown of a chosen suspect whose change exceeds both 3σ and its
@@ -32,7 +34,15 @@ The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
 
 What is left unexplained after the selection (the χ² still a misfit at ``MISFIT_P``) is out of
 tolerance too: something changed that no suspect accounts for (the kinematic model itself, a
-damaged face), and the message names the worst measurement.
+damaged face), and the message names the worst measurement; where one run's drift, or its
+turn, explains most of it (calibrate's score test at the fit, ``drift_cause``), the message
+names that instead.
+
+A run with the tank thermometer's log (``ucal.thermometer``) had its turns taken out of its
+water paths, and its drift's prior mean is the log's: each run's drift and curvature take their
+own run's (the reference's as its history entry keeps them, ``ChangeFit``'s
+``reference_prior``), so a check with a log compares alike with a reference without one, and
+the other way round.
 
 The suspects not chosen are reported as well: each one's change fitted with the chosen ones
 (linearised), i.e. how much it could have moved unseen.
@@ -76,13 +86,16 @@ from ucal.calibration.fit import (
     solve_cell,
 )
 from ucal.calibration.least_squares import (
+    CURVATURE,
     Curvature,
     considered_covariance,
     curvature_rows,
     face_row_minutes,
+    score_gain,
     sees_drift,
 )
 from ucal.calibration.model import FaceMeasurement
+from ucal.calibration.quality import effect_pattern
 from ucal.calibration.residuals import two_sided_joints
 from ucal.cell import CellProfile
 
@@ -178,6 +191,12 @@ class GeometryComparison:
     unexplained: bool  # a misfit remains
     worst: str  # the measurement with the largest residual left
     suspects: tuple[Suspect, ...] = field(default=(), repr=False)
+    #: What the misfit left shows, in words: a run's drift, or its turn, that explains most of
+    #: it (``drift_cause``); "" when none does or the fit is no misfit.
+    cause: str = ""
+    #: A chosen suspect → the tank's effect that, in its place, explains the data alike
+    #: (``tank_alike``), in words.
+    tank: dict[str, str] = field(default_factory=dict)
 
 
 class ChangeFit:
@@ -193,13 +212,23 @@ class ChangeFit:
         reference: list[FaceMeasurement],
         check: list[FaceMeasurement],
         all_suspects: tuple[Suspect, ...],
+        reference_prior: CellPrior | None = None,
     ) -> None:
         self.prior = prior
+        #: The reference run's water as its own thermometer's log left it (its drift's prior
+        #: mean, the turn its paths may still hold), the cell's as ``prior`` says.
+        self.reference_prior = prior if reference_prior is None else reference_prior
         self.suspects = all_suspects
         self.changed = tuple(p for s in all_suspects for p in s.parameters)
         names = PARAMETERS + (CHECK_DRIFT,) + tuple(change_name(p) for p in self.changed)
         drift_std = prior.drift_std_m_s_per_min
-        values = np.concatenate([prior.values(), [0.0], np.zeros(len(self.changed))])
+        values = np.concatenate(
+            [
+                self.reference_prior.values(),
+                [prior.drift_prior_m_s_per_min],
+                np.zeros(len(self.changed)),
+            ]
+        )
         stds = np.concatenate(
             [prior.stds(), [drift_std], [v for s in all_suspects for v in s.change_std]]
         )
@@ -230,7 +259,11 @@ class ChangeFit:
         self.curvatures = (
             (
                 self.drift_idx,
-                Curvature.of(prior, self._ref.minutes, np.r_[ref_rows, np.zeros(chk_rows.size)]),
+                Curvature.of(
+                    self.reference_prior,
+                    self._ref.minutes,
+                    np.r_[ref_rows, np.zeros(chk_rows.size)],
+                ),
             ),
             (
                 self.check_drift_idx,
@@ -277,7 +310,7 @@ class ChangeFit:
     def start(self) -> np.ndarray:
         """A full value vector to start from: the reference's own fit (its DH table within
         the profile's tolerance, as calibrate fits it, then held), nothing changed."""
-        estimate = solve_cell(self.prior, self.reference).estimate
+        estimate = solve_cell(self.reference_prior, self.reference).estimate
         return np.concatenate([estimate, np.zeros(1 + len(self.changed))])
 
     def chi2(self, values: np.ndarray, chosen: list[str]) -> float:
@@ -312,29 +345,62 @@ class Linearised:
         self.prior_r0 = (values[self.cols] - table.prior[self.cols]) / sigma
         self.prior_d = 1.0 / sigma
 
-    def solve(self, chosen: list[str]) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def _step(
+        self, chosen: list[str]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The least-squares step with ``chosen`` suspects changed (the changes of the others
-        held at zero): its χ² (data and the priors of the free unknowns), the value vector it
-        reaches, the free unknowns (indices into that vector) and their covariance (scaled by
-        ``max(1, χ²ᵣ)``, plus what each run's drift curvature adds,
-        ``ChangeFit.curvature_covariance``)."""
+        held at zero): the system's matrix (the data rows, then the free unknowns' priors), the
+        residuals after the step, the free unknowns (indices into the value vector), the
+        step, and the unknowns held back at zero (indices)."""
         free = self.problem.free_mask(chosen)
         mask = free[self.cols]
-        cols = self.cols[mask]
         # a change no longer chosen goes back to zero
         held = ~mask & (self.values[self.cols] != 0.0)
         r_data = self.r0 - self.jac[:, held] @ self.values[self.cols[held]]
         a = np.vstack([self.jac[:, mask], np.diag(self.prior_d[mask])])
         r = np.concatenate([r_data, self.prior_r0[mask]])
         step, *_ = np.linalg.lstsq(a, -r, rcond=None)
-        res = r + a @ step
+        return a, r + a @ step, self.cols[mask], step, self.cols[held]
+
+    def solve(self, chosen: list[str]) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The least-squares step with ``chosen`` suspects changed (the changes of the others
+        held at zero): its χ² (data and the priors of the free unknowns), the value vector it
+        reaches, the free unknowns (indices into that vector) and their covariance (scaled by
+        ``max(1, χ²ᵣ)``, plus what each run's drift curvature adds,
+        ``ChangeFit.curvature_covariance``)."""
+        a, res, cols, step, held = self._step(chosen)
         chi2 = float(res @ res)
         cov = np.linalg.pinv(a.T @ a)
         cov = cov * max(1.0, chi2 / self.r0.size) + self.problem.curvature_covariance(a, cov, cols)
         values = self.values.copy()
-        values[self.cols[held]] = 0.0
+        values[held] = 0.0
         values[cols] += step
         return chi2, values, cols, cov
+
+    def effect_gains(self, chosen: list[str]) -> dict[str, dict[str, float]]:
+        """How much of the χ² each run's drift and its curvature would remove, were it free
+        beyond its prior, with ``chosen`` suspects changed: calibrate's score test
+        (``ucal.calibration.least_squares.score_gain``) of the drift's column with its prior
+        row left out, and of the curvature's (``curvature_rows`` of the sound speed's column
+        over that run's rows), by run (``"reference"``, ``"check"``) and effect
+        (``DRIFT[0]``, ``CURVATURE``). A run whose drift is held (readings at one time), or a
+        sound speed held, has none."""
+        a, res, cols, _, _ = self._step(chosen)
+        where = {int(i): k for k, i in enumerate(cols)}
+        n_data = self.r0.size
+        sound = where.get(self.problem.table.index(SOUND[0]))
+        out: dict[str, dict[str, float]] = {}
+        runs = zip(("reference", "check"), self.problem.curvatures, strict=True)
+        for run, (drift, curvature) in runs:
+            k = where.get(drift)
+            if k is None or sound is None:
+                continue
+            g = a[:, k].copy()
+            g[n_data:] = 0.0  # freed beyond its prior
+            gains = score_gain(DRIFT[0], g, res, a)
+            bend = curvature_rows(a[:, sound], curvature.row_minutes)
+            out[run] = {**gains, **score_gain(CURVATURE, bend, res, a)}
+        return out
 
 
 def fit(
@@ -427,10 +493,15 @@ def alike(lin: Linearised, chosen: list[str], names: list[str]) -> dict[str, tup
 
 
 def compare_geometry(
-    prior: CellPrior, reference: list[FaceMeasurement], check: list[FaceMeasurement]
+    prior: CellPrior,
+    reference: list[FaceMeasurement],
+    check: list[FaceMeasurement],
+    reference_prior: CellPrior | None = None,
 ) -> GeometryComparison:
-    """What moved between the reference's measurements and the check's (module docstring)."""
-    problem = ChangeFit(prior, reference, check, suspects(prior))
+    """What moved between the reference's measurements and the check's (module docstring);
+    ``reference_prior``: the cell's prior with the reference run's own water (its
+    thermometer's log, or none: ``ChangeFit``), ``prior``'s where not given."""
+    problem = ChangeFit(prior, reference, check, suspects(prior), reference_prior)
     start = problem.start()
     chosen, values, lin, chi2_null = select(problem, start)
     chi2, _, cols, cov = lin.solve(chosen)
@@ -462,6 +533,7 @@ def compare_geometry(
     ]
     worst = labels[int(np.argmax(np.linalg.norm(res, axis=1)))]
     dof = problem.n_data
+    unexplained = float(chdtrc(dof, chi2)) < MISFIT_P
     return GeometryComparison(
         changes,
         chosen,
@@ -469,10 +541,55 @@ def compare_geometry(
         chi2_null,
         chi2,
         dof,
-        float(chdtrc(dof, chi2)) < MISFIT_P,
+        unexplained,
         worst,
         problem.suspects,
+        drift_cause(lin.effect_gains(chosen), chi2) if unexplained else "",
+        tank_alike(lin, chosen),
     )
+
+
+#: The runs of a check's fit in words, by ``Linearised.effect_gains``' keys.
+RUN_WORDS = {"reference": "the reference's run", "check": "the check's run"}
+
+
+#: A run's tank effects in words, by ``Linearised.effect_gains``' names.
+EFFECT_WORDS = {
+    DRIFT[0]: "a drift of the sound speed during {run} faster than [water] drift_std_c_per_min "
+    "allows",
+    CURVATURE: "a drift of the sound speed that turns during {run}",
+}
+
+
+def tank_alike(lin: Linearised, chosen: list[str]) -> dict[str, str]:
+    """For each chosen suspect, the tank's effect (a run's drift beyond its prior, or its
+    turn: ``Linearised.effect_gains``) that, freed in its place, explains the data within
+    ``ALIKE_CHI2`` of the χ², in words (``EFFECT_WORDS``); suspects none explains so are left
+    out. A turn of the tank over a few faces looks like the block, or the water, moved: a
+    thermometer's log tells them apart."""
+    chi2 = lin.solve(chosen)[0]
+    out = {}
+    for c in chosen:
+        rest = [n for n in chosen if n != c]
+        after = lin.solve(rest)[0]
+        gains = lin.effect_gains(rest)
+        best = max(
+            ((g, run, name) for run, by in gains.items() for name, g in by.items()),
+            default=None,
+        )
+        if best is not None and after - best[0] - chi2 < ALIKE_CHI2:
+            out[c] = EFFECT_WORDS[best[2]].format(run=RUN_WORDS[best[1]])
+    return out
+
+
+def drift_cause(gains: dict[str, dict[str, float]], chi2: float) -> str:
+    """The run's drift, or its turn, that explains most of a misfit of χ² ``chi2`` (``gains``:
+    ``Linearised.effect_gains``), in calibrate's words (``effect_pattern``) with the run
+    named; "" when none explains enough of it."""
+    if not gains:
+        return ""
+    run = max(gains, key=lambda r: max(gains[r].values(), default=0.0))
+    return effect_pattern(gains[run], chi2, RUN_WORDS[run])
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 import numpy as np
 from rich.table import Table
@@ -10,7 +12,7 @@ from ucal.cell import CellProfile
 from ucal.check.judge import CHANGED, NOT_MEASURED, OUT
 from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckResult
-from ucal.cli.options import MovingCall, moving_options, table_console
+from ucal.cli.options import MovingCall, moving_options, table_console, thermometer_option
 from ucal.cli.procedure import run_command
 from ucal.procedure import Outcome
 from ucal.record import Record
@@ -35,9 +37,10 @@ Examples:
         is_flag=True,
         help="Record this check as the new reference, whatever the history holds (after a "
         "repair or a deliberate change); it is judged against the profile's calibration only.",
-    )
+    ),
+    thermometer_option,
 )
-def cli(call: MovingCall, baseline: bool) -> None:
+def cli(call: MovingCall, baseline: bool, thermometer: Path | None) -> None:
     """Check the cell against its commissioning in about a minute; name what moved.
 
     Six of calibrate's normal-incidence measurements (the three faces of the block in the
@@ -49,6 +52,13 @@ def cli(call: MovingCall, baseline: bool) -> None:
     with the reference on the profile's model: a joint's offset, the tool, the block or the
     water that changed beyond 3 sigma and its tolerance is named with its change (exit 1);
     the transducer likewise (amplitude 2 dB, SNR 6 dB, centre frequency 10 %, bandwidth 15 %).
+    With --thermometer, the tank thermometer's log is read before anything moves and again
+    when the check is solved, as calibrate reads it: its slope over the check is the prior of
+    the check's drift, and a turn of the tank beyond the log's noise is taken out of the
+    check's water paths. The history keeps what the log gave, so that a later check, with a log
+    or without, fits the reference's run as it was measured. A tank whose rate turned during
+    either run looks, over six faces, like the block or the water moved: where it explains the
+    data as well, it is named beside them, and a misfit it explains is named as such.
     Every check is appended to the profile's history (ucal profile history); the profile
     itself is never written.
     """
@@ -57,7 +67,7 @@ def cli(call: MovingCall, baseline: bool) -> None:
         chosen = baseline if record is None else bool(record.options.get("baseline"))
         return CheckJob(profile, call.profile_path, chosen)
 
-    run_command(call, "check", {"baseline": "baseline"}, job, show_outcome)
+    run_command(call, "check", {"baseline": "baseline"}, job, show_outcome, thermometer)
 
 
 def show_outcome(outcome: Outcome[CheckResult]) -> None:

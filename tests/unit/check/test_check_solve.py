@@ -6,6 +6,8 @@ true peak postures and water paths, with a little noise), at the postures a chec
 
 from __future__ import annotations
 
+import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,6 +19,8 @@ from ucal.calibration import least_squares
 from ucal.calibration.fit import SOUND, prior_from_profile
 from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.wrist import aim_wrist
+from ucal.check import procedure as check_procedure
+from ucal.check.history import read_checks
 from ucal.check.judge import (
     CHANGED,
     OK,
@@ -24,15 +28,21 @@ from ucal.check.judge import (
     echo_quantities,
     geometry_quantities,
 )
-from ucal.check.measure import EchoReading
+from ucal.check.measure import CheckRun, EchoReading
 from ucal.check.plan import plan_check
+from ucal.check.procedure import CheckJob
+from ucal.check.result import named_changes, unexplained_text
 from ucal.check.solve import (
+    ChangeFit,
     compare_geometry,
     compare_to_profile,
+    suspects,
 )
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.procedure import Measured
 from ucal.profile import load_profile
+from ucal.thermometer import Thermometer
 
 EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"
 TRUE_OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
@@ -121,6 +131,7 @@ def test_joint_2_and_the_water_are_told_apart(cell) -> None:
     )
     assert sorted(result.chosen) == ["J2", "water"] and not result.unexplained
     assert result.alike == {"J2": (), "water": ()}
+    assert result.tank == {}  # a tank that turned explains neither
     q = {q.name: q for q in geometry_quantities(result, prior)}
     assert q["J2"].verdict == OUT
     assert abs(q["J2"].difference - 0.05) < max(3 * q["J2"].std, 1e-4)
@@ -220,6 +231,102 @@ def test_joint_1_and_the_block_yaw_are_named_together(cell) -> None:
     assert len(result.chosen) == 1
     named = {result.chosen[0], *result.alike[result.chosen[0]]}
     assert named == {"J1", "block"}
+
+
+@pytest.mark.parametrize("run", ["check", "reference"])
+def test_a_tank_that_turns_during_a_run_is_named(cell, run: str) -> None:
+    """The tank's rate turning by 1 °C/min² during one run (no thermometer): over six faces it
+    looks like the block and the water moved, and the check names the tank's turn alike with
+    them; what they leave is a misfit whose cause, by calibrate's score test, is that turn
+    (99 % of it), in that run."""
+    prior = prior_from_profile(cell[0])
+    turning = {"curvature_c_per_min2": 1.0}
+    result = compare_geometry(
+        prior,
+        measure(cell, 1, **(turning if run == "reference" else {})),
+        measure(cell, 2, **(turning if run == "check" else {})),
+    )
+    words = f"a drift of the sound speed that turns during the {run}'s run"
+    assert sorted(result.chosen) == ["block", "water"]
+    assert result.tank == {"block": words, "water": words}
+    assert result.unexplained and result.cause.startswith(f"{words} explains")
+    share = float(re.search(r"explains (\d+) % of the misfit", result.cause).group(1))
+    assert share >= 90
+    named, moved = named_changes(result, [], prior)
+    assert moved == ["block"]
+    assert named[0].endswith(f"(or {words}: the check cannot tell them apart)")
+    assert unexplained_text(result).endswith(result.cause)
+
+
+def test_a_checks_thermometer_log_goes_into_its_history_and_the_next_checks_fit(
+    cell, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A reference check whose tank turned (0.05 °C/min, turning by 0.3 °C/min²), with the
+    thermometer's log of it: its water paths taken to the tank's straight line and its profile
+    given the log, as the measuring procedure does before ``solve``, it agrees with the
+    calibration, and its history entry keeps the log's drift and the thermometer's std
+    (0.005 °C). The next check, without a log, fits the reference's run with them (its drift's
+    prior mean the log's, its turn 8·|c'|·σ_th/D² over the 2.5 min) and its own with the
+    declared tolerance (0 ± 0.05 °C/min, a turn of |c'|·0.05/D), and passes: the water's
+    change is that of the tank's mean sound speed over each run, as without a log."""
+    path = tmp_path / "cell.toml"
+    shutil.copy(EXAMPLE, path)
+    profile = replace(
+        cell[0],
+        joint_offsets_deg=TRUE_OFFSETS_DEG,
+        joint_offsets_std_deg=np.full(6, 0.003),
+        water_temperature_c=20.0,
+        thermometer_std_c=0.005,
+    )
+    t_min = np.arange(0.0, 4.0, 0.05)
+    tank_c = 20.0 + 0.05 * t_min + 0.15 * (t_min - 1.25) ** 2
+    water = Thermometer(t_min, np.round(tank_c, 3), 0.005, "probe.csv")
+    run = CheckRun(measure(cell, 1, drift_c_per_min=0.05, curvature_c_per_min2=0.3), [], None, 0, 0)
+    assert water.turns(run)
+    job = CheckJob(profile, path)
+    plan = job.plan()
+    job.profile = water.profile(job.profile, run)
+    found = job.solve(plan, Measured(water.corrected(run), 60.0, None))
+    assert found.becomes_reference
+    job.write(found)
+    (entry,) = read_checks(path)
+    assert entry.logged_departure_std_c == 0.005
+    assert entry.drift_prior_c_per_min == pytest.approx(0.05, abs=2e-3)
+
+    seen = []
+
+    def compare(*args):
+        seen.append(args)
+        return compare_geometry(*args)
+
+    monkeypatch.setattr(check_procedure, "compare_geometry", compare)
+    job = CheckJob(profile, path)
+    plan = job.plan()
+    assert plan.reference is not None and plan.reference.id == entry.id
+    run = CheckRun(measure(cell, 2, drift_c_per_min=-0.03), [], None, 0, 0)
+    found = job.solve(plan, Measured(run, 60.0, None))
+    assert not found.out_of_tolerance, found.message()
+    # the turn taken out of the reference's paths, nothing is taken for it (without the log the
+    # block is, "or a drift of the sound speed that turns during the reference's run"), and the
+    # water's change is that of the tank's mean sound speed over each run's faces
+    assert found.geometry is not None and found.geometry.chosen in ([], ["water"])
+    times = np.array([m.time_min for m in run.faces])  # both runs' faces at these times
+    tank_then = np.interp(times, t_min, tank_c)
+    change = np.mean(sound_speed_m_s(20.0 - 0.03 * times)) - np.mean(sound_speed_m_s(tank_then))
+    water = next(c for c in found.geometry.changes if c.parameter == SOUND[0])
+    assert abs(water.change - change) < 3 * water.std
+    ((prior, reference, check, reference_prior),) = seen
+    assert (prior.logged_departure_std_c, prior.drift_prior_c_per_min) == (None, 0.0)
+    assert reference_prior.logged_departure_std_c == 0.005
+    assert reference_prior.drift_prior_c_per_min == entry.drift_prior_c_per_min
+    fit = ChangeFit(prior, reference, check, suspects(prior), reference_prior)
+    slope = prior.sound_speed_slope_m_s_per_c
+    span_min = MINUTES_PER_FACE * (len(check) - 1)
+    assert fit.table.prior[fit.drift_idx] == pytest.approx(slope * entry.drift_prior_c_per_min)
+    assert fit.table.prior[fit.check_drift_idx] == 0.0
+    (_, turn_ref), (_, turn_check) = fit.curvatures
+    assert turn_ref.std_m_s_per_min2 == pytest.approx(8 * slope * 0.005 / span_min**2)
+    assert turn_check.std_m_s_per_min2 == pytest.approx(slope * 0.05 / span_min)
 
 
 def reading(label: str, amplitude_db: float, centre_mhz: float | None) -> EchoReading:
