@@ -57,7 +57,7 @@ from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.rotations import matrix_to_rpy
 from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.toolframe.plan import plan_tool_frame
+from ucal.toolframe.plan import QUARTER_TURNS_TILT_DEG, ToolFramePlan, plan_tool_frame
 from ucal.verify.plan import plan_verify
 from ucal.verify.region import plan_region
 
@@ -227,6 +227,13 @@ def sweep(
                 by_model[case.model][f"{name} planned"] += 1
                 if isinstance(found, FullPlan) and found.postures:
                     rooms[name].append(first_room(profile, found))
+                if isinstance(found, ToolFramePlan):
+                    # the edge scans' orientations: a quarter turn apart for a holder, or half
+                    # (a straight tool, or a holder whose quarter turns the arm cannot follow)
+                    kind = "quarter" if len(found.edge_turns_deg) == 4 else "half"
+                    fell = case.holder_deg > QUARTER_TURNS_TILT_DEG and kind == "half"
+                    key = f"{name} edges {kind} turns" + (" (holder)" if fell else "")
+                    by_model[case.model][key] += 1
     return {
         "cases": len(all_cases),
         "cpu_s": time.process_time() - t0,

@@ -621,7 +621,7 @@ def _misfit_cause(
     edge2 = sum(r.distance**2 for r in rows if r.label.startswith("edge"))
     if edge2 >= tilt2 + path2:
         return (
-            "the edge crossings disagree between the two orientations about the beam: "
+            "the edge crossings disagree between the orientations about the beam: "
             "check that the plate's edges are straight and clean, and the joint offsets"
         )
     return (

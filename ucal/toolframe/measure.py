@@ -19,10 +19,10 @@ predicted from the beam found so far), fitted, the water path read at the peak; 
 from all peaks (``exact`` eq. E1), a_T·p_T from the paths (E2); then the edge scans with the
 tool estimate updated (the beam normal to the plate within the peak precision): a coarse search
 outward from the plate until the echo falls below half, a fine scan of static probes across the
-edge fitted with eq. E4, in both orientations; p_T from all paths and crossings (E3) as a
-first estimate (the solve of ``ucal.toolframe.solve`` starts from it). A posture whose probes
-are below half of the first posture's echo is a side lobe (a prediction off by degrees when the
-offsets are not yet calibrated): it is acquired again as the first.
+edge fitted with eq. E4, in every orientation of the plan; p_T from all paths and crossings
+(E3) as a first estimate (the solve of ``ucal.toolframe.solve`` starts from it). A posture
+whose probes are below half of the first posture's echo is a side lobe (a prediction off by
+degrees when the offsets are not yet calibrated): it is acquired again as the first.
 
 Measure (paper): at each incidence point the quick main-lobe centring (or the acquisition
 raster if no echo at the prediction) and the water path there; the beam estimate is refined
@@ -403,7 +403,7 @@ def _tof(plate_rig: PlateRig) -> tuple[float, float]:
 
 def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
     plan = plate_rig.plan
-    total = len(plan.peaks) + 4 * len(plan.edges)
+    total = len(plan.peaks) + plan.edge_lines
     plate_rig.noise_floor(plan.peaks[0])
     rots: list[np.ndarray] = []
     stds: list[float] = []
@@ -464,10 +464,11 @@ def _measure_exact(plate_rig: PlateRig) -> ExactMeasurements:
     fits: list[EdgeFit] = []
     guesses: dict[tuple[int, int], float] = {}
     k = len(plan.peaks)
-    for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
+    for turn in plan.edge_turns_deg:
+        phi = plan.phi0_deg + turn
         for ep in plan.edges:
             for j, lateral in enumerate(ep.lateral_mm):
-                turned = "" if phi == plan.phi0_deg else ", tool turned 180°"
+                turned = f", tool turned {turn:.0f}°" if turn else ""
                 _report(plate_rig, f"edge {ep.name}{turned}", k, total, phi)
                 k += 1
                 guess = guesses.get((ep.index, j), guesses.get((ep.index, 0)))

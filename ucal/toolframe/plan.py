@@ -11,13 +11,28 @@ Plan (before the first motion; ``SafetyError``, exit 4, without any motion):
 * exact method (default): ``points`` normal-incidence postures at the plate centre, at
   orientations spread evenly over a turn, water path ``[procedure] water_path_mm``; edge
   scans along ``+e1`` and ``+e2`` (or ``−e1``/``−e2`` if those reach farther) at two lateral
-  positions each, in orientations φ0 and φ0 + 180°, with ``EDGE_WATER_PATH_MM`` of water.
-  The edge search starts inside the hull of the touched points and goes outward as far as the
-  arm can follow in both orientations (at most ``EDGE_SEARCH_MM``);
+  positions each, in orientations φ0 and φ0 + 180°, with ``EDGE_WATER_PATH_MM`` of water, and
+  at φ0 + 90° and φ0 + 270° as well for a beam more than ``QUARTER_TURNS_TILT_DEG`` off the
+  flange axis (below). The edge search starts inside the hull of the touched points and goes
+  outward as far as the arm can follow in every orientation (at most ``EDGE_SEARCH_MM``);
 * paper method: ``points`` incidence points (default 100, as paper 002) drawn inside the hull
   of the touched points (shrunk by 15 % about the centroid), water paths 0.6–1.4 × the
   profile's, orientations over ±150° (paper 002, §5: "scattered", "different distance",
   "different angles");
+
+Why quarter turns for a holder. The edge scans see the tool across the beam by turning it about
+the beam: a tool centre off the beam by Δ moves the crossings by Δ one way and by −Δ half a turn
+later. With the beam along the flange axis that turn is joint 6 alone. A holder tilting the beam
+θ off that axis swings the flange axis through 2θ instead: joints 4 and 5 and the arm take
+another posture, and the wrist's link lengths and twists within the DH table's tolerance (row
+5's d and a, row 4's a: 0.2 mm each on a fresh cell) move the flange between the two postures as
+a tool off the beam would. Two orientations cannot tell the two apart (a 20° holder on a fresh
+cell: the tool across the beam to ± 0.07 mm, two thirds of it the DH table's). Scans a quarter
+turn apart put the wrist in four postures: a tool offset turns with the tool, a link error moves
+the flange as the posture does, and the fit, with the DH table as unknowns, tells them apart
+(the same cells: ± 0.025 mm, the error 0.046 → 0.006 mm). It costs twice the edge scans, so a
+straight holder keeps two orientations; where the arm cannot follow the scans a quarter turn
+apart the plan keeps two and says what that costs.
 
 and every target is checked: inside the joint ranges (keeping ``WRIST_MARGIN_DEG`` on joints
 4–6 for the posture searches, ``tool_turn_deg`` more for the tool's declared tolerance),
@@ -53,6 +68,12 @@ TOOL_SIGMAS = 3.0
 EDGE_WATER_PATH_MM = 50.0
 #: Farthest the edge search goes beyond its start (mm).
 EDGE_SEARCH_MM = 300.0
+#: A beam more than this off the flange axis (the profile's tool orientation) is scanned across
+#: the edges a quarter turn apart, four orientations (module docstring; deg).
+QUARTER_TURNS_TILT_DEG = 2.0
+#: The turns about the beam of the edge scans from φ0: a quarter apart, or half.
+QUARTER_TURNS = (0.0, 90.0, 180.0, 270.0)
+HALF_TURNS = (0.0, 180.0)
 #: Coarse edge search step (mm): below the footprint's width (σ = D/4 = 1.5 mm → 4σ = 6 mm).
 #: Margin (mm) kept between an incidence point and the hull of the touched points.
 HULL_MARGIN_MM = 3.0
@@ -94,6 +115,14 @@ class ToolFramePlan:
     edges: tuple[EdgePlan, ...]
     incidence: tuple[Target, ...]
     notes: tuple[str, ...] = ()
+    #: The edge scans' turns about the beam from ``phi0_deg`` (deg): ``QUARTER_TURNS`` or
+    #: ``HALF_TURNS``.
+    edge_turns_deg: tuple[float, ...] = HALF_TURNS
+
+    @property
+    def edge_lines(self) -> int:
+        """How many edge lines the plan scans: two per edge in each orientation."""
+        return 2 * len(self.edges) * len(self.edge_turns_deg)
 
     def summary(self) -> str:
         """Human-readable plan (for the confirmation before the first motion)."""
@@ -118,7 +147,8 @@ class ToolFramePlan:
                 f"  edge {e.name}: search {e.start_mm:.0f}–{e.start_mm + e.search_mm:.0f}"
                 f" mm from the centre along {np.round(e.direction, 3).tolist()}, lines at"
                 f" {e.lateral_mm[0]:+.0f}/{e.lateral_mm[1]:+.0f} mm, phi "
-                f"{self.phi0_deg:+.0f}/{self.phi0_deg + 180:+.0f} deg, water "
+                + "/".join(f"{self.phi0_deg + t:+.0f}" for t in self.edge_turns_deg)
+                + f" deg, water "
                 f"{EDGE_WATER_PATH_MM:.0f} mm"
             )
         lines.extend(f"  note: {n}" for n in self.notes)
@@ -247,14 +277,19 @@ def plan_tool_frame(
         )
     first: SafetyError | None = None
     notes: list[str] = []
-    for _, phi0 in sorted(costs):
-        notes = []
-        try:
-            peaks, edges, incidence = _plan_targets(
-                _Plate(profile, plane, pts, centre, tool, ref), phi0, method, n_pts, notes
-            )
-        except SafetyError as e:
-            first = first or e
+    plate = _Plate(profile, plane, pts, centre, tool, ref)
+    tilt = beam_tilt_deg(profile)
+    choices = [QUARTER_TURNS, HALF_TURNS] if tilt > QUARTER_TURNS_TILT_DEG else [HALF_TURNS]
+    for turns in choices:
+        for _, phi0 in sorted(costs):
+            notes = []
+            try:
+                peaks, edges, incidence = _plan_targets(plate, phi0, method, n_pts, notes, turns)
+            except SafetyError as e:
+                first = first or e
+                continue
+            break
+        else:
             continue
         break
     else:
@@ -264,9 +299,31 @@ def plan_tool_frame(
             "passes either: "
             + reach_advice(profile, centre + path * plane.normal, "the plate (touch it again)")
         )
+    if turns != choices[0]:
+        notes.append(
+            f"edge scans in two orientations only: the arm cannot follow them a quarter turn "
+            f"apart. With the beam {tilt:.0f}° off the flange axis, the wrist's link lengths "
+            "within the DH table's tolerance then carry the tool across the beam (ucal "
+            "calibrate first narrows them)"
+        )
     return ToolFramePlan(
-        method, plane, centre, ref, phi0, tuple(peaks), tuple(edges), tuple(incidence), tuple(notes)
+        method,
+        plane,
+        centre,
+        ref,
+        phi0,
+        tuple(peaks),
+        tuple(edges),
+        tuple(incidence),
+        tuple(notes),
+        turns if method == "exact" else HALF_TURNS,
     )
+
+
+def beam_tilt_deg(profile: CellProfile) -> float:
+    """How far the profile's beam (its tool frame's z) is from the flange axis (deg)."""
+    z = profile.tool_matrix[:3, 2]
+    return float(np.degrees(np.arccos(np.clip(z[2], -1.0, 1.0))))
 
 
 @dataclass(frozen=True)
@@ -287,10 +344,16 @@ class _Plate:
 
 
 def _plan_targets(
-    plate: _Plate, phi0: float, method: str, n_pts: int, notes: list[str]
+    plate: _Plate,
+    phi0: float,
+    method: str,
+    n_pts: int,
+    notes: list[str],
+    turns: tuple[float, ...] = HALF_TURNS,
 ) -> tuple[list[Target], list[EdgePlan], list[Target]]:
-    """The peaks and edge scans (exact method) or the incidence points (paper method) in
-    orientation ``phi0`` (``SafetyError`` if one fails)."""
+    """The peaks and edge scans (exact method; the edges in orientations ``phi0`` turned by
+    each of ``turns``) or the incidence points (paper method) in orientation ``phi0``
+    (``SafetyError`` if one fails)."""
     profile, plane, _, centre, tool, ref = plate.parts()
     path = profile.procedure.water_path_mm
     turn = tool_turn_deg(profile)
@@ -307,10 +370,12 @@ def _plan_targets(
         )
         peaks.append(Target(label, centre, path, phi, q))
         near = q
-    return peaks, _plan_edges(plate, phi0, notes), []
+    return peaks, _plan_edges(plate, phi0, notes, turns), []
 
 
-def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
+def _plan_edges(
+    plate: _Plate, phi0: float, notes: list[str], turns: tuple[float, ...]
+) -> list[EdgePlan]:
     profile, plane, pts, centre, tool, ref = plate.parts()
     out: list[EdgePlan] = []
     for axis, (e, name) in enumerate(((plane.e1, "e1"), (plane.e2, "e2"))):
@@ -330,7 +395,7 @@ def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
             ok = True
             for dist in np.arange(0.0, EDGE_SEARCH_MM + 1e-9, 10.0):
                 for s in (-1.0, 1.0):
-                    for phi in (phi0, phi0 + 180.0):
+                    for phi in (phi0 + t for t in turns):
                         p = centre + (start + dist) * u + s * lat * w
                         try:
                             near = solve_target(
@@ -363,8 +428,8 @@ def _plan_edges(plate: _Plate, phi0: float, notes: list[str]) -> list[EdgePlan]:
         if reach < 20.0:
             raise SafetyError(
                 f"plan edge {label}: the arm cannot follow the edge search "
-                f"beyond {reach:.0f} mm from the touched points' hull in both "
-                "orientations"
+                f"beyond {reach:.0f} mm from the touched points' hull in every "
+                "orientation"
             )
         if reach < EDGE_SEARCH_MM:
             notes.append(

@@ -59,7 +59,7 @@ class ToolFrameCalibration(ProfileJob):
             postures, plan.reference_deg, speed, search=PLATE_PEAK, first=NO_SEARCH
         )
         # each edge scan starts near the plate centre, where the first posture looks from
-        scans = [postures[0]] * (4 * len(plan.edges))
+        scans = [postures[0]] * plan.edge_lines
         return at_postures + estimate_run(
             scans, postures[0], speed, search=EDGE_SCAN, first=NO_SEARCH
         )

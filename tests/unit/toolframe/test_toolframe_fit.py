@@ -23,6 +23,7 @@ from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import (
+    TOLERANCE_POSITION_MM,
     PlateCrossing,
     PlatePeak,
     _cause,
@@ -30,7 +31,13 @@ from ucal.toolframe.fit import (
     solve_tool_frame,
     truth_in_profile_flange,
 )
-from ucal.toolframe.plan import ToolFramePlan, plan_tool_frame, tcp_pose
+from ucal.toolframe.plan import (
+    HALF_TURNS,
+    QUARTER_TURNS,
+    ToolFramePlan,
+    plan_tool_frame,
+    tcp_pose,
+)
 from ucal.toolframe.plane import fit_plane
 
 TRUE_OFFSETS = np.array([0.8, -0.6, 0.9, -1.2, 0.7, 0.5])
@@ -61,6 +68,8 @@ def synthetic_run(
     backlash_deg: np.ndarray | None = None,
     from_above: tuple[int, ...] = (),
     curvature_c_per_min2: float = 0.0,
+    plan: ToolFramePlan | None = None,
+    tool_deg: np.ndarray = TRUE_TOOL_DEG,
 ) -> tuple[list[PlatePeak], list[PlateCrossing], np.ndarray]:
     """Peaks and edge crossings the true cell gives for the profile's plan, with noise.
 
@@ -68,7 +77,8 @@ def synthetic_run(
     turning by ``curvature_c_per_min2`` about ``PATHS_MIDDLE_MIN``); the
     joints with lost motion ``backlash_deg`` (the link lagging its reading by half of it
     against the approach), every other reading approaching the joints ``from_above`` (index
-    0…5) from above, the others from below."""
+    0…5) from above, the others from below; ``plan``: the profile's (the fresh profile's by
+    default), ``tool_deg``: the true tool's orientation."""
     rng = np.random.default_rng(seed)
     lost = np.zeros(6) if backlash_deg is None else np.asarray(backlash_deg, float)
     count = iter(range(1000))
@@ -81,12 +91,12 @@ def synthetic_run(
             approach[list(from_above)] = -1.0
         return q + approach * lost / 2, float(i), approach
 
-    plan = _plan(profile.reflector_points_mm.tobytes())
+    plan = plan or _plan(profile.reflector_points_mm.tobytes())
     plane = plan.plane
     n = rpy_to_matrix([plate_tilt_deg, 0.0, 0.0]) @ plane.normal
     h = n @ (plane.centroid_mm + plate_h_mm * plane.normal)
     tool = np.eye(4)
-    tool[:3, :3] = rpy_to_matrix(TRUE_TOOL_DEG)
+    tool[:3, :3] = rpy_to_matrix(tool_deg)
     tool[:3, 3] = TRUE_TOOL_MM
     geom = CellGeometry(profile.model, tool, np.eye(3))
     c0 = sound_speed_m_s(profile.water_temperature_c)
@@ -117,7 +127,7 @@ def synthetic_run(
         e = np.cos(np.radians(1.0)) * u + np.sin(np.radians(1.0)) * w  # edge 1° off the scan
         edge_d = float(e @ (plan.centre_mm + 100.0 * u))
         starts += [float(np.degrees(np.arctan2(u @ plane.e2, u @ plane.e1))), edge_d]
-        for phi in (plan.phi0_deg, plan.phi0_deg + 180.0):
+        for phi in (plan.phi0_deg + t for t in plan.edge_turns_deg):
             for lat in ep.lateral_mm:
                 p = plan.centre_mm + 100.0 * u + lat * w
                 # as the procedure scans: the tool centre (as far as it is known) on the line
@@ -390,3 +400,26 @@ def test_a_std_the_dh_tolerance_carries_is_refused_naming_the_arms_links(calibra
     assert _cause({"data": 0.7, "dh4_a_mm": 0.3}, calibrated).startswith(
         "70 % of its variance is measurement noise"
     )
+
+
+def test_quarter_turns_tell_a_holders_tool_from_the_wrists_links() -> None:
+    """A 20° holder on a fresh cell: turned half a turn about the beam, the wrist takes another
+    posture, and the DH table's tolerance moves the flange between the two as a tool off the
+    beam would; scans a quarter turn apart put the wrist in four postures the fit tells apart
+    (``ucal.toolframe.plan``). The same readings' model, two orientations against four."""
+    holder = fresh_profile().replace(tool_rotation_deg=np.array([0.0, 20.0, 0.0]))
+    planned = plan_tool_frame(holder, "exact", 4)
+    assert planned.edge_turns_deg == QUARTER_TURNS
+    stds = {}
+    for turns in (HALF_TURNS, QUARTER_TURNS):
+        plan = dataclasses.replace(planned, edge_turns_deg=turns)
+        peaks, crossings, starts = synthetic_run(
+            holder, 1.5, 0.2, 21.5, plan=plan, tool_deg=holder.tool_rotation_deg + TRUE_TOOL_DEG
+        )
+        assert len(crossings) == 4 * len(turns)
+        tf = solve(holder, peaks, crossings, starts)
+        assert tf.quality.verdict == "ok", tf.quality
+        stds[turns] = float(np.max(tf.across_beam_std_mm))
+    # two orientations: the DH table's share refuses it; four: within the tolerance
+    assert stds[HALF_TURNS] > TOLERANCE_POSITION_MM > stds[QUARTER_TURNS], stds
+    assert stds[QUARTER_TURNS] < 0.5 * stds[HALF_TURNS], stds

@@ -11,10 +11,19 @@ from scipy.spatial.transform import Rotation
 
 from ucal.calibration.safety import check_joints
 from ucal.cell import CellProfile
+from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import matrix_to_rpy
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.toolframe.plan import WRIST_MARGIN_DEG, plan_tool_frame, solve_target, tcp_pose
+from ucal.toolframe import plan as tool_plan
+from ucal.toolframe.plan import (
+    HALF_TURNS,
+    QUARTER_TURNS,
+    WRIST_MARGIN_DEG,
+    plan_tool_frame,
+    solve_target,
+    tcp_pose,
+)
 
 
 def on_holder(model: str, holder_deg: float, axis: tuple[float, float, float]) -> CellProfile:
@@ -38,6 +47,50 @@ def test_a_twenty_degree_holder_plans_its_peaks_and_edge_scans(model, axis) -> N
         assert np.allclose(reached, tcp_pose(plan.plane, t.point_mm, t.water_path_mm, t.phi_deg))
     for e in plan.edges:
         assert e.search_mm >= 20.0, e  # main refused: "beyond 0 mm"
+    # the edges scanned a quarter turn apart, each line's far end reachable in every turn
+    assert plan.edge_turns_deg == QUARTER_TURNS and plan.edge_lines == 16
+    for e in plan.edges:
+        for turn in plan.edge_turns_deg:
+            for lateral in e.lateral_mm:
+                far = plan.centre_mm + (e.start_mm + e.search_mm) * e.direction + lateral * e.along
+                phi = plan.phi0_deg + turn
+                q = solve_target(
+                    profile,
+                    plan.plane,
+                    profile.tool_matrix,
+                    far,
+                    50.0,
+                    phi,
+                    plan.peaks[0].joints_deg,
+                    "e",
+                    0,
+                )
+                check_joints(profile, q, "far end", 0.0)
+    assert "/".join(f"{plan.phi0_deg + t:+.0f}" for t in QUARTER_TURNS) in plan.summary()
+
+
+def test_a_straight_tool_scans_the_edges_half_a_turn_apart() -> None:
+    """Turning a tool whose beam is along the flange axis is joint 6 alone: two orientations."""
+    plan = plan_tool_frame(on_holder("tx90l", 0.0, (0.0, 1.0, 0.0)), "exact", 4)
+    assert plan.edge_turns_deg == HALF_TURNS and plan.edge_lines == 8
+
+
+def test_quarter_turns_the_arm_cannot_follow_fall_back_to_half_turns_saying_so(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    edges = tool_plan._plan_edges
+
+    def no_quarter(plate, phi0, notes, turns):
+        if len(turns) > 2:
+            raise SafetyError("plan edge +e1: the arm cannot follow the edge search")
+        return edges(plate, phi0, notes, turns)
+
+    monkeypatch.setattr(tool_plan, "_plan_edges", no_quarter)
+    plan = plan_tool_frame(on_holder("tx90l", 20.0, (0.0, 1.0, 0.0)), "exact", 4)
+    assert plan.edge_turns_deg == HALF_TURNS
+    assert any(
+        "two orientations only" in n and "20° off the flange axis" in n for n in plan.notes
+    ), plan.notes
 
 
 def test_a_turned_target_holds_the_tool_centre_and_is_checked_as_planned() -> None:
