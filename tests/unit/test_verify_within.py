@@ -24,13 +24,19 @@ from ucal.profile import (
     write_profile,
 )
 from ucal.record import decode, encode
-from ucal.verify.inputs import BeforeProfile, SoundSpeed, sound_speed_for_verify
+from ucal.verify.inputs import (
+    BeforeProfile,
+    SoundSpeed,
+    sound_speed_for_verify,
+    wrist_left_unidentified,
+)
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import plan_verify, tool_lever
 from ucal.verify.result import (
     MEASURED_WITHIN_MM,
     Verification,
     VerifySolved,
+    budget_json,
     marginal,
     measured_within_mm,
     table_note,
@@ -147,6 +153,31 @@ def test_a_verdict_within_the_tables_share_is_marginal_and_names_it(profile) -> 
     assert not marginal(far) and "--level full" not in verification(far).message()
     # a full-level table (hundredths): verify's own figure, no note
     assert table_note(solved_with(profile, 0.6, (0.005, 0.01))) == []
+
+
+def test_after_the_full_level_the_note_names_what_it_left_unidentified(profile) -> None:
+    """A full-level table: rows 1, 3 (d) and 5 (d, a) not determined in [calibration] dh_std;
+    the note, the message and --json name row 5's d5, a5 (row 1's and row 3's d are gauges)
+    and send nobody to the full level again."""
+    dh_std = np.full((6, 4), 0.01)
+    dh_std[[0, 2, 4], 0] = np.nan
+    dh_std[4, 1] = np.nan
+    dh_std[5] = np.nan
+    full = profile.replace(dh_std=dh_std)
+    assert wrist_left_unidentified(full) == ("d5", "a5")
+    assert wrist_left_unidentified(profile) == ()
+    solved = replace(solved_with(full, 0.6, UNIDENTIFIED), unidentified_names=("d5", "a5"))
+    assert marginal(solved)
+    msg = verification(solved).message()
+    assert "±0.81 mm with the DH table's d5, a5 not identified" in msg and "--level" not in msg
+    [note] = table_note(solved)
+    assert note.startswith("the DH table's d5, a5 are not identified")
+    assert "up to 0.379 mm" in note and "±0.81 mm" in note and "scanning region" in note
+    assert budget_json(UNIDENTIFIED, ("d5", "a5")) == {
+        "mean": 0.204,
+        "max": 0.379,
+        "quantities": ["d5", "a5"],
+    }
 
 
 def test_the_tables_share_is_not_called_a_tool_error(profile) -> None:

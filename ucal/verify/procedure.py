@@ -36,6 +36,7 @@ from ucal.verify.inputs import (
     offsets_before_calibration,
     sound_speed_for_verify,
     tank_reference,
+    wrist_left_unidentified,
     written_budget,
 )
 from ucal.verify.measure import VerifyResult, run_verify
@@ -48,6 +49,7 @@ from ucal.verify.result import (
     marginal,
     profile_notes,
     table_note,
+    table_words,
     tool_misfit_mm,
     tool_notes,
     water_note,
@@ -174,6 +176,7 @@ class VerifyJob(CheckingJob):
             self.before.same_as(self.profile),
             self.unidentified,
             tank,
+            wrist_left_unidentified(self.profile),
         )
 
     def may_write(self, solved: VerifySolved) -> bool:
@@ -208,7 +211,7 @@ class VerifyJob(CheckingJob):
                 f"the tool check's scans in the two senses about the beam disagree by "
                 f"{misfit:.3f} mm: "
                 + (
-                    "the DH table not identified (above) or "
+                    f"{table_words(solved)} not identified (above) or "
                     if misfit <= within and solved.table_unidentified
                     else ""
                 )
