@@ -54,6 +54,7 @@ from ucal.verify.result import (
     tool_notes,
     water_note,
 )
+from ucal.verify.solve import unidentified_at_points_mm
 from ucal.verify.tank import estimate_tank, tank_corrected
 
 #: A water path read again where calibrate read it: no search, the readings of one path.
@@ -163,6 +164,7 @@ class VerifyJob(CheckingJob):
             if tank.used:
                 # the points' paths were converted at the speed the start read (measure)
                 result = tank_corrected(result, tank, result.points_speed_m_s or conversion)
+        names = wrist_left_unidentified(self.profile)
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
@@ -176,7 +178,8 @@ class VerifyJob(CheckingJob):
             self.before.same_as(self.profile),
             self.unidentified,
             tank,
-            wrist_left_unidentified(self.profile),
+            names,
+            unidentified_at_points_mm(self.profile, plan, names) if names else None,
         )
 
     def may_write(self, solved: VerifySolved) -> bool:

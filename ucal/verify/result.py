@@ -105,15 +105,26 @@ class VerifySolved:
     #: what of the table an identified one left at its tolerance (``wrist_left_unidentified``:
     #: "d5", "a5"); empty: no table identified
     unidentified_names: tuple[str, ...] = ()
+    #: one sigma of what those move verify's own points (mm, ``unidentified_at_points_mm``);
+    #: None: no table identified (the region's figure stands)
+    unidentified_at_points_mm: float | None = None
 
     @property
     def passed(self) -> bool:
         return passed(self.result.stats("after"), self.tolerance_mm)
 
     @property
+    def table_sigma(self) -> tuple[float, float] | None:
+        """The DH table's share of the promise (mean, max; mm, one sigma): at verify's own
+        points where the full level left only named lengths unidentified, else over the
+        scanning region (``unidentified_tcp_mm``)."""
+        at = self.unidentified_at_points_mm
+        return self.unidentified_tcp_mm if at is None else (at, at)
+
+    @property
     def measured_within_mm(self) -> float:
         """How far each reached TCP may be from the real one (mm; ``measured_within_mm``)."""
-        return measured_within_mm(self.unidentified_tcp_mm, self.water_std_mm)
+        return measured_within_mm(self.table_sigma, self.water_std_mm)
 
     @property
     def tank_used(self) -> TankEstimate | None:
@@ -135,7 +146,7 @@ class VerifySolved:
     def table_unidentified(self) -> bool:
         """The DH table the last calibration left unidentified weighs more in verify's figure
         than verify's own measurement."""
-        return measured_within_mm(self.unidentified_tcp_mm) > 2.0 * MEASURED_WITHIN_MM
+        return measured_within_mm(self.table_sigma) > 2.0 * MEASURED_WITHIN_MM
 
     @property
     def water_unknown(self) -> bool:
@@ -189,6 +200,8 @@ class Verification:
         out["unidentified_tcp_mm"] = budget_json(
             solved.unidentified_tcp_mm, solved.unidentified_names
         )
+        if out["unidentified_tcp_mm"] is not None:
+            out["unidentified_tcp_mm"]["at_points"] = solved.unidentified_at_points_mm
         # the approach of every reading: calibrate's offsets hold for the positive one
         out["approach"] = readings_approach([m for p in solved.result.points for m in p.faces])
         out["plot"] = None if self.plot_path is None else str(self.plot_path)
@@ -315,16 +328,17 @@ def table_note(solved: VerifySolved) -> list[str]:
     it weighs more than verify's own measurement (``measured_within_mm``), for ``notes``."""
     if not solved.table_unidentified or solved.unidentified_tcp_mm is None:
         return []
-    names = solved.unidentified_names
-    if names:
+    names, table = solved.unidentified_names, solved.table_sigma
+    if names and table is not None:
         return [
             f"{table_words(solved)} are not identified (`ucal calibrate --level "
             "full` leaves them at [robot] dh_length_std_mm: they move the flange across the "
             "beam, which no echo at normal incidence shows): with them the last calibration's "
             f"unidentified quantities allow up to {solved.unidentified_tcp_mm[1]:.3f} mm at the "
             "tool centre over the scanning region ([calibration] unidentified_tcp_mm, one "
-            "sigma); the wrist's turns onto the faces and the arm's moves to the edges are "
-            "computed with them, so each 'after' point and the tool check are known to "
+            "sigma); at these points they put the reconstructed tool centre up to "
+            f"{table[1]:.3f} mm off on an axis (one sigma: the wrist's turns onto the faces are "
+            "computed without them), so each 'after' point is known to "
             f"±{solved.measured_within_mm:.2f} mm, not ±{MEASURED_WITHIN_MM:g}"
         ]
     return [
