@@ -367,7 +367,8 @@ def verify_figures(
     if truth is None:
         fig.errors.append(f"verify: {out.get('error', '')[:200]}")
         return False, False, float("nan"), False, float("nan")
-    table = (out.get("unidentified_tcp_mm") or {}).get("max", 0.0)
+    budget = out.get("unidentified_tcp_mm") or {}
+    table = budget.get("at_points") or budget.get("max", 0.0)
     half = (out["measured_within_mm"] - MEASURED_WITHIN_MM) / 2.0
     share = 2.0 * float(np.sqrt(max(half**2 - table**2, 0.0)))
     fig.water.append((share, float(truth["after_error_max_mm"][2])))

@@ -354,7 +354,7 @@ def test_region_check_passes_the_right_model_and_fails_the_wrong_one(
     assert out["passed"] is True and out["region"]["verdict"] == "ok"
     assert out["region"]["postures"] == 4 and out["region"]["max_tilt_deg"] < 0.001
     # what the calibration could not see is said beside what the region measured
-    assert out["region"]["unidentified_tcp_mm"] == {"mean": 0.12, "max": 0.25}
+    assert out["region"]["unidentified_tcp_mm"] == {"mean": 0.12, "max": 0.25, "quantities": []}
     assert out["moves"] > 0 and out["pulser_reads"] > 0
     # the procedure's plan and progress on stderr
     assert "Region check of" in r.stderr and "Estimated time on a real cell" in r.stderr

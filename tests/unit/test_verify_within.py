@@ -11,10 +11,7 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.model import beam_and_tcp
 from ucal.calibration.priors import prior_from_profile
-from ucal.calibration.sequence import geometry
-from ucal.calibration.wrist import aim_wrist
 from ucal.profile import (
     create_profile,
     default_profile_text,
@@ -24,13 +21,19 @@ from ucal.profile import (
     write_profile,
 )
 from ucal.record import decode, encode
-from ucal.verify.inputs import BeforeProfile, SoundSpeed, sound_speed_for_verify
+from ucal.verify.inputs import (
+    BeforeProfile,
+    SoundSpeed,
+    sound_speed_for_verify,
+    wrist_left_unidentified,
+)
 from ucal.verify.measure import PointResult, VerifyResult
-from ucal.verify.plan import plan_verify, tool_lever
+from ucal.verify.plan import plan_verify
 from ucal.verify.result import (
     MEASURED_WITHIN_MM,
     Verification,
     VerifySolved,
+    budget_json,
     marginal,
     measured_within_mm,
     table_note,
@@ -39,9 +42,8 @@ from ucal.verify.result import (
 )
 from ucal.verify.solve import (
     ToolOffset,
-    estimate_orientation,
-    reached_tcp_local,
-    wrist_centre_from_distances,
+    reconstruction_error_mm,
+    unidentified_at_points_mm,
 )
 
 #: calibrate's [calibration] unidentified_tcp_mm on a TX90L with the default DH tolerances
@@ -58,29 +60,10 @@ def test_a_wrist_off_its_table_moves_the_reached_tcp_across_the_beam(profile) ->
     """Row 5's d 0.2 mm off (one sigma of the default tolerance): exact echoes from that
     robot, reconstructed with the profile's table, put the TCP of the points straight down 0.2
     mm off across the beam and nothing along it; the tilted point off along it too."""
-    geom = geometry(profile)
     dh = profile.model.dh.copy()
     dh[4, 1] += 0.2
-    true = replace(geom, model=replace(profile.model, dh=dh))
     plan = plan_verify(profile, 3)
-    v, lever = tool_lever(profile)
-    s_mat = profile.sample_matrix
-    offsets = np.zeros(6)
-    errors = []
-    for target in (t for t in plan.targets if t.pass_name == "after"):
-        peaks = np.array(
-            [aim_wrist(true, target.face_joints_deg[k], -true.normal(k), offsets) for k in range(3)]
-        )
-        paths = [
-            true.normal(k) @ (beam_and_tcp(true, peaks[k], offsets)[1] - s_mat[:3, 3])
-            for k in range(3)
-        ]
-        orient = estimate_orientation(geom, peaks, offsets)
-        got = reached_tcp_local(
-            geom, wrist_centre_from_distances(paths, lever), orient, target.joints_deg, v
-        )
-        tcp = beam_and_tcp(true, target.joints_deg, offsets)[1]
-        errors.append(got - s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
+    errors = reconstruction_error_mm(profile, replace(profile.model, dh=dh), plan)
     down, turned, tilted = errors
     for e in (down, turned):
         assert abs(e[2]) < 1e-6  # along the beam: the XY face's own water path
@@ -88,6 +71,25 @@ def test_a_wrist_off_its_table_moves_the_reached_tcp_across_the_beam(profile) ->
     assert 0.01 < abs(tilted[2]) < 0.05 and np.hypot(tilted[0], tilted[1]) > 0.15
     # four times what verify promised with the table taken as exact
     assert np.max(np.abs(errors)) > 3.0 * MEASURED_WITHIN_MM
+
+
+def test_at_its_points_the_promise_holds_what_d5_and_a5_do_there(profile) -> None:
+    """After the full level, d5 and a5 at [robot] dh_length_std_mm (0.2 mm): each puts the
+    points straight down 0.2 mm off across the beam, at right angles to each other, so 0.2 mm
+    on either axis in quadrature; the promise is 0.05 mm and twice that (0.45 mm) where the
+    region's figure (0.379 mm max, one sigma) would make it 0.81."""
+    plan = plan_verify(profile, 3)
+    sigma = unidentified_at_points_mm(profile, plan, ("d5", "a5"))
+    assert sigma == pytest.approx(0.2, abs=0.005)
+    solved = replace(
+        solved_with(profile, 0.6, UNIDENTIFIED),
+        unidentified_names=("d5", "a5"),
+        unidentified_at_points_mm=sigma,
+    )
+    assert solved.measured_within_mm == pytest.approx(0.05 + 2.0 * sigma)
+    assert solved.table_unidentified and marginal(solved)
+    [note] = table_note(solved)
+    assert "up to 0.379 mm" in note and f"up to {sigma:.3f} mm off on an axis" in note
 
 
 def test_measured_within_adds_twice_the_tables_largest_sigma() -> None:
@@ -147,6 +149,31 @@ def test_a_verdict_within_the_tables_share_is_marginal_and_names_it(profile) -> 
     assert not marginal(far) and "--level full" not in verification(far).message()
     # a full-level table (hundredths): verify's own figure, no note
     assert table_note(solved_with(profile, 0.6, (0.005, 0.01))) == []
+
+
+def test_after_the_full_level_the_note_names_what_it_left_unidentified(profile) -> None:
+    """A full-level table: rows 1, 3 (d) and 5 (d, a) not determined in [calibration] dh_std;
+    the note, the message and --json name row 5's d5, a5 (row 1's and row 3's d are gauges)
+    and send nobody to the full level again."""
+    dh_std = np.full((6, 4), 0.01)
+    dh_std[[0, 2, 4], 0] = np.nan
+    dh_std[4, 1] = np.nan
+    dh_std[5] = np.nan
+    full = profile.replace(dh_std=dh_std)
+    assert wrist_left_unidentified(full) == ("d5", "a5")
+    assert wrist_left_unidentified(profile) == ()
+    solved = replace(solved_with(full, 0.6, UNIDENTIFIED), unidentified_names=("d5", "a5"))
+    assert marginal(solved)
+    msg = verification(solved).message()
+    assert "±0.81 mm with the DH table's d5, a5 not identified" in msg and "--level" not in msg
+    [note] = table_note(solved)
+    assert note.startswith("the DH table's d5, a5 are not identified")
+    assert "up to 0.379 mm" in note and "±0.81 mm" in note and "scanning region" in note
+    assert budget_json(UNIDENTIFIED, ("d5", "a5")) == {
+        "mean": 0.204,
+        "max": 0.379,
+        "quantities": ["d5", "a5"],
+    }
 
 
 def test_the_tables_share_is_not_called_a_tool_error(profile) -> None:

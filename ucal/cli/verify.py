@@ -227,8 +227,10 @@ def show_region(result: RegionCheck) -> None:
     if r.unidentified_tcp_mm is not None:
         mean, top = r.unidentified_tcp_mm
         click.echo(
-            f"not seen: across the beam the calibration's unidentified quantities allow {mean:.3f}"
-            f" mm mean, {top:.3f} mm max at the tool centre (one sigma), besides these residuals"
+            "not seen: across the beam the calibration's unidentified quantities"
+            + (f" ({', '.join(r.unidentified_names)})" if r.unidentified_names else "")
+            + f" allow {mean:.3f} mm mean, {top:.3f} mm max at the tool centre (one sigma), "
+            "besides these residuals"
         )
 
 

@@ -9,8 +9,11 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    shift), on the world's true DH table with Hayati's twist ``dh_beta_deg`` after each link
    (``A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``), with the true tool frame → TCP and beam (tool +Z);
 2. the echoing face is the nearest face whose plane the beam meets in front of the transducer,
-   facing it, with some of the footprint on it (``ucal.sim.geometry``); a face met from behind
-   does not reflect, and where the beam axis crosses it, it hides the faces behind it;
+   facing it, with some of the footprint on it (``ucal.sim.geometry``), unless the axis misses
+   that face and the face behind it that the axis meets gives the larger echo with the rest
+   of the footprint (a step's edge a few mm beside the beam leaves the face under it its echo);
+   a face met from behind does not reflect, and where the beam axis crosses it, it hides the
+   faces behind it;
 3. the echo arrives at ``2 L / c(T(t)) + delay`` with L the water path from the TCP to the axis
    hit point, ``T(t) = temperature_c + drift_c_per_min · t_s / 60`` (Marczak's c) at the
    simulated time ``t_s`` of the reading, or the thermometer's ``temperature_log`` at
@@ -273,14 +276,28 @@ class SimulatedCell:
                 for h in hits
             ]
         hits.sort(key=lambda h: h.distance_mm)
+        first: tuple[FaceHit, float] | None = None
         for h in hits:
             if h.facing:
                 share = self._share(h)
-                if share > _MIN_SHARE:
-                    return h, share
+                if share <= _MIN_SHARE:
+                    continue
+                if first is None:
+                    if h.inside:
+                        return h, share
+                    first = (h, share)  # the axis misses it: a face behind may hold more
+                elif h.inside:
+                    # the face the axis meets, less what the nearer face took of the footprint
+                    # (exact for a face inside another, as the step on the XY face): the
+                    # larger echo of the two is the one the gate reports
+                    rest = share - first[1]
+                    c_m_s = self._c_m_s
+                    near = self._peak(first[0].tilt_deg, first[0].distance_mm, c_m_s) * first[1]
+                    far = self._peak(h.tilt_deg, h.distance_mm, c_m_s) * rest
+                    return (h, rest) if far > near else first
             elif h.inside:
-                return None  # a face seen from behind blocks the beam and does not reflect
-        return None
+                break  # a face seen from behind blocks the beam and does not reflect
+        return first
 
     def _share(self, h: FaceHit) -> float:
         # one hit's (4,) edge distances: a single share
@@ -367,10 +384,11 @@ class SimulatedCell:
         scale: float,
         c_m_s: float,
     ) -> list[tuple[float, float]]:
-        """Specular echoes of the faces behind the main one that the footprint reaches: the
-        footprint's share on each (σ of ``_footprint_sigma_mm``), less the share the nearer
-        faces took (exact for a face inside another, as the step on the XY face), at the path
-        along the axis to its plane and the broadband echo's height at its tilt."""
+        """Specular echoes of the other faces that the footprint reaches: the footprint's share
+        on each (σ of ``_footprint_sigma_mm``), less the share the nearer faces took (exact for
+        a face inside another, as the step on the XY face), at the path along the axis to its
+        plane and the broadband echo's height at its tilt. A face nearer than the main one is
+        one the axis misses that gives the smaller echo (``_echoing_hit``)."""
         out = []
         taken = main_share
         hits = [
@@ -379,12 +397,17 @@ class SimulatedCell:
             if f is not main.face
             and (hit := intersect(origin, direction, f)) is not None
             and hit.facing
-            and hit.distance_mm > main.distance_mm
+            and (
+                hit.distance_mm > main.distance_mm
+                or (not hit.inside and self._share(hit) > _MIN_SHARE)
+            )
             and hit.tilt_deg < _MAX_SPECULAR_TILT_DEG
         ]
         for hit in sorted(hits, key=lambda x: x.distance_mm):
             sigma = self._footprint_sigma_mm(hit.distance_mm)
-            share = float(acoustics.rectangle_share(hit.edge_distances_mm, sigma)) - taken
+            share = float(acoustics.rectangle_share(hit.edge_distances_mm, sigma))
+            if hit.distance_mm > main.distance_mm:
+                share -= taken
             if share <= _MIN_SHARE:
                 continue
             taken += share
@@ -408,6 +431,8 @@ class SimulatedCell:
                 continue  # the beam comes from behind one of the faces
             # the point C of the edge nearest the beam axis: C = corner + s·e, axis point O + t·d
             b = float(d @ e)
+            if b * b >= 1.0:
+                continue  # the beam along the edge, to rounding: no ray meets both faces
             w0 = corner - origin
             s = (b * float(d @ w0) - float(e @ w0)) / (1.0 - b * b)
             t = float(d @ w0) + s * b

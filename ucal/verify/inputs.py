@@ -234,6 +234,23 @@ def written_budget(profile_path: Path) -> tuple[float, float] | None:
     return float(value[0]), float(value[1])
 
 
+def wrist_left_unidentified(profile: CellProfile) -> tuple[str, ...]:
+    """The wrist's lengths (rows 4 and 5, ``d`` and ``a``) that ``calibrate --level full`` left
+    at the [robot] tolerance (``[calibration] dh_std`` not determined), e.g. ``("d5", "a5")``:
+    they move the flange across the beam, which no echo at normal incidence shows. Empty
+    without an identified table (the offsets level: the whole table is at its tolerance).
+    Row 1's and row 3's ``d`` are left too, but the block's height and row 2's ``d`` take
+    them up; row 6 is the tool's."""
+    if profile.dh_std is None:
+        return ()
+    return tuple(
+        f"{name}{row + 1}"
+        for row in (3, 4)
+        for col, name in enumerate("da")
+        if np.isnan(profile.dh_std[row, col])
+    )
+
+
 def tank_reference(profile_path: str | Path) -> CalibrationReadings | None:
     """The readings of the profile's last ``calibrate`` write that verify reads again
     (``ucal.verify.tank``): one per face (``repeated_faces``); None where that write kept none

@@ -36,6 +36,7 @@ from ucal.verify.inputs import (
     offsets_before_calibration,
     sound_speed_for_verify,
     tank_reference,
+    wrist_left_unidentified,
     written_budget,
 )
 from ucal.verify.measure import VerifyResult, run_verify
@@ -48,10 +49,12 @@ from ucal.verify.result import (
     marginal,
     profile_notes,
     table_note,
+    table_words,
     tool_misfit_mm,
     tool_notes,
     water_note,
 )
+from ucal.verify.solve import unidentified_at_points_mm
 from ucal.verify.tank import estimate_tank, tank_corrected
 
 #: A water path read again where calibrate read it: no search, the readings of one path.
@@ -161,6 +164,7 @@ class VerifyJob(CheckingJob):
             if tank.used:
                 # the points' paths were converted at the speed the start read (measure)
                 result = tank_corrected(result, tank, result.points_speed_m_s or conversion)
+        names = wrist_left_unidentified(self.profile)
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
@@ -174,6 +178,8 @@ class VerifyJob(CheckingJob):
             self.before.same_as(self.profile),
             self.unidentified,
             tank,
+            names,
+            unidentified_at_points_mm(self.profile, plan, names) if names else None,
         )
 
     def may_write(self, solved: VerifySolved) -> bool:
@@ -208,7 +214,7 @@ class VerifyJob(CheckingJob):
                 f"the tool check's scans in the two senses about the beam disagree by "
                 f"{misfit:.3f} mm: "
                 + (
-                    "the DH table not identified (above) or "
+                    f"{table_words(solved)} not identified (above) or "
                     if misfit <= within and solved.table_unidentified
                     else ""
                 )

@@ -55,7 +55,7 @@ from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate
-from ucal.verify.inputs import written_budget
+from ucal.verify.inputs import wrist_left_unidentified, written_budget
 from ucal.verify.result import RegionCheck, RegionResult
 
 #: Joint-space weights of the farthest-point spread (deg of J1, J2, J3; a face change = 30°).
@@ -177,7 +177,11 @@ class RegionJob(CheckingJob):
 
     def solve(self, plan: FullPlan, measured: Measured[FullRun]) -> RegionResult:
         solved = judge_region(self.profile, measured.data.measurements, self.tolerance_mm)
-        return replace(solved, unidentified_tcp_mm=written_budget(self.profile_path))
+        return replace(
+            solved,
+            unidentified_tcp_mm=written_budget(self.profile_path),
+            unidentified_names=wrist_left_unidentified(self.profile),
+        )
 
     def may_write(self, solved: RegionResult) -> bool:
         return False

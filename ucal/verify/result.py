@@ -102,15 +102,29 @@ class VerifySolved:
     #: the tank's sound speed read again within the run (``ucal.verify.tank``); None: the
     #: history keeps no readings of the last calibration's
     tank: TankEstimate | None = None
+    #: what of the table an identified one left at its tolerance (``wrist_left_unidentified``:
+    #: "d5", "a5"); empty: no table identified
+    unidentified_names: tuple[str, ...] = ()
+    #: one sigma of what those move verify's own points (mm, ``unidentified_at_points_mm``);
+    #: None: no table identified (the region's figure stands)
+    unidentified_at_points_mm: float | None = None
 
     @property
     def passed(self) -> bool:
         return passed(self.result.stats("after"), self.tolerance_mm)
 
     @property
+    def table_sigma(self) -> tuple[float, float] | None:
+        """The DH table's share of the promise (mean, max; mm, one sigma): at verify's own
+        points where the full level left only named lengths unidentified, else over the
+        scanning region (``unidentified_tcp_mm``)."""
+        at = self.unidentified_at_points_mm
+        return self.unidentified_tcp_mm if at is None else (at, at)
+
+    @property
     def measured_within_mm(self) -> float:
         """How far each reached TCP may be from the real one (mm; ``measured_within_mm``)."""
-        return measured_within_mm(self.unidentified_tcp_mm, self.water_std_mm)
+        return measured_within_mm(self.table_sigma, self.water_std_mm)
 
     @property
     def tank_used(self) -> TankEstimate | None:
@@ -132,7 +146,7 @@ class VerifySolved:
     def table_unidentified(self) -> bool:
         """The DH table the last calibration left unidentified weighs more in verify's figure
         than verify's own measurement."""
-        return measured_within_mm(self.unidentified_tcp_mm) > 2.0 * MEASURED_WITHIN_MM
+        return measured_within_mm(self.table_sigma) > 2.0 * MEASURED_WITHIN_MM
 
     @property
     def water_unknown(self) -> bool:
@@ -183,11 +197,11 @@ class Verification:
         out["notes"] = self.notes
         out["marginal"] = self.marginal
         out["measured_within_mm"] = solved.measured_within_mm
-        out["unidentified_tcp_mm"] = (
-            None
-            if solved.unidentified_tcp_mm is None
-            else dict(zip(("mean", "max"), solved.unidentified_tcp_mm, strict=True))
+        out["unidentified_tcp_mm"] = budget_json(
+            solved.unidentified_tcp_mm, solved.unidentified_names
         )
+        if out["unidentified_tcp_mm"] is not None:
+            out["unidentified_tcp_mm"]["at_points"] = solved.unidentified_at_points_mm
         # the approach of every reading: calibrate's offsets hold for the positive one
         out["approach"] = readings_approach([m for p in solved.result.points for m in p.faces])
         out["plot"] = None if self.plot_path is None else str(self.plot_path)
@@ -206,7 +220,12 @@ class Verification:
         if self.marginal and solved.table_unidentified:
             text += (
                 f" (marginal: verify measures it to ±{solved.measured_within_mm:.2f} mm with "
-                "the DH table not identified; `ucal calibrate --level full` identifies it)"
+                + f"{table_words(solved)} not identified"
+                + (
+                    ", which no echo at normal incidence sees)"
+                    if solved.unidentified_names
+                    else "; `ucal calibrate --level full` identifies it)"
+                )
             )
         return text
 
@@ -230,6 +249,8 @@ class RegionResult:
     unidentified_tcp_mm: tuple[float, float] | None = None
     #: The approach the readings had (``ucal.calibration.fit.readings_approach``).
     approach: str = "positive"
+    #: What of an identified table is left at its tolerance (``VerifySolved``'s).
+    unidentified_names: tuple[str, ...] = ()
 
     @property
     def passed(self) -> bool:
@@ -256,10 +277,8 @@ class RegionResult:
                 "verdict": self.verdict,
                 "worst": self.worst,
                 "approach": self.approach,
-                "unidentified_tcp_mm": (
-                    None
-                    if self.unidentified_tcp_mm is None
-                    else dict(zip(("mean", "max"), self.unidentified_tcp_mm, strict=True))
+                "unidentified_tcp_mm": budget_json(
+                    self.unidentified_tcp_mm, self.unidentified_names
                 ),
             },
             "tolerance_mm": self.tolerance_mm,
@@ -285,11 +304,43 @@ class RegionCheck:
         }
 
 
+def budget_json(
+    unidentified_tcp_mm: tuple[float, float] | None, names: tuple[str, ...]
+) -> dict[str, Any] | None:
+    """``unidentified_tcp_mm`` in ``--json``: mean and max (mm, one sigma) and, after the full
+    level, the quantities of the table it left unidentified (``quantities``: "d5", "a5")."""
+    if unidentified_tcp_mm is None:
+        return None
+    out: dict[str, Any] = dict(zip(("mean", "max"), unidentified_tcp_mm, strict=True))
+    out["quantities"] = list(names)
+    return out
+
+
+def table_words(solved: VerifySolved) -> str:
+    """What of the DH table is not identified, in words: "the DH table's d5, a5" after the full
+    level, else "the DH table"."""
+    names = solved.unidentified_names
+    return f"the DH table's {', '.join(names)}" if names else "the DH table"
+
+
 def table_note(solved: VerifySolved) -> list[str]:
     """What the DH table the last calibration left unidentified does to verify's figures, when
     it weighs more than verify's own measurement (``measured_within_mm``), for ``notes``."""
     if not solved.table_unidentified or solved.unidentified_tcp_mm is None:
         return []
+    names, table = solved.unidentified_names, solved.table_sigma
+    if names and table is not None:
+        return [
+            f"{table_words(solved)} are not identified (`ucal calibrate --level "
+            "full` leaves them at [robot] dh_length_std_mm: they move the flange across the "
+            "beam, which no echo at normal incidence shows): with them the last calibration's "
+            f"unidentified quantities allow up to {solved.unidentified_tcp_mm[1]:.3f} mm at the "
+            "tool centre over the scanning region ([calibration] unidentified_tcp_mm, one "
+            "sigma); at these points they put the reconstructed tool centre up to "
+            f"{table[1]:.3f} mm off on an axis (one sigma: the wrist's turns onto the faces are "
+            "computed without them), so each 'after' point is known to "
+            f"±{solved.measured_within_mm:.2f} mm, not ±{MEASURED_WITHIN_MM:g}"
+        ]
     return [
         f"the DH table is not identified ([calibration] unidentified_tcp_mm: up to "
         f"{solved.unidentified_tcp_mm[1]:.3f} mm at the tool centre, one sigma, from [robot] "

@@ -12,7 +12,7 @@ docs/method/commissioning.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -20,11 +20,14 @@ from scipy.spatial.transform import Rotation
 
 from ucal.calibration.model import (
     CellGeometry,
+    beam_and_tcp,
 )
+from ucal.calibration.sequence import geometry
+from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.toolframe.exact import tangent_basis
-from ucal.verify.plan import tool_lever
+from ucal.verify.plan import VerifyPlan, tool_lever
 
 
 def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:
@@ -116,6 +119,55 @@ def reached_from_peaks(
     w_local = wrist_centre_from_distances(distances_mm, lever)
     orient = estimate_orientation(geom, peak_joints_deg, profile.joint_offsets_deg)
     return w_local, orient, reached_tcp_local(geom, w_local, orient, commanded_deg, v)
+
+
+def reconstruction_error_mm(
+    profile: CellProfile, true_model: RobotModel, plan: VerifyPlan
+) -> np.ndarray:
+    """How far verify's reconstruction puts each "after" point of ``plan`` from where the robot
+    really is (n, 3; block coordinates, mm) when its kinematics are ``true_model`` where the
+    profile says its own: exact echoes at that robot's three normal-incidence postures and
+    water paths, reconstructed with the profile's (``reached_from_peaks``), before the tool
+    check."""
+    geom = geometry(profile)
+    true = replace(geom, model=true_model)
+    offsets = plan.offsets_deg["after"]
+    s_mat = profile.sample_matrix
+    errors = []
+    for target in (t for t in plan.targets if t.pass_name == "after"):
+        peaks = np.array(
+            [aim_wrist(true, target.face_joints_deg[k], -true.normal(k), offsets) for k in range(3)]
+        )
+        paths = np.array(
+            [
+                true.normal(k) @ (beam_and_tcp(true, peaks[k], offsets)[1] - s_mat[:3, 3])
+                for k in range(3)
+            ]
+        )
+        got = reached_from_peaks(profile, geom, peaks, paths, target.joints_deg)[2]
+        tcp = beam_and_tcp(true, target.joints_deg, offsets)[1]
+        errors.append(got - s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
+    return np.array(errors).reshape(-1, 3)
+
+
+def unidentified_at_points_mm(
+    profile: CellProfile, plan: VerifyPlan, names: tuple[str, ...]
+) -> float:
+    """One sigma (mm) of what the table's lengths ``names`` ("d5", "a5": ``d`` or ``a`` and the
+    row), left at [robot] ``dh_length_std_mm`` by the full level, move verify's reconstructed
+    points off the real ones: each moved by one sigma (``reconstruction_error_mm``), their
+    shares added in quadrature per axis, the largest over the plan's "after" points and the
+    axes. Where the region's figure (``unidentified_tcp_mm``, the largest over 100 postures
+    about the calibration pose) is what the robot's tool centre may be off anywhere it scans,
+    this is what verify's own points are off by."""
+    sigma = float(profile.dh_length_std_mm)
+    variance = np.zeros(1)
+    for name in names:
+        dh = profile.model.dh.copy()
+        dh[int(name[1:]) - 1, 1 + "da".index(name[0])] += sigma
+        moved = replace(profile.model, dh=dh)
+        variance = variance + reconstruction_error_mm(profile, moved, plan) ** 2
+    return float(np.sqrt(np.max(variance)))
 
 
 #: The statistics of ``deviation_stats``, in its order.

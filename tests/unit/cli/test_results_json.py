@@ -284,7 +284,17 @@ def verify_case(path: Path, cell: CellProfile) -> Case:
 
 def region_case(path: Path, cell: CellProfile) -> Case:
     region = RegionResult(
-        5, 2.5e-6, 2.8e-6, 0.00095, 0.0019, 0.265, "ok", "r05/YZ", 0.5, (0.2274, 0.41)
+        5,
+        2.5e-6,
+        2.8e-6,
+        0.00095,
+        0.0019,
+        0.265,
+        "ok",
+        "r05/YZ",
+        0.5,
+        (0.2274, 0.41),
+        unidentified_names=("d5", "a5"),
     )
     result = RegionCheck(region, RunFacts(path, False, 60, 500, 120.0))
     return Case(
@@ -302,14 +312,18 @@ def region_case(path: Path, cell: CellProfile) -> Case:
                 "verdict": "ok",
                 "worst": "r05/YZ",
                 "approach": "positive",
-                "unidentified_tcp_mm": {"mean": 0.2274, "max": 0.41},
+                "unidentified_tcp_mm": {"mean": 0.2274, "max": 0.41, "quantities": ["d5", "a5"]},
             },
             "tolerance_mm": 0.5,
             "passed": True,
             "moves": 60,
             "duration_s": 120.0,
         },
-        ["region: 5 postures;", "tolerance 0.5 mm: passed", "allow 0.227 mm mean, 0.410 mm max"],
+        [
+            "region: 5 postures;",
+            "tolerance 0.5 mm: passed",
+            "quantities (d5, a5) allow 0.227 mm mean, 0.410 mm max",
+        ],
     )
 
 

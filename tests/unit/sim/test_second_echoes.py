@@ -99,3 +99,24 @@ def test_a_step_in_the_footprint_gives_the_face_under_it_its_own_echo() -> None:
     assert main[1] / 0.8 == pytest.approx(ac.edge_share(0.5, 1.5), rel=0.01)
     absorbed = ac.broadband_echo_factor(0.0, PATH_MM + 2.0, 25.0, 6.0, 20.0)
     assert face[1] / 0.8 / absorbed == pytest.approx(1.0 - ac.edge_share(0.5, 1.5), rel=0.02)
+
+
+def test_a_step_beside_the_beam_leaves_the_face_under_it_its_echo() -> None:
+    # the step's top 2 mm below the transducer, its edge 6 mm (4 σ of the footprint) beside the
+    # axis: the sliver of the footprint on it does not take the face's echo
+    step = Step(centre_mm=np.array([100.0, 100.0]), size_mm=20.0, height_mm=PATH_MM - 2.0)
+    profile = CellProfile(model=load_model("tx90l"), sample_position_mm=CORNER)
+    cell = SimulatedCell(WorldTruth.nominal(profile).replace(step=step))
+    far = pose(cell, np.array([116.0, 100.0, 0.0]), 0.0)
+    assert cell.hit(far).face.name == "z"
+    amplitude, tof = cell.ideal_echo(far)
+    assert path_mm(cell, tof) == pytest.approx(PATH_MM, abs=1e-4)
+    assert amplitude / 0.8 == pytest.approx(1.0 - ac.edge_share(-6.0, 1.5), rel=1e-3)
+    # half a mm beside it, 2 mm from the transducer: Φ(−0.5/σ) of the footprint on the step
+    # gives the larger echo, the face's the smaller one after it
+    near = pose(cell, np.array([110.5, 100.0, 0.0]), 0.0)
+    assert cell.hit(near).face.name == "step"
+    top, *others = cell.echoes(near)
+    assert path_mm(cell, top[0]) == pytest.approx(2.0, abs=1e-6)
+    face = [e for e in others if abs(path_mm(cell, e[0]) - PATH_MM) < 1e-6]
+    assert len(face) == 1 and 0.1 < face[0][1] / top[1] < 1.0
