@@ -7,7 +7,9 @@ reading a row, times strictly increasing, 0–60 °C (the sound speed's range); 
 
 * ``time,temperature_c``: wall-clock times, ISO 8601, as a logger writes them
   (``2026-11-26T07:31:02Z``, ``2026-11-26 08:31:02+01:00``; without a zone, the host's local
-  time). A real cell's log.
+  time). A real cell's log. Its last line, until the logger has ended it, is a row still being
+  written (cut off, ``20.1`` of ``20.13`` or ``2`` of ``21.40``): it is left out, and read when
+  the log is read again.
 * ``time_min,temperature_c``: minutes of the simulated cell's clock since it started, the time
   base of a world file's ``[water] temperature_log``: a rehearsal's thermometer on
   ``--sim WORLD`` (that clock is not the wall clock).
@@ -61,7 +63,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -124,12 +126,18 @@ def read_log(path: Path, context: str = "", wall_clock: bool = True) -> Temperat
     header: tuple[str, ...] | None = None if wall_clock else CELL_CLOCK_HEADER
     rows: list[tuple[float, float]] = []
     last = ""
-    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
+    lines = text.splitlines()
+    # a logger's last line without its line end is a row it is still writing
+    unfinished = len(lines) if lines and not text.endswith(("\n", "\r")) else 0
+    for lineno, fields in enumerate(csv.reader(lines), 1):
         cells = tuple(f.strip() for f in fields)
         if not "".join(cells) or cells[0].startswith("#"):
             continue  # blank lines and comments
         if not rows and cells in headers:
             header = cells
+            continue
+        if lineno == unfinished and header == WALL_CLOCK_HEADER:
+            log.debug("%s: row %d is still being written: left out", path, lineno)
             continue
         if header is None:
             raise bad(f"row {lineno}", f"expected the header {expected}, got {','.join(cells)!r}")
@@ -162,9 +170,9 @@ def read_log(path: Path, context: str = "", wall_clock: bool = True) -> Temperat
 
 def again(log_: TemperatureLog) -> TemperatureLog:
     """``log_`` read again from its file, as the logger has written it since (a run is solved
-    after it measured; the file was read and checked before anything moved). A file that no
-    longer reads (a row cut off as the logger writes it) keeps what was read, with a warning
-    naming it."""
+    after it measured; the file was read and checked before anything moved; the row the logger
+    is writing is left out, ``read_log``). A file that no longer reads (a bad row written since)
+    keeps what was read, with a warning naming it."""
     try:
         return read_log(log_.path, "--thermometer", wall_clock=log_.wall_clock)
     except ProfileError as e:
@@ -191,13 +199,18 @@ class Thermometer:
     """A thermometer's log on a run's own clock: what the solvers correct the water paths with.
 
     ``time_min`` (n,): minutes since the run's first reading (the readings' ``time_min``);
-    ``temperature_c`` (n,); ``std_c``: ``[water] thermometer_std_c``; ``source``: the file.
+    ``temperature_c`` (n,); ``std_c``: ``[water] thermometer_std_c``; ``source``: the file;
+    ``first_read_min``: where the run's first reading met the log, in the log's own time base
+    (``TemperatureLog.time_min``: minutes since the Unix epoch where ``wall_clock``, else of
+    the simulated cell's clock; None: not known, a record written before it was kept).
     """
 
     time_min: np.ndarray
     temperature_c: np.ndarray
     std_c: float
     source: str
+    first_read_min: float | None = None
+    wall_clock: bool = False
 
     def at(self, t_min: float) -> float:
         return float(np.interp(t_min, self.time_min, self.temperature_c))
@@ -323,11 +336,14 @@ class Thermometer:
         (``drift_c_per_min``, the drift's prior mean), how far it turned
         from a straight line (``departure_c``) against the log's own noise (``noise_c``),
         whether the paths were corrected (``applied``: ``turns``), the readings' span (min),
-        ``std_c``."""
+        ``std_c``; where the log met the run's first reading, in the log's time
+        (``first_reading``: ISO 8601 UTC for a logger's wall-clock times; ``first_reading_min``:
+        minutes of a simulated cell's clock)."""
         times = [t for t in _times(data) if t is not None]
         start, end = (min(times), max(times)) if times else (0.0, 0.0)
         return {
             "file": self.source,
+            **self._first_reading(),
             "change_c": round(self.change_c(start, end), 4),
             "drift_c_per_min": round(self.drift_c_per_min(data), 5),
             "departure_c": round(self.departure_c(data), 4),
@@ -337,6 +353,15 @@ class Thermometer:
             "std_c": self.std_c,
         }
 
+    def _first_reading(self) -> dict[str, Any]:
+        """``summary``'s ``first_reading`` or ``first_reading_min`` (none when not known)."""
+        if self.first_read_min is None:
+            return {}
+        if not self.wall_clock:
+            return {"first_reading_min": round(self.first_read_min, 4)}
+        when = datetime.fromtimestamp(self.first_read_min * 60.0, UTC)
+        return {"first_reading": when.isoformat(timespec="milliseconds")}
+
     def as_json(self) -> dict[str, Any]:
         """The thermometer as a record's session line holds it."""
         return {
@@ -344,15 +369,20 @@ class Thermometer:
             "temperature_c": self.temperature_c.tolist(),
             "std_c": self.std_c,
             "source": self.source,
+            "first_read_min": self.first_read_min,
+            "wall_clock": self.wall_clock,
         }
 
     @classmethod
     def from_json(cls, obj: dict[str, Any]) -> Thermometer:
+        first = obj.get("first_read_min")
         return cls(
             np.asarray(obj["time_min"], float),
             np.asarray(obj["temperature_c"], float),
             float(obj["std_c"]),
             str(obj["source"]),
+            None if first is None else float(first),
+            bool(obj.get("wall_clock", False)),
         )
 
 
@@ -384,7 +414,14 @@ def on_run(
     # the readings within a minute and a half of the run, and one more each side to interpolate
     near = np.flatnonzero((t >= -EDGE_SLACK_MIN - 1.0) & (t <= span_min + EDGE_SLACK_MIN + 1.0))
     lo, hi = (max(near[0] - 1, 0), min(near[-1] + 2, len(t))) if near.size else (0, len(t))
-    return Thermometer(t[lo:hi], log_.temperature_c[lo:hi], float(std_c), str(log_.path))
+    return Thermometer(
+        t[lo:hi],
+        log_.temperature_c[lo:hi],
+        float(std_c),
+        str(log_.path),
+        float(first_read_min),
+        log_.wall_clock,
+    )
 
 
 def check_time_base(log_: TemperatureLog, simulated: bool) -> None:

@@ -4,6 +4,7 @@ of the water paths (``ucal.thermometer``)."""
 from __future__ import annotations
 
 import logging
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -34,6 +35,35 @@ def test_a_logger_file_is_read_on_the_wall_clock(tmp_path: Path) -> None:
     start = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp() / 60.0
     assert log.time_min - start == pytest.approx([0.0, 1.5])
     assert log.temperature_c.tolist() == [20.10, 20.15]
+
+
+def test_a_logger_without_a_zone_writes_the_hosts_local_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One instant three ways (UTC, an offset, a zone's naive local time on a host in that zone)
+    is one time; the run's first reading placed on it is said in UTC."""
+    monkeypatch.setenv("TZ", "CET-1")  # POSIX: an hour east of UTC, no summer time
+    time.tzset()
+    try:
+        log = read_log(
+            _write(
+                tmp_path,
+                "time,temperature_c\n2026-11-26T07:00:00Z,20.00\n"
+                "2026-11-26T08:00:03+01:00,20.01\n2026-11-26 08:00:06,20.02\n",
+            )
+        )
+    finally:
+        monkeypatch.undo()  # the host's zone again
+        time.tzset()
+    start = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp() / 60.0
+    assert log.time_min - start == pytest.approx([0.0, 0.05, 0.1], abs=1e-6)
+    water = on_run(log, 0.02, first_read_min=start + 0.5 / 60.0, span_min=0.05)
+    assert water is not None
+    run = _tank_run(np.full(2, 20.0), np.array([0.0, 0.05]))
+    summary = water.summary(run)
+    assert summary["first_reading"] == "2026-11-26T07:00:00.500+00:00"
+    assert summary["change_c"] == pytest.approx(0.01)
+    assert Thermometer.from_json(water.as_json()).summary(run) == summary  # a record keeps it
 
 
 @pytest.mark.parametrize(
@@ -83,6 +113,9 @@ def test_a_log_is_placed_on_the_runs_clock_or_not_used(
     water = on_run(log, 0.02, first_read_min=5.0, span_min=4.0)
     assert water is not None
     assert water.at(0.0) == pytest.approx(20.5)  # the run's first reading, 5 min in
+    assert water.summary(_tank_run(np.full(2, 20.0), np.array([0.0, 4.0])))[
+        "first_reading_min"
+    ] == pytest.approx(5.0)
     with caplog.at_level(logging.WARNING):
         assert on_run(log, 0.02, first_read_min=15.0, span_min=8.0) is None
     assert "ends 3.0 min before the run's last reading" in caplog.text
@@ -196,7 +229,7 @@ def test_the_log_is_read_again_as_the_logger_wrote_it_during_the_run(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Read before anything moves, the log is read again when the run is solved: the rows the
-    logger wrote since are there; a row cut off as it writes keeps what was read, said."""
+    logger wrote since are there; a bad row written since keeps what was read, said."""
     from ucal.thermometer import again
 
     path = _write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20.00\n")
@@ -205,7 +238,27 @@ def test_the_log_is_read_again_as_the_logger_wrote_it_during_the_run(
         f.write("2026-11-26T07:00:03Z,20.01\n")
     assert again(first).temperature_c.tolist() == [20.0, 20.01]
     with path.open("a") as f:
-        f.write("2026-11-26T07:0")
+        f.write("2026-11-26T07:00:06Z,twenty\n")
     with caplog.at_level(logging.WARNING):
         assert again(first) is first
+    assert "row 4: expected an ISO 8601 time and °C" in caplog.text
     assert "the log as read before the run is used" in caplog.text
+
+
+@pytest.mark.parametrize(
+    "cut", ["2026-11-26T07:0", "2026-11-26T07:00:06Z,", "2026-11-26T07:00:06Z,2"]
+)
+def test_a_row_the_logger_is_still_writing_is_left_out(tmp_path: Path, cut: str) -> None:
+    """The last line before its line end is a row being written: cut in its time, before its
+    reading or in it (``2`` of ``21.40`` would read 2 °C), it is left out, before the run and
+    when read again; once ended, it is read. A minutes log (not a logger's) keeps its last
+    line."""
+    from ucal.thermometer import again
+
+    path = _write(tmp_path, f"time,temperature_c\n2026-11-26T07:00:00Z,21.38\n{cut}")
+    first = read_log(path)
+    assert first.temperature_c.tolist() == [21.38]
+    with path.open("a") as f:
+        f.write("2026-11-26T07:00:06Z,21.40\n"[len(cut) :])
+    assert again(first).temperature_c.tolist() == [21.38, 21.40]
+    assert read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,21")).at(1.0) == 21.0
