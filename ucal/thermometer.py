@@ -16,7 +16,11 @@ reading a row, times strictly increasing, 0–60 °C (the sound speed's range); 
 
 The file is read and checked before anything moves (a bad row, or a time base that is not the
 cell's, exits 2 naming the file), and read again when the run is solved (``again``): the logger
-writes on during the run.
+writes on during the run. A logger's is read again once it has logged half the smoothing
+window past the run's last reading (``awaited``, a quarter of a minute after the robot stopped):
+read at once, it would end at the run's last paths, and its course there would be extrapolated
+from the readings before them: a heater's turn misread where the drift is read best
+(``docs/benchmarks.md``).
 
 What a thermometer measures is the tank's *change*, and what the water paths cannot see for
 themselves is how that change turns during a run. The solvers fit the sound speed at the
@@ -61,6 +65,7 @@ import dataclasses
 import functools
 import logging
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -178,6 +183,40 @@ def again(log_: TemperatureLog) -> TemperatureLog:
     except ProfileError as e:
         log.warning("%s: the log as read before the run is used", e)
         return log_
+
+
+def awaited(
+    log_: TemperatureLog,
+    last_read_min: float,
+    now_s: Callable[[], float] = time.time,
+    sleep: Callable[[float], None] = time.sleep,
+) -> TemperatureLog:
+    """``log_`` read again (``again``) once the logger has written half the smoothing window
+    past the run's last reading (``last_read_min``, the log's time base): the log's course at
+    the run's last paths is then smoothed about them as elsewhere, not extrapolated from the
+    readings before them (a live log read at once ends at the run's last reading). A log on the
+    simulated cell's clock, written before the run, is read at once; so is a logger that wrote
+    no row for three of its intervals (stopped, or its clock behind the host's), and the wait
+    ends three intervals after the log should have got there."""
+    log_ = again(log_)
+    if not log_.wall_clock or len(log_.time_min) < 2:
+        return log_
+    wanted = last_read_min + 0.5 * SMOOTHING_MIN
+    interval = float(np.median(np.diff(log_.time_min)))
+    if log_.time_min[-1] < wanted:
+        log.info(
+            "waiting up to %.0f s for %s to log past the run's last reading",
+            60.0 * (wanted + 3.0 * interval) - now_s(),
+            log_.path,
+        )
+    while log_.time_min[-1] < wanted:
+        now = now_s() / 60.0
+        if now - log_.time_min[-1] > 3.0 * interval or now > wanted + 3.0 * interval:
+            log.info("%s: not logged past the run's last reading: its course ends there", log_.path)
+            break
+        sleep(60.0 * interval)
+        log_ = again(log_)
+    return log_
 
 
 def _row(cells: tuple[str, ...], wall_clock: bool) -> tuple[float, float] | None:
@@ -445,6 +484,11 @@ def reading_span_min(data: Any) -> float:
     """The span (min) of the water paths' times within a measure step's ``data``."""
     times = [t for t in _times(data) if t is not None]
     return float(np.ptp(times)) if times else 0.0
+
+
+def last_reading_min(data: Any) -> float:
+    """The last water path's time within ``data`` (min since the run's first reading)."""
+    return max((t for t in _times(data) if t is not None), default=0.0)
 
 
 def _reference_time(data: Any) -> float | None:

@@ -262,3 +262,58 @@ def test_a_row_the_logger_is_still_writing_is_left_out(tmp_path: Path, cut: str)
         f.write("2026-11-26T07:00:06Z,21.40\n"[len(cut) :])
     assert again(first).temperature_c.tolist() == [21.38, 21.40]
     assert read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,21")).at(1.0) == 21.0
+
+
+class _Logger:
+    """A logger writing a row every 2 s (``rows`` of them at first) on a host clock that passes
+    only when slept; ``writing`` False: it has stopped."""
+
+    def __init__(self, path: Path, rows: int, writing: bool = True) -> None:
+        self.path, self.writing = path, writing
+        self.now_s = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp()
+        self.slept: list[float] = []
+        path.write_text("time,temperature_c\n")
+        for _ in range(rows):
+            self.now_s += 2.0
+            self.row()
+
+    def row(self) -> None:
+        when = datetime.fromtimestamp(self.now_s, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        with self.path.open("a") as f:
+            f.write(f"{when},20.00\n")
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        for _ in range(round(seconds / 2.0)):
+            self.now_s += 2.0
+            if self.writing:
+                self.row()
+
+
+def test_a_live_log_is_read_once_it_has_logged_past_the_runs_end(tmp_path: Path) -> None:
+    """The run's last reading at the log's last row: the log is read again once it reaches a
+    quarter of a minute (half the smoothing window) past it, a row every 2 s."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=6)
+    first = read_log(logger.path)
+    end_min = float(first.time_min[-1])
+    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
+    assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)  # 15 s, then its row
+    assert logger.slept == pytest.approx([2.0] * 8)  # each a logger's interval
+
+
+def test_a_stopped_logger_or_a_minutes_log_is_not_waited_for(tmp_path: Path) -> None:
+    """A logger that has written no row for three of its intervals is not waited for longer;
+    a log in minutes of a simulated cell's clock (written before the run) not at all."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=2, writing=False)
+    first = read_log(logger.path)
+    log = awaited(first, float(first.time_min[-1]), lambda: logger.now_s, logger.sleep)
+    assert log.time_min.tolist() == first.time_min.tolist()
+    slept = sum(logger.slept)
+    assert 5.9 < slept < 8.1  # three intervals without a row (to a float's last bits): stopped
+    minutes = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,20\n"))
+    assert awaited(minutes, 1.0, lambda: 0.0, logger.sleep).time_min.tolist() == [0.0, 1.0]
+    assert sum(logger.slept) == slept
