@@ -195,27 +195,30 @@ def awaited(
     past the run's last reading (``last_read_min``, the log's time base): the log's course at
     the run's last paths is then smoothed about them as elsewhere, not extrapolated from the
     readings before them (a live log read at once ends at the run's last reading). A log on the
-    simulated cell's clock, written before the run, is read at once; so is a logger that wrote
-    no row for three of its intervals (stopped, or its clock behind the host's), and the wait
-    ends three intervals after the log should have got there."""
+    simulated cell's clock, written before the run, is read at once. The wait is timed on the
+    host's clock, not by the logger's stamps (its clock may be off the host's): it ends when
+    the log has written no row for three of its intervals (stopped), or three intervals after
+    the time the log needed to get there."""
     log_ = again(log_)
     if not log_.wall_clock or len(log_.time_min) < 2:
         return log_
     wanted = last_read_min + 0.5 * SMOOTHING_MIN
-    interval = float(np.median(np.diff(log_.time_min)))
-    if log_.time_min[-1] < wanted:
+    interval_s = 60.0 * float(np.median(np.diff(log_.time_min)))
+    limit_s = 60.0 * (wanted - float(log_.time_min[-1])) + 3.0 * interval_s
+    if limit_s > 3.0 * interval_s:
         log.info(
-            "waiting up to %.0f s for %s to log past the run's last reading",
-            60.0 * (wanted + 3.0 * interval) - now_s(),
-            log_.path,
+            "waiting up to %.0f s for %s to log past the run's last reading", limit_s, log_.path
         )
+    started_s = row_s = now_s()
     while log_.time_min[-1] < wanted:
-        now = now_s() / 60.0
-        if now - log_.time_min[-1] > 3.0 * interval or now > wanted + 3.0 * interval:
+        if now_s() - row_s > 3.0 * interval_s or now_s() - started_s > limit_s:
             log.info("%s: not logged past the run's last reading: its course ends there", log_.path)
             break
-        sleep(60.0 * interval)
+        sleep(interval_s)
+        rows = len(log_.time_min)
         log_ = again(log_)
+        if len(log_.time_min) > rows:
+            row_s = now_s()
     return log_
 
 

@@ -268,8 +268,8 @@ class _Logger:
     """A logger writing a row every 2 s (``rows`` of them at first) on a host clock that passes
     only when slept; ``writing`` False: it has stopped."""
 
-    def __init__(self, path: Path, rows: int, writing: bool = True) -> None:
-        self.path, self.writing = path, writing
+    def __init__(self, path: Path, rows: int, writing: bool = True, behind_s: float = 0.0) -> None:
+        self.path, self.writing, self.behind_s = path, writing, behind_s
         self.now_s = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp()
         self.slept: list[float] = []
         path.write_text("time,temperature_c\n")
@@ -278,7 +278,8 @@ class _Logger:
             self.row()
 
     def row(self) -> None:
-        when = datetime.fromtimestamp(self.now_s, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        stamp = self.now_s - self.behind_s  # the logger's own clock
+        when = datetime.fromtimestamp(stamp, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
         with self.path.open("a") as f:
             f.write(f"{when},20.00\n")
 
@@ -301,6 +302,18 @@ def test_a_live_log_is_read_once_it_has_logged_past_the_runs_end(tmp_path: Path)
     log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
     assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)  # 15 s, then its row
     assert logger.slept == pytest.approx([2.0] * 8)  # each a logger's interval
+
+
+def test_a_logger_whose_clock_is_behind_the_hosts_is_waited_for(tmp_path: Path) -> None:
+    """Its rows stamped 10 s behind the host's clock: the wait is timed on the host's clock,
+    so the log still reaches a quarter of a minute past the run's last reading."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=6, behind_s=10.0)
+    first = read_log(logger.path)
+    end_min = float(first.time_min[-1]) + 10.0 / 60.0  # the last reading, now on the host
+    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
+    assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)
 
 
 def test_a_stopped_logger_or_a_minutes_log_is_not_waited_for(tmp_path: Path) -> None:
