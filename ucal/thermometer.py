@@ -14,8 +14,9 @@ reading a row, times strictly increasing, 0–60 °C (the sound speed's range); 
   base of a world file's ``[water] temperature_log``: a rehearsal's thermometer on
   ``--sim WORLD`` (that clock is not the wall clock).
 
-The file is read and checked before anything moves (a bad row, or a time base that is not the
-cell's, exits 2 naming the file), and read again when the run is solved (``again``): the logger
+The file is read and checked before anything moves (a bad row, a time base that is not the
+cell's, or a logger's log that is not being written by the host's clock, ``check_time_base``,
+exits 2 naming the file), and read again when the run is solved (``again``): the logger
 writes on during the run. A logger's is read again once it has logged half the smoothing
 window past the run's last reading (``awaited``, a quarter of a minute after the robot stopped):
 read at once, it would end at the run's last paths, and its course there would be extrapolated
@@ -90,6 +91,11 @@ EDGE_SLACK_MIN = 0.5
 #: The log's course is the log smoothed over this window (min): a quadratic fitted about each
 #: reading (Savitzky–Golay), which keeps a heater's turn and averages the reading noise.
 SMOOTHING_MIN = 0.5
+#: A logger's log is written during the run: before anything moves, its last row must lie no
+#: more than this ahead of the host's clock (min), and no more than this (or three of its
+#: intervals) behind it.
+LIVE_AHEAD_MIN = 1.0
+LIVE_AGE_MIN = 2.0
 
 
 @dataclass(frozen=True)
@@ -466,10 +472,17 @@ def on_run(
     )
 
 
-def check_time_base(log_: TemperatureLog, simulated: bool) -> None:
+def check_time_base(
+    log_: TemperatureLog, simulated: bool, now_s: Callable[[], float] = time.time
+) -> None:
     """Refuse, before anything moves, a log whose time base is not the cell's: a simulated cell
-    runs on its own clock (minutes, ``time_min``), a real one on the wall clock (``time``)
-    (``InputError``, exit 2, naming the file)."""
+    runs on its own clock (minutes, ``time_min``), a real one on the wall clock (``time``); and
+    a logger's log that is not being written now by the host's clock (``now_s``), its last row
+    more than ``LIVE_AHEAD_MIN`` ahead of it (a time zone, or the logger's clock) or more than
+    ``LIVE_AGE_MIN`` (or three of its intervals) behind it (a logger not writing, or a time
+    zone): such a log could not cover the run (``InputError``, exit 2, naming the file)."""
+    if log_.wall_clock and not simulated:
+        _check_live(log_, now_s() / 60.0)
     if log_.wall_clock == simulated:
         raise InputError(
             f"{log_.path}: "
@@ -481,6 +494,26 @@ def check_time_base(log_: TemperatureLog, simulated: bool) -> None:
                 "on the wall clock: give the logger's times (column time, ISO 8601)"
             )
         )
+
+
+def _check_live(log_: TemperatureLog, now_min: float) -> None:
+    """``check_time_base``'s refusal of a logger's log that is not being written at ``now_min``."""
+    last = float(log_.time_min[-1])
+    steps = np.diff(log_.time_min)
+    age_min = max(LIVE_AGE_MIN, 3.0 * float(np.median(steps))) if len(steps) else LIVE_AGE_MIN
+    if -LIVE_AHEAD_MIN <= now_min - last <= age_min:
+        return
+    offset = datetime.now().astimezone().strftime("%z")
+    where = (
+        f"ahead of this host's clock by {last - now_min:.1f} min"
+        if last > now_min
+        else f"{now_min - last:.1f} min old by this host's clock"
+    )
+    raise InputError(
+        f"{log_.path}: its last row is {where}: the log must be written during the run "
+        f"(is the logger writing, its clock set? a time without a zone is this host's local "
+        f"time, UTC{offset[:3]}:{offset[3:]})"
+    )
 
 
 def reading_span_min(data: Any) -> float:

@@ -100,10 +100,38 @@ def test_a_log_on_another_clock_than_the_cells_is_refused(tmp_path: Path) -> Non
     wall = read_log(_write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20\n"))
     with pytest.raises(InputError, match="the simulated cell runs on its own clock"):
         check_time_base(wall, simulated=True)
-    check_time_base(wall, simulated=False)
+    check_time_base(wall, simulated=False, now_s=lambda: 60.0 * wall.time_min[-1] + 5.0)
     cell = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n"))
     with pytest.raises(InputError, match="give the logger's times"):
         check_time_base(cell, simulated=False)
+
+
+@pytest.mark.parametrize(
+    ("after_last_s", "words"),
+    [
+        (-90.0, "its last row is ahead of this host's clock by 1.5 min"),
+        (150.0, "its last row is 2.5 min old by this host's clock"),
+        (-30.0, None),
+        (100.0, None),
+    ],
+)
+def test_a_logger_not_writing_now_is_refused_before_anything_moves(
+    tmp_path: Path, after_last_s: float, words: str | None
+) -> None:
+    """A logger's last row more than a minute ahead of the host's clock (a zone, its clock), or
+    more than two minutes old (three of its 3 s intervals are less): the log could not cover the
+    run (exit 2)."""
+    log = read_log(
+        _write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20\n2026-11-26T07:00:03Z,20\n")
+    )
+    now = 60.0 * float(log.time_min[-1]) + after_last_s
+    if words is None:
+        check_time_base(log, simulated=False, now_s=lambda: now)
+        return
+    with pytest.raises(InputError) as err:
+        check_time_base(log, simulated=False, now_s=lambda: now)
+    assert str(err.value).startswith(f"{log.path}: {words}: the log must be written during")
+    assert "a time without a zone is this host's local time, UTC" in str(err.value)
 
 
 def test_a_log_is_placed_on_the_runs_clock_or_not_used(
