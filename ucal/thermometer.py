@@ -96,6 +96,8 @@ SMOOTHING_MIN = 0.5
 #: intervals) behind it.
 LIVE_AHEAD_MIN = 1.0
 LIVE_AGE_MIN = 2.0
+#: The longest wait (s) for a logger's log to pass the run's last reading (``awaited``).
+WAIT_MAX_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -204,23 +206,24 @@ def awaited(
     simulated cell's clock, written before the run, is read at once. The wait is timed on the
     host's clock, not by the logger's stamps (its clock may be off the host's): it ends when
     the log has written no row for three of its intervals (stopped), or three intervals after
-    the time the log needed to get there."""
+    the time the log needed to get there, at most ``WAIT_MAX_S``."""
     log_ = again(log_)
     if not log_.wall_clock or len(log_.time_min) < 2:
         return log_
     wanted = last_read_min + 0.5 * SMOOTHING_MIN
     interval_s = 60.0 * float(np.median(np.diff(log_.time_min)))
-    limit_s = 60.0 * (wanted - float(log_.time_min[-1])) + 3.0 * interval_s
-    if limit_s > 3.0 * interval_s:
+    limit_s = min(60.0 * (wanted - float(log_.time_min[-1])) + 3.0 * interval_s, WAIT_MAX_S)
+    if log_.time_min[-1] < wanted:
         log.info(
             "waiting up to %.0f s for %s to log past the run's last reading", limit_s, log_.path
         )
     started_s = row_s = now_s()
     while log_.time_min[-1] < wanted:
-        if now_s() - row_s > 3.0 * interval_s or now_s() - started_s > limit_s:
+        left_s = limit_s - (now_s() - started_s)
+        if now_s() - row_s > 3.0 * interval_s or left_s <= 0.0:
             log.info("%s: not logged past the run's last reading: its course ends there", log_.path)
             break
-        sleep(interval_s)
+        sleep(min(interval_s, left_s))
         rows = len(log_.time_min)
         log_ = again(log_)
         if len(log_.time_min) > rows:

@@ -293,17 +293,26 @@ def test_a_row_the_logger_is_still_writing_is_left_out(tmp_path: Path, cut: str)
 
 
 class _Logger:
-    """A logger writing a row every 2 s (``rows`` of them at first) on a host clock that passes
-    only when slept; ``writing`` False: it has stopped."""
+    """A logger writing a row every ``every_s`` (``rows`` of them at first; its clock
+    ``behind_s`` behind the host's) on a host clock that passes only when slept; ``writing``
+    False: it has stopped."""
 
-    def __init__(self, path: Path, rows: int, writing: bool = True, behind_s: float = 0.0) -> None:
-        self.path, self.writing, self.behind_s = path, writing, behind_s
+    def __init__(
+        self,
+        path: Path,
+        rows: int,
+        writing: bool = True,
+        behind_s: float = 0.0,
+        every_s: float = 2.0,
+    ) -> None:
+        self.path, self.writing, self.behind_s, self.every_s = path, writing, behind_s, every_s
         self.now_s = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp()
         self.slept: list[float] = []
         path.write_text("time,temperature_c\n")
         for _ in range(rows):
-            self.now_s += 2.0
+            self.now_s += every_s
             self.row()
+        self.next_row_s = self.now_s + every_s
 
     def row(self) -> None:
         stamp = self.now_s - self.behind_s  # the logger's own clock
@@ -313,10 +322,13 @@ class _Logger:
 
     def sleep(self, seconds: float) -> None:
         self.slept.append(seconds)
-        for _ in range(round(seconds / 2.0)):
-            self.now_s += 2.0
+        end_s = self.now_s + seconds
+        while self.next_row_s <= end_s + 1e-6:
+            self.now_s = self.next_row_s
             if self.writing:
                 self.row()
+            self.next_row_s += self.every_s
+        self.now_s = max(self.now_s, end_s)
 
 
 def test_a_live_log_is_read_once_it_has_logged_past_the_runs_end(tmp_path: Path) -> None:
@@ -345,8 +357,9 @@ def test_a_logger_whose_clock_is_behind_the_hosts_is_waited_for(tmp_path: Path) 
 
 
 def test_a_stopped_logger_or_a_minutes_log_is_not_waited_for(tmp_path: Path) -> None:
-    """A logger that has written no row for three of its intervals is not waited for longer;
-    a log in minutes of a simulated cell's clock (written before the run) not at all."""
+    """A logger that has written no row for three of its intervals is not waited for longer,
+    nor for more than a minute; a log in minutes of a simulated cell's clock (written before
+    the run) not at all."""
     from ucal.thermometer import awaited
 
     logger = _Logger(tmp_path / "t.csv", rows=2, writing=False)
@@ -355,6 +368,10 @@ def test_a_stopped_logger_or_a_minutes_log_is_not_waited_for(tmp_path: Path) -> 
     assert log.time_min.tolist() == first.time_min.tolist()
     slept = sum(logger.slept)
     assert 5.9 < slept < 8.1  # three intervals without a row (to a float's last bits): stopped
+    slow = _Logger(tmp_path / "slow.csv", rows=2, writing=False, every_s=30.0)
+    first = read_log(slow.path)
+    awaited(first, float(first.time_min[-1]), lambda: slow.now_s, slow.sleep)
+    assert sum(slow.slept) == pytest.approx(60.0, abs=0.01)  # a minute at most, not 90 s
     minutes = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,20\n"))
     assert awaited(minutes, 1.0, lambda: 0.0, logger.sleep).time_min.tolist() == [0.0, 1.0]
     assert sum(logger.slept) == slept
