@@ -71,8 +71,9 @@ from ucal.session import CellSession, check_status, open_cell, replay_cell
 from ucal.thermometer import (
     TemperatureLog,
     Thermometer,
-    again,
+    awaited,
     check_time_base,
+    last_reading_min,
     on_run,
     reading_span_min,
 )
@@ -512,31 +513,36 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
 
                 data = self.job.measure(plan, session, report)
             measured = Measured(
-                data,
-                session.elapsed_s,
-                session.truth,
-                session.echo_timing.as_json(),
-                self._thermometer(session, data),
+                data, session.elapsed_s, session.truth, session.echo_timing.as_json()
             )
+            first_min = self._first_read_min(session)
+        # the cell closed (the robot stopped): a live log may be waited for
+        measured.thermometer = self._thermometer(first_min, data)
         if recorder is not None:
             self._record_measurements(recorder, measured)
         return measured
 
-    def _thermometer(self, session: CellSession, data: Any) -> Thermometer | None:
-        """The thermometer's log on the run's clock (``ucal.thermometer.on_run``), if one was
-        given, read again now that the run has measured (``ucal.thermometer.again``): its
-        wall-clock times meet the run at the first reading's wall time; a simulated cell's
-        minutes at its clock (``check_time_base``)."""
+    def _first_read_min(self, session: CellSession) -> float | None:
+        """The run's first reading in the time base of the thermometer's log, if one was given
+        and the run read: a logger's wall-clock times meet the run at the first reading's wall
+        time, a simulated cell's minutes at its clock (``check_time_base``)."""
         log_ = self.options.thermometer
         rig = session.rig
         if log_ is None or rig.first_read_s is None:
             return None
-        log_ = again(log_)  # the logger wrote on during the run
         if log_.wall_clock:
             assert rig.first_read_wall_s is not None
-            first_min = rig.first_read_wall_s / 60.0
-        else:
-            first_min = (rig.first_read_s - session.started_s) / 60.0
+            return rig.first_read_wall_s / 60.0
+        return (rig.first_read_s - session.started_s) / 60.0
+
+    def _thermometer(self, first_min: float | None, data: Any) -> Thermometer | None:
+        """The thermometer's log on the run's clock (``ucal.thermometer.on_run``), read again
+        now that the run has measured, a live logger's once it has logged past the run's last
+        reading (``ucal.thermometer.awaited``); None without a log or a reading."""
+        log_ = self.options.thermometer
+        if log_ is None or first_min is None:
+            return None
+        log_ = awaited(log_, first_min + last_reading_min(data))  # the logger wrote on
         return on_run(log_, self.job.profile.thermometer_std_c, first_min, reading_span_min(data))
 
     def _record_measurements(self, recorder: Recorder, measured: Measured[MeasuredT]) -> None:

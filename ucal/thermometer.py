@@ -7,14 +7,21 @@ reading a row, times strictly increasing, 0–60 °C (the sound speed's range); 
 
 * ``time,temperature_c``: wall-clock times, ISO 8601, as a logger writes them
   (``2026-11-26T07:31:02Z``, ``2026-11-26 08:31:02+01:00``; without a zone, the host's local
-  time). A real cell's log.
+  time). A real cell's log. Its last line, until the logger has ended it, is a row still being
+  written (cut off, ``20.1`` of ``20.13`` or ``2`` of ``21.40``): it is left out, and read when
+  the log is read again.
 * ``time_min,temperature_c``: minutes of the simulated cell's clock since it started, the time
   base of a world file's ``[water] temperature_log``: a rehearsal's thermometer on
   ``--sim WORLD`` (that clock is not the wall clock).
 
-The file is read and checked before anything moves (a bad row, or a time base that is not the
-cell's, exits 2 naming the file), and read again when the run is solved (``again``): the logger
-writes on during the run.
+The file is read and checked before anything moves (a bad row, a time base that is not the
+cell's, or a logger's log that is not being written by the host's clock, ``check_time_base``,
+exits 2 naming the file), and read again when the run is solved (``again``): the logger
+writes on during the run. A logger's is read again once it has logged half the smoothing
+window past the run's last reading (``awaited``, a quarter of a minute after the robot stopped):
+read at once, it would end at the run's last paths, and its course there would be extrapolated
+from the readings before them: a heater's turn misread where the drift is read best
+(``docs/benchmarks.md``).
 
 What a thermometer measures is the tank's *change*, and what the water paths cannot see for
 themselves is how that change turns during a run. The solvers fit the sound speed at the
@@ -59,9 +66,10 @@ import dataclasses
 import functools
 import logging
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -83,6 +91,13 @@ EDGE_SLACK_MIN = 0.5
 #: The log's course is the log smoothed over this window (min): a quadratic fitted about each
 #: reading (Savitzky–Golay), which keeps a heater's turn and averages the reading noise.
 SMOOTHING_MIN = 0.5
+#: A logger's log is written during the run: before anything moves, its last row must lie no
+#: more than this ahead of the host's clock (min), and no more than this (or three of its
+#: intervals) behind it.
+LIVE_AHEAD_MIN = 1.0
+LIVE_AGE_MIN = 2.0
+#: The longest wait (s) for a logger's log to pass the run's last reading (``awaited``).
+WAIT_MAX_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -124,12 +139,18 @@ def read_log(path: Path, context: str = "", wall_clock: bool = True) -> Temperat
     header: tuple[str, ...] | None = None if wall_clock else CELL_CLOCK_HEADER
     rows: list[tuple[float, float]] = []
     last = ""
-    for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
+    lines = text.splitlines()
+    # a logger's last line without its line end is a row it is still writing
+    unfinished = len(lines) if lines and not text.endswith(("\n", "\r")) else 0
+    for lineno, fields in enumerate(csv.reader(lines), 1):
         cells = tuple(f.strip() for f in fields)
         if not "".join(cells) or cells[0].startswith("#"):
             continue  # blank lines and comments
         if not rows and cells in headers:
             header = cells
+            continue
+        if lineno == unfinished and header == WALL_CLOCK_HEADER:
+            log.debug("%s: row %d is still being written: left out", path, lineno)
             continue
         if header is None:
             raise bad(f"row {lineno}", f"expected the header {expected}, got {','.join(cells)!r}")
@@ -162,14 +183,52 @@ def read_log(path: Path, context: str = "", wall_clock: bool = True) -> Temperat
 
 def again(log_: TemperatureLog) -> TemperatureLog:
     """``log_`` read again from its file, as the logger has written it since (a run is solved
-    after it measured; the file was read and checked before anything moved). A file that no
-    longer reads (a row cut off as the logger writes it) keeps what was read, with a warning
-    naming it."""
+    after it measured; the file was read and checked before anything moved; the row the logger
+    is writing is left out, ``read_log``). A file that no longer reads (a bad row written since)
+    keeps what was read, with a warning naming it."""
     try:
         return read_log(log_.path, "--thermometer", wall_clock=log_.wall_clock)
     except ProfileError as e:
         log.warning("%s: the log as read before the run is used", e)
         return log_
+
+
+def awaited(
+    log_: TemperatureLog,
+    last_read_min: float,
+    now_s: Callable[[], float] = time.time,
+    sleep: Callable[[float], None] = time.sleep,
+) -> TemperatureLog:
+    """``log_`` read again (``again``) once the logger has written half the smoothing window
+    past the run's last reading (``last_read_min``, the log's time base): the log's course at
+    the run's last paths is then smoothed about them as elsewhere, not extrapolated from the
+    readings before them (a live log read at once ends at the run's last reading). A log on the
+    simulated cell's clock, written before the run, is read at once. The wait is timed on the
+    host's clock, not by the logger's stamps (its clock may be off the host's): it ends when
+    the log has written no row for three of its intervals (stopped), or three intervals after
+    the time the log needed to get there, at most ``WAIT_MAX_S``."""
+    log_ = again(log_)
+    if not log_.wall_clock or len(log_.time_min) < 2:
+        return log_
+    wanted = last_read_min + 0.5 * SMOOTHING_MIN
+    interval_s = 60.0 * float(np.median(np.diff(log_.time_min)))
+    limit_s = min(60.0 * (wanted - float(log_.time_min[-1])) + 3.0 * interval_s, WAIT_MAX_S)
+    if log_.time_min[-1] < wanted:
+        log.info(
+            "waiting up to %.0f s for %s to log past the run's last reading", limit_s, log_.path
+        )
+    started_s = row_s = now_s()
+    while log_.time_min[-1] < wanted:
+        left_s = limit_s - (now_s() - started_s)
+        if now_s() - row_s > 3.0 * interval_s or left_s <= 0.0:
+            log.info("%s: not logged past the run's last reading: its course ends there", log_.path)
+            break
+        sleep(min(interval_s, left_s))
+        rows = len(log_.time_min)
+        log_ = again(log_)
+        if len(log_.time_min) > rows:
+            row_s = now_s()
+    return log_
 
 
 def _row(cells: tuple[str, ...], wall_clock: bool) -> tuple[float, float] | None:
@@ -191,13 +250,18 @@ class Thermometer:
     """A thermometer's log on a run's own clock: what the solvers correct the water paths with.
 
     ``time_min`` (n,): minutes since the run's first reading (the readings' ``time_min``);
-    ``temperature_c`` (n,); ``std_c``: ``[water] thermometer_std_c``; ``source``: the file.
+    ``temperature_c`` (n,); ``std_c``: ``[water] thermometer_std_c``; ``source``: the file;
+    ``first_read_min``: where the run's first reading met the log, in the log's own time base
+    (``TemperatureLog.time_min``: minutes since the Unix epoch where ``wall_clock``, else of
+    the simulated cell's clock; None: not known, a record written before it was kept).
     """
 
     time_min: np.ndarray
     temperature_c: np.ndarray
     std_c: float
     source: str
+    first_read_min: float | None = None
+    wall_clock: bool = False
 
     def at(self, t_min: float) -> float:
         return float(np.interp(t_min, self.time_min, self.temperature_c))
@@ -323,11 +387,14 @@ class Thermometer:
         (``drift_c_per_min``, the drift's prior mean), how far it turned
         from a straight line (``departure_c``) against the log's own noise (``noise_c``),
         whether the paths were corrected (``applied``: ``turns``), the readings' span (min),
-        ``std_c``."""
+        ``std_c``; where the log met the run's first reading, in the log's time
+        (``first_reading``: ISO 8601 UTC for a logger's wall-clock times; ``first_reading_min``:
+        minutes of a simulated cell's clock)."""
         times = [t for t in _times(data) if t is not None]
         start, end = (min(times), max(times)) if times else (0.0, 0.0)
         return {
             "file": self.source,
+            **self._first_reading(),
             "change_c": round(self.change_c(start, end), 4),
             "drift_c_per_min": round(self.drift_c_per_min(data), 5),
             "departure_c": round(self.departure_c(data), 4),
@@ -337,6 +404,15 @@ class Thermometer:
             "std_c": self.std_c,
         }
 
+    def _first_reading(self) -> dict[str, Any]:
+        """``summary``'s ``first_reading`` or ``first_reading_min`` (none when not known)."""
+        if self.first_read_min is None:
+            return {}
+        if not self.wall_clock:
+            return {"first_reading_min": round(self.first_read_min, 4)}
+        when = datetime.fromtimestamp(self.first_read_min * 60.0, UTC)
+        return {"first_reading": when.isoformat(timespec="milliseconds")}
+
     def as_json(self) -> dict[str, Any]:
         """The thermometer as a record's session line holds it."""
         return {
@@ -344,15 +420,20 @@ class Thermometer:
             "temperature_c": self.temperature_c.tolist(),
             "std_c": self.std_c,
             "source": self.source,
+            "first_read_min": self.first_read_min,
+            "wall_clock": self.wall_clock,
         }
 
     @classmethod
     def from_json(cls, obj: dict[str, Any]) -> Thermometer:
+        first = obj.get("first_read_min")
         return cls(
             np.asarray(obj["time_min"], float),
             np.asarray(obj["temperature_c"], float),
             float(obj["std_c"]),
             str(obj["source"]),
+            None if first is None else float(first),
+            bool(obj.get("wall_clock", False)),
         )
 
 
@@ -384,13 +465,27 @@ def on_run(
     # the readings within a minute and a half of the run, and one more each side to interpolate
     near = np.flatnonzero((t >= -EDGE_SLACK_MIN - 1.0) & (t <= span_min + EDGE_SLACK_MIN + 1.0))
     lo, hi = (max(near[0] - 1, 0), min(near[-1] + 2, len(t))) if near.size else (0, len(t))
-    return Thermometer(t[lo:hi], log_.temperature_c[lo:hi], float(std_c), str(log_.path))
+    return Thermometer(
+        t[lo:hi],
+        log_.temperature_c[lo:hi],
+        float(std_c),
+        str(log_.path),
+        float(first_read_min),
+        log_.wall_clock,
+    )
 
 
-def check_time_base(log_: TemperatureLog, simulated: bool) -> None:
+def check_time_base(
+    log_: TemperatureLog, simulated: bool, now_s: Callable[[], float] = time.time
+) -> None:
     """Refuse, before anything moves, a log whose time base is not the cell's: a simulated cell
-    runs on its own clock (minutes, ``time_min``), a real one on the wall clock (``time``)
-    (``InputError``, exit 2, naming the file)."""
+    runs on its own clock (minutes, ``time_min``), a real one on the wall clock (``time``); and
+    a logger's log that is not being written now by the host's clock (``now_s``), its last row
+    more than ``LIVE_AHEAD_MIN`` ahead of it (a time zone, or the logger's clock) or more than
+    ``LIVE_AGE_MIN`` (or three of its intervals) behind it (a logger not writing, or a time
+    zone): such a log could not cover the run (``InputError``, exit 2, naming the file)."""
+    if log_.wall_clock and not simulated:
+        _check_live(log_, now_s() / 60.0)
     if log_.wall_clock == simulated:
         raise InputError(
             f"{log_.path}: "
@@ -404,10 +499,35 @@ def check_time_base(log_: TemperatureLog, simulated: bool) -> None:
         )
 
 
+def _check_live(log_: TemperatureLog, now_min: float) -> None:
+    """``check_time_base``'s refusal of a logger's log that is not being written at ``now_min``."""
+    last = float(log_.time_min[-1])
+    steps = np.diff(log_.time_min)
+    age_min = max(LIVE_AGE_MIN, 3.0 * float(np.median(steps))) if len(steps) else LIVE_AGE_MIN
+    if -LIVE_AHEAD_MIN <= now_min - last <= age_min:
+        return
+    offset = datetime.now().astimezone().strftime("%z")
+    where = (
+        f"ahead of this host's clock by {last - now_min:.1f} min"
+        if last > now_min
+        else f"{now_min - last:.1f} min old by this host's clock"
+    )
+    raise InputError(
+        f"{log_.path}: its last row is {where}: the log must be written during the run "
+        f"(is the logger writing, its clock set? a time without a zone is this host's local "
+        f"time, UTC{offset[:3]}:{offset[3:]})"
+    )
+
+
 def reading_span_min(data: Any) -> float:
     """The span (min) of the water paths' times within a measure step's ``data``."""
     times = [t for t in _times(data) if t is not None]
     return float(np.ptp(times)) if times else 0.0
+
+
+def last_reading_min(data: Any) -> float:
+    """The last water path's time within ``data`` (min since the run's first reading)."""
+    return max((t for t in _times(data) if t is not None), default=0.0)
 
 
 def _reference_time(data: Any) -> float | None:

@@ -107,3 +107,22 @@ def test_a_bad_log_is_refused_before_anything_moves(
     assert out.returncode == 2
     assert words in json.loads(out.stdout)["error"]
     assert {"calibrate": "Calibration plan", "check": "Check plan"}[command] not in out.stderr
+
+
+def test_a_logger_not_writing_now_is_refused_before_the_cell_is_opened(tmp_path: Path) -> None:
+    """A real cell's log whose last row is hours old by the host's clock (a logger stopped, or
+    local times of another zone): exit 2 naming the file and the host's zone, before the plan
+    and before either device is asked (their addresses answer nothing)."""
+    (tmp_path / "cell.toml").write_text(default_profile_text("tx90l"))
+    (tmp_path / "probe.csv").write_text("time,temperature_c\n2026-01-05T07:00:00,20\n")
+    out = ucal_here(
+        "calibrate", "cell.toml", "--controller", "tcp://127.0.0.1:9",
+        "--pulser", "modbus-tcp://127.0.0.1:9", "--thermometer", "probe.csv", "--yes", "--json",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert out.returncode == 2
+    error = json.loads(out.stdout)["error"]
+    assert error.startswith("probe.csv: its last row is ")
+    assert "min old by this host's clock" in error
+    assert "a time without a zone is this host's local time, UTC" in error
+    assert "Calibration plan" not in out.stderr

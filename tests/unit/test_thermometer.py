@@ -4,6 +4,7 @@ of the water paths (``ucal.thermometer``)."""
 from __future__ import annotations
 
 import logging
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -34,6 +35,35 @@ def test_a_logger_file_is_read_on_the_wall_clock(tmp_path: Path) -> None:
     start = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp() / 60.0
     assert log.time_min - start == pytest.approx([0.0, 1.5])
     assert log.temperature_c.tolist() == [20.10, 20.15]
+
+
+def test_a_logger_without_a_zone_writes_the_hosts_local_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One instant three ways (UTC, an offset, a zone's naive local time on a host in that zone)
+    is one time; the run's first reading placed on it is said in UTC."""
+    monkeypatch.setenv("TZ", "CET-1")  # POSIX: an hour east of UTC, no summer time
+    time.tzset()
+    try:
+        log = read_log(
+            _write(
+                tmp_path,
+                "time,temperature_c\n2026-11-26T07:00:00Z,20.00\n"
+                "2026-11-26T08:00:03+01:00,20.01\n2026-11-26 08:00:06,20.02\n",
+            )
+        )
+    finally:
+        monkeypatch.undo()  # the host's zone again
+        time.tzset()
+    start = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp() / 60.0
+    assert log.time_min - start == pytest.approx([0.0, 0.05, 0.1], abs=1e-6)
+    water = on_run(log, 0.02, first_read_min=start + 0.5 / 60.0, span_min=0.05)
+    assert water is not None
+    run = _tank_run(np.full(2, 20.0), np.array([0.0, 0.05]))
+    summary = water.summary(run)
+    assert summary["first_reading"] == "2026-11-26T07:00:00.500+00:00"
+    assert summary["change_c"] == pytest.approx(0.01)
+    assert Thermometer.from_json(water.as_json()).summary(run) == summary  # a record keeps it
 
 
 @pytest.mark.parametrize(
@@ -70,10 +100,38 @@ def test_a_log_on_another_clock_than_the_cells_is_refused(tmp_path: Path) -> Non
     wall = read_log(_write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20\n"))
     with pytest.raises(InputError, match="the simulated cell runs on its own clock"):
         check_time_base(wall, simulated=True)
-    check_time_base(wall, simulated=False)
+    check_time_base(wall, simulated=False, now_s=lambda: 60.0 * wall.time_min[-1] + 5.0)
     cell = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n"))
     with pytest.raises(InputError, match="give the logger's times"):
         check_time_base(cell, simulated=False)
+
+
+@pytest.mark.parametrize(
+    ("after_last_s", "words"),
+    [
+        (-90.0, "its last row is ahead of this host's clock by 1.5 min"),
+        (150.0, "its last row is 2.5 min old by this host's clock"),
+        (-30.0, None),
+        (100.0, None),
+    ],
+)
+def test_a_logger_not_writing_now_is_refused_before_anything_moves(
+    tmp_path: Path, after_last_s: float, words: str | None
+) -> None:
+    """A logger's last row more than a minute ahead of the host's clock (a zone, its clock), or
+    more than two minutes old (three of its 3 s intervals are less): the log could not cover the
+    run (exit 2)."""
+    log = read_log(
+        _write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20\n2026-11-26T07:00:03Z,20\n")
+    )
+    now = 60.0 * float(log.time_min[-1]) + after_last_s
+    if words is None:
+        check_time_base(log, simulated=False, now_s=lambda: now)
+        return
+    with pytest.raises(InputError) as err:
+        check_time_base(log, simulated=False, now_s=lambda: now)
+    assert str(err.value).startswith(f"{log.path}: {words}: the log must be written during")
+    assert "a time without a zone is this host's local time, UTC" in str(err.value)
 
 
 def test_a_log_is_placed_on_the_runs_clock_or_not_used(
@@ -83,6 +141,9 @@ def test_a_log_is_placed_on_the_runs_clock_or_not_used(
     water = on_run(log, 0.02, first_read_min=5.0, span_min=4.0)
     assert water is not None
     assert water.at(0.0) == pytest.approx(20.5)  # the run's first reading, 5 min in
+    assert water.summary(_tank_run(np.full(2, 20.0), np.array([0.0, 4.0])))[
+        "first_reading_min"
+    ] == pytest.approx(5.0)
     with caplog.at_level(logging.WARNING):
         assert on_run(log, 0.02, first_read_min=15.0, span_min=8.0) is None
     assert "ends 3.0 min before the run's last reading" in caplog.text
@@ -196,7 +257,7 @@ def test_the_log_is_read_again_as_the_logger_wrote_it_during_the_run(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Read before anything moves, the log is read again when the run is solved: the rows the
-    logger wrote since are there; a row cut off as it writes keeps what was read, said."""
+    logger wrote since are there; a bad row written since keeps what was read, said."""
     from ucal.thermometer import again
 
     path = _write(tmp_path, "time,temperature_c\n2026-11-26T07:00:00Z,20.00\n")
@@ -205,7 +266,112 @@ def test_the_log_is_read_again_as_the_logger_wrote_it_during_the_run(
         f.write("2026-11-26T07:00:03Z,20.01\n")
     assert again(first).temperature_c.tolist() == [20.0, 20.01]
     with path.open("a") as f:
-        f.write("2026-11-26T07:0")
+        f.write("2026-11-26T07:00:06Z,twenty\n")
     with caplog.at_level(logging.WARNING):
         assert again(first) is first
+    assert "row 4: expected an ISO 8601 time and °C" in caplog.text
     assert "the log as read before the run is used" in caplog.text
+
+
+@pytest.mark.parametrize(
+    "cut", ["2026-11-26T07:0", "2026-11-26T07:00:06Z,", "2026-11-26T07:00:06Z,2"]
+)
+def test_a_row_the_logger_is_still_writing_is_left_out(tmp_path: Path, cut: str) -> None:
+    """The last line before its line end is a row being written: cut in its time, before its
+    reading or in it (``2`` of ``21.40`` would read 2 °C), it is left out, before the run and
+    when read again; once ended, it is read. A minutes log (not a logger's) keeps its last
+    line."""
+    from ucal.thermometer import again
+
+    path = _write(tmp_path, f"time,temperature_c\n2026-11-26T07:00:00Z,21.38\n{cut}")
+    first = read_log(path)
+    assert first.temperature_c.tolist() == [21.38]
+    with path.open("a") as f:
+        f.write("2026-11-26T07:00:06Z,21.40\n"[len(cut) :])
+    assert again(first).temperature_c.tolist() == [21.38, 21.40]
+    assert read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,21")).at(1.0) == 21.0
+
+
+class _Logger:
+    """A logger writing a row every ``every_s`` (``rows`` of them at first; its clock
+    ``behind_s`` behind the host's) on a host clock that passes only when slept; ``writing``
+    False: it has stopped."""
+
+    def __init__(
+        self,
+        path: Path,
+        rows: int,
+        writing: bool = True,
+        behind_s: float = 0.0,
+        every_s: float = 2.0,
+    ) -> None:
+        self.path, self.writing, self.behind_s, self.every_s = path, writing, behind_s, every_s
+        self.now_s = datetime(2026, 11, 26, 7, 0, tzinfo=UTC).timestamp()
+        self.slept: list[float] = []
+        path.write_text("time,temperature_c\n")
+        for _ in range(rows):
+            self.now_s += every_s
+            self.row()
+        self.next_row_s = self.now_s + every_s
+
+    def row(self) -> None:
+        stamp = self.now_s - self.behind_s  # the logger's own clock
+        when = datetime.fromtimestamp(stamp, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        with self.path.open("a") as f:
+            f.write(f"{when},20.00\n")
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        end_s = self.now_s + seconds
+        while self.next_row_s <= end_s + 1e-6:
+            self.now_s = self.next_row_s
+            if self.writing:
+                self.row()
+            self.next_row_s += self.every_s
+        self.now_s = max(self.now_s, end_s)
+
+
+def test_a_live_log_is_read_once_it_has_logged_past_the_runs_end(tmp_path: Path) -> None:
+    """The run's last reading at the log's last row: the log is read again once it reaches a
+    quarter of a minute (half the smoothing window) past it, a row every 2 s."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=6)
+    first = read_log(logger.path)
+    end_min = float(first.time_min[-1])
+    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
+    assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)  # 15 s, then its row
+    assert logger.slept == pytest.approx([2.0] * 8)  # each a logger's interval
+
+
+def test_a_logger_whose_clock_is_behind_the_hosts_is_waited_for(tmp_path: Path) -> None:
+    """Its rows stamped 10 s behind the host's clock: the wait is timed on the host's clock,
+    so the log still reaches a quarter of a minute past the run's last reading."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=6, behind_s=10.0)
+    first = read_log(logger.path)
+    end_min = float(first.time_min[-1]) + 10.0 / 60.0  # the last reading, now on the host
+    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
+    assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)
+
+
+def test_a_stopped_logger_or_a_minutes_log_is_not_waited_for(tmp_path: Path) -> None:
+    """A logger that has written no row for three of its intervals is not waited for longer,
+    nor for more than a minute; a log in minutes of a simulated cell's clock (written before
+    the run) not at all."""
+    from ucal.thermometer import awaited
+
+    logger = _Logger(tmp_path / "t.csv", rows=2, writing=False)
+    first = read_log(logger.path)
+    log = awaited(first, float(first.time_min[-1]), lambda: logger.now_s, logger.sleep)
+    assert log.time_min.tolist() == first.time_min.tolist()
+    slept = sum(logger.slept)
+    assert 5.9 < slept < 8.1  # three intervals without a row (to a float's last bits): stopped
+    slow = _Logger(tmp_path / "slow.csv", rows=2, writing=False, every_s=30.0)
+    first = read_log(slow.path)
+    awaited(first, float(first.time_min[-1]), lambda: slow.now_s, slow.sleep)
+    assert sum(slow.slept) == pytest.approx(60.0, abs=0.01)  # a minute at most, not 90 s
+    minutes = read_log(_write(tmp_path, "time_min,temperature_c\n0,20\n1,20\n"))
+    assert awaited(minutes, 1.0, lambda: 0.0, logger.sleep).time_min.tolist() == [0.0, 1.0]
+    assert sum(logger.slept) == slept

@@ -194,7 +194,8 @@ thermometer_option = click.option(
     metavar="FILE",
     envvar=ENV_THERMOMETER,
     show_envvar=True,
-    help="The tank thermometer's log (CSV: time,temperature_c with ISO 8601 times; on a "
+    help="The tank thermometer's log (CSV: time,temperature_c with ISO 8601 times, the "
+    "host's local time where they carry no zone; on a "
     "simulated cell time_min,temperature_c in minutes of its clock), read when the run is "
     "solved: its slope over the run is the drift's prior, and where the tank turned during the "
     "run beyond the log's noise, the turn is taken out of every water path ([water] "

@@ -15,7 +15,9 @@ Time (``drivers.clock``): with a ``SimClock`` (a client in the same process, ``u
 --sim``) both devices run on simulated time in lock step with the client — an acquisition
 takes its real-cell duration (``ucal.timing``: transport, pulses averaged) of simulated time,
 half before the echo is taken and half after, and moves and settling take theirs. On the host
-clock (``ucal sim serve``) the same durations pass in real time multiplied by ``time_scale``.
+clock (``ucal sim serve``) the same durations pass in real time multiplied by ``time_scale``;
+the water's time (``SimulatedCell.water_temperature_c``) is the host's seconds since the cell
+started, not scaled: the time scale speeds the arm and the pulser, not the tank.
 """
 
 from __future__ import annotations
