@@ -13,8 +13,9 @@ Plan (before the first motion; ``SafetyError``, exit 4, without any motion):
   scans along ``+e1`` and ``+e2`` (or ``−e1``/``−e2`` if those reach farther) at two lateral
   positions each, in orientations φ0 and φ0 + 180°, with ``EDGE_WATER_PATH_MM`` of water, and
   at φ0 + 90° and φ0 + 270° as well for a beam more than ``QUARTER_TURNS_TILT_DEG`` off the
-  flange axis (below). The edge search starts inside the hull of the touched points and goes
-  outward as far as the arm can follow in every orientation (at most ``EDGE_SEARCH_MM``);
+  flange axis on a cell whose DH table is not identified (below). The edge search starts
+  inside the hull of the touched points and goes outward as far as the arm can follow in
+  every orientation (at most ``EDGE_SEARCH_MM``);
 * paper method: ``points`` incidence points (default 100, as paper 002) drawn inside the hull
   of the touched points (shrunk by 15 % about the centroid), water paths 0.6–1.4 × the
   profile's, orientations over ±150° (paper 002, §5: "scattered", "different distance",
@@ -31,8 +32,14 @@ cell: the tool across the beam to ± 0.07 mm, two thirds of it the DH table's). 
 turn apart put the wrist in four postures: a tool offset turns with the tool, a link error moves
 the flange as the posture does, and the fit, with the DH table as unknowns, tells them apart
 (the same cells: ± 0.025 mm, the error 0.046 → 0.006 mm). It costs twice the edge scans, so a
-straight holder keeps two orientations; where the arm cannot follow the scans a quarter turn
-apart the plan keeps two and says what that costs.
+straight holder keeps two orientations, and so does a cell whose DH table the full level has
+identified (``[calibration] dh_std``): its links are known to micrometres there, half a turn
+measures the tool within the tolerance, and the quarter turns' wrist postures only test the
+identified table where its stds, kept without their correlations, are least faithful (on
+``drift.py``'s ``f-t`` worlds one 10° holder written 4.4σ off and one misfit among 16
+holders; with half turns 16 written, none beyond 3.4σ).
+Where the arm cannot follow the scans a quarter turn apart the plan keeps two and says what
+that costs.
 
 and every target is checked: inside the joint ranges (keeping ``WRIST_MARGIN_DEG`` on joints
 4–6 for the posture searches, ``tool_turn_deg`` more for the tool's declared tolerance),
@@ -69,7 +76,8 @@ EDGE_WATER_PATH_MM = 50.0
 #: Farthest the edge search goes beyond its start (mm).
 EDGE_SEARCH_MM = 300.0
 #: A beam more than this off the flange axis (the profile's tool orientation) is scanned across
-#: the edges a quarter turn apart, four orientations (module docstring; deg).
+#: the edges a quarter turn apart, four orientations, on a cell whose DH table is not identified
+#: (module docstring; deg).
 QUARTER_TURNS_TILT_DEG = 2.0
 #: The turns about the beam of the edge scans from φ0: a quarter apart, or half.
 QUARTER_TURNS = (0.0, 90.0, 180.0, 270.0)
@@ -279,7 +287,8 @@ def plan_tool_frame(
     notes: list[str] = []
     plate = _Plate(profile, plane, pts, centre, tool, ref)
     tilt = beam_tilt_deg(profile)
-    choices = [QUARTER_TURNS, HALF_TURNS] if tilt > QUARTER_TURNS_TILT_DEG else [HALF_TURNS]
+    quarter = tilt > QUARTER_TURNS_TILT_DEG and profile.dh_std is None
+    choices = [QUARTER_TURNS, HALF_TURNS] if quarter else [HALF_TURNS]
     for turns in choices:
         for _, phi0 in sorted(costs):
             notes = []

@@ -75,6 +75,14 @@ def test_a_straight_tool_scans_the_edges_half_a_turn_apart() -> None:
     assert plan.edge_turns_deg == HALF_TURNS and plan.edge_lines == 8
 
 
+def test_a_holder_on_a_cell_whose_dh_table_is_identified_scans_half_a_turn_apart() -> None:
+    """After the full level the wrist's links are known (``[calibration] dh_std``): half a turn
+    measures a holder's tool, as before."""
+    identified = on_holder("tx90l", 20.0, (0.0, 1.0, 0.0)).replace(dh_std=np.full((6, 4), 0.002))
+    plan = plan_tool_frame(identified, "exact", 4)
+    assert plan.edge_turns_deg == HALF_TURNS and not plan.notes
+
+
 def test_quarter_turns_the_arm_cannot_follow_fall_back_to_half_turns_saying_so(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
