@@ -183,10 +183,7 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
         max_nfev=2000,
     )
     res = sol.fun
-    dof = max(1, len(a) - 4)
-    s2 = float(res @ res / dof)
-    s2 = max(s2, (1e-9 * sol.x[0]) ** 2)
-    cov = np.linalg.pinv(sol.jac.T @ sol.jac) * s2
+    cov = _sandwich_cov(sol.jac, res, (1e-9 * sol.x[0]) ** 2)
     return EdgeFit(
         float(sol.x[1]),
         float(np.sqrt(max(cov[1, 1], 0.0))),
@@ -194,6 +191,23 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
         float(sol.x[2]),
         float(np.sqrt(np.mean(res**2))),
     )
+
+
+def _sandwich_cov(jac: np.ndarray, res: np.ndarray, floor: float) -> np.ndarray:
+    """Covariance of a least-squares fit from its Jacobian and residuals, each reading's
+    variance its own squared residual inflated by its leverage (HC3, MacKinnon and White 1985);
+    ``floor``: the least variance a reading is given.
+
+    An echo's noise is not the same along a scan: part of it is relative to the amplitude,
+    large on the plate and nil off it. A single variance (the residuals' mean square) spreads
+    the plate's noise over the probes off the plate, where there is none, and so understates
+    how far the plate's level, and with it the 50 % point, can move; each reading weighted by
+    its own residual does not, whatever the noise's shape.
+    """
+    bread = np.linalg.pinv(jac.T @ jac)
+    leverage = np.einsum("ij,jk,ik->i", jac, bread, jac)
+    var = np.maximum(res**2, floor) / np.maximum(1.0 - leverage, 1e-3) ** 2
+    return bread @ (jac.T * var) @ jac @ bread
 
 
 # ---------------------------------------------------------------------------------------------
