@@ -500,9 +500,14 @@ def _cause(shares: dict[str, float], calibrated: bool) -> str:
             groups[meaning] = (total + share, [*names, name])
     ranked = sorted(groups.items(), key=lambda kv: -kv[1][0])
     if noise >= 0.5 or not ranked:
-        return (
-            f"{100 * noise:.0f} % of its variance is measurement noise: "
+        # the noise's share is what the unknowns leave it: offsets not yet calibrated compete
+        # with the tool for the same crossings and amplify it (a fresh cell's 20° holders,
+        # benchmarks/drift.py seed 8: ± 0.050 mm before calibrate, ± 0.015 after)
+        return f"{100 * noise:.0f} % of its variance is measurement noise: " + (
             "more postures (--points) or more averaging"
+            if calibrated
+            else "with the joint offsets measured the same scans pin the tool better: run "
+            "ucal calibrate first, then tool-frame again"
         )
     top, total, named = [], 0.0, []
     for meaning, (share, names) in ranked:
