@@ -283,6 +283,10 @@ class Presenter(Protocol):
 
     def progress(self, title: str) -> AbstractContextManager[Callable[[Progress], None]]: ...
 
+    def notice(self, text: str) -> None:
+        """A line the technician should see while nothing else shows (not an error)."""
+        ...
+
 
 def hold_profile(profile_path: Path, options: RunOptions) -> AbstractContextManager[object]:
     """The profile held for the run (one run per profile) with room checked for the result,
@@ -542,7 +546,8 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
         log_ = self.options.thermometer
         if log_ is None or first_min is None:
             return None
-        log_ = awaited(log_, first_min + last_reading_min(data))  # the logger wrote on
+        # the logger wrote on
+        log_ = awaited(log_, first_min + last_reading_min(data), waiting=self.presenter.notice)
         return on_run(log_, self.job.profile.thermometer_std_c, first_min, reading_span_min(data))
 
     def _record_measurements(self, recorder: Recorder, measured: Measured[MeasuredT]) -> None:

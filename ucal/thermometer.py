@@ -198,6 +198,7 @@ def awaited(
     last_read_min: float,
     now_s: Callable[[], float] = time.time,
     sleep: Callable[[float], None] = time.sleep,
+    waiting: Callable[[str], None] | None = None,
 ) -> TemperatureLog:
     """``log_`` read again (``again``) once the logger has written half the smoothing window
     past the run's last reading (``last_read_min``, the log's time base): the log's course at
@@ -206,7 +207,8 @@ def awaited(
     simulated cell's clock, written before the run, is read at once. The wait is timed on the
     host's clock, not by the logger's stamps (its clock may be off the host's): it ends when
     the log has written no row for three of its intervals (stopped), or three intervals after
-    the time the log needed to get there, at most ``WAIT_MAX_S``."""
+    the time the log needed to get there, at most ``WAIT_MAX_S``. ``waiting`` is told, in
+    words, before a wait (the technician sees why the run has not ended)."""
     log_ = again(log_)
     if not log_.wall_clock or len(log_.time_min) < 2:
         return log_
@@ -214,9 +216,10 @@ def awaited(
     interval_s = 60.0 * float(np.median(np.diff(log_.time_min)))
     limit_s = min(60.0 * (wanted - float(log_.time_min[-1])) + 3.0 * interval_s, WAIT_MAX_S)
     if log_.time_min[-1] < wanted:
-        log.info(
-            "waiting up to %.0f s for %s to log past the run's last reading", limit_s, log_.path
-        )
+        text = f"waiting up to {limit_s:.0f} s for {log_.path} to log past the run's last reading"
+        log.info("%s", text)
+        if waiting is not None:
+            waiting(text + " (the robot has stopped)")
     started_s = row_s = now_s()
     while log_.time_min[-1] < wanted:
         left_s = limit_s - (now_s() - started_s)

@@ -117,6 +117,9 @@ class Presenter:
     def confirm(self, cell: CellChoice) -> None:
         self.log.append(f"confirm {cell.name}")
 
+    def notice(self, text: str) -> None:
+        self.log.append(f"notice: {text}")
+
     @contextlib.contextmanager
     def progress(self, title: str) -> Iterator[Callable[[Progress], None]]:
         yield self.shown.append

@@ -339,9 +339,13 @@ def test_a_live_log_is_read_once_it_has_logged_past_the_runs_end(tmp_path: Path)
     logger = _Logger(tmp_path / "t.csv", rows=6)
     first = read_log(logger.path)
     end_min = float(first.time_min[-1])
-    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep)
+    told: list[str] = []
+    log = awaited(first, end_min, lambda: logger.now_s, logger.sleep, told.append)
     assert 60.0 * (log.time_min[-1] - end_min) == pytest.approx(16.0)  # 15 s, then its row
     assert logger.slept == pytest.approx([2.0] * 8)  # each a logger's interval
+    # the technician is told why the run has not ended, once
+    assert len(told) == 1 and told[0].startswith("waiting up to 21 s for ")
+    assert told[0].endswith("t.csv to log past the run's last reading (the robot has stopped)")
 
 
 def test_a_logger_whose_clock_is_behind_the_hosts_is_waited_for(tmp_path: Path) -> None:

@@ -62,6 +62,9 @@ class ConsolePresenter:
     def confirm(self, cell: CellChoice) -> None:
         ask_to_move(cell)
 
+    def notice(self, text: str) -> None:
+        info(text)
+
     @contextlib.contextmanager
     def progress(self, title: str) -> Iterator[Callable[[Progress], None]]:
         with StepProgress(title) as display:
