@@ -181,6 +181,7 @@ def _copy_source(dst: Path) -> Path:
     return dst
 
 
+@pytest.mark.long
 def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     """``pip install .`` ships the robot models as package data: ``ucal profile init`` works
     from an unrelated directory, with ucal imported from the install, not the source tree.

@@ -147,6 +147,7 @@ def test_exact_noise_free_recovers_hidden_tool_and_writes(tmp_path: Path, profil
     assert history["entries"][-1]["reason"] == "tool-frame (exact)"
 
 
+@pytest.mark.long
 def test_fresh_cell_with_uncalibrated_offsets_is_covered_by_its_std(tmp_path: Path) -> None:
     """Tool-frame first on a fresh cell: offsets 0.6–1.5° that the profile does not know
     (wide priors), an arm with lost motion and a tank warming 0.1 °C/min, noise, the
