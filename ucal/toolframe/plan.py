@@ -31,7 +31,7 @@ a tool off the beam would. Two orientations cannot tell the two apart (a 20° ho
 cell: the tool across the beam to ± 0.07 mm, two thirds of it the DH table's). Scans a quarter
 turn apart put the wrist in four postures: a tool offset turns with the tool, a link error moves
 the flange as the posture does, and the fit, with the DH table as unknowns, tells them apart
-(the same cells: ± 0.025 mm, the error 0.046 → 0.006 mm). It costs twice the edge scans, so a
+(the same cells: ± 0.025 mm, the error 0.046 → 0.007 mm). It costs twice the edge scans, so a
 straight holder keeps two orientations, and so does a cell whose DH table the full level has
 identified (``[calibration] dh_std``): its links are known to micrometres there, half a turn
 measures the tool within the tolerance, and the quarter turns' wrist postures only test the
