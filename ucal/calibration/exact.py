@@ -58,6 +58,7 @@ from ucal.calibration.model import (
     distance_joints,
     tilt_components,
 )
+from ucal.kinematics.rotations import angle_between_deg
 
 
 @dataclass(frozen=True)
@@ -181,7 +182,7 @@ def residuals(
 
 def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:
     """True if the nominal beam lies within ``tol_deg`` of the joint-6 axis (flange z)."""
-    return bool(np.degrees(np.arccos(np.clip(geom.beam_flange[2], -1, 1))) < tol_deg)
+    return bool(angle_between_deg(geom.beam_flange, np.array([0.0, 0.0, 1.0])) < tol_deg)
 
 
 def solve_exact(

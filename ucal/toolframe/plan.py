@@ -58,6 +58,7 @@ from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import InputError, SafetyError
 from ucal.kinematics.dh import transform
 from ucal.kinematics.ik import ik
+from ucal.kinematics.rotations import angle_between_deg
 from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
 
 METHODS = ("exact", "paper")
@@ -331,8 +332,7 @@ def plan_tool_frame(
 
 def beam_tilt_deg(profile: CellProfile) -> float:
     """How far the profile's beam (its tool frame's z) is from the flange axis (deg)."""
-    z = profile.tool_matrix[:3, 2]
-    return float(np.degrees(np.arccos(np.clip(z[2], -1.0, 1.0))))
+    return float(angle_between_deg(profile.tool_matrix[:3, 2], np.array([0.0, 0.0, 1.0])))
 
 
 @dataclass(frozen=True)
