@@ -282,7 +282,7 @@ class Thermometer:
         t_ref = _reference_time(data)
         if t_ref is None or not self.turns(data):
             return data
-        times = np.array([t for t in _times(data) if t is not None], float)
+        times = _times(data)
         b, a = np.polyfit(times - t_ref, self.speeds_m_s(times), 1)
         noise_m_s = self.slope_m_s_per_c * self.course_noise_c(data)
 
@@ -303,8 +303,7 @@ class Thermometer:
         (over √(1 − h), h the smoothing's own weight of a reading: a heater's turn is in the
         course, not in the scatter; a log not smoothed, its second differences' scatter over
         √6), at least the logger's resolution over √12."""
-        times = [t for t in _times(data) if t is not None]
-        lo, hi = (min(times), max(times)) if times else (0.0, 0.0)
+        lo, hi = _span(data)
         inside = (self.time_min >= lo - 1.0) & (self.time_min <= hi + 1.0)
         course, _, own = self._course
         residual = (self.temperature_c - course)[inside]
@@ -359,7 +358,7 @@ class Thermometer:
     def departure_c(self, data: Any) -> float:
         """How far the log's course departs from a straight line over ``data``'s paths (°C,
         largest): the turn of the tank during the run that the log takes out."""
-        times = np.array([t for t in _times(data) if t is not None], float)
+        times = _times(data)
         if len(times) < 2 or np.ptp(times) <= 0.0:
             return 0.0
         temps = self.course_c(times)
@@ -379,7 +378,7 @@ class Thermometer:
     def drift_c_per_min(self, data: Any) -> float:
         """The tank's drift over ``data``'s paths as the log's course says (°C/min): the slope
         of the straight line through it at the paths' times (0 for paths at one time)."""
-        times = np.array([t for t in _times(data) if t is not None], float)
+        times = _times(data)
         if len(times) < 2 or np.ptp(times) <= 0.0:
             return 0.0
         return float(np.polyfit(times, self.course_c(times), 1)[0])
@@ -393,8 +392,7 @@ class Thermometer:
         ``std_c``; where the log met the run's first reading, in the log's time
         (``first_reading``: ISO 8601 UTC for a logger's wall-clock times; ``first_reading_min``:
         minutes of a simulated cell's clock)."""
-        times = [t for t in _times(data) if t is not None]
-        start, end = (min(times), max(times)) if times else (0.0, 0.0)
+        start, end = _span(data)
         return {
             "file": self.source,
             **self._first_reading(),
@@ -524,13 +522,13 @@ def _check_live(log_: TemperatureLog, now_min: float) -> None:
 
 def reading_span_min(data: Any) -> float:
     """The span (min) of the water paths' times within a measure step's ``data``."""
-    times = [t for t in _times(data) if t is not None]
-    return float(np.ptp(times)) if times else 0.0
+    start, end = _span(data)
+    return end - start
 
 
 def last_reading_min(data: Any) -> float:
     """The last water path's time within ``data`` (min since the run's first reading)."""
-    return max((t for t in _times(data) if t is not None), default=0.0)
+    return _span(data)[1]
 
 
 def _reference_time(data: Any) -> float | None:
@@ -542,8 +540,8 @@ def _reference_time(data: Any) -> float | None:
     for f in dataclasses.fields(data):
         value = getattr(data, f.name)
         if isinstance(value, list | tuple) and value and _is_path_reading(value[0]):
-            times = [t for t in _times(value) if t is not None]
-            if times:
+            times = _times(value)
+            if times.size:
                 return float(np.mean(times))
     return None
 
@@ -556,15 +554,26 @@ def _is_path_reading(data: Any) -> bool:
     return "time_min" in names and bool({"distance_mm", "distance"} & names)
 
 
-def _times(data: Any) -> list[float | None]:
-    """Every water path's ``time_min`` within ``data``."""
+def _times(data: Any) -> np.ndarray:
+    """The ``time_min`` of every water path within ``data`` that has one (min)."""
+    return np.array([t for t in _each_time(data) if t is not None], float)
+
+
+def _span(data: Any) -> tuple[float, float]:
+    """The first and the last water path's time within ``data`` (min; 0, 0 without one)."""
+    times = _times(data)
+    return (float(times.min()), float(times.max())) if times.size else (0.0, 0.0)
+
+
+def _each_time(data: Any) -> list[float | None]:
+    """Every water path's ``time_min`` within ``data`` (None where it has none)."""
     if isinstance(data, list | tuple):
-        return [t for v in data for t in _times(v)]
+        return [t for v in data for t in _each_time(v)]
     if _is_path_reading(data):
         return [data.time_min]
     if not dataclasses.is_dataclass(data) or isinstance(data, type):
         return []
-    return [t for f in dataclasses.fields(data) for t in _times(getattr(data, f.name))]
+    return [t for f in dataclasses.fields(data) for t in _each_time(getattr(data, f.name))]
 
 
 def _corrected(
