@@ -38,9 +38,13 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
 
 
 def install() -> None:
-    """Take SIGINT and SIGTERM (even where SIGINT was inherited as ignored): record them."""
+    """Take SIGINT and SIGTERM (even where SIGINT was inherited as ignored, or both blocked in
+    the inherited mask, where they would wait unseen until the run's end): record them. One
+    sent while they were blocked is delivered as they are unblocked, and recorded."""
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+    if hasattr(signal, "pthread_sigmask"):  # POSIX
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
 def arm() -> None:

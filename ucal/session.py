@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,7 +29,7 @@ from drivers.pulser.ascii_commands import KNOBS, Letter
 from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
-from ucal.errors import HardwareError, InputError, SafetyError
+from ucal.errors import HardwareError, InputError, ProfileError, SafetyError
 from ucal.record import (
     Record,
     Recorder,
@@ -100,8 +100,29 @@ def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
         speed=profile.procedure.speed,
         move_timeout_s=profile.controller.settle_timeout_s,
     )
+    check_averages(profile, rig)
     rig.pulser.configure(rig.settings)
     return rig
+
+
+def check_averages(profile: CellProfile, rig: Rig) -> None:
+    """``[procedure] tof_averages`` against what the connected pulser (its register map, or
+    its digitiser) takes, before the first motion: ``ProfileError`` (exit 2) naming the key,
+    the device and its range, where the run would otherwise stop at its first distance."""
+    check = getattr(rig.pulser, "check_settings", None)  # a replayed pulser has none
+    if check is None:
+        return
+    averages = max(profile.procedure.tof_averages, 1)
+    try:
+        check(replace(rig.settings, averages=averages))
+    except ValueError as e:
+        endpoint = getattr(rig.pulser, "endpoint", "the pulser")
+        raise ProfileError(
+            profile.path or "the profile",
+            "procedure.tof_averages",
+            f"{averages} averages per distance reading: the pulser at {endpoint} refuses it "
+            f"({e}); set a count it takes",
+        ) from None
 
 
 @dataclass(frozen=True)

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
+import tomllib
 from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import tomlkit
-from tomlkit.exceptions import ParseError
+from tomlkit.exceptions import ParseError, TOMLKitError
 
 from drivers.pulser.map_file import RegisterMapError, load_register_map
 from drivers.pulser.registers import RegisterMap
@@ -375,4 +377,23 @@ def parse_toml_bytes(raw: bytes, path: str | Path) -> Any:
     try:
         return tomlkit.parse(text)
     except ParseError as e:
-        raise ProfileError(path, None, f"not valid TOML: {e}") from None
+        raise ProfileError(path, None, f"not valid TOML: {_toml_problem(e, text)}") from None
+    except TOMLKitError as e:  # a key twice in an inline table or an array's table: no line
+        raise ProfileError(path, None, f"not valid TOML: {_toml_problem(e, text)}") from None
+
+
+def _toml_problem(error: TOMLKitError, text: str) -> str:
+    """What is wrong with ``text``, with its line: a key defined twice is named with the line
+    of its second definition (tomlkit's ``KeyAlreadyPresent`` has none, so the standard
+    library's parser, which stops at the same place, gives it)."""
+    named = re.fullmatch(r'Key "(.*)" already exists\.(?: at line (\d+) col (\d+))?', str(error))
+    if named is None:
+        return str(error)
+    key, line = named.group(1), named.group(2)
+    try:  # the standard library's line: tomlkit's is the line after a table's second header
+        tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        at = re.search(r"line (\d+)", str(e))
+        line = at.group(1) if at else line
+    where = f" (line {line})" if line else ""
+    return f"'{key}' is defined twice{where}: keep one of the two"

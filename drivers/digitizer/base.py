@@ -127,6 +127,10 @@ class Digitizer(Device):
         """Record ``width_ns`` from ``start_ns`` after the trigger, averaging ``averages``
         acquisitions (1 = none); ``ValueError`` for what the instrument cannot do."""
 
+    def check(self, start_ns: float, width_ns: float, averages: int) -> None:
+        """Raise ``ValueError``, as ``configure`` would, for a window or average count the
+        instrument cannot take, sending nothing (the base takes any)."""
+
     @abc.abstractmethod
     def acquire(self, timeout_s: float | None = None) -> AScanRecord:
         """Make one acquisition (averaged as configured) and return its record in volts."""

@@ -227,11 +227,9 @@ class ScpiScope(RequestLink, Digitizer):
         }
 
     # --- the record -------------------------------------------------------------------------
-    def configure(self, start_ns: float, width_ns: float, averages: int) -> None:
-        """Record ``width_ns`` from ``start_ns`` after the trigger (time base, reference at
-        the left edge), averaging ``averages`` acquisitions (``:ACQ:TYPE AVER``, 2 … 65536;
-        1 = ``NORM``). Writes only what changed; ``ValueError`` before anything is written
-        for a window or count the scope cannot take."""
+    def check(self, start_ns: float, width_ns: float, averages: int) -> None:
+        """``ValueError`` for a window longer than the scope records or an average count
+        outside 1 … 65536, sending nothing."""
         if not (math.isfinite(start_ns) and math.isfinite(width_ns) and width_ns > 0):
             raise ValueError(f"digitizer: record window {start_ns} + {width_ns} ns is not valid")
         if width_ns * 1e-9 > MAX_WIDTH_S:
@@ -241,6 +239,13 @@ class ScpiScope(RequestLink, Digitizer):
             )
         if averages != int(averages) or not 1 <= int(averages) <= MAX_AVERAGES:
             raise ValueError(f"digitizer: averages must be 1 … {MAX_AVERAGES}, got {averages!r}")
+
+    def configure(self, start_ns: float, width_ns: float, averages: int) -> None:
+        """Record ``width_ns`` from ``start_ns`` after the trigger (time base, reference at
+        the left edge), averaging ``averages`` acquisitions (``:ACQ:TYPE AVER``, 2 … 65536;
+        1 = ``NORM``). Writes only what changed; ``ValueError`` before anything is written
+        for a window or count the scope cannot take."""
+        self.check(start_ns, width_ns, averages)
         commands = [
             (":TIM:RANG", _number(width_ns * 1e-9)),
             (":TIM:POS", _number(start_ns * 1e-9)),

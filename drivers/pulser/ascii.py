@@ -265,15 +265,13 @@ class AsciiScpiPulser(PulserReceiver):
             self.line.close()
             self._written = {}
 
-    def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]] | None:
-        """Write the settings: the scope's window (gate) and averages, then every pulser knob
-        that changed, each read back.
+    def check_settings(self, settings: PulserSettings) -> None:
+        """Validate the settings against the pulser's knobs and the scope, sending nothing."""
+        self._codes(settings)
 
-        Raises ``ValueError`` naming the setting, before anything is written, for a value
-        the devices cannot take (values are rounded to the device's own steps; what was asked
-        and what was set is returned, and kept in ``settings_applied``), and ``DeviceError``
-        when the pulser sets another value than the one written.
-        """
+    def _codes(self, settings: PulserSettings) -> dict[cmd.Letter, int]:
+        """The pulser's code of each knob; ``ValueError`` for what the pulser or the scope
+        cannot take (``configure`` and ``check_settings``)."""
         codes = cmd.settings_codes(settings)
         if self.pulse_width_ns is not None:
             codes[cmd.Letter.WIDTH] = cmd.KNOBS[cmd.Letter.WIDTH].code(self.pulse_width_ns)
@@ -285,6 +283,21 @@ class AsciiScpiPulser(PulserReceiver):
                 f"the pulse repetition period ({1e6 / settings.prf_hz:g} µs at "
                 f"{settings.prf_hz:g} Hz)"
             )
+        self.digitizer.check(start_ns, width_ns, int(settings.averages))
+        return codes
+
+    def configure(self, settings: PulserSettings) -> dict[str, dict[str, float]] | None:
+        """Write the settings: the scope's window (gate) and averages, then every pulser knob
+        that changed, each read back.
+
+        Raises ``ValueError`` naming the setting, before anything is written, for a value
+        the devices cannot take (values are rounded to the device's own steps; what was asked
+        and what was set is returned, and kept in ``settings_applied``), and ``DeviceError``
+        when the pulser sets another value than the one written.
+        """
+        codes = self._codes(settings)
+        start_ns = settings.gate_start_us * 1e3
+        width_ns = settings.gate_width_us * 1e3
         self.connect()
         self.digitizer.configure(start_ns, width_ns, int(settings.averages))
         applied: dict[str, dict[str, float]] = {}

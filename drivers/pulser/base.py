@@ -128,6 +128,12 @@ class PulserReceiver(Device):
         returns what was asked and what it set, ``{name: {"asked": x, "set": y}}``, so that a
         run's record holds both; None: every setting is set as asked."""
 
+    def check_settings(self, settings: PulserSettings) -> None:
+        """Raise ``ValueError``, as ``configure`` would, for a setting the device cannot take,
+        writing nothing: what a run checks before its first motion. The base checks what
+        ``PulserSettings`` itself holds (done when it is built); a back-end with its own
+        ranges (a register map, a digitiser's average counts) checks those."""
+
     @abc.abstractmethod
     def settings(self) -> PulserSettings:
         """Read the settings back from the device."""

@@ -187,6 +187,11 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         self.connect()
         return self._map_version
 
+    def check_settings(self, settings: PulserSettings) -> None:
+        """Validate the settings against the register map's ranges, writing nothing."""
+        self._map.encode_settings(settings, reg.SETTINGS)
+        self._map.encode_settings(settings, reg.FRONT_END)
+
     def configure(self, settings: PulserSettings) -> None:
         """Validate and write the settings: gain, PRF, gate and averages in one request (FC 16),
         then pulse voltage, damping and filters in a second one (map version 2) when they differ

@@ -201,9 +201,9 @@ class Register:
         lo = -math.inf if self.minimum is None else self.minimum
         hi = math.inf if self.maximum is None else self.maximum
         if not lo <= v <= hi:
+            unit = f" {self.units}" if self.units else ""
             raise ValueError(
-                f"{self.ucal_name} = {value!r} {self.units} is out of range "
-                f"[{lo:g}, {hi:g}] {self.units}"
+                f"{self.ucal_name} = {value!r}{unit} is out of range [{lo:g}, {hi:g}]{unit}"
             )
         raw = self._scaled(v)
         allowed = self._allowed_raw

@@ -29,6 +29,15 @@ def _background_shell_child() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _blocked_mask_child() -> None:
+    """A parent that blocks SIGINT and SIGTERM in the mask its child inherits (a supervisor
+    that forks between ``sigprocmask`` calls, some job runners)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
+STARTS = {"script": _background_shell_child, "terminal": None, "blocked": _blocked_mask_child}
+
+
 def _wait_until_taken_over(pid: int) -> None:
     """Wait until process ``pid`` catches both SIGINT and SIGTERM (``SigCgt`` of
     /proc/PID/status; at once where there is no /proc): ucal's first line has run.
@@ -64,9 +73,9 @@ def served(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.mark.parametrize("after_s", [0.1, 0.3, 0.6])
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-@pytest.mark.parametrize("background", [True, False], ids=["script", "terminal"])
+@pytest.mark.parametrize("start", list(STARTS))
 def test_an_early_signal_stops_the_run_before_any_motion(
-    served: tuple[Path, Path, dict], after_s: float, signum: int, background: bool
+    served: tuple[Path, Path, dict], after_s: float, signum: int, start: str
 ) -> None:
     profile, log, urls = served
     before = profile.read_bytes()
@@ -78,7 +87,7 @@ def test_an_early_signal_stops_the_run_before_any_motion(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_background_shell_child if background else None,
+        preexec_fn=STARTS[start],
     )
     time.sleep(after_s)
     _wait_until_taken_over(proc.pid)

@@ -36,6 +36,7 @@ Examples = Callable[[list[str]], list[tuple[dict[str, str], list[str]]]]
 
 COMMANDS = [
     ["profile"],
+    ["profile", "init"],
     ["fk"],
     ["ik"],
     ["path"],
@@ -123,7 +124,7 @@ def test_help_examples_run_as_written(
     help_examples: Examples,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    if command != ["profile"]:
+    if command[0] != "profile":
         add_files(workdir)
     for env, args in help_examples(command):
         if "--replay" in args:

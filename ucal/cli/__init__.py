@@ -12,7 +12,7 @@ import sys
 
 import click
 
-from drivers.errors import DriverError, MotionRejected
+from drivers.errors import DeviceTimeout, DriverError, MotionRejected
 from ucal import interrupt
 from ucal.cli.options import (
     SuggestingGroup,
@@ -141,7 +141,39 @@ def _classify(e: BaseException) -> tuple[str, int]:
     if isinstance(e, UcalError):
         return str(e), e.exit_code
     if isinstance(e, MotionRejected):  # the controller refused a target: a safety refusal
-        return str(e), EXIT_SAFETY
+        return one_line(str(e)), EXIT_SAFETY
+    if isinstance(e, DeviceTimeout):
+        return one_line(str(e)) + TIMEOUT_HINTS.get(e.device, ""), EXIT_HARDWARE
     if isinstance(e, DriverError):
-        return str(e), EXIT_HARDWARE
+        return one_line(str(e)), EXIT_HARDWARE
     return f"internal error: {type(e).__name__}: {e} (run with --debug for details)", 1
+
+
+#: What a timeout's message adds by device: the profile key that sets the wait, and where it
+#: goes (``ucal profile init`` writes a ``[controller]`` table, no ``[pulser]`` one).
+TIMEOUT_HINTS = {
+    "pulser": (
+        "; if the instrument is on and wired, it may need longer: set timeout_s (s, default "
+        "1) in the profile's [pulser] table (add the table if the profile has none)"
+    ),
+    "digitizer": (
+        "; if the scope is on, triggered and wired, it may need longer: set timeout_s (s, "
+        "default 1) in the profile's [pulser] table (add the table if the profile has none)"
+    ),
+    "controller": (
+        "; if the controller's server is running, it may need longer: the [controller] "
+        "table's *_timeout_s keys set each wait"
+    ),
+}
+#: Longest one-line message of a device fault: a device's garbage beyond is cut.
+MAX_MESSAGE_CHARS = 400
+
+
+def one_line(text: str) -> str:
+    """A device fault's message on one line: control characters and bytes that are no text
+    escaped (a device's garbage pasted into the message), the whole cut at
+    ``MAX_MESSAGE_CHARS``."""
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    if len(shown) > MAX_MESSAGE_CHARS:
+        shown = shown[: MAX_MESSAGE_CHARS - 5] + " ..."
+    return shown

@@ -44,7 +44,14 @@ def cli() -> None:
     """Cell profiles (TOML): nominal geometry of the cell and calibration results."""
 
 
-@cli.command("init")
+@cli.command(
+    "init",
+    epilog="""\b
+Examples:
+  ucal profile init tx90l cell.toml
+  ucal profile init tx90xl cell.toml --force
+""",
+)
 @click.argument("model", type=click.Choice(KNOWN_MODELS, case_sensitive=False))
 @profile_arg
 @click.option(

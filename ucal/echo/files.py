@@ -20,6 +20,12 @@ from ucal.errors import InputError
 TIME_COLUMN = "t_ns"
 #: Largest departure of a sample time from the uniform grid, as a fraction of the interval.
 UNIFORM_TOLERANCE = 1e-3
+#: Sample intervals (ns) a digitiser of ultrasonic echoes records at: 20 GS/s to 1 MS/s. An
+#: interval outside is times in another unit (s or µs where ns are meant), refused by name.
+DT_RANGE_NS = (0.05, 1000.0)
+#: Largest sample magnitude taken (volts, or a digitiser's codes: 16 bits are 65,536): larger
+#: is not a reading, and its squares would overflow the estimator's sums.
+MAX_SAMPLE = 1e9
 
 
 def read_columns(path: Path) -> tuple[float, float, list[str], np.ndarray]:
@@ -27,8 +33,9 @@ def read_columns(path: Path) -> tuple[float, float, list[str], np.ndarray]:
 
     Blank lines and lines starting with ``#`` are skipped; the first line is the header. Raises
     ``InputError`` (exit 2) naming the file: unreadable, no header or no column after
-    ``t_ns``, a row that is not numbers, fewer than 8 samples, or ``t_ns`` not increasing
-    uniformly (within ``UNIFORM_TOLERANCE`` of the interval).
+    ``t_ns``, a row that is not numbers, fewer than 8 samples, ``t_ns`` not increasing
+    uniformly (within ``UNIFORM_TOLERANCE`` of the interval) or at an interval outside
+    ``DT_RANGE_NS``, or a sample beyond ``MAX_SAMPLE``.
     """
     try:
         text = Path(path).read_text(encoding="utf-8-sig")
@@ -71,6 +78,21 @@ def read_columns(path: Path) -> tuple[float, float, list[str], np.ndarray]:
         raise InputError(
             f"{path}: {TIME_COLUMN} is not uniformly sampled: row {lines[k + 1][0]} "
             f"({t_ns[k]:g} ns) is {off[k]:.3g} of the interval ({dt_ns:g} ns) off the grid"
+        )
+    lo_ns, hi_ns = DT_RANGE_NS
+    if not lo_ns <= dt_ns <= hi_ns:
+        raise InputError(
+            f"{path}: {TIME_COLUMN} advances {dt_ns:.3g} ns a sample, outside the "
+            f"{lo_ns:g}–{hi_ns:g} ns of a digitiser (20 GS/s to 1 MS/s): {TIME_COLUMN} is in "
+            "nanoseconds (times in seconds or µs?)"
+        )
+    big = np.abs(table[:, 1:]) > MAX_SAMPLE
+    if big.any():
+        k, j = (int(i[0]) for i in np.nonzero(big))
+        raise InputError(
+            f"{path}: row {lines[k + 1][0]}, column {header[j + 1]!r}: sample "
+            f"{table[k, j + 1]:.3g} is beyond ±{MAX_SAMPLE:.0e}: not a digitiser's reading "
+            "(volts or codes)"
         )
     return float(t_ns[0]), float(dt_ns), header[1:], table[:, 1:].T
 

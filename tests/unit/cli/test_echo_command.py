@@ -125,6 +125,11 @@ def test_without_reference_the_table_says_coarse(
         ("t_ns,a\n" + "".join(f"{i},x\n" for i in range(10)), "row 2: not numbers"),
         ("t_ns,a\n0,1\n1,2\n", "2 sample(s)"),
         ("t_ns,a,b\n" + "".join(f"{i},0\n" for i in range(10)), "expected 3 finite numbers"),
+        # times in seconds (2 ns a sample written as 2e-9): refused, not 887 GiB allocated
+        ("t_ns,a\n" + "".join(f"{i * 2e-9},{i % 2}\n" for i in range(10)), "times in seconds"),
+        ("t_ns,a\n" + "".join(f"{i * 5000},{i % 2}\n" for i in range(10)), "outside the 0.05"),
+        # a sample of 1e300 overflowed the estimator (exit 1, OverflowError)
+        ("t_ns,a\n" + "".join(f"{i},{1e300 * (i % 2)}\n" for i in range(10)), "row 3, column 'a'"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_file_exit_2(
@@ -147,6 +152,7 @@ def test_a_bad_reference_names_the_reference(
     for text, words in (
         ("t_ns,a,b\n" + "".join(f"{i},0,0\n" for i in range(10)), "holds one echo"),
         ("t_ns,a\n" + "".join(f"{i + 5},{i % 2}\n" for i in range(10)), "t_ns = 0, is outside"),
+        ("t_ns,a\n" + "".join(f"{(i - 5) * 1e-9},{i % 2}\n" for i in range(10)), "in seconds"),
     ):
         ref = tmp_path / "ref.csv"
         ref.write_text(text, encoding="utf-8")

@@ -189,8 +189,26 @@ def test_what_the_devices_cannot_take_is_refused_before_anything_is_written() ->
         (PulserSettings(high_pass_mhz=2.0), "high-pass is fixed at 1 MHz"),
         (PulserSettings(prf_hz=5000.0, gate_width_us=400.0), "ends after the pulse repetition"),
     ):
-        with pytest.raises(ValueError, match=message):
-            pulser.configure(settings)
+        for call in (pulser.check_settings, pulser.configure):
+            with pytest.raises(ValueError, match=message):
+                call(settings)
+    assert digitizer.windows == []
+    port.assert_done()
+
+
+def test_averages_the_scope_cannot_take_are_refused_by_the_check_with_nothing_sent() -> None:
+    """What a run checks before its first motion: the scope's own average counts."""
+
+    class RefusingDigitizer(FakeDigitizer):
+        def check(self, start_ns: float, width_ns: float, averages: int) -> None:
+            if averages > 4096:
+                raise ValueError(f"digitizer: averages must be 1 … 4096, got {averages}")
+
+    digitizer = RefusingDigitizer()
+    pulser, port = back_end(digitizer=digitizer)
+    pulser.check_settings(PulserSettings(averages=4096))
+    with pytest.raises(ValueError, match="averages must be 1 … 4096, got 5000"):
+        pulser.check_settings(PulserSettings(averages=5000))
     assert digitizer.windows == []
     port.assert_done()
 
