@@ -24,6 +24,17 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
 
 
+@pytest.fixture(autouse=True)
+def no_signal_received(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test starts with no signal recorded and the run not holding a result
+    (``ucal.interrupt``'s module state, which in-process runs of the command line share)."""
+    from ucal import interrupt
+
+    monkeypatch.setattr(interrupt, "received", [])
+    monkeypatch.setattr(interrupt, "_armed", False)
+    monkeypatch.setattr(interrupt, "_held", False)
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--controller-url", default=None, help="URL of a real robot controller")
     parser.addoption("--pulser-url", default=None, help="URL of a real pulser-receiver")

@@ -67,3 +67,26 @@ class OutOfToleranceError(UcalError):
     def __init__(self, message: str, result: dict | None = None):
         super().__init__(message)
         self.result = result
+
+
+class InterruptedAfterResult(UcalError):
+    """A signal came once the robot had stopped and the run had begun to write its result: the
+    result stands (written or not, as ``result`` says) and the run ends as interrupted.
+
+    ``result`` is the run's result object: with ``--json`` the CLI prints it with the error
+    fields added, as for a result out of tolerance.
+    """
+
+    exit_code = EXIT_INTERRUPTED
+
+    def __init__(self, result: dict):
+        written = bool(result.get("written"))
+        super().__init__(
+            "interrupted as the run ended, the robot stopped: "
+            + (
+                "its result was written and stands as reported"
+                if written
+                else "nothing was written; its result is reported"
+            )
+        )
+        self.result = result

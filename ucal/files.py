@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 from pathlib import Path
 
 #: The mode ``open()`` asks for a new file; the kernel takes the umask off it.
 NEW_FILE_MODE = 0o666
+#: How a staged file's name ends: ``.NAME.<8 hex digits>.tmp`` beside ``NAME``.
+STAGED_SUFFIX = ".tmp"
 
 
 def existing_mode(path: Path) -> int | None:
@@ -64,13 +67,25 @@ def stage(path: Path, data: bytes, mode: int | None = None) -> Path:
     if mode is None:
         mode = existing_mode(path)
     for _ in range(100):
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{STAGED_SUFFIX}")
         try:
             write_new(tmp, data, mode)
         except FileExistsError:
             continue
         return tmp
     raise FileExistsError(f"no free temporary name beside {path}")
+
+
+def staged_leftovers(path: Path) -> list[Path]:
+    """The temporary files ``stage`` made beside ``path`` that are still there: left by a
+    process killed between the staging and the rename (only the holder of ``path``'s lock may
+    remove them)."""
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.[0-9a-f]{{8}}{re.escape(STAGED_SUFFIX)}")
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return []
+    return [path.parent / n for n in sorted(names) if pattern.fullmatch(n)]
 
 
 def fsync_dir(directory: Path) -> None:

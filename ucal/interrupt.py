@@ -16,6 +16,11 @@ was taken and the run went on to the end, profile written. pybind11 turns it int
 interrupt again wherever a run crosses a boundary (each step of ``ucal.procedure``, each
 measuring step, before a profile is replaced), and the command line reports a run that
 received a signal as interrupted (exit 130) whatever exception ended it.
+
+Once the robot has stopped and the run has begun to write its result, a signal cuts nothing
+(``hold``): the write completes, the result is reported, and the run still ends as interrupted
+(exit 130), saying that the result stands. So a script never meets a profile new on disk beside
+a run that said it was interrupted and printed nothing of what it wrote.
 """
 
 from __future__ import annotations
@@ -29,6 +34,8 @@ from types import FrameType
 received: list[int] = []
 
 _armed = False
+#: The run is past its last motion and writing or reporting its result (``hold``).
+_held = False
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -52,17 +59,27 @@ def arm() -> None:
 
     Installs the handler when ``install`` was not called (the command line run in-process).
     """
-    global _armed
+    global _armed, _held
     install()
-    _armed = True
+    _armed, _held = True, False
     check()
 
 
 def check() -> None:
     """Raise ``KeyboardInterrupt`` if a signal was received, even one whose exception was
-    swallowed where it struck."""
-    if received:
+    swallowed where it struck; nothing once the run is ``hold``ing its result."""
+    if received and not _held:
         raise KeyboardInterrupt(f"signal {received[0]}")
+
+
+def hold() -> None:
+    """From now on a signal is recorded and nothing raised: the robot has stopped and the run
+    writes and reports its result, which a signal must not cut between the write and the
+    report (a profile new on disk while the run said it was interrupted). The command line
+    then reports the result with the interruption (``ucal.cli.main``: exit 130)."""
+    global _armed, _held
+    _armed = False
+    _held = True
 
 
 @contextlib.contextmanager

@@ -37,6 +37,9 @@ each step as it starts, which is how a test holds the three commands to the same
 A signal is acted on at every step boundary and every measuring step (``ucal.interrupt.check``):
 one whose ``KeyboardInterrupt`` was swallowed where it struck still stops the run before the
 cell is opened, before the first motion, before the next face and before anything is written.
+From the write step on the robot has stopped and a signal is only recorded
+(``ucal.interrupt.hold``): the result is written and reported whole, and the command line ends
+the run as interrupted (exit 130) with that result.
 """
 
 from __future__ import annotations
@@ -394,6 +397,9 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                     measured.data = water.corrected(measured.data)
                 solved = job.solve(plan, measured)
                 self._enter(Step.WRITE)
+                # the robot has stopped: a signal from here on cuts neither the write nor
+                # the report of what was written (the run still ends as interrupted)
+                interrupt.hold()
                 written = options.writes and job.may_write(solved)
                 if written:
                     job.write(solved)

@@ -11,6 +11,7 @@ was taken and the run went on to write the profile.
 from __future__ import annotations
 
 import contextlib
+import json
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -156,3 +157,69 @@ def test_a_signal_during_the_commit_waits_for_the_profile_and_its_history_togeth
     assert len(calls) == 2  # the commit was not cut in two
     entries = profile_history(profile)
     assert len(entries) == 1 and "exact" in profile.read_text()
+
+
+def signalled_at_commit(monkeypatch: pytest.MonkeyPatch, after_calls: int) -> list[Any]:
+    """SIGTERM delivered once ``after_calls`` renames of the profile's write are done (1: the
+    history index renamed, the profile not yet; 2: both). Returns the renames made."""
+    import ucal.profile.history as history
+
+    commit = history.commit
+    calls: list[Any] = []
+
+    def signalled_commit(*args: Any, **kwargs: Any) -> None:
+        commit(*args, **kwargs)
+        calls.append(args)
+        if len(calls) == after_calls:
+            signal.raise_signal(signal.SIGTERM)
+
+    monkeypatch.setattr(history, "commit", signalled_commit)
+    return calls
+
+
+@pytest.mark.parametrize("after_calls", [1, 2])
+def test_a_signal_once_the_result_is_being_written_ends_the_run_with_that_result(
+    profile: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    run_main: Callable[[list[str]], tuple[int, str, str]],
+    after_calls: int,
+) -> None:
+    """The robot has stopped, the profile is being replaced: the write completes, the result
+    is printed with the error's fields (written: true) and the run ends as interrupted."""
+    calls = signalled_at_commit(monkeypatch, after_calls)
+    code, out, err = run_main(["calibrate", str(profile), "--sim", "--yes", "--json"])
+    assert code == 130 and len(calls) == 2
+    result = json.loads(out)
+    assert result["written"] is True and result["exit_code"] == 130
+    assert result["error"].startswith("interrupted as the run ended")
+    assert "was written and stands" in result["error"]
+    assert err.strip().splitlines()[-1] == f"error: {result['error']}"
+    assert len(profile_history(profile)) == 1
+    assert "joint_offsets_deg" in profile.read_text()
+    assert interrupt.received == [signal.SIGTERM]
+
+
+def test_a_signal_after_the_result_was_printed_leaves_it_standing(
+    profile: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    run_main: Callable[[list[str]], tuple[int, str, str]],
+) -> None:
+    """A signal as the printed result leaves the command: one JSON object (the result), the
+    run ended as interrupted, said so on stderr."""
+    import ucal.cli.procedure as cli_procedure
+
+    emit = cli_procedure.emit_json
+
+    def emit_then_signal(data: Any) -> None:
+        emit(data)
+        signal.raise_signal(signal.SIGINT)
+
+    monkeypatch.setattr(cli_procedure, "emit_json", emit_then_signal)
+    code, out, err = run_main(["calibrate", str(profile), "--sim", "--yes", "--json"])
+    assert code == 130
+    result = json.loads(out)  # one object: the result as the run printed it
+    assert result["written"] is True and "error" not in result
+    assert err.strip().splitlines()[-1] == (
+        "error: interrupted as the run ended: its result stands as printed"
+    )
+    assert len(profile_history(profile)) == 1

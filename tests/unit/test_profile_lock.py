@@ -12,7 +12,13 @@ from pathlib import Path
 import pytest
 
 from ucal.errors import EXIT_USAGE, InputError, ProfileError
-from ucal.profile import check_writable, default_profile_text, lock_path, profile_lock
+from ucal.profile import (
+    check_writable,
+    default_profile_text,
+    history_dir,
+    lock_path,
+    profile_lock,
+)
 
 from doubles import exit_code
 
@@ -188,3 +194,34 @@ def test_full_disk_is_refused_before_the_run(
     assert "\n" not in err
     assert cell.read_bytes() == before
     assert not lock_path(cell).exists()
+
+
+KILLED_WRITE = """
+import os, signal, sys
+import ucal.profile.history as history
+from ucal.profile import write_profile
+
+def killed(tmp, path):  # both files staged, neither renamed: the process dies here
+    os.kill(os.getpid(), signal.SIGKILL)
+
+history.commit = killed
+write_profile(sys.argv[1], {"calibration": {"method": "exact"}}, "calibrate")
+"""
+
+
+def test_the_next_run_removes_what_a_killed_write_left(cell: Path) -> None:
+    """A write killed between staging and renaming leaves its staged profile and index beside
+    the real ones; the next holder of the profile removes them, and nothing else."""
+    before = cell.read_bytes()
+    proc = subprocess.run([sys.executable, "-c", KILLED_WRITE, str(cell)], cwd=REPO)
+    assert proc.returncode == -signal.SIGKILL
+    hdir = history_dir(cell)
+    left = [p.name for p in [*cell.parent.iterdir(), *hdir.iterdir()] if p.suffix == ".tmp"]
+    assert len(left) == 2 and cell.read_bytes() == before
+    others = [cell.parent / ".cell.toml.notes.tmp", hdir / "mine.tmp"]
+    for other in others:
+        other.write_text("not ucal's")
+    with profile_lock(cell):
+        now = [p for p in [*cell.parent.iterdir(), *hdir.iterdir()] if p.suffix == ".tmp"]
+    assert sorted(now) == sorted(others)
+    assert cell.read_bytes() == before

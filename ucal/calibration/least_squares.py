@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
 
+from ucal import interrupt
 from ucal.calibration.model import FaceMeasurement, beam_and_tcp, distance_joints
 from ucal.calibration.priors import (
     BACKLASH,
@@ -107,8 +108,15 @@ def _least_squares_with_priors(
     """``least_squares`` over ``table``'s free parameters, each scaled by its prior σ (at most
     1): its own forward-difference Jacobian, trust region, ``tol`` on every criterion."""
     x_scale = np.where(np.isfinite(table.prior_stds), np.minimum(table.prior_stds, 1.0), 1.0)
+
+    def checked(x: np.ndarray) -> np.ndarray:
+        # a signal whose KeyboardInterrupt was swallowed where it struck (an import's callback)
+        # ends a fit of seconds at its next evaluation, not at the run's next step
+        interrupt.check()
+        return fun(x)
+
     return least_squares(
-        fun,
+        checked,
         x0,
         jac="2-point",
         method="trf",

@@ -21,7 +21,14 @@ from ucal.cli.options import (
     configure_logging,
     emit_json,
 )
-from ucal.errors import EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_SAFETY, EXIT_USAGE, UcalError
+from ucal.errors import (
+    EXIT_HARDWARE,
+    EXIT_INTERRUPTED,
+    EXIT_SAFETY,
+    EXIT_USAGE,
+    InterruptedAfterResult,
+    UcalError,
+)
 
 #: command name → module under ``ucal.cli`` exposing ``cli``
 COMMANDS = {
@@ -102,8 +109,13 @@ def main(argv: list[str] | None = None) -> None:
     as_json = _wants_json(args)
     try:
         interrupt.arm()
-        cli.main(args=args, prog_name="ucal", standalone_mode=False)
-        interrupt.check()
+        try:
+            cli.main(args=args, prog_name="ucal", standalone_mode=False)
+        finally:
+            interrupt.hold()  # the reporting below is not cut by a signal: it reports one
+        if interrupt.received:  # a signal once the result was printed: it stands
+            click.echo(f"error: {LATE_SIGNAL}", err=True)
+            sys.exit(EXIT_INTERRUPTED)
     except click.exceptions.Abort as e:
         # click turns Ctrl-C into Abort: during the run (with a cause) or at the confirmation
         # (without; a declined confirmation is NotConfirmed, exit 4)
@@ -134,6 +146,8 @@ def main(argv: list[str] | None = None) -> None:
 def _classify(e: BaseException) -> tuple[str, int]:
     """The one-line message and the SPEC exit code of an error that ended a command."""
 
+    if isinstance(e, InterruptedAfterResult):
+        return str(e), e.exit_code
     if isinstance(e, KeyboardInterrupt) or interrupt.received:
         # a signal's KeyboardInterrupt may have become another error where it struck (an
         # ImportError from an extension's initialisation): the run was still interrupted
@@ -165,6 +179,8 @@ TIMEOUT_HINTS = {
         "table's *_timeout_s keys set each wait"
     ),
 }
+#: A signal that came once the command had printed its result.
+LATE_SIGNAL = "interrupted as the run ended: its result stands as printed"
 #: Longest one-line message of a device fault: a device's garbage beyond is cut.
 MAX_MESSAGE_CHARS = 400
 

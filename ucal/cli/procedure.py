@@ -21,6 +21,7 @@ import click
 import tomlkit
 from click.core import ParameterSource
 
+from ucal import interrupt
 from ucal.cell import CellProfile
 from ucal.cell_choice import CellChoice
 from ucal.cli.options import (
@@ -33,7 +34,7 @@ from ucal.cli.options import (
     info,
 )
 from ucal.cli.progress import StepProgress
-from ucal.errors import InputError, OutOfToleranceError
+from ucal.errors import InputError, InterruptedAfterResult, OutOfToleranceError
 from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile, profile_from_data
 from ucal.progress import Progress
@@ -86,9 +87,12 @@ def run_job(
 
 def finish(outcome: Outcome[R], as_json: bool, show: Callable[[Outcome[R]], None]) -> None:
     """Print the outcome: ``show`` draws the command's tables (without ``--json``); out of
-    tolerance, exit 1 (with ``--json`` the CLI prints the result with the error fields)."""
+    tolerance, exit 1, and after a signal that came once the robot had stopped, exit 130 (with
+    ``--json`` the CLI prints the result with the error fields)."""
     if not as_json:
         show(outcome)
+    if interrupt.received:  # a signal once the robot had stopped: the result stands, reported
+        raise InterruptedAfterResult(outcome.to_json())
     if outcome.out_of_tolerance:
         raise OutOfToleranceError(outcome.message, outcome.to_json())
     if as_json:

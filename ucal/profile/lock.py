@@ -16,8 +16,9 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+from ucal import files
 from ucal.errors import InputError, ProfileError
-from ucal.profile.disk import history_dir, real_path
+from ucal.profile.disk import HISTORY_INDEX, history_dir, real_path
 
 log = logging.getLogger(__name__)
 
@@ -106,11 +107,28 @@ def profile_lock(path: str | Path, command: str | None = None) -> Iterator[LockH
             os.ftruncate(fd, 0)
             os.pwrite(fd, data, 0)
         log.debug("%s: locked (%s)", lock, me.describe())
+        _remove_leftovers(real_path(path))
         yield me
     finally:
         with contextlib.suppress(OSError):
             os.unlink(lock)  # while still held: a waiting opener then sees another inode
         os.close(fd)
+
+
+def _remove_leftovers(path: Path) -> None:
+    """Remove the staged files a write killed before its renames left beside the profile and
+    its history index (``ucal.files.stage``): the lock is held, so no write of ours is under
+    way. The profile and the index themselves were never touched by such a write."""
+    for target in (path, history_dir(path) / HISTORY_INDEX):
+        for tmp in files.staged_leftovers(target):
+            try:
+                tmp.unlink()
+            except FileNotFoundError:
+                continue
+            except OSError as e:
+                log.warning("%s: cannot remove what a killed write left: %s", tmp, e.strerror)
+                continue
+            log.info("%s: removed, left by a write that was killed", tmp)
 
 
 def check_writable(path: str | Path, min_free_bytes: int = MIN_FREE_BYTES) -> None:
