@@ -307,7 +307,7 @@ class SimpleMessageController(StateStreamController):
             ) from None
 
     def _motion_failed(self, error: DriverError) -> DriverError:
-        log.error("%s", error)
+        log.debug("motion link failed: %s", error)  # raised: the caller reports it, once
         self._motion_error = error
         return error
 
@@ -401,16 +401,15 @@ class SimpleMessageController(StateStreamController):
                 f"settling within {tol_deg:g} deg of {np.round(target, 4).tolist()} deg",
                 "settle_timeout_s",
             )
-        except DeviceTimeout:
+        except DeviceTimeout as e:
             with self._cond:
                 last = None if self._joints_deg is None else np.round(self._joints_deg, 4)
-            if last is not None:
-                log.error(
-                    "controller at %s did not settle; last readings %s deg",
-                    self.endpoint,
-                    last.tolist(),
-                )
-            raise
+            if last is None:
+                raise
+            detail = str(e).removeprefix(f"{self.device} at {self.endpoint}: ")
+            raise DeviceTimeout(
+                self.device, self.endpoint, f"{detail}; last readings {last.tolist()} deg"
+            ) from None
 
     def stop(self) -> None:
         """Send STOP_TRAJECTORY (sequence -4). Never raises; failures are logged.
@@ -439,9 +438,9 @@ class SimpleMessageController(StateStreamController):
             if reply.success:
                 log.info("controller at %s acknowledged STOP", self.endpoint)
             else:
-                log.error("controller at %s answered FAILURE to STOP", self.endpoint)
+                log.warning("controller at %s answered FAILURE to STOP", self.endpoint)
         except DriverError as e:
-            log.error("stop not confirmed: %s", e)
+            log.warning("STOP not confirmed: %s", e)
         except Exception:  # stop() runs on error paths and must not raise
             log.exception("stop failed at %s", self.endpoint)
         finally:
@@ -453,4 +452,4 @@ class SimpleMessageController(StateStreamController):
             self._send(sock, msg.pack())
             log.warning("STOP sent to %s without reading its reply: %s", self.endpoint, why)
         except OSError as e:
-            log.error("STOP could not be sent to %s: %s (%s)", self.endpoint, e, why)
+            log.warning("STOP could not be sent to %s: %s (%s)", self.endpoint, e, why)

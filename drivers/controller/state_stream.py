@@ -217,7 +217,7 @@ class StateStreamController(RobotController):
         )
 
     def _state_failed(self, error: DriverError) -> None:
-        log.error("%s", error)
+        log.debug("state link failed: %s", error)  # raised by the next wait: reported once
         with self._cond:
             self._state_error = error
             self._cond.notify_all()

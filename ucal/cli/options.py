@@ -24,6 +24,8 @@ import click
 import numpy as np
 from click.core import ParameterSource
 from rich.console import Console
+from rich.highlighter import NullHighlighter
+from rich.logging import RichHandler
 
 from drivers.registry import open_controller, open_pulser
 from ucal.cell_choice import CellChoice
@@ -66,8 +68,11 @@ def configure_logging(ctx: click.Context) -> None:
     settings = _settings(ctx)
     debug = bool(settings.get("debug"))
     level = settings.get("verbose", 0) - settings.get("quiet", 0)
-    logging.basicConfig(stream=sys.stderr, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    logging.getLogger().setLevel(
+    root = logging.getLogger()
+    for handler in [h for h in root.handlers if isinstance(h, _StderrLog)]:
+        root.removeHandler(handler)  # configured again as more options are read
+    root.addHandler(_StderrLog(debug))
+    root.setLevel(
         logging.DEBUG
         if debug or level > 1
         else logging.INFO
@@ -78,6 +83,52 @@ def configure_logging(ctx: click.Context) -> None:
     )
     # pymodbus logs its own retries and timeouts; ucal reports faults itself, in one line.
     logging.getLogger("pymodbus").setLevel(logging.DEBUG if debug else logging.CRITICAL)
+
+
+#: What a log line starts with, by level: the words of the command line's own lines
+#: (``warn``, the ``error:`` of a fault), so that a log line reads as one of them.
+LOG_PREFIX = {logging.DEBUG: "debug: ", logging.INFO: "", logging.WARNING: "warning: "}
+
+
+class _LogFormat(logging.Formatter):
+    """``warning: message``, ``error: message``; with ``--debug`` the logger's name too."""
+
+    def __init__(self, debug: bool) -> None:
+        super().__init__()
+        self.debug = debug
+
+    def format(self, record: logging.LogRecord) -> str:
+        prefix = LOG_PREFIX.get(record.levelno, "error: ")
+        where = f"{record.name}: " if self.debug else ""
+        text = prefix + where + record.getMessage()
+        if record.exc_info and self.debug:
+            text += "\n" + self.formatException(record.exc_info)
+        return text
+
+
+class _StderrLog(RichHandler):
+    """The one log handler: rich's, on stderr, one line per record in the command line's own
+    words (``_LogFormat``); no time stamp, level column or source path, no markup read in a
+    device's text. A live progress display on the terminal keeps its place below the lines;
+    in a pipe or a file no line is wrapped."""
+
+    def __init__(self, debug: bool) -> None:
+        console = Console(stderr=True, width=None if sys.stderr.isatty() else PIPE_WIDTH)
+        super().__init__(
+            console=console,
+            show_time=False,
+            show_level=False,
+            show_path=False,
+            markup=False,
+            rich_tracebacks=False,
+            highlighter=NullHighlighter(),
+        )
+        self.setFormatter(_LogFormat(debug))
+
+    def render(self, *, record: logging.LogRecord, traceback: Any, message_renderable: Any) -> Any:
+        """The line itself: rich's table of time, level and path columns pads it to the
+        console's width."""
+        return message_renderable
 
 
 def _counted(flags: list[str], text: str, flag: bool = False) -> click.Option:
