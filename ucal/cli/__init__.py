@@ -48,11 +48,44 @@ COMMANDS = {
 }
 
 
+#: command name → the first paragraph of its help, for ``ucal --help``'s listing without
+#: importing every command's module (numpy, scipy and the drivers: a second of start-up);
+#: a test holds it to the commands' own help.
+SUMMARIES = {
+    "profile": "Cell profiles (TOML): nominal geometry of the cell and calibration results.",
+    "fk": "Tool centre point X,Y,Z (mm), RX,RY,RZ (deg, Staubli) in the base frame.",
+    "ik": "Joint readings (deg) that put the tool at a pose, with the profile's offsets taken out.",
+    "path": "Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a joint path in one arm configuration.",
+    "export": "Export the profile's tool and block for a robot controller.",
+    "sim": "The simulated cell (controller and pulser speaking the real protocols).",
+    "calibrate": "Find the six joint zero offsets with the ultrasonic transducer and write them.",
+    "tool-frame": "Find the tool centre point and beam direction relative to the flange.",
+    "verify": "Measure the positioning error before and after calibration (paper 000, §5.2).",
+    "check": "Check the cell against its commissioning in about a minute; name what moved.",
+    "status": "Show the joint readings, the controller's status and the pulser's identity.",
+    "echo": "Time of flight and amplitude of the echo in each A-scan of FILE.",
+    "report": "Write one HTML page of the cell as PROFILE and its history hold it.",
+}
+
+
+def short_help(name: str, limit: int) -> str:
+    """Command ``name``'s line in the listing, cut at ``limit`` characters as click cuts it."""
+    return click.Command(name, help=SUMMARIES[name]).get_short_help_str(limit)
+
+
 class LazyGroup(SuggestingGroup):
-    """Import a command's module only when the command is used (keeps ``ucal --help`` fast)."""
+    """Import a command's module only when the command is used (keeps ``ucal --help`` fast:
+    its listing comes from ``SUMMARIES``)."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(COMMANDS)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The "Commands" section as click draws it, each line cut to fit as click cuts it."""
+        limit = formatter.width - 6 - max(map(len, COMMANDS))
+        rows = [(name, short_help(name, limit)) for name in COMMANDS]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
         module = COMMANDS.get(name)

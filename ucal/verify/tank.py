@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc
 
 from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
 from ucal.calibration.model import FaceMeasurement
@@ -67,7 +67,8 @@ class TankSet:
     @property
     def moved(self) -> bool:
         """The paths changed otherwise than one sound speed changes them (``MOVED_P``)."""
-        return self.dof > 0 and float(chi2.sf(self.chi2, self.dof)) < MOVED_P
+        # chdtrc(dof, x) is scipy.stats' chi2.sf(x, dof), without importing scipy.stats
+        return self.dof > 0 and float(chdtrc(self.dof, self.chi2)) < MOVED_P
 
     def to_json(self) -> dict[str, Any]:
         return {
