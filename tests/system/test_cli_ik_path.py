@@ -15,7 +15,7 @@ import pytest
 
 from ucal.kinematics.dh import fk
 from ucal.kinematics.ik import ik
-from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.kinematics.path import plan_joint_path
 from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_angle_deg
 from ucal.models import load_model
 from ucal.profile import create_profile, load_profile, write_profile
@@ -155,20 +155,31 @@ def _singular_path(profile_path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_path_through_wrist_singularity(profile_path: Path, tmp_path: Path) -> None:
+    """J5 changes sign (wnegative to wpositive into point 21, line 22): refused unless asked
+    for; asked for, joint 4 stays continuous through the singularity (paper 004)."""
     q, poses = _singular_path(profile_path)
     src, out = tmp_path / "scan.csv", tmp_path / "joints.csv"
     src.write_text("X,Y,Z,RX,RY,RZ\n" + "\n".join(_csv(p) for p in poses) + "\n")
-    r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]), "--json")
+    args = ["path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0])]
+    r = ucal(*args)
+    assert r.returncode == 4 and not out.exists()
+    assert "point 21 (line 22)" in r.stderr and "wrist singularity" in r.stderr
+
+    r = ucal(*args, "--allow-config-change", "--json")
     assert r.returncode == 0, r.stderr
+    assert "warning:" in r.stderr and "point 21 (line 22)" in r.stderr
     data = json.loads(r.stdout)
     assert data["points"] == 41
     assert data["max_step_deg"] < 1.0
+    assert [c["point"] for c in data["configuration_changes"]] == [21]
+    assert data["configuration_changes"][0]["changed"] == ["wrist"]
     rows = list(csv.reader(out.read_text().splitlines()))
-    assert rows[0] == ["J1", "J2", "J3", "J4", "J5", "J6"]
-    joints = np.array(rows[1:], float)
+    assert rows[0] == ["J1", "J2", "J3", "J4", "J5", "J6", "shoulder", "elbow", "wrist"]
+    joints = np.array([row[:6] for row in rows[1:]], float)
     np.testing.assert_allclose(joints, q, atol=1e-6)
+    assert [row[8] for row in rows[1:]] == ["wnegative"] * 20 + ["wpositive"] * 21
 
-    r = ucal("path", str(profile_path), str(src), "-o", str(out))
+    r = ucal(*args[:-2], "--allow-config-change")
     assert r.returncode == 0, r.stderr
     assert "largest joint step" in r.stdout
 
@@ -233,12 +244,12 @@ def test_ik_and_path_on_a_calibrated_table_agree_with_fk(
     assert r.returncode == 0, r.stderr
     rows = np.array(
         [
-            [float(v) for v in row]
+            [float(v) for v in row[:6]]
             for row in csv.reader((tmp_path / "out.csv").open())
             if row and not row[0].startswith(("#", "J", "j"))
         ]
     )
-    got = fk(p.model, rows[:, -6:], p.tool_matrix, p.joint_offsets_deg)[:, :3, 3]
+    got = fk(p.model, rows, p.tool_matrix, p.joint_offsets_deg)[:, :3, 3]
     want = np.array([pose_to_matrix(_tool_pose(profile_path, x))[:3, 3] for x in qs])
     assert np.max(np.linalg.norm(got - want, axis=1)) < 1e-6
 
@@ -269,11 +280,13 @@ def test_path_for_controller_lands_the_calibrated_robot(profile_path: Path, tmp_
     assert data["for_controller"] is True and data["nominal_model"] == "tx90l"
     assert data["points"] == 30 and data["max_correction_mm"] > 1.0
     rows = list(csv.reader(out.read_text().splitlines()))
-    assert rows[0] == ["X", "Y", "Z", "RX", "RY", "RZ"]
-    targets = np.array(rows[1:], float)
+    assert rows[0] == ["X", "Y", "Z", "RX", "RY", "RZ", "shoulder", "elbow", "wrist"]
+    targets = np.array([row[:6] for row in rows[1:]], float)
+    assert {tuple(row[6:]) for row in rows[1:]} == {("lefty", "epositive", "wpositive")}
 
     nominal = load_model("tx90l")
-    readings, _ = cartesian_path_to_joints(nominal, targets, p.tool_matrix, start_deg=q[0])
+    path = plan_joint_path(nominal, targets, p.tool_matrix, start_deg=q[0])
+    readings = path.joints_deg
     reached = fk(p.model, readings, p.tool_matrix, p.joint_offsets_deg)
     want = pose_to_matrix(poses)
     mm = np.linalg.norm(reached[:, :3, 3] - want[:, :3, 3], axis=-1)
@@ -285,7 +298,9 @@ def test_path_for_controller_lands_the_calibrated_robot(profile_path: Path, tmp_
     assert "controller targets" in r.stdout and "largest correction" in r.stdout
     r = ucal("path", str(profile_path), str(src), "-o", str(out), "--near", _csv(q[0]))
     assert r.returncode == 0, r.stderr
-    joints = np.array(list(csv.reader(out.read_text().splitlines()))[1:], float)
+    joints = np.array(
+        [row[:6] for row in list(csv.reader(out.read_text().splitlines()))[1:]], float
+    )
     np.testing.assert_allclose(joints, np.array(q), atol=1e-6)
 
 

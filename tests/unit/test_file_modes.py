@@ -77,4 +77,4 @@ def test_path_output_keeps_its_mode_or_follows_the_umask(
     out.chmod(0o600)
     assert run_main(["path", str(profile), str(poses), "-o", str(out)])[0] == 0
     assert mode(out) == 0o600 and out.read_bytes() == first
-    assert first.startswith(b"J1,J2,J3,J4,J5,J6\r\n")
+    assert first.startswith(b"J1,J2,J3,J4,J5,J6,shoulder,elbow,wrist\r\n")

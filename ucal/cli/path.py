@@ -1,6 +1,8 @@
-"""``ucal path``: a Cartesian tool path (CSV) to a continuous joint path (CSV), paper 004;
-with ``--for-controller``, to targets for the controller's nominal arm
-(``ucal.kinematics.filtering``)."""
+"""``ucal path``: a Cartesian tool path (CSV) to a continuous joint path in one arm
+configuration (CSV), paper 004 (``ucal.kinematics.path``); with ``--for-controller``, to
+targets for the controller's nominal arm (``ucal.kinematics.filtering``). Each output row
+carries its VAL3 configuration; a path that changes it, or whose joints jump, is refused
+unless asked for."""
 
 from __future__ import annotations
 
@@ -21,29 +23,36 @@ from ucal.cli.options import (
     json_option,
     output_option,
     parse_floats,
+    warn,
 )
-from ucal.errors import InputError
+from ucal.errors import InputError, SafetyError
+from ucal.kinematics.configuration import PARTS, ArmConfig
 from ucal.kinematics.filtering import controller_targets
-from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.kinematics.path import MAX_STEP_DEG, JointPath, PathChange, plan_joint_path
 from ucal.models import controller_model
 from ucal.profile import load_profile
 
-#: Column names of the output file: joint readings, or with ``--for-controller`` poses.
+#: Column names of the output file: joint readings, or with ``--for-controller`` poses, then
+#: the row's arm configuration as a VAL3 ``config`` names its fields.
 JOINT_HEADER = ("J1", "J2", "J3", "J4", "J5", "J6")
 POSE_HEADER = ("X", "Y", "Z", "RX", "RY", "RZ")
+CONFIG_HEADER = PARTS
 
 
-def read_pose_csv(path: Path) -> np.ndarray:
-    """Read rows ``X,Y,Z,RX,RY,RZ`` (mm, deg) → (n, 6); an optional header line is skipped.
+def read_pose_csv(path: Path) -> tuple[np.ndarray, list[int]]:
+    """Read rows ``X,Y,Z,RX,RY,RZ`` (mm, deg) → ``(poses (n, 6), line of each row)``; an
+    optional header line is skipped.
 
-    Blank lines and lines starting with ``#`` are ignored. Raises ``InputError`` (exit 2)
-    naming the file and the 1-based line of the first bad row.
+    Blank lines and lines starting with ``#`` are ignored; the lines are 1-based, as an
+    editor numbers them. Raises ``InputError`` (exit 2) naming the file and the line of the
+    first bad row.
     """
     try:
         text = Path(path).read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read: {e}") from None
     rows: list[list[float]] = []
+    lines: list[int] = []
     first = True
     for lineno, fields in enumerate(csv.reader(text.splitlines()), 1):
         if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):
@@ -64,9 +73,10 @@ def read_pose_csv(path: Path) -> np.ndarray:
                 f"got {len(values)} value(s)"
             )
         rows.append(values)
+        lines.append(lineno)
     if not rows:
         raise InputError(f"{path}: no pose rows (expected X,Y,Z,RX,RY,RZ per line)")
-    return np.array(rows)
+    return np.array(rows), lines
 
 
 def _is_number(text: str) -> bool:
@@ -77,18 +87,11 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def write_joint_csv(path: Path, joints_deg: np.ndarray) -> None:
-    """Write joint readings (n, 6) in degrees with a ``J1..J6`` header (``write_rows``)."""
-    write_rows(path, JOINT_HEADER, joints_deg)
-
-
-def write_pose_csv(path: Path, poses: np.ndarray) -> None:
-    """Write poses (n, 6) in mm and degrees with an ``X..RZ`` header (``write_rows``)."""
-    write_rows(path, POSE_HEADER, poses)
-
-
-def write_rows(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
-    """Write ``rows`` (n, 6) under ``header``, 9 decimals.
+def write_rows(
+    path: Path, header: tuple[str, ...], rows: np.ndarray, configs: tuple[ArmConfig, ...]
+) -> None:
+    """Write ``rows`` (n, 6), 9 decimals, each followed by its configuration's words, under
+    ``header`` and ``CONFIG_HEADER``.
 
     Written to a temporary file beside ``path`` and renamed (a replaced file keeps its mode,
     a new one gets the umask's); raises ``InputError`` (exit 2) naming the file when it cannot
@@ -96,9 +99,9 @@ def write_rows(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
     """
     text = io.StringIO(newline="")
     w = csv.writer(text)
-    w.writerow(header)
-    for row in rows:
-        w.writerow([f"{v:.9f}" for v in row])
+    w.writerow((*header, *CONFIG_HEADER))
+    for row, config in zip(rows, configs, strict=True):
+        w.writerow([*(f"{round(v, 9) + 0.0:.9f}" for v in row), *config.words()])  # no "-0"
     try:
         files.commit(files.stage(Path(path), text.getvalue().encode("utf-8")), Path(path))
     except OSError as e:
@@ -111,6 +114,7 @@ def write_rows(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
 Examples:
   ucal path cell.toml scan.csv -o scan_joints.csv
   ucal path cell.toml scan.csv -o scan_joints.csv --near 0,30,110,0,40,0 --json
+  ucal path cell.toml scan.csv -o scan_joints.csv --max-step-deg 10 --allow-config-change
   ucal path cell.toml scan.csv -o scan_targets.csv --for-controller
 """,
 )
@@ -123,13 +127,31 @@ Examples:
     "OUT.csv",
     click.Path(dir_okay=False, writable=True, path_type=Path),
     "File to write, one row per pose: J1..J6 readings (deg), or with --for-controller "
-    "X,Y,Z,RX,RY,RZ targets (mm, deg).",
+    "X,Y,Z,RX,RY,RZ targets (mm, deg), then the row's configuration: shoulder, elbow, wrist.",
 )
 @click.option(
     "--near",
     metavar="J1,...,J6",
     help="Joint readings (deg) the robot starts from; the first point takes the "
-    "solution nearest them (default all zeros).",
+    "solution nearest them, in any configuration (default all zeros).",
+)
+@click.option(
+    "--max-step-deg",
+    "limit_deg",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=MAX_STEP_DEG,
+    show_default=True,
+    metavar="DEG",
+    help="Largest change of any joint between consecutive points (deg); a larger one is "
+    "refused as a configuration change is.",
+)
+@click.option(
+    "--allow-config-change",
+    "allow",
+    is_flag=True,
+    help="Write a path whose configuration changes, or whose joints step more than "
+    "--max-step-deg, with a warning on stderr naming each such point (else exit 4, nothing "
+    "written).",
 )
 @click.option(
     "--for-controller",
@@ -144,25 +166,51 @@ def cli(
     in_path: Path,
     out_path: Path,
     near: str | None,
+    limit_deg: float,
+    allow: bool,
     for_controller: bool,
     as_json: bool,
 ) -> None:
-    """Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a continuous joint path.
+    """Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a joint path in one arm configuration.
+
+    \b
+    IN.csv: one pose per line; a header line, blank lines and lines
+    starting with # are skipped.
+      X, Y, Z     the tool centre point (the profile's [tool]) in the robot
+                  base frame, mm: origin on axis 1 at shoulder height, +Z up,
+                  +X where J1 = 0 points the arm
+      RX, RY, RZ  the tool frame's orientation, deg, as the controller's:
+                  Rot(x,RX) Rot(y,RY) Rot(z,RZ) about the moving axes; the
+                  beam leaves along tool +Z (180,0,180: straight down)
+
+    \b
+    OUT.csv: a header line, then one row per pose:
+      J1..J6      joint readings, deg, as the controller reads them (the
+                  profile's joint offsets taken out); with --for-controller
+                  X,Y,Z,RX,RY,RZ targets for the nominal arm instead
+      shoulder    lefty (wrist centre in front of axis 1) or righty (behind)
+      elbow       epositive (J3 >= 0) or enegative
+      wrist       wpositive (J5 >= 0) or wnegative
+    The last three are the row's VAL3 config, in the controller's words.
 
     Each point takes the solution nearest the previous one (paper 004's weighted shortest
-    distance), so a path through a wrist singularity does not flip joint 4 by 180 deg.
-    Prints the largest joint step. Exit 2 for a bad CSV row, 4 if a point is unreachable.
+    distance) in the previous point's configuration. Where no solution in that configuration
+    is inside the joint ranges and within --max-step-deg (the arm would swing round the back,
+    the wrist flip, the path cross a singularity), the path is refused: exit 4 naming the
+    point, its line, the joint and the step; --allow-config-change writes it with a warning
+    per point. Exit 2 for a bad CSV row, 4 if a point is unreachable. A sample scan for
+    `ucal profile init tx90l` ships as examples/scan.csv; docs/path.md has the details.
 
     With --for-controller each row is instead the pose to send a VAL3 movel (tool as
-    exported): the controller solves it with its own nominal model into the joint readings
-    that put the calibrated robot on the pose asked for. Start the path in the configuration
-    --near gives; a movel keeps it.
+    exported) in the row's configuration: the controller solves it with its own nominal
+    model into the joint readings that put the calibrated robot on the pose asked for.
+    Start the path in the configuration --near gives; a movel keeps it.
     """
 
     near_v = parse_floats(near, 6, "--near") if near is not None else None
     check_output(out_path)
     profile = load_profile(profile_path)
-    poses = read_pose_csv(in_path)
+    poses, lines = read_pose_csv(in_path)
     result: dict[str, Any] = {}
     if for_controller:
         nominal = controller_model(profile.model, profile_path)
@@ -173,9 +221,9 @@ def cli(
             profile.tool_matrix,
             profile.joint_offsets_deg,
             start_deg=near_v,
+            limit_deg=limit_deg,
         )
-        joints, step = filtered.joints_deg, filtered.max_step_deg
-        write_pose_csv(out_path, filtered.targets)
+        path, header, rows = filtered.path, POSE_HEADER, filtered.targets
         result = {
             "for_controller": True,
             "nominal_model": nominal.name,
@@ -184,29 +232,69 @@ def cli(
             "max_correction_deg": float(np.max(filtered.correction_deg)),
         }
     else:
-        joints, step = cartesian_path_to_joints(
-            profile.model, poses, profile.tool_matrix, profile.joint_offsets_deg, start_deg=near_v
+        path = plan_joint_path(
+            profile.model,
+            poses,
+            profile.tool_matrix,
+            profile.joint_offsets_deg,
+            start_deg=near_v,
+            limit_deg=limit_deg,
         )
-        write_joint_csv(out_path, joints)
+        header, rows = JOINT_HEADER, path.joints_deg
+    refuse_or_warn(path, in_path, lines, allow)
+    write_rows(out_path, header, rows, path.configs)
+    report(path, lines, out_path, result, as_json)
+
+
+def where(in_path: Path, lines: list[int], change: PathChange) -> str:
+    """``IN.csv point N (line L)``: the point a change leads into, as the user finds it."""
+    return f"{in_path} point {change.point} (line {lines[change.point - 1]})"
+
+
+def refuse_or_warn(path: JointPath, in_path: Path, lines: list[int], allow: bool) -> None:
+    """Refuse (``SafetyError``, exit 4) a path with a configuration change or a jump, naming the
+    first; with ``allow``, a warning line per such point instead."""
+    if path.changes and not allow:
+        first = path.changes[0]
+        more = len(path.changes) - 1
+        others = f" ({more} more point(s) after it)" if more else ""
+        raise SafetyError(
+            f"{where(in_path, lines, first)}: {first.describe()}{others}; refused, nothing "
+            "written (--allow-config-change writes the path anyway)"
+        )
+    for change in path.changes:
+        warn(f"{where(in_path, lines, change)}: {change.describe()}")
+
+
+def report(
+    path: JointPath, lines: list[int], out_path: Path, result: dict[str, Any], as_json: bool
+) -> None:
+    """Print what was written: the points, their configuration and the largest joint step."""
+    joints = path.joints_deg
     if len(joints) > 1:
         d = np.abs(np.diff(joints, axis=0))
         row, joint = np.unravel_index(int(np.argmax(d)), d.shape)
-        where: dict[str, int | None] = {"joint": int(joint) + 1, "row": int(row) + 2}
+        step_at: dict[str, int | None] = {"joint": int(joint) + 1, "row": int(row) + 2}
     else:
-        where = {"joint": None, "row": None}
+        step_at = {"joint": None, "row": None}
     if as_json:
         emit_json(
             {
                 "points": len(joints),
-                "max_step_deg": step,
-                "max_step_joint": where["joint"],
-                "max_step_row": where["row"],
+                "max_step_deg": path.max_step_deg,
+                "max_step_joint": step_at["joint"],
+                "max_step_row": step_at["row"],
                 "output": str(out_path),
                 **result,
+                "step_limit_deg": path.limit_deg,
+                "configurations": [c.to_json() for c in path.configs],
+                "configuration_changes": [
+                    {**c.to_json(), "line": lines[c.point - 1]} for c in path.changes
+                ],
             }
         )
         return
-    if for_controller:
+    if result:
         click.echo(
             f"wrote {len(joints)} controller targets to {out_path} "
             f"(nominal {result['nominal_model']} arm, the profile's tool)"
@@ -217,9 +305,18 @@ def cli(
         )
     else:
         click.echo(f"wrote {len(joints)} joint rows to {out_path}")
-    if where["joint"] is None:
+    if path.changes:
+        points = ", ".join(str(c.point) for c in path.changes)
+        click.echo(
+            f"configuration: {path.configs[0]} at point 1; changed or jumped into point(s) "
+            f"{points} (warned above)"
+        )
+    else:
+        click.echo(f"configuration: {path.configs[0]} (every point)")
+    if step_at["joint"] is None:
         click.echo("largest joint step: 0 deg (one point)")
     else:
         click.echo(
-            f"largest joint step: {step:.4f} deg (J{where['joint']}, into point {where['row']})"
+            f"largest joint step: {path.max_step_deg:.4f} deg "
+            f"(J{step_at['joint']}, into point {step_at['row']})"
         )

@@ -16,8 +16,9 @@ For each asked tool pose ``P`` (base frame, mm):
     (2)  P' = FK_N(q) · T
 
 (1) is the calibrated model's inverse kinematics (``ucal.kinematics.path``: the solution
-nearest the previous row's, so the path stays on one branch and joints 4 and 6 take their
-±360° equivalents continuously); (2) the nominal model's forward kinematics of the same
+nearest the previous row's in its arm configuration, so the path stays on one branch and joints
+4 and 6 take their ±360° equivalents continuously; the configurations are named with ``N``, as
+the controller names them from ``q``); (2) the nominal model's forward kinematics of the same
 readings. A VAL3 ``movel``/``movej`` to ``P'`` with tool ``T`` is solved by the controller's
 own inverse kinematics, ``IK_N(P')``; in the configuration the arm is in (a ``movel`` keeps
 it) that is ``q``, because ``FK_N(q) · T = P'`` and the closed form of ``N`` is exact. The
@@ -38,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ucal.kinematics.dh import RobotModel, fk
-from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.kinematics.path import MAX_STEP_DEG, JointPath, plan_joint_path
 from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_angle_deg
 
 log = logging.getLogger(__name__)
@@ -48,18 +49,26 @@ log = logging.getLogger(__name__)
 class ControllerTargets:
     """Filtered targets of a path and what they correct.
 
-    ``targets`` (n, 6): X, Y, Z, RX, RY, RZ (mm, deg) for the nominal arm; ``joints_deg``
-    (n, 6): the readings the controller reaches them with (``q`` of the module docstring);
-    ``correction_mm`` / ``correction_deg`` (n,): how far each target is from its asked pose
-    (position, rotation angle); ``max_step_deg``: the largest change of any joint between
-    consecutive rows.
+    ``targets`` (n, 6): X, Y, Z, RX, RY, RZ (mm, deg) for the nominal arm; ``path``: the
+    readings the controller reaches them with (``q`` of the module docstring), their arm
+    configurations and where those change; ``correction_mm`` / ``correction_deg`` (n,): how far
+    each target is from its asked pose (position, rotation angle).
     """
 
     targets: np.ndarray
-    joints_deg: np.ndarray
+    path: JointPath
     correction_mm: np.ndarray
     correction_deg: np.ndarray
-    max_step_deg: float
+
+    @property
+    def joints_deg(self) -> np.ndarray:
+        """The readings (n, 6) the controller reaches the targets with (deg)."""
+        return self.path.joints_deg
+
+    @property
+    def max_step_deg(self) -> float:
+        """The largest change of any joint between consecutive rows (deg)."""
+        return self.path.max_step_deg
 
 
 def controller_targets(
@@ -69,17 +78,26 @@ def controller_targets(
     tool_T: np.ndarray,
     offsets_deg: np.ndarray | None = None,
     start_deg: np.ndarray | None = None,
+    limit_deg: float = MAX_STEP_DEG,
 ) -> ControllerTargets:
     """Targets (n, 6) for ``nominal`` carrying ``tool_T`` (4, 4, relative to the flange) that
     put the ``calibrated`` robot (joint offsets ``offsets_deg``) on ``poses`` (n, 6:
     X, Y, Z, RX, RY, RZ in mm and deg), equations (1)–(2) of the module docstring.
 
-    ``start_deg`` is the configuration before the first row (default zeros). Raises
+    ``start_deg`` is the configuration before the first row (default zeros), ``limit_deg`` the
+    largest joint step between rows in one configuration (``plan_joint_path``). Raises
     ``UnreachableError`` naming the first pose the calibrated robot cannot reach in range.
     """
-    joints, step = cartesian_path_to_joints(
-        calibrated, poses, tool_T, offsets_deg, start_deg=start_deg
+    path = plan_joint_path(
+        calibrated,
+        poses,
+        tool_T,
+        offsets_deg,
+        start_deg=start_deg,
+        limit_deg=limit_deg,
+        config_model=nominal,
     )
+    joints = path.joints_deg
     target_T = fk(nominal, joints, tool_T)  # (2): zero offsets, the controller's own model
     asked_T = pose_to_matrix(np.asarray(poses, dtype=float))
     shift = np.linalg.norm(target_T[:, :3, 3] - asked_T[:, :3, 3], axis=-1)
@@ -90,4 +108,4 @@ def controller_targets(
         float(np.max(shift)),
         float(np.max(turn)),
     )
-    return ControllerTargets(matrix_to_pose(target_T), joints, shift, turn, step)
+    return ControllerTargets(matrix_to_pose(target_T), path, shift, turn)

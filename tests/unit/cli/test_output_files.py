@@ -83,7 +83,8 @@ def test_path_output_still_written(inputs: tuple[Path, Path], tmp_path: Path) ->
     profile, poses = inputs
     out = tmp_path / "joints.csv"
     assert exit_code(["path", str(profile), str(poses), "-o", str(out)]) == 0
-    assert out.read_text(encoding="utf-8").splitlines()[0] == "J1,J2,J3,J4,J5,J6"
+    header = out.read_text(encoding="utf-8").splitlines()[0]
+    assert header == "J1,J2,J3,J4,J5,J6,shoulder,elbow,wrist"
 
 
 def test_sim_serve_log_into_a_missing_directory(

@@ -10,7 +10,7 @@ from ucal.errors import UnreachableError
 from ucal.kinematics.dh import RobotModel, fk, transform
 from ucal.kinematics.filtering import controller_targets
 from ucal.kinematics.ik import ik
-from ucal.kinematics.path import cartesian_path_to_joints
+from ucal.kinematics.path import plan_joint_path
 from ucal.kinematics.rotations import (
     matrix_to_pose,
     pose_to_matrix,
@@ -58,7 +58,8 @@ def landing(
     """Largest position (mm) and rotation (deg) error of the calibrated robot at the readings
     the nominal model's IK gives for ``targets``, solved as a controller does: continuously
     from ``start``, no offsets."""
-    readings, _ = cartesian_path_to_joints(nominal, targets, TOOL, start_deg=start)
+    path = plan_joint_path(nominal, targets, TOOL, start_deg=start)
+    readings = path.joints_deg
     reached = fk(calibrated, readings, TOOL, offsets)
     want = pose_to_matrix(asked)
     mm = np.linalg.norm(reached[:, :3, 3] - want[:, :3, 3], axis=-1)
