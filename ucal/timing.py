@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.controller.simulator import DEFAULT_MAX_SPEED_DEG_S
+from drivers.pulser.modbus_words import rtu_read_line_s
 from drivers.pulser.registers import MEASUREMENT_COUNT
 
 #: Modbus TCP request/response on a cell network plus instrument turnaround (s): the
@@ -31,8 +32,6 @@ TCP_TURNAROUND_S = 0.001
 TCP_READ_S = TCP_TURNAROUND_S + NETWORK_LATENCY_S
 #: Instrument turnaround after a Modbus RTU request (s).
 RTU_TURNAROUND_S = 0.001
-#: Bits per character on the serial line (start, 8 data, parity, stop).
-RTU_BITS_PER_CHAR = 11
 #: Servo settling after a move, before the controller reports it done (s).
 SETTLE_S = 0.05
 #: Nominal maximum joint speeds (deg/s), J1..J6.
@@ -53,8 +52,7 @@ def device_transport_s(
         return TCP_TURNAROUND_S
     if framing != "rtu":
         raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
-    chars = 8 + 5 + 2 * registers + 2 * 3.5  # request, answer, two frame silences
-    return chars * RTU_BITS_PER_CHAR / baud + RTU_TURNAROUND_S
+    return rtu_read_line_s(registers, baud) + RTU_TURNAROUND_S
 
 
 def read_s(framing: str, averages: int = 1, prf_hz: float = 1000.0, baud: int = 19200) -> float:

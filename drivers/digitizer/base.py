@@ -132,8 +132,12 @@ class Digitizer(Device):
         instrument cannot take, sending nothing (the base takes any)."""
 
     @abc.abstractmethod
-    def acquire(self, timeout_s: float | None = None) -> AScanRecord:
-        """Make one acquisition (averaged as configured) and return its record in volts."""
+    def acquire(self, timeout_s: float | None = None, acquisition_s: float = 0.0) -> AScanRecord:
+        """Make one acquisition (averaged as configured) and return its record in volts.
+
+        ``timeout_s`` is the link's margin of each answer (None: the instrument's own);
+        ``acquisition_s`` (s) what the acquisition itself takes beyond it, its averages at
+        the trigger's rate (the pulser's PRF, which the instrument is not told)."""
 
     def identity(self) -> dict[str, object]:
         """What the instrument tells about itself."""

@@ -16,7 +16,9 @@ fit its memory (``memory_points``), then as fast as the memory allows; a record 
 sample of the range (``:WAV:POIN:MODE RAW``, ``:WAV:POIN MAX``).
 
 Acquisition policy: ``:DIGitize`` and ``:SINGle`` each make one acquisition (``signal`` is called
-once; ``averages`` > 1 in average mode); ``*OPC?`` then answers 1. ``:WAV:PRE?`` and
+once; ``averages`` > 1 in average mode); ``*OPC?`` then answers 1. The time the averages take
+at the trigger's rate is the signal's to let pass, as the simulated cell's does
+(``ucal.sim.serve``, scaled by its time scale). ``:WAV:PRE?`` and
 ``:WAV:DATA?`` describe the latest acquisition. An unknown header or a bad value puts an error
 in the queue (``:SYST:ERR?``: -113 undefined header, -222 data out of range, -224 illegal
 parameter value, -230 data stale) and the command is ignored, as a scope does.

@@ -260,15 +260,30 @@ class ScpiScope(RequestLink, Digitizer):
                 self._setup(changed, "configure")
             self._averages = int(averages)
 
-    def acquire(self, timeout_s: float | None = None) -> AScanRecord:
+    def acquire(self, timeout_s: float | None = None, acquisition_s: float = 0.0) -> AScanRecord:
         """One acquisition (``:DIG;*OPC?``), its preamble and its data, in volts.
 
-        ``timeout_s`` (s) bounds each of the three answers (None: the scope's ``timeout_s``).
+        ``*OPC?`` answers once the acquisition is complete: it may take ``acquisition_s`` (s,
+        the averages at the trigger's rate) and ``timeout_s`` (s) for the link (None: the
+        scope's ``timeout_s``); the preamble and the data, ``timeout_s`` each (VISA bounds each
+        read of a long record's block, not the whole). ``DeviceTimeout`` says how long it
+        waited and what of it was the acquisition.
         """
         wait = self._timeout_s if timeout_s is None else float(timeout_s)
+        if not (math.isfinite(acquisition_s) and acquisition_s >= 0):
+            raise ValueError(f"acquisition_s must be 0 or more seconds, got {acquisition_s!r}")
         with self._lock:
             self.connect()
-            done = self._query(":DIG;*OPC?", "acquire", wait)
+            try:
+                done = self._query(":DIG;*OPC?", "acquire", acquisition_s + wait)
+            except DeviceTimeout as exc:
+                raise DeviceTimeout(
+                    self.device,
+                    self._endpoint,
+                    f"acquire: no answer within {acquisition_s + wait:.3g} s "
+                    f"({acquisition_s:.3g} s of it for the acquisition of {self._averages} "
+                    f"averages, then timeout_s = {wait:g} s for the link)",
+                ) from exc
             if done.strip() not in ("1", "+1"):
                 raise ProtocolError(
                     self.device, self._endpoint, f"acquire: *OPC? answered {done!r}, not 1"

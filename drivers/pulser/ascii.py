@@ -19,6 +19,12 @@ time of flight and amplitude computed on the host from the record.
 
 A reading is always a new acquisition, so ``fresh`` costs nothing; ``counter`` is the scope's
 acquisition count since the connection opened.
+
+Timeouts. The scope, triggered by the pulser's sync output, completes an acquisition once it
+has averaged ``averages`` of them at the pulser's PRF: its completion may take that
+(``drivers.pulser.base.ReadingWait``, ``reading_wait``: 1 s for 1,000 averages at 1 kHz) plus
+``timeout_s``, the link's margin, and the record's preamble and data ``timeout_s`` each. A
+query on the serial line waits ``timeout_s``.
 """
 
 from __future__ import annotations
@@ -38,13 +44,14 @@ from drivers.digitizer.base import AScanRecord, Digitizer, EchoTimer, EchoTiming
 from drivers.digitizer.visa import ScpiScope
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import ascii_commands as cmd
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings, ReadingWait
 from drivers.pulser.urls import AsciiUrl, parse_ascii_url
 from drivers.serial_port import open_port
 
 log = logging.getLogger(__name__)
 
-#: Default time one query may wait for its answer, s.
+#: Default time one query may wait for its answer, and a reading beyond its acquisition
+#: (the link's margin), s.
 DEFAULT_TIMEOUT_S = 1.0
 #: Gate threshold of the host's gate, fraction of full screen height: weaker echoes give no
 #: time of flight (the Modbus pulser's power-on threshold).
@@ -360,10 +367,20 @@ class AsciiScpiPulser(PulserReceiver):
             out["settings_applied"] = self.settings_applied
         return out
 
+    def reading_wait(self, timeout_s: float | None = None) -> ReadingWait:
+        """How long one acquisition may take to complete (``ReadingWait``): the scope's
+        averages at the pulser's PRF as last configured (the defaults, 1 at 1 kHz, before
+        any), and ``timeout_s`` for the link (None: this back-end's)."""
+        return ReadingWait.of(
+            self._settings or PulserSettings(),
+            self._timeout_s if timeout_s is None else float(timeout_s),
+        )
+
     def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
         """One acquisition, timed on the host: the strongest echo in the gate; no time of
-        flight below the gate threshold. ``timeout_s`` bounds each answer of the scope (None:
-        this back-end's ``timeout_s``). Every reading is a new acquisition (``fresh``)."""
+        flight below the gate threshold. The scope's completion may take the acquisition and
+        ``timeout_s`` (``reading_wait``), its preamble and data ``timeout_s`` each (None: this
+        back-end's ``timeout_s``). Every reading is a new acquisition (``fresh``)."""
         if self.echo_timer is None:
             raise RuntimeError(
                 f"pulser at {self.endpoint}: no echo timer: this back-end only digitises, "
@@ -393,9 +410,11 @@ class AsciiScpiPulser(PulserReceiver):
     # --- beyond the interface ---------------------------------------------------------------
     def read_ascan_record(self, timeout_s: float | None = None) -> AScanRecord:
         """One acquisition with its time base, rails, step, clipping and counter, in fractions
-        of full screen height, stamped with ``self.clock`` on arrival."""
+        of full screen height, stamped with ``self.clock`` on arrival; waits as ``read_gate``
+        says."""
         self.connect()
-        record = self.digitizer.acquire(self._timeout_s if timeout_s is None else timeout_s)
+        wait = self.reading_wait(timeout_s)
+        record = self.digitizer.acquire(wait.link_s, acquisition_s=wait.acquisition_s)
         record = replace(record.scaled(1.0 / self.full_screen_v), host_time_s=self.clock.now())
         return record
 

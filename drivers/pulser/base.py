@@ -87,6 +87,56 @@ class PulserSettings:
         start_ns = self.gate_start_us * 1e3
         return start_ns, start_ns + self.gate_width_us * 1e3
 
+    @property
+    def acquisition_s(self) -> float:
+        """The time one reading's acquisition takes, s: ``averages`` pulses at ``prf_hz``
+        (1 s for 1,000 averages at 1 kHz)."""
+        return int(self.averages) / float(self.prf_hz)
+
+
+@dataclass(frozen=True)
+class ReadingWait:
+    """How long one reading may take, s: what the instrument was asked to do, then the link's
+    own margin.
+
+    The rule of every back-end: a reading's deadline (``total_s``) is its acquisition
+    (``acquisition_s``: ``averages`` pulses at ``prf_hz``), plus ``transfer_s``, the time its
+    bytes take on the link where the back-end knows it (a Modbus RTU line at its baud; 0 where
+    it is negligible), plus ``link_s``, the back-end's ``timeout_s``: the answer's latency and
+    a busy host, no longer the whole wait. 1,000 averages at 1 kHz with ``timeout_s = 1`` wait
+    2 s; 16 averages at 1 kHz wait 1.016 s.
+    """
+
+    averages: int
+    prf_hz: float
+    link_s: float
+    transfer_s: float = 0.0
+
+    @classmethod
+    def of(cls, settings: PulserSettings, link_s: float, transfer_s: float = 0.0) -> ReadingWait:
+        """The wait of a reading taken with ``settings``."""
+        return cls(int(settings.averages), float(settings.prf_hz), float(link_s), transfer_s)
+
+    @property
+    def acquisition_s(self) -> float:
+        """The pulses averaged, s."""
+        return self.averages / self.prf_hz
+
+    @property
+    def total_s(self) -> float:
+        """The reading's deadline from its start, s."""
+        return self.acquisition_s + self.transfer_s + self.link_s
+
+    def describe(self) -> str:
+        """What the wait is made of, for a timeout's message: ``1 s averaging 1000 pulses at
+        1000 Hz, then timeout_s = 1 s for the link``."""
+        pulses = "pulse" if self.averages == 1 else "pulses"
+        line = f", {self.transfer_s:.2g} s on the line" if self.transfer_s > 0 else ""
+        return (
+            f"{self.acquisition_s:.3g} s averaging {self.averages} {pulses} at "
+            f"{self.prf_hz:g} Hz{line}, then timeout_s = {self.link_s:g} s for the link"
+        )
+
 
 @dataclass(frozen=True)
 class GateReading:
@@ -140,8 +190,9 @@ class PulserReceiver(Device):
 
     @abc.abstractmethod
     def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
-        """One gated reading. With ``fresh`` wait for a counter newer than the last one read;
-        ``timeout_s`` bounds the wait (None: the back-end's own request timeout)."""
+        """One gated reading. With ``fresh`` wait for a counter newer than the last one read.
+        The wait is bounded by what the reading asks of the instrument and the link's margin
+        (``ReadingWait``): ``timeout_s`` is that margin (None: the back-end's own)."""
 
     def identity(self) -> dict[str, object]:
         """Optional: what the device tells about itself (model, firmware, serial, …)."""

@@ -13,6 +13,13 @@ Fault mapping (every message names the device ``pulser`` and its URL):
 - bytes back that never form a valid frame (bad CRC, wrong unit, truncated) → ``ProtocolError``;
 - connection refused, serial device missing, peer closed → ``ConnectionLost``.
 
+Timeouts. A reading's deadline is what it asks of the device plus the link's margin
+(``drivers.pulser.base.ReadingWait``, ``reading_wait``): the acquisition, ``averages`` pulses
+at ``prf_hz`` as last configured (1 s for 1,000 averages at 1 kHz), the measurement block's
+time on the line (Modbus RTU at the URL's baud: 22.9 ms at 19,200 baud; nothing over TCP), and
+``timeout_s``. An A-scan's transfer adds its samples' time on the line once its header has
+said how many there are. ``timeout_s`` is thus the link's margin, not the whole wait.
+
 Host timing. With an ``echo_timer`` (``drivers.digitizer.base.EchoTimer``; ucal injects its
 estimator when the profile says ``[pulser] timing = "ascan"``) every reading is timed on the
 host: the measurement block is read as always (the acquisition, its counter, and the device's
@@ -46,7 +53,7 @@ from drivers.digitizer.base import (
 )
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings, ReadingWait
 from drivers.pulser.map_file import register_map_of
 from drivers.pulser.modbus_link import (
     DEFAULT_RETRIES,
@@ -86,7 +93,8 @@ class ModbusPulser(ModbusLink, PulserReceiver):
     """The pulser-receiver over Modbus RTU or Modbus TCP.
 
     Build it with :meth:`from_url`. No I/O happens before :meth:`connect` (or the first call
-    that needs the device, which connects lazily). ``timeout_s`` bounds every request.
+    that needs the device, which connects lazily). ``timeout_s`` is the link's margin of every
+    request and reading beyond what it asks of the device (module docstring).
     ``register_map`` is the device's map (a ``RegisterMap`` or the path of a map file; None:
     ucal's own). ``port`` (RTU only) injects an already-open pyserial-compatible port instead
     of opening ``DEVICE``, e.g. a test double; it is closed by :meth:`close`.
@@ -123,9 +131,10 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         register_map: reg.RegisterMap | str | Path | None = None,
         retries: int = DEFAULT_RETRIES,
     ) -> ModbusPulser:
-        """Build a pulser from its URL; ``timeout_s`` (s) bounds every request, asked again
-        ``retries`` times when nothing at all came back; ``register_map`` is the device's map
-        (None: ucal's own).
+        """Build a pulser from its URL; ``timeout_s`` (s) is the link's margin of every
+        request beyond what it asks of the device (a reading: its acquisition), one asked
+        again ``retries`` times when nothing at all came back; ``register_map`` is the
+        device's map (None: ucal's own).
 
         ``url`` is ``modbus-tcp://HOST:PORT[?unit=N]`` or
         ``modbus-rtu://DEVICE[?baud=N&unit=N&parity=E]``. Raises ``ValueError`` for a
@@ -258,22 +267,39 @@ class ModbusPulser(ModbusLink, PulserReceiver):
             out["timing"] = str(label)
         return out
 
+    def reading_wait(self, timeout_s: float | None = None) -> ReadingWait:
+        """How long one reading may take (``ReadingWait``): the acquisition as last configured
+        (the device's power-on 1 average at 1 kHz before any ``configure``), the measurement
+        block's time on the line, and ``timeout_s`` for the link (None: the pulser's)."""
+        return ReadingWait.of(
+            self._settings or PulserSettings(),
+            self._timeout_s if timeout_s is None else float(timeout_s),
+            self._values_line_s(self._map.present(reg.MEASUREMENT)),
+        )
+
     def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
         """Read the gated peak amplitude and time of flight (ns, round trip).
 
         With ``fresh`` poll the measurement block until its counter differs from the last one
-        this object returned (the first call accepts any reading); ``timeout_s`` (s) bounds
-        the whole wait, then ``DeviceTimeout`` (None: the pulser's ``timeout_s``, so that a
-        simulated cell's generous guard is not cut short by a busy machine). ``host_time_s``
-        is ``self.clock.now()`` when the answer arrived. A gate ending after the pulse period
-        raises ``DeviceError``.
+        this object returned (the first call accepts any reading), each read allowed the
+        acquisition beyond the link's timeout (the device may answer once it has averaged).
+        The whole wait is bounded by ``reading_wait(timeout_s)``: the acquisition, the block's
+        time on the line and ``timeout_s`` (s; None: the pulser's, so that a simulated cell's
+        generous guard is not cut short by a busy machine), then ``DeviceTimeout`` saying how
+        long it waited and what of it was averaging. ``host_time_s`` is ``self.clock.now()``
+        when the answer arrived. A gate ending after the pulse period raises ``DeviceError``.
         """
-        if timeout_s is None:
-            timeout_s = self._timeout_s
-        deadline = time.monotonic() + float(timeout_s)
+        wait = self.reading_wait(timeout_s)
+        started = time.monotonic()
+        deadline = started + wait.total_s
         measurement = self._map.present(reg.MEASUREMENT)
         while True:
-            words = self._read_values(measurement, "read gate", deadline)
+            try:
+                words = self._read_values(
+                    measurement, "read gate", deadline, busy_s=wait.acquisition_s
+                )
+            except DeviceTimeout as exc:
+                raise self._late_reading("no answer", wait, started) from exc
             host_time_s = self.clock.now()
             m = self._map.decode_measurement(words)
             counter = m.counter
@@ -283,10 +309,8 @@ class ModbusPulser(ModbusLink, PulserReceiver):
                 break
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise DeviceTimeout(
-                    self.device,
-                    self._endpoint,
-                    f"no new reading within {timeout_s:g} s (counter stays at {counter})",
+                raise self._late_reading(
+                    "no new reading", wait, started, f"counter stays at {counter}"
                 )
             time.sleep(min(POLL_INTERVAL_S, remaining))
         self._last_counter = counter
@@ -314,6 +338,17 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         if self.echo_timer is None or not math.isfinite(tof_ns):
             return reading
         return self._timed_on_host(reading, self.echo_timer, deadline)
+
+    def _late_reading(
+        self, what: str, wait: ReadingWait, started: float, note: str = ""
+    ) -> DeviceTimeout:
+        """The timeout of a reading: ``what`` did not come, how long that was, ``note``, and
+        what the wait was made of."""
+        waited_s = time.monotonic() - started
+        why = f"{note}; {wait.describe()}" if note else wait.describe()
+        return DeviceTimeout(
+            self.device, self._endpoint, f"read gate: {what} within {waited_s:.3g} s ({why})"
+        )
 
     def _timed_on_host(
         self, reading: GateReading, timer: EchoTimer, deadline: float
@@ -345,7 +380,8 @@ class ModbusPulser(ModbusLink, PulserReceiver):
 
     # --- beyond the interface ---------------------------------------------------------------
     def read_ascan_trace(self, timeout_s: float = 2.0) -> AScan:
-        """Read the A-scan with its time base; ``timeout_s`` (s) bounds the whole transfer.
+        """Read the A-scan with its time base; the whole transfer may take its samples' time
+        on the line and ``timeout_s`` (s) for the link.
 
         Reading the header makes the device freeze the A-scan of its latest acquisition; the
         samples are then read in blocks of at most 125 registers.
@@ -381,8 +417,8 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         """The A-scan of the latest acquisition as a record (fractions of full screen height,
         the ADC's step and rails, stamped with ``self.clock`` on arrival): the samples within
         ``half_width_ns`` (None: the echo timer's window, else ``DEFAULT_WINDOW_NS``) of
-        ``centre_ns``, or the whole A-scan when ``centre_ns`` is None. ``timeout_s`` bounds
-        the transfer."""
+        ``centre_ns``, or the whole A-scan when ``centre_ns`` is None. The transfer may take
+        the samples' time on the line and ``timeout_s`` for the link."""
         deadline = time.monotonic() + float(timeout_s)
         sample_register, header = self._ascan_header(deadline)
         if not (0 < header.length <= sample_register.words):
@@ -442,15 +478,19 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         self, r: reg.Register, first: int, stop: int, deadline: float, timeout_s: float
     ) -> list[int]:
         """Samples ``first`` … ``stop - 1`` of the frozen A-scan, in blocks of at most 125
-        registers; ``DeviceTimeout`` past ``deadline`` (``timeout_s`` after the transfer began)."""
+        registers; ``DeviceTimeout`` past ``deadline`` (``timeout_s`` after the transfer began)
+        and the samples' time on the line."""
+        line_s = self._line_s(stop - first)
+        deadline += line_s
         words: list[int] = []
         while first + len(words) < stop:
             if time.monotonic() >= deadline:
+                on_line = f", {line_s:.2g} s of it their time on the line" if line_s else ""
                 raise DeviceTimeout(
                     self.device,
                     self._endpoint,
                     f"A-scan of {stop - first} samples not read within "
-                    f"{timeout_s:g} s ({len(words)} read)",
+                    f"{timeout_s + line_s:.3g} s ({len(words)} read{on_line})",
                 )
             count = min(reg.MAX_READ_REGISTERS, stop - first - len(words))
             words += self._read(

@@ -4,6 +4,11 @@ pyserial fault mapped to ``drivers.errors`` (``drivers.pulser.modbus`` lists the
 DEBUG log of every frame (``WRITE:``/``READ:`` in hex), and the registers of the map read and
 written by name. ``drivers.pulser.modbus.ModbusPulser`` derives from :class:`ModbusLink` and
 gives the registers their meaning.
+
+A read's timeout is the link's ``timeout_s`` plus what the read itself takes: over RTU the
+time its frames take on the line at the URL's baud (``rtu_read_line_s``; over TCP none), and
+for a read that makes the device acquire, the acquisition (``busy_s``); a deadline of the
+whole operation shortens it. A write waits ``timeout_s``.
 """
 
 from __future__ import annotations
@@ -25,13 +30,15 @@ from serial import SerialException
 from drivers.device import RequestLink
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import registers as reg
+from drivers.pulser.modbus_words import rtu_read_line_s
 from drivers.pulser.urls import PulserUrl
 from drivers.serial_port import SocketPort as _SocketPort
 
 # The pulser's frames and faults are logged under the name of its driver.
 log = logging.getLogger("drivers.pulser.modbus")
 
-#: Default time one request may wait for its answer, s.
+#: Default time one request may wait for its answer beyond what the request itself takes
+#: (its frames on the line, an acquisition it makes): the link's margin, s.
 DEFAULT_TIMEOUT_S = 1.0
 #: Times a request that got no byte back is asked again before the device counts as silent.
 DEFAULT_RETRIES = 1
@@ -52,8 +59,9 @@ class _NoFrame(Exception):
 class ModbusLink(RequestLink):
     """A Modbus device's link and register map (see the module docstring).
 
-    ``url`` says the framing and where the device is; ``timeout_s`` (s) bounds every request,
-    asked again ``retries`` times (0 … 10) when nothing at all came back; ``port`` (RTU only)
+    ``url`` says the framing and where the device is; ``timeout_s`` (s) is the link's margin
+    of every request beyond what the request takes (module docstring), one asked again
+    ``retries`` times (0 … 10) when nothing at all came back; ``port`` (RTU only)
     injects an already-open pyserial-compatible port. The driver sets ``_map``, its register
     map, and defines ``connect``, which a request calls first when the link is not open.
     """
@@ -163,6 +171,13 @@ class ModbusLink(RequestLink):
             )
         self._write_values([(r, r.encode(r.names[name]))], name.replace("_", " "))
 
+    def _line_s(self, registers: int) -> float:
+        """Time on the line of reading ``registers`` registers, s: over RTU at the URL's baud
+        (``rtu_read_line_s``), over TCP none (a network carries them in microseconds)."""
+        if self._url.framing != "rtu":
+            return 0.0
+        return rtu_read_line_s(registers, self._url.baud)
+
     def _on_device(self, r: reg.Register) -> bool:
         """Whether the connected device has ``r`` (its map version is recent enough)."""
         return r.min_version is None or (self._map_version or 0) >= r.min_version
@@ -174,16 +189,29 @@ class ModbusLink(RequestLink):
         deadline: float | None = None,
         *,
         autoconnect: bool = True,
+        busy_s: float = 0.0,
     ) -> dict[str, list[int]]:
-        """Read ``registers`` in as few requests as the map allows; their words by name."""
+        """Read ``registers`` in as few requests as the map allows; their words by name.
+        ``busy_s`` (s): what the device takes before it answers (an acquisition the read
+        makes), beyond the link's timeout."""
         requests = self._map.read_requests(registers)
         answers = [
             self._read(
-                READ_FUNCTION[table], address, count, what, deadline, autoconnect=autoconnect
+                READ_FUNCTION[table],
+                address,
+                count,
+                what,
+                deadline,
+                autoconnect=autoconnect,
+                busy_s=busy_s,
             )
             for table, address, count in requests
         ]
         return self._map.pick(registers, requests, answers)
+
+    def _values_line_s(self, registers: Sequence[reg.Register]) -> float:
+        """Time on the line of reading ``registers`` (the requests ``_read_values`` makes), s."""
+        return sum(self._line_s(count) for _, _, count in self._map.read_requests(registers))
 
     def _write_values(self, entries: Sequence[tuple[reg.Register, list[int]]], what: str) -> None:
         """Write registers and their words, neighbours in one FC 16 request."""
@@ -222,12 +250,23 @@ class ModbusLink(RequestLink):
         deadline: float | None = None,
         *,
         autoconnect: bool = True,
+        busy_s: float = 0.0,
     ) -> list[int]:
+        """One read request; it may take its frames' time on the line and ``busy_s`` beyond
+        the link's timeout."""
         if function == reg.FunctionCode.READ_HOLDING_REGISTERS:
             call: Callable[..., Any] = self._client.read_holding_registers
         else:
             call = self._client.read_input_registers
-        response = self._execute(what, deadline, autoconnect, call, address, count=count)
+        response = self._execute(
+            what,
+            deadline,
+            autoconnect,
+            call,
+            address,
+            count=count,
+            beyond_s=busy_s + self._line_s(count),
+        )
         registers = list(response.registers)
         if len(registers) != count:
             raise ProtocolError(
@@ -247,18 +286,20 @@ class ModbusLink(RequestLink):
         autoconnect: bool,
         call: Callable[..., Any],
         *args: Any,
+        beyond_s: float = 0.0,
         **kwargs: Any,
     ) -> Any:
         """Run one request; map every pymodbus/pyserial fault to a ``drivers.errors`` type.
 
-        ``deadline`` (``time.monotonic()`` s) shortens the request timeout; ``autoconnect``
+        The request may take ``beyond_s`` (s: its frames on the line, an acquisition) plus the
+        link's timeout; ``deadline`` (``time.monotonic()`` s) shortens that; ``autoconnect``
         connects first when the pulser is not connected yet.
         """
         with self._lock:
             for attempt in range(self._retries + 1):
                 if autoconnect and not self._connected:
                     self.connect()
-                timeout_s = self._timeout_s
+                timeout_s = self._timeout_s + beyond_s
                 if deadline is not None:
                     timeout_s = min(
                         timeout_s, max(deadline - time.monotonic(), MIN_REQUEST_TIMEOUT_S)

@@ -23,8 +23,10 @@ or samples (a simulated cell charges the transfer's time to its clock).
 Acquisition policy (deterministic): every read of the measurement block — a read that holds
 the map's ``measurement_trigger``, the reading's register the client reads first — is one new
 acquisition: ``model`` is called once, the counter advances by one and the device clock is
-sampled, and the read returns it. So ``read_gate(fresh=True)`` costs one round trip. The
-``trigger`` command acquires too. Reading the A-scan header (its ``ascan_trigger``) freezes the
+sampled, and the read returns it. So ``read_gate(fresh=True)`` costs one round trip; the
+time the acquisition takes (``averages`` pulses at ``prf_hz``) is the model's to let pass, as
+the simulated cell's does (``ucal.sim.serve``, scaled by its time scale). The ``trigger``
+command acquires too. Reading the A-scan header (its ``ascan_trigger``) freezes the
 A-scan of the latest acquisition (acquiring first if there was none). A read or write of an
 address the map does not declare is refused (illegal data address), a written value outside
 the register's range or values too (illegal data value).

@@ -233,7 +233,7 @@ class SimulatedCellServer(Served):
         """
         world = self.world.timing
         rng = self._transport_rng
-        pulses_s = max(int(settings.averages), 1) / float(settings.prf_hz)
+        pulses_s = settings.acquisition_s
         transport_s = timing.device_transport_s(self.pulser_framing) + world.pulser_latency_s
         jitter = world.pulser_jitter_s * np.abs(rng.standard_normal(2))
         self._let_pass(0.5 * transport_s + float(jitter[0]) + pulses_s)

@@ -39,6 +39,7 @@ class FakeDigitizer(Digitizer):
     def __init__(self, records: list[AScanRecord] | None = None):
         self.windows: list[tuple[float, float, int]] = []
         self.records = list(records or [])
+        self.waits: list[tuple[float | None, float]] = []  # (timeout_s, acquisition_s) asked
 
     @property
     def endpoint(self) -> str:
@@ -53,7 +54,8 @@ class FakeDigitizer(Digitizer):
     def configure(self, start_ns: float, width_ns: float, averages: int) -> None:
         self.windows.append((start_ns, width_ns, averages))
 
-    def acquire(self, timeout_s: float | None = None) -> AScanRecord:
+    def acquire(self, timeout_s: float | None = None, acquisition_s: float = 0.0) -> AScanRecord:
+        self.waits.append((timeout_s, acquisition_s))
         return self.records.pop(0)
 
 
@@ -257,4 +259,27 @@ def test_a_reading_is_the_host_timers_echo_in_full_screen_units_above_the_thresh
     assert seen[0][0].rails == (-2.0, 2.0)  # volts → fractions of full screen
     weak = pulser.read_gate()  # 0.01 of full screen: below the 0.02 threshold
     assert weak.amplitude == pytest.approx(0.01) and math.isnan(weak.tof_ns)
+    port.assert_done()
+
+
+def test_the_scope_may_take_its_averages_at_the_pulsers_prf_beyond_the_link_timeout() -> None:
+    """1,000 averages at 500 Hz: 2 s of averaging for the scope's completion, then the link's
+    0.05 s; the deadline follows what was configured."""
+    digitizer = FakeDigitizer([record([0.0, 0.25, 0.0])])
+    pulser, port = back_end(
+        *set_pair("G", 200),
+        *set_pair("P", 50),
+        *set_pair("V", 100),
+        *set_pair("D", 0),
+        *set_pair("L", 2),
+        digitizer=digitizer,
+        echo_timer=lambda rec, gate: EchoTiming(0.5, 5005.0, 0.1, "test"),
+    )
+    assert pulser.reading_wait().total_s == pytest.approx(0.001 + 0.05)  # before configure
+    pulser.configure(PulserSettings(prf_hz=500.0, averages=1000))
+    wait = pulser.reading_wait()
+    assert (wait.acquisition_s, wait.transfer_s, wait.link_s) == (2.0, 0.0, 0.05)
+    assert wait.total_s == pytest.approx(2.05)
+    assert pulser.read_gate().has_echo
+    assert digitizer.waits == [(0.05, 2.0)]  # the link's margin, and the averaging beyond it
     port.assert_done()

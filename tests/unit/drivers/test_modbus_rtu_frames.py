@@ -21,6 +21,7 @@ from pymodbus.pdu.register_message import (
 from drivers.errors import DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
+from drivers.pulser.modbus_words import rtu_read_line_s
 
 from doubles import ScriptedPort, crc16_modbus
 
@@ -182,7 +183,9 @@ def test_a_stale_counter_times_out_after_the_read_or_else_the_pulser_timeout(
     with pulser:
         pulser.read_gate()
         with pytest.raises(
-            DeviceTimeout, match=r"no new reading within 0.3 s \(counter stays at 7\)"
+            DeviceTimeout,
+            match=r"no new reading within 0\.3\d* s \(counter stays at 7; 0\.001 s averaging 1 "
+            r"pulse at 1000 Hz, .* then timeout_s = 0\.3 s for the link\)",
         ):
             pulser.read_gate(fresh=True, timeout_s=read_timeout_s)
 
@@ -271,3 +274,119 @@ def test_a_whole_reply_past_the_deadline_is_a_reply_and_a_stream_is_not() -> Non
         pulser._trace_packet(False, GATE_REPLY[:-1] + bytes([GATE_REPLY[-1] ^ 0x01]))
     with pytest.raises(_NoFrame):
         pulser._trace_packet(False, b"\x00garbage")
+
+
+# --- a reading's deadline: what it asks of the device, then the link's margin ----------------
+def write_settings(prf_hz: int, averages: int) -> bytes:
+    """The FC 16 frame of the default settings but ``prf_hz`` and ``averages``."""
+    body = (
+        h("01 10 00 00 00 07 0E 00 C8")
+        + prf_hz.to_bytes(2, "big")
+        + h("00 00 13 88 00 03 0D 40")
+        + averages.to_bytes(2, "big")
+    )
+    return body + crc16_modbus(body)
+
+
+class AveragingPort(ScriptedPort):
+    """A scripted port whose device answers a gate read once it has averaged: ``answer_s``
+    after the request."""
+
+    def __init__(self, dialogue: list[tuple[bytes, bytes | None]], answer_s: float):
+        super().__init__(dialogue)
+        self.answer_s = answer_s
+        self._held = b""
+        self._due = 0.0
+
+    def write(self, data: bytes) -> int:
+        before = len(self.rx)
+        sent = super().write(data)
+        if bytes(data) == READ_GATE:
+            self._held, self._due = bytes(self.rx[before:]), time.monotonic() + self.answer_s
+            del self.rx[before:]
+        return sent
+
+    def _release(self) -> None:
+        if self._held and time.monotonic() >= self._due:
+            self.rx += self._held
+            self._held = b""
+
+    @property
+    def in_waiting(self) -> int:
+        self._release()
+        return len(self.rx)
+
+    def read(self, size: int = 1) -> bytes:
+        self._release()
+        return super().read(size)
+
+
+def test_the_settings_frame_of_the_deadline_tests_is_the_default_one_at_1000_hz() -> None:
+    assert write_settings(1000, 1) == WRITE_SETTINGS
+
+
+@pytest.mark.parametrize(
+    ("averages", "prf_hz", "timeout_s", "total_s"),
+    [(1, 1000, 0.2, 0.201), (16, 1000, 1.0, 1.016), (1000, 1000, 1.0, 2.0), (1000, 200, 1.0, 6.0)],
+)
+def test_the_deadline_is_the_averaging_as_configured_the_line_and_the_link(
+    averages: int, prf_hz: int, timeout_s: float, total_s: float
+) -> None:
+    pulser, port = scripted(
+        [(write_settings(prf_hz, averages), WRITE_SETTINGS_REPLY)], timeout_s=timeout_s
+    )
+    line_s = rtu_read_line_s(10, 115200)  # the measurement block at the URL's baud: 3.8 ms
+    with pulser:
+        assert pulser.reading_wait().total_s == pytest.approx(0.001 + line_s + timeout_s)
+        pulser.configure(PulserSettings(prf_hz=prf_hz, averages=averages))
+        wait = pulser.reading_wait()
+        assert wait.acquisition_s == pytest.approx(averages / prf_hz)
+        assert (wait.transfer_s, wait.link_s) == (pytest.approx(line_s), timeout_s)
+        assert wait.total_s == pytest.approx(total_s + line_s)
+        assert pulser.reading_wait(0.05).total_s == pytest.approx(
+            total_s - timeout_s + line_s + 0.05
+        )
+    port.assert_done()
+
+
+def test_a_reading_of_many_averages_longer_than_the_link_timeout_succeeds() -> None:
+    """60 averages at 200 Hz: the device answers once it has averaged, after 0.3 s, longer
+    than the link's 0.2 s (once the whole wait); the reading may take 0.3 s more than that."""
+    port = AveragingPort(
+        [
+            (IDENTIFY, IDENTIFY_REPLY),
+            (write_settings(200, 60), WRITE_SETTINGS_REPLY),
+            (READ_GATE, GATE_REPLY),
+        ],
+        answer_s=0.3,
+    )
+    pulser = ModbusPulser(URL, timeout_s=0.2, port=port)
+    with pulser:
+        pulser.configure(PulserSettings(prf_hz=200, averages=60))
+        assert pulser.reading_wait().total_s == pytest.approx(0.3 + 0.0038 + 0.2, abs=1e-4)
+        reading = pulser.read_gate()
+    port.assert_done()
+    assert (reading.counter, reading.tof_ns) == (7, 40000.0)
+
+
+def test_a_silent_device_is_still_a_timeout_naming_it_and_its_averaging() -> None:
+    port = ScriptedPort(
+        [
+            (IDENTIFY, IDENTIFY_REPLY),
+            (write_settings(200, 20), WRITE_SETTINGS_REPLY),
+            (READ_GATE, None),
+        ]
+    )
+    pulser = ModbusPulser(URL, timeout_s=0.05, port=port)
+    with pulser:
+        pulser.configure(PulserSettings(prf_hz=200, averages=20))
+        with pytest.raises(DeviceTimeout) as info:
+            pulser.read_gate()
+    port.assert_done()
+    assert info.value.device == "pulser"
+    message = str(info.value)
+    assert message.startswith(f"pulser at {URL}: read gate: no answer within 0.1")
+    assert message.endswith(
+        "(0.1 s averaging 20 pulses at 200 Hz, 0.0038 s on the line, then timeout_s = 0.05 s "
+        "for the link)"
+    )

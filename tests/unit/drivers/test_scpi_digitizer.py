@@ -209,3 +209,47 @@ def test_no_answer_is_a_timeout_naming_the_digitizer() -> None:
         device.acquire(timeout_s=0.05)
     resource.assert_done()
     assert resource.closed  # a late answer must not be read as the next one's
+
+
+class TimedResource(ScriptedVisaResource):
+    """The scripted resource, keeping the timeout (ms) of every read."""
+
+    def __init__(self, dialogue: list[tuple[bytes, bytes | None]]):
+        super().__init__(dialogue)
+        self.read_timeouts_ms: list[float] = []
+
+    def read_raw(self) -> bytes:
+        self.read_timeouts_ms.append(self.timeout)
+        return super().read_raw()
+
+    def read_bytes(self, count: int, break_on_termchar: bool = False) -> bytes:
+        self.read_timeouts_ms.append(self.timeout)
+        return super().read_bytes(count, break_on_termchar)
+
+
+def test_the_completion_may_take_the_acquisition_beyond_the_link_timeout() -> None:
+    resource = TimedResource([IDN, SETUP, CONFIGURE_8, ACQUIRE, PREAMBLE, DATA])
+    device = ScpiScope(URL, 0.5, resource=resource)
+    device.configure(5000.0, 400_000.0, 8)
+    record = device.acquire(timeout_s=0.25, acquisition_s=1.5)
+    resource.assert_done()
+    assert record.averages == 8
+    # after identify, set up and configure (0.5 s each): *OPC? 1.5 s averaging + 0.25 s, then
+    # the preamble and every read of the data block 0.25 s
+    assert resource.read_timeouts_ms[:4] == [500.0, 500.0, 500.0, 1750.0]
+    assert set(resource.read_timeouts_ms[4:]) == {250.0}
+
+
+def test_an_acquisition_that_never_completes_says_what_of_the_wait_was_averaging() -> None:
+    device, resource = scope(CONFIGURE_8, (ACQUIRE[0], None))
+    device.configure(5000.0, 400_000.0, 8)
+    with pytest.raises(DeviceTimeout) as info:
+        device.acquire(timeout_s=0.05, acquisition_s=0.016)
+    resource.assert_done()
+    assert info.value.device == "digitizer"
+    assert str(info.value).endswith(
+        "acquire: no answer within 0.066 s (0.016 s of it for the acquisition of 8 averages, "
+        "then timeout_s = 0.05 s for the link)"
+    )
+    with pytest.raises(ValueError, match="acquisition_s"):
+        device.acquire(timeout_s=0.05, acquisition_s=-1.0)
