@@ -529,3 +529,52 @@ def test_a_declared_step_is_planned_around_and_the_offsets_recovered(tmp_path):
     found = np.array(out["joint_offsets_deg"][1:5])
     truth = np.array(out["truth_offsets_deg"][1:5])
     assert np.all(np.abs(found - truth) <= 3.0 * np.array(out["std_deg"][1:5])), (found, truth)
+
+
+#: A fresh tx90l cell within every declared tolerance (offsets to 2.6°, a 10° holder), which
+#: was refused after 159 moves: the run stepped the second azimuth the way the plan had not
+#: checked, and joint 5 met its search margin there.
+HOLDER_WORLD = """\
+[robot]
+joint_offsets_deg = [-0.370747, 1.713852, -1.911889, -1.419690, -0.160139, -2.637228]
+[tool]
+position_mm = [17.420718, 2.790468, 79.648905]
+rotation_deg = [-0.955436, 9.035140, 0.642222]
+[sample]
+position_mm = [256.320144, 93.565964, -281.776434]
+rotation_deg = [0.921329, 0.850985, -0.352443]
+[noise]
+tof_ns = 0.5
+amplitude = 0.01
+seed = 429458075
+"""
+
+
+def test_a_cell_within_its_tolerances_is_never_refused_after_the_first_motion(
+    tmp_path, monkeypatch
+):
+    from ucal.rig import Rig
+
+    profile = tmp_path / "cell.toml"
+    create_profile(profile, "tx90l")
+    write_profile(
+        profile,
+        {"tool": {"position_mm": [18.635, 2.161, 80.783], "rotation_deg": [0.0, 10.0, 0.0]}},
+        "a 10 degree holder",
+    )
+    world = tmp_path / "world.toml"
+    world.write_text(HOLDER_WORLD)
+    moves = {"n": 0}
+    move = Rig.move
+
+    def counted(self, q, speed=None):
+        moves["n"] += 1
+        return move(self, q, speed)
+
+    monkeypatch.setattr(Rig, "move", counted)
+    out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "-q")
+    if out.returncode == 4:  # a refusal comes before the first motion, or not at all
+        assert moves["n"] == 0, out.stderr
+    else:
+        assert out.returncode == 0, out.stderr
+        assert json.loads(out.stdout)["written"]

@@ -46,6 +46,7 @@ from ucal.calibration.safety import (
     move_advice,
     tolerance_margins,
 )
+from ucal.calibration.spread import aim_spread
 from ucal.calibration.wrist import aim_wrist, search_joints
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError
@@ -96,10 +97,25 @@ class CalibrationPlan:
     #: Targets measured again from above at the end (each joint's lost motion:
     #: ``ucal.calibration.sequence.with_lost_motion``); none by default.
     above: tuple[PlannedTarget, ...] = ()
+    #: The signed steps (deg) of each stepped configuration whose wrist postures keep the
+    #: room the declared tolerances need (``checked_steps``): the run steps by one of them
+    #: only. None: any (a plan built without it).
+    steps_checked: dict[Configuration, tuple[float, ...]] | None = None
 
     @property
     def configs(self) -> tuple[Configuration, ...]:
         return tuple(dict.fromkeys(t.config for t in self.targets))
+
+    def step_candidates(self, config: Configuration) -> tuple[float, ...]:
+        """Step magnitudes (deg) the run may take for ``config``, the planned one first,
+        then smaller ones (not below ``min_step_deg`` on joints 2 and 3)."""
+        planned = self.step_of(config)
+        if config == Configuration.J1:
+            pool = [s for s in AZIMUTH_STEPS_DEG if s <= planned]
+        else:
+            pool = [s for s in ARM_STEPS_DEG if self.min_step_deg <= s <= planned]
+            pool.append(self.min_step_deg)
+        return tuple(sorted(set(pool) | {planned}, reverse=True))
 
     def step_of(self, config: Configuration) -> float:
         """Planned step (deg) of ``config`` (0 for the base)."""
@@ -348,6 +364,39 @@ def _plan_at(
     )
 
 
+def checked_steps(
+    profile: CellProfile, geom: CellGeometry, plan: CalibrationPlan
+) -> dict[Configuration, tuple[float, ...]]:
+    """The signed steps of each stepped configuration of ``plan`` (``step_candidates``, each
+    way) whose wrist postures, the beam aimed at each face with joint 6 as planned, keep the
+    room the wrist search and the declared tolerances need (``check_joints`` with the
+    posture's ``aim_spread``). The run chooses the sign and may step less (``ucal.calibration.
+    sequence.choose_step``): each step it may take is checked here, before the first motion."""
+    offsets = profile.joint_offsets_deg
+    out: dict[Configuration, tuple[float, ...]] = {}
+    for config in plan.configs:
+        if config == Configuration.BASE:
+            continue
+        targets = [t for t in plan.targets if t.config == config]
+        passing = []
+        for magnitude in plan.step_candidates(config):
+            for step in (magnitude, -magnitude):
+                arm = config_arm(plan.pose_deg, config, step)
+                try:
+                    for t in targets:
+                        start = arm.copy()
+                        start[3:] = t.joints_deg[3:]
+                        q = aim_wrist(geom, start, -geom.normal(t.face), offsets)
+                        spread = aim_spread(profile, geom, q, t.face, offsets)
+                        check_joints(profile, q, f"{config} by {step:+g} deg", spread=spread)
+                except SafetyError as e:
+                    log.info("%s: not stepped by %+g deg (%s)", config, step, e)
+                    continue
+                passing.append(step)
+        out[config] = tuple(passing)
+    return out
+
+
 def plan_calibration(profile: CellProfile) -> CalibrationPlan:
     """Plan and check every target before the first motion (``SafetyError``, exit 4).
 
@@ -375,7 +424,10 @@ def plan_calibration(profile: CellProfile) -> CalibrationPlan:
             )
         gains = plan_amplification(profile, plan)
         return replace(
-            plan, sound_speed_gain_deg_per_m_s=gains[0], distance_noise_gain_deg_per_um=gains[1]
+            plan,
+            sound_speed_gain_deg_per_m_s=gains[0],
+            distance_noise_gain_deg_per_um=gains[1],
+            steps_checked=checked_steps(profile, geom, plan),
         )
     _, lever = tool_lever(profile)
     w = profile.sample_matrix[:3, :3] @ np.full(3, lever + profile.procedure.water_path_mm)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from ucal.calibration.model import FACE_NAMES, CellGeometry, beam_and_tcp
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
+
+if TYPE_CHECKING:
+    from ucal.calibration.spread import Spread
 
 #: Room kept inside the joint ranges of joints 4–6 for a wrist search around a planned posture.
 SEARCH_MARGIN_DEG = 8.0
@@ -119,28 +123,50 @@ def check_joints(
     label: str,
     wrist_margin_deg: float = SEARCH_MARGIN_DEG,
     tolerance_deg: float = 0.0,
+    spread: Spread | None = None,
 ) -> None:
     """Joint readings ``q`` (deg) inside the ranges, with ``wrist_margin_deg`` kept on joints
     4–6, and θ5 (kinematic, offsets applied) at least the profile's singularity margin from 0;
     ``tolerance_deg`` more on both (``Margins.wrist_deg``: what the declared tolerances can
-    turn the wrist by)."""
+    turn the wrist by), or, given ``spread`` (``ucal.calibration.spread``), each joint's own
+    share of it, and a refusal names the quantity that takes the room and the tolerance that
+    would lift it."""
     model = profile.model
-    room = wrist_margin_deg + tolerance_deg
-    lo = model.joint_min_deg.copy()
-    hi = model.joint_max_deg.copy()
-    lo[3:] += room
-    hi[3:] -= room
+    room = np.zeros(6)
+    room[3:] = wrist_margin_deg + (tolerance_deg if spread is None else 0.0)
+    if spread is not None:
+        room = room + spread.deg
+    lo = model.joint_min_deg + room
+    hi = model.joint_max_deg - room
     bad = [j + 1 for j in range(6) if not lo[j] <= q[j] <= hi[j]]
+    if bad and spread is not None:
+        j = bad[0] - 1
+        limit = model.joint_max_deg[j] if q[j] > hi[j] else model.joint_min_deg[j]
+        left = abs(limit - q[j]) - (wrist_margin_deg if j >= 3 else 0.0)
+        search = f"{wrist_margin_deg:g} deg for the wrist search and " if j >= 3 else ""
+        raise SafetyError(
+            f"plan {label}: joint {j + 1} at {q[j]:.2f} deg is {abs(limit - q[j]):.1f} deg "
+            f"from its limit ({limit:g} deg), short of the {room[j]:.3g} deg kept: "
+            f"{search}{spread.words(j, left)}"
+        )
     why = "for the wrist search" + (" and the declared tolerances" if tolerance_deg else "")
     if bad:
         raise SafetyError(
             f"plan {label}: joint(s) {bad} at "
             f"{np.round(q[np.array(bad) - 1], 2).tolist()} deg leave the joint "
-            f"range (keeping {room:.3g} deg on joints 4-6 {why})"
+            f"range (keeping {wrist_margin_deg + tolerance_deg:.3g} deg on joints 4-6 {why})"
         )
     theta5 = q[4] + model.theta_offset_deg[4] + profile.joint_offsets_deg[4]
-    margin = profile.procedure.singularity_margin_deg + tolerance_deg
+    singular = profile.procedure.singularity_margin_deg
+    margin = singular + (tolerance_deg if spread is None else float(spread.deg[4]))
     if abs(np.sin(np.radians(theta5))) < np.sin(np.radians(margin)):
+        if spread is not None:
+            left = float(np.degrees(np.arcsin(abs(np.sin(np.radians(theta5)))))) - singular
+            raise SafetyError(
+                f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:.3g} deg of the "
+                f"wrist singularity: {singular:g} deg the profile's margin ([procedure] "
+                f"singularity_margin_deg) and {spread.words(4, left)}"
+            )
         raise SafetyError(
             f"plan {label}: joint 5 at {theta5:.2f} deg is within {margin:.3g} deg "
             "of the wrist singularity"

@@ -57,8 +57,6 @@ from ucal.calibration.model import (
 )
 from ucal.calibration.paper import solve_paper
 from ucal.calibration.plan import (
-    ARM_STEPS_DEG,
-    AZIMUTH_STEPS_DEG,
     STEPPED_PATH_RANGE_MM,
     CalibrationPlan,
     config_arm,
@@ -93,17 +91,6 @@ class CalibrationRun:
     reads: int
 
 
-def _step_candidates(plan: CalibrationPlan, config: Configuration) -> tuple[float, ...]:
-    """Step magnitudes to try for ``config``, the planned one first, then smaller ones."""
-    planned = plan.step_of(config)
-    if config == Configuration.J1:
-        pool = [s for s in AZIMUTH_STEPS_DEG if s <= planned]
-    else:
-        pool = [s for s in ARM_STEPS_DEG if plan.min_step_deg <= s <= planned]
-        pool.append(plan.min_step_deg)
-    return tuple(sorted(set(pool) | {planned}, reverse=True))
-
-
 def choose_step(
     profile: CellProfile,
     geom: CellGeometry,
@@ -125,10 +112,16 @@ def choose_step(
     if config == Configuration.BASE:
         return 0.0
     why: list[str] = []
-    for magnitude in _step_candidates(plan, config):
+    checked = None if plan.steps_checked is None else plan.steps_checked.get(config, ())
+    # the steps the plan checked with the tolerances' room first; the others only where none
+    # of those keeps the tool clear (the cell as measured then says where the wrist goes)
+    rounds = [True] if checked is None else [True, False]
+    for first_round, magnitude in ((r, m) for r in rounds for m in plan.step_candidates(config)):
         best, best_path = None, -np.inf
         for sign in (1.0, -1.0):
             step = sign * magnitude
+            if checked is not None and (step in checked) != first_round:
+                continue
             path = _stepped_clearance(
                 profile, geom, plan, config, step, est, corner, last_wrist, why
             )

@@ -48,10 +48,16 @@ from ucal.calibration.model import (
     beam_and_tcp,
     distance_joints,
 )
-from ucal.calibration.safety import MIN_WATER_PATH_MM, check_joints
+from ucal.calibration.safety import (
+    MIN_WATER_PATH_MM,
+    TOLERANCE_SIGMAS,
+    check_joints,
+    offsets_std_deg,
+)
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.kinematics.rotations import angle_between_deg, rotation_angle_deg
 from ucal.measure.acquire import BLOCK_FACES, noise_floor
 from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import FaceRequest, FaceResult, FaceSetup, SearchMode, make_search, measure
@@ -195,7 +201,10 @@ def check_prediction(
     for the wrist search, the singularity margin, and a water path of at least
     ``MIN_WATER_PATH_MM`` to the face's plane through ``plane_mm``."""
     q = aim_wrist(geom, joints_deg, -geom.normal(face), offsets_deg)
-    check_joints(profile, q, label)
+    try:
+        check_joints(profile, q, label)
+    except SafetyError as e:
+        raise SafetyError(f"{e}; {outside_tolerance(profile, geom, offsets_deg)}") from None
     _, tcp = beam_and_tcp(geom, q, offsets_deg)
     path = float(geom.normal(face) @ (tcp - plane_mm))
     if path < MIN_WATER_PATH_MM:
@@ -204,6 +213,50 @@ def check_prediction(
             f"{path:.1f} mm from the face (minimum {MIN_WATER_PATH_MM:g} mm)"
         )
     return q
+
+
+def outside_tolerance(profile: CellProfile, geom: CellGeometry, offsets_deg: np.ndarray) -> str:
+    """Why a posture the plan checked with room for the declared tolerances fails as the cell
+    is measured: the measured quantity farthest outside its tolerance, in words (the joint
+    offsets against ``offsets_std_deg``, the beam's and the block's turn against ``[tool]``
+    and ``[sample] rotation_std_deg``, in sigma)."""
+    std = offsets_std_deg(profile)
+    z = np.abs(np.asarray(offsets_deg) - profile.joint_offsets_deg) / std
+    j = int(np.argmax(z))
+    found = [
+        (
+            float(z[j]),
+            f"joint {j + 1}'s offset is measured "
+            f"{offsets_deg[j] - profile.joint_offsets_deg[j]:+.2f} deg from the profile's, "
+            f"{z[j]:.1f} sigma of the ±{std[j]:.3g} deg a plan allows it",
+        )
+    ]
+    for what, key, turn, tol in (
+        (
+            "the beam",
+            "[tool] rotation_std_deg",
+            angle_between_deg(geom.beam_flange, profile.tool_matrix[:3, 2]),
+            np.max(profile.tool_rotation_std_deg),
+        ),
+        (
+            "the block",
+            "[sample] rotation_std_deg",
+            rotation_angle_deg(geom.block_rotation, profile.sample_matrix[:3, :3]),
+            np.max(profile.sample_rotation_std_deg),
+        ),
+    ):
+        if tol > 0:
+            found.append(
+                (
+                    float(turn / tol),
+                    f"{what} is measured turned {float(turn):.2f} deg from the profile's, "
+                    f"{float(turn / tol):.1f} sigma of {key} ±{tol:g} deg",
+                )
+            )
+    z_max, words = max(found)
+    if z_max > TOLERANCE_SIGMAS:
+        return f"the plan kept room for the declared tolerances, and {words}: outside them"
+    return f"the cell as measured so far is within the declared tolerances ({words})"
 
 
 @dataclass

@@ -34,6 +34,7 @@ from ucal.calibration.model import (
 from ucal.calibration.plan import calibration_pose, geometry, tool_lever
 from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
+from ucal.calibration.spread import aim_spread, pose_spread
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError, UnreachableError
@@ -415,7 +416,9 @@ def _plan_choice(
                 )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
-                faces[k] = _face_posture(profile, seen, seen_geom, q, Face(k), off, label, margins)
+                faces[k] = _face_posture(
+                    profile, seen, seen_geom, q, Face(k), off, label, margins, geom
+                )
             # where the robot really goes there, as best known: the profile's current offsets
             # and block
             w_now = wrist_centre_local(profile, q, offsets["after"])
@@ -432,9 +435,16 @@ def _plan_choice(
     for axis, i in edge_points:
         end = nominal[i].copy()
         end[axis] = profile.sample_face_size_mm + EDGE_OVERSHOOT_MM
-        label = f"plan {edge_label(axis, groups[group_of[i]][0])}"
-        pose = target_matrix(profile, end, rotations[i])
-        joints_for(profile, pose, offsets["after"], after[i].joints_deg, label)
+        # the scan runs on to where the edge really is (the block and the tool within their
+        # tolerances) and holds the true beam on the face's normal (the tool's orientation
+        # within its own): both ends checked with the room those need
+        end[axis] += margins.block_mm
+        label = edge_label(axis, groups[group_of[i]][0])
+        for where, point in (("start", nominal[i]), ("end", end)):
+            pose = target_matrix(profile, point, rotations[i])
+            q = joints_for(profile, pose, offsets["after"], after[i].joints_deg, f"plan {label}")
+            spread = pose_spread(profile, geom, pose, q, offsets["after"])
+            safety.check_joints(profile, q, f"{label} ({where})", spread=spread)
     return VerifyPlan(
         nominal,
         float(height_mm),
@@ -460,10 +470,17 @@ def _face_posture(
     offsets_deg: np.ndarray,
     label: str,
     margins: Margins,
+    now: CellGeometry,
 ) -> np.ndarray:
     """The checked normal-incidence posture of ``face`` from point readings ``q``: the wrist
     aims the beam with joint 6 at its reading, or turned by ``FACE_J6_TURNS_DEG`` where that
-    fails a check and the beam is off the flange axis (``SafetyError``: the first failure)."""
+    fails a check and the beam is off the flange axis (``SafetyError``: the first failure).
+
+    The posture returned is the pass's (``offsets_deg``, the block as ``seen``: where its
+    search starts); the one checked is where the run aims the wrist, the cell as the profile
+    now knows it (``now``, its current offsets: a "before" point's arm stands where the true
+    offsets put it), with the room what the profile does not know can turn it by there
+    (``aim_spread``)."""
     name = f"{label}/{FACE_NAMES[face]}"
     # the XY face at the paper's height: the run skips a point the cell as measured puts too
     # near it (``clearance_mm``); the walls keep the tolerances' room
@@ -475,7 +492,10 @@ def _face_posture(
         start[5] += turn
         try:
             qf = aim_wrist(geom, start, -geom.normal(face), offsets_deg)
-            safety.check_joints(profile, qf, name, tolerance_deg=margins.wrist_deg)
+            current = profile.joint_offsets_deg
+            qr = aim_wrist(now, start, -now.normal(face), current)
+            spread = aim_spread(profile, now, qr, face, current)
+            safety.check_joints(profile, qr, name, spread=spread)
             safety.check_face(seen, geom, qf, face, offsets_deg, name, margin)
         except SafetyError as e:
             first = first or e
