@@ -147,6 +147,29 @@ class CellProfile:
     controller: ControllerTimeouts = field(default_factory=ControllerTimeouts)
     pulser: PulserConfig = field(default_factory=PulserConfig)
     path: Path | None = None
+    #: The cell as described, where ucal wrote a measurement over the description
+    #: (``ucal.profile.described``): the ``[robot]`` table's model where ``[calibration] dh``
+    #: replaced it, the tool as drawn, the block as placed; None: as the fields above.
+    described_model: RobotModel | None = None
+    described_tool: tuple[np.ndarray, np.ndarray] | None = None
+    described_sample: tuple[np.ndarray, np.ndarray] | None = None
+
+    def as_described(self) -> CellProfile:
+        """The cell as its technician described it, not as ucal measured it: the ``[robot]``
+        table's model, the tool as drawn, the block as placed (what a simulated cell is
+        built from, ``ucal.sim.demo``); tolerances and everything else as they are."""
+        tool = self.described_tool or (self.tool_position_mm, self.tool_rotation_deg)
+        sample = self.described_sample or (self.sample_position_mm, self.sample_rotation_deg)
+        return self.replace(
+            model=self.described_model or self.model,
+            tool_position_mm=tool[0],
+            tool_rotation_deg=tool[1],
+            sample_position_mm=sample[0],
+            sample_rotation_deg=sample[1],
+            described_model=None,
+            described_tool=None,
+            described_sample=None,
+        )
 
     @property
     def tool_matrix(self) -> np.ndarray:

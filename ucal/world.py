@@ -1,9 +1,10 @@
 """World files: the truth the simulator is told (SPEC.md, "World file").
 
 Every key is optional. A missing key means "as the profile says" (nominal = true), zero joint
-offsets, zero noise; for the tool and the kinematic model, as it said before ucal first wrote a
-measurement into it (``ucal.profile.before_measurement``): the truth does not move with the
-estimates ``tool-frame`` and ``calibrate`` write. Values use the profile's units (mm, deg,
+offsets, zero noise; for the tool, the block and the kinematic model, as the profile describes
+them, not as ucal measured them (``CellProfile.as_described``: the tool as drawn, the block as
+placed, the ``[robot]`` table): the truth does not move with the estimates ``tool-frame`` and
+``calibrate`` write. Values use the profile's units (mm, deg,
 °C, MHz) and the same validators, so an error names the world file and the dotted key. Keys
 the solvers do not model:
 
@@ -73,7 +74,6 @@ from ucal.cell import (
     WorldTruth,
 )
 from ucal.profile import (
-    before_measurement,
     read_robot,
     read_step,
     read_transducer,
@@ -145,12 +145,12 @@ MAX_FLATNESS_MM = 5.0
 
 def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
     """The simulator's truth: the world file at ``path`` over the nominal world of the profile
-    before ucal measured it (module docstring).
+    as described (module docstring).
 
     ``path=None`` gives the nominal world (no hidden error, no noise). Raises
     :class:`ucal.errors.ProfileError` (exit 2) naming the world file and the key.
     """
-    world = WorldTruth.nominal(before_measurement(profile))
+    world = WorldTruth.nominal(profile.as_described())
     if path is None:
         return world
     p = Path(path)
@@ -169,7 +169,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
         data = data.unwrap()
     r = Reader(path, data)
     refuse_misspelt_keys(r, KNOWN_WORLD_KEYS)  # else ignored: the truth would silently be nominal
-    world = WorldTruth.nominal(before_measurement(profile))
+    world = WorldTruth.nominal(profile.as_described())
     changes: dict[str, Any] = {}
 
     robot = r.table("robot")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.profile import before_measurement, load_profile
+from ucal.profile import load_profile
 from ucal.sim import demo
 
 pytestmark = pytest.mark.system
@@ -22,7 +22,7 @@ RunMain = Callable[[list[str]], tuple[int, str, str]]
 def demo_world(profile_path: Path, path: Path, j2_moved_deg: float, seed: int) -> Path:
     """The demo truth (``ucal.sim.demo``) as a world file, joint 2 moved and another noise
     seed (another day's readings)."""
-    nominal = before_measurement(load_profile(profile_path))
+    nominal = load_profile(profile_path).as_described()
     offsets = demo.DEMO_JOINT_OFFSETS_DEG + [0.0, j2_moved_deg, 0.0, 0.0, 0.0, 0.0]
 
     def vec(values: np.ndarray) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,13 @@ import tomlkit
 from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, PulserTruth, WorldTruth
 from ucal.errors import ProfileError
 from ucal.models import load_model
-from ucal.profile import default_profile_text, load_profile, write_profile
+from ucal.profile import (
+    default_profile_text,
+    description_keys,
+    history_dir,
+    load_profile,
+    write_profile,
+)
 from ucal.sim.cell import SimulatedCell
 from ucal.validation import DH_KEYS
 from ucal.world import load_world, world_warnings
@@ -342,16 +349,20 @@ def test_step_in_the_profile_and_the_world_and_its_echo(tmp_path: Path) -> None:
     assert sim._echoing_hit(beside[:3], down)[0].face.name == "z"
 
 
-def test_missing_keys_are_the_cell_before_ucal_measured_it(tmp_path: Path) -> None:
+def test_missing_keys_are_the_cell_as_described(tmp_path: Path) -> None:
     """A world without [tool] is the tool the profile described (a hand edit included), not
-    what tool-frame wrote into it later: the simulated cell does not move with the estimates."""
+    what tool-frame wrote into it later, whatever became of the history: the simulated cell
+    does not move with the estimates."""
     path = tmp_path / "cell.toml"
     path.write_text(default_profile_text("tx90l"))
     world = _world(tmp_path, "[robot]\njoint_offsets_deg = [0.1, 0, 0, 0, 0, 0]\n")
     write_profile(path, {"tool": {"position_mm": [0.0, 0.0, 95.0]}}, "the drawing, revised")
     drawn = load_world(world, load_profile(path))
     assert drawn.tool_position_mm[2] == pytest.approx(95.0)  # the technician's description
-    write_profile(path, {"tool": {"position_mm": [0.5, 0.5, 96.0]}}, "tool-frame (exact)")
+    tool = {"position_mm": [0.5, 0.5, 96.0], "rotation_deg": [0.0, 0.0, 0.0]}
+    tool |= description_keys(load_profile(path), "tool", **tool)  # as tool-frame writes it
+    write_profile(path, {"tool": tool}, "tool-frame (exact)")
+    shutil.rmtree(history_dir(path))
     measured = load_profile(path)
     assert measured.tool_position_mm[2] == pytest.approx(96.0)
     truth = load_world(world, measured)

@@ -67,7 +67,7 @@ from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
 from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
-from ucal.profile import write_profile
+from ucal.profile import description_keys, write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate, estimate_run
@@ -153,9 +153,13 @@ def block_measured(cell: CellFit | None, profile: CellProfile) -> dict[str, Any]
 
 
 def block_written(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
-    """``[sample]`` keys of the block as the fit measured it: its pose, not its stds."""
+    """``[sample]`` keys of the block as the fit measured it: its pose, not its stds; and the
+    block as placed kept beside it (``ucal.profile.described``)."""
     block = block_measured(cell, profile)
-    return None if block is None else block_keys(block)
+    if block is None:
+        return None
+    keys = block_keys(block)
+    return keys | description_keys(profile, "sample", keys["position_mm"], keys["rotation_deg"])
 
 
 class PlannedPosture(Protocol):

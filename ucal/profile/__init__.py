@@ -8,14 +8,15 @@ Writes are atomic and reversible: each keeps the bytes it replaces in the profil
 - :mod:`ucal.profile.template`: the text of a new profile, ``template.toml`` filled in;
 - :mod:`ucal.profile.write`: write results into a profile, create a new one;
 - :mod:`ucal.profile.history`: the history of a profile's writes, undo;
+- :mod:`ucal.profile.described`: the cell as described, kept beside what ucal measured;
 - :mod:`ucal.profile.lock`: one run at a time on a profile, room to write it;
 - :mod:`ucal.profile.disk`: where a profile's files sit, atomic replacement.
 """
 
+from ucal.profile.described import description_keys, pose_digest
 from ucal.profile.disk import history_dir, made_history_dir, real_path
 from ucal.profile.history import (
     HistoryEntry,
-    before_measurement,
     last_measurement,
     profile_history,
     undo_profile,
@@ -46,16 +47,17 @@ __all__ = [
     "EXAMPLE_HEADER",
     "EXAMPLE_MODEL",
     "HistoryEntry",
-    "before_measurement",
     "check_writable",
     "create_profile",
     "default_profile_text",
+    "description_keys",
     "example_profile_text",
     "history_dir",
     "last_measurement",
     "load_profile",
     "lock_path",
     "made_history_dir",
+    "pose_digest",
     "profile_from_data",
     "profile_history",
     "profile_lock",

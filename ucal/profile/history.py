@@ -20,10 +20,7 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
-
 from ucal import files, interrupt
-from ucal.cell import CellProfile
 from ucal.errors import ProfileError
 from ucal.profile.disk import (
     HISTORY_INDEX,
@@ -36,7 +33,6 @@ from ucal.profile.disk import (
     stage,
 )
 from ucal.profile.lock import profile_lock
-from ucal.profile.read import load_profile
 
 log = logging.getLogger(__name__)
 
@@ -90,52 +86,6 @@ def last_measurement(path: str | Path) -> HistoryEntry | None:
         if entry.reason.startswith(MEASURED_BY) and not entry.undone:
             return entry
     return None
-
-
-def placed_block(profile: CellProfile, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The block's corner and orientation as the technician last described them: ``[sample]``
-    of the profile at ``path`` before the ``calibrate`` writes (which write the block they
-    measured) since its last other change (a hand edit)."""
-    pose = (profile.sample_position_mm, profile.sample_rotation_deg)
-    for entry in reversed([e for e in profile_history(path) if not e.undone]):
-        before = history_dir(path) / entry.before
-        if not before.exists():
-            break
-        old = load_profile(before, base_dir=path.parent)
-        was = (old.sample_position_mm, old.sample_rotation_deg)
-        if not entry.reason.startswith("calibrate") and not all(map(np.array_equal, was, pose)):
-            break  # this write changed the block by hand: that is the description
-        pose = was
-    return pose
-
-
-def before_measurement(profile: CellProfile) -> CellProfile:
-    """``profile`` with the tool and the kinematic model it had before ucal first wrote a
-    measurement into it (the before-file of its history's oldest ``tool-frame`` or
-    ``calibrate`` entry), and the block as placed (``placed_block``); ``profile`` itself if
-    ucal never did.
-
-    What the simulator takes as "the cell as the profile says": the technician's description,
-    not ucal's estimates of it, so that a simulated cell stays one cell while the commands
-    write into its profile.
-    """
-    if profile.path is None:
-        return profile
-    for entry in profile_history(profile.path):
-        if entry.reason.startswith(MEASURED_BY):
-            before = history_dir(profile.path) / entry.before
-            if not before.exists():
-                break
-            old = load_profile(before, base_dir=profile.path.parent)
-            position, rotation = placed_block(profile, profile.path)
-            return profile.replace(
-                model=old.model,
-                tool_position_mm=old.tool_position_mm,
-                tool_rotation_deg=old.tool_rotation_deg,
-                sample_position_mm=position,
-                sample_rotation_deg=rotation,
-            )
-    return profile
 
 
 def _index_bytes(path: Path, entries: list[HistoryEntry]) -> bytes:

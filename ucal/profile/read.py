@@ -27,6 +27,7 @@ from ucal.cell import (
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.described import DESCRIPTION_KEYS, read_description
 from ucal.validation import (
     DH_KEYS,
     Reader,
@@ -56,10 +57,12 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
             "backlash_std_deg",
         }
     ),
-    "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"}),
+    "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"})
+    | DESCRIPTION_KEYS["tool"],
     "sample": frozenset(
         {"position_mm", "rotation_deg", "face_size_mm", "position_std_mm", "rotation_std_deg"}
-    ),
+    )
+    | DESCRIPTION_KEYS["sample"],
     "reflector": frozenset({"points_mm", "points_std_mm"}),
     "step": frozenset({"height_mm", "height_std_mm", "centre_mm", "size_mm"}),
     "water": frozenset(
@@ -145,6 +148,8 @@ def profile_from_data(
     sample_rot = r.vector(
         "sample.rotation_deg", r.get(sample, "sample.rotation_deg", True), 3, unit="deg"
     )
+    drawn = read_description(r, tool, "tool", tool_pos, tool_rot)
+    placed = read_description(r, sample, "sample", sample_pos, sample_rot)
     tolerances = read_tolerances(
         r, tool, sample, r.table("water", required=True), r.table("robot", required=True)
     )
@@ -172,6 +177,7 @@ def profile_from_data(
     water_c = read_water(r, r.table("water", required=True), "water", required=True)
     freq, diam = read_transducer(r, r.table("transducer", required=True), "transducer", True)
 
+    described_model = None
     cal = r.table("calibration")
     offsets = np.zeros(6)
     unobservable: tuple[int, ...] = ()
@@ -192,6 +198,7 @@ def profile_from_data(
         if v is not None:
             # the table identified by `calibrate --level full` replaces [robot] dh everywhere
             rows, beta = r.split_beta("calibration.dh", v, MAX_CALIBRATED_BETA_DEG)
+            described_model = model
             model = model.with_dh(r.dh_table("calibration.dh", rows), beta, "[calibration] dh")
         v = r.get(cal, "calibration.dh_std")
         if v is not None:
@@ -228,6 +235,9 @@ def profile_from_data(
         controller=controller,
         pulser=pulser,
         path=Path(path),
+        described_model=described_model,
+        described_tool=drawn,
+        described_sample=placed,
         **tolerances,
     )
 

@@ -11,14 +11,16 @@ The demo truth is the profile's nominal cell plus errors a commissioning enginee
 
 The robot's DH table, the water temperature, the transducer and the reflector plate are nominal.
 
-The truth is one cell whatever ucal writes into the profile: the errors are added to the
-profile as it was before ``tool-frame`` or ``calibrate`` first wrote a measurement into it
-(``ucal.profile.before_measurement``: the tool of the drawing, the ``[robot]`` table, the block
-as placed), not to the tool, the identified table or the block they wrote. Built from the
-current profile instead, the demo tool would move by the demo's error every time ``tool-frame``
-wrote its (right) estimate, and a ``calibrate`` run after it would meet a cell 0.3° away from
-what the profile rightly says; the block would move by its 1.9 mm each time ``calibrate``
-wrote where it found it.
+The truth is one cell whatever ucal writes into the profile, and whatever became of its
+history: the errors are added to the cell as the profile describes it
+(``CellProfile.as_described``: the tool as drawn, the ``[robot]`` table, the block as placed,
+which ``tool-frame`` and ``calibrate`` keep beside what they measured,
+``ucal.profile.described``), not to the tool, the identified table or the block they wrote.
+Built from the measured values instead, the demo tool would move by the demo's error every time
+``tool-frame`` wrote its (right) estimate, and a ``calibrate`` run after it would meet a cell
+0.3° away from what the profile rightly says; the block would move by its 1.9 mm each time
+``calibrate`` wrote where it found it. A hand edit of the tool or the block is a new
+description, and the demo follows it.
 
 The block's yaw is as placed: the commissioning on this cell ends with ``verify`` passing
 relative to the block (J1 relative to the block as placed, ``ucal.calibration.gauge``), and
@@ -30,7 +32,6 @@ from __future__ import annotations
 import numpy as np
 
 from ucal.cell import CellProfile, Noise, WorldTruth
-from ucal.profile import before_measurement
 
 DEMO_JOINT_OFFSETS_DEG = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
 DEMO_TOOL_POSITION_ERROR_MM = np.array([0.3, -0.2, 0.4])
@@ -40,9 +41,9 @@ DEMO_NOISE = Noise(tof_ns=0.5, amplitude=0.01, seed=20240611)
 
 
 def demo_world(profile: CellProfile) -> WorldTruth:
-    """The demo truth of ``profile``: its cell before ucal measured it, with the hidden errors
-    of this module."""
-    nominal = WorldTruth.nominal(before_measurement(profile))
+    """The demo truth of ``profile``: its cell as described, with the hidden errors of this
+    module."""
+    nominal = WorldTruth.nominal(profile.as_described())
     return nominal.replace(
         joint_offsets_deg=DEMO_JOINT_OFFSETS_DEG.copy(),
         tool_position_mm=nominal.tool_position_mm + DEMO_TOOL_POSITION_ERROR_MM,

@@ -12,7 +12,7 @@ from typing import Any
 
 from ucal.cell import CellProfile
 from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
-from ucal.profile import write_profile
+from ucal.profile import description_keys, write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import EDGE_SCAN, NO_SEARCH, PLATE_PEAK, DurationEstimate, estimate_run
@@ -85,6 +85,8 @@ class ToolFrameCalibration(ProfileJob):
             reason += f", written with --force: {refusal(run).replace(NOT_WRITTEN, '')}"
         if capped:
             reason += f"; {capped}"
+        # the tool as drawn kept beside the measured one (ucal.profile.described)
+        keys |= description_keys(self.profile, "tool", keys["position_mm"], keys["rotation_deg"])
         write_profile(self.profile_path, {"tool": keys}, reason=reason)
 
     def result(

@@ -21,7 +21,7 @@ from ucal.cell import (
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
 from ucal.models import load_model
-from ucal.profile import create_profile, load_profile, write_profile
+from ucal.profile import create_profile, description_keys, load_profile, write_profile
 from ucal.sim.cell import SimulatedCell, ideal_echo
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, demo_world
 from ucal.sim.geometry import block_faces, intersect
@@ -562,16 +562,23 @@ def test_one_stream_per_effect(world: WorldTruth, cell: SimulatedCell) -> None:
     assert ratio_db[0] != pytest.approx(ratio_db[2], abs=1e-3)  # 20 dB again: a new error
 
 
+def measured(path: Path, table: str, pose: dict[str, list[float]], reason: str) -> None:
+    """Write a measured ``[tool]`` or ``[sample]`` pose as tool-frame and calibrate write it:
+    the description it replaces kept beside it (``ucal.profile.described``)."""
+    keys = pose | description_keys(
+        load_profile(path), table, pose["position_mm"], pose["rotation_deg"]
+    )
+    write_profile(path, {table: keys}, reason)
+
+
 def test_demo_truth_stays_one_cell_whatever_ucal_writes(tmp_path) -> None:
-    """The demo's errors are added to the profile before ucal measured it: a tool-frame or a
-    calibration written into the profile does not move the demo's tool, table or block."""
+    """The demo's errors are added to the profile as described: a tool-frame or a calibration
+    written into the profile does not move the demo's tool, table or block, and a profile
+    copied without its history is the same cell."""
     path = create_profile(tmp_path / "cell.toml", "tx90l")
     first = demo_world(load_profile(path))
-    write_profile(
-        path,
-        {"tool": {"position_mm": [0.3, -0.2, 80.4], "rotation_deg": [0.2, -0.22, 0.0]}},
-        "tool-frame (exact)",
-    )
+    tool = {"position_mm": [0.3, -0.2, 80.4], "rotation_deg": [0.2, -0.22, 0.0]}
+    measured(path, "tool", tool, "tool-frame (exact)")
     rows = [dict(r) for r in tomlkit.parse(path.read_text())["robot"]["dh"]]
     rows[5]["alpha_deg"] = 0.3
     write_profile(path, {"calibration": {"dh": rows}}, "calibrate --level full")
@@ -587,13 +594,24 @@ def test_demo_truth_stays_one_cell_whatever_ucal_writes(tmp_path) -> None:
     moved = demo_world(load_profile(path))
     np.testing.assert_allclose(moved.sample_position_mm - [700.0, 0.0, -400.0], [1.5, -1.0, 0.8])
     # calibrate writes the block it measured: a measurement, which the demo does not follow
-    measured = {"position_mm": [701.3, -0.8, -399.1], "rotation_deg": [0.001, -0.002, 0.0]}
-    write_profile(path, {"sample": measured}, "calibrate --method exact: fit ok")
-    write_profile(path, {"tool": {"position_mm": [0.3, -0.2, 80.3]}}, "tool-frame (exact)")
-    write_profile(path, {"sample": {"position_mm": [701.4, -0.8, -399.1]}}, "calibrate")
+    block = {"position_mm": [701.3, -0.8, -399.1], "rotation_deg": [0.001, -0.002, 0.0]}
+    measured(path, "sample", block, "calibrate --method exact: fit ok")
+    tool = {"position_mm": [0.3, -0.2, 80.3], "rotation_deg": [0.2, -0.22, 0.0]}
+    measured(path, "tool", tool, "tool-frame (exact)")
+    block = {"position_mm": [701.4, -0.8, -399.1], "rotation_deg": [0.001, -0.002, 0.0]}
+    measured(path, "sample", block, "calibrate")
     again = demo_world(load_profile(path))
     np.testing.assert_allclose(again.sample_position_mm - [700.0, 0.0, -400.0], [1.5, -1.0, 0.8])
     np.testing.assert_array_equal(again.sample_rotation_deg, moved.sample_rotation_deg)
+    np.testing.assert_array_equal(again.tool_position_mm, first.tool_position_mm)
+    # a profile copied without its history is the same cell
+    copy = tmp_path / "copy" / "cell.toml"
+    copy.parent.mkdir()
+    copy.write_bytes(path.read_bytes())
+    alone = demo_world(load_profile(copy))
+    for name in ("tool_position_mm", "tool_rotation_deg", "sample_position_mm"):
+        np.testing.assert_array_equal(getattr(alone, name), getattr(again, name))
+    np.testing.assert_array_equal(alone.model.alpha_deg, first.model.alpha_deg)
     # and a hand edit after it is the description again
     write_profile(path, {"sample": {"position_mm": [650.0, 0.0, -400.0]}}, "the block moved")
     last = demo_world(load_profile(path))
