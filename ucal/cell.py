@@ -61,8 +61,9 @@ class PulserConfig:
     """``[pulser]`` in the profile: how ucal talks to the pulser-receiver (every key optional).
 
     ``register_map``: the Modbus register map of the device (``drivers.pulser.map_file``),
-    read and validated from ``register_map_path``; None: ucal's own map. ``timeout_s``: how
-    long a request waits for its answer; ``retries``: how often a request that got no byte
+    read and validated from ``register_map_path``; None: ucal's own map. ``timeout_s``: the
+    link's margin, how long a request waits for its answer beyond what the instrument was asked
+    to do (a reading's averages at the PRF, ``drivers.pulser.base.ReadingWait``); ``retries``: how often a request that got no byte
     back is asked again before the device counts as silent. ``timing``: who times the echo,
     ``"gate"`` (the instrument's own gate) or ``"ascan"`` (ucal, from the digitised A-scan,
     ``ucal.echo``); ``reference_echo``: the cell's reference echo for that, read from

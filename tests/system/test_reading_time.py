@@ -102,4 +102,5 @@ def test_an_instrument_slower_than_its_averaging_is_a_timeout_naming_it_and_the_
     assert "then timeout_s = 0.05 s for the link)" in message
     shown, code = _classify(info.value)
     assert code == 3
-    assert "set timeout_s (s, default 1) in the profile's [pulser] table" in shown
+    assert "set timeout_s (s, default 1, the link's margin" in shown
+    assert "in the profile's [pulser] table" in shown

@@ -200,12 +200,14 @@ def _classify(e: BaseException) -> tuple[str, int]:
 #: goes (``ucal profile init`` writes a ``[controller]`` table, no ``[pulser]`` one).
 TIMEOUT_HINTS = {
     "pulser": (
-        "; if the instrument is on and wired, it may need longer: set timeout_s (s, default "
-        "1) in the profile's [pulser] table (add the table if the profile has none)"
+        "; if the instrument is on and wired, its link may need longer: set timeout_s (s, "
+        "default 1, the link's margin beyond the averaging) in the profile's [pulser] table "
+        "(add the table if the profile has none)"
     ),
     "digitizer": (
-        "; if the scope is on, triggered and wired, it may need longer: set timeout_s (s, "
-        "default 1) in the profile's [pulser] table (add the table if the profile has none)"
+        "; if the scope is on, triggered and wired, its link may need longer: set timeout_s "
+        "(s, default 1, the link's margin beyond the acquisition) in the profile's [pulser] "
+        "table (add the table if the profile has none)"
     ),
     "controller": (
         "; if the controller's server is running, it may need longer: the [controller] "

@@ -498,8 +498,8 @@ def read_pulser(
 ) -> PulserConfig:
     """Optional ``[pulser]``: ``register_map``, a map file relative to ``base_dir`` (default:
     the profile's directory), read and validated; ``timeout_s`` and ``retries``, how long a
-    request waits for the first byte of its answer and how often one that got none is asked
-    again before the device counts as silent; ``timing`` (``"gate"`` or ``"ascan"``) and
+    request waits for the first byte of its answer beyond the instrument's own time (a
+    reading's averaging) and how often one that got none is asked again before the device counts as silent; ``timing`` (``"gate"`` or ``"ascan"``) and
     ``reference_echo``, a CSV file of ``ucal echo``'s reference format, relative like the
     map."""
     d = PulserConfig()

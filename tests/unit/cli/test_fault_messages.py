@@ -13,7 +13,8 @@ def test_a_pulser_timeout_names_the_key_and_where_it_goes() -> None:
     )
     assert code == EXIT_HARDWARE
     assert message.startswith("pulser at modbus-tcp://127.0.0.1:5020?unit=1: no answer within")
-    assert "set timeout_s (s, default 1) in the profile's [pulser] table" in message
+    assert "set timeout_s (s, default 1, the link's margin beyond the averaging) in the" in message
+    assert "profile's [pulser] table" in message
     assert "add the table if the profile has none" in message
 
 
