@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import signal
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -223,3 +224,21 @@ def test_a_signal_after_the_result_was_printed_leaves_it_standing(
         "error: interrupted as the run ended: its result stands as printed"
     )
     assert len(profile_history(profile)) == 1
+
+
+class SignalledInFinaliser:
+    """A signal that lands while a finaliser runs (as an import's weakref callback does)."""
+
+    def __del__(self) -> None:
+        signal.raise_signal(signal.SIGTERM)
+
+
+def test_a_signal_in_a_finaliser_is_acted_on_at_once_and_prints_nothing(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    interrupt.arm()
+    with pytest.raises(KeyboardInterrupt, match="signal 15"):
+        SignalledInFinaliser()  # dropped at once: its finaliser runs here
+        threading.Event().wait(60)  # the wait that follows (a motion's): the signal ends it
+    assert interrupt.received == [signal.SIGTERM]
+    assert "Exception ignored" not in capsys.readouterr().err
