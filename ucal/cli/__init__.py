@@ -45,6 +45,7 @@ COMMANDS = {
     "status": "status",
     "echo": "echo",
     "report": "report",
+    "fleet": "fleet",
 }
 
 
@@ -65,6 +66,7 @@ SUMMARIES = {
     "status": "Show the joint readings, the controller's status and the pulser's identity.",
     "echo": "Time of flight and amplitude of the echo in each A-scan of FILE.",
     "report": "Write one HTML page of the cell as PROFILE and its history hold it.",
+    "fleet": "List the cells that publish to a broker: last results, due dates, trends.",
 }
 
 

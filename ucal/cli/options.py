@@ -4,7 +4,9 @@
 before or after the subcommand. The cell a moving command talks to comes from ``--sim`` or
 ``--controller``/``--pulser`` (and ``--digitizer`` for a pulser that does not digitise), or from
 the environment (``UCAL_SIM``, ``UCAL_CONTROLLER``, ``UCAL_PULSER``, ``UCAL_DIGITIZER``); options
-typed on the command line win over the environment (``cell_from_options``).
+typed on the command line win over the environment (``cell_from_options``). ``--publish URL``
+(or ``UCAL_PUBLISH``) sends a moving command's final result to an MQTT broker
+(``publish_url``, ``ucal.cli.publishing``).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from rich.logging import RichHandler
 from drivers.registry import open_controller, open_pulser
 from ucal.cell_choice import CellChoice
 from ucal.errors import InputError, NotConfirmed
+from ucal.fleet.url import BrokerUrl, parse_broker_url
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -39,6 +42,8 @@ ENV_CONTROLLER = "UCAL_CONTROLLER"
 ENV_PULSER = "UCAL_PULSER"
 ENV_DIGITIZER = "UCAL_DIGITIZER"
 ENV_THERMOMETER = "UCAL_THERMOMETER"
+#: The broker a moving command publishes its result to (``--publish``).
+ENV_PUBLISH = "UCAL_PUBLISH"
 #: ``UCAL_SIM`` values meaning "the simulated cell with the demo truth" / "no simulated cell".
 SIM_ENV_ON = frozenset({"1", "yes", "true", "on"})
 SIM_ENV_OFF = frozenset({"", "0", "no", "false", "off"})
@@ -320,6 +325,42 @@ _digitizer_option = click.option(
 )
 
 
+def _remember_broker(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """Parse ``--publish`` (exit 2 for a malformed URL, before anything runs) and keep it for
+    ``publish_url``: the command takes it as no argument."""
+    text = (value or "").strip()
+    try:
+        ctx.meta["publish_url"] = parse_broker_url(text) if text else None
+    except ValueError as e:
+        source = "--publish" if _typed(ctx, param.name or "") else ENV_PUBLISH
+        raise click.BadParameter(str(e), param_hint=source) from None
+
+
+publish_option = click.option(
+    "--publish",
+    "publish_url",
+    metavar="URL",
+    envvar=ENV_PUBLISH,
+    show_envvar=True,
+    expose_value=False,
+    callback=_remember_broker,
+    help="Publish the final result (the --json object, with the cell, the profile's hash, "
+    "ucal's version and the time) to an MQTT broker, mqtt://HOST[:PORT]/PREFIX, at QoS 1 on "
+    "PREFIX/CELL/result and retained on PREFIX/CELL/state; a broker that is down leaves it "
+    "queued in PROFILE.history/outbox/ for a later run (docs/fleet.md). Never changes the "
+    "exit code.",
+)
+
+
+def publish_url(ctx: click.Context | None = None) -> BrokerUrl | None:
+    """The ``--publish`` broker (or ``UCAL_PUBLISH``) of the current command, None if none."""
+    ctx = ctx or click.get_current_context(silent=True)
+    if ctx is None:
+        return None
+    value = ctx.meta.get("publish_url")
+    return value if isinstance(value, BrokerUrl) else None
+
+
 def pulser_option(f: F) -> F:
     """Decorator: ``--pulser URL`` and ``--digitizer URL``."""
     return _pulser_url_option(_digitizer_option(f))
@@ -516,8 +557,8 @@ def moving_options(*own: Callable[[F], F]) -> Callable[[Callable[..., None]], Ca
     """Decorator: a moving command's PROFILE and the options every moving command takes around
     its ``own``, in the order ``--help`` lists them: ``--sim``, ``--controller``, ``--pulser``
     (and ``--digitizer``), the command's own, ``--record``, ``--replay``, ``--remeasure``,
-    ``--yes``, ``--dry-run``, ``--json``. The command is called with one ``MovingCall`` and its
-    own options by name."""
+    ``--yes``, ``--dry-run``, ``--publish``, ``--json``. The command is called with one
+    ``MovingCall`` and its own options by name."""
     shared = [f.name for f in fields(MovingCall)]
 
     def decorate(f: Callable[..., None]) -> Callable[..., None]:
@@ -535,6 +576,7 @@ def moving_options(*own: Callable[[F], F]) -> Callable[[Callable[..., None]], Ca
             record_options,
             yes_option,
             dry_run_option,
+            publish_option,
             json_option,
         ]
         for option in reversed(options):

@@ -4,7 +4,9 @@
 the first motion naming the cell, and displays progress (``ucal.cli.progress``); ``run_job``
 runs a command's job through the procedure's steps; ``finish`` prints the outcome: the
 command's tables on stdout, or the one JSON object with ``--json``, both drawn from the
-command's typed result, and exit 1 when out of tolerance. ``recorded_run`` checks
+command's typed result, and exit 1 when out of tolerance; with ``--publish`` the final result
+is published too (``ucal.cli.publishing``: checked before the run, sent once the result is
+final, never changing the exit code). ``recorded_run`` checks
 ``--record``/``--replay``/``--remeasure`` and loads the run a replay solves again;
 ``replay_job`` runs it. ``run_command`` is all of it for a moving command: the replay or the
 run on the cell its options name, then the outcome printed.
@@ -34,6 +36,7 @@ from ucal.cli.options import (
     info,
 )
 from ucal.cli.progress import StepProgress
+from ucal.cli.publishing import prepare_publication, publish_outcome
 from ucal.errors import InputError, InterruptedAfterResult, OutOfToleranceError
 from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile, profile_from_data
@@ -81,6 +84,7 @@ def run_job(
     run that would have to ask before moving with no terminal to ask on (exit 2, no plan)."""
     if options.cell is not None:
         check_can_confirm(options.cell, options.yes)
+    prepare_publication(job, options)
     asks = options.cell is not None and options.replay is None and not options.yes
     return MeasuringProcedure(job, options, ConsolePresenter(asks), on_step).run()
 
@@ -88,13 +92,18 @@ def run_job(
 def finish(outcome: Outcome[R], as_json: bool, show: Callable[[Outcome[R]], None]) -> None:
     """Print the outcome: ``show`` draws the command's tables (without ``--json``); out of
     tolerance, exit 1, and after a signal that came once the robot had stopped, exit 130 (with
-    ``--json`` the CLI prints the result with the error fields)."""
+    ``--json`` the CLI prints the result with the error fields). With ``--publish`` the result
+    is published once shown, before the exit."""
     if not as_json:
         show(outcome)
+    ended: InterruptedAfterResult | OutOfToleranceError | None = None
     if interrupt.received:  # a signal once the robot had stopped: the result stands, reported
-        raise InterruptedAfterResult(outcome.to_json())
-    if outcome.out_of_tolerance:
-        raise OutOfToleranceError(outcome.message, outcome.to_json())
+        ended = InterruptedAfterResult(outcome.to_json())
+    elif outcome.out_of_tolerance:
+        ended = OutOfToleranceError(outcome.message, outcome.to_json())
+    publish_outcome(outcome, None if ended is None else str(ended))
+    if ended is not None:
+        raise ended
     if as_json:
         emit_json(outcome.to_json())
 

@@ -27,6 +27,7 @@ from ucal.cell import (
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.cell import CELL_KEYS, read_cell
 from ucal.profile.described import DESCRIPTION_KEYS, read_description
 from ucal.validation import (
     DH_KEYS,
@@ -83,6 +84,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
     "pulser": frozenset({"register_map", "timeout_s", "retries", "timing", "reference_echo"}),
+    "cell": CELL_KEYS,  # the cell's name and validation interval for published results
 }
 
 #: Largest Hayati twist (deg) a calibrated table may hold: a calibration finds hundredths.
@@ -213,6 +215,7 @@ def profile_from_data(
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
     pulser = read_pulser(r, r.table("pulser"), base_dir)
+    read_cell(r, r.table("cell"), Path(path).stem)  # checked here; ``ucal.fleet`` reads it
 
     return CellProfile(
         model=model,
@@ -499,7 +502,8 @@ def read_pulser(
     """Optional ``[pulser]``: ``register_map``, a map file relative to ``base_dir`` (default:
     the profile's directory), read and validated; ``timeout_s`` and ``retries``, how long a
     request waits for the first byte of its answer beyond the instrument's own time (a
-    reading's averaging) and how often one that got none is asked again before the device counts as silent; ``timing`` (``"gate"`` or ``"ascan"``) and
+    reading's averaging) and how often one that got none is asked again before the device
+    counts as silent; ``timing`` (``"gate"`` or ``"ascan"``) and
     ``reference_echo``, a CSV file of ``ucal echo``'s reference format, relative like the
     map."""
     d = PulserConfig()
