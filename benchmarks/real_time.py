@@ -67,14 +67,18 @@ def ucal(workdir: Path, *args: str) -> tuple[int, dict[str, Any], float, str]:
     return out.returncode, result, wall, out.stderr[-400:]
 
 
-def served_run(workdir: Path, scale: float, extra: list[str]) -> tuple[int, dict, float, str]:
-    """``calibrate`` against ``ucal sim serve --time-scale SCALE --server val3``, on a copy of
-    the fresh profile (a real cell's run writes it: each run starts from the same one)."""
+def served_run(
+    workdir: Path, scale: float, extra: list[str], server: str | None = "val3"
+) -> tuple[int, dict, float, str]:
+    """``calibrate`` against ``ucal sim serve --time-scale SCALE --server SERVER`` (None: the
+    world's server), on a copy of the fresh profile (a real cell's run writes it: each run
+    starts from the same one)."""
     run = workdir / f"scale-{scale:g}"
     run.mkdir()
     shutil.copy(workdir / "cell.toml", run / "cell.toml")
     workdir = run
-    args = ("--profile", "cell.toml", "--time-scale", str(scale), "--server", "val3")
+    args = ["--profile", "cell.toml", "--time-scale", str(scale)]
+    args += [] if server is None else ["--server", server]
     with serving(*args, cwd=workdir) as urls:
         return ucal(
             workdir,

@@ -73,6 +73,10 @@ RATE_BAND = (0.8, 1.25)
 #: Joint samples inside a sweep's motion needed to fit the arm's rate; with fewer the motion
 #: lasted at most the time between the samples that bracket it (a lower bound on the rate).
 MIN_RATE_SAMPLES = 3
+#: A sweep's reading during which the arm travelled farther than this many of the sweep's
+#: allowed spacings (``max_step_deg``) is tied to no posture and left out (``Rig._tied``):
+#: paired at the middle of its stretch it could be off by more than the spacing.
+READ_TRAVEL_STEPS = 2.0
 #: Time per reading assumed before the first sweep has measured it (s): Modbus TCP.
 _FIRST_READ_S = timing.read_s("tcp")
 #: Noise floor taken when an empty gate reads exactly 0 and no reading is above 0 (fraction of
@@ -291,10 +295,11 @@ class Rig:
         """Move to ``target`` reading the pulser all the way.
 
         Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
-        (n,), readings paired with the streamed joints by interpolation at arrival time. The
-        speed is chosen from the measured time between readings so that they come ``spacing.aim`` ×
-        ``max_step_deg`` apart; reading stops when the joints reach the target (none is taken
-        while the servo settles).
+        (n,), readings paired with the streamed joints by interpolation at arrival time (a
+        reading the stream does not tie to a posture within the spacing is left out: ``_tied``).
+        The speed is chosen from the measured time between readings so that they come
+        ``spacing.aim`` × ``max_step_deg`` apart; reading stops when the joints reach the target
+        (none is taken while the servo settles).
         """
         target = np.asarray(target, float)
         start = self.controller.read_joints()
@@ -341,16 +346,44 @@ class Rig:
         after = ts >= t0  # this motion's frames (the history holds the move before it too)
         self._streamed = len(ts) >= 2
         self._measure_rate(start, target, speed, ts[after], js[after])
-        # The acquisition happens between request and answer: pair at the midpoint.
-        tr = 0.5 * (np.array(sent) + np.array([r.host_time_s for r in readings]))
-        if len(ts) >= 2:
-            q = np.column_stack([np.interp(tr, ts, js[:, j]) for j in range(6)])
-        else:
-            q = np.tile(target, (len(tr), 1))
         amps = np.array([r.amplitude for r in readings])
         tofs = np.array([r.tof_ns for r in readings])
+        check_readings(self.pulser.endpoint, amps, tofs)
+        # The acquisition happens between request and answer: pair at the midpoint.
+        asked = np.array(sent)
+        answered = np.array([r.host_time_s for r in readings])
+        tr = 0.5 * (asked + answered)
+        if len(ts) >= 2:
+            q = np.column_stack([np.interp(tr, ts, js[:, j]) for j in range(6)])
+            tied = self._tied(start, target, ts, js, asked, answered, max_step_deg)
+            q, amps, tofs, tr = q[tied], amps[tied], tofs[tied], tr[tied]
+        else:
+            q = np.tile(target, (len(tr), 1))
         self.last_sweep_step_deg = self._covered_step(start, target, ts[after], js[after], tr)
         return q, amps, tofs
+
+    def _tied(
+        self,
+        start: np.ndarray,
+        target: np.ndarray,
+        ts: np.ndarray,
+        js: np.ndarray,
+        asked: np.ndarray,
+        answered: np.ndarray,
+        max_step_deg: float,
+    ) -> np.ndarray:
+        """Which of a sweep's readings the stream ties to a posture within the spacing asked.
+
+        A reading's acquisition happened between its request and its answer; the streamed
+        joints say how far the arm went in between. A reading whose answer came late (a
+        loaded host, a slow link: its thread was not scheduled while the arm went on) may
+        have been acquired anywhere on that stretch, and a stretch longer than
+        ``READ_TRAVEL_STEPS`` spacings is no posture: such a reading is left out (the sweep
+        counts the readings it kept, ``_covered_step``, and is swept again slower when they
+        are too few)."""
+        j = int(np.argmax(np.abs(target - start) / timing.MAX_SPEED_DEG_S))
+        travel = np.abs(np.interp(answered, ts, js[:, j]) - np.interp(asked, ts, js[:, j]))
+        return np.asarray(travel <= READ_TRAVEL_STEPS * max_step_deg)
 
     def _covered_step(
         self, start: np.ndarray, target: np.ndarray, ts: np.ndarray, js: np.ndarray, tr: np.ndarray
@@ -450,10 +483,10 @@ class Rig:
         self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
-        readings came too far apart is swept again, back, at the speed the measured motion
-        allows. An arm too fast to sweep even at ``MIN_SPEED`` (its speed overridden upwards,
-        or a simulated cell without time) is read in settled steps along the line instead:
-        slower, but every reading tied to a posture the robot stood at.
+        readings came too far apart (or that kept none, ``_tied``) is swept again, back, at the
+        speed the measured motion allows. An arm too fast to sweep even at ``MIN_SPEED`` (its
+        speed overridden upwards, or a simulated cell without time) is read in settled steps
+        along the line instead: slower, but every reading tied to a posture the robot stood at.
         """
         here = self.controller.read_joints()
         if np.max(np.abs(here - start)) > 1e-3:
@@ -461,8 +494,7 @@ class Rig:
         a, b = np.asarray(start, float), np.asarray(end, float)
         for _ in range(4):
             out = self.sweep(b, max_step_deg)
-            check_readings(self.pulser.endpoint, out[1], out[2])
-            if self.last_sweep_step_deg <= 1.5 * max_step_deg:
+            if len(out[1]) and self.last_sweep_step_deg <= 1.5 * max_step_deg:
                 return out
             a, b = b, a  # the arm stands at the new ``a``
             if self.sweep_speed <= MIN_SPEED:

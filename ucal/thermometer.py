@@ -91,6 +91,10 @@ EDGE_SLACK_MIN = 0.5
 #: The log's course is the log smoothed over this window (min): a quadratic fitted about each
 #: reading (Savitzky–Golay), which keeps a heater's turn and averages the reading noise.
 SMOOTHING_MIN = 0.5
+#: A departure from a straight line this small (°C) is no turn of the tank: it is what the
+#: smoothing's arithmetic leaves on a log that does not change (10⁻¹³ °C on a log of one
+#: value, where the log's noise is as small), far below any logger's resolution.
+TURN_FLOOR_C = 1e-6
 #: A logger's log is written during the run: before anything moves, its last row must lie no
 #: more than this ahead of the host's clock (min), and no more than this (or three of its
 #: intervals) behind it.
@@ -294,8 +298,11 @@ class Thermometer:
 
     def turns(self, data: Any) -> bool:
         """Whether the log sees the tank turn during ``data``'s run: its course departs from a
-        straight line by more than three times the course's own noise."""
-        return self.departure_c(data) > 3.0 * self.course_noise_c(data)
+        straight line by more than three times the course's own noise (and more than
+        ``TURN_FLOOR_C``: a log of one value turns by the round-off of its smoothing, which its
+        noise, as small, does not bound)."""
+        departure = self.departure_c(data)
+        return departure > TURN_FLOOR_C and departure > 3.0 * self.course_noise_c(data)
 
     def noise_c(self, data: Any) -> float:
         """One sigma of a logged reading about the tank's smooth course over ``data``'s run

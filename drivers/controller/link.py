@@ -8,6 +8,8 @@ error of one of them running out, naming it.
 from __future__ import annotations
 
 import socket
+import struct
+import sys
 from typing import Protocol
 
 from drivers.errors import DeviceTimeout
@@ -45,6 +47,42 @@ class Connection(Protocol):
     def sendall(self, data: bytes) -> None: ...
     def shutdown(self, how: int) -> None: ...
     def close(self) -> None: ...
+
+
+#: Linux's ``SO_TIMESTAMPNS`` (and its control message ``SCM_TIMESTAMPNS``), which Python's
+#: ``socket`` module does not name: the kernel stamps every segment it receives (realtime
+#: clock, a ``struct timespec``), and ``recvmsg`` hands the stamp of the last one read over.
+_SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct("qq")
+#: Control-message buffer of one stamp.
+STAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
+
+
+def enable_receive_stamps(sock: object) -> bool:
+    """Ask the kernel to stamp what ``sock`` receives (Linux, a real socket); whether it does.
+
+    A frame's arrival is then the kernel's, not the moment a thread of a loaded host got round
+    to reading it: a reader scheduled late reads a frame that waited in the socket, and stamps
+    it with the time it arrived, not the time it was read (``receive_stamp_s``)."""
+    if not (sys.platform.startswith("linux") and isinstance(sock, socket.socket)):
+        return False
+    if not hasattr(sock, "recvmsg") or not STAMP_SPACE:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def receive_stamp_s(ancillary: list[tuple[int, int, bytes]]) -> float | None:
+    """When the kernel received the last segment of a ``recvmsg`` whose control messages are
+    ``ancillary`` (s since the epoch, the host's realtime clock); None without a stamp."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            return sec + 1e-9 * nsec
+    return None
 
 
 def tcp_connect(host: str, port: int, timeout_s: float) -> socket.socket:

@@ -466,6 +466,16 @@ class FrameReader:
         """Bytes received but not yet part of a complete frame."""
         return len(self._buf)
 
+    @property
+    def wanted(self) -> int:
+        """Bytes that complete the next frame (its length prefix first): a reader that reads
+        no more than this at a time gets one frame per read, never the start of the next."""
+        n = len(self._buf)
+        if n < LENGTH_SIZE:
+            return LENGTH_SIZE - n
+        (length,) = _LENGTH.unpack_from(self._buf)
+        return max(LENGTH_SIZE + length - n, 1)
+
     def feed(self, data: bytes) -> list[Message]:
         """Append ``data`` and return every message completed by it, in order."""
         if self._error is not None:

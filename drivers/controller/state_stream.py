@@ -18,13 +18,23 @@ import logging
 import math
 import select
 import threading
+import time
 from typing import Any
 
 import numpy as np
 
-from drivers.clock import Clock
+from drivers.clock import Clock, HostClock
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
-from drivers.controller.link import N_JOINTS, POLL_S, RECV_SIZE, Connection, timeout_error
+from drivers.controller.link import (
+    N_JOINTS,
+    POLL_S,
+    RECV_SIZE,
+    STAMP_SPACE,
+    Connection,
+    enable_receive_stamps,
+    receive_stamp_s,
+    timeout_error,
+)
 from drivers.controller.simple_message import (
     CommType,
     FrameReader,
@@ -73,6 +83,7 @@ class StateStreamController(RobotController):
         self.clock = clock
         self._state_sock: Connection | None = None
         self._reader_waiting = True  # the state reader is blocked in recv, nothing in hand
+        self._kernel_stamps = False  # frames stamped with their arrival in the kernel
         self._state_thread: threading.Thread | None = None
         self._closing = threading.Event()
         # Guards everything below; notified on every state frame and when the link dies.
@@ -119,6 +130,10 @@ class StateStreamController(RobotController):
             self._joint_count = 0
             self._status_marks.clear()
         self._state_sock = sock
+        # On the host's clock every frame is stamped with its arrival in the kernel, not when
+        # the reader thread got round to it (``_state_loop``); a simulated clock stamps frames
+        # with the instants they describe already.
+        self._kernel_stamps = isinstance(self.clock, HostClock) and enable_receive_stamps(sock)
         self._state_thread = threading.Thread(
             target=self._state_loop,
             args=(sock, FrameReader(self.device, self.endpoint)),
@@ -128,11 +143,23 @@ class StateStreamController(RobotController):
         self._state_thread.start()
 
     def _state_loop(self, sock: Connection, reader: FrameReader) -> None:
+        """Read the state port until closed. With the kernel's receive stamps a frame at a time
+        (a stamp is the last segment's of a read): a frame is stamped with when it arrived,
+        however late a loaded host schedules this thread to read it, so that the arm's
+        position it gives is paired with the instant the controller sent it for (a frame read
+        20 ms late and stamped on reading puts every reading of those 20 ms at the arm's
+        position before them)."""
         debug = log.isEnabledFor(logging.DEBUG)
+        stamped = self._kernel_stamps
+        ancillary: list[tuple[int, int, bytes]] = []
+        last_arrived: float | None = None
         while not self._closing.is_set():
             self._reader_waiting = True
             try:
-                data = sock.recv(RECV_SIZE)
+                if stamped:
+                    data, ancillary, _, _ = sock.recvmsg(reader.wanted, STAMP_SPACE)  # type: ignore[attr-defined]
+                else:
+                    data = sock.recv(RECV_SIZE)
             except TimeoutError:
                 continue
             except OSError as e:
@@ -157,7 +184,17 @@ class StateStreamController(RobotController):
                 self._state_failed(e)
                 return
             if messages:
-                taken = self._on_state_messages(messages, self.clock.now())
+                now = self.clock.now()
+                arrived = receive_stamp_s(ancillary) if stamped else None
+                if arrived is not None and arrived == last_arrived:
+                    now = self._last_frame_t  # the same segment as the frame before
+                elif arrived is not None:
+                    # in arrival order, and never before the connection: a realtime clock
+                    # stepped forward cannot date a frame before the one read before it
+                    age_s = max(time.time() - arrived, 0.0)
+                    now = max(now - age_s, self._last_frame_t, self._connected_t)
+                last_arrived = arrived
+                taken = self._on_state_messages(messages, now)
                 self.clock.frames_taken(taken)
 
     def _closed_detail(self) -> str:
@@ -180,7 +217,17 @@ class StateStreamController(RobotController):
                     rad = msg.joints_rad if isinstance(msg, JointPosition) else msg.positions_rad
                     joints = np.degrees(np.asarray(rad[:N_JOINTS], dtype=float))
                     self._joints_deg, self._joints_t = joints, now
-                    self._samples.append(JointSample(now, joints))
+                    sample = JointSample(now, joints)
+                    if self._samples and self._samples[-1].t_s >= now:
+                        # Frames that came with one stamp (one read of a reader that fell
+                        # behind, or segments the kernel merged while they waited for it,
+                        # stamped with the last one's arrival): the stamp is the newest
+                        # frame's arrival only, and the older frames' postures are kept at no
+                        # instant (a posture paired with a later instant than it was sent at
+                        # puts every reading in between behind the arm).
+                        self._samples[-1] = sample
+                    else:
+                        self._samples.append(sample)
                     joint_frames += 1
                     self._joint_count += 1
                     self._joint_type = MsgType(msg.msg_type).name

@@ -199,6 +199,27 @@ def test_a_log_that_sees_no_turn_leaves_the_paths_alone() -> None:
     assert water.noise_c(run) == pytest.approx(0.01 / np.sqrt(12.0), rel=0.5)
 
 
+def test_a_log_of_one_value_never_turns() -> None:
+    """A logger that writes the same reading all run (a steady tank), its rows a second apart
+    give or take a host's scheduling: the smoothing leaves 10⁻¹³ °C of round-off on the
+    course, and the log, without a second value, shows no noise to hold it against; the
+    summary says no change, no drift and nothing applied, whatever the rows' spacing."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        rows = int(rng.integers(40, 120))
+        log_t = np.cumsum(np.full(rows, 1.0 / 60.0) + rng.normal(0.0, 1e-3 / 60.0, rows)) - 0.3
+        water = Thermometer(log_t, np.full(rows, 20.3), 0.05, "live.csv")
+        times = np.sort(rng.uniform(0.0, 0.9 * log_t[-1], 13))
+        run = _tank_run(np.full(13, 20.3), times)
+        summary = water.summary(run)
+        assert (summary["change_c"], summary["drift_c_per_min"], summary["applied"]) == (
+            0.0,
+            0.0,
+            False,
+        )
+        assert water.corrected(run) is run
+
+
 def test_tool_frames_peaks_are_corrected_as_the_faces_are() -> None:
     """Tool-frame's peaks carry their path as ``distance`` (path, std): the same correction,
     and the peaks' order of the run's lists is the reference time's."""

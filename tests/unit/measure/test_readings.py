@@ -1,5 +1,6 @@
-"""Readings checked where the procedures take them, a zero noise floor, and a bounded
-acquisition raster: a fake pulser and a fake controller, no processes."""
+"""Readings checked where the procedures take them, a zero noise floor, a bounded acquisition
+raster, and a sweep's readings paired with the streamed joints (a reading answered late, while
+the arm went on, tied to no posture): a fake pulser and a fake controller, no processes."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading
+from ucal import timing
 from ucal.acoustics import piston_directivity
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
@@ -19,7 +21,7 @@ from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import SearchMode
 from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
-from ucal.rig import ZERO_FLOOR_FSH, Rig
+from ucal.rig import READ_TRAVEL_STEPS, ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
 
@@ -369,3 +371,89 @@ def test_an_interrupt_swallowed_since_the_last_motion_starts_no_other(
         with pytest.raises(KeyboardInterrupt, match="signal 15"):
             move(np.full(6, -1.0))
     assert rig.counters.moves == moved
+
+
+PERIOD_S = 0.02  # the state stream's
+READ_S = 0.002  # a reading's round trip
+LATE_S = 0.04  # the one answer a loaded host reads late
+LATE_READ = 5
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += max(seconds, 0.0)
+
+
+class StreamedArm(FakeController):
+    """Moves linearly at the commanded speed; streams its joints every ``PERIOD_S``, each frame
+    stamped with the instant it shows."""
+
+    def __init__(self, clock: FakeClock) -> None:
+        super().__init__()
+        self.clock = clock  # type: ignore[assignment]
+        self.motion = (clock.t, clock.t, np.zeros(6), np.zeros(6))
+
+    def at(self, t: float) -> np.ndarray:
+        t0, t1, a, b = self.motion
+        f = 1.0 if t >= t1 else max(t - t0, 0.0) / (t1 - t0)
+        return a + f * (b - a)
+
+    def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
+        return self.at(np.floor(self.clock.t / PERIOD_S) * PERIOD_S)
+
+    def start_move(self, target_deg: np.ndarray, speed: float = 0.5) -> None:
+        here, target = self.at(self.clock.t), np.asarray(target_deg, float)
+        duration = float(np.max(np.abs(target - here) / (timing.MAX_SPEED_DEG_S * speed)))
+        self.motion = (self.clock.t, self.clock.t + duration, here, target)
+
+    def wait_settled(
+        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
+    ) -> np.ndarray:
+        self.clock.t = max(self.clock.t, self.motion[1] + PERIOD_S)
+        return self.at(self.clock.t)
+
+    def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
+        k = np.arange(np.ceil(since_t_s / PERIOD_S), np.floor(self.clock.t / PERIOD_S) + 1)
+        return [JointSample(float(t), self.at(float(t))) for t in k * PERIOD_S]
+
+
+class LatePulser(QuietPulser):
+    """Each reading takes ``READ_S``, the ``LATE_READ``-th ``LATE_S``; acquired halfway. Its
+    amplitude says which reading it was."""
+
+    def __init__(self, clock: FakeClock, arm: StreamedArm) -> None:
+        super().__init__("fake-pulser://timed")
+        self.clock, self.arm, self.n = clock, arm, 0
+        self.acquired: dict[float, np.ndarray] = {}
+
+    def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
+        self.n += 1
+        took = LATE_S if self.n == LATE_READ else READ_S
+        self.clock.sleep(0.5 * took)
+        amplitude = self.n / 1000.0
+        self.acquired[amplitude] = self.arm.at(self.clock.t)
+        self.clock.sleep(0.5 * took)
+        return GateReading(amplitude, 1000.0, self.n, self.clock.t, self.clock.t)
+
+
+def test_a_reading_answered_late_in_a_sweep_is_left_out_and_the_others_tied() -> None:
+    clock = FakeClock()
+    arm = StreamedArm(clock)
+    pulser = LatePulser(clock, arm)
+    rig = Rig(arm, pulser, np.full(6, -270.0), np.full(6, 270.0))
+    target = np.array([0.0, 0.0, 0.0, 1.5, 0.0, 0.0])
+    step = 0.06
+    q, amps, _ = rig.sweep(target, max_step_deg=step)
+    assert pulser.n > 2 * LATE_READ  # the late one is well inside the sweep
+    kept = np.round(amps * 1000).astype(int)
+    # the late reading spans 20 of the spacings' travel: not where it was acquired
+    assert LATE_READ not in kept
+    assert len(kept) == pulser.n - 1
+    truth = np.array([pulser.acquired[a][3] for a in amps])
+    assert np.max(np.abs(q[:, 3] - truth)) <= 0.5 * READ_TRAVEL_STEPS * step
