@@ -62,6 +62,7 @@ from ucal.cell import CellProfile
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import N_JOINTS, RobotModel, dh_matrix, transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.output import writable_directory, write_file
 from ucal.profile import real_path
 from ucal.profile.read import profile_from_data
 from ucal.ros2_description import (
@@ -76,7 +77,6 @@ from ucal.ros2_description import (
     top_xacro,
     urdf_xml,
 )
-from ucal.val3 import _writable_directory, _write  # the export directory, as val3 writes it
 from ucal.validation import parse_toml_bytes
 
 log = logging.getLogger(__name__)
@@ -568,7 +568,7 @@ def write_ros2(arm: Ros2Arm, directory: Path) -> dict[str, Path]:
     file that could not be. Returns what each file is → its path.
     """
     directory = Path(directory)
-    _writable_directory(directory)
+    writable_directory(directory)
     texts = {
         "kinematics": kinematics_yaml(arm),
         "joint_offsets": joint_offsets_yaml(arm),
@@ -581,7 +581,7 @@ def write_ros2(arm: Ros2Arm, directory: Path) -> dict[str, Path]:
     written = {}
     for kind, name in file_names(arm.name).items():
         path = directory / name
-        _write(path, texts[kind].encode("utf-8"))
+        write_file(path, texts[kind].encode("utf-8"))
         written[kind] = path
     log.info("wrote %s", ", ".join(str(p) for p in written.values()))
     return written

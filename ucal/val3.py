@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -49,10 +48,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal import files
 from ucal.cell import CellProfile
-from ucal.errors import InputError
 from ucal.kinematics.dh import transform
+from ucal.output import writable_directory, write_file
 from ucal.profile import HistoryEntry, last_measurement, real_path
 
 log = logging.getLogger(__name__)
@@ -268,18 +266,6 @@ def cell_json(cell: Val3Cell) -> dict[str, Any]:
     }
 
 
-def _writable_directory(directory: Path) -> None:
-    """Create ``directory`` if needed; refuse (exit 2, naming it) one that cannot be written."""
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise InputError(f"{directory}: cannot write: not a directory") from None
-    except OSError as e:
-        raise InputError(f"{directory}: cannot create the directory: {e.strerror or e}") from None
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise InputError(f"{directory}: cannot write: the directory is not writable")
-
-
 def write_application(cell: Val3Cell, directory: Path) -> list[Path]:
     """Write the application ``directory/APPLICATION/`` and ``directory/ucal_cell.json``.
 
@@ -289,8 +275,8 @@ def write_application(cell: Val3Cell, directory: Path) -> list[Path]:
     """
     directory = Path(directory)
     app = directory / APPLICATION
-    _writable_directory(directory)
-    _writable_directory(app)
+    writable_directory(directory)
+    writable_directory(app)
     contents = {
         app / f"{APPLICATION}.pjx": project_xml(),
         app / f"{APPLICATION}.dtx": database_xml(cell),
@@ -299,17 +285,10 @@ def write_application(cell: Val3Cell, directory: Path) -> list[Path]:
     }
     written = []
     for path, text in contents.items():
-        _write(path, (_BOM + text).encode("utf-8"))
+        write_file(path, (_BOM + text).encode("utf-8"))
         written.append(path)
     json_path = directory / JSON_NAME
-    _write(json_path, (json.dumps(cell_json(cell), indent=2) + "\n").encode("utf-8"))
+    write_file(json_path, (json.dumps(cell_json(cell), indent=2) + "\n").encode("utf-8"))
     written.append(json_path)
     log.info("wrote %s and %s", app, json_path)
     return written
-
-
-def _write(path: Path, data: bytes) -> None:
-    try:
-        files.commit(files.stage(path, data), path)
-    except OSError as e:
-        raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
