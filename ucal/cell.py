@@ -63,8 +63,9 @@ class PulserConfig:
     ``register_map``: the Modbus register map of the device (``drivers.pulser.map_file``),
     read and validated from ``register_map_path``; None: ucal's own map. ``timeout_s``: the
     link's margin, how long a request waits for its answer beyond what the instrument was asked
-    to do (a reading's averages at the PRF, ``drivers.pulser.base.ReadingWait``); ``retries``: how often a request that got no byte
-    back is asked again before the device counts as silent. ``timing``: who times the echo,
+    to do (a reading's averages at the PRF, ``drivers.pulser.base.ReadingWait``); ``retries``:
+    how often a request that got no byte back is asked again before the device counts as
+    silent. ``timing``: who times the echo,
     ``"gate"`` (the instrument's own gate) or ``"ascan"`` (ucal, from the digitised A-scan,
     ``ucal.echo``); ``reference_echo``: the cell's reference echo for that, read from
     ``reference_echo_path`` (None: captured on the block at the start of a run).
