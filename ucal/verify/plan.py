@@ -29,6 +29,7 @@ from ucal.calibration.model import (
     CellGeometry,
     Face,
     FaceMeasurement,
+    beam_and_tcp,
     distance_joints,
 )
 from ucal.calibration.plan import calibration_pose, geometry, tool_lever
@@ -273,6 +274,76 @@ def tool_clearance_mm(profile: CellProfile, w_local_mm: np.ndarray) -> float:
     return float(np.min(w_local_mm) - np.linalg.norm(v))
 
 
+def undetermined_joints(profile: CellProfile) -> tuple[int, ...]:
+    """The arm joints (0-based, of 1–3) whose offset the profile's last calibration left
+    undetermined (``[calibration] std_deg`` not positive): the "after" pass stands where their
+    true offsets put it, which the profile does not know (``FRESH_OFFSET_STD_DEG``). None
+    for a profile never calibrated, whose "after" pass is its "before" one."""
+    std = profile.joint_offsets_std_deg
+    if std is None:
+        return ()
+    std = np.asarray(std, float)
+    return tuple(j for j in range(3) if not (np.isfinite(std[j]) and std[j] > 0))
+
+
+#: How a refusal names the offsets the last calibration left undetermined.
+UNDETERMINED_WORDS = "not determined by the last calibration"
+
+
+@dataclass(frozen=True)
+class Undetermined:
+    """``TOLERANCE_SIGMAS`` of what the undetermined arm offsets (``undetermined_joints``)
+    can move the wrist centre and the tool centre at one posture, along each block axis (mm,
+    (3,)), and the joint that moves them most."""
+
+    joints: tuple[int, ...]
+    wrist_mm: np.ndarray
+    tcp_mm: np.ndarray
+    joint: int | None
+
+    def words(self, moved_mm: float) -> str:
+        """How much of the room (mm) the undetermined offsets take, in words."""
+        names = ", ".join(str(j + 1) for j in self.joints)
+        return (
+            f"{moved_mm:.1f} mm of it within what the offsets of joint(s) {names} ("
+            f"{UNDETERMINED_WORDS}: [calibration] std_deg, unobservable_joints; "
+            f"a fresh cell's ±{safety.FRESH_OFFSET_STD_DEG:g} deg one sigma) can move it "
+            f"({safety.TOLERANCE_SIGMAS:g} sigma)"
+        )
+
+    def cure(self) -> str:
+        """What would lift a refusal they cause."""
+        assert self.joint is not None
+        return f"a calibration that determines joint {self.joint + 1}'s offset would lift it"
+
+
+def undetermined_spread(
+    profile: CellProfile, q: np.ndarray, offsets_deg: np.ndarray
+) -> Undetermined:
+    """What the undetermined arm offsets can move W and the TCP at readings ``q`` (block
+    axes, ``TOLERANCE_SIGMAS``, the joints added in variance); zero with none."""
+    joints = undetermined_joints(profile)
+    geom = geometry(profile)
+    rot = profile.sample_matrix[:3, :3]
+    var_w, var_t = np.zeros(3), np.zeros(3)
+    most, worst = None, 0.0
+    for j in joints:
+        h = np.zeros(6)
+        h[j] = safety.FRESH_OFFSET_STD_DEG
+        frames = fk_frames(
+            profile.model, np.array([q, q]), np.array([offsets_deg + h, offsets_deg - h])
+        )
+        dw = rot.T @ (frames[0, 4, :3, 3] - frames[1, 4, :3, 3]) / 2
+        _, tcp = beam_and_tcp(geom, np.array([q, q]), np.array([offsets_deg + h, offsets_deg - h]))
+        dt = rot.T @ (tcp[0] - tcp[1]) / 2
+        var_w += dw**2
+        var_t += dt**2
+        if np.max(np.abs(dw)) > worst:
+            most, worst = j, float(np.max(np.abs(dw)))
+    k = safety.TOLERANCE_SIGMAS
+    return Undetermined(joints, k * np.sqrt(var_w), k * np.sqrt(var_t), most)
+
+
 def joints_for(
     profile: CellProfile,
     pose: np.ndarray,
@@ -310,7 +381,9 @@ def plan_verify(
     the θ5 singularity margin of the profile; each beam meets its face inside the edges; the
     wrist centre is far enough from each face that the TCP, turning about W, stays
     ``MIN_WATER_PATH_MM`` away from it; every check with the room the declared tolerances
-    need (``tolerance_margins``).
+    need (``tolerance_margins``); the "after" points' wrist centre and the tool check's ends
+    with the room the arm offsets the last calibration left undetermined can take
+    (``undetermined_spread``: the "after" pass stands where the true ones put it).
 
     Where the points as paper 000 places them fail a check, the plan's free choices are
     searched: the tool turned about the beam (``PLAN_TURNS_DEG``: joint 6 and, with a holder,
@@ -323,6 +396,9 @@ def plan_verify(
     # turning an on-axis beam about itself turns joint 6 alone
     turns = PLAN_TURNS_DEG[:1] if safety.beam_on_flange_axis(profile) else PLAN_TURNS_DEG
     tried = 0
+    # a choice refused for the offsets the calibration left undetermined, named beside the
+    # first refusal (the other choices' checks may fail for other causes)
+    undetermined: SafetyError | None = None
     for raise_mm in PLAN_RAISES_MM:
         for walls in PLAN_WALL_PATHS_MM:
             for turn in turns:
@@ -340,12 +416,15 @@ def plan_verify(
                         )
                     except SafetyError as e:
                         first = first or e
+                        if undetermined is None and UNDETERMINED_WORDS in str(e):
+                            undetermined = e
     s_mat = profile.sample_matrix
     _, lever = tool_lever(profile)
     w = s_mat[:3, :3] @ np.array([100.0, 100.0, height_mm + lever]) + s_mat[:3, 3]
     advice = safety.move_advice(profile, lambda moved: _plans_at_all(moved, height_mm), w)
+    also = "" if undetermined in (None, first) else f"; another choice: {undetermined}"
     raise SafetyError(
-        f"{first}; none of the {tried - 1} other choices of the points' height, their area, "
+        f"{first}{also}; none of the {tried - 1} other choices of the points' height, their area, "
         f"the tool's turn about the beam (and their side of the step) passes either: {advice}"
     )
 
@@ -408,11 +487,24 @@ def _plan_choice(
             pose = target_matrix(seen, p, rotations[i])
             q = joints_for(profile, pose, off, prev, f"plan {label}", margins.wrist_deg)
             w_local = wrist_centre_local(seen, q, off)
-            if tool_clearance_mm(profile, w_local) < MIN_WATER_PATH_MM:
+            # the "after" pass stands where the true offsets put it: those the calibration
+            # left undetermined can bring W nearer a face than the profile says (a point in
+            # the block, found only once the arm is there)
+            unknown = undetermined_spread(profile, q, off) if pass_name == "after" else None
+            kept = w_local if unknown is None else w_local - unknown.wrist_mm
+            if tool_clearance_mm(profile, kept) < MIN_WATER_PATH_MM:
+                k = int(np.argmin(kept))
+                if unknown is None or unknown.joint is None or not unknown.wrist_mm[k] > 0:
+                    raise SafetyError(
+                        f"plan {label}: the wrist centre would be "
+                        f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
+                        f"mm from it) needs {MIN_WATER_PATH_MM:g} mm more"
+                    )
                 raise SafetyError(
-                    f"plan {label}: the wrist centre would be "
-                    f"{np.min(w_local):.1f} mm from a face; the tool ({reach:.1f} "
-                    f"mm from it) needs {MIN_WATER_PATH_MM:g} mm more"
+                    f"plan {label}: the wrist centre would be {w_local[k]:.1f} mm from face "
+                    f"{FACE_NAMES[k]}, {unknown.words(float(unknown.wrist_mm[k]))}; the tool "
+                    f"({reach:.1f} mm from it) needs {MIN_WATER_PATH_MM:g} mm more: "
+                    f"{unknown.cure()}"
                 )
             faces = np.empty((3, 6))
             for k in FACE_ORDER:
@@ -439,6 +531,11 @@ def _plan_choice(
         # tolerances) and holds the true beam on the face's normal (the tool's orientation
         # within its own): both ends checked with the room those need
         end[axis] += margins.block_mm
+        # and on to where the point really is: the arm offsets the calibration left
+        # undetermined move it as far (the run scans from the point as measured)
+        end[axis] += undetermined_spread(profile, after[i].joints_deg, offsets["after"]).tcp_mm[
+            axis
+        ]
         label = edge_label(axis, groups[group_of[i]][0])
         for where, point in (("start", nominal[i]), ("end", end)):
             pose = target_matrix(profile, point, rotations[i])

@@ -22,6 +22,7 @@ from ucal.calibration.model import (
     CellGeometry,
     beam_and_tcp,
 )
+from ucal.calibration.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
 from ucal.calibration.sequence import geometry
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
@@ -271,6 +272,10 @@ def solve_tool_offset(
     return ToolOffset(float(x[0]), x[1] * basis[0] + x[2] * basis[1], a_t, bool(rank == 3), misfit)
 
 
+#: ``WristMap.fit``: the misfit (mm) a degree of an offset correction beyond its bound costs.
+BOUND_WEIGHT = 10.0
+
+
 @dataclass(frozen=True)
 class WristMap:
     """Where the wrist centre really is at given readings (block coordinates, mm), and how the
@@ -306,23 +311,46 @@ class WristMap:
         moves, times the tool's reach). Where the points do not separate an offset correction
         from a turn of the block (one or two points, or joint 1 against the block's yaw), a
         weak prior prefers the offsets: both carry W the same way where they are one
-        motion."""
+        motion. No correction goes beyond ``TOLERANCE_SIGMAS`` of what the profile knows of
+        that offset (``offsets_std_deg``): a few points nearly in line along joint 2's axis
+        leave a turn about it free, and a wrist offset the map does not model (one calibrate
+        left undetermined) then drove joint 2's correction to tens of degrees, the scans' ends
+        beyond the arm's reach."""
         s_mat = profile.sample_matrix
         q = np.asarray(joints_deg, float).reshape(-1, 6)
         measured = np.asarray(measured_mm, float).reshape(-1, 3)
         base = np.asarray(offsets_deg, float)
         reach = float(np.linalg.norm(tool_lever(profile)[0]))
+        bound = TOLERANCE_SIGMAS * offsets_std_deg(profile)
+        std = profile.joint_offsets_std_deg
+        # the wrist offsets the last calibration left undetermined turn the flange: fitted
+        # too where the rotations are measured (else the arm's corrections absorb them);
+        # joint 6 not with the beam on its axis (where it turns the beam's footprint alone)
+        free = np.zeros(3)
+        if std is not None and rotations is not None:
+            free = (~(np.asarray(std, float)[3:] > 0)).astype(float)
+            if beam_on_flange_axis(profile):
+                free[2] = 0.0
 
         def build(x: np.ndarray) -> WristMap:
             off = base.copy()
             off[:3] += x[:3]
+            off[3:] += free * x[12:] if len(x) > 12 else 0.0
             rot = Rotation.from_rotvec(x[3:6]).as_matrix() @ s_mat[:3, :3].T
             turn = Rotation.from_rotvec(x[9:12]).as_matrix()
             return cls(profile.model, off, rot, x[6:9] - rot @ s_mat[:3, 3], turn)
 
         def fun(x: np.ndarray) -> np.ndarray:
             m = build(x)
-            res = [(m(q) - measured).ravel(), 1e-4 * x[:3], 0.1 * x[3:6]]
+            corrections = np.concatenate([x[:3], free * x[12:]]) if len(x) > 12 else x[:3]
+            beyond = np.maximum(np.abs(corrections) - bound[: len(corrections)], 0.0)
+            res = [
+                (m(q) - measured).ravel(),
+                1e-4 * corrections,
+                BOUND_WEIGHT * beyond,
+                (1 - free) * x[12:] if len(x) > 12 else np.zeros(0),
+                0.1 * x[3:6],
+            ]
             if rotations is not None:
                 miss = np.swapaxes(m.rotation(q), -1, -2) @ rotations
                 res.append(reach * Rotation.from_matrix(miss).as_rotvec().ravel())
@@ -330,7 +358,7 @@ class WristMap:
                 res.append(x[9:12])
             return np.concatenate(res)
 
-        x0 = np.zeros(12)
+        x0 = np.zeros(15 if free.any() else 12)
         x0[6:9] = (measured - build(x0)(q)).mean(0)
         sol = least_squares(fun, x0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
         return build(sol.x)
