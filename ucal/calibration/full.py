@@ -13,8 +13,12 @@ Identifiability, from the data Jacobian ``J`` (rows in units of their σ, column
 at the profile's values: the nuisance quantities (block pose, tool frame) and the joint offsets span
 what the cell itself can do; each kinematic parameter is then taken in table order and kept if
 its column adds a direction that span lacks (relative residual of its projection above
-``REDUNDANT_REL``), else it is *not identifiable*: it keeps its nominal value, and the
-parameters it duplicates absorb its effect. Physics says which (``redundancy_reason``):
+``REDUNDANT_REL``), else it is *not identifiable*: a nuisance carried with its prior, as every
+other uncertain quantity is, reported as not determined (its tolerance stands). Held at its
+nominal value instead, its error (within its tolerance: ``d₅``, ``a₅`` 0.3 mm on a real arm)
+had nowhere to go but the residuals and the parameters it duplicates: a misfit on most real
+tables, or a TCP error no result stated (``tests/system/test_full_level_real_tables.py``).
+Physics says which (``redundancy_reason``):
 
 * ``d₁`` moves the whole arm along axis 1 like the block's height; the base frame is a gauge;
 * ``d₃`` and ``d₂`` both slide along the parallel axes 2 and 3: only their sum is seen (and
@@ -193,7 +197,7 @@ class Identifiability:
     rank: int  # numerical rank of the data Jacobian (all unknowns)
     n_parameters: int  # columns it has (free unknowns)
     identifiable: tuple[str, ...]  # kinematic parameters the data determine
-    redundant: dict[str, str]  # not identifiable → why (kept at nominal)
+    redundant: dict[str, str]  # not identifiable → why (carried with its prior)
     weak: tuple[str, ...]  # independent, but the prior dominates
     scale_note: str = ""  # the common scale of lengths and sound speed
 
@@ -309,7 +313,7 @@ class IdentifiedParameter:
     """A kinematic parameter as the full level found it (deg or mm)."""
 
     value: float
-    std: float | None  # None: not identifiable, kept at its nominal value
+    std: float | None  # None: not identifiable, carried with its prior (not determined)
     nominal: float
     status: str  # "identified", "prior-dominated" or "not identifiable"
 
@@ -445,9 +449,9 @@ def written_dh_std(cell: CellFit, params: dict[str, IdentifiedParameter]) -> np.
     covariance ``k·diag(C)`` covers ``C`` in every direction when ``k`` is the largest
     eigenvalue of the parameters' correlation matrix, so each std is inflated by √k (about 2
     on the example cell), up to its prior's (the [robot] tolerance, or what an earlier full
-    level wrote: a prior-dominated parameter keeps it). A parameter not identifiable (kept at
-    its nominal value, its effect absorbed by others) is not determined: NaN, and the [robot]
-    tolerance stands.
+    level wrote: a prior-dominated parameter keeps it). A parameter not identifiable (carried
+    with its prior, its effect shared with the parameters it duplicates) is not determined:
+    NaN, and the [robot] tolerance stands.
     """
     out = np.full((6, 4), np.nan)
     names = [n for n, p in params.items() if p.std is not None and np.isfinite(p.std)]
@@ -478,10 +482,11 @@ def solve_full(
     calibration corrects are far too small to change it): ``structure``, that of every posture
     the block allows (``FullPlan.structure``), separates what no measurement can see from what
     these few postures happen not to (those stay unknowns with their priors: prior-dominated);
-    without it, ``meas`` alone is judged. The redundant parameters are held at their nominal
-    values in the fit. ``fixed`` names unknowns held at the profile's values too (e.g. the tool
-    orientation for ``--beam fixed``). ``steps``: the measurements over the step's top (the
-    length standard; the step's height is then an unknown with its prior).
+    without it, ``meas`` alone is judged. The redundant parameters are carried with their
+    priors (the table written as fitted, their stds not determined). ``fixed`` names unknowns
+    held at the profile's values (e.g. the tool orientation for ``--beam fixed``). ``steps``:
+    the measurements over the step's top (the length standard; the step's height is then an
+    unknown with its prior).
     """
     steps = steps or []
     ident = (
@@ -500,7 +505,7 @@ def solve_full(
     cell = solve_cell(
         prior,
         meas,
-        fixed=fixed + tuple(ident.redundant) + (() if steps else STEP) + (BLOCK_YAW,),
+        fixed=fixed + (() if steps else STEP) + (BLOCK_YAW,),
         max_std_deg=max_std_deg,
         table=table,
         extra=extra if steps else None,
@@ -515,14 +520,16 @@ def solve_full(
     for name in KINEMATIC:
         i = cell.table.index(name)
         nominal = float(cell.table.prior[i])
-        if name in ident.redundant:
-            params[name] = IdentifiedParameter(nominal, None, nominal, "not identifiable")
-            continue
         value, sigma = cell.value(name), cell.sigma(name)
-        weak = name in ident.weak or sigma > PRIOR_DOMINATED * cell.table.prior_stds[i]
-        params[name] = IdentifiedParameter(
-            value, sigma, nominal, "prior-dominated" if weak else "identified"
-        )
+        if name in ident.redundant:
+            # a nuisance carried with its prior: the table as fitted (the parameters it
+            # duplicates took the rest of its effect), not determined
+            params[name] = IdentifiedParameter(value, None, nominal, "not identifiable")
+        else:
+            weak = name in ident.weak or sigma > PRIOR_DOMINATED * cell.table.prior_stds[i]
+            params[name] = IdentifiedParameter(
+                value, sigma, nominal, "prior-dominated" if weak else "identified"
+            )
         row, col = _position(name)
         if name in BETA:
             beta[row] = value

@@ -386,7 +386,7 @@ def show_full_result(console: Console, result: FullResult) -> None:
     ident = sol.ident
     console.print(f"rank {ident.rank} of {ident.n_parameters} unknowns")
     for name, why in ident.redundant.items():
-        console.print(escape(f"{name} not identifiable, kept at its nominal value: {why}"))
+        console.print(escape(f"{name} not identifiable, carried with its tolerance: {why}"))
     if ident.scale_note:
         console.print(escape(f"scale: {ident.scale_note}"))
     if sol.length_standard is not None:

@@ -140,8 +140,9 @@ def test_nominal_robot_gives_the_nominal_table_back(cell):
     sol = solve_full(prior_from_profile(profile), meas, structure=plan.structure)
     truth = true_parameters(profile.model)
     for name, v in sol.parameters.items():
-        if v.std is None:
-            assert v.value == truth[name]
+        if v.std is None:  # not identifiable: carried with its prior, which it stays near
+            tolerance = profile.dh_angle_std_deg if "deg" in name else profile.dh_length_std_mm
+            assert abs(v.value - truth[name]) <= 0.1 * tolerance, name
         else:
             assert abs(v.value - truth[name]) <= 3 * v.std, name
 

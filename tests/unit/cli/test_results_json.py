@@ -175,7 +175,7 @@ def full_case(path: Path, cell: CellProfile) -> Case:
         },
         [
             "rank 28 of 40 unknowns",
-            "dh1_d_mm not identifiable, kept at its nominal value: the block's height",
+            "dh1_d_mm not identifiable, carried with its tolerance: the block's height",
             "dh2_a_mm │ 650.01200 │ 0.00400",
             "180 moves, 1602 pulser reads; profile not written",
         ],
