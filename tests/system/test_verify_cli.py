@@ -388,3 +388,56 @@ def test_a_beam_off_the_profiles_is_said_not_hidden(tmp_path: Path) -> None:
     assert misfit == pytest.approx(off, rel=0.5)  # of the size it says
     [note] = [n for n in out["notes"] if "disagree" in n]
     assert "run `ucal tool-frame`" in note
+
+
+def counting_moves(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
+    """Count the controller motions of the commands run after it."""
+    from ucal.rig import Rig
+
+    moves = {"n": 0}
+    move = Rig.move
+
+    def counted(self, q, speed=None):
+        moves["n"] += 1
+        return move(self, q, speed)
+
+    monkeypatch.setattr(Rig, "move", counted)
+    return moves
+
+
+def test_offsets_calibrate_left_undetermined_refuse_before_the_first_motion(tmp_path, monkeypatch):
+    """A tx90xl calibrated with joints 2 and 3 left undetermined: with the cell's true ones
+    2.1° and −0.6° off, its "after" points stood 25 mm lower than the profile put them, and
+    verify refused after 175 moves, the tool predicted 5 mm from the XY face. The plan keeps
+    the room those offsets can take; where no choice of the points keeps it, verify refuses
+    before the first motion and names them."""
+    profile = tmp_path / "cell.toml"
+    create_profile(profile, "tx90xl")
+    write_profile(
+        profile,
+        {
+            "tool": {
+                "position_mm": [-2.238, -0.131, 138.199],
+                "rotation_deg": [0.548, -0.529, 0.0],
+                "position_std_mm": [0.026, 0.014, 0.848],
+                "rotation_std_deg": [0.000642, 0.000649, 0.5],
+            },
+            "sample": {
+                "position_mm": [375.008, 170.517, -223.411],
+                "rotation_deg": [0.705, 0.868, 0.0],
+            },
+            "calibration": {
+                "joint_offsets_deg": [-0.890844, 0.0, 0.0, 2.260006, -1.443715, 0.0],
+                "std_deg": [0.500038, -1.0, -1.0, 0.005609, 0.000672, -1.0],
+                "unobservable_joints": [2, 3, 6],
+            },
+        },
+        "calibrated with joints 2, 3 and 6 undetermined",
+    )
+    moves = counting_moves(monkeypatch)
+    out = run_ucal("verify", str(profile), "--sim", "--yes", "--json", "-q", "--points", "3")
+    assert out.returncode == 4, out.stderr
+    assert moves["n"] == 0
+    error = json.loads(out.stdout)["error"]
+    assert "joint(s) 2, 3 (not determined by the last calibration" in error
+    assert "a calibration that determines joint 2's offset would lift it" in error
