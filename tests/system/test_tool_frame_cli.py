@@ -361,3 +361,42 @@ def test_demo_cell_commissioned_tool_frame_first(tmp_path: Path) -> None:
         seen = np.isfinite(std)
         assert seen[1:5].all()
         assert np.all(np.abs(est - demo)[seen] <= 3 * std[seen])
+
+
+def test_a_tool_known_to_5_degrees_on_a_tx90xl_is_refused_before_any_motion_naming_it(
+    tmp_path, monkeypatch
+):
+    """The tx90xl cell with a 10° holder known to 10 mm / 5°: refused before the first
+    motion, the refusal naming the tool's declared orientation tolerance and the one that
+    would lift it."""
+    from ucal.rig import Rig
+
+    profile = tmp_path / "cell.toml"
+    create_profile(profile, "tx90xl")
+    write_profile(
+        profile,
+        {
+            "tool": {
+                "position_mm": [20.0, 0.0, 113.0],
+                "rotation_deg": [0.0, 10.0, 0.0],
+                "position_std_mm": 10.0,
+                "rotation_std_deg": 5.0,
+            }
+        },
+        "a 10 degree holder known to 10 mm and 5 degrees",
+    )
+    moves = {"n": 0}
+    move = Rig.move
+
+    def counted(self, q, speed=None):
+        moves["n"] += 1
+        return move(self, q, speed)
+
+    monkeypatch.setattr(Rig, "move", counted)
+    out = ucal_here("tool-frame", str(profile), "--sim", "--yes", "--json", "-q")
+    assert out.returncode == 4, out.stderr
+    assert moves["n"] == 0
+    error = json.loads(out.stdout)["error"]
+    assert "wrist singularity" in error
+    assert "from the tool's declared orientation tolerance (±5 deg one sigma)" in error
+    assert "[tool] rotation_std_deg: its drawing or a fixture) to ±" in error

@@ -124,14 +124,23 @@ def check_joints(
     wrist_margin_deg: float = SEARCH_MARGIN_DEG,
     tolerance_deg: float = 0.0,
     spread: Spread | None = None,
+    block_tolerance: bool = True,
+    tool_cure: str | None = None,
 ) -> None:
     """Joint readings ``q`` (deg) inside the ranges, with ``wrist_margin_deg`` kept on joints
     4–6, and θ5 (kinematic, offsets applied) at least the profile's singularity margin from 0;
     ``tolerance_deg`` more on both (``Margins.wrist_deg``: what the declared tolerances can
-    turn the wrist by), or, given ``spread`` (``ucal.calibration.spread``), each joint's own
-    share of it, and a refusal names the quantity that takes the room and the tolerance that
-    would lift it."""
+    turn the wrist by; ``block_tolerance`` False: the tool's alone), or, given ``spread``
+    (``ucal.calibration.spread``), each joint's own share of it. A refusal names the quantity
+    that takes the room and the tolerance that would lift it (``tool_cure``: what would, for
+    the tool, where not ``spread``'s words)."""
     model = profile.model
+    if spread is None and tolerance_deg > 0:
+        from ucal.calibration.spread import declared_spread
+
+        declared = declared_spread(profile, tolerance_deg, block_tolerance, tool_cure)
+        if declared.parts:
+            spread, tolerance_deg = declared, 0.0
     room = np.zeros(6)
     room[3:] = wrist_margin_deg + (tolerance_deg if spread is None else 0.0)
     if spread is not None:

@@ -15,7 +15,7 @@ the one that takes the room (``Spread.words``) and the tolerance that would lift
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,9 @@ class Spread:
     deg: np.ndarray
     parts: dict[str, np.ndarray]
     std_deg: dict[str, float]
+    #: what would lift a refusal, by quantity, where it is not ``_CURE``'s (a tool-frame
+    #: refusal does not send the reader to tool-frame)
+    cures: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def none(cls) -> Spread:
@@ -73,7 +76,8 @@ class Spread:
                 "little room): another posture or block placement"
             )
         lifted = std * np.sqrt(room_deg**2 - rest**2) / part
-        return f"{said}; {_CURE[name]} to ±{_floor(lifted)} deg or less would lift it"
+        cure = self.cures.get(name, _CURE[name])
+        return f"{said}; {cure} to ±{_floor(lifted)} deg or less would lift it"
 
 
 def _floor(x: float) -> str:
@@ -97,6 +101,33 @@ _CURE = {
     TOOL: "the tool's orientation known better (`ucal tool-frame`, [tool] rotation_std_deg)",
     BLOCK: "the block's orientation known better (a fixture, [sample] rotation_std_deg)",
 }
+
+
+def declared_spread(
+    profile: CellProfile, tolerance_deg: float, block: bool = True, tool_cure: str | None = None
+) -> Spread:
+    """``tolerance_deg`` (deg) kept on joints 4–6 for the declared orientation tolerances, as a
+    ``Spread`` whose shares are the tool's and (``block``) the block's, in proportion to
+    their tolerances (``[tool]`` and ``[sample] rotation_std_deg``, their axes' resultant, as
+    ``ucal.calibration.safety.tolerance_margins`` adds them): a refusal then names the one
+    that takes the room and the tolerance that would lift it. ``tool_cure``: what would lift
+    it for the tool, in place of ``_CURE``'s."""
+    norms = {TOOL: float(np.linalg.norm(profile.tool_rotation_std_deg))}
+    stds = {TOOL: float(np.max(profile.tool_rotation_std_deg))}
+    if block:
+        norms[BLOCK] = float(np.linalg.norm(profile.sample_rotation_std_deg))
+        stds[BLOCK] = float(np.max(profile.sample_rotation_std_deg))
+    total = float(np.linalg.norm(list(norms.values())))
+    if not total > 0:
+        return Spread.none()
+    deg = np.zeros(6)
+    deg[3:] = tolerance_deg
+    parts = {}
+    for name, norm in norms.items():
+        part = np.zeros(6)
+        part[3:] = tolerance_deg * norm / total
+        parts[name] = part
+    return Spread(deg, parts, stds, {TOOL: tool_cure} if tool_cure else {})
 
 
 def _perturbed(

@@ -455,7 +455,10 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
             )
             shares = sol.shares(sol.gradient({n: np.ones(1) for n in TOOL[3:5]}))
         offsets_std = table.prior_stds[[table.index(n) for n in OFFSETS]]
-        refusal = what + ": " + _cause(shares, bool(np.all(offsets_std < OFFSET_PRIOR_STD_DEG)))
+        # the edge lines in each orientation the run scanned: two per edge
+        turns = len(data.crossings) // max(2 * data.n_edges, 1)
+        calibrated = bool(np.all(offsets_std < OFFSET_PRIOR_STD_DEG))
+        refusal = what + ": " + _cause(shares, calibrated, turns)
     rms = _rms_mm(sol, data)
     v = dict(zip(table.names, est, strict=True))
     return ToolFrameFit(
@@ -486,11 +489,12 @@ def _conclude(sol: AugmentedFit, data: _Data, misfit_p: float) -> ToolFrameFit:
     )
 
 
-def _cause(shares: dict[str, float], calibrated: bool) -> str:
+def _cause(shares: dict[str, float], calibrated: bool, turns: int = 2) -> str:
     """Name what a std comes from: the data's noise, or the tolerances that carry most of it
     (the priors grouped by what they stand for), with the physical reason where a tolerance
     of the arm's model carries it and what to do; ``calibrated``: the profile's joint
-    offsets were measured (``[calibration] std_deg``)."""
+    offsets were measured (``[calibration] std_deg``); ``turns``: the orientations about the
+    beam the edges were scanned in (2: half a turn apart, 4: quarter turns)."""
     noise = shares.get("data", 0.0)
     groups: dict[str, tuple[float, list[str]]] = {}
     for name, share in shares.items():
@@ -524,6 +528,11 @@ def _cause(shares: dict[str, float], calibrated: bool) -> str:
             "; turned 180° about the beam, the tool puts the wrist in another posture, and "
             "link lengths and twists within the DH table's tolerance move the flange between "
             "the two as a tool off the beam would"
+            if turns <= 2
+            else f"; the edges scanned a quarter turn apart about the beam ({turns} "
+            "orientations), the tool puts the wrist in as many postures, and link lengths and "
+            "twists within the DH table's tolerance move the flange between them as a tool off "
+            "the beam would, more than the quarter turns tell apart"
         )
         hint += (
             ": with the joint offsets measured, the same postures pin those links and the tool "

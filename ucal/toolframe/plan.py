@@ -71,6 +71,11 @@ WRIST_MARGIN_DEG = 10.0
 #: searches turn the wrist by that much to find the plate's normal (this many sigma of
 #: ``[tool] rotation_std_deg``).
 TOOL_SIGMAS = 3.0
+#: What would lift a refusal the tool's declared orientation tolerance causes (tool-frame is
+#: the command that measures it: the reader states it better).
+TOOL_CURE = (
+    "the tool's orientation known better ([tool] rotation_std_deg: its drawing or a fixture)"
+)
 #: Water path during edge scans (mm): short, so that a beam-direction error moves the axis
 #: hit point little (Δl·δa) — it would otherwise look like an offset across the beam.
 EDGE_WATER_PATH_MM = 50.0
@@ -209,7 +214,9 @@ def solve_target(
     normal incidence the wrist search reached on the way: the readings of the turned pose
     nearest the checked planned ones, inside the joint ranges."""
     q = _ik(profile, tcp_pose(plane, point, path, phi), tool, near, label)
-    check_joints(profile, q, label, wrist_margin, tolerance_deg)
+    check_joints(
+        profile, q, label, wrist_margin, tolerance_deg, block_tolerance=False, tool_cure=TOOL_CURE
+    )
     if turn is None:
         return q
     pose = tcp_pose(plane, point, path, phi)

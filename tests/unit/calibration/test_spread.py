@@ -95,3 +95,39 @@ def test_a_refusal_at_a_joint_limit_names_the_room_kept_and_its_cause():
     assert message.startswith("plan x: joint 5 at ")
     assert f"{SEARCH_MARGIN_DEG:g} deg for the wrist search" in message
     assert "the joint offsets (each known to ±1 deg one sigma" in message
+
+
+def test_calibrate_refuses_a_tool_known_to_5_degrees_naming_the_tools_tolerance():
+    """The tx90xl "tool known to 10 mm / 5°" cell: every calibration pose leaves joint 5
+    within the 36° kept (the profile's margin and three sigma of the tool's and the block's
+    orientation tolerances), the tool's the greater share: the refusal says so, and what
+    would lift it."""
+    profile = template("tx90xl").replace(
+        tool_position_mm=np.array([20.0, 0.0, 113.0]),
+        tool_rotation_deg=np.array([0.0, 10.0, 0.0]),
+        tool_position_std_mm=np.array([10.0, 10.0, 10.0]),
+        tool_rotation_std_deg=np.array([5.0, 5.0, 5.0]),
+    )
+    with pytest.raises(SafetyError) as e:
+        plan_calibration(profile)
+    msg = str(e.value)
+    assert "wrist singularity: 10 deg the profile's margin" in msg
+    assert "from the tool's declared orientation tolerance (±5 deg one sigma)" in msg
+    assert "the tool's orientation known better (`ucal tool-frame`" in msg
+    assert "would lift it" in msg
+
+
+def test_a_declared_tolerance_is_named_by_its_share_and_keeps_the_same_room():
+    """``check_joints`` with ``tolerance_deg`` refuses where it did, naming the tool or the
+    block, whichever declares more."""
+    profile = template().replace(
+        tool_rotation_std_deg=np.array([0.1, 0.1, 0.1]),
+        sample_rotation_std_deg=np.array([2.0, 2.0, 2.0]),
+    )
+    q = np.array([0.0, 30.0, 100.0, 0.0, 25.0, 0.0])
+    check_joints(profile, q, "near", tolerance_deg=4.0)  # 10 + 4 < 25
+    with pytest.raises(SafetyError) as e:
+        check_joints(profile, q, "near", tolerance_deg=16.0)
+    assert "within 26 deg of the wrist singularity" in str(e.value)
+    assert "the block's declared orientation tolerance (±2 deg one sigma)" in str(e.value)
+    assert "[sample] rotation_std_deg" in str(e.value)

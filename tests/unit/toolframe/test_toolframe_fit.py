@@ -402,6 +402,17 @@ def test_a_std_the_dh_tolerance_carries_is_refused_naming_the_arms_links(calibra
     assert ("run ucal calibrate first" in noise) is not calibrated
 
 
+def test_a_refusal_after_quarter_turns_says_the_edges_were_scanned_a_quarter_turn_apart() -> None:
+    """A 20° holder's refusal spoke of the tool turned 180° about the beam where the run had
+    scanned the edges a quarter turn apart: it says what the run did."""
+    shares = {"data": 0.31, "dh4_a_mm": 0.33, "dh5_d_mm": 0.36}
+    quarter = _cause(shares, False, turns=4)
+    assert "a quarter turn apart about the beam (4 orientations)" in quarter
+    assert "180°" not in quarter and "run ucal calibrate first" in quarter
+    half = _cause(shares, False, turns=2)
+    assert "turned 180° about the beam" in half and "quarter" not in half
+
+
 def test_quarter_turns_tell_a_holders_tool_from_the_wrists_links() -> None:
     """A 20° holder on a fresh cell: turned half a turn about the beam, the wrist takes another
     posture, and the DH table's tolerance moves the flange between the two as a tool off the

@@ -4,6 +4,8 @@ wrist at its range or the peaks' joint 5 at the singularity; the plan takes anot
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import tomlkit
@@ -121,3 +123,28 @@ def test_a_turned_target_holds_the_tool_centre_and_is_checked_as_planned() -> No
     pose = tcp_pose(plan.plane, point, 50.0, phi)
     assert np.allclose(reached[:3, 3], pose[:3, 3], atol=1e-6)
     assert np.allclose(reached[:3, :3], turn @ pose[:3, :3], atol=1e-9)
+
+
+def test_a_tool_known_to_5_degrees_is_refused_naming_its_tolerance_and_the_one_that_lifts_it():
+    """A tx90xl with a 10° holder known to 10 mm / 5°: the plate centre's postures leave
+    joint 5 within the 36° the searches keep (10° the profile's margin, 26° for the tool's
+    orientation, three sigma). The refusal names the tool's tolerance and the one that lifts
+    it, and that one plans."""
+    base = profile_from_data(tomlkit.parse(default_profile_text("tx90xl")), "xl.toml").replace(
+        tool_position_mm=np.array([20.0, 0.0, 113.0]),
+        tool_rotation_deg=np.array([0.0, 10.0, 0.0]),
+        tool_position_std_mm=np.array([10.0, 10.0, 10.0]),
+    )
+    with pytest.raises(SafetyError) as e:
+        plan_tool_frame(base.replace(tool_rotation_std_deg=np.array([5.0, 5.0, 5.0])))
+    msg = str(e.value)
+    assert "wrist singularity" in msg and "[procedure] singularity_margin_deg" in msg
+    assert "26 deg of that from the tool's declared orientation tolerance (±5 deg one sigma)" in msg
+    lifted = re.search(
+        r"\[tool\] rotation_std_deg: its drawing or a fixture\) to ±([0-9.]+) deg", msg
+    )
+    assert lifted is not None, msg
+    assert "ucal tool-frame" not in msg  # this is tool-frame: the reader states the tool better
+    std = float(lifted.group(1))
+    assert 1.0 < std < 5.0
+    plan_tool_frame(base.replace(tool_rotation_std_deg=np.full(3, std)))
