@@ -57,7 +57,7 @@ SUMMARIES = {
     "fk": "Tool centre point X,Y,Z (mm), RX,RY,RZ (deg, Staubli) in the base frame.",
     "ik": "Joint readings (deg) that put the tool at a pose, with the profile's offsets taken out.",
     "path": "Turn tool poses X,Y,Z,RX,RY,RZ (mm, deg) into a joint path in one arm configuration.",
-    "export": "Export the profile's tool and block for a robot controller.",
+    "export": "Export the calibrated cell for a robot controller (VAL3) or ROS 2.",
     "sim": "The simulated cell (controller and pulser speaking the real protocols).",
     "calibrate": "Find the six joint zero offsets with the ultrasonic transducer and write them.",
     "tool-frame": "Find the tool centre point and beam direction relative to the flange.",

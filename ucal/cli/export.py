@@ -31,7 +31,7 @@ Examples:
 """,
 )
 def cli() -> None:
-    """Export the profile's tool and block for a robot controller."""
+    """Export the calibrated cell for a robot controller (VAL3) or ROS 2."""
 
 
 @cli.command(
