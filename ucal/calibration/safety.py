@@ -182,6 +182,58 @@ def check_joints(
         )
 
 
+def shift_words(profile: CellProfile, margin_mm: float, kept_mm: float, found_mm: float) -> str:
+    """What takes ``margin_mm`` (``Margins.block_mm``) beyond the ``kept_mm`` a check keeps,
+    where it found ``found_mm``, in words: the declared tolerance with the largest share (the
+    block's position, the tool's, the block's tilt over half a face, as ``tolerance_margins``
+    adds them) and the one that would lift the refusal; "" without a margin."""
+    if not margin_mm > 0:
+        return ""
+    k = TOLERANCE_SIGMAS
+    half = 0.5 * profile.sample_face_size_mm
+    quantities = [
+        (
+            float(np.max(profile.sample_position_std_mm)),
+            1.0,
+            "mm",
+            "the block's position known to ±{std:g} mm one sigma ([sample] position_std_mm)",
+            "the block placed better (a fixture, [sample] position_std_mm)",
+        ),
+        (
+            float(np.max(profile.tool_position_std_mm)),
+            1.0,
+            "mm",
+            "the tool's position known to ±{std:g} mm one sigma ([tool] position_std_mm)",
+            "the tool's position known better (`ucal tool-frame`, [tool] position_std_mm)",
+        ),
+        (
+            float(np.max(profile.sample_rotation_std_deg)),
+            half * np.pi / 180.0,
+            "deg",
+            "the block's tilt known to ±{std:g} deg one sigma over half a face ([sample] "
+            "rotation_std_deg)",
+            "the block's orientation known better (a fixture, [sample] rotation_std_deg)",
+        ),
+    ]
+    parts = [k * std * per for std, per, *_ in quantities]
+    total = float(np.sqrt(np.sum(np.square(parts))))
+    if not total > 0:
+        return ""
+    parts = [margin_mm * x / total for x in parts]  # as the caller's margin adds them
+    i = int(np.argmax(parts))
+    std, _, unit, what, cure = quantities[i]
+    said = (
+        f": {kept_mm:g} mm and {margin_mm:.3g} mm for where the declared tolerances can put "
+        f"it ({k:g} sigma), {parts[i]:.3g} mm of that from {what.format(std=std)}"
+    )
+    room = found_mm - kept_mm
+    rest = float(np.sqrt(max(margin_mm**2 - parts[i] ** 2, 0.0)))
+    if room <= rest:
+        return f"{said}; no tolerance of it would lift this: another posture or block placement"
+    lifted = std * np.sqrt(room**2 - rest**2) / parts[i]
+    return f"{said}; {cure} to ±{float(lifted):.2g} {unit} or less would lift it"
+
+
 def face_hit(
     geom: CellGeometry,
     q: np.ndarray,
@@ -221,12 +273,13 @@ def check_face(
     if path < least:
         raise SafetyError(
             f"plan {label}: the tool centre would be {path:.1f} mm from face {name} "
-            f"(minimum {least:.3g} mm)"
+            f"(minimum {least:.3g} mm{shift_words(profile, margin_mm, MIN_WATER_PATH_MM, path)})"
         )
     if edge < EDGE_MARGIN_MM + margin_mm:
         raise SafetyError(
             f"plan {label}: the beam would meet face {name} {edge:.1f} mm from its edge "
-            f"(minimum {EDGE_MARGIN_MM + margin_mm:.3g} mm)"
+            f"(minimum {EDGE_MARGIN_MM + margin_mm:.3g} mm"
+            f"{shift_words(profile, margin_mm, EDGE_MARGIN_MM, edge)})"
         )
     if beam_meets_step(profile, geom, q, offsets_deg, corner, face, margin_mm):
         assert profile.step is not None
