@@ -80,12 +80,14 @@ from ucal.calibration.fit import (
     table_geometry,
 )
 from ucal.calibration.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
+from ucal.calibration.least_squares import cell_table
 from ucal.calibration.model import (
     CellGeometry,
     FaceMeasurement,
     beam_and_tcp,
     distance_joints,
 )
+from ucal.calibration.priors import twists_deg
 from ucal.kinematics.dh import RobotModel
 
 #: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
@@ -96,8 +98,8 @@ from ucal.kinematics.dh import RobotModel
 FULL_MAX_EVALUATIONS = 2000
 #: Height of the step on the block's XY face (mm): the length standard.
 STEP = ("step_mm",)
-#: The unknowns of the full level: the offsets level's, Hayati's twist of axes 2-3 and the
-#: step's height.
+#: The unknowns of the full level: the offsets level's (Hayati's twist of axes 2-3 among
+#: them: ``cell_table``) and the step's height.
 FULL_PARAMETERS = PARAMETERS + BETA + STEP
 #: The kinematic parameters the full level identifies (besides the joint offsets), table order.
 KINEMATIC = DH + BETA
@@ -117,18 +119,14 @@ _ROW_KEYS = ("d_mm", "a_mm", "alpha_deg")
 _STD_KEYS = (*_ROW_KEYS, "beta_deg")
 
 
-def twists_deg(model: RobotModel) -> np.ndarray:
-    """Hayati's twists of ``model`` (6,; deg), zeros where it states none."""
-    return np.zeros(6) if model.beta_deg is None else np.asarray(model.beta_deg, float)
-
-
 def full_table(prior: CellPrior) -> ParameterTable:
-    """``FULL_PARAMETERS`` with the profile's values and tolerances (β₂'s is the DH angle one,
-    or what an earlier full level identified; the step's is 0, known, when the cell has none)."""
+    """``FULL_PARAMETERS`` with the profile's values and tolerances: ``cell_table``'s, and the
+    step's (0, known, when the cell has none)."""
+    cell = cell_table(prior)
     return ParameterTable(
         FULL_PARAMETERS,
-        np.append(prior.values(), [twists_deg(prior.model)[1], prior.step_mm]),
-        np.append(prior.stds(), [prior.dh_stds()[1, 3], prior.step_std_mm]),
+        np.append(cell.prior, prior.step_mm),
+        np.append(cell.prior_stds, prior.step_std_mm),
     )
 
 

@@ -42,6 +42,12 @@ DELAY = ("tof_delay_ns",)
 #: measured; 50 ns ≈ 0.04 mm of water path.
 DELAY_PRIOR_STD_NS = 50.0
 
+
+def twists_deg(model: RobotModel) -> np.ndarray:
+    """Hayati's twists of ``model`` (6,; deg), zeros where it states none."""
+    return np.zeros(6) if model.beta_deg is None else np.asarray(model.beta_deg, float)
+
+
 #: What a prior stands for, in the words of a reason for a user.
 PRIOR_MEANING = {
     "block_x_mm": "the block position tolerance",

@@ -69,12 +69,12 @@ from scipy.special import chdtrc, chdtri
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.fit import (
     BACKLASH,
+    BETA,
     BLOCK,
     DH,
     DRIFT,
     MISFIT_P,
     OFFSETS,
-    PARAMETERS,
     SOUND,
     TOOL,
     CellPrior,
@@ -88,6 +88,7 @@ from ucal.calibration.fit import (
 from ucal.calibration.least_squares import (
     CURVATURE,
     Curvature,
+    cell_table,
     considered_covariance,
     curvature_rows,
     face_row_minutes,
@@ -201,7 +202,7 @@ class GeometryComparison:
 
 class ChangeFit:
     """The reference's and the check's face measurements in one prior-augmented fit: the cell's
-    unknowns shared (``ucal.calibration.fit.PARAMETERS``, the DH table held at the
+    unknowns shared (``ucal.calibration.least_squares.cell_table``, the DH table held at the
     reference's fit), each suspect's change added to the check's, and each run its own drift
     of the sound speed (``CHECK_DRIFT``: the tank warms or cools at its own rate in each;
     module docstring)."""
@@ -220,17 +221,18 @@ class ChangeFit:
         self.reference_prior = prior if reference_prior is None else reference_prior
         self.suspects = all_suspects
         self.changed = tuple(p for s in all_suspects for p in s.parameters)
-        names = PARAMETERS + (CHECK_DRIFT,) + tuple(change_name(p) for p in self.changed)
+        cell = cell_table(self.reference_prior)  # the cell's unknowns, Hayati's β₂ among them
+        names = cell.names + (CHECK_DRIFT,) + tuple(change_name(p) for p in self.changed)
         drift_std = prior.drift_std_m_s_per_min
         values = np.concatenate(
-            [
-                self.reference_prior.values(),
-                [prior.drift_prior_m_s_per_min],
-                np.zeros(len(self.changed)),
-            ]
+            [cell.prior, [prior.drift_prior_m_s_per_min], np.zeros(len(self.changed))]
         )
         stds = np.concatenate(
-            [prior.stds(), [drift_std], [v for s in all_suspects for v in s.change_std]]
+            [
+                cell_table(prior).prior_stds,
+                [drift_std],
+                [v for s in all_suspects for v in s.change_std],
+            ]
         )
         self.table = ParameterTable(names, values, stds)
         # the cell's unknowns with their priors, the DH table held where the reference's own fit
@@ -240,8 +242,8 @@ class ChangeFit:
         # from both sides (``ucal.calibration.least_squares.hold_unseen``)
         seen = dict(zip(BACKLASH, two_sided_joints([*reference, *check]), strict=True))
         seen[DRIFT[0]] = sees_drift(reference)
-        seen.update(dict.fromkeys(DH, False))
-        self.base_free = np.array([*(seen.get(n, True) for n in PARAMETERS), sees_drift(check)])
+        seen.update(dict.fromkeys(DH + BETA, False))
+        self.base_free = np.array([*(seen.get(n, True) for n in cell.names), sees_drift(check)])
         self.drift_idx = self.table.index(DRIFT[0])
         self.check_drift_idx = self.table.index(CHECK_DRIFT)
         self.base_idx = np.array([self.table.index(p) for p in self.changed])
@@ -617,9 +619,8 @@ def compare_to_profile(
     of the fit whose joint-offset priors are the calibration's values and stds (a misfit at
     ``MISFIT_P``: the cell is not as calibrated). A few postures leave most offsets to their
     priors, so this is a consistency test, not a new calibration."""
-    stds = prior.stds()
-    stds[: len(OFFSETS)] = offsets_prior_std_deg(profile)
-    table = ParameterTable(PARAMETERS, prior.values(), stds)
+    table = cell_table(prior)
+    table.prior_stds[[table.index(n) for n in OFFSETS]] = offsets_prior_std_deg(profile)
     # the DH table, the drift and the lost motion free with their priors, as calibrate fits
     # them: held exact, a table within its tolerance misfits the check's faces
     cell = solve_cell(prior, check, table=table)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ucal.calibration.fit import (
+    BETA,
     BLOCK,
     DH,
     OFFSETS,
@@ -146,7 +147,7 @@ def estimate_cell(
     tenth of a degree moves the next face's normal-incidence posture by as much, which is
     most of a fit grid.
     """
-    cell = solve_cell(prior, meas, fixed=DH + TOOL[:3], start=start, tol=1e-7)
+    cell = solve_cell(prior, meas, fixed=DH + BETA + TOOL[:3], start=start, tol=1e-7)
     return CellEstimate(
         np.array([cell.value(n) for n in OFFSETS]),
         np.array([cell.value(n) for n in BLOCK[:3]]),

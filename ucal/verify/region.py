@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ucal.calibration.fit import (
+    BETA,
     DH,
     OFFSETS,
     TOOL,
@@ -109,7 +110,7 @@ def judge_region(
     prior = prior_from_profile(profile)
     # the robot's model is what is checked; the block, the water and the tool's orientation
     # (tool-frame's, and invisible to the kinematics of the TCP) are the cell's
-    cell = solve_cell(prior, meas, fixed=OFFSETS + DH + TOOL[:3])
+    cell = solve_cell(prior, meas, fixed=OFFSETS + DH + BETA + TOOL[:3])
     q = cell.quality
     dist = np.array(
         [r.distance * m.distance_std_mm for r, m in zip(q.residuals, meas, strict=True)]
