@@ -45,13 +45,17 @@ Examples:
 def cli(profile_path: Path, out_path: Path, records: tuple[Path, ...], as_json: bool) -> None:
     """Write one HTML page of the cell as PROFILE and its history hold it.
 
-    The robot model and its DH table (identified or shipped), the tool, block, plate, water and
-    transducer; each calibration in the history with its offsets, stds, unobservable joints and
-    fit; each tool-frame result; the last verify picture; lost motion and drift where measured;
-    every recorded write and what it changed. The page is self-contained (figures and style
-    inline, nothing loaded from elsewhere) and prints to PDF one section per page. Moves
-    nothing and writes nothing but FILE.html. Exit 2 for a missing or invalid profile, an
-    unreadable record or an output that cannot be written.
+    First the verdict: what was calibrated and at which level, how well (each quantity's one
+    sigma against its tolerance), what was verified and its verdict, what is not determined
+    and what would determine it. Then the robot model and its DH table (identified or
+    shipped), the tool, block, plate, water and transducer; each calibration in the history
+    with its offsets, stds, unobservable joints and fit; each tool-frame result; the picture
+    of the last verify of this cell (a verify against a world file, --sim WORLD, is a
+    rehearsal on another cell: named in the verdict, not shown); lost motion and drift; every
+    recorded write as what changed, when and why. The page is self-contained (figures and
+    style inline, nothing loaded from elsewhere) and prints to A4 without forced page breaks.
+    Moves nothing and writes nothing but FILE.html. Exit 2 for a missing or invalid profile,
+    an unreadable record or an output that cannot be written.
     """
 
     check_output(out_path)
@@ -66,6 +70,7 @@ def cli(profile_path: Path, out_path: Path, records: tuple[Path, ...], as_json: 
                 "calibrations": len(report.calibrations),
                 "tool_frames": len(report.tools),
                 "verify_picture": None if report.verify is None else str(report.verify.path),
+                "rehearsal_pictures": [str(v.path) for v in report.rehearsals],
             }
         )
         return

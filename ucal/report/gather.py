@@ -6,6 +6,13 @@ the SHA-256 of the bytes it left. Those are found among the history's copies (th
 changed, every ``calibrate`` write by the ``[calibration]`` it left and every ``tool-frame`` write
 by the ``[tool]`` it left.
 
+``verify`` writes nothing into the profile: its picture beside it carries the facts of its run
+(a PNG text chunk: when, on which cell, the profile version, the verdict and its terms). The
+picture of a verify against a world file (``--sim WORLD``, ``cell.verify.WORLD.png``) is a
+rehearsal on the cell that file describes, not on this one: the report shows the picture of the
+last verify on this cell (the real cell, or the built-in simulated one) as the cell's, and names
+the rehearsals beside it.
+
 A profile does not hold everything a run knew: the per-measurement residuals, the full fit and
 why a joint was unobservable are in the run's ``--record`` file (its end line). A record is
 matched to the write its run made by the SHA-256 of the profile it started from (the write's
@@ -15,7 +22,9 @@ matched to the write its run made by the SHA-256 of the profile it started from 
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
+import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
@@ -37,6 +46,7 @@ from ucal.profile import (
 from ucal.record import Record, read_record
 from ucal.validation import DH_KEYS, parse_toml_bytes
 from ucal.verify.picture import verify_picture_path
+from ucal.verify.procedure import PICTURE_FACTS_KEY
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +113,11 @@ class Calibration:
     fit: Fit
     method: str | None = None
     level: str | None = None
+    std_block_deg: np.ndarray | None = None  # (6,) J1 relative to the block as placed
+    gauge: str | None = None  # "block": J1 relative to the block only; "base": absolute too
+    gauge_note: str | None = None
+    approach: str | None = None  # the approach the offsets hold for ("positive", "centre")
+    unidentified_tcp_mm: tuple[float, float] | None = None  # mean, max; one sigma
     date: str | None = None
     sound_speed_m_s: float | None = None
     condition_number: float | None = None
@@ -132,14 +147,54 @@ class ToolCalibration:
 
 
 @dataclass(frozen=True)
+class VerifyFacts:
+    """What a verify picture carries of its run (``ucal.verify.procedure.picture_facts``)."""
+
+    time: datetime  # UTC
+    profile_sha256: str
+    simulated: bool
+    world: str | None  # the world file of a ``--sim WORLD`` run: a rehearsal on another cell
+    controller: str | None
+    points: int
+    tolerance_mm: float
+    worst_mm: float
+    passed: bool
+    marginal: bool
+    measured_within_mm: float
+    before_max_mm: tuple[float, ...] | None  # X, Y, Z; None: "before" was the same profile
+    after_max_mm: tuple[float, ...]
+    gauge_note: str
+    notes: tuple[str, ...]
+
+    @property
+    def own_cell(self) -> bool:
+        """The run measured the cell the profile describes: the real cell, or the built-in
+        simulated one (not a world file's)."""
+        return self.world is None
+
+    @property
+    def cell_words(self) -> str:
+        if self.world is not None:
+            return f"the simulated cell of {self.world} (a rehearsal on another cell)"
+        if self.simulated:
+            return "the built-in simulated cell"
+        return f"the robot at {self.controller}" if self.controller else "the real cell"
+
+
+@dataclass(frozen=True)
 class VerifyPicture:
-    """The picture ``ucal verify`` wrote beside the profile (verify writes nothing into the
-    profile or its history), and the writes made since it was drawn."""
+    """A picture ``ucal verify`` wrote beside the profile (verify writes nothing into the
+    profile or its history), the facts it carries (None: drawn by a ucal that wrote none) and
+    the writes made since it was drawn."""
 
     path: Path
     png: bytes
-    modified: datetime  # UTC
+    modified: datetime  # UTC: the facts' time, else the file's
     writes_since: tuple[Write, ...]
+    facts: VerifyFacts | None = None
+
+    #: A picture of this cell: its facts say so, or (without facts) the default picture.
+    own_cell: bool = True
 
 
 @dataclass(frozen=True)
@@ -154,10 +209,12 @@ class CellReport:
     writes: tuple[Write, ...]
     calibrations: tuple[Calibration, ...]
     tools: tuple[ToolCalibration, ...]
-    verify: VerifyPicture | None
+    verify: VerifyPicture | None  # the last verify on this cell (module docstring)
     generated: datetime
     profile_sha256: str
     notes: tuple[str, ...] = field(default=())
+    #: Verify pictures of other cells (``--sim WORLD`` rehearsals), newest first.
+    rehearsals: tuple[VerifyPicture, ...] = ()
 
     @property
     def current_calibration(self) -> Calibration | None:
@@ -213,6 +270,8 @@ def gather_report(
         if by_hand.std_deg is not None or np.any(by_hand.offsets_deg != 0.0):
             calibrations.append(by_hand)
     calibrations = _attach_records(calibrations, [read_record(r) for r in records], p)
+    pictures = _verify_pictures(p, writes)
+    own = [v for v in pictures if v.own_cell]
 
     return CellReport(
         path=p,
@@ -223,10 +282,11 @@ def gather_report(
         writes=writes,
         calibrations=tuple(calibrations),
         tools=tuple(tools),
-        verify=_verify_picture(p, writes),
+        verify=own[0] if own else None,
         generated=now or datetime.now(UTC),
         profile_sha256=_sha(current),
         notes=tuple(notes),
+        rehearsals=tuple(v for v in pictures if not v.own_cell),
     )
 
 
@@ -319,6 +379,11 @@ def _number(table: Mapping[str, Any], key: str) -> float | None:
     return float(raw)
 
 
+def _pair(table: Mapping[str, Any], key: str) -> tuple[float, float] | None:
+    v = _vector(table, key, 2)
+    return None if v is None else (float(v[0]), float(v[1]))
+
+
 def _text(table: Mapping[str, Any], key: str) -> str | None:
     raw = table.get(key)
     return None if raw is None else str(raw)
@@ -371,6 +436,11 @@ def _calibration(write: Write | None, table: Any) -> Calibration:
         ),
         method=_text(t, "method"),
         level=_text(t, "level"),
+        std_block_deg=_vector(t, "std_block_deg", 6, missing_below=0.0),
+        gauge=_text(t, "gauge"),
+        gauge_note=_text(t, "gauge_note"),
+        approach=_text(t, "approach"),
+        unidentified_tcp_mm=_pair(t, "unidentified_tcp_mm"),
         date=_text(t, "date"),
         sound_speed_m_s=_number(t, "sound_speed_m_s"),
         condition_number=_number(t, "condition_number"),
@@ -471,15 +541,85 @@ def _with_record(cal: Calibration, rec: Record, result: Mapping[str, Any]) -> Ca
     return replace(cal, residuals=residuals, fit=fit, reasons=reasons, record=rec.path)
 
 
-def _verify_picture(path: Path, writes: Sequence[Write]) -> VerifyPicture | None:
-    """The picture ``ucal verify`` writes by default beside the profile, if there is one."""
-    picture = verify_picture_path(path)
+def _verify_pictures(path: Path, writes: Sequence[Write]) -> list[VerifyPicture]:
+    """Every picture ``ucal verify`` wrote by default beside the profile (``cell.verify.png``,
+    ``cell.verify.WORLD.png``), newest first."""
+    own = verify_picture_path(path)
+    found = {own, *own.parent.glob(f"{glob_escape(path.stem)}.verify.*.png")}
+    pictures = [v for v in (_verify_picture(f, own, writes) for f in found) if v is not None]
+    return sorted(pictures, key=lambda v: v.modified, reverse=True)
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with glob's special characters matched literally."""
+    return "".join(f"[{c}]" if c in "*?[" else c for c in text)
+
+
+def _verify_picture(picture: Path, default: Path, writes: Sequence[Write]) -> VerifyPicture | None:
     try:
         png = picture.read_bytes()
         modified = datetime.fromtimestamp(picture.stat().st_mtime, UTC)
     except OSError:
         return None
+    facts = _facts(png_text(png).get(PICTURE_FACTS_KEY), picture)
+    if facts is not None:
+        modified = facts.time
     since = tuple(
         w for w in writes if datetime.fromisoformat(w.entry.time) > modified.replace(microsecond=0)
     )
-    return VerifyPicture(picture, png, modified, since)
+    own = facts.own_cell if facts is not None else picture == default
+    return VerifyPicture(picture, png, modified, since, facts, own)
+
+
+def png_text(png: bytes) -> dict[str, str]:
+    """The ``tEXt`` chunks of a PNG file (keyword → text; latin-1); {} when it is not one."""
+    if png[:8] != b"\x89PNG\r\n\x1a\n":
+        return {}
+    out: dict[str, str] = {}
+    at = 8
+    while at + 8 <= len(png):
+        # uint32 big-endian: data length; 4 bytes: chunk type; data; uint32: CRC
+        (length,) = struct.unpack(">I", png[at : at + 4])
+        kind = png[at + 4 : at + 8]
+        data = png[at + 8 : at + 8 + length]
+        if kind == b"tEXt" and b"\0" in data:
+            key, _, text = data.partition(b"\0")
+            out[key.decode("latin-1")] = text.decode("latin-1")
+        elif kind == b"IEND":
+            break
+        at += 12 + length
+    return out
+
+
+def _facts(text: str | None, picture: Path) -> VerifyFacts | None:
+    """The facts a verify picture carries (None: none, or not readable: said in the log)."""
+    if text is None:
+        return None
+    try:
+        d = json.loads(text)
+        cell = d["cell"]
+        before = d.get("before_max_mm")
+        return VerifyFacts(
+            time=datetime.fromisoformat(d["time_utc"]),
+            profile_sha256=str(d["profile_sha256"]),
+            simulated=bool(cell["simulated"]),
+            world=None if cell.get("world") is None else str(cell["world"]),
+            controller=None if cell.get("controller") is None else str(cell["controller"]),
+            points=int(d["points"]),
+            tolerance_mm=float(d["tolerance_mm"]),
+            worst_mm=float(d["worst_mm"]),
+            passed=bool(d["passed"]),
+            marginal=bool(d["marginal"]),
+            measured_within_mm=float(d["measured_within_mm"]),
+            before_max_mm=None if before is None else tuple(_finite(v) for v in before),
+            after_max_mm=tuple(_finite(v) for v in d["after_max_mm"]),
+            gauge_note=str(d.get("gauge_note", "")),
+            notes=tuple(str(n) for n in d.get("notes", [])),
+        )
+    except (ValueError, KeyError, TypeError) as e:
+        log.warning("%s: its verify facts cannot be read (%s): shown without them", picture, e)
+        return None
+
+
+def _finite(v: Any) -> float:
+    return float("nan") if v is None else float(v)

@@ -1,14 +1,20 @@
 """The report as one self-contained HTML page: CSS inline, figures as ``data:`` URIs.
 
-The page loads nothing: no script, no font, no stylesheet or image from elsewhere. Everything
-taken from the profile, its history or a record is escaped. It prints to PDF one section per
-page (A4), black on white, and reads in grey: states are written out, not only coloured.
+The page opens with its verdict: what was calibrated, how well (each one sigma against the
+tolerance it is judged by), what was verified and with what verdict, what is not determined and
+what would determine it; every statement of it and every table below read the same judgement
+(``ucal.report.verdict``). The page loads nothing: no script, no font, no stylesheet or image
+from elsewhere. Everything taken from the profile, its history or a record is escaped. It prints
+to A4 as one flowing document (no forced page break: a figure or a short table is kept whole,
+a long table breaks between rows), black on white, and reads in grey: states are written out,
+not only coloured.
 """
 
 from __future__ import annotations
 
 import html
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
@@ -16,7 +22,8 @@ import numpy as np
 
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.report import figures
-from ucal.report.gather import Calibration, CellReport, Change, Write
+from ucal.report import verdict as v
+from ucal.report.gather import Calibration, CellReport, Change, VerifyPicture, Write
 
 #: Longest value shown in the history table's "what changed" (characters), then "…".
 MAX_VALUE_CHARS = 160
@@ -38,7 +45,7 @@ th { background: #ececec; font-weight: bold; }
 td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 thead { display: table-header-group; }
 tr { break-inside: avoid; page-break-inside: avoid; }
-table.kv th { width: 48mm; }
+table.kv th { width: 34mm; }
 table.wide { width: 100%; }
 .meta td, .meta th { border: none; padding: 0.3mm 3mm 0.3mm 0; background: none; }
 .note { border-left: 2.5pt solid #666; padding: 1mm 3mm; margin: 2mm 0; background: #f4f4f4; }
@@ -53,11 +60,18 @@ figcaption { font-size: 9pt; color: #222; margin-top: 1mm; }
 ul.changes { margin: 0; padding-left: 4mm; }
 ul.changes li { margin: 0; }
 section.calibration { break-inside: auto; }
+section.verdict { border: 1.2pt solid #000; padding: 1mm 4mm 2mm; margin: 4mm 0; }
+section.verdict h2 { margin-top: 2mm; }
+p.lead { font-size: 11.5pt; margin: 2mm 0 3mm; }
+ul.plain { margin: 0; padding-left: 4mm; }
+ul.plain li { margin: 0.5mm 0; }
+ol.history { padding-left: 6mm; }
+ol.history li { margin: 0 0 2mm; break-inside: avoid; page-break-inside: avoid; }
+table.short, figure, .note { break-inside: avoid; page-break-inside: avoid; }
 @page { size: A4; margin: 14mm 12mm 16mm; }
 @media print {
-  body { max-width: none; padding: 0; font-size: 10pt; }
-  section.part { break-before: page; page-break-before: always; }
-  section.calibration + section.calibration { break-before: page; page-break-before: always; }
+  body { max-width: none; padding: 0; font-size: 9.5pt; }
+  h2 { margin-top: 6mm; }
   a { color: #000; text-decoration: none; }
   * { -webkit-print-color-adjust: exact; print-color-adjust: exact; }
 }
@@ -166,7 +180,7 @@ def render_page(report: CellReport) -> str:
     """The whole page for ``report`` (a str of HTML)."""
     parts = [
         _header(report),
-        _summary(report),
+        _verdict(report),
         _cell(report),
         _calibrations(report),
         _tools(report),
@@ -204,59 +218,176 @@ def _header(r: CellReport) -> str:
         f"<header><h1>Robot cell report: {e(r.profile.model.name)}, "
         f"<code>{e(r.path.name)}</code></h1>"
         '<p class="muted">The cell as its profile and the profile\'s history hold it. '
-        "Lengths in mm, angles in degrees; ± values are one standard deviation (σ) unless "
-        "marked 3σ.</p>"
+        "Lengths in mm, angles in degrees; ± values and σ are one standard deviation unless "
+        "marked 3σ. A quantity is <em>determined</em> when its σ is within its tolerance, "
+        "<em>not determined</em> when it exceeds it.</p>"
         f'<div class="meta">{meta}</div></header>'
     )
 
 
-def _summary(r: CellReport) -> str:
-    p = r.profile
+def quantities(r: CellReport) -> list[v.Quantity]:
+    """Every quantity the verdict judges, in the page's order."""
+    cal = r.current_calibration
+    out = [] if cal is None else v.joint_quantities(cal)
+    out += v.tool_quantities(r)
+    out.append(v.dh_quantity(r))
+    lost = v.lost_motion_quantities(cal)
+    if all(q.state == v.NOT_MEASURED for q in lost):
+        first = lost[0]
+        out.append(replace(first, name="lost motion, J1-J6"))
+    else:
+        out += lost
+    drift = v.drift_quantity(r)
+    if drift is not None:
+        out.append(drift)
+    return out
+
+
+def _calibrated_words(r: CellReport) -> str:
+    """What was calibrated, in one sentence (HTML)."""
     cal = r.current_calibration
     if cal is None:
-        calibrated = "never calibrated: joint offsets zero"
+        text = "Joint offsets: <strong>never calibrated</strong> (zero)."
     else:
         src = "no recorded write" if cal.write is None else f"history write #{cal.write.entry.id}"
-        calibrated = (
-            f"{nums(cal.offsets_deg)} deg ({src}, fit "
-            f"<span class=state>{e(cal.fit.verdict or 'not recorded')}</span>"
+        seen = [j for j in range(1, 7) if j not in cal.unobservable_joints]
+        fit = cal.fit
+        text = (
+            f"Joint offsets of {e(_joint_list(seen))} at the <strong>{e(cal.level or '—')}"
+            f"</strong> level (method {e(cal.method or '—')}, {e(when(cal.date))}, {src}), "
+            f"fit <span class=state>{e(fit.verdict or 'not recorded')}</span>"
             + (
-                f", unobservable: {e(', '.join(f'J{j}' for j in cal.unobservable_joints))}"
+                f" (χ²ᵣ {num(fit.chi2_reduced, 3)} on {fit.dof} degrees of freedom)"
+                if fit.chi2_reduced is not None and fit.dof is not None
+                else ""
+            )
+            + (
+                f"; {e(_joint_list(list(cal.unobservable_joints)))} kept from the profile"
                 if cal.unobservable_joints
                 else ""
             )
-            + ")"
+            + "; the block's pose measured with them."
         )
-    tool = r.tools[-1] if r.tools else None
-    tool_src = (
-        "as stated in the profile (no tool-frame write)"
-        if tool is None
-        else f"tool-frame, history write #{tool.write.entry.id}"
+        if cal.approach:
+            text += f" The offsets hold for postures approached {e(_approach(cal.approach))}."
+    tool = (
+        f" Tool frame measured by tool-frame (history write #{r.tools[-1].write.entry.id}, "
+        f"{e(when(r.tools[-1].write.entry.time))})."
+        if r.tools
+        else " Tool frame: from its drawing (no tool-frame write)."
     )
-    verify = (
-        f"picture of {e(r.verify.modified.strftime('%Y-%m-%d %H:%M UTC'))}"
-        if r.verify is not None
-        else "none beside the profile"
+    return text + tool
+
+
+def _approach(name: str) -> str:
+    return {
+        "positive": "from below on every joint (each joint ending its move in its positive "
+        "direction)",
+        "centre": "at the middle of each joint's lost motion",
+    }.get(name, name)
+
+
+def _joint_list(joints: Sequence[int]) -> str:
+    if not joints:
+        return "no joint"
+    if len(joints) > 2 and list(joints) == list(range(joints[0], joints[-1] + 1)):
+        return f"J{joints[0]}-J{joints[-1]}"
+    return ", ".join(f"J{j}" for j in joints)
+
+
+def _verdict(r: CellReport) -> str:
+    """The verdict at the top: what was calibrated, how well, what was verified, what is not
+    determined and what would determine it."""
+    qs = quantities(r)
+    short, verified = v.verify_state(r.verify, r)
+    cal = r.current_calibration
+    if cal is None:
+        head = "Not calibrated"
+    elif cal.fit.verdict not in (None, "ok"):
+        head = f"Calibrated, fit {cal.fit.verdict}"
+    else:
+        head = "Calibrated"
+    facts = r.verify.facts if r.verify is not None else None
+    head += (
+        "; not verified"
+        if r.verify is None
+        else f"; verified on {facts.cell_words}: {short}"
+        if facts is not None
+        else f"; verify: {short}"
     )
-    backlash = cal is not None and cal.backlash_deg is not None
-    drift = cal is not None and cal.drift_m_s_per_min is not None
+    open_ = [q for q in qs if not q.determined]
+    lead = (
+        f'<p class="lead"><strong>{e(head)}.</strong> '
+        f"{len(qs) - len(open_)} of the {len(qs)} quantities below are determined, "
+        f"{len(open_)} are not ({e(', '.join(q.name for q in open_))}).</p>"
+    )
+    how_well = [
+        f"{e(q.name)}: σ {e(q.std)} ≤ {e(q.tolerance)}" for q in qs if q.determined and q.std
+    ]
+    not_determined = [
+        f"<strong>{e(q.name)}</strong>, {e(q.state)}"
+        + (
+            f" (σ {e(q.std)}, tolerance {e(q.tolerance)})"
+            if "—" not in (q.std, q.tolerance)
+            else ""
+        )
+        + (f": {e(q.why)}" if q.why else "")
+        for q in open_
+    ]
+    if facts is not None and facts.marginal:
+        not_determined.append(
+            f"<strong>the verify {'pass' if facts.passed else 'failure'}</strong>, not "
+            f"determined (marginal): {e(v.would_determine_verify(facts, r))}"
+        )
+    rows = [
+        ("calibrated", _calibrated_words(r)),
+        ("how well", _items(how_well) if how_well else "nothing determined"),
+        ("verified", e(verified[:1].upper() + verified[1:]) + "."),
+        ("not determined", _items(not_determined) if not_determined else "nothing"),
+    ]
+    for rehearsal in r.rehearsals:
+        rows.append(("rehearsal", e(_rehearsal_words(rehearsal))))
+    table = _table(
+        ["quantity", "value", "σ", "tolerance", "state"],
+        [_quantity_row(q, q.name) for q in qs],
+        [False, False, False, False, False],
+        "wide",
+    )
     return (
-        '<section class="summary"><h2>At a glance</h2>'
-        + _kv(
-            [
-                ("kinematic model", e(_dh_origin(r))),
-                ("joint offsets", calibrated),
-                (
-                    "tool (flange)",
-                    f"position {nums(p.tool_position_mm)} mm, rotation "
-                    f"{nums(p.tool_rotation_deg)} deg ({e(tool_src)})",
-                ),
-                ("last verify", verify),
-                ("lost motion", "measured" if backlash else "not measured"),
-                ("drift", "measured" if drift else "not measured"),
-            ]
-        )
+        '<section class="verdict"><h2>Verdict</h2>'
+        + lead
+        + _kv(rows)
+        + "<h3>Each quantity against its tolerance</h3>"
+        + table
         + "</section>"
+    )
+
+
+def _quantity_row(q: v.Quantity, name: str, why: bool = False) -> list[str]:
+    """A quantity's cells: its name as given, value, σ, tolerance, state (and why)."""
+    cells = [
+        e(name),
+        e(q.value),
+        e(q.std),
+        e(q.tolerance),
+        f'<span class="state">{e(q.state)}</span>',
+    ]
+    return cells + [e(q.why)] if why else cells
+
+
+def _items(items: Sequence[str]) -> str:
+    return '<ul class="plain">' + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+
+
+def _rehearsal_words(p: VerifyPicture) -> str:
+    """A rehearsal's verify in one sentence (plain text)."""
+    name = p.path.name
+    if p.facts is None:
+        return f"{name}: a verify picture of another cell; not a verdict on this one"
+    return (
+        f"{p.modified.strftime('%Y-%m-%d %H:%M UTC')}, on {p.facts.cell_words}: "
+        f"{v.verify_words(p.facts)}. Not a verdict on this cell: its picture, {name}, is "
+        "not shown"
     )
 
 
@@ -277,10 +408,9 @@ def _dh_origin(r: CellReport) -> str:
 def _dh_table(dh: np.ndarray, beta: np.ndarray | None, r: CellReport) -> str:
     p = r.profile
     model = p.model
-    std = p.joint_offsets_std_deg
     with_beta = beta is not None and bool(np.any(beta != 0.0))
     head = ["joint", "θ offset", "d (mm)", "a (mm)", "α"] + (["β"] if with_beta else [])
-    head += ["min", "max", "joint offset", "σ"]
+    head += ["min", "max", "joint offset"]
     rows = []
     for j in range(6):
         row = [f"J{j + 1}"] + [num(float(v), 4) for v in dh[j]]
@@ -291,9 +421,6 @@ def _dh_table(dh: np.ndarray, beta: np.ndarray | None, r: CellReport) -> str:
             num(float(model.joint_min_deg[j]), 1),
             num(float(model.joint_max_deg[j]), 1),
             num(float(p.joint_offsets_deg[j]), 6),
-            "not determined"
-            if std is not None and j + 1 in p.unobservable_joints
-            else ("—" if std is None else num(float(std[j]), 6)),
         ]
         rows.append(row)
     return _table(head, rows, [False] + [True] * (len(head) - 1))
@@ -303,8 +430,9 @@ def _cell(r: CellReport) -> str:
     p = r.profile
     out = [_part("1. The cell"), f"<h3>Robot: {e(_dh_origin(r))}</h3>"]
     out.append(
-        "<p>Standard DH rows (θ offset, α, β in degrees), the joint ranges and the joint offsets "
-        "of [calibration] (actual angle = encoder reading + offset).</p>"
+        "<p>Standard DH rows (θ offset, α, β in degrees), the joint ranges (deg) and the joint "
+        "offsets of [calibration] (deg; actual angle = encoder reading + offset; how well each "
+        "is known: the verdict).</p>"
     )
     out.append(_dh_table(p.model.dh, p.model.beta_deg, r))
     if r.identified_dh:
@@ -444,32 +572,11 @@ def _calibration(cal: Calibration, n: int, current: bool) -> str:
             ]
         )
     )
-    rows = []
-    for j in range(6):
-        std = None if cal.std_deg is None else float(cal.std_deg[j])
-        if j + 1 in cal.unobservable_joints:
-            why = cal.reasons.get(j + 1)
-            status = "unobservable, kept from the profile: " + (
-                e(why) if why else "reason not recorded in the profile (the run's record has it)"
-            )
-        elif std is None or not np.isfinite(std):
-            status = "std not recorded"
-        else:
-            status = "measured"
-        rows.append(
-            [
-                f"J{j + 1}",
-                num(float(cal.offsets_deg[j]), 6),
-                num(std, 6),
-                num(None if std is None else 3.0 * std, 6),
-                status,
-            ]
-        )
     out.append(
         _table(
-            ["joint", "offset (deg)", "σ (deg)", "3σ (deg)", "status"],
-            rows,
-            [False, True, True, True, False],
+            ["quantity", "offset", "σ", "tolerance", "state", "why, or what would determine it"],
+            [_quantity_row(q, q.name, why=True) for q in v.joint_quantities(cal)],
+            [False, True, True, True, False, False],
             "wide",
         )
     )
@@ -551,36 +658,47 @@ def _tools(r: CellReport) -> str:
 
 
 def _verify(r: CellReport) -> str:
-    out = [_part("4. Last verify")]
-    v = r.verify
-    if v is None:
+    out = [_part("4. Last verify of this cell")]
+    pic = r.verify
+    if pic is None:
         out.append(
-            "<p>No verify picture beside the profile: run <code>ucal verify PROFILE</code> "
-            "(it draws the positioning error before and after calibration).</p>"
+            "<p>No verify of this cell beside the profile: run <code>ucal verify PROFILE</code> "
+            "(it measures the positioning error before and after calibration).</p>"
         )
     else:
         since = ""
-        if v.writes_since:
-            ids = ", ".join(f"#{w.entry.id} ({w.command})" for w in v.writes_since)
+        if pic.writes_since:
+            ids = ", ".join(f"#{w.entry.id} ({w.command})" for w in pic.writes_since)
             since = (
                 f" The profile was written since ({ids}): the picture shows the cell as an "
                 "earlier version of the profile held it."
             )
+        facts = pic.facts
+        said = (
+            " It carries no record of its run (drawn by an older ucal): its title holds the "
+            "verdict."
+            if facts is None
+            else f" On {facts.cell_words}: {v.verify_words(facts)}."
+        )
         out.append(
             _figure(
-                figures.png_uri(v.png),
+                figures.png_uri(pic.png),
                 "positioning error before and after calibration, drawn by verify",
-                f"<code>{e(v.path)}</code>, drawn {e(v.modified.strftime('%Y-%m-%d %H:%M:%S'))}"
-                f" UTC by <code>ucal verify</code>.{e(since)}",
+                f"<code>{e(pic.path)}</code>, drawn {e(pic.modified.strftime('%Y-%m-%d %H:%M'))}"
+                " UTC by <code>ucal verify</code>. Title: the verdict and the largest "
+                "deviation after calibration against the tolerance (mm). Left: each point's "
+                "deviation after calibration per block axis (mm), the tolerance band shaded. "
+                f"Right: the largest deviation per axis before and after calibration (mm)."
+                f"{e(said)}{e(since)}",
             )
         )
-    out.append(
-        _note(
-            "verify writes nothing into the profile or its history: the picture is the newest "
-            "one verify left beside the profile, and its figures (before/after, tolerance, "
-            "verdict) are those of <code>ucal verify --json</code> at the time."
-        )
+    rule = (
+        "verify writes nothing into the profile or its history; its picture carries the facts "
+        "of its run. A verify against a world file (<code>--sim WORLD</code>) is a rehearsal "
+        "on the cell that file describes, not on this one: its picture is "
+        "<code>PROFILE.verify.WORLD.png</code>, named in the verdict, not shown here."
     )
+    out.append(_note(rule))
     out.append("</section>")
     return "\n".join(out)
 
@@ -588,38 +706,50 @@ def _verify(r: CellReport) -> str:
 def _lost_motion(r: CellReport) -> str:
     out = [_part("5. Lost motion and drift")]
     cal = r.current_calibration
-    if cal is None or cal.backlash_deg is None:
-        out.append(
-            "<p>Lost motion (backlash) per joint: <strong>not measured</strong> (no "
-            "[calibration] backlash_deg in the profile).</p>"
+    out.append(
+        f"<p>Lost motion (backlash) per joint, deg: {e(v.lost_motion_words(cal))}. A joint with "
+        "lost motion b reached from the other side than the offsets hold for is off by b/2."
+        "</p>"
+    )
+    lost = v.lost_motion_quantities(cal)
+    out.append(
+        _table(
+            ["joint", "lost motion", "σ", "tolerance", "state"],
+            [_quantity_row(q, q.name.split()[0]) for q in lost],
+            [False, True, True, True, False],
+            "short",
         )
-    else:
-        std = cal.backlash_std_deg
-        rows = [
-            [
-                f"J{j + 1}",
-                "not measured"
-                if not np.isfinite(cal.backlash_deg[j])
-                else num(float(cal.backlash_deg[j]), 4),
-                "—" if std is None else num(float(std[j]), 4),
-            ]
-            for j in range(6)
-        ]
-        out.append(_table(["joint", "lost motion (deg)", "σ (deg)"], rows, [False, True, True]))
-    if cal is None or cal.drift_m_s_per_min is None:
+    )
+    hows = sorted({q.why for q in lost if q.why})
+    if hows:
+        out.append(f"<p>{e('; '.join(h[:1].upper() + h[1:] for h in hows))}.</p>")
+    drift = v.drift_quantity(r)
+    if drift is None:
         out.append("<p>Drift of the sound speed during a run: <strong>not measured</strong>.</p>")
     else:
         out.append(
-            f"<p>Sound speed drift during the last calibration: "
-            f"{num(cal.drift_m_s_per_min, 3)} ± {num(cal.drift_std_m_s_per_min, 3)} "
-            "m/s per minute.</p>"
+            f"<p>Sound speed drift during the last calibration (the tank warming or cooling): "
+            f"{e(drift.value)} ± {e(drift.std)}, {e(drift.state)} against "
+            f"{e(drift.tolerance)}.</p>"
         )
     out.append("</section>")
     return "\n".join(out)
 
 
+#: Profile keys the history names in words, with their unit and how to show a change.
+NAMED_KEYS: dict[str, tuple[str, str]] = {
+    "calibration.joint_offsets_deg": ("joint offsets", "deg"),
+    "sample.position_mm": ("block corner", "mm"),
+    "sample.rotation_deg": ("block rotation", "deg"),
+    "tool.position_mm": ("tool position", "mm"),
+    "tool.rotation_deg": ("tool rotation", "deg"),
+    "calibration.sound_speed_m_s": ("sound speed", "m/s"),
+    "calibration.backlash_deg": ("lost motion", "deg"),
+}
+
+
 def _history(r: CellReport) -> str:
-    title = "6. History of writes"
+    title = "6. History: what changed, when, why"
     if not r.writes:
         return _empty_part(title, "No recorded write: ucal never rewrote this profile.")
     out = [_part(title)]
@@ -627,41 +757,79 @@ def _history(r: CellReport) -> str:
         f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
         f"<code>{e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
     )
-    rows = [
-        [
-            f"#{w.entry.id}",
-            _when_cell(w.entry.time),
-            f'<code class="nowrap">{e(w.command)}</code>',
-            e(w.entry.reason),
-            _changes(w.changes),
-            _state(w),
-        ]
-        for w in r.writes
-    ]
-    out.append(
-        _table(
-            ["#", "time", "command", "reason", "what changed", "state"],
-            rows,
-            [False] * 6,
-            "wide",
-        )
-    )
+    out.append('<ol class="history">' + "".join(_write_item(w) for w in r.writes) + "</ol>")
     for note in r.notes:
         out.append(_note(e(note)))
     out.append("</section>")
     return "\n".join(out)
 
 
-def _changes(changes: Sequence[Change] | None) -> str:
-    if changes is None:
-        return "not known: the version it left is kept nowhere"
-    if not changes:
-        return "comments or layout only"
-    items = "".join(
-        f"<li><code>{e(c.key)}</code>: {e(_value(c.before))} → {e(_value(c.after))}</li>"
-        for c in changes
+def _write_item(w: Write) -> str:
+    """One write as sentences: when, which command and what it wrote, why (its recorded
+    reason), the values that changed, and its undo."""
+    when_ = e(w.entry.time.replace("T", " ")[:16] + " UTC")
+    what = {
+        "calibrate": "joint offsets and the block's pose measured and written",
+        "tool-frame": "tool frame measured and written",
+    }.get(w.command, "profile written")
+    head = (
+        f"<strong>{when_} — <code>{e(w.command)}</code></strong> (write #{w.entry.id}): "
+        f"{what}; why: <em>{e(w.entry.reason)}</em>."
     )
-    return f'<ul class="changes">{items}</ul>'
+    state = (
+        f" <strong>Undone</strong> {e(when(w.entry.undone_time))}: the version before it "
+        "was restored."
+        if w.entry.undone
+        else ""
+    )
+    return f"<li>{head}{state}{_changes(w.changes)}</li>"
+
+
+def _changes(changes: Sequence[Change] | None) -> str:
+    """What a write changed: the named values before → after, then the other keys by name."""
+    if changes is None:
+        return " What it changed is not known: the version it left is kept nowhere."
+    if not changes:
+        return " It changed comments or layout only."
+    named = [c for c in changes if c.key in NAMED_KEYS]
+    others = [c.key for c in changes if c.key not in NAMED_KEYS]
+    items = []
+    for c in named:
+        name, unit = NAMED_KEYS[c.key]
+        items.append(f"{e(name)} ({unit}): {e(_change_values(c))}")
+    if others:
+        tables = sorted({"[" + k.split(".", 1)[0] + "]" for k in others if "." in k})
+        items.append(
+            f"and {len(others)} further keys"
+            + (f" of {e(', '.join(tables))}" if tables else "")
+            + " (stds, gauge, fit figures, drawn values)"
+        )
+    return '<ul class="changes">' + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+
+
+def _change_values(c: Change) -> str:
+    """``before → after``, per joint for six values (J1 0.0000 → 0.7992, ...)."""
+    before, after = c.before, c.after
+    if c.key == "calibration.backlash_deg":
+        # -1: not measured
+        def lost(x: Any) -> str:
+            if not isinstance(x, list):
+                return _value(x)
+            return "not measured" if all(y < 0 for y in x) else _value(x)
+
+        return f"{lost(before)} → {lost(after)}"
+    if (
+        isinstance(before, list)
+        and isinstance(after, list)
+        and len(before) == len(after) == 6
+        and c.key.startswith("calibration.")
+    ):
+        return ", ".join(
+            f"J{j + 1} {_value(b)} → {_value(a)}"
+            for j, (b, a) in enumerate(zip(before, after, strict=True))
+            if b != a
+        )
+    return f"{_value(before)} → {_value(after)}"
 
 
 def _value(v: Any) -> str:

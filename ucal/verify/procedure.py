@@ -9,8 +9,11 @@ is never written), result (``ucal.verify.result``; on a simulated cell, the trut
 
 from __future__ import annotations
 
+import hashlib
+import json
 from contextlib import AbstractContextManager
 from dataclasses import replace
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +25,7 @@ from ucal.calibration.priors import prior_from_profile
 from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
+from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report
 from ucal.record import decode, encode, measured_from_lines, measurement_lines
@@ -40,7 +44,7 @@ from ucal.verify.inputs import (
     written_budget,
 )
 from ucal.verify.measure import VerifyResult, run_verify
-from ucal.verify.picture import PictureText, plot_verify
+from ucal.verify.picture import DPI, PictureText, verify_figure, verify_picture_path
 from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify, with_tank
 from ucal.verify.result import (
     MEASURED_WITHIN_MM,
@@ -59,6 +63,29 @@ from ucal.verify.tank import estimate_tank, tank_corrected
 
 #: A water path read again where calibrate read it: no search, the readings of one path.
 PATH_READ = SearchCost(moves=0, reads=8, motion_s=0.0)
+#: The PNG text chunk in which the picture carries the facts of its run (``picture_facts``).
+PICTURE_FACTS_KEY = "ucal-verify"
+
+
+def rehearsal_picture_path(profile_path: Path, world: str) -> Path:
+    """The default picture of a verify against a world file (``--sim WORLD``) where the default
+    one is of the profile's own cell: a rehearsal on the cell that file describes leaves that
+    picture alone: ``cell.toml``, ``faulty_world.toml`` → ``cell.verify.faulty_world.png``."""
+    own = verify_picture_path(profile_path)
+    return own.with_name(f"{Path(profile_path).stem}.verify.{Path(world).stem}.png")
+
+
+def _of_own_cell(picture: Path) -> bool:
+    """The picture at ``picture`` is of a verify on the profile's own cell (the real cell or
+    the built-in simulated one), as the facts it carries say."""
+    from PIL import Image  # matplotlib's own PNG library, only here
+
+    try:
+        with Image.open(picture) as png:
+            facts = json.loads(getattr(png, "text", {}).get(PICTURE_FACTS_KEY, "null"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(facts, dict) and facts.get("cell", {}).get("world") is None
 
 
 class VerifyJob(CheckingJob):
@@ -85,6 +112,8 @@ class VerifyJob(CheckingJob):
         self.gauge = VerifyGauge(None, 0.0)
         self.unidentified: tuple[float, float] | None = None
         self.tank: CalibrationReadings | None = None
+        self.cell: dict[str, Any] = {}  # the cell the run measures, for the picture's facts
+        self.profile_sha256 = ""
 
     def check(self, options: RunOptions) -> AbstractContextManager[object]:
         """The "before" offsets and block from the profile's history, the sound speed of its
@@ -101,6 +130,18 @@ class VerifyJob(CheckingJob):
             self.gauge = calibration_gauge(self.profile, self.profile_path)
             self.unidentified = written_budget(self.profile_path)
             self.tank = tank_reference(self.profile_path)
+        self.profile_sha256 = hashlib.sha256(self.profile_path.read_bytes()).hexdigest()
+        cell = options.cell
+        world = None if cell is None else cell.sim_world
+        self.cell = {
+            "simulated": cell is None or world is not None,
+            "world": world or None,
+            "controller": None if cell is None else cell.controller_url,
+        }
+        own = verify_picture_path(self.profile_path)
+        if world and self.plot_path == own and _of_own_cell(own):
+            # a rehearsal on another cell never replaces this cell's own verify picture
+            self.plot_path = rehearsal_picture_path(self.profile_path, world)
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
@@ -117,14 +158,19 @@ class VerifyJob(CheckingJob):
 
     def estimate(self, plan: VerifyPlan) -> DurationEstimate:
         speed = self.profile.procedure.speed
+        joints = joint_speeds_deg_s(self.profile.model)
         postures = [t.face_joints_deg[k] for t in plan.targets for k in FACE_ORDER]
-        faces = estimate_run(postures, calibration_pose(self.profile), speed)
+        faces = estimate_run(postures, calibration_pose(self.profile), speed, speeds_deg_s=joints)
         edges = [plan.targets[-1].joints_deg] * len(plan.edge_points)
-        total = faces + estimate_run(edges, edges[0], speed, search=EDGE_SCAN, first=NO_SEARCH)
+        total = faces + estimate_run(
+            edges, edges[0], speed, speeds_deg_s=joints, search=EDGE_SCAN, first=NO_SEARCH
+        )
         if plan.tank_faces:
             # the tank read again at the start and the end: a move and a water path each
             tank = [distance_joints(m) for m in plan.tank_faces]
-            once = estimate_run(tank, postures[0], speed, search=PATH_READ, first=NO_SEARCH)
+            once = estimate_run(
+                tank, postures[0], speed, speeds_deg_s=joints, search=PATH_READ, first=NO_SEARCH
+            )
             total = total + once + once
         return total
 
@@ -187,7 +233,32 @@ class VerifyJob(CheckingJob):
 
     def write(self, solved: VerifySolved) -> None:
         assert self.plot_path is not None
-        plot_verify(solved.result, self.plot_path, self.picture_text(solved))
+        fig = verify_figure(solved.result, self.picture_text(solved))
+        facts = json.dumps(self.picture_facts(solved), ensure_ascii=True)  # a latin-1 tEXt
+        png = self.plot_path.suffix.lower() == ".png"
+        fig.savefig(self.plot_path, dpi=DPI, metadata={PICTURE_FACTS_KEY: facts} if png else None)
+
+    def picture_facts(self, solved: VerifySolved) -> dict[str, Any]:
+        """What the picture's PNG carries of its run, for ``ucal report``: when, on which cell
+        (a world file: a rehearsal on another cell), the profile version (SHA-256) and the
+        verdict with its terms (mm)."""
+        stats = solved.result.to_json(solved.tolerance_mm)
+        return {
+            "time_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+            "profile": self.profile_path.name,
+            "profile_sha256": self.profile_sha256,
+            "cell": self.cell,
+            "points": solved.result.plan.points,
+            "tolerance_mm": solved.tolerance_mm,
+            "worst_mm": solved.worst_mm,
+            "passed": solved.passed,
+            "marginal": marginal(solved),
+            "measured_within_mm": solved.measured_within_mm,
+            "before_max_mm": None if solved.before_is_after else stats["before_mm"]["max"],
+            "after_max_mm": stats["after_mm"]["max"],
+            "gauge_note": solved.gauge.statement(),
+            "notes": self.notes(solved),
+        }
 
     def picture_text(self, solved: VerifySolved) -> PictureText:
         """What the picture says beside its data: the profile, the verdict's terms, why

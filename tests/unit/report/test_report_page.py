@@ -64,7 +64,7 @@ def test_the_page_shows_the_written_offsets_and_tool(page: str) -> None:
         assert f"{v:.6f}" in page, v
     for v in [*WRITTEN_TOOL_MM, *WRITTEN_TOOL_DEG]:
         assert f"{round(v, 4) + 0.0:.4f}" in page, v
-    assert "unobservable, kept from the profile" in page
+    assert "(kept from the profile)" in page
     assert "0.282" in page and ">ok<" in page  # the fit's χ²ᵣ and verdict
     assert "history write #1" in page and "history write #2" in page
 
@@ -81,19 +81,19 @@ def test_the_page_holds_its_figures_and_loads_nothing(page: str) -> None:
 
 
 def test_the_page_lists_every_write_and_what_it_changed(page: str) -> None:
-    history = page.split("6. History of writes", 1)[1]
-    assert "calibration.joint_offsets_deg" in history and "tool.position_mm" in history
-    assert "[0, 0, 80] → [0.315377, -0.193238, 80.1783]" in history
-    assert '<code class="nowrap">calibrate</code>' in history
-    assert '<code class="nowrap">tool-frame</code>' in history
+    history = page.split("6. History: what changed, when, why", 1)[1]
+    assert "joint offsets (deg): J2 0 → -1.20183, J3 0 → 1.49982" in history
+    assert "tool position (mm): [0, 0, 80] → [0.315377, -0.193238, 80.1783]" in history
+    assert "<code>calibrate</code></strong> (write #1)" in history
+    assert "<code>tool-frame</code></strong> (write #2)" in history
 
 
 def test_what_the_history_does_not_hold_is_said(page: str) -> None:
     assert "not the residual of each measurement: those come from a record of the run" in page
     assert "reason not recorded in the profile" in page
-    assert "Lost motion (backlash) per joint: <strong>not measured</strong>" in page
+    assert "Lost motion (backlash) per joint, deg: not measured on any joint" in page
     assert "Drift of the sound speed during a run: <strong>not measured</strong>" in page
-    assert "No verify picture beside the profile" in page
+    assert "No verify of this cell beside the profile" in page
     assert "[robot] dh: the shipped table (not identified)" in page
 
 
