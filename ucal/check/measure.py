@@ -26,7 +26,7 @@ from ucal.calibration.readings import number
 from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
-from ucal.echo import AScan, EchoEstimate, estimate_echo
+from ucal.echo import AScan, EchoEstimate, NoEcho, estimate_echo
 from ucal.measure.approach import FinalApproachRig
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
@@ -199,7 +199,11 @@ def read_echo_band(rig: Rig, echo_tof_ns: float) -> EchoEstimate | None:
     levels = np.diff(np.unique(samples))
     lsb = float(levels.min()) if levels.size else None
     ascan = AScan(float(t0_ns), 1e9 / float(rate_hz), samples, rails=(-1.0, 1.0), lsb=lsb)
-    estimate = estimate_echo(ascan)
+    try:
+        estimate = estimate_echo(ascan)
+    except NoEcho as e:
+        log.info("A-scan of %d samples: %s: no band", samples.size, e)
+        return None
     log.info(
         "A-scan: echo at %.1f ns, centre %.2f MHz, -6 dB bandwidth %.2f MHz",
         estimate.tof_ns,

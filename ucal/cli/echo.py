@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.console import Console
@@ -14,10 +15,11 @@ from ucal.echo import (
     METHOD_REFERENCE,
     AScan,
     EchoEstimate,
+    NoEcho,
     estimate_echo,
 )
 from ucal.echo.files import read_columns, read_reference
-from ucal.errors import InputError
+from ucal.errors import HardwareError, InputError
 
 
 @click.command(
@@ -46,7 +48,10 @@ def cli(file: Path, reference_path: Path | None, as_json: bool) -> None:
     with a std of the Cramér–Rao form from the A-scan's own SNR and the reference's bandwidth.
     Without --reference the time is the peak of the echo's envelope: coarse, with a std to
     match, and not the reference's arrival. A clipped echo is timed by its unclipped flanks
-    and flagged.
+    and flagged; an echo another overlaps is flagged, its std widened. A record with no echo
+    to time (a constant, noise alone, an echo of the other polarity or cut by the record's
+    ends) is never given a time: exit 3 naming the file and the column (with --json, that
+    record's tof_ns is null and no_echo says why).
     """
     reference = read_reference(reference_path) if reference_path is not None else None
     t0_ns, dt_ns, names, columns = read_columns(file)
@@ -55,27 +60,71 @@ def cli(file: Path, reference_path: Path | None, as_json: bool) -> None:
             reference = reference.resampled(dt_ns)
         except ValueError as e:
             raise InputError(f"{reference_path}: {e}") from None
-    estimates = []
+    method = METHOD_REFERENCE if reference is not None else METHOD_ENVELOPE
+    estimates: list[EchoEstimate | NoEcho] = []
     for name, samples in zip(names, columns, strict=True):
         try:
             estimates.append(estimate_echo(AScan(t0_ns, dt_ns, samples), reference))
+        except NoEcho as e:
+            estimates.append(e)
         except ValueError as e:
             raise InputError(f"{file}: column {name!r}: {e}") from None
-    if as_json:
-        emit_json({"echoes": [e.as_json() for e in estimates]})
+    missing = [(n, e) for n, e in zip(names, estimates, strict=True) if isinstance(e, NoEcho)]
+    result = {"echoes": [_as_json(e, method) for e in estimates]}
+    if not missing:
+        if as_json:
+            emit_json(result)
+        else:
+            _print_table(file, reference_path, names, estimates)
         return
-    _print_table(file, reference_path, names, estimates)
+    if not as_json:
+        _print_table(file, reference_path, names, estimates)
+    name, first = missing[0]
+    more = f" (and {len(missing) - 1} more column(s))" if len(missing) > 1 else ""
+    raise NoEchoInFile(f"{file}: column {name!r}: no echo: {first.reason}{more}", result)
+
+
+class NoEchoInFile(HardwareError):
+    """A record of the file holds no echo to time (exit 3, SPEC.md); ``result`` is the
+    file's echoes, the record without one ``"tof_ns": null`` with its reason."""
+
+    def __init__(self, message: str, result: dict[str, Any]):
+        super().__init__(message)
+        self.result = result
+
+
+def _as_json(e: EchoEstimate | NoEcho, method: str) -> dict[str, Any]:
+    """One record's fields of ``--json``: the echo's, or nulls and the reason there is none."""
+    if isinstance(e, EchoEstimate):
+        return e.as_json()
+    return {
+        **dict.fromkeys(_NUMBERS),
+        "method": method,
+        "clipped": False,
+        "overlapped": False,
+        "no_echo": e.reason,
+    }
+
+
+_NUMBERS = ("tof_ns", "tof_std_ns", "amplitude", "snr_db", "centre_frequency_mhz", "bandwidth_mhz")
 
 
 def _print_table(
-    file: Path, reference_path: Path | None, names: list[str], estimates: list[EchoEstimate]
+    file: Path,
+    reference_path: Path | None,
+    names: list[str],
+    estimates: list[EchoEstimate | NoEcho],
 ) -> None:
     table = Table(title=f"Echoes in {file}")
     table.add_column("A-scan")
     for heading in ("TOF (ns)", "σ (ns)", "amplitude", "SNR (dB)", "f_c (MHz)", "BW (MHz)"):
         table.add_column(heading, justify="right")
-    table.add_column("clipped")
+    table.add_column("flags")
     for name, e in zip(names, estimates, strict=True):
+        if isinstance(e, NoEcho):
+            table.add_row(name, *["—"] * 6, f"no echo: {e.reason}")
+            continue
+        flags = [f for f, on in (("clipped", e.clipped), ("overlapped", e.overlapped)) if on]
         table.add_row(
             name,
             f"{e.tof_ns:.4f}",
@@ -84,7 +133,7 @@ def _print_table(
             f"{e.snr_db:.1f}",
             f"{e.centre_frequency_mhz:.2f}",
             f"{e.bandwidth_mhz:.2f}",
-            "yes" if e.clipped else "",
+            ", ".join(flags),
         )
     console = Console()
     if not console.is_terminal:  # a pipe or a file: the whole table, not rich's 80 columns

@@ -3,8 +3,10 @@
 ``estimate_echo(ascan, reference)`` times one record against the cell's reference echo
 (``ucal.echo.timing``: correlation, an unbiased sub-sample step, a std of the Cramér–Rao form
 from the record's own SNR and the reference's bandwidth), or coarsely by its envelope without
-one. ``build_reference(captures)`` averages many captures into that reference, its arrival at
-t = 0 (``ucal.echo.reference``). Records and their spectra: ``ucal.echo.ascan``.
+one; a record with no echo to time (a constant, noise alone, an echo of the other polarity or
+cut by the record's ends) raises ``NoEcho``, never a time. ``build_reference(captures)``
+averages many captures into that reference, its arrival at t = 0 (``ucal.echo.reference``).
+Records and their spectra: ``ucal.echo.ascan``.
 """
 
 from ucal.echo.ascan import AScan, EchoBand, ReferenceEcho, echo_band, noise_rms
@@ -13,6 +15,7 @@ from ucal.echo.timing import (
     METHOD_ENVELOPE,
     METHOD_REFERENCE,
     EchoEstimate,
+    NoEcho,
     delay_crb_ns,
     estimate_echo,
 )
@@ -23,6 +26,7 @@ __all__ = [
     "AScan",
     "EchoBand",
     "EchoEstimate",
+    "NoEcho",
     "ReferenceEcho",
     "build_reference",
     "delay_crb_ns",

@@ -14,12 +14,16 @@ reading costs the same whatever the gate. The strongest echo's largest sample is
 excursion unless a second echo of nearly the same height is in the gate; the estimator then
 times whichever of the two is in the cut, as a peak-mode gate would.
 
-A record with nothing in it (every sample equal: noise below one step of the digitiser) has
-amplitude 0 and no time of flight.
+A record with nothing in it (every sample equal: noise below one step of the digitiser), or
+one the estimator finds no echo in (``ucal.echo.timing.NoEcho``: noise alone, an echo of the
+other polarity, an echo cut by the record's ends), has amplitude 0 and no time of flight: the
+pulser's reading says ``has_echo`` False, as a gate that saw no echo does, and the
+measurement never hands it to the solver (``ucal.measure.search``).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 
@@ -27,7 +31,9 @@ import numpy as np
 
 from drivers.digitizer.base import AScanRecord, EchoTiming
 from ucal.echo.ascan import AScan, ReferenceEcho
-from ucal.echo.timing import METHOD_ENVELOPE, METHOD_REFERENCE, estimate_echo
+from ucal.echo.timing import METHOD_ENVELOPE, METHOD_REFERENCE, NoEcho, estimate_echo
+
+log = logging.getLogger(__name__)
 
 #: Without a reference: the cut spans this long on either side of the largest excursion (ns).
 SEARCH_HALF_NS = 1500.0
@@ -45,6 +51,8 @@ class HostEchoTimer:
         self.reference = reference
         #: Echoes timed so far, by method (the fallback's count: readings before a reference).
         self.timed: Counter[str] = Counter()
+        #: Records without an echo to time, by reason (``ucal.echo.timing.NoEcho``).
+        self.no_echo: Counter[str] = Counter()
 
     @property
     def label(self) -> str:
@@ -76,6 +84,10 @@ class HostEchoTimer:
         )
         try:
             echo = estimate_echo(ascan, self.reference, gate_ns=gate_ns)
+        except NoEcho as e:  # a no-reading, as a gate that saw no echo gives: never solved
+            log.debug("no echo in the record: %s", e.reason)
+            self.no_echo[e.reason.split(":")[0]] += 1
+            return self._nothing()
         except ValueError:  # the gate holds no sample of the cut: nothing to time
             return self._nothing()
         if not (math.isfinite(echo.amplitude) and math.isfinite(echo.tof_ns)):

@@ -76,6 +76,24 @@ The reference's own noise. The reference averages M captures; its noise adds abo
 t = 0 is common to every reading, a constant in every time of flight (the calibration's
 electronic delay ``tof_delay_ns`` absorbs it).
 
+No echo (``NoEcho``, never a time). A constant record (zeros, a digitiser with nothing
+above one step) has nothing to time. Noise alone: the correlation over the gate's L whole
+lags, in units of its noise std σ̂·√Σr², is √SNR_eff at the echo and N(0, 1) at each lag for
+noise alone; the record holds an echo only when its peak passes ``Q⁻¹(FALSE_ALARM/L)``
+(Bonferroni over the lags, which overcounts correlated ones: noise alone passes it in fewer
+than ``FALSE_ALARM`` of the records; 4.7 σ for a thousand lags). The bound needs more still
+(above the ambiguity threshold), but an echo between the two is timed, its std honest only
+when no cycle a period away wins. An echo of the other polarity (its negative peak above the
+threshold and above the positive one by ``INVERTED_SIGMAS`` of their difference's noise) is
+another reflector's, or a reference of the wrong sign: no echo. An echo with more than
+``CUT_SHARE`` of its energy beyond the record's ends is cut: its time would rest on a part
+of it. Without a reference, the band-passed envelope's peak is tested against its noise's
+(Rayleigh: |z| > t with probability exp(−t²/E|z|²) per position), and an echo whose
+envelope does not fall to a quarter of its peak before an end of the record is cut. A record
+without noise (σ̂ = 0: a synthetic one, or noise below the file's printed precision) is known
+to the step its values are given to: σ̂ is that step over √12, so the std and the SNR stay
+finite.
+
 Without a reference (``method = "envelope (coarse: no reference echo)"``): the envelope of the
 record's analytic signal, band-passed to the echo's own −6 dB band (a Gaussian filter twice as
 wide), its largest sample refined by a parabola, as a peak-mode gate does. Its std propagates
@@ -109,6 +127,36 @@ OVERLAP_ENERGY = 1e-4
 #: Clipped samples: refits until the delay moves less than this (samples), at most this often.
 CLIP_TOLERANCE = 1e-6
 CLIP_ITERATIONS = 50
+#: Rails unknown: samples at the record's extremes are clipped when the fit without them puts
+#: the echo this many σ beyond them, σ the noise and, in quadrature, ``CLIP_SHAPE`` of the
+#: echo's height (how well a reference predicts a record's samples it was not fitted to:
+#: 2–4 % at four samples a cycle).
+CLIP_SIGMAS = 4.0
+CLIP_SHAPE = 0.02
+#: Chance that noise alone passes the detection threshold anywhere in a record.
+FALSE_ALARM = 1e-3
+#: An echo is inverted when the other polarity's correlation peak passes this one's by this
+#: many of their difference's std (at a few samples a cycle and a low SNR a ringing echo's
+#: two peaks half a period apart differ by less than their noise).
+INVERTED_SIGMAS = 3.0
+#: An echo with more than this share of its energy beyond the record's ends is cut by them.
+CUT_SHARE = 0.01
+
+
+class NoEcho(ValueError):
+    """The record holds no echo to time; ``reason`` says why (a constant record, noise
+    alone, an echo of the other polarity, an echo cut by the record's ends)."""
+
+    def __init__(self, reason: str):
+        super().__init__(f"no echo: {reason}")
+        self.reason = reason
+
+
+def detection_threshold(n_positions: int) -> float:
+    """Smallest √SNR_eff (matched-filter output over its noise) that noise alone passes at
+    ``n_positions`` independent positions with probability ``FALSE_ALARM`` at most:
+    ``Q⁻¹(FALSE_ALARM / n)``, Bonferroni over the positions searched (module docstring)."""
+    return float(stats.norm.isf(FALSE_ALARM / max(n_positions, 1)))
 
 
 @dataclass(frozen=True)
@@ -132,18 +180,24 @@ class EchoEstimate:
     clipped: bool
     overlapped: bool = False
 
-    def as_json(self) -> dict[str, float | str | bool]:
-        """The fields of ``ucal echo --json``."""
+    def as_json(self) -> dict[str, float | str | bool | None]:
+        """The fields of ``ucal echo --json``: finite numbers only (None where a number is
+        not finite: JSON has no Infinity or NaN)."""
         return {
-            "tof_ns": self.tof_ns,
-            "tof_std_ns": self.tof_std_ns,
-            "amplitude": self.amplitude,
-            "snr_db": self.snr_db,
-            "centre_frequency_mhz": self.centre_frequency_mhz,
-            "bandwidth_mhz": self.bandwidth_mhz,
+            "tof_ns": _finite(self.tof_ns),
+            "tof_std_ns": _finite(self.tof_std_ns),
+            "amplitude": _finite(self.amplitude),
+            "snr_db": _finite(self.snr_db),
+            "centre_frequency_mhz": _finite(self.centre_frequency_mhz),
+            "bandwidth_mhz": _finite(self.bandwidth_mhz),
             "method": self.method,
             "clipped": self.clipped,
+            "overlapped": self.overlapped,
         }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def delay_crb_ns(rms_bandwidth_mhz: float, snr_eff: float) -> float:
@@ -163,8 +217,9 @@ def estimate_echo(
     """Time the strongest echo of ``ascan`` whose arrival lies in ``gate_ns`` (default: the
     record), against ``reference`` or, without one, by its envelope (module docstring).
 
-    The reference is resampled to the record's interval when they differ. Raises
-    ``ValueError`` when the gate holds no sample of the record.
+    The reference is resampled to the record's interval when they differ. Raises ``NoEcho``
+    (a ``ValueError``) when the record holds no echo to time, ``ValueError`` when the gate
+    holds no sample of the record.
     """
     lo, hi = gate_ns if gate_ns is not None else (-math.inf, math.inf)
     lo = max(lo, ascan.t0_ns)
@@ -174,6 +229,8 @@ def estimate_echo(
             f"the gate {gate_ns} ns holds no sample of the record "
             f"({ascan.t0_ns:g}…{ascan.t0_ns + (ascan.n - 1) * ascan.dt_ns:g} ns)"
         )
+    if float(np.ptp(ascan.samples)) == 0.0:
+        raise NoEcho(f"every sample is {float(ascan.samples[0]):g}: a constant record")
     if reference is None:
         return _envelope_estimate(ascan, (lo, hi))
     return _reference_estimate(ascan, reference.resampled(ascan.dt_ns), (lo, hi))
@@ -233,6 +290,10 @@ def _reference_estimate(
         sigma = float(np.sqrt(np.sum((x - amplitude * corr.model(lag)) ** 2) / max(n - 2, 1)))
         if ascan.lsb is not None:
             sigma = math.hypot(sigma, ascan.lsb / math.sqrt(12.0))
+    if not sigma > 0.0:  # a record without noise: its samples' own rounding
+        sigma = _resolution(raw) / math.sqrt(12.0)
+    _detect(corr, x, c[inside], lags[inside], amplitude, sigma)
+    _within_record(corr, lag)
 
     # clipped samples: censored, the echo refitted by the others
     if ascan.rails is None:
@@ -281,6 +342,57 @@ def _reference_estimate(
     )
 
 
+def _resolution(samples: np.ndarray) -> float:
+    """The step the samples are given to (the smallest difference between two of their
+    values): a record without noise is known to that step."""
+    steps = np.diff(np.unique(samples))
+    return float(steps.min()) if steps.size else 0.0
+
+
+def _detect(
+    corr: _Correlator,
+    x: np.ndarray,
+    c: np.ndarray,
+    lags: np.ndarray,
+    amplitude: float,
+    sigma: float,
+) -> None:
+    """Raise ``NoEcho`` unless the correlation ``c`` (record ⋆ reference at the gate's whole
+    lags ``lags``) has a peak of the reference's polarity, ``amplitude`` (refined) against
+    the reference, that noise alone would not give, and none of the other larger."""
+    scale = sigma * math.sqrt(corr.energy)  # the std of c for noise alone
+    threshold = detection_threshold(c.size)
+    best = amplitude * corr.energy / scale
+    # the other polarity's peak, refined as this one's (at a few samples a cycle the samples
+    # of the correlation miss either by up to a third)
+    _, other = corr.fit(-x, float(lags[int(np.argmin(c))]))
+    worst = other * corr.energy / scale
+    if worst >= threshold and worst - best > INVERTED_SIGMAS * math.sqrt(2.0):  # noise: √2
+        raise NoEcho(
+            f"the strongest echo is inverted ({worst:.1f} σ against {best:.1f} σ of the "
+            "reference's polarity): another reflector's, or a reference of the other sign"
+        )
+    if best < threshold:
+        raise NoEcho(
+            f"noise alone: the best match to the reference is {best:.1f} σ, below the "
+            f"{threshold:.1f} σ noise passes once in {1 / FALSE_ALARM:.0f} records"
+        )
+
+
+def _within_record(corr: _Correlator, lag: float) -> None:
+    """Raise ``NoEcho`` when the echo at ``lag`` has more than ``CUT_SHARE`` of its energy
+    beyond the record's ends."""
+    full = shifted(corr.spectrum, corr.n_fft, lag)
+    total = float(np.sum(full**2))
+    inside = float(np.sum(full[: corr.n] ** 2))
+    if total > 0.0 and inside < (1.0 - CUT_SHARE) * total:
+        end = "end" if lag > 0.5 * corr.n else "start"
+        raise NoEcho(
+            f"the echo is cut by the record's {end}: {100 * (1 - inside / total):.0f} % of "
+            "it lies beyond"
+        )
+
+
 def _residual_excess(x: np.ndarray, fit: np.ndarray, where: np.ndarray, sigma: float) -> float:
     """``Σ (x − fit)²/σ² − m`` over the ``m`` samples ``where``: the residual's energy beyond
     the noise's, in units of σ² (0 for a lone echo, up to the noise's own scatter ±√(2m))."""
@@ -305,15 +417,21 @@ def _guess_clipped(
     sigma: float,
 ) -> np.ndarray:
     """Rails unknown (``rails``: the record's extremes): the samples on one are clipped when a
-    fit that takes them as censored has the echo more than 3σ beyond it at one of them (a
-    sample at the top of an unclipped record sits above the fit, not below it)."""
+    fit without them has the echo more than ``CLIP_SIGMAS`` of the noise and the reference's
+    mismatch (``CLIP_SHAPE``) beyond it at one of them (a
+    sample at the top of an unclipped record sits above the fit, not below it). Without
+    them, not taken as censored: a censored fit pushes each beyond its rail, lifts the echo,
+    and so pushes them further, and clean records at four samples a cycle came out clipped."""
     candidates = (x <= rails[0]) | (x >= rails[1])
-    _, lag, amplitude = _refit_censored(x, candidates, rails, corr, lag, amplitude, sigma)
+    _, lag, amplitude = _refit_censored(
+        x, candidates, rails, corr, lag, amplitude, sigma, censored=False
+    )
     model = amplitude * corr.model(lag)
     clipped = np.zeros(x.size, dtype=bool)
     for sign, rail in ((-1.0, rails[0]), (1.0, rails[1])):
         at = sign * x >= sign * rail
-        if np.any(sign * model[at] > sign * rail + 3.0 * sigma):
+        margin = CLIP_SIGMAS * math.hypot(sigma, CLIP_SHAPE * amplitude)
+        if np.any(sign * model[at] > sign * rail + margin):
             clipped |= at
     return clipped
 
@@ -326,20 +444,25 @@ def _refit_censored(
     lag: float,
     amplitude: float,
     sigma: float,
+    censored: bool = True,
 ) -> tuple[np.ndarray, float, float]:
     """Refit with each clipped sample replaced by its expectation beyond its rail given the
-    fit (module docstring); returns (filled record, lag, amplitude)."""
+    fit (module docstring), or (``censored`` False) by the fit itself, as missing; returns
+    (filled record, lag, amplitude)."""
     bottom, top = rails
     high = clipped & (x >= top)
     low = clipped & (x <= bottom)
     filled = x.copy()
     for _ in range(CLIP_ITERATIONS):
         model = amplitude * corr.model(lag)
-        if sigma > 0.0:
+        if not censored:
+            filled[clipped] = model[clipped]
+        elif sigma > 0.0:
             filled[high] = model[high] + sigma * _mills((top - model[high]) / sigma)
             filled[low] = model[low] - sigma * _mills((model[low] - bottom) / sigma)
-        filled[high] = np.maximum(filled[high], top)
-        filled[low] = np.minimum(filled[low], bottom)
+        if censored:
+            filled[high] = np.maximum(filled[high], top)
+            filled[low] = np.minimum(filled[low], bottom)
         new_lag, amplitude = corr.fit(filled, lag)
         moved = abs(new_lag - lag)
         lag = new_lag
@@ -371,9 +494,17 @@ def _envelope_estimate(ascan: AScan, gate: tuple[float, float]) -> EchoEstimate:
     quiet = ~in_echo & ~clipped
     if np.count_nonzero(quiet) >= 32:
         x = raw - float(np.mean(raw[quiet]))
+    if not (below[: k + 1].any() and below[k:].any()):
+        raise NoEcho(
+            "the echo is cut by the record's "
+            + ("start" if not below[: k + 1].any() else "end")
+            + ": its envelope does not fall to a quarter of its peak before it"
+        )
     sigma = noise_rms(x, quiet, ascan.lsb)
     if sigma is None:  # no room outside the echo: all that is not the echo, or all
         sigma = float(np.std(x[~in_echo] if (~in_echo).any() else x))
+    if not sigma > 0.0:
+        sigma = _resolution(raw) / math.sqrt(12.0)
     band = echo_band(x[in_echo], dt)
 
     # the analytic signal band-passed to the echo: a Gaussian of twice the echo's −6 dB width
@@ -387,6 +518,15 @@ def _envelope_estimate(ascan: AScan, gate: tuple[float, float]) -> EchoEstimate:
     analytic = fft.ifft(fft.fft(x, n_fft) * response)[:n]
     envelope = np.abs(analytic)
     k = k_lo + int(np.argmax(envelope[k_lo : k_hi + 1]))
+    # noise alone: |z| Rayleigh with E|z|² = σ²·Σ|h|², above t with probability exp(−t²/E|z|²)
+    noise_z = sigma * math.sqrt(float(np.sum(response**2)) / n_fft)
+    threshold = noise_z * math.sqrt(math.log(max(k_hi - k_lo + 1, 1) / FALSE_ALARM))
+    if envelope[k] < threshold:
+        raise NoEcho(
+            f"noise alone: the envelope's peak is {envelope[k] / noise_z:.1f} times its noise, "
+            f"below the {threshold / noise_z:.1f} noise passes once in {1 / FALSE_ALARM:.0f} "
+            "records"
+        )
     k = min(max(k, 1), n - 2)
     a, b, c = envelope[k - 1 : k + 2]
     d, curvature = a - c, a - 2.0 * b + c

@@ -88,6 +88,7 @@ def test_json_times_every_a_scan_against_the_reference(
             "bandwidth_mhz",
             "method",
             "clipped",
+            "overlapped",
         }
     ] * 3
     for e, truth in zip(echoes, ARRIVALS_NS, strict=True):
