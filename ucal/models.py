@@ -1,18 +1,54 @@
-"""Shipped robot models (``profiles/<model>.toml``, installed as package data ``ucal.profiles``)."""
+"""Shipped robot models: one data file each, ``profiles/<model>.toml`` (package data
+``ucal.profiles``), the one place a model is defined (docs/decisions/0015).
+
+A model file's ``[robot]`` holds the DH table and joint ranges (SPEC.md), ``upper_arm_mm`` and
+``forearm_mm`` (what the table's lengths are on the data sheet), ``speed_deg_s`` (the joints'
+speeds at speed 1.0 as a plan, its real-cell estimate and the simulated controller take
+them), ``max_speed_deg_s`` and ``max_effort_nm`` (the arm's limits, a URDF's ``<limit>``),
+``base_height_mm`` (the mounting face to the base frame) and, where a source states them,
+``max_acceleration_deg_s2``. Every ``profiles/*.toml`` but the example cell profile is a
+model, named by its file: adding a model is adding its file.
+"""
 
 from __future__ import annotations
 
+import functools
 import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
 from importlib import resources
+from typing import Any
 
 import numpy as np
 
 from ucal.errors import InputError
-from ucal.kinematics.dh import RobotModel
+from ucal.kinematics.dh import N_JOINTS, RobotModel
 
-#: Model names that ``ucal profile init`` knows.
-KNOWN_MODELS = ("tx90", "tx90l", "tx90xl")
+#: The example cell profile beside the model files (``ucal.profile.template``), not a model.
+EXAMPLE_PROFILE = "example_cell.toml"
+#: Model names that ``ucal profile init`` knows: the model files' names.
+KNOWN_MODELS = tuple(
+    sorted(
+        f.name.removesuffix(".toml")
+        for f in resources.files("ucal.profiles").iterdir()
+        if f.name.endswith(".toml") and f.name != EXAMPLE_PROFILE
+    )
+)
 DEFAULT_MODEL = "tx90l"
+
+
+@dataclass(frozen=True)
+class ModelSheet:
+    """What a model file states beyond the kinematics (``robot``): data-sheet lengths (mm),
+    the arm's maximum speeds (deg/s) and torques (N·m), the base frame's height above the
+    mounting face (mm)."""
+
+    robot: RobotModel
+    upper_arm_mm: float
+    forearm_mm: float
+    max_speed_deg_s: np.ndarray
+    max_effort_nm: np.ndarray
+    base_height_mm: float
 
 
 def model_table_text(name: str) -> str:
@@ -22,13 +58,65 @@ def model_table_text(name: str) -> str:
     return resources.files("ucal.profiles").joinpath(f"{name}.toml").read_text(encoding="utf-8")
 
 
-def load_model(name: str) -> RobotModel:
-    """Robot model of a shipped name (``tx90``, ``tx90l``, ``tx90xl``)."""
-    data = tomllib.loads(model_table_text(name))["robot"]
+@functools.cache
+def _robot_table(name: str) -> Mapping[str, Any]:
+    """The parsed ``[robot]`` of a model file (read once; every caller builds its own arrays)."""
+    return tomllib.loads(model_table_text(name))["robot"]
+
+
+def model_sheet(name: str) -> ModelSheet:
+    """The model file of a shipped name, read and checked (``InputError`` naming the file and
+    the key of a bad value)."""
+    where = f"profiles/{name}.toml"
+    data = _robot_table(name)
+    if data.get("model") != name:
+        raise InputError(f"{where}: robot.model: must be {name!r}, the file's name")
     dh = np.array(
         [[r["theta_offset_deg"], r["d_mm"], r["a_mm"], r["alpha_deg"]] for r in data["dh"]]
     )
-    return RobotModel(name, dh, data["joint_min_deg"], data["joint_max_deg"])
+    accel = data.get("max_acceleration_deg_s2")
+    robot = RobotModel(
+        name,
+        dh,
+        _six(data, "joint_min_deg", where, positive=False),
+        _six(data, "joint_max_deg", where, positive=False),
+        speed_deg_s=_six(data, "speed_deg_s", where),
+        acceleration_deg_s2=None if accel is None else _six(data, "max_acceleration_deg_s2", where),
+    )
+    return ModelSheet(
+        robot,
+        float(data["upper_arm_mm"]),
+        float(data["forearm_mm"]),
+        _six(data, "max_speed_deg_s", where),
+        _six(data, "max_effort_nm", where),
+        float(data["base_height_mm"]),
+    )
+
+
+def _six(data: Mapping[str, Any], key: str, where: str, positive: bool = True) -> np.ndarray:
+    """Six finite numbers (positive ones where ``positive``) of ``data[key]``."""
+    v = np.array(data.get(key, ()), dtype=float)
+    if v.shape != (N_JOINTS,) or not np.all(np.isfinite(v)) or (positive and np.any(v <= 0)):
+        kind = "positive numbers" if positive else "numbers"
+        raise InputError(f"{where}: robot.{key}: must be {N_JOINTS} finite {kind}")
+    return v
+
+
+def load_model(name: str) -> RobotModel:
+    """Robot model of a shipped name (``KNOWN_MODELS``): its DH table, ranges and speeds."""
+    return model_sheet(name).robot
+
+
+def joint_speeds_deg_s(model: RobotModel | None) -> np.ndarray:
+    """The joints' speeds at speed 1.0 (deg/s) that a plan, its estimate and the simulated
+    controller take for ``model``: its own (a profile's ``[robot] speed_deg_s``, a model
+    file's), else its shipped model's, else (no model, or another arm) the lowest of the
+    shipped models' for each joint."""
+    if model is not None and model.speed_deg_s is not None:
+        return model.speed_deg_s
+    if model is not None and model.name in KNOWN_MODELS:
+        return joint_speeds_deg_s(load_model(model.name))
+    return np.min([joint_speeds_deg_s(load_model(n)) for n in KNOWN_MODELS], axis=0)
 
 
 def controller_model(model: RobotModel, source: object = "profile") -> RobotModel:
@@ -44,4 +132,10 @@ def controller_model(model: RobotModel, source: object = "profile") -> RobotMode
             f"({', '.join(KNOWN_MODELS)}): the controller's nominal DH table is not known"
         )
     shipped = load_model(model.name)
-    return RobotModel(shipped.name, shipped.dh, model.joint_min_deg, model.joint_max_deg)
+    return RobotModel(
+        shipped.name,
+        shipped.dh,
+        model.joint_min_deg,
+        model.joint_max_deg,
+        speed_deg_s=model.speed_deg_s,
+    )

@@ -23,6 +23,7 @@ from drivers.controller.base import RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal import interrupt, timing
 from ucal.errors import HardwareError
+from ucal.models import joint_speeds_deg_s
 
 if TYPE_CHECKING:
     from ucal.echo.capture import Capture
@@ -131,6 +132,7 @@ class Rig:
         speed: float = 0.3,
         move_timeout_s: float = 60.0,
         settings: PulserSettings | None = None,
+        speeds_deg_s: np.ndarray | None = None,
     ):
         self.controller = controller
         self.pulser = pulser
@@ -138,6 +140,11 @@ class Rig:
         self.joint_max_deg = np.asarray(joint_max_deg, float)
         self.speed = speed
         self.sweep_speed = speed
+        # The joints' speeds at speed 1.0 (deg/s): the robot model's (``joint_speeds_deg_s``;
+        # without one, the lowest of the shipped models')
+        self.speeds_deg_s = (
+            joint_speeds_deg_s(None) if speeds_deg_s is None else np.asarray(speeds_deg_s, float)
+        )
         # Time between readings during a sweep (s), measured by every sweep: sets the speed
         # that spaces the readings as a sweep asks.
         self.read_interval_s = _FIRST_READ_S
@@ -381,7 +388,7 @@ class Rig:
         ``READ_TRAVEL_STEPS`` spacings is no posture: such a reading is left out (the sweep
         counts the readings it kept, ``_covered_step``, and is swept again slower when they
         are too few)."""
-        j = int(np.argmax(np.abs(target - start) / timing.MAX_SPEED_DEG_S))
+        j = int(np.argmax(np.abs(target - start) / self.speeds_deg_s))
         travel = np.abs(np.interp(answered, ts, js[:, j]) - np.interp(asked, ts, js[:, j]))
         return np.asarray(travel <= READ_TRAVEL_STEPS * max_step_deg)
 
@@ -397,7 +404,7 @@ class Rig:
         resolves (a simulated cell without time) shows no such frame, and a sweep of it
         covers nothing, whatever it read.
         """
-        j = int(np.argmax(np.abs(target - start) / timing.MAX_SPEED_DEG_S))
+        j = int(np.argmax(np.abs(target - start) / self.speeds_deg_s))
         travel = float(np.max(np.abs(target - start)))
         if len(ts) < 2:
             # No stream to tie them (a controller double): the readings as if spread evenly.
@@ -419,7 +426,7 @@ class Rig:
         interval, with rate_max = |Δ|_max over the move's duration at full speed.
         """
         delta = np.abs(np.asarray(target, float) - np.asarray(start, float))
-        full_speed_s = float(np.max(delta / timing.MAX_SPEED_DEG_S))
+        full_speed_s = float(np.max(delta / self.speeds_deg_s))
         if full_speed_s <= 0.0:
             return self.speed
         rate_deg_s = float(np.max(delta)) / full_speed_s * self.rate_factor
@@ -447,11 +454,11 @@ class Rig:
         """
         delta = np.asarray(target, float) - np.asarray(start, float)
         # the joint that sets the move's duration (joint-interpolated: all arrive together)
-        j = int(np.argmax(np.abs(delta) / timing.MAX_SPEED_DEG_S))
+        j = int(np.argmax(np.abs(delta) / self.speeds_deg_s))
         travel = abs(float(delta[j]))
         if travel < 1e-3 or len(ts) < 2:
             return
-        commanded = speed * float(timing.MAX_SPEED_DEG_S[j])  # deg/s on joint j
+        commanded = speed * float(self.speeds_deg_s[j])  # deg/s on joint j
         u = (js[:, j] - start[j]) / delta[j]  # 0 at the start, 1 at the target
         tol = 1e-4 / travel
         inside = (u > tol) & (u < 1.0 - tol)

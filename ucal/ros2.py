@@ -17,11 +17,12 @@
 
 Frames (ROS-Industrial's names, each with the prefix): ``base_link`` (the mounting face),
 ``base`` (the controller's world frame at shoulder height, in which ucal states the model and
-every pose; ``BASE_HEIGHT_MM`` above ``base_link``, as the ROS-Industrial TX90 description has
-it: a nominal value ucal does not measure), ``link_1`` … ``link_6`` (moved by ``joint_1`` …
-``joint_6``), ``flange`` (x out of the flange), ``tool0`` (ucal's flange frame: the joint-6
-frame of its model, the controller's ``flange``, docs/decisions/0001) and ``ucal_tcp`` (the
-profile's ``[tool]``: the transducer's frame, beam along +z).
+every pose; the model file's ``base_height_mm`` above ``base_link``, as the ROS-Industrial
+TX90 description has it: a nominal value ucal does not measure), ``link_1`` … ``link_6``
+(moved by ``joint_1`` … ``joint_6``), ``flange`` (x out of the flange), ``tool0`` (ucal's
+flange frame: the joint-6 frame of its model, the controller's ``flange``,
+docs/decisions/0001) and ``ucal_tcp`` (the profile's ``[tool]``: the transducer's frame, beam
+along +z).
 
 Kinematics. With the DH rows ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)·Ry(β_i)`` and
 ``θ_i = q_i + θoff_i`` (``ucal.kinematics.dh``; ``q_i`` = reading + offset, the arm's true joint
@@ -62,6 +63,7 @@ from ucal.cell import CellProfile
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import N_JOINTS, RobotModel, dh_matrix, transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.models import KNOWN_MODELS, model_sheet
 from ucal.output import writable_directory, write_file
 from ucal.profile import real_path
 from ucal.profile.read import profile_from_data
@@ -80,22 +82,6 @@ from ucal.ros2_description import (
 from ucal.validation import parse_toml_bytes
 
 log = logging.getLogger(__name__)
-
-#: ``base_link → base`` (mm): the shoulder height of the TX90 family in the ROS-Industrial
-#: description (``staubli_tx90_support``: ``base_link-base``, 0.478 m); nominal, not measured.
-BASE_HEIGHT_MM = {"tx90": 478.0, "tx90l": 478.0, "tx90xl": 478.0}
-#: Joint speeds (deg/s) and torques (N·m, floor mounted) of the URDF's ``<limit>``: the
-#: ROS-Industrial description's values, from Stäubli's instruction manuals.
-JOINT_SPEED_DEG_S = {
-    "tx90": (400.0, 400.0, 430.0, 540.0, 475.0, 760.0),
-    "tx90l": (400.0, 390.0, 420.0, 540.0, 475.0, 760.0),
-    "tx90xl": (400.0, 350.0, 410.0, 540.0, 475.0, 760.0),
-}
-JOINT_EFFORT_NM = {
-    "tx90": (318.0, 166.0, 76.0, 34.0, 29.0, 11.0),
-    "tx90l": (318.0, 130.0, 65.0, 34.0, 29.0, 11.0),
-    "tx90xl": (318.0, 90.0, 53.0, 34.0, 29.0, 11.0),
-}
 
 #: A tf prefix: empty, or a ROS name's characters (``arm_``, ``left/``).
 _PREFIX = re.compile(r"[A-Za-z_][A-Za-z0-9_/]*")
@@ -181,16 +167,22 @@ class Ros2Arm:
 
     @property
     def base_height_mm(self) -> float:
-        return BASE_HEIGHT_MM.get(self.model.name, 0.0)
+        """``base_link → base`` (mm): the model file's ``base_height_mm`` (nominal, not
+        measured), 0 for an arm that is not a shipped model."""
+        name = self.model.name
+        return model_sheet(name).base_height_mm if name in KNOWN_MODELS else 0.0
 
 
 def _speeds_and_efforts(model: str) -> tuple[Sequence[float], Sequence[float]]:
-    """The joints' speeds (deg/s) and torques (N·m): the model's, or for another model the
-    family's lowest of each (a URDF must state them)."""
-    if model in JOINT_SPEED_DEG_S:
-        return JOINT_SPEED_DEG_S[model], JOINT_EFFORT_NM[model]
-    speeds = np.min(list(JOINT_SPEED_DEG_S.values()), axis=0)
-    efforts = np.min(list(JOINT_EFFORT_NM.values()), axis=0)
+    """The joints' maximum speeds (deg/s) and torques (N·m) of the URDF's ``<limit>``: the
+    model file's (``max_speed_deg_s``, ``max_effort_nm``), or for another model the shipped
+    models' lowest of each (a URDF must state them)."""
+    if model in KNOWN_MODELS:
+        sheet = model_sheet(model)
+        return sheet.max_speed_deg_s.tolist(), sheet.max_effort_nm.tolist()
+    sheets = [model_sheet(n) for n in KNOWN_MODELS]
+    speeds = np.min([s.max_speed_deg_s for s in sheets], axis=0)
+    efforts = np.min([s.max_effort_nm for s in sheets], axis=0)
     return speeds.tolist(), efforts.tolist()
 
 

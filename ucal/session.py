@@ -30,6 +30,7 @@ from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import HardwareError, InputError, ProfileError, SafetyError
+from ucal.models import joint_speeds_deg_s
 from ucal.record import (
     Record,
     Recorder,
@@ -99,6 +100,7 @@ def make_rig(profile: CellProfile, controller: Any, pulser: Any) -> Rig:
         profile.model.joint_max_deg,
         speed=profile.procedure.speed,
         move_timeout_s=profile.controller.settle_timeout_s,
+        speeds_deg_s=joint_speeds_deg_s(profile.model),
     )
     check_averages(profile, rig)
     rig.pulser.configure(rig.settings)

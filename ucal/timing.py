@@ -10,8 +10,10 @@ to its clock (``ucal.sim.serve``), and a plan's estimate of the real-cell durati
   character silence before each frame: at 19,200 baud and n = 10 that is 22.9 ms, the figure
   measured on serial pulser-receivers. Over Modbus TCP a request costs about a millisecond on a
   cell network plus the instrument's own turnaround, ``TCP_READ_S`` in all.
-* A move lasts max |Δθ| / (maximum joint speed · speed fraction) (the simulated controller's
-  model), then the servo settles for ``SETTLE_S`` before the controller reports it done.
+* A move lasts max |Δθ| / (joint speed · speed fraction) (the simulated controller's model),
+  then the servo settles for ``SETTLE_S`` before the controller reports it done. The joints'
+  speeds at speed 1.0 are the robot model's (``ucal.models.joint_speeds_deg_s``: its model
+  file's ``speed_deg_s``), the same the simulated controller is given (``ucal.sim.serve``).
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.controller.simulator import DEFAULT_MAX_SPEED_DEG_S
 from drivers.pulser.modbus_words import rtu_read_line_s
 from drivers.pulser.registers import MEASUREMENT_COUNT
 
@@ -34,8 +35,6 @@ TCP_READ_S = TCP_TURNAROUND_S + NETWORK_LATENCY_S
 RTU_TURNAROUND_S = 0.001
 #: Servo settling after a move, before the controller reports it done (s).
 SETTLE_S = 0.05
-#: Nominal maximum joint speeds (deg/s), J1..J6.
-MAX_SPEED_DEG_S = np.asarray(DEFAULT_MAX_SPEED_DEG_S, float)
 
 
 def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT) -> float:
@@ -60,10 +59,13 @@ def read_s(framing: str, averages: int = 1, prf_hz: float = 1000.0, baud: int = 
     return transport_s(framing, baud) + max(int(averages), 1) / float(prf_hz)
 
 
-def move_s(start_deg: np.ndarray, target_deg: np.ndarray, speed: float) -> float:
-    """Duration of a joint move at ``speed`` (fraction of maximum), settling included (s)."""
+def move_s(
+    start_deg: np.ndarray, target_deg: np.ndarray, speed: float, speeds_deg_s: np.ndarray
+) -> float:
+    """Duration of a joint move at ``speed`` (fraction of the joints' ``speeds_deg_s``, their
+    speeds at 1.0), settling included (s)."""
     delta = np.abs(np.asarray(target_deg, float) - np.asarray(start_deg, float))
-    return float(np.max(delta / (MAX_SPEED_DEG_S * speed))) + SETTLE_S
+    return float(np.max(delta / (np.asarray(speeds_deg_s, float) * speed))) + SETTLE_S
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,8 @@ def estimate_run(
     targets_deg: list[np.ndarray],
     start_deg: np.ndarray,
     speed: float,
+    *,
+    speeds_deg_s: np.ndarray,
     averages: int = 1,
     prf_hz: float = 1000.0,
     baud: int = 19200,
@@ -132,11 +136,12 @@ def estimate_run(
     first: SearchCost = FIRST_FACE,
 ) -> DurationEstimate:
     """Estimate a run that visits ``targets_deg`` in order and searches at each (``search``;
-    ``first``: what the first target adds)."""
+    ``first``: what the first target adds), its moves at ``speed`` of the joints'
+    ``speeds_deg_s`` (deg/s at speed 1.0: the robot model's, ``joint_speeds_deg_s``)."""
     motion = 0.0
     here = np.asarray(start_deg, float)
     for q in targets_deg:
-        motion += move_s(here, q, speed)
+        motion += move_s(here, q, speed, speeds_deg_s)
         here = np.asarray(q, float)
     n = len(targets_deg)
     motion += n * search.motion_s * 0.3 / speed + first.motion_s * 0.3 / speed

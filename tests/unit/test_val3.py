@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from ucal.errors import EXIT_USAGE
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rotation_angle_deg
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.models import KNOWN_MODELS, load_model, model_sheet
 from ucal.profile import create_profile, load_profile, profile_history, undo_profile, write_profile
 
 from doubles import exit_code
@@ -187,7 +187,7 @@ def test_the_model_flange_is_the_controllers(name: str) -> None:
     all-zeros tool frame ``tool0``): at zero readings on the joint-6 axis, 100 mm beyond the
     wrist centre, axes parallel to the base frame; joint 6 turns it about its own z."""
     model = load_model(name)
-    length = {"tx90": 425.0 + 425.0, "tx90l": 500.0 + 550.0, "tx90xl": 650.0 + 650.0}[name]
+    length = model_sheet(name).upper_arm_mm + model_sheet(name).forearm_mm
     np.testing.assert_allclose(
         fk(model, np.zeros(6)), transform([50, 50, length + 100], np.eye(3)), atol=1e-9
     )

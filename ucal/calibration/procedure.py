@@ -66,6 +66,7 @@ from ucal.calibration.sequence import (
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
+from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import description_keys, write_profile
 from ucal.progress import Report
@@ -393,7 +394,12 @@ class OffsetsCalibration(CalibrationJob):
 
     def estimate(self, plan: CalibrationPlan) -> DurationEstimate:
         targets = [t.joints_deg for t in plan.targets + plan.above]
-        return estimate_run(targets, plan.pose_deg, self.profile.procedure.speed)
+        return estimate_run(
+            targets,
+            plan.pose_deg,
+            self.profile.procedure.speed,
+            speeds_deg_s=joint_speeds_deg_s(self.profile.model),
+        )
 
     def record_header(self, plan: CalibrationPlan) -> dict[str, Any]:
         return {
@@ -485,7 +491,12 @@ def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
     """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does
     (the offsets level's faces first where the plan has them)."""
     targets = [p.joints_deg for p in first_postures(plan.first) + list(plan.postures)]
-    return estimate_run(targets, targets[0], profile.procedure.speed)
+    return estimate_run(
+        targets,
+        targets[0],
+        profile.procedure.speed,
+        speeds_deg_s=joint_speeds_deg_s(profile.model),
+    )
 
 
 class FullCalibration(CalibrationJob):

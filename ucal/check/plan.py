@@ -29,6 +29,7 @@ from ucal.calibration.procedure import WRIST_SEARCH, plan_line
 from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.cell import CellProfile
 from ucal.check.history import CheckEntry
+from ucal.models import joint_speeds_deg_s
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
 
 #: The configurations a check measures: the calibration pose and the second joint-1 azimuth;
@@ -102,14 +103,18 @@ def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
     """The check's duration on a real cell: calibrate's measurements of its postures, the echo
     chain at ``plan.echo_labels`` and their A-scan transfers."""
     speed = profile.procedure.speed
+    joints = joint_speeds_deg_s(profile.model)
     targets = plan.targets
-    faces = estimate_run([t.joints_deg for t in targets], plan.calibration.pose_deg, speed)
+    faces = estimate_run(
+        [t.joints_deg for t in targets], plan.calibration.pose_deg, speed, speeds_deg_s=joints
+    )
     by_label = {t.label: t for t in targets}
     echo_postures = [by_label[label].joints_deg for label in plan.echo_labels]
     echoes = estimate_run(
         echo_postures,
         targets[0].joints_deg,
         speed,
+        speeds_deg_s=joints,
         averages=ASCAN_AVERAGES,
         search=ECHO_READ,
         first=SearchCost(0, 0, 0.0),

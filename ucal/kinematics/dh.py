@@ -57,6 +57,12 @@ class RobotModel:
     #: where the DH table comes from: "shipped" (the model's data sheet), a file's ``[robot]
     #: dh``, a profile's ``[calibration] dh``, or ``calibrate --level full``
     dh_source: str = field(default="shipped", compare=False)
+    #: the joints' speeds (deg/s, (6,)) at speed 1.0 as a plan, its estimate and the simulated
+    #: controller take them (``ucal.models.joint_speeds_deg_s``); None: not stated
+    speed_deg_s: np.ndarray | None = field(default=None, compare=False)
+    #: the joints' maximum accelerations (deg/s², (6,)) where a source states them; None: not
+    #: stated (the motion model is joint-interpolated at constant speed and takes none)
+    acceleration_deg_s2: np.ndarray | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dh", np.asarray(self.dh, dtype=float).reshape(N_JOINTS, 4))
@@ -65,6 +71,10 @@ class RobotModel:
         )
         object.__setattr__(self, "joint_min_deg", np.asarray(self.joint_min_deg, dtype=float))
         object.__setattr__(self, "joint_max_deg", np.asarray(self.joint_max_deg, dtype=float))
+        for name in ("speed_deg_s", "acceleration_deg_s2"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, np.asarray(v, dtype=float).reshape(N_JOINTS))
 
     @property
     def theta_offset_deg(self) -> np.ndarray:
@@ -101,6 +111,8 @@ class RobotModel:
             self.joint_max_deg,
             np.array(beta, float),
             self.dh_source if source is None else source,
+            self.speed_deg_s,
+            self.acceleration_deg_s2,
         )
 
     @property

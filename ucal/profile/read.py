@@ -53,6 +53,7 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
             "joint_max_deg",
             "upper_arm_mm",
             "forearm_mm",
+            "speed_deg_s",
             "dh_length_std_mm",
             "dh_angle_std_deg",
             "backlash_std_deg",
@@ -87,6 +88,8 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
     "cell": CELL_KEYS,  # the cell's name and validation interval for published results
 }
 
+#: Fastest joint speed (deg/s) a profile may state: a few times an industrial arm's wrist.
+MAX_JOINT_SPEED_DEG_S = 2000.0
 #: Largest Hayati twist (deg) a calibrated table may hold: a calibration finds hundredths.
 MAX_CALIBRATED_BETA_DEG = 1.0
 
@@ -358,8 +361,10 @@ def read_robot(
     r: Reader, robot: Mapping[str, Any] | None, prefix: str, ranges_from: RobotModel | None = None
 ) -> RobotModel:
     """``[robot]``: a shipped ``model`` name, or a full ``dh`` table (then ``model`` is just a
-    name), plus joint ranges (deg). Ranges default to ``ranges_from``'s if given (a world
-    file keeps the profile's), else to the shipped model's."""
+    name), plus joint ranges (deg) and the joints' speeds at speed 1.0 (``speed_deg_s``,
+    deg/s, 0–2000). Ranges and speeds default to ``ranges_from``'s if given (a world file
+    keeps the profile's), else to the shipped model's (``ucal.models``; another arm's then
+    are the lowest of the shipped models', ``joint_speeds_deg_s``)."""
     name_raw = r.get(robot, f"{prefix}.model")
     dh_raw = r.get(robot, f"{prefix}.dh")
     name = None if name_raw is None else r.string(f"{prefix}.model", name_raw)
@@ -392,8 +397,22 @@ def read_robot(
         if hi is None:
             raise r.error(f"{prefix}.joint_max_deg", "missing key")
         jmin, jmax = r.joint_ranges(f"{prefix}.joint_min_deg", lo, f"{prefix}.joint_max_deg", hi)
+    v = r.get(robot, f"{prefix}.speed_deg_s")
+    speeds: np.ndarray | None
+    if v is not None:
+        speeds = r.vector(
+            f"{prefix}.speed_deg_s",
+            v,
+            6,
+            lo=0.0,
+            lo_open=True,
+            hi=MAX_JOINT_SPEED_DEG_S,
+            unit="deg/s",
+        )
+    else:
+        speeds = None if base is None else base.speed_deg_s
     source = "shipped" if dh_raw is None else f"{r.path} [{prefix}] dh"
-    return RobotModel(name or "custom", dh, jmin, jmax, dh_source=source)
+    return RobotModel(name or "custom", dh, jmin, jmax, dh_source=source, speed_deg_s=speeds)
 
 
 @overload

@@ -50,6 +50,7 @@ from drivers.pulser.simulator import SimulatedPulser
 from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.rotations import matrix_to_pose
+from ucal.models import joint_speeds_deg_s
 from ucal.record import jsonable
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
@@ -138,6 +139,7 @@ class SimulatedCellServer(Served):
                 on_motion=self._on_motion,
                 clock=self.clock,
                 settle_s=timing.SETTLE_S,
+                max_speed_deg_s=joint_speeds_deg_s(model).tolist(),
                 server=self.server,
                 startup_silence_s=self.world.controller_silence_s,
                 state_rate_hz=None if period_s is None else 1.0 / period_s,

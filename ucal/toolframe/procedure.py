@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ucal.cell import CellProfile
+from ucal.models import joint_speeds_deg_s
 from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import description_keys, write_profile
 from ucal.progress import Report
@@ -54,14 +55,20 @@ class ToolFrameCalibration(ProfileJob):
 
     def estimate(self, plan: ToolFramePlan) -> DurationEstimate:
         speed = self.profile.procedure.speed
+        joints = joint_speeds_deg_s(self.profile.model)
         postures = [t.joints_deg for t in plan.peaks + plan.incidence]
         at_postures = estimate_run(
-            postures, plan.reference_deg, speed, search=PLATE_PEAK, first=NO_SEARCH
+            postures,
+            plan.reference_deg,
+            speed,
+            speeds_deg_s=joints,
+            search=PLATE_PEAK,
+            first=NO_SEARCH,
         )
         # each edge scan starts near the plate centre, where the first posture looks from
         scans = [postures[0]] * plan.edge_lines
         return at_postures + estimate_run(
-            scans, postures[0], speed, search=EDGE_SCAN, first=NO_SEARCH
+            scans, postures[0], speed, speeds_deg_s=joints, search=EDGE_SCAN, first=NO_SEARCH
         )
 
     def record_header(self, plan: ToolFramePlan) -> dict[str, Any]:

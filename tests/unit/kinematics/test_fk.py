@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import fk, fk_frames, wrist_centre
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.models import KNOWN_MODELS, load_model, model_sheet
 
 
 def _link(theta_deg: float, d: float, a: float, alpha_deg: float) -> np.ndarray:
@@ -46,14 +46,13 @@ def _reference_fk(model, joints_deg, offsets_deg=(0,) * 6) -> np.ndarray:
     return t
 
 
-LENGTHS = {"tx90": (425.0, 425.0), "tx90l": (500.0, 550.0), "tx90xl": (650.0, 650.0)}
-
-
 @pytest.mark.parametrize("name", KNOWN_MODELS)
 def test_zero_pose_flange_is_straight_up(name: str) -> None:
+    """The controller's zero pose, from the model file's data-sheet lengths."""
     model = load_model(name)
     t = fk(model, np.zeros(6))
-    upper, fore = LENGTHS[name]
+    sheet = model_sheet(name)
+    upper, fore = sheet.upper_arm_mm, sheet.forearm_mm
     np.testing.assert_allclose(t[:3, 3], [50.0, 50.0, upper + fore + 100.0], atol=1e-9)
     np.testing.assert_allclose(t[:3, 2], [0, 0, 1], atol=1e-12)  # flange z up
     np.testing.assert_allclose(t[:3, 0], [1, 0, 0], atol=1e-12)  # flange x along base X
@@ -61,6 +60,7 @@ def test_zero_pose_flange_is_straight_up(name: str) -> None:
 
 def test_pinned_zero_positions() -> None:
     expected = {"tx90": 950.0, "tx90l": 1150.0, "tx90xl": 1400.0}
+    expected |= {"tx2-90": 950.0, "tx2-90l": 1150.0, "tx2-90xl": 1400.0}
     for name, z in expected.items():
         np.testing.assert_allclose(fk(load_model(name), np.zeros(6))[:3, 3], [50, 50, z], atol=1e-9)
 

@@ -13,7 +13,6 @@ import pytest
 
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading
-from ucal import timing
 from ucal.acoustics import piston_directivity
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
@@ -21,6 +20,7 @@ from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import SearchMode
 from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
+from ucal.models import joint_speeds_deg_s
 from ucal.rig import READ_TRAVEL_STEPS, ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
@@ -409,7 +409,7 @@ class StreamedArm(FakeController):
 
     def start_move(self, target_deg: np.ndarray, speed: float = 0.5) -> None:
         here, target = self.at(self.clock.t), np.asarray(target_deg, float)
-        duration = float(np.max(np.abs(target - here) / (timing.MAX_SPEED_DEG_S * speed)))
+        duration = float(np.max(np.abs(target - here) / (joint_speeds_deg_s(None) * speed)))
         self.motion = (self.clock.t, self.clock.t + duration, here, target)
 
     def wait_settled(
