@@ -2,15 +2,16 @@
 
 A back-end is a class (or any callable) with a ``from_url(url, **options)`` class method that
 returns an unconnected device: a ``PulserReceiver`` for the group ``ucal.pulsers``, a
-``RobotController`` for ``ucal.controllers``. A package adds one by declaring, in its
+``RobotController`` for ``ucal.controllers``, a ``Digitizer`` (what records the RF of a pulser
+that does not digitise) for ``ucal.digitizers``. A package adds one by declaring, in its
 ``pyproject.toml``::
 
     [project.entry-points."ucal.pulsers"]
     my-scheme = "my_package.my_module:MyPulser"
 
 The entry-point name is the URL scheme (``my-scheme://...``). ucal's own back-ends are declared
-the same way (``modbus-tcp``, ``modbus-rtu``, ``ascii``, ``tcp``) and are also known without
-installed metadata (a source checkout), so the drivers work before ``pip install``.
+the same way (``modbus-tcp``, ``modbus-rtu``, ``ascii``, ``tcp``, ``visa``) and are also known
+without installed metadata (a source checkout), so the drivers work before ``pip install``.
 """
 
 from __future__ import annotations
@@ -22,12 +23,14 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.controller.base import RobotController
+from drivers.digitizer.base import Digitizer
 from drivers.pulser.base import PulserReceiver
 
 log = logging.getLogger(__name__)
 
 PULSER_GROUP = "ucal.pulsers"
 CONTROLLER_GROUP = "ucal.controllers"
+DIGITIZER_GROUP = "ucal.digitizers"
 
 #: Back-ends shipped with ucal: group → scheme → "module:attribute".
 BUILTIN: dict[str, dict[str, str]] = {
@@ -38,6 +41,9 @@ BUILTIN: dict[str, dict[str, str]] = {
     },
     CONTROLLER_GROUP: {
         "tcp": "drivers.controller.client:SimpleMessageController",
+    },
+    DIGITIZER_GROUP: {
+        "visa": "drivers.digitizer.visa:ScpiScope",
     },
 }
 
@@ -106,5 +112,20 @@ def open_controller(url: str, **options: Any) -> RobotController:
         raise TypeError(
             f"controller back-end for {url!r} built a {type(device).__name__}, "
             "not a RobotController"
+        )
+    return device
+
+
+def open_digitizer(url: str, **options: Any) -> Digitizer:
+    """Build the digitiser for ``url`` with the back-end of its scheme (not connected).
+
+    ``options`` go to the back-end's ``from_url`` (e.g. ``timeout_s``, ``full_scale_v``).
+    Raises ``ValueError`` for an unknown scheme (naming it and the known ones) or a malformed
+    URL.
+    """
+    device = _open(DIGITIZER_GROUP, "digitizer", url, options)
+    if not isinstance(device, Digitizer):
+        raise TypeError(
+            f"digitizer back-end for {url!r} built a {type(device).__name__}, not a Digitizer"
         )
     return device

@@ -282,7 +282,10 @@ class PulserTruth:
     Modbus register map the simulated pulser serves, read from ``register_map_path`` (None:
     the profile's). ``kind``: the back-end the simulated cell speaks, ``"modbus"`` (a pulser
     that gates) or ``"ascii-scpi"`` (an ASCII serial pulser and a SCPI oscilloscope that
-    digitises at ``sample_rate_mhz`` with a ``bits`` ADC; ucal times the echoes).
+    digitises at ``sample_rate_mhz`` with a ``bits`` ADC; ucal times the echoes). ``scope``:
+    the family of that oscilloscope, ``"keysight"`` or ``"rigol"``
+    (``drivers.digitizer.simulated_scopes.FAMILIES``; a Rigol DS1000Z's ADC has 8 bits, whatever
+    ``bits`` says).
     """
 
     amplitude_bits: int = 0
@@ -293,6 +296,7 @@ class PulserTruth:
     kind: str = "modbus"
     sample_rate_mhz: float = 200.0
     bits: int = 12
+    scope: str = "keysight"
 
 
 @dataclass(frozen=True)

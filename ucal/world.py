@@ -28,7 +28,10 @@ the solvers do not model:
   world file; default: the profile's ``[pulser] register_map``, else ucal's own map);
   ``kind`` — the back-end the simulated cell speaks: ``"modbus"`` (default) or ``"ascii-scpi"``
   (an ASCII serial pulser and a SCPI oscilloscope, ``ucal.sim.serve``), whose digitiser samples
-  at ``sample_rate_mhz`` (10…5000, default 200) with a ``bits`` ADC (8…16, default 12).
+  at ``sample_rate_mhz`` (10…5000, default 200) with a ``bits`` ADC (8…16, default 12);
+  ``scope`` — that oscilloscope's family, the dialect it speaks: ``"keysight"`` (default, an
+  InfiniiVision X-Series) or ``"rigol"`` (a DS1000Z, whose ADC has 8 bits whatever ``bits``
+  says); ``drivers.digitizer.simulated_scopes.FAMILIES``.
 
 Extra keys beyond SPEC.md:
 
@@ -65,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from drivers.controller.simulator import SERVERS
+from drivers.digitizer.simulated_scopes import FAMILIES as SCOPE_FAMILIES
 from ucal.cell import (
     CellProfile,
     CellTiming,
@@ -116,6 +120,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
             "kind",
             "sample_rate_mhz",
             "bits",
+            "scope",
         }
     ),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
@@ -365,12 +370,18 @@ PULSER_KINDS = ("modbus", "ascii-scpi")
 def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
     """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000),
     register_map (a map file relative to the world file), kind (``PULSER_KINDS``),
-    sample_rate_mhz (10…5000) and bits (8…16) of the digitiser."""
+    sample_rate_mhz (10…5000) and bits (8…16) of the digitiser, scope (its family)."""
     d = PulserTruth()
     kind_raw = r.get(table, "pulser.kind")
     kind = d.kind if kind_raw is None else r.string("pulser.kind", kind_raw)
     if kind not in PULSER_KINDS:
         raise r.error("pulser.kind", f"unknown kind {kind!r} (known: {', '.join(PULSER_KINDS)})")
+    scope_raw = r.get(table, "pulser.scope")
+    scope = d.scope if scope_raw is None else r.string("pulser.scope", scope_raw)
+    if scope not in SCOPE_FAMILIES:
+        raise r.error(
+            "pulser.scope", f"unknown scope family {scope!r} (known: {', '.join(SCOPE_FAMILIES)})"
+        )
     rate = r.get(table, "pulser.sample_rate_mhz")
     adc_bits = r.get(table, "pulser.bits")
     bits = r.get(table, "pulser.amplitude_bits")
@@ -397,6 +408,7 @@ def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
         if rate is None
         else r.number("pulser.sample_rate_mhz", rate, lo=10.0, hi=5000.0, unit="MHz"),
         bits=d.bits if adc_bits is None else r.integer("pulser.bits", adc_bits, lo=8, hi=16),
+        scope=scope,
     )
 
 

@@ -1,28 +1,22 @@
-"""SCPI framing of an oscilloscope's waveform transfer, shared by the client and the simulator.
+"""SCPI framing of an oscilloscope's waveform transfer, shared by the client and the simulator:
+what every family's scope sends the same way (``docs/protocols/scpi_digitizer.md``).
 
-What travels (``docs/protocols/scpi_digitizer.md``, after the Keysight InfiniiVision and Rigol
-programming guides):
-
-- Program messages are ASCII, terminated by LF; several commands may share one message,
-  separated by ``;`` (each with its full path from the root ``:``). A query's answer is one
-  ASCII line, terminated by LF.
-- ``:WAVeform:DATA?`` answers with an IEEE 488.2 *definite-length arbitrary block*:
-  ``#`` + one digit *d* (1…9) + *d* ASCII digits giving the byte count *n* + *n* bytes of data,
-  then LF. ``#9000001000`` announces 1000 bytes.
-- ``:WAVeform:PREamble?`` answers with ten comma-separated fields:
-  ``format, type, points, count, xincrement, xorigin, xreference, yincrement, yorigin,
-  yreference``; sample k is taken at ``(k − xreference)·xincrement + xorigin`` seconds after
-  the trigger and a code c reads ``(c − yreference)·yincrement + yorigin`` volts.
-- Codes are unsigned (``:WAVeform:UNSigned 1``): BYTE one byte a sample, WORD two bytes,
-  most significant byte first (``:WAVeform:BYTeorder MSBF``) unless ``LSBF`` is chosen. A WORD
-  record carries the ADC's bits left-aligned (the low bits are 0). Two codes are flags, as the
-  InfiniiVision guide documents them: the lowest nonzero code (0x01 / 0x0001) means clipped
-  low, the highest (0xFF / 0xFFFF) clipped high; 0 is a hole (no data acquired there).
+- Program messages are ASCII, terminated by LF; a family that takes several commands in one
+  message separates them by ``;`` (each with its full path from the root ``:``). A query's
+  answer is one ASCII line, terminated by LF (IEEE 488.2 §8.5, §7.5).
+- ``:WAVeform:DATA?`` answers with an IEEE 488.2 *definite-length arbitrary block*
+  (§8.7.9): ``#`` + one digit *d* (1…9) + *d* ASCII digits giving the byte count *n* + *n*
+  bytes of data, then LF. ``#9000001000`` announces 1000 bytes.
+- ``:WAVeform:PREamble?`` answers with ten comma-separated numbers, ``format, type, points,
+  count, xincrement, xorigin, xreference, yincrement, yorigin, yreference``, in every family
+  that ucal speaks; what the codes of ``format`` and ``type`` mean and how ``yorigin`` enters
+  the volts differ by family, so :func:`preamble_values` only reads the numbers and a dialect
+  (``drivers.digitizer.dialects``) gives them their meaning in a :class:`Preamble`.
+- ``*IDN?`` answers manufacturer, model, serial number and firmware (IEEE 488.2 §10.14).
 """
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,33 +27,6 @@ from drivers.digitizer.base import left_aligned_step
 
 #: The terminator of every program message and every answer line.
 TERMINATOR = b"\n"
-
-
-class WaveFormat(enum.IntEnum):
-    """``:WAVeform:FORMat`` and the preamble's first field."""
-
-    BYTE = 0
-    WORD = 1
-    ASCII = 2
-
-
-class AcquireType(enum.IntEnum):
-    """``:ACQuire:TYPE`` and the preamble's second field."""
-
-    NORMAL = 0
-    PEAK = 1
-    AVERAGE = 2
-    HRESOLUTION = 3
-
-
-#: Bytes per sample of the binary formats.
-SAMPLE_BYTES = {WaveFormat.BYTE: 1, WaveFormat.WORD: 2}
-#: The flag codes of each binary format: hole, clipped low, clipped high.
-HOLE = 0
-CLIP_LOW = {WaveFormat.BYTE: 0x01, WaveFormat.WORD: 0x0001}
-CLIP_HIGH = {WaveFormat.BYTE: 0xFF, WaveFormat.WORD: 0xFFFF}
-#: The code of 0 V on screen centre (``yreference``) of each format.
-CENTRE_CODE = {WaveFormat.BYTE: 0x80, WaveFormat.WORD: 0x8000}
 
 
 class ScpiError(ValueError):
@@ -130,23 +97,70 @@ def parse_block(data: bytes) -> tuple[bytes, bytes]:
 
 # --- the preamble ---------------------------------------------------------------------------
 
+#: The ten fields of ``:WAVeform:PREamble?``, in their order.
+PREAMBLE_FIELDS = (
+    "format",
+    "type",
+    "points",
+    "count",
+    "xincrement",
+    "xorigin",
+    "xreference",
+    "yincrement",
+    "yorigin",
+    "yreference",
+)
+#: The fields that are integers in every family (``yorigin`` is one in some only).
+_INTEGER_FIELDS = ("format", "type", "points", "count", "xreference", "yreference")
+
+
+def preamble_values(text: str) -> dict[str, float]:
+    """The ten numbers of a preamble line (its LF stripped or not), by field name;
+    ``ScpiError`` says which field is missing, not a number, not finite or not an integer."""
+    fields = [f.strip() for f in text.strip().split(",")]
+    if len(fields) != len(PREAMBLE_FIELDS):
+        raise ScpiError(f"preamble has {len(fields)} fields, expected 10: {text.strip()!r}")
+    values: dict[str, float] = {}
+    for name, field in zip(PREAMBLE_FIELDS, fields, strict=True):
+        try:
+            value = float(field)
+        except ValueError:
+            raise ScpiError(f"preamble field {name} is not a number: {field!r}") from None
+        if not math.isfinite(value):
+            raise ScpiError(f"preamble field {name} is not finite: {field!r}")
+        if name in _INTEGER_FIELDS and value != round(value):
+            raise ScpiError(f"preamble field {name} is not an integer: {field!r}")
+        values[name] = value
+    return values
+
 
 @dataclass(frozen=True)
 class Preamble:
-    """``:WAVeform:PREamble?``: format, acquisition type, points, average count, and the
-    x (s) and y (V) axes: ``t_k = (k − x_reference)·x_increment + x_origin``,
-    ``v = (code − y_reference)·y_increment + y_origin``."""
+    """A preamble as its family means it: the transfer format (``"BYTE"``, ``"WORD"``,
+    ``"ASCII"``), the type field in the family's own words, the points and average count,
+    and the axes: sample k is taken ``(k − x_reference)·x_increment_s + x_origin_s`` after
+    the trigger; a code c reads ``(c − y_reference)·y_increment_v + y_origin`` volts when
+    ``y_origin`` is in volts (Keysight), ``(c − y_origin − y_reference)·y_increment_v`` when it
+    is in codes (Rigol, ``y_origin_in_codes``)."""
 
-    format: WaveFormat
-    type: AcquireType
+    format: str
+    type: str
     points: int
     count: int
     x_increment_s: float
     x_origin_s: float
     x_reference: int
     y_increment_v: float
-    y_origin_v: float
+    y_origin: float
     y_reference: int
+    y_origin_in_codes: bool = False
+
+    def __post_init__(self) -> None:
+        if self.points < 0 or not self.x_increment_s > 0 or not self.y_increment_v > 0:
+            raise ScpiError(
+                f"preamble: points {self.points}, x increment {self.x_increment_s} s and "
+                f"y increment {self.y_increment_v} V must be positive"
+            )
 
     @property
     def t0_ns(self) -> float:
@@ -160,105 +174,78 @@ class Preamble:
 
     def volts(self, codes: np.ndarray) -> np.ndarray:
         """Volts of ``codes`` (any integer array)."""
-        return (np.asarray(codes, float) - self.y_reference) * self.y_increment_v + self.y_origin_v
+        c = np.asarray(codes, float)
+        if self.y_origin_in_codes:
+            return (c - self.y_origin - self.y_reference) * self.y_increment_v
+        return (c - self.y_reference) * self.y_increment_v + self.y_origin
+
+    def codes_of(self, volts: np.ndarray) -> np.ndarray:
+        """The (real-valued) codes that read ``volts``: the inverse of :meth:`volts`."""
+        v = np.asarray(volts, float)
+        if self.y_origin_in_codes:
+            return v / self.y_increment_v + self.y_origin + self.y_reference
+        return (v - self.y_origin) / self.y_increment_v + self.y_reference
 
 
-def format_preamble(p: Preamble) -> str:
-    """The preamble as a scope sends it (no terminator; floats to the last bit)."""
-    return (
-        f"{int(p.format)},{int(p.type)},{p.points},{p.count},{float(p.x_increment_s)!r},"
-        f"{float(p.x_origin_s)!r},{p.x_reference},{float(p.y_increment_v)!r},"
-        f"{float(p.y_origin_v)!r},{p.y_reference}"
-    )
+# --- samples --------------------------------------------------------------------------------
 
 
-def parse_preamble(text: str) -> Preamble:
-    """Parse a preamble line (its LF stripped or not); ``ScpiError`` says which field is bad."""
-    fields = [f.strip() for f in text.strip().split(",")]
-    if len(fields) < 10:
-        raise ScpiError(f"preamble has {len(fields)} fields, expected 10: {text.strip()!r}")
-    names = (
-        "format",
-        "type",
-        "points",
-        "count",
-        "xincrement",
-        "xorigin",
-        "xreference",
-        "yincrement",
-        "yorigin",
-        "yreference",
-    )
-    values: list[float] = []
-    for name, field in zip(names, fields[:10], strict=True):
-        try:
-            values.append(float(field))
-        except ValueError:
-            raise ScpiError(f"preamble field {name} is not a number: {field!r}") from None
-    if not all(math.isfinite(v) for v in values):
-        raise ScpiError(f"preamble has a field that is not finite: {text.strip()!r}")
-    ints = [0, 1, 2, 3, 6, 9]
-    for i in ints:
-        if values[i] != round(values[i]):
-            raise ScpiError(f"preamble field {names[i]} is not an integer: {fields[i]!r}")
-    try:
-        fmt = WaveFormat(int(values[0]))
-        kind = AcquireType(int(values[1]))
-    except ValueError:
-        raise ScpiError(f"preamble format/type {fields[0]}/{fields[1]} unknown") from None
-    p = Preamble(
-        fmt,
-        kind,
-        int(values[2]),
-        int(values[3]),
-        values[4],
-        values[5],
-        int(values[6]),
-        values[7],
-        values[8],
-        int(values[9]),
-    )
-    if p.points < 0 or p.x_increment_s <= 0 or p.y_increment_v <= 0:
-        raise ScpiError(
-            f"preamble: points {p.points}, x increment {p.x_increment_s} s and "
-            f"y increment {p.y_increment_v} V must be positive"
-        )
-    return p
-
-
-# --- sample codes ---------------------------------------------------------------------------
-
-
-def _dtype(fmt: WaveFormat, byte_order: str) -> np.dtype:
-    if fmt == WaveFormat.BYTE:
+def _dtype(sample_bytes: int, byte_order: str) -> np.dtype:
+    if sample_bytes == 1:
         return np.dtype("u1")
-    if fmt == WaveFormat.WORD:
+    if sample_bytes == 2:
         return np.dtype(">u2" if byte_order == "MSBF" else "<u2")
-    raise ScpiError(f"{fmt.name} data is not binary")
+    raise ScpiError(f"{sample_bytes}-byte samples are not a binary format ucal reads")
 
 
-def decode_codes(payload: bytes, fmt: WaveFormat, byte_order: str = "MSBF") -> np.ndarray:
-    """The unsigned sample codes of a binary block (int32 array)."""
-    dtype = _dtype(fmt, byte_order)
+def decode_codes(payload: bytes, sample_bytes: int, byte_order: str = "MSBF") -> np.ndarray:
+    """The unsigned sample codes of a binary block of ``sample_bytes`` a sample (int32)."""
+    dtype = _dtype(sample_bytes, byte_order)
     if len(payload) % dtype.itemsize:
-        raise ScpiError(f"{len(payload)} bytes is not a whole number of {fmt.name} samples")
+        raise ScpiError(
+            f"{len(payload)} bytes is not a whole number of {sample_bytes}-byte samples"
+        )
     return np.frombuffer(payload, dtype=dtype).astype(np.int32)
 
 
-def encode_codes(codes: np.ndarray, fmt: WaveFormat, byte_order: str = "MSBF") -> bytes:
-    """The bytes of unsigned sample codes in ``fmt``."""
-    return np.asarray(codes).astype(_dtype(fmt, byte_order)).tobytes()
+def encode_codes(codes: np.ndarray, sample_bytes: int, byte_order: str = "MSBF") -> bytes:
+    """The bytes of unsigned sample codes, ``sample_bytes`` a sample."""
+    return np.asarray(codes).astype(_dtype(sample_bytes, byte_order)).tobytes()
 
 
-def code_step(codes: np.ndarray, fmt: WaveFormat, y_reference: int) -> int:
+def decode_ascii(payload: bytes) -> np.ndarray:
+    """The values of an ASCII block (comma-separated numbers, NR1/NR2/NR3), float64."""
+    text = payload.decode("ascii", errors="replace").strip().rstrip(",")
+    if not text:
+        return np.zeros(0)
+    try:
+        values = np.array([float(v) for v in text.split(",")], float)
+    except ValueError:
+        raise ScpiError(
+            f"ASCII waveform data is not comma-separated numbers: {text[:40]!r}"
+        ) from None
+    if not np.all(np.isfinite(values)):
+        raise ScpiError("ASCII waveform data holds a value that is not finite")
+    return values
+
+
+def encode_ascii(volts: np.ndarray) -> bytes:
+    """Volts as an ASCII block's payload: comma-separated NR3 numbers."""
+    return ",".join(f"{float(v):+.6E}" for v in np.asarray(volts, float)).encode("ascii")
+
+
+def code_step(codes: np.ndarray, y_reference: int, flags: tuple[int, ...] = ()) -> int:
     """The ADC's step in codes: the largest power of two that divides every sample's distance
-    from ``y_reference`` (a WORD record carries fewer bits left-aligned); 1 when every sample
-    sits on the reference (nothing shows)."""
-    distances = np.asarray(codes, np.int32) - np.int32(y_reference)
-    flagged = (codes == HOLE) | (codes == CLIP_LOW[fmt]) | (codes == CLIP_HIGH[fmt])
-    if np.any(flagged):
-        distances = distances[~flagged]
+    from ``y_reference`` (a record that carries fewer bits left-aligned in wider words), flag
+    codes (``flags``) left out; 1 when every sample sits on the reference (nothing shows)."""
+    codes = np.asarray(codes, np.int32)
+    distances = codes - np.int32(y_reference)
+    if flags:
+        distances = distances[~np.isin(codes, flags)]
     return left_aligned_step(distances)
+
+
+# --- identification -------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -269,6 +256,9 @@ class IdnReply:
     model: str
     serial: str
     firmware: str
+
+    def __str__(self) -> str:
+        return ",".join((self.manufacturer, self.model, self.serial, self.firmware))
 
 
 def parse_idn(text: str) -> IdnReply:

@@ -2,7 +2,8 @@
 
 The cell as many laboratories build it: a CompactPulser-class pulser-receiver set over a
 9600-baud serial line (``drivers.pulser.ascii_commands``), its RF output recorded by an
-oscilloscope over SCPI/VISA (``drivers.digitizer.visa``) triggered by its sync output, and the
+oscilloscope over SCPI/VISA (``drivers.digitizer.visa``, or any digitiser whose URL scheme the
+registry knows, ``drivers.registry.open_digitizer``) triggered by its sync output, and the
 time of flight and amplitude computed on the host from the record.
 
 ``AsciiPulser`` owns the serial line: commands, queries, the read-back of every setting.
@@ -41,11 +42,11 @@ from serial import SerialException
 
 from drivers.device import RequestLink
 from drivers.digitizer.base import AScanRecord, Digitizer, EchoTimer, EchoTiming
-from drivers.digitizer.visa import ScpiScope
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import ascii_commands as cmd
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings, ReadingWait
 from drivers.pulser.urls import AsciiUrl, parse_ascii_url
+from drivers.registry import open_digitizer
 from drivers.serial_port import open_port
 
 log = logging.getLogger(__name__)
@@ -185,7 +186,8 @@ class AsciiScpiPulser(PulserReceiver):
     """The ASCII serial pulser and the SCPI oscilloscope as one pulser-receiver (module
     docstring).
 
-    ``digitizer`` is the scope's URL (``visa://RESOURCE``) or a ``Digitizer``; ``full_screen_v``
+    ``digitizer`` is the scope's URL (``visa://RESOURCE``, opened by the back-end of its scheme
+    with ``digitizer_options``) or a ``Digitizer``; ``full_screen_v``
     the RF output (V) that is full screen height; ``pulse_width_ns`` the pulse width written
     with the settings (None: the device's own). ``echo_timer`` times the echo in a record
     (ucal injects it; without one ``read_gate`` refuses). No I/O before :meth:`connect`.
@@ -207,9 +209,9 @@ class AsciiScpiPulser(PulserReceiver):
             raise ValueError(f"full_screen_v must be a positive voltage, got {full_screen_v!r}")
         self.line = AsciiPulser(url, timeout_s, port=port)
         if isinstance(digitizer, str):
-            digitizer = ScpiScope(
+            digitizer = open_digitizer(
                 digitizer,
-                max(timeout_s, 2.0),
+                timeout_s=max(timeout_s, 2.0),
                 full_scale_v=full_screen_v,
                 **(digitizer_options or {}),
             )

@@ -6,7 +6,10 @@ the same noisy world (trigger jitter, a 12-bit digitiser), which runs once for t
   and ``--json`` says how the echoes were timed;
 * the ASCII serial pulser + SCPI oscilloscope: a calibration of a simulated ascii-scpi cell
   agrees with the gate's, ``sim serve`` serves it, and the digitiser's URL is asked for where it
-  is needed and only there.
+  is needed and only there;
+* the oscilloscope of the other family ucal speaks, a Rigol DS1000Z (its own dialect, its
+  trigger on CH2, its 8-bit ADC): the cell calibrates with it in ``--sim`` (world ``[pulser]
+  scope``) and through ``ucal sim serve --scope rigol``, covered and in agreement with the gate.
 """
 
 from __future__ import annotations
@@ -22,8 +25,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.digitizer.visa import ScpiScope
 from ucal.profile import default_profile_text
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, DEMO_NOISE
+from ucal.sim.serve import serving
 
 from doubles import finished_json, noisy_world, std_of
 
@@ -135,12 +140,13 @@ def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(
     assert again["reference_echo"]["source"] == host["reference_echo"]["source"] == "captured"
 
 
+@pytest.mark.parametrize("scope", ["keysight", "rigol"])
 def test_sim_serve_serves_the_ascii_scpi_cell_and_status_reads_it(
-    run_main: RunMain, monkeypatch: pytest.MonkeyPatch
+    run_main: RunMain, monkeypatch: pytest.MonkeyPatch, scope: str
 ) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "ucal", "sim", "serve", "--pulser-kind", "ascii-scpi"]
-        + ["--time-scale", "0"],
+        + ["--scope", scope, "--time-scale", "0"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -159,12 +165,68 @@ def test_sim_serve_serves_the_ascii_scpi_cell_and_status_reads_it(
         )
         assert code == 0, err
         pulser = json.loads(out)["pulser"]
-        assert pulser["digitizer"]["model"] == "SIMULATED SCOPE"
+        digitizer = pulser["digitizer"]
+        assert digitizer["serial"] == "UCAL-SIM" and digitizer["family"] == scope
+        assert digitizer["trigger"]["source"] == {"keysight": "EXT", "rigol": "CHAN2"}[scope]
         assert pulser["settings"]["low_pass_mhz"] == 96.0  # L3 at power-on
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=10)
     assert proc.returncode == 0
+
+
+def test_the_scope_family_is_the_ascii_scpi_cells_only(run_main: RunMain) -> None:
+    code, _, err = run_main(["sim", "serve", "--scope", "rigol"])
+    assert code == 2 and "--scope is the ascii-scpi cell's oscilloscope" in err
+
+
+def covered(result: dict) -> None:
+    """Written, fit ok, timed on the host, the world's offsets within 3 reported sigmas."""
+    assert result["written"] and result["fit"]["verdict"] == "ok"
+    assert result["timing"] == "ascan"
+    std = std_of(result)
+    reported = np.isfinite(std)
+    error = np.abs(np.array(result["joint_offsets_deg"]) - OFFSETS_DEG)[reported]
+    assert np.all(error <= 3 * std[reported]), (error, std)
+
+
+@pytest.mark.long
+@pytest.mark.timeout(600)
+def test_a_rigol_ds1000z_calibrates_in_sim_and_through_sim_serve(
+    tmp_path: Path, gate: Callable[[], dict]
+) -> None:
+    world = noisy_world(kind="ascii-scpi", sample_rate_mhz=100.0)
+    # the lock-step rehearsal (world [pulser] scope), started beside the served run
+    in_process = calibrate(tmp_path, "rigol", world + 'scope = "rigol"\n')
+    # the served cell (sim serve --scope rigol) on the host clock, ten times faster
+    (tmp_path / "world.toml").write_text(world)
+    profile = tmp_path / "served.toml"
+    profile.write_text(default_profile_text("tx90l"))
+    with serving(
+        "--world", "world.toml", "--scope", "rigol", "--time-scale", "0.1", cwd=tmp_path
+    ) as urls:
+        with ScpiScope(urls["digitizer"], 5.0) as scope:  # it is the Rigol ucal speaks to
+            assert scope.identity()["family"] == "rigol"
+        served = subprocess.run(
+            [sys.executable, "-m", "ucal", "calibrate", str(profile)]
+            + ["--controller", urls["controller"], "--pulser", urls["pulser"]]
+            + ["--digitizer", urls["digitizer"], "--yes", "--json", "-q"],
+            capture_output=True,
+            text=True,
+            stdin=subprocess.DEVNULL,
+            timeout=500,
+            check=False,
+        )
+    assert served.returncode == 0, served.stderr[-2000:]
+    rehearsed, modbus = finished_json(in_process), gate()
+    for result in (rehearsed, json.loads(served.stdout)):
+        covered(result)
+        assert result["unobservable_joints"] == modbus["unobservable_joints"]
+        # agreement with the Modbus pulser's gate: within 3 sigmas of the difference
+        reported = np.isfinite(std_of(result))
+        difference = np.abs(np.subtract(result["joint_offsets_deg"], modbus["joint_offsets_deg"]))
+        both = np.hypot(std_of(result), std_of(modbus))[reported]
+        assert np.all(difference[reported] <= 3 * both), (difference, both)
 
 
 @pytest.mark.parametrize(

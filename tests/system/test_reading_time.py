@@ -98,7 +98,8 @@ def test_an_instrument_slower_than_its_averaging_is_a_timeout_naming_it_and_the_
         assert "(0.1 s averaging 100 pulses at 1000 Hz" in message
     else:
         assert info.value.device == "digitizer"
-        assert "acquire: no answer within 0.15 s (0.1 s of it for the acquisition of 100" in message
+        assert "acquire: no record within 0.15 s (0.1 s of it for the acquisition of 100" in message
+        assert "no trigger on EXT rising through 1.4 V (sweep NORM)?" in message
     assert "then timeout_s = 0.05 s for the link)" in message
     shown, code = _classify(info.value)
     assert code == 3

@@ -1,5 +1,5 @@
-"""World ``[pulser] kind``, ``sample_rate_mhz`` and ``bits``: the back-end a simulated cell
-speaks and its digitiser."""
+"""World ``[pulser] kind``, ``sample_rate_mhz``, ``bits`` and ``scope``: the back-end a simulated
+cell speaks, its digitiser and that oscilloscope's family."""
 
 from __future__ import annotations
 
@@ -23,6 +23,12 @@ def world(tmp_path: Path, text: str):
 def test_the_default_cell_speaks_modbus(tmp_path: Path) -> None:
     pulser = world(tmp_path, "").pulser
     assert (pulser.kind, pulser.sample_rate_mhz, pulser.bits) == ("modbus", 200.0, 12)
+    assert pulser.scope == "keysight"
+
+
+def test_the_oscilloscope_of_an_ascii_scpi_cell_may_be_a_rigol(tmp_path: Path) -> None:
+    pulser = world(tmp_path, '[pulser]\nkind = "ascii-scpi"\nscope = "rigol"\n').pulser
+    assert (pulser.kind, pulser.scope) == ("ascii-scpi", "rigol")
 
 
 def test_an_ascii_scpi_cell_and_its_digitiser(tmp_path: Path) -> None:
@@ -37,6 +43,7 @@ def test_an_ascii_scpi_cell_and_its_digitiser(tmp_path: Path) -> None:
         ('kind = "gpib"', "pulser.kind"),
         ("sample_rate_mhz = 1.0", "pulser.sample_rate_mhz"),
         ("bits = 24", "pulser.bits"),
+        ('scope = "tektronix"', "pulser.scope"),
     ],
 )
 def test_a_bad_value_names_the_file_and_the_key(tmp_path: Path, text: str, key: str) -> None:

@@ -34,6 +34,7 @@ Examples:
   ucal sim serve --rtu --time-scale 0.1
   ucal sim serve --server val3
   ucal sim serve --pulser-kind ascii-scpi
+  ucal sim serve --pulser-kind ascii-scpi --scope rigol
 """,
 )
 @click.option(
@@ -75,6 +76,13 @@ Examples:
     "else modbus.",
 )
 @click.option(
+    "--scope",
+    type=click.Choice(["keysight", "rigol"]),
+    help="The ascii-scpi cell's oscilloscope family, the dialect its SCPI speaks: keysight "
+    "(an InfiniiVision X-Series, triggered on EXT) or rigol (a DS1000Z, triggered on CH2). "
+    "Default: the world's [pulser] scope, else keysight.",
+)
+@click.option(
     "--server",
     type=click.Choice(["simple", "val3", "val3-feedback"]),
     help="Simple Message server the controller behaves as: val3 = the released VAL3 "
@@ -90,6 +98,7 @@ def serve(
     time_scale: float,
     rtu: bool,
     pulser_kind: str | None,
+    scope: str | None,
     server: str | None,
 ) -> None:
     """Serve the simulated cell until SIGINT or SIGTERM.
@@ -107,6 +116,10 @@ def serve(
     kind = pulser_kind or (world.pulser.kind if world is not None else "modbus")
     if rtu and kind != "modbus":
         raise InputError(f"--rtu is Modbus RTU framing: the {kind} pulser has its own")
+    if scope is not None and kind != "ascii-scpi":
+        raise InputError(
+            f"--scope is the ascii-scpi cell's oscilloscope: the {kind} pulser has none"
+        )
 
     # The handler takes no lock: a threading.Event set from a signal handler deadlocks when
     # the signal lands while the main thread holds the event's lock inside wait().
@@ -125,6 +138,7 @@ def serve(
             pulser_framing="rtu" if rtu else "tcp",
             server=server,
             pulser_kind=kind,
+            scope=scope,
         ) as cell:
             sys.stdout.write(json.dumps(cell.urls) + "\n")
             sys.stdout.flush()

@@ -9,7 +9,9 @@ With ``pulser_kind="ascii-scpi"`` (world ``[pulser] kind``) the pulser is the AS
 (``drivers.pulser.ascii_simulator``: it holds the knobs) and a SCPI oscilloscope
 (``drivers.digitizer.scpi_simulator``) records its RF output: every acquisition of the scope
 takes the same echo at that instant and returns it as a waveform (``ucal.sim.rf``), which ucal
-times on the host.
+times on the host. The oscilloscope speaks the dialect of one family (world ``[pulser] scope``:
+a Keysight InfiniiVision X-Series or a Rigol DS1000Z, ``drivers.digitizer.scpi_simulator``),
+its trigger wired to the pulser's sync output where that family's is (EXT; CH2 on a DS1000Z).
 
 Time (``drivers.clock``): with a ``SimClock`` (a client in the same process, ``ucal calibrate
 --sim``) both devices run on simulated time in lock step with the client — an acquisition
@@ -41,6 +43,7 @@ import numpy as np
 from drivers.clock import HOST_CLOCK, Clock, SimClock
 from drivers.controller.simulator import SimulatedController
 from drivers.digitizer.scpi_simulator import AcquisitionRequest, SimulatedScope
+from drivers.digitizer.simulated_scopes import FAMILIES as SCOPE_FAMILIES
 from drivers.loopback import Served
 from drivers.pulser.ascii_simulator import SimulatedAsciiPulser
 from drivers.pulser.base import PulserSettings
@@ -73,7 +76,9 @@ class SimulatedCellServer(Served):
     TCP socket); ``clock`` is the devices' clock (a ``SimClock`` for lock-step simulated time,
     which ignores ``time_scale``); ``server`` overrides the world's ``controller_server`` (the
     Simple Message server the controller behaves as, ``drivers.controller.simulator.SERVERS``);
-    ``pulser_kind`` overrides the world's ``[pulser] kind`` (``"modbus"`` or ``"ascii-scpi"``).
+    ``pulser_kind`` overrides the world's ``[pulser] kind`` (``"modbus"`` or ``"ascii-scpi"``),
+    ``scope`` its ``[pulser] scope`` (the ascii-scpi cell's oscilloscope family,
+    ``drivers.digitizer.simulated_scopes.FAMILIES``).
     """
 
     def __init__(
@@ -87,11 +92,14 @@ class SimulatedCellServer(Served):
         clock: Clock | None = None,
         server: str | None = None,
         pulser_kind: str | None = None,
+        scope: str | None = None,
     ):
         if pulser_framing not in ("tcp", "rtu"):
             raise ValueError(f"pulser_framing must be 'tcp' or 'rtu', got {pulser_framing!r}")
         if pulser_kind is not None and pulser_kind not in PULSER_KINDS:
             raise ValueError(f"pulser_kind must be one of {PULSER_KINDS}, got {pulser_kind!r}")
+        if scope is not None and scope not in SCOPE_FAMILIES:
+            raise ValueError(f"scope must be one of {tuple(SCOPE_FAMILIES)}, got {scope!r}")
         self.profile = profile
         self.world = world if world is not None else demo_world(profile)
         # the simulated pulser applies its own gate and threshold (holding registers)
@@ -105,6 +113,7 @@ class SimulatedCellServer(Served):
         self.simulated_time = isinstance(self.clock, SimClock)
         self._t0 = 0.0
         self.pulser_kind = pulser_kind if pulser_kind is not None else self.world.pulser.kind
+        self.scope = scope if scope is not None else self.world.pulser.scope
         self.controller: Any = None
         self.pulser: Any = None
         self.digitizer: Any = None  # the oscilloscope of an ascii-scpi cell
@@ -177,13 +186,16 @@ class SimulatedCellServer(Served):
         """Start the ASCII serial pulser and the oscilloscope that records its RF output."""
         self.pulser = SimulatedAsciiPulser(self.host, 0).start()
         self.rf = self._rf_output()
+        family = SCOPE_FAMILIES[self.scope]
         self.digitizer = SimulatedScope(
             self._ascan,
             self.host,
             0,
             sample_rate_hz=self.world.pulser.sample_rate_mhz * 1e6,
-            bits=self.world.pulser.bits,
+            bits=None if family.fixed_bits else self.world.pulser.bits,
             seed=self.world.noise.seed,
+            family=family.name,
+            on_transfer=self._scope_transfer,
         ).start()
 
     def stop(self) -> None:
@@ -259,7 +271,8 @@ class SimulatedCellServer(Served):
     def _ascan(self, request: AcquisitionRequest) -> np.ndarray:
         """Scope model (scope server thread): the receiver's RF output (V) over the record
         asked, holding the echo of this instant (``_acquire`` with the pulser's knobs and the
-        scope's window and averages), then the time the scope takes to hand it over."""
+        scope's window and averages); the time the scope takes to hand it over passes when it
+        is read (``_scope_transfer``)."""
         assert self.rf is not None
         knobs = self.pulser.settings
         settings = replace(
@@ -271,10 +284,14 @@ class SimulatedCellServer(Served):
         amplitude, tof_ns = self._acquire(settings)
         if not self.pulser.pulsing:
             amplitude, tof_ns = 0.0, float("nan")
+        return self._rf_record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, settings)
+
+    def _scope_transfer(self, points: int, size: int) -> None:
+        """Let the time the scope takes to hand over ``points`` samples in ``size`` bytes pass
+        (scope server thread): what is read, not what it acquired."""
         from ucal.sim.rf import transfer_s
 
-        self._let_pass(transfer_s(request.n))
-        return self._rf_record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, settings)
+        self._let_pass(transfer_s(points, max(size // max(points, 1), 1)))
 
     def _modbus_ascan(self, request: PulserAScanRequest) -> np.ndarray:
         """The Modbus pulser's A-scan model (pulser server thread): the receiver's RF output

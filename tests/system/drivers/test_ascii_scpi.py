@@ -102,7 +102,7 @@ def test_the_scope_speaks_long_and_short_forms_and_queues_its_errors(sims) -> No
     _, scope = sims
     assert scope.execute(":WAVeform:FORMat WORD;:ACQuire:TYPE AVERage;COUNt 16") is None
     assert scope.execute(":WAV:FORM?;:ACQ:COUN?") == b"WORD;16\n"
-    scope.execute(":BOGUS 1;:ACQ:COUN 1;:WAV:FORM ASCII")
+    scope.execute(":BOGUS 1;:ACQ:COUN 1;:WAV:FORM FLOAT")
     errors = [scope.execute(":SYST:ERR?") for _ in range(4)]
     assert errors == [
         b'-113,"Undefined header"\n',

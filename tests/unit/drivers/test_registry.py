@@ -1,13 +1,19 @@
-"""Back-ends chosen by URL scheme through the ``ucal.pulsers``/``ucal.controllers`` entry points."""
+"""Back-ends chosen by URL scheme through the ``ucal.pulsers``/``ucal.controllers``/
+``ucal.digitizers`` entry points."""
 
 from __future__ import annotations
 
+import tomllib
 from importlib.metadata import entry_points
+from pathlib import Path
 
 import pytest
 
 from drivers import registry
 from drivers.controller.client import SimpleMessageController
+from drivers.digitizer.base import AScanRecord, Digitizer
+from drivers.digitizer.visa import ScpiScope
+from drivers.pulser.ascii import AsciiScpiPulser
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from drivers.pulser.modbus import ModbusPulser
 
@@ -18,6 +24,37 @@ def test_shipped_back_ends_are_declared_as_entry_points() -> None:
     assert pulsers["modbus-tcp"] == "drivers.pulser.modbus:ModbusPulser"
     assert pulsers["modbus-rtu"] == "drivers.pulser.modbus:ModbusPulser"
     assert controllers["tcp"] == "drivers.controller.client:SimpleMessageController"
+
+
+def test_the_shipped_digitizer_is_declared_as_an_entry_point_and_known_without_metadata() -> None:
+    pyproject = tomllib.loads((Path(__file__).parents[3] / "pyproject.toml").read_text())
+    declared = pyproject["project"]["entry-points"][registry.DIGITIZER_GROUP]
+    assert declared == {"visa": "drivers.digitizer.visa:ScpiScope"}
+    assert registry.BUILTIN[registry.DIGITIZER_GROUP] == declared
+
+
+def test_open_digitizer_builds_the_visa_scope_without_connecting() -> None:
+    url = "visa://TCPIP::127.0.0.1::5025::SOCKET?trigger=CHAN3"
+    scope = registry.open_digitizer(url, timeout_s=0.5, full_scale_v=2.0)
+    assert isinstance(scope, ScpiScope)
+    assert scope.endpoint == url and scope.timeout_s == 0.5 and scope.full_scale_v == 2.0
+    assert scope.trigger_source == "CHAN3" and scope.dialect is None  # nothing asked yet
+    with pytest.raises(ValueError, match=r"unknown digitizer URL scheme 'gpib'.*known: visa"):
+        registry.open_digitizer("gpib://0/7")
+
+
+def test_the_ascii_pulser_opens_its_digitizer_through_the_registry(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(
+        registry.BUILTIN[registry.DIGITIZER_GROUP], "bench", f"{__name__}:FakeDigitizer"
+    )
+    pulser = AsciiScpiPulser.from_url("ascii:///dev/ttyUSB0", 0.5, digitizer="bench://scope")
+    assert isinstance(pulser.digitizer, FakeDigitizer)
+    assert pulser.digitizer.endpoint == "bench://scope"
+    assert pulser.digitizer.options == {"timeout_s": 2.0, "full_scale_v": 1.0}
+    with pytest.raises(ValueError, match="unknown digitizer URL scheme 'scope'"):
+        AsciiScpiPulser.from_url("ascii:///dev/ttyUSB0", digitizer="scope://1")
 
 
 @pytest.mark.parametrize(
@@ -80,15 +117,16 @@ def test_a_back_end_that_builds_something_else_is_refused(monkeypatch: pytest.Mo
         registry.open_pulser("odd://x")
 
 
-class FakePulser(PulserReceiver):
-    """A minimal back-end as a third-party package would write it."""
+class Bench:
+    """What a third-party back-end needs to be built from its URL and not connect: the URL,
+    the options it was given."""
 
-    def __init__(self, url: str, answer: int = 0):
+    def __init__(self, url: str, **options: float):
         self._url = url
-        self.answer = answer
+        self.options = options
 
     @classmethod
-    def from_url(cls, url: str, **options: int) -> FakePulser:
+    def from_url(cls, url: str, **options: float) -> Bench:
         return cls(url, **options)
 
     @property
@@ -101,6 +139,14 @@ class FakePulser(PulserReceiver):
     def close(self) -> None:
         pass
 
+
+class FakePulser(Bench, PulserReceiver):
+    """A minimal pulser back-end as a third-party package would write it."""
+
+    @property
+    def answer(self) -> float:
+        return self.options.get("answer", 0)
+
     def configure(self, settings: PulserSettings) -> None:
         pass
 
@@ -109,3 +155,13 @@ class FakePulser(PulserReceiver):
 
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         return GateReading(0.0, float("nan"), 0, 0.0, 0.0)
+
+
+class FakeDigitizer(Bench, Digitizer):
+    """A digitiser back-end as a third-party package would write it."""
+
+    def configure(self, start_ns: float, width_ns: float, averages: int) -> None:
+        pass
+
+    def acquire(self, timeout_s: float | None = None, acquisition_s: float = 0.0) -> AScanRecord:
+        raise NotImplementedError
