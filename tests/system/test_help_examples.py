@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from urdf_files import urdf_text
 
 from ucal.echo import build_reference
 from ucal.profile import default_profile_text, load_profile
@@ -126,6 +127,7 @@ def test_help_examples_run_as_written(
 ) -> None:
     if command[0] != "profile":
         add_files(workdir)
+    (workdir / "tx90l.urdf").write_text(urdf_text(), encoding="utf-8")  # init --from-urdf
     for env, args in help_examples(command):
         if "--replay" in args:
             continue  # solves a recorded run: test_record_replay_cli runs it beside its record

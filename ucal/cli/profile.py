@@ -21,6 +21,7 @@ from ucal.profile import (
     profile_warnings,
     undo_profile,
 )
+from ucal.profile.urdf import FK_TOLERANCE_MM, model_from_urdf, read_urdf
 
 profile_arg = click.argument(
     "path", metavar="PATH", type=click.Path(dir_okay=False, path_type=Path)
@@ -49,22 +50,61 @@ def cli() -> None:
     epilog="""\b
 Examples:
   ucal profile init tx90l cell.toml
-  ucal profile init tx90xl cell.toml --force
+  ucal profile init tx2-90xl cell.toml --force
+  ucal profile init --from-urdf tx90l.urdf arm.toml --name my_tx90l
 """,
 )
-@click.argument("model", type=click.Choice(KNOWN_MODELS, case_sensitive=False))
-@profile_arg
+@click.argument("model", metavar="MODEL", required=False)
+@click.argument(
+    "path", metavar="PATH", required=False, type=click.Path(dir_okay=False, path_type=Path)
+)
+@click.option(
+    "--from-urdf",
+    "urdf",
+    type=click.Path(dir_okay=False, exists=True, path_type=Path),
+    help="Take the model from this URDF (six revolute joints, the same wrist structure); "
+    "then give PATH alone.",
+)
+@click.option("--name", help="With --from-urdf: the model's name (default: the URDF's robot name).")
 @click.option(
     "--force", is_flag=True, help="Replace an existing file (the old one is kept in PATH.history/)."
 )
-def init(model: str, path: Path, force: bool) -> None:
-    """Write a new commented profile for a shipped MODEL at PATH.
+def init(
+    model: str | None, path: Path | None, urdf: Path | None, name: str | None, force: bool
+) -> None:
+    """Write a new commented profile for a shipped MODEL at PATH, or with --from-urdf for the
+    arm a URDF describes.
 
-    The DH table and joint ranges are the shipped model's; the calibration block and the
+    MODEL is one of the shipped models (profiles/<model>.toml): the DH table, joint ranges and
+    speeds are its own. With --from-urdf FILE the DH table is derived from the URDF's joints,
+    the ranges and speeds from their <limit>, and checked against the URDF's own forward
+    kinematics (within 1 µm) before anything is written. The calibration block and the
     reflector plate are placed for paper 000's calibration pose. Exit 2 if PATH exists and
-    --force is not given.
+    --force is not given, for an unknown MODEL, or for a URDF that cannot be expressed (the
+    message names the file and the joint).
     """
-
+    if urdf is not None:
+        if path is not None:
+            raise click.UsageError("with --from-urdf give PATH alone (the model's name: --name)")
+        if model is None:
+            raise click.UsageError("missing argument PATH")
+        arm = read_urdf(urdf)
+        robot = model_from_urdf(arm, name)
+        create_profile(Path(model), robot, force=force, dh_source=f"{urdf.name}")
+        info(
+            f"wrote {model} ({robot.name}, from {urdf}: its forward kinematics reproduced within "
+            f"{FK_TOLERANCE_MM * 1000:g} µm); measure the block and the reflector plate and edit "
+            "[sample] and [reflector] before calibrating"
+        )
+        return
+    if name is not None:
+        raise click.UsageError("--name goes with --from-urdf")
+    if model is None or path is None:
+        raise click.UsageError(f"missing argument {'MODEL' if model is None else 'PATH'}")
+    if model.lower() not in KNOWN_MODELS:
+        raise click.BadParameter(
+            f"{model!r} is not one of {', '.join(KNOWN_MODELS)}", param_hint="'MODEL'"
+        )
     create_profile(path, model.lower(), force=force)
     info(
         f"wrote {path} ({model.lower()}); measure the block and the reflector plate and edit "

@@ -30,6 +30,8 @@ from ucal.validation import DH_KEYS
 
 #: The new-profile template, package data of ``ucal.profile``.
 TEMPLATE = "template.toml"
+#: Where the template names the shipped model the DH table was copied from.
+SHIPPED_DH_COMMENT = "(copied from the shipped\n# {model} model;"
 #: Flange length of the shipped models (mm): wrist centre to flange along z6.
 FLANGE_MM = 100.0
 #: Tool frame of a new profile: transducer 80 mm beyond the flange, beam along flange z.
@@ -77,14 +79,21 @@ def _vec(values: Iterable[float]) -> list[float]:
     return [_num(v) for v in values]
 
 
-def default_profile_text(model: str) -> str:
-    """Commented TOML of a new profile for the shipped ``model`` (``tx90``, ``tx90l``,
-    ``tx90xl``): its DH table and joint ranges, a 80 mm tool along the flange axis, a block
-    and a reflector plate placed for paper 000's calibration pose, water at 20 °C, a 25 MHz
-    6 mm transducer, zero calibration."""
-    if model not in KNOWN_MODELS:
+def default_profile_text(model: str | RobotModel, dh_source: str = "") -> str:
+    """Commented TOML of a new profile for the shipped ``model`` (``KNOWN_MODELS``), or for
+    another arm's ``RobotModel`` (its table from ``dh_source``, e.g. a URDF; its joints'
+    speeds written as ``[robot] speed_deg_s``): the DH table and joint ranges, a 80 mm tool
+    along the flange axis, a block and a reflector plate placed for paper 000's calibration
+    pose, water at 20 °C, a 25 MHz 6 mm transducer, zero calibration."""
+    if isinstance(model, RobotModel):
+        m, shipped = model, False
+    elif model in KNOWN_MODELS:
+        m, shipped = load_model(model), True
+    else:
         raise InputError(f"unknown robot model {model!r} (known: {', '.join(KNOWN_MODELS)})")
-    m = load_model(model)
+    name = m.name
+    if shipped:
+        dh_source = f"the shipped {name} model"
     proc = Procedure()
     corner, points = nominal_layout(m, proc.water_path_mm)
     w = wrist_centre(m, PAPER_CALIBRATION_POSE_DEG)
@@ -94,12 +103,18 @@ def default_profile_text(model: str) -> str:
         resources.files("ucal.profile").joinpath(TEMPLATE).read_text(encoding="utf-8")
     )
     robot = _table(doc, "robot")
-    _set(robot, "model", model)
+    _set(robot, "model", name)
+    # a shipped table's numbers are round; another arm's keep what its source states
+    dh_num = _num if shipped else (lambda v: round(float(v), 9) + 0.0)
     for row, values in zip(robot["dh"], m.dh, strict=True):
         for key, v in zip(DH_KEYS, values, strict=True):
-            row[key] = _num(v)
+            row[key] = dh_num(v)
     _set_vector(robot, "joint_min_deg", m.joint_min_deg)
     _set_vector(robot, "joint_max_deg", m.joint_max_deg)
+    if not shipped and m.speed_deg_s is not None:
+        # a shipped model's speeds come from its model file, another arm's stand here
+        robot["speed_deg_s"] = _vec(m.speed_deg_s)
+        robot["speed_deg_s"].comment("the joints' speeds at speed 1.0 (deg/s), " + dh_source)
     _set_vector(_table(doc, "tool"), "position_mm", DEFAULT_TOOL_MM)
     sample = _table(doc, "sample")
     _set_vector(sample, "position_mm", corner)
@@ -119,7 +134,7 @@ def default_profile_text(model: str) -> str:
     _fill_comments(
         doc,
         {
-            "model": model,
+            "model": name,
             "w": tomlkit.item(_vec(w)).as_string(),
             "s": s,
             "flange_mm": FLANGE_MM,
@@ -129,7 +144,10 @@ def default_profile_text(model: str) -> str:
             "behind_mm": REFLECTOR_BEHIND_MM,
         },
     )
-    return tomlkit.dumps(doc)
+    text = tomlkit.dumps(doc)
+    if not shipped:
+        text = text.replace(SHIPPED_DH_COMMENT.format(model=name), f"(copied from\n# {dh_source};")
+    return text
 
 
 def _table(doc: Container, name: str) -> Table:

@@ -16,6 +16,7 @@ import tomlkit
 from tomlkit.items import Array, InlineTable, Table
 
 from ucal.errors import ProfileError
+from ucal.kinematics.dh import RobotModel
 from ucal.profile.disk import atomic_write, real_path
 from ucal.profile.history import HistoryEntry, _replace_with_history
 from ucal.profile.lock import profile_lock
@@ -135,11 +136,15 @@ def write_profile(
     return _replace_with_history(p, after, reason, before)
 
 
-def create_profile(path: str | Path, model: str, force: bool = False) -> Path:
-    """Write a new profile for ``model`` at ``path``; refuse (exit 2) if it exists unless
-    ``force`` (the replaced file then goes to the history, so it can be undone)."""
+def create_profile(
+    path: str | Path, model: str | RobotModel, force: bool = False, dh_source: str = ""
+) -> Path:
+    """Write a new profile for ``model`` (a shipped name, or another arm's model whose table
+    comes from ``dh_source``) at ``path``; refuse (exit 2) if it exists unless ``force`` (the
+    replaced file then goes to the history, so it can be undone)."""
     p = Path(path)
-    text = default_profile_text(model)
+    text = default_profile_text(model, dh_source)
+    model = model.name if isinstance(model, RobotModel) else model
     profile_from_data(tomlkit.parse(text), p)  # the template must always validate
     if p.is_symlink():  # write through the link: it stays a link
         p = real_path(p)
