@@ -53,6 +53,10 @@ OPENING = [
     ["pip install -e '.[test]'", "pytest -q"],
 ]
 MAX_LINES = 300
+ROOT = README.parent
+#: The benchmarks page keeps today's figures of each benchmark; their history is in git.
+BENCHMARKS_PAGE = ROOT / "docs" / "benchmarks.md"
+MAX_BENCHMARKS_LINES = 400
 
 
 @dataclass
@@ -152,6 +156,45 @@ def test_the_readme_is_short() -> None:
     """A README for users; derivations and benchmarks live in docs/."""
     n = len(README.read_text(encoding="utf-8").splitlines())
     assert n <= MAX_LINES, f"README.md has {n} lines (at most {MAX_LINES}): move detail to docs/"
+
+
+def heading_anchors(markdown: str) -> set[str]:
+    """The anchors GitHub gives the headings (lower case, punctuation dropped, spaces ``-``)."""
+    headings = re.findall(r"^#+ (.+)$", markdown, flags=re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in headings}
+
+
+def test_the_benchmarks_page_keeps_todays_figures_of_every_benchmark() -> None:
+    """docs/benchmarks.md: short, every script of benchmarks/ in it, every link into it lands."""
+    text = BENCHMARKS_PAGE.read_text(encoding="utf-8")
+    n = len(text.splitlines())
+    assert n <= MAX_BENCHMARKS_LINES, (
+        f"docs/benchmarks.md has {n} lines (at most {MAX_BENCHMARKS_LINES}): keep today's "
+        "figures of each benchmark, their history is in git"
+    )
+    scripts = sorted(p.name for p in (ROOT / "benchmarks").glob("*.py") if p.name[0] != "_")
+    assert [s for s in scripts if f"`{s}`" not in text and f"benchmarks/{s}" not in text] == []
+    anchors = heading_anchors(text)
+    docs = [README, *sorted((ROOT / "docs").rglob("*.md"))]
+    links = {
+        (doc.name, anchor)
+        for doc in docs
+        for anchor in re.findall(r"benchmarks\.md#([\w\-]+)", doc.read_text(encoding="utf-8"))
+    }
+    assert {link for link in links if link[1] not in anchors} == set()
+
+
+def test_every_decision_record_states_its_date_status_and_alternatives() -> None:
+    decisions = ROOT / "docs" / "decisions"
+    index = (decisions / "README.md").read_text(encoding="utf-8")
+    for record in sorted(decisions.glob("0*.md")):
+        text = record.read_text(encoding="utf-8")
+        head = "\n".join(text.splitlines()[1:5])
+        assert re.search(r"^(\*\*)?Date[.:]", head, flags=re.MULTILINE), (record.name, "date")
+        assert re.search(r"\bStatus[.:]", head), (record.name, "status")
+        assert "**Alternatives weighed.**" in text, (record.name, "alternatives")
+    linked = re.findall(r"\]\((0\d+-[\w\-]+\.md)\)", index)
+    assert linked and [name for name in linked if not (decisions / name).is_file()] == []
 
 
 def test_every_out_of_tolerance_entry_is_a_readme_line() -> None:

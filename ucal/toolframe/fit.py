@@ -505,8 +505,8 @@ def _cause(shares: dict[str, float], calibrated: bool, turns: int = 2) -> str:
     ranked = sorted(groups.items(), key=lambda kv: -kv[1][0])
     if noise >= 0.5 or not ranked:
         # the noise's share is what the unknowns leave it: offsets not yet calibrated compete
-        # with the tool for the same crossings and amplify it (a fresh cell's 20° holders,
-        # benchmarks/drift.py seed 8: ± 0.050 mm before calibrate, ± 0.015 after)
+        # with the tool for the same crossings and amplify it (a fresh cell's holders in both
+        # orders: measured by benchmarks/drift.py --case tool-frame)
         return f"{100 * noise:.0f} % of its variance is measurement noise: " + (
             "more postures (--points) or more averaging"
             if calibrated

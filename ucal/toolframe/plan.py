@@ -27,17 +27,16 @@ later. With the beam along the flange axis that turn is joint 6 alone. A holder 
 θ off that axis swings the flange axis through 2θ instead: joints 4 and 5 and the arm take
 another posture, and the wrist's link lengths and twists within the DH table's tolerance (row
 5's d and a, row 4's a: 0.2 mm each on a fresh cell) move the flange between the two postures as
-a tool off the beam would. Two orientations cannot tell the two apart (a 20° holder on a fresh
-cell: the tool across the beam to ± 0.07 mm, two thirds of it the DH table's). Scans a quarter
-turn apart put the wrist in four postures: a tool offset turns with the tool, a link error moves
-the flange as the posture does, and the fit, with the DH table as unknowns, tells them apart
-(the same cells: ± 0.025 mm, the error 0.046 → 0.007 mm). It costs twice the edge scans, so a
-straight holder keeps two orientations, and so does a cell whose DH table the full level has
-identified (``[calibration] dh_std``): its links are known to micrometres there, half a turn
-measures the tool within the tolerance, and the quarter turns' wrist postures only test the
-identified table where its stds, kept without their correlations, are least faithful (on
-``drift.py``'s ``f-t`` worlds one 10° holder written 4.4σ off and one misfit among 16
-holders; with half turns 16 written, none beyond 3.4σ).
+a tool off the beam would. Two orientations cannot tell the two apart: on a fresh cell most of
+a holder's variance across the beam is then the DH table's. Scans a quarter turn apart put the
+wrist in four postures: a tool offset turns with the tool, a link error moves the flange as the
+posture does, and the fit, with the DH table as unknowns, tells them apart (measured by
+``benchmarks/drift.py --case tool-frame``, ``docs/benchmarks.md``). It costs twice the edge
+scans, so a straight holder keeps two orientations, and so does a cell whose DH table the full
+level has identified (``[calibration] dh_std``): its links are known to micrometres there, half
+a turn measures the tool within the tolerance, and the quarter turns' wrist postures only test
+the identified table where its stds, kept without their correlations, are least faithful
+(measured by ``benchmarks/drift.py --case tool-frame --orders f-t``).
 Where the arm cannot follow the scans a quarter turn apart the plan keeps two and says what
 that costs.
 
