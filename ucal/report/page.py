@@ -1,4 +1,4 @@
-"""The report as one self-contained HTML page: CSS inline, figures as ``data:`` URIs.
+"""The report as one self-contained HTML page: h.CSS inline, figures as ``data:`` URIs.
 
 The page opens with its verdict: what was calibrated, how well (each one sigma against the
 tolerance it is judged by), what was verified and with what verdict, what is not determined and
@@ -12,144 +12,18 @@ not only coloured.
 
 from __future__ import annotations
 
-import html
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
-from typing import Any
 
 import numpy as np
 
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.report import figures
+from ucal.report import html as h
 from ucal.report import verdict as v
-from ucal.report.gather import Calibration, CellReport, Change, VerifyPicture, Write
-
-#: Longest value shown in the history table's "what changed" (characters), then "…".
-MAX_VALUE_CHARS = 160
-
-CSS = """
-:root { color-scheme: light; }
-* { box-sizing: border-box; }
-body { font-family: "DejaVu Sans", "Liberation Sans", Arial, Helvetica, sans-serif;
-  font-size: 10.5pt; line-height: 1.4; color: #000; background: #fff;
-  max-width: 190mm; margin: 0 auto; padding: 8mm 6mm; }
-h1 { font-size: 17pt; margin: 0 0 2mm; }
-h2 { font-size: 13.5pt; border-bottom: 1.5pt solid #000; padding-bottom: 1mm; margin: 8mm 0 3mm; }
-h3 { font-size: 11pt; margin: 5mm 0 2mm; }
-h2, h3 { break-after: avoid; page-break-after: avoid; }
-p { margin: 1.5mm 0; }
-table { border-collapse: collapse; margin: 2mm 0 3mm; font-size: 9.5pt; }
-th, td { border: 0.6pt solid #888; padding: 0.8mm 2mm; vertical-align: top; text-align: left; }
-th { background: #ececec; font-weight: bold; }
-td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
-thead { display: table-header-group; }
-tr { break-inside: avoid; page-break-inside: avoid; }
-table.kv th { width: 34mm; }
-table.wide { width: 100%; }
-.meta td, .meta th { border: none; padding: 0.3mm 3mm 0.3mm 0; background: none; }
-.note { border-left: 2.5pt solid #666; padding: 1mm 3mm; margin: 2mm 0; background: #f4f4f4; }
-.state { font-weight: bold; }
-.nowrap { white-space: nowrap; }
-.bad { font-weight: bold; text-decoration: underline; }
-.muted { color: #444; }
-code { font-family: "DejaVu Sans Mono", "Liberation Mono", monospace; font-size: 9pt; }
-figure { margin: 3mm 0; break-inside: avoid; page-break-inside: avoid; }
-figure img { display: block; width: 100%; height: auto; border: 0.6pt solid #bbb; }
-figcaption { font-size: 9pt; color: #222; margin-top: 1mm; }
-ul.changes { margin: 0; padding-left: 4mm; }
-ul.changes li { margin: 0; }
-section.calibration { break-inside: auto; }
-section.verdict { border: 1.2pt solid #000; padding: 1mm 4mm 2mm; margin: 4mm 0; }
-section.verdict h2 { margin-top: 2mm; }
-p.lead { font-size: 11.5pt; margin: 2mm 0 3mm; }
-ul.plain { margin: 0; padding-left: 4mm; }
-ul.plain li { margin: 0.5mm 0; }
-ol.history { padding-left: 6mm; }
-ol.history li { margin: 0 0 2mm; break-inside: avoid; page-break-inside: avoid; }
-table.short, figure, .note { break-inside: avoid; page-break-inside: avoid; }
-@page { size: A4; margin: 14mm 12mm 16mm; }
-@media print {
-  body { max-width: none; padding: 0; font-size: 9.5pt; }
-  h2 { margin-top: 6mm; }
-  a { color: #000; text-decoration: none; }
-  * { -webkit-print-color-adjust: exact; print-color-adjust: exact; }
-}
-"""
-
-
-def e(value: Any) -> str:
-    """``value`` as escaped HTML text."""
-    return html.escape(str(value), quote=True)
-
-
-def num(value: float | None, digits: int = 4) -> str:
-    """A number with ``digits`` decimals; an em dash for None or NaN."""
-    if value is None or not np.isfinite(value):
-        return "—"
-    return f"{round(float(value), digits) + 0.0:.{digits}f}"  # + 0.0: no "-0.0000"
-
-
-def nums(values: Iterable[float] | None, digits: int = 4, unit: str = "") -> str:
-    if values is None:
-        return "—"
-    text = ", ".join(num(float(v), digits) for v in values)
-    return f"[{text}]" + (f" {unit}" if unit else "")
-
-
-def when(iso: str | None) -> str:
-    """An ISO time as ``2026-01-02 10:00:00 UTC`` (as written when not ISO)."""
-    if not iso:
-        return "—"
-    return iso.replace("T", " ").replace("+00:00", " UTC")
-
-
-def _when_cell(iso: str | None) -> str:
-    """An ISO time on two lines (date, then time): narrow table columns."""
-    date, _, clock = when(iso).partition(" ")
-    return f'<span class="nowrap">{e(date)}</span><br><span class="nowrap">{e(clock)}</span>'
-
-
-def _table(
-    head: Sequence[str], rows: Iterable[Sequence[str]], numeric: Sequence[bool], cls: str = ""
-) -> str:
-    """A table of already escaped cells."""
-    th = "".join(
-        f'<th{" class=num" if n else ""} scope="col">{h}</th>'
-        for h, n in zip(head, numeric, strict=True)
-    )
-    body = "".join(
-        "<tr>"
-        + "".join(
-            f"<td{' class=num' if n else ''}>{c}</td>" for c, n in zip(row, numeric, strict=True)
-        )
-        + "</tr>"
-        for row in rows
-    )
-    return f'<table class="{cls}"><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>'
-
-
-def _kv(rows: Iterable[tuple[str, str]]) -> str:
-    body = "".join(f'<tr><th scope="row">{k}</th><td>{v}</td></tr>' for k, v in rows)
-    return f'<table class="kv"><tbody>{body}</tbody></table>'
-
-
-def _part(title: str) -> str:
-    """The opening of a numbered part of the page."""
-    return f'<section class="part"><h2>{title}</h2>'
-
-
-def _empty_part(title: str, why: str) -> str:
-    """A part with nothing to show: its title and why (``why``: HTML, one paragraph)."""
-    return f"{_part(title)}\n<p>{why}</p></section>"
-
-
-def _figure(uri: str, alt: str, caption: str) -> str:
-    return f'<figure><img src="{e(uri)}" alt="{e(alt)}"><figcaption>{caption}</figcaption></figure>'
-
-
-def _note(text: str) -> str:
-    return f'<p class="note">{text}</p>'
+from ucal.report.gather import Calibration, CellReport, VerifyPicture, Write
+from ucal.report.story import history_section
 
 
 def _ucal_version() -> str:
@@ -160,16 +34,16 @@ def _ucal_version() -> str:
 
 
 def _state(w: Write) -> str:
-    return f"undone {e(when(w.entry.undone_time))}" if w.entry.undone else "applied"
+    return f"undone {h.e(h.when(w.entry.undone_time))}" if w.entry.undone else "applied"
 
 
 def _write_title(w: Write) -> str:
     state = (
-        f'<span class="state">undone {e(when(w.entry.undone_time))}</span>'
+        f'<span class="state">undone {h.e(h.when(w.entry.undone_time))}</span>'
         if w.entry.undone
         else '<span class="state">applied</span>'
     )
-    return f"history write #{w.entry.id}, {e(when(w.entry.time))} ({state})"
+    return f"history write #{w.entry.id}, {h.e(h.when(w.entry.time))} ({state})"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -186,14 +60,14 @@ def render_page(report: CellReport) -> str:
         _tools(report),
         _verify(report),
         _lost_motion(report),
-        _history(report),
+        history_section(report),
     ]
     title = f"ucal report: {report.path.name}"
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>{e(title)}</title><style>{CSS}</style></head><body>\n"
+        f"<title>{h.e(title)}</title><style>{h.CSS}</style></head><body>\n"
         + "\n".join(parts)
         + "\n</body></html>\n"
     )
@@ -201,22 +75,22 @@ def render_page(report: CellReport) -> str:
 
 def _header(r: CellReport) -> str:
     hist = (
-        f"{len(r.writes)} recorded writes in <code>{e(r.history_dir)}</code>"
+        f"{len(r.writes)} recorded writes in <code>{h.e(r.history_dir)}</code>"
         if r.writes
         else "no recorded write (the profile was never rewritten by ucal)"
     )
-    meta = _kv(
+    meta = h.kv(
         [
-            ("profile", f"<code>{e(r.path)}</code>"),
-            ("SHA-256", f"<code>{e(r.profile_sha256)}</code>"),
+            ("profile", f"<code>{h.e(r.path)}</code>"),
+            ("SHA-256", f"<code>{h.e(r.profile_sha256)}</code>"),
             ("history", hist),
-            ("report made", e(r.generated.strftime("%Y-%m-%d %H:%M:%S UTC"))),
-            ("by", f"ucal {e(_ucal_version())}"),
+            ("report made", h.e(r.generated.strftime("%Y-%m-%d %H:%M:%S UTC"))),
+            ("by", f"ucal {h.e(_ucal_version())}"),
         ]
     )
     return (
-        f"<header><h1>Robot cell report: {e(r.profile.model.name)}, "
-        f"<code>{e(r.path.name)}</code></h1>"
+        f"<header><h1>Robot cell report: {h.e(r.profile.model.name)}, "
+        f"<code>{h.e(r.path.name)}</code></h1>"
         '<p class="muted">The cell as its profile and the profile\'s history hold it. '
         "Lengths in mm, angles in degrees; ± values and σ are one standard deviation unless "
         "marked 3σ. A quantity is <em>determined</em> when its σ is within its tolerance, "
@@ -253,26 +127,26 @@ def _calibrated_words(r: CellReport) -> str:
         seen = [j for j in range(1, 7) if j not in cal.unobservable_joints]
         fit = cal.fit
         text = (
-            f"Joint offsets of {e(_joint_list(seen))} at the <strong>{e(cal.level or '—')}"
-            f"</strong> level (method {e(cal.method or '—')}, {e(when(cal.date))}, {src}), "
-            f"fit <span class=state>{e(fit.verdict or 'not recorded')}</span>"
+            f"Joint offsets of {h.e(_joint_list(seen))} at the <strong>{h.e(cal.level or '—')}"
+            f"</strong> level (method {h.e(cal.method or '—')}, {h.e(h.when(cal.date))}, {src}), "
+            f"fit <span class=state>{h.e(fit.verdict or 'not recorded')}</span>"
             + (
-                f" (χ²ᵣ {num(fit.chi2_reduced, 3)} on {fit.dof} degrees of freedom)"
+                f" (χ²ᵣ {h.num(fit.chi2_reduced, 3)} on {fit.dof} degrees of freedom)"
                 if fit.chi2_reduced is not None and fit.dof is not None
                 else ""
             )
             + (
-                f"; {e(_joint_list(list(cal.unobservable_joints)))} kept from the profile"
+                f"; {h.e(_joint_list(list(cal.unobservable_joints)))} kept from the profile"
                 if cal.unobservable_joints
                 else ""
             )
             + "; the block's pose measured with them."
         )
         if cal.approach:
-            text += f" The offsets hold for postures approached {e(_approach(cal.approach))}."
+            text += f" The offsets hold for postures approached {h.e(_approach(cal.approach))}."
     tool = (
         f" Tool frame measured by tool-frame (history write #{r.tools[-1].write.entry.id}, "
-        f"{e(when(r.tools[-1].write.entry.time))})."
+        f"{h.e(h.when(r.tools[-1].write.entry.time))})."
         if r.tools
         else " Tool frame: from its drawing (no tool-frame write)."
     )
@@ -317,37 +191,37 @@ def _verdict(r: CellReport) -> str:
     )
     open_ = [q for q in qs if not q.determined]
     lead = (
-        f'<p class="lead"><strong>{e(head)}.</strong> '
+        f'<p class="lead"><strong>{h.e(head)}.</strong> '
         f"{len(qs) - len(open_)} of the {len(qs)} quantities below are determined, "
-        f"{len(open_)} are not ({e(', '.join(q.name for q in open_))}).</p>"
+        f"{len(open_)} are not ({h.e(', '.join(q.name for q in open_))}).</p>"
     )
     how_well = [
-        f"{e(q.name)}: σ {e(q.std)} ≤ {e(q.tolerance)}" for q in qs if q.determined and q.std
+        f"{h.e(q.name)}: σ {h.e(q.std)} ≤ {h.e(q.tolerance)}" for q in qs if q.determined and q.std
     ]
     not_determined = [
-        f"<strong>{e(q.name)}</strong>, {e(q.state)}"
+        f"<strong>{h.e(q.name)}</strong>, {h.e(q.state)}"
         + (
-            f" (σ {e(q.std)}, tolerance {e(q.tolerance)})"
+            f" (σ {h.e(q.std)}, tolerance {h.e(q.tolerance)})"
             if "—" not in (q.std, q.tolerance)
             else ""
         )
-        + (f": {e(q.why)}" if q.why else "")
+        + (f": {h.e(q.why)}" if q.why else "")
         for q in open_
     ]
     if facts is not None and facts.marginal:
         not_determined.append(
             f"<strong>the verify {'pass' if facts.passed else 'failure'}</strong>, not "
-            f"determined (marginal): {e(v.would_determine_verify(facts, r))}"
+            f"determined (marginal): {h.e(v.would_determine_verify(facts, r))}"
         )
     rows = [
         ("calibrated", _calibrated_words(r)),
         ("how well", _items(how_well) if how_well else "nothing determined"),
-        ("verified", e(verified[:1].upper() + verified[1:]) + "."),
+        ("verified", h.e(verified[:1].upper() + verified[1:]) + "."),
         ("not determined", _items(not_determined) if not_determined else "nothing"),
     ]
     for rehearsal in r.rehearsals:
-        rows.append(("rehearsal", e(_rehearsal_words(rehearsal))))
-    table = _table(
+        rows.append(("rehearsal", h.e(_rehearsal_words(rehearsal))))
+    table = h.table(
         ["quantity", "value", "σ", "tolerance", "state"],
         [_quantity_row(q, q.name) for q in qs],
         [False, False, False, False, False],
@@ -356,7 +230,7 @@ def _verdict(r: CellReport) -> str:
     return (
         '<section class="verdict"><h2>Verdict</h2>'
         + lead
-        + _kv(rows)
+        + h.kv(rows)
         + "<h3>Each quantity against its tolerance</h3>"
         + table
         + "</section>"
@@ -366,13 +240,13 @@ def _verdict(r: CellReport) -> str:
 def _quantity_row(q: v.Quantity, name: str, why: bool = False) -> list[str]:
     """A quantity's cells: its name as given, value, σ, tolerance, state (and why)."""
     cells = [
-        e(name),
-        e(q.value),
-        e(q.std),
-        e(q.tolerance),
-        f'<span class="state">{e(q.state)}</span>',
+        h.e(name),
+        h.e(q.value),
+        h.e(q.std),
+        h.e(q.tolerance),
+        f'<span class="state">{h.e(q.state)}</span>',
     ]
-    return cells + [e(q.why)] if why else cells
+    return cells + [h.e(q.why)] if why else cells
 
 
 def _items(items: Sequence[str]) -> str:
@@ -413,22 +287,22 @@ def _dh_table(dh: np.ndarray, beta: np.ndarray | None, r: CellReport) -> str:
     head += ["min", "max", "joint offset"]
     rows = []
     for j in range(6):
-        row = [f"J{j + 1}"] + [num(float(v), 4) for v in dh[j]]
+        row = [f"J{j + 1}"] + [h.num(float(v), 4) for v in dh[j]]
         if with_beta:
             assert beta is not None
-            row.append(num(float(beta[j]), 4))
+            row.append(h.num(float(beta[j]), 4))
         row += [
-            num(float(model.joint_min_deg[j]), 1),
-            num(float(model.joint_max_deg[j]), 1),
-            num(float(p.joint_offsets_deg[j]), 6),
+            h.num(float(model.joint_min_deg[j]), 1),
+            h.num(float(model.joint_max_deg[j]), 1),
+            h.num(float(p.joint_offsets_deg[j]), 6),
         ]
         rows.append(row)
-    return _table(head, rows, [False] + [True] * (len(head) - 1))
+    return h.table(head, rows, [False] + [True] * (len(head) - 1))
 
 
 def _cell(r: CellReport) -> str:
     p = r.profile
-    out = [_part("1. The cell"), f"<h3>Robot: {e(_dh_origin(r))}</h3>"]
+    out = [h.part("1. The cell"), f"<h3>Robot: {h.e(_dh_origin(r))}</h3>"]
     out.append(
         "<p>Standard DH rows (θ offset, α, β in degrees), the joint ranges (deg) and the joint "
         "offsets of [calibration] (deg; actual angle = encoder reading + offset; how well each "
@@ -439,10 +313,10 @@ def _cell(r: CellReport) -> str:
         out.append("<p>The [robot] table the identified one replaces:</p>")
         nominal = r.nominal_model
         out.append(
-            _table(
+            h.table(
                 ["joint", "θ offset", "d (mm)", "a (mm)", "α"],
                 [
-                    [f"J{j + 1}"] + [num(float(v), 4) for v in nominal.dh[j]]
+                    [f"J{j + 1}"] + [h.num(float(v), 4) for v in nominal.dh[j]]
                     for j in range(len(nominal.dh))
                 ],
                 [False, True, True, True, True],
@@ -455,49 +329,49 @@ def _cell(r: CellReport) -> str:
     )
     out.append("<h3>Tool, block, plate, water, transducer</h3>")
     rows = [
-        ("tool position", f"{nums(p.tool_position_mm)} mm ± {nums(p.tool_position_std_mm)}"),
-        ("tool rotation", f"{nums(p.tool_rotation_deg)} deg ± {nums(p.tool_rotation_std_deg)}"),
-        ("tool: source", e(tool_src)),
+        ("tool position", f"{h.nums(p.tool_position_mm)} mm ± {h.nums(p.tool_position_std_mm)}"),
+        ("tool rotation", f"{h.nums(p.tool_rotation_deg)} deg ± {h.nums(p.tool_rotation_std_deg)}"),
+        ("tool: source", h.e(tool_src)),
         (
             "block corner",
-            f"{nums(p.sample_position_mm, 3)} mm ± {nums(p.sample_position_std_mm, 3)}",
+            f"{h.nums(p.sample_position_mm, 3)} mm ± {h.nums(p.sample_position_std_mm, 3)}",
         ),
         (
             "block rotation",
-            f"{nums(p.sample_rotation_deg, 3)} deg ± {nums(p.sample_rotation_std_deg, 3)}",
+            f"{h.nums(p.sample_rotation_deg, 3)} deg ± {h.nums(p.sample_rotation_std_deg, 3)}",
         ),
-        ("block face size", f"{num(p.sample_face_size_mm, 1)} mm"),
+        ("block face size", f"{h.num(p.sample_face_size_mm, 1)} mm"),
     ]
     if p.reflector_points_mm is None:
         rows.append(("plate", "no [reflector] in the profile"))
     else:
-        pts = "<br>".join(nums(pt, 3) for pt in np.asarray(p.reflector_points_mm))
-        rows.append(("plate points", f"{pts}<br>± {num(p.reflector_points_std_mm, 3)} mm each"))
+        pts = "<br>".join(h.nums(pt, 3) for pt in np.asarray(p.reflector_points_mm))
+        rows.append(("plate points", f"{pts}<br>± {h.num(p.reflector_points_std_mm, 3)} mm each"))
     cal = r.current_calibration
     speed = (
-        f"; sound speed {num(cal.sound_speed_m_s, 2)} m/s as last calibrated"
+        f"; sound speed {h.num(cal.sound_speed_m_s, 2)} m/s as last calibrated"
         if cal is not None and cal.sound_speed_m_s is not None
         else ""
     )
     rows += [
         (
             "water",
-            f"{num(p.water_temperature_c, 1)} °C ± {num(p.water_temperature_std_c, 1)}{speed}",
+            f"{h.num(p.water_temperature_c, 1)} °C ± {h.num(p.water_temperature_std_c, 1)}{speed}",
         ),
         (
             "transducer",
-            f"{num(p.frequency_mhz, 2)} MHz, element {num(p.element_diameter_mm, 2)} mm",
+            f"{h.num(p.frequency_mhz, 2)} MHz, element {h.num(p.element_diameter_mm, 2)} mm",
         ),
     ]
     if p.step is not None:
         rows.append(
             (
                 "step",
-                f"height {num(p.step.height_mm, 3)} ± {num(p.step.height_std_mm, 3)} mm, "
-                f"centre {nums(p.step.centre_mm, 1)} mm, size {num(p.step.size_mm, 1)} mm",
+                f"height {h.num(p.step.height_mm, 3)} ± {h.num(p.step.height_std_mm, 3)} mm, "
+                f"centre {h.nums(p.step.centre_mm, 1)} mm, size {h.num(p.step.size_mm, 1)} mm",
             )
         )
-    out.append(_kv(rows))
+    out.append(h.kv(rows))
     out.append("</section>")
     return "\n".join(out)
 
@@ -505,22 +379,22 @@ def _cell(r: CellReport) -> str:
 def _calibrations(r: CellReport) -> str:
     title = "2. Calibrations"
     if not r.calibrations:
-        return _empty_part(
+        return h.empty_part(
             title,
             "No calibration: the profile's history holds no calibrate write and the profile no "
             "[calibration] offsets.",
         )
-    figure = _figure(
+    figure = h.figure(
         figures.offsets_figure(r.calibrations),
         "joint offsets per calibrate write with 3-sigma bars",
         "Each joint's offset as written by each calibrate (x: history write), bars ±3σ "
         "(the true offset lies within them); an open square is a joint the run could not "
         "determine, its offset kept from the profile.",
     )
-    out = [_part(title), figure]
+    out = [h.part(title), figure]
     if not any(c.residuals for c in r.calibrations):
         out.append(
-            _note(
+            h.note(
                 "The profile and its history hold each calibration's result and fit summary, "
                 "not the residual of each measurement: those come from a record of the run. "
                 "Calibrate with <code>--record run.jsonl</code> and give the record to the "
@@ -540,25 +414,25 @@ def _calibration(cal: Calibration, n: int, current: bool) -> str:
         reason = ""
     else:
         title = _write_title(cal.write)
-        reason = f"<p>Recorded reason: <code>{e(cal.write.entry.reason)}</code></p>"
+        reason = f"<p>Recorded reason: <code>{h.e(cal.write.entry.reason)}</code></p>"
     out = [
         '<section class="calibration">',
         f"<h3>Calibration {n}{' (current)' if current else ''}: {title}</h3>",
         reason,
     ]
     fit = cal.fit
-    verdict = e(fit.verdict or "not recorded")
+    verdict = h.e(fit.verdict or "not recorded")
     if fit.verdict and fit.verdict != "ok":
         verdict = f'<span class="bad">{verdict}</span>'
     out.append(
-        _kv(
+        h.kv(
             [
-                ("method, level", f"{e(cal.method or '—')}, {e(cal.level or '—')}"),
-                ("run date", e(when(cal.date))),
+                ("method, level", f"{h.e(cal.method or '—')}, {h.e(cal.level or '—')}"),
+                ("run date", h.e(h.when(cal.date))),
                 ("fit verdict", verdict),
                 (
                     "χ² reduced (dof)",
-                    f"{num(fit.chi2_reduced, 3)} ({'—' if fit.dof is None else fit.dof})",
+                    f"{h.num(fit.chi2_reduced, 3)} ({'—' if fit.dof is None else fit.dof})",
                 ),
                 (
                     "rms tilt, rms distance",
@@ -566,14 +440,14 @@ def _calibration(cal: Calibration, n: int, current: bool) -> str:
                     if fit.rms_tilt_deg is None and fit.rms_distance_mm is None
                     else f"{_sci(fit.rms_tilt_deg)} deg, {_sci(fit.rms_distance_mm)} mm",
                 ),
-                ("worst measurement", e(fit.worst or "—")),
-                ("sound speed", f"{num(cal.sound_speed_m_s, 2)} m/s"),
-                ("condition number", num(cal.condition_number, 1)),
+                ("worst measurement", h.e(fit.worst or "—")),
+                ("sound speed", f"{h.num(cal.sound_speed_m_s, 2)} m/s"),
+                ("condition number", h.num(cal.condition_number, 1)),
             ]
         )
     )
     out.append(
-        _table(
+        h.table(
             ["quantity", "offset", "σ", "tolerance", "state", "why, or what would determine it"],
             [_quantity_row(q, q.name, why=True) for q in v.joint_quantities(cal)],
             [False, True, True, True, False, False],
@@ -584,10 +458,10 @@ def _calibration(cal: Calibration, n: int, current: bool) -> str:
         out.append("<p>Identified DH table ([calibration] dh):</p>")
         beta = cal.beta_deg if cal.beta_deg is not None else np.zeros(6)
         out.append(
-            _table(
+            h.table(
                 ["joint", "θ offset", "d (mm)", "a (mm)", "α", "β"],
                 [
-                    [f"J{j + 1}"] + [num(float(v), 4) for v in cal.dh[j]] + [num(beta[j], 4)]
+                    [f"J{j + 1}"] + [h.num(float(v), 4) for v in cal.dh[j]] + [h.num(beta[j], 4)]
                     for j in range(6)
                 ],
                 [False] + [True] * 5,
@@ -596,11 +470,11 @@ def _calibration(cal: Calibration, n: int, current: bool) -> str:
     if cal.residuals:
         assert cal.record is not None
         out.append(
-            _figure(
+            h.figure(
                 figures.residuals_figure(cal),
                 "normalised residual of each measurement",
                 f"{len(cal.residuals)} measurements, from the record "
-                f"<code>{e(cal.record)}</code>: each residual divided by its noise; a fit that "
+                f"<code>{h.e(cal.record)}</code>: each residual divided by its noise; a fit that "
                 "agrees with its noise keeps almost all within ±3.",
             )
         )
@@ -618,35 +492,35 @@ def _tools(r: CellReport) -> str:
     title = "3. Tool frame"
     if not r.tools:
         p = r.profile
-        return _empty_part(
+        return h.empty_part(
             title,
             "No tool-frame write in the history: the tool is the profile's "
-            f"({nums(p.tool_position_mm)} mm, {nums(p.tool_rotation_deg)} deg), from its "
+            f"({h.nums(p.tool_position_mm)} mm, {h.nums(p.tool_rotation_deg)} deg), from its "
             "drawing.",
         )
-    figure = _figure(
+    figure = h.figure(
         figures.tool_figure(r.tools),
         "tool frame per tool-frame write with 3-sigma bars",
         "The tool frame relative to the flange as written by each tool-frame (x: history "
         "write), bars ±3σ. The rotation about the beam (rz) is not measured by an echo: "
         "its σ is the profile's tolerance.",
     )
-    out = [_part(title), figure]
+    out = [h.part(title), figure]
     rows = []
     for t in reversed(r.tools):
-        write = f"#{t.write.entry.id}, {_state(t.write)}<br>{_when_cell(t.write.entry.time)}"
+        write = f"#{t.write.entry.id}, {_state(t.write)}<br>{h.when_cell(t.write.entry.time)}"
         for name, unit, values, stds in (
             ("position", "mm", t.position_mm, t.position_std_mm),
             ("rotation", "deg", t.rotation_deg, t.rotation_std_deg),
         ):
             cells = [
-                num(float(v)) + ("" if stds is None else f" ± {num(float(s))}")
+                h.num(float(v)) + ("" if stds is None else f" ± {h.num(float(s))}")
                 for v, s in zip(values, stds if stds is not None else values, strict=True)
             ]
             rows.append([write, f"{name} ({unit})", *cells])
             write = ""
     out.append(
-        _table(
+        h.table(
             ["write", "", "x | rx", "y | ry", "z | rz"],
             rows,
             [False, False, True, True, True],
@@ -658,7 +532,7 @@ def _tools(r: CellReport) -> str:
 
 
 def _verify(r: CellReport) -> str:
-    out = [_part("4. Last verify of this cell")]
+    out = [h.part("4. Last verify of this cell")]
     pic = r.verify
     if pic is None:
         out.append(
@@ -681,15 +555,16 @@ def _verify(r: CellReport) -> str:
             else f" On {facts.cell_words}: {v.verify_words(facts)}."
         )
         out.append(
-            _figure(
+            h.figure(
                 figures.png_uri(pic.png),
                 "positioning error before and after calibration, drawn by verify",
-                f"<code>{e(pic.path)}</code>, drawn {e(pic.modified.strftime('%Y-%m-%d %H:%M'))}"
+                f"<code>{h.e(pic.path)}</code>, drawn "
+                f"{h.e(pic.modified.strftime('%Y-%m-%d %H:%M'))}"
                 " UTC by <code>ucal verify</code>. Title: the verdict and the largest "
                 "deviation after calibration against the tolerance (mm). Left: each point's "
                 "deviation after calibration per block axis (mm), the tolerance band shaded. "
                 f"Right: the largest deviation per axis before and after calibration (mm)."
-                f"{e(said)}{e(since)}",
+                f"{h.e(said)}{h.e(since)}",
             )
         )
     rule = (
@@ -698,22 +573,22 @@ def _verify(r: CellReport) -> str:
         "on the cell that file describes, not on this one: its picture is "
         "<code>PROFILE.verify.WORLD.png</code>, named in the verdict, not shown here."
     )
-    out.append(_note(rule))
+    out.append(h.note(rule))
     out.append("</section>")
     return "\n".join(out)
 
 
 def _lost_motion(r: CellReport) -> str:
-    out = [_part("5. Lost motion and drift")]
+    out = [h.part("5. Lost motion and drift")]
     cal = r.current_calibration
     out.append(
-        f"<p>Lost motion (backlash) per joint, deg: {e(v.lost_motion_words(cal))}. A joint with "
+        f"<p>Lost motion (backlash) per joint, deg: {h.e(v.lost_motion_words(cal))}. A joint with "
         "lost motion b reached from the other side than the offsets hold for is off by b/2."
         "</p>"
     )
     lost = v.lost_motion_quantities(cal)
     out.append(
-        _table(
+        h.table(
             ["joint", "lost motion", "σ", "tolerance", "state"],
             [_quantity_row(q, q.name.split()[0]) for q in lost],
             [False, True, True, True, False],
@@ -722,130 +597,15 @@ def _lost_motion(r: CellReport) -> str:
     )
     hows = sorted({q.why for q in lost if q.why})
     if hows:
-        out.append(f"<p>{e('; '.join(h[:1].upper() + h[1:] for h in hows))}.</p>")
+        out.append(f"<p>{h.e('; '.join(h[:1].upper() + h[1:] for h in hows))}.</p>")
     drift = v.drift_quantity(r)
     if drift is None:
         out.append("<p>Drift of the sound speed during a run: <strong>not measured</strong>.</p>")
     else:
         out.append(
             f"<p>Sound speed drift during the last calibration (the tank warming or cooling): "
-            f"{e(drift.value)} ± {e(drift.std)}, {e(drift.state)} against "
-            f"{e(drift.tolerance)}.</p>"
+            f"{h.e(drift.value)} ± {h.e(drift.std)}, {h.e(drift.state)} against "
+            f"{h.e(drift.tolerance)}.</p>"
         )
     out.append("</section>")
     return "\n".join(out)
-
-
-#: Profile keys the history names in words, with their unit and how to show a change.
-NAMED_KEYS: dict[str, tuple[str, str]] = {
-    "calibration.joint_offsets_deg": ("joint offsets", "deg"),
-    "sample.position_mm": ("block corner", "mm"),
-    "sample.rotation_deg": ("block rotation", "deg"),
-    "tool.position_mm": ("tool position", "mm"),
-    "tool.rotation_deg": ("tool rotation", "deg"),
-    "calibration.sound_speed_m_s": ("sound speed", "m/s"),
-    "calibration.backlash_deg": ("lost motion", "deg"),
-}
-
-
-def _history(r: CellReport) -> str:
-    title = "6. History: what changed, when, why"
-    if not r.writes:
-        return _empty_part(title, "No recorded write: ucal never rewrote this profile.")
-    out = [_part(title)]
-    out.append(
-        f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
-        f"<code>{e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
-    )
-    out.append('<ol class="history">' + "".join(_write_item(w) for w in r.writes) + "</ol>")
-    for note in r.notes:
-        out.append(_note(e(note)))
-    out.append("</section>")
-    return "\n".join(out)
-
-
-def _write_item(w: Write) -> str:
-    """One write as sentences: when, which command and what it wrote, why (its recorded
-    reason), the values that changed, and its undo."""
-    when_ = e(w.entry.time.replace("T", " ")[:16] + " UTC")
-    what = {
-        "calibrate": "joint offsets and the block's pose measured and written",
-        "tool-frame": "tool frame measured and written",
-    }.get(w.command, "profile written")
-    head = (
-        f"<strong>{when_} — <code>{e(w.command)}</code></strong> (write #{w.entry.id}): "
-        f"{what}; why: <em>{e(w.entry.reason)}</em>."
-    )
-    state = (
-        f" <strong>Undone</strong> {e(when(w.entry.undone_time))}: the version before it "
-        "was restored."
-        if w.entry.undone
-        else ""
-    )
-    return f"<li>{head}{state}{_changes(w.changes)}</li>"
-
-
-def _changes(changes: Sequence[Change] | None) -> str:
-    """What a write changed: the named values before → after, then the other keys by name."""
-    if changes is None:
-        return " What it changed is not known: the version it left is kept nowhere."
-    if not changes:
-        return " It changed comments or layout only."
-    named = [c for c in changes if c.key in NAMED_KEYS]
-    others = [c.key for c in changes if c.key not in NAMED_KEYS]
-    items = []
-    for c in named:
-        name, unit = NAMED_KEYS[c.key]
-        items.append(f"{e(name)} ({unit}): {e(_change_values(c))}")
-    if others:
-        tables = sorted({"[" + k.split(".", 1)[0] + "]" for k in others if "." in k})
-        items.append(
-            f"and {len(others)} further keys"
-            + (f" of {e(', '.join(tables))}" if tables else "")
-            + " (stds, gauge, fit figures, drawn values)"
-        )
-    return '<ul class="changes">' + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
-
-
-def _change_values(c: Change) -> str:
-    """``before → after``, per joint for six values (J1 0.0000 → 0.7992, ...)."""
-    before, after = c.before, c.after
-    if c.key == "calibration.backlash_deg":
-        # -1: not measured
-        def lost(x: Any) -> str:
-            if not isinstance(x, list):
-                return _value(x)
-            return "not measured" if all(y < 0 for y in x) else _value(x)
-
-        return f"{lost(before)} → {lost(after)}"
-    if (
-        isinstance(before, list)
-        and isinstance(after, list)
-        and len(before) == len(after) == 6
-        and c.key.startswith("calibration.")
-    ):
-        return ", ".join(
-            f"J{j + 1} {_value(b)} → {_value(a)}"
-            for j, (b, a) in enumerate(zip(before, after, strict=True))
-            if b != a
-        )
-    return f"{_value(before)} → {_value(after)}"
-
-
-def _value(v: Any) -> str:
-    """A profile value in a few characters: numbers to 6 significant digits."""
-    if v is None:
-        return "(absent)"
-    if isinstance(v, bool):
-        return str(v).lower()
-    if isinstance(v, float):
-        return f"{v + 0.0:.6g}"
-    if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-        return f"table of {len(v)} rows"
-    if isinstance(v, list):
-        text = "[" + ", ".join(_value(x) for x in v) + "]"
-    elif isinstance(v, dict):
-        text = "{" + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + "}"
-    else:
-        text = str(v)
-    return text if len(text) <= MAX_VALUE_CHARS else text[: MAX_VALUE_CHARS - 1] + "…"
