@@ -36,9 +36,12 @@ NOISE_BLOCK = 16
 CHI2_MEDIAN_PER_DOF = float(stats.chi2.median(NOISE_BLOCK)) / NOISE_BLOCK
 #: The reference's support: where its envelope is above this fraction of its peak.
 SUPPORT_LEVEL = 1e-3
+SUPPORT_NOISE = 6.0
 #: β is summed over the bins whose power is above this fraction of the peak bin's (and above
 #: the reference's own noise): the bound must not count the noise the averaging left.
 BAND_LEVEL = 1e-4
+#: Bins of a noisy reference whose power is below this many times the noise's are noise.
+WIENER_MARGIN = 3.0
 #: Spectral resolution of ``echo_band`` as a fraction of the sample rate (zero padding).
 BAND_RESOLUTION = 1.0 / 4096.0
 
@@ -202,8 +205,16 @@ class ReferenceEcho:
 
     @functools.cached_property
     def energy(self) -> float:
-        """Σ r² over the samples (the peak being 1)."""
-        return float(np.sum(self.samples**2))
+        """Σ r² of the echo (the peak being 1), its noise's n·σ² taken out."""
+        return max(float(np.sum(self.samples**2)) - self.n * self.noise_rms**2, 1e-300)
+
+    def spectrum(self, n_fft: int) -> np.ndarray:
+        """The echo's ``rfft`` padded to ``n_fft``, each bin weighted by ``wiener_gain``: the
+        template a record is correlated with, the noise the averaging left kept out of it."""
+        spectrum = fft.rfft(self.samples, n_fft)
+        gain = wiener_gain(np.abs(spectrum) ** 2, self.n * self.noise_rms**2)
+        gain[0] = 0.0  # an offset is not the echo
+        return spectrum * gain
 
     @functools.cached_property
     def band_power_threshold(self) -> float:
@@ -219,14 +230,18 @@ class ReferenceEcho:
         power = np.abs(fft.rfft(self.samples, n_fft)) ** 2
         f_mhz = fft.rfftfreq(n_fft, self.dt_ns * 1e-3)
         band = power >= self.band_power_threshold
-        return math.sqrt(float(np.sum(f_mhz[band] ** 2 * power[band]) / np.sum(power[band])))
+        # the echo's power: the noise's expected n·σ² taken out of each bin of the band
+        echo = np.clip(power[band] - self.n * self.noise_rms**2, 0.0, None)
+        return math.sqrt(float(np.sum(f_mhz[band] ** 2 * echo) / np.sum(echo)))
 
     @functools.cached_property
     def support(self) -> tuple[int, int]:
         """``(first, stop)`` sample indices where the echo's envelope is above
-        ``SUPPORT_LEVEL`` of its peak (and above 3 times its noise)."""
+        ``SUPPORT_LEVEL`` of its peak (and above ``SUPPORT_NOISE`` times its noise, which the
+        envelope of noise alone passes with probability exp(−SUPPORT_NOISE²/2) a sample: a
+        reference written whole with its noise is not all echo)."""
         envelope = np.abs(signal.hilbert(self.samples))
-        level = max(SUPPORT_LEVEL * float(envelope.max()), 3.0 * self.noise_rms)
+        level = max(SUPPORT_LEVEL * float(envelope.max()), SUPPORT_NOISE * self.noise_rms)
         above = np.flatnonzero(envelope >= level)
         return int(above[0]), int(above[-1]) + 1
 
@@ -259,12 +274,46 @@ class ReferenceEcho:
         return ReferenceEcho(float(t_ns[0]), dt_ns, values, self.noise_rms, self.averages)
 
 
+def wiener_gain(power: np.ndarray, noise_power: float) -> np.ndarray:
+    """Zero-phase weight of each bin of a noisy echo's spectrum: ``max(1 − k·N/P, 0)`` (P the
+    bin's power, N = n·σ² the white noise's expected power in it, k = ``WIENER_MARGIN``), the
+    share of a bin's power that is the echo's, with a margin so that bins of noise alone (P
+    exponential about N) pass in e^−k of them at most. Real and even: it does not move a
+    correlation's peak (``ucal.echo.timing``)."""
+    if noise_power <= 0.0:
+        return np.ones_like(power)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = 1.0 - WIENER_MARGIN * noise_power / power
+    return np.where(power > 0.0, np.clip(gain, 0.0, 1.0), 0.0)
+
+
 def band_power_threshold(samples: np.ndarray, noise_rms: float = 0.0) -> float:
     """Power per ``rfft`` bin (unnormalised, any zero padding) below which a bin of the echo in
     ``samples`` is noise or nothing: ``BAND_LEVEL`` of the peak bin, and 4 times the expected
     power n·σ² of white noise of ``noise_rms`` over the n samples."""
     power = np.abs(fft.rfft(samples)) ** 2
-    return max(BAND_LEVEL * float(power.max()), 4.0 * samples.size * noise_rms**2)
+    return max(BAND_LEVEL * float(power.max()), 2.0 * WIENER_MARGIN * samples.size * noise_rms**2)
+
+
+def echo_noise_rms(samples: np.ndarray) -> float:
+    """Noise std of a record holding one echo (its offset removed): ``noise_rms`` of the
+    samples outside the echo, the echo being where the envelope stands above 4 times the
+    noise, widened by a quarter (three rounds from the whole record's robust estimate); 0
+    when too few samples are left outside (a reference cut tight around its echo)."""
+    envelope = np.abs(signal.hilbert(samples))
+    sigma = noise_rms(samples, np.ones(samples.size, dtype=bool)) or 0.0
+    for _ in range(3):
+        above = np.flatnonzero(envelope > max(4.0 * sigma, SUPPORT_LEVEL * envelope.max()))
+        if not above.size:
+            break
+        margin = max(NOISE_BLOCK, (above[-1] - above[0]) // 4)
+        quiet = np.ones(samples.size, dtype=bool)
+        quiet[max(0, above[0] - margin) : above[-1] + margin + 1] = False
+        found = noise_rms(samples, quiet)
+        if found is None:
+            return 0.0
+        sigma = found
+    return float(sigma)
 
 
 def band_limited_peak(samples: np.ndarray) -> float:

@@ -2,7 +2,8 @@
 
 The format of ``ucal echo`` (SPEC.md): the first column the time of each sample (ns, uniform
 sampling), one column per A-scan; a reference echo file holds one column, its arrival at
-``t_ns = 0``. The profile's ``[pulser] reference_echo`` names such a file.
+``t_ns = 0``. The profile's ``[pulser] reference_echo`` names such a file. A reference is
+read with its offset removed and its own noise measured (``reference_from_samples``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ucal.echo.ascan import ReferenceEcho
+from ucal.echo.ascan import ReferenceEcho, echo_noise_rms
 from ucal.errors import InputError
 
 #: Name of the time column (ns) that starts every A-scan or reference file.
@@ -112,6 +113,15 @@ def read_reference(path: Path) -> ReferenceEcho:
             f"{TIME_COLUMN} range {t0_ns:g}…{t_last:g} ns"
         )
     try:
-        return ReferenceEcho(t0_ns, dt_ns, columns[0])
+        return reference_from_samples(t0_ns, dt_ns, columns[0])
     except ValueError as e:
         raise InputError(f"{path}: {e}") from None
+
+
+def reference_from_samples(t0_ns: float, dt_ns: float, samples: np.ndarray) -> ReferenceEcho:
+    """A reference echo as a file gives it: its offset removed (the mean: an echo has no DC),
+    its noise measured outside the echo (``echo_noise_rms``: a capture written as it came
+    keeps its noise, which the bound, the template and the std must know)."""
+    x = np.asarray(samples, float)
+    x = x - float(np.mean(x))
+    return ReferenceEcho(t0_ns, dt_ns, x, echo_noise_rms(x))

@@ -71,10 +71,34 @@ clipped when a fit that takes them as censored puts the echo well beyond them. (
 method flags clipping only when the rails are known, and widens its std over the clipped
 samples.)
 
-The reference's own noise. The reference averages M captures; its noise adds about
-σ_ref²/σ²·(relative) to each reading's variance, negligible for many averages; its error in
-t = 0 is common to every reading, a constant in every time of flight (the calibration's
-electronic delay ``tof_delay_ns`` absorbs it).
+The reference's own noise. A reference is itself a noisy echo: ``r̃ = r + v`` (v white,
+σ_r per sample relative to its peak: the noise ``build_reference`` measured, or the one
+``ucal.echo.files.reference_from_samples`` finds outside the echo of a file written whole).
+The estimator solves ``Σ x_n·g'(t_n − τ̂) = 0`` for the template g it correlates with; to
+first order, with g = r̃,
+
+    δτ = (Σ w·r' + A·Σ r·v')/(A·Σ r'²) + Σ w·v'/(A·Σ r'²),
+
+and Σ r·v' = −Σ r'·v (by parts), so the first term's variance is (σ² + A²σ_r²)/(A²·Σ r'²):
+the two noises add, the reference's scaled by the echo's height. It is the bound of a delay
+between two noisy copies of one unknown echo (Knapp & Carter 1976, IEEE Trans. ASSP 24,
+320–327: 1/var = Σ_f ω²S²/(N_x·N_r + S·(N_x + N_r)), here at a high SNR in the band) — not
+beaten by any estimator. The second term, Σ w·v', correlates the record's noise with the
+reference's over the whole band up to Nyquist, weighted by ω²: with a reference written
+whole (hundreds of samples of noise) it dominated at 500 MS/s (1.5–2.5 × the bound), and the
+same noise counted in β made the std several times too small. So the template is the
+reference's spectrum weighted bin by bin by ``ucal.echo.ascan.wiener_gain`` (zero-phase:
+``c(τ) = A·Σ_f |R|²·H·cos ω(τ − τ₀)`` still peaks at τ₀), which keeps the bins of the echo and
+drops those of noise; β and the energy are summed from the band's power less its noise
+(n·σ_r² a bin); the reported std is the bound with σ² + A²σ_r². Its error in t = 0 is
+common to every reading, a constant in every time of flight (the calibration's electronic
+delay ``tof_delay_ns`` absorbs it).
+
+Offsets. An echo has no DC: the reference's mean is its offset, removed when it is read
+(``reference_from_samples``; 30 % of the peak left in made its peak, hence every amplitude,
+wrong, and its DC correlated with the record's); the template's DC bin is zero, so a
+record's offset does not reach the correlation, and the record's is the mean of its quiet
+samples, removed before the noise and the residual.
 
 No echo (``NoEcho``, never a time). A constant record (zeros, a digitiser with nothing
 above one step) has nothing to time. Noise alone: the correlation over the gate's L whole
@@ -249,7 +273,8 @@ class _Correlator:
     @classmethod
     def of(cls, ref: ReferenceEcho, n: int) -> _Correlator:
         n_fft = fft.next_fast_len(n + ref.n)
-        return cls(n, n_fft, fft.rfft(ref.samples, n_fft), ref.energy)
+        spectrum = ref.spectrum(n_fft)
+        return cls(n, n_fft, spectrum, float(np.sum(fft.irfft(spectrum, n_fft) ** 2)))
 
     def fit(self, x: np.ndarray, lag: float) -> tuple[float, float]:
         """(lag, amplitude) at the correlation peak nearest ``lag`` (samples)."""
@@ -270,8 +295,9 @@ def _reference_estimate(
     # arrival = t0 − ref.t0 + lag·dt: the whole-sample lag of the largest correlation sample
     # whose arrival is in the gate, then its peak
     x = raw - np.mean(raw)  # an echo sums to 0: the mean is the offset
-    c = signal.correlate(x, ref.samples, mode="full", method="fft")
-    lags = signal.correlation_lags(n, ref.n, mode="full")
+    c = fft.irfft(fft.rfft(x, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
+    lags = np.arange(-(ref.n - 1), n)
+    c = c[lags % corr.n_fft]  # the template's correlation at every lag it overlaps the record
     arrivals = ascan.t0_ns - ref.t0_ns + lags * dt
     inside = (arrivals >= gate[0] - 1e-9 * dt) & (arrivals <= gate[1] + 1e-9 * dt)
     if not inside.any():  # a gate narrower than a sample
@@ -313,16 +339,19 @@ def _reference_estimate(
     used = ~clipped
     info_all = float(np.sum(slope**2))
     info_used = float(np.sum(slope[:n][used] ** 2))
-    snr_eff = amplitude**2 * ref.energy / sigma**2 if sigma > 0 else math.inf
+    # the reference's own noise moves the correlation's peak as the record's does (module
+    # docstring): the two add, the reference's scaled by the echo's height
+    sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms)
+    snr_eff = amplitude**2 * corr.energy / sigma_eff**2 if sigma_eff > 0 else math.inf
     std_ns = delay_crb_ns(ref.rms_bandwidth_mhz, snr_eff)
     std_ns *= math.sqrt(info_all / info_used) if info_used > 0 else math.inf
     model = corr.model(lag)
     energy_used = float(np.sum(model[used] ** 2))
     # another echo over this one: more in the echo's samples than the fit and the noise
-    excess = _residual_excess(x, amplitude * model, in_echo & used, sigma)
+    excess = _residual_excess(x, amplitude * model, in_echo & used, sigma_eff)
     overlapped = (
         excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(in_echo & used))
-        and excess * sigma**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
+        and excess * sigma_eff**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
     )
     if overlapped:
         std_ns *= math.sqrt(1.0 + excess)
