@@ -226,12 +226,17 @@ class ReferenceEcho:
     def rms_bandwidth_mhz(self) -> float:
         """Gabor bandwidth β = √(Σ f²|R|² / Σ |R|²) (MHz) over the echo's band, about 0 Hz: for
         a band-pass echo √(f_c² + B²), B the RMS width about the centre f_c."""
+        return self.rms_bandwidth_through_mhz(0.0)
+
+    def rms_bandwidth_through_mhz(self, kappa: float) -> float:
+        """β of the echo seen through κ Np/MHz² more water, |R|² weighted by exp(−2κf²)."""
         n_fft = fft.next_fast_len(4 * self.n)
         power = np.abs(fft.rfft(self.samples, n_fft)) ** 2
         f_mhz = fft.rfftfreq(n_fft, self.dt_ns * 1e-3)
         band = power >= self.band_power_threshold
         # the echo's power: the noise's expected n·σ² taken out of each bin of the band
         echo = np.clip(power[band] - self.n * self.noise_rms**2, 0.0, None)
+        echo = echo * np.exp(-2.0 * kappa * f_mhz[band] ** 2)
         return math.sqrt(float(np.sum(f_mhz[band] ** 2 * echo) / np.sum(echo)))
 
     @functools.cached_property

@@ -94,6 +94,28 @@ drops those of noise; β and the energy are summed from the band's power less it
 common to every reading, a constant in every time of flight (the calibration's electronic
 delay ``tof_delay_ns`` absorbs it).
 
+Water. A reading through Δd more water than the reference's (one way) has the reference's
+spectrum times the water's transfer ``exp(−α(f)·2Δd)``, with α = α₀·f² (viscous and thermal
+absorption; α₀ = 2.17e-3 dB/(cm·MHz²) = 2.5e-5 Np/(mm·MHz²) at 20 °C, Pinkerton 1949 as
+Szabo 2004 gives the power law; its dispersion, by Kramers–Kronig for f², is far below a ps
+over these paths): ``X(f) = A·R(f)·exp(−κf²)·exp(−i2πfτ)``, κ = 2α₀Δd Np/MHz² — the
+transducer's spectrum (the reference's) seen through the water. A real, even factor does not
+move the correlation's peak (``X·R̄ = A|R|²e^{−κf²}e^{−iωτ}``), so the delay is not biased;
+but the shape is no longer the reference's: 25 MHz through 60 mm more loses 17 dB at the
+centre and the spectrum moves down by several MHz, the residual took that for another echo
+and widened the std 9–44 ×, and β was the reference's, not the echo's. So κ is fitted with
+the amplitude and the delay (``_fit_attenuation``: Gauss–Newton over the echo's samples on
+the template ``R·exp(−κf²)``, κ ≥ 0 and at most ``ATTENUATION_LIMIT_NP`` at β, the delay
+refitted by the correlation at each step), kept only when ``ATTENUATION_SIGMAS`` of its std
+from 0 (κ and τ are orthogonal to first order, an even and an odd change of the echo, so a
+free κ costs the delay nothing), and the bound is that of the echo as it arrives: β through
+the water (|R|²·exp(−2κf²)), the template's energy, and the reference's noise as the
+template keeps it (``_through_water``). The amplitude is the peak of the echo as it arrives;
+``extra_water_mm`` = κ/(2α₀) says what the spectrum saw (at 20 °C; α₀ falls with the
+temperature, and the beam's diffraction changes the spectrum with the path too: κ takes what
+of it is even, so read it as an equivalent path). Less water than the reference's (κ < 0) is
+not fitted: it would amplify the template's edges, where the reference's noise is.
+
 Offsets. An echo has no DC: the reference's mean is its offset, removed when it is read
 (``reference_from_samples``; 30 % of the peak left in made its peak, hence every amplitude,
 wrong, and its DC correlated with the record's); the template's DC bin is zero, so a
@@ -135,7 +157,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import fft, signal, stats
 
-from ucal.echo.ascan import AScan, ReferenceEcho, echo_band, noise_rms
+from ucal.echo.ascan import (
+    AScan,
+    ReferenceEcho,
+    band_limited_peak,
+    echo_band,
+    noise_rms,
+)
 from ucal.echo.spectral import series_peak, shifted
 
 #: ``EchoEstimate.method`` of the two estimators.
@@ -157,6 +185,17 @@ CLIP_ITERATIONS = 50
 #: 2–4 % at four samples a cycle).
 CLIP_SIGMAS = 4.0
 CLIP_SHAPE = 0.02
+#: Water's attenuation at 20 °C: 2.17e-3 dB/(cm·MHz²) (Pinkerton 1949, the power law of
+#: Szabo, Diagnostic Ultrasound Imaging, 2004), in Np/(mm·MHz²).
+WATER_NP_PER_MM_MHZ2 = 2.17e-4 / (20.0 / math.log(10.0))
+#: The fitted attenuation's bounds at the template's RMS frequency β (Np: ±52 dB), its
+#: steps, and the step (of that bound) below which it has settled.
+ATTENUATION_LIMIT_NP = 6.0
+ATTENUATION_ITERATIONS = 6
+ATTENUATION_TOLERANCE = 1e-4
+#: A fitted κ is kept when this many of its std from 0; less, the spectrum has not changed
+#: beyond the noise and the reference is used as it is.
+ATTENUATION_SIGMAS = 3.0
 #: Chance that noise alone passes the detection threshold anywhere in a record.
 FALSE_ALARM = 1e-3
 #: An echo is inverted when the other polarity's correlation peak passes this one's by this
@@ -190,7 +229,9 @@ class EchoEstimate:
     signal-to-noise ratio (dB), the centre frequency and −6 dB bandwidth of its spectrum
     (MHz), the record's noise (one sigma, record units), how it was timed, and whether
     samples of it sat on the digitiser's rails; ``overlapped``: the echo's samples hold more
-    than the fitted echo and the noise (another echo over it; its std widened for it)."""
+    than the fitted echo and the noise (another echo over it; its std widened for it);
+    ``extra_water_mm``: the water (one way, at 20 °C) that the echo's spectrum says it
+    crossed beyond the reference's (negative: less)."""
 
     tof_ns: float
     tof_std_ns: float
@@ -203,6 +244,7 @@ class EchoEstimate:
     method: str
     clipped: bool
     overlapped: bool = False
+    extra_water_mm: float = 0.0
 
     def as_json(self) -> dict[str, float | str | bool | None]:
         """The fields of ``ucal echo --json``: finite numbers only (None where a number is
@@ -320,6 +362,9 @@ def _reference_estimate(
         sigma = _resolution(raw) / math.sqrt(12.0)
     _detect(corr, x, c[inside], lags[inside], amplitude, sigma)
     _within_record(corr, lag)
+    # the water between: the echo's spectrum is the reference's times exp(−κ·f²)
+    fitted = _fit_attenuation(x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma)
+    corr, kappa, lag, amplitude = fitted
 
     # clipped samples: censored, the echo refitted by the others
     if ascan.rails is None:
@@ -334,16 +379,16 @@ def _reference_estimate(
 
     # the bound with the record's own numbers, and the share of the information the used
     # samples carry (the slope over the reference's band: not the noise the averaging left)
-    band = np.abs(corr.spectrum) ** 2 >= ref.band_power_threshold
+    band = np.abs(ref.spectrum(corr.n_fft)) ** 2 >= ref.band_power_threshold  # before water
     slope = shifted(corr.spectrum * band, corr.n_fft, lag, derivative=True)
     used = ~clipped
     info_all = float(np.sum(slope**2))
     info_used = float(np.sum(slope[:n][used] ** 2))
     # the reference's own noise moves the correlation's peak as the record's does (module
     # docstring): the two add, the reference's scaled by the echo's height
-    sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms)
+    sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms * _through_water(corr, ref, kappa, dt))
     snr_eff = amplitude**2 * corr.energy / sigma_eff**2 if sigma_eff > 0 else math.inf
-    std_ns = delay_crb_ns(ref.rms_bandwidth_mhz, snr_eff)
+    std_ns = delay_crb_ns(ref.rms_bandwidth_through_mhz(kappa), snr_eff)
     std_ns *= math.sqrt(info_all / info_used) if info_used > 0 else math.inf
     model = corr.model(lag)
     energy_used = float(np.sum(model[used] ** 2))
@@ -356,11 +401,13 @@ def _reference_estimate(
     if overlapped:
         std_ns *= math.sqrt(1.0 + excess)
     band_mhz = echo_band(x[in_echo], dt)
+    # the amplitude against the reference seen through the water: its peak is the echo's
+    peak = band_limited_peak(fft.irfft(corr.spectrum, corr.n_fft)) if kappa != 0.0 else 1.0
     return EchoEstimate(
         tof_ns=ascan.t0_ns - ref.t0_ns + lag * dt,
         tof_std_ns=std_ns,
-        amplitude=amplitude,
-        amplitude_std=sigma / math.sqrt(energy_used) if energy_used > 0 else math.inf,
+        amplitude=amplitude * peak,
+        amplitude_std=peak * sigma / math.sqrt(energy_used) if energy_used > 0 else math.inf,
         snr_db=_snr_db(amplitude, sigma),
         centre_frequency_mhz=band_mhz.centre_frequency_mhz,
         bandwidth_mhz=band_mhz.bandwidth_mhz,
@@ -368,7 +415,67 @@ def _reference_estimate(
         method=METHOD_REFERENCE,
         clipped=clipped_echo,
         overlapped=overlapped,
+        extra_water_mm=kappa / (2.0 * WATER_NP_PER_MM_MHZ2),
     )
+
+
+def _through_water(corr: _Correlator, ref: ReferenceEcho, kappa: float, dt_ns: float) -> float:
+    """√⟨exp(−2κf²)⟩ over the echo's delay information (weights f²|R|²exp(−2κf²)): the
+    share of the reference's noise the template keeps through κ of water, relative to the
+    echo's (module docstring)."""
+    if kappa == 0.0:
+        return 1.0
+    f2 = fft.rfftfreq(corr.n_fft, dt_ns * 1e-3) ** 2
+    weights = f2 * np.abs(corr.spectrum) ** 2  # the template: |R|²·exp(−2κf²) already
+    total = float(np.sum(weights))
+    return math.sqrt(float(np.sum(weights * np.exp(-2.0 * kappa * f2))) / total) if total else 1.0
+
+
+def _fit_attenuation(
+    x: np.ndarray,
+    corr: _Correlator,
+    lag: float,
+    where: np.ndarray,
+    dt_ns: float,
+    sigma: float,
+) -> tuple[_Correlator, float, float, float]:
+    """The template through κ Np/MHz² more water, ``R·exp(−κf²)``, fitted to the record's
+    samples ``where`` (module docstring): Gauss–Newton on κ with the amplitude, the delay
+    refitted at each step; κ kept only when it is ``ATTENUATION_SIGMAS`` of its own std
+    from 0 (σ the noise). Returns (correlator, κ, lag, amplitude)."""
+    start = (corr, 0.0, lag, corr.fit(x, lag)[1])
+    f2 = fft.rfftfreq(corr.n_fft, dt_ns * 1e-3) ** 2
+    base = corr.spectrum
+    power = np.abs(base) ** 2
+    beta2 = float(np.sum(f2 * power) / np.sum(power)) if np.any(power) else 0.0
+    # more water only, up to the limit at β: less (κ < 0) would amplify the template's edges
+    # and the reference's noise beyond them, and the Wiener weights, which narrow a noisy
+    # reference's band a little, were fitted as less water, the std widened for nothing
+    limit = ATTENUATION_LIMIT_NP / beta2 if beta2 > 0.0 else 0.0
+    lowest = 0.0
+    kappa, amplitude = 0.0, start[3]
+    for _ in range(ATTENUATION_ITERATIONS):
+        g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
+        h = shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
+        (a, b), *_ = np.linalg.lstsq(np.column_stack([g, h]), x[where], rcond=None)
+        if not a > 0.0:
+            break
+        step = float(np.clip(kappa + b / a, lowest, limit)) - kappa
+        kappa += step
+        spectrum = base * np.exp(-kappa * f2)
+        energy = float(np.sum(fft.irfft(spectrum, corr.n_fft) ** 2))
+        corr = _Correlator(corr.n, corr.n_fft, spectrum, energy)
+        lag, amplitude = corr.fit(x, lag)
+        if abs(step) * limit == 0.0 or abs(step) < ATTENUATION_TOLERANCE * limit:
+            break
+    # κ's std: σ over the part of a·∂g/∂κ the amplitude's column does not explain
+    g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
+    h = amplitude * shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
+    alone = h - g * float(g @ h) / max(float(g @ g), 1e-300)
+    information = float(alone @ alone)
+    if not (information > 0.0 and abs(kappa) * math.sqrt(information) > ATTENUATION_SIGMAS * sigma):
+        return start
+    return corr, kappa, lag, amplitude
 
 
 def _resolution(samples: np.ndarray) -> float:
