@@ -48,7 +48,8 @@ def cli(file: Path, reference_path: Path | None, as_json: bool) -> None:
     with a std of the Cramér–Rao form from the A-scan's own SNR and the reference's bandwidth.
     Without --reference the time is the peak of the echo's envelope: coarse, with a std to
     match, and not the reference's arrival. A clipped echo is timed by its unclipped flanks
-    and flagged; an echo another overlaps is flagged, its std widened. A record with no echo
+    and flagged; another echo 1.5 periods or more from it is fitted with it (separated),
+    one closer is flagged (overlapped), its std widened. A record with no echo
     to time (a constant, noise alone, an echo of the other polarity or cut by the record's
     ends) is never given a time: exit 3 naming the file and the column (with --json, that
     record's tof_ns is null and no_echo says why).
@@ -102,6 +103,7 @@ def _as_json(e: EchoEstimate | NoEcho, method: str) -> dict[str, Any]:
         "method": method,
         "clipped": False,
         "overlapped": False,
+        "separated": False,
         "no_echo": e.reason,
     }
 
@@ -124,7 +126,15 @@ def _print_table(
         if isinstance(e, NoEcho):
             table.add_row(name, *["—"] * 6, f"no echo: {e.reason}")
             continue
-        flags = [f for f, on in (("clipped", e.clipped), ("overlapped", e.overlapped)) if on]
+        flags = [
+            f
+            for f, on in (
+                ("clipped", e.clipped),
+                ("overlapped", e.overlapped),
+                ("separated", e.separated),
+            )
+            if on
+        ]
         table.add_row(
             name,
             f"{e.tof_ns:.4f}",

@@ -46,21 +46,29 @@ The strongest echo is the largest correlation of the reference's polarity within
 
 A second echo. A weaker echo elsewhere in the gate (the multiple, another face's) correlates
 less than the main one and is not taken; in the record's quiet part it does not raise σ̂ (the
-noise estimate is robust to it). One that overlaps the main echo (a corner's, tens of ns
-later) pulls the correlation's peak by up to about ``ρ/(2πβ)`` (ρ its relative height), far
-beyond the bound at a good SNR. The fit's residual over the echo's m samples shows it: its
-energy beyond the noise's, ``ε = Σ res²/σ̂² − m``, is the part of the other echo the fitted
-one does not explain. When ε passes ``OVERLAP_SIGMAS``·√(2m) (the noise's own scatter of it)
-and ε·σ̂² passes ``OVERLAP_ENERGY`` of the echo's energy (less is the echo's own shape, which
-the reference matches only so well: at 75 dB of SNR a 0.3 % mismatch is far above the noise)
-the estimate says ``overlapped`` and its std is multiplied by √(1 + ε): the other echo's
-pull on the delay is at most ‖u‖/(A‖r'‖) by Cauchy–Schwarz (u the other echo), and ε·σ̂² is
-the part of ‖u‖² left in the residual, comparable to the rest for delays past a quarter
-period. Closer, the fit takes most of the other echo for a shift of this one and leaves a
-residual of the order of the delay squared: the std widened so covers the pull past a quarter
-period (a 25 MHz echo at 64 dB: 0.2 of it 60 ns later, pull 0.005 ns, std 1.2 ns; 0.3 of it
+noise estimate is robust to it). One over the main echo pulls the correlation's peak by up
+to about ``ρ/(2πβ)`` (ρ its relative height) — a ringing echo's tail is long, so one two
+periods later pulled a plain correlation 0.5–2 ns. The fit's residual over the echo's m
+samples shows it: its energy beyond the noise's, ``ε = Σ res²/σ̂² − m``, is the part of the
+other echo the fitted one does not explain. When ε passes ``OVERLAP_SIGMAS``·√(2m) (the
+noise's own scatter of it) and ε·σ̂² passes ``OVERLAP_ENERGY`` of the echo's energy (less is
+the echo's own shape, which the reference matches only so well), the other echo is sought
+(``_separate``): the residual's largest correlation, of either sign, ``SEPARATION_PERIODS``
+periods (1/β) or more from the first, then the two fitted by turns, each delay and
+amplitude refitted on the record less the other (a coordinate ascent on the two-echo least
+squares, which converges when their correlation at that spacing is below 1), the water
+refitted on the record less the other and the pair fitted again. When the pair leaves no
+excess the estimate says ``separated`` and its std is the pair's bound, ``σ²·(JᵀJ)⁻¹``
+over (τ₁, A₁, τ₂, A₂) — above a lone echo's by the pair's correlation. Otherwise (closer
+than 1.5 periods, or not of the reference's shape) it says ``overlapped`` and its std is
+multiplied by √(1 + ε): the other echo's pull on the delay is at most ‖u‖/(A‖r'‖) by
+Cauchy–Schwarz (u the other echo), and ε·σ̂² is the part of ‖u‖² left in the residual,
+comparable to the rest for delays past a quarter period. Closer, the fit takes most of the
+other echo for a shift of this one and leaves a residual of the order of the delay squared:
+the std widened so covers the pull past a quarter period (a 25 MHz echo at 64 dB: 0.3 of it
 23 ns later, pull 0.9 ns, std 1.4 ns) and falls short before (0.1 of it 7 ns later: pull
-0.5 ns, std 0.15 ns), where the flag is what tells.
+0.5 ns, std 0.15 ns), where the flag is what tells — and its weight, 1/std², is what the
+solver sees.
 
 Clipping. A sample on a rail says only "at least the rail": a censored observation. The fit
 replaces each by its expectation given the current fit and σ̂ (``m + σ·φ(α)/Q(α)``,
@@ -196,6 +204,10 @@ ATTENUATION_TOLERANCE = 1e-4
 #: A fitted κ is kept when this many of its std from 0; less, the spectrum has not changed
 #: beyond the noise and the reference is used as it is.
 ATTENUATION_SIGMAS = 3.0
+#: A second echo is sought this many periods (1/β) or more from the first, and the two
+#: fitted by turns at most this often.
+SEPARATION_PERIODS = 1.5
+SEPARATION_ITERATIONS = 60
 #: Chance that noise alone passes the detection threshold anywhere in a record.
 FALSE_ALARM = 1e-3
 #: An echo is inverted when the other polarity's correlation peak passes this one's by this
@@ -231,7 +243,8 @@ class EchoEstimate:
     samples of it sat on the digitiser's rails; ``overlapped``: the echo's samples hold more
     than the fitted echo and the noise (another echo over it; its std widened for it);
     ``extra_water_mm``: the water (one way, at 20 °C) that the echo's spectrum says it
-    crossed beyond the reference's (negative: less)."""
+    crossed beyond the reference's; ``separated``: another echo over this one was fitted with
+    it, its time and std those of the two fitted together."""
 
     tof_ns: float
     tof_std_ns: float
@@ -245,6 +258,7 @@ class EchoEstimate:
     clipped: bool
     overlapped: bool = False
     extra_water_mm: float = 0.0
+    separated: bool = False
 
     def as_json(self) -> dict[str, float | str | bool | None]:
         """The fields of ``ucal echo --json``: finite numbers only (None where a number is
@@ -259,6 +273,7 @@ class EchoEstimate:
             "method": self.method,
             "clipped": self.clipped,
             "overlapped": self.overlapped,
+            "separated": self.separated,
         }
 
 
@@ -363,6 +378,7 @@ def _reference_estimate(
     _detect(corr, x, c[inside], lags[inside], amplitude, sigma)
     _within_record(corr, lag)
     # the water between: the echo's spectrum is the reference's times exp(−κ·f²)
+    plain = corr
     fitted = _fit_attenuation(x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma)
     corr, kappa, lag, amplitude = fitted
 
@@ -392,13 +408,37 @@ def _reference_estimate(
     std_ns *= math.sqrt(info_all / info_used) if info_used > 0 else math.inf
     model = corr.model(lag)
     energy_used = float(np.sum(model[used] ** 2))
+
+    def over(y: np.ndarray, fit: np.ndarray) -> float | None:
+        """The residual's excess when another echo shows in it (module docstring), else None."""
+        excess = _residual_excess(y, fit, in_echo & used, sigma_eff)
+        shows = (
+            excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(in_echo & used))
+            and excess * sigma_eff**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
+        )
+        return excess if shows else None
+
     # another echo over this one: more in the echo's samples than the fit and the noise
-    excess = _residual_excess(x, amplitude * model, in_echo & used, sigma_eff)
-    overlapped = (
-        excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(in_echo & used))
-        and excess * sigma_eff**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
-    )
-    if overlapped:
+    excess = over(x, amplitude * model)
+    separated = False
+    if excess is not None:
+        period = 1e3 / ref.rms_bandwidth_through_mhz(kappa) / dt  # samples
+        pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
+        if pair is not None:  # the water again without the other echo, then the two again
+            other = pair[3] * corr.model(pair[2])
+            where = in_echo & used
+            corr, kappa, lag, amplitude = _fit_attenuation(x - other, plain, lag, where, dt, sigma)
+            pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
+        if pair is not None:
+            lag2, amplitude2 = pair[2:]
+            other = amplitude2 * corr.model(lag2)
+            lag, amplitude = pair[:2]
+            model = corr.model(lag)
+            if over(x - other, amplitude * model) is None:  # the two explain the record
+                separated, excess = True, None
+                std_ns = _pair_std_ns(corr, pair, used, sigma_eff, dt)
+    overlapped = excess is not None
+    if excess is not None:
         std_ns *= math.sqrt(1.0 + excess)
     band_mhz = echo_band(x[in_echo], dt)
     # the amplitude against the reference seen through the water: its peak is the echo's
@@ -416,7 +456,75 @@ def _reference_estimate(
         clipped=clipped_echo,
         overlapped=overlapped,
         extra_water_mm=kappa / (2.0 * WATER_NP_PER_MM_MHZ2),
+        separated=separated,
     )
+
+
+def _separate(
+    x: np.ndarray,
+    corr: _Correlator,
+    lag: float,
+    amplitude: float,
+    in_echo: np.ndarray,
+    used: np.ndarray,
+    period: float,
+) -> tuple[float, float, float, float] | None:
+    """Another echo of the template's shape over this one, ``SEPARATION_PERIODS`` periods
+    or more away (either sign), fitted with it by turns, each refitted on the record less
+    the other, until both delays settle; returns (lag, amplitude, lag₂, amplitude₂), or
+    None when none is found or the turns do not settle."""
+    residual = np.where(used, x - amplitude * corr.model(lag), 0.0)
+    c = fft.irfft(fft.rfft(residual, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
+    lags = np.arange(-corr.n + 1, corr.n)
+    window = np.flatnonzero(in_echo)
+    near = (lags >= window[0] - corr.n // 2) & (lags <= window[-1])  # over the echo's span
+    apart = np.abs(lags - lag) >= SEPARATION_PERIODS * period
+    candidates = lags[near & apart]
+    if not candidates.size:
+        return None
+    values = c[candidates % corr.n_fft]
+    k = int(np.argmax(np.abs(values)))
+    sign = 1.0 if values[k] > 0 else -1.0
+    lag2, amplitude2 = corr.fit(sign * residual, float(candidates[k]))
+    amplitude2 *= sign
+    for _ in range(SEPARATION_ITERATIONS):
+        new_lag, amplitude = corr.fit(np.where(used, x - amplitude2 * corr.model(lag2), 0.0), lag)
+        y = np.where(used, x - amplitude * corr.model(new_lag), 0.0)
+        new_lag2, a2 = corr.fit(sign * y, lag2)
+        moved = max(abs(new_lag - lag), abs(new_lag2 - lag2))
+        lag, lag2, amplitude2 = new_lag, new_lag2, sign * a2
+        if moved < CLIP_TOLERANCE:
+            break
+    else:
+        return None
+    if abs(lag2 - lag) < 0.5 * SEPARATION_PERIODS * period or not amplitude > 0.0:
+        return None  # the turns merged them: not two echoes
+    return lag, amplitude, lag2, amplitude2
+
+
+def _pair_std_ns(
+    corr: _Correlator,
+    pair: tuple[float, float, float, float],
+    used: np.ndarray,
+    sigma: float,
+    dt_ns: float,
+) -> float:
+    """The first delay's std (ns) of two echoes fitted together: ``σ²·(JᵀJ)⁻¹``, J the
+    derivatives of the two echoes in their delays and amplitudes over the used samples."""
+    lag, amplitude, lag2, amplitude2 = pair
+    n = corr.n
+    columns = [
+        amplitude * shifted(corr.spectrum, corr.n_fft, lag, derivative=True)[:n],
+        corr.model(lag),
+        amplitude2 * shifted(corr.spectrum, corr.n_fft, lag2, derivative=True)[:n],
+        corr.model(lag2),
+    ]
+    jacobian = np.column_stack(columns)[used]
+    try:
+        covariance = np.linalg.inv(jacobian.T @ jacobian)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return sigma * math.sqrt(max(float(covariance[0, 0]), 0.0)) * dt_ns
 
 
 def _through_water(corr: _Correlator, ref: ReferenceEcho, kappa: float, dt_ns: float) -> float:

@@ -89,6 +89,7 @@ def test_json_times_every_a_scan_against_the_reference(
             "method",
             "clipped",
             "overlapped",
+            "separated",
         }
     ] * 3
     for e, truth in zip(echoes, ARRIVALS_NS, strict=True):
