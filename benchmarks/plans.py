@@ -25,7 +25,8 @@ plans put the tool centre within ``MIN_WATER_PATH_MM`` of the face or the beam w
 Run::
 
     python benchmarks/plans.py              # 3 models x 4 blocks x 4 tools x 3 holders x 2
-    python benchmarks/plans.py --quick      # one block, one tool per model x holder: 9 cells
+    python benchmarks/plans.py --quick      # one block, one tool, the TX90L and the TX2-90XL
+                                            # x 3 holders: 6 cells
     python benchmarks/plans.py --model tx90xl --blocks 8 --json
     python benchmarks/plans.py --model tx90xl --blocks 12 --planner "calibrate --level full"
     python benchmarks/plans.py --planner "verify --region" --calibrated
@@ -67,7 +68,7 @@ HOLDERS_DEG = (0.0, 10.0, 20.0)
 TOOL_LENGTHS_MM = (80.0, 150.0)
 TOOL_OFF_AXIS_MM = (0.0, 5.0)
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
-QUICK = {"blocks": 1, "tools": 1, "one_step": True}
+QUICK = {"blocks": 1, "tools": 1, "one_step": True, "model": ["tx90l", "tx2-90xl"]}
 #: Postures of the region check (the `verify --region 12` of the CLI's examples).
 REGION_POSTURES = 12
 #: ``--calibrated``: each offset's std (deg) as ``calibrate`` writes it on a simulated cell.
