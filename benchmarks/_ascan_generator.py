@@ -162,3 +162,25 @@ def delay_bound_ns(
     slope = pulse.waveforms(t_ns, np.array([arrival_ns]), kappa, derivative=True)[0]
     variance = noise**2 + lsb**2 / 12.0
     return math.sqrt(variance) / (amplitude * math.sqrt(float(np.sum(slope**2))))
+
+
+def pair_bound_ns(
+    pulse: Pulse,
+    t_ns: np.ndarray,
+    arrival_ns: float,
+    amplitude: float,
+    second: tuple[float, float],
+    noise: float,
+    lsb: float,
+) -> float:
+    """Cramér–Rao bound of the first delay with another echo (relative height, delay after
+    it in ns) over it, both delays and amplitudes unknown: √(σ²·(JᵀJ)⁻¹₀₀)."""
+    delays = np.array([arrival_ns, arrival_ns + second[1]])
+    shapes = pulse.waveforms(t_ns, delays)
+    slopes = pulse.waveforms(t_ns, delays, derivative=True)
+    heights = amplitude * np.array([1.0, second[0]])
+    jacobian = np.column_stack(
+        [heights[0] * slopes[0], shapes[0], heights[1] * slopes[1], shapes[1]]
+    )
+    covariance = np.linalg.inv(jacobian.T @ jacobian)
+    return math.sqrt((noise**2 + lsb**2 / 12.0) * covariance[0, 0])

@@ -44,9 +44,10 @@ series), over the same grid:
 
 Per case and cell: spread over the bound (the bound with the reference's own noise, the
 Knapp–Carter bound of a delay between two noisy copies: σ² = (σ_x²/A² + σ_r²)/Σ r'², from
-the true echo), bias against the true delay (the constant of each reference, its error in
-t = 0, taken out on a noise-free record through the reference's water), and the reported std
-over the spread.
+the true echo; with a second echo, the bound of the pair, both delays and heights unknown),
+bias against the true delay (the constant of each reference, its error in t = 0, taken out
+on a noise-free record through the reference's water), and the reported std over the
+spread.
 
 Usage: python benchmarks/echo_timing.py [--quick] [--pairs 500] [--averages 256] [--json]
   [--cases-only]
@@ -64,7 +65,14 @@ import time
 
 import numpy as np
 from _ascan_generator import Digitiser as Digitiser12
-from _ascan_generator import Pulse, delay_bound_ns, kappa_of_water_mm, record_axis, records
+from _ascan_generator import (
+    Pulse,
+    delay_bound_ns,
+    kappa_of_water_mm,
+    pair_bound_ns,
+    record_axis,
+    records,
+)
 from scipy import fft, signal
 
 from ucal.echo import AScan, NoEcho, ReferenceEcho, build_reference, estimate_echo
@@ -292,6 +300,9 @@ def case_cell(
         flagged += e.overlapped
         peer.append(peer_ns(r, ref) - d - peer_t0)
     crb = delay_bound_ns(pulse, t, CASE_ARRIVAL_NS, AMPLITUDE, noise, dig.lsb, kappa)
+    if second is not None:  # the bound of the pair: both delays and heights unknown
+        other = (second[0], second[1] * period)
+        crb = pair_bound_ns(pulse, t, CASE_ARRIVAL_NS, AMPLITUDE, other, noise, dig.lsb)
     # the reference's noise (of its peak) over its own slope: 1/√Σ r'² for a unit echo
     per_unit = delay_bound_ns(pulse, t, CASE_ARRIVAL_NS, 1.0, 1.0, 0.0)
     bound = math.hypot(crb, ref_noise * per_unit)

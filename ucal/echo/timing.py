@@ -160,6 +160,7 @@ shape.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -199,7 +200,7 @@ WATER_NP_PER_MM_MHZ2 = 2.17e-4 / (20.0 / math.log(10.0))
 #: The fitted attenuation's bounds at the template's RMS frequency β (Np: ±52 dB), its
 #: steps, and the step (of that bound) below which it has settled.
 ATTENUATION_LIMIT_NP = 6.0
-ATTENUATION_ITERATIONS = 6
+ATTENUATION_ITERATIONS = 30
 ATTENUATION_TOLERANCE = 1e-4
 #: A fitted κ is kept when this many of its std from 0; less, the spectrum has not changed
 #: beyond the noise and the reference is used as it is.
@@ -208,6 +209,8 @@ ATTENUATION_SIGMAS = 3.0
 #: fitted by turns at most this often.
 SEPARATION_PERIODS = 1.5
 SEPARATION_ITERATIONS = 60
+#: Starts of the pair's turns on each side of the first echo (the residual's largest lobes).
+SEPARATION_STARTS = 2
 #: Chance that noise alone passes the detection threshold anywhere in a record.
 FALSE_ALARM = 1e-3
 #: An echo is inverted when the other polarity's correlation peak passes this one's by this
@@ -422,21 +425,18 @@ def _reference_estimate(
     excess = over(x, amplitude * model)
     separated = False
     if excess is not None:
-        period = 1e3 / ref.rms_bandwidth_through_mhz(kappa) / dt  # samples
-        pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
-        if pair is not None:  # the water again without the other echo, then the two again
-            other = pair[3] * corr.model(pair[2])
-            where = in_echo & used
-            corr, kappa, lag, amplitude = _fit_attenuation(x - other, plain, lag, where, dt, sigma)
-            pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
-        if pair is not None:
-            lag2, amplitude2 = pair[2:]
-            other = amplitude2 * corr.model(lag2)
+        period = 1e3 / ref.rms_bandwidth_mhz / dt  # samples
+        found = _explained_by_a_pair(
+            x, plain, (corr, kappa), lag, in_echo, used, period, dt, sigma, over
+        )
+        if found is not None:
+            corr, kappa, pair = found
             lag, amplitude = pair[:2]
             model = corr.model(lag)
-            if over(x - other, amplitude * model) is None:  # the two explain the record
-                separated, excess = True, None
-                std_ns = _pair_std_ns(corr, pair, used, sigma_eff, dt)
+            through = _through_water(corr, ref, kappa, dt)
+            sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms * through)
+            separated, excess = True, None
+            std_ns = _pair_std_ns(corr, pair, used, sigma_eff, dt)
     overlapped = excess is not None
     if excess is not None:
         std_ns *= math.sqrt(1.0 + excess)
@@ -460,6 +460,52 @@ def _reference_estimate(
     )
 
 
+def _explained_by_a_pair(
+    x: np.ndarray,
+    plain: _Correlator,
+    watered: tuple[_Correlator, float],
+    lag: float,
+    in_echo: np.ndarray,
+    used: np.ndarray,
+    period: float,
+    dt_ns: float,
+    sigma: float,
+    over: Callable[[np.ndarray, np.ndarray], float | None],
+) -> tuple[_Correlator, float, tuple[float, float, float, float]] | None:
+    """Two echoes that leave no excess (``over`` None): the pair with the reference as it is;
+    else the water fitted on the record less that pair's other echo, and the pair again; else
+    the pair with the water fitted before (a second echo makes the two look like more water
+    than there is, so the reference as it is comes first). Returns (correlator, κ, pair)."""
+
+    def explains(corr: _Correlator, pair: tuple[float, float, float, float] | None) -> bool:
+        if pair is None:
+            return False
+        other = pair[3] * corr.model(pair[2])
+        return over(x - other, pair[1] * corr.model(pair[0])) is None
+
+    _, amplitude = plain.fit(np.where(used, x, 0.0), lag)
+    pair = _separate(x, plain, lag, amplitude, in_echo, used, period)
+    if explains(plain, pair):
+        assert pair is not None
+        return plain, 0.0, pair
+    if pair is not None:
+        other = pair[3] * plain.model(pair[2])
+        corr, kappa, lag2, amplitude2 = _fit_attenuation(
+            x - other, plain, pair[0], in_echo & used, dt_ns, sigma
+        )
+        again = _separate(x, corr, lag2, amplitude2, in_echo, used, period)
+        if explains(corr, again):
+            assert again is not None
+            return corr, kappa, again
+    corr, kappa = watered
+    _, amplitude = corr.fit(np.where(used, x, 0.0), lag)
+    pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
+    if explains(corr, pair):
+        assert pair is not None
+        return corr, kappa, pair
+    return None
+
+
 def _separate(
     x: np.ndarray,
     corr: _Correlator,
@@ -471,35 +517,57 @@ def _separate(
 ) -> tuple[float, float, float, float] | None:
     """Another echo of the template's shape over this one, ``SEPARATION_PERIODS`` periods
     or more away (either sign), fitted with it by turns, each refitted on the record less
-    the other, until both delays settle; returns (lag, amplitude, lag₂, amplitude₂), or
-    None when none is found or the turns do not settle."""
+    the other, until both delays settle; started from the residual's largest correlation
+    before the echo and after it, the pair that leaves the smaller residual kept. Returns
+    (lag, amplitude, lag₂, amplitude₂), or None when none is found or the turns do not
+    settle."""
     residual = np.where(used, x - amplitude * corr.model(lag), 0.0)
     c = fft.irfft(fft.rfft(residual, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
     lags = np.arange(-corr.n + 1, corr.n)
     window = np.flatnonzero(in_echo)
     near = (lags >= window[0] - corr.n // 2) & (lags <= window[-1])  # over the echo's span
-    apart = np.abs(lags - lag) >= SEPARATION_PERIODS * period
-    candidates = lags[near & apart]
-    if not candidates.size:
-        return None
-    values = c[candidates % corr.n_fft]
-    k = int(np.argmax(np.abs(values)))
-    sign = 1.0 if values[k] > 0 else -1.0
-    lag2, amplitude2 = corr.fit(sign * residual, float(candidates[k]))
-    amplitude2 *= sign
+    best: tuple[float, tuple[float, float, float, float]] | None = None
+    for side in (
+        lags <= lag - SEPARATION_PERIODS * period,
+        lags >= lag + SEPARATION_PERIODS * period,
+    ):
+        candidates = lags[near & side]
+        if not candidates.size:
+            continue
+        values = np.abs(c[candidates % corr.n_fft])
+        # local maxima of |c|, the largest first: a ringing echo's correlation has a lobe
+        # every period, and the residual of one fitted echo puts its largest on a wrong one
+        peaks = np.flatnonzero((values >= np.roll(values, 1)) & (values >= np.roll(values, -1)))
+        for k in peaks[np.argsort(values[peaks])[::-1][:SEPARATION_STARTS]]:
+            start = float(candidates[k])
+            sign = 1.0 if c[int(candidates[k]) % corr.n_fft] > 0 else -1.0
+            pair = _turns(x, corr, used, lag, start, sign)
+            if pair is None or abs(pair[2] - pair[0]) < 0.5 * SEPARATION_PERIODS * period:
+                continue  # did not settle, or the turns merged them: not two echoes
+            fit = pair[1] * corr.model(pair[0]) + pair[3] * corr.model(pair[2])
+            sse = float(np.sum((x - fit)[used] ** 2))
+            if best is None or sse < best[0]:
+                best = (sse, pair)
+    return None if best is None else best[1]
+
+
+def _turns(
+    x: np.ndarray, corr: _Correlator, used: np.ndarray, lag: float, lag2: float, sign: float
+) -> tuple[float, float, float, float] | None:
+    """Two echoes fitted by turns from ``lag`` and ``lag2`` (the second of ``sign``): each
+    delay and amplitude refitted on the record less the other, until both settle."""
+    _, amplitude = corr.fit(np.where(used, x, 0.0), lag)
+    y = np.where(used, x - amplitude * corr.model(lag), 0.0)
+    lag2, a2 = corr.fit(sign * y, lag2)
     for _ in range(SEPARATION_ITERATIONS):
-        new_lag, amplitude = corr.fit(np.where(used, x - amplitude2 * corr.model(lag2), 0.0), lag)
+        new_lag, amplitude = corr.fit(np.where(used, x - sign * a2 * corr.model(lag2), 0.0), lag)
         y = np.where(used, x - amplitude * corr.model(new_lag), 0.0)
         new_lag2, a2 = corr.fit(sign * y, lag2)
         moved = max(abs(new_lag - lag), abs(new_lag2 - lag2))
-        lag, lag2, amplitude2 = new_lag, new_lag2, sign * a2
+        lag, lag2 = new_lag, new_lag2
         if moved < CLIP_TOLERANCE:
-            break
-    else:
-        return None
-    if abs(lag2 - lag) < 0.5 * SEPARATION_PERIODS * period or not amplitude > 0.0:
-        return None  # the turns merged them: not two echoes
-    return lag, amplitude, lag2, amplitude2
+            return (lag, amplitude, lag2, sign * a2) if amplitude > 0.0 else None
+    return None
 
 
 def _pair_std_ns(
@@ -675,7 +743,9 @@ def _guess_clipped(
     for sign, rail in ((-1.0, rails[0]), (1.0, rails[1])):
         at = sign * x >= sign * rail
         margin = CLIP_SIGMAS * math.hypot(sigma, CLIP_SHAPE * amplitude)
-        if np.any(sign * model[at] > sign * rail + margin):
+        # a rail is a plateau: one sample alone at the extreme is the echo's peak, however
+        # badly one echo predicts it (another echo over it lifts the peak)
+        if np.count_nonzero(at) >= 2 and np.any(sign * model[at] > sign * rail + margin):
             clipped |= at
     return clipped
 
