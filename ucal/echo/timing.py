@@ -54,10 +54,14 @@ other echo the fitted one does not explain. When ε passes ``OVERLAP_SIGMAS``·�
 noise's own scatter of it) and ε·σ̂² passes ``OVERLAP_ENERGY`` of the echo's energy (less is
 the echo's own shape, which the reference matches only so well), the other echo is sought
 (``_separate``): the residual's largest correlation, of either sign, ``SEPARATION_PERIODS``
-periods (1/β) or more from the first, then the two fitted by turns, each delay and
-amplitude refitted on the record less the other (a coordinate ascent on the two-echo least
-squares, which converges when their correlation at that spacing is below 1), the water
-refitted on the record less the other and the pair fitted again. When the pair leaves no
+periods (1/β) or more from the first (its ``SEPARATION_STARTS`` largest lobes on each side:
+a ringing echo's correlation has a lobe every period), then the two fitted by turns, each
+delay and amplitude refitted on the record less the other (a coordinate ascent on the
+two-echo least squares, which converges when their correlation at that spacing is below 1),
+the pair leaving the smallest residual kept. The reference as it is comes first: two echoes
+summed look like an echo through more water, and a water fitted to them (κ of tens of mm)
+misleads the pair; only when that pair leaves an excess is the water fitted on the record
+less the other echo and the pair fitted again. When the pair leaves no
 excess the estimate says ``separated`` and its std is the pair's bound, ``σ²·(JᵀJ)⁻¹``
 over (τ₁, A₁, τ₂, A₂) — above a lone echo's by the pair's correlation. Otherwise (closer
 than 1.5 periods, or not of the reference's shape) it says ``overlapped`` and its std is
@@ -75,7 +79,8 @@ replaces each by its expectation given the current fit and σ̂ (``m + σ·φ(α
 α = (rail − m)/σ; expectation–maximisation for censored Gaussian data) and refits until the
 delay settles, so the echo is timed by its unclipped flanks; the result says ``clipped``.
 Without the digitiser's rails (a CSV file), samples at the record's extreme value are taken as
-clipped when a fit that takes them as censored puts the echo well beyond them. (The envelope
+clipped when there are two or more (a rail is a plateau) and a fit without them puts the echo
+well beyond them. (The envelope
 method flags clipping only when the rails are known, and widens its std over the clipped
 samples.)
 
