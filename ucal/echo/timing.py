@@ -117,13 +117,13 @@ move the correlation's peak (``X·R̄ = A|R|²e^{−κf²}e^{−iωτ}``), so th
 but the shape is no longer the reference's: 25 MHz through 60 mm more loses 17 dB at the
 centre and the spectrum moves down by several MHz, the residual took that for another echo
 and widened the std 9–44 ×, and β was the reference's, not the echo's. So κ is fitted with
-the amplitude and the delay (``_fit_attenuation``: Gauss–Newton over the echo's samples on
+the amplitude and the delay (``fit_attenuation``: Gauss–Newton over the echo's samples on
 the template ``R·exp(−κf²)``, κ ≥ 0 and at most ``ATTENUATION_LIMIT_NP`` at β, the delay
 refitted by the correlation at each step), kept only when ``ATTENUATION_SIGMAS`` of its std
 from 0 (κ and τ are orthogonal to first order, an even and an odd change of the echo, so a
 free κ costs the delay nothing), and the bound is that of the echo as it arrives: β through
 the water (|R|²·exp(−2κf²)), the template's energy, and the reference's noise as the
-template keeps it (``_through_water``). The amplitude is the peak of the echo as it arrives;
+template keeps it (``through_water``). The amplitude is the peak of the echo as it arrives;
 ``extra_water_mm`` = κ/(2α₀) says what the spectrum saw (at 20 °C; α₀ falls with the
 temperature, and the beam's diffraction changes the spectrum with the path too: κ takes what
 of it is even, so read it as an equivalent path). Less water than the reference's (κ < 0) is
@@ -165,7 +165,6 @@ shape.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,7 +177,15 @@ from ucal.echo.ascan import (
     echo_band,
     noise_rms,
 )
-from ucal.echo.spectral import series_peak, shifted
+from ucal.echo.correlator import (
+    Correlator,
+    explained_by_a_pair,
+    fit_attenuation,
+    pair_std_ns,
+    residual_excess,
+    through_water,
+)
+from ucal.echo.spectral import shifted
 
 #: ``EchoEstimate.method`` of the two estimators.
 METHOD_REFERENCE = "reference"
@@ -202,20 +209,6 @@ CLIP_SHAPE = 0.02
 #: Water's attenuation at 20 °C: 2.17e-3 dB/(cm·MHz²) (Pinkerton 1949, the power law of
 #: Szabo, Diagnostic Ultrasound Imaging, 2004), in Np/(mm·MHz²).
 WATER_NP_PER_MM_MHZ2 = 2.17e-4 / (20.0 / math.log(10.0))
-#: The fitted attenuation's bounds at the template's RMS frequency β (Np: ±52 dB), its
-#: steps, and the step (of that bound) below which it has settled.
-ATTENUATION_LIMIT_NP = 6.0
-ATTENUATION_ITERATIONS = 30
-ATTENUATION_TOLERANCE = 1e-4
-#: A fitted κ is kept when this many of its std from 0; less, the spectrum has not changed
-#: beyond the noise and the reference is used as it is.
-ATTENUATION_SIGMAS = 3.0
-#: A second echo is sought this many periods (1/β) or more from the first, and the two
-#: fitted by turns at most this often.
-SEPARATION_PERIODS = 1.5
-SEPARATION_ITERATIONS = 60
-#: Starts of the pair's turns on each side of the first echo (the residual's largest lobes).
-SEPARATION_STARTS = 2
 #: Chance that noise alone passes the detection threshold anywhere in a record.
 FALSE_ALARM = 1e-3
 #: An echo is inverted when the other polarity's correlation peak passes this one's by this
@@ -325,38 +318,12 @@ def estimate_echo(
     return _reference_estimate(ascan, reference.resampled(ascan.dt_ns), (lo, hi))
 
 
-@dataclass(frozen=True)
-class _Correlator:
-    """A reference echo against records of ``n`` samples: its spectrum padded to ``n_fft``
-    (no wrap-around between the record and the reference)."""
-
-    n: int
-    n_fft: int
-    spectrum: np.ndarray
-    energy: float
-
-    @classmethod
-    def of(cls, ref: ReferenceEcho, n: int) -> _Correlator:
-        n_fft = fft.next_fast_len(n + ref.n)
-        spectrum = ref.spectrum(n_fft)
-        return cls(n, n_fft, spectrum, float(np.sum(fft.irfft(spectrum, n_fft) ** 2)))
-
-    def fit(self, x: np.ndarray, lag: float) -> tuple[float, float]:
-        """(lag, amplitude) at the correlation peak nearest ``lag`` (samples)."""
-        lag, value = series_peak(fft.rfft(x, self.n_fft) * np.conj(self.spectrum), self.n_fft, lag)
-        return lag, value / self.energy
-
-    def model(self, lag: float) -> np.ndarray:
-        """The reference delayed by ``lag`` samples, over the record (peak 1)."""
-        return shifted(self.spectrum, self.n_fft, lag)[: self.n]
-
-
 def _reference_estimate(
     ascan: AScan, ref: ReferenceEcho, gate: tuple[float, float]
 ) -> EchoEstimate:
     raw = ascan.samples
     n, dt = ascan.n, ascan.dt_ns
-    corr = _Correlator.of(ref, n)
+    corr = Correlator.of(ref, n)
     # arrival = t0 − ref.t0 + lag·dt: the whole-sample lag of the largest correlation sample
     # whose arrival is in the gate, then its peak
     x = raw - np.mean(raw)  # an echo sums to 0: the mean is the offset
@@ -387,7 +354,7 @@ def _reference_estimate(
     _within_record(corr, lag)
     # the water between: the echo's spectrum is the reference's times exp(−κ·f²)
     plain = corr
-    fitted = _fit_attenuation(x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma)
+    fitted = fit_attenuation(x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma)
     corr, kappa, lag, amplitude = fitted
 
     # clipped samples: censored, the echo refitted by the others
@@ -410,7 +377,7 @@ def _reference_estimate(
     info_used = float(np.sum(slope[:n][used] ** 2))
     # the reference's own noise moves the correlation's peak as the record's does (module
     # docstring): the two add, the reference's scaled by the echo's height
-    sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms * _through_water(corr, ref, kappa, dt))
+    sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms * through_water(corr, ref, kappa, dt))
     snr_eff = amplitude**2 * corr.energy / sigma_eff**2 if sigma_eff > 0 else math.inf
     std_ns = delay_crb_ns(ref.rms_bandwidth_through_mhz(kappa), snr_eff)
     std_ns *= math.sqrt(info_all / info_used) if info_used > 0 else math.inf
@@ -419,7 +386,7 @@ def _reference_estimate(
 
     def over(y: np.ndarray, fit: np.ndarray) -> float | None:
         """The residual's excess when another echo shows in it (module docstring), else None."""
-        excess = _residual_excess(y, fit, in_echo & used, sigma_eff)
+        excess = residual_excess(y, fit, in_echo & used, sigma_eff)
         shows = (
             excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(in_echo & used))
             and excess * sigma_eff**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
@@ -431,17 +398,17 @@ def _reference_estimate(
     separated = False
     if excess is not None:
         period = 1e3 / ref.rms_bandwidth_mhz / dt  # samples
-        found = _explained_by_a_pair(
+        found = explained_by_a_pair(
             x, plain, (corr, kappa), lag, in_echo, used, period, dt, sigma, over
         )
         if found is not None:
             corr, kappa, pair = found
             lag, amplitude = pair[:2]
             model = corr.model(lag)
-            through = _through_water(corr, ref, kappa, dt)
+            through = through_water(corr, ref, kappa, dt)
             sigma_eff = math.hypot(sigma, amplitude * ref.noise_rms * through)
             separated, excess = True, None
-            std_ns = _pair_std_ns(corr, pair, used, sigma_eff, dt)
+            std_ns = pair_std_ns(corr, pair, used, sigma_eff, dt)
     overlapped = excess is not None
     if excess is not None:
         std_ns *= math.sqrt(1.0 + excess)
@@ -465,200 +432,6 @@ def _reference_estimate(
     )
 
 
-def _explained_by_a_pair(
-    x: np.ndarray,
-    plain: _Correlator,
-    watered: tuple[_Correlator, float],
-    lag: float,
-    in_echo: np.ndarray,
-    used: np.ndarray,
-    period: float,
-    dt_ns: float,
-    sigma: float,
-    over: Callable[[np.ndarray, np.ndarray], float | None],
-) -> tuple[_Correlator, float, tuple[float, float, float, float]] | None:
-    """Two echoes that leave no excess (``over`` None): the pair with the reference as it is;
-    else the water fitted on the record less that pair's other echo, and the pair again; else
-    the pair with the water fitted before (a second echo makes the two look like more water
-    than there is, so the reference as it is comes first). Returns (correlator, κ, pair)."""
-
-    def explains(corr: _Correlator, pair: tuple[float, float, float, float] | None) -> bool:
-        if pair is None:
-            return False
-        other = pair[3] * corr.model(pair[2])
-        return over(x - other, pair[1] * corr.model(pair[0])) is None
-
-    _, amplitude = plain.fit(np.where(used, x, 0.0), lag)
-    pair = _separate(x, plain, lag, amplitude, in_echo, used, period)
-    if explains(plain, pair):
-        assert pair is not None
-        return plain, 0.0, pair
-    if pair is not None:
-        other = pair[3] * plain.model(pair[2])
-        corr, kappa, lag2, amplitude2 = _fit_attenuation(
-            x - other, plain, pair[0], in_echo & used, dt_ns, sigma
-        )
-        again = _separate(x, corr, lag2, amplitude2, in_echo, used, period)
-        if explains(corr, again):
-            assert again is not None
-            return corr, kappa, again
-    corr, kappa = watered
-    _, amplitude = corr.fit(np.where(used, x, 0.0), lag)
-    pair = _separate(x, corr, lag, amplitude, in_echo, used, period)
-    if explains(corr, pair):
-        assert pair is not None
-        return corr, kappa, pair
-    return None
-
-
-def _separate(
-    x: np.ndarray,
-    corr: _Correlator,
-    lag: float,
-    amplitude: float,
-    in_echo: np.ndarray,
-    used: np.ndarray,
-    period: float,
-) -> tuple[float, float, float, float] | None:
-    """Another echo of the template's shape over this one, ``SEPARATION_PERIODS`` periods
-    or more away (either sign), fitted with it by turns, each refitted on the record less
-    the other, until both delays settle; started from the residual's largest correlation
-    before the echo and after it, the pair that leaves the smaller residual kept. Returns
-    (lag, amplitude, lag₂, amplitude₂), or None when none is found or the turns do not
-    settle."""
-    residual = np.where(used, x - amplitude * corr.model(lag), 0.0)
-    c = fft.irfft(fft.rfft(residual, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
-    lags = np.arange(-corr.n + 1, corr.n)
-    window = np.flatnonzero(in_echo)
-    near = (lags >= window[0] - corr.n // 2) & (lags <= window[-1])  # over the echo's span
-    best: tuple[float, tuple[float, float, float, float]] | None = None
-    for side in (
-        lags <= lag - SEPARATION_PERIODS * period,
-        lags >= lag + SEPARATION_PERIODS * period,
-    ):
-        candidates = lags[near & side]
-        if not candidates.size:
-            continue
-        values = np.abs(c[candidates % corr.n_fft])
-        # local maxima of |c|, the largest first: a ringing echo's correlation has a lobe
-        # every period, and the residual of one fitted echo puts its largest on a wrong one
-        peaks = np.flatnonzero((values >= np.roll(values, 1)) & (values >= np.roll(values, -1)))
-        for k in peaks[np.argsort(values[peaks])[::-1][:SEPARATION_STARTS]]:
-            start = float(candidates[k])
-            sign = 1.0 if c[int(candidates[k]) % corr.n_fft] > 0 else -1.0
-            pair = _turns(x, corr, used, lag, start, sign)
-            if pair is None or abs(pair[2] - pair[0]) < 0.5 * SEPARATION_PERIODS * period:
-                continue  # did not settle, or the turns merged them: not two echoes
-            fit = pair[1] * corr.model(pair[0]) + pair[3] * corr.model(pair[2])
-            sse = float(np.sum((x - fit)[used] ** 2))
-            if best is None or sse < best[0]:
-                best = (sse, pair)
-    return None if best is None else best[1]
-
-
-def _turns(
-    x: np.ndarray, corr: _Correlator, used: np.ndarray, lag: float, lag2: float, sign: float
-) -> tuple[float, float, float, float] | None:
-    """Two echoes fitted by turns from ``lag`` and ``lag2`` (the second of ``sign``): each
-    delay and amplitude refitted on the record less the other, until both settle."""
-    _, amplitude = corr.fit(np.where(used, x, 0.0), lag)
-    y = np.where(used, x - amplitude * corr.model(lag), 0.0)
-    lag2, a2 = corr.fit(sign * y, lag2)
-    for _ in range(SEPARATION_ITERATIONS):
-        new_lag, amplitude = corr.fit(np.where(used, x - sign * a2 * corr.model(lag2), 0.0), lag)
-        y = np.where(used, x - amplitude * corr.model(new_lag), 0.0)
-        new_lag2, a2 = corr.fit(sign * y, lag2)
-        moved = max(abs(new_lag - lag), abs(new_lag2 - lag2))
-        lag, lag2 = new_lag, new_lag2
-        if moved < CLIP_TOLERANCE:
-            return (lag, amplitude, lag2, sign * a2) if amplitude > 0.0 else None
-    return None
-
-
-def _pair_std_ns(
-    corr: _Correlator,
-    pair: tuple[float, float, float, float],
-    used: np.ndarray,
-    sigma: float,
-    dt_ns: float,
-) -> float:
-    """The first delay's std (ns) of two echoes fitted together: ``σ²·(JᵀJ)⁻¹``, J the
-    derivatives of the two echoes in their delays and amplitudes over the used samples."""
-    lag, amplitude, lag2, amplitude2 = pair
-    n = corr.n
-    columns = [
-        amplitude * shifted(corr.spectrum, corr.n_fft, lag, derivative=True)[:n],
-        corr.model(lag),
-        amplitude2 * shifted(corr.spectrum, corr.n_fft, lag2, derivative=True)[:n],
-        corr.model(lag2),
-    ]
-    jacobian = np.column_stack(columns)[used]
-    try:
-        covariance = np.linalg.inv(jacobian.T @ jacobian)
-    except np.linalg.LinAlgError:
-        return math.inf
-    return sigma * math.sqrt(max(float(covariance[0, 0]), 0.0)) * dt_ns
-
-
-def _through_water(corr: _Correlator, ref: ReferenceEcho, kappa: float, dt_ns: float) -> float:
-    """√⟨exp(−2κf²)⟩ over the echo's delay information (weights f²|R|²exp(−2κf²)): the
-    share of the reference's noise the template keeps through κ of water, relative to the
-    echo's (module docstring)."""
-    if kappa == 0.0:
-        return 1.0
-    f2 = fft.rfftfreq(corr.n_fft, dt_ns * 1e-3) ** 2
-    weights = f2 * np.abs(corr.spectrum) ** 2  # the template: |R|²·exp(−2κf²) already
-    total = float(np.sum(weights))
-    return math.sqrt(float(np.sum(weights * np.exp(-2.0 * kappa * f2))) / total) if total else 1.0
-
-
-def _fit_attenuation(
-    x: np.ndarray,
-    corr: _Correlator,
-    lag: float,
-    where: np.ndarray,
-    dt_ns: float,
-    sigma: float,
-) -> tuple[_Correlator, float, float, float]:
-    """The template through κ Np/MHz² more water, ``R·exp(−κf²)``, fitted to the record's
-    samples ``where`` (module docstring): Gauss–Newton on κ with the amplitude, the delay
-    refitted at each step; κ kept only when it is ``ATTENUATION_SIGMAS`` of its own std
-    from 0 (σ the noise). Returns (correlator, κ, lag, amplitude)."""
-    start = (corr, 0.0, lag, corr.fit(x, lag)[1])
-    f2 = fft.rfftfreq(corr.n_fft, dt_ns * 1e-3) ** 2
-    base = corr.spectrum
-    power = np.abs(base) ** 2
-    beta2 = float(np.sum(f2 * power) / np.sum(power)) if np.any(power) else 0.0
-    # more water only, up to the limit at β: less (κ < 0) would amplify the template's edges
-    # and the reference's noise beyond them, and the Wiener weights, which narrow a noisy
-    # reference's band a little, were fitted as less water, the std widened for nothing
-    limit = ATTENUATION_LIMIT_NP / beta2 if beta2 > 0.0 else 0.0
-    lowest = 0.0
-    kappa, amplitude = 0.0, start[3]
-    for _ in range(ATTENUATION_ITERATIONS):
-        g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
-        h = shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
-        (a, b), *_ = np.linalg.lstsq(np.column_stack([g, h]), x[where], rcond=None)
-        if not a > 0.0:
-            break
-        step = float(np.clip(kappa + b / a, lowest, limit)) - kappa
-        kappa += step
-        spectrum = base * np.exp(-kappa * f2)
-        energy = float(np.sum(fft.irfft(spectrum, corr.n_fft) ** 2))
-        corr = _Correlator(corr.n, corr.n_fft, spectrum, energy)
-        lag, amplitude = corr.fit(x, lag)
-        if abs(step) * limit == 0.0 or abs(step) < ATTENUATION_TOLERANCE * limit:
-            break
-    # κ's std: σ over the part of a·∂g/∂κ the amplitude's column does not explain
-    g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
-    h = amplitude * shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
-    alone = h - g * float(g @ h) / max(float(g @ g), 1e-300)
-    information = float(alone @ alone)
-    if not (information > 0.0 and abs(kappa) * math.sqrt(information) > ATTENUATION_SIGMAS * sigma):
-        return start
-    return corr, kappa, lag, amplitude
-
-
 def _resolution(samples: np.ndarray) -> float:
     """The step the samples are given to (the smallest difference between two of their
     values): a record without noise is known to that step."""
@@ -667,7 +440,7 @@ def _resolution(samples: np.ndarray) -> float:
 
 
 def _detect(
-    corr: _Correlator,
+    corr: Correlator,
     x: np.ndarray,
     c: np.ndarray,
     lags: np.ndarray,
@@ -696,7 +469,7 @@ def _detect(
         )
 
 
-def _within_record(corr: _Correlator, lag: float) -> None:
+def _within_record(corr: Correlator, lag: float) -> None:
     """Raise ``NoEcho`` when the echo at ``lag`` has more than ``CUT_SHARE`` of its energy
     beyond the record's ends."""
     full = shifted(corr.spectrum, corr.n_fft, lag)
@@ -710,15 +483,6 @@ def _within_record(corr: _Correlator, lag: float) -> None:
         )
 
 
-def _residual_excess(x: np.ndarray, fit: np.ndarray, where: np.ndarray, sigma: float) -> float:
-    """``Σ (x − fit)²/σ² − m`` over the ``m`` samples ``where``: the residual's energy beyond
-    the noise's, in units of σ² (0 for a lone echo, up to the noise's own scatter ±√(2m))."""
-    if sigma <= 0.0 or not where.any():
-        return 0.0
-    residual = (x - fit)[where]
-    return float(np.sum(residual**2)) / sigma**2 - float(residual.size)
-
-
 def _snr_db(amplitude: float, sigma: float) -> float:
     if sigma <= 0.0:
         return math.inf
@@ -728,7 +492,7 @@ def _snr_db(amplitude: float, sigma: float) -> float:
 def _guess_clipped(
     x: np.ndarray,
     rails: tuple[float, float],
-    corr: _Correlator,
+    corr: Correlator,
     lag: float,
     amplitude: float,
     sigma: float,
@@ -759,7 +523,7 @@ def _refit_censored(
     x: np.ndarray,
     clipped: np.ndarray,
     rails: tuple[float, float],
-    corr: _Correlator,
+    corr: Correlator,
     lag: float,
     amplitude: float,
     sigma: float,
