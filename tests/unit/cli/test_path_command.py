@@ -136,15 +136,25 @@ def test_a_joint_step_beyond_the_limit_is_refused(
 def test_hypothesis_each_row_carries_the_configuration_of_its_joints(
     profile: Path, tmp_path: Path, run_main: RunMain, seed: int, start: list[float]
 ) -> None:
-    """Random walks (steps up to 3° per joint) inside the ranges, from starts in two
+    """Random walks (steps up to 3° per joint) inside the ranges and inside one configuration,
+    clear of its boundaries (the wrist centre 50 mm or more from the plane of axis 1, J3 and J5
+    5° or more from 0: a walk across one is a change the path refuses), from starts in two
     configurations: the path is the walk, and every written row names the configuration its
     readings are in."""
     model = load_profile(profile).model
     rng = np.random.default_rng(seed)
     q = [np.array(start)]
+    first = words_from_joints(profile, np.array(q))[0]
+
+    def clear(joints: np.ndarray) -> bool:
+        w = wrist_centre(model, joints)
+        side = w[0] * np.cos(np.radians(joints[0])) + w[1] * np.sin(np.radians(joints[0]))
+        same = words_from_joints(profile, joints[None])[0] == first
+        return same and abs(side) > 50.0 and abs(joints[2]) > 5.0 and abs(joints[4]) > 5.0
+
     while len(q) < 25:
         nxt = q[-1] + rng.uniform(-3.0, 3.0, 6)
-        if model.within_limits(nxt) and abs(nxt[4]) > 5.0:
+        if model.within_limits(nxt) and clear(nxt):
             q.append(nxt)
     walk = np.array(q)
     src, out = scan(tmp_path / "walk.csv", profile, walk), tmp_path / "walk_joints.csv"
