@@ -30,7 +30,7 @@ import os
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -324,3 +324,19 @@ def noisy_face(
         tilt_std_deg,
         **fields,  # type: ignore[arg-type]
     )
+
+
+def counting_moves(monkeypatch: Any) -> dict[str, int]:
+    """Count the controller motions (``Rig.move``) of the commands run after it, in this
+    process: ``{"n": moves}``, what a refusal before the first motion leaves at 0."""
+    from ucal.rig import Rig
+
+    moves = {"n": 0}
+    move = Rig.move
+
+    def counted(self: Rig, q: Any, speed: Any = None) -> Any:
+        moves["n"] += 1
+        return move(self, q, speed)
+
+    monkeypatch.setattr(Rig, "move", counted)
+    return moves

@@ -17,7 +17,7 @@ import pytest
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.sim.serve import serving
 
-from doubles import ucal_here
+from doubles import counting_moves, ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -553,8 +553,6 @@ seed = 429458075
 def test_a_cell_within_its_tolerances_is_never_refused_after_the_first_motion(
     tmp_path, monkeypatch
 ):
-    from ucal.rig import Rig
-
     profile = tmp_path / "cell.toml"
     create_profile(profile, "tx90l")
     write_profile(
@@ -564,14 +562,7 @@ def test_a_cell_within_its_tolerances_is_never_refused_after_the_first_motion(
     )
     world = tmp_path / "world.toml"
     world.write_text(HOLDER_WORLD)
-    moves = {"n": 0}
-    move = Rig.move
-
-    def counted(self, q, speed=None):
-        moves["n"] += 1
-        return move(self, q, speed)
-
-    monkeypatch.setattr(Rig, "move", counted)
+    moves = counting_moves(monkeypatch)
     out = ucal_here("calibrate", str(profile), "--sim", str(world), "--yes", "--json", "-q")
     if out.returncode == 4:  # a refusal comes before the first motion, or not at all
         assert moves["n"] == 0, out.stderr

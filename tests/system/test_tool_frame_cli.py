@@ -19,7 +19,7 @@ from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.toolframe.exact import tangent_basis
 
-from doubles import ucal_here
+from doubles import counting_moves, ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -369,8 +369,6 @@ def test_a_tool_known_to_5_degrees_on_a_tx90xl_is_refused_before_any_motion_nami
     """The tx90xl cell with a 10° holder known to 10 mm / 5°: refused before the first
     motion, the refusal naming the tool's declared orientation tolerance and the one that
     would lift it."""
-    from ucal.rig import Rig
-
     profile = tmp_path / "cell.toml"
     create_profile(profile, "tx90xl")
     write_profile(
@@ -385,14 +383,7 @@ def test_a_tool_known_to_5_degrees_on_a_tx90xl_is_refused_before_any_motion_nami
         },
         "a 10 degree holder known to 10 mm and 5 degrees",
     )
-    moves = {"n": 0}
-    move = Rig.move
-
-    def counted(self, q, speed=None):
-        moves["n"] += 1
-        return move(self, q, speed)
-
-    monkeypatch.setattr(Rig, "move", counted)
+    moves = counting_moves(monkeypatch)
     out = ucal_here("tool-frame", str(profile), "--sim", "--yes", "--json", "-q")
     assert out.returncode == 4, out.stderr
     assert moves["n"] == 0

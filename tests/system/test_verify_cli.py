@@ -16,7 +16,7 @@ import tomlkit
 from ucal.acoustics import sound_speed_m_s
 from ucal.profile import create_profile, write_profile
 
-from doubles import ucal_here
+from doubles import counting_moves, ucal_here
 
 pytestmark = pytest.mark.system
 
@@ -388,21 +388,6 @@ def test_a_beam_off_the_profiles_is_said_not_hidden(tmp_path: Path) -> None:
     assert misfit == pytest.approx(off, rel=0.5)  # of the size it says
     [note] = [n for n in out["notes"] if "disagree" in n]
     assert "run `ucal tool-frame`" in note
-
-
-def counting_moves(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
-    """Count the controller motions of the commands run after it."""
-    from ucal.rig import Rig
-
-    moves = {"n": 0}
-    move = Rig.move
-
-    def counted(self, q, speed=None):
-        moves["n"] += 1
-        return move(self, q, speed)
-
-    monkeypatch.setattr(Rig, "move", counted)
-    return moves
 
 
 def test_offsets_calibrate_left_undetermined_refuse_before_the_first_motion(tmp_path, monkeypatch):
