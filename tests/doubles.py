@@ -340,3 +340,34 @@ def counting_moves(monkeypatch: Any) -> dict[str, int]:
 
     monkeypatch.setattr(Rig, "move", counted)
     return moves
+
+
+def hand_edited(lines: list[str], values: list[str]) -> Any:
+    """A hypothesis strategy of ``lines`` with one to four hand edits: a line pasted twice,
+    deleted, its value (after ``=``, or one of its comma-separated cells) replaced by one of
+    ``values``, or cut short."""
+    from hypothesis import strategies as st
+
+    @st.composite
+    def edits(draw: st.DrawFn) -> str:
+        out = list(lines)
+        value = st.sampled_from(values)
+        for _ in range(draw(st.integers(1, 4))):
+            i = draw(st.integers(0, len(out) - 1))
+            edit = draw(st.sampled_from(["twice", "delete", "value", "cut"]))
+            if edit == "twice":
+                out.insert(i, out[i])
+            elif edit == "delete" and len(out) > 1:
+                del out[i]
+            elif edit == "value" and not out[i].lstrip().startswith("#"):
+                if "=" in out[i]:
+                    out[i] = f"{out[i].split('=', 1)[0]}= {draw(value)}\n"
+                elif "," in out[i]:
+                    cells = out[i].rstrip("\n").split(",")
+                    cells[draw(st.integers(0, len(cells) - 1))] = draw(value)
+                    out[i] = ",".join(cells) + "\n"
+            elif edit == "cut":
+                out[i] = out[i][: draw(st.integers(0, len(out[i])))] + "\n"
+        return "".join(out)
+
+    return edits()

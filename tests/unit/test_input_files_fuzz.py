@@ -17,36 +17,13 @@ from ucal.errors import ProfileError
 from ucal.profile import create_profile
 from ucal.thermometer import read_log
 
-from doubles import exit_code
+from doubles import exit_code, hand_edited
 
 ROOT = Path(__file__).resolve().parents[2]
 MAP_LINES = SHIPPED_MAP_PATH.read_text(encoding="utf-8").splitlines(keepends=True)
 SCAN_LINES = (ROOT / "examples" / "scan.csv").read_text(encoding="utf-8").splitlines(True)[:40]
 TOKENS = ['"x"', "-1", "0", "65536", "1e300", "nan", "inf", "[]", "[1, 2]", "{}", "true", '"']
 FIELDS = ["", "x", "-1", "0", "1e300", "nan", "inf", "2026-12-02T13:00:00Z", "20.5", "1e-3"]
-
-
-def edited(lines: list[str], draw: st.DrawFn, value: st.SearchStrategy[str]) -> str:
-    """``lines`` with one to four hand edits: a line pasted twice, deleted, its value replaced
-    by another token, or cut short."""
-    lines = list(lines)
-    for _ in range(draw(st.integers(1, 4))):
-        i = draw(st.integers(0, len(lines) - 1))
-        edit = draw(st.sampled_from(["twice", "delete", "value", "cut"]))
-        if edit == "twice":
-            lines.insert(i, lines[i])
-        elif edit == "delete" and len(lines) > 1:
-            del lines[i]
-        elif edit == "value" and not lines[i].lstrip().startswith("#"):
-            if "=" in lines[i]:
-                lines[i] = f"{lines[i].split('=', 1)[0]}= {draw(value)}\n"
-            elif "," in lines[i]:
-                cells = lines[i].rstrip("\n").split(",")
-                cells[draw(st.integers(0, len(cells) - 1))] = draw(value)
-                lines[i] = ",".join(cells) + "\n"
-        elif edit == "cut":
-            lines[i] = lines[i][: draw(st.integers(0, len(lines[i])))] + "\n"
-    return "".join(lines)
 
 
 def one_error_line(err: str) -> bool:
@@ -65,7 +42,7 @@ def cell_dir() -> Path:
 def test_an_edited_register_map_is_read_or_refused_by_name(
     cell_dir: Path, capsys: pytest.CaptureFixture[str], data: st.DataObject
 ) -> None:
-    text = data.draw(st.composite(lambda draw: edited(MAP_LINES, draw, st.sampled_from(TOKENS)))())
+    text = data.draw(hand_edited(MAP_LINES, TOKENS))
     profile = cell_dir / "cell.toml"
     if not profile.exists():
         create_profile(profile, "tx90l")
@@ -106,7 +83,7 @@ def test_a_thermometer_log_is_read_or_refused_by_name(
 def test_an_edited_scan_is_turned_into_joints_or_refused(
     cell_dir: Path, capsys: pytest.CaptureFixture[str], data: st.DataObject
 ) -> None:
-    text = data.draw(st.composite(lambda draw: edited(SCAN_LINES, draw, st.sampled_from(FIELDS)))())
+    text = data.draw(hand_edited(SCAN_LINES, FIELDS))
     profile = cell_dir / "scan-cell.toml"
     if not profile.exists():
         create_profile(profile, "tx90l")

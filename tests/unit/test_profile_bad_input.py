@@ -13,7 +13,7 @@ from ucal.errors import InputError, ProfileError
 from ucal.profile import default_profile_text, load_profile
 from ucal.world import load_world
 
-from doubles import exit_code
+from doubles import exit_code, hand_edited
 
 TEMPLATE = default_profile_text("tx90l")
 LINES = TEMPLATE.splitlines(keepends=True)
@@ -59,31 +59,12 @@ def test_a_duplicated_profile_key_is_exit_2_on_every_command(tmp_path: Path) -> 
     assert p.read_text(encoding="utf-8") == text
 
 
-@st.composite
-def edited_profile(draw: st.DrawFn) -> str:
-    """The template with a handful of the edits a hand makes: a line pasted twice (a key
-    defined twice), a line deleted, a value replaced by another token, a line cut short."""
-    lines = list(LINES)
-    tokens = st.sampled_from(
-        ['"x"', "-1", "0", "1e300", "nan", "inf", "[]", "[1, 2]", "{}", "true", "1025", '"']
-    )
-    for _ in range(draw(st.integers(1, 4))):
-        i = draw(st.integers(0, len(lines) - 1))
-        edit = draw(st.sampled_from(["twice", "delete", "value", "cut"]))
-        if edit == "twice":
-            lines.insert(i, lines[i])
-        elif edit == "delete" and len(lines) > 1:
-            del lines[i]
-        elif edit == "value" and "=" in lines[i] and not lines[i].lstrip().startswith("#"):
-            key = lines[i].split("=", 1)[0]
-            lines[i] = f"{key}= {draw(tokens)}\n"
-        elif edit == "cut":
-            lines[i] = lines[i][: draw(st.integers(0, len(lines[i])))] + "\n"
-    return "".join(lines)
+#: What a hand puts in a profile's value.
+TOKENS = ['"x"', "-1", "0", "1e300", "nan", "inf", "[]", "[1, 2]", "{}", "true", "1025", '"']
 
 
 @settings(max_examples=300, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(text=edited_profile())
+@given(text=hand_edited(LINES, TOKENS))
 def test_an_edited_profile_is_read_or_refused_by_name(tmp_path: Path, text: str) -> None:
     """Every hand edit of the profile either reads or raises ``ProfileError`` naming the file;
     no other exception (which the command line would call an internal error, exit 1)."""
