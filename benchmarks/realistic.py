@@ -60,10 +60,11 @@ QUICK = {"worlds": 1, "jobs": 1}
 AMPLITUDE_BITS = 8
 
 
-def make_profile(directory: Path, fixture: bool) -> Path:
-    """A default profile with the declared tolerances of a hand-placed or fixtured block."""
+def make_profile(directory: Path, fixture: bool, model: str = MODEL) -> Path:
+    """A default profile of ``model`` with the declared tolerances of a hand-placed or
+    fixtured block."""
     path = directory / "cell.toml"
-    create_profile(path, MODEL, force=True)
+    create_profile(path, model, force=True)
     rot = 0.01 if fixture else 0.5
     pos = 0.5 if fixture else 5.0
     write_profile(

@@ -19,18 +19,25 @@ pytestmark = pytest.mark.system
 RunMain = Callable[[list[str]], tuple[int, str, str]]
 
 
-def demo_world(profile_path: Path, path: Path, j2_moved_deg: float, seed: int) -> Path:
-    """The demo truth (``ucal.sim.demo``) as a world file, joint 2 moved and another noise
-    seed (another day's readings)."""
+def demo_world(
+    profile_path: Path,
+    path: Path,
+    j2_moved_deg: float,
+    seed: int,
+    tool_moved_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Path:
+    """The demo truth (``ucal.sim.demo``) as a world file, joint 2 moved, the tool remounted
+    by ``tool_moved_mm`` (flange frame) and another noise seed (another day's readings)."""
     nominal = load_profile(profile_path).as_described()
     offsets = demo.DEMO_JOINT_OFFSETS_DEG + [0.0, j2_moved_deg, 0.0, 0.0, 0.0, 0.0]
+    tool = nominal.tool_position_mm + demo.DEMO_TOOL_POSITION_ERROR_MM + np.asarray(tool_moved_mm)
 
     def vec(values: np.ndarray) -> str:
         return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
     path.write_text(
         f"[robot]\njoint_offsets_deg = {vec(offsets)}\n"
-        f"[tool]\nposition_mm = {vec(nominal.tool_position_mm + demo.DEMO_TOOL_POSITION_ERROR_MM)}"
+        f"[tool]\nposition_mm = {vec(tool)}"
         f"\nrotation_deg = {vec(nominal.tool_rotation_deg + demo.DEMO_TOOL_ROTATION_ERROR_DEG)}\n"
         f"[sample]\nposition_mm = "
         f"{vec(nominal.sample_position_mm + demo.DEMO_SAMPLE_POSITION_ERROR_MM)}\n"
@@ -82,3 +89,31 @@ def test_passes_the_commissioned_cell_and_names_a_moved_joint_2(
     assert checks[1]["compared_with"] == 1 and "J2" in checks[1]["summary"]
     code, out, _ = run_main(["profile", "history", str(profile)])
     assert code == 0 and "calibrate" in out and out.count("check") >= 2
+
+
+def test_names_a_tool_remounted_across_the_beam_from_the_edges(
+    tmp_path: Path, run_main: RunMain
+) -> None:
+    profile = tmp_path / "cell.toml"
+    code, _, err = run_main(["calibrate", str(profile), "--sim", "--yes", "-q"])
+    assert code == 0, err
+    code, _, err = run_main(["check", str(profile), "--sim", "--yes", "-q"])
+    assert code == 0, err
+
+    # 0.3 mm across the beam: no water path changes, the edge crossings do
+    world = demo_world(profile, tmp_path / "across.toml", 0.0, seed=7, tool_moved_mm=(0.3, 0, 0))
+    code, out, err = run_main(["check", str(profile), "--sim", str(world), "--yes", "--json"])
+    assert code == 1, err
+    result = json.loads(out)
+    assert result["moved"] == ["tool"]
+    (cause,) = result["causes"]
+    assert (cause["part"], cause["what"]) == ("tool", "across the beam")
+    assert abs(cause["size"] - 0.3) < 0.06 and cause["std"] < 0.05, cause
+    assert "the tool moved: across the beam +0." in result["error"]
+    q = {q["name"]: q for q in result["quantities"]}
+    # nothing is "ok" whose sigma is above its tolerance
+    assert not [
+        n for n, v in q.items() if v["verdict"] == "ok" and v["std"] > (v["tolerance"] or 1e9)
+    ]
+    assert q["J6"]["verdict"] == "not determined"
+    assert "J6" in [n["name"] for n in result["not_determined"]]

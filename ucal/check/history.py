@@ -46,7 +46,8 @@ class CheckEntry:
     ``verdict``: "ok" (as commissioned) or "out of tolerance"; ``named``: what moved, in
     words; ``reference``: later checks compare against this one; ``quantities``: each checked
     quantity (``ucal.check.judge.Quantity.to_json``); ``faces`` and ``echoes``: what it
-    measured (``ucal.check.measure``), so that a later check solves against the measurements
+    measured (``ucal.check.measure``; ``edges``: its edge crossings), so that a later check solves
+    against the measurements
     themselves; ``logged_departure_std_c`` and ``drift_prior_c_per_min``: its water as the
     tank thermometer's log left it (``ucal.calibration.priors.CellPrior``'s fields: None and
     0 without a log), which a later check's fit gives this run's drift.
@@ -68,6 +69,8 @@ class CheckEntry:
     floor_per_gain: float | None = None
     logged_departure_std_c: float | None = None
     drift_prior_c_per_min: float = 0.0
+    #: its crossings of the XY face's far edges (``ucal.check.edges.EdgeReading.to_json``)
+    edges: list[dict[str, Any]] = field(default_factory=list)
 
 
 def model_digest(profile: CellProfile) -> str:

@@ -4,6 +4,14 @@
 echo chain's figures, into ``Quantity`` rows judged by one rule (``judge``: beyond 3σ and beyond
 the tolerance is out of tolerance; beyond 3σ within it, changed; docs/decisions/0009), which the
 result, the tables and ``--json`` are drawn from.
+
+Three verdicts for what the check compares: *moved* (``OUT``: beyond 3σ and its tolerance, a
+cause named with its size, exit 1), ``OK`` (within 3σ of no change, its σ within its
+tolerance) and ``NOT_DETERMINED`` (its σ above its tolerance: the postures cannot tell whether
+it moved by its tolerance, so it is never called ok; ``ucal.check.observe`` says what would
+determine it); ``CHANGED`` (beyond 3σ within the tolerance) is a drift to watch. The water
+has no tolerance in a check: its change beyond 3σ is ``CHANGED``, reported as its own cause
+(docs/decisions/0016).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ CHANGED = "changed"  # beyond 3σ but within tolerance: a drift to watch
 OUT = "out of tolerance"
 RECORDED = "recorded"  # a reference check: nothing to compare with
 NOT_MEASURED = "not measured"
+NOT_DETERMINED = "not determined"  # its σ above its tolerance: neither ok nor moved
 
 #: The echo chain's tolerances: amplitude and SNR (dB) against the reference; the centre
 #: frequency and the −6 dB bandwidth as fractions of the reference's (EN 12668-2's tolerances
@@ -83,11 +92,12 @@ class Quantity:
 
 def judge(difference: float, std: float, tolerance: float | None, may_fail: bool = True) -> str:
     """The 3σ-and-tolerance rule: ``OUT`` beyond both (when ``may_fail``), ``CHANGED`` beyond
-    3σ only, else ``OK``; ``NOT_MEASURED`` without a difference."""
+    3σ only, ``NOT_DETERMINED`` within 3σ with a σ above the tolerance (or none), else
+    ``OK``; ``NOT_MEASURED`` without a difference."""
     if not np.isfinite(difference):
         return NOT_MEASURED
     if not abs(difference) > N_SIGMA * std:
-        return OK
+        return NOT_DETERMINED if tolerance is not None and not std <= tolerance else OK
     if may_fail and tolerance is not None and abs(difference) > tolerance:
         return OUT
     return CHANGED
@@ -103,11 +113,18 @@ def unit_of(parameter: str) -> str:
 
 
 def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> list[Quantity]:
-    """Each unknown of every suspect, and the water's temperature, as checked quantities."""
+    """Each unknown of every suspect, and the water's temperature, as checked quantities
+    (module docstring: the water without a tolerance)."""
     words = {s.name: s.words for s in comparison.suspects}
     out = []
     for c in comparison.changes:
-        verdict = OUT if c.out_of_tolerance else CHANGED if c.chosen and c.significant else OK
+        tolerance = c.tolerance if np.isfinite(c.tolerance) else None
+        if c.out_of_tolerance:
+            verdict = OUT
+        elif c.chosen and c.significant:
+            verdict = CHANGED
+        else:
+            verdict = NOT_DETERMINED if tolerance is not None and not c.std <= tolerance else OK
         out.append(
             Quantity(
                 c.parameter,
@@ -116,7 +133,7 @@ def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> lis
                 c.baseline + c.change,
                 c.baseline,
                 c.std,
-                c.tolerance,
+                tolerance,
                 verdict,
             )
         )
@@ -132,7 +149,7 @@ def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> lis
                     t1,
                     t0,
                     c.std / abs(slope),
-                    c.tolerance / abs(slope),
+                    None,
                     verdict,
                 )
             )

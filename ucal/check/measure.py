@@ -8,13 +8,13 @@ narrowed to a window around the echo, the gain levelled, one averaged reading an
 leaves (``read_ascan_trace`` of the Modbus pulser, else the interface's ``read_ascan``); the
 gate and gain are restored after. The A-scan's echo gives the centre frequency and the −6 dB
 bandwidth (``ucal.echo.estimate_echo``, envelope method: no reference echo is needed for the
-band).
+band). Last, the scans across the XY face's far edges (``ucal.check.edges.scan_edge``).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -25,6 +25,7 @@ from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.readings import number
 from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
+from ucal.check.edges import EdgeReading, scan_edge
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
 from ucal.echo import AScan, EchoEstimate, NoEcho, estimate_echo
 from ucal.measure.approach import FinalApproachRig
@@ -95,6 +96,8 @@ class CheckRun:
     floor_per_gain: float | None  # open-water noise floor at 0 dB gain (FSH)
     moves: int
     reads: int
+    #: the crossings of the XY face's far edges (a record of a check without them: none)
+    edges: list[EdgeReading] = field(default_factory=list)
 
 
 def run_check(
@@ -103,7 +106,7 @@ def run_check(
     """Measure the planned faces (calibrate's run), then the echo chain (module docstring).
     The caller owns the connection, STOP and the profile."""
     echo_labels = plan.echo_labels
-    total = len(plan.targets) + len(echo_labels)
+    total = len(plan.targets) + len(echo_labels) + len(plan.edges)
 
     def faces_progress(step: MeasureStep) -> None:
         # calibrate's steps, counted against the whole check; its "solving" comes last
@@ -129,10 +132,18 @@ def run_check(
         except NoAScan as e:
             log.info("no A-scan (%s): no centre frequency or bandwidth", e)
             break
+    edges = []
+    done = len(plan.targets) + len(echo_labels)
+    for i, line in enumerate(plan.edges):
+        if progress:
+            progress(MeasureStep(line.label, done + i, total, "base", "XY"))
+        reading = scan_edge(rig, profile, line)
+        if reading is not None:
+            edges.append(reading)
     if progress:
         progress(MeasureStep("solving", total, total))
     echoes = [echo_reading(profile, m, floor, ascans.get(measurement_label(m))) for m in faces]
-    return CheckRun(faces, echoes, floor, rig.counters.moves, rig.counters.reads)
+    return CheckRun(faces, echoes, floor, rig.counters.moves, rig.counters.reads, edges)
 
 
 def echo_reading(

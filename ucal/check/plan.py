@@ -15,6 +15,12 @@ calibration configuration's three postures the pulser's A-scan is read as well, 
 one (a window of ``ASCAN_WINDOW_US`` around the echo): the echo's centre frequency and −6 dB
 bandwidth (``ucal.echo``, ASTM E1065's convention).
 
+The edges. From the planned ``base/XY`` posture the TCP is moved across the XY face's two far
+edges (``ucal.check.edges``): the tool across the beam, which no water path sees, is then
+told from the block and the joints. What each measurement sees, and which quantities the
+postures determine, is computed from the fit the check solves (``ucal.check.observe``) and
+stated in the plan.
+
 Duration: ``ucal.timing`` (the same model the simulated cell charges), plus the A-scan
 transfers; a check is meant to fit in ``BUDGET_S`` on a real cell.
 """
@@ -28,6 +34,7 @@ from ucal.calibration.model import FACE_NAMES, Configuration
 from ucal.calibration.procedure import WRIST_SEARCH, plan_line
 from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.cell import CellProfile
+from ucal.check.edges import SCAN, EdgeLine, plan_edges
 from ucal.check.history import CheckEntry
 from ucal.models import joint_speeds_deg_s
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
@@ -61,6 +68,8 @@ class CheckPlan:
     echo_labels: tuple[str, ...]  # the postures where the A-scan is read
     reference: CheckEntry | None  # the reference check; None: this check records it
     baseline_asked: bool = False  # ``--baseline``: a new reference whatever the history holds
+    edges: tuple[EdgeLine, ...] = ()  # the scans across the XY face's far edges
+    edge_notes: tuple[str, ...] = ()  # the scans left out, and why
 
     @property
     def targets(self) -> tuple[PlannedTarget, ...]:
@@ -81,9 +90,15 @@ def plan_check(
     wanted = CONFIGURATIONS if Configuration.J1 in full.configs else FALLBACK_CONFIGURATIONS
     targets = tuple(t for t in full.targets if t.config in wanted)
     echo = tuple(t.label for t in targets if t.config == ECHO_CONFIGURATION)
+    edges, notes = plan_edges(profile, targets)
     # the check compares its faces with a reference's: no water path read again at the end
     return CheckPlan(
-        replace(full, targets=targets, path_again=False), echo, reference, baseline_asked
+        replace(full, targets=targets, path_again=False),
+        echo,
+        reference,
+        baseline_asked,
+        edges,
+        notes,
     )
 
 
@@ -123,11 +138,43 @@ def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
     transfers = DurationEstimate(
         0, 0, 0.0, n * ascan_transfer_s("tcp"), n * ascan_transfer_s("rtu")
     )
-    return faces + echoes + transfers
+    return faces + echoes + transfers + estimate_edges(plan, profile)
+
+
+#: An edge scan beyond the move to its line: the level read twice at the posture, the coarse
+#: steps over the line's approach and a step back, the fine probes; each probe a move (with its
+#: approach from below: ``EDGE_PROBE_S`` of motion and settling at speed 0.3, as the simulated
+#: cell charges it) and one reading of ``SCAN.averages``.
+EDGE_PROBES = 3 + 8 // 2 + 2 + SCAN.fine_probes
+EDGE_PROBE_S = 0.15
+
+
+def estimate_edges(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
+    """The edge scans' duration: the move from the last echo posture to each line's start and
+    back, ``EDGE_PROBES`` probes a line (their moves at the joints' speed over the probes'
+    spacing, settling included)."""
+    if not plan.edges:
+        return DurationEstimate(0, 0, 0.0, 0.0, 0.0)
+    speed = profile.procedure.speed
+    joints = joint_speeds_deg_s(profile.model)
+    starts = [line.start_deg for line in plan.edges]
+    per_line = SearchCost(moves=EDGE_PROBES, reads=EDGE_PROBES, motion_s=EDGE_PROBES * EDGE_PROBE_S)
+    return estimate_run(
+        starts,
+        plan.targets[0].joints_deg,
+        speed,
+        speeds_deg_s=joints,
+        averages=SCAN.averages,
+        search=per_line,
+        first=SearchCost(0, 0, 0.0),
+    )
 
 
 def plan_summary(plan: CheckPlan, profile: CellProfile, estimate: DurationEstimate) -> str:
-    """The plan in words for the confirmation (stderr); the procedure adds the estimate."""
+    """The plan in words for the confirmation (stderr), with what each measurement sees and
+    what the postures determine (``ucal.check.observe``); the procedure adds the estimate."""
+    from ucal.check.observe import observability, observability_lines  # it fits: solve's
+
     configs = plan.configurations
     steps = []
     if Configuration.J1 in configs:
@@ -164,6 +211,17 @@ def plan_summary(plan: CheckPlan, profile: CellProfile, estimate: DurationEstima
         "  target      J1       J2       J3       J4       J5       J6    water path",
         *(plan_line(f"{t.config:>4}/{FACE_NAMES[t.face]:<3}", t) for t in plan.targets),
         WRIST_SEARCH,
+        *(
+            f"Edge scan {line.label}: the TCP moved {line.end_mm - line.start_mm:.0f} mm along "
+            f"block {'xy'[line.axis]} with the beam normal to the XY face, across the edge the "
+            f"profile puts {line.edge_mm:.1f} mm from the base/XY posture (the tool across the "
+            "beam)"
+            for line in plan.edges
+        ),
+        *plan.edge_notes,
+        *observability_lines(
+            observability(profile, plan.targets, plan.edges), profile, bool(plan.edges)
+        ),
     ]
     if estimate.tcp_s > BUDGET_S:
         lines.append(

@@ -19,14 +19,18 @@ from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.procedure import plan_rows
 from ucal.calibration.readings import faces_from_json
 from ucal.cell import CellProfile
+from ucal.check.causes import causes, water_words
+from ucal.check.edges import EdgeReading
 from ucal.check.history import append_check, model_digest, reference_check
 from ucal.check.judge import (
+    NOT_DETERMINED,
     echo_quantities,
     echo_record,
     geometry_quantities,
     profile_quantities,
 )
 from ucal.check.measure import CheckRun, EchoReading, run_check
+from ucal.check.observe import what_would_determine
 from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
 from ucal.check.result import (
     CheckFindings,
@@ -104,17 +108,30 @@ class CheckJob(ProfileJob):
             logged_departure_std_c=ref.logged_departure_std_c,
             drift_prior_c_per_min=ref.drift_prior_c_per_min,
         )
-        geometry = compare_geometry(prior, faces_from_json(ref.faces), run.faces, reference_prior)
+        edges = ([EdgeReading.from_json(e) for e in ref.edges], run.edges)
+        geometry = compare_geometry(
+            prior, faces_from_json(ref.faces), run.faces, reference_prior, edges
+        )
         echo = echo_quantities([EchoReading.from_json(e) for e in ref.echoes], run.echoes)
         named, moved = named_changes(geometry, echo, prior)
+        quantities = geometry_quantities(geometry, prior) + echo
+        edges_read = bool(edges[0]) and bool(edges[1])
+        water = water_words(geometry, prior)
         return CheckFindings(
-            geometry_quantities(geometry, prior) + echo,
+            quantities,
             named,
             moved,
             ref,
             geometry=geometry,
             unexplained=unexplained_text(geometry),
             run=run,
+            causes=causes(geometry),
+            noted=[water] if water else [],
+            undetermined={
+                q.name: what_would_determine(q.name, self.profile, edges_read)
+                for q in quantities
+                if q.verdict == NOT_DETERMINED
+            },
         )
 
     def may_write(self, solved: CheckFindings) -> bool:

@@ -16,18 +16,17 @@ import numpy as np
 
 from ucal.calibration.fit import CellPrior, readings_approach
 from ucal.calibration.readings import faces_to_json
+from ucal.check.causes import Cause, causes
 from ucal.check.history import CheckEntry
 from ucal.check.judge import (
     CHANGED,
     OUT,
     Quantity,
-    unit_of,
 )
 from ucal.check.measure import CheckRun
 from ucal.check.solve import (
     GeometryComparison,
     ProfileComparison,
-    temperature_change_c,
 )
 from ucal.procedure import RunFacts
 from ucal.timing import DurationEstimate
@@ -46,6 +45,12 @@ class CheckFindings:
     unexplained: str = ""  # a misfit no single change accounts for
     run: CheckRun | None = field(default=None, repr=False)  # what was measured
     entry: CheckEntry | None = field(default=None, repr=False)  # once appended to the history
+    #: the causes of what moved, with their sizes (``ucal.check.causes``)
+    causes: list[Cause] = field(default_factory=list)
+    #: changes reported as their own cause, not the cell's (the water's: decision 0016)
+    noted: list[str] = field(default_factory=list)
+    #: the quantities not determined (σ above the tolerance) → what would determine them
+    undetermined: dict[str, str] = field(default_factory=dict)
 
     @property
     def out_of_tolerance(self) -> bool:
@@ -77,7 +82,19 @@ class CheckFindings:
             return "; ".join(self.named + ([self.unexplained] if self.unexplained else []))
         if self.reference is None:
             return "reference recorded" if self.becomes_reference else "no reference"
-        drifts = [q for q in self.quantities if q.verdict == CHANGED and q.name != "tof_ns"]
+        return "; ".join([self._as_commissioned(), *self.noted] + self._undetermined_words())
+
+    def _undetermined_words(self) -> list[str]:
+        if not self.undetermined:
+            return []
+        return ["not determined: " + ", ".join(self.undetermined)]
+
+    def _as_commissioned(self) -> str:
+        drifts = [
+            q
+            for q in self.quantities
+            if q.verdict == CHANGED and q.name != "tof_ns" and q.part != "the water"
+        ]
         if drifts:
             return "as commissioned; changed within tolerance: " + ", ".join(
                 f"{q.name} {_fmt(q.difference or 0.0, q.unit)}" for q in drifts
@@ -106,6 +123,13 @@ class CheckFindings:
             else {"id": self.reference.id, "time": self.reference.time},
             "records_reference": self.becomes_reference,
             "quantities": [q.to_json() for q in self.quantities],
+            "causes": [c.to_json() for c in self.causes],
+            "noted": self.noted,
+            "not_determined": [
+                {"name": q.name, "std": q.std, "tolerance": q.tolerance, "determined_by": why}
+                for q in self.quantities
+                if (why := self.undetermined.get(q.name)) is not None
+            ],
         }
         if self.run is not None:  # every face read from below: as calibrate's offsets hold
             out["approach"] = readings_approach(self.run.faces)
@@ -155,6 +179,7 @@ class CheckFindings:
             floor_per_gain=run.floor_per_gain,
             logged_departure_std_c=prior.logged_departure_std_c,
             drift_prior_c_per_min=prior.drift_prior_c_per_min,
+            edges=[e.to_json() for e in run.edges],
         )
 
 
@@ -212,8 +237,9 @@ def named_changes(
     moved: list[str] = []
     if geometry is not None:
         words = {s.name: s.words for s in geometry.suspects}
+        found = causes(geometry)
         for suspect in geometry.chosen:
-            out = [c for c in geometry.changes if c.suspect == suspect and c.out_of_tolerance]
+            out = [c for c in found if c.part == suspect]
             if not out:
                 continue
             alike = [words[a] for a in geometry.alike.get(suspect, ())]
@@ -223,23 +249,11 @@ def named_changes(
             if suspect.startswith("J"):
                 c = out[0]
                 text = (
-                    f"{words[suspect]} ({suspect}) moved by {_fmt(c.change, 'deg')} "
+                    f"{words[suspect]} ({suspect}) moved by {_fmt(c.size, 'deg')} "
                     f"(± {c.std:.2g} deg; tolerance {c.tolerance:g} deg)"
                 )
-            elif suspect == "water":
-                c = out[0]
-                dt = temperature_change_c(prior, c.change)
-                text = (
-                    f"the water changed: sound speed {_fmt(c.change, 'm/s')} (± {c.std:.2g} "
-                    f"m/s), about {_fmt(dt, '°C')}; tolerance {c.tolerance:.2f} m/s "
-                    "([water] temperature_std_c)"
-                )
             else:
-                parts = ", ".join(
-                    f"{c.parameter} {_fmt(c.change, unit_of(c.parameter))} (± {c.std:.2g})"
-                    for c in out
-                )
-                text = f"{words[suspect]} moved: {parts}"
+                text = f"{words[suspect]} moved: " + "; ".join(c.words() for c in out)
             named.append(text + also)
             moved.append(suspect)
     bad = [q for q in echo if q.verdict == OUT and q.name != "tof_ns"]

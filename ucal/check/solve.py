@@ -28,9 +28,15 @@ The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
 2. **By how much** — the chosen suspects' changes and their one-sigma from that fit, the
    covariance scaled by ``max(1, χ²ᵣ)``.
 3. **Out of tolerance** — an unknown of a chosen suspect whose change exceeds both 3σ and its
-   tolerance (``JOINT_TOLERANCE_DEG``, ``POSITION_TOLERANCE_MM``, ``ROTATION_TOLERANCE_DEG``;
-   the water: the profile's declared temperature tolerance); beyond 3σ but within tolerance it
-   is ``changed`` (a drift to watch), exit 0.
+   tolerance (``JOINT_TOLERANCE_DEG``, ``POSITION_TOLERANCE_MM``, ``ROTATION_TOLERANCE_DEG``);
+   beyond 3σ but within tolerance it is ``changed`` (a drift to watch), exit 0; a σ above the
+   tolerance is ``not determined`` (``ucal.check.judge``). The water has no tolerance here: its
+   change is reported as its own cause (docs/decisions/0016).
+
+The edge crossings (``ucal.check.edges``) enter the fit as rows of their own, after the faces'
+(the reference's with the cell's unknowns, the check's with the changes added): they see the
+tool across the beam, which no water path does. The tool's turn about its own beam
+(``tool_rz_deg``) moves no echo and no scan and is no suspect's unknown.
 
 What is left unexplained after the selection (the χ² still a misfit at ``MISFIT_P``) is out of
 tolerance too: something changed that no suspect accounts for (the kinematic model itself, a
@@ -99,6 +105,7 @@ from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.quality import effect_pattern
 from ucal.calibration.residuals import two_sided_joints
 from ucal.cell import CellProfile
+from ucal.check.edges import EdgeArrays, EdgeReading, edge_residuals
 
 log = logging.getLogger(__name__)
 
@@ -110,8 +117,8 @@ ALIKE_CHI2 = 9.0
 N_SIGMA = 3.0
 #: The smallest change worth a commissioning's attention, per unknown of a suspect. Joints:
 #: 0.01° moves the tool centre by 0.17 mm at a metre's reach; tool and block: 0.05 mm and
-#: 0.02° (a transducer knocked in its holder, a block nudged); the water: the profile's declared
-#: temperature tolerance (``[water] temperature_std_c``, as a sound speed).
+#: 0.02° (a transducer knocked in its holder, a block nudged); the water's
+#: change has none: it is reported as its own cause (docs/decisions/0016).
 JOINT_TOLERANCE_DEG = 0.01
 POSITION_TOLERANCE_MM = 0.05
 ROTATION_TOLERANCE_DEG = 0.02
@@ -138,7 +145,8 @@ class Suspect:
 
 
 def suspects(prior: CellPrior) -> tuple[Suspect, ...]:
-    """Every suspect of a cell: the six joints, the tool, the block, the water."""
+    """Every suspect of a cell: the six joints, the tool (its turn about the beam moves
+    nothing), the block, the water (no tolerance: its own cause)."""
     pose_tol = (POSITION_TOLERANCE_MM,) * 3 + (ROTATION_TOLERANCE_DEG,) * 3
     pose_std = (POSITION_CHANGE_STD_MM,) * 3 + (ROTATION_CHANGE_STD_DEG,) * 3
     joints = tuple(
@@ -147,9 +155,9 @@ def suspects(prior: CellPrior) -> tuple[Suspect, ...]:
     )
     return (
         *joints,
-        Suspect("tool", "the tool", TOOL, pose_tol, pose_std),
+        Suspect("tool", "the tool", TOOL[:5], pose_tol[:5], pose_std[:5]),
         Suspect("block", "the block", BLOCK, pose_tol, pose_std),
-        Suspect("water", "the water", SOUND, (prior.sound_speed_std_m_s,), (SOUND_CHANGE_STD_M_S,)),
+        Suspect("water", "the water", SOUND, (np.inf,), (SOUND_CHANGE_STD_M_S,)),
     )
 
 
@@ -198,6 +206,8 @@ class GeometryComparison:
     #: A chosen suspect → the tank's effect that, in its place, explains the data alike
     #: (``tank_alike``), in words.
     tank: dict[str, str] = field(default_factory=dict)
+    #: A suspect → the covariance of its unknowns' changes (as ``changes`` lists them).
+    covariances: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class ChangeFit:
@@ -214,6 +224,7 @@ class ChangeFit:
         check: list[FaceMeasurement],
         all_suspects: tuple[Suspect, ...],
         reference_prior: CellPrior | None = None,
+        edges: tuple[list[EdgeReading], list[EdgeReading]] = ([], []),
     ) -> None:
         self.prior = prior
         #: The reference run's water as its own thermometer's log left it (its drift's prior
@@ -252,7 +263,11 @@ class ChangeFit:
         self.check = check
         self._ref = MeasurementArrays.of(reference)
         self._chk = MeasurementArrays.of(check)
-        self.n_data = 3 * (len(reference) + len(check))
+        #: the reference's edge crossings and the check's (their rows after the faces')
+        self.edges = edges
+        self._edges = (EdgeArrays.of(edges[0]), EdgeArrays.of(edges[1]))
+        self.n_faces = 3 * (len(reference) + len(check))
+        self.n_data = self.n_faces + len(edges[0]) + len(edges[1])
         # each run's drift curving about its own reference time, over its own rows
         ref_rows, chk_rows = (
             face_row_minutes(self._ref.minutes),
@@ -274,14 +289,17 @@ class ChangeFit:
         )
 
     def data(self, values: np.ndarray) -> np.ndarray:
-        """Normalised residuals of the reference's measurements, then of the check's."""
+        """Normalised residuals of the reference's faces, then of the check's, then the
+        reference's edge crossings and the check's."""
         model, c0 = self.prior.model, self.prior.sound_speed_m_s
         r_ref = data_residuals(self.table, values, model, self._ref, c0)
         moved = values.copy()
         moved[self.base_idx] += values[self.change_idx]
         moved[self.drift_idx] = values[self.check_drift_idx]
         r_chk = data_residuals(self.table, moved, model, self._chk, c0)
-        return np.concatenate([r_ref.ravel(), r_chk.ravel()])
+        e_ref = edge_residuals(self.table, values, model, self._edges[0])
+        e_chk = edge_residuals(self.table, moved, model, self._edges[1])
+        return np.concatenate([r_ref.ravel(), r_chk.ravel(), e_ref, e_chk])
 
     def curvature_covariance(
         self, jac: np.ndarray, cov: np.ndarray, cols: np.ndarray
@@ -499,16 +517,19 @@ def compare_geometry(
     reference: list[FaceMeasurement],
     check: list[FaceMeasurement],
     reference_prior: CellPrior | None = None,
+    edges: tuple[list[EdgeReading], list[EdgeReading]] = ([], []),
 ) -> GeometryComparison:
     """What moved between the reference's measurements and the check's (module docstring);
     ``reference_prior``: the cell's prior with the reference run's own water (its
-    thermometer's log, or none: ``ChangeFit``), ``prior``'s where not given."""
-    problem = ChangeFit(prior, reference, check, suspects(prior), reference_prior)
+    thermometer's log, or none: ``ChangeFit``), ``prior``'s where not given; ``edges``: the
+    reference's edge crossings and the check's."""
+    problem = ChangeFit(prior, reference, check, suspects(prior), reference_prior, edges)
     start = problem.start()
     chosen, values, lin, chi2_null = select(problem, start)
     chi2, _, cols, cov = lin.solve(chosen)
     table = problem.table
     changes: list[Change] = []
+    covariances = {}
     for s in problem.suspects:
         if s.name in chosen:
             v, c, cv = values, cols, cov
@@ -516,6 +537,8 @@ def compare_geometry(
             _, v, c, cv = lin.solve([*chosen, s.name])
         std = np.full(values.size, np.nan)
         std[c] = np.sqrt(np.clip(np.diag(cv), 0.0, None))
+        at = [int(np.flatnonzero(c == table.index(change_name(p)))[0]) for p in s.parameters]
+        covariances[s.name] = cv[np.ix_(at, at)]
         for p, tol in zip(s.parameters, s.tolerances, strict=True):
             i = table.index(change_name(p))
             changes.append(
@@ -529,11 +552,13 @@ def compare_geometry(
                     s.name in chosen,
                 )
             )
-    res = lin.r0.reshape(-1, 3)
+    n = problem.n_faces
+    res = np.r_[np.linalg.norm(lin.r0[:n].reshape(-1, 3), axis=1), np.abs(lin.r0[n:])]
     labels = [f"reference {measurement_label(m)}" for m in reference] + [
         measurement_label(m) for m in check
     ]
-    worst = labels[int(np.argmax(np.linalg.norm(res, axis=1)))]
+    labels += [f"reference {e.label}" for e in edges[0]] + [e.label for e in edges[1]]
+    worst = labels[int(np.argmax(res))]
     dof = problem.n_data
     unexplained = float(chdtrc(dof, chi2)) < MISFIT_P
     return GeometryComparison(
@@ -548,6 +573,7 @@ def compare_geometry(
         problem.suspects,
         drift_cause(lin.effect_gains(chosen), chi2) if unexplained else "",
         tank_alike(lin, chosen),
+        covariances,
     )
 
 

@@ -44,14 +44,20 @@ def cli(call: MovingCall, baseline: bool, thermometer: Path | None) -> None:
     """Check the cell against its commissioning in about a minute; name what moved.
 
     Six of calibrate's normal-incidence measurements (the three faces of the block in the
-    calibration configuration and from a second joint-1 azimuth) and the echo chain at them
+    calibration configuration and from a second joint-1 azimuth), the echo chain at them
     (time of flight, amplitude at 0 dB gain, SNR; the centre frequency and -6 dB bandwidth from
-    the pulser's A-scan where it gives one). The first check after the profile's model changed
-    (a calibration, a tool frame, an edit), or one asked with --baseline, is the reference: it
-    is judged against the profile's calibration and recorded. Later checks are fitted together
-    with the reference on the profile's model: a joint's offset, the tool, the block or the
-    water that changed beyond 3 sigma and its tolerance is named with its change (exit 1);
-    the transducer likewise (amplitude 2 dB, SNR 6 dB, centre frequency 10 %, bandwidth 15 %).
+    the pulser's A-scan where it gives one), and four scans across the XY face's far edges
+    (the tool across the beam, which no water path sees). The plan says what each
+    measurement sees and which quantities the postures determine; a quantity whose sigma
+    exceeds its tolerance is "not determined", with what would determine it, never "ok".
+    The first check after the profile's model changed (a calibration, a tool frame, an
+    edit), or one asked with --baseline, is the reference: it is judged against the profile's
+    calibration and recorded. Later checks are fitted together
+    with the reference on the profile's model: a joint's offset, the tool (across or along
+    its beam) or the block that changed beyond 3 sigma and its tolerance is named with its
+    change (exit 1); the transducer likewise (amplitude 2 dB, SNR 6 dB, centre frequency
+    10 %, bandwidth 15 %). The water's change is reported as its own cause, not as a failure
+    of the cell: every measurement uses the sound speed it measures.
     With --thermometer, the tank thermometer's log is read before anything moves and again
     when the check is solved, as calibrate reads it: its slope over the check is the prior of
     the check's drift, and a turn of the tank beyond the log's noise is taken out of the
@@ -111,6 +117,10 @@ def show_outcome(outcome: Outcome[CheckResult]) -> None:
         click.echo(
             f"changed beyond 3 sigma, within tolerance (a drift to watch): {', '.join(drifts)}"
         )
+    for line in found.noted:
+        click.echo(line)
+    for name, why in found.undetermined.items():
+        click.echo(f"not determined: {name} (its sigma above its tolerance); {why}")
     if outcome.out_of_tolerance:
         click.echo("verdict: OUT OF TOLERANCE")
     elif ref is None:
