@@ -10,8 +10,9 @@ that does not digitise) for ``ucal.digitizers``. A package adds one by declaring
     my-scheme = "my_package.my_module:MyPulser"
 
 The entry-point name is the URL scheme (``my-scheme://...``). ucal's own back-ends are declared
-the same way (``modbus-tcp``, ``modbus-rtu``, ``ascii``, ``tcp``, ``visa``) and are also known
-without installed metadata (a source checkout), so the drivers work before ``pip install``.
+the same way (``modbus-tcp``, ``modbus-rtu``, ``ascii``, ``manual``, ``tcp``, ``visa``) and are
+also known without installed metadata (a source checkout), so the drivers work before ``pip
+install``.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ BUILTIN: dict[str, dict[str, str]] = {
         "modbus-tcp": "drivers.pulser.modbus:ModbusPulser",
         "modbus-rtu": "drivers.pulser.modbus:ModbusPulser",
         "ascii": "drivers.pulser.ascii:AsciiScpiPulser",
+        "manual": "drivers.pulser.manual:ManualPulser",
     },
     CONTROLLER_GROUP: {
         "tcp": "drivers.controller.client:SimpleMessageController",
@@ -90,8 +92,8 @@ def open_pulser(url: str, **options: Any) -> PulserReceiver:
     """Build the pulser-receiver for ``url`` with the back-end of its scheme (not connected).
 
     ``options`` go to the back-end's ``from_url`` (e.g. ``timeout_s``; ``digitizer`` for a
-    pulser that does not digitise, ``ascii://``). Raises ``ValueError`` for an unknown scheme
-    (naming it and the known ones) or a malformed URL.
+    pulser that does not digitise, ``ascii://`` and ``manual://``). Raises ``ValueError`` for an
+    unknown scheme (naming it and the known ones) or a malformed URL.
     """
     device = _open(PULSER_GROUP, "pulser", url, options)
     if not isinstance(device, PulserReceiver):

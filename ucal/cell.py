@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.controller.client import DEFAULT_TIMEOUTS
+from drivers.pulser.base import PulserSettings
 from drivers.pulser.registers import RegisterMap
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
@@ -78,6 +79,30 @@ class PulserConfig:
     timing: str = "gate"
     reference_echo_path: Path | None = None
     reference_echo: ReferenceEcho | None = None
+    by_hand: SetByHand | None = None
+
+    @property
+    def set_by_hand(self) -> bool:
+        """Whether the cell's pulser-receiver is set on its front panel (``kind = "manual"``)."""
+        return self.by_hand is not None
+
+
+#: ``[pulser] input_noise_uv`` unless the profile says: a quiet pulser-receiver's noise
+#: referred to its input (µV rms a sample, over a 50 MHz band; 50 Ω alone give 6 µV), the
+#: simulated receiver's (``ucal.sim.cell.DEFAULT_NOISE_FLOOR``) to within 1 dB.
+DEFAULT_INPUT_NOISE_UV = 2.2
+
+
+@dataclass(frozen=True)
+class SetByHand:
+    """``[pulser]`` of a pulser-receiver set on its front panel (``kind = "manual"``): the
+    settings it holds (``panel``: ``gain_db``, ``prf_hz``, ``pulse_voltage_v``,
+    ``damping_ohm``, ``high_pass_mhz``, ``low_pass_mhz``; the gate and the averages are the
+    digitiser's), and ``input_noise_uv``, its noise referred to its input (µV rms, one sample),
+    from which the declared gain predicts the records' noise (``ucal.echo.by_hand``)."""
+
+    panel: PulserSettings
+    input_noise_uv: float = DEFAULT_INPUT_NOISE_UV
 
 
 #: ``[pulser] timing``: the instrument's gate, or ucal on the A-scan.
@@ -285,7 +310,9 @@ class PulserTruth:
     digitises at ``sample_rate_mhz`` with a ``bits`` ADC; ucal times the echoes). ``scope``:
     the family of that oscilloscope, ``"keysight"`` or ``"rigol"``
     (``drivers.digitizer.simulated_scopes.FAMILIES``; a Rigol DS1000Z's ADC has 8 bits, whatever
-    ``bits`` says).
+    ``bits`` says). ``"manual"``: a pulser-receiver set by hand, the same oscilloscope alone
+    beside it; ``gain_db`` its front panel's gain (the world's default: the profile's
+    declaration), which a run reads only through the records.
     """
 
     amplitude_bits: int = 0
@@ -297,6 +324,7 @@ class PulserTruth:
     sample_rate_mhz: float = 200.0
     bits: int = 12
     scope: str = "keysight"
+    gain_db: float = 40.0
 
 
 @dataclass(frozen=True)
@@ -388,4 +416,7 @@ class WorldTruth:
             frequency_mhz=profile.frequency_mhz,
             element_diameter_mm=profile.element_diameter_mm,
             dh_beta_deg=np.array(profile.model.beta_deg, float),
+            pulser=PulserTruth()
+            if profile.pulser.by_hand is None
+            else PulserTruth(kind="manual", gain_db=profile.pulser.by_hand.panel.gain_db),
         )

@@ -26,6 +26,9 @@ from drivers.digitizer.base import HostTimed
 from drivers.errors import DriverError
 from drivers.pulser.ascii import AsciiScpiPulser
 from drivers.pulser.ascii_commands import KNOBS, Letter
+from drivers.pulser.digitised import DigitisedPulser
+from drivers.pulser.manual import SCHEME as MANUAL
+from drivers.pulser.manual import ManualPulser
 from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
@@ -153,7 +156,7 @@ def fit_back_end(pulser: Any, profile: CellProfile) -> TimingMode:
     how the session's echoes are timed."""
     endpoint = pulser.endpoint
     timing = TimingMode()
-    host_timed = isinstance(pulser, AsciiScpiPulser) or profile.pulser.timing == "ascan"
+    host_timed = isinstance(pulser, DigitisedPulser) or profile.pulser.timing == "ascan"
     if host_timed:
         if not isinstance(pulser, HostTimed) or (
             isinstance(pulser, ModbusPulser) and "ascan_samples" not in pulser.register_map
@@ -188,6 +191,60 @@ def fit_back_end(pulser: Any, profile: CellProfile) -> TimingMode:
             ) from None
         pulser.pulse_width_ns = width_ns
     return timing
+
+
+def by_hand_options(profile: CellProfile, pulser_url: str) -> dict[str, Any]:
+    """The options of a pulser set by hand (``manual://``): its front panel as the profile
+    declares it; ``InputError`` (exit 2) where the profile and the URL disagree on whether the
+    pulser is set by hand."""
+    by_hand = profile.pulser.by_hand
+    manual = pulser_url.split("://", 1)[0].strip().lower() == MANUAL
+    if manual and by_hand is None:
+        raise ProfileError(
+            profile.path or "the profile",
+            "pulser.kind",
+            f'the pulser at {pulser_url} is set by hand: declare its front panel, kind = "manual" '
+            "and gain_db (docs/protocols/manual_pulser.md)",
+        )
+    if by_hand is not None and not manual:
+        raise ProfileError(
+            profile.path or "the profile",
+            "pulser.kind",
+            f"'manual': the cell's pulser is set by hand, not at {pulser_url}: give --pulser "
+            "manual:// and its digitiser (--digitizer), or remove kind and the panel's keys",
+        )
+    return {} if by_hand is None else {"declared": by_hand.panel}
+
+
+def check_set_by_hand(pulser: Any, rig: Rig, profile: CellProfile) -> None:
+    """Before the first motion: a pulser set by hand (``drivers.pulser.manual``) checked
+    against a few A-scans where the arm stands (``ucal.echo.by_hand``: ``ProfileError``, exit
+    2, naming the key the records disagree with); where they show no echo, its first timed echo
+    is checked before it is used. Other pulsers: nothing."""
+    by_hand = profile.pulser.by_hand
+    if by_hand is None or not isinstance(pulser, ManualPulser):
+        return
+    from ucal.echo.by_hand import RECORDS, Declared, FirstEchoCheck, judge, look
+
+    declared = Declared(
+        by_hand.panel.gain_db,
+        profile.frequency_mhz,
+        by_hand.input_noise_uv,
+        pulser.full_screen_v,
+        str(profile.path or "the profile"),
+    )
+    settings = replace(rig.settings, gain_db=by_hand.panel.gain_db, averages=1)
+    try:
+        pulser.configure(settings)
+        records = [pulser.read_ascan_record() for _ in range(RECORDS)]
+        pulser.configure(rig.settings)
+    except DriverError as e:
+        raise HardwareError(str(e)) from e
+    found = look(records, declared, settings.gate_ns)
+    log.info("pulser set by hand, where the arm stands: %s", found.as_json())
+    judge(found, declared)
+    if found.echo is None and pulser.echo_timer is not None:
+        pulser.echo_timer = FirstEchoCheck(pulser.echo_timer, declared)
 
 
 @contextlib.contextmanager
@@ -233,6 +290,7 @@ def open_cell(
         assert controller_url and pulser_url
         if digitizer_url:
             pulser_options["digitizer"] = digitizer_url
+        pulser_options.update(by_hand_options(profile, pulser_url))
         controller: Any
         pulser: Any
         try:
@@ -249,11 +307,12 @@ def open_cell(
             if "digitizer" in pulser_options and "digitizer" in str(e):
                 raise InputError(
                     f"--digitizer {digitizer_url}: the pulser at {pulser_url} digitises "
-                    f"itself; a digitiser is for pulsers that do not (ascii://) ({e})"
+                    f"itself; a digitiser is for pulsers that do not (ascii://, manual://) ({e})"
                 ) from e
             raise
         echo_timing = fit_back_end(pulser, profile)
         controller.clock = pulser.clock = clock
+        device = pulser
         if recorder is not None:
             controller = RecordingController(controller, recorder)
             pulser = RecordingPulser(pulser, recorder)
@@ -263,6 +322,7 @@ def open_cell(
         except DriverError as e:
             raise HardwareError(str(e)) from e
         rig = make_rig(profile, controller, pulser)
+        check_set_by_hand(device, rig, profile)
         rig.reference_capture = echo_timing.capture
         yield CellSession(rig, truth, sim_world is not None, clock, echo_timing)
 

@@ -31,7 +31,10 @@ the solvers do not model:
   at ``sample_rate_mhz`` (10…5000, default 200) with a ``bits`` ADC (8…16, default 12);
   ``scope`` — that oscilloscope's family, the dialect it speaks: ``"keysight"`` (default, an
   InfiniiVision X-Series) or ``"rigol"`` (a DS1000Z, whose ADC has 8 bits whatever ``bits``
-  says); ``drivers.digitizer.simulated_scopes.FAMILIES``.
+  says); ``drivers.digitizer.simulated_scopes.FAMILIES``; ``"manual"`` (the default of a
+  profile whose pulser is set by hand): that oscilloscope alone beside a pulser-receiver set by
+  hand, whose front panel's true gain is ``gain_db`` (default: the profile's declaration) and
+  whose echoes' centre frequency is the world's ``[transducer] frequency_mhz``;
 
 Extra keys beyond SPEC.md:
 
@@ -121,6 +124,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
             "sample_rate_mhz",
             "bits",
             "scope",
+            "gain_db",
         }
     ),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
@@ -269,7 +273,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
 
     pulser = r.table("pulser")
     if pulser is not None:
-        changes["pulser"] = _pulser(r, pulser)
+        changes["pulser"] = _pulser(r, pulser, world.pulser)
 
     controller = r.table("controller")
     v = r.get(controller, "controller.server")
@@ -364,14 +368,14 @@ def _timing(r: Reader, table: Mapping[str, Any]) -> CellTiming:
 
 
 #: The back-ends a simulated cell may speak (``[pulser] kind``).
-PULSER_KINDS = ("modbus", "ascii-scpi")
+PULSER_KINDS = ("modbus", "ascii-scpi", "manual")
 
 
-def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
-    """``[pulser]``: amplitude_bits (0…24), gain_error_db (0…6 dB), delay_ns (−1000…10 000),
-    register_map (a map file relative to the world file), kind (``PULSER_KINDS``),
-    sample_rate_mhz (10…5000) and bits (8…16) of the digitiser, scope (its family)."""
-    d = PulserTruth()
+def _pulser(r: Reader, table: Mapping[str, Any], d: PulserTruth) -> PulserTruth:
+    """``[pulser]`` over ``d`` (the profile's): amplitude_bits (0…24), gain_error_db (0…6 dB),
+    delay_ns (−1000…10 000), register_map (a map file relative to the world file), kind
+    (``PULSER_KINDS``), sample_rate_mhz (10…5000) and bits (8…16) of the digitiser, scope (its
+    family), gain_db (a pulser set by hand's front panel, −20…100 dB)."""
     kind_raw = r.get(table, "pulser.kind")
     kind = d.kind if kind_raw is None else r.string("pulser.kind", kind_raw)
     if kind not in PULSER_KINDS:
@@ -387,6 +391,7 @@ def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
     bits = r.get(table, "pulser.amplitude_bits")
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
+    panel = r.get(table, "pulser.gain_db")
     map_raw = r.get(table, "pulser.register_map")
     map_path, register_map = (
         (None, None) if map_raw is None else r.register_map("pulser.register_map", map_raw)
@@ -409,6 +414,9 @@ def _pulser(r: Reader, table: Mapping[str, Any]) -> PulserTruth:
         else r.number("pulser.sample_rate_mhz", rate, lo=10.0, hi=5000.0, unit="MHz"),
         bits=d.bits if adc_bits is None else r.integer("pulser.bits", adc_bits, lo=8, hi=16),
         scope=scope,
+        gain_db=d.gain_db
+        if panel is None
+        else r.number("pulser.gain_db", panel, lo=-20.0, hi=100.0, unit="dB"),
     )
 
 

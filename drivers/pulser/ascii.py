@@ -13,13 +13,8 @@ time of flight and amplitude computed on the host from the record.
   the pulse width when ``pulse_width_ns`` is set), each to the device's own step, reads each
   back, and records what was asked and what the device set (``settings_applied``); the gate is
   the scope's record window and ``averages`` its average count;
-- ``read_gate`` makes one acquisition, rescales the record from volts to fractions of full
-  screen height (``full_screen_v`` volts of RF output = 1.0) and hands it to the injected
-  ``echo_timer`` (``drivers.digitizer.base.EchoTimer``; ucal gives ``ucal.echo.host``'s), which
-  returns the strongest echo in the gate; below the gate threshold there is no time of flight.
-
-A reading is always a new acquisition, so ``fresh`` costs nothing; ``counter`` is the scope's
-acquisition count since the connection opened.
+- ``read_gate`` makes one acquisition and times its echo on the host, as every pulser whose
+  echoes a digitiser records does (``drivers.pulser.digitised``).
 
 Timeouts. The scope, triggered by the pulser's sync output, completes an acquisition once it
 has averaged ``averages`` of them at the pulser's PRF: its completion may take that
@@ -31,32 +26,24 @@ query on the serial line waits ``timeout_s``.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
 from serial import SerialException
 
 from drivers.device import RequestLink
-from drivers.digitizer.base import AScanRecord, Digitizer, EchoTimer, EchoTiming
+from drivers.digitizer.base import Digitizer, EchoTimer
 from drivers.errors import ConnectionLost, DeviceError, DeviceTimeout, ProtocolError
 from drivers.pulser import ascii_commands as cmd
-from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings, ReadingWait
+from drivers.pulser.base import PulserSettings
+from drivers.pulser.digitised import DEFAULT_TIMEOUT_S, DigitisedPulser
 from drivers.pulser.urls import AsciiUrl, parse_ascii_url
-from drivers.registry import open_digitizer
 from drivers.serial_port import open_port
 
 log = logging.getLogger(__name__)
 
-#: Default time one query may wait for its answer, and a reading beyond its acquisition
-#: (the link's margin), s.
-DEFAULT_TIMEOUT_S = 1.0
-#: Gate threshold of the host's gate, fraction of full screen height: weaker echoes give no
-#: time of flight (the Modbus pulser's power-on threshold).
-DEFAULT_THRESHOLD = 0.02
 #: Pause while a reply is awaited and nothing is waiting, s.
 _POLL_S = 0.0005
 
@@ -182,7 +169,7 @@ class AsciiPulser(RequestLink):
         return line
 
 
-class AsciiScpiPulser(PulserReceiver):
+class AsciiScpiPulser(DigitisedPulser):
     """The ASCII serial pulser and the SCPI oscilloscope as one pulser-receiver (module
     docstring).
 
@@ -205,29 +192,12 @@ class AsciiScpiPulser(PulserReceiver):
         echo_timer: EchoTimer | None = None,
         digitizer_options: dict[str, Any] | None = None,
     ):
-        if not (math.isfinite(full_screen_v) and full_screen_v > 0):
-            raise ValueError(f"full_screen_v must be a positive voltage, got {full_screen_v!r}")
         self.line = AsciiPulser(url, timeout_s, port=port)
-        if isinstance(digitizer, str):
-            digitizer = open_digitizer(
-                digitizer,
-                timeout_s=max(timeout_s, 2.0),
-                full_scale_v=full_screen_v,
-                **(digitizer_options or {}),
-            )
-        self.digitizer = digitizer
-        self.full_screen_v = float(full_screen_v)
+        self._attach(digitizer, timeout_s, full_screen_v, echo_timer, digitizer_options)
         self.pulse_width_ns = pulse_width_ns
-        self.echo_timer: EchoTimer | None = echo_timer
-        self._timeout_s = float(timeout_s)
-        self._threshold = DEFAULT_THRESHOLD
         self._written: dict[cmd.Letter, int] = {}
-        self._settings: PulserSettings | None = None
         #: What the last ``configure`` asked and what the devices set, by setting.
         self.settings_applied: dict[str, dict[str, float]] = {}
-        #: The echo of the last ``read_gate`` as the host timed it, and its record.
-        self.last_echo: EchoTiming | None = None
-        self.last_record: AScanRecord | None = None
 
     @classmethod
     def from_url(
@@ -361,76 +331,8 @@ class AsciiScpiPulser(PulserReceiver):
         out: dict[str, object] = {
             "command_set": "CompactPulser ASCII (docs/protocols/ascii_pulser.md)",
             "digitizer": {"endpoint": self.digitizer.endpoint, **self.digitizer.identity()},
-            "timing": "host (no echo timer given yet)"
-            if self.echo_timer is None
-            else _timer_label(self.echo_timer),
+            "timing": self.timing_label(),
         }
         if self.settings_applied:
             out["settings_applied"] = self.settings_applied
         return out
-
-    def reading_wait(self, timeout_s: float | None = None) -> ReadingWait:
-        """How long one acquisition may take to complete (``ReadingWait``): the scope's
-        averages at the pulser's PRF as last configured (the defaults, 1 at 1 kHz, before
-        any), and ``timeout_s`` for the link (None: this back-end's)."""
-        return ReadingWait.of(
-            self._settings or PulserSettings(),
-            self._timeout_s if timeout_s is None else float(timeout_s),
-        )
-
-    def read_gate(self, fresh: bool = True, timeout_s: float | None = None) -> GateReading:
-        """One acquisition, timed on the host: the strongest echo in the gate; no time of
-        flight below the gate threshold. The scope's completion may take the acquisition and
-        ``timeout_s`` (``reading_wait``), its preamble and data ``timeout_s`` each (None: this
-        back-end's ``timeout_s``). Every reading is a new acquisition (``fresh``)."""
-        if self.echo_timer is None:
-            raise RuntimeError(
-                f"pulser at {self.endpoint}: no echo timer: this back-end only digitises, "
-                "the application must give it one (echo_timer)"
-            )
-        record = self.read_ascan_record(timeout_s)
-        echo = self.echo_timer(record, (self._settings or PulserSettings()).gate_ns)
-        self.last_echo, self.last_record = echo, record
-        amplitude = float(echo.amplitude) if math.isfinite(echo.amplitude) else 0.0
-        tof_ns = float(echo.tof_ns)
-        if not (amplitude >= self._threshold and math.isfinite(tof_ns)):
-            tof_ns = float("nan")
-        return GateReading(
-            amplitude=max(amplitude, 0.0),
-            tof_ns=tof_ns,
-            counter=record.counter,
-            device_time_s=record.host_time_s,
-            host_time_s=record.host_time_s,
-            tof_std_ns=float(echo.tof_std_ns) if math.isfinite(tof_ns) else math.nan,
-        )
-
-    def read_ascan(self, timeout_s: float = 2.0) -> tuple[np.ndarray, float] | None:
-        """One acquisition: samples (fraction of full screen height) and sample rate (Hz)."""
-        record = self.read_ascan_record(timeout_s)
-        return np.asarray(record.samples, float), record.sample_rate_hz
-
-    # --- beyond the interface ---------------------------------------------------------------
-    def read_ascan_record(self, timeout_s: float | None = None) -> AScanRecord:
-        """One acquisition with its time base, rails, step, clipping and counter, in fractions
-        of full screen height, stamped with ``self.clock`` on arrival; waits as ``read_gate``
-        says."""
-        self.connect()
-        wait = self.reading_wait(timeout_s)
-        record = self.digitizer.acquire(wait.link_s, acquisition_s=wait.acquisition_s)
-        record = replace(record.scaled(1.0 / self.full_screen_v), host_time_s=self.clock.now())
-        return record
-
-    def gate_threshold(self) -> float:
-        """The host gate's threshold, fraction of full screen height."""
-        return self._threshold
-
-    def set_gate_threshold(self, fraction: float) -> None:
-        """Set the host gate's threshold (fraction of full screen height, 0 … 1)."""
-        if not (math.isfinite(fraction) and 0.0 <= fraction <= 1.0):
-            raise ValueError(f"gate threshold must be 0 … 1 of full screen, got {fraction!r}")
-        self._threshold = float(fraction)
-
-
-def _timer_label(timer: EchoTimer) -> str:
-    """How ``timer`` times echoes: its ``label`` attribute, else its name."""
-    return str(getattr(timer, "label", getattr(timer, "__name__", type(timer).__name__)))

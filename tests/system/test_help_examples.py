@@ -175,7 +175,7 @@ def test_sim_serve_examples_serve_until_interrupted(
         interrupter.join()
         assert code == 0, (args, err)
         urls = json.loads(out.splitlines()[0])
-        digitizer = {"digitizer"} if "ascii-scpi" in args else set()
+        digitizer = {"digitizer"} if {"ascii-scpi", "manual"} & set(args) else set()
         assert set(urls) == {"controller", "pulser", *digitizer}, args
         assert "127.0.0.1" in urls["controller"]
     assert (workdir / "motions.jsonl").exists()

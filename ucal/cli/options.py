@@ -301,8 +301,9 @@ _pulser_url_option = click.option(
     metavar="URL",
     envvar=ENV_PULSER,
     show_envvar=True,
-    help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N], modbus-rtu://DEVICE[?baud=N&unit=N] "
-    "or ascii://DEVICE[?baud=N] (with --digitizer).",
+    help="Pulser URL, modbus-tcp://HOST:PORT[?unit=N], modbus-rtu://DEVICE[?baud=N&unit=N], "
+    "ascii://DEVICE[?baud=N] (with --digitizer) or manual:// (a pulser set by hand, its front "
+    "panel the profile's [pulser]; with --digitizer).",
 )
 
 
@@ -320,8 +321,8 @@ _digitizer_option = click.option(
     show_envvar=True,
     expose_value=False,
     callback=_remember_digitizer,
-    help="Digitiser of a pulser that does not digitise (ascii://): visa://RESOURCE, e.g. "
-    "visa://TCPIP::192.168.0.7::5025::SOCKET.",
+    help="Digitiser of a pulser that does not digitise (ascii://, manual://): "
+    "visa://RESOURCE, e.g. visa://TCPIP::192.168.0.7::5025::SOCKET.",
 )
 
 
@@ -496,7 +497,7 @@ def _check_urls(
                 raise
             raise InputError(
                 f"{_origin(ctx, 'digitizer_url')} is for a pulser that does not digitise "
-                f"(ascii://); {_origin(ctx, name)} {url} takes none"
+                f"(ascii://, manual://); {_origin(ctx, name)} {url} takes none"
             ) from None
 
 

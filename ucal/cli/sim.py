@@ -35,6 +35,7 @@ Examples:
   ucal sim serve --server val3
   ucal sim serve --pulser-kind ascii-scpi
   ucal sim serve --pulser-kind ascii-scpi --scope rigol
+  ucal sim serve --pulser-kind manual
 """,
 )
 @click.option(
@@ -69,16 +70,19 @@ Examples:
 @click.option("--rtu", is_flag=True, help="Pulser speaks Modbus RTU framing over TCP.")
 @click.option(
     "--pulser-kind",
-    type=click.Choice(["modbus", "ascii-scpi"]),
-    help="The pulser back-end served: modbus (a pulser that gates), or ascii-scpi (an ASCII "
+    type=click.Choice(["modbus", "ascii-scpi", "manual"]),
+    help="The pulser back-end served: modbus (a pulser that gates), ascii-scpi (an ASCII "
     "serial pulser at ascii://socket://… and a SCPI oscilloscope at visa://…, whose "
-    'URL the first line adds as "digitizer"). Default: the world\'s [pulser] kind, '
-    "else modbus.",
+    'URL the first line adds as "digitizer"), or manual (that oscilloscope alone, beside a '
+    'pulser set by hand: "pulser" is manual://, its front panel the profile\'s [pulser] '
+    "with the world's gain_db). Default: the world's [pulser] kind, else manual for a "
+    'profile whose [pulser] kind = "manual", else modbus.',
 )
 @click.option(
     "--scope",
     type=click.Choice(["keysight", "rigol"]),
-    help="The ascii-scpi cell's oscilloscope family, the dialect its SCPI speaks: keysight "
+    help="The oscilloscope's family (ascii-scpi and manual cells), the dialect its SCPI "
+    "speaks: keysight "
     "(an InfiniiVision X-Series, triggered on EXT) or rigol (a DS1000Z, triggered on CH2). "
     "Default: the world's [pulser] scope, else keysight.",
 )
@@ -104,7 +108,7 @@ def serve(
     """Serve the simulated cell until SIGINT or SIGTERM.
 
     Prints one JSON line {"controller": URL, "pulser": URL} on stdout (with
-    "digitizer": URL for an ascii-scpi pulser), then serves.
+    "digitizer": URL for an ascii-scpi or a manual pulser), then serves.
     """
 
     if log_path is not None:
@@ -113,12 +117,14 @@ def serve(
     world = None
     if world_path is not None:
         world = load_world(world_path, profile)
-    kind = pulser_kind or (world.pulser.kind if world is not None else "modbus")
+    default = "manual" if profile.pulser.set_by_hand else "modbus"
+    kind = pulser_kind or (world.pulser.kind if world is not None else default)
     if rtu and kind != "modbus":
         raise InputError(f"--rtu is Modbus RTU framing: the {kind} pulser has its own")
-    if scope is not None and kind != "ascii-scpi":
+    if scope is not None and kind == "modbus":
         raise InputError(
-            f"--scope is the ascii-scpi cell's oscilloscope: the {kind} pulser has none"
+            f"--scope is the ascii-scpi cell's oscilloscope (or a manual one's): the {kind} "
+            "pulser has none"
         )
 
     # The handler takes no lock: a threading.Event set from a signal handler deadlocks when

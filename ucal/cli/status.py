@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from pathlib import Path
 from typing import Any
 
 import click
 from rich.table import Table
 
 from drivers.errors import DriverError
+from drivers.pulser.manual import SCHEME as MANUAL
 from drivers.registry import open_controller, open_pulser
+from ucal.cell import CellProfile
 from ucal.cli.options import (
     controller_option,
     digitizer_from_options,
@@ -20,6 +23,8 @@ from ucal.cli.options import (
     table_console,
 )
 from ucal.errors import HardwareError, InputError
+from ucal.profile import load_profile
+from ucal.session import by_hand_options
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +61,17 @@ Examples:
 )
 @controller_option
 @pulser_option
+@click.option(
+    "--profile",
+    "profile_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The cell's profile, for a pulser set by hand (--pulser manual://): its [pulser] "
+    "declares the front panel, shown with what the digitiser's records say of it.",
+)
 @json_option
-def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> None:
+def cli(
+    controller_url: str | None, pulser_url: str | None, profile_path: Path | None, as_json: bool
+) -> None:
     """Show the joint readings, the controller's status and the pulser's identity.
 
     Also what the controller's state port streams (joint message, rate, STATUS cadence, how
@@ -71,7 +85,8 @@ def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> No
     shown, not treated as failures), 2 for a missing or malformed URL, 3 when a device cannot be
     reached or answers wrongly (the message names it).
     """
-    out = read_status(controller_url, pulser_url, digitizer_from_options())
+    profile = None if profile_path is None else load_profile(profile_path)
+    out = read_status(controller_url, pulser_url, digitizer_from_options(), profile)
     if as_json:
         emit_json(out)
     else:
@@ -79,10 +94,15 @@ def cli(controller_url: str | None, pulser_url: str | None, as_json: bool) -> No
 
 
 def read_status(
-    controller_url: str | None, pulser_url: str | None, digitizer_url: str | None = None
+    controller_url: str | None,
+    pulser_url: str | None,
+    digitizer_url: str | None = None,
+    profile: CellProfile | None = None,
 ) -> dict[str, Any]:
     """Read both devices; return ``{"joints_deg", "controller", "pulser"}`` (SPEC.md); a
-    pulser that does not digitise is read with its digitiser (``digitizer_url``).
+    pulser that does not digitise is read with its digitiser (``digitizer_url``), one set by
+    hand (``manual://``) with the front panel ``profile`` declares and what the records say of
+    it (``by_hand``).
 
     Raises ``InputError`` (exit 2) for a missing or malformed URL and ``HardwareError``
     (exit 3, naming the device) for a device that cannot be reached or answers wrongly.
@@ -90,7 +110,16 @@ def read_status(
 
     if not controller_url:
         raise InputError("give --controller URL (or set UCAL_CONTROLLER)")
-    options = {"digitizer": digitizer_url} if digitizer_url else {}
+    options: dict[str, Any] = {"digitizer": digitizer_url} if digitizer_url else {}
+    manual = pulser_url is not None and pulser_url.split("://", 1)[0].strip().lower() == MANUAL
+    if manual:
+        assert pulser_url is not None
+        if profile is None:
+            raise InputError(
+                f"--pulser {pulser_url}: a pulser set by hand: give --profile PROFILE, whose "
+                '[pulser] (kind = "manual", gain_db, ...) declares its front panel'
+            )
+        options.update(by_hand_options(profile, pulser_url))
     try:
         controller = open_controller(controller_url)
         pulser = open_pulser(pulser_url, **options) if pulser_url else None
@@ -101,13 +130,46 @@ def read_status(
             raise
         raise InputError(
             f"--digitizer {digitizer_url}: the pulser at {pulser_url} digitises itself; a "
-            "digitiser is for pulsers that do not (ascii://)"
+            "digitiser is for pulsers that do not (ascii://, manual://)"
         ) from None
     joints_deg, ctrl = _guarded("controller", controller_url, _read_controller, controller)
     pulse = None
     if pulser is not None:
-        pulse = _guarded("pulser", pulser_url, _read_pulser, pulser)
+        read = _read_pulser if not manual else lambda p: by_hand(p, profile)
+        pulse = _guarded("pulser", pulser_url, read, pulser)
     return {"joints_deg": joints_deg, "controller": ctrl, "pulser": pulse}
+
+
+def by_hand(pulser: Any, profile: Any) -> dict[str, Any]:
+    """A pulser set by hand: ``"set_by_hand": true``, its declared settings, the digitiser's
+    identity, and ``"check"``, what a few records at the declared gain say of the declaration
+    (``ucal.echo.by_hand``; ``"verdict"``: ``"ok"`` or the message a moving command would
+    refuse with)."""
+    from ucal.echo.by_hand import RECORDS, Declared, judge, look
+    from ucal.errors import ProfileError
+
+    by_hand_ = profile.pulser.by_hand
+    declared = Declared(
+        by_hand_.panel.gain_db,
+        profile.frequency_mhz,
+        by_hand_.input_noise_uv,
+        pulser.full_screen_v,
+        str(profile.path),
+    )
+    with pulser:
+        out: dict[str, Any] = {"endpoint": pulser.endpoint, **pulser.identity()}
+        settings = dataclasses.replace(by_hand_.panel, gate_width_us=400.0)
+        pulser.configure(settings)
+        records = [pulser.read_ascan_record() for _ in range(RECORDS)]
+        out["settings"] = dataclasses.asdict(pulser.settings())
+    found = look(records, declared, settings.gate_ns)
+    try:
+        judge(found, declared)
+        verdict = "ok"
+    except ProfileError as e:
+        verdict = str(e)
+    out["check"] = {**found.as_json(), "verdict": verdict}
+    return out
 
 
 def _guarded(device: str, url: str | None, read: Any, arg: Any) -> Any:
@@ -161,6 +223,28 @@ def _read_pulser(pulser: Any) -> dict[str, Any]:
     return out
 
 
+def _shown(key: str, value: Any) -> str:
+    """One cell of the pulser's table: a set by hand pulser's declaration, digitiser and check
+    on a line each, anything else as it is."""
+    if not isinstance(value, dict):
+        return str(value)
+    if key == "declared":
+        skip = ("gate_start_us", "gate_width_us", "averages")
+        return ", ".join(f"{k} {v:g}" for k, v in value.items() if k not in skip)
+    if key == "digitizer" and "model" in value:
+        return f"{value.get('manufacturer', '')} {value['model']} at {value['endpoint']}".strip()
+    if key == "check":
+        gain = value["gain_db_measured"]
+        said = "not resolved" if gain is None else f"{gain:.1f} dB"
+        return (
+            f"{value['verdict']} (noise {value['noise_fsh']:.3g} of full screen, step "
+            f"{value['lsb_fsh']:.3g}: gain {said}; echo "
+            f"{'none' if value['echo'] is None else value['echo']['centre_frequency_mhz']}"
+            f"{'' if value['echo'] is None else ' MHz'})"
+        )
+    return str(value)
+
+
 def _flag(value: bool | None, yes: str, no: str) -> str:
     return "unknown" if value is None else yes if value else no
 
@@ -193,13 +277,14 @@ def show(out: dict[str, Any]) -> None:
     if p is None:
         console.print("pulser: not given (--pulser URL or UCAL_PULSER)")
         return
-    table = Table(title=f"pulser {p['endpoint']}", show_header=False)
+    title = f"pulser {p['endpoint']}" + (" (set by hand)" if p.get("set_by_hand") else "")
+    table = Table(title=title, show_header=False)
     table.add_column("what")
     table.add_column("value")
     for key, value in p.items():
-        if key in ("endpoint", "settings"):
+        if key in ("endpoint", "settings", "set_by_hand"):
             continue
-        table.add_row(key.replace("_", " "), str(value))
+        table.add_row(key.replace("_", " "), _shown(key, value))
     for key, value in p["settings"].items():
         table.add_row(key, f"{value:g}" if isinstance(value, float) else str(value))
     console.print(table)

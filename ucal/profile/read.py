@@ -27,6 +27,8 @@ from ucal.cell import (
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.by_hand import KEYS as BY_HAND_KEYS
+from ucal.profile.by_hand import by_hand_to_dict, read_by_hand
 from ucal.profile.cell import CELL_KEYS, read_cell
 from ucal.profile.described import DESCRIPTION_KEYS, read_description
 from ucal.validation import (
@@ -84,7 +86,9 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
         }
     ),
     "controller": frozenset(MAX_CONTROLLER_TIMEOUT_S),
-    "pulser": frozenset({"register_map", "timeout_s", "retries", "timing", "reference_echo"}),
+    "pulser": frozenset(
+        {"register_map", "timeout_s", "retries", "timing", "reference_echo", *BY_HAND_KEYS}
+    ),
     "cell": CELL_KEYS,  # the cell's name and validation interval for published results
 }
 
@@ -534,12 +538,22 @@ def read_pulser(
             "pulser.timing",
             f"must be one of {', '.join(map(repr, PULSER_TIMINGS))}, got {timing!r}",
         )
+    by_hand = read_by_hand(r, table)
+    if by_hand is not None:
+        if timing not in (None, "ascan"):
+            raise r.error(
+                "pulser.timing",
+                "a pulser set by hand has no gate ucal reads: its echoes are timed from the "
+                'A-scans, "ascan"',
+            )
+        timing = "ascan"
     config = PulserConfig(
         timeout_s=d.timeout_s
         if timeout is None
         else r.number("pulser.timeout_s", timeout, lo=0.01, hi=MAX_PULSER_TIMEOUT_S, unit="s"),
         retries=d.retries if retries is None else r.integer("pulser.retries", retries, lo=0, hi=10),
         timing=d.timing if timing is None else str(timing),
+        by_hand=by_hand,
     )
     raw = r.get(table, "pulser.reference_echo")
     if raw is not None:
@@ -623,5 +637,6 @@ def profile_to_dict(profile: CellProfile) -> dict[str, Any]:
                 if profile.pulser.reference_echo_path is None
                 else str(profile.pulser.reference_echo_path)
             ),
+            **by_hand_to_dict(profile.pulser.by_hand),
         },
     }

@@ -12,6 +12,9 @@ takes the same echo at that instant and returns it as a waveform (``ucal.sim.rf`
 times on the host. The oscilloscope speaks the dialect of one family (world ``[pulser] scope``:
 a Keysight InfiniiVision X-Series or a Rigol DS1000Z, ``drivers.digitizer.scpi_simulator``),
 its trigger wired to the pulser's sync output where that family's is (EXT; CH2 on a DS1000Z).
+With ``pulser_kind="manual"`` the same oscilloscope is served alone, beside a pulser-receiver
+set by hand (``manual://``): its front panel is the profile's declaration with the world's
+gain (``panel``), and its echoes have the world's centre frequency.
 
 Time (``drivers.clock``): with a ``SimClock`` (a client in the same process, ``ucal calibrate
 --sim``) both devices run on simulated time in lock step with the client — an acquisition
@@ -47,6 +50,7 @@ from drivers.digitizer.simulated_scopes import FAMILIES as SCOPE_FAMILIES
 from drivers.loopback import Served
 from drivers.pulser.ascii_simulator import SimulatedAsciiPulser
 from drivers.pulser.base import PulserSettings
+from drivers.pulser.manual import URL as MANUAL_URL
 from drivers.pulser.registers import RegisterMap
 from drivers.pulser.simulator import AScanRequest as PulserAScanRequest
 from drivers.pulser.simulator import SimulatedPulser
@@ -116,7 +120,7 @@ class SimulatedCellServer(Served):
         self.scope = scope if scope is not None else self.world.pulser.scope
         self.controller: Any = None
         self.pulser: Any = None
-        self.digitizer: Any = None  # the oscilloscope of an ascii-scpi cell
+        self.digitizer: Any = None  # the oscilloscope of an ascii-scpi or a manual cell
         self.rf: RfOutput | None = None  # made with the first A-scan
         self._log_file: IO[str] | None = None
         self._log_lock = threading.Lock()
@@ -160,6 +164,8 @@ class SimulatedCellServer(Served):
             self.controller.start()
             if self.pulser_kind == "ascii-scpi":
                 self._start_ascii_scpi()
+            elif self.pulser_kind == "manual":
+                self._start_scope()
             else:
                 self.pulser = SimulatedPulser(
                     self._acquire,
@@ -179,12 +185,16 @@ class SimulatedCellServer(Served):
         except BaseException:
             self.stop()
             raise
-        log.info("simulated cell: controller %s, pulser %s", self.controller.url, self.pulser.url)
+        log.info("simulated cell: %s", self.urls)
         return self
 
     def _start_ascii_scpi(self) -> None:
         """Start the ASCII serial pulser and the oscilloscope that records its RF output."""
         self.pulser = SimulatedAsciiPulser(self.host, 0).start()
+        self._start_scope()
+
+    def _start_scope(self) -> None:
+        """Start the oscilloscope that records the pulser's RF output."""
         self.rf = self._rf_output()
         family = SCOPE_FAMILIES[self.scope]
         self.digitizer = SimulatedScope(
@@ -221,12 +231,22 @@ class SimulatedCellServer(Served):
         return world if world is not None else self.profile.pulser.register_map
 
     @property
+    def panel(self) -> PulserSettings:
+        """The front panel of a pulser set by hand: the profile's declaration (the defaults
+        where it has none) with the world's gain."""
+        by_hand = self.profile.pulser.by_hand
+        declared = PulserSettings() if by_hand is None else by_hand.panel
+        return replace(declared, gain_db=self.world.pulser.gain_db)
+
+    @property
     def urls(self) -> dict[str, str]:
         """``{"controller": URL, "pulser": URL}`` of the running simulators, and
-        ``"digitizer": URL`` for an ascii-scpi cell."""
-        if self.controller is None or self.pulser is None:
+        ``"digitizer": URL`` for an ascii-scpi or a manual cell (whose pulser is
+        ``manual://``)."""
+        if self.controller is None or (self.pulser is None and self.digitizer is None):
             raise RuntimeError("the simulated cell is not running")
-        urls = {"controller": self.controller.url, "pulser": self.pulser.url}
+        pulser = MANUAL_URL if self.pulser is None else self.pulser.url
+        urls = {"controller": self.controller.url, "pulser": pulser}
         if self.digitizer is not None:
             urls["digitizer"] = self.digitizer.url
         return urls
@@ -274,7 +294,7 @@ class SimulatedCellServer(Served):
         scope's window and averages); the time the scope takes to hand it over passes when it
         is read (``_scope_transfer``)."""
         assert self.rf is not None
-        knobs = self.pulser.settings
+        knobs = self.panel if self.pulser is None else self.pulser.settings
         settings = replace(
             knobs,
             gate_start_us=max(request.t0_ns, 0.0) * 1e-3,
@@ -282,7 +302,7 @@ class SimulatedCellServer(Served):
             averages=request.averages,
         )
         amplitude, tof_ns = self._acquire(settings)
-        if not self.pulser.pulsing:
+        if self.pulser is not None and not self.pulser.pulsing:
             amplitude, tof_ns = 0.0, float("nan")
         return self._rf_record(request.t0_ns, request.dt_ns, request.n, amplitude, tof_ns, settings)
 
@@ -333,7 +353,12 @@ class SimulatedCellServer(Served):
         posture = self._posture
         if posture is not None and math.isfinite(tof_ns):
             joints, gain_db, t_s, motion_sign = posture
-            later = later_echoes(self.cell.echoes(joints, gain_db, t_s, motion_sign))
+            echoes = self.cell.echoes(joints, gain_db, t_s, motion_sign)
+            later = later_echoes(echoes)
+            if self.pulser_kind == "manual" and echoes and amplitude >= 1.0:
+                # the receiver's output beyond full screen, not the gate's saturated reading:
+                # the scope clips it (a panel's gain too high for the echo)
+                amplitude = max(amplitude, echoes[0][1])
         return self.rf.record(t0_ns, dt_ns, n, amplitude, tof_ns, noise, later)
 
     def _ascan_transfer(self, words: int) -> None:
