@@ -7,6 +7,8 @@ paper 000 §4.2). Two wrist joints suffice to aim a beam; the third is kept near
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -43,9 +45,10 @@ def aim_wrist(
 
     q = _aim_closed_form(geom, q0, target, offsets_deg)
     # The closed form assumes the DH wrist (no Hayati twist on links 4-5): check it.
-    if q is None or aim_error_deg(q) > 1e-6:
+    err = math.inf if q is None else aim_error_deg(q)
+    if q is None or err > 1e-6:
         q = _aim_least_squares(geom, q0, target, offsets_deg, keep_weight)
-    err = aim_error_deg(q)
+        err = aim_error_deg(q)
     if err > 1e-6:
         raise SafetyError(
             f"the wrist cannot point the beam along {np.round(target, 4).tolist()} "

@@ -6,6 +6,7 @@ docstring."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -52,9 +53,15 @@ class Correlator:
         spectrum = ref.spectrum(n_fft)
         return cls(n, n_fft, spectrum, float(np.sum(fft.irfft(spectrum, n_fft) ** 2)))
 
+    @functools.cached_property
+    def conjugate(self) -> np.ndarray:
+        """The reference's spectrum conjugated: a record's correlation is its spectrum times
+        this (kept: the fits of one record correlate it again and again)."""
+        return np.conj(self.spectrum)
+
     def fit(self, x: np.ndarray, lag: float) -> tuple[float, float]:
         """(lag, amplitude) at the correlation peak nearest ``lag`` (samples)."""
-        lag, value = series_peak(fft.rfft(x, self.n_fft) * np.conj(self.spectrum), self.n_fft, lag)
+        lag, value = series_peak(fft.rfft(x, self.n_fft) * self.conjugate, self.n_fft, lag)
         return lag, value / self.energy
 
     def model(self, lag: float) -> np.ndarray:
@@ -124,7 +131,7 @@ def _separate(
     (lag, amplitude, lag₂, amplitude₂), or None when none is found or the turns do not
     settle."""
     residual = np.where(used, x - amplitude * corr.model(lag), 0.0)
-    c = fft.irfft(fft.rfft(residual, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
+    c = fft.irfft(fft.rfft(residual, corr.n_fft) * corr.conjugate, corr.n_fft)
     lags = np.arange(-corr.n + 1, corr.n)
     window = np.flatnonzero(in_echo)
     near = (lags >= window[0] - corr.n // 2) & (lags <= window[-1])  # over the echo's span

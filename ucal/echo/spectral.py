@@ -9,6 +9,8 @@ through three samples is exact only for a parabola.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy import fft
 
@@ -21,6 +23,17 @@ def _weights(n_bins: int, n_fft: int) -> np.ndarray:
     return w
 
 
+@functools.lru_cache(maxsize=32)
+def _grid(n_bins: int, n_fft: int) -> tuple[np.ndarray, ...]:
+    """The bins' ω (rad per sample), iω, −iω, ω² and weights for ``n_bins`` bins of an
+    ``n_fft`` DFT, read-only: a record's correlations are refined again and again on one grid."""
+    omega = 2.0 * np.pi * np.arange(n_bins) / n_fft
+    arrays = (omega, 1j * omega, -1j * omega, omega**2, _weights(n_bins, n_fft))
+    for a in arrays:
+        a.flags.writeable = False
+    return arrays
+
+
 def series_peak(
     spectrum: np.ndarray, n_fft: int, lag: float, max_iterations: int = 30
 ) -> tuple[float, float]:
@@ -31,19 +44,19 @@ def series_peak(
     until a step is below 1e-9 samples. Start within half a sample of the peak (the largest
     sample of the series): there the series is concave for any echo sampled above Nyquist.
     """
-    omega = 2.0 * np.pi * np.arange(spectrum.size) / n_fft
-    weighted = spectrum * _weights(spectrum.size, n_fft)
+    omega, i_omega, _, omega2, weights = _grid(spectrum.size, n_fft)
+    weighted = spectrum * weights
     for _ in range(max_iterations):
-        z = weighted * np.exp(1j * omega * lag)
+        z = weighted * np.exp(i_omega * lag)
         slope = -float(np.sum(omega * z.imag))
-        curvature = -float(np.sum(omega**2 * z.real))
+        curvature = -float(np.sum(omega2 * z.real))
         if curvature >= 0.0:
             break
         step = float(np.clip(-slope / curvature, -0.5, 0.5))
         lag += step
         if abs(step) < 1e-9:
             break
-    value = float(np.sum((weighted * np.exp(1j * omega * lag)).real)) / n_fft
+    value = float(np.sum((weighted * np.exp(i_omega * lag)).real)) / n_fft
     return lag, value
 
 
@@ -51,10 +64,10 @@ def shifted(spectrum: np.ndarray, n_fft: int, delay: float, derivative: bool = F
     """The record of ``spectrum`` (``rfft``, padded to ``n_fft``) delayed by ``delay`` samples
     (band-limited; what leaves the end comes back at the start), or its derivative with
     respect to the delay."""
-    omega = 2.0 * np.pi * np.arange(spectrum.size) / n_fft
-    s = spectrum * np.exp(-1j * omega * delay)
+    minus_i_omega = _grid(spectrum.size, n_fft)[2]
+    s = spectrum * np.exp(minus_i_omega * delay)
     if derivative:
-        s = s * (-1j * omega)
+        s = s * minus_i_omega
     if n_fft % 2 == 0:
         s[-1] = 0.0
     return fft.irfft(s, n_fft)

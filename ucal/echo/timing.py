@@ -327,7 +327,7 @@ def _reference_estimate(
     # arrival = t0 − ref.t0 + lag·dt: the whole-sample lag of the largest correlation sample
     # whose arrival is in the gate, then its peak
     x = raw - np.mean(raw)  # an echo sums to 0: the mean is the offset
-    c = fft.irfft(fft.rfft(x, corr.n_fft) * np.conj(corr.spectrum), corr.n_fft)
+    c = fft.irfft(fft.rfft(x, corr.n_fft) * corr.conjugate, corr.n_fft)
     lags = np.arange(-(ref.n - 1), n)
     c = c[lags % corr.n_fft]  # the template's correlation at every lag it overlaps the record
     arrivals = ascan.t0_ns - ref.t0_ns + lags * dt
