@@ -17,11 +17,28 @@ settings.register_profile("ucal", deadline=None)
 settings.load_profile("ucal")
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The tests marked ``long`` first, the rest in their order: the workers share the rest
     out while the long ones run, instead of one worker running a long one after the others
-    are done."""
-    items.sort(key=lambda item: item.get_closest_marker("long") is None)
+    are done. Under xdist each worker starts with an equal contiguous share of the collection
+    (``--dist worksteal``; the idle ones then take the tail of the busiest's), so the long
+    tests are dealt out in turn to the head of each share, not all given to the first."""
+    long = [item for item in items if item.get_closest_marker("long") is not None]
+    rest = [item for item in items if item.get_closest_marker("long") is None]
+    workers = int(getattr(config, "workerinput", {}).get("workercount", 1))
+    if workers < 2:
+        items[:] = long + rest
+        return
+    ordered: list[pytest.Item] = []
+    pending = len(items)
+    for k in range(workers):
+        share = pending // (workers - k)  # as worksteal splits the collection
+        pending -= share
+        head = long[k::workers][:share]
+        ordered += head
+        ordered += rest[: share - len(head)]
+        del rest[: share - len(head)]
+    items[:] = ordered + rest + [item for item in long if item not in ordered]
 
 
 @pytest.fixture(autouse=True)

@@ -17,7 +17,9 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :func:`measured_cell` — noisy face measurements of a true cell (a DH table, offsets, block,
   water) at a plan's postures, without a simulator;
 * :func:`calibrated_profile` — a profile with a history (a calibrate and a tool-frame write),
-  written by the profile's own write functions in a fraction of a second.
+  written by the profile's own write functions in a fraction of a second;
+* :func:`once_per_run` — what a costly fixture makes, made once for the whole test run (one
+  xdist worker makes it, the others wait for it and read it).
 """
 
 from __future__ import annotations
@@ -27,12 +29,14 @@ import io
 import json
 import logging
 import os
+import shutil
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+import pytest
 
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.acoustics import sound_speed_m_s
@@ -42,6 +46,11 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.cli import main
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.profile import create_profile, write_profile
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: every worker makes its own
+    fcntl = None  # type: ignore[assignment]
 
 #: What :func:`calibrated_profile` writes (as ``calibrate`` and ``tool-frame`` write them).
 WRITTEN_OFFSETS_DEG = [0.0, -1.201831, 1.499818, -1.999015, 1.09977, 0.0]
@@ -77,6 +86,30 @@ def calibrated_profile(
     }
     write_profile(path, {"tool": tool}, "tool-frame (exact)")
     return path
+
+
+def once_per_run(
+    factory: pytest.TempPathFactory, name: str, make: Callable[[Path], dict[str, Any]]
+) -> tuple[Path, dict[str, Any]]:
+    """``make(directory)``'s JSON result and its directory, made once for the test run: the
+    xdist workers share the run's temporary root, and the first to ask makes it there (the
+    others wait on a lock, then read it), where a module- or session-scoped fixture is made
+    again by every worker that runs one of its tests. Alone (no xdist, or no ``fcntl``) the
+    run makes it itself. The directory is the makers' to write: a test that writes copies it.
+    """
+    if os.environ.get("PYTEST_XDIST_WORKER") is None or fcntl is None:
+        directory = factory.mktemp(name)
+        return directory, make(directory)
+    directory = factory.getbasetemp().parent / name
+    done = directory.with_name(f"{name}.json")
+    with open(directory.with_name(f"{name}.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(directory, ignore_errors=True)
+            directory.mkdir()
+            result = make(directory)
+            done.write_text(json.dumps(result), encoding="utf-8")
+    return directory, json.loads(done.read_text(encoding="utf-8"))
 
 
 def exit_code(args: list[str]) -> int:

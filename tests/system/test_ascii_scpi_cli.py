@@ -1,5 +1,5 @@
 """The instrument back-ends from the command line, each against the Modbus pulser's own gate on
-the same noisy world (trigger jitter, a 12-bit digitiser), which runs once for the module:
+the same noisy world (trigger jitter, a 12-bit digitiser), which runs once for the test run:
 
 * ``[pulser] timing = "ascan"``: the Modbus cell's echoes timed on the host from its A-scans
   calibrate, the result is written and covered, its J2–J5 stds are no larger than the gate's,
@@ -19,6 +19,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from ucal.profile import default_profile_text
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, DEMO_NOISE
 from ucal.sim.serve import serving
 
-from doubles import finished_json, noisy_world, std_of
+from doubles import finished_json, noisy_world, once_per_run, std_of
 
 pytestmark = pytest.mark.system
 
@@ -63,19 +64,32 @@ def calibrate(
 @pytest.fixture(scope="module")
 def gate(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[], dict]]:
     """The Modbus pulser's own gate on the noisy world (the digitiser's settings do not enter
-    a gated run: the same result on every back-end's world), started once: its ``--json``."""
-    proc = calibrate(tmp_path_factory.mktemp("gate"), "gate", noisy_world(bits=12))
-    done: dict = {}
+    a gated run: the same result on every back-end's world), run once for the test run
+    (``doubles.once_per_run``: the module's long tests start on different workers), started
+    beside the test's own run: its ``--json``."""
+
+    def make(directory: Path) -> dict:
+        return finished_json(calibrate(directory, "gate", noisy_world(bits=12)))
+
+    outcome: list[dict | BaseException] = []
+
+    def run() -> None:
+        try:
+            outcome.append(once_per_run(tmp_path_factory, "gate", make)[1])
+        except BaseException as e:  # raised again in the test that asks for the result
+            outcome.append(e)
+
+    made = threading.Thread(target=run, daemon=True)
+    made.start()
 
     def result() -> dict:
-        if not done:
-            done.update(finished_json(proc))
-        return done
+        made.join()
+        if isinstance(outcome[0], BaseException):
+            raise outcome[0]
+        return outcome[0]
 
     yield result
-    if proc.poll() is None:
-        proc.kill()
-        proc.communicate()
+    made.join()
 
 
 @pytest.mark.long

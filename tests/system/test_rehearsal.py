@@ -6,67 +6,49 @@ demo truth of ``ucal.sim.demo``), which must end in a pass, relative to the bloc
 ``ucal.calibration.gauge``), marginal within what the DH table left unidentified allows, with
 the simulator's truth confirming the "after" figure; then the
 shipped world with faults, which must fail. Each line runs the command line in the test's
-process (the same code a shell runs, without a new interpreter's imports). One test, because
-the whole workflow costs seconds of CPU; ``test_readme_examples`` leaves this block to it.
+process (the same code a shell runs, without a new interpreter's imports), once for the test
+run: the ``rehearsal`` fixture of ``tests/system/conftest.py``, whose cell
+``test_report_rehearsal.py`` reports on. One test, because the whole workflow costs seconds of
+CPU; ``test_readme_examples`` leaves this block to it.
 """
 
 from __future__ import annotations
 
 import json
-import shlex
-import shutil
-import subprocess
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from ucal.verify.result import MEASURED_WITHIN_MM
 
-from doubles import ucal_here
-
 pytestmark = pytest.mark.system
 
-REPO = Path(__file__).resolve().parents[2]
-FAULTY_WORLD = REPO / "examples" / "faulty_world.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def ucal(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    """``ucal ARGS`` in ``cwd``, in this process (``doubles.ucal_here``: the command line a
-    user runs, without a new interpreter's imports for each line)."""
-    return ucal_here(*args, cwd=cwd)
-
-
-#: The first line of the README's rehearsal block, which names it.
-REHEARSAL_FIRST = "ucal profile init tx90l cell.toml"
-
-
-def rehearsal_lines() -> list[list[str]]:
-    """The README's rehearsal block: each line's arguments after ``ucal``."""
-    text = (REPO / "README.md").read_text(encoding="utf-8")
-    block = text[text.index(REHEARSAL_FIRST) :].split("```", 1)[0]
-    return [shlex.split(ln)[1:] for ln in block.splitlines() if ln.strip()]
 
 
 @pytest.mark.long
 @pytest.mark.timeout(420)
-def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path) -> None:
-    lines = rehearsal_lines()
-    assert [a[0] for a in lines] == ["profile", "calibrate", "tool-frame", "verify", "verify"]
-    (tmp_path / "examples").mkdir()
-    shutil.copy(FAULTY_WORLD, tmp_path / "examples" / FAULTY_WORLD.name)
-    init, calibrate, tool_frame, verify, faulty = lines
-    assert faulty[faulty.index("--sim") + 1] == f"examples/{FAULTY_WORLD.name}"
-    r = ucal(tmp_path, *init)
-    assert r.returncode == 0, r.stderr
-    profile = tmp_path / "cell.toml"
-    placed = tomllib.loads(profile.read_text())["sample"]
+def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(
+    rehearsal: tuple[Path, list[dict[str, Any]]],
+) -> None:
+    directory, steps = rehearsal  # the README's lines (tests/system/conftest.py)
+    assert [s["args"][0] for s in steps] == [
+        "profile",
+        "calibrate",
+        "tool-frame",
+        "verify",
+        "verify",
+    ]
+    init, calibrate, tool_frame, verify, faulty = steps
+    assert faulty["args"][faulty["args"].index("--sim") + 1] == "examples/faulty_world.toml"
+    assert init["returncode"] == 0, init["stderr"]
+    placed = tomllib.loads(init["profile"])["sample"]
 
-    r = ucal(tmp_path, *calibrate, "--json")
-    assert r.returncode == 0, r.stderr
-    cal = json.loads(r.stdout)
+    assert calibrate["returncode"] == 0, calibrate["stderr"]
+    cal = json.loads(calibrate["stdout"])
     # J1 measured relative to the hand-placed block, not kept: its absolute std carries the
     # block's yaw tolerance, its block-relative std the data's
     assert cal["unobservable_joints"] == [6] and cal["gauge"] == "block"
@@ -76,19 +58,17 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     error = np.abs(np.array(cal["joint_offsets_deg"][:5]) - truth_block[:5])
     assert np.all(error <= 3 * np.array(cal["std_block_deg"][:5])), error
     # the block as the calibration measured it goes into [sample] (its stds as declared)
-    written = tomllib.loads(profile.read_text())
+    written = tomllib.loads(calibrate["profile"])
     assert written["sample"]["position_mm"] == cal["block"]["position_mm"]
     assert written["sample"]["position_std_mm"] == placed["position_std_mm"]
     assert written["calibration"]["gauge"] == "block"
 
     # the tool with the offsets calibrated: the order that leaves the least along the beam
-    r = ucal(tmp_path, *tool_frame, "--json")
-    assert r.returncode == 0, r.stderr
-    written = tomllib.loads(profile.read_text())
+    assert tool_frame["returncode"] == 0, tool_frame["stderr"]
+    written = tomllib.loads(tool_frame["profile"])
 
-    r = ucal(tmp_path, *verify, "--json")
-    assert r.returncode == 0, r.stderr
-    out = json.loads(r.stdout)
+    assert verify["returncode"] == 0, verify["stderr"]
+    out = json.loads(verify["stdout"])
     assert out["passed"] is True and out["tolerance_mm"] == 0.5
     assert out["gauge"] == "block" and out["j1_gauge"] == "block"
     assert out["absolute_std_mm"] > 1.0  # the yaw as placed, at the points' reach
@@ -113,14 +93,13 @@ def test_the_rehearsal_ends_in_a_pass_and_the_faulty_world_fails(tmp_path: Path)
     truth = out["truth"]
     assert np.all(np.array(truth["after_figure_error_mm"]) <= MEASURED_WITHIN_MM), truth
     assert np.max(truth["after_mm"]["max"]) < 0.5
-    assert (tmp_path / "cell.verify.png").read_bytes()[:8] == PNG_MAGIC
+    assert (directory / "cell.verify.png").read_bytes()[:8] == PNG_MAGIC
     # verify never writes the profile
-    assert tomllib.loads(profile.read_text()) == written
+    assert tomllib.loads(verify["profile"]) == written
 
     # one command away: the same cell after a remount, a collision and a bumped block
-    r = ucal(tmp_path, *faulty, "--json")
-    assert r.returncode == 1, r.stderr
-    bad = json.loads(r.stdout)
+    assert faulty["returncode"] == 1, faulty["stderr"]
+    bad = json.loads(faulty["stdout"])
     assert bad["passed"] is False and "above the tolerance" in bad["error"]
     assert np.max(bad["truth"]["after_mm"]["max"]) > 0.5  # the truth fails it too
     # the tool check finds the transducer's millimetre across the beam

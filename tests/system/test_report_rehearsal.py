@@ -2,8 +2,9 @@
 the picture of this cell's verify (not the faulty world's), its history reads as sentences, and
 chromium prints it to A4 without a nearly empty page.
 
-The rehearsal is run once for the module, with ``--sim`` and 3 verify points: calibrate,
-tool-frame, verify on the built-in cell, verify on ``examples/faulty_world.toml``. The PDF is
+The rehearsal is the README's, run once for the test run (the ``rehearsal`` fixture of
+``tests/system/conftest.py``), with ``--sim`` and 3 verify points: calibrate, tool-frame,
+verify on the built-in cell, verify on ``examples/faulty_world.toml``. The PDF is
 read without a PDF library: chromium (Skia) writes plain objects and Flate content streams, so
 the pages and the glyphs each shows are counted from the file itself.
 """
@@ -17,6 +18,7 @@ import shutil
 import subprocess
 import zlib
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_report_browser import run_chromium
@@ -25,8 +27,6 @@ from doubles import ucal_here
 
 pytestmark = pytest.mark.system
 
-REPO = Path(__file__).resolve().parents[2]
-FAULTY_WORLD = REPO / "examples" / "faulty_world.toml"
 #: A page showing fewer glyphs than this is "nearly empty" (three lines of text, about).
 MIN_PAGE_GLYPHS = 300
 #: The rehearsal's report printed to 7 A4 pages when measured (the page before: 8, three of
@@ -39,31 +39,16 @@ def ucal(cwd: Path, *args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def cell(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The rehearsal's directory, its report written to ``report.html``."""
+def cell(
+    rehearsal: tuple[Path, list[dict[str, Any]]], tmp_path_factory: pytest.TempPathFactory
+) -> Path:
+    """The rehearsal's directory (the ``rehearsal`` fixture's, copied), its report written to
+    ``report.html``."""
+    shared, steps = rehearsal
+    for step, code in zip(steps, (0, 0, 0, 0, 1), strict=True):
+        assert step["returncode"] == code, (step["args"], step["stdout"][-2000:], step["stderr"])
     d = tmp_path_factory.mktemp("rehearsal")
-    (d / "examples").mkdir()
-    shutil.copy(FAULTY_WORLD, d / "examples" / FAULTY_WORLD.name)
-    assert ucal(d, "profile", "init", "tx90l", "cell.toml").returncode == 0
-    for args, code in (
-        (["calibrate", "cell.toml", "--sim", "--yes"], 0),
-        (["tool-frame", "cell.toml", "--sim", "--yes"], 0),
-        (["verify", "cell.toml", "--sim", "--yes", "--points", "3"], 0),
-        (
-            [
-                "verify",
-                "cell.toml",
-                "--sim",
-                "examples/faulty_world.toml",
-                "--yes",
-                "--points",
-                "3",
-            ],
-            1,
-        ),
-    ):
-        r = ucal(d, *args)
-        assert r.returncode == code, (args, r.stdout[-2000:], r.stderr[-2000:])
+    shutil.copytree(shared, d, dirs_exist_ok=True)
     r = ucal(d, "report", "cell.toml", "-o", "report.html")
     assert r.returncode == 0, r.stderr
     return d
