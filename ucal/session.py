@@ -117,6 +117,15 @@ def check_averages(profile: CellProfile, rig: Rig) -> None:
     check = getattr(rig.pulser, "check_settings", None)  # a replayed pulser has none
     if check is None:
         return
+    try:
+        check(rig.settings)
+    except ValueError as e:  # not the averages: the gate and settings the procedures read at
+        endpoint = getattr(rig.pulser, "endpoint", "the pulser")
+        raise ProfileError(
+            profile.path or "the profile",
+            "pulser.prf_hz" if profile.pulser.set_by_hand else None,
+            f"the pulser at {endpoint} cannot take the procedures' settings: {e}",
+        ) from None
     averages = max(profile.procedure.tof_averages, 1)
     try:
         check(replace(rig.settings, averages=averages))

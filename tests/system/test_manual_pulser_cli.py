@@ -161,6 +161,21 @@ def test_a_declaration_the_records_disagree_with_is_refused_before_any_motion(
     assert profile.read_bytes() == before
 
 
+def test_a_panel_whose_period_the_gate_outlasts_is_refused_naming_its_prf(
+    run_main, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    profile = cell_set_by_hand(tmp_path)
+    profile.write_text(profile.read_text().replace("prf_hz = 500.0", "prf_hz = 5000.0"))
+    moves = counting_moves(monkeypatch)
+    code, out, _ = run_main(["calibrate", str(profile), "--sim", "--yes", "--json"])
+    assert code == 2 and moves["n"] == 0
+    assert json.loads(out)["error"] == (
+        f"{profile}: pulser.prf_hz: the pulser at manual:// cannot take the procedures' "
+        "settings: gate 5 + 400 µs ends after the pulse repetition period (200 µs at the front "
+        "panel's 5000 Hz)"
+    )
+
+
 def test_the_first_echo_of_another_frequency_is_refused_before_it_is_used(
     run_main, tmp_path: Path
 ) -> None:
