@@ -392,6 +392,12 @@ def _pulser(r: Reader, table: Mapping[str, Any], d: PulserTruth) -> PulserTruth:
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
     panel = r.get(table, "pulser.gain_db")
+    if panel is not None and kind != "manual":
+        raise r.error(
+            "pulser.gain_db",
+            f'is the front panel\'s gain of a pulser set by hand (kind = "manual"): the {kind} '
+            "pulser's gain is the one ucal sets",
+        )
     map_raw = r.get(table, "pulser.register_map")
     map_path, register_map = (
         (None, None) if map_raw is None else r.register_map("pulser.register_map", map_raw)

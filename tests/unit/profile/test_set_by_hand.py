@@ -70,3 +70,6 @@ def test_the_world_of_a_cell_set_by_hand_is_manual_with_the_declared_gain(tmp_pa
     world.write_text("[pulser]\ngain_db = 500.0\n")
     with pytest.raises(ProfileError, match=r"world\.toml: pulser\.gain_db"):
         load_world(world, cell)
+    world.write_text('[pulser]\nkind = "modbus"\ngain_db = 30.0\n')
+    with pytest.raises(ProfileError, match=r"pulser\.gain_db: is the front panel's gain"):
+        load_world(world, cell)
