@@ -312,7 +312,8 @@ class PulserTruth:
     (``drivers.digitizer.simulated_scopes.FAMILIES``; a Rigol DS1000Z's ADC has 8 bits, whatever
     ``bits`` says). ``"manual"``: a pulser-receiver set by hand, the same oscilloscope alone
     beside it; ``gain_db`` its front panel's gain (the world's default: the profile's
-    declaration), which a run reads only through the records.
+    declaration, else 20 dB, where the block's echo at 50 mm is 0.8 of full screen), which a
+    run reads only through the records.
     """
 
     amplitude_bits: int = 0
@@ -324,7 +325,7 @@ class PulserTruth:
     sample_rate_mhz: float = 200.0
     bits: int = 12
     scope: str = "keysight"
-    gain_db: float = 40.0
+    gain_db: float = 20.0
 
 
 @dataclass(frozen=True)
