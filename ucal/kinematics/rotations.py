@@ -10,34 +10,35 @@ from __future__ import annotations
 import numpy as np
 
 
-def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
-    """Rotation about x by ``angle_rad`` (…,) → (…, 3, 3)."""
+def _rotation(angle_rad: np.ndarray | float, axis: int) -> np.ndarray:
+    """Rotation about ``axis`` (0, 1, 2: x, y, z) by ``angle_rad`` (…,) → (…, 3, 3): the
+    identity with the plane's cosines and sines written in (the solvers build thousands of
+    single rotations, where stacking rows costs far more than the two trigonometric calls)."""
     a = np.asarray(angle_rad, dtype=float)
     c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack(
-        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
-    )
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]  # the plane turned, in the right-handed order
+    r = np.zeros(a.shape + (3, 3))
+    r[..., axis, axis] = 1.0
+    r[..., i, i] = c
+    r[..., i, j] = -s
+    r[..., j, i] = s
+    r[..., j, j] = c
+    return r
+
+
+def rot_x(angle_rad: np.ndarray | float) -> np.ndarray:
+    """Rotation about x by ``angle_rad`` (…,) → (…, 3, 3)."""
+    return _rotation(angle_rad, 0)
 
 
 def rot_y(angle_rad: np.ndarray | float) -> np.ndarray:
     """Rotation about y by ``angle_rad`` (…,) → (…, 3, 3)."""
-    a = np.asarray(angle_rad, dtype=float)
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack(
-        [np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2
-    )
+    return _rotation(angle_rad, 1)
 
 
 def rot_z(angle_rad: np.ndarray | float) -> np.ndarray:
     """Rotation about z by ``angle_rad`` (…,) → (…, 3, 3)."""
-    a = np.asarray(angle_rad, dtype=float)
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack(
-        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
-    )
+    return _rotation(angle_rad, 2)
 
 
 def rpy_to_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
@@ -99,6 +100,18 @@ def angle_between_deg(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Angle (deg) between vectors ``u`` and ``v`` (…, 3), accurate for tiny angles."""
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
-    cross = np.linalg.norm(np.cross(u, v), axis=-1)
+    cross = np.linalg.norm(cross3(u, v), axis=-1)
     dot = np.sum(u * v, axis=-1)
     return np.degrees(np.arctan2(cross, dot))
+
+
+def cross3(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``np.cross`` of 3-vectors (…, 3), broadcast, component by component as it computes
+    them (the same numbers) without its general set-up."""
+    u = np.asarray(u, dtype=float)
+    v = np.asarray(v, dtype=float)
+    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    out[..., 0] = u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1]
+    out[..., 1] = u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2]
+    out[..., 2] = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    return out
