@@ -84,6 +84,8 @@ _FIRST_READ_S = timing.read_s("tcp")
 #: full screen height): one level of an 8-bit amplitude. A quantised instrument reports 0 below
 #: one level, so the true floor is under it; the threshold (four floors) stays above the noise.
 ZERO_FLOOR_FSH = 1.0 / 256
+#: The pulser's settings a rig starts with: the gate every procedure reads in, 5–405 µs.
+DEFAULT_SETTINGS = PulserSettings(gain_db=40.0, gate_start_us=5.0, gate_width_us=400.0, averages=1)
 #: Gain step (dB) while an empty gate reads 0 (``Rig.measure_floor``).
 FLOOR_GAIN_STEP_DB = 12.0
 
@@ -152,9 +154,7 @@ class Rig:
         self.spacing = SweepSpacing()
         self.move_timeout_s = move_timeout_s
         self.counters = RigCounters()
-        self.settings = settings or PulserSettings(
-            gain_db=40.0, gate_start_us=5.0, gate_width_us=400.0, averages=1
-        )
+        self.settings = settings or DEFAULT_SETTINGS
         self.floor_per_gain: float | None = None  # noise-floor amplitude at 0 dB gain
         # One level of a quantised amplitude register (fraction of full screen height), seen
         # when an empty gate reads exactly 0; 0 while no quantisation has shown.

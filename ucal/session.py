@@ -233,23 +233,15 @@ def check_set_by_hand(pulser: Any, rig: Rig, profile: CellProfile) -> None:
     by_hand = profile.pulser.by_hand
     if by_hand is None or not isinstance(pulser, ManualPulser):
         return
-    from ucal.echo.by_hand import RECORDS, Declared, FirstEchoCheck, judge, look
+    from ucal.echo.by_hand import FirstEchoCheck, declared_of, judge, look, records_at_the_panel
 
-    declared = Declared(
-        by_hand.panel.gain_db,
-        profile.frequency_mhz,
-        by_hand.input_noise_uv,
-        pulser.full_screen_v,
-        str(profile.path or "the profile"),
-    )
-    settings = replace(rig.settings, gain_db=by_hand.panel.gain_db, averages=1)
+    declared = declared_of(profile, pulser.full_screen_v)
     try:
-        pulser.configure(settings)
-        records = [pulser.read_ascan_record() for _ in range(RECORDS)]
+        records, gate_ns = records_at_the_panel(pulser, declared, rig.settings)
         pulser.configure(rig.settings)
     except DriverError as e:
         raise HardwareError(str(e)) from e
-    found = look(records, declared, settings.gate_ns)
+    found = look(records, declared, gate_ns)
     log.info("pulser set by hand, where the arm stands: %s", found.as_json())
     judge(found, declared)
     if found.echo is None and pulser.echo_timer is not None:

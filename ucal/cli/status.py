@@ -145,24 +145,16 @@ def by_hand(pulser: Any, profile: Any) -> dict[str, Any]:
     identity, and ``"check"``, what a few records at the declared gain say of the declaration
     (``ucal.echo.by_hand``; ``"verdict"``: ``"ok"`` or the message a moving command would
     refuse with)."""
-    from ucal.echo.by_hand import RECORDS, Declared, judge, look
+    from ucal.echo.by_hand import declared_of, judge, look, records_at_the_panel
     from ucal.errors import ProfileError
+    from ucal.rig import DEFAULT_SETTINGS
 
-    by_hand_ = profile.pulser.by_hand
-    declared = Declared(
-        by_hand_.panel.gain_db,
-        profile.frequency_mhz,
-        by_hand_.input_noise_uv,
-        pulser.full_screen_v,
-        str(profile.path),
-    )
+    declared = declared_of(profile, pulser.full_screen_v)
     with pulser:
         out: dict[str, Any] = {"endpoint": pulser.endpoint, **pulser.identity()}
-        settings = dataclasses.replace(by_hand_.panel, gate_width_us=400.0)
-        pulser.configure(settings)
-        records = [pulser.read_ascan_record() for _ in range(RECORDS)]
+        records, gate_ns = records_at_the_panel(pulser, declared, DEFAULT_SETTINGS)
         out["settings"] = dataclasses.asdict(pulser.settings())
-    found = look(records, declared, settings.gate_ns)
+    found = look(records, declared, gate_ns)
     try:
         judge(found, declared)
         verdict = "ok"

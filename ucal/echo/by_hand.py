@@ -34,15 +34,20 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drivers.digitizer.base import AScanRecord, EchoTimer, EchoTiming
+from drivers.pulser.base import PulserSettings
 from ucal.echo.ascan import AScan, noise_rms
 from ucal.echo.timing import NoEcho, estimate_echo
 from ucal.errors import ProfileError
+
+if TYPE_CHECKING:
+    from drivers.pulser.manual import ManualPulser
+    from ucal.cell import CellProfile
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +79,32 @@ class Declared:
     def noise_fsh(self) -> float:
         """σ_p: the receiver's noise the declared gain gives (fraction of full screen)."""
         return self.input_noise_uv * 1e-6 * 10 ** (self.gain_db / 20) / self.full_screen_v
+
+
+def declared_of(profile: CellProfile, full_screen_v: float = 1.0) -> Declared:
+    """What ``profile`` (whose pulser is set by hand) declares, for a digitiser whose full
+    screen is ``full_screen_v``."""
+    by_hand = profile.pulser.by_hand
+    if by_hand is None:
+        raise ValueError(f"{profile.path}: the pulser is not set by hand")
+    return Declared(
+        by_hand.panel.gain_db,
+        profile.frequency_mhz,
+        by_hand.input_noise_uv,
+        full_screen_v,
+        str(profile.path or "the profile"),
+    )
+
+
+def records_at_the_panel(
+    pulser: ManualPulser, declared: Declared, settings: PulserSettings
+) -> tuple[list[AScanRecord], tuple[float, float]]:
+    """``RECORDS`` records of ``pulser`` over the gate of ``settings``, at the declared gain
+    (no gain on the host) and without averaging, and that gate (ns); ``pulser`` is left so
+    configured."""
+    panel = replace(settings, gain_db=declared.gain_db, averages=1)
+    pulser.configure(panel)
+    return [pulser.read_ascan_record() for _ in range(RECORDS)], panel.gate_ns
 
 
 @dataclass(frozen=True)
