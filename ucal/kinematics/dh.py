@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ucal.kinematics.rotations import cross3
+
 #: Joint order of every 6-vector in this package.
 N_JOINTS = 6
 
@@ -239,7 +241,7 @@ def jacobian(
     p = end[..., :3, 3]
     z = frames[..., :N_JOINTS, :3, 2]
     o = frames[..., :N_JOINTS, :3, 3]
-    lin = np.cross(z, p[..., None, :] - o)
+    lin = cross3(z, p[..., None, :] - o)
     jac = np.concatenate([lin, z], -1)  # (…, 6 joints, 6)
     return np.swapaxes(jac, -1, -2)
 
