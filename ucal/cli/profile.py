@@ -21,6 +21,7 @@ from ucal.profile import (
     profile_warnings,
     undo_profile,
 )
+from ucal.profile.by_hand import PANEL_KEYS
 from ucal.profile.urdf import FK_TOLERANCE_MM, model_from_urdf, read_urdf
 
 profile_arg = click.argument(
@@ -292,4 +293,8 @@ def _print_profile(data: dict) -> None:
             if key == "points_mm":
                 value = "; ".join(_fmt(p) for p in value)
             cell.add_row(f"{tname}.{key}", _fmt(value))
+    pulser = data.get("pulser", {})
+    if pulser.get("kind") == "manual":  # what a run is checked against: the panel set by hand
+        for key in ("kind", *PANEL_KEYS, "input_noise_uv"):
+            cell.add_row(f"pulser.{key}", _fmt(pulser[key]))
     console.print(cell)

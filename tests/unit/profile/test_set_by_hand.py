@@ -73,3 +73,16 @@ def test_the_world_of_a_cell_set_by_hand_is_manual_with_the_declared_gain(tmp_pa
     world.write_text('[pulser]\nkind = "modbus"\ngain_db = 30.0\n')
     with pytest.raises(ProfileError, match=r"pulser\.gain_db: is the front panel's gain"):
         load_world(world, cell)
+
+
+def test_profile_show_lists_the_panel(tmp_path: Path, run_main) -> None:
+    profile(tmp_path, PANEL)
+    code, out, _ = run_main(["profile", "show", str(tmp_path / "cell.toml")])
+    assert code == 0
+    rows = {
+        line.split("│")[1].strip(): line.split("│")[2].strip()
+        for line in out.splitlines()
+        if line.count("│") == 3
+    }
+    assert rows["pulser.kind"] == "manual" and rows["pulser.gain_db"] == "30"
+    assert rows["pulser.prf_hz"] == "500" and rows["pulser.input_noise_uv"] == "2.2"
