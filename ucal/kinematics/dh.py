@@ -36,6 +36,7 @@ figure 5 shows.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -162,6 +163,25 @@ def model_angles_rad(
     return np.radians(q)
 
 
+_EYE4 = np.eye(4)
+_EYE4.flags.writeable = False
+
+
+@functools.lru_cache(maxsize=64)
+def _table_constants(
+    dh_bytes: bytes, beta_bytes: bytes
+) -> tuple[np.ndarray, np.ndarray, tuple[tuple[int, np.ndarray], ...]]:
+    """What ``fk_frames`` takes of a DH table and its twists (their bytes: a table changed in
+    place is another table): cos α, sin α and each twisted link's ``Rot(y, β)``, read-only."""
+    alpha = np.radians(np.frombuffer(dh_bytes).reshape(N_JOINTS, 4)[:, 3])
+    beta = np.frombuffer(beta_bytes)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    twists = tuple((int(k), _rot_y4(np.radians(beta[k]))) for k in np.flatnonzero(beta))
+    for m in (ca, sa, *(t for _, t in twists)):
+        m.flags.writeable = False
+    return ca, sa, twists
+
+
 def fk_frames(
     model: RobotModel, joints_deg: np.ndarray, offsets_deg: np.ndarray | None = None
 ) -> np.ndarray:
@@ -174,8 +194,7 @@ def fk_frames(
     th = model_angles_rad(model, joints_deg, offsets_deg)
     shape = th.shape[:-1]
     ct, st = np.cos(th), np.sin(th)
-    alpha = np.radians(model.alpha_deg)
-    ca, sa = np.cos(alpha), np.sin(alpha)
+    ca, sa, twists = _table_constants(model.dh.tobytes(), model.beta_deg.tobytes())
     a, d = model.a_mm, model.d_mm
     links = np.zeros(shape + (N_JOINTS, 4, 4))
     links[..., 0, 0] = ct
@@ -191,9 +210,9 @@ def fk_frames(
     links[..., 2, 3] = d
     links[..., 3, 3] = 1.0
     frames = np.empty(shape + (N_JOINTS + 1, 4, 4))
-    frames[..., 0, :, :] = np.eye(4)
-    for k in np.flatnonzero(model.beta_deg):  # the twisted links
-        links[..., k, :, :] = links[..., k, :, :] @ _rot_y4(np.radians(model.beta_deg[k]))
+    frames[..., 0, :, :] = _EYE4
+    for k, twist in twists:  # the twisted links
+        links[..., k, :, :] = links[..., k, :, :] @ twist
     frames[..., 1, :, :] = links[..., 0, :, :]
     for i in range(1, N_JOINTS):
         np.matmul(frames[..., i, :, :], links[..., i, :, :], out=frames[..., i + 1, :, :])
