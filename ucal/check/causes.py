@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, _rpy_matrix
-from ucal.check.solve import N_SIGMA, Change, GeometryComparison, temperature_change_c
+from ucal.check.solve import N_SIGMA, Change, GeometryComparison
 
 
 @dataclass(frozen=True)
@@ -142,3 +143,21 @@ def water_words(comparison: GeometryComparison, prior: CellPrior) -> str:
         "measures, a scan that takes it from [water] temperature_c is off by "
         f"{100 * c.change / prior.sound_speed_m_s:+.3f} % of its water path"
     )
+
+
+def temperature_change_c(prior: CellPrior, sound_change_m_s: float) -> float:
+    """The water temperature change (°C) that a sound speed change (m/s) means, at the
+    profile's temperature (Marczak's c(T))."""
+    return float(sound_change_m_s / sound_speed_slope_m_s_per_c(prior.water_temperature_c))
+
+
+def temperature_of(prior: CellPrior, speed_m_s: float) -> float:
+    """The water temperature (°C) at which Marczak's c(T) is ``speed_m_s`` (near the
+    profile's temperature; Newton's method)."""
+    t = prior.water_temperature_c
+    for _ in range(20):
+        step = (speed_m_s - sound_speed_m_s(t)) / sound_speed_slope_m_s_per_c(t)
+        t += step
+        if abs(step) < 1e-9:
+            break
+    return float(t)

@@ -31,7 +31,7 @@ then not determined: ``ucal.check.observe``).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -59,10 +59,17 @@ EDGE_CONFIGURATION = Configuration.BASE
 #: of one straight edge, each line's noise its own.
 EDGE_AXES = (0, 1)
 LATERAL_MM = (-15.0, 15.0)
-#: The coarse search starts this far before the edge the profile predicts (mm), and the line
-#: runs this far beyond it at most: a block bumped or a tool remounted by a few mm is found.
+#: The coarse search starts this far before the edge the profile predicts (mm) at least, and
+#: the line runs this far beyond it at least: a block bumped or a tool remounted by a few mm is
+#: found. Both grow with what the profile does not know (``search_margin_mm``).
 EDGE_APPROACH_MM = 8.0
 EDGE_OVERSHOOT_MM = 10.0
+#: Sigmas of the profile's declared tolerances the lines cover, and the least reach either side
+#: of the profile's edge where the reference's crossing does not say where the edge is (mm):
+#: at the offsets level the profile may put the beam's hit point a centimetre off (a tool
+#: tilted beyond its tolerance, taken up by the offsets: ``benchmarks/check_changes.py``).
+SEARCH_SIGMAS = 3.0
+WIDE_SEARCH_MM = 30.0
 #: The scan's settings: verify's (``ucal.measure.edges.EdgeScan``) with a fine scan of 41
 #: probes over ±5 mm (the footprint's σ is 1.5 mm at 25 MHz and 6 mm), 16 averages a probe: a
 #: crossing repeats to 0.008–0.018 mm on the simulated cell's 8-bit amplitude (21 probes:
@@ -93,6 +100,21 @@ class EdgeLine:
         pose[:3, 3] += t_mm * self.direction
         return pose
 
+    def oriented(self, profile: CellProfile, readings_deg: np.ndarray) -> EdgeLine:
+        """The line with the tool turned as at ``readings_deg`` (the base/XY face's measured
+        normal incidence, as the profile's kinematics put it), the positions kept, each end
+        checked again (``SafetyError``)."""
+        model, tool = profile.model, profile.tool_matrix
+        offsets = np.asarray(profile.joint_offsets_deg, float)
+        pose = self.pose.copy()
+        pose[:3, :3] = fk(model, readings_deg, tool, offsets)[:3, :3]
+        q0 = ik(model, pose, tool, offsets, near_deg=readings_deg)
+        line = replace(self, pose=pose, start_deg=q0)
+        for where in (line.start_mm, line.end_mm):
+            q = ik(model, line.at(where), tool, offsets, near_deg=q0)
+            check_joints(profile, q, self.label)
+        return line
+
 
 @dataclass(frozen=True)
 class EdgeReading:
@@ -107,6 +129,9 @@ class EdgeReading:
     std_mm: float
     edge_mm: float  # the face's size: where the edge is on the block axis
     probes: int = 0
+    #: where along its line the beam crossed the edge (mm): a later check's line is centred
+    #: there (``plan_edges``)
+    t_mm: float | None = None
     time_min: float | None = field(default=None, compare=False)
     approach: np.ndarray | None = field(default=None, compare=False)
 
@@ -120,6 +145,7 @@ class EdgeReading:
             "std_mm": float(self.std_mm),
             "edge_mm": float(self.edge_mm),
             "probes": int(self.probes),
+            "t_mm": self.t_mm,
             "time_min": self.time_min,
             "approach": None if self.approach is None else [float(v) for v in self.approach],
         }
@@ -135,9 +161,30 @@ class EdgeReading:
             float(data["std_mm"]),
             float(data["edge_mm"]),
             int(data.get("probes", 0)),
+            data.get("t_mm"),
             data.get("time_min"),
             None if approach is None else np.asarray(approach, float),
         )
+
+
+def search_margin_mm(profile: CellProfile, water_path_mm: float) -> float:
+    """How far (mm) the edge may be from where the profile puts it, at ``SEARCH_SIGMAS`` of
+    its declared tolerances: the tool across the beam, the tool's tilt over its length and
+    the water path (the line is turned to the beam's measured normal incidence, which the
+    profile's tool puts elsewhere), the block's position and its turn about its normal over
+    the face."""
+    tool = np.asarray(profile.tool_position_std_mm, float)
+    tilt = np.radians(np.asarray(profile.tool_rotation_std_deg, float)[:2])
+    lever = float(np.linalg.norm(profile.tool_position_mm)) + water_path_mm
+    block = float(np.max(profile.sample_position_std_mm))
+    yaw = np.radians(float(np.asarray(profile.sample_rotation_std_deg, float)[2]))
+    spread = np.sqrt(
+        np.sum(tool[:2] ** 2)
+        + np.sum((lever * tilt) ** 2)
+        + block**2
+        + (float(profile.sample_face_size_mm) * yaw) ** 2
+    )
+    return float(SEARCH_SIGMAS * spread)
 
 
 def edge_label(axis: int) -> str:
@@ -145,11 +192,15 @@ def edge_label(axis: int) -> str:
 
 
 def plan_edges(
-    profile: CellProfile, targets: tuple[PlannedTarget, ...]
+    profile: CellProfile,
+    targets: tuple[PlannedTarget, ...],
+    reference: tuple[EdgeReading, ...] = (),
 ) -> tuple[tuple[EdgeLine, ...], tuple[str, ...]]:
     """The scans across the XY face's far edges from the planned ``base/XY`` posture, each
     line's ends checked (joint ranges, singularity margin); the lines, and for each one left
-    out the reason."""
+    out the reason. A line the ``reference`` crossed is centred on its crossing and reaches
+    ``search_margin_mm`` either side; another reaches ``WIDE_SEARCH_MM`` at least."""
+    crossed = {r.label: r.t_mm for r in reference if r.t_mm is not None}
     start = next(
         (t for t in targets if t.config == EDGE_CONFIGURATION and t.face == EDGE_FACE), None
     )
@@ -164,11 +215,13 @@ def plan_edges(
     hit = tcp - (normal @ (tcp - corner)) / (normal @ beam) * beam
     local = rot.T @ (hit - corner)
     size = float(profile.sample_face_size_mm)
+    margin = search_margin_mm(profile, float(start.water_path_mm))
     lines, left_out = [], []
     for axis, lateral in ((a, ell) for a in EDGE_AXES for ell in LATERAL_MM):
         other = 1 - axis
         label = f"{edge_label(axis)} {lateral:+.0f} mm"
-        edge = size - float(local[axis])
+        edge = crossed.get(label, size - float(local[axis]))
+        reach = max(margin, EDGE_APPROACH_MM) if label in crossed else max(margin, WIDE_SEARCH_MM)
         shifted = pose.copy()
         shifted[:3, 3] += lateral * rot[:, other]
         try:
@@ -183,9 +236,9 @@ def plan_edges(
                 axis,
                 shifted,
                 rot[:, axis].copy(),
-                max(0.0, edge - EDGE_APPROACH_MM),
+                max(0.0, edge - reach),
                 edge,
-                edge + EDGE_OVERSHOOT_MM,
+                edge + max(reach, EDGE_OVERSHOOT_MM),
                 q0,
             )
             for where in (0.0, line.start_mm, line.end_mm):
@@ -198,12 +251,22 @@ def plan_edges(
     return tuple(lines), tuple(left_out)
 
 
-def scan_edge(rig: Rig, profile: CellProfile, line: EdgeLine) -> EdgeReading | None:
-    """Scan ``line`` (every probe static, reached from below on every joint): the echo's level
-    on the face at the line's start, coarse steps outward until it falls below half, then the
-    fine scan across the fall fitted with the edge profile. None, said in the log, when the
-    echo does not fall within the line (the block or the tool moved farther than it reaches:
-    the faces say which)."""
+def scan_edge(
+    rig: Rig, profile: CellProfile, line: EdgeLine, normal_deg: np.ndarray | None = None
+) -> EdgeReading | None:
+    """Scan ``line`` (every probe static, reached from below on every joint), the tool turned
+    as at ``normal_deg`` (the base/XY face's measured normal incidence: the beam truly normal
+    to the face, where the profile's tool may leave it a degree off and the echo a tenth):
+    the echo's level on the face at the line's start, coarse steps outward until it falls
+    below half, then the fine scan across the fall fitted with the edge profile. None, said in
+    the log, when the turned line leaves the joints' room or the echo does not fall within
+    the line (the block or the tool moved farther than it reaches: the faces say which)."""
+    if normal_deg is not None:
+        try:
+            line = line.oriented(profile, np.asarray(normal_deg, float))
+        except SafetyError as e:
+            log.warning("%s: not scanned turned as the face's normal incidence: %s", line.label, e)
+            return None
     model, tool = profile.model, profile.tool_matrix
     offsets = np.asarray(profile.joint_offsets_deg, float)
     approach = FinalApproachRig(rig)
@@ -217,18 +280,27 @@ def scan_edge(rig: Rig, profile: CellProfile, line: EdgeLine) -> EdgeReading | N
         settled = np.asarray(approach.move(near), float)
         a = rig.normalised_amplitude(SCAN.averages)
         fine.append((t, settled, rig.minutes(), np.asarray(rig.approach, float).copy()))
+        log.debug("%s probe at %.2f mm: amplitude %.5f", line.label, t, a)
         count += 1
         return t, a
 
-    # the echo's level on the face at the planned posture, then the coarse search from the
-    # line's start (stepping back while the echo there is already below half: a tool or a
-    # block further off than the line's approach)
-    probe(0.0)
-    rig.level_gain(SCAN.averages)
-    level = probe(0.0)[1]
+    def detected() -> float:
+        """The detection level at the current gain, as a probe's amplitude (0 dB)."""
+        return rig.threshold() / 10 ** (rig.settings.gain_db / 20)
+
+    # the gain levelled at the line's start, then the coarse search from there (stepping back
+    # while no echo shows: a tool or a block further off than the line's approach). The level
+    # is the start's, not the face posture's: 200 mm away the beam may be a few tenths of a
+    # degree off normal (the DH table within its tolerance) and its echo a tenth as high
     t = line.start_mm
-    while (a := probe(t)[1]) < 0.5 * level and t > 0.0:
+    probe(t)
+    rig.level_gain(SCAN.averages)
+    a = probe(t)[1]
+    while a <= detected() and t > 0.0:
         t = max(0.0, t - EDGE_APPROACH_MM)
+        if (a := probe(t)[1]) > detected():
+            rig.level_gain(SCAN.averages)
+            a = probe(t)[1]
     t_c = coarse_edge_fall(
         lambda s: probe(s)[1], t, a, line.end_mm, SCAN.coarse_step_mm, SCAN.coarse_memory
     )
@@ -260,6 +332,7 @@ def scan_edge(rig: Rig, profile: CellProfile, line: EdgeLine) -> EdgeReading | N
         max(float(fit.crossing_std), CROSSING_STD_FLOOR_MM),
         float(profile.sample_face_size_mm),
         count,
+        float(fit.crossing),
         minutes,
         signs,
     )

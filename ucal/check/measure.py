@@ -137,7 +137,8 @@ def run_check(
     for i, line in enumerate(plan.edges):
         if progress:
             progress(MeasureStep(line.label, done + i, total, "base", "XY"))
-        reading = scan_edge(rig, profile, line)
+        normal = by_label.get("base/XY")
+        reading = scan_edge(rig, profile, line, None if normal is None else normal.joints_deg)
         if reading is not None:
             edges.append(reading)
     if progress:

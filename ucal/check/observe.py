@@ -9,7 +9,10 @@ to 0.015 mm, what the simulated cell's 8-bit amplitude leaves):
   rows by more than its one sigma (the water: a change of ``WATER_SEEN_C``);
 * a quantity is *determined* when its change alone (the others held) is known to within its
   tolerance (σ ≤ tolerance), as ``ucal.check.judge`` rules: a σ above it is ``not
-  determined``, never ``ok``.
+  determined``, never ``ok``;
+* a quantity is *not told* from another suspect when a change of ``ALIKE_TOLERANCES`` of its
+  tolerances, which the readings see (χ² above ``ALIKE_CHI2``), is explained by that suspect
+  within ``ALIKE_CHI2`` (the cell's other unknowns free): the check would name both.
 
 The faces see the joints, the beam's direction, the tool along the beam, the block and the
 water (its paths of 40 to 160 mm tell the sound speed from a length); the edge crossings see
@@ -20,7 +23,7 @@ sees, nothing a scan feels; ``what_would_determine`` says so with the figures of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,13 +33,15 @@ from ucal.calibration.priors import SOUND, CellPrior, prior_from_profile
 from ucal.calibration.residuals import measurement_label
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeLine, EdgeReading
-from ucal.check.solve import ChangeFit, Linearised, change_name, suspects
+from ucal.check.solve import ALIKE_CHI2, ChangeFit, Linearised, change_name, suspects
 from ucal.kinematics.ik import ik
 
 #: The nominal one sigma of a water path (mm), a normal incidence (deg) and a crossing (mm).
 NOMINAL = (0.01, 0.002, 0.015)
 #: A change of the water this large (°C) is what a measurement must see to see the water.
 WATER_SEEN_C = 0.1
+#: The change (in tolerances) at which two suspects are said to be told apart or not.
+ALIKE_TOLERANCES = 5.0
 #: The quantities the plan speaks of, by the suspects' unknowns.
 GROUPS = {
     **{f"J{j}": (f"J{j}",) for j in range(1, 7)},
@@ -57,6 +62,8 @@ class Observability:
     sees: dict[str, tuple[str, ...]]
     std: dict[str, float]
     tolerance: dict[str, float]
+    #: an unknown → the other suspects that explain its change alike (module docstring)
+    alike: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def determined(self, parameter: str) -> bool:
         return bool(self.std[parameter] <= self.tolerance[parameter])
@@ -107,7 +114,42 @@ def observability(
             k = where[table.index(change_name(p))]
             std[p] = float(np.sqrt(max(cov[k, k], 0.0)))
             tolerance[p] = tol if np.isfinite(tol) else _water_seen(prior)
-    return Observability(_sees(problem, lin, tolerance, faces, readings), std, tolerance)
+    sees = _sees(problem, lin, tolerance, faces, readings)
+    return Observability(sees, std, tolerance, _alike(problem, lin, tolerance))
+
+
+def _alike(
+    problem: ChangeFit, lin: Linearised, tolerance: dict[str, float]
+) -> dict[str, tuple[str, ...]]:
+    """Each unknown → the other suspects that explain a change of ``ALIKE_TOLERANCES`` of its
+    tolerances within ``ALIKE_CHI2``, the cell's unknowns free with their priors."""
+    table = problem.table
+    column = {int(c): k for k, c in enumerate(lin.cols)}
+    base = [k for k, c in enumerate(lin.cols) if not table.names[c].startswith("change_")]
+
+    def cols(parameters: tuple[str, ...]) -> list[int]:
+        return [column[table.index(change_name(p))] for p in parameters]
+
+    out: dict[str, tuple[str, ...]] = {}
+    for a in problem.suspects:
+        for p in a.parameters:
+            (k,) = cols((p,))
+            d = lin.jac[:, k] * ALIKE_TOLERANCES * tolerance[p]
+            if not d @ d > ALIKE_CHI2:
+                continue  # not seen: not determined, not a likeness
+            alike = []
+            for b in problem.suspects:
+                if b.name == a.name:
+                    continue
+                free = base + cols(b.parameters)
+                m = np.vstack([lin.jac[:, free], np.diag(lin.prior_d[free])])
+                target = np.r_[d, np.zeros(len(free))]
+                x, *_ = np.linalg.lstsq(m, target, rcond=None)
+                if float(np.sum((m @ x - target) ** 2)) < ALIKE_CHI2:
+                    alike.append(b.words)
+            if alike:
+                out[p] = tuple(alike)
+    return out
 
 
 def _water_seen(prior: CellPrior) -> float:
@@ -173,6 +215,8 @@ def observability_lines(obs: Observability, profile: CellProfile, edges_read: bo
     lines.append(
         "Determined (each change alone, 1σ within its tolerance): " + ", ".join(determined)
     )
+    for p, others in obs.alike.items():
+        lines.append(f"Not told apart: {p} from {' or '.join(others)} (both would be named)")
     for p in obs.undetermined():
         lines.append(
             f"Not determined: {p} (1σ {obs.std[p]:.2g} against {obs.tolerance[p]:g}): "

@@ -34,7 +34,7 @@ from ucal.calibration.model import FACE_NAMES, Configuration
 from ucal.calibration.procedure import WRIST_SEARCH, plan_line
 from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.cell import CellProfile
-from ucal.check.edges import SCAN, EdgeLine, plan_edges
+from ucal.check.edges import SCAN, EdgeLine, EdgeReading, plan_edges
 from ucal.check.history import CheckEntry
 from ucal.models import joint_speeds_deg_s
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
@@ -90,7 +90,8 @@ def plan_check(
     wanted = CONFIGURATIONS if Configuration.J1 in full.configs else FALLBACK_CONFIGURATIONS
     targets = tuple(t for t in full.targets if t.config in wanted)
     echo = tuple(t.label for t in targets if t.config == ECHO_CONFIGURATION)
-    edges, notes = plan_edges(profile, targets)
+    crossed = () if reference is None else tuple(EdgeReading.from_json(e) for e in reference.edges)
+    edges, notes = plan_edges(profile, targets, crossed)
     # the check compares its faces with a reference's: no water path read again at the end
     return CheckPlan(
         replace(full, targets=targets, path_again=False),
@@ -141,7 +142,7 @@ def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
     return faces + echoes + transfers + estimate_edges(plan, profile)
 
 
-#: An edge scan beyond the move to its line: the level read twice at the posture, the coarse
+#: An edge scan beyond the move to its line: the level read twice at its start, the coarse
 #: steps over the line's approach and a step back, the fine probes; each probe a move (with its
 #: approach from below: ``EDGE_PROBE_S`` of motion and settling at speed 0.3, as the simulated
 #: cell charges it) and one reading of ``SCAN.averages``.
@@ -213,9 +214,9 @@ def plan_summary(plan: CheckPlan, profile: CellProfile, estimate: DurationEstima
         WRIST_SEARCH,
         *(
             f"Edge scan {line.label}: the TCP moved {line.end_mm - line.start_mm:.0f} mm along "
-            f"block {'xy'[line.axis]} with the beam normal to the XY face, across the edge the "
-            f"profile puts {line.edge_mm:.1f} mm from the base/XY posture (the tool across the "
-            "beam)"
+            f"block {'xy'[line.axis]} with the beam normal to the XY face, across the edge "
+            f"{line.edge_mm:.1f} mm along the line (where the reference crossed it, else where "
+            "the profile puts it): the tool across the beam"
             for line in plan.edges
         ),
         *plan.edge_notes,

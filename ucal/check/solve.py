@@ -20,7 +20,8 @@ The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
    one normal variable; for a suspect of k unknowns, the χ² distribution with k degrees of
    freedom); then drop a suspect chosen earlier whose removal no longer raises the χ²
    significantly (the others now explain it); repeat. Each step is linearised at the
-   Gauss–Newton fit of the suspects chosen so far (``fit``). A suspect that, in place of a
+   Gauss–Newton fit of the suspects chosen so far (``fit``) and at the reference's own fit,
+   the likeliest ``REFINED`` fitted through. A suspect that, in place of a
    chosen one, explains the data within ``ALIKE_CHI2`` = 9 (3σ) cannot be told apart from it
    and is named with it (``alike``); so is the tank's effect, a run's drift beyond its prior
    or its turn (calibrate's score test, ``tank_alike``), that does: over a check's few faces
@@ -72,7 +73,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.fit import (
     BACKLASH,
     BETA,
@@ -113,6 +113,8 @@ log = logging.getLogger(__name__)
 SIGNIFICANCE_P = 0.0027
 #: Suspects whose χ² differ by less than this explain the data alike (3σ of one unknown).
 ALIKE_CHI2 = 9.0
+#: Candidates fitted through at each step of the selection (``select``).
+REFINED = 3
 #: Significance of one value's change: more than this many sigmas.
 N_SIGMA = 3.0
 #: The smallest change worth a commissioning's attention, per unknown of a suspect. Joints:
@@ -462,28 +464,36 @@ def _significant(lowering: float, k: int) -> bool:
 def select(
     problem: ChangeFit, values: np.ndarray
 ) -> tuple[list[str], np.ndarray, Linearised, float]:
-    """Stepwise selection of the suspects that changed (module docstring, rule 1): add the
-    suspect that lowers the χ² most (after paying its threshold) while the lowering is
-    significant, then drop any chosen earlier that the others now explain (its removal no
-    longer raises the χ² significantly); each step linearised at the fit with the suspects
-    chosen so far. Returns the chosen suspects, their fit, its linearisation and the χ² of the
-    fit where nothing changed."""
+    """Stepwise selection of the suspects that changed (module docstring, rule 1), each step
+    linearised at the fit so far and at ``values`` (the reference's own fit: a change seen at
+    a thousand sigmas drags the fit where nothing changed decimetres from the cell), the
+    likeliest few fitted through (a linearisation favours the suspect of many unknowns,
+    which takes up its curvature). Returns the chosen suspects, their fit, its linearisation
+    and the χ² of the fit where nothing changed."""
     size = {s.name: len(s.parameters) for s in problem.suspects}
     chosen: list[str] = []
+    anchor = Linearised(problem, values)
     values, lin = fit(problem, values, chosen)
     chi2_null = problem.chi2(values, chosen)
     tried: set[tuple[str, ...]] = {()}
     for _ in range(3 * len(size)):
         chi2 = lin.solve(chosen)[0]
-        after = {n: lin.solve([*chosen, n])[0] for n in size if n not in chosen}
+        after = {}
+        for n in (n for n in size if n not in chosen):
+            here, there = lin.solve([*chosen, n]), anchor.solve([*chosen, n])
+            after[n] = min((here[0], here[1]), (there[0], there[1]), key=lambda s: s[0])
         if not after:
             break
-        best = min(after, key=lambda n: (_score(after[n], size[n]), size[n]))
-        if not _significant(chi2 - after[best], size[best]):
+        ranked = sorted(after, key=lambda n: (_score(after[n][0], size[n]), size[n]))
+        for n in ranked[:REFINED]:
+            refined, _ = fit(problem, after[n][1], [*chosen, n], iterations=4)
+            after[n] = min(after[n], (problem.chi2(refined, [*chosen, n]), refined))
+        best = min(after, key=lambda n: (_score(after[n][0], size[n]), size[n]))
+        if not _significant(chi2 - after[best][0], size[best]):
             break
-        log.info("check: %s changed (χ² %.1f → %.1f)", best, chi2, after[best])
+        log.info("check: %s changed (χ² %.1f → %.1f)", best, chi2, after[best][0])
         chosen.append(best)
-        values, lin = fit(problem, values, chosen)
+        values, lin = fit(problem, after[best][1], chosen)
         while len(chosen) > 1:
             chi2 = lin.solve(chosen)[0]
             rise = {n: lin.solve([c for c in chosen if c != n])[0] - chi2 for n in chosen[:-1]}
@@ -665,24 +675,6 @@ def compare_to_profile(
     )
 
 
-def temperature_change_c(prior: CellPrior, sound_change_m_s: float) -> float:
-    """The water temperature change (°C) that a sound speed change (m/s) means, at the
-    profile's temperature (Marczak's c(T))."""
-    return float(sound_change_m_s / sound_speed_slope_m_s_per_c(prior.water_temperature_c))
-
-
 def chi2_threshold(k: int) -> float:
     """The χ² lowering a suspect of ``k`` unknowns needs to be chosen."""
     return float(chdtri(k, SIGNIFICANCE_P))
-
-
-def temperature_of(prior: CellPrior, speed_m_s: float) -> float:
-    """The water temperature (°C) at which Marczak's c(T) is ``speed_m_s`` (near the
-    profile's temperature; Newton's method)."""
-    t = prior.water_temperature_c
-    for _ in range(20):
-        step = (speed_m_s - sound_speed_m_s(t)) / sound_speed_slope_m_s_per_c(t)
-        t += step
-        if abs(step) < 1e-9:
-            break
-    return float(t)

@@ -97,6 +97,9 @@ def test_the_plan_states_what_its_edges_and_faces_see_and_determine() -> None:
         assert obs.determined(name), (name, obs.std[name])
     # a turn of joint 6 turns the beam about itself: not determined
     assert obs.undetermined() == ["J6"]
+    # joint 1 and a turn of the block about the base axis are one rotation; the second
+    # azimuth tells joint 2 from a tilt of the block
+    assert "the block" in obs.alike["J1"] and "J2" not in obs.alike
     # without the edges the tool across the beam is not determined
     blind = observability(profile, plan.targets, ())
     assert {"tool_x_mm", "tool_y_mm"} <= set(blind.undetermined())
