@@ -351,6 +351,10 @@ class WorldTruth:
     #: Lost motion per joint (deg): the link lags the encoder by half of it, against the
     #: direction of the joint's last motion.
     backlash_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    #: Where each link settles after a move of its joint, about where the encoder says (deg,
+    #: one sigma, (6,)): drawn anew for every move, hidden from the readings (the gears'
+    #: and the servo's scatter: a TX90's ±0.03 mm pose repeatability).
+    repeatability_deg: np.ndarray = field(default_factory=lambda: np.zeros(6))
     #: Linear drift of the water temperature with simulated time (°C per minute).
     water_drift_c_per_min: float = 0.0
     #: The thermometer's log: the water's temperature over simulated time, in place of

@@ -13,6 +13,9 @@ the solvers do not model:
   number); stored as ``WorldTruth.dh_beta_deg``;
 * ``[robot] backlash_deg = [6]`` — lost motion per joint (0…5°): the link lags the encoder by
   half of it, against the direction of the joint's last motion;
+* ``[robot] repeatability_deg = [6]`` — one sigma (0…0.1°) of where each link settles after
+  a move of its joint, about where its encoder says: drawn anew for every move (seeded by
+  ``[noise] seed``), never seen in the readings; the arm's pose repeatability (ISO 9283 RP);
 * ``[water] drift_c_per_min`` — the tank warms (+) or cools linearly in simulated time
   (|drift| <= 10 °C/min; ``temperature_c`` is the temperature at the start of the run);
   ``temperature_log`` — in place of both, what the tank's thermometer read over the run: a
@@ -102,6 +105,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
             "joint_offsets_deg",
             "initial_joints_deg",
             "backlash_deg",
+            "repeatability_deg",
         }
     ),
     "tool": frozenset({"position_mm", "rotation_deg"}),
@@ -145,6 +149,8 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
 #: Largest Hayati twist (deg), backlash (deg) and water drift (°C/min) a world file may state.
 MAX_BETA_DEG = 30.0
 MAX_BACKLASH_DEG = 5.0
+#: Largest scatter of a link's settled position a world may state (deg, one sigma).
+MAX_REPEATABILITY_DEG = 0.1
 MAX_DRIFT_C_PER_MIN = 10.0
 #: Largest beam squint (deg), plate edge radius (mm) and flatness error (mm) a world may state.
 MAX_SQUINT_DEG = 5.0
@@ -207,6 +213,11 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
         if v is not None:
             changes["backlash_deg"] = r.vector(
                 "robot.backlash_deg", v, 6, lo=0.0, hi=MAX_BACKLASH_DEG, unit="deg"
+            )
+        v = r.get(robot, "robot.repeatability_deg")
+        if v is not None:
+            changes["repeatability_deg"] = r.vector(
+                "robot.repeatability_deg", v, 6, lo=0.0, hi=MAX_REPEATABILITY_DEG, unit="deg"
             )
 
     tool = r.table("tool")

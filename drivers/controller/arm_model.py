@@ -63,6 +63,10 @@ class Plan:
     segments: tuple[Segment, ...] = ()
     rest_sign: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(N_JOINTS))
     settle_s: float = 0.0
+    #: how many moves have turned each joint before the first segment
+    rest_moves: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(N_JOINTS, dtype=np.int64)
+    )
 
     def at(self, t: float) -> np.ndarray:
         for seg in reversed(self.segments):
@@ -90,9 +94,19 @@ class Plan:
             sign = np.where(step != 0, step, sign)
         return sign
 
+    def moves_at(self, t: float) -> np.ndarray:
+        """How many moves begun by ``t`` have turned each joint (int, (6,)): a simulated
+        link settles anew, a little off, after each move of its joint."""
+        moves = self.rest_moves.copy()
+        for seg in self.segments:
+            if seg.t_start >= t:
+                break
+            moves += seg.target_deg != seg.start_deg
+        return moves
+
     def rest(self, t: float) -> Plan:
         """The plan of an arm stopped where it is at ``t``."""
-        return Plan(self.at(t), (), self.sign_at(t), self.settle_s)
+        return Plan(self.at(t), (), self.sign_at(t), self.settle_s, self.moves_at(t))
 
 
 class SimulatedArm:
@@ -179,6 +193,10 @@ class SimulatedArm:
     def motion_sign_at(self, t: float) -> np.ndarray:
         """Direction (-1, 0, +1) of each joint's last motion begun by instant ``t``."""
         return self._plan.sign_at(t)
+
+    def moves_at(self, t: float) -> np.ndarray:
+        """How many moves begun by instant ``t`` have turned each joint (int, (6,))."""
+        return self._plan.moves_at(t)
 
     def in_motion(self) -> bool:
         """Whether a move is executing (or settling) at this instant."""
@@ -281,6 +299,7 @@ class SimulatedArm:
                 plan.segments[len(done) :],
                 plan.sign_at(done[-1].t_end),
                 plan.settle_s,
+                plan.moves_at(done[-1].t_end),
             )
         self._notify([self._record(s, s.target_deg, False) for s in done])
 

@@ -15,6 +15,7 @@ from ucal.cli.procedure import run_command
 from ucal.errors import InputError
 from ucal.procedure import Job, Outcome
 from ucal.record import Record
+from ucal.verify.iso9283 import ISO_CYCLES, Iso9283
 from ucal.verify.measure import VerifyResult
 from ucal.verify.picture import verify_picture_path
 from ucal.verify.procedure import VerifyJob
@@ -30,6 +31,7 @@ Examples:
   ucal verify cell.toml --sim --yes
   ucal verify cell.toml --sim examples/world.toml --points 4 --json --yes
   ucal verify cell.toml --sim --region 12 --yes
+  ucal verify cell.toml --sim --yes --iso9283 --cycles 5
   ucal verify cell.toml --sim --yes --points 2 --record verify.jsonl
   ucal verify cell.toml --replay verify.jsonl --json
   ucal verify cell.toml --controller tcp://192.168.0.254:11000 \\
@@ -68,6 +70,20 @@ Examples:
         help="Instead: check the kinematic model against the block's faces from N "
         "postures spread like a full calibration's (ucal.verify.region).",
     ),
+    click.option(
+        "--iso9283",
+        "iso9283",
+        is_flag=True,
+        help="Instead of the points: ISO 9283's five poses in a cube over the block, "
+        "visited --cycles times; adds pose accuracy (AP) and repeatability (RP) per pose, "
+        "with their uncertainty.",
+    ),
+    click.option(
+        "--cycles",
+        type=click.IntRange(2, 100),
+        default=None,
+        help="Cycles of the ISO 9283 poses [default: 30, the standard's].",
+    ),
 )
 def cli(
     call: MovingCall,
@@ -75,6 +91,8 @@ def cli(
     plot_path: Path | None,
     tolerance_mm: float | None,
     region: int | None,
+    iso9283: bool,
+    cycles: int | None,
 ) -> None:
     """Measure the positioning error before and after calibration (paper 000, §5.2).
 
@@ -100,6 +118,11 @@ def cli(
     --dry-run). The run passes when no point deviates more than the tolerance on any axis after
     calibration; otherwise exit 1 (within what verify measures to of it, 0.05 mm and what
     the DH table left unidentified allows: "marginal").
+
+    --iso9283: in place of the points, ISO 9283's five poses in the largest cube the tank
+    allows over the block, visited --cycles times (P1, P5, P4, P3, P2, each reached from
+    below); pose accuracy AP and repeatability RP per pose, with their one-sigma uncertainty
+    (docs/method/commissioning.md).
     """
 
     def job(profile: CellProfile, record: Record | None) -> Job[Any, Any, Any, Checked]:
@@ -110,16 +133,29 @@ def cli(
                 return RegionJob(profile, path, options["region"], tolerance_mm)
             points = options.get("points", n_points)
             inputs = record.header.get("inputs")
-            return VerifyJob(profile, path, points, tolerance_mm, recorded_inputs=inputs)
+            return VerifyJob(
+                profile,
+                path,
+                points,
+                tolerance_mm,
+                recorded_inputs=inputs,
+                iso_cycles=options.get("iso9283"),
+            )
+        if cycles is not None and not iso9283:
+            raise click.UsageError("--cycles goes with --iso9283")
+        if iso9283 and region is not None:
+            raise click.UsageError("--iso9283 and --region are two different runs: pick one")
         if region is not None:
             return RegionJob(profile, path, region, tolerance_mm)
         plot = verify_picture_path(path) if plot_path is None else plot_path
         if not plot.parent.is_dir():
             raise InputError(f"--plot {plot}: directory {plot.parent} does not exist")
         _check_plot_format(plot)
-        return VerifyJob(profile, path, n_points, tolerance_mm, plot)
+        iso_cycles = (ISO_CYCLES if cycles is None else cycles) if iso9283 else None
+        return VerifyJob(profile, path, n_points, tolerance_mm, plot, iso_cycles=iso_cycles)
 
-    run_command(call, "verify", {"points": "n_points", "region": "region"}, job, show)
+    fixed = {"points": "n_points", "region": "region", "iso9283": "cycles"}
+    run_command(call, "verify", fixed, job, show)
 
 
 #: What ``verify`` finds: the points before and after, or (``--region``) the model's residuals.
@@ -140,6 +176,8 @@ def show_outcome(result: Verification) -> None:
     solved = result.solved
     measured = solved.result
     _print_table(measured)
+    if solved.iso is not None:
+        show_iso(solved.iso, None if result.truth is None else result.truth.get("iso9283"))
     b = tool_offset(measured.edge_checks)
     click.echo(
         f"tool check (XY face's edges): real TCP minus the profile's, beam straight down: "
@@ -275,3 +313,30 @@ def _print_table(result: VerifyResult) -> None:
     table.add_row("", "mean improved by", *gain)
     table_console().print(table)
     click.echo(f"{result.moves} moves, {result.reads} pulser readings")
+
+
+def show_iso(iso: Iso9283, truth: dict[str, Any] | None) -> None:
+    """ISO 9283's figures per pose on stdout, with the simulator's truth where there is one."""
+    cube = iso.cube
+    table = Table(
+        title=f"ISO 9283 pose accuracy and repeatability, {cube.cycles} cycles, "
+        f"{cube.side_mm:.0f} mm cube (block axes; ± one sigma)"
+    )
+    for name in ("pose", "AP (mm)", "APx, APy, APz (mm)", "RP (mm)", "APa, APb, APc (deg)"):
+        table.add_column(name, justify="left" if name == "pose" else "right")
+    if truth is not None:
+        table.add_column("true AP, RP (mm)", justify="right")
+    for i, pose in enumerate(iso.poses):
+        cells = [
+            pose.name,
+            f"{pose.ap_mm:.4f} ± {pose.ap_std_mm:.4f}",
+            ", ".join(f"{v:+.4f}" for v in pose.ap_xyz_mm),
+            f"{pose.rp_mm:.4f} ± {pose.rp_std_mm:.4f}",
+            ", ".join(f"{v:+.4f}" if np.isfinite(v) else "-" for v in pose.ap_abc_deg),
+        ]
+        if truth is not None:
+            cells.append(f"{truth['ap_mm'][i]:.4f}, {truth['rp_mm'][i]:.4f}")
+        table.add_row(*cells)
+    table_console().print(table)
+    for note in iso.notes:
+        click.echo(f"note: {note}")

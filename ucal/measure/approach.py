@@ -15,7 +15,11 @@ rig's ``approach`` still gives the sign of each joint's last motion at any readi
 measurement carries it, so a solver can model the lost motion. A sweep that ends moving a
 joint the other way leaves that joint's sign wrong until the next move turns it: a static
 move therefore approaches afresh whenever any joint's last motion was the other way, even a
-joint the move leaves where it is.
+joint the move leaves where it is. Verify's points (``keep_still``) move only the joints that
+need it: the arm's joints stay still while the wrist turns the beam onto each face, their
+links where they settled at the point (a real link settles a little off each time it moves,
+the arm's pose repeatability: ``verify --iso9283`` measures it, and one arrival's scatter is
+in all three faces' water paths, as the standard's one attained pose).
 """
 
 from __future__ import annotations
@@ -45,20 +49,28 @@ class FinalApproachRig(_RigProxy):
     would bring any joint against ``direction`` onto its target, or any joint last moved
     against it (a sweep that ended the other way), the robot first goes ``APPROACH_DEG``
     short of the target on every joint, then onto it: all static postures are then reached
-    the same way. The two segments are one move in the counters. Everything else is the
-    wrapped rig's.
+    the same way. With ``keep_still`` only the joints that need it go short (the others
+    straight to their target: a joint that is there stays, its link where it settled). The
+    two segments are one move in the counters. Everything else is the wrapped rig's.
     """
 
     _rig: Rig
     _approach_deg: float
     _direction: float
 
-    def __init__(self, rig: Rig, approach_deg: float = APPROACH_DEG, direction: int = 1):
+    def __init__(
+        self,
+        rig: Rig,
+        approach_deg: float = APPROACH_DEG,
+        direction: int = 1,
+        keep_still: bool = False,
+    ):
         if direction not in (1, -1):
             raise ValueError(f"direction must be +1 or -1, got {direction!r}")
         object.__setattr__(self, "_rig", rig)
         object.__setattr__(self, "_approach_deg", approach_deg)
         object.__setattr__(self, "_direction", float(direction))
+        object.__setattr__(self, "_keep_still", bool(keep_still))
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._rig, name)
@@ -77,9 +89,18 @@ class FinalApproachRig(_RigProxy):
         rig, sign = self._rig, self._direction
         q = np.asarray(q, float)
         here = rig.controller.read_joints()
-        against = sign * (q - here) < -1e-6
-        if np.any(against) or np.any(rig.approach != sign):
+        if self._keep_still:
+            # only a joint that would arrive against the direction by any amount (a millionth
+            # of a degree turns its link to the other side of its lost motion), or last moved
+            # against it, goes short; the others go straight to their target
+            need = (sign * (q - here) < 0.0) | (np.asarray(rig.approach) != sign)
+        else:
+            need = np.full(
+                6, bool(np.any(sign * (q - here) < -1e-6) or np.any(rig.approach != sign))
+            )
+        if np.any(need):
             short = np.clip(q - sign * self._approach_deg, rig.joint_min_deg, rig.joint_max_deg)
+            short = np.where(need, short, q)
             interrupt.check()
             rig.controller.move_joints(short, speed or rig.speed, rig.move_timeout_s)
             rig.moved_to(short, here)

@@ -284,15 +284,22 @@ class RunningEstimate:
 
     @classmethod
     def start(
-        cls, profile: CellProfile, rig: Rig, geom: CellGeometry, first_deg: np.ndarray, joint: int
+        cls,
+        profile: CellProfile,
+        rig: Rig,
+        geom: CellGeometry,
+        first_deg: np.ndarray,
+        joint: int,
+        keep_still: bool = False,
     ) -> RunningEstimate:
         """The noise floor read off the first posture ``first_deg`` (``joint`` turned: the beam
         in open water), then the estimate at the profile's cell, measuring through a
-        ``FinalApproachRig`` of ``rig``."""
+        ``FinalApproachRig`` of ``rig`` (``keep_still``: its)."""
         ka = ka_of(profile.frequency_mhz, profile.element_diameter_mm, profile.water_temperature_c)
         gain = noise_floor(rig, first_deg, joint, BLOCK_FACES)
         setup = FaceSetup(profile, ka, gain)
-        return cls(profile, FinalApproachRig(rig), setup, prior_from_profile(profile), geom)
+        approach = FinalApproachRig(rig, keep_still=keep_still)
+        return cls(profile, approach, setup, prior_from_profile(profile), geom)
 
     def converting_at(self, temperature_c: float) -> None:
         """Convert the water paths measured from now on at ``temperature_c`` (the tank's

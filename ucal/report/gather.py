@@ -147,6 +147,16 @@ class ToolCalibration:
 
 
 @dataclass(frozen=True)
+class IsoFacts:
+    """An ISO 9283 verify's figures as its picture carries them (mm, one sigma)."""
+
+    cycles: int
+    side_mm: float
+    #: per pose: name, AP, its std, RP, its std
+    poses: tuple[tuple[str, float, float, float, float], ...]
+
+
+@dataclass(frozen=True)
 class VerifyFacts:
     """What a verify picture carries of its run (``ucal.verify.procedure.picture_facts``)."""
 
@@ -165,6 +175,8 @@ class VerifyFacts:
     after_max_mm: tuple[float, ...]
     gauge_note: str
     notes: tuple[str, ...]
+    #: the run was ``verify --iso9283``: its figures; None: verify's points
+    iso9283: IsoFacts | None = None
 
     @property
     def own_cell(self) -> bool:
@@ -615,10 +627,28 @@ def _facts(text: str | None, picture: Path) -> VerifyFacts | None:
             after_max_mm=tuple(_finite(v) for v in d["after_max_mm"]),
             gauge_note=str(d.get("gauge_note", "")),
             notes=tuple(str(n) for n in d.get("notes", [])),
+            iso9283=_iso_facts(d.get("iso9283")),
         )
     except (ValueError, KeyError, TypeError) as e:
         log.warning("%s: its verify facts cannot be read (%s): shown without them", picture, e)
         return None
+
+
+def _iso_facts(d: Any) -> IsoFacts | None:
+    """An ISO 9283 run's figures from its picture's facts (None: verify's points)."""
+    if d is None:
+        return None
+    poses = tuple(
+        (
+            str(p["name"]),
+            _finite(p["ap_mm"]),
+            _finite(p["ap_std_mm"]),
+            _finite(p["rp_mm"]),
+            _finite(p["rp_std_mm"]),
+        )
+        for p in d["poses"]
+    )
+    return IsoFacts(int(d["cycles"]), float(d["side_mm"]), poses)
 
 
 def _finite(v: Any) -> float:

@@ -22,7 +22,7 @@ from ucal.models import KNOWN_MODELS, load_model
 from ucal.report import figures
 from ucal.report import html as h
 from ucal.report import verdict as v
-from ucal.report.gather import Calibration, CellReport, VerifyPicture, Write
+from ucal.report.gather import Calibration, CellReport, IsoFacts, VerifyPicture, Write
 from ucal.report.story import history_section
 
 
@@ -567,6 +567,8 @@ def _verify(r: CellReport) -> str:
                 f"{h.e(said)}{h.e(since)}",
             )
         )
+        if facts is not None and facts.iso9283 is not None:
+            out.append(_iso9283(facts.iso9283))
     rule = (
         "verify writes nothing into the profile or its history; its picture carries the facts "
         "of its run. A verify against a world file (<code>--sim WORLD</code>) is a rehearsal "
@@ -576,6 +578,21 @@ def _verify(r: CellReport) -> str:
     out.append(h.note(rule))
     out.append("</section>")
     return "\n".join(out)
+
+
+def _iso9283(iso: IsoFacts) -> str:
+    """An ISO 9283 verify's figures: AP and RP per pose with one sigma (mm)."""
+    rows = [
+        [h.e(name), f"{ap:.4f} ± {ap_std:.4f}", f"{rp:.4f} ± {rp_std:.4f}"]
+        for name, ap, ap_std, rp, rp_std in iso.poses
+    ]
+    return (
+        f"<p>ISO 9283 (7.2): the five poses of a {iso.side_mm:.0f} mm cube over the block, "
+        f"{iso.cycles} cycles, in the block's frame. AP: how far the mean attained position "
+        "is from the commanded one; RP: how far the attained positions spread about their "
+        "mean (l̄ + 3·S<sub>l</sub>); ± one sigma of each, the measurement's and the few "
+        "cycles' own.</p>" + h.table(["pose", "AP (mm)", "RP (mm)"], rows, [False, True, True])
+    )
 
 
 def _lost_motion(r: CellReport) -> str:

@@ -273,7 +273,7 @@ class SimulatedCellServer(Served):
         self._let_pass(0.5 * transport_s + float(jitter[0]) + pulses_s)
         t = self.clock.now()
         delay = min(world.acquisition_delay_s, max(t - self._t0, 0.0))
-        joints = self.controller.joints_at(t - delay)
+        joints = self.controller.joints_at(t - delay) + self._settled_off_deg(t - delay)
         t_s = t - delay - self._t0
         motion_sign = self.controller.motion_sign_at(t - delay)
         echo = self.cell.echo(
@@ -287,6 +287,24 @@ class SimulatedCellServer(Served):
         self._posture = (joints, float(settings.gain_db), t_s, motion_sign)
         self._let_pass(0.5 * transport_s + float(jitter[1]) + delay)
         return echo
+
+    def _settled_off_deg(self, t: float) -> np.ndarray:
+        """Where each link has settled off its reading at instant ``t`` (deg, (6,)): the
+        world's ``repeatability_deg`` drawn anew for each move of the joint (zero for a rigid
+        world), the same draw for a joint as long as it stays still."""
+        sigma = np.asarray(self.world.repeatability_deg, float)
+        if not np.any(sigma > 0.0):
+            return np.zeros(6)
+        moves = self.controller.moves_at(t)
+        seed = int(self.world.noise.seed)
+        return np.array(
+            [
+                sigma[j] * np.random.default_rng([seed, 0x5E771E, j, int(moves[j])]).normal()
+                if sigma[j] > 0.0
+                else 0.0
+                for j in range(6)
+            ]
+        )
 
     def _ascan(self, request: AcquisitionRequest) -> np.ndarray:
         """Scope model (scope server thread): the receiver's RF output (V) over the record
@@ -391,7 +409,7 @@ class SimulatedCellServer(Served):
             return
         line_record: dict[str, Any] = {"motion": number, "t_wall_s": time.time(), **record}
         try:
-            end = np.asarray(record["end_deg"], float)
+            end = np.asarray(record["end_deg"], float) + self._settled_off_deg(self.clock.now())
             line_record["true_tcp_pose"] = matrix_to_pose(
                 self.cell.true_tcp(end, self.controller.motion_sign())
             )

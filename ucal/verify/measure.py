@@ -245,7 +245,8 @@ def run_verify(
     js0, _ = search_joints(
         geom, first.face_joints_deg[2], plan.offsets_deg["before"], face_basis(geom, 2)
     )
-    running = RunningEstimate.start(profile, rig, geom, first.joints_deg, js0[1])
+    # the arm stays still while the wrist measures a point: its links where they settled
+    running = RunningEstimate.start(profile, rig, geom, first.joints_deg, js0[1], keep_still=True)
     approach = running.rig
     total = len(plan.targets) + len(plan.edge_points) + (2 if plan.tank_faces else 0)
 

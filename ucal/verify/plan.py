@@ -225,6 +225,16 @@ class VerifyTarget:
 
 
 @dataclass(frozen=True)
+class IsoCube:
+    """An ISO 9283 run's cube (``ucal.verify.iso9283``): centre (block coordinates, mm), side
+    (mm) and the cycles its five poses are visited."""
+
+    centre_mm: np.ndarray
+    side_mm: float
+    cycles: int
+
+
+@dataclass(frozen=True)
 class VerifyPlan:
     """Nominal points and the commanded postures of both passes."""
 
@@ -240,6 +250,8 @@ class VerifyPlan:
     #: calibrate's readings whose water paths are read again at the start and the end (one
     #: per face, ``ucal.verify.inputs.tank_reference``); None: none in the history
     tank: CalibrationReadings | None = None
+    #: an ISO 9283 run (``verify --iso9283``): its cube; None: verify's points
+    iso: IsoCube | None = None
 
     @property
     def tank_faces(self) -> tuple[FaceMeasurement, ...]:
@@ -405,7 +417,7 @@ def plan_verify(
                 for side in sides:
                     tried += 1
                     try:
-                        return _plan_choice(
+                        return plan_choice(
                             profile,
                             n_points,
                             height_mm + raise_mm,
@@ -433,7 +445,7 @@ def _plans_at_all(profile: CellProfile, height_mm: float) -> bool:
     """Whether two points in the first choice of every kind plan (the refusal's advice:
     would the block, moved, do?)."""
     try:
-        _plan_choice(profile, 2, height_mm, 0.0, Layout(), None, None)
+        plan_choice(profile, 2, height_mm, 0.0, Layout(), None, None)
     except SafetyError:
         return False
     return True
@@ -447,7 +459,7 @@ PLAN_WALL_PATHS_MM = (WALL_PATH_MM, (45.0, 100.0), (40.0, 75.0))
 PLAN_TURNS_DEG = (0.0, 90.0, -90.0, 45.0, -45.0, 135.0, -135.0, 180.0)
 
 
-def _plan_choice(
+def plan_choice(
     profile: CellProfile,
     n_points: int,
     height_mm: float,
@@ -455,15 +467,22 @@ def _plan_choice(
     layout: Layout,
     before_offsets_deg: np.ndarray | None,
     before_placed: CellProfile | None,
+    given: tuple[PointGroup, np.ndarray] | None = None,
 ) -> VerifyPlan:
     """``plan_verify`` for one choice of height, turn and layout (``SafetyError`` if a check
-    fails)."""
+    fails); ``given``: in place of the grids, these points (n, 3; block coordinates) in this
+    group's orientation, commanded in the "after" pass alone (``ucal.verify.iso9283``)."""
     geom = geometry(profile)
     margins = safety.tolerance_margins(profile)
-    groups = point_groups(n_points, height_mm, turn_deg)
-    nominal = np.concatenate(
-        [nominal_points(profile, n, g.height_mm, g.rotation_local, layout) for g, n in groups]
-    )
+    if given is None:
+        groups = point_groups(n_points, height_mm, turn_deg)
+        nominal = np.concatenate(
+            [nominal_points(profile, n, g.height_mm, g.rotation_local, layout) for g, n in groups]
+        )
+    else:
+        groups = [(given[0], len(given[1]))]
+        nominal = np.asarray(given[1], float)
+        before_offsets_deg = np.array(profile.joint_offsets_deg, float)
     group_of = tuple(i for i, (_, n) in enumerate(groups) for _ in range(n))
     rotations = [groups[g][0].rotation_local for g in group_of]
     v, _ = tool_lever(profile)
@@ -478,7 +497,7 @@ def _plan_choice(
     except UcalError:  # no computed pose reaches the block: the paper's as the reference
         near = PAPER_CALIBRATION_POSE_DEG
     targets: list[VerifyTarget] = []
-    for pass_name in PASSES:
+    for pass_name in PASSES if given is None else PASSES[1:]:
         off = offsets[pass_name]
         seen, seen_geom = placed[pass_name], geoms[pass_name]
         prev = near

@@ -30,7 +30,7 @@ from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report
 from ucal.record import decode, encode, measured_from_lines, measurement_lines
 from ucal.session import CellSession
-from ucal.sim.truth import verify_truth
+from ucal.sim.truth import iso9283_truth, verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, SearchCost, estimate_run
 from ucal.verify.inputs import (
     BeforeProfile,
@@ -43,6 +43,7 @@ from ucal.verify.inputs import (
     wrist_left_unidentified,
     written_budget,
 )
+from ucal.verify.iso9283 import iso_figures, iso_summary, measurement_std_mm, plan_iso9283
 from ucal.verify.measure import VerifyResult, run_verify
 from ucal.verify.picture import DPI, PictureText, verify_figure, verify_picture_path
 from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify, with_tank
@@ -100,12 +101,15 @@ class VerifyJob(CheckingJob):
         tolerance_mm: float | None = None,
         plot_path: Path | None = None,
         recorded_inputs: dict[str, Any] | None = None,
+        iso_cycles: int | None = None,
     ) -> None:
         """``recorded_inputs``: a replayed record's ``inputs``, read in place of the history
-        (which may have moved on since the run)."""
+        (which may have moved on since the run); ``iso_cycles``: the five poses of ISO 9283
+        visited that many times in place of the points (``ucal.verify.iso9283``)."""
         super().__init__(profile, profile_path, tolerance_mm)
         self.recorded_inputs = recorded_inputs
         self.n_points = n_points
+        self.iso_cycles = iso_cycles
         self.plot_path = plot_path
         self.before = BeforeProfile(np.zeros(6), "")
         self.sound = SoundSpeed(0.0, 0.0, "")
@@ -145,15 +149,20 @@ class VerifyJob(CheckingJob):
         return super().check(options)
 
     def plan(self) -> VerifyPlan:
-        plan = plan_verify(
-            self.profile,
-            self.n_points,
-            before_offsets_deg=self.before.offsets_deg,
-            before_placed=self.before.placed(self.profile),
-        )
+        if self.iso_cycles is not None:
+            plan = plan_iso9283(self.profile, self.iso_cycles)
+        else:
+            plan = plan_verify(
+                self.profile,
+                self.n_points,
+                before_offsets_deg=self.before.offsets_deg,
+                before_placed=self.before.placed(self.profile),
+            )
         return plan if self.tank is None else with_tank(plan, self.profile, self.tank)
 
     def summary(self, plan: VerifyPlan) -> str:
+        if plan.iso is not None:
+            return iso_summary(plan, self.profile_path)
         return plan_summary(plan, self.profile_path)
 
     def estimate(self, plan: VerifyPlan) -> DurationEstimate:
@@ -183,7 +192,10 @@ class VerifyJob(CheckingJob):
             "unidentified": self.unidentified,
             "tank": self.tank,
         }
-        return {"options": {"points": self.n_points}, "plan": [], "inputs": encode(inputs)}
+        options: dict[str, Any] = {"points": self.n_points}
+        if self.iso_cycles is not None:
+            options["iso9283"] = self.iso_cycles
+        return {"options": options, "plan": [], "inputs": encode(inputs)}
 
     def measure(self, plan: VerifyPlan, session: CellSession, report: Report) -> VerifyResult:
         # times of flight converted with the measured sound speed (as a water temperature)
@@ -214,7 +226,7 @@ class VerifyJob(CheckingJob):
         s_mat = self.profile.sample_matrix
         points_base = plan.nominal_mm @ s_mat[:3, :3].T + s_mat[:3, 3]
         reach = float(np.max(np.hypot(points_base[:, 0], points_base[:, 1])))
-        return VerifySolved(
+        solved = VerifySolved(
             result,
             self.before,
             self.sound,
@@ -226,6 +238,13 @@ class VerifyJob(CheckingJob):
             tank,
             names,
             unidentified_at_points_mm(self.profile, plan, names) if names else None,
+        )
+        measuring = self.profile.replace(water_temperature_c=self.sound.temperature_c)
+        path_std = solved.path_std_mm
+        return replace(
+            solved,
+            measurement_std_mm=measurement_std_mm(measuring, result, path_std),
+            iso=None if plan.iso is None else iso_figures(measuring, result, path_std),
         )
 
     def may_write(self, solved: VerifySolved) -> bool:
@@ -258,6 +277,7 @@ class VerifyJob(CheckingJob):
             "after_max_mm": stats["after_mm"]["max"],
             "gauge_note": solved.gauge.statement(),
             "notes": self.notes(solved),
+            "iso9283": None if solved.iso is None else solved.iso.facts(),
         }
 
     def picture_text(self, solved: VerifySolved) -> PictureText:
@@ -311,6 +331,8 @@ class VerifyJob(CheckingJob):
                 solved.result.stats("after")["max"],
                 self.profile.sample_matrix,
             )
+            if solved.iso is not None:
+                truth["iso9283"] = iso9283_truth(measured.truth, plan)
         result = Verification(
             solved,
             RunFacts.of(measured, self.profile_path, written),

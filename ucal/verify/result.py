@@ -14,6 +14,7 @@ from ucal.calibration.fit import readings_approach
 from ucal.cell import CellProfile
 from ucal.procedure import RunFacts
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
+from ucal.verify.iso9283 import Iso9283
 from ucal.verify.measure import VerifyResult
 from ucal.verify.plan import WALL_PATH_MM
 from ucal.verify.solve import ToolOffset, passed
@@ -108,6 +109,11 @@ class VerifySolved:
     #: one sigma of what those move verify's own points (mm, ``unidentified_at_points_mm``);
     #: None: no table identified (the region's figure stands)
     unidentified_at_points_mm: float | None = None
+    #: one sigma of an "after" point's measurement per block axis (mm,
+    #: ``ucal.verify.iso9283.measurement_std_mm``); None: no point measured
+    measurement_std_mm: list[float] | None = None
+    #: an ISO 9283 run's figures (``verify --iso9283``); None: verify's points
+    iso: Iso9283 | None = None
 
     @property
     def passed(self) -> bool:
@@ -137,10 +143,13 @@ class VerifySolved:
         """One sigma of the farthest water path (a wall's) from the tank's sound speed: as
         read within the run (``TankEstimate.std_m_s``), else since the calibration measured
         it (``SoundSpeed.std_m_s``)."""
+        return self.path_std_mm(max(WALL_PATH_MM))
+
+    def path_std_mm(self, path_mm: float) -> float:
+        """One sigma of a water path of ``path_mm`` from the sound speed it was converted
+        with (mm): the tank's as read within the run, else the calibration's."""
         tank = self.tank_used
-        if tank is not None:
-            return tank.path_std_mm(max(WALL_PATH_MM))
-        return self.sound.path_std_mm(max(WALL_PATH_MM))
+        return tank.path_std_mm(path_mm) if tank is not None else self.sound.path_std_mm(path_mm)
 
     @property
     def table_unidentified(self) -> bool:
@@ -197,6 +206,9 @@ class Verification:
         out["notes"] = self.notes
         out["marginal"] = self.marginal
         out["measured_within_mm"] = solved.measured_within_mm
+        out["measurement_std_mm"] = solved.measurement_std_mm
+        if solved.iso is not None:
+            out["iso9283"] = solved.iso.to_json()
         out["unidentified_tcp_mm"] = budget_json(
             solved.unidentified_tcp_mm, solved.unidentified_names
         )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import json
 import os
 import re
 from pathlib import Path
@@ -247,3 +248,50 @@ def test_an_unwritable_output_is_exit_2_naming_it(
     line = _one_error_line(capsys.readouterr().err)
     assert line == f"error: {out}: cannot write: No space left on device"
     assert not out.exists()
+
+
+def test_an_iso9283_verify_shows_its_figures(tmp_path: Path) -> None:
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    from ucal.verify.procedure import PICTURE_FACTS_KEY
+
+    profile = calibrated_profile(tmp_path / "cell.toml")
+    facts = {
+        "time_utc": "2026-12-04T10:00:00+00:00",
+        "profile": profile.name,
+        "profile_sha256": sha256_text(profile.read_text(encoding="utf-8")),
+        "cell": {"simulated": True, "world": None, "controller": None},
+        "points": 5,
+        "tolerance_mm": 0.5,
+        "worst_mm": 0.21,
+        "passed": True,
+        "marginal": False,
+        "measured_within_mm": 0.05,
+        "before_max_mm": None,
+        "after_max_mm": [0.2, 0.21, 0.1],
+        "iso9283": {
+            "cycles": 30,
+            "side_mm": 100.0,
+            "poses": [
+                {
+                    "name": f"P{i + 1}",
+                    "ap_mm": 0.1234,
+                    "ap_std_mm": 0.01,
+                    "rp_mm": 0.0567,
+                    "rp_std_mm": 0.004,
+                }
+                for i in range(5)
+            ],
+        },
+    }
+    info = PngInfo()
+    info.add_text(PICTURE_FACTS_KEY, json.dumps(facts))
+    Image.new("RGB", (4, 4)).save(verify_picture_path(profile), pnginfo=info)
+    report = gather_report(profile)
+    assert report.verify is not None and report.verify.facts is not None
+    iso = report.verify.facts.iso9283
+    assert iso is not None and iso.cycles == 30 and len(iso.poses) == 5
+    page = render_page(report)
+    assert "ISO 9283 (7.2)" in page and "100 mm cube" in page
+    assert page.count("0.1234 ± 0.0100") == 5 and "0.0567 ± 0.0040" in page
