@@ -86,10 +86,22 @@ def _set_key(table: Any, key: str, value: Any) -> None:
         return
     keys = list(table)
     # tomlkit appends after the table's trailing comments, i.e. below the comment that
-    # introduces the next table; Container._insert_after (no public equivalent) avoids that.
-    # If a tomlkit release drops it, the key is appended (still valid TOML).
-    if isinstance(table, Table) and keys and hasattr(table.value, "_insert_after"):
-        table.value._insert_after(keys[-1], key, item)
+    # introduces the next table; inserting at the body position after the last key avoids
+    # that (Container._insert_after before tomlkit 0.15, _insert_at since: no public
+    # equivalent). If a tomlkit release drops both, the key is appended (still valid TOML).
+    container = table.value if isinstance(table, Table) and keys else None
+    if container is not None and hasattr(container, "_insert_after"):
+        container._insert_after(keys[-1], key, item)
+    elif container is not None and hasattr(container, "_insert_at"):
+        last = max(
+            i
+            for i, (k, _) in enumerate(container.body)
+            if k is not None and getattr(k, "key", None) == keys[-1]
+        )
+        if last + 1 < len(container.body):  # a comment or a blank line follows it
+            container._insert_at(last + 1, key, item)
+        else:
+            table[key] = item
     else:
         table[key] = item
 
