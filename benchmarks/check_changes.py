@@ -19,7 +19,8 @@ it must pass) and one of each change (each against the same reference, ``CHANGES
 
 A change is *named* when the check exits 1 with exactly the expected cause (``causes`` in its
 ``--json``: the tool across or along the beam, the joint, the block's position) within 20 % of
-the change's size; ``warm 1`` when it exits 0 with the water noted within 20 % of 1 °C.
+the change's size (counted apart: named with a suspect the check says it cannot tell it from,
+``fit.alike``); ``warm 1`` when it exits 0 with the water noted within 20 % of 1 °C.
 Printed: per change, how many of the cells named it, the sizes' largest error, what the others
 named; the unchanged cells' false alarms; the largest ``duration_s`` (cell time) and the plan's
 estimate; the quantities reported ``ok`` with a σ above their tolerance (must be none) and the
@@ -78,8 +79,9 @@ class Cell:
 
     name: str
     error: str = ""
-    #: change → (named right, the size's relative error, what it named, exit code)
-    outcomes: dict[str, tuple[bool, float, str, int]] = field(default_factory=dict)
+    #: change → (named right, the size's relative error, what it named, exit code, named with
+    #: another suspect the check could not tell it from)
+    outcomes: dict[str, tuple[bool, float, str, int, bool]] = field(default_factory=dict)
     false_alarm: str | None = None
     durations: list[float] = field(default_factory=list)
     estimates: list[float] = field(default_factory=list)
@@ -195,7 +197,9 @@ def run_cell(seed: int, index: int, model: str, block: str, changes: tuple[str, 
             out = commissioning.run("check", profile_path, path)
             audit(cell, out)
             ok, error, named = judged(out, change)
-            cell.outcomes[change] = (ok, error, named, out["returncode"])
+            part = CHANGES[change][0]
+            alike = bool(out.get("fit", {}).get("alike", {}).get(part))
+            cell.outcomes[change] = (ok, error, named, out["returncode"], alike)
     return cell
 
 
@@ -210,14 +214,15 @@ def summarize(cells: list[Cell]) -> None:
         if not rows:
             continue
         right = sum(r[0] for r in rows)
+        alike = sum(r[0] and r[4] for r in rows)
         errors = [r[1] for r in rows if np.isfinite(r[1])]
         worst = f"{100 * max(errors):.1f} %" if errors else "—"
         print(
             f"{change:<11} named right {right} / {len(rows)} ({part} {what}, size error max "
-            f"{worst})"
+            f"{worst}; {alike} named with another suspect alike)"
         )
         for c in good:
-            ok, _, named, code = c.outcomes.get(change, (True, 0.0, "", 0))
+            ok, _, named, code, _ = c.outcomes.get(change, (True, 0.0, "", 0, False))
             if not ok:
                 print(f"    {c.name}: exit {code}, named {named}")
     alarms = [c for c in good if c.false_alarm is not None]

@@ -143,32 +143,39 @@ def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
 
 
 #: An edge scan beyond the move to its line: the level read twice at its start, the coarse
-#: steps over the line's approach and a step back, the fine probes; each probe a move (with its
+#: steps from there to the edge (and one beyond), the fine probes; each probe a move (with its
 #: approach from below: ``EDGE_PROBE_S`` of motion and settling at speed 0.3, as the simulated
 #: cell charges it) and one reading of ``SCAN.averages``.
-EDGE_PROBES = 3 + 8 // 2 + 2 + SCAN.fine_probes
 EDGE_PROBE_S = 0.15
 
 
+def edge_probes(line: EdgeLine) -> int:
+    """The probes of one edge scan (above)."""
+    coarse = math.ceil((line.edge_mm - line.start_mm) / SCAN.coarse_step_mm) + 1
+    return 2 + coarse + SCAN.fine_probes
+
+
 def estimate_edges(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
-    """The edge scans' duration: the move from the last echo posture to each line's start and
-    back, ``EDGE_PROBES`` probes a line (their moves at the joints' speed over the probes'
-    spacing, settling included)."""
-    if not plan.edges:
-        return DurationEstimate(0, 0, 0.0, 0.0, 0.0)
+    """The edge scans' duration: the move from the last echo posture to each line's start,
+    ``edge_probes`` probes a line (their moves at the joints' speed over the probes' spacing,
+    settling included)."""
     speed = profile.procedure.speed
     joints = joint_speeds_deg_s(profile.model)
-    starts = [line.start_deg for line in plan.edges]
-    per_line = SearchCost(moves=EDGE_PROBES, reads=EDGE_PROBES, motion_s=EDGE_PROBES * EDGE_PROBE_S)
-    return estimate_run(
-        starts,
-        plan.targets[0].joints_deg,
-        speed,
-        speeds_deg_s=joints,
-        averages=SCAN.averages,
-        search=per_line,
-        first=SearchCost(0, 0, 0.0),
-    )
+    total = DurationEstimate(0, 0, 0.0, 0.0, 0.0)
+    here = plan.targets[0].joints_deg
+    for line in plan.edges:
+        n = edge_probes(line)
+        total = total + estimate_run(
+            [line.start_deg],
+            here,
+            speed,
+            speeds_deg_s=joints,
+            averages=SCAN.averages,
+            search=SearchCost(moves=n, reads=n, motion_s=n * EDGE_PROBE_S),
+            first=SearchCost(0, 0, 0.0),
+        )
+        here = line.start_deg
+    return total
 
 
 def plan_summary(plan: CheckPlan, profile: CellProfile, estimate: DurationEstimate) -> str:
