@@ -37,12 +37,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.model import CellGeometry, beam_and_tcp
+from ucal.calibration.model import beam_and_tcp
 from ucal.calibration.plan import geometry
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
-from ucal.kinematics.dh import fk_frames
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import (
     PLAN_TURNS_DEG,
@@ -53,13 +51,10 @@ from ucal.verify.plan import (
     PointGroup,
     VerifyPlan,
     down_rotation_local,
-    joints_for,
     plan_choice,
-    target_matrix,
-    tool_lever,
     verify_region,
 )
-from ucal.verify.solve import reached_from_peaks
+from ucal.verify.uncertainty import point_noise, table_share
 
 #: The standard's cycles (ISO 9283 §7.2.1).
 ISO_CYCLES = 30
@@ -133,63 +128,6 @@ def plan_iso9283(profile: CellProfile, cycles: int = ISO_CYCLES) -> VerifyPlan:
                 targets = tuple(once[i] for _ in range(cycles) for i in CYCLE_ORDER)
                 return replace(plan, targets=targets, iso=IsoCube(centre, side, cycles))
     raise SafetyError(f"no ISO 9283 cube fits over the block's XY face: {first}")
-
-
-@dataclass(frozen=True)
-class PointNoise:
-    """One sigma of one attained pose's measurement (block X, Y, Z): ``random_mm`` its own (the
-    water paths' noise, the orientation its peaks give times the tool's lever), ``common_mm``
-    what it shares with every pose of the run (the sound speed, the tool check's edges);
-    ``orientation_deg`` its orientation's (about each block axis)."""
-
-    random_mm: np.ndarray
-    common_mm: np.ndarray
-    orientation_deg: float
-
-    @property
-    def total_mm(self) -> np.ndarray:
-        return np.hypot(self.random_mm, self.common_mm)
-
-
-def point_noise(
-    profile: CellProfile,
-    point: PointResult,
-    result: VerifyResult,
-    path_std_mm: Any,
-) -> PointNoise:
-    """How far the measurement of ``point`` may be from the pose the robot attained, one
-    sigma per block axis (``PointNoise``). ``path_std_mm(path)``: one sigma of a water path
-    of that length from the sound speed (mm).
-
-    Face k's water path gives W along block axis k (its normal), so its noise and the sound
-    speed's share of it fall on that axis; the orientation's, from the three peaks' tilt
-    (``tilt_std_deg``), moves the tool centre by the lever |v| across it; the tool check's
-    edges carry their crossings' std onto X and Y (with the beam straight down they see the
-    tool across the beam, and the lever's length along it cancels in Z)."""
-    v, _ = tool_lever(profile)
-    lever = float(np.linalg.norm(v))
-    tilt = np.array([m.tilt_std_deg for m in point.faces], float)
-    tilt_deg = float(np.sqrt(np.mean(tilt**2))) if len(tilt) else 0.0
-    paths = np.array([m.distance_std_mm for m in point.faces], float)
-    random_mm = np.hypot(paths, lever * np.radians(tilt_deg))
-    common = np.array([path_std_mm(m.distance_mm) for m in point.faces], float)
-    for axis in (0, 1):
-        stds = [c.crossing_std_mm for c in result.edge_checks if c.axis == axis]
-        if stds:
-            common[axis] = np.hypot(common[axis], float(np.sqrt(np.mean(np.square(stds)))))
-    return PointNoise(random_mm, common, tilt_deg)
-
-
-def measurement_std_mm(
-    profile: CellProfile, result: VerifyResult, path_std_mm: Any
-) -> list[float] | None:
-    """One sigma of an "after" point's measurement per block axis (mm; the rms over the
-    points of ``PointNoise.total_mm``): ``measurement_std_mm`` of ``verify --json``."""
-    points = result.measured("after")
-    if not points:
-        return None
-    totals = np.array([point_noise(profile, p, result, path_std_mm).total_mm for p in points])
-    return np.sqrt(np.mean(totals**2, axis=0)).tolist()
 
 
 def orientation_deviation_deg(
@@ -345,93 +283,12 @@ def unseen_wrist_scatter(
     return var_deg2 * wrist_jac @ wrist_jac.T
 
 
-def table_sigmas(profile: CellProfile) -> list[tuple[int, int, float]]:
-    """The DH table's quantities a reconstruction leans on and one sigma of each: (row, column
-    of the table: 1 d, 2 a, 3 alpha, sigma in mm or deg): ``[calibration] dh_std`` where the full
-    level identified it (its undetermined ones at the tolerance), else [robot]
-    ``dh_length_std_mm`` on every length the model does not hold at zero and
-    ``dh_angle_std_deg`` on every twist."""
-    dh = profile.model.dh
-    out = []
-    for row in range(6):
-        for col in (1, 2, 3):
-            tol = profile.dh_angle_std_deg if col == 3 else profile.dh_length_std_mm
-            if col != 3 and dh[row, col] == 0.0 and profile.dh_std is None:
-                continue
-            sigma = tol if profile.dh_std is None else float(profile.dh_std[row, col - 1])
-            out.append((row, col, float(tol if not np.isfinite(sigma) or sigma < 0 else sigma)))
-    return out
-
-
-def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.ndarray]:
-    """What the DH table within its sigmas (``table_sigmas``) moves each pose's measurement
-    by, one sigma per block axis: position (5, 3; mm) and orientation (5, 3; deg).
-
-    Each quantity moved by one sigma makes a true robot: its exact echoes at the pose's three
-    normal-incidence postures, reconstructed with the profile's table
-    (``ucal.verify.solve.reached_from_peaks``), give the pose and the flange's orientation at
-    the commanded readings; against that robot's own, the error, less what the tool check
-    takes out (X and Y as its edge scans' start poses have them); the shares add in
-    quadrature. The tool check takes out of X and Y the error of the pose its scan starts
-    from, and puts in how differently from the profile's table the true one carries the tool
-    from there to the edge it crosses."""
-    geom = geometry(profile)
-    off = plan.offsets_deg["after"]
-    s_mat = profile.sample_matrix
-    first = {t.index: t for t in reversed(plan.targets)}
-    poses = [first[i] for i in range(len(POSE_NAMES))]
-    # where each edge scan of the tool check crosses its edge, and the pose it starts from
-    scans = []
-    for axis, index in plan.edge_points:
-        q_start = poses[index].joints_deg
-        at = plan.nominal_mm[index].copy()
-        at[axis] = profile.sample_face_size_mm
-        pose = target_matrix(profile, at, plan.rotation_local(index))
-        scans.append(
-            (axis, index, q_start, joints_for(profile, pose, off, q_start, "ISO tool check"))
-        )
-    var_p = np.zeros((len(poses), 3))
-    var_o = np.zeros((len(poses), 3))
-
-    def tcp_local(g: CellGeometry, q: np.ndarray) -> np.ndarray:
-        return s_mat[:3, :3].T @ (beam_and_tcp(g, q, off)[1] - s_mat[:3, 3])
-
-    for row, col, sigma in table_sigmas(profile):
-        dh = profile.model.dh.copy()
-        dh[row, col] += sigma
-        true = replace(geom, model=replace(profile.model, dh=dh))
-        err_p, err_o = [], []
-        for t in poses:
-            peaks = np.array(
-                [aim_wrist(true, t.face_joints_deg[k], -true.normal(k), off) for k in range(3)]
-            )
-            paths = np.array(
-                [
-                    true.normal(k) @ (beam_and_tcp(true, peaks[k], off)[1] - s_mat[:3, 3])
-                    for k in range(3)
-                ]
-            )
-            _, orient, got = reached_from_peaks(profile, geom, peaks, paths, t.joints_deg)
-            tcp = beam_and_tcp(true, t.joints_deg, off)[1]
-            err_p.append(got - s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
-            r_true = fk_frames(true.model, t.joints_deg, off)[6, :3, :3]
-            turn = orient.rotation(geom, t.joints_deg) @ r_true.T
-            err_o.append(s_mat[:3, :3].T @ Rotation.from_matrix(turn).as_rotvec(degrees=True))
-        e = np.array(err_p)
-        for axis, index, q_start, q_edge in scans:
-            # the check's correction: the start pose's own error, and how differently from
-            # the profile's table the true one carries the tool from that pose to the edge
-            carried = (tcp_local(true, q_edge) - tcp_local(true, q_start)) - (
-                tcp_local(geom, q_edge) - tcp_local(geom, q_start)
-            )
-            e[:, axis] += carried[axis] - e[index, axis]
-        var_p += e**2
-        var_o += np.array(err_o) ** 2
-    return np.sqrt(var_p), np.sqrt(var_o)
-
-
 def iso_figures(
-    profile: CellProfile, result: VerifyResult, path_std_mm: Any, seed: int = 0
+    profile: CellProfile,
+    result: VerifyResult,
+    path_std_mm: Any,
+    seed: int = 0,
+    share: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Iso9283:
     """The standard's figures of an ISO 9283 run (``plan.iso``) with their uncertainty (the
     module docstring's bootstrap)."""
@@ -440,7 +297,8 @@ def iso_figures(
     rng = np.random.default_rng(seed)
     commanded_rot = plan.rotation_local(0)
     points = result.measured("after")
-    noises = {id(p): point_noise(profile, p, result, path_std_mm) for p in points}
+    # the tool centre as time of flight sees it: the delay is part of its definition
+    noises = {id(p): point_noise(profile, p, result, path_std_mm, delay=False) for p in points}
     by_pose = [[p for p in points if p.index == i] for i in range(len(POSE_NAMES))]
     attained_mm = [np.array([p.reached_mm for p in ps]) for ps in by_pose]
     noise_var = np.mean([n.random_mm**2 for n in noises.values()], axis=0)
@@ -453,7 +311,7 @@ def iso_figures(
         + np.r_[np.diag(scatter)[:2] + noise_var[:2], 0.0]
     )
     delta = rng.standard_normal((BOOTSTRAP_DRAWS, 3)) * common
-    share_mm, share_deg = table_share(profile, plan)
+    share_mm, share_deg = table_share(profile, plan) if share is None else share
     poses = []
     for i, name in enumerate(POSE_NAMES):
         attained = by_pose[i]

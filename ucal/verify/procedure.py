@@ -43,7 +43,7 @@ from ucal.verify.inputs import (
     wrist_left_unidentified,
     written_budget,
 )
-from ucal.verify.iso9283 import iso_figures, iso_summary, measurement_std_mm, plan_iso9283
+from ucal.verify.iso9283 import iso_figures, iso_summary, plan_iso9283
 from ucal.verify.measure import VerifyResult, run_verify
 from ucal.verify.picture import DPI, PictureText, verify_figure, verify_picture_path
 from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify, with_tank
@@ -61,6 +61,7 @@ from ucal.verify.result import (
 )
 from ucal.verify.solve import unidentified_at_points_mm
 from ucal.verify.tank import estimate_tank, tank_corrected
+from ucal.verify.uncertainty import measurement_std_mm, point_stds_mm, table_share
 
 #: A water path read again where calibrate read it: no search, the readings of one path.
 PATH_READ = SearchCost(moves=0, reads=8, motion_s=0.0)
@@ -241,10 +242,13 @@ class VerifyJob(CheckingJob):
         )
         measuring = self.profile.replace(water_temperature_c=self.sound.temperature_c)
         path_std = solved.path_std_mm
+        share = table_share(measuring, plan)
+        stds = point_stds_mm(measuring, result, path_std, share[0])
         return replace(
             solved,
-            measurement_std_mm=measurement_std_mm(measuring, result, path_std),
-            iso=None if plan.iso is None else iso_figures(measuring, result, path_std),
+            measurement_std_mm=measurement_std_mm(stds),
+            point_std_mm=stds,
+            iso=None if plan.iso is None else iso_figures(measuring, result, path_std, share=share),
         )
 
     def may_write(self, solved: VerifySolved) -> bool:

@@ -112,6 +112,9 @@ class VerifySolved:
     #: one sigma of an "after" point's measurement per block axis (mm,
     #: ``ucal.verify.iso9283.measurement_std_mm``); None: no point measured
     measurement_std_mm: list[float] | None = None
+    #: the same per measured "after" point (n, 3; mm, ``VerifyResult.measured("after")``'s
+    #: order); None: not computed
+    point_std_mm: np.ndarray | None = None
     #: an ISO 9283 run's figures (``verify --iso9283``); None: verify's points
     iso: Iso9283 | None = None
 
@@ -129,7 +132,12 @@ class VerifySolved:
 
     @property
     def measured_within_mm(self) -> float:
-        """How far each reached TCP may be from the real one (mm; ``measured_within_mm``)."""
+        """How far each reached TCP may be from the real one (mm): two sigma of the least
+        well measured point on its worst axis (``point_std_mm``, ``ucal.verify.uncertainty``);
+        where no point's sigma was computed, the bound ``measured_within_mm`` gives."""
+        stds = self.point_std_mm
+        if stds is not None and np.size(stds):
+            return 2.0 * float(np.max(stds))
         return measured_within_mm(self.table_sigma, self.water_std_mm)
 
     @property
@@ -207,6 +215,9 @@ class Verification:
         out["marginal"] = self.marginal
         out["measured_within_mm"] = solved.measured_within_mm
         out["measurement_std_mm"] = solved.measurement_std_mm
+        stds = solved.point_std_mm
+        # per measured "after" point, in "reached_mm"'s order
+        out["measurement_std_points_mm"] = None if stds is None else np.asarray(stds).tolist()
         if solved.iso is not None:
             out["iso9283"] = solved.iso.to_json()
         out["unidentified_tcp_mm"] = budget_json(
@@ -466,9 +477,19 @@ def tool_misfit_mm(solved: VerifySolved) -> float:
 
 
 def marginal(solved: VerifySolved) -> bool:
-    """The verdict could go the other way within what verify measures to
-    (``measured_within_mm``: the DH table's share with it) plus the tool check's misfit."""
-    return bool(
-        abs(solved.worst_mm - solved.tolerance_mm)
-        <= solved.measured_within_mm + tool_misfit_mm(solved)
-    )
+    """The verdict could go the other way within two sigmas of each "after" point's
+    measurement (``point_std_mm``, per axis; the tool check's misfit added): a pass where some
+    deviation lies that close below the tolerance, a fail where every deviation above it lies
+    that close above. Where no point's sigma was computed, the largest deviation within
+    ``measured_within_mm`` of the tolerance."""
+    misfit = tool_misfit_mm(solved)
+    stds = solved.point_std_mm
+    dev = np.abs(solved.result.deviations("after"))
+    tol = solved.tolerance_mm
+    if stds is not None and np.shape(stds) == dev.shape and dev.size:
+        reach = 2.0 * np.asarray(stds) + misfit
+        above = dev > tol
+        if not np.any(above):
+            return bool(np.any(tol - dev < reach))
+        return bool(np.all((dev - tol)[above] < reach[above]))
+    return bool(abs(solved.worst_mm - tol) <= solved.measured_within_mm + misfit)
