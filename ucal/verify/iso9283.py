@@ -30,6 +30,7 @@ common to every pose that AP carries and RP does not.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -286,7 +287,7 @@ def unseen_wrist_scatter(
 def iso_figures(
     profile: CellProfile,
     result: VerifyResult,
-    path_std_mm: Any,
+    path_std_mm: Callable[[float], float],
     seed: int = 0,
     share: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Iso9283:

@@ -22,8 +22,8 @@ Three shares, independent:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -60,7 +60,7 @@ def point_noise(
     profile: CellProfile,
     point: PointResult,
     result: VerifyResult,
-    path_std_mm: Any,
+    path_std_mm: Callable[[float], float],
     delay: bool = True,
 ) -> PointNoise:
     """How far the measurement of ``point`` may be from the pose the robot attained, one
@@ -214,7 +214,7 @@ def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.
 def point_stds_mm(
     profile: CellProfile,
     result: VerifyResult,
-    path_std_mm: Any,
+    path_std_mm: Callable[[float], float],
     share_mm: np.ndarray | None = None,
 ) -> np.ndarray:
     """One sigma per block axis (n, 3; mm) of each measured "after" point (by point number,
