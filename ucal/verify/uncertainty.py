@@ -34,6 +34,7 @@ from ucal.calibration.plan import geometry
 from ucal.calibration.priors import DELAY_PRIOR_STD_NS
 from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
+from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import VerifyPlan, joints_for, target_matrix, tool_lever
@@ -158,9 +159,11 @@ def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.
         at = plan.nominal_mm[index].copy()
         at[axis] = profile.sample_face_size_mm
         pose = target_matrix(profile, at, plan.rotation_local(index))
-        scans.append(
-            (axis, index, q_start, joints_for(profile, pose, off, q_start, "the tool check's edge"))
-        )
+        try:
+            q_edge = joints_for(profile, pose, off, q_start, "the tool check's edge")
+        except SafetyError:  # the plan checked the scan's ends; the edge itself may lie
+            q_edge = q_start  # outside a wrist margin: its carrying then left out
+        scans.append((axis, index, q_start, q_edge))
     var_p = np.zeros((len(poses), 3))
     var_o = np.zeros((len(poses), 3))
 
