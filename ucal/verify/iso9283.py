@@ -38,10 +38,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.model import beam_and_tcp
-from ucal.calibration.plan import geometry
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.kinematics.dh import jacobian
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import (
     PLAN_TURNS_DEG,
@@ -260,13 +259,10 @@ def robot_scatter(by_pose: list[np.ndarray], noise_var: np.ndarray) -> np.ndarra
 
 def joint_jacobian_mm_per_deg(profile: CellProfile, joints_deg: np.ndarray) -> np.ndarray:
     """How the tool centre moves in block coordinates per degree of each joint (3, 6; mm/deg)
-    at readings ``joints_deg``, by the profile's kinematics (central differences)."""
-    geom = geometry(profile)
-    off = np.asarray(profile.joint_offsets_deg, float)
-    step = 1e-3
-    q = np.asarray(joints_deg, float) + step * np.vstack([np.eye(6), -np.eye(6)])
-    tcp = beam_and_tcp(geom, q, off)[1] @ geom.block_rotation
-    return ((tcp[:6] - tcp[6:]) / (2.0 * step)).T
+    at readings ``joints_deg``, by the profile's kinematics (the geometric Jacobian's linear
+    rows, ``ucal.kinematics.dh.jacobian``)."""
+    lin = jacobian(profile.model, joints_deg, profile.tool_matrix, profile.joint_offsets_deg)[:3]
+    return profile.sample_matrix[:3, :3].T @ lin * np.radians(1.0)
 
 
 def unseen_wrist_scatter(

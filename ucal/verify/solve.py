@@ -28,7 +28,7 @@ from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel, fk_frames
 from ucal.toolframe.exact import tangent_basis
-from ucal.verify.plan import VerifyPlan, tool_lever
+from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
 
 
 def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:
@@ -122,32 +122,46 @@ def reached_from_peaks(
     return w_local, orient, reached_tcp_local(geom, w_local, orient, commanded_deg, v)
 
 
+def exact_reconstruction(
+    profile: CellProfile,
+    geom: CellGeometry,
+    true: CellGeometry,
+    target: VerifyTarget,
+    offsets_deg: np.ndarray,
+) -> tuple[WristOrientation, np.ndarray, np.ndarray]:
+    """What verify reconstructs of one planned point on the robot ``true`` (its geometry:
+    another table where the profile says its own): exact echoes at that robot's three
+    normal-incidence postures and water paths, reconstructed with the profile's ``geom``
+    (``reached_from_peaks``). Returns the flange orientation found, the reconstructed TCP and
+    the robot's real one (block coordinates, mm), before the tool check."""
+    s_mat = profile.sample_matrix
+    peaks = np.array(
+        [aim_wrist(true, target.face_joints_deg[k], -true.normal(k), offsets_deg) for k in range(3)]
+    )
+    paths = np.array(
+        [
+            true.normal(k) @ (beam_and_tcp(true, peaks[k], offsets_deg)[1] - s_mat[:3, 3])
+            for k in range(3)
+        ]
+    )
+    _, orient, got = reached_from_peaks(profile, geom, peaks, paths, target.joints_deg)
+    tcp = beam_and_tcp(true, target.joints_deg, offsets_deg)[1]
+    return orient, got, s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+
+
 def reconstruction_error_mm(
     profile: CellProfile, true_model: RobotModel, plan: VerifyPlan
 ) -> np.ndarray:
     """How far verify's reconstruction puts each "after" point of ``plan`` from where the robot
     really is (n, 3; block coordinates, mm) when its kinematics are ``true_model`` where the
-    profile says its own: exact echoes at that robot's three normal-incidence postures and
-    water paths, reconstructed with the profile's (``reached_from_peaks``), before the tool
-    check."""
+    profile says its own (``exact_reconstruction``), before the tool check."""
     geom = geometry(profile)
     true = replace(geom, model=true_model)
     offsets = plan.offsets_deg["after"]
-    s_mat = profile.sample_matrix
     errors = []
     for target in (t for t in plan.targets if t.pass_name == "after"):
-        peaks = np.array(
-            [aim_wrist(true, target.face_joints_deg[k], -true.normal(k), offsets) for k in range(3)]
-        )
-        paths = np.array(
-            [
-                true.normal(k) @ (beam_and_tcp(true, peaks[k], offsets)[1] - s_mat[:3, 3])
-                for k in range(3)
-            ]
-        )
-        got = reached_from_peaks(profile, geom, peaks, paths, target.joints_deg)[2]
-        tcp = beam_and_tcp(true, target.joints_deg, offsets)[1]
-        errors.append(got - s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
+        _, got, real = exact_reconstruction(profile, geom, true, target, offsets)
+        errors.append(got - real)
     return np.array(errors).reshape(-1, 3)
 
 

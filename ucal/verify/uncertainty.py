@@ -32,13 +32,12 @@ from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.model import CellGeometry, beam_and_tcp
 from ucal.calibration.plan import geometry
 from ucal.calibration.priors import DELAY_PRIOR_STD_NS
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import VerifyPlan, joints_for, target_matrix, tool_lever
-from ucal.verify.solve import reached_from_peaks
+from ucal.verify.solve import exact_reconstruction
 
 
 @dataclass(frozen=True)
@@ -176,18 +175,8 @@ def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.
         true = replace(geom, model=replace(profile.model, dh=dh))
         err_p, err_o = [], []
         for t in poses:
-            peaks = np.array(
-                [aim_wrist(true, t.face_joints_deg[k], -true.normal(k), off) for k in range(3)]
-            )
-            paths = np.array(
-                [
-                    true.normal(k) @ (beam_and_tcp(true, peaks[k], off)[1] - s_mat[:3, 3])
-                    for k in range(3)
-                ]
-            )
-            _, orient, got = reached_from_peaks(profile, geom, peaks, paths, t.joints_deg)
-            tcp = beam_and_tcp(true, t.joints_deg, off)[1]
-            err_p.append(got - s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
+            orient, got, real = exact_reconstruction(profile, geom, true, t, off)
+            err_p.append(got - real)
             r_true = fk_frames(true.model, t.joints_deg, off)[6, :3, :3]
             turn = orient.rotation(geom, t.joints_deg) @ r_true.T
             err_o.append(s_mat[:3, :3].T @ Rotation.from_matrix(turn).as_rotvec(degrees=True))
@@ -203,12 +192,12 @@ def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.
             fix.setdefault((group_of[index], axis), []).append(
                 float(carried[axis] - e[point[index], axis])
             )
+        every = {a: [v for (_, b), vs in fix.items() if b == a for v in vs] for a in (0, 1)}
         for k, t in enumerate(poses):
             for axis in (0, 1):
-                own = fix.get((group_of[t.index], axis))
-                every = [v for (_, a), vs in fix.items() if a == axis for v in vs]
-                if own or every:
-                    e[k, axis] += float(np.mean(own or every))
+                used = fix.get((group_of[t.index], axis)) or every[axis]
+                if used:
+                    e[k, axis] += float(np.mean(used))
         var_p += e**2
         var_o += np.array(err_o) ** 2
     return np.sqrt(var_p), np.sqrt(var_o)
