@@ -79,6 +79,9 @@ def gate(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[], dict
         except BaseException as e:  # raised again in the test that asks for the result
             outcome.append(e)
 
+    # the worker's base directory is made here, before the thread and the test's own tmp_path
+    # both ask for it: pytest's TempPathFactory makes it on first use, without a lock
+    tmp_path_factory.getbasetemp()
     made = threading.Thread(target=run, daemon=True)
     made.start()
 
