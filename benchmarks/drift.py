@@ -96,19 +96,9 @@ from drivers.errors import DriverError
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.budget import calibration_budget
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.fit import (
-    BACKLASH,
-    DRIFT,
-    AugmentedFit,
-    CellFit,
-    FitQuality,
-    RunEffects,
-    prior_from_profile,
-)
 from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.calibration.full_plan import MAX_POSTURES, plan_full
 from ucal.calibration.full_run import run_full
-from ucal.calibration.least_squares import CURVATURE
 from ucal.calibration.procedure import judge
 from ucal.calibration.sequence import (
     calibration_pose,
@@ -120,6 +110,16 @@ from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
+from ucal.model.fit import (
+    BACKLASH,
+    DRIFT,
+    AugmentedFit,
+    CellFit,
+    FitQuality,
+    RunEffects,
+    prior_from_profile,
+)
+from ucal.model.least_squares import CURVATURE
 from ucal.models import KNOWN_MODELS
 from ucal.profile import load_profile, write_profile
 from ucal.session import check_status, open_cell

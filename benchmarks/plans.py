@@ -11,7 +11,7 @@ planners run exactly as the commands run them before moving, on the profile's no
 ``calibrate`` (``plan_calibration``), ``calibrate --level full`` (``plan_full``),
 ``tool-frame`` (``plan_tool_frame``), ``verify`` (``plan_verify``) and ``verify --region 12``
 (``plan_region``). Nothing moves. The profiles are never calibrated (each joint offset known
-to a degree, ``ucal.calibration.safety.FRESH_OFFSET_STD_DEG``); ``--calibrated`` declares
+to a degree, ``ucal.model.safety.FRESH_OFFSET_STD_DEG``); ``--calibrated`` declares
 ``[calibration] std_deg`` as ``calibrate`` writes it (``CALIBRATED_STD_DEG``).
 
 The sweep prints how many plans each planner finds and how many it refuses, and the refusals
@@ -51,11 +51,11 @@ from scipy.spatial.transform import Rotation
 
 from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
 from ucal.calibration.plan import geometry
-from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.calibration.sequence import plan_calibration
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.rotations import matrix_to_rpy
+from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.plan import QUARTER_TURNS_TILT_DEG, ToolFramePlan, plan_tool_frame

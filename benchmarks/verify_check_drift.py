@@ -82,8 +82,8 @@ import thermometer
 from _quick import parse_args
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.fit import BLOCK, OFFSETS, TOOL
 from ucal.check.history import read_checks
+from ucal.model.fit import BLOCK, OFFSETS, TOOL
 from ucal.profile import load_profile
 from ucal.thermometer import read_log
 from ucal.verify.result import MEASURED_WITHIN_MM

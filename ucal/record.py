@@ -38,7 +38,7 @@ have no measurement lines, so they replay by remeasuring.
 Values are tagged so they come back as they went: arrays ``{"nd": [...]}`` (with ``"dtype"``
 and ``"shape"`` where a list alone would not say them), tuples ``{"t": [...]}``, non-finite
 floats ``{"f": "nan"}``, dataclasses ``{"dc": "GateReading", "v": {...}}`` (the drivers') or
-``{"dc": "ucal.calibration.model:FaceMeasurement", "v": {...}}`` (ucal's, every init field by
+``{"dc": "ucal.model.geometry:FaceMeasurement", "v": {...}}`` (ucal's, every init field by
 ``dataclasses.fields``, so a field added later round-trips unchanged; a class moved to another
 module since is found by its name among those the replaying command has loaded). Python's float
 repr round-trips exactly, so replayed numbers are the recorded ones to the bit.

@@ -28,7 +28,7 @@ themselves is how that change turns during a run. The solvers fit the sound spee
 middle of the run and a steady drift from the paths (a face read again, the steps, the wrist's
 postures); a real tank does not drift steadily (it approaches the room's temperature, a heater
 cycles), and without a log they can only carry that turn as an uncertainty
-(``ucal.calibration.least_squares.curvature_std_m_s_per_min2``: a turn of the declared drift
+(``ucal.model.least_squares.curvature_std_m_s_per_min2``: a turn of the declared drift
 tolerance over the run). The log measures it. Its absolute reading is off by its calibration
 (``[water] temperature_std_c``, which the sound speed's prior keeps) and its probe sits
 elsewhere in the tank than the beam, so only its departure from a straight line is taken.

@@ -8,11 +8,11 @@ import pytest
 from drivers.controller.client import SimpleMessageController
 from drivers.pulser.base import PulserSettings
 from drivers.pulser.modbus import ModbusPulser
-from ucal.calibration.model import CellGeometry
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, WorldTruth
 from ucal.kinematics.dh import fk, wrist_centre
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.geometry import CellGeometry
+from ucal.model.wrist import aim_wrist
 from ucal.models import load_model
 from ucal.sim.serve import SimulatedCellServer
 

@@ -1,6 +1,6 @@
 """The offsets level on a TX90L whose axes 2 and 3 are not quite parallel: Hayati's twist β₂ of
 0.027°, 1.35 times the profile's DH angle tolerance (0.02°), as a real arm may have it. The
-level carries β₂ with its prior (``ucal.calibration.least_squares.cell_table``); without it,
+level carries β₂ with its prior (``ucal.model.least_squares.cell_table``); without it,
 J1 relative to the block was written 0.030° off at a reported 0.0036° (8.4σ) and J2 at 3.8σ."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The README's rehearsal block, line by line as written (each with ``--json`` added to read its
 result): a fresh profile, then ``calibrate``, ``tool-frame`` and ``verify`` with ``--sim`` (the
 demo truth of ``ucal.sim.demo``), which must end in a pass, relative to the block (the gauge of
-``ucal.calibration.gauge``), each point's measurement with its sigma and "marginal" only where
+``ucal.model.gauge``), each point's measurement with its sigma and "marginal" only where
 the tolerance lies within two of them, with the simulator's truth confirming the "after"
 figure; then the
 shipped world with faults, which must fail. Each line runs the command line in the test's

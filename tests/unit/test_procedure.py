@@ -237,7 +237,7 @@ def test_plain_progress_lines_on_a_non_terminal(capsys: pytest.CaptureFixture[st
 def test_faces_and_configurations_serialise_as_before() -> None:
     import json
 
-    from ucal.calibration.model import FACE_NAMES, FACE_ORDER, Configuration, Face
+    from ucal.model.geometry import FACE_NAMES, FACE_ORDER, Configuration, Face
 
     assert json.dumps([Face.XY, Configuration.J3]) == '[2, "j3"]'
     assert FACE_ORDER == (2, 0, 1) and FACE_NAMES == ("YZ", "XZ", "XY")

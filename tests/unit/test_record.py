@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from drivers.controller.base import ControllerStatus, JointSample
 from drivers.pulser.base import GateReading, PulserSettings
 from ucal.calibration.full_run import FullRun
-from ucal.calibration.model import Face, FaceMeasurement
 from ucal.calibration.sequence import CalibrationRun
+from ucal.model.geometry import Face, FaceMeasurement
 from ucal.procedure import RunOptions
 from ucal.profile import default_profile_text, load_profile, write_profile
 from ucal.record import (
@@ -241,7 +241,7 @@ def test_a_record_rebuilds_only_ucal_dataclasses() -> None:
     with pytest.raises(RecordError, match="no ucal dataclass"):
         decode({"dc": "subprocess:Popen", "v": {}})
     with pytest.raises(RecordError, match="does not have"):
-        decode({"dc": "ucal.calibration.model:NoSuchThing", "v": {}})
+        decode({"dc": "ucal.model.geometry:NoSuchThing", "v": {}})
     # a class that moved to another module since: the one of its name the replay has loaded
     moved = {
         "dc": "ucal.calibration.old_home:PeakResult",
@@ -250,7 +250,7 @@ def test_a_record_rebuilds_only_ucal_dataclasses() -> None:
     assert type(decode(moved)) is PeakResult
     # one recorded before a field without a default was added (or after one was removed)
     with pytest.raises(RecordError, match="FaceMeasurement is not this ucal's"):
-        decode({"dc": "ucal.calibration.model:FaceMeasurement", "v": {"config": "base"}})
+        decode({"dc": "ucal.model.geometry:FaceMeasurement", "v": {"config": "base"}})
 
 
 def test_every_line_has_a_kind_header_first_result_last(tmp_path: Path) -> None:

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.sequence import CalibrationRun
 from ucal.errors import InputError, ProfileError
+from ucal.model.geometry import FaceMeasurement
 from ucal.thermometer import Thermometer, check_time_base, on_run, read_log
 
 
@@ -244,8 +244,8 @@ def test_tool_frames_peaks_are_corrected_as_the_faces_are() -> None:
 def test_the_logs_drift_is_the_drifts_prior_mean() -> None:
     """The log measures the tank's drift over the run: every solver's drift prior is centred on
     it (its tolerance the declared one), in m/s per minute through Marczak's slope."""
-    from ucal.calibration.priors import prior_from_profile
     from ucal.cell import CellProfile
+    from ucal.model.priors import prior_from_profile
     from ucal.models import load_model
 
     log_t = np.arange(0.0, 12.0, 0.05)

@@ -12,8 +12,8 @@ import pytest
 import tomlkit
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.readings import CalibrationReadings, readings_path, write_readings
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.readings import CalibrationReadings, readings_path, write_readings
 from ucal.procedure import RunOptions
 from ucal.profile import (
     create_profile,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.priors import prior_from_profile
+from ucal.model.priors import prior_from_profile
 from ucal.profile import (
     create_profile,
     default_profile_text,

@@ -38,7 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.fit import (
+from ucal.calibration.full import KINEMATIC, STEP, scanning_postures, step_residuals
+from ucal.calibration.sequence import calibration_pose
+from ucal.cell import CellProfile
+from ucal.kinematics.dh import RobotModel
+from ucal.model.fit import (
     OFFSETS,
     SOUND,
     CellFit,
@@ -47,11 +51,7 @@ from ucal.calibration.fit import (
     prior_from_profile,
     table_geometry,
 )
-from ucal.calibration.full import KINEMATIC, STEP, scanning_postures, step_residuals
-from ucal.calibration.model import FaceMeasurement, beam_and_tcp
-from ucal.calibration.sequence import calibration_pose
-from ucal.cell import CellProfile
-from ucal.kinematics.dh import RobotModel
+from ucal.model.geometry import FaceMeasurement, beam_and_tcp
 
 #: The quantities no echo may see well enough: the kinematic model's lengths and twists, and
 #: the sound speed (with the lengths, one common scale that time of flight does not show).

@@ -2,14 +2,14 @@
 
 ``solve_exact_with_priors`` is the solver ``ucal calibrate`` uses: it carries the block pose,
 the tool frame and the sound speed as unknowns with the profile's tolerances as priors
-(``ucal.calibration.fit``) and reports honest standard deviations, the fit quality and why a
+(``ucal.model.fit``) and reports honest standard deviations, the fit quality and why a
 joint is unobservable. ``solve_exact`` below is the previous, offsets-only solver (block
 orientation, tool and sound speed taken as exact); it is kept for the comparison in
 ``benchmarks/realistic.py`` and for predicting postures during a run.
 
 Previous solver. Unknowns: the six joint offsets δ (deg) and the block corner c (mm, base frame;
 the block's orientation is taken as known, its position is not). Every face measurement contributes
-(see ``ucal.calibration.model``):
+(see ``ucal.model.geometry``):
 
     r_tilt = tilt_components(b(q+δ)) / σ_tilt            two residuals, eq. (1)
     r_dist = (n_k·(p(q+δ) − c) − d) / σ_d                  one residual, eq. (2)
@@ -43,22 +43,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.calibration.fit import (
+from ucal.kinematics.rotations import angle_between_deg
+from ucal.model.fit import (
     MAX_STD_DEG,
     CellFit,
     CellPrior,
     FitQuality,
     solve_cell,
 )
-from ucal.calibration.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
-from ucal.calibration.model import (
+from ucal.model.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
+from ucal.model.geometry import (
     CellGeometry,
     FaceMeasurement,
     beam_and_tcp,
     distance_joints,
     tilt_components,
 )
-from ucal.kinematics.rotations import angle_between_deg
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class OffsetSolution:
     #: The paper method's first-order truncation error and its noise std per joint (deg).
     truncation_deg: np.ndarray | None = None
     noise_std_deg: np.ndarray | None = None
-    #: One sigma relative to the block as placed (``ucal.calibration.gauge``; J1's without the
+    #: One sigma relative to the block as placed (``ucal.model.gauge``; J1's without the
     #: block's yaw tolerance), and how J1 is known; None for the previous solver.
     std_block_deg: np.ndarray | None = None
     gauge: J1Gauge | None = None
@@ -103,7 +103,7 @@ def solve_exact_with_priors(
     fixed: tuple[str, ...] = (),
 ) -> OffsetSolution:
     """Offsets with the cell's uncertain quantities as prior-constrained unknowns, in the
-    block gauge (``ucal.calibration.gauge``: the block's yaw held as placed, J1 relative to it).
+    block gauge (``ucal.model.gauge``: the block's yaw held as placed, J1 relative to it).
 
     A joint whose std exceeds ``max_std_deg`` while less than half of its variance comes from
     the measurements is reported unobservable (profile value kept) with the prior that

@@ -1,12 +1,12 @@
 """Full kinematic identification (``calibrate --level full``): which parameters the
 measurements determine, and their values with honest standard deviations.
 
-Model. The unknowns of ``ucal.calibration.fit`` (joint offsets, block pose, tool frame, sound
+Model. The unknowns of ``ucal.model.fit`` (joint offsets, block pose, tool frame, sound
 speed and its drift over the run, each joint's lost motion where it is read from both sides,
 the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist ``β₂``
 of the nearly parallel axes 2 and 3 (``A₂ = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``): a modified DH
 model. Every unknown has the profile's value and tolerance as its prior; the measurements are
-the face measurements of ``ucal.calibration.model`` (normal-incidence postures and water
+the face measurements of ``ucal.model.geometry`` (normal-incidence postures and water
 paths), taken in many arm configurations (``ucal.calibration.full_plan``).
 
 Identifiability, from the data Jacobian ``J`` (rows in units of their σ, columns per prior σ)
@@ -46,7 +46,7 @@ prior's, or a std above ``PRIOR_DOMINATED`` of its tolerance) is fitted with its
 reported as prior-dominated (e.g. ``d₅``, ``a₅``: they shift the flange across the beam,
 which a plane seen at normal incidence does not show): its value stays within its
 tolerance of the nominal one and its std says so. Joint offsets follow the offsets level: J1
-relative to the block as placed (the block gauge, ``ucal.calibration.gauge``), unobservable
+relative to the block as placed (the block gauge, ``ucal.model.gauge``), unobservable
 (kept) when their large std comes from a prior (J6 with the beam on its axis).
 """
 
@@ -59,7 +59,8 @@ import numpy as np
 from scipy.optimize import approx_fprime
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.fit import (
+from ucal.kinematics.dh import RobotModel
+from ucal.model.fit import (
     BETA,
     BLOCK,
     DH,
@@ -79,16 +80,15 @@ from ucal.calibration.fit import (
     solve_cell,
     table_geometry,
 )
-from ucal.calibration.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
-from ucal.calibration.least_squares import cell_table
-from ucal.calibration.model import (
+from ucal.model.gauge import BLOCK_YAW, J1Gauge, gauged_offsets
+from ucal.model.geometry import (
     CellGeometry,
     FaceMeasurement,
     beam_and_tcp,
     distance_joints,
 )
-from ucal.calibration.priors import twists_deg
-from ucal.kinematics.dh import RobotModel
+from ucal.model.least_squares import cell_table
+from ucal.model.priors import twists_deg
 
 #: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
 #: degrees from the profile's, with the table free, the trust region crawls along the
@@ -140,7 +140,7 @@ def step_residuals(
 ) -> np.ndarray:
     """Normalised residual of the water path of each measurement over the step's top (n,):
     the path to the XY face's plane, less ``step_mm``, along the beam, against the measured
-    one (``ucal.calibration.fit.data_residuals``' distance row, for a plane ``step_mm`` up;
+    one (``ucal.model.fit.data_residuals``' distance row, for a plane ``step_mm`` up;
     ``time_ref_min``: the face measurements' reference time, ``reference_time_min``)."""
     if not meas:
         return np.zeros(0)
@@ -344,7 +344,7 @@ class FullSolution:
     parameters: dict[str, IdentifiedParameter] = field(default_factory=dict)
     #: The step's height as its water paths and its prior put it (None without a step).
     length_standard: LengthStandard | None = None
-    #: One sigma relative to the block as placed, and how J1 is known (``ucal.calibration.gauge``).
+    #: One sigma relative to the block as placed, and how J1 is known (``ucal.model.gauge``).
     std_block_deg: np.ndarray | None = None
     gauge: J1Gauge | None = None
 
@@ -499,7 +499,7 @@ def solve_full(
         lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref),
         tuple(f"{m.config}/step" for m in steps),
     )
-    # the block gauge (ucal.calibration.gauge): the block's yaw held as placed, J1 relative
+    # the block gauge (ucal.model.gauge): the block's yaw held as placed, J1 relative
     cell = solve_cell(
         prior,
         meas,

@@ -11,7 +11,7 @@ level before it is considered: joint ranges with room for the wrist search (and 
 for the offsets' error, ``_arm_room``), the θ5 singularity
 margin, the beam inside the face, and a tool that keeps ``CLEARANCE_MM`` from every face's
 plane where the face is (no collision with the block), each with the room three sigma of the
-declared tolerances can move a posture by (``ucal.calibration.safety.tolerance_margins``): a
+declared tolerances can move a posture by (``ucal.model.safety.tolerance_margins``): a
 block anywhere within its tolerance is measured without a posture leaving the checks.
 
 Criterion. A candidate contributes three rows to the data Jacobian ``J`` (two tilts and the
@@ -27,7 +27,7 @@ Order. The run moves each posture's arm so that the tool stands where the plan p
 to the cell as measured so far (``ucal.calibration.full_run.retarget``); what it does not know
 yet moves the tool from there. Each posture, when the run gets to it, must keep room for three
 sigma of that (``visit_order``): what the block's tolerance and the offsets' uncertainty move
-the tool centre by along each block axis (``ucal.calibration.safety.offsets_margins_mm``: a
+the tool centre by along each block axis (``ucal.model.safety.offsets_margins_mm``: a
 fresh cell's offsets are known to a degree, tens of millimetres on a TX90XL), times the share
 of the posture's water-path std that the faces measured before it leave (the run's estimate,
 prior-augmented, has error covariance ``M⁻¹(P + HᵀH)M⁻¹`` with ``M = I + HᵀH`` and ``P`` the
@@ -66,7 +66,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.fit import BACKLASH, OFFSETS, CellPrior, prior_from_profile
 from ucal.calibration.full import (
     Identifiability,
     data_jacobian,
@@ -74,7 +73,6 @@ from ucal.calibration.full import (
     ideal_measurements,
     identifiability,
 )
-from ucal.calibration.model import FACE_NAMES, Face
 from ucal.calibration.plan import (
     STEPPED_PATH_RANGE_MM,
     CalibrationPlan,
@@ -82,7 +80,13 @@ from ucal.calibration.plan import (
     geometry,
     plan_calibration,
 )
-from ucal.calibration.safety import (
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik_solutions
+from ucal.model.fit import BACKLASH, OFFSETS, CellPrior, prior_from_profile
+from ucal.model.geometry import FACE_NAMES, Face
+from ucal.model.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
     SEARCH_MARGIN_DEG,
@@ -94,10 +98,6 @@ from ucal.calibration.safety import (
     step_blocked,
     tolerance_margins,
 )
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
-from ucal.errors import SafetyError, UcalError
-from ucal.kinematics.dh import fk_frames
-from ucal.kinematics.ik import ik_solutions
 
 log = logging.getLogger(__name__)
 
@@ -426,7 +426,7 @@ def order_postures(postures: list[Posture]) -> list[Posture]:
 def unknown_spread(profile: CellProfile, prior: CellPrior, names: tuple[str, ...]) -> np.ndarray:
     """Per unknown of the planning Jacobian (``names``), how far the cell may really be from
     the profile over the prior σ the fit gives it: the offsets' planning std
-    (``ucal.calibration.safety.offsets_std_deg``: a fresh cell's degree, not the fit's broad
+    (``ucal.model.spread.offsets_std_deg``: a fresh cell's degree, not the fit's broad
     prior) over the fit's; 1 for every other unknown (its prior is the declared tolerance)."""
     table = full_table(prior)
     spread = np.ones(len(names))

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.calibration.full_plan import FullPlan, Posture
-from ucal.calibration.model import FACE_NAMES, Face, FaceMeasurement
 from ucal.calibration.sequence import geometry, measure_targets, start_running
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
@@ -46,6 +45,7 @@ from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik
 from ucal.measure.face import SearchMode
 from ucal.measure.running import UNCERTAIN_TILT_DEG, RunningEstimate
+from ucal.model.geometry import FACE_NAMES, Face, FaceMeasurement
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 

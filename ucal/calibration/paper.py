@@ -22,7 +22,7 @@ Joint-2 step δθ2 (joint 3 back): h2 = δW2x c1 + δW2y s1, δz2 = δW2z
   θ3  = θ23 − θ2                                                                         (17)
 
 δW is measured at normal incidence: the change of the water path to face k equals the
-displacement of W along the face normal n_k (``ucal.calibration.model``), so
+displacement of W along the face normal n_k (``ucal.model.geometry``), so
 δW = R_S·[Δd_0, Δd_1, Δd_2]ᵀ with R_S the block orientation.
 
 The first-order expansion treats the chord of a finite step as the tangent at its start: for a
@@ -50,13 +50,13 @@ from typing import Any
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import MAX_STD_DEG, PRIOR_MEANING, CellPrior
-from ucal.calibration.gauge import BLOCK_YAW, J1Gauge
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
 from ucal.errors import InputError
 from ucal.kinematics.dh import fk_frames, transform
 from ucal.kinematics.rotations import matrix_to_rpy, rpy_to_matrix
+from ucal.model.fit import MAX_STD_DEG, PRIOR_MEANING, CellPrior
+from ucal.model.gauge import BLOCK_YAW, J1Gauge
+from ucal.model.geometry import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 
 
 def arm_lengths(geom: CellGeometry) -> tuple[float, float]:
@@ -197,7 +197,7 @@ def solve_paper(
     keep their prior values; so does a joint whose std exceeds ``max_std_deg`` mainly because
     of a tolerance (the paper's three configurations see the block from one J1 azimuth only).
     The block's yaw is taken as placed, so θ1 is relative to the block (the block gauge of
-    ``ucal.calibration.gauge``): ``std_block_deg`` leaves the yaw's share out, ``std_deg``
+    ``ucal.model.gauge``): ``std_block_deg`` leaves the yaw's share out, ``std_deg``
     keeps it.
     """
     offsets = paper_offsets(geom, meas)
@@ -222,7 +222,7 @@ def solve_paper(
     truncation = truncation_error(geom, meas, offsets)
     var = noise + truncation**2 + sum(nuisance.values(), np.zeros(6))
     std = np.sqrt(var)
-    # the block gauge (ucal.calibration.gauge): the equations take the block's yaw as placed,
+    # the block gauge (ucal.model.gauge): the equations take the block's yaw as placed,
     # so relative to the block that tolerance is no error of theirs
     relative = {k: v for k, v in nuisance.items() if k != BLOCK_YAW}
     var_block = var - nuisance.get(BLOCK_YAW, np.zeros(6))

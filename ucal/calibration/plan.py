@@ -12,7 +12,7 @@ tool's lever (so that the beam aimed at a face from W has that water path whatev
 holder), the tool turned about the straight-down beam by ``POSE_TURNS_DEG`` (which sets joint 6
 and, with a holder, the wrist), each in-range IK branch (shoulder, elbow, wrist flip) nearest
 the paper's pose. With a ``[step]`` on the XY face, W's footprint moves off it: every beam must
-pass the step clear (``ucal.calibration.safety.step_blocked``), so an XY echo is the face's and
+pass the step clear (``ucal.model.safety.step_blocked``), so an XY echo is the face's and
 never the step's top. Every check keeps the room the declared tolerances need
 (``tolerance_margins``); the plan is refused only when no pose passes, naming what to move.
 """
@@ -27,8 +27,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ucal.calibration.exact import beam_on_axis
-from ucal.calibration.fit import OFFSETS, prior_from_profile, solve_cell
-from ucal.calibration.model import (
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik, ik_solutions
+from ucal.kinematics.rotations import rot_z, rpy_to_matrix
+from ucal.model.fit import OFFSETS, prior_from_profile, solve_cell
+from ucal.model.geometry import (
     FACE_NAMES,
     FACE_ORDER,
     CellGeometry,
@@ -38,7 +43,7 @@ from ucal.calibration.model import (
     beam_and_tcp,
     face_basis,
 )
-from ucal.calibration.safety import (
+from ucal.model.safety import (
     Margins,
     beam_on_flange_axis,
     check_face,
@@ -46,13 +51,8 @@ from ucal.calibration.safety import (
     move_advice,
     tolerance_margins,
 )
-from ucal.calibration.spread import aim_spread
-from ucal.calibration.wrist import aim_wrist, search_joints
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
-from ucal.errors import SafetyError, UcalError
-from ucal.kinematics.dh import fk_frames
-from ucal.kinematics.ik import ik, ik_solutions
-from ucal.kinematics.rotations import rot_z, rpy_to_matrix
+from ucal.model.spread import aim_spread
+from ucal.model.wrist import aim_wrist, search_joints
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +202,7 @@ def _config_targets(
     Joint 6 turns between configurations (``THETA6_SHIFT_DEG``, the other way if that fails a
     check): with joint 6 the same in every measurement, a joint-5 offset is one rotation with
     the tool's orientation in the flange, which is itself an unknown (see
-    ``ucal.calibration.fit``); the wrist aims the beam with joints 4 and 5 around it. Without
+    ``ucal.model.fit``); the wrist aims the beam with joints 4 and 5 around it. Without
     the second azimuth a tilted beam's joint 5 may then be reported unobservable.
     """
     shift = THETA6_SHIFT_DEG["on-axis" if beam_on_axis(geom) else "tilted"][config]

@@ -25,22 +25,9 @@ import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
-from ucal.calibration.fit import (
-    PRIOR_MEANING,
-    CellFit,
-    FitQuality,
-    prior_from_profile,
-)
 from ucal.calibration.full import solve_full
 from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
 from ucal.calibration.full_run import FullRun, run_full
-from ucal.calibration.gauge import (
-    J1Gauge,
-    block_keys,
-    block_pose,
-)
-from ucal.calibration.model import FACE_NAMES, FaceMeasurement
-from ucal.calibration.readings import CalibrationReadings, calibration_readings, write_readings
 from ucal.calibration.result import (
     APPROACH,
     CalibrationResult,
@@ -52,6 +39,7 @@ from ucal.calibration.result import (
     Solution,
     SolvedT,
     Verdict,
+    calibration_readings,
     run_effects,
 )
 from ucal.calibration.sequence import (
@@ -66,6 +54,19 @@ from ucal.calibration.sequence import (
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
+from ucal.model.fit import (
+    PRIOR_MEANING,
+    CellFit,
+    FitQuality,
+    prior_from_profile,
+)
+from ucal.model.gauge import (
+    J1Gauge,
+    block_keys,
+    block_pose,
+)
+from ucal.model.geometry import FACE_NAMES, FaceMeasurement
+from ucal.model.readings import CalibrationReadings, write_readings
 from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import description_keys, write_profile
@@ -110,7 +111,7 @@ def _stds(values: np.ndarray) -> list[float]:
 
 def written_keys(chosen: Any, sound: Any, fit: FitQuality) -> dict[str, Any]:
     """The ``[calibration]`` keys every level writes: offsets, their std (absolute, and
-    relative to the block as placed: ``ucal.calibration.gauge``), the gauge, the sound speed
+    relative to the block as placed: ``ucal.model.gauge``), the gauge, the sound speed
     and its drift, the lost motion (``sound``: the solution that fitted them), the fit."""
     keys = {
         "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
@@ -146,7 +147,7 @@ def budget_keys(budget: TcpBudget | None) -> dict[str, Any]:
 
 
 def block_measured(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
-    """The block as the fit measured it (the block gauge, ``ucal.calibration.gauge``), or
+    """The block as the fit measured it (the block gauge, ``ucal.model.gauge``), or
     None without a fit."""
     if cell is None:
         return None
@@ -209,7 +210,7 @@ def write_calibration(
     """Write ``keys`` as ``[calibration]`` (and ``block`` as ``[sample]``: the block as the
     fit measured it), the history naming the ``run``, its fit and, when written with
     ``--force``, why it was out of tolerance; ``readings`` (what the fit received) beside its
-    history entry (``ucal.calibration.readings``: verify reads the tank again at them)."""
+    history entry (``ucal.model.readings``: verify reads the tank again at them)."""
     reason = f"{run}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
     if not verdict.ok:
         reason += f", written with --force: {verdict.message}"
@@ -232,7 +233,7 @@ def judge(chosen: JointSolution, fit: FitQuality) -> Verdict:
     not judged.
     """
     observable = [j for j in range(6) if j + 1 not in chosen.unobservable_joints]
-    # relative to the block as placed (J1: without the block's yaw, ucal.calibration.gauge)
+    # relative to the block as placed (J1: without the block's yaw, ucal.model.gauge)
     std = chosen.std_deg if chosen.std_block_deg is None else chosen.std_block_deg
     loose = [j for j in observable if not np.isfinite(std[j]) or std[j] > TOLERANCE_STD_DEG]
     if fit.verdict == "misfit":

@@ -11,6 +11,7 @@ measured, what the unidentified quantities allow at the tool centre, and what be
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
@@ -18,11 +19,14 @@ import numpy as np
 
 from ucal.calibration.budget import TcpBudget
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import FitQuality, RunEffects
 from ucal.calibration.full import FullSolution
 from ucal.calibration.full_plan import FullPlan
-from ucal.calibration.gauge import J1Gauge, gauge_fields, j1_relative_to_block
 from ucal.calibration.weak import WeakJoint
+from ucal.model.fit import FitQuality, RunEffects
+from ucal.model.gauge import J1Gauge, gauge_fields, j1_relative_to_block
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.readings import CalibrationReadings
+from ucal.model.residuals import reference_time_min
 from ucal.procedure import RunFacts
 
 #: The approach direction the offsets belong to: every static posture is reached with each joint
@@ -135,7 +139,7 @@ class CalibrationResult(Generic[SolvedT]):
     """What both levels report (SPEC.md's ``calibrate --json`` fields every level gives)."""
 
     run: RunFacts
-    #: The block as the fit measured it (``ucal.calibration.gauge.block_pose``; None: the
+    #: The block as the fit measured it (``ucal.model.gauge.block_pose``; None: the
     #: paper's equations measure none).
     block: dict[str, Any] | None
     solved: SolvedT
@@ -273,3 +277,28 @@ class FullResult(CalibrationResult[FullSolved]):
                 "d_criterion": plan.d_criterion,
             },
         }
+
+
+def calibration_readings(
+    faces: Sequence[FaceMeasurement], conversion_m_s: float, sound: Solution
+) -> CalibrationReadings:
+    """The readings ``faces`` a fit received, converted with ``conversion_m_s``, and what
+    ``sound`` (the solution that fitted the sound speed) found of the tank."""
+    effects = run_effects(sound)
+    rate, rate_std = (
+        (0.0, float("nan"))
+        if effects is None
+        else (
+            effects.drift_m_s_per_min,
+            effects.drift_std_m_s_per_min,
+        )
+    )
+    return CalibrationReadings(
+        tuple(faces),
+        float(conversion_m_s),
+        float(sound.sound_speed_m_s),
+        float(sound.sound_speed_std_m_s),
+        float(rate),
+        float(rate_std),
+        reference_time_min(list(faces)),
+    )

@@ -4,7 +4,7 @@
 Configurations: the calibration pose ("base"), joint 3 stepped by δθ3 ("j3"), back, joint 2
 stepped by δθ2 ("j2") — paper 000's three — and, where the cell leaves room, joint 1 stepped
 ("j1"): seen from a second J1 azimuth, a tilt of the block is no longer one rotation with δ2
-(``ucal.calibration.fit``). In each, the beam is brought normal to the block's three faces (XY:
+(``ucal.model.fit``). In each, the beam is brought normal to the block's three faces (XY:
 the beam straight down at the paper's pose), the normal-incidence posture found by the peak
 search and the water path read by time of flight: 9 or 12 face measurements (order: see
 ``order_targets``). The arm stays still during a configuration; only the wrist moves, so W
@@ -44,17 +44,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution, solve_exact_with_priors
-from ucal.calibration.fit import (
-    TOOL,
-    prior_from_profile,
-)
-from ucal.calibration.model import (
-    FACE_NAMES,
-    FACE_ORDER,
-    CellGeometry,
-    Configuration,
-    FaceMeasurement,
-)
 from ucal.calibration.paper import solve_paper
 from ucal.calibration.plan import (
     STEPPED_PATH_RANGE_MM,
@@ -65,17 +54,28 @@ from ucal.calibration.plan import PlannedTarget as PlannedTarget
 from ucal.calibration.plan import calibration_pose as calibration_pose
 from ucal.calibration.plan import geometry as geometry
 from ucal.calibration.plan import plan_calibration as plan_calibration
-from ucal.calibration.safety import (
+from ucal.cell import CellProfile
+from ucal.errors import SafetyError
+from ucal.measure.face import SearchMode
+from ucal.measure.running import RunningEstimate
+from ucal.model.fit import (
+    TOOL,
+    prior_from_profile,
+)
+from ucal.model.geometry import (
+    FACE_NAMES,
+    FACE_ORDER,
+    CellGeometry,
+    Configuration,
+    FaceMeasurement,
+)
+from ucal.model.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
     beam_meets_step,
     face_hit,
 )
-from ucal.calibration.wrist import aim_wrist
-from ucal.cell import CellProfile
-from ucal.errors import SafetyError
-from ucal.measure.face import SearchMode
-from ucal.measure.running import RunningEstimate
+from ucal.model.wrist import aim_wrist
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 
@@ -236,7 +236,7 @@ def measure_targets(
                 if target.config != Configuration.J1:
                     raise
                 # The second azimuth is a bonus: without it the block's tilt tolerance stays
-                # in joints 2 and 3's stds (``ucal.calibration.fit``).
+                # in joints 2 and 3's stds (``ucal.model.fit``).
                 log.warning("second J1 azimuth skipped: %s", e)
                 skipped.add(target.config)
                 continue

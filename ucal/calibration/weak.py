@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import CellFit, cell_geometry
-from ucal.calibration.gauge import J1Gauge
 from ucal.kinematics.dh import RobotModel
+from ucal.model.fit import CellFit, cell_geometry
+from ucal.model.gauge import J1Gauge
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
-from ucal.calibration.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, _rpy_matrix
 from ucal.check.solve import N_SIGMA, Change, GeometryComparison
+from ucal.model.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, _rpy_matrix
 
 
 @dataclass(frozen=True)

@@ -36,17 +36,17 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.model import Configuration, Face, beam_and_tcp
 from ucal.calibration.plan import PlannedTarget
-from ucal.calibration.priors import BACKLASH, BLOCK, OFFSETS, ParameterTable
-from ucal.calibration.residuals import approach_signs, table_geometry
-from ucal.calibration.safety import EDGE_MARGIN_MM, check_joints
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import RobotModel, fk
 from ucal.kinematics.ik import ik
 from ucal.measure.approach import FinalApproachRig
 from ucal.measure.edges import EdgeScan, coarse_edge_fall, fine_edge_scan
+from ucal.model.geometry import Configuration, Face, beam_and_tcp
+from ucal.model.priors import BACKLASH, BLOCK, OFFSETS, ParameterTable
+from ucal.model.residuals import approach_signs, table_geometry
+from ucal.model.safety import EDGE_MARGIN_MM, check_joints
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)

@@ -49,7 +49,7 @@ class CheckEntry:
     measured (``ucal.check.measure``; ``edges``: its edge crossings), so that a later check solves
     against the measurements
     themselves; ``logged_departure_std_c`` and ``drift_prior_c_per_min``: its water as the
-    tank thermometer's log left it (``ucal.calibration.priors.CellPrior``'s fields: None and
+    tank thermometer's log left it (``ucal.model.priors.CellPrior``'s fields: None and
     0 without a log), which a later check's fit gives this run's drift.
     """
 

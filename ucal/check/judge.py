@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import OFFSETS, SOUND, CellPrior
 from ucal.check.causes import temperature_of
 from ucal.check.solve import (
     N_SIGMA,
     GeometryComparison,
     ProfileComparison,
 )
+from ucal.model.fit import OFFSETS, SOUND, CellPrior
 
 #: Verdicts of a checked quantity.
 OK = "ok"

@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 
 from ucal.acoustics import tof_ns
-from ucal.calibration.fit import measurement_label
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.readings import number
 from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeReading, scan_edge
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
 from ucal.echo import AScan, EchoEstimate, NoEcho, estimate_echo
 from ucal.measure.approach import FinalApproachRig
+from ucal.model.fit import measurement_label
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.readings import number
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 

@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.acoustics import sound_speed_slope_m_s_per_c
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.priors import SOUND, CellPrior, prior_from_profile
-from ucal.calibration.residuals import measurement_label
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeLine, EdgeReading
 from ucal.check.solve import ALIKE_CHI2, ChangeFit, Linearised, change_name, suspects
 from ucal.kinematics.ik import ik
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.priors import SOUND, CellPrior, prior_from_profile
+from ucal.model.residuals import measurement_label
 
 #: The nominal one sigma of a water path (mm), a normal incidence (deg) and a crossing (mm).
 NOMINAL = (0.01, 0.002, 0.015)

@@ -30,12 +30,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from ucal.calibration.model import FACE_NAMES, Configuration
 from ucal.calibration.procedure import WRIST_SEARCH, plan_line
 from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.cell import CellProfile
 from ucal.check.edges import SCAN, EdgeLine, EdgeReading, plan_edges
 from ucal.check.history import CheckEntry
+from ucal.model.geometry import FACE_NAMES, Configuration
 from ucal.models import joint_speeds_deg_s
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
 

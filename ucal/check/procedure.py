@@ -15,9 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.procedure import plan_rows
-from ucal.calibration.readings import faces_from_json
 from ucal.cell import CellProfile
 from ucal.check.causes import causes, water_words
 from ucal.check.edges import EdgeReading
@@ -43,6 +41,8 @@ from ucal.check.solve import (
     compare_geometry,
     compare_to_profile,
 )
+from ucal.model.fit import prior_from_profile
+from ucal.model.readings import faces_from_json
 from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession

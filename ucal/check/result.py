@@ -14,8 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import CellPrior, readings_approach
-from ucal.calibration.readings import faces_to_json
 from ucal.check.causes import Cause, causes
 from ucal.check.history import CheckEntry
 from ucal.check.judge import (
@@ -28,6 +26,8 @@ from ucal.check.solve import (
     GeometryComparison,
     ProfileComparison,
 )
+from ucal.model.fit import CellPrior, readings_approach
+from ucal.model.readings import faces_to_json
 from ucal.procedure import RunFacts
 from ucal.timing import DurationEstimate
 

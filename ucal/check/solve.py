@@ -1,7 +1,7 @@
 """What moved: the check's measurements against the reference's, fitted on the profile's model.
 
 The geometry (``compare_geometry``). The reference's face measurements and the check's enter
-one fit (``ChangeFit``): the cell's unknowns of ``ucal.calibration.fit`` (joint offsets, block
+one fit (``ChangeFit``): the cell's unknowns of ``ucal.model.fit`` (joint offsets, block
 pose, tool frame, sound speed and each joint's lost motion, with the profile's values and
 tolerances as priors; the DH table held as the reference's own fit puts it) are shared by
 both sets, each set has its own drift of the sound speed (the tank warms or cools at its own
@@ -73,7 +73,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ucal.calibration.fit import (
+from ucal.cell import CellProfile
+from ucal.check.edges import EdgeArrays, EdgeReading, edge_residuals
+from ucal.model.fit import (
     BACKLASH,
     BETA,
     BLOCK,
@@ -91,7 +93,8 @@ from ucal.calibration.fit import (
     offsets_prior_std_deg,
     solve_cell,
 )
-from ucal.calibration.least_squares import (
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.least_squares import (
     CURVATURE,
     Curvature,
     cell_table,
@@ -101,11 +104,8 @@ from ucal.calibration.least_squares import (
     score_gain,
     sees_drift,
 )
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.quality import effect_pattern
-from ucal.calibration.residuals import two_sided_joints
-from ucal.cell import CellProfile
-from ucal.check.edges import EdgeArrays, EdgeReading, edge_residuals
+from ucal.model.quality import effect_pattern
+from ucal.model.residuals import two_sided_joints
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +136,7 @@ CHECK_DRIFT = "check_" + DRIFT[0]
 
 @dataclass(frozen=True)
 class Suspect:
-    """What may have moved: named unknowns of the cell (``ucal.calibration.fit``), their
+    """What may have moved: named unknowns of the cell (``ucal.model.fit``), their
     tolerances and the weak prior on their change (one sigma), in their units."""
 
     name: str  # "J2", "tool", "block", "water"
@@ -214,7 +214,7 @@ class GeometryComparison:
 
 class ChangeFit:
     """The reference's and the check's face measurements in one prior-augmented fit: the cell's
-    unknowns shared (``ucal.calibration.least_squares.cell_table``, the DH table held at the
+    unknowns shared (``ucal.model.least_squares.cell_table``, the DH table held at the
     reference's fit), each suspect's change added to the check's, and each run its own drift
     of the sound speed (``CHECK_DRIFT``: the tank warms or cools at its own rate in each;
     module docstring)."""
@@ -252,7 +252,7 @@ class ChangeFit:
         # puts it (``start``: the two runs read the same postures, so its error is common to
         # both; freed in the joint fit, it takes up the changes themselves); each run's drift
         # where its readings carry times, each joint's lost motion where either run reads it
-        # from both sides (``ucal.calibration.least_squares.hold_unseen``)
+        # from both sides (``ucal.model.least_squares.hold_unseen``)
         seen = dict(zip(BACKLASH, two_sided_joints([*reference, *check]), strict=True))
         seen[DRIFT[0]] = sees_drift(reference)
         seen.update(dict.fromkeys(DH + BETA, False))
@@ -310,7 +310,7 @@ class ChangeFit:
         unknowns ``cols`` (indices into the value vector, the columns of ``jac``: the data
         rows, then the priors'): each run's c̈ a consider parameter of its own, 0 ± the std
         its span gives, through its own water paths
-        (``ucal.calibration.least_squares.curvature_covariance``); none for a run whose
+        (``ucal.model.least_squares.curvature_covariance``); none for a run whose
         drift is held, or with the sound speed held."""
         out = np.zeros((cols.size, cols.size))
         where = {int(i): k for k, i in enumerate(cols)}
@@ -402,7 +402,7 @@ class Linearised:
     def effect_gains(self, chosen: list[str]) -> dict[str, dict[str, float]]:
         """How much of the χ² each run's drift and its curvature would remove, were it free
         beyond its prior, with ``chosen`` suspects changed: calibrate's score test
-        (``ucal.calibration.least_squares.score_gain``) of the drift's column with its prior
+        (``ucal.model.least_squares.score_gain``) of the drift's column with its prior
         row left out, and of the curvature's (``curvature_rows`` of the sound speed's column
         over that run's rows), by run (``"reference"``, ``"check"``) and effect
         (``DRIFT[0]``, ``CURVATURE``). A run whose drift is held (readings at one time), or a

@@ -19,7 +19,6 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ucal.calibration.fit import FitQuality
 from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
 from ucal.calibration.result import (
     APPROACH,
@@ -41,6 +40,7 @@ from ucal.cli.options import (
 )
 from ucal.cli.procedure import finish, replay_outcome, run_job, run_options
 from ucal.errors import InputError, NotConfirmed
+from ucal.model.fit import FitQuality
 from ucal.models import DEFAULT_MODEL
 from ucal.procedure import Job, Outcome
 from ucal.profile import (
@@ -320,7 +320,7 @@ def show_approach(console: Console, result: CalibrationResult) -> None:
 
 
 def show_gauge(console: Console, result: CalibrationResult) -> None:
-    """How J1 is known (``ucal.calibration.gauge``) and the block the fit measured."""
+    """How J1 is known (``ucal.model.gauge``) and the block the fit measured."""
     gauge = result.gauge
     if gauge is not None:
         console.print(escape(f"gauge ({gauge.frame}): {gauge.statement()}"))

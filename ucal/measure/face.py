@@ -33,19 +33,19 @@ from enum import StrEnum
 import numpy as np
 
 from ucal.acoustics import water_absorption_np_per_mm
-from ucal.calibration.model import (
+from ucal.cell import CellProfile
+from ucal.errors import HardwareError
+from ucal.measure.acquire import acquire_and_centre, side_lobe_error
+from ucal.measure.lobe import MainLobe
+from ucal.measure.search import PeakSearch, read_distance
+from ucal.model.geometry import (
     CellGeometry,
     Face,
     FaceMeasurement,
     beam_and_tcp,
     face_basis,
 )
-from ucal.calibration.wrist import aim_wrist, beam_jacobian, search_joints
-from ucal.cell import CellProfile
-from ucal.errors import HardwareError
-from ucal.measure.acquire import acquire_and_centre, side_lobe_error
-from ucal.measure.lobe import MainLobe
-from ucal.measure.search import PeakSearch, read_distance
+from ucal.model.wrist import aim_wrist, beam_jacobian, search_joints
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)

@@ -31,7 +31,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ucal.calibration.fit import (
+from ucal.cell import CellProfile
+from ucal.errors import SafetyError
+from ucal.kinematics.rotations import angle_between_deg, rotation_angle_deg
+from ucal.measure.acquire import BLOCK_FACES, noise_floor
+from ucal.measure.approach import FinalApproachRig, approaching
+from ucal.measure.face import FaceRequest, FaceResult, FaceSetup, SearchMode, make_search, measure
+from ucal.measure.search import ka_of, read_distance
+from ucal.model.fit import (
     BETA,
     BLOCK,
     DH,
@@ -42,27 +49,20 @@ from ucal.calibration.fit import (
     prior_from_profile,
     solve_cell,
 )
-from ucal.calibration.model import (
+from ucal.model.geometry import (
     CellGeometry,
     Face,
     FaceMeasurement,
     beam_and_tcp,
     distance_joints,
 )
-from ucal.calibration.safety import (
+from ucal.model.safety import (
     MIN_WATER_PATH_MM,
     TOLERANCE_SIGMAS,
     check_joints,
     offsets_std_deg,
 )
-from ucal.calibration.wrist import aim_wrist
-from ucal.cell import CellProfile
-from ucal.errors import SafetyError
-from ucal.kinematics.rotations import angle_between_deg, rotation_angle_deg
-from ucal.measure.acquire import BLOCK_FACES, noise_floor
-from ucal.measure.approach import FinalApproachRig, approaching
-from ucal.measure.face import FaceRequest, FaceResult, FaceSetup, SearchMode, make_search, measure
-from ucal.measure.search import ka_of, read_distance
+from ucal.model.wrist import aim_wrist
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
@@ -139,7 +139,7 @@ def estimate_cell(
 ) -> CellEstimate:
     """The cell as the measurements so far see it (``start``: the previous vector).
 
-    The prior-augmented fit of ``ucal.calibration.fit``: with fewer than the full set the
+    The prior-augmented fit of ``ucal.model.fit``: with fewer than the full set the
     priors (broad on the offsets, the declared tolerances on the rest) hold the directions the
     data do not see yet, and the sound speed is fitted as soon as a step shows it. The DH
     table and the tool position are held (their tolerances move a prediction by micrometres).

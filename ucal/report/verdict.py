@@ -4,7 +4,7 @@ tables both read these, so that no sentence of the page says what a table of it 
 A quantity is *determined* when its one sigma is within its tolerance, *not determined* when
 it exceeds it (said with what would determine it: never "ok"), *not measured* when no run
 measured it. The tolerances are the ones the commands judge by: a joint offset 0.02°
-(``ucal.calibration.priors.MAX_STD_DEG``); the tool across the beam 0.05 mm and its beam
+(``ucal.model.priors.MAX_STD_DEG``); the tool across the beam 0.05 mm and its beam
 direction 0.01° (``ucal.toolframe.fit``); the sound speed's drift the profile's declared
 ``[water] drift_std_c_per_min``. A verify is judged as it judged itself (its picture's facts):
 a pass within what verify measures to of its tolerance is marginal, the pass not determined.
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ucal.acoustics import sound_speed_slope_m_s_per_c
-from ucal.calibration.priors import MAX_STD_DEG
+from ucal.model.priors import MAX_STD_DEG
 from ucal.report.gather import Calibration, CellReport, VerifyFacts, VerifyPicture
 from ucal.toolframe.fit import TOLERANCE_BEAM_DEG, TOLERANCE_POSITION_MM
 

@@ -23,7 +23,7 @@ Built from the measured values instead, the demo tool would move by the demo's e
 description, and the demo follows it.
 
 The block's yaw is as placed: the commissioning on this cell ends with ``verify`` passing
-relative to the block (J1 relative to the block as placed, ``ucal.calibration.gauge``), and
+relative to the block (J1 relative to the block as placed, ``ucal.model.gauge``), and
 ``examples/faulty_world.toml`` is this cell with faults, for a ``verify`` that fails.
 """
 

@@ -2,7 +2,7 @@
 
 The measurements of ``ucal.toolframe.measure`` (exact method) in the notation of
 ``ucal.toolframe.exact``, but with every flange pose computed from the joint readings ``q``
-with *unknown* joint offsets δ and DH table (``ucal.calibration.fit``), and the plate as an
+with *unknown* joint offsets δ and DH table (``ucal.model.fit``), and the plate as an
 unknown as well:
 
 * plate: the plane of the touched points (normal ``n0``, in-plane axes ``e1, e2``, centroid
@@ -20,13 +20,13 @@ unknown as well:
   of edge k at angle ``ψ_k`` from ``e1'`` (eq. E3; ψ_k, d_k free, no prior).
 
 Every reading's joints enter at ``q + δ + (1 − approach)/2·b`` with ``b`` each joint's lost
-motion, as in the calibration solvers (``ucal.calibration.fit``): the offsets are the positive
+motion, as in the calibration solvers (``ucal.model.fit``): the offsets are the positive
 approach's, and ``b`` (like ``ċ``) is held at 0 where no reading sees it
 (``least_squares.hold_unseen``: a joint read from one side only, readings without a time). The
 tool-frame's own postures are all reached from below (``ucal.measure.approach``), so a run
 measures the drift and leaves the lost motion in the offsets of that approach. The drift's
 curvature c̈ is not fitted but carried in the covariance as calibrate carries it
-(``ucal.calibration.least_squares.curvature_covariance``: 0 ± |dc/dT|·``[water]
+(``ucal.model.least_squares.curvature_covariance``: 0 ± |dc/dT|·``[water]
 drift_std_c_per_min`` / D over the water paths' D minutes, through the peaks' path rows, the
 edge crossings holding no sound speed), and a misfit it explains is named as a drift that turns.
 
@@ -59,7 +59,10 @@ from functools import cached_property
 
 import numpy as np
 
-from ucal.calibration.fit import (
+from ucal.cell import CellProfile, WorldTruth
+from ucal.kinematics.dh import dh_matrix, fk_frames, transform
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.fit import (
     BACKLASH,
     DELAY,
     DELAY_PRIOR_STD_NS,
@@ -84,17 +87,14 @@ from ucal.calibration.fit import (
     solve_augmented,
     verdict,
 )
-from ucal.calibration.least_squares import (
+from ucal.model.least_squares import (
     CURVATURE,
     Curvature,
     effect_gains,
     face_row_minutes,
 )
-from ucal.calibration.quality import effect_cause
-from ucal.calibration.residuals import approach_signs
-from ucal.cell import CellProfile, WorldTruth
-from ucal.kinematics.dh import dh_matrix, fk_frames, transform
-from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.quality import effect_cause
+from ucal.model.residuals import approach_signs
 from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.plane import Plane
 
@@ -200,7 +200,7 @@ class _Data:
 
     @cached_property
     def curvature(self) -> Curvature | None:
-        """The drift's curvature over the run (``ucal.calibration.least_squares.Curvature``):
+        """The drift's curvature over the run (``ucal.model.least_squares.Curvature``):
         each peak's rows at its water path's time, an edge crossing's row (no sound speed in
         it) at 0, c̈'s std from the water paths' span; None where it is held."""
         if self.straight:

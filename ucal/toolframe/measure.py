@@ -37,8 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.model import CellGeometry
-from ucal.calibration.wrist import search_joints
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError
 from ucal.kinematics.dh import fk, transform
@@ -49,6 +47,8 @@ from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
 from ucal.measure.face import SearchMode
 from ucal.measure.running import PLATE_TRUST
 from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
+from ucal.model.geometry import CellGeometry
+from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 from ucal.toolframe.exact import (

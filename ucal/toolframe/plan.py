@@ -52,12 +52,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.safety import check_joints, reach_advice
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import InputError, SafetyError
 from ucal.kinematics.dh import transform
 from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import angle_between_deg
+from ucal.model.safety import check_joints, reach_advice
 from ucal.toolframe.plane import Plane, fit_plane, hull_reach_mm
 
 METHODS = ("exact", "paper")

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.priors import prior_from_profile
-from ucal.calibration.readings import CalibrationReadings, read_readings
 from ucal.cell import CellProfile
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.priors import prior_from_profile
+from ucal.model.readings import CalibrationReadings, read_readings
 from ucal.profile import HistoryEntry, history_dir, load_profile, profile_history
 
 
@@ -97,7 +97,7 @@ class SoundSpeed:
 @dataclass(frozen=True)
 class VerifyGauge:
     """What verify's figures are relative to, and what that leaves known in the robot's base
-    frame (``ucal.calibration.gauge``).
+    frame (``ucal.model.gauge``).
 
     Every deviation is measured against the block's faces (the water paths and the edges):
     it says where the tool is relative to the block. ``calibrate`` gives J1 relative to the

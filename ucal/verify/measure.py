@@ -20,7 +20,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.model import (
+from ucal.calibration.sequence import geometry
+from ucal.cell import CellProfile
+from ucal.errors import HardwareError, SafetyError
+from ucal.kinematics.dh import fk_frames
+from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
+from ucal.measure.running import RunningEstimate, read_path_at
+from ucal.model.geometry import (
     FACE_NAMES,
     FACE_ORDER,
     CellGeometry,
@@ -28,16 +34,10 @@ from ucal.calibration.model import (
     FaceMeasurement,
     face_basis,
 )
-from ucal.calibration.safety import (
+from ucal.model.safety import (
     MIN_WATER_PATH_MM,
 )
-from ucal.calibration.sequence import geometry
-from ucal.calibration.wrist import search_joints
-from ucal.cell import CellProfile
-from ucal.errors import HardwareError, SafetyError
-from ucal.kinematics.dh import fk_frames
-from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
-from ucal.measure.running import RunningEstimate, read_path_at
+from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
 from ucal.verify.plan import (

@@ -22,8 +22,13 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration import safety
-from ucal.calibration.model import (
+from ucal.calibration.plan import calibration_pose, geometry, tool_lever
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
+from ucal.errors import SafetyError, UcalError, UnreachableError
+from ucal.kinematics.dh import fk_frames
+from ucal.kinematics.ik import ik
+from ucal.model import safety
+from ucal.model.geometry import (
     FACE_NAMES,
     FACE_ORDER,
     CellGeometry,
@@ -32,15 +37,10 @@ from ucal.calibration.model import (
     beam_and_tcp,
     distance_joints,
 )
-from ucal.calibration.plan import calibration_pose, geometry, tool_lever
-from ucal.calibration.readings import CalibrationReadings
-from ucal.calibration.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
-from ucal.calibration.spread import aim_spread, pose_spread
-from ucal.calibration.wrist import aim_wrist
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
-from ucal.errors import SafetyError, UcalError, UnreachableError
-from ucal.kinematics.dh import fk_frames
-from ucal.kinematics.ik import ik
+from ucal.model.readings import CalibrationReadings
+from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
+from ucal.model.spread import aim_spread, pose_spread
+from ucal.model.wrist import aim_wrist
 
 log = logging.getLogger(__name__)
 

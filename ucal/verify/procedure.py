@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.model import FACE_ORDER, distance_joints
-from ucal.calibration.priors import prior_from_profile
-from ucal.calibration.readings import CalibrationReadings
 from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
+from ucal.model.geometry import FACE_ORDER, distance_joints
+from ucal.model.priors import prior_from_profile
+from ucal.model.readings import CalibrationReadings
 from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report

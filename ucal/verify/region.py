@@ -30,15 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import (
-    BETA,
-    DH,
-    OFFSETS,
-    TOOL,
-    prior_from_profile,
-    readings_approach,
-    solve_cell,
-)
 from ucal.calibration.full_plan import (
     FullPlan,
     Posture,
@@ -49,9 +40,18 @@ from ucal.calibration.full_plan import (
     visit_order,
 )
 from ucal.calibration.full_run import FullRun, run_full
-from ucal.calibration.model import FaceMeasurement
 from ucal.calibration.procedure import estimate_postures, plan_rows
 from ucal.cell import CellProfile
+from ucal.model.fit import (
+    BETA,
+    DH,
+    OFFSETS,
+    TOOL,
+    prior_from_profile,
+    readings_approach,
+    solve_cell,
+)
+from ucal.model.geometry import FaceMeasurement
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts
 from ucal.progress import Report
 from ucal.session import CellSession

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.fit import readings_approach
 from ucal.cell import CellProfile
+from ucal.model.fit import readings_approach
 from ucal.procedure import RunFacts
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, VerifyGauge
 from ucal.verify.iso9283 import Iso9283
@@ -270,7 +270,7 @@ class RegionResult:
     #: (mm, mean and max over the scanning region; ``ucal.calibration.budget``): across the
     #: beam, where these echoes do not look either. None: the profile states none.
     unidentified_tcp_mm: tuple[float, float] | None = None
-    #: The approach the readings had (``ucal.calibration.fit.readings_approach``).
+    #: The approach the readings had (``ucal.model.fit.readings_approach``).
     approach: str = "positive"
     #: What of an identified table is left at its tolerance (``VerifySolved``'s).
     unidentified_names: tuple[str, ...] = ()

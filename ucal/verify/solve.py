@@ -3,7 +3,7 @@ flange's true orientation from three normal-incidence postures, the reached TCP,
 error from the edge scans, the map that carries W and the flange's turn from the points to the
 edges, and the statistics of paper 000, Table 5.
 
-At normal incidence ``d_k = n_k·(W − c) − a_T·v`` (``ucal.calibration.model``, eq. 2), so the
+At normal incidence ``d_k = n_k·(W − c) − a_T·v`` (``ucal.model.geometry``, eq. 2), so the
 three water paths give ``W_k = d_k + a_T·v`` in block coordinates; the flange rotation is
 ``R(q) = Exp(ω)·R06(q, δ + (0, 0, 0, 0, ε5, 0))``, the reached TCP ``T̂ = W + R(q_cmd)·v``, and
 the real one ``T̂ + κ·(1, 1, 1) + R·(Δ⊥ + κ·a_T)`` (``ToolOffset.bias``). The derivation:
@@ -18,15 +18,15 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.model import (
+from ucal.calibration.sequence import geometry
+from ucal.cell import CellProfile
+from ucal.kinematics.dh import RobotModel, fk_frames
+from ucal.model.geometry import (
     CellGeometry,
     beam_and_tcp,
 )
-from ucal.calibration.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
-from ucal.calibration.sequence import geometry
-from ucal.calibration.wrist import aim_wrist
-from ucal.cell import CellProfile
-from ucal.kinematics.dh import RobotModel, fk_frames
+from ucal.model.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
+from ucal.model.wrist import aim_wrist
 from ucal.toolframe.exact import tangent_basis
 from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
 
@@ -34,7 +34,7 @@ from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
 def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:
     """W in block coordinates (mm) from the normal-incidence water paths to faces 0, 1, 2.
 
-    ``d_k = n_k·(W − c) − a_T·v`` (``ucal.calibration.model``, eq. 2) → ``W_k = d_k + a_T·v``.
+    ``d_k = n_k·(W − c) − a_T·v`` (``ucal.model.geometry``, eq. 2) → ``W_k = d_k + a_T·v``.
     """
     return np.asarray(distances_mm, float) + float(lever_mm)
 

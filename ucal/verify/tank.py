@@ -1,7 +1,7 @@
 """The tank's sound speed within verify's run, from calibrate's readings read again (pure
 functions).
 
-``calibrate`` keeps the readings its fit received (``ucal.calibration.readings``): each water
+``calibrate`` keeps the readings its fit received (``ucal.model.readings``): each water
 path, where (joints), from which side and when it was read, and the sound speed the fit found
 at that time. Verify reads one of them per face again, where it was read, at the start of its
 run and at its end (``ucal.verify.measure``). The arm repeats a posture reached from the same
@@ -29,9 +29,9 @@ import numpy as np
 from scipy.special import chdtrc
 
 from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.readings import CalibrationReadings
 from ucal.cell import CellProfile
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.readings import CalibrationReadings
 from ucal.verify.solve import solve_tool_offset
 
 if TYPE_CHECKING:  # measure reads the start's speed here
@@ -156,7 +156,7 @@ class TankEstimate:
     (``change_std_m_s``, verify's promise: a run right after the calibration has that std in
     ``MEASURED_WITHIN_MM``, set on such runs); ``curvature_std_m_s``: the drift turning by
     the profile's drift tolerance over the run
-    (``ucal.calibration.least_squares.curvature_std_m_s_per_min2``: at most an eighth of the
+    (``ucal.model.least_squares.curvature_std_m_s_per_min2``: at most an eighth of the
     declared drift over the run from the line between the ends).
     """
 

@@ -12,9 +12,12 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration import least_squares
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.fit import (
+from ucal.calibration.full import full_table
+from ucal.cell import PAPER_CALIBRATION_POSE_DEG
+from ucal.kinematics.dh import transform, wrist_centre
+from ucal.model import least_squares
+from ucal.model.fit import (
     BACKLASH,
     DRIFT,
     PARAMETERS,
@@ -26,15 +29,12 @@ from ucal.calibration.fit import (
     readings_approach,
     solve_cell,
 )
-from ucal.calibration.full import full_table
-from ucal.calibration.least_squares import (
+from ucal.model.geometry import CellGeometry, FaceMeasurement
+from ucal.model.least_squares import (
     curvature_covariance,
     curvature_std_m_s_per_min2,
     face_row_minutes,
 )
-from ucal.calibration.model import CellGeometry, FaceMeasurement
-from ucal.cell import PAPER_CALIBRATION_POSE_DEG
-from ucal.kinematics.dh import transform, wrist_centre
 from ucal.models import load_model
 
 from doubles import noisy_face

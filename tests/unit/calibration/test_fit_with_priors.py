@@ -15,13 +15,13 @@ import pytest
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact, solve_exact_with_priors
-from ucal.calibration.fit import CellPrior
-from ucal.calibration.gauge import j1_relative_to_block
-from ucal.calibration.model import CellGeometry, FaceMeasurement
 from ucal.calibration.paper import solve_paper
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.fit import CellPrior
+from ucal.model.gauge import j1_relative_to_block
+from ucal.model.geometry import CellGeometry, FaceMeasurement
 from ucal.models import load_model
 
 from doubles import noisy_face

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ucal.calibration.gauge import GAUGE_BASE, GAUGE_BLOCK, J1Gauge, j1_relative_to_block
+from ucal.model.gauge import GAUGE_BASE, GAUGE_BLOCK, J1Gauge, j1_relative_to_block
 
 
 def test_a_level_block_turns_j1_by_its_yaw_off_the_placed_one() -> None:

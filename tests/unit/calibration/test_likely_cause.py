@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ucal.calibration.fit import PARAMETERS, CellPrior, ParameterTable, ResidualRow, likely_cause
+from ucal.model.fit import PARAMETERS, CellPrior, ParameterTable, ResidualRow, likely_cause
 from ucal.models import load_model
 
 PRIOR = CellPrior(

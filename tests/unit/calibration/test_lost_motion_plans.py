@@ -18,17 +18,17 @@ import pytest
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.fit import RunEffects, prior_from_profile
-from ucal.calibration.model import FaceMeasurement, beam_and_tcp
 from ucal.calibration.sequence import (
     PlannedTarget,
     geometry,
     plan_calibration,
     with_lost_motion,
 )
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.measure.running import PATH_ONLY_TILT_STD_DEG
+from ucal.model.fit import RunEffects, prior_from_profile
+from ucal.model.geometry import FaceMeasurement, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 from ucal.profile import load_profile
 
 REPO = Path(__file__).resolve().parents[3]

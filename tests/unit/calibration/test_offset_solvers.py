@@ -8,12 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ucal.calibration.exact import solve_exact
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.calibration.paper import paper_offsets, solve_paper
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.model.geometry import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 from ucal.models import load_model
 
 MODEL = load_model("tx90l")

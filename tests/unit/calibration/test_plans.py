@@ -18,9 +18,14 @@ import tomlkit
 
 from ucal.calibration.full_plan import Posture, order_postures, plan_full
 from ucal.calibration.full_run import retarget
-from ucal.calibration.model import CellGeometry, Configuration, Face, beam_and_tcp
 from ucal.calibration.plan import calibration_pose, geometry, plan_calibration
-from ucal.calibration.safety import (
+from ucal.cell import CellProfile, Step
+from ucal.errors import SafetyError
+from ucal.kinematics.dh import fk, fk_frames
+from ucal.kinematics.ik import ik
+from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.geometry import CellGeometry, Configuration, Face, beam_and_tcp
+from ucal.model.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
     SEARCH_MARGIN_DEG,
@@ -30,12 +35,7 @@ from ucal.calibration.safety import (
     step_blocked,
     tolerance_margins,
 )
-from ucal.calibration.wrist import aim_wrist
-from ucal.cell import CellProfile, Step
-from ucal.errors import SafetyError
-from ucal.kinematics.dh import fk, fk_frames
-from ucal.kinematics.ik import ik
-from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.region import plan_region
 

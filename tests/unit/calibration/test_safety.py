@@ -1,5 +1,5 @@
 """A water-path or edge refusal names the declared tolerance that takes the room and the one
-that would lift it (``ucal.calibration.safety.check_face``; no processes)."""
+that would lift it (``ucal.model.safety.check_face``; no processes)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.model import Face
 from ucal.calibration.plan import calibration_pose, geometry
-from ucal.calibration.safety import MIN_WATER_PATH_MM, check_face, tolerance_margins
-from ucal.calibration.wrist import aim_wrist
 from ucal.errors import SafetyError
+from ucal.model.geometry import Face
+from ucal.model.safety import MIN_WATER_PATH_MM, check_face, tolerance_margins
+from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 
 

@@ -1,4 +1,4 @@
-"""What the unknowns can turn a planned posture's wrist by (``ucal.calibration.spread``), the
+"""What the unknowns can turn a planned posture's wrist by (``ucal.model.spread``), the
 checks that keep that room, and the refusals that name it (no processes)."""
 
 from __future__ import annotations
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.model import Configuration
 from ucal.calibration.plan import geometry, plan_calibration
-from ucal.calibration.safety import SEARCH_MARGIN_DEG, check_joints
-from ucal.calibration.spread import OFFSETS, TOOL, aim_spread
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.model.geometry import Configuration
+from ucal.model.safety import SEARCH_MARGIN_DEG, check_joints
+from ucal.model.spread import OFFSETS, TOOL, aim_spread
+from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 
 

@@ -6,10 +6,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ucal.calibration.model import CellGeometry, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.model.geometry import CellGeometry, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 from ucal.models import load_model
 
 MODEL = load_model("tx90l")

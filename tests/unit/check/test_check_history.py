@@ -11,16 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.calibration.fit import (
-    BACKLASH,
-    DRIFT,
-    PARAMETERS,
-    ParameterTable,
-    data_residuals,
-    prior_from_profile,
-)
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.readings import faces_from_json, faces_to_json
 from ucal.check.history import (
     CheckEntry,
     append_check,
@@ -30,6 +20,16 @@ from ucal.check.history import (
     reference_check,
 )
 from ucal.errors import ProfileError
+from ucal.model.fit import (
+    BACKLASH,
+    DRIFT,
+    PARAMETERS,
+    ParameterTable,
+    data_residuals,
+    prior_from_profile,
+)
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.readings import faces_from_json, faces_to_json
 from ucal.profile import load_profile, profile_history, undo_profile, write_profile
 
 EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ucal.calibration.model import Configuration
 from ucal.check.plan import BUDGET_S, estimate_check, plan_check, plan_summary
+from ucal.model.geometry import Configuration
 from ucal.profile import load_profile
 
 EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"

@@ -15,10 +15,6 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration import least_squares
-from ucal.calibration.fit import SOUND, prior_from_profile
-from ucal.calibration.model import CellGeometry, FaceMeasurement, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
 from ucal.check import procedure as check_procedure
 from ucal.check.history import read_checks
 from ucal.check.judge import (
@@ -41,6 +37,10 @@ from ucal.check.solve import (
 )
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.model import least_squares
+from ucal.model.fit import SOUND, prior_from_profile
+from ucal.model.geometry import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 from ucal.procedure import Measured
 from ucal.profile import load_profile
 from ucal.thermometer import Thermometer

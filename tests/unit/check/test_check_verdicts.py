@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.calibration.fit import prior_from_profile
 from ucal.check.causes import causes, suspect_causes
 from ucal.check.judge import (
     CHANGED,
@@ -21,6 +20,7 @@ from ucal.check.judge import (
 from ucal.check.observe import observability
 from ucal.check.plan import plan_check
 from ucal.check.solve import Change, GeometryComparison, suspects
+from ucal.model.fit import prior_from_profile
 from ucal.profile import load_profile
 
 EXAMPLE = Path(__file__).parents[3] / "profiles" / "example_cell.toml"

@@ -17,12 +17,9 @@ import ucal.cli.calibrate as calibrate_cli
 import ucal.cli.procedure as cli_procedure
 from ucal.calibration.budget import TcpBudget
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.fit import prior_from_profile
 from ucal.calibration.full import FullSolution, Identifiability, IdentifiedParameter, full_table
 from ucal.calibration.full_plan import FullPlan
-from ucal.calibration.least_squares import CellFit
 from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
-from ucal.calibration.quality import FitQuality, ResidualRow
 from ucal.calibration.result import (
     FullResult,
     FullSolved,
@@ -37,6 +34,9 @@ from ucal.check.measure import CheckRun
 from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckFindings, CheckResult
 from ucal.cli.options import _to_jsonable
+from ucal.model.fit import prior_from_profile
+from ucal.model.least_squares import CellFit
+from ucal.model.quality import FitQuality, ResidualRow
 from ucal.procedure import CommandResult, Outcome, RunFacts, RunOptions
 from ucal.profile import load_profile
 from ucal.timing import DurationEstimate

@@ -12,11 +12,11 @@ import tomlkit
 from scipy.special import ndtr
 
 from ucal.acoustics import directivity_half_angle_deg
-from ucal.calibration.model import CellGeometry, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.model.geometry import CellGeometry, beam_and_tcp
+from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.measure import PlateRig
 from ucal.toolframe.plan import EdgePlan, ToolFramePlan, reference_joints

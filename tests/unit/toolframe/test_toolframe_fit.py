@@ -12,14 +12,14 @@ import pytest
 import tomlkit
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration import least_squares
-from ucal.calibration.fit import offsets_prior_std_deg, prior_from_profile
-from ucal.calibration.least_squares import CURVATURE
-from ucal.calibration.model import CellGeometry, beam_and_tcp
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.model import least_squares
+from ucal.model.fit import offsets_prior_std_deg, prior_from_profile
+from ucal.model.geometry import CellGeometry, beam_and_tcp
+from ucal.model.least_squares import CURVATURE
+from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import (

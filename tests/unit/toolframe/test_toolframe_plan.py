@@ -11,11 +11,11 @@ import pytest
 import tomlkit
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.safety import check_joints
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import matrix_to_rpy
+from ucal.model.safety import check_joints
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe import plan as tool_plan
 from ucal.toolframe.plan import (

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.safety import MIN_WATER_PATH_MM
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.model.safety import MIN_WATER_PATH_MM
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify import plan as verify_plan
 from ucal.verify.plan import (

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import tomlkit
 
-from ucal.calibration.safety import TOLERANCE_SIGMAS, offsets_std_deg
 from ucal.kinematics.dh import fk_frames
+from ucal.model.safety import TOLERANCE_SIGMAS, offsets_std_deg
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.plan import plan_verify
 from ucal.verify.solve import WristMap

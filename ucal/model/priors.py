@@ -1,6 +1,6 @@
 """The unknowns of the calibration solvers: their names, the profile's values and tolerances
 as priors (``CellPrior``), and the table of named parameters with the mask of the free ones
-(``ParameterTable``). The model they enter is in ``ucal.calibration.fit``'s docstring.
+(``ParameterTable``). The model they enter is in ``ucal.model.fit``'s docstring.
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc
 
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.priors import BETA, DH, OFFSETS, PRIOR_MEANING, CellPrior, ParameterTable
-from ucal.calibration.residuals import approach_signs, measurement_label
+from ucal.model.geometry import FaceMeasurement
+from ucal.model.priors import BETA, DH, OFFSETS, PRIOR_MEANING, CellPrior, ParameterTable
+from ucal.model.residuals import approach_signs, measurement_label
 
 #: Probability below which the χ² of the fit is called a misfit.
 MISFIT_P = 1e-3
@@ -101,7 +101,7 @@ def fit_quality(
 ) -> FitQuality:
     """The quality of a ``solve_cell`` fit from its residual vector ``res`` (data rows, then
     one prior row per free parameter that has a prior); ``gains``: the χ² each of the run's
-    effects would remove (``ucal.calibration.least_squares.effect_gains``)."""
+    effects would remove (``ucal.model.least_squares.effect_gains``)."""
     rows = residual_rows(meas, res[:n_data], extra_labels)
     r = res[: 3 * len(meas)].reshape(-1, 3)
     tilt_deg = np.array([r[i, :2] * m.tilt_std_deg for i, m in enumerate(meas)])

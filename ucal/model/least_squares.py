@@ -1,5 +1,5 @@
 """The prior-augmented least squares of the calibration solvers and the covariance of their
-unknowns (``ucal.calibration.fit``'s docstring has the model): ``solve_cell`` over face
+unknowns (``ucal.model.fit``'s docstring has the model): ``solve_cell`` over face
 measurements, ``solve_augmented`` over any rows, and what a fit found of the tank's drift and
 the arm's lost motion (``RunEffects``).
 """
@@ -14,8 +14,8 @@ import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
 
 from ucal import interrupt
-from ucal.calibration.model import FaceMeasurement, beam_and_tcp, distance_joints
-from ucal.calibration.priors import (
+from ucal.model.geometry import FaceMeasurement, beam_and_tcp, distance_joints
+from ucal.model.priors import (
     BACKLASH,
     BETA,
     BLOCK,
@@ -27,8 +27,8 @@ from ucal.calibration.priors import (
     ParameterTable,
     twists_deg,
 )
-from ucal.calibration.quality import MISFIT_P, FitQuality, fit_quality, verdict
-from ucal.calibration.residuals import (
+from ucal.model.quality import MISFIT_P, FitQuality, fit_quality, verdict
+from ucal.model.residuals import (
     MeasurementArrays,
     Reading,
     cell_geometry,
@@ -50,7 +50,7 @@ def hold_unseen(table: ParameterTable, meas: Sequence[Reading]) -> None:
 
     A one-sided joint's lost motion is a gauge, not an unknown. The offsets are those of the
     positive approach (the link at reading + offset when reached from below; from above it
-    lags by the whole lost motion b, ``ucal.calibration.residuals.MeasurementArrays.lag``):
+    lags by the whole lost motion b, ``ucal.model.residuals.MeasurementArrays.lag``):
     readings all from below do not see b at all, readings all from above see only offset + b,
     one quantity. Left free with its prior, b would then add its tolerance to that offset's
     std for nothing the data could tell apart; held at 0, the offsets are those of the
@@ -267,7 +267,7 @@ def curvature_std_m_s_per_min2(prior: CellPrior, minutes: np.ndarray) -> float:
 
 def face_row_minutes(minutes: np.ndarray) -> np.ndarray:
     """Each row's t − t_ref for face readings at ``minutes`` (n,): two tilts and a water path
-    per reading (``ucal.calibration.residuals.data_residuals``' order), (3n,)."""
+    per reading (``ucal.model.residuals.data_residuals``' order), (3n,)."""
     return np.repeat(np.asarray(minutes, float), 3)
 
 

@@ -1,7 +1,7 @@
 """What the quantities a plan does not know can turn a planned posture's joints by (3σ).
 
 A plan is made on the profile's nominal cell, but the run aims the wrist at the cell as it
-is: the joint offsets within their std (``ucal.calibration.safety.offsets_std_deg``), the
+is: the joint offsets within their std (``ucal.model.spread.offsets_std_deg``), the
 tool's orientation within ``[tool] rotation_std_deg``, the block's within ``[sample]
 rotation_std_deg``. A posture the run re-aims (a face's normal incidence, a scan with the
 true beam held on the face's normal) then has other wrist readings than planned, by as much
@@ -19,13 +19,31 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ucal.calibration.model import CellGeometry
-from ucal.calibration.safety import TOLERANCE_SIGMAS, offsets_std_deg
-from ucal.calibration.wrist import aim_wrist
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError, UnreachableError
 from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import rot_x, rot_y, rot_z
+from ucal.model.geometry import CellGeometry
+from ucal.model.wrist import aim_wrist
+
+#: The margins cover this many sigma of the declared tolerances.
+TOLERANCE_SIGMAS = 3.0
+#: One sigma of a joint's zero offset that ``calibrate`` has not determined (deg): a fresh
+#: cell's zeros are within 1-3° of the controller's (encoders set at the factory, a motor
+#: replaced); three sigma cover that.
+FRESH_OFFSET_STD_DEG = 1.0
+
+
+def offsets_std_deg(profile: CellProfile) -> np.ndarray:
+    """How well a profile knows each joint's zero offset, for planning (deg, one sigma):
+    ``[calibration] std_deg`` where ``calibrate`` determined it, ``FRESH_OFFSET_STD_DEG`` for a
+    joint it did not (or a profile never calibrated)."""
+    std = profile.joint_offsets_std_deg
+    if std is None:
+        return np.full(6, FRESH_OFFSET_STD_DEG)
+    std = np.asarray(std, float)
+    return np.where(np.isfinite(std) & (std > 0), std, FRESH_OFFSET_STD_DEG)
+
 
 #: The unknown quantities by name: what a refusal calls each, and the key that declares it.
 OFFSETS, TOOL, BLOCK = "offsets", "tool", "block"
@@ -109,7 +127,7 @@ def declared_spread(
     """``tolerance_deg`` (deg) kept on joints 4–6 for the declared orientation tolerances, as a
     ``Spread`` whose shares are the tool's and (``block``) the block's, in proportion to
     their tolerances (``[tool]`` and ``[sample] rotation_std_deg``, their axes' resultant, as
-    ``ucal.calibration.safety.tolerance_margins`` adds them): a refusal then names the one
+    ``ucal.model.safety.tolerance_margins`` adds them): a refusal then names the one
     that takes the room and the tolerance that would lift it. ``tool_cure``: what would lift
     it for the tool, in place of ``_CURE``'s."""
     norms = {TOOL: float(np.linalg.norm(profile.tool_rotation_std_deg))}

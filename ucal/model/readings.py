@@ -1,11 +1,12 @@
 """Face readings as the profile's history keeps them, and calibrate's beside its write.
 
-A face measurement (``ucal.calibration.model.FaceMeasurement``) as JSON: its posture, where and
+A face measurement (``ucal.model.geometry.FaceMeasurement``) as JSON: its posture, where and
 when its water path was read, from which side each joint came (``faces_to_json``,
 ``faces_from_json``). ``check`` keeps its own in ``checks.json`` (``ucal.check.history``);
 ``calibrate`` keeps the readings its fit received in ``NNNN-readings.json``, beside the history
 copy ``NNNN-before.toml`` of the write they produced (``write_readings``), with the sound speed
-the fit found for them: a later command that reads a water path again where calibrate read it
+the fit found for them (``ucal.calibration.result.calibration_readings``): a later command
+that reads a water path again where calibrate read it
 (same joints, same side: the arm repeats to hundredths of a mm) learns the tank's sound speed
 now from the ratio of the two (``ucal.verify.tank``).
 
@@ -25,10 +26,8 @@ from typing import Any
 import numpy as np
 
 from ucal import files
-from ucal.calibration.model import FaceMeasurement
-from ucal.calibration.residuals import reference_time_min
-from ucal.calibration.result import Solution, run_effects
 from ucal.errors import ProfileError
+from ucal.model.geometry import FaceMeasurement
 from ucal.profile import HistoryEntry, history_dir
 
 log = logging.getLogger(__name__)
@@ -148,31 +147,6 @@ class CalibrationReadings:
             float(data["time_ref_min"]),
             source,
         )
-
-
-def calibration_readings(
-    faces: Sequence[FaceMeasurement], conversion_m_s: float, sound: Solution
-) -> CalibrationReadings:
-    """The readings ``faces`` a fit received, converted with ``conversion_m_s``, and what
-    ``sound`` (the solution that fitted the sound speed) found of the tank."""
-    effects = run_effects(sound)
-    rate, rate_std = (
-        (0.0, float("nan"))
-        if effects is None
-        else (
-            effects.drift_m_s_per_min,
-            effects.drift_std_m_s_per_min,
-        )
-    )
-    return CalibrationReadings(
-        tuple(faces),
-        float(conversion_m_s),
-        float(sound.sound_speed_m_s),
-        float(sound.sound_speed_std_m_s),
-        float(rate),
-        float(rate_std),
-        reference_time_min(list(faces)),
-    )
 
 
 def readings_path(profile_path: str | Path, entry: HistoryEntry) -> Path:

@@ -24,17 +24,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ucal.calibration.model import FACE_NAMES, CellGeometry, beam_and_tcp
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
+from ucal.model.geometry import FACE_NAMES, CellGeometry, beam_and_tcp
 
-if TYPE_CHECKING:
-    from ucal.calibration.spread import Spread
+# the planning margins' sigmas and the offsets' std are the spread's, named here as well
+from ucal.model.spread import FRESH_OFFSET_STD_DEG as FRESH_OFFSET_STD_DEG
+from ucal.model.spread import TOLERANCE_SIGMAS as TOLERANCE_SIGMAS
+from ucal.model.spread import Spread, declared_spread
+from ucal.model.spread import offsets_std_deg as offsets_std_deg
 
 #: Room kept inside the joint ranges of joints 4–6 for a wrist search around a planned posture.
 SEARCH_MARGIN_DEG = 8.0
@@ -42,12 +44,6 @@ SEARCH_MARGIN_DEG = 8.0
 MIN_WATER_PATH_MM = 20.0
 #: Distance kept between the beam's hit point on a face and the face's edges (mm).
 EDGE_MARGIN_MM = 20.0
-#: The margins cover this many sigma of the declared tolerances.
-TOLERANCE_SIGMAS = 3.0
-#: One sigma of a joint's zero offset that ``calibrate`` has not determined (deg): a fresh
-#: cell's zeros are within 1-3° of the controller's (encoders set at the factory, a motor
-#: replaced); three sigma cover that.
-FRESH_OFFSET_STD_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -80,17 +76,6 @@ def tolerance_margins(profile: CellProfile) -> Margins:
         + tilt_mm**2
     )
     return Margins(float(k * rot), float(k * shift))
-
-
-def offsets_std_deg(profile: CellProfile) -> np.ndarray:
-    """How well a profile knows each joint's zero offset, for planning (deg, one sigma):
-    ``[calibration] std_deg`` where ``calibrate`` determined it, ``FRESH_OFFSET_STD_DEG`` for a
-    joint it did not (or a profile never calibrated)."""
-    std = profile.joint_offsets_std_deg
-    if std is None:
-        return np.full(6, FRESH_OFFSET_STD_DEG)
-    std = np.asarray(std, float)
-    return np.where(np.isfinite(std) & (std > 0), std, FRESH_OFFSET_STD_DEG)
 
 
 def offsets_margins_mm(profile: CellProfile, q: np.ndarray) -> np.ndarray:
@@ -131,13 +116,11 @@ def check_joints(
     4–6, and θ5 (kinematic, offsets applied) at least the profile's singularity margin from 0;
     ``tolerance_deg`` more on both (``Margins.wrist_deg``: what the declared tolerances can
     turn the wrist by; ``block_tolerance`` False: the tool's alone), or, given ``spread``
-    (``ucal.calibration.spread``), each joint's own share of it. A refusal names the quantity
+    (``ucal.model.spread``), each joint's own share of it. A refusal names the quantity
     that takes the room and the tolerance that would lift it (``tool_cure``: what would, for
     the tool, where not ``spread``'s words)."""
     model = profile.model
     if spread is None and tolerance_deg > 0:
-        from ucal.calibration.spread import declared_spread
-
         declared = declared_spread(profile, tolerance_deg, block_tolerance, tool_cure)
         if declared.parts:
             spread, tolerance_deg = declared, 0.0

@@ -46,8 +46,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.fit import BLOCK, MAX_STD_DEG, OFFSETS, PRIOR_MEANING, CellFit
 from ucal.kinematics.rotations import matrix_to_rpy, rpy_to_matrix
+from ucal.model.fit import BLOCK, MAX_STD_DEG, OFFSETS, PRIOR_MEANING, CellFit
 
 #: The unknown held as placed: the block's yaw (Staubli rz about the block's z axis).
 BLOCK_YAW = "block_rz_deg"

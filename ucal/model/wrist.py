@@ -12,10 +12,10 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.calibration.model import CellGeometry, beam_and_tcp
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames, model_angles_rad
 from ucal.kinematics.rotations import angle_between_deg, rot_x
+from ucal.model.geometry import CellGeometry, beam_and_tcp
 
 WRIST = (3, 4, 5)  # 0-based indices of joints 4, 5, 6
 

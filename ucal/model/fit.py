@@ -12,7 +12,7 @@ drift_std_c_per_min``; ``[robot] dh_length_std_mm``, ``dh_angle_std_deg`` for a 
 not identified on this robot, ``[calibration] dh_std`` for each parameter the full level
 identified; the lost motion 0 ± ``[robot] backlash_std_deg``); the offsets get a broad prior
 (``OFFSET_PRIOR_STD_DEG``) that only regularises what the data cannot see. Each face
-measurement (``ucal.calibration.model``) contributes three rows
+measurement (``ucal.model.geometry``) contributes three rows
 
     r_tilt = tilt_components(b(q+δ)) / σ_tilt                         model eq. (1), two rows
     r_dist = (n_k·(p(q'+δ) − c)/cos θ − (c_w(t)/c_0)·d) / σ_d        model eq. (2)
@@ -43,7 +43,7 @@ minutes. Physics decides what that std carries:
 
 * the block's yaw and δ1 are one rotation about the base axis: no measurement separates them,
   so ``std(δ1) ≥ rotation_std_deg[2]`` in the robot's base frame; the callers hold the yaw as
-  placed and give δ1 relative to the block (``ucal.calibration.gauge``), absolute only with a
+  placed and give δ1 relative to the block (``ucal.model.gauge``), absolute only with a
   doweled, levelled fixture;
 * at one J1 azimuth, a block tilt about the joint-2 axis and δ2 are one rotation about that
   axis (the corner takes up the translation): ``std(δ2)`` carries the tilt tolerance unless
@@ -67,7 +67,7 @@ covariance) and ``quality`` (the fit's verdict and the likely cause of a misfit)
 
 from __future__ import annotations
 
-from ucal.calibration.least_squares import (
+from ucal.model.least_squares import (
     MAX_STD_DEG,
     AugmentedFit,
     CellFit,
@@ -77,7 +77,7 @@ from ucal.calibration.least_squares import (
     solve_augmented,
     solve_cell,
 )
-from ucal.calibration.priors import (
+from ucal.model.priors import (
     BACKLASH,
     BETA,
     BLOCK,
@@ -97,7 +97,7 @@ from ucal.calibration.priors import (
     offsets_prior_std_deg,
     prior_from_profile,
 )
-from ucal.calibration.quality import (
+from ucal.model.quality import (
     FAR_PULL_SIGMA,
     MISFIT_P,
     PHYSICAL_SPAN,
@@ -108,7 +108,7 @@ from ucal.calibration.quality import (
     residual_pattern,
     verdict,
 )
-from ucal.calibration.residuals import (
+from ucal.model.residuals import (
     MeasurementArrays,
     _rpy_matrix,
     cell_geometry,

@@ -1,5 +1,5 @@
 """The residual model of the calibration solvers: the face measurements' normalised residuals
-for a vector of named unknowns (``ucal.calibration.priors``), as ``ucal.calibration.fit``'s
+for a vector of named unknowns (``ucal.model.priors``), as ``ucal.model.fit``'s
 docstring writes them, with the sound speed drifting over the run and the lost motion of
 each joint against each reading's approach.
 """
@@ -12,14 +12,15 @@ from typing import Protocol
 
 import numpy as np
 
-from ucal.calibration.model import (
+from ucal.kinematics.dh import RobotModel, transform
+from ucal.model.geometry import (
     FACE_NAMES,
     CellGeometry,
     FaceMeasurement,
     beam_and_tcp,
     distance_joints,
 )
-from ucal.calibration.priors import (
+from ucal.model.priors import (
     BACKLASH,
     BETA,
     BLOCK,
@@ -30,7 +31,6 @@ from ucal.calibration.priors import (
     TOOL,
     ParameterTable,
 )
-from ucal.kinematics.dh import RobotModel, transform
 
 
 def measurement_label(m: FaceMeasurement) -> str:
