@@ -51,8 +51,8 @@ from pathlib import Path
 import numpy as np
 from _quick import parse_args
 
+from ucal.kinematics.rotations import tangent_basis
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import truth_in_profile_flange
 from ucal.toolframe.plane import fit_plane
 from ucal.world import load_world

@@ -12,7 +12,7 @@ uniform in 0–0.02° per joint, every profile declaring the default drift toler
   the tank drifting uniform in ±0.3 °C/min (the first face's water path read again at the end
   is what lets the data see it);
 * ``lost-motion``: the same with ``calibrate --lost-motion`` (the calibration pose's faces
-  measured again from above, ``ucal.calibration.sequence.with_lost_motion``);
+  measured again from above, ``ucal.measure.sequence.with_lost_motion``);
 * ``full``: ``calibrate --level full`` on ``full_calibration.py --step``'s worlds (the DH
   tolerance declared 0.3 mm / 0.03° and drawn within twice it, lengths ±0.5 mm, twists and
   Hayati's β₂ ±0.05°; offsets ±1°; a hand-placed block; the water within ±2 °C; a step of
@@ -96,20 +96,13 @@ from drivers.errors import DriverError
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.calibration.budget import calibration_budget
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
-from ucal.calibration.full_plan import MAX_POSTURES, plan_full
-from ucal.calibration.full_run import run_full
 from ucal.calibration.procedure import judge
-from ucal.calibration.sequence import (
-    calibration_pose,
-    plan_calibration,
-    run_calibration,
-    with_lost_motion,
-)
 from ucal.cell import CellProfile, WorldTruth
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
-from ucal.kinematics.rotations import angle_between_deg
+from ucal.kinematics.rotations import angle_between_deg, tangent_basis
+from ucal.measure.postures import run_full
+from ucal.measure.sequence import run_calibration, with_lost_motion
 from ucal.model.fit import (
     BACKLASH,
     DRIFT,
@@ -119,11 +112,13 @@ from ucal.model.fit import (
     RunEffects,
     prior_from_profile,
 )
+from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_full, twists_deg
 from ucal.model.least_squares import CURVATURE
+from ucal.model.postures import MAX_POSTURES, plan_full
+from ucal.model.targets import calibration_pose, plan_calibration
 from ucal.models import KNOWN_MODELS
 from ucal.profile import load_profile, write_profile
 from ucal.session import check_status, open_cell
-from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
 from ucal.toolframe.measure import measure_tool_frame
 from ucal.toolframe.plan import plan_tool_frame
@@ -139,7 +134,7 @@ STRAIGHT = (CURVATURE,)
 #: The tool-frame case's solvers, in the order each run's outcomes are listed.
 TOOL_SOLVERS = {"current": (), "linear drift only": STRAIGHT, "previous (held at 0)": HELD}
 #: The cases of the offsets level: as planned, and with the calibration pose's faces measured
-#: again from above (``ucal.calibration.sequence.with_lost_motion``).
+#: again from above (``ucal.measure.sequence.with_lost_motion``).
 OFFSETS_CASES = ("offsets", "lost-motion")
 #: Per case: the tank's drift the worlds are drawn with (±°C/min) and the one its profile
 #: declares (°C/min, one sigma: the default).

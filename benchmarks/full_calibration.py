@@ -49,14 +49,13 @@ from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full, twists_deg
-from ucal.calibration.full_plan import MAX_POSTURES, plan_full
-from ucal.calibration.full_run import FullRun, run_full
-from ucal.calibration.procedure import estimate_postures
-from ucal.calibration.sequence import calibration_pose
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
+from ucal.measure.postures import FullRun, estimate_postures, run_full
 from ucal.model.fit import prior_from_profile
+from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_full, twists_deg
+from ucal.model.postures import MAX_POSTURES, plan_full
+from ucal.model.targets import calibration_pose
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import check_status, open_cell
 from ucal.world import load_world

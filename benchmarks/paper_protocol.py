@@ -37,9 +37,11 @@ from pathlib import Path
 import numpy as np
 from _quick import parse_args
 
-from ucal.calibration.sequence import plan_calibration, run_calibration, solve
+from ucal.calibration.solve import solve
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, Noise, WorldTruth
 from ucal.kinematics.dh import fk
+from ucal.measure.sequence import run_calibration
+from ucal.model.targets import plan_calibration
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.rig import DENSE_SPACING, SweepSpacing
 from ucal.session import open_cell

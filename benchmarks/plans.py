@@ -49,13 +49,12 @@ import tomlkit
 from _quick import parse_args
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
-from ucal.calibration.plan import geometry
-from ucal.calibration.sequence import plan_calibration
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.rotations import matrix_to_rpy
+from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
+from ucal.model.targets import geometry, plan_calibration
 from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.toolframe.plan import QUARTER_TURNS_TILT_DEG, ToolFramePlan, plan_tool_frame

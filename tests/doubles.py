@@ -40,10 +40,10 @@ import pytest
 
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.full import ideal_measurements
 from ucal.cli import main
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.model.geometry import CellGeometry, FaceMeasurement, beam_and_tcp
+from ucal.model.kinematic import ideal_measurements
 from ucal.model.wrist import aim_wrist
 from ucal.profile import create_profile, write_profile
 

@@ -17,13 +17,33 @@ from drivers.pulser.base import PulserSettings
 from drivers.pulser.registers import RegisterMap
 from ucal.kinematics.dh import RobotModel, transform
 from ucal.kinematics.rotations import rpy_to_matrix
-from ucal.thermometer import TemperatureLog
 
 if TYPE_CHECKING:  # the A-scan code (scipy.signal) loads only where echoes are timed
     from ucal.echo.ascan import ReferenceEcho
 
 #: Paper 000, §5.1: the calibration pose of the TX90L (deg).
 PAPER_CALIBRATION_POSE_DEG = np.array([30.53, 31.15, 109.49, 0.0, 39.36, 30.54])
+
+
+@dataclass(frozen=True)
+class TemperatureLog:
+    """A thermometer's log as read from its file.
+
+    ``time_min`` (n,): strictly increasing; minutes of the simulated cell's clock since it
+    started (``wall_clock`` False: a world file's ``[water] temperature_log``, a rehearsal's
+    thermometer), or minutes since the Unix epoch (``wall_clock`` True: a logger's times);
+    ``temperature_c`` (n,): the readings (°C). Between readings the water follows the straight
+    line between them; before the first and after the last it stays at that reading.
+    """
+
+    path: Path
+    time_min: np.ndarray
+    temperature_c: np.ndarray
+    wall_clock: bool = False
+
+    def at(self, t_min: float) -> float:
+        """The temperature (°C) the log gives at ``t_min`` (its own time base)."""
+        return float(np.interp(t_min, self.time_min, self.temperature_c))
 
 
 @dataclass(frozen=True)

@@ -46,15 +46,17 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
+import numpy as np
+
 from ucal import __version__, interrupt
-from ucal.cell import CellProfile, WorldTruth
+from ucal.cell import CellProfile, TemperatureLog, WorldTruth
 from ucal.cell_choice import CellChoice
 from ucal.profile import check_writable, profile_lock
 from ucal.progress import MeasureStep, Progress, Report, time_left_s
@@ -72,7 +74,6 @@ from ucal.record import (
 )
 from ucal.session import CellSession, check_status, open_cell, replay_cell
 from ucal.thermometer import (
-    TemperatureLog,
     Thermometer,
     awaited,
     check_time_base,
@@ -579,3 +580,37 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
             )
             return
         recorder.measurements(lines)
+
+
+class PlannedPosture(Protocol):
+    """What a record's plan rows read of a planned target or posture."""
+
+    @property
+    def label(self) -> str: ...
+
+    @property
+    def joints_deg(self) -> np.ndarray: ...
+
+    @property
+    def water_path_mm(self) -> float: ...
+
+
+#: The plans' last line: how every planned posture is measured.
+WRIST_SEARCH = (
+    "The wrist searches around each planned posture for the echo (joints 4-6 only); every "
+    "move ends approaching from below on each joint (backlash), unless said above."
+)
+
+
+def plan_line(name: str, planned: PlannedPosture) -> str:
+    """One planned posture in a plan's table: its name, joints (deg) and water path."""
+    joints = "".join(f"{v:9.2f}" for v in planned.joints_deg)
+    return f"  {name}{joints}   {planned.water_path_mm:6.1f} mm"
+
+
+def plan_rows(planned: Iterable[PlannedPosture]) -> list[dict[str, Any]]:
+    """The ``plan`` of a ``--record`` file's header: every planned posture."""
+    return [
+        {"label": p.label, "joints_deg": p.joints_deg.tolist(), "water_path_mm": p.water_path_mm}
+        for p in planned
+    ]

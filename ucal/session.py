@@ -233,7 +233,8 @@ def check_set_by_hand(pulser: Any, rig: Rig, profile: CellProfile) -> None:
     by_hand = profile.pulser.by_hand
     if by_hand is None or not isinstance(pulser, ManualPulser):
         return
-    from ucal.echo.by_hand import FirstEchoCheck, declared_of, judge, look, records_at_the_panel
+    from ucal.echo.by_hand import FirstEchoCheck, judge, look, records_at_the_panel
+    from ucal.profile.by_hand import declared_of
 
     declared = declared_of(profile, pulser.full_screen_v)
     try:

@@ -71,15 +71,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
+from ucal.cell import CellProfile, TemperatureLog
 from ucal.errors import InputError, ProfileError
-
-if TYPE_CHECKING:
-    from ucal.cell import CellProfile
 
 log = logging.getLogger(__name__)
 
@@ -102,27 +100,6 @@ LIVE_AHEAD_MIN = 1.0
 LIVE_AGE_MIN = 2.0
 #: The longest wait (s) for a logger's log to pass the run's last reading (``awaited``).
 WAIT_MAX_S = 60.0
-
-
-@dataclass(frozen=True)
-class TemperatureLog:
-    """A thermometer's log as read from its file.
-
-    ``time_min`` (n,): strictly increasing; minutes of the simulated cell's clock since it
-    started (``wall_clock`` False: a world file's ``[water] temperature_log``, a rehearsal's
-    thermometer), or minutes since the Unix epoch (``wall_clock`` True: a logger's times);
-    ``temperature_c`` (n,): the readings (°C). Between readings the water follows the straight
-    line between them; before the first and after the last it stays at that reading.
-    """
-
-    path: Path
-    time_min: np.ndarray
-    temperature_c: np.ndarray
-    wall_clock: bool = False
-
-    def at(self, t_min: float) -> float:
-        """The temperature (°C) the log gives at ``t_min`` (its own time base)."""
-        return float(np.interp(t_min, self.time_min, self.temperature_c))
 
 
 def read_log(path: Path, context: str = "", wall_clock: bool = True) -> TemperatureLog:

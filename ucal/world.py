@@ -81,6 +81,7 @@ from ucal.cell import (
     Noise,
     PulserTruth,
     Reflector,
+    TemperatureLog,
     WorldTruth,
 )
 from ucal.profile import (
@@ -89,7 +90,7 @@ from ucal.profile import (
     read_transducer,
     read_water,
 )
-from ucal.thermometer import TemperatureLog, read_log
+from ucal.thermometer import read_log
 from ucal.validation import Reader, describe_unknown, read_toml, refuse_misspelt_keys, unknown_keys
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`; one that is a

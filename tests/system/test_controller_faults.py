@@ -45,12 +45,12 @@ def profile(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     path = tmp_path_factory.mktemp("faults") / "cell.toml"
     create_profile(path, "tx90l")
     write_profile(path, {"controller": TIMEOUTS}, "short timeouts for the fault matrix")
-    from ucal.calibration import sequence
+    from ucal.calibration import procedure
 
-    real = sequence.plan_calibration
+    real = procedure.plan_calibration
     plan = functools.cache(lambda: real(load_profile(path)))
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(sequence, "plan_calibration", lambda p: plan() if p.path == path else None)
+        mp.setattr(procedure, "plan_calibration", lambda p: plan() if p.path == path else real(p))
         yield path
 
 

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full
-from ucal.calibration.full_plan import plan_full
-from ucal.calibration.full_run import run_full
-from ucal.calibration.sequence import calibration_pose
 from ucal.kinematics.dh import fk
+from ucal.measure.postures import run_full
 from ucal.model.fit import prior_from_profile
+from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_full
+from ucal.model.postures import plan_full
+from ucal.model.targets import calibration_pose
 from ucal.profile import create_profile, load_profile, write_profile
 from ucal.session import check_status, open_cell
 from ucal.world import load_world

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import water_absorption_np_per_mm
-from ucal.calibration.sequence import calibration_pose, geometry
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import acquisition_gain
 from ucal.measure.approach import FinalApproachRig
@@ -18,6 +17,7 @@ from ucal.measure.face import FaceRequest, FaceSetup, SearchMode, measure
 from ucal.measure.lobe import MainLobe
 from ucal.measure.search import PeakSearch, ka_of
 from ucal.model.geometry import Face
+from ucal.model.targets import calibration_pose, geometry
 from ucal.profile import create_profile, load_profile
 from ucal.session import open_cell
 from ucal.sim.cell import SimulatedCell

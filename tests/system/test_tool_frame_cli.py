@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix, tangent_basis
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.toolframe.exact import tangent_basis
 
 from doubles import counting_moves, ucal_here
 

@@ -7,14 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ucal.iso9283 import orientation_figures, standard_figures
 from ucal.profile import create_profile, load_profile
-from ucal.verify.iso9283 import (
-    CYCLE_ORDER,
-    cube_poses,
-    orientation_figures,
-    plan_iso9283,
-    standard_figures,
-)
+from ucal.verify.iso9283 import CYCLE_ORDER, cube_poses, plan_iso9283
 
 
 def test_poses_lie_on_the_diagonal_plane_at_a_tenth_of_each_diagonal() -> None:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from ucal.calibration.procedure import OffsetsCalibration
-from ucal.calibration.sequence import plan_calibration
 from ucal.kinematics.ik import check_structure
+from ucal.model.targets import plan_calibration
 from ucal.models import KNOWN_MODELS, joint_speeds_deg_s, load_model, model_sheet
 from ucal.profile import create_profile, load_profile
 from ucal.sim.serve import SimulatedCellServer

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from drivers.controller.base import ControllerStatus, JointSample
 from drivers.pulser.base import GateReading, PulserSettings
-from ucal.calibration.full_run import FullRun
-from ucal.calibration.sequence import CalibrationRun
+from ucal.measure.postures import FullRun
+from ucal.measure.sequence import CalibrationRun
 from ucal.model.geometry import Face, FaceMeasurement
 from ucal.procedure import RunOptions
 from ucal.profile import default_profile_text, load_profile, write_profile

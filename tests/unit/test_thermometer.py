@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.sequence import CalibrationRun
 from ucal.errors import InputError, ProfileError
+from ucal.measure.sequence import CalibrationRun
 from ucal.model.geometry import FaceMeasurement
 from ucal.thermometer import Thermometer, check_time_base, on_run, read_log
 
@@ -264,7 +264,7 @@ def test_the_run_keeps_an_evenly_spaced_stretch_of_the_log() -> None:
     """The run's stretch of the log (a minute and a half either side, one reading more) stays
     evenly spaced, so that it is smoothed: no reading from the log's far end."""
     t = np.arange(0.0, 30.0, 0.05)
-    from ucal.thermometer import TemperatureLog
+    from ucal.cell import TemperatureLog
 
     water = on_run(TemperatureLog(Path("t.csv"), t, 20.0 + 0.0 * t), 0.02, 5.0, 1.0)
     assert water is not None

@@ -9,11 +9,11 @@ import pytest
 import tomlkit
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.plan import geometry
 from ucal.cell import CellProfile, Step
 from ucal.kinematics.rotations import matrix_to_rpy
 from ucal.model.geometry import beam_and_tcp
 from ucal.model.safety import check_joints, step_blocked, tolerance_margins
+from ucal.model.targets import geometry
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.plan import VERIFY_HEIGHT_MM, plan_verify
 

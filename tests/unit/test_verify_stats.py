@@ -11,11 +11,11 @@ import tomlkit
 from scipy.spatial.transform import Rotation
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.sequence import geometry
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.model.geometry import beam_and_tcp
 from ucal.model.safety import MIN_WATER_PATH_MM
+from ucal.model.targets import geometry
 from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.inputs import sound_speed_for_verify

@@ -24,11 +24,11 @@ from ucal.profile import (
 )
 from ucal.record import measured_from_lines, measurement_lines
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, repeated_faces, tank_reference
-from ucal.verify.measure import PointResult, VerifyResult
+from ucal.verify.measure import PointResult, VerifyResult, tank_corrected
 from ucal.verify.plan import WALL_PATH_MM, plan_summary, plan_verify, with_tank
 from ucal.verify.procedure import VerifyJob
 from ucal.verify.result import VerifySolved, water_note
-from ucal.verify.tank import REPEAT_STD_MM, estimate_tank, tank_corrected
+from ucal.verify.tank import REPEAT_STD_MM, estimate_tank
 
 #: Marczak's at 20 °C: what calibrate converted its times of flight with
 C0 = float(sound_speed_m_s(20.0))

@@ -7,7 +7,7 @@ water path alike). The fit keeps each of them at its prior (the profile's tolera
 it at its nominal value (the full level's redundant parameters), and the offsets it writes are
 right only up to what those priors allow. This module says how much that is where it matters:
 the tool centre over the scanning region about the calibration pose
-(``ucal.calibration.full.scanning_postures``), in the block's frame (the base frame's yaw and
+(``ucal.model.kinematic.scanning_postures``), in the block's frame (the base frame's yaw and
 height are gauges of the cell; a scan is made relative to the part).
 
 Derivation. Let ``A`` be the Jacobian of the fit's augmented residuals at the solution
@@ -38,8 +38,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ucal.calibration.full import KINEMATIC, STEP, scanning_postures, step_residuals
-from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel
 from ucal.model.fit import (
@@ -52,6 +50,8 @@ from ucal.model.fit import (
     table_geometry,
 )
 from ucal.model.geometry import FaceMeasurement, beam_and_tcp
+from ucal.model.kinematic import KINEMATIC, STEP, scanning_postures, step_residuals
+from ucal.model.targets import calibration_pose
 
 #: The quantities no echo may see well enough: the kinematic model's lengths and twists, and
 #: the sound speed (with the lengths, one common scale that time of flight does not show).

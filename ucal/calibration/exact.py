@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ucal.kinematics.rotations import angle_between_deg
 from ucal.model.fit import (
     MAX_STD_DEG,
     CellFit,
@@ -56,6 +55,7 @@ from ucal.model.geometry import (
     CellGeometry,
     FaceMeasurement,
     beam_and_tcp,
+    beam_on_axis,
     distance_joints,
     tilt_components,
 )
@@ -178,11 +178,6 @@ def residuals(
         n = geom.normal(m.face)
         out[i, 2] = (n @ (tcp[i] - corner_mm) - m.distance_mm) / m.distance_std_mm
     return out.ravel()
-
-
-def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:
-    """True if the nominal beam lies within ``tol_deg`` of the joint-6 axis (flange z)."""
-    return bool(angle_between_deg(geom.beam_flange, np.array([0.0, 0.0, 1.0])) < tol_deg)
 
 
 def solve_exact(

@@ -1,16 +1,16 @@
 """The joint-offset calibration procedure (paper 000): the ``calibrate`` command's job.
 
 Read with ``ucal.procedure`` (the order every moving command follows): the plan and its checks
-(``ucal.calibration.sequence.plan_calibration``), the plan in words (``plan_summary``), the
+(``ucal.measure.sequence.plan_calibration``), the plan in words (``plan_summary``), the
 measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
-measurement, ``ucal.measure.face``), the solvers (``ucal.calibration.sequence.solve``:
+measurement, ``ucal.measure.face``), the solvers (``ucal.measure.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
 (``judge``), the ``[calibration]`` keys written and the typed result the tables and ``--json``
 are drawn from (``ucal.calibration.result``).
 
 ``calibrate --level full`` (``FullCalibration``) goes through the same steps with its own plan
-(``ucal.calibration.full_plan``: postures chosen by D-optimality), measurement
-(``ucal.calibration.full_run``) and identification (``ucal.calibration.full``), and the same
+(``ucal.model.postures``: postures chosen by D-optimality), measurement
+(``ucal.measure.postures``) and identification (``ucal.model.kinematic``), and the same
 verdict, ``[calibration]`` keys and result fields (``CalibrationJob`` holds what both share).
 """
 
@@ -25,11 +25,7 @@ import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
-from ucal.calibration.full import solve_full
-from ucal.calibration.full_plan import FullPlan, first_postures, plan_full
-from ucal.calibration.full_run import FullRun, run_full
 from ucal.calibration.result import (
-    APPROACH,
     CalibrationResult,
     FullResult,
     FullSolved,
@@ -42,18 +38,13 @@ from ucal.calibration.result import (
     calibration_readings,
     run_effects,
 )
-from ucal.calibration.sequence import (
-    CalibrationPlan,
-    CalibrationRun,
-    beam_fixed,
-    plan_calibration,
-    run_calibration,
-    solve,
-    with_lost_motion,
-)
+from ucal.calibration.solve import beam_fixed, solve
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
+from ucal.measure.approach import APPROACH
+from ucal.measure.postures import FullRun, estimate_postures, run_full
+from ucal.measure.sequence import CalibrationRun, run_calibration, with_lost_motion
 from ucal.model.fit import (
     PRIOR_MEANING,
     CellFit,
@@ -66,9 +57,21 @@ from ucal.model.gauge import (
     block_pose,
 )
 from ucal.model.geometry import FACE_NAMES, FaceMeasurement
+from ucal.model.kinematic import solve_full
+from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.readings import CalibrationReadings, write_readings
+from ucal.model.targets import CalibrationPlan, plan_calibration
 from ucal.models import joint_speeds_deg_s
-from ucal.procedure import CountedT, Measured, Outcome, ProfileJob, RunFacts
+from ucal.procedure import (
+    WRIST_SEARCH,
+    CountedT,
+    Measured,
+    Outcome,
+    ProfileJob,
+    RunFacts,
+    plan_line,
+    plan_rows,
+)
 from ucal.profile import description_keys, write_profile
 from ucal.progress import Report
 from ucal.session import CellSession
@@ -162,40 +165,6 @@ def block_written(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] 
         return None
     keys = block_keys(block)
     return keys | description_keys(profile, "sample", keys["position_mm"], keys["rotation_deg"])
-
-
-class PlannedPosture(Protocol):
-    """What a record's plan rows read of a planned target or posture."""
-
-    @property
-    def label(self) -> str: ...
-
-    @property
-    def joints_deg(self) -> np.ndarray: ...
-
-    @property
-    def water_path_mm(self) -> float: ...
-
-
-#: The plans' last line: how every planned posture is measured.
-WRIST_SEARCH = (
-    "The wrist searches around each planned posture for the echo (joints 4-6 only); every "
-    "move ends approaching from below on each joint (backlash), unless said above."
-)
-
-
-def plan_line(name: str, planned: PlannedPosture) -> str:
-    """One planned posture in a plan's table: its name, joints (deg) and water path."""
-    joints = "".join(f"{v:9.2f}" for v in planned.joints_deg)
-    return f"  {name}{joints}   {planned.water_path_mm:6.1f} mm"
-
-
-def plan_rows(planned: Iterable[PlannedPosture]) -> list[dict[str, Any]]:
-    """The ``plan`` of a ``--record`` file's header: every planned posture."""
-    return [
-        {"label": p.label, "joints_deg": p.joints_deg.tolist(), "water_path_mm": p.water_path_mm}
-        for p in planned
-    ]
 
 
 def write_calibration(
@@ -486,18 +455,6 @@ def full_plan_summary(plan: FullPlan, profile: CellProfile) -> str:
     if plan.above:
         lines.append(from_above(plan.above))
     return "\n".join([*lines, WRIST_SEARCH])
-
-
-def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
-    """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does
-    (the offsets level's faces first where the plan has them)."""
-    targets = [p.joints_deg for p in first_postures(plan.first) + list(plan.postures)]
-    return estimate_run(
-        targets,
-        targets[0],
-        profile.procedure.speed,
-        speeds_deg_s=joint_speeds_deg_s(profile.model),
-    )
 
 
 class FullCalibration(CalibrationJob):

@@ -19,20 +19,17 @@ import numpy as np
 
 from ucal.calibration.budget import TcpBudget
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.full import FullSolution
-from ucal.calibration.full_plan import FullPlan
 from ucal.calibration.weak import WeakJoint
+from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality, RunEffects
 from ucal.model.gauge import J1Gauge, gauge_fields, j1_relative_to_block
 from ucal.model.geometry import FaceMeasurement
+from ucal.model.kinematic import FullSolution
+from ucal.model.postures import FullPlan
 from ucal.model.readings import CalibrationReadings
 from ucal.model.residuals import reference_time_min
 from ucal.procedure import RunFacts
 
-#: The approach direction the offsets belong to: every static posture is reached with each joint
-#: moving in its positive direction (``ucal.measure.approach``), the link lagging its encoder
-#: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
-APPROACH = "positive"
 #: Why ``backlash_deg`` is null: no joint was read from both sides.
 BACKLASH_NOTE = (
     "lost motion not measured: every posture was approached from below (--lost-motion, or a "

@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.plan import PlannedTarget
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import RobotModel, fk
@@ -47,6 +46,7 @@ from ucal.model.geometry import Configuration, Face, beam_and_tcp
 from ucal.model.priors import BACKLASH, BLOCK, OFFSETS, ParameterTable
 from ucal.model.residuals import approach_signs, table_geometry
 from ucal.model.safety import EDGE_MARGIN_MM, check_joints
+from ucal.model.targets import PlannedTarget
 from ucal.rig import Rig
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """The check's measurements: calibrate's face measurements of its postures, then the echo chain.
 
-The faces are measured by calibrate's own run (``ucal.calibration.sequence.run_calibration``)
+The faces are measured by calibrate's own run (``ucal.measure.sequence.run_calibration``)
 over the check's postures: the same search, prediction, final approach and peak refit, so a
 check and the commissioning it is compared with measure alike. Then the echo chain at the
 postures of ``CheckPlan.echo_labels``: back at the measured normal-incidence posture, the gate
@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 
 from ucal.acoustics import tof_ns
-from ucal.calibration.sequence import run_calibration
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeReading, scan_edge
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
 from ucal.echo import AScan, EchoEstimate, NoEcho, estimate_echo
 from ucal.measure.approach import FinalApproachRig
+from ucal.measure.sequence import run_calibration
 from ucal.model.fit import measurement_label
 from ucal.model.geometry import FaceMeasurement
 from ucal.model.readings import number

@@ -1,7 +1,7 @@
 """The check's plan: a few of calibrate's normal-incidence measurements and the echo chain.
 
 Postures. The calibration configuration (the beam normal to each of the block's three faces,
-arm still) and the second joint-1 azimuth of ``calibrate`` (``ucal.calibration.sequence``):
+arm still) and the second joint-1 azimuth of ``calibrate`` (``ucal.measure.sequence``):
 six of its normal-incidence measurements, planned and checked by the same code. Seen from one
 azimuth only, a change of joint 2's offset is one rotation with a tilt of the block about the
 joint-2 axis (and joint 1's with its yaw, from any azimuth); from two, joints 2 to 5, the tool,
@@ -30,13 +30,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from ucal.calibration.procedure import WRIST_SEARCH, plan_line
-from ucal.calibration.sequence import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.cell import CellProfile
 from ucal.check.edges import SCAN, EdgeLine, EdgeReading, plan_edges
 from ucal.check.history import CheckEntry
 from ucal.model.geometry import FACE_NAMES, Configuration
+from ucal.model.targets import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.models import joint_speeds_deg_s
+from ucal.procedure import WRIST_SEARCH, plan_line
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
 
 #: The configurations a check measures: the calibration pose and the second joint-1 azimuth;

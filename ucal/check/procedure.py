@@ -15,7 +15,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ucal.calibration.procedure import plan_rows
 from ucal.cell import CellProfile
 from ucal.check.causes import causes, water_words
 from ucal.check.edges import EdgeReading
@@ -43,7 +42,7 @@ from ucal.check.solve import (
 )
 from ucal.model.fit import prior_from_profile
 from ucal.model.readings import faces_from_json
-from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
+from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts, plan_rows
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate

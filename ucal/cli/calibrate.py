@@ -20,13 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
-from ucal.calibration.result import (
-    APPROACH,
-    CalibrationResult,
-    FullResult,
-    OffsetsResult,
-    backlash_note,
-)
+from ucal.calibration.result import CalibrationResult, FullResult, OffsetsResult, backlash_note
 from ucal.cell import CellProfile
 from ucal.cli.options import (
     MovingCall,
@@ -40,6 +34,7 @@ from ucal.cli.options import (
 )
 from ucal.cli.procedure import finish, replay_outcome, run_job, run_options
 from ucal.errors import InputError, NotConfirmed
+from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality
 from ucal.models import DEFAULT_MODEL
 from ucal.procedure import Job, Outcome

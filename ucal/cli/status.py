@@ -145,8 +145,9 @@ def by_hand(pulser: Any, profile: Any) -> dict[str, Any]:
     identity, and ``"check"``, what a few records at the declared gain say of the declaration
     (``ucal.echo.by_hand``; ``"verdict"``: ``"ok"`` or the message a moving command would
     refuse with)."""
-    from ucal.echo.by_hand import declared_of, judge, look, records_at_the_panel
+    from ucal.echo.by_hand import judge, look, records_at_the_panel
     from ucal.errors import ProfileError
+    from ucal.profile.by_hand import declared_of
     from ucal.rig import DEFAULT_SETTINGS
 
     declared = declared_of(profile, pulser.full_screen_v)

@@ -47,7 +47,6 @@ from ucal.errors import ProfileError
 
 if TYPE_CHECKING:
     from drivers.pulser.manual import ManualPulser
-    from ucal.cell import CellProfile
 
 log = logging.getLogger(__name__)
 
@@ -79,21 +78,6 @@ class Declared:
     def noise_fsh(self) -> float:
         """σ_p: the receiver's noise the declared gain gives (fraction of full screen)."""
         return self.input_noise_uv * 1e-6 * 10 ** (self.gain_db / 20) / self.full_screen_v
-
-
-def declared_of(profile: CellProfile, full_screen_v: float = 1.0) -> Declared:
-    """What ``profile`` (whose pulser is set by hand) declares, for a digitiser whose full
-    screen is ``full_screen_v``."""
-    by_hand = profile.pulser.by_hand
-    if by_hand is None:
-        raise ValueError(f"{profile.path}: the pulser is not set by hand")
-    return Declared(
-        by_hand.panel.gain_db,
-        profile.frequency_mhz,
-        by_hand.input_noise_uv,
-        full_screen_v,
-        str(profile.path or "the profile"),
-    )
 
 
 def records_at_the_panel(

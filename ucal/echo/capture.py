@@ -15,16 +15,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import asdict
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
+from drivers.controller.base import RobotController
+from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.echo.ascan import AScan, ReferenceEcho
 from ucal.echo.host import HostEchoTimer
 from ucal.echo.reference import build_reference
-
-if TYPE_CHECKING:
-    from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -33,11 +32,26 @@ CAPTURES = 16
 CAPTURE_AVERAGES = 64
 
 
+class CaptureRig(Protocol):
+    """What a capture uses of the rig that calls it (``ucal.rig.Rig``): its devices, its
+    settings and the reads and gain levelling every measurement goes through."""
+
+    controller: RobotController
+    pulser: PulserReceiver
+    settings: PulserSettings
+
+    def configure(self, **changes: Any) -> None: ...
+
+    def level_gain(self, averages: int = 1) -> None: ...
+
+    def read(self, averages: int = 1) -> GateReading: ...
+
+
 class Capture(Protocol):
     """What a session's rig calls at its first distance reading, and what the result says of
     the reference echo: a capture (``ReferenceCapture``) or a recorded one replayed."""
 
-    def ensure(self, rig: Rig) -> None: ...
+    def ensure(self, rig: CaptureRig) -> None: ...
 
     def as_json(self) -> dict[str, Any]: ...
 
@@ -63,7 +77,7 @@ class ReferenceCapture:
         self.gain_db: float | None = None
         self._tried = timer.reference is not None
 
-    def ensure(self, rig: Rig) -> None:
+    def ensure(self, rig: CaptureRig) -> None:
         """Capture the reference at the rig's posture unless the timer has one (or a capture
         was tried already)."""
         if self._tried:
@@ -158,7 +172,7 @@ class ReplayedCapture:
         self.averages = int(recorded.get("averages", CAPTURE_AVERAGES))
         self._tried = False
 
-    def ensure(self, rig: Rig) -> None:
+    def ensure(self, rig: CaptureRig) -> None:
         """Make the recorded capture's calls once."""
         if self._tried:
             return

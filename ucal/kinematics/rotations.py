@@ -115,3 +115,12 @@ def cross3(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     out[..., 1] = u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2]
     out[..., 2] = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
     return out
+
+
+def tangent_basis(a: np.ndarray) -> np.ndarray:
+    """Two unit vectors (2, 3) orthogonal to the unit ``a`` and to each other."""
+    a = np.asarray(a, float)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = np.cross(a, helper)
+    t1 /= np.linalg.norm(t1)
+    return np.array([t1, np.cross(a, t1)])

@@ -34,6 +34,11 @@ from ucal.rig import Rig
 #: Final approach of every move (deg short of the target on each joint), larger than any backlash.
 APPROACH_DEG = 0.05
 
+#: The approach direction the offsets belong to: every static posture is reached with each joint
+#: moving in its positive direction (``FinalApproachRig``), the link lagging its encoder
+#: by half the lost motion; SPEC.md ``approach`` ("centre": the middle of the lost motion).
+APPROACH = "positive"
+
 
 if TYPE_CHECKING:
     _RigProxy = Rig  # a FinalApproachRig stands wherever a Rig does

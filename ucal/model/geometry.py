@@ -32,6 +32,7 @@ from enum import IntEnum, StrEnum
 import numpy as np
 
 from ucal.kinematics.dh import RobotModel, fk_frames
+from ucal.kinematics.rotations import angle_between_deg
 
 
 class Face(IntEnum):
@@ -144,3 +145,8 @@ def tilt_components(geom: CellGeometry, beam: np.ndarray, face: int) -> np.ndarr
     face's in-plane axes, i.e. sines of the tilt in two perpendicular planes.
     """
     return beam @ face_basis(geom, face).T
+
+
+def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:
+    """True if the nominal beam lies within ``tol_deg`` of the joint-6 axis (flange z)."""
+    return bool(angle_between_deg(geom.beam_flange, np.array([0.0, 0.0, 1.0])) < tol_deg)

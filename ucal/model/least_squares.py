@@ -163,8 +163,8 @@ def solve_cell(
     ``fixed`` names parameters held at their prior values (e.g. the DH table while predicting
     postures during a run); ``start`` is a full parameter vector to start from (a previous
     estimate), ``tol`` the solver's tolerances; ``table`` the unknowns if not ``PARAMETERS``
-    with the prior's values and tolerances (``ucal.calibration.full`` adds Hayati's twist);
-    ``extra`` the rows of other measurements (``ucal.calibration.full``'s edge crossings);
+    with the prior's values and tolerances (``ucal.model.kinematic`` adds Hayati's twist);
+    ``extra`` the rows of other measurements (``ucal.model.kinematic``'s edge crossings);
     ``max_evaluations`` of the residuals at most (the trust region stops there, converged or
     not).
     The sound speed's drift and each joint's lost motion are held where no reading sees them

@@ -17,7 +17,7 @@ that ``calibrate`` has not written knows its offsets to a degree or so
 (``FRESH_OFFSET_STD_DEG``), which moves the tool centre by each joint's lever arm:
 ``offsets_margins_mm`` gives three sigma of that along the block's axes, posture by posture,
 for the water path and the hit point of a plan that may run before the offsets are calibrated
-(``ucal.calibration.full_plan``).
+(``ucal.model.postures``).
 """
 
 from __future__ import annotations

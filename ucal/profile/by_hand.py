@@ -21,11 +21,14 @@ from the A-scans (``timing = "ascan"``, the only timing such a cell has). These 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.pulser.base import PulserSettings
-from ucal.cell import DEFAULT_INPUT_NOISE_UV, SetByHand
+from ucal.cell import DEFAULT_INPUT_NOISE_UV, CellProfile, SetByHand
 from ucal.validation import Reader
+
+if TYPE_CHECKING:  # the echo code (scipy.signal) loads only where a panel is checked
+    from ucal.echo.by_hand import Declared
 
 #: ``[pulser] kind``: a pulser ucal talks to (``"remote"``, the default) or one set by hand.
 KINDS = ("remote", "manual")
@@ -90,3 +93,20 @@ def by_hand_to_dict(by_hand: SetByHand | None) -> dict[str, Any]:
         **{key: float(getattr(panel, key)) for key in PANEL_KEYS},
         "input_noise_uv": by_hand.input_noise_uv,
     }
+
+
+def declared_of(profile: CellProfile, full_screen_v: float = 1.0) -> Declared:
+    """What ``profile`` (whose pulser is set by hand) declares, for a digitiser whose full
+    screen is ``full_screen_v``."""
+    from ucal.echo.by_hand import Declared
+
+    by_hand = profile.pulser.by_hand
+    if by_hand is None:
+        raise ValueError(f"{profile.path}: the pulser is not set by hand")
+    return Declared(
+        by_hand.panel.gain_db,
+        profile.frequency_mhz,
+        by_hand.input_noise_uv,
+        full_screen_v,
+        str(profile.path or "the profile"),
+    )

@@ -130,7 +130,7 @@ def iso9283_truth(truth: WorldTruth, plan: Any) -> dict[str, Any]:
     the commanded one."""
     from scipy.spatial.transform import Rotation
 
-    from ucal.verify.iso9283 import POSE_NAMES, standard_figures
+    from ucal.iso9283 import POSE_NAMES, standard_figures
 
     cell = SimulatedCell(truth)
     sigma = np.asarray(truth.repeatability_deg, float)

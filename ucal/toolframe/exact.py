@@ -53,7 +53,8 @@ axis from the edge, so the amplitude along the scan coordinate t is::
                                                             crossing)
 
 (A1 takes up an echo that changes slowly along the scan on the plate: a beam drifting off
-normal, a bow of the plate.)
+normal, a bow of the plate; the fit is ``ucal.measure.edges.fit_edge_profile``, which verify's
+edge scans use too.)
 
 Solution. With ``a_T`` from (a) held fixed, ``p_T`` (3), and ψ_k, d_k per edge are the
 weighted least-squares solution of all (E2) and (E3) equations, in their exact ray form
@@ -72,9 +73,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.special import ndtr
 
-from ucal.kinematics.rotations import matrix_to_rpy, rpy_to_matrix
+from ucal.kinematics.rotations import matrix_to_rpy, rpy_to_matrix, tangent_basis
 from ucal.toolframe.plane import Plane
 
 log = logging.getLogger(__name__)
@@ -93,15 +93,6 @@ class BeamEstimate:
     std_deg: float  # one-sigma per tilt axis (deg)
     scatter_deg: float  # rms angle of the single estimates from the mean (deg)
     estimates: np.ndarray  # (k, 3) single estimates −R_E,iᵀ n
-
-
-def tangent_basis(a: np.ndarray) -> np.ndarray:
-    """Two unit vectors (2, 3) orthogonal to the unit ``a`` and to each other."""
-    a = np.asarray(a, float)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = np.cross(a, helper)
-    t1 /= np.linalg.norm(t1)
-    return np.array([t1, np.cross(a, t1)])
 
 
 def beam_from_normal_incidence(
@@ -128,86 +119,6 @@ def beam_from_normal_incidence(
         var *= max(1.0, chi2)
     cov = var * tb.T @ tb
     return BeamEstimate(a, cov, float(np.degrees(np.sqrt(var))), scatter, est)
-
-
-# ---------------------------------------------------------------------------------------------
-# (E4) edge profile
-
-
-@dataclass(frozen=True)
-class EdgeFit:
-    """Fitted edge profile along one scan (eq. E4)."""
-
-    crossing: float  # t_e, scan coordinate (mm) of the 50 % point
-    crossing_std: float  # one-sigma of t_e (mm)
-    amplitude: float  # A0 (any amplitude unit)
-    width_mm: float  # σ of the footprint (mm)
-    rms: float  # fit residual rms (amplitude units)
-
-
-def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -> EdgeFit:
-    """Fit ``A0·Φ(outward·(t_e − t)/σ)`` to amplitudes along a scan (eq. E4).
-
-    ``outward`` is +1 when the plate lies at smaller t (the echo falls as t grows), −1
-    otherwise. Raises ``ValueError`` if the scan does not contain a fall from the plate's
-    level to below half of it.
-    """
-    t = np.asarray(t_mm, float)
-    a = np.asarray(amps, float)
-    order = np.argsort(t)
-    t, a = t[order], a[order]
-    top = float(np.percentile(a, 90))
-    if not (np.min(a) < 0.5 * top < np.max(a)):
-        raise ValueError("the scan does not cross the edge (no fall to half amplitude)")
-    # start: where the amplitude passes half of the plate level
-    inside = a >= 0.5 * top
-    idx = np.nonzero(inside)[0]
-    t0 = float(t[idx].max() if outward > 0 else t[idx].min())
-
-    def model(p: np.ndarray) -> np.ndarray:
-        a0, te, sig, slope = p
-        return (a0 + slope * (t - te)) * ndtr(outward * (te - t) / sig)
-
-    span = float(t.max() - t.min())
-    p0 = np.array([top, t0, 1.5, 0.0])
-    lo = np.array([0.0, t.min(), 0.05, -top / max(span, 1e-9)])
-    hi = np.array([np.inf, t.max(), 0.5 * span + 1.0, top / max(span, 1e-9)])
-    p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
-    sol = least_squares(
-        lambda p: model(p) - a,
-        p0,
-        bounds=(lo, hi),
-        xtol=1e-14,
-        ftol=1e-14,
-        gtol=1e-14,
-        max_nfev=2000,
-    )
-    res = sol.fun
-    cov = _sandwich_cov(sol.jac, res, (1e-9 * sol.x[0]) ** 2)
-    return EdgeFit(
-        float(sol.x[1]),
-        float(np.sqrt(max(cov[1, 1], 0.0))),
-        float(sol.x[0]),
-        float(sol.x[2]),
-        float(np.sqrt(np.mean(res**2))),
-    )
-
-
-def _sandwich_cov(jac: np.ndarray, res: np.ndarray, floor: float) -> np.ndarray:
-    """Covariance of a least-squares fit from its Jacobian and residuals, each reading's
-    variance its own squared residual inflated by its leverage (HC3, MacKinnon and White 1985);
-    ``floor``: the least variance a reading is given.
-
-    An echo's noise is not the same along a scan: part of it is relative to the amplitude,
-    large on the plate and nil off it. A single variance (the residuals' mean square) spreads
-    the plate's noise over the probes off the plate, where there is none, and so understates
-    how far the plate's level, and with it the 50 % point, can move; each reading weighted by
-    its own residual does not, whatever the noise's shape.
-    """
-    bread = np.linalg.pinv(jac.T @ jac)
-    leverage = np.einsum("ij,jk,ik->i", jac, bread, jac)
-    var = np.maximum(res**2, floor) / np.maximum(1.0 - leverage, 1e-3) ** 2
-    return bread @ (jac.T * var) @ jac @ bread
 
 
 # ---------------------------------------------------------------------------------------------

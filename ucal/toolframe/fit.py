@@ -61,7 +61,7 @@ import numpy as np
 
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.dh import dh_matrix, fk_frames, transform
-from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.kinematics.rotations import rpy_to_matrix, tangent_basis
 from ucal.model.fit import (
     BACKLASH,
     DELAY,
@@ -95,7 +95,6 @@ from ucal.model.least_squares import (
 )
 from ucal.model.quality import effect_cause
 from ucal.model.residuals import approach_signs
-from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.plane import Plane
 
 #: Held at the profile's values, being the tool frame itself for these data: J6's offset (the

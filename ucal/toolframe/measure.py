@@ -43,7 +43,7 @@ from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.measure.acquire import PLATE, acquire_and_centre, acquisition_gain, open_water
 from ucal.measure.approach import FinalApproachRig
-from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
+from ucal.measure.edges import EDGES, EdgeFit, coarse_edge_fall, fine_edge_scan
 from ucal.measure.face import SearchMode
 from ucal.measure.running import PLATE_TRUST
 from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
@@ -54,7 +54,6 @@ from ucal.rig import Rig
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,
-    EdgeFit,
     TofRecord,
     along_beam_offset_mm,
     beam_from_normal_incidence,

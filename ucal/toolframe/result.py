@@ -9,11 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.result import APPROACH
 from ucal.cell import CellProfile, WorldTruth
-from ucal.kinematics.rotations import angle_between_deg
+from ucal.kinematics.rotations import angle_between_deg, tangent_basis
+from ucal.measure.approach import APPROACH
 from ucal.procedure import RunFacts
-from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
 from ucal.toolframe.solve import ToolFrameRun
 

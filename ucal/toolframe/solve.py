@@ -15,6 +15,7 @@ import numpy as np
 
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import transform
+from ucal.measure.edges import EdgeFit
 from ucal.measure.search import PeakResult
 from ucal.model.fit import offsets_prior_std_deg, prior_from_profile
 from ucal.progress import Report
@@ -22,7 +23,6 @@ from ucal.rig import Rig
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,
-    EdgeFit,
     OffsetEstimate,
     TofRecord,
     planned_edges,

@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
+from ucal.iso9283 import POSE_NAMES, orientation_figures, standard_figures
 from ucal.kinematics.dh import jacobian
 from ucal.verify.measure import PointResult, VerifyResult
 from ucal.verify.plan import (
@@ -69,7 +70,6 @@ MAX_SIDE_MM = 120.0
 SIDE_SHARES = (1.0, 0.8, 0.6, 0.4)
 #: Draws of the parametric bootstrap (seeded: the figures of a run are reproducible).
 BOOTSTRAP_DRAWS = 4000
-POSE_NAMES = ("P1", "P2", "P3", "P4", "P5")
 #: The wrist's joints, whose scatter at a pose no echo here sees, are taken to scatter by up to
 #: this many times the angle the arm's measured scatter gives joints 1-3 (uniform from zero):
 #: a wrist's gears are smaller and nearer the tool, its angular repeatability no better.
@@ -137,29 +137,6 @@ def orientation_deviation_deg(
     Y, Z (deg): ``a``, ``b``, ``c`` of ISO 9283."""
     attained = point.flange_local @ profile.tool_matrix[:3, :3]
     return Rotation.from_matrix(attained @ commanded.T).as_rotvec(degrees=True)
-
-
-def standard_figures(x: np.ndarray, commanded: np.ndarray) -> dict[str, np.ndarray]:
-    """ISO 9283's position figures of attained positions ``x`` (..., n, 3) against
-    ``commanded`` (3,): ``ap_xyz`` (..., 3), ``ap``, ``l_mean``, ``s_l``, ``rp`` (...)."""
-    mean = x.mean(axis=-2)
-    ap_xyz = mean - commanded
-    dist = np.linalg.norm(x - mean[..., None, :], axis=-1)
-    l_mean = dist.mean(axis=-1)
-    s_l = dist.std(axis=-1, ddof=1)
-    return {
-        "ap_xyz": ap_xyz,
-        "ap": np.linalg.norm(ap_xyz, axis=-1),
-        "l_mean": l_mean,
-        "s_l": s_l,
-        "rp": l_mean + 3.0 * s_l,
-    }
-
-
-def orientation_figures(abc: np.ndarray) -> dict[str, np.ndarray]:
-    """ISO 9283's orientation figures of attained deviations ``abc`` (..., n, 3; deg):
-    ``ap_abc`` (mean) and ``rp_abc`` (3·S) per component."""
-    return {"ap_abc": abc.mean(axis=-2), "rp_abc": 3.0 * abc.std(axis=-2, ddof=1)}
 
 
 def _finite(values: np.ndarray) -> list[float | None]:

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.sequence import geometry
 from ucal.cell import CellProfile
 from ucal.errors import HardwareError, SafetyError
 from ucal.kinematics.dh import fk_frames
@@ -37,6 +36,7 @@ from ucal.model.geometry import (
 from ucal.model.safety import (
     MIN_WATER_PATH_MM,
 )
+from ucal.model.targets import geometry
 from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
@@ -62,7 +62,7 @@ from ucal.verify.solve import (
     solve_tool_offset,
     tool_offset,
 )
-from ucal.verify.tank import start_speed
+from ucal.verify.tank import TankEstimate, start_speed
 
 log = logging.getLogger(__name__)
 
@@ -533,3 +533,42 @@ def scan_edge(
         fit.rms,
     )
     return EdgeCheck(axis, point.index, size, fit.crossing, fit.crossing_std, n_probes)
+
+
+def tank_corrected(result: VerifyResult, tank: TankEstimate, conversion_m_s: float) -> VerifyResult:
+    """``result`` with every water path converted at the tank's speed of its time.
+
+    Face k's path gives the wrist centre's block coordinate k (``W_k = d_k + a_T·v``), so a
+    path read at c_v, ``d·c(t)/c_v`` truly, moves W and the reached TCP by ``d·(c(t)/c_v − 1)``
+    on that axis. The tool check's crossings are wrist-centre estimates carried from their
+    point's W: each moves with its point's, and the tool's bias is solved again from them.
+    """
+
+    def shift(p: PointResult) -> np.ndarray:
+        return np.array(
+            [m.distance_mm * (tank.speed_at(m.time_min) / conversion_m_s - 1.0) for m in p.faces]
+        )
+
+    shifts = {(p.pass_name, p.index): shift(p) for p in result.points}
+    checks = tuple(
+        replace(c, crossing_mm=c.crossing_mm + shifts[("after", c.point)][c.axis])
+        for c in result.edge_checks
+    )
+    old, tool = result.tool, result.tool
+    if old is not None and checks:
+        after = {p.index: p for p in result.points if p.pass_name == "after"}
+        tool = solve_tool_offset(
+            checks, [after[c.point].flange_local for c in checks], old.beam_flange
+        )
+
+    def corrected(p: PointResult) -> PointResult:
+        d = shifts[(p.pass_name, p.index)]
+        reached = p.reached_mm + d
+        if old is not None and tool is not None:
+            reached = reached - old.bias(p.flange_local) + tool.bias(p.flange_local)
+        faces = tuple(replace(m, distance_mm=m.distance_mm + d[k]) for k, m in enumerate(p.faces))
+        return replace(p, faces=faces, wrist_centre_mm=p.wrist_centre_mm + d, reached_mm=reached)
+
+    return replace(
+        result, points=[corrected(p) for p in result.points], edge_checks=checks, tool=tool
+    )

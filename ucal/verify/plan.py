@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.plan import calibration_pose, geometry, tool_lever
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError, UnreachableError
 from ucal.kinematics.dh import fk_frames
@@ -40,6 +39,7 @@ from ucal.model.geometry import (
 from ucal.model.readings import CalibrationReadings
 from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, Margins
 from ucal.model.spread import aim_spread, pose_spread
+from ucal.model.targets import calibration_pose, geometry, tool_lever
 from ucal.model.wrist import aim_wrist
 
 log = logging.getLogger(__name__)

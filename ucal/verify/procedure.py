@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.sequence import calibration_pose
 from ucal.cell import CellProfile
 from ucal.model.geometry import FACE_ORDER, distance_joints
 from ucal.model.priors import prior_from_profile
 from ucal.model.readings import CalibrationReadings
+from ucal.model.targets import calibration_pose
 from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report
@@ -44,7 +44,7 @@ from ucal.verify.inputs import (
     written_budget,
 )
 from ucal.verify.iso9283 import iso_figures, iso_summary, plan_iso9283
-from ucal.verify.measure import VerifyResult, run_verify
+from ucal.verify.measure import VerifyResult, run_verify, tank_corrected
 from ucal.verify.picture import DPI, PictureText, verify_figure, verify_picture_path
 from ucal.verify.plan import DEFAULT_POINTS, VerifyPlan, plan_summary, plan_verify, with_tank
 from ucal.verify.result import (
@@ -60,7 +60,7 @@ from ucal.verify.result import (
     water_note,
 )
 from ucal.verify.solve import unidentified_at_points_mm
-from ucal.verify.tank import estimate_tank, tank_corrected
+from ucal.verify.tank import estimate_tank
 from ucal.verify.uncertainty import measurement_std_mm, point_stds_mm, table_share
 
 #: A water path read again where calibrate read it: no search, the readings of one path.

@@ -5,7 +5,7 @@ postures spread like a full calibration's.
 pass it and still be wrong across the workspace. Here the model under test (the profile's
 table, ``[calibration] dh`` where present, with its joint offsets and tool) is held fixed and
 the block is measured from N postures spread over what the block allows (the candidates of
-``ucal.calibration.full_plan``, chosen farthest apart in J1-J3 and face, not the calibration's
+``ucal.model.postures``, chosen farthest apart in J1-J3 and face, not the calibration's
 own). Each measurement gives a normal-incidence posture and a water path; only the block's pose,
 the sound speed and the tool's orientation are fitted to them (the cell's, not the robot's
 kinematics), so what remains
@@ -13,9 +13,9 @@ is the model's error in the directions ultrasound sees: the beam's tilt (deg) an
 along each face's normal (mm). A χ² test against the measurements' own noise gives the verdict;
 the largest residuals must stay within ``--tolerance-mm`` (distances) as well.
 
-The run is the full level's (``ucal.calibration.full_run.run_full``): each posture's arm is
+The run is the full level's (``ucal.measure.postures.run_full``): each posture's arm is
 re-placed onto the block as measured so far (``retarget``). So the postures keep the full
-plan's room for what the run does not know yet (``ucal.calibration.full_plan.visit_order``):
+plan's room for what the run does not know yet (``ucal.model.postures.visit_order``):
 three sigma of the block's tolerance and of the joint offsets' std (``[calibration] std_deg``;
 a fresh cell's degree where ``calibrate`` has not written it, so after a calibrate the room
 shrinks to what is left), visited in an order where each has it, or the plan is refused before
@@ -30,18 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from ucal.calibration.full_plan import (
-    FullPlan,
-    Posture,
-    candidate_postures,
-    no_candidates,
-    posture_jacobians,
-    unknown_spread,
-    visit_order,
-)
-from ucal.calibration.full_run import FullRun, run_full
-from ucal.calibration.procedure import estimate_postures, plan_rows
 from ucal.cell import CellProfile
+from ucal.measure.postures import FullRun, estimate_postures, run_full
 from ucal.model.fit import (
     BETA,
     DH,
@@ -52,7 +42,16 @@ from ucal.model.fit import (
     solve_cell,
 )
 from ucal.model.geometry import FaceMeasurement
-from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts
+from ucal.model.postures import (
+    FullPlan,
+    Posture,
+    candidate_postures,
+    no_candidates,
+    posture_jacobians,
+    unknown_spread,
+    visit_order,
+)
+from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, plan_rows
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate

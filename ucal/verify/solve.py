@@ -18,16 +18,16 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ucal.calibration.sequence import geometry
 from ucal.cell import CellProfile
 from ucal.kinematics.dh import RobotModel, fk_frames
+from ucal.kinematics.rotations import tangent_basis
 from ucal.model.geometry import (
     CellGeometry,
     beam_and_tcp,
 )
 from ucal.model.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
+from ucal.model.targets import geometry
 from ucal.model.wrist import aim_wrist
-from ucal.toolframe.exact import tangent_basis
 from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
 
 

@@ -9,7 +9,7 @@ side to about 0.02 mm (``REPEAT_STD_MM``): the water path is the same, and the r
 times of flight is the ratio of the sound speeds (``speed_from_repeats``). The start and the
 end give the drift within the run; each verify reading's time places it on that line
 (``TankEstimate.speed_at``), and its water path is converted with that speed
-(``tank_corrected``).
+(``ucal.verify.measure.tank_corrected``).
 
 A block that moved since changes the paths too, but not alike: a translation δ moves face k's
 path by −n_k·δ, whatever its length, a sound speed change moves every path in proportion to
@@ -22,8 +22,8 @@ within the readings' noise moves each reading by no more than the arm's repeatab
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.special import chdtrc
@@ -32,10 +32,6 @@ from ucal.acoustics import sound_speed_m_s, temperature_for_speed_c
 from ucal.cell import CellProfile
 from ucal.model.geometry import FaceMeasurement
 from ucal.model.readings import CalibrationReadings
-from ucal.verify.solve import solve_tool_offset
-
-if TYPE_CHECKING:  # measure reads the start's speed here
-    from ucal.verify.measure import PointResult, VerifyResult
 
 #: One sigma of a water path read again at the same joints, each joint reached from the same
 #: side (mm): the arm's repeatability, about 0.02 mm, taken as two sigma.
@@ -293,43 +289,4 @@ def estimate_tank(
         start.m_s * own if np.isfinite(own) else 0.0,
         reference.speed_at(then_time),
         then_time,
-    )
-
-
-def tank_corrected(result: VerifyResult, tank: TankEstimate, conversion_m_s: float) -> VerifyResult:
-    """``result`` with every water path converted at the tank's speed of its time.
-
-    Face k's path gives the wrist centre's block coordinate k (``W_k = d_k + a_T·v``), so a
-    path read at c_v, ``d·c(t)/c_v`` truly, moves W and the reached TCP by ``d·(c(t)/c_v − 1)``
-    on that axis. The tool check's crossings are wrist-centre estimates carried from their
-    point's W: each moves with its point's, and the tool's bias is solved again from them.
-    """
-
-    def shift(p: PointResult) -> np.ndarray:
-        return np.array(
-            [m.distance_mm * (tank.speed_at(m.time_min) / conversion_m_s - 1.0) for m in p.faces]
-        )
-
-    shifts = {(p.pass_name, p.index): shift(p) for p in result.points}
-    checks = tuple(
-        replace(c, crossing_mm=c.crossing_mm + shifts[("after", c.point)][c.axis])
-        for c in result.edge_checks
-    )
-    old, tool = result.tool, result.tool
-    if old is not None and checks:
-        after = {p.index: p for p in result.points if p.pass_name == "after"}
-        tool = solve_tool_offset(
-            checks, [after[c.point].flange_local for c in checks], old.beam_flange
-        )
-
-    def corrected(p: PointResult) -> PointResult:
-        d = shifts[(p.pass_name, p.index)]
-        reached = p.reached_mm + d
-        if old is not None and tool is not None:
-            reached = reached - old.bias(p.flange_local) + tool.bias(p.flange_local)
-        faces = tuple(replace(m, distance_mm=m.distance_mm + d[k]) for k, m in enumerate(p.faces))
-        return replace(p, faces=faces, wrist_centre_mm=p.wrist_centre_mm + d, reached_mm=reached)
-
-    return replace(
-        result, points=[corrected(p) for p in result.points], edge_checks=checks, tool=tool
     )

@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.full import (
+from ucal.calibration.procedure import FullCalibration, write_calibration
+from ucal.calibration.result import FullSolved, Verdict
+from ucal.errors import ProfileError
+from ucal.model.fit import DH, PARAMETERS, CellFit, prior_from_profile
+from ucal.model.kinematic import (
     KINEMATIC,
     FullSolution,
     Identifiability,
     IdentifiedParameter,
     full_table,
 )
-from ucal.calibration.procedure import FullCalibration, write_calibration
-from ucal.calibration.result import FullSolved, Verdict
-from ucal.errors import ProfileError
-from ucal.model.fit import DH, PARAMETERS, CellFit, prior_from_profile
 from ucal.model.quality import FitQuality
 from ucal.profile import default_profile_text, load_profile
 from ucal.toolframe.fit import _Data, _table, plate_prior

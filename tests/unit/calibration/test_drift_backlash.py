@@ -13,7 +13,6 @@ import pytest
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.full import full_table
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import transform, wrist_centre
 from ucal.model import least_squares
@@ -30,6 +29,7 @@ from ucal.model.fit import (
     solve_cell,
 )
 from ucal.model.geometry import CellGeometry, FaceMeasurement
+from ucal.model.kinematic import full_table
 from ucal.model.least_squares import (
     curvature_covariance,
     curvature_std_m_s_per_min2,

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ucal.calibration.full import solve_full
 from ucal.model.fit import prior_from_profile
+from ucal.model.kinematic import solve_full
 from ucal.profile import load_profile
 from ucal.record import decode
 

@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import sound_speed_m_s
-from ucal.calibration.full import (
-    aligned_errors_mm,
-    scanning_postures,
-    solve_full,
-)
-from ucal.calibration.full_plan import candidate_postures, plan_full
-from ucal.calibration.sequence import calibration_pose
 from ucal.cell import Step
 from ucal.kinematics.dh import fk
 from ucal.model.fit import prior_from_profile
 from ucal.model.gauge import j1_relative_to_block
+from ucal.model.kinematic import (
+    aligned_errors_mm,
+    scanning_postures,
+    solve_full,
+)
+from ucal.model.postures import candidate_postures, plan_full
+from ucal.model.targets import calibration_pose
 from ucal.profile import load_profile
 from ucal.verify.region import judge_region, plan_region
 

@@ -18,16 +18,12 @@ import pytest
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.exact import solve_exact_with_priors
-from ucal.calibration.sequence import (
-    PlannedTarget,
-    geometry,
-    plan_calibration,
-    with_lost_motion,
-)
 from ucal.cell import CellProfile
 from ucal.measure.running import PATH_ONLY_TILT_STD_DEG
+from ucal.measure.sequence import with_lost_motion
 from ucal.model.fit import RunEffects, prior_from_profile
 from ucal.model.geometry import FaceMeasurement, beam_and_tcp
+from ucal.model.targets import PlannedTarget, geometry, plan_calibration
 from ucal.model.wrist import aim_wrist
 from ucal.profile import load_profile
 

@@ -16,15 +16,14 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.full_plan import Posture, order_postures, plan_full
-from ucal.calibration.full_run import retarget
-from ucal.calibration.plan import calibration_pose, geometry, plan_calibration
 from ucal.cell import CellProfile, Step
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk, fk_frames
 from ucal.kinematics.ik import ik
 from ucal.kinematics.rotations import rpy_to_matrix
+from ucal.measure.postures import retarget
 from ucal.model.geometry import CellGeometry, Configuration, Face, beam_and_tcp
+from ucal.model.postures import Posture, order_postures, plan_full
 from ucal.model.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
@@ -35,6 +34,7 @@ from ucal.model.safety import (
     step_blocked,
     tolerance_margins,
 )
+from ucal.model.targets import calibration_pose, geometry, plan_calibration
 from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 from ucal.verify.region import plan_region
@@ -82,7 +82,7 @@ def test_the_full_plan_of_a_tx90xl_with_its_block_at_two_sigma_keeps_the_run_in_
         truth = CellGeometry(profile.model, profile.tool_matrix, rot)
         for p in plan.postures:
             check_joints(profile, p.joints_deg, p.label, tolerance_deg=margins.wrist_deg)
-            # as the run predicts it before moving there (full_run.check_prediction)
+            # as the run predicts it before moving there (ucal.measure.running.check_prediction)
             q = aim_wrist(truth, p.joints_deg, -truth.normal(p.face), off)
             check_joints(profile, q, p.label, SEARCH_MARGIN_DEG)
             assert p.water_path_mm >= MIN_WATER_PATH_MM + margins.block_mm

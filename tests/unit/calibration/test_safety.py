@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.plan import calibration_pose, geometry
 from ucal.errors import SafetyError
 from ucal.model.geometry import Face
 from ucal.model.safety import MIN_WATER_PATH_MM, check_face, tolerance_margins
+from ucal.model.targets import calibration_pose, geometry
 from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 

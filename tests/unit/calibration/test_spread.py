@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import tomlkit
 
-from ucal.calibration.plan import geometry, plan_calibration
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.model.geometry import Configuration
 from ucal.model.safety import SEARCH_MARGIN_DEG, check_joints
 from ucal.model.spread import OFFSETS, TOOL, aim_spread
+from ucal.model.targets import geometry, plan_calibration
 from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from ucal.calibration.budget import UNSEEN, tcp_budget
-from ucal.calibration.full import aligned_errors_mm, scanning_postures, solve_full
-from ucal.calibration.full_plan import plan_full
-from ucal.calibration.sequence import calibration_pose
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.model.fit import OFFSETS, prior_from_profile, solve_cell, table_geometry
 from ucal.model.geometry import CellGeometry, beam_and_tcp
+from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_full
+from ucal.model.postures import plan_full
+from ucal.model.targets import calibration_pose
 from ucal.profile import load_profile
 
 from doubles import measured_cell

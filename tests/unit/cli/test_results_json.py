@@ -17,16 +17,8 @@ import ucal.cli.calibrate as calibrate_cli
 import ucal.cli.procedure as cli_procedure
 from ucal.calibration.budget import TcpBudget
 from ucal.calibration.exact import OffsetSolution
-from ucal.calibration.full import FullSolution, Identifiability, IdentifiedParameter, full_table
-from ucal.calibration.full_plan import FullPlan
 from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
-from ucal.calibration.result import (
-    FullResult,
-    FullSolved,
-    OffsetsResult,
-    OffsetsSolved,
-    Verdict,
-)
+from ucal.calibration.result import FullResult, FullSolved, OffsetsResult, OffsetsSolved, Verdict
 from ucal.calibration.weak import WeakJoint
 from ucal.cell import CellProfile
 from ucal.check.judge import Quantity
@@ -35,7 +27,9 @@ from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckFindings, CheckResult
 from ucal.cli.options import _to_jsonable
 from ucal.model.fit import prior_from_profile
+from ucal.model.kinematic import FullSolution, Identifiability, IdentifiedParameter, full_table
 from ucal.model.least_squares import CellFit
+from ucal.model.postures import FullPlan
 from ucal.model.quality import FitQuality, ResidualRow
 from ucal.procedure import CommandResult, Outcome, RunFacts, RunOptions
 from ucal.profile import load_profile

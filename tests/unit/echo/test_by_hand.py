@@ -11,13 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.digitizer.base import AScanRecord, EchoTiming
-from ucal.echo.by_hand import (
-    GAIN_TOLERANCE_DB,
-    Declared,
-    FirstEchoCheck,
-    judge,
-    look,
-)
+from ucal.echo.by_hand import GAIN_TOLERANCE_DB, Declared, FirstEchoCheck, judge, look
 from ucal.errors import ProfileError
 
 DT_NS = 5.0  # 200 MS/s

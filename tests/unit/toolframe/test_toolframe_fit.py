@@ -14,14 +14,13 @@ import tomlkit
 from ucal.acoustics import sound_speed_m_s
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.ik import ik
-from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix, tangent_basis
 from ucal.model import least_squares
 from ucal.model.fit import offsets_prior_std_deg, prior_from_profile
 from ucal.model.geometry import CellGeometry, beam_and_tcp
 from ucal.model.least_squares import CURVATURE
 from ucal.model.wrist import aim_wrist
 from ucal.profile import default_profile_text, profile_from_data
-from ucal.toolframe.exact import tangent_basis
 from ucal.toolframe.fit import (
     TOLERANCE_POSITION_MM,
     PlateCrossing,

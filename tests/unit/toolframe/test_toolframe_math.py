@@ -7,17 +7,16 @@ import pytest
 
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import transform
-from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
+from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix, tangent_basis
+from ucal.measure.edges import fit_edge_profile
 from ucal.toolframe.exact import (
     EdgeCrossing,
     TofRecord,
     along_beam_offset_mm,
     beam_from_normal_incidence,
-    fit_edge_profile,
     rot_about,
     rotation_for_beam,
     solve_offsets,
-    tangent_basis,
 )
 from ucal.toolframe.paper import residuals_mm, solve_paper
 from ucal.toolframe.plan import tcp_pose

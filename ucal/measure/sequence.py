@@ -1,5 +1,5 @@
 """The joint-offset calibration sequence of paper 000: measure and solve what
-``ucal.calibration.plan`` planned and checked.
+``ucal.model.targets`` planned and checked.
 
 Configurations: the calibration pose ("base"), joint 3 stepped by δθ3 ("j3"), back, joint 2
 stepped by δθ2 ("j2") — paper 000's three — and, where the cell leaves room, joint 1 stepped
@@ -43,25 +43,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.exact import OffsetSolution, solve_exact_with_priors
-from ucal.calibration.paper import solve_paper
-from ucal.calibration.plan import (
-    STEPPED_PATH_RANGE_MM,
-    CalibrationPlan,
-    config_arm,
-)
-from ucal.calibration.plan import PlannedTarget as PlannedTarget
-from ucal.calibration.plan import calibration_pose as calibration_pose
-from ucal.calibration.plan import geometry as geometry
-from ucal.calibration.plan import plan_calibration as plan_calibration
 from ucal.cell import CellProfile
 from ucal.errors import SafetyError
 from ucal.measure.face import SearchMode
 from ucal.measure.running import RunningEstimate
-from ucal.model.fit import (
-    TOOL,
-    prior_from_profile,
-)
 from ucal.model.geometry import (
     FACE_NAMES,
     FACE_ORDER,
@@ -74,6 +59,12 @@ from ucal.model.safety import (
     MIN_WATER_PATH_MM,
     beam_meets_step,
     face_hit,
+)
+from ucal.model.targets import (
+    STEPPED_PATH_RANGE_MM,
+    CalibrationPlan,
+    config_arm,
+    geometry,
 )
 from ucal.model.wrist import aim_wrist
 from ucal.progress import MeasureStep, Report
@@ -322,36 +313,3 @@ def measure_above(
         )
         out.append(found.measurement)
     return out
-
-
-def beam_fixed(beam: str) -> tuple[str, ...]:
-    """The unknowns ``--beam fixed`` holds at the profile's values: the tool's orientation
-    (and so the beam direction); none otherwise."""
-    return TOOL[3:] if beam == "fixed" else ()
-
-
-def solve(
-    profile: CellProfile, run: CalibrationRun, beam: str = "auto"
-) -> tuple[OffsetSolution, OffsetSolution | None]:
-    """Both solutions from one run's measurements: exact with the cell's tolerances as priors,
-    and paper 000's (None if it cannot be applied, e.g. a DH table of another structure).
-
-    ``beam``: "fixed" holds the tool orientation (and so the beam direction) at the profile's
-    value; otherwise it is an unknown with the profile's tolerance as prior.
-    """
-    prior = prior_from_profile(profile)
-    exact = solve_exact_with_priors(prior, run.measurements, fixed=beam_fixed(beam))
-    try:
-        paper = solve_paper(
-            geometry(profile),
-            run.measurements,
-            profile.joint_offsets_deg,
-            exact.unobservable_joints,
-            exact.condition_number,
-            prior=prior,
-            reasons=exact.unobservable_reasons,
-        )
-    except Exception as e:
-        log.warning("paper method failed: %s", e)
-        paper = None
-    return exact, paper

@@ -3,7 +3,7 @@ checked before the first motion (``SafetyError``, exit 4).
 
 Configurations: the calibration pose ("base"), joint 3 stepped ("j3"), joint 2 stepped ("j2")
 and, where the cell leaves room, joint 1 stepped ("j1"); in each the wrist aims the beam normal
-to the block's three faces (``ucal.calibration.sequence`` measures them).
+to the block's three faces (``ucal.measure.sequence`` measures them).
 
 The calibration pose. The profile's (``[procedure] calibration_pose_deg``, or one computed from
 the block) is tried first; where a target of it fails a check, poses are searched: the wrist
@@ -26,7 +26,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.exact import beam_on_axis
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.dh import fk_frames
@@ -41,6 +40,7 @@ from ucal.model.geometry import (
     Face,
     FaceMeasurement,
     beam_and_tcp,
+    beam_on_axis,
     face_basis,
 )
 from ucal.model.safety import (
@@ -92,10 +92,10 @@ class CalibrationPlan:
     #: Offset std (deg) per 1 µm of water-path noise on every measurement, per joint.
     distance_noise_gain_deg_per_um: np.ndarray | None = None
     #: Read the first face's water path again at the end, where it was read (the tank's
-    #: drift: ``ucal.calibration.sequence``).
+    #: drift: ``ucal.measure.sequence``).
     path_again: bool = True
     #: Targets measured again from above at the end (each joint's lost motion:
-    #: ``ucal.calibration.sequence.with_lost_motion``); none by default.
+    #: ``ucal.measure.sequence.with_lost_motion``); none by default.
     above: tuple[PlannedTarget, ...] = ()
     #: The signed steps (deg) of each stepped configuration whose wrist postures keep the
     #: room the declared tolerances need (``checked_steps``): the run steps by one of them

@@ -2,23 +2,23 @@
 
 Read top to bottom: noise floor and acquisition gain once; on a profile whose offsets were
 never calibrated, the offsets level's faces first (``FullPlan.first``,
-``ucal.calibration.sequence.measure_targets``: the calibration pose, J3, J2 and J1 stepped),
+``ucal.measure.sequence.measure_targets``: the calibration pose, J3, J2 and J1 stepped),
 the running estimate carried on from them (they place the postures; the model is identified
 from the postures' faces, ``FullRun.first`` keeps them apart); then for every planned posture
-(``ucal.calibration.full_plan``, visiting order) the face measured by the running estimate of
+(``ucal.model.postures``, visiting order) the face measured by the running estimate of
 ``ucal.measure.running`` (the posture predicted with the cell as measured so far, checked
 before moving, searched as the one trust policy says, the estimate refitted), every move
 ending from below on each joint (``FinalApproachRig``: backlash), or from above on the
 postures the plan turns (``FullPlan.above``: each joint read from both sides, its lost motion
 measured; the offsets stay those of the positive approach). At the end the early faces'
-probes are fitted again with the final estimate, and ``ucal.calibration.full.solve_full``
+probes are fitted again with the final estimate, and ``ucal.model.kinematic.solve_full``
 identifies the model.
 
 Each posture is moved first so that the tool centre stands where the plan put it relative to
 the block as the run has measured it so far (``retarget``): the plan's arm joints on a cell
 whose offsets are a degree off would put it tens of millimetres from there on a TX90XL, which
 the wrist's aim alone does not correct (the plan keeps room for what the run does not know yet,
-``ucal.calibration.full_plan.visit_order``). The prediction holds the DH table at the profile's
+``ucal.model.postures.visit_order``). The prediction holds the DH table at the profile's
 (a few tenths of a millimetre move a posture by hundredths of a degree): the search around
 each prediction absorbs that. A face whose peak
 came out uncertain (``ucal.measure.running.UNCERTAIN_TILT_DEG``) is left out of the
@@ -27,7 +27,7 @@ predictions and measured again at the end.
 A posture over the step of known height (``[step]``, the length standard) is measured like one
 on the XY face, its top being parallel to it; its water path is kept apart (``FullRun.steps``:
 the running estimate and the peaks' refit know only the faces) and enters the identification
-with the step's height (``ucal.calibration.full.step_residuals``).
+with the step's height (``ucal.model.kinematic.step_residuals``).
 """
 
 from __future__ import annotations
@@ -37,17 +37,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ucal.calibration.full_plan import FullPlan, Posture
-from ucal.calibration.sequence import geometry, measure_targets, start_running
 from ucal.cell import CellProfile
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik
 from ucal.measure.face import SearchMode
 from ucal.measure.running import UNCERTAIN_TILT_DEG, RunningEstimate
+from ucal.measure.sequence import measure_targets, start_running
 from ucal.model.geometry import FACE_NAMES, Face, FaceMeasurement
+from ucal.model.postures import FullPlan, Posture, first_postures
+from ucal.model.targets import geometry
+from ucal.models import joint_speeds_deg_s
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
+from ucal.timing import DurationEstimate, estimate_run
 
 log = logging.getLogger(__name__)
 
@@ -175,3 +178,15 @@ def run_full(
         progress(MeasureStep("solving", total, total))
     n = taken.count(-1)  # the offsets level's faces come first
     return FullRun(meas[n:], steps, rig.counters.moves, rig.counters.reads, meas[:n])
+
+
+def estimate_postures(plan: FullPlan, profile: CellProfile) -> DurationEstimate:
+    """The real-cell duration of measuring each of ``plan``'s postures as ``run_full`` does
+    (the offsets level's faces first where the plan has them)."""
+    targets = [p.joints_deg for p in first_postures(plan.first) + list(plan.postures)]
+    return estimate_run(
+        targets,
+        targets[0],
+        profile.procedure.speed,
+        speeds_deg_s=joint_speeds_deg_s(profile.model),
+    )

@@ -7,7 +7,7 @@ the DH lengths ``d``, ``a`` and twists ``α`` of every link) plus Hayati's twist
 of the nearly parallel axes 2 and 3 (``A₂ = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``): a modified DH
 model. Every unknown has the profile's value and tolerance as its prior; the measurements are
 the face measurements of ``ucal.model.geometry`` (normal-incidence postures and water
-paths), taken in many arm configurations (``ucal.calibration.full_plan``).
+paths), taken in many arm configurations (``ucal.model.postures``).
 
 Identifiability, from the data Jacobian ``J`` (rows in units of their σ, columns per prior σ)
 at the profile's values: the nuisance quantities (block pose, tool frame) and the joint offsets span

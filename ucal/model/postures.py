@@ -15,7 +15,7 @@ declared tolerances can move a posture by (``ucal.model.safety.tolerance_margins
 block anywhere within its tolerance is measured without a posture leaving the checks.
 
 Criterion. A candidate contributes three rows to the data Jacobian ``J`` (two tilts and the
-water path, each in units of its σ; columns per prior σ, ``ucal.calibration.full``). The
+water path, each in units of its σ; columns per prior σ, ``ucal.model.kinematic``). The
 information of a plan is ``M = I + Σ JᵢᵀJᵢ`` (the identity: the priors); the D-criterion is
 ``log det M`` over the unknowns, and its value per unknown, ``D = log det M / (2n)``, is the
 mean log of how many times the plan shrinks the prior's σ (geometric mean). Selection is
@@ -24,7 +24,7 @@ greedy (Fedorov's exchange without the exchange): the candidate that raises ``lo
 than ``MIN_GAIN`` (then more postures buy little: fewer moves for the same criterion).
 
 Order. The run moves each posture's arm so that the tool stands where the plan put it relative
-to the cell as measured so far (``ucal.calibration.full_run.retarget``); what it does not know
+to the cell as measured so far (``ucal.measure.postures.retarget``); what it does not know
 yet moves the tool from there. Each posture, when the run gets to it, must keep room for three
 sigma of that (``visit_order``): what the block's tolerance and the offsets' uncertainty move
 the tool centre by along each block axis (``ucal.model.safety.offsets_margins_mm``: a
@@ -66,26 +66,19 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ucal.calibration.full import (
-    Identifiability,
-    data_jacobian,
-    full_table,
-    ideal_measurements,
-    identifiability,
-)
-from ucal.calibration.plan import (
-    STEPPED_PATH_RANGE_MM,
-    CalibrationPlan,
-    calibration_pose,
-    geometry,
-    plan_calibration,
-)
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile
 from ucal.errors import SafetyError, UcalError
 from ucal.kinematics.dh import fk_frames
 from ucal.kinematics.ik import ik_solutions
 from ucal.model.fit import BACKLASH, OFFSETS, CellPrior, prior_from_profile
 from ucal.model.geometry import FACE_NAMES, Face
+from ucal.model.kinematic import (
+    Identifiability,
+    data_jacobian,
+    full_table,
+    ideal_measurements,
+    identifiability,
+)
 from ucal.model.safety import (
     EDGE_MARGIN_MM,
     MIN_WATER_PATH_MM,
@@ -97,6 +90,13 @@ from ucal.model.safety import (
     reach_advice,
     step_blocked,
     tolerance_margins,
+)
+from ucal.model.targets import (
+    STEPPED_PATH_RANGE_MM,
+    CalibrationPlan,
+    calibration_pose,
+    geometry,
+    plan_calibration,
 )
 
 log = logging.getLogger(__name__)
@@ -272,7 +272,7 @@ def _clear(
 def _arm_room(profile: CellProfile, q: np.ndarray) -> np.ndarray:
     """Which postures (n, 6) keep joints 1-3 ``TOLERANCE_SIGMAS`` of the offsets' planning std
     (``offsets_std_deg``) inside their ranges: the run re-places each posture's arm with the
-    offsets as measured (``ucal.calibration.full_run.retarget``), which moves those joints by
+    offsets as measured (``ucal.measure.postures.retarget``), which moves those joints by
     the offsets' error in the profile; a posture at a limit would have no solution on its
     branch."""
     room = TOLERANCE_SIGMAS * offsets_std_deg(profile)[:3]
@@ -349,7 +349,7 @@ def posture_jacobians(
     """Data Jacobian of each posture (n, 3, p): its three rows (tilts, water path, per σ)
     against the unknowns of ``full_table`` (per prior σ), at the profile's values; and the
     unknowns' names. A posture over the step has only its water path row (its tilts are not
-    used: ``ucal.calibration.full.step_residuals``)."""
+    used: ``ucal.model.kinematic.step_residuals``)."""
     meas = ideal_measurements(
         geometry(profile),
         profile.sample_position_mm,
