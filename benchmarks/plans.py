@@ -45,7 +45,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import tomlkit
 from _quick import parse_args
 from scipy.spatial.transform import Rotation
 
@@ -56,7 +55,7 @@ from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.model.targets import geometry, plan_calibration
 from ucal.models import KNOWN_MODELS
-from ucal.profile import default_profile_text, profile_from_data
+from ucal.profile import default_profile_text, profile_from_text
 from ucal.toolframe.plan import QUARTER_TURNS_TILT_DEG, ToolFramePlan, plan_tool_frame
 from ucal.verify.plan import plan_verify
 from ucal.verify.region import plan_region
@@ -105,7 +104,7 @@ class Case:
 
 def template(model: str) -> CellProfile:
     """The profile ``ucal profile init MODEL`` writes."""
-    return profile_from_data(tomlkit.parse(default_profile_text(model)), f"{model}.toml")
+    return profile_from_text(default_profile_text(model), f"{model}.toml")
 
 
 def profile_of(case: Case, base: CellProfile, calibrated: bool = False) -> CellProfile:

@@ -67,6 +67,7 @@ from ucal.models import KNOWN_MODELS, model_sheet
 from ucal.output import writable_directory, write_file
 from ucal.profile import real_path
 from ucal.profile.read import profile_from_data
+from ucal.profile.validation import parse_toml_bytes
 from ucal.ros2_description import (
     FLANGE,
     FLANGE_TURN,
@@ -79,7 +80,6 @@ from ucal.ros2_description import (
     top_xacro,
     urdf_xml,
 )
-from ucal.validation import parse_toml_bytes
 
 log = logging.getLogger(__name__)
 

@@ -90,8 +90,14 @@ from ucal.profile import (
     read_transducer,
     read_water,
 )
+from ucal.profile.validation import (
+    Reader,
+    describe_unknown,
+    read_toml,
+    refuse_misspelt_keys,
+    unknown_keys,
+)
 from ucal.thermometer import read_log
-from ucal.validation import Reader, describe_unknown, read_toml, refuse_misspelt_keys, unknown_keys
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`; one that is a
 #: misspelling of a known key the table lacks is refused).

@@ -9,7 +9,7 @@ import pytest
 from ucal.errors import InputError, ProfileError
 from ucal.profile import default_profile_text, load_profile, profile_warnings
 from ucal.profile.cell import CellSettings, cell_settings
-from ucal.validation import read_toml
+from ucal.profile.validation import read_toml
 
 
 def write(tmp_path: Path, extra: str, name: str = "cell.toml") -> Path:

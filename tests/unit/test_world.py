@@ -19,8 +19,8 @@ from ucal.profile import (
     load_profile,
     write_profile,
 )
+from ucal.profile.validation import DH_KEYS
 from ucal.sim.cell import SimulatedCell
-from ucal.validation import DH_KEYS
 from ucal.world import load_world, world_warnings
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import datetime as dt
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Literal, Protocol, TypeVar
 
 import numpy as np
 
@@ -73,6 +73,7 @@ from ucal.procedure import (
     plan_rows,
 )
 from ucal.profile import description_keys, write_profile
+from ucal.profile.calibration import WrittenCalibration
 from ucal.progress import Report
 from ucal.session import CellSession
 from ucal.timing import DurationEstimate, estimate_run
@@ -107,46 +108,46 @@ class JointSolution(Protocol):
     def std_block_deg(self) -> np.ndarray | None: ...
 
 
-def _stds(values: np.ndarray) -> list[float]:
-    """Stds as the profile holds them: rounded, −1 where not determined."""
-    return [round(float(v), 6) if np.isfinite(v) else -1.0 for v in values]
-
-
-def written_keys(chosen: Any, sound: Any, fit: FitQuality) -> dict[str, Any]:
-    """The ``[calibration]`` keys every level writes: offsets, their std (absolute, and
-    relative to the block as placed: ``ucal.model.gauge``), the gauge, the sound speed
-    and its drift, the lost motion (``sound``: the solution that fitted them), the fit."""
-    keys = {
-        "joint_offsets_deg": [round(float(v), 6) for v in chosen.offsets_deg],
-        "unobservable_joints": list(chosen.unobservable_joints),
-        "method": chosen.method,
-        "std_deg": _stds(chosen.std_deg),
-        "approach": APPROACH,
-    }
+def written(
+    level: Literal["offsets", "full"],
+    chosen: Any,
+    sound: Any,
+    fit: FitQuality,
+    budget: TcpBudget | None,
+    **own: Any,
+) -> WrittenCalibration:
+    """The ``[calibration]`` table a run of ``level`` writes: the offsets, their std (absolute,
+    and relative to the block as placed: ``ucal.model.gauge``), the gauge, the sound speed and
+    its drift, the lost motion (``sound``: the solution that fitted them), the fit, the TCP
+    budget (``[calibration] unidentified_tcp_mm``: mean, max over the scanning region, one
+    sigma, which ``verify --region`` reports beside what it measures) and the level's ``own``
+    keys."""
     gauge: J1Gauge | None = chosen.gauge
-    if gauge is not None and chosen.std_block_deg is not None:
-        keys |= {
-            "std_block_deg": _stds(chosen.std_block_deg),
-            "gauge": gauge.frame,
-            "gauge_note": gauge.statement(),
-        }
+    blocked = gauge is not None and chosen.std_block_deg is not None
     effects = run_effects(sound)
-    if effects is not None:
-        keys |= effects.profile_keys()
-    return keys | {
-        "sound_speed_m_s": round(float(sound.sound_speed_m_s), 3),
-        "fit_verdict": fit.verdict,
-        "chi2_reduced": round(float(fit.chi2_reduced), 4),
-        "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-    }
-
-
-def budget_keys(budget: TcpBudget | None) -> dict[str, Any]:
-    """``[calibration] unidentified_tcp_mm``: [mean, max] over the scanning region, one sigma
-    (``verify --region`` reports it beside what it measures)."""
-    if budget is None:
-        return {}
-    return {"unidentified_tcp_mm": [round(budget.mean_mm, 4), round(budget.max_mm, 4)]}
+    return WrittenCalibration(
+        level=level,
+        joint_offsets_deg=[float(v) for v in chosen.offsets_deg],
+        std_deg=[float(v) for v in chosen.std_deg],
+        unobservable_joints=list(chosen.unobservable_joints),
+        method=chosen.method,
+        approach=APPROACH,
+        sound_speed_m_s=float(sound.sound_speed_m_s),
+        fit_verdict=fit.verdict,
+        chi2_reduced=float(fit.chi2_reduced),
+        date=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        gauge=gauge.frame if blocked and gauge is not None else None,
+        gauge_note=gauge.statement() if blocked and gauge is not None else None,
+        std_block_deg=[float(v) for v in chosen.std_block_deg] if blocked else None,
+        backlash_deg=None if effects is None else [float(v) for v in effects.backlash_deg],
+        backlash_std_deg=None if effects is None else [float(v) for v in effects.backlash_std_deg],
+        sound_speed_drift_m_s_per_min=None if effects is None else effects.drift_m_s_per_min,
+        sound_speed_drift_m_s_per_min_std=None
+        if effects is None
+        else effects.drift_std_m_s_per_min,
+        unidentified_tcp_mm=None if budget is None else (budget.mean_mm, budget.max_mm),
+        **own,
+    )
 
 
 def block_measured(cell: CellFit | None, profile: CellProfile) -> dict[str, Any] | None:
@@ -172,17 +173,18 @@ def write_calibration(
     run: str,
     fit: FitQuality,
     verdict: Verdict,
-    keys: dict[str, Any],
+    table: WrittenCalibration,
     block: dict[str, Any] | None = None,
     readings: CalibrationReadings | None = None,
 ) -> None:
-    """Write ``keys`` as ``[calibration]`` (and ``block`` as ``[sample]``: the block as the
+    """Write ``table`` as ``[calibration]`` (and ``block`` as ``[sample]``: the block as the
     fit measured it), the history naming the ``run``, its fit and, when written with
     ``--force``, why it was out of tolerance; ``readings`` (what the fit received) beside its
     history entry (``ucal.model.readings``: verify reads the tank again at them)."""
     reason = f"{run}: fit {fit.verdict} (χ²ᵣ {fit.chi2_reduced:.3g})"
     if not verdict.ok:
         reason += f", written with --force: {verdict.message}"
+    keys = table.table()
     updates = {"calibration": keys} if block is None else {"calibration": keys, "sample": block}
     entry = write_profile(profile_path, updates, reason=reason)
     if entry is not None and readings is not None:
@@ -405,14 +407,16 @@ class OffsetsCalibration(CalibrationJob):
             f"calibrate --method {self.method}",
             solved.fit,
             solved.verdict,
-            {
-                **written_keys(chosen, solved.exact, solved.fit),
-                # the level that wrote these offsets (a table identified by an earlier full run
-                # stays in force: these offsets were fitted on it)
-                "level": "offsets",
-                "condition_number": round(float(chosen.condition_number), 3),
-                **budget_keys(solved.budget),
-            },
+            # the level that wrote these offsets (a table identified by an earlier full run
+            # stays in force: these offsets were fitted on it)
+            written(
+                "offsets",
+                chosen,
+                solved.exact,
+                solved.fit,
+                solved.budget,
+                condition_number=float(chosen.condition_number),
+            ),
             # the block the offsets were fitted with (the paper's equations measure none)
             block_written(chosen.cell_fit, self.profile),
             self.readings(solved.exact),
@@ -518,15 +522,17 @@ class FullCalibration(CalibrationJob):
             "calibrate --level full",
             solved.fit,
             solved.verdict,
-            {
-                **written_keys(sol, sol, solved.fit),
-                "level": "full",
-                "dh": sol.dh_rows(),
-                # each identified parameter's std: the later solvers' prior in place of the
-                # [robot] tolerance (an offsets level keeps both keys: it fits on this table)
-                "dh_std": sol.dh_std_rows(),
-                **budget_keys(solved.budget),
-            },
+            # dh_std, each identified parameter's std: the later solvers' prior in place of
+            # the [robot] tolerance (an offsets level keeps both keys: it fits on this table)
+            written(
+                "full",
+                sol,
+                sol,
+                solved.fit,
+                solved.budget,
+                dh=sol.dh_rows(),
+                dh_std=sol.dh_std_rows(),
+            ),
             block_written(sol.cell, self.profile),
             self.readings(sol),
         )

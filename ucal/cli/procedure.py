@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import click
-import tomlkit
 from click.core import ParameterSource
 
 from ucal import interrupt
@@ -39,7 +38,7 @@ from ucal.cli.progress import StepProgress
 from ucal.cli.publishing import prepare_publication, publish_outcome
 from ucal.errors import InputError, InterruptedAfterResult, OutOfToleranceError
 from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunOptions, Step
-from ucal.profile import load_profile, profile_from_data
+from ucal.profile import load_profile, profile_from_text
 from ucal.progress import Progress
 from ucal.record import Record, read_record
 from ucal.thermometer import read_log
@@ -190,10 +189,8 @@ def recorded_run(
                 f"replayed with {flag} {_shown(ctx.params[name])}: a replay solves what was "
                 f"measured (leave {flag} out)"
             )
-    profile = profile_from_data(
-        tomlkit.parse(record.profile_text),
-        f"{replay_path} (recorded profile)",
-        base_dir=profile_path.parent,
+    profile = profile_from_text(
+        record.profile_text, f"{replay_path} (recorded profile)", base_dir=profile_path.parent
     )
     return record, profile
 

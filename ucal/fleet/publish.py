@@ -28,7 +28,7 @@ from ucal.fleet.outbox import Outbox, outbox_dir
 from ucal.fleet.url import BrokerUrl
 from ucal.profile.cell import CellSettings, cell_settings
 from ucal.profile.disk import real_path
-from ucal.validation import parse_toml_bytes
+from ucal.profile.validation import parse_toml_bytes
 
 log = logging.getLogger(__name__)
 

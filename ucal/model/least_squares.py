@@ -625,16 +625,3 @@ class RunEffects:
             "sound_speed_drift_m_s_per_min": self.drift_m_s_per_min,
             "sound_speed_drift_m_s_per_min_std": self.drift_std_m_s_per_min,
         }
-
-    def profile_keys(self) -> dict[str, Any]:
-        """The ``[calibration]`` keys (SPEC.md: −1 where not measured)."""
-
-        def listed(v: np.ndarray) -> list[float]:
-            return [round(float(x), 6) if np.isfinite(x) else -1.0 for x in v]
-
-        return {
-            "backlash_deg": listed(self.backlash_deg),
-            "backlash_std_deg": listed(self.backlash_std_deg),
-            "sound_speed_drift_m_s_per_min": round(self.drift_m_s_per_min, 5),
-            "sound_speed_drift_m_s_per_min_std": round(self.drift_std_m_s_per_min, 5),
-        }

@@ -5,6 +5,8 @@ with tomlkit and writes results back into it with tomlkit, so comments and key o
 Writes are atomic and reversible: each keeps the bytes it replaces in the profile's history.
 
 - :mod:`ucal.profile.read`: read and validate a profile (and the tables a world file shares);
+- :mod:`ucal.profile.calibration`: ``[calibration]`` as typed records, written and read back;
+- :mod:`ucal.profile.validation`: the TOML reader and key checks every input file goes through;
 - :mod:`ucal.profile.template`: the text of a new profile, ``template.toml`` filled in;
 - :mod:`ucal.profile.write`: write results into a profile, create a new one;
 - :mod:`ucal.profile.history`: the history of a profile's writes, undo;
@@ -26,6 +28,7 @@ from ucal.profile.read import (
     DEFAULT_FACE_MM,
     load_profile,
     profile_from_data,
+    profile_from_text,
     profile_to_dict,
     profile_warnings,
     read_robot,
@@ -59,6 +62,7 @@ __all__ = [
     "made_history_dir",
     "pose_digest",
     "profile_from_data",
+    "profile_from_text",
     "profile_history",
     "profile_lock",
     "profile_to_dict",

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.pulser.base import PulserSettings
 from ucal.cell import DEFAULT_INPUT_NOISE_UV, CellProfile, SetByHand
-from ucal.validation import Reader
+from ucal.profile.validation import Reader
 
 if TYPE_CHECKING:  # the echo code (scipy.signal) loads only where a panel is checked
     from ucal.echo.by_hand import Declared

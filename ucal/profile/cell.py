@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ucal.errors import InputError
-from ucal.validation import Reader
+from ucal.profile.validation import Reader
 
 #: The keys of ``[cell]``.
 CELL_KEYS = frozenset({"name", "validation_interval_days"})

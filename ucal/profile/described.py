@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ucal.cell import CellProfile
-from ucal.validation import Reader
+from ucal.profile.validation import Reader
 
 #: Table → the word of its kept description's keys.
 DESCRIBED_AS = {"tool": "drawn", "sample": "placed"}

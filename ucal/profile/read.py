@@ -29,12 +29,14 @@ from ucal.kinematics.dh import RobotModel
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.profile.by_hand import KEYS as BY_HAND_KEYS
 from ucal.profile.by_hand import by_hand_to_dict, read_by_hand
+from ucal.profile.calibration import read_calibration
 from ucal.profile.cell import CELL_KEYS, read_cell
 from ucal.profile.described import DESCRIPTION_KEYS, read_description
-from ucal.validation import (
+from ucal.profile.validation import (
     DH_KEYS,
     Reader,
     describe_unknown,
+    parse_toml_bytes,
     read_toml,
     refuse_misspelt_keys,
     unknown_keys,
@@ -122,6 +124,12 @@ def load_profile(path: str | Path, base_dir: Path | None = None) -> CellProfile:
     return profile_from_data(read_toml(p), p, base_dir)
 
 
+def profile_from_text(text: str, path: str | Path, base_dir: Path | None = None) -> CellProfile:
+    """The profile whose TOML is ``text`` (a record's copy, a shipped template), errors naming
+    ``path`` as :func:`load_profile`'s name the file."""
+    return profile_from_data(parse_toml_bytes(text.encode("utf-8"), path), path, base_dir)
+
+
 def profile_warnings(path: str | Path) -> list[str]:
     """Non-fatal remarks on a valid profile: keys ucal does not know (usually typos)."""
     data = read_toml(path).unwrap()
@@ -192,6 +200,7 @@ def profile_from_data(
     unobservable: tuple[int, ...] = ()
     offsets_std = None
     dh_std = None
+    read_calibration(r, cal)  # what later commands take over, checked before anything moves
     if cal is not None:
         v = r.get(cal, "calibration.joint_offsets_deg")
         if v is not None:

@@ -26,7 +26,7 @@ from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel, wrist_centre
 from ucal.models import KNOWN_MODELS, load_model
 from ucal.profile.read import DEFAULT_FACE_MM
-from ucal.validation import DH_KEYS
+from ucal.profile.validation import DH_KEYS
 
 #: The new-profile template, package data of ``ucal.profile``.
 TEMPLATE = "template.toml"

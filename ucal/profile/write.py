@@ -22,7 +22,7 @@ from ucal.profile.history import HistoryEntry, _replace_with_history
 from ucal.profile.lock import profile_lock
 from ucal.profile.read import profile_from_data
 from ucal.profile.template import default_profile_text
-from ucal.validation import parse_toml_bytes
+from ucal.profile.validation import parse_toml_bytes
 
 log = logging.getLogger(__name__)
 

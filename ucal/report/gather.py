@@ -43,8 +43,8 @@ from ucal.profile import (
     profile_history,
     real_path,
 )
+from ucal.profile.validation import DH_KEYS, parse_toml_bytes
 from ucal.record import Record, read_record
-from ucal.validation import DH_KEYS, parse_toml_bytes
 from ucal.verify.picture import verify_picture_path
 from ucal.verify.procedure import PICTURE_FACTS_KEY
 

@@ -6,7 +6,6 @@ figures are relative to)."""
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -19,6 +18,7 @@ from ucal.model.geometry import FaceMeasurement
 from ucal.model.priors import prior_from_profile
 from ucal.model.readings import CalibrationReadings, read_readings
 from ucal.profile import HistoryEntry, history_dir, load_profile, profile_history
+from ucal.profile.calibration import calibration_record
 
 
 @dataclass(frozen=True)
@@ -145,13 +145,8 @@ class VerifyGauge:
 def calibration_gauge(profile: CellProfile, profile_path: str | Path) -> VerifyGauge:
     """How the profile's J1 was calibrated (``[calibration] gauge``, written by ``calibrate``)
     and the block's yaw tolerance."""
-    try:
-        with open(profile_path, "rb") as f:
-            j1 = tomllib.load(f).get("calibration", {}).get("gauge")
-    except (OSError, tomllib.TOMLDecodeError):
-        j1 = None
     yaw = float(np.broadcast_to(profile.sample_rotation_std_deg, 3)[2])
-    return VerifyGauge(j1 if j1 in ("block", "base") else None, yaw)
+    return VerifyGauge(calibration_record(profile_path).gauge, yaw)
 
 
 def sound_speed_for_verify(
@@ -169,14 +164,10 @@ def sound_speed_for_verify(
 
     temp = float(profile.water_temperature_c)
     now = datetime.now(UTC) if now is None else now
-    try:
-        with open(profile_path, "rb") as f:
-            measured = tomllib.load(f).get("calibration", {}).get("sound_speed_m_s")
-    except (OSError, tomllib.TOMLDecodeError):
-        measured = None
+    measured = calibration_record(profile_path).sound_speed_m_s
     prior = prior_from_profile(profile)
-    if isinstance(measured, int | float) and np.isfinite(measured):
-        c = float(measured)
+    if measured is not None:
+        c = measured
         t_eq = temperature_for_speed_c(c)
         if t_eq is not None:
             age = minutes_since_calibration(profile_path, now)
@@ -220,18 +211,7 @@ def minutes_since_calibration(profile_path: str | Path, now: datetime) -> float 
 
 def written_budget(profile_path: Path) -> tuple[float, float] | None:
     """``[calibration] unidentified_tcp_mm`` of the profile (mean, max), or None."""
-    try:
-        with open(profile_path, "rb") as f:
-            value = tomllib.load(f).get("calibration", {}).get("unidentified_tcp_mm")
-    except (OSError, tomllib.TOMLDecodeError):
-        return None
-    if not (
-        isinstance(value, list)
-        and len(value) == 2
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        return None
-    return float(value[0]), float(value[1])
+    return calibration_record(profile_path).unidentified_tcp_mm
 
 
 def wrist_left_unidentified(profile: CellProfile) -> tuple[str, ...]:

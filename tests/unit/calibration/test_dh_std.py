@@ -23,6 +23,7 @@ from ucal.model.kinematic import (
 )
 from ucal.model.quality import FitQuality
 from ucal.profile import default_profile_text, load_profile
+from ucal.profile.calibration import WrittenCalibration
 from ucal.toolframe.fit import _Data, _table, plate_prior
 from ucal.toolframe.plane import fit_plane
 
@@ -121,7 +122,18 @@ def test_the_offsets_level_writing_later_keeps_the_table_and_its_stds(path) -> N
         "calibrate --method exact",
         QUALITY,
         Verdict(True, False, ""),
-        {"joint_offsets_deg": [0.1] * 6, "std_deg": [0.001] * 6, "level": "offsets"},
+        WrittenCalibration(
+            level="offsets",
+            joint_offsets_deg=[0.1] * 6,
+            std_deg=[0.001] * 6,
+            unobservable_joints=[],
+            method="exact",
+            approach="positive",
+            sound_speed_m_s=1482.3,
+            fit_verdict="ok",
+            chi2_reduced=1.0,
+            date="2026-12-06T08:00:00+00:00",
+        ),
     )
     after = load_profile(path)
     np.testing.assert_array_equal(after.joint_offsets_deg, np.full(6, 0.1))

@@ -36,6 +36,7 @@ from ucal.model.least_squares import (
     face_row_minutes,
 )
 from ucal.models import load_model
+from ucal.profile.calibration import written_stds
 
 from doubles import noisy_face
 
@@ -245,7 +246,7 @@ def test_lost_motion_is_recovered_from_readings_of_both_sides() -> None:
     # J6, read from both sides but left at its prior by the data, is not reported measured
     json = effects.to_json()
     assert [v is not None for v in json["backlash_deg"]] == [True] * 5 + [False]
-    assert effects.profile_keys()["backlash_deg"][5] == -1.0
+    assert written_stds(effects.backlash_deg)[5] == -1.0
     # held at 0, the two sides disagree by the lost motion: a misfit split by approach
     held = solve_exact_with_priors(prior(), meas, fixed=BACKLASH)
     assert held.fit is not None and held.fit.verdict == "misfit"
@@ -266,7 +267,7 @@ def test_readings_from_one_side_do_not_measure_the_lost_motion_nor_inflate_the_o
         effects = RunEffects.of(wide.cell_fit)
         assert np.all(np.isnan(effects.backlash_deg))
         assert effects.to_json()["backlash_deg"] == [None] * 6
-        assert effects.profile_keys()["backlash_deg"] == [-1.0] * 6
+        assert written_stds(effects.backlash_deg) == [-1.0] * 6
         # the offsets of the approach the readings had: from above, the link lags by b more
         truth = OFFSETS_DEG if side > 0 else OFFSETS_DEG + backlash
         assert np.all(z_scores(wide, truth) <= 3.0), z_scores(wide, truth)
