@@ -48,7 +48,7 @@ import contextlib
 import logging
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
@@ -161,6 +161,23 @@ class Measured(Generic[MeasuredT]):
     echo_timing: dict[str, Any] = field(default_factory=dict)
     #: The tank's thermometer on the run's clock (``ucal.thermometer``), if one was given.
     thermometer: Thermometer | None = None
+
+    def for_solving(self, profile: CellProfile) -> tuple[CellProfile, Measured[MeasuredT]]:
+        """The profile and the measurements the solve step takes: with a thermometer, every
+        water path with the tank's turns taken out and the drift's prior the log's
+        (``Thermometer.corrected``, ``Thermometer.profile``); without, both unchanged. New
+        objects: the measurements as measured stay what the record holds."""
+        if self.thermometer is None:
+            return profile, self
+        return self.thermometer.profile(profile, self.data), replace(
+            self, data=self.thermometer.corrected(self.data)
+        )
+
+    def inputs_json(self) -> dict[str, Any]:
+        """What the run's inputs besides the cell said of it (``--json``'s ``thermometer``)."""
+        if self.thermometer is None:
+            return {}
+        return {"thermometer": self.thermometer.summary(self.data)}
 
 
 class Counted(Protocol):
@@ -392,10 +409,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                 else:
                     measured = self._measure(plan, estimate, recorder)
                 self._enter(Step.SOLVE)
-                water = measured.thermometer
-                if water is not None:  # the tank's turns taken out of every water path
-                    job.profile = water.profile(job.profile, measured.data)
-                    measured.data = water.corrected(measured.data)
+                job.profile, measured = measured.for_solving(job.profile)
                 solved = job.solve(plan, measured)
                 self._enter(Step.WRITE)
                 # the robot has stopped: a signal from here on cuts neither the write nor
@@ -407,8 +421,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                 self._enter(Step.RESULT)
                 outcome = job.result(plan, measured, solved, written)
                 outcome.echo_timing = measured.echo_timing
-                if water is not None:
-                    outcome.thermometer = water.summary(measured.data)
+                outcome.thermometer = measured.inputs_json().get("thermometer")
                 if recorder is not None:
                     recorder.end(outcome.to_json())
         return outcome
