@@ -34,11 +34,11 @@ from _quick import parse_args
 
 from drivers.pulser.manual import ManualPulser
 from ucal.cell import CellProfile, WorldTruth
+from ucal.devices.rig import DEFAULT_SETTINGS
 from ucal.echo.by_hand import Findings, judge, look, records_at_the_panel
 from ucal.errors import ProfileError
 from ucal.profile import default_profile_text, load_profile
 from ucal.profile.by_hand import declared_of
-from ucal.rig import DEFAULT_SETTINGS
 from ucal.sim.serve import SimulatedCellServer
 
 #: The profile's calibration pose: the beam straight down on the block's XY face.

@@ -98,6 +98,7 @@ from ucal.calibration.budget import calibration_budget
 from ucal.calibration.exact import solve_exact_with_priors
 from ucal.calibration.procedure import judge
 from ucal.cell import CellProfile, WorldTruth
+from ucal.devices.session import check_status, open_cell
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg, tangent_basis
@@ -118,7 +119,6 @@ from ucal.model.postures import MAX_POSTURES, plan_full
 from ucal.model.targets import calibration_pose, plan_calibration
 from ucal.models import KNOWN_MODELS
 from ucal.profile import load_profile, write_profile
-from ucal.session import check_status, open_cell
 from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
 from ucal.toolframe.measure import measure_tool_frame
 from ucal.toolframe.plan import plan_tool_frame

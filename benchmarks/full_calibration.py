@@ -49,6 +49,7 @@ from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.calibration.exact import solve_exact_with_priors
+from ucal.devices.session import check_status, open_cell
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk
 from ucal.measure.postures import FullRun, estimate_postures, run_full
@@ -57,7 +58,6 @@ from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_ful
 from ucal.model.postures import MAX_POSTURES, plan_full
 from ucal.model.targets import calibration_pose
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.session import check_status, open_cell
 from ucal.world import load_world
 
 MODEL = "tx90l"

@@ -12,7 +12,7 @@ noise 1 %; and the robot moves and pulser reads of each run, its duration in sim
 (what it would take on a real cell over Modbus TCP) and its wall time.
 
 Each group runs twice on the same world: with the search's reading spacing
-(``ucal.rig.SweepSpacing``) and with the first build's dense spacing
+(``ucal.devices.rig.SweepSpacing``) and with the first build's dense spacing
 (``DENSE_SPACING``), the baseline the pulser-read count is compared against. The profile
 declares a fixtured block (0.01° rotation tolerance), as the paper's simulation assumes a known
 block; the water temperature tolerance is the profile's.
@@ -39,12 +39,12 @@ from _quick import parse_args
 
 from ucal.calibration.solve import solve
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, Noise, WorldTruth
+from ucal.devices.rig import DENSE_SPACING, SweepSpacing
+from ucal.devices.session import open_cell
 from ucal.kinematics.dh import fk
 from ucal.measure.sequence import run_calibration
 from ucal.model.targets import plan_calibration
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.rig import DENSE_SPACING, SweepSpacing
-from ucal.session import open_cell
 
 GROUPS = (-5.0, -4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0, 5.0)
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).

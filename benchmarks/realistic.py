@@ -42,11 +42,11 @@ from ucal.calibration.exact import OffsetSolution, solve_exact
 from ucal.calibration.procedure import TOLERANCE_STD_DEG, judge
 from ucal.calibration.solve import solve
 from ucal.cell import CellProfile, WorldTruth
+from ucal.devices.session import check_status, open_cell
 from ucal.kinematics.dh import fk_frames
 from ucal.measure.sequence import CalibrationRun, run_calibration
 from ucal.model.targets import geometry, plan_calibration
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.session import check_status, open_cell
 from ucal.world import load_world
 
 MODEL = "tx90l"

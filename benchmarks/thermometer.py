@@ -40,13 +40,13 @@ from _quick import parse_args
 
 from drivers.errors import DriverError
 from ucal.cell import TemperatureLog
+from ucal.devices.session import check_status, open_cell
 from ucal.errors import UcalError
 from ucal.measure.postures import FullRun, run_full
 from ucal.measure.sequence import CalibrationRun, run_calibration
 from ucal.model.postures import MAX_POSTURES, FullPlan, plan_full
 from ucal.model.targets import CalibrationPlan, plan_calibration
 from ucal.profile import load_profile, write_profile
-from ucal.session import check_status, open_cell
 from ucal.thermometer import on_run, reading_span_min
 from ucal.world import load_world
 

@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 from _quick import parse_args
 
+from ucal.devices.session import open_cell
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.session import open_cell
 from ucal.toolframe.exact import beam_from_normal_incidence, solve_offsets
 from ucal.toolframe.paper import solve_paper
 from ucal.toolframe.plan import plan_tool_frame

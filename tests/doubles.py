@@ -362,7 +362,7 @@ def noisy_face(
 def counting_moves(monkeypatch: Any) -> dict[str, int]:
     """Count the controller motions (``Rig.move``) of the commands run after it, in this
     process: ``{"n": moves}``, what a refusal before the first motion leaves at 0."""
-    from ucal.rig import Rig
+    from ucal.devices.rig import Rig
 
     moves = {"n": 0}
     move = Rig.move

@@ -12,6 +12,9 @@ import os
 import re
 import secrets
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 #: The mode ``open()`` asks for a new file; the kernel takes the umask off it.
 NEW_FILE_MODE = 0o666
@@ -110,3 +113,12 @@ def commit(tmp: Path, path: Path) -> None:
             os.unlink(tmp)
         raise
     fsync_dir(path.parent)
+
+
+def jsonable(value: Any) -> Any:
+    """``json.dumps`` default for numpy values (anything else by its repr)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return repr(value)

@@ -8,8 +8,8 @@ order is the same and lives here (``MeasuringProcedure.run``):
 3. **show** the plan with its estimated duration on a real cell;
 4. **confirm**, naming the cell ("the simulated cell" or the controller's address); ``--yes``
    skips the question, a replayed run moves nothing and asks nothing;
-5. **open** the cell (``ucal.session``: simulated, real or replayed; recorded with ``--record``)
-   and check the controller's status;
+5. **open** the cell (``ucal.devices.session``: simulated, real or replayed; recorded with
+   ``--record``) and check the controller's status;
 6. **measure**, reporting each step with moves, reads and the time left (``ucal.progress``);
    the cell is closed (the robot told to STOP) as soon as the measurement ends, however it
    ends; with ``--record`` the measurements are written as the record's measurement lines
@@ -58,9 +58,7 @@ import numpy as np
 from ucal import __version__, interrupt
 from ucal.cell import CellProfile, TemperatureLog, WorldTruth
 from ucal.cell_choice import CellChoice
-from ucal.profile import check_writable, profile_lock
-from ucal.progress import MeasureStep, Progress, Report, time_left_s
-from ucal.record import (
+from ucal.devices.record import (
     SESSION,
     Record,
     Recorder,
@@ -72,7 +70,9 @@ from ucal.record import (
     plain_json,
     sha256_text,
 )
-from ucal.session import CellSession, check_status, open_cell, replay_cell
+from ucal.devices.session import CellSession, check_status, open_cell, replay_cell
+from ucal.profile import check_writable, profile_lock
+from ucal.progress import MeasureStep, Progress, Report, time_left_s
 from ucal.thermometer import (
     Thermometer,
     awaited,
@@ -272,7 +272,7 @@ class Job(Protocol[PlanT, MeasuredT, SolvedT, ResultT_co]):
     def measure(self, plan: PlanT, session: CellSession, report: Report) -> MeasuredT: ...
 
     def measurement_lines(self, data: MeasuredT) -> list[dict[str, Any]]:
-        """The measure step's data as a record's measurement lines (``ucal.record``)."""
+        """The measure step's data as a record's measurement lines (``ucal.devices.record``)."""
         ...
 
     def measured_from(self, lines: list[dict[str, Any]], plan: PlanT, source: str) -> MeasuredT:
@@ -340,7 +340,7 @@ class ProfileJob:
         return hold_profile(self.profile_path, options)
 
     def measurement_lines(self, data: Any) -> list[dict[str, Any]]:
-        """One line per measurement of the measure step's dataclass (``ucal.record``)."""
+        """One line per measurement of the measure step's dataclass (``ucal.devices.record``)."""
         return measurement_lines(data)
 
     def measured_from(self, lines: list[dict[str, Any]], plan: Any, source: str) -> Any:

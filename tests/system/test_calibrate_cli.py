@@ -257,7 +257,7 @@ def test_a_block_out_of_reach_is_refused_before_any_motion(tmp_path):
 
 def test_ctrl_c_stops_the_robot_and_leaves_the_profile_untouched(tmp_path, monkeypatch):
     from ucal.cli import main
-    from ucal.rig import Rig
+    from ucal.devices.rig import Rig
     from ucal.sim.serve import SimulatedCellServer
 
     profile = make_profile(tmp_path)

@@ -228,7 +228,7 @@ def test_fault_gives_its_exit_code_a_one_line_message_stop_and_an_untouched_prof
 def test_the_val3_silence_costs_simulated_time_in_process(tmp_path: Path) -> None:
     """``--sim`` with a VAL3 world: the server's 1 s of silence passes on the simulated clock,
     and the profile's ``[controller]`` timeouts reach the driver and the rig."""
-    from ucal.session import open_cell
+    from ucal.devices.session import open_cell
 
     path = tmp_path / "cell.toml"
     create_profile(path, "tx90l")

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ucal.devices.session import check_status, open_cell
 from ucal.kinematics.dh import fk
 from ucal.measure.postures import run_full
 from ucal.model.fit import prior_from_profile
@@ -20,7 +21,6 @@ from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_ful
 from ucal.model.postures import plan_full
 from ucal.model.targets import calibration_pose
 from ucal.profile import create_profile, load_profile, write_profile
-from ucal.session import check_status, open_cell
 from ucal.world import load_world
 
 pytestmark = [pytest.mark.system, pytest.mark.long]

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ucal.devices.record import read_record
 from ucal.profile import default_profile_text
-from ucal.record import read_record
 
 from doubles import ucal_here
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ucal.acoustics import water_absorption_np_per_mm
+from ucal.devices.session import open_cell
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import acquisition_gain
 from ucal.measure.approach import FinalApproachRig
@@ -19,7 +20,6 @@ from ucal.measure.search import PeakSearch, ka_of
 from ucal.model.geometry import Face
 from ucal.model.targets import calibration_pose, geometry
 from ucal.profile import create_profile, load_profile
-from ucal.session import open_cell
 from ucal.sim.cell import SimulatedCell
 from ucal.world import load_world
 

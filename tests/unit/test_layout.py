@@ -97,7 +97,7 @@ def test_the_measuring_library_and_the_cell_model_import_no_procedure(floor: str
         for m, deps in GRAPH.items()
         if _package(m) == floor
         for n in deps
-        if _package(n) in above or n in ("ucal.procedure", "ucal.session")
+        if _package(n) in above or n in ("ucal.procedure", "ucal.devices.session")
     ]
     assert not found, found
 

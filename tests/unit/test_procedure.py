@@ -18,10 +18,10 @@ import ucal.procedure as procedure_module
 from ucal import interrupt
 from ucal.cell_choice import CellChoice
 from ucal.cli.progress import StepProgress
+from ucal.devices.record import read_record
+from ucal.devices.session import TimingMode
 from ucal.procedure import Measured, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.progress import MeasureStep, Progress, time_left_s
-from ucal.record import read_record
-from ucal.session import TimingMode
 from ucal.timing import DurationEstimate
 
 

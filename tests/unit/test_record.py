@@ -13,12 +13,7 @@ from hypothesis import strategies as st
 
 from drivers.controller.base import ControllerStatus, JointSample
 from drivers.pulser.base import GateReading, PulserSettings
-from ucal.measure.postures import FullRun
-from ucal.measure.sequence import CalibrationRun
-from ucal.model.geometry import Face, FaceMeasurement
-from ucal.procedure import RunOptions
-from ucal.profile import default_profile_text, load_profile, write_profile
-from ucal.record import (
+from ucal.devices.record import (
     Record,
     Recorder,
     RecordError,
@@ -33,6 +28,11 @@ from ucal.record import (
     read_record,
     sha256_text,
 )
+from ucal.measure.postures import FullRun
+from ucal.measure.sequence import CalibrationRun
+from ucal.model.geometry import Face, FaceMeasurement
+from ucal.procedure import RunOptions
+from ucal.profile import default_profile_text, load_profile, write_profile
 from ucal.toolframe.measure import PeakResult
 from ucal.verify.procedure import VerifyJob
 from ucal.verify.solve import EdgeCheck

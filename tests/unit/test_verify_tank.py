@@ -12,6 +12,7 @@ import pytest
 import tomlkit
 
 from ucal.acoustics import sound_speed_m_s
+from ucal.devices.record import measured_from_lines, measurement_lines
 from ucal.model.geometry import FaceMeasurement
 from ucal.model.readings import CalibrationReadings, readings_path, write_readings
 from ucal.procedure import RunOptions
@@ -22,7 +23,6 @@ from ucal.profile import (
     profile_from_data,
     write_profile,
 )
-from ucal.record import measured_from_lines, measurement_lines
 from ucal.verify.inputs import BeforeProfile, SoundSpeed, repeated_faces, tank_reference
 from ucal.verify.measure import PointResult, VerifyResult, tank_corrected
 from ucal.verify.plan import WALL_PATH_MM, plan_summary, plan_verify, with_tank

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import tomlkit
 
+from ucal.devices.record import decode, encode
 from ucal.model.priors import prior_from_profile
 from ucal.profile import (
     create_profile,
@@ -20,7 +21,6 @@ from ucal.profile import (
     profile_history,
     write_profile,
 )
-from ucal.record import decode, encode
 from ucal.verify.inputs import (
     BeforeProfile,
     SoundSpeed,

@@ -2,7 +2,7 @@
 
 Read with ``ucal.procedure`` (the order every moving command follows): the plan and its checks
 (``ucal.measure.sequence.plan_calibration``), the plan in words (``plan_summary``), the
-measurement of every planned face (``run_calibration``: the rig, ``ucal.rig``; a face
+measurement of every planned face (``run_calibration``: the rig, ``ucal.devices.rig``; a face
 measurement, ``ucal.measure.face``), the solvers (``ucal.measure.sequence.solve``:
 ``exact`` with the cell's tolerances as priors, ``paper`` for comparison), the verdict
 (``judge``), the ``[calibration]`` keys written and the typed result the tables and ``--json``
@@ -41,6 +41,7 @@ from ucal.calibration.result import (
 from ucal.calibration.solve import beam_fixed, solve
 from ucal.calibration.weak import keep_weak
 from ucal.cell import CellProfile
+from ucal.devices.session import CellSession
 from ucal.errors import UcalError
 from ucal.measure.approach import APPROACH
 from ucal.measure.postures import FullRun, estimate_postures, run_full
@@ -75,7 +76,6 @@ from ucal.procedure import (
 from ucal.profile import description_keys, write_profile
 from ucal.profile.calibration import WrittenCalibration
 from ucal.progress import Report
-from ucal.session import CellSession
 from ucal.timing import DurationEstimate, estimate_run
 
 #: An offset less certain than this is not written: a joint the data determine that weakly is

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import SafetyError
 from ucal.kinematics.dh import RobotModel, fk
 from ucal.kinematics.ik import ik
@@ -47,7 +48,6 @@ from ucal.model.priors import BACKLASH, BLOCK, OFFSETS, ParameterTable
 from ucal.model.residuals import approach_signs, table_geometry
 from ucal.model.safety import EDGE_MARGIN_MM, check_joints
 from ucal.model.targets import PlannedTarget
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

@@ -23,6 +23,7 @@ from ucal.acoustics import tof_ns
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeReading, scan_edge
 from ucal.check.plan import ASCAN_AVERAGES, ASCAN_WINDOW_US, CheckPlan
+from ucal.devices.rig import Rig
 from ucal.echo import AScan, EchoEstimate, NoEcho, estimate_echo
 from ucal.measure.approach import FinalApproachRig
 from ucal.measure.sequence import run_calibration
@@ -30,7 +31,6 @@ from ucal.model.fit import measurement_label
 from ucal.model.geometry import FaceMeasurement
 from ucal.model.readings import number
 from ucal.progress import MeasureStep, Report
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

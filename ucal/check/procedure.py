@@ -40,11 +40,11 @@ from ucal.check.solve import (
     compare_geometry,
     compare_to_profile,
 )
+from ucal.devices.session import CellSession
 from ucal.model.fit import prior_from_profile
 from ucal.model.readings import faces_from_json
 from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts, plan_rows
 from ucal.progress import Report
-from ucal.session import CellSession
 from ucal.timing import DurationEstimate
 
 

@@ -33,6 +33,7 @@ from ucal.cli.options import (
     warn,
 )
 from ucal.cli.procedure import finish, replay_outcome, run_job, run_options
+from ucal.devices.record import Record
 from ucal.errors import InputError, NotConfirmed
 from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality
@@ -44,7 +45,6 @@ from ucal.profile import (
     load_profile,
     real_path,
 )
-from ucal.record import Record
 
 log = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ from ucal.check.procedure import CheckJob
 from ucal.check.result import CheckResult
 from ucal.cli.options import MovingCall, moving_options, table_console, thermometer_option
 from ucal.cli.procedure import run_command
+from ucal.devices.record import Record
 from ucal.procedure import Outcome
-from ucal.record import Record
 
 
 @click.command(

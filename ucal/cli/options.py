@@ -260,7 +260,8 @@ thermometer_option = click.option(
 
 
 def record_options(f: F) -> F:
-    """Decorator: ``--record FILE``, ``--replay FILE`` and ``--remeasure`` (``ucal.record``)."""
+    """Decorator: ``--record FILE``, ``--replay FILE`` and ``--remeasure``
+    (``ucal.devices.record``)."""
     return _record_option(_replay_option(_remeasure_option(f)))
 
 

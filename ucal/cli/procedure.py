@@ -36,11 +36,11 @@ from ucal.cli.options import (
 )
 from ucal.cli.progress import StepProgress
 from ucal.cli.publishing import prepare_publication, publish_outcome
+from ucal.devices.record import Record, read_record
 from ucal.errors import InputError, InterruptedAfterResult, OutOfToleranceError
 from ucal.procedure import CommandResult, Job, MeasuringProcedure, Outcome, RunOptions, Step
 from ucal.profile import load_profile, profile_from_text
 from ucal.progress import Progress
-from ucal.record import Record, read_record
 from ucal.thermometer import read_log
 
 R = TypeVar("R", bound=CommandResult)

@@ -22,9 +22,9 @@ from ucal.cli.options import (
     pulser_option,
     table_console,
 )
+from ucal.devices.session import by_hand_options
 from ucal.errors import HardwareError, InputError
 from ucal.profile import load_profile
-from ucal.session import by_hand_options
 
 log = logging.getLogger(__name__)
 
@@ -145,10 +145,10 @@ def by_hand(pulser: Any, profile: Any) -> dict[str, Any]:
     identity, and ``"check"``, what a few records at the declared gain say of the declaration
     (``ucal.echo.by_hand``; ``"verdict"``: ``"ok"`` or the message a moving command would
     refuse with)."""
+    from ucal.devices.rig import DEFAULT_SETTINGS
     from ucal.echo.by_hand import judge, look, records_at_the_panel
     from ucal.errors import ProfileError
     from ucal.profile.by_hand import declared_of
-    from ucal.rig import DEFAULT_SETTINGS
 
     declared = declared_of(profile, pulser.full_screen_v)
     with pulser:

@@ -16,8 +16,8 @@ from ucal.cli.options import (
     thermometer_option,
 )
 from ucal.cli.procedure import run_command
+from ucal.devices.record import Record
 from ucal.procedure import Outcome
-from ucal.record import Record
 from ucal.toolframe.procedure import ToolFrameCalibration
 from ucal.toolframe.result import ToolFrameResult
 

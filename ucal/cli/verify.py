@@ -12,9 +12,9 @@ from rich.table import Table
 from ucal.cell import CellProfile
 from ucal.cli.options import MovingCall, moving_options, table_console
 from ucal.cli.procedure import run_command
+from ucal.devices.record import Record
 from ucal.errors import InputError
 from ucal.procedure import Job, Outcome
-from ucal.record import Record
 from ucal.verify.iso9283 import ISO_CYCLES, Iso9283
 from ucal.verify.measure import VerifyResult
 from ucal.verify.picture import verify_picture_path

@@ -33,7 +33,7 @@ CAPTURE_AVERAGES = 64
 
 
 class CaptureRig(Protocol):
-    """What a capture uses of the rig that calls it (``ucal.rig.Rig``): its devices, its
+    """What a capture uses of the rig that calls it (``ucal.devices.rig.Rig``): its devices, its
     settings and the reads and gain levelling every measurement goes through."""
 
     controller: RobotController
@@ -160,7 +160,7 @@ class ReferenceCapture:
 
 
 class ReplayedCapture:
-    """The capture of a recorded run, replayed (``ucal.record``): the same device calls in
+    """The capture of a recorded run, replayed (``ucal.devices.record``): the same device calls in
     the same order — the gain levelled, ``captures`` readings of ``averages`` acquisitions,
     the settings restored, the joints read — so that the replay keeps to the recording; the
     reference itself is the recorded one (the records it was averaged from are not in the

@@ -2,9 +2,10 @@
 
 A back-end such as ``drivers.pulser.ascii.AsciiScpiPulser`` records the A-scan and asks its
 injected timer for the echo; ``drivers`` never imports ``ucal``, so the session
-(``ucal.session``) builds a :class:`HostEchoTimer` and hands it over. The timer is the project's
-estimator (``ucal.echo.timing.estimate_echo``): against the cell's reference echo when there is
-one, else the coarse envelope fallback, whose label (``METHOD_ENVELOPE``) every reading carries.
+(``ucal.devices.session``) builds a :class:`HostEchoTimer` and hands it over. The timer is the
+project's estimator (``ucal.echo.timing.estimate_echo``): against the cell's reference echo when
+there is one, else the coarse envelope fallback, whose label (``METHOD_ENVELOPE``) every reading
+carries.
 
 A record holds the whole gate (a 400 µs gate at 200 MS/s is 80 000 samples) and the echo a
 microsecond of it. The timer cuts the record to the neighbourhood of its largest excursion from

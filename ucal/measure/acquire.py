@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ucal.devices.rig import Rig
 from ucal.errors import HardwareError
 from ucal.measure.search import PeakSearch
-from ucal.rig import Rig
 
 #: Turn of a wrist joint (deg) that puts the beam in open water for the noise floor: far
 #: outside every lobe that matters (the first null is 0.35° off normal).

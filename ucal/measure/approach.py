@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ucal import interrupt
-from ucal.rig import Rig
+from ucal.devices.rig import Rig
 
 #: Final approach of every move (deg short of the target on each joint), larger than any backlash.
 APPROACH_DEG = 0.05

@@ -34,6 +34,7 @@ import numpy as np
 
 from ucal.acoustics import water_absorption_np_per_mm
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import HardwareError
 from ucal.measure.acquire import acquire_and_centre, side_lobe_error
 from ucal.measure.lobe import MainLobe
@@ -46,7 +47,6 @@ from ucal.model.geometry import (
     face_basis,
 )
 from ucal.model.wrist import aim_wrist, beam_jacobian, search_joints
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

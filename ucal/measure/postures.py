@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import UcalError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik
@@ -49,7 +50,6 @@ from ucal.model.postures import FullPlan, Posture, first_postures
 from ucal.model.targets import geometry
 from ucal.models import joint_speeds_deg_s
 from ucal.progress import MeasureStep, Report
-from ucal.rig import Rig
 from ucal.timing import DurationEstimate, estimate_run
 
 log = logging.getLogger(__name__)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import SafetyError
 from ucal.kinematics.rotations import angle_between_deg, rotation_angle_deg
 from ucal.measure.acquire import BLOCK_FACES, noise_floor
@@ -63,7 +64,6 @@ from ucal.model.safety import (
     offsets_std_deg,
 )
 from ucal.model.wrist import aim_wrist
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

@@ -44,9 +44,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ucal.acoustics import piston_directivity, water_path_mm, wavenumber_per_mm
+from ucal.devices.rig import Rig, Sweep
 from ucal.errors import HardwareError
 from ucal.measure.lobe import MainLobe
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -279,7 +279,7 @@ class PeakSearch:
 
     def _sweep_through(
         self, q: np.ndarray, j: int, half_tilt_deg: float, max_step_deg: float | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> Sweep:
         """Sweep joint ``j`` over ±``half_tilt_deg`` of beam tilt through ``q``: the postures,
         amplitudes and times of flight read.
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import SafetyError
 from ucal.measure.face import SearchMode
 from ucal.measure.running import RunningEstimate
@@ -68,7 +69,6 @@ from ucal.model.targets import (
 )
 from ucal.model.wrist import aim_wrist
 from ucal.progress import MeasureStep, Report
-from ucal.rig import Rig
 
 log = logging.getLogger(__name__)
 

@@ -71,7 +71,7 @@ class Reading(Protocol):
 def approach_signs(meas: Sequence[Reading]) -> np.ndarray:
     """Each reading's approach (n, 6): +1 where the joint last moved in its positive direction,
     −1 in its negative one; a reading that does not say is +1, the approach of every posture
-    ``ucal.rig.FinalApproachRig`` reaches."""
+    ``ucal.devices.rig.FinalApproachRig`` reaches."""
     out = np.ones((len(meas), 6))
     for i, m in enumerate(meas):
         if m.approach is not None:

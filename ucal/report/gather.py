@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.record import Record, read_record
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import RobotModel
 from ucal.profile import (
@@ -44,7 +45,6 @@ from ucal.profile import (
     real_path,
 )
 from ucal.profile.validation import DH_KEYS, parse_toml_bytes
-from ucal.record import Record, read_record
 from ucal.verify.picture import verify_picture_path
 from ucal.verify.procedure import PICTURE_FACTS_KEY
 

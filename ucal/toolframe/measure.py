@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import HardwareError
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rpy_to_matrix
@@ -50,7 +51,6 @@ from ucal.measure.search import PeakResult, PeakSearch, ka_of, read_distance
 from ucal.model.geometry import CellGeometry
 from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
-from ucal.rig import Rig
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,

@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.kinematics.dh import transform
 from ucal.measure.edges import EdgeFit
 from ucal.measure.search import PeakResult
 from ucal.model.fit import offsets_prior_std_deg, prior_from_profile
 from ucal.progress import Report
-from ucal.rig import Rig
 from ucal.toolframe.exact import (
     BeamEstimate,
     EdgeCrossing,

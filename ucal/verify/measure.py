@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ucal.cell import CellProfile
+from ucal.devices.rig import Rig
 from ucal.errors import HardwareError, SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.measure.edges import EDGES, coarse_edge_fall, fine_edge_scan
@@ -39,7 +40,6 @@ from ucal.model.safety import (
 from ucal.model.targets import geometry
 from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
-from ucal.rig import Rig
 from ucal.verify.plan import (
     EDGE_OVERSHOOT_MM,
     PASSES,

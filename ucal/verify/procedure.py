@@ -21,6 +21,8 @@ import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.cell import CellProfile
+from ucal.devices.record import decode, encode, measured_from_lines, measurement_lines
+from ucal.devices.session import CellSession
 from ucal.model.geometry import FACE_ORDER, distance_joints
 from ucal.model.priors import prior_from_profile
 from ucal.model.readings import CalibrationReadings
@@ -28,8 +30,6 @@ from ucal.model.targets import calibration_pose
 from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
 from ucal.progress import Report
-from ucal.record import decode, encode, measured_from_lines, measurement_lines
-from ucal.session import CellSession
 from ucal.sim.truth import iso9283_truth, verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, SearchCost, estimate_run
 from ucal.verify.inputs import (

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ucal.cell import CellProfile
+from ucal.devices.session import CellSession
 from ucal.measure.postures import FullRun, estimate_postures, run_full
 from ucal.model.fit import (
     BETA,
@@ -53,7 +54,6 @@ from ucal.model.postures import (
 )
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, plan_rows
 from ucal.progress import Report
-from ucal.session import CellSession
 from ucal.timing import DurationEstimate
 from ucal.verify.inputs import wrist_left_unidentified, written_budget
 from ucal.verify.result import RegionCheck, RegionResult

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ucal.devices.record import decode
 from ucal.model.fit import prior_from_profile
 from ucal.model.kinematic import solve_full
 from ucal.profile import load_profile
-from ucal.record import decode
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 #: The world's offsets and lost motion: the offsets found from below are these less half of it.

@@ -8,7 +8,7 @@ import pytest
 from drivers.pulser.base import GateReading
 from drivers.pulser.simulator import gaussian_pulse
 from ucal.check.measure import NoAScan, read_echo_band
-from ucal.rig import Rig
+from ucal.devices.rig import Rig
 
 from doubles import QuietPulser
 

@@ -14,6 +14,7 @@ import pytest
 from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
+from ucal.devices.rig import READ_TRAVEL_STEPS, ZERO_FLOOR_FSH, Rig
 from ucal.errors import EXIT_HARDWARE, HardwareError
 from ucal.measure.acquire import BLOCK_FACES, acquire_and_centre, acquisition_gain, open_water
 from ucal.measure.approach import FinalApproachRig, approaching
@@ -21,7 +22,6 @@ from ucal.measure.face import SearchMode
 from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
 from ucal.models import joint_speeds_deg_s
-from ucal.rig import READ_TRAVEL_STEPS, ZERO_FLOOR_FSH, Rig
 
 from doubles import QuietPulser
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from ucal.devices.record import Recorder, sha256_text
 from ucal.errors import EXIT_USAGE
 from ucal.profile import create_profile, history_dir, undo_profile, write_profile
-from ucal.record import Recorder, sha256_text
 from ucal.report import gather_report, render_page
 from ucal.verify.picture import verify_picture_path
 

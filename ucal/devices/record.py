@@ -66,6 +66,7 @@ from drivers.clock import Clock
 from drivers.controller.base import ControllerStatus, JointSample
 from drivers.pulser.base import GateReading, PulserSettings
 from ucal.errors import InputError
+from ucal.files import jsonable
 
 log = logging.getLogger(__name__)
 
@@ -301,15 +302,6 @@ class Recorder:
 def plain_json(obj: Any) -> Any:
     """``obj`` as plain JSON values (numpy values converted; NaN refused)."""
     return json.loads(json.dumps(obj, default=jsonable, allow_nan=False))
-
-
-def jsonable(value: Any) -> Any:
-    """``json.dumps`` default for numpy values (anything else by its repr)."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return repr(value)
 
 
 class _DeviceCalls:

@@ -6,7 +6,7 @@ streamed joint positions), and checks every reading for values no instrument giv
 The rig keeps what a reading needs to be modelled later: the sign of each joint's last motion
 (``approach``) and the time since the run's first reading (``minutes``).
 The measuring library (``ucal.measure``) and every procedure measure through a rig; the cell
-session (``ucal.session``) builds it from the profile.
+session (``ucal.devices.session``) builds it from the profile.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -114,6 +114,15 @@ def check_readings(endpoint: str, amplitudes: np.ndarray, tofs_ns: np.ndarray) -
     if np.any(bad):
         i = int(np.argmax(bad))
         check_reading(endpoint, float(amplitudes[i]), float(tofs_ns[i]))
+
+
+class Sweep(NamedTuple):
+    """The readings of one line swept (or stepped): the joints at each reading (n, 6, deg),
+    its amplitude (n,, fraction of full screen) and its time of flight (n,, ns)."""
+
+    joints_deg: np.ndarray
+    amplitudes: np.ndarray
+    tofs_ns: np.ndarray
 
 
 @dataclass
@@ -296,9 +305,7 @@ class Rig:
         self.floor_per_gain = floor / 10 ** (self.settings.gain_db / 20)
         log.info("noise floor %.2e FSH at %.1f dB", floor, self.settings.gain_db)
 
-    def sweep(
-        self, target: np.ndarray, max_step_deg: float = 0.08
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sweep(self, target: np.ndarray, max_step_deg: float = 0.08) -> Sweep:
         """Move to ``target`` reading the pulser all the way.
 
         Returns the joint positions at each reading (n, 6), the amplitudes (n,) and the TOFs
@@ -367,7 +374,7 @@ class Rig:
         else:
             q = np.tile(target, (len(tr), 1))
         self.last_sweep_step_deg = self._covered_step(start, target, ts[after], js[after], tr)
-        return q, amps, tofs
+        return Sweep(q, amps, tofs)
 
     def _tied(
         self,
@@ -486,9 +493,7 @@ class Rig:
             )
         self.rate_factor = factor
 
-    def line(
-        self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float = 0.08) -> Sweep:
         """Sweep from ``start`` to ``end`` (moving to ``start`` first if needed); a sweep whose
         readings came too far apart (or that kept none, ``_tied``) is swept again, back, at the
         speed the measured motion allows. An arm too fast to sweep even at ``MIN_SPEED`` (its
@@ -501,7 +506,7 @@ class Rig:
         a, b = np.asarray(start, float), np.asarray(end, float)
         for _ in range(4):
             out = self.sweep(b, max_step_deg)
-            if len(out[1]) and self.last_sweep_step_deg <= 1.5 * max_step_deg:
+            if len(out.amplitudes) and self.last_sweep_step_deg <= 1.5 * max_step_deg:
                 return out
             a, b = b, a  # the arm stands at the new ``a``
             if self.sweep_speed <= MIN_SPEED:
@@ -510,9 +515,7 @@ class Rig:
             return out  # no stream to say how the arm moved (a controller double)
         return self.stepped_line(a, b, max_step_deg)
 
-    def stepped_line(
-        self, start: np.ndarray, end: np.ndarray, max_step_deg: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def stepped_line(self, start: np.ndarray, end: np.ndarray, max_step_deg: float) -> Sweep:
         """Read the line from ``start`` to ``end`` in settled steps ``spacing.aim`` ×
         ``max_step_deg`` apart: the postures, amplitudes and times of flight."""
         a, b = np.asarray(start, float), np.asarray(end, float)
@@ -535,4 +538,4 @@ class Rig:
             amps.append(reading.amplitude)
             tofs.append(reading.tof_ns)
         self.last_sweep_step_deg = travel / max(n - 1, 1)
-        return np.asarray(qs, float), np.asarray(amps, float), np.asarray(tofs, float)
+        return Sweep(np.asarray(qs, float), np.asarray(amps, float), np.asarray(tofs, float))

@@ -32,9 +32,7 @@ from drivers.pulser.manual import ManualPulser
 from drivers.pulser.modbus import ModbusPulser
 from drivers.registry import open_controller, open_pulser
 from ucal.cell import CellProfile, WorldTruth
-from ucal.errors import HardwareError, InputError, ProfileError, SafetyError
-from ucal.models import joint_speeds_deg_s
-from ucal.record import (
+from ucal.devices.record import (
     Record,
     Recorder,
     RecordingController,
@@ -43,7 +41,9 @@ from ucal.record import (
     ReplayController,
     ReplayPulser,
 )
-from ucal.rig import Rig
+from ucal.devices.rig import Rig
+from ucal.errors import HardwareError, InputError, ProfileError, SafetyError
+from ucal.models import joint_speeds_deg_s
 from ucal.sim.demo import demo_world
 from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world
@@ -262,7 +262,7 @@ def open_cell(
     (``digitizer_url``: the digitiser of a pulser that does not digitise itself).
 
     With a ``recorder`` every call the procedure makes to the devices is recorded as it happens
-    (``ucal.record``).
+    (``ucal.devices.record``).
     """
     if sim_world is None and not (controller_url and pulser_url):
         raise InputError("give either --sim [WORLD] or both --controller URL and --pulser URL")
@@ -331,7 +331,8 @@ def open_cell(
 
 @contextlib.contextmanager
 def replay_cell(profile: CellProfile, record: Record) -> Iterator[CellSession]:
-    """A cell that answers with a recorded run's device traffic (``ucal.record``): no motion."""
+    """A cell that answers with a recorded run's device traffic (``ucal.devices.record``): no
+    motion."""
     replay = Replay(record)
     controller = ReplayController(replay, str(record.header.get("cell", "recorded cell")))
     pulser = ReplayPulser(replay, "recorded pulser")
