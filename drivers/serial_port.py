@@ -41,7 +41,7 @@ class SocketPort(_PyserialSocket):
     def in_waiting(self) -> int:
         """Return the number of bytes received and not yet read."""
         if not self.is_open or self._socket is None:
-            return super().in_waiting
+            return int(super().in_waiting)
         ready, _, _ = select.select([self._socket], [], [], 0)
         if not ready:
             return 0

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -87,7 +88,7 @@ class PointResult:
 
     @property
     def deviation_mm(self) -> np.ndarray:
-        return self.reached_mm - self.nominal_mm
+        return np.asarray(self.reached_mm - self.nominal_mm)
 
 
 @dataclass(frozen=True)
@@ -171,10 +172,10 @@ class VerifyResult:
         dev = self.deviations("after", group)
         return deviation_stats(dev)["max"] if len(dev) else None
 
-    def to_json(self, tolerance_mm: float | None = None) -> dict:
+    def to_json(self, tolerance_mm: float | None = None) -> dict[str, Any]:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
         # a pass without a measured point (every "before" point skipped): null statistics
-        out: dict = {
+        out: dict[str, Any] = {
             f"{p}_mm": {k: [v if np.isfinite(v) else None for v in vs] for k, vs in st.items()}
             for p in PASSES
             for st in (self.stats(p),)
