@@ -37,7 +37,7 @@ from ucal.model.geometry import (
 from ucal.model.safety import (
     MIN_WATER_PATH_MM,
 )
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
 from ucal.rig import Rig
@@ -49,7 +49,6 @@ from ucal.verify.plan import (
     joints_for,
     target_matrix,
     tool_clearance_mm,
-    tool_lever,
     wrist_centre_local,
 )
 from ucal.verify.solve import (

@@ -26,9 +26,9 @@ from ucal.model.geometry import (
     beam_and_tcp,
 )
 from ucal.model.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.model.wrist import aim_wrist
-from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
+from ucal.verify.plan import VerifyPlan, VerifyTarget
 
 
 def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:

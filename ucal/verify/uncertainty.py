@@ -34,9 +34,9 @@ from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.model.geometry import CellGeometry, beam_and_tcp
 from ucal.model.priors import DELAY_PRIOR_STD_NS
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.verify.measure import PointResult, VerifyResult
-from ucal.verify.plan import VerifyPlan, joints_for, target_matrix, tool_lever
+from ucal.verify.plan import VerifyPlan, joints_for, target_matrix
 from ucal.verify.solve import exact_reconstruction
 
 
