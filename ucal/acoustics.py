@@ -180,7 +180,9 @@ def rectangle_share(edge_distances_mm: np.ndarray, sigma_mm: float) -> float | n
     phi = ndtr(d / sigma_mm)
     if phi.shape == (4,):  # one hit, at every simulated reading: the same sums on floats
         u_min, u_max, v_min, v_max = phi.tolist()
-        return min(max(u_min + u_max - 1.0, 0.0), 1.0) * min(max(v_min + v_max - 1.0, 0.0), 1.0)
+        return float(
+            min(max(u_min + u_max - 1.0, 0.0), 1.0) * min(max(v_min + v_max - 1.0, 0.0), 1.0)
+        )
     share_u = phi[..., 0] + phi[..., 1] - 1.0
     share_v = phi[..., 2] + phi[..., 3] - 1.0
     s = np.clip(share_u, 0.0, 1.0) * np.clip(share_v, 0.0, 1.0)

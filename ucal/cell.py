@@ -409,7 +409,7 @@ class WorldTruth:
         k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
         t = np.radians(self.beam_squint_deg)
         squint = np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
-        return self.tool_matrix @ transform(np.zeros(3), squint)
+        return np.asarray(self.tool_matrix @ transform(np.zeros(3), squint))
 
     @property
     def sample_matrix(self) -> np.ndarray:

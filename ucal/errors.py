@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 EXIT_OK = 0
 EXIT_OUT_OF_TOLERANCE = 1
 EXIT_USAGE = 2
@@ -64,7 +66,7 @@ class OutOfToleranceError(UcalError):
 
     exit_code = EXIT_OUT_OF_TOLERANCE
 
-    def __init__(self, message: str, result: dict | None = None):
+    def __init__(self, message: str, result: dict[str, Any] | None = None):
         super().__init__(message)
         self.result = result
 
@@ -79,7 +81,7 @@ class InterruptedAfterResult(UcalError):
 
     exit_code = EXIT_INTERRUPTED
 
-    def __init__(self, result: dict):
+    def __init__(self, result: dict[str, Any]):
         written = bool(result.get("written"))
         super().__init__(
             "interrupted as the run ended, the robot stopped: "

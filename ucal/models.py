@@ -61,7 +61,8 @@ def model_table_text(name: str) -> str:
 @functools.cache
 def _robot_table(name: str) -> Mapping[str, Any]:
     """The parsed ``[robot]`` of a model file (read once; every caller builds its own arrays)."""
-    return tomllib.loads(model_table_text(name))["robot"]
+    table: Mapping[str, Any] = tomllib.loads(model_table_text(name))["robot"]
+    return table
 
 
 def model_sheet(name: str) -> ModelSheet:
@@ -116,7 +117,7 @@ def joint_speeds_deg_s(model: RobotModel | None) -> np.ndarray:
         return model.speed_deg_s
     if model is not None and model.name in KNOWN_MODELS:
         return joint_speeds_deg_s(load_model(model.name))
-    return np.min([joint_speeds_deg_s(load_model(n)) for n in KNOWN_MODELS], axis=0)
+    return np.asarray(np.min([joint_speeds_deg_s(load_model(n)) for n in KNOWN_MODELS], axis=0))
 
 
 def controller_model(model: RobotModel, source: object = "profile") -> RobotModel:

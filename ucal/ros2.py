@@ -91,7 +91,7 @@ def _link_matrix(model: RobotModel, row: int) -> np.ndarray:
     """``M = Tz(d)·Tx(a)·Rx(α)·Ry(β)`` of DH row ``row`` (0-based; mm): ``A`` at θ = 0."""
     m = dh_matrix(np.array(0.0), model.d_mm[row], model.a_mm[row], np.radians(model.alpha_deg[row]))
     twist = Rotation.from_euler("y", model.beta_deg[row], degrees=True).as_matrix()
-    return m @ transform(np.zeros(3), twist)
+    return np.asarray(m @ transform(np.zeros(3), twist))
 
 
 def _rot_z(angle_deg: float) -> np.ndarray:

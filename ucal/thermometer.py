@@ -269,7 +269,7 @@ class Thermometer:
 
         def factor(t: float) -> float:
             c = float(self.speeds_m_s(np.array([t]))[0])
-            return 1.0 + (c - a - b * (t - t_ref)) / c
+            return float(1.0 + (c - a - b * (t - t_ref)) / c)
 
         return _corrected(data, factor, lambda d: d * noise_m_s / float(a))
 
@@ -298,7 +298,7 @@ class Thermometer:
             scatter = float(np.std(np.diff(temps, 2)) / np.sqrt(6.0)) if temps.size > 3 else 0.0
         steps = np.abs(np.diff(np.unique(self.temperature_c)))
         resolution = float(np.min(steps)) if len(steps) else 0.0
-        return max(scatter, resolution / np.sqrt(12.0))
+        return float(max(scatter, resolution / np.sqrt(12.0)))
 
     def course_noise_c(self, data: Any) -> float:
         """One sigma of the log's course (``course_c``) over ``data``'s run (°C): the readings'
@@ -309,7 +309,7 @@ class Thermometer:
         """The tank's temperature (°C) at each of ``t_min`` as the log's course gives it: the
         log smoothed over ``SMOOTHING_MIN`` (as logged where its readings are too few or not
         evenly spaced), interpolated."""
-        return np.interp(t_min, self.time_min, self._course[0])
+        return np.asarray(np.interp(t_min, self.time_min, self._course[0]))
 
     @functools.cached_property
     def _course(self) -> tuple[np.ndarray, float, float]:

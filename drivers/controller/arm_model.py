@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class Segment:
         if t <= self.t_start:
             return self.start_deg.copy()
         f = (t - self.t_start) / (self.t_end - self.t_start)
-        return self.start_deg + f * (self.target_deg - self.start_deg)
+        return np.asarray(self.start_deg + f * (self.target_deg - self.start_deg))
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,7 @@ class Plan:
         """Joint velocities (deg/s) at ``t``: the moving segment's, else zero."""
         for seg in self.segments:
             if seg.t_start <= t < seg.t_end:
-                return (seg.target_deg - seg.start_deg) / (seg.t_end - seg.t_start)
+                return np.asarray((seg.target_deg - seg.start_deg) / (seg.t_end - seg.t_start))
         return np.zeros(N_JOINTS)
 
     def in_motion(self, t: float) -> bool:
@@ -128,7 +129,7 @@ class SimulatedArm:
         variant: ServerVariant,
         time_scale: float,
         settle_s: float,
-        on_motion: Callable[[dict], None] | None,
+        on_motion: Callable[[dict[str, Any]], None] | None,
         on_point: Callable[[int], None] | None,
         clock: Clock | None,
     ):
@@ -261,7 +262,7 @@ class SimulatedArm:
             motion_possible=int(possible),
         )
 
-    def _record(self, seg: Segment, end_deg: np.ndarray, stopped: bool) -> dict:
+    def _record(self, seg: Segment, end_deg: np.ndarray, stopped: bool) -> dict[str, Any]:
         wall_start = time.time() - (self.clock.now() - seg.t_start)
         return {
             "seq": seg.seq,
@@ -274,7 +275,7 @@ class SimulatedArm:
             "stopped": stopped,
         }
 
-    def _notify(self, records: list[dict]) -> None:
+    def _notify(self, records: list[dict[str, Any]]) -> None:
         callback = self.on_motion
         if callback is None:
             return

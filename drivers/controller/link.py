@@ -81,7 +81,7 @@ def receive_stamp_s(ancillary: list[tuple[int, int, bytes]]) -> float | None:
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
             sec, nsec = _TIMESPEC.unpack_from(data)
-            return sec + 1e-9 * nsec
+            return float(sec + 1e-9 * nsec)
     return None
 
 

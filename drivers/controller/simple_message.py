@@ -315,7 +315,7 @@ class JointFeedback(_Framed):
     @property
     def time_s(self) -> float:
         """The ``time`` field read as REP-I0006 defines it (float32, s)."""
-        return struct.unpack(BYTE_ORDER + "f", self.time_raw)[0]
+        return float(struct.unpack(BYTE_ORDER + "f", self.time_raw)[0])
 
     def _body(self) -> bytes:
         return self._BODY.pack(
@@ -474,7 +474,7 @@ class FrameReader:
         if n < LENGTH_SIZE:
             return LENGTH_SIZE - n
         (length,) = _LENGTH.unpack_from(self._buf)
-        return max(LENGTH_SIZE + length - n, 1)
+        return int(max(LENGTH_SIZE + length - n, 1))
 
     def feed(self, data: bytes) -> list[Message]:
         """Append ``data`` and return every message completed by it, in order."""

@@ -58,7 +58,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 
@@ -141,7 +141,7 @@ class SimulatedController(SimulatedArm, Served):
         max_speed_deg_s: Sequence[float] = DEFAULT_MAX_SPEED_DEG_S,
         time_scale: float = 1.0,
         state_rate_hz: float | None = None,
-        on_motion: Callable[[dict], None] | None = None,
+        on_motion: Callable[[dict[str, Any]], None] | None = None,
         joint_message: int | None = None,
         clock: Clock | None = None,
         settle_s: float = 0.0,
@@ -288,7 +288,7 @@ class SimulatedController(SimulatedArm, Served):
         sock.settimeout(_POLL_S)
         return sock
 
-    def _spawn(self, target: Callable, args: tuple, name: str) -> None:
+    def _spawn(self, target: Callable[..., object], args: tuple[Any, ...], name: str) -> None:
         thread = threading.Thread(
             target=target, args=args, daemon=True, name=f"sim-controller-{name}"
         )

@@ -19,7 +19,8 @@ import math
 import select
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -51,6 +52,7 @@ from drivers.urls import ControllerAddress
 
 # The client logs both ports (its READ/WRITE lines) under one name.
 log = logging.getLogger("drivers.controller.client")
+_T = TypeVar("_T")
 
 #: A move in progress gets at least this much closer to its target (deg, the largest joint
 #: distance) every ``halt_timeout_s``; otherwise the controller has halted it.
@@ -354,7 +356,13 @@ class StateStreamController(RobotController):
                 f"moved towards it for {stalled_s:.1f} s; it reports {said}",
             )
 
-    def _wait_for(self, predicate, timeout_s: float, what: str, timeout_name: str | None = None):
+    def _wait_for(
+        self,
+        predicate: Callable[[], _T | None],
+        timeout_s: float,
+        what: str,
+        timeout_name: str | None = None,
+    ) -> _T:
         """Wait until ``predicate()`` (called with ``_cond`` held) returns non-None.
 
         Before the first state message the wait lasts at least until ``first_state_timeout_s``

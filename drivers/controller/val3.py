@@ -31,7 +31,7 @@ def val3_percent(velocity: float) -> float:
     the result to four decimals.
     """
     received = struct.unpack("<f", struct.pack("<f", velocity))[0]
-    return math.floor(received * 100.0 * 10000.0 + 0.5) / 10000.0
+    return float(math.floor(received * 100.0 * 10000.0 + 0.5) / 10000.0)
 
 
 def velocity_on_wire(speed: float) -> float:

@@ -164,7 +164,7 @@ class ManualPulser(DigitisedPulser):
 
     def record_scale(self) -> float:
         """The host's gain, as a factor."""
-        return 10.0 ** (self.host_gain_db / 20.0)
+        return float(10.0 ** (self.host_gain_db / 20.0))
 
     def identity(self) -> dict[str, object]:
         """That the pulser is set by hand, its declared settings, the digitiser's identity and

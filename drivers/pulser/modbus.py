@@ -164,11 +164,11 @@ class ModbusPulser(ModbusLink, PulserReceiver):
             try:
                 words = self._read_values(identity, "identify", autoconnect=False)
             except BaseException:
-                self._client.close()
+                self._close_client()
                 raise
             got = {r.name: r.decode(words[r.name]) for r in identity}
             if any(r.values is not None and got[r.name] not in r.values for r in identity):
-                self._client.close()
+                self._close_client()
                 answer = " ".join(_identity_text(r.name, [got[r.name]]) for r in identity)
                 expected = " ".join(_identity_text(r.name, r.values or ()) for r in identity)
                 raise ProtocolError(
@@ -187,7 +187,7 @@ class ModbusPulser(ModbusLink, PulserReceiver):
         """Close the connection. Idempotent."""
         with self._lock:
             self._connected = False
-            self._client.close()
+            self._close_client()
 
     @property
     def map_version(self) -> int | None:

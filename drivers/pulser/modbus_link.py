@@ -18,7 +18,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.client.base import ModbusBaseSyncClient
@@ -54,6 +54,12 @@ READ_FUNCTION = {
 
 class _NoFrame(Exception):
     """Bytes kept arriving past a request's deadline without forming the awaited frame."""
+
+
+class _Closable(Protocol):
+    """What closing a pymodbus client needs (its clients' ``close()`` is unannotated)."""
+
+    def close(self) -> None: ...
 
 
 class ModbusLink(RequestLink):
@@ -97,7 +103,7 @@ class ModbusLink(RequestLink):
         """Open the link; ``ConnectionLost`` when it cannot be opened."""
         self._open_port()
         if not self._client.connect():
-            self._client.close()
+            self._close_client()
             what = (
                 f"serial device {self._url.device!r}"
                 if self._url.framing == "rtu"
@@ -109,6 +115,11 @@ class ModbusLink(RequestLink):
                 f"cannot open {what} (refused, unreachable or no answer "
                 f"within {self._timeout_s:.3g} s)",
             )
+
+    def _close_client(self) -> None:
+        """Close the pymodbus client."""
+        client: _Closable = self._client
+        client.close()
 
     def _make_client(self, url: PulserUrl) -> ModbusBaseSyncClient:
         common: dict[str, Any] = {
@@ -378,4 +389,4 @@ class ModbusLink(RequestLink):
     def _lost(self) -> None:
         """Forget the connection so that the next call reconnects."""
         self._connected = False
-        self._client.close()
+        self._close_client()

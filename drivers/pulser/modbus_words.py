@@ -149,7 +149,7 @@ def encode_float32(value: float, word_order: str = WORD_ORDER) -> tuple[int, int
 def decode_float32(first: int, second: int, word_order: str = WORD_ORDER) -> float:
     """Decode two registers (in address order) holding an IEEE 754 float32."""
     raw = decode_uint32(first, second, word_order)
-    return struct.unpack(">f", struct.pack(">I", raw))[0]
+    return float(struct.unpack(">f", struct.pack(">I", raw))[0])
 
 
 def encode_string(text: str, words: int) -> list[int]:
@@ -174,7 +174,8 @@ def encode_samples(samples: np.ndarray, full_scale: int = ASCAN_FULL_SCALE) -> l
     Saturation here is the receiver's ADC clipping a too-strong signal, not input validation.
     """
     counts = np.rint(np.clip(np.asarray(samples, float), -1.0, 1.0) * full_scale)
-    return (counts.astype(np.int16).view(np.uint16)).astype(int).tolist()
+    words: list[int] = (counts.astype(np.int16).view(np.uint16)).astype(int).tolist()
+    return words
 
 
 def decode_samples(registers: Sequence[int], full_scale: int = ASCAN_FULL_SCALE) -> np.ndarray:

@@ -533,7 +533,8 @@ class SimulatedPulser(ServedOnPort):
         shift = 2 ** (16 - self.bits)
         top = 2 ** (self.bits - 1)
         codes = np.clip(np.rint(wave * full_scale / shift), -top, top - 1) * shift
-        return (codes.astype(np.int16).view(np.uint16)).astype(int).tolist()
+        words: list[int] = (codes.astype(np.int16).view(np.uint16)).astype(int).tolist()
+        return words
 
     # --- server thread ----------------------------------------------------------------------
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:

@@ -145,7 +145,7 @@ def tcp_budget(
         d[i] = 1.0
         d[free] += direction
         diff = _tcp(fit, model, v0 + h * d, q) - _tcp(fit, model, v0 - h * d, q)
-        return project @ diff.ravel() / (2.0 * h)
+        return np.asarray(project @ diff.ravel() / (2.0 * h))
 
     def data_rows(values: np.ndarray) -> np.ndarray:
         rows = data_residuals(table, values, model, meas, c0_m_s).ravel() if meas else np.zeros(0)

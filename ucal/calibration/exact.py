@@ -38,6 +38,7 @@ posture repeatability), scaled by the reduced χ² when that exceeds one.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,7 +159,7 @@ def tilted_beam(geom: CellGeometry, tilt_rad: np.ndarray | None) -> np.ndarray:
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(a, e1)
     v = a + tilt_rad[0] * e1 + tilt_rad[1] * e2
-    return v / np.linalg.norm(v)
+    return np.asarray(v / np.linalg.norm(v))
 
 
 def residuals(
@@ -277,7 +278,9 @@ def _fit(
     return sol.x, jac, fun(sol.x)
 
 
-def _jacobian(fun, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+def _jacobian(
+    fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, h: float = 1e-6
+) -> np.ndarray:
     """Central-difference Jacobian (more accurate than the solver's forward one)."""
     cols = []
     for i in range(len(x)):

@@ -75,7 +75,7 @@ def wrist_centre_shift(
 ) -> np.ndarray:
     """δW (3,) in the base frame from the distance changes to the three faces."""
     delta_block = np.array([after[k].distance_mm - before[k].distance_mm for k in range(3)])
-    return geom.block_rotation @ delta_block
+    return np.asarray(geom.block_rotation @ delta_block)
 
 
 def _by_config(meas: list[FaceMeasurement]) -> dict[str, dict[int, FaceMeasurement]]:
@@ -121,7 +121,7 @@ def _triad(u1: np.ndarray, u2: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np
         e2 /= np.linalg.norm(e2)
         return np.column_stack([e1, e2, np.cross(e1, e2)])
 
-    return frame(w1, w2) @ frame(u1, u2).T
+    return np.asarray(frame(w1, w2) @ frame(u1, u2).T)
 
 
 def wrist_angles(
@@ -153,7 +153,7 @@ def wrist_angles(
     th5 = np.arctan2(s5_sign * np.hypot(r63[0, 2], r63[1, 2]), r63[2, 2])  # (20)
     th4 = np.arctan2(s5_sign * r63[1, 2], s5_sign * r63[0, 2])  # (21)
     th6 = np.arctan2(s5_sign * r63[2, 1], -s5_sign * r63[2, 0])
-    return np.degrees([th4, th5, th6]) - model.theta_offset_deg[3:]
+    return np.asarray(np.degrees([th4, th5, th6]) - model.theta_offset_deg[3:])
 
 
 def _wrap(angle_deg: np.ndarray) -> np.ndarray:
@@ -316,7 +316,7 @@ def truncation_error(
                 m, joints_deg=q, distance_joints_deg=None, distance_mm=proj - corner_local[m.face]
             )
         )
-    return np.abs(_wrap(paper_offsets(geom, synth) - offsets_deg))
+    return np.asarray(np.abs(_wrap(paper_offsets(geom, synth) - offsets_deg)))
 
 
 def _with(m: FaceMeasurement, **changes: Any) -> FaceMeasurement:

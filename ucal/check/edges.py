@@ -382,4 +382,4 @@ def edge_residuals(
     s = -((tcp - corner) @ normal) / (beam @ normal)
     hit = tcp + s[:, None] * beam
     along = np.einsum("nj,nj->n", rot[:, arrays.axes].T, hit - corner)
-    return (along - arrays.edge_mm) / arrays.std_mm
+    return np.asarray((along - arrays.edge_mm) / arrays.std_mm)

@@ -35,6 +35,7 @@ from ucal.kinematics.ik import ik
 from ucal.model.geometry import FaceMeasurement
 from ucal.model.priors import SOUND, CellPrior, prior_from_profile
 from ucal.model.residuals import measurement_label
+from ucal.model.targets import PlannedTarget
 
 #: The nominal one sigma of a water path (mm), a normal incidence (deg) and a crossing (mm).
 NOMINAL = (0.01, 0.002, 0.015)
@@ -73,7 +74,7 @@ class Observability:
 
 
 def nominal_readings(
-    profile: CellProfile, targets: tuple, edges: tuple[EdgeLine, ...]
+    profile: CellProfile, targets: tuple[PlannedTarget, ...], edges: tuple[EdgeLine, ...]
 ) -> tuple[list[FaceMeasurement], list[EdgeReading]]:
     """The planned postures as readings at ``NOMINAL`` noise (their values do not matter to a
     linearised fit's covariance; their postures do)."""
@@ -97,7 +98,7 @@ def nominal_readings(
 
 
 def observability(
-    profile: CellProfile, targets: tuple, edges: tuple[EdgeLine, ...]
+    profile: CellProfile, targets: tuple[PlannedTarget, ...], edges: tuple[EdgeLine, ...]
 ) -> Observability:
     """What the planned measurements see and determine (module docstring)."""
     prior = prior_from_profile(profile)

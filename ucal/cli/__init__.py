@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from typing import Any
 
 import click
 
@@ -113,7 +114,7 @@ def cli(ctx: click.Context) -> None:
     configure_logging(ctx)  # -v/-q/--debug after the subcommand adjust it again
 
 
-def _report(message: str, code: int, as_json: bool, result: dict | None = None) -> None:
+def _report(message: str, code: int, as_json: bool, result: dict[str, Any] | None = None) -> None:
     """The one-line error on stderr; with ``--json`` the SPEC error object on stdout too (the
     full result plus the error fields when the run finished out of tolerance)."""
     click.echo(f"error: {message}", err=True)

@@ -211,7 +211,7 @@ def _job(
     return OffsetsCalibration(profile, profile_path, method, beam, force, lost_motion)
 
 
-def warn_weak(result: CalibrationResult) -> None:
+def warn_weak(result: CalibrationResult[Any]) -> None:
     """A warning line per joint measured too weakly to write (kept at its profile value)."""
     for j, w in result.weak().items():
         warn(f"J{j} measured at {w.offset_deg:+.4f} ± {w.std_deg:.3g} deg: {w.reason}")
@@ -280,12 +280,12 @@ def show_result(console: Console, result: OffsetsResult) -> None:
     show_gauge(console, result)
 
 
-def _sound_speed(result: CalibrationResult) -> str:
+def _sound_speed(result: CalibrationResult[Any]) -> str:
     sound = result.solved.sound
     return f"sound speed {sound.sound_speed_m_s:.2f} ± {sound.sound_speed_std_m_s:.2f} m/s"
 
 
-def _run_line(result: CalibrationResult) -> str:
+def _run_line(result: CalibrationResult[Any]) -> str:
     run = result.run
     return (
         f"{run.moves} moves, {run.reads} pulser reads; profile "
@@ -293,7 +293,7 @@ def _run_line(result: CalibrationResult) -> str:
     )
 
 
-def show_approach(console: Console, result: CalibrationResult) -> None:
+def show_approach(console: Console, result: CalibrationResult[Any]) -> None:
     """The approach direction the offsets belong to, and what is not measured of it; what
     the unidentified quantities' tolerances allow at the tool centre."""
     budget = result.solved.budget
@@ -314,7 +314,7 @@ def show_approach(console: Console, result: CalibrationResult) -> None:
     )
 
 
-def show_gauge(console: Console, result: CalibrationResult) -> None:
+def show_gauge(console: Console, result: CalibrationResult[Any]) -> None:
     """How J1 is known (``ucal.model.gauge``) and the block the fit measured."""
     gauge = result.gauge
     if gauge is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.table import Table
@@ -253,7 +254,7 @@ def _fmt(values: object) -> str:
     return str(values)
 
 
-def _print_profile(data: dict) -> None:
+def _print_profile(data: dict[str, Any]) -> None:
 
     console = table_console()
     robot = data["robot"]

@@ -192,7 +192,7 @@ class Rig:
         self.first_read_wall_s: float | None = None
 
     def clip(self, q: np.ndarray) -> np.ndarray:
-        return np.clip(q, self.joint_min_deg, self.joint_max_deg)
+        return np.asarray(np.clip(q, self.joint_min_deg, self.joint_max_deg))
 
     def configure(self, **changes: Any) -> None:
         new = replace(self.settings, **changes)

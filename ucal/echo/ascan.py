@@ -214,7 +214,7 @@ class ReferenceEcho:
         spectrum = fft.rfft(self.samples, n_fft)
         gain = wiener_gain(np.abs(spectrum) ** 2, self.n * self.noise_rms**2)
         gain[0] = 0.0  # an offset is not the echo
-        return spectrum * gain
+        return np.asarray(spectrum * gain)
 
     @functools.cached_property
     def band_power_threshold(self) -> float:

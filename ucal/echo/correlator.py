@@ -57,7 +57,7 @@ class Correlator:
     def conjugate(self) -> np.ndarray:
         """The reference's spectrum conjugated: a record's correlation is its spectrum times
         this (kept: the fits of one record correlate it again and again)."""
-        return np.conj(self.spectrum)
+        return np.asarray(np.conj(self.spectrum))
 
     def fit(self, x: np.ndarray, lag: float) -> tuple[float, float]:
         """(lag, amplitude) at the correlation peak nearest ``lag`` (samples)."""

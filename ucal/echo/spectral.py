@@ -70,7 +70,7 @@ def shifted(spectrum: np.ndarray, n_fft: int, delay: float, derivative: bool = F
         s = s * minus_i_omega
     if n_fft % 2 == 0:
         s[-1] = 0.0
-    return fft.irfft(s, n_fft)
+    return np.asarray(fft.irfft(s, n_fft))
 
 
 def evaluate(samples: np.ndarray, positions: np.ndarray, chunk: int = 256) -> np.ndarray:

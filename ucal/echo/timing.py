@@ -556,7 +556,7 @@ def _refit_censored(
 
 def _mills(a: np.ndarray) -> np.ndarray:
     """φ(a)/Q(a): the mean excess over the rail of a unit Gaussian beyond ``a``."""
-    return np.exp(stats.norm.logpdf(a) - stats.norm.logsf(a))
+    return np.asarray(np.exp(stats.norm.logpdf(a) - stats.norm.logsf(a)))
 
 
 def _envelope_estimate(ascan: AScan, gate: tuple[float, float]) -> EchoEstimate:

@@ -160,7 +160,7 @@ def model_angles_rad(
     q = np.asarray(joints_deg, dtype=float) + model.theta_offset_deg
     if offsets_deg is not None:
         q = q + np.asarray(offsets_deg, dtype=float)
-    return np.radians(q)
+    return np.asarray(np.radians(q))
 
 
 _EYE4 = np.eye(4)

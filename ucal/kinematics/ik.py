@@ -446,7 +446,7 @@ def weighted_distance(
     """Paper 004's shortest-distance measure Σ wᵢ|θᵢ − θᵢ_ref| (deg) (…, m, 6) → (…, m) (eq. 16)."""
     w = _as_weights(weights)
     ref = np.asarray(ref_deg, dtype=float)[..., None, :]
-    return np.sum(w * np.abs(solutions_deg - ref), -1)
+    return np.asarray(np.sum(w * np.abs(solutions_deg - ref), -1))
 
 
 def flange_from_tool(target_T: np.ndarray, tool_T: np.ndarray | None) -> np.ndarray:
@@ -541,7 +541,7 @@ def ik(
         else:
             why = f"all {int(real.sum())} solutions are outside the joint ranges"
         raise UnreachableError(f"pose at ({pos}) mm is unreachable for {model.name}: {why}")
-    return sols[ok] if all_solutions else sols[0]
+    return np.asarray(sols[ok] if all_solutions else sols[0])
 
 
 #: Words for the branch bits of ``ik_closed_form``'s index ``4·shoulder + 2·elbow + wrist``.

@@ -44,7 +44,7 @@ def rot_z(angle_rad: np.ndarray | float) -> np.ndarray:
 def rpy_to_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
     """Staubli ``[rx, ry, rz]`` in degrees (…, 3) → rotation matrix (…, 3, 3)."""
     r = np.radians(np.asarray(rxyz_deg, dtype=float))
-    return rot_x(r[..., 0]) @ rot_y(r[..., 1]) @ rot_z(r[..., 2])
+    return np.asarray(rot_x(r[..., 0]) @ rot_y(r[..., 1]) @ rot_z(r[..., 2]))
 
 
 def matrix_to_rpy(rot: np.ndarray) -> np.ndarray:
@@ -65,7 +65,7 @@ def matrix_to_rpy(rot: np.ndarray) -> np.ndarray:
         np.arctan2(-rot[..., 1, 2], rot[..., 2, 2]),
     )
     rz = np.where(locked, 0.0, np.arctan2(-rot[..., 0, 1], rot[..., 0, 0]))
-    return np.degrees(np.stack([rx, ry, rz], -1))
+    return np.asarray(np.degrees(np.stack([rx, ry, rz], -1)))
 
 
 def pose_to_matrix(pose: np.ndarray) -> np.ndarray:

@@ -91,7 +91,7 @@ def open_water(
     away = np.array(q_deg, float)
     turn = OPEN_WATER_TURN_DEG
     away[joint] += turn if away[joint] + turn < joint_max_deg[joint] else -turn
-    return np.clip(away, joint_min_deg, joint_max_deg)
+    return np.asarray(np.clip(away, joint_min_deg, joint_max_deg))
 
 
 def acquisition_gain(

@@ -53,7 +53,7 @@ def fit_edge_profile(t_mm: np.ndarray, amps: np.ndarray, outward: float = 1.0) -
 
     def model(p: np.ndarray) -> np.ndarray:
         a0, te, sig, slope = p
-        return (a0 + slope * (t - te)) * ndtr(outward * (te - t) / sig)
+        return np.asarray((a0 + slope * (t - te)) * ndtr(outward * (te - t) / sig))
 
     span = float(t.max() - t.min())
     p0 = np.array([top, t0, 1.5, 0.0])
@@ -94,7 +94,7 @@ def _sandwich_cov(jac: np.ndarray, res: np.ndarray, floor: float) -> np.ndarray:
     bread = np.linalg.pinv(jac.T @ jac)
     leverage = np.einsum("ij,jk,ik->i", jac, bread, jac)
     var = np.maximum(res**2, floor) / np.maximum(1.0 - leverage, 1e-3) ** 2
-    return bread @ (jac.T * var) @ jac @ bread
+    return np.asarray(bread @ (jac.T * var) @ jac @ bread)
 
 
 @dataclass(frozen=True)

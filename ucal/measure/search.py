@@ -534,7 +534,7 @@ class PeakSearch:
             lmat = np.array([[l11, 0.0], [l21, l22]])
             d = (f_pts - comps(np.array([[ua, ub]]))[:, :2]) @ lmat
             t = np.arcsin(np.clip(np.linalg.norm(d, axis=1), 0.0, 1.0))
-            return a0 * absorb * np.abs(piston_directivity(ka * np.sin(2 * t)))
+            return np.asarray(a0 * absorb * np.abs(piston_directivity(ka * np.sin(2 * t))))
 
         i = int(np.argmax(amps))
         p0 = np.array(
@@ -581,7 +581,7 @@ class PeakSearch:
     def _tilt_cov(self, cov_u_deg2: np.ndarray, p: np.ndarray) -> np.ndarray:
         lmat = np.array([[p[3], 0.0], [p[4], p[5]]])
         jac = lmat.T @ self.m  # rad of tilt per deg of joint
-        return jac @ cov_u_deg2 @ jac.T
+        return np.asarray(jac @ cov_u_deg2 @ jac.T)
 
 
 def read_distance(

@@ -144,7 +144,7 @@ def tilt_components(geom: CellGeometry, beam: np.ndarray, face: int) -> np.ndarr
     Zero at normal incidence (beam = −n). The components are the beam's projections on the
     face's in-plane axes, i.e. sines of the tilt in two perpendicular planes.
     """
-    return beam @ face_basis(geom, face).T
+    return np.asarray(beam @ face_basis(geom, face).T)
 
 
 def beam_on_axis(geom: CellGeometry, tol_deg: float = 1.0) -> bool:

@@ -151,7 +151,7 @@ def step_residuals(
     )
     cos_t = np.maximum(-beam @ geom.normal(2), 0.5)
     std = np.array([m.distance_std_mm for m in meas])
-    return rows[:, 2] - table.get(STEP, values)[0] / cos_t / std
+    return np.asarray(rows[:, 2] - table.get(STEP, values)[0] / cos_t / std)
 
 
 def redundancy_reason(name: str, partners: list[str]) -> str:
@@ -408,7 +408,7 @@ class FullSolution:
             rows[row][_STD_KEYS[col]] = _round_up(v) if np.isfinite(v) else -1.0
         return rows
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The ``identification`` object of ``calibrate --level full --json``."""
         return {
             "rank": self.ident.rank,
@@ -561,7 +561,7 @@ def solve_full(
 def ideal_measurements(
     geom: CellGeometry,
     corner_mm: np.ndarray,
-    postures: list[tuple],
+    postures: list[tuple[str, int, np.ndarray]],
     offsets_deg: np.ndarray,
     distance_std_mm: float = 1e-3,
     tilt_std_deg: float = 1e-3,
@@ -595,7 +595,7 @@ def scanning_postures(
     q = np.asarray(pose_deg, float) + rng.uniform(-1.0, 1.0, (n, 6)) * SCAN_HALF_RANGE_DEG
     if model is not None:
         q = np.clip(q, model.joint_min_deg, model.joint_max_deg)
-    return q
+    return np.asarray(q)
 
 
 def aligned_errors_mm(
@@ -611,4 +611,4 @@ def aligned_errors_mm(
     rot, _ = Rotation.align_vectors(t - tc, p - pc)
     moved = rot.apply(p - pc)
     k = float(np.sum(moved * (t - tc)) / np.sum(moved * moved)) if scale else 1.0
-    return np.linalg.norm(k * moved + tc - t, axis=1)
+    return np.asarray(np.linalg.norm(k * moved + tc - t, axis=1))

@@ -278,8 +278,8 @@ def _arm_room(profile: CellProfile, q: np.ndarray) -> np.ndarray:
     room = TOLERANCE_SIGMAS * offsets_std_deg(profile)[:3]
     model = profile.model
     arm = q[:, :3]
-    return np.all(
-        (arm >= model.joint_min_deg[:3] + room) & (arm <= model.joint_max_deg[:3] - room), 1
+    return np.asarray(
+        np.all((arm >= model.joint_min_deg[:3] + room) & (arm <= model.joint_max_deg[:3] - room), 1)
     )
 
 

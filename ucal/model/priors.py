@@ -261,7 +261,7 @@ class ParameterTable:
         idx = self._positions.get(names)
         if idx is None:  # the solvers ask for the same groups hundreds of times
             idx = self._positions[names] = np.array([self._index[n] for n in names], int)
-        return v[idx]
+        return np.asarray(v[idx])
 
     def expand(self, x_free: np.ndarray) -> np.ndarray:
         """Full value vector with the free entries replaced by ``x_free``."""

@@ -6,6 +6,7 @@ sits and what the residuals' pattern shows (a trend with time, a split by approa
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.special import chdtrc
@@ -48,7 +49,7 @@ class FitQuality:
     residuals: tuple[ResidualRow, ...] = ()
     prior_pulls: dict[str, float] = field(default_factory=dict)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "chi2_reduced": self.chi2_reduced,
             "dof": self.dof,

@@ -103,7 +103,7 @@ def two_sided_joints(meas: Sequence[Reading]) -> np.ndarray:
     signs = approach_signs(meas)
     if not len(signs):
         return np.zeros(6, bool)
-    return np.any(signs > 0, axis=0) & np.any(signs < 0, axis=0)
+    return np.asarray(np.any(signs > 0, axis=0) & np.any(signs < 0, axis=0))
 
 
 @dataclass(frozen=True)

@@ -315,7 +315,7 @@ def step_blocked(
     margin = np.reshape(np.asarray(margin_mm, float), (-1, 1))
     half = 0.5 * step.size_mm + margin[..., None]
     near = np.all(np.abs(path[..., :2] - step.centre_mm) <= half, -1)
-    return np.any(near & (path[..., 2] < step.height_mm + margin), 1)
+    return np.asarray(np.any(near & (path[..., 2] < step.height_mm + margin), 1))
 
 
 def reach_advice(profile: CellProfile, point_mm: np.ndarray, what: str) -> str:

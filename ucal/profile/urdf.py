@@ -111,7 +111,7 @@ class UrdfArm:
         base, flange = self.frames_m(q_rad)
         t = np.linalg.inv(base) @ flange
         t[:3, 3] *= 1000.0
-        return t
+        return np.asarray(t)
 
     def _link_m(self, link: str, angles: dict[str, float]) -> np.ndarray:
         t = np.eye(4)
@@ -390,7 +390,7 @@ def _floats(path: Path, joint: str, what: str, text: str | None) -> np.ndarray:
 def _rpy(rpy: np.ndarray) -> np.ndarray:
     """URDF ``rpy``: fixed-axis roll about x, pitch about y, yaw about z: Rz·Ry·Rx."""
     r, p, y = rpy
-    return (
+    return np.asarray(
         _rot(np.array([0.0, 0.0, 1.0]), y)
         @ _rot(np.array([0.0, 1.0, 0.0]), p)
         @ _rot(np.array([1.0, 0.0, 0.0]), r)
@@ -400,7 +400,7 @@ def _rpy(rpy: np.ndarray) -> np.ndarray:
 def _rot(u: np.ndarray, angle: float) -> np.ndarray:
     """Rotation by ``angle`` (rad) about the unit vector ``u`` (Rodrigues)."""
     k = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+    return np.asarray(np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k))
 
 
 def _rotation4(u: np.ndarray, angle: float) -> np.ndarray:

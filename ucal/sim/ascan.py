@@ -58,7 +58,7 @@ def _resonance(f_mhz: np.ndarray, f0_mhz: float, a_per_us: float, theta_us: floa
     """``H(ω)²·E(ω)`` of the module docstring (ω in rad/µs)."""
     w = 2.0 * np.pi * f_mhz
     h = 1j * w / ((a_per_us + 1j * w) ** 2 + (2.0 * np.pi * f0_mhz) ** 2)
-    return h**2 / (1.0 + 1j * w * theta_us) ** 2
+    return np.asarray(h**2 / (1.0 + 1j * w * theta_us) ** 2)
 
 
 def _band_6db(f_mhz: np.ndarray, magnitude: np.ndarray) -> tuple[float, float]:
@@ -148,7 +148,7 @@ class Digitiser:
     @property
     def lsb(self) -> float:
         """Quantisation step (the samples' units)."""
-        return 2.0 * self.full_scale / 2**self.bits
+        return float(2.0 * self.full_scale / 2**self.bits)
 
     @property
     def rails(self) -> tuple[float, float]:
@@ -159,7 +159,7 @@ class Digitiser:
         """Gain of the anti-alias filter (zero phase): 1 to 0.8·Nyquist, cos² to 0 at it."""
         nyquist = 0.5 * self.sample_rate_mhz
         x = np.clip((np.abs(f_mhz) / nyquist - ANTI_ALIAS_FLAT) / (1.0 - ANTI_ALIAS_FLAT), 0, 1)
-        return np.cos(0.5 * np.pi * x) ** 2
+        return np.asarray(np.cos(0.5 * np.pi * x) ** 2)
 
     def quantise(self, analog: np.ndarray) -> np.ndarray:
         """Round to the nearest level and hold at the rails."""
@@ -197,7 +197,7 @@ class EchoShape:
         s = self.pulse.spectrum(f) * self.digitiser.anti_alias(f)
         # ``scale`` is 1/peak of the waveform irfft(s) on the fine grid, i.e. of dt·p(t)
         s = s * (self.scale * self.waveform_dt_ns * 1e-3)
-        return s * np.exp(2j * np.pi * f * self.arrival_offset_ns * 1e-3)
+        return np.asarray(s * np.exp(2j * np.pi * f * self.arrival_offset_ns * 1e-3))
 
 
 def echo_shape(pulse: TransducerPulse, digitiser: Digitiser) -> EchoShape:

@@ -198,7 +198,7 @@ class SimulatedCell:
         th = np.asarray(joint_readings_deg, float) + self._angle_offset_deg
         if motion_sign is not None:
             th = th - np.sign(np.asarray(motion_sign, float)) * self._half_backlash_deg
-        return th
+        return np.asarray(th)
 
     def true_flange(
         self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
@@ -224,13 +224,13 @@ class SimulatedCell:
             twist = self._twists[i]
             if twist is not None:
                 t = t @ twist
-        return t
+        return np.asarray(t)
 
     def true_tcp(
         self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
     ) -> np.ndarray:
         """True tool-centre-point frame (4, 4) in the base frame for joint readings (deg)."""
-        return self.true_flange(joint_readings_deg, motion_sign) @ self._tool
+        return np.asarray(self.true_flange(joint_readings_deg, motion_sign) @ self._tool)
 
     def true_beam(
         self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None

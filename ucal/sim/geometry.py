@@ -186,7 +186,8 @@ def intersect_all(
 
 
 def _floats(v: np.ndarray) -> list[float]:
-    return np.asarray(v, dtype=float).tolist()
+    values: list[float] = np.asarray(v, dtype=float).tolist()
+    return values
 
 
 def _intersect(origin: list[float], direction: list[float], face: Face) -> FaceHit | None:

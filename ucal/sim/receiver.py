@@ -108,7 +108,7 @@ class EchoReceiver:
             s = s * np.exp(
                 -2.0 * (water_path_mm - acoustics.REFERENCE_WATER_PATH_MM) * self._alpha_np_per_mm
             )
-        return s
+        return np.asarray(s)
 
     def near_field_factor(self, tilt_deg: float, water_path_mm: float) -> float:
         """Overlap of the returning echo with the element (near field): the reflection of a

@@ -394,7 +394,7 @@ class SimulatedCellServer(Served):
         elif self.time_scale > 0:
             time.sleep(seconds * self.time_scale)
 
-    def _on_motion(self, record: dict) -> None:
+    def _on_motion(self, record: dict[str, Any]) -> None:
         """Controller callback at the end of each executed move: write one JSON line.
 
         The controller's record (``seq``, ``t_start``, ``start_deg``, ``target_deg``,

@@ -41,7 +41,7 @@ def true_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndarray:
 
     tcp = SimulatedCell(truth).true_tcp(joints_deg, motion_sign=np.ones(6))[:3, 3]
     s_mat = truth.sample_matrix
-    return s_mat[:3, :3].T @ (tcp - s_mat[:3, 3])
+    return np.asarray(s_mat[:3, :3].T @ (tcp - s_mat[:3, 3]))
 
 
 def verify_truth(
@@ -113,8 +113,9 @@ def acoustic_reached_local(truth: WorldTruth, joints_deg: np.ndarray) -> np.ndar
     tcp = cell.true_tcp(joints_deg, motion_sign=np.ones(6))
     beam_local = truth.sample_matrix[:3, :3].T @ tcp[:3, 2]
     c_mm_per_ns = cell.sound_speed_m_s() * 1e-6
-    return true_reached_local(truth, joints_deg) - beam_local * (
-        0.5 * c_mm_per_ns * truth.pulser.delay_ns
+    return np.asarray(
+        true_reached_local(truth, joints_deg)
+        - beam_local * (0.5 * c_mm_per_ns * truth.pulser.delay_ns)
     )
 
 

@@ -172,7 +172,7 @@ def _ray_hit(
 
 
 def _edge_normal(psi: float, plane: Plane) -> np.ndarray:
-    return np.cos(psi) * plane.e1 + np.sin(psi) * plane.e2
+    return np.asarray(np.cos(psi) * plane.e1 + np.sin(psi) * plane.e2)
 
 
 def offset_residuals(
@@ -339,11 +339,11 @@ def rotation_for_beam(beam: np.ndarray, nominal_rotation_deg: np.ndarray) -> np.
 
 
 def _any_perp(v: np.ndarray) -> np.ndarray:
-    return tangent_basis(v / np.linalg.norm(v))[0]
+    return np.asarray(tangent_basis(v / np.linalg.norm(v))[0])
 
 
 def rot_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """Rotation matrix about the unit ``axis`` by ``angle_rad`` (Rodrigues)."""
     k = np.asarray(axis, float)
     kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle_rad) * kx + (1 - np.cos(angle_rad)) * kx @ kx
+    return np.asarray(np.eye(3) + np.sin(angle_rad) * kx + (1 - np.cos(angle_rad)) * kx @ kx)

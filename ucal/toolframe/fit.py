@@ -651,9 +651,11 @@ def truth_in_profile_flange(profile: CellProfile, truth: WorldTruth) -> np.ndarr
 
     def link6(row: np.ndarray, offset_deg: float, beta_deg: float) -> np.ndarray:
         a6 = dh_matrix(np.radians(row[0] + offset_deg), row[1], row[2], np.radians(row[3]))
-        return a6 @ transform(np.zeros(3), rpy_to_matrix(np.array([0.0, beta_deg, 0.0])))
+        return np.asarray(
+            a6 @ transform(np.zeros(3), rpy_to_matrix(np.array([0.0, beta_deg, 0.0])))
+        )
 
     mine = link6(profile.model.dh[5], float(profile.joint_offsets_deg[5]), 0.0)
     lagged = float(truth.joint_offsets_deg[5]) - 0.5 * float(truth.backlash_deg[5])
     true = link6(truth.model.dh[5], lagged, float(truth.dh_beta_deg[5]))
-    return np.linalg.inv(mine) @ true @ truth.beam_matrix
+    return np.asarray(np.linalg.inv(mine) @ true @ truth.beam_matrix)

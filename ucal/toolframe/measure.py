@@ -150,7 +150,7 @@ class PlateRig:
     def turn_between(self, q_to: np.ndarray, q_from: np.ndarray) -> np.ndarray:
         """The rotation (3, 3, base frame) that takes the tool's orientation at readings
         ``q_from`` to that at ``q_to`` (the model's flange; the tool turns with it)."""
-        return self.flange(q_to)[:3, :3] @ self.flange(q_from)[:3, :3].T
+        return np.asarray(self.flange(q_to)[:3, :3] @ self.flange(q_from)[:3, :3].T)
 
     def move(self, q: np.ndarray) -> np.ndarray:
         self.q = np.asarray(q, float)

@@ -111,7 +111,7 @@ def residuals_mm(
 ) -> np.ndarray:
     """``n·(N_i − A)`` (mm) for ``t = (p_T, a_T)`` (paper 002, eqs. 7 and 11)."""
     jac, y = design(flange_rot, flange_pos_mm, paths_mm, plane)
-    return jac @ np.asarray(t, float) - y
+    return np.asarray(jac @ np.asarray(t, float) - y)
 
 
 def _null_basis(v: np.ndarray) -> np.ndarray:

@@ -53,7 +53,7 @@ class Plane:
     def project(self, x_mm: np.ndarray) -> np.ndarray:
         """Orthogonal projection (…, 3) of points onto the plane."""
         x = np.asarray(x_mm, float)
-        return x - self.distance_mm(x)[..., None] * self.normal
+        return np.asarray(x - self.distance_mm(x)[..., None] * self.normal)
 
     def to_plane(self, x_mm: np.ndarray) -> np.ndarray:
         """In-plane coordinates (…, 2) = (e1, e2) components of ``x − centroid`` (mm)."""

@@ -102,7 +102,9 @@ def _solve_exact(
     offsets = solve_offsets(beam_est, tofs, crossings, plan.plane, m.position_mm)
     first_rot = rotation_for_beam(beam_est.direction, profile.tool_rotation_deg)
 
-    def fit(edges_deg: np.ndarray, edge_offsets_mm: np.ndarray, position_mm: np.ndarray):
+    def fit(
+        edges_deg: np.ndarray, edge_offsets_mm: np.ndarray, position_mm: np.ndarray
+    ) -> ToolFrameFit:
         edge_start = np.column_stack([edges_deg, edge_offsets_mm]).ravel()
         tool_start = np.concatenate([position_mm, first_rot])
         return solve_plate_fit(

@@ -136,7 +136,7 @@ def orientation_deviation_deg(
     """The attained tool orientation's small rotation from the commanded one, about block X,
     Y, Z (deg): ``a``, ``b``, ``c`` of ISO 9283."""
     attained = point.flange_local @ profile.tool_matrix[:3, :3]
-    return Rotation.from_matrix(attained @ commanded.T).as_rotvec(degrees=True)
+    return np.asarray(Rotation.from_matrix(attained @ commanded.T).as_rotvec(degrees=True))
 
 
 def _finite(values: np.ndarray) -> list[float | None]:
@@ -231,7 +231,7 @@ def robot_scatter(by_pose: list[np.ndarray], noise_var: np.ndarray) -> np.ndarra
     dof = sum(len(x) - 1 for x in by_pose)
     cov = dev.T @ dev / max(dof, 1) - np.diag(noise_var)
     w, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    return (vec * np.clip(w, 0.0, None)) @ vec.T
+    return np.asarray((vec * np.clip(w, 0.0, None)) @ vec.T)
 
 
 def joint_jacobian_mm_per_deg(profile: CellProfile, joints_deg: np.ndarray) -> np.ndarray:
@@ -239,7 +239,7 @@ def joint_jacobian_mm_per_deg(profile: CellProfile, joints_deg: np.ndarray) -> n
     at readings ``joints_deg``, by the profile's kinematics (the geometric Jacobian's linear
     rows, ``ucal.kinematics.dh.jacobian``)."""
     lin = jacobian(profile.model, joints_deg, profile.tool_matrix, profile.joint_offsets_deg)[:3]
-    return profile.sample_matrix[:3, :3].T @ lin * np.radians(1.0)
+    return np.asarray(profile.sample_matrix[:3, :3].T @ lin * np.radians(1.0))
 
 
 def unseen_wrist_scatter(
@@ -254,7 +254,7 @@ def unseen_wrist_scatter(
     jac = joint_jacobian_mm_per_deg(profile, joints_deg)
     arm_jac, wrist_jac = jac[:, :3], jac[:, 3:]
     var_deg2 = float(np.trace(arm)) / max(float(np.trace(arm_jac @ arm_jac.T)), 1e-300)
-    return var_deg2 * wrist_jac @ wrist_jac.T
+    return np.asarray(var_deg2 * wrist_jac @ wrist_jac.T)
 
 
 def iso_figures(

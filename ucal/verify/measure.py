@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -37,7 +38,7 @@ from ucal.model.geometry import (
 from ucal.model.safety import (
     MIN_WATER_PATH_MM,
 )
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.model.wrist import search_joints
 from ucal.progress import MeasureStep, Report
 from ucal.verify.plan import (
@@ -48,7 +49,6 @@ from ucal.verify.plan import (
     joints_for,
     target_matrix,
     tool_clearance_mm,
-    tool_lever,
     wrist_centre_local,
 )
 from ucal.verify.solve import (
@@ -87,7 +87,7 @@ class PointResult:
 
     @property
     def deviation_mm(self) -> np.ndarray:
-        return self.reached_mm - self.nominal_mm
+        return np.asarray(self.reached_mm - self.nominal_mm)
 
 
 @dataclass(frozen=True)
@@ -171,10 +171,10 @@ class VerifyResult:
         dev = self.deviations("after", group)
         return deviation_stats(dev)["max"] if len(dev) else None
 
-    def to_json(self, tolerance_mm: float | None = None) -> dict:
+    def to_json(self, tolerance_mm: float | None = None) -> dict[str, Any]:
         """The ``verify --json`` object of SPEC.md plus per-point detail (mm, deg)."""
         # a pass without a measured point (every "before" point skipped): null statistics
-        out: dict = {
+        out: dict[str, Any] = {
             f"{p}_mm": {k: [v if np.isfinite(v) else None for v in vs] for k, vs in st.items()}
             for p in PASSES
             for st in (self.stats(p),)

@@ -276,7 +276,7 @@ def wrist_centre_local(
     """The profile's wrist centre W at readings (6,) with ``offsets_deg``, block coordinates."""
     s_mat = profile.sample_matrix
     w = fk_frames(profile.model, np.asarray(joints_deg, float), offsets_deg)[4, :3, 3]
-    return s_mat[:3, :3].T @ (w - s_mat[:3, 3])
+    return np.asarray(s_mat[:3, :3].T @ (w - s_mat[:3, 3]))
 
 
 def tool_clearance_mm(profile: CellProfile, w_local_mm: np.ndarray) -> float:

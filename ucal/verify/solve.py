@@ -26,9 +26,9 @@ from ucal.model.geometry import (
     beam_and_tcp,
 )
 from ucal.model.safety import TOLERANCE_SIGMAS, beam_on_flange_axis, offsets_std_deg
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.model.wrist import aim_wrist
-from ucal.verify.plan import VerifyPlan, VerifyTarget, tool_lever
+from ucal.verify.plan import VerifyPlan, VerifyTarget
 
 
 def wrist_centre_from_distances(distances_mm: np.ndarray, lever_mm: float) -> np.ndarray:
@@ -50,7 +50,7 @@ class WristOrientation:
     def rotation(self, geom: CellGeometry, joints_deg: np.ndarray) -> np.ndarray:
         """True flange rotation (3, 3) at readings with this arm."""
         r06 = fk_frames(geom.model, joints_deg, self.offsets_deg)[6, :3, :3]
-        return self.correction @ r06
+        return np.asarray(self.correction @ r06)
 
 
 def estimate_orientation(
@@ -78,7 +78,7 @@ def estimate_orientation(
 
     def fun(x: np.ndarray) -> np.ndarray:
         _, _, beams = model(x)
-        return (beams + normals).ravel()
+        return np.asarray((beams + normals).ravel())
 
     sol = least_squares(
         fun, np.zeros(4), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000
@@ -97,7 +97,7 @@ def reached_tcp_local(
 ) -> np.ndarray:
     """Reached TCP at the commanded posture in block coordinates (mm): W + R(q_cmd)·v."""
     r = orientation.rotation(geom, commanded_deg)
-    return np.asarray(w_local_mm, float) + geom.block_rotation.T @ (r @ v_flange_mm)
+    return np.asarray(np.asarray(w_local_mm, float) + geom.block_rotation.T @ (r @ v_flange_mm))
 
 
 def reached_from_peaks(
@@ -380,9 +380,9 @@ class WristMap:
     def __call__(self, joints_deg: np.ndarray) -> np.ndarray:
         """W (block coordinates, mm) at readings (6,) or (n, 6)."""
         w = fk_frames(self.model, np.asarray(joints_deg, float), self.offsets_deg)[..., 4, :3, 3]
-        return w @ self.to_block.T + self.origin_mm
+        return np.asarray(w @ self.to_block.T + self.origin_mm)
 
     def rotation(self, joints_deg: np.ndarray) -> np.ndarray:
         """The true flange rotation (base frame) at readings (6,) or (n, 6)."""
         frames = fk_frames(self.model, np.asarray(joints_deg, float), self.offsets_deg)
-        return self.turn @ frames[..., 6, :3, :3]
+        return np.asarray(self.turn @ frames[..., 6, :3, :3])

@@ -34,9 +34,9 @@ from ucal.errors import SafetyError
 from ucal.kinematics.dh import fk_frames
 from ucal.model.geometry import CellGeometry, beam_and_tcp
 from ucal.model.priors import DELAY_PRIOR_STD_NS
-from ucal.model.targets import geometry
+from ucal.model.targets import geometry, tool_lever
 from ucal.verify.measure import PointResult, VerifyResult
-from ucal.verify.plan import VerifyPlan, joints_for, target_matrix, tool_lever
+from ucal.verify.plan import VerifyPlan, joints_for, target_matrix
 from ucal.verify.solve import exact_reconstruction
 
 
@@ -53,7 +53,7 @@ class PointNoise:
 
     @property
     def total_mm(self) -> np.ndarray:
-        return np.hypot(self.random_mm, self.common_mm)
+        return np.asarray(np.hypot(self.random_mm, self.common_mm))
 
 
 def point_noise(
@@ -110,7 +110,8 @@ def measurement_std_mm(stds_mm: np.ndarray) -> list[float] | None:
     points of ``point_stds_mm``; ``measurement_std_mm`` of ``verify --json``."""
     if not len(stds_mm):
         return None
-    return np.sqrt(np.mean(np.asarray(stds_mm) ** 2, axis=0)).tolist()
+    rms: list[float] = np.sqrt(np.mean(np.asarray(stds_mm) ** 2, axis=0)).tolist()
+    return rms
 
 
 def table_sigmas(profile: CellProfile) -> list[tuple[int, int, float]]:
@@ -167,7 +168,7 @@ def table_share(profile: CellProfile, plan: VerifyPlan) -> tuple[np.ndarray, np.
     var_o = np.zeros((len(poses), 3))
 
     def tcp_local(g: CellGeometry, q: np.ndarray) -> np.ndarray:
-        return s_mat[:3, :3].T @ (beam_and_tcp(g, q, off)[1] - s_mat[:3, 3])
+        return np.asarray(s_mat[:3, :3].T @ (beam_and_tcp(g, q, off)[1] - s_mat[:3, 3]))
 
     for row, col, sigma in table_sigmas(profile):
         dh = profile.model.dh.copy()
@@ -215,4 +216,4 @@ def point_stds_mm(
     share = table_share(profile, result.plan)[0] if share_mm is None else share_mm
     points = result.measured("after")
     own = np.array([point_noise(profile, p, result, path_std_mm).total_mm for p in points])
-    return np.sqrt(own.reshape(-1, 3) ** 2 + share[[p.index for p in points]] ** 2)
+    return np.asarray(np.sqrt(own.reshape(-1, 3) ** 2 + share[[p.index for p in points]] ** 2))
