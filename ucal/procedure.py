@@ -173,11 +173,10 @@ class Measured(Generic[MeasuredT]):
             self, data=self.thermometer.corrected(self.data)
         )
 
-    def inputs_json(self) -> dict[str, Any]:
-        """What the run's inputs besides the cell said of it (``--json``'s ``thermometer``)."""
-        if self.thermometer is None:
-            return {}
-        return {"thermometer": self.thermometer.summary(self.data)}
+    def thermometer_summary(self) -> dict[str, Any] | None:
+        """What the tank's thermometer said of the run (``--json``'s ``thermometer``); None
+        without one."""
+        return None if self.thermometer is None else self.thermometer.summary(self.data)
 
 
 class Counted(Protocol):
@@ -421,7 +420,7 @@ class MeasuringProcedure(Generic[PlanT, MeasuredT, SolvedT, ResultT]):
                 self._enter(Step.RESULT)
                 outcome = job.result(plan, measured, solved, written)
                 outcome.echo_timing = measured.echo_timing
-                outcome.thermometer = measured.inputs_json().get("thermometer")
+                outcome.thermometer = measured.thermometer_summary()
                 if recorder is not None:
                     recorder.end(outcome.to_json())
         return outcome

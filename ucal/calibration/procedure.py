@@ -123,8 +123,22 @@ def written(
     sigma, which ``verify --region`` reports beside what it measures) and the level's ``own``
     keys."""
     gauge: J1Gauge | None = chosen.gauge
-    blocked = gauge is not None and chosen.std_block_deg is not None
+    relative: dict[str, Any] = {}
+    if gauge is not None and chosen.std_block_deg is not None:
+        relative = {
+            "gauge": gauge.frame,
+            "gauge_note": gauge.statement(),
+            "std_block_deg": [float(v) for v in chosen.std_block_deg],
+        }
     effects = run_effects(sound)
+    lost: dict[str, Any] = {}
+    if effects is not None:
+        lost = {
+            "backlash_deg": [float(v) for v in effects.backlash_deg],
+            "backlash_std_deg": [float(v) for v in effects.backlash_std_deg],
+            "sound_speed_drift_m_s_per_min": effects.drift_m_s_per_min,
+            "sound_speed_drift_m_s_per_min_std": effects.drift_std_m_s_per_min,
+        }
     return WrittenCalibration(
         level=level,
         joint_offsets_deg=[float(v) for v in chosen.offsets_deg],
@@ -136,16 +150,9 @@ def written(
         fit_verdict=fit.verdict,
         chi2_reduced=float(fit.chi2_reduced),
         date=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        gauge=gauge.frame if blocked and gauge is not None else None,
-        gauge_note=gauge.statement() if blocked and gauge is not None else None,
-        std_block_deg=[float(v) for v in chosen.std_block_deg] if blocked else None,
-        backlash_deg=None if effects is None else [float(v) for v in effects.backlash_deg],
-        backlash_std_deg=None if effects is None else [float(v) for v in effects.backlash_std_deg],
-        sound_speed_drift_m_s_per_min=None if effects is None else effects.drift_m_s_per_min,
-        sound_speed_drift_m_s_per_min_std=None
-        if effects is None
-        else effects.drift_std_m_s_per_min,
         unidentified_tcp_mm=None if budget is None else (budget.mean_mm, budget.max_mm),
+        **relative,
+        **lost,
         **own,
     )
 
