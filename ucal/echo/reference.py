@@ -18,7 +18,9 @@ its echoes' arrival the same way, from their exact spectrum.
 Building (``build_reference``). The captures are echoes of one reflector at one posture, many
 shots (a digitiser's averaging, or a burst of records), each record holding the whole echo
 (its mean is taken as the digitiser's offset: an echo sums to 0). The first capture's echo,
-cut where its envelope exceeds a tenth of its peak, times all of them (``ucal.echo.timing``);
+cut where its envelope exceeds a tenth of its peak, times all of them by their correlation's
+peak (``ucal.echo.timing.correlation_tof_ns``: one echo at one posture, so no second echo is
+sought behind the first round's crude template, as a reading's estimate would);
 each is shifted by its own delay (band-limited, sub-sample) onto a common axis and the shifted
 records are averaged; the average times them again, three rounds in all, so the shot-to-shot
 jitter does not smear it. The average is cut to the run of samples around its envelope's peak that
@@ -37,7 +39,7 @@ from scipy import fft, signal
 
 from ucal.echo.ascan import AScan, ReferenceEcho
 from ucal.echo.spectral import series_peak
-from ucal.echo.timing import estimate_echo
+from ucal.echo.timing import correlation_tof_ns
 
 #: Alignment rounds of ``build_reference``.
 ROUNDS = 3
@@ -117,7 +119,7 @@ def _average(
     echoes (the template's span, widened by its length on each side, within every record
     and ``EDGE`` samples from its ends), and cut the average to its echo."""
     dt = template.dt_ns
-    tofs = np.array([estimate_echo(c, template, gate_ns=gate_ns).tof_ns for c in captures])
+    tofs = np.array([correlation_tof_ns(c, template, gate_ns=gate_ns) for c in captures])
     span = template.n * dt
     start = template.t0_ns - span
     stop = template.t0_ns + 2.0 * span

@@ -303,6 +303,29 @@ def estimate_echo(
     (a ``ValueError``) when the record holds no echo to time, ``ValueError`` when the gate
     holds no sample of the record.
     """
+    gate = _gate(ascan, gate_ns)
+    if float(np.ptp(ascan.samples)) == 0.0:
+        raise NoEcho(f"every sample is {float(ascan.samples[0]):g}: a constant record")
+    if reference is None:
+        return _envelope_estimate(ascan, gate)
+    return _reference_estimate(ascan, reference.resampled(ascan.dt_ns), gate)
+
+
+def correlation_tof_ns(
+    ascan: AScan, reference: ReferenceEcho, *, gate_ns: tuple[float, float] | None = None
+) -> float:
+    """The arrival (ns) of the echo in ``gate_ns`` at the peak of its correlation with
+    ``reference`` (same sample interval), and nothing else: no noise, water, clipping or
+    second echo. What aligns the captures of one echo at one posture, where a reading's
+    full estimate (``estimate_echo``) would look for a second echo behind the crude template
+    of a first round."""
+    _, _, _, lag, _ = _correlation_peak(ascan, reference, _gate(ascan, gate_ns))
+    return ascan.t0_ns - reference.t0_ns + lag * ascan.dt_ns
+
+
+def _gate(ascan: AScan, gate_ns: tuple[float, float] | None) -> tuple[float, float]:
+    """``gate_ns`` (default: the record) within the record; ``ValueError`` when it holds
+    no sample."""
     lo, hi = gate_ns if gate_ns is not None else (-math.inf, math.inf)
     lo = max(lo, ascan.t0_ns)
     hi = min(hi, ascan.t0_ns + (ascan.n - 1) * ascan.dt_ns)
@@ -311,16 +334,15 @@ def estimate_echo(
             f"the gate {gate_ns} ns holds no sample of the record "
             f"({ascan.t0_ns:g}…{ascan.t0_ns + (ascan.n - 1) * ascan.dt_ns:g} ns)"
         )
-    if float(np.ptp(ascan.samples)) == 0.0:
-        raise NoEcho(f"every sample is {float(ascan.samples[0]):g}: a constant record")
-    if reference is None:
-        return _envelope_estimate(ascan, (lo, hi))
-    return _reference_estimate(ascan, reference.resampled(ascan.dt_ns), (lo, hi))
+    return lo, hi
 
 
-def _reference_estimate(
+def _correlation_peak(
     ascan: AScan, ref: ReferenceEcho, gate: tuple[float, float]
-) -> EchoEstimate:
+) -> tuple[Correlator, np.ndarray, np.ndarray, float, float]:
+    """The record's correlation with ``ref`` and its peak in the gate: (correlator, its
+    correlation at the lags whose arrival is in the gate, those lags, the peak's lag in
+    samples, its amplitude)."""
     raw = ascan.samples
     n, dt = ascan.n, ascan.dt_ns
     corr = Correlator.of(ref, n)
@@ -335,6 +357,15 @@ def _reference_estimate(
     if not inside.any():  # a gate narrower than a sample
         inside = np.abs(arrivals - 0.5 * (gate[0] + gate[1])) <= dt
     lag, amplitude = corr.fit(x, float(lags[inside][np.argmax(c[inside])]))
+    return corr, c[inside], lags[inside], lag, amplitude
+
+
+def _reference_estimate(
+    ascan: AScan, ref: ReferenceEcho, gate: tuple[float, float]
+) -> EchoEstimate:
+    raw = ascan.samples
+    n, dt = ascan.n, ascan.dt_ns
+    corr, c_inside, lags_inside, lag, amplitude = _correlation_peak(ascan, ref, gate)
 
     # the echo's samples and the quiet ones: the noise, from the quiet ones only
     s0, s1 = ref.support
@@ -350,7 +381,7 @@ def _reference_estimate(
             sigma = math.hypot(sigma, ascan.lsb / math.sqrt(12.0))
     if not sigma > 0.0:  # a record without noise: its samples' own rounding
         sigma = _resolution(raw) / math.sqrt(12.0)
-    _detect(corr, x, c[inside], lags[inside], amplitude, sigma)
+    _detect(corr, x, c_inside, lags_inside, amplitude, sigma)
     _within_record(corr, lag)
     # the water between: the echo's spectrum is the reference's times exp(−κ·f²)
     plain = corr
