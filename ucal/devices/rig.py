@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -168,7 +169,8 @@ class Rig:
         # One level of a quantised amplitude register (fraction of full screen height), seen
         # when an empty gate reads exactly 0; 0 while no quantisation has shown.
         self.amplitude_step_fsh = 0.0
-        self.on_move = None  # optional callback(target) for progress display
+        # Called with every commanded target before the motion (a progress display's hook)
+        self.on_move: Callable[[np.ndarray], None] | None = None
         # Captures the reference echo of a host-timed pulser at the first distance reading
         # (``ucal.echo.capture``); None: nothing to capture.
         self.reference_capture: Capture | None = None
