@@ -6,6 +6,7 @@ reads world files. Units: mm and degrees throughout.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -348,6 +349,58 @@ class PulserTruth:
     gain_db: float = 20.0
 
 
+#: Standard gravity (m/s², ISO 80000-3), along −z of the robot base by default.
+STANDARD_GRAVITY_M_S2 = 9.80665
+#: Linear thermal expansion of aluminium (per K): the TX90 family's arm castings.
+ALUMINIUM_EXPANSION_PER_K = 23e-6
+
+
+@dataclass(frozen=True)
+class ArmTruth:
+    """How the simulated arm bends under gravity and grows as it warms (``ucal.sim.arm``).
+
+    ``stiffness_nm_per_rad`` (6,): each joint's torsional stiffness, 0 = rigid (the joint does
+    not give); ``link_mass_kg`` (6,) and ``link_centre_of_mass_mm`` (6, 3): each link's mass
+    and its centre of mass at the zero pose (every DH angle at its θ offset), base frame;
+    ``tool_mass_kg`` and ``tool_centre_of_mass_mm`` (3,, flange frame): the tool's;
+    ``gravity_m_s2`` (3,, base frame). The arm's temperature above the one its DH table holds
+    at ``t_s`` seconds of the cell's clock is ``offset_k + warmup_k·(1 − exp(−t_s/τ))``, τ =
+    ``warmup_time_constant_min``; every link's d and a grow by ``expansion_per_k`` per K.
+    The defaults bend and grow nothing.
+    """
+
+    stiffness_nm_per_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    link_mass_kg: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    link_centre_of_mass_mm: np.ndarray = field(default_factory=lambda: np.zeros((6, 3)))
+    tool_mass_kg: float = 0.0
+    tool_centre_of_mass_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gravity_m_s2: np.ndarray = field(
+        default_factory=lambda: np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])
+    )
+    offset_k: float = 0.0
+    warmup_k: float = 0.0
+    warmup_time_constant_min: float = 30.0
+    expansion_per_k: float = ALUMINIUM_EXPANSION_PER_K
+
+    @property
+    def bends(self) -> bool:
+        """Whether a joint gives under a load: a stiffness given and a weight to bend it."""
+        loaded = np.any(self.link_mass_kg > 0.0) or self.tool_mass_kg > 0.0
+        return bool(np.any(self.stiffness_nm_per_rad > 0.0) and loaded)
+
+    @property
+    def warms(self) -> bool:
+        """Whether the links' lengths ever differ from the DH table's."""
+        return self.expansion_per_k != 0.0 and (self.offset_k != 0.0 or self.warmup_k != 0.0)
+
+    def temperature_k(self, t_s: float) -> float:
+        """The arm's temperature above its DH table's (K) ``t_s`` seconds after the start."""
+        if self.warmup_k == 0.0:
+            return self.offset_k
+        tau_s = 60.0 * self.warmup_time_constant_min
+        return self.offset_k + self.warmup_k * -math.expm1(-max(t_s, 0.0) / tau_s)
+
+
 @dataclass(frozen=True)
 class WorldTruth:
     """The truth a real cell hides (world file of SPEC.md, missing keys = as the profile says)."""
@@ -395,6 +448,8 @@ class WorldTruth:
     controller_server: str = "simple"
     controller_silence_s: float | None = None
     timing: CellTiming = field(default_factory=CellTiming)
+    #: The arm's compliance under gravity and its growth with temperature (none by default).
+    arm: ArmTruth = field(default_factory=ArmTruth)
 
     @property
     def tool_matrix(self) -> np.ndarray:

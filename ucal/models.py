@@ -5,8 +5,10 @@ A model file's ``[robot]`` holds the DH table and joint ranges (SPEC.md), ``uppe
 ``forearm_mm`` (what the table's lengths are on the data sheet), ``speed_deg_s`` (the joints'
 speeds at speed 1.0 as a plan, its real-cell estimate and the simulated controller take
 them), ``max_speed_deg_s`` and ``max_effort_nm`` (the arm's limits, a URDF's ``<limit>``),
-``base_height_mm`` (the mounting face to the base frame) and, where a source states them,
-``max_acceleration_deg_s2``. Every ``profiles/*.toml`` but the example cell profile is a
+``base_height_mm`` (the mounting face to the base frame), ``link_mass_kg`` and
+``link_centre_of_mass_mm`` (each link's mass, and its centre of mass at the zero pose in the
+base frame: what the simulated arm bends under, ``ucal.sim.arm``) and, where a source states
+them, ``max_acceleration_deg_s2``. Every ``profiles/*.toml`` but the example cell profile is a
 model, named by its file: adding a model is adding its file.
 """
 
@@ -41,7 +43,8 @@ DEFAULT_MODEL = "tx90l"
 class ModelSheet:
     """What a model file states beyond the kinematics (``robot``): data-sheet lengths (mm),
     the arm's maximum speeds (deg/s) and torques (N·m), the base frame's height above the
-    mounting face (mm)."""
+    mounting face (mm), the links' masses (kg, (6,)) and centres of mass at the zero pose
+    (mm, base frame, (6, 3))."""
 
     robot: RobotModel
     upper_arm_mm: float
@@ -49,6 +52,8 @@ class ModelSheet:
     max_speed_deg_s: np.ndarray
     max_effort_nm: np.ndarray
     base_height_mm: float
+    link_mass_kg: np.ndarray
+    link_centre_of_mass_mm: np.ndarray
 
 
 def model_table_text(name: str) -> str:
@@ -91,6 +96,8 @@ def model_sheet(name: str) -> ModelSheet:
         _six(data, "max_speed_deg_s", where),
         _six(data, "max_effort_nm", where),
         float(data["base_height_mm"]),
+        _six(data, "link_mass_kg", where),
+        _centres(data, "link_centre_of_mass_mm", where),
     )
 
 
@@ -100,6 +107,17 @@ def _six(data: Mapping[str, Any], key: str, where: str, positive: bool = True) -
     if v.shape != (N_JOINTS,) or not np.all(np.isfinite(v)) or (positive and np.any(v <= 0)):
         kind = "positive numbers" if positive else "numbers"
         raise InputError(f"{where}: robot.{key}: must be {N_JOINTS} finite {kind}")
+    return v
+
+
+def _centres(data: Mapping[str, Any], key: str, where: str) -> np.ndarray:
+    """Six finite points (mm, (6, 3)) of ``data[key]``."""
+    try:
+        v = np.array(data.get(key, ()), dtype=float)
+    except ValueError:  # ragged rows
+        v = np.zeros(0)
+    if v.shape != (N_JOINTS, 3) or not np.all(np.isfinite(v)):
+        raise InputError(f"{where}: robot.{key}: must be {N_JOINTS} points [x, y, z] (mm)")
     return v
 
 

@@ -16,6 +16,10 @@ the solvers do not model:
 * ``[robot] repeatability_deg = [6]`` — one sigma (0…0.1°) of where each link settles after
   a move of its joint, about where its encoder says: drawn anew for every move (seeded by
   ``[noise] seed``), never seen in the readings; the arm's pose repeatability (ISO 9283 RP);
+* the arm as it bends under gravity and grows as it warms (``ucal.world_arm``):
+  ``[robot] stiffness_nm_per_rad``, ``link_mass_kg``, ``link_centre_of_mass_mm``,
+  ``gravity_m_s2``; ``[tool] mass_kg``, ``centre_of_mass_mm``; ``[arm] offset_k``,
+  ``warmup_k``, ``warmup_time_constant_min``, ``expansion_per_k``;
 * ``[water] drift_c_per_min`` — the tank warms (+) or cools linearly in simulated time
   (|drift| <= 10 °C/min; ``temperature_c`` is the temperature at the start of the run);
   ``temperature_log`` — in place of both, what the tank's thermometer read over the run: a
@@ -98,6 +102,7 @@ from ucal.profile.validation import (
     unknown_keys,
 )
 from ucal.thermometer import read_log
+from ucal.world_arm import ARM_KEYS, ROBOT_KEYS, TOOL_KEYS, read_arm
 
 #: Keys a world file may hold (others are reported by :func:`world_warnings`; one that is a
 #: misspelling of a known key the table lacks is refused).
@@ -113,9 +118,11 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
             "initial_joints_deg",
             "backlash_deg",
             "repeatability_deg",
+            *ROBOT_KEYS,
         }
     ),
-    "tool": frozenset({"position_mm", "rotation_deg"}),
+    "tool": frozenset({"position_mm", "rotation_deg", *TOOL_KEYS}),
+    "arm": ARM_KEYS,
     "sample": frozenset({"position_mm", "rotation_deg", "face_size_mm"}),
     "step": frozenset({"height_mm", "centre_mm", "size_mm", "tilt_deg"}),
     "reflector": frozenset(
@@ -228,6 +235,9 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
             )
 
     tool = r.table("tool")
+    arm = read_arm(r, robot, tool, r.table("arm"), changes.get("model", world.model))
+    if arm is not None:
+        changes["arm"] = arm
     _vector(r, tool, "tool", "position_mm", 3, "mm", changes, "tool_position_mm")
     _vector(r, tool, "tool", "rotation_deg", 3, "deg", changes, "tool_rotation_deg")
 

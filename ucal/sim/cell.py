@@ -8,6 +8,9 @@ tof_ns)``. Its truth is richer than the solvers' model (``ucal.calibration``), o
    the lost motion, against the direction of the joint's last motion; sign 0 or None = no
    shift), on the world's true DH table with Hayati's twist ``dh_beta_deg`` after each link
    (``A_i = Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)``), with the true tool frame → TCP and beam (tool +Z);
+   where the world says so (``world.arm``, ``ucal.sim.arm``), each link's d and a grown with
+   the arm's temperature at the reading's simulated time and each joint turned further by the
+   gravity torque over its stiffness (the arm sags; the encoder does not see it);
 2. the echoing face is the nearest face whose plane the beam meets in front of the transducer,
    facing it, with some of the footprint on it (``ucal.sim.geometry``), unless the axis misses
    that face and the face behind it that the axis meets gives the larger echo with the rest
@@ -75,6 +78,7 @@ from scipy.special import ndtr
 
 from ucal import acoustics
 from ucal.cell import WorldTruth
+from ucal.sim.arm import SAG_ITERATIONS, ArmLoad
 from ucal.sim.geometry import (
     Face,
     FaceHit,
@@ -165,6 +169,11 @@ class SimulatedCell:
             ry = np.eye(4)
             ry[:3, :3] = Rotation.from_euler("y", beta_deg, degrees=True).as_matrix()
             self._twists.append(ry)
+        # the arm bent by gravity and grown by heat, where the world says so
+        self._load: ArmLoad | None = None
+        if world.arm.bends or world.arm.warms:
+            zero = self._chain(np.radians(model.theta_offset_deg), self._d_mm, self._a_mm)
+            self._load = ArmLoad(world.arm, self._d_mm, self._a_mm, zero)
         self._tool = world.beam_matrix  # tool centre, z along the acoustic axis (squint)
         faces: list[Face] = list(block_faces(world.sample_matrix, world.sample_face_size_mm))
         if world.step is not None:
@@ -201,14 +210,32 @@ class SimulatedCell:
         return np.asarray(th)
 
     def true_flange(
-        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+        self,
+        joint_readings_deg: np.ndarray,
+        motion_sign: np.ndarray | None = None,
+        t_s: float = 0.0,
     ) -> np.ndarray:
-        """True flange frame (4, 4) in the base frame for joint readings (deg, (6,))."""
+        """True flange frame (4, 4) in the base frame for joint readings (deg, (6,)) at ``t_s``
+        seconds of the cell's clock: the links as long as the arm's temperature makes them and
+        bent by gravity where the world gives them a stiffness (``ucal.sim.arm``)."""
         th = np.radians(self.joint_angles_deg(joint_readings_deg, motion_sign))
+        load = self._load
+        if load is None:
+            return self._chain(th, self._d_mm, self._a_mm)[-1]
+        d_mm, a_mm = load.lengths_mm(t_s)
+        frames = self._chain(th, d_mm, a_mm)
+        if load.bends:
+            for _ in range(SAG_ITERATIONS):
+                frames = self._chain(th + load.sag_rad(frames), d_mm, a_mm)
+        return frames[-1]
+
+    def _chain(self, th: np.ndarray, d_mm: np.ndarray, a_mm: np.ndarray) -> np.ndarray:
+        """The DH frames T_1..T_6 (6, 4, 4) in the base frame of DH angles ``th`` (rad) on
+        links of lengths ``d_mm``, ``a_mm``."""
         ct, st = np.cos(th), np.sin(th)
         # the six DH links at once: rows 3 and 4 are constant, rows 1 and 2 turn with θ
         links = self._links.copy()
-        ca, sa, a = self._ca, self._sa, self._a_mm
+        ca, sa, a = self._ca, self._sa, a_mm
         links[:, 0, 0] = ct
         links[:, 0, 1] = -st * ca
         links[:, 0, 2] = st * sa
@@ -217,6 +244,8 @@ class SimulatedCell:
         links[:, 1, 1] = ct * ca
         links[:, 1, 2] = -ct * sa
         links[:, 1, 3] = a * st
+        links[:, 2, 3] = d_mm
+        frames = np.empty((6, 4, 4))
         t = links[0]
         for i in range(6):
             if i:
@@ -224,25 +253,36 @@ class SimulatedCell:
             twist = self._twists[i]
             if twist is not None:
                 t = t @ twist
-        return np.asarray(t)
+            frames[i] = t
+        return frames
 
     def true_tcp(
-        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+        self,
+        joint_readings_deg: np.ndarray,
+        motion_sign: np.ndarray | None = None,
+        t_s: float = 0.0,
     ) -> np.ndarray:
-        """True tool-centre-point frame (4, 4) in the base frame for joint readings (deg)."""
-        return np.asarray(self.true_flange(joint_readings_deg, motion_sign) @ self._tool)
+        """True tool-centre-point frame (4, 4) in the base frame for joint readings (deg) at
+        ``t_s`` seconds of the cell's clock."""
+        return np.asarray(self.true_flange(joint_readings_deg, motion_sign, t_s) @ self._tool)
 
     def true_beam(
-        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+        self,
+        joint_readings_deg: np.ndarray,
+        motion_sign: np.ndarray | None = None,
+        t_s: float = 0.0,
     ) -> tuple[np.ndarray, np.ndarray]:
         """True beam: origin (TCP, mm, (3,)) and unit direction (tool +Z, (3,)), base frame."""
-        return beam_ray(self.true_tcp(joint_readings_deg, motion_sign))
+        return beam_ray(self.true_tcp(joint_readings_deg, motion_sign, t_s))
 
     def hit(
-        self, joint_readings_deg: np.ndarray, motion_sign: np.ndarray | None = None
+        self,
+        joint_readings_deg: np.ndarray,
+        motion_sign: np.ndarray | None = None,
+        t_s: float = 0.0,
     ) -> FaceHit | None:
         """The face that echoes at these readings (see module doc), or None."""
-        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign, t_s))
         return None if found is None else found[0]
 
     def water_temperature_c(self, t_s: float = 0.0) -> float:
@@ -322,7 +362,7 @@ class SimulatedCell:
         block faces that the footprint spans. ``gate_ns`` (start, stop) keeps only the echoes
         arriving inside it (the main one too).
         """
-        origin, direction = self.true_beam(joint_readings_deg, motion_sign)
+        origin, direction = self.true_beam(joint_readings_deg, motion_sign, t_s)
         g = acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(float(gain_db))
         found = self._echo_list(origin, direction, g, self.sound_speed_m_s(t_s))
         if gate_ns is not None:
@@ -466,7 +506,7 @@ class SimulatedCell:
         """Noise-free reading ``(amplitude, tof_ns)``: no noise, jitter or gain error, the rest
         as ``echo`` (delay, detection, quantisation); amplitude 0 without a face, TOF NaN below
         the threshold."""
-        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign, t_s))
         if found is None:
             return 0.0, float("nan")
         h, share = found
@@ -500,7 +540,7 @@ class SimulatedCell:
         n_avg = max(int(averages), 1)
         root_n = math.sqrt(n_avg)
         noise = self.world.noise
-        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign))
+        found = self._echoing_hit(*self.true_beam(joint_readings_deg, motion_sign, t_s))
         n = self._receiver.n
         with self._lock:
             gain_error_db = self._gain_error_db(float(gain_db))

@@ -399,8 +399,9 @@ class SimulatedCellServer(Served):
 
         The controller's record (``seq``, ``t_start``, ``start_deg``, ``target_deg``,
         ``end_deg``, ``duration_s``, ``stopped``) plus the wall-clock time ``t_wall_s``, the
-        move's number ``motion`` and the true TCP pose ``true_tcp_pose`` (X, Y, Z, RX, RY, RZ;
-        mm, deg) at ``end_deg``.
+        move's number ``motion``, the cell's time ``t_cell_s`` (s since it started: the time
+        of the water's drift and the arm's warm-up) and the true TCP pose ``true_tcp_pose``
+        (X, Y, Z, RX, RY, RZ; mm, deg) at ``end_deg`` then.
         """
         with self._log_lock:
             self._motions += 1
@@ -409,9 +410,11 @@ class SimulatedCellServer(Served):
             return
         line_record: dict[str, Any] = {"motion": number, "t_wall_s": time.time(), **record}
         try:
-            end = np.asarray(record["end_deg"], float) + self._settled_off_deg(self.clock.now())
+            now = self.clock.now()
+            end = np.asarray(record["end_deg"], float) + self._settled_off_deg(now)
+            line_record["t_cell_s"] = now - self._t0
             line_record["true_tcp_pose"] = matrix_to_pose(
-                self.cell.true_tcp(end, self.controller.motion_sign())
+                self.cell.true_tcp(end, self.controller.motion_sign_at(now), now - self._t0)
             )
         except Exception:  # the log must never break the controller thread
             log.debug("motion log: no end position in %r", record, exc_info=True)

@@ -1,0 +1,125 @@
+"""A world file's arm as it bends and warms (``ucal.cell.ArmTruth``, ``ucal.sim.arm``).
+
+Keys (``ucal.world``, SPEC.md's additions; none given: a rigid arm at its table's length):
+
+* ``[robot] stiffness_nm_per_rad = [6]`` — each joint's torsional stiffness (0 = rigid, else
+  1e4…1e10 N·m/rad): the link turns by the gravity torque over it;
+* ``[robot] link_mass_kg = [6]`` (0…500 kg) and ``link_centre_of_mass_mm = [[x, y, z] × 6]``
+  (each link's centre of mass at the zero pose, every DH angle at its θ offset, base frame) —
+  default: the shipped model table's (``profiles/<model>.toml``), so a world that gives only
+  the stiffness bends under the published masses; a model ucal does not ship must give them;
+* ``[robot] gravity_m_s2 = [gx, gy, gz]`` — gravity in the base frame (default
+  ``[0, 0, −9.80665]``; each component within ±50);
+* ``[tool] mass_kg`` (0…50) and ``centre_of_mass_mm`` (flange frame, as ``position_mm``);
+* ``[arm] offset_k`` (−50…50 K: the arm this much warmer than when its DH table held, from
+  the start), ``warmup_k`` (−50…50 K more, approached as ``1 − exp(−t/τ)`` over the cell's
+  clock), ``warmup_time_constant_min`` (τ, 0.1…10 000 min, default 30) and ``expansion_per_k``
+  (0…1e-4 per K, default aluminium's 23e-6): every link's d and a grow by that per K.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ucal.cell import ArmTruth
+from ucal.kinematics.dh import RobotModel
+from ucal.models import KNOWN_MODELS, model_sheet
+from ucal.profile.validation import Reader
+from ucal.sim.arm import MIN_STIFFNESS_NM_PER_RAD
+
+#: The world's keys of the bending, warming arm, by table.
+ROBOT_KEYS = frozenset(
+    {"stiffness_nm_per_rad", "link_mass_kg", "link_centre_of_mass_mm", "gravity_m_s2"}
+)
+TOOL_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
+ARM_KEYS = frozenset({"offset_k", "warmup_k", "warmup_time_constant_min", "expansion_per_k"})
+
+MAX_STIFFNESS_NM_PER_RAD = 1e10
+MAX_LINK_MASS_KG = 500.0
+MAX_TOOL_MASS_KG = 50.0
+MAX_GRAVITY_M_S2 = 50.0
+MAX_ARM_K = 50.0
+MAX_EXPANSION_PER_K = 1e-4
+#: The plain values: (table, key, count (0: a number), low, high, unit, ``ArmTruth`` field).
+_VALUES: tuple[tuple[str, str, int, float | None, float | None, str, str], ...] = (
+    ("robot", "link_mass_kg", 6, 0.0, MAX_LINK_MASS_KG, "kg", "link_mass_kg"),
+    ("robot", "gravity_m_s2", 3, -MAX_GRAVITY_M_S2, MAX_GRAVITY_M_S2, "m/s^2", "gravity_m_s2"),
+    ("tool", "mass_kg", 0, 0.0, MAX_TOOL_MASS_KG, "kg", "tool_mass_kg"),
+    ("tool", "centre_of_mass_mm", 3, None, None, "mm", "tool_centre_of_mass_mm"),
+    ("arm", "offset_k", 0, -MAX_ARM_K, MAX_ARM_K, "K", "offset_k"),
+    ("arm", "warmup_k", 0, -MAX_ARM_K, MAX_ARM_K, "K", "warmup_k"),
+    ("arm", "warmup_time_constant_min", 0, 0.1, 10000.0, "min", "warmup_time_constant_min"),
+    ("arm", "expansion_per_k", 0, 0.0, MAX_EXPANSION_PER_K, "/K", "expansion_per_k"),
+)
+
+
+def read_arm(
+    r: Reader,
+    robot: Mapping[str, Any] | None,
+    tool: Mapping[str, Any] | None,
+    arm: Mapping[str, Any] | None,
+    model: RobotModel,
+) -> ArmTruth | None:
+    """The arm of a world's ``[robot]``, ``[tool]`` and ``[arm]`` keys (module docstring), or
+    None when it gives none of them. ``model``: the world's true model, whose shipped table
+    gives the masses a world leaves out."""
+    changes: dict[str, Any] = {}
+    tables = {"robot": robot, "tool": tool, "arm": arm}
+    v = r.get(robot, "robot.stiffness_nm_per_rad")
+    if v is not None:
+        changes["stiffness_nm_per_rad"] = _stiffness(r, v)
+    v = r.get(robot, "robot.link_centre_of_mass_mm")
+    if v is not None:
+        key = "robot.link_centre_of_mass_mm"
+        rows = r.array(key, v, 6)
+        changes["link_centre_of_mass_mm"] = np.array(
+            [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(rows)]
+        )
+    for table, key, n, lo, hi, unit, name in _VALUES:
+        v = r.get(tables[table], f"{table}.{key}")
+        if v is None:
+            continue
+        dotted = f"{table}.{key}"
+        changes[name] = (
+            r.number(dotted, v, lo=lo, hi=hi, unit=unit)
+            if n == 0
+            else r.vector(dotted, v, n, lo=lo, hi=hi, unit=unit)
+        )
+    if "stiffness_nm_per_rad" in changes:
+        _model_masses(r, model, changes)
+    return replace(ArmTruth(), **changes) if changes else None
+
+
+def _stiffness(r: Reader, value: Any) -> np.ndarray:
+    """Six stiffnesses: 0 (rigid) or within 1e4…1e10 N·m/rad."""
+    key = "robot.stiffness_nm_per_rad"
+    k = r.vector(key, value, 6, lo=0.0, hi=MAX_STIFFNESS_NM_PER_RAD, unit="N m/rad")
+    for i, x in enumerate(k):
+        if 0.0 < x < MIN_STIFFNESS_NM_PER_RAD:
+            raise r.error(
+                f"{key}[{i}]",
+                f"must be 0 (rigid) or >= {MIN_STIFFNESS_NM_PER_RAD:g} N m/rad, got {x:g}: "
+                "a softer joint sags by more than the small deflections the simulated arm "
+                "models",
+            )
+    return k
+
+
+def _model_masses(r: Reader, model: RobotModel, changes: dict[str, Any]) -> None:
+    """The shipped model table's link masses and centres where the world leaves them out."""
+    missing = [k for k in ("link_mass_kg", "link_centre_of_mass_mm") if k not in changes]
+    if not missing:
+        return
+    if model.name not in KNOWN_MODELS:
+        raise r.error(
+            f"robot.{missing[0]}",
+            f"needed with robot.stiffness_nm_per_rad: {model.name!r} is not a shipped model, "
+            "so no table gives its links' masses",
+        )
+    sheet = model_sheet(model.name)
+    changes.setdefault("link_mass_kg", sheet.link_mass_kg)
+    changes.setdefault("link_centre_of_mass_mm", sheet.link_centre_of_mass_mm)
