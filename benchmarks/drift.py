@@ -117,8 +117,8 @@ from ucal.model.kinematic import aligned_errors_mm, scanning_postures, solve_ful
 from ucal.model.least_squares import CURVATURE
 from ucal.model.postures import MAX_POSTURES, plan_full
 from ucal.model.targets import calibration_pose, plan_calibration
-from ucal.models import KNOWN_MODELS
 from ucal.profile import load_profile, write_profile
+from ucal.profile.models import KNOWN_MODELS
 from ucal.toolframe.fit import ToolFrameFit, truth_in_profile_flange
 from ucal.toolframe.measure import measure_tool_frame
 from ucal.toolframe.plan import plan_tool_frame

@@ -30,7 +30,7 @@ from _quick import parse_args
 from ucal.kinematics.dh import RobotModel, fk
 from ucal.kinematics.ik import ik_all, wrap_deg
 from ucal.kinematics.rotations import rotation_angle_deg
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.models import KNOWN_MODELS, load_model
 
 if TYPE_CHECKING:  # benchmark-only extra
     from roboticstoolbox import DHRobot

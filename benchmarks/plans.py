@@ -54,8 +54,8 @@ from ucal.kinematics.rotations import matrix_to_rpy
 from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.safety import EDGE_MARGIN_MM, MIN_WATER_PATH_MM, face_hit, offsets_std_deg
 from ucal.model.targets import geometry, plan_calibration
-from ucal.models import KNOWN_MODELS
 from ucal.profile import default_profile_text, profile_from_text
+from ucal.profile.models import KNOWN_MODELS
 from ucal.toolframe.plan import QUARTER_TURNS_TILT_DEG, ToolFramePlan, plan_tool_frame
 from ucal.verify.plan import plan_verify
 from ucal.verify.region import plan_region

@@ -63,9 +63,9 @@ from ucal.cell import CellProfile
 from ucal.errors import InputError, ProfileError
 from ucal.kinematics.dh import N_JOINTS, RobotModel, dh_matrix, transform
 from ucal.kinematics.rotations import rpy_to_matrix
-from ucal.models import KNOWN_MODELS, model_sheet
 from ucal.output import writable_directory, write_file
 from ucal.profile import real_path
+from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.read import profile_from_data
 from ucal.profile.validation import parse_toml_bytes
 from ucal.ros2_description import (

@@ -12,7 +12,7 @@ to its clock (``ucal.sim.serve``), and a plan's estimate of the real-cell durati
   cell network plus the instrument's own turnaround, ``TCP_READ_S`` in all.
 * A move lasts max |Δθ| / (joint speed · speed fraction) (the simulated controller's model),
   then the servo settles for ``SETTLE_S`` before the controller reports it done. The joints'
-  speeds at speed 1.0 are the robot model's (``ucal.models.joint_speeds_deg_s``: its model
+  speeds at speed 1.0 are the robot model's (``ucal.profile.models.joint_speeds_deg_s``: its model
   file's ``speed_deg_s``), the same the simulated controller is given (``ucal.sim.serve``).
 """
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ucal.cell import ArmTruth
 from ucal.kinematics.dh import RobotModel
-from ucal.models import KNOWN_MODELS, model_sheet
+from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
 from ucal.sim.arm import MIN_STIFFNESS_NM_PER_RAD
 

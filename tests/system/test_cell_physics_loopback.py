@@ -13,7 +13,7 @@ from ucal.kinematics.dh import fk, wrist_centre
 from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.model.geometry import CellGeometry
 from ucal.model.wrist import aim_wrist
-from ucal.models import load_model
+from ucal.profile.models import load_model
 from ucal.sim.serve import SimulatedCellServer
 
 pytestmark = pytest.mark.system

@@ -17,8 +17,8 @@ from ucal.kinematics.dh import fk
 from ucal.kinematics.ik import ik
 from ucal.kinematics.path import plan_joint_path
 from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_angle_deg
-from ucal.models import load_model
 from ucal.profile import create_profile, load_profile, write_profile
+from ucal.profile.models import load_model
 
 from doubles import ucal_here
 

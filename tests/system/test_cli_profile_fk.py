@@ -228,7 +228,7 @@ def test_non_editable_install_finds_shipped_profiles(tmp_path: Path) -> None:
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     code = (
-        "import json, ucal, ucal.models; from importlib import resources; "
+        "import json, ucal, ucal.profile.models; from importlib import resources; "
         "print(ucal.__file__); print(json.dumps(sorted(p.name for p in "
         "resources.files('ucal.profiles').iterdir() if p.name.endswith('.toml'))))"
     )

@@ -1,5 +1,5 @@
 """The shipped robot models: one data file each (``profiles/<model>.toml``), read by
-``ucal.models``; their speeds are what the plan's estimate, the rig and the simulated
+``ucal.profile.models``; their speeds are what the plan's estimate, the rig and the simulated
 controller take."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from ucal.calibration.procedure import OffsetsCalibration
 from ucal.kinematics.ik import check_structure
 from ucal.model.targets import plan_calibration
-from ucal.models import KNOWN_MODELS, joint_speeds_deg_s, load_model, model_sheet
 from ucal.profile import create_profile, load_profile
+from ucal.profile.models import KNOWN_MODELS, joint_speeds_deg_s, load_model, model_sheet
 from ucal.sim.serve import SimulatedCellServer
 from ucal.timing import estimate_run
 

@@ -17,7 +17,6 @@ from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.cli import main
 from ucal.errors import ProfileError
 from ucal.kinematics.dh import fk, wrist_centre
-from ucal.models import KNOWN_MODELS, load_model
 from ucal.profile import (
     EXAMPLE_HEADER,
     EXAMPLE_MODEL,
@@ -30,6 +29,7 @@ from ucal.profile import (
     undo_profile,
     write_profile,
 )
+from ucal.profile.models import KNOWN_MODELS, load_model
 
 from doubles import exit_code
 

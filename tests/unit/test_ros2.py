@@ -21,8 +21,8 @@ import yourdfpy
 from ucal.cli.fk import tool_pose
 from ucal.errors import EXIT_USAGE
 from ucal.kinematics.rotations import pose_to_matrix, rotation_angle_deg
-from ucal.models import load_model
 from ucal.profile import create_profile, load_profile, pose_digest, write_profile
+from ucal.profile.models import load_model
 from ucal.ros2 import ros2_arm, write_ros2
 from ucal.ros2_description import JOINTS
 

@@ -246,7 +246,7 @@ def test_the_logs_drift_is_the_drifts_prior_mean() -> None:
     it (its tolerance the declared one), in m/s per minute through Marczak's slope."""
     from ucal.cell import CellProfile
     from ucal.model.priors import prior_from_profile
-    from ucal.models import load_model
+    from ucal.profile.models import load_model
 
     log_t = np.arange(0.0, 12.0, 0.05)
     water = Thermometer(log_t, np.round(20.0 + 0.3 * log_t, 3), 0.02, "t.csv")

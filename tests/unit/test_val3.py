@@ -15,8 +15,8 @@ from scipy.spatial.transform import Rotation
 from ucal.errors import EXIT_USAGE
 from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.rotations import rotation_angle_deg
-from ucal.models import KNOWN_MODELS, load_model, model_sheet
 from ucal.profile import create_profile, load_profile, profile_history, undo_profile, write_profile
+from ucal.profile.models import KNOWN_MODELS, load_model, model_sheet
 
 from doubles import exit_code
 

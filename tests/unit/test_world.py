@@ -11,7 +11,6 @@ import tomlkit
 
 from ucal.cell import DEFAULT_PULSER_DELAY_NS, CellProfile, PulserTruth, WorldTruth
 from ucal.errors import ProfileError
-from ucal.models import load_model
 from ucal.profile import (
     default_profile_text,
     description_keys,
@@ -19,6 +18,7 @@ from ucal.profile import (
     load_profile,
     write_profile,
 )
+from ucal.profile.models import load_model
 from ucal.profile.validation import DH_KEYS
 from ucal.sim.cell import SimulatedCell
 from ucal.world import load_world, world_warnings

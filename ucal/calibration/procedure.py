@@ -62,7 +62,6 @@ from ucal.model.kinematic import solve_full
 from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.readings import CalibrationReadings, write_readings
 from ucal.model.targets import CalibrationPlan, plan_calibration
-from ucal.models import joint_speeds_deg_s
 from ucal.procedure import (
     WRIST_SEARCH,
     CountedT,
@@ -75,6 +74,7 @@ from ucal.procedure import (
 )
 from ucal.profile import description_keys, write_profile
 from ucal.profile.calibration import WrittenCalibration
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.progress import Report
 from ucal.timing import DurationEstimate, estimate_run
 

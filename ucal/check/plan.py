@@ -35,8 +35,8 @@ from ucal.check.edges import SCAN, EdgeLine, EdgeReading, plan_edges
 from ucal.check.history import CheckEntry
 from ucal.model.geometry import FACE_NAMES, Configuration
 from ucal.model.targets import CalibrationPlan, PlannedTarget, plan_calibration
-from ucal.models import joint_speeds_deg_s
 from ucal.procedure import WRIST_SEARCH, plan_line
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
 
 #: The configurations a check measures: the calibration pose and the second joint-1 azimuth;

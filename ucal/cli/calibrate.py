@@ -37,7 +37,6 @@ from ucal.devices.record import Record
 from ucal.errors import InputError, NotConfirmed
 from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality
-from ucal.models import DEFAULT_MODEL
 from ucal.procedure import Job, Outcome
 from ucal.profile import (
     create_profile,
@@ -45,6 +44,7 @@ from ucal.profile import (
     load_profile,
     real_path,
 )
+from ucal.profile.models import DEFAULT_MODEL
 
 log = logging.getLogger(__name__)
 

@@ -29,8 +29,8 @@ from ucal.errors import InputError, SafetyError
 from ucal.kinematics.configuration import PARTS, ArmConfig
 from ucal.kinematics.filtering import controller_targets
 from ucal.kinematics.path import MAX_STEP_DEG, JointPath, PathChange, plan_joint_path
-from ucal.models import controller_model
 from ucal.profile import load_profile
+from ucal.profile.models import controller_model
 
 #: Column names of the output file: joint readings, or with ``--for-controller`` poses, then
 #: the row's arm configuration as a VAL3 ``config`` names its fields.

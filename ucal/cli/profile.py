@@ -12,7 +12,6 @@ from rich.table import Table
 
 from ucal.check.history import read_checks
 from ucal.cli.options import SuggestingGroup, emit_json, info, json_option, table_console
-from ucal.models import KNOWN_MODELS
 from ucal.profile import (
     create_profile,
     history_dir,
@@ -23,6 +22,7 @@ from ucal.profile import (
     undo_profile,
 )
 from ucal.profile.by_hand import PANEL_KEYS
+from ucal.profile.models import KNOWN_MODELS
 from ucal.profile.urdf import FK_TOLERANCE_MM, model_from_urdf, read_urdf
 
 profile_arg = click.argument(

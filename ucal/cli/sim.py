@@ -14,8 +14,8 @@ import click
 from ucal.cell import CellProfile
 from ucal.cli.options import SuggestingGroup
 from ucal.errors import InputError
-from ucal.models import DEFAULT_MODEL
 from ucal.profile import default_profile_text, load_profile
+from ucal.profile.models import DEFAULT_MODEL
 from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world
 

@@ -24,7 +24,7 @@ from drivers.controller.base import RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal import interrupt, timing
 from ucal.errors import HardwareError
-from ucal.models import joint_speeds_deg_s
+from ucal.profile.models import joint_speeds_deg_s
 
 if TYPE_CHECKING:
     from ucal.echo.capture import Capture

@@ -43,7 +43,7 @@ from ucal.devices.record import (
 )
 from ucal.devices.rig import Rig
 from ucal.errors import HardwareError, InputError, ProfileError, SafetyError
-from ucal.models import joint_speeds_deg_s
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.sim.demo import demo_world
 from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world

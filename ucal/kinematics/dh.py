@@ -61,7 +61,7 @@ class RobotModel:
     #: dh``, a profile's ``[calibration] dh``, or ``calibrate --level full``
     dh_source: str = field(default="shipped", compare=False)
     #: the joints' speeds (deg/s, (6,)) at speed 1.0 as a plan, its estimate and the simulated
-    #: controller take them (``ucal.models.joint_speeds_deg_s``); None: not stated
+    #: controller take them (``ucal.profile.models.joint_speeds_deg_s``); None: not stated
     speed_deg_s: np.ndarray | None = field(default=None, compare=False)
     #: the joints' maximum accelerations (deg/s², (6,)) where a source states them; None: not
     #: stated (the motion model is joint-interpolated at constant speed and takes none)

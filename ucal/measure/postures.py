@@ -48,7 +48,7 @@ from ucal.measure.sequence import measure_targets, start_running
 from ucal.model.geometry import FACE_NAMES, Face, FaceMeasurement
 from ucal.model.postures import FullPlan, Posture, first_postures
 from ucal.model.targets import geometry
-from ucal.models import joint_speeds_deg_s
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.progress import MeasureStep, Report
 from ucal.timing import DurationEstimate, estimate_run
 

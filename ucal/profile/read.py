@@ -26,12 +26,12 @@ from ucal.cell import (
 )
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
-from ucal.models import KNOWN_MODELS, load_model
 from ucal.profile.by_hand import KEYS as BY_HAND_KEYS
 from ucal.profile.by_hand import by_hand_to_dict, read_by_hand
 from ucal.profile.calibration import read_calibration
 from ucal.profile.cell import CELL_KEYS, read_cell
 from ucal.profile.described import DESCRIPTION_KEYS, read_description
+from ucal.profile.models import KNOWN_MODELS, load_model
 from ucal.profile.validation import (
     DH_KEYS,
     Reader,
@@ -376,7 +376,7 @@ def read_robot(
     """``[robot]``: a shipped ``model`` name, or a full ``dh`` table (then ``model`` is just a
     name), plus joint ranges (deg) and the joints' speeds at speed 1.0 (``speed_deg_s``,
     deg/s, 0–2000). Ranges and speeds default to ``ranges_from``'s if given (a world file
-    keeps the profile's), else to the shipped model's (``ucal.models``; another arm's then
+    keeps the profile's), else to the shipped model's (``ucal.profile.models``; another arm's then
     are the lowest of the shipped models', ``joint_speeds_deg_s``)."""
     name_raw = r.get(robot, f"{prefix}.model")
     dh_raw = r.get(robot, f"{prefix}.dh")

@@ -24,7 +24,7 @@ from tomlkit.items import Array, Comment, Table
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, ControllerTimeouts, Procedure
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel, wrist_centre
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.models import KNOWN_MODELS, load_model
 from ucal.profile.read import DEFAULT_FACE_MM
 from ucal.profile.validation import DH_KEYS
 

@@ -18,7 +18,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
 
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.models import KNOWN_MODELS, load_model
 from ucal.report import figures
 from ucal.report import html as h
 from ucal.report import verdict as v

@@ -58,7 +58,7 @@ from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.files import jsonable
 from ucal.kinematics.rotations import matrix_to_pose
-from ucal.models import joint_speeds_deg_s
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
 from ucal.world import PULSER_KINDS

@@ -12,9 +12,9 @@ from typing import Any
 
 from ucal.cell import CellProfile
 from ucal.devices.session import CellSession
-from ucal.models import joint_speeds_deg_s
 from ucal.procedure import Measured, Outcome, ProfileJob, RunFacts
 from ucal.profile import description_keys, write_profile
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.progress import Report
 from ucal.timing import EDGE_SCAN, NO_SEARCH, PLATE_PEAK, DurationEstimate, estimate_run
 from ucal.toolframe.measure import ToolFrameMeasurements, measure_tool_frame

@@ -27,8 +27,8 @@ from ucal.model.geometry import FACE_ORDER, distance_joints
 from ucal.model.priors import prior_from_profile
 from ucal.model.readings import CalibrationReadings
 from ucal.model.targets import calibration_pose
-from ucal.models import joint_speeds_deg_s
 from ucal.procedure import CheckingJob, Measured, Outcome, RunFacts, RunOptions
+from ucal.profile.models import joint_speeds_deg_s
 from ucal.progress import Report
 from ucal.sim.truth import iso9283_truth, verify_truth
 from ucal.timing import EDGE_SCAN, NO_SEARCH, DurationEstimate, SearchCost, estimate_run

@@ -35,8 +35,8 @@ from ucal.model.least_squares import (
     curvature_std_m_s_per_min2,
     face_row_minutes,
 )
-from ucal.models import load_model
 from ucal.profile.calibration import written_stds
+from ucal.profile.models import load_model
 
 from doubles import noisy_face
 

@@ -22,7 +22,7 @@ from ucal.kinematics.rotations import rpy_to_matrix
 from ucal.model.fit import CellPrior
 from ucal.model.gauge import j1_relative_to_block
 from ucal.model.geometry import CellGeometry, FaceMeasurement
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 from doubles import noisy_face
 

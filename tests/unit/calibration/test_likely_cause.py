@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ucal.model.fit import PARAMETERS, CellPrior, ParameterTable, ResidualRow, likely_cause
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 PRIOR = CellPrior(
     load_model("tx90l"),

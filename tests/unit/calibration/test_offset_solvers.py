@@ -14,7 +14,7 @@ from ucal.kinematics.dh import transform, wrist_centre
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.model.geometry import CellGeometry, FaceMeasurement, beam_and_tcp
 from ucal.model.wrist import aim_wrist
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 MODEL = load_model("tx90l")
 

@@ -10,7 +10,7 @@ from ucal.kinematics.dh import transform
 from ucal.kinematics.rotations import angle_between_deg, rpy_to_matrix
 from ucal.model.geometry import CellGeometry, beam_and_tcp
 from ucal.model.wrist import aim_wrist
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 MODEL = load_model("tx90l")
 POSE = np.array([30.53, 31.15, 109.49, 0.0, 39.36, 30.54])

@@ -17,7 +17,7 @@ from ucal.kinematics.configuration import (
 )
 from ucal.kinematics.dh import fk, wrist_centre
 from ucal.kinematics.ik import ik_all
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 MODELS = ("tx90", "tx90l", "tx90xl")
 

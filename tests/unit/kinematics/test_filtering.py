@@ -17,7 +17,7 @@ from ucal.kinematics.rotations import (
     rotation_angle_deg,
     rpy_to_matrix,
 )
-from ucal.models import controller_model, load_model
+from ucal.profile.models import controller_model, load_model
 
 TOOL = transform([3.0, -2.0, 85.0], rpy_to_matrix([1.0, -4.0, 30.0]))
 #: The issue's bound on where the calibrated robot lands: 0.01 mm (and 0.001°).

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG
 from ucal.kinematics.dh import fk, fk_frames, wrist_centre
-from ucal.models import KNOWN_MODELS, load_model, model_sheet
+from ucal.profile.models import KNOWN_MODELS, load_model, model_sheet
 
 
 def _link(theta_deg: float, d: float, a: float, alpha_deg: float) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 
 from ucal.cell import CellProfile, WorldTruth
 from ucal.kinematics.dh import fk
-from ucal.models import load_model
+from ucal.profile.models import load_model
 from ucal.sim.cell import SimulatedCell
 
 

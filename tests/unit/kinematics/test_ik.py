@@ -23,7 +23,7 @@ from ucal.kinematics.ik import (
     wrap_deg,
 )
 from ucal.kinematics.rotations import rotation_angle_deg, rpy_to_matrix
-from ucal.models import KNOWN_MODELS, load_model
+from ucal.profile.models import KNOWN_MODELS, load_model
 
 TOOL = transform([3.0, -4.0, 80.0], rpy_to_matrix([5.0, -10.0, 30.0]))
 

@@ -14,7 +14,7 @@ from ucal.kinematics.dh import fk, transform
 from ucal.kinematics.ik import ik_all, wrap_deg
 from ucal.kinematics.path import MAX_STEP_DEG, max_joint_step_deg, plan_joint_path
 from ucal.kinematics.rotations import matrix_to_pose, pose_to_matrix, rotation_angle_deg
-from ucal.models import load_model
+from ucal.profile.models import load_model
 
 TOOL = transform([0.0, 0.0, 80.0], np.eye(3))
 #: Wrist-singular configuration (θ5 = 0) the arc passes through, joint 4 at 40°.

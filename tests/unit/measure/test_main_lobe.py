@@ -11,7 +11,7 @@ from ucal.acoustics import water_absorption_np_per_mm
 from ucal.cell import CellProfile, WorldTruth
 from ucal.measure.lobe import MainLobe
 from ucal.measure.search import SIDE_LOBE_MARGIN_DB
-from ucal.models import load_model
+from ucal.profile.models import load_model
 from ucal.sim.cell import SimulatedCell
 
 #: The water paths (mm) of the demo calibration's faces, in the order it measures them.

@@ -21,7 +21,7 @@ from ucal.measure.approach import FinalApproachRig, approaching
 from ucal.measure.face import SearchMode
 from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
-from ucal.models import joint_speeds_deg_s
+from ucal.profile.models import joint_speeds_deg_s
 
 from doubles import QuietPulser
 

@@ -20,8 +20,8 @@ from urdf_files import TX90L_JOINTS, urdf_text
 
 from ucal.errors import InputError
 from ucal.kinematics.dh import fk
-from ucal.models import load_model
 from ucal.profile import load_profile
+from ucal.profile.models import load_model
 from ucal.profile.urdf import model_from_urdf, read_urdf
 
 from doubles import ucal_here

@@ -19,8 +19,8 @@ from drivers.controller.client import SimpleMessageController
 from ucal.cell import PAPER_CALIBRATION_POSE_DEG, CellProfile, WorldTruth
 from ucal.errors import ProfileError
 from ucal.kinematics.rotations import matrix_to_pose
-from ucal.models import model_sheet
 from ucal.profile import default_profile_text, load_profile
+from ucal.profile.models import model_sheet
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.serve import SimulatedCellServer
 from ucal.world import load_world, world_from_data

@@ -12,7 +12,7 @@ from ucal import acoustics as ac
 from ucal.cell import CellProfile, Noise, Reflector, WorldTruth
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
-from ucal.models import load_model
+from ucal.profile.models import load_model
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.receiver import EchoReceiver
 

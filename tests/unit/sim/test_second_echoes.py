@@ -10,7 +10,7 @@ from scipy.optimize import least_squares
 
 from ucal import acoustics as ac
 from ucal.cell import CellProfile, Step, WorldTruth
-from ucal.models import load_model
+from ucal.profile.models import load_model
 from ucal.sim.cell import BLOCK_FACE_REFLECTION, TRANSDUCER_FACE_REFLECTION, SimulatedCell
 from ucal.sim.rf import later_echoes
 

@@ -20,8 +20,8 @@ from ucal.cell import (
 )
 from ucal.kinematics.dh import fk
 from ucal.kinematics.rotations import angle_between_deg
-from ucal.models import load_model
 from ucal.profile import create_profile, description_keys, load_profile, write_profile
+from ucal.profile.models import load_model
 from ucal.sim.cell import SimulatedCell, ideal_echo
 from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, demo_world
 from ucal.sim.geometry import block_faces, intersect
