@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from ucal.cell import CellProfile
-from ucal.cli.options import SuggestingGroup
+from ucal.cli.options import SuggestingGroup, file_option
 from ucal.errors import InputError
 from ucal.models import DEFAULT_MODEL
 from ucal.profile import default_profile_text, load_profile
@@ -38,25 +38,18 @@ Examples:
   ucal sim serve --pulser-kind manual
 """,
 )
-@click.option(
+@file_option(
     "--world",
     "world_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="World TOML with the truth (default: the demo truth of the profile; an example "
-    "with every key: examples/world.toml in the source tree).",
+    "World TOML with the truth (default: the demo truth of the profile; an example with every "
+    "key: examples/world.toml in the source tree).",
 )
-@click.option(
+@file_option(
     "--profile",
     "profile_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Cell profile TOML (default: a new profile of the default model, tx90l).",
+    "Cell profile TOML (default: a new profile of the default model, tx90l).",
 )
-@click.option(
-    "--log",
-    "log_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Append one JSON line per executed motion to this file.",
-)
+@file_option("--log", "log_path", "Append one JSON line per executed motion to this file.")
 @click.option(
     "--time-scale",
     type=click.FloatRange(min=0.0),
