@@ -194,25 +194,18 @@ _MACRO = """\
     <origin xyz="${o['x']} ${o['y']} ${o['z']}" rpy="${o['roll']} ${o['pitch']} ${o['yaw']}"/>
   </xacro:macro>
 
-  <xacro:macro name="ucal_@NAME@_fixed" params="prefix joint parent child o">
+  <!-- A link and the joint that carries it: fixed, or revolute about z within limits -->
+  <xacro:macro name="ucal_@NAME@_link" params="prefix joint parent child o limits:='' shift:=0">
     <link name="${prefix}${child}"/>
-    <joint name="${prefix}${joint}" type="fixed">
+    <joint name="${prefix}${joint}" type="${'fixed' if limits == '' else 'revolute'}">
       <xacro:ucal_@NAME@_origin o="${o}"/>
       <parent link="${prefix}${parent}"/>
       <child link="${prefix}${child}"/>
-    </joint>
-  </xacro:macro>
-
-  <xacro:macro name="ucal_@NAME@_joint" params="prefix joint parent child kin limits shift">
-    <link name="${prefix}${child}"/>
-    <joint name="${prefix}${joint}" type="revolute">
-      <xacro:ucal_@NAME@_origin o="${kin[joint]}"/>
-      <parent link="${prefix}${parent}"/>
-      <child link="${prefix}${child}"/>
-      <axis xyz="0 0 1"/>
-      <limit lower="${limits[joint]['min_position'] + shift}"
-             upper="${limits[joint]['max_position'] + shift}"
-             effort="${limits[joint]['max_effort']}" velocity="${limits[joint]['max_velocity']}"/>
+      <xacro:if value="${limits != ''}">
+        <axis xyz="0 0 1"/>
+        <limit lower="${limits['min_position'] + shift}" upper="${limits['max_position'] + shift}"
+               effort="${limits['max_effort']}" velocity="${limits['max_velocity']}"/>
+      </xacro:if>
     </joint>
   </xacro:macro>
 
@@ -259,16 +252,16 @@ _MACRO = """\
       <parent link="${parent}"/>
       <child link="${prefix}base_link"/>
     </joint>
-    <xacro:ucal_@NAME@_fixed prefix="${prefix}" joint="base_link-base" parent="base_link"
+    <xacro:ucal_@NAME@_link prefix="${prefix}" joint="base_link-base" parent="base_link"
         child="base" o="${dict(x=0.0, y=0.0, z=ucal_doc['base']['height'], roll=0.0, pitch=0.0,
         yaw=0.0)}"/>
 
 @JOINTS@
-    <xacro:ucal_@NAME@_fixed prefix="${prefix}" joint="joint_6-flange" parent="link_6"
+    <xacro:ucal_@NAME@_link prefix="${prefix}" joint="joint_6-flange" parent="link_6"
         child="flange" o="${ucal_kin['flange']}"/>
-    <xacro:ucal_@NAME@_fixed prefix="${prefix}" joint="flange-tool0" parent="flange"
+    <xacro:ucal_@NAME@_link prefix="${prefix}" joint="flange-tool0" parent="flange"
         child="tool0" o="${dict(x=0.0, y=0.0, z=0.0, roll=0.0, pitch=pi / 2, yaw=0.0)}"/>
-    <xacro:ucal_@NAME@_fixed prefix="${prefix}" joint="tool0-ucal_tcp" parent="tool0"
+    <xacro:ucal_@NAME@_link prefix="${prefix}" joint="tool0-ucal_tcp" parent="tool0"
         child="ucal_tcp" o="${ucal_kin['tcp']}"/>
 
     <xacro:if value="${ros2_control_plugin != ''}">
@@ -284,8 +277,8 @@ _MACRO = """\
 
 #: One joint of the chain, and its ros2_control joint and transmission, in ``_MACRO``.
 _JOINT_CALL = """\
-    <xacro:ucal_@NAME@_joint prefix="${prefix}" joint="@JOINT@" parent="@PARENT@" child="@CHILD@"
-        kin="${ucal_kin}" limits="${ucal_limits}"
+    <xacro:ucal_@NAME@_link prefix="${prefix}" joint="@JOINT@" parent="@PARENT@" child="@CHILD@"
+        o="${ucal_kin['@JOINT@']}" limits="${ucal_limits['@JOINT@']}"
         shift="${0.0 if offsets_in_urdf else ucal_offsets['@JOINT@']}"/>
 """
 _CONTROL_CALL = """\

@@ -237,6 +237,16 @@ class Status(_Framed):
 
     msg_type: ClassVar[int] = MsgType.STATUS
     _BODY: ClassVar[struct.Struct] = struct.Struct(BYTE_ORDER + "7i")
+    #: The body's fields, in their order on the wire.
+    _FIELDS: ClassVar[tuple[str, ...]] = (
+        "drives_powered",
+        "e_stopped",
+        "error_code",
+        "in_error",
+        "in_motion",
+        "mode",
+        "motion_possible",
+    )
 
     drives_powered: int = TriState.UNKNOWN
     e_stopped: int = TriState.UNKNOWN
@@ -249,38 +259,12 @@ class Status(_Framed):
     reply_code: int = ReplyCode.INVALID
 
     def _body(self) -> bytes:
-        return self._BODY.pack(
-            self.drives_powered,
-            self.e_stopped,
-            self.error_code,
-            self.in_error,
-            self.in_motion,
-            self.mode,
-            self.motion_possible,
-        )
+        return self._BODY.pack(*(getattr(self, name) for name in self._FIELDS))
 
     @classmethod
     def _from_body(cls, comm_type: int, reply_code: int, body: bytes) -> Status:
-        (
-            drives_powered,
-            e_stopped,
-            error_code,
-            in_error,
-            in_motion,
-            mode,
-            motion_possible,
-        ) = cls._BODY.unpack(body)
-        return cls(
-            drives_powered=drives_powered,
-            e_stopped=e_stopped,
-            error_code=error_code,
-            in_error=in_error,
-            in_motion=in_motion,
-            mode=mode,
-            motion_possible=motion_possible,
-            comm_type=comm_type,
-            reply_code=reply_code,
-        )
+        fields = dict(zip(cls._FIELDS, cls._BODY.unpack(body), strict=True))
+        return cls(**fields, comm_type=comm_type, reply_code=reply_code)
 
 
 @dataclass(frozen=True)

@@ -218,20 +218,20 @@ dry_run_option = click.option(
 )
 
 
-def _file_option(flag: str, name: str, text: str) -> Callable[[F], F]:
+def file_option(flag: str, name: str, text: str) -> Callable[[F], F]:
     """Decorator: ``flag FILE``, one file, as the parameter ``name``; ``text`` is its help."""
     kind = click.Path(dir_okay=False, path_type=Path)
     return click.option(flag, name, type=kind, metavar="FILE", help=text)
 
 
-_record_option = _file_option(
+_record_option = file_option(
     "--record",
     "record_path",
     "Write the run to FILE as JSON lines as it goes: the profile, the plan, every device "
     "call (joint readings, moves, gain, readings, times), then the measurements the solver "
     "receives and the result.",
 )
-_replay_option = _file_option(
+_replay_option = file_option(
     "--replay",
     "replay_path",
     "Solve the measurements of a --record FILE again; moves nothing, asks nothing, writes nothing.",

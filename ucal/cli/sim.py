@@ -7,12 +7,13 @@ import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import click
 
 from ucal.cell import CellProfile
-from ucal.cli.options import SuggestingGroup
+from ucal.cli.options import F, SuggestingGroup, file_option
 from ucal.errors import InputError
 from ucal.profile import default_profile_text, load_profile
 from ucal.profile.models import DEFAULT_MODEL
@@ -23,6 +24,13 @@ from ucal.world import load_world
 @click.group("sim", cls=SuggestingGroup)
 def cli() -> None:
     """The simulated cell (controller and pulser speaking the real protocols)."""
+
+
+def _world_choice(flag: str, choices: list[str], world_key: str, text: str) -> Callable[[F], F]:
+    """Decorator: ``flag`` taking one of ``choices``, None when not given: the world's
+    ``world_key`` then, else the first of ``choices`` (``text`` and the help say so)."""
+    default = f" Default: the world's {world_key}, else {choices[0]}."
+    return click.option(flag, type=click.Choice(choices), help=text + default)
 
 
 @cli.command(
@@ -38,25 +46,18 @@ Examples:
   ucal sim serve --pulser-kind manual
 """,
 )
-@click.option(
+@file_option(
     "--world",
     "world_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="World TOML with the truth (default: the demo truth of the profile; an example "
-    "with every key: examples/world.toml in the source tree).",
+    "World TOML with the truth (default: the demo truth of the profile; an example with every "
+    "key: examples/world.toml in the source tree).",
 )
-@click.option(
+@file_option(
     "--profile",
     "profile_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Cell profile TOML (default: a new profile of the default model, tx90l).",
+    "Cell profile TOML (default: a new profile of the default model, tx90l).",
 )
-@click.option(
-    "--log",
-    "log_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Append one JSON line per executed motion to this file.",
-)
+@file_option("--log", "log_path", "Append one JSON line per executed motion to this file.")
 @click.option(
     "--time-scale",
     type=click.FloatRange(min=0.0),
@@ -78,22 +79,22 @@ Examples:
     "with the world's gain_db). Default: the world's [pulser] kind, else manual for a "
     'profile whose [pulser] kind = "manual", else modbus.',
 )
-@click.option(
+@_world_choice(
     "--scope",
-    type=click.Choice(["keysight", "rigol"]),
-    help="The oscilloscope's family (ascii-scpi and manual cells), the dialect its SCPI "
-    "speaks: keysight "
-    "(an InfiniiVision X-Series, triggered on EXT) or rigol (a DS1000Z, triggered on CH2). "
-    "Default: the world's [pulser] scope, else keysight.",
+    ["keysight", "rigol"],
+    "[pulser] scope",
+    "The oscilloscope's family (ascii-scpi and manual cells), the dialect its SCPI speaks: "
+    "keysight (an InfiniiVision X-Series, triggered on EXT) or rigol (a DS1000Z, triggered on "
+    "CH2).",
 )
-@click.option(
+@_world_choice(
     "--server",
-    type=click.Choice(["simple", "val3", "val3-feedback"]),
-    help="Simple Message server the controller behaves as: val3 = the released VAL3 "
-    "server (JOINT_POSITION at 50 Hz, STATUS every 5th, 1 s of silence after "
-    "a client connects, one client per port), val3-feedback = its JOINT_FEEDBACK "
-    "pull request (250 Hz, STATUS every 20th), simple = state and STATUS in every "
-    "frame at once. Default: the world's [controller] server, else simple.",
+    ["simple", "val3", "val3-feedback"],
+    "[controller] server",
+    "Simple Message server the controller behaves as: val3 = the released VAL3 server "
+    "(JOINT_POSITION at 50 Hz, STATUS every 5th, 1 s of silence after a client connects, one "
+    "client per port), val3-feedback = its JOINT_FEEDBACK pull request (250 Hz, STATUS every "
+    "20th), simple = state and STATUS in every frame at once.",
 )
 def serve(
     world_path: Path | None,

@@ -18,6 +18,7 @@ from ucal.cli.options import (
     controller_option,
     digitizer_from_options,
     emit_json,
+    file_option,
     json_option,
     pulser_option,
     table_console,
@@ -61,12 +62,11 @@ Examples:
 )
 @controller_option
 @pulser_option
-@click.option(
+@file_option(
     "--profile",
     "profile_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="The cell's profile, for a pulser set by hand (--pulser manual://): its [pulser] "
-    "declares the front panel, shown with what the digitiser's records say of it.",
+    "The cell's profile, for a pulser set by hand (--pulser manual://): its [pulser] declares "
+    "the front panel, shown with what the digitiser's records say of it.",
 )
 @json_option
 def cli(

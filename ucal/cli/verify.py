@@ -10,7 +10,7 @@ import numpy as np
 from rich.table import Table
 
 from ucal.cell import CellProfile
-from ucal.cli.options import MovingCall, moving_options, table_console
+from ucal.cli.options import MovingCall, file_option, moving_options, table_console
 from ucal.cli.procedure import run_command
 from ucal.devices.record import Record
 from ucal.errors import InputError
@@ -48,11 +48,10 @@ Examples:
         help="Number of nominal points, shared by the three orientations (20 = 8 straight "
         "down, 6 turned 180 deg about the beam, 6 tilted 15 deg).",
     ),
-    click.option(
+    file_option(
         "--plot",
         "plot_path",
-        type=click.Path(dir_okay=False, path_type=Path),
-        help="Before/after picture to write [default: PROFILE with .verify.png].",
+        "Before/after picture to write [default: PROFILE with .verify.png].",
     ),
     click.option(
         "--tolerance-mm",
