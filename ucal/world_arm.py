@@ -29,7 +29,10 @@ from ucal.cell import ArmTruth
 from ucal.kinematics.dh import RobotModel
 from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
-from ucal.sim.arm import MIN_STIFFNESS_NM_PER_RAD
+
+#: Smallest joint stiffness a world may state (N·m/rad): below it the sag is no longer small
+#: (``ucal.sim.arm`` bends the arm by a fixed point that needs it small).
+MIN_STIFFNESS_NM_PER_RAD = 1e4
 
 #: The world's keys of the bending, warming arm, by table.
 ROBOT_KEYS = frozenset(

@@ -113,6 +113,19 @@ def test_the_cell_model_stands_below_the_measuring_library() -> None:
     assert not found, found
 
 
+def test_the_files_readers_stand_below_the_simulated_cell() -> None:
+    """The world file and the profile are read below ``ucal/sim/``, which serves what they
+    say: a constant the simulator needs of a world's keys lives with the reader."""
+    found = [
+        f"{m} -> {n}"
+        for m, deps in GRAPH.items()
+        if m.startswith(("ucal.world", "ucal.profile", "ucal.cell"))
+        for n in deps
+        if _package(n) == "sim"
+    ]
+    assert not found, found
+
+
 def test_no_import_cycle() -> None:
     """Tarjan's strongly connected components of the module graph: every one a single module."""
     index: dict[str, int] = {}

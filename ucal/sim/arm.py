@@ -28,8 +28,6 @@ import numpy as np
 
 from ucal.cell import ArmTruth
 
-#: Smallest joint stiffness a world may state (N·m/rad): below it the sag is no longer small.
-MIN_STIFFNESS_NM_PER_RAD = 1e4
 #: Fixed-point passes on the deflected posture (module docstring).
 SAG_ITERATIONS = 2
 
