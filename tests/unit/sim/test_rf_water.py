@@ -93,3 +93,38 @@ def test_without_absorption_or_offset_the_record_is_the_one_shape_as_before() ->
         0.0, DT_NS, N, 0.5, ARRIVAL_NS, 1e-5, [(900.0, 0.2)]
     )
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("path_mm", [40.0, 80.0])
+def test_an_echo_through_less_or_more_water_than_the_reference_s_is_timed_as_one_alike(
+    path_mm: float,
+) -> None:
+    from ucal.echo.ascan import AScan
+    from ucal.echo.reference import build_reference
+    from ucal.echo.timing import estimate_echo
+
+    rng = np.random.default_rng(5)
+    dt, n, c_mm_ns = 12.2, 400, 1.48238
+    rf = RfOutput(25.0, noise_floor_fsh=1e-4, seed=5, water_absorption=True)
+
+    def record(path: float, averages: int) -> tuple[AScan, float]:
+        tof = 2.0 * path / c_mm_ns + 8.0
+        t0 = tof - 200 * dt + rng.uniform(0.0, dt)
+        sigma = rf.noise_rms_fsh(31.0, averages)
+        return AScan(t0, dt, rf.record(t0, dt, n, 0.8, tof, sigma, water_mm=[path])), tof
+
+    # the cell's capture: 16 records of 64 averages, 60 mm of water
+    reference = build_reference([record(60.0, 64)[0] for _ in range(16)])
+    at_reference = [estimate_echo(*record(60.0, 16)[:1], reference) for _ in range(2)]
+    estimates, errors = [], []
+    for _ in range(20):
+        ascan, tof = record(path_mm, 16)
+        e = estimate_echo(ascan, reference)
+        estimates.append(e)
+        errors.append(e.tof_ns - tof)
+    assert not any(e.overlapped for e in estimates)
+    assert np.mean([e.extra_water_mm for e in estimates]) == pytest.approx(path_mm - 60.0, abs=1.0)
+    # the reference's own convention is a constant in every time (the calibrated delay's)
+    common = at_reference[0].tof_ns - (2.0 * 60.0 / c_mm_ns + 8.0)
+    assert abs(np.mean(errors) - common) < 3 * at_reference[0].tof_std_ns
+    assert np.mean([e.tof_std_ns for e in estimates]) < 2 * at_reference[0].tof_std_ns
