@@ -27,6 +27,8 @@ ATTENUATION_TOLERANCE = 1e-4
 #: Less water than the reference's, where it is fitted (``less_water``): at most this much
 #: gain at β (Np: 26 dB, about 95 mm less at 25 MHz).
 LESS_WATER_LIMIT_NP = 3.0
+#: ... its coarse scan's steps, 0 included.
+LESS_WATER_STEPS = 13
 #: An echo is overlapped when its residual's excess over the noise passes this many of the
 #: excess's own standard deviations √(2m) (m samples in the echo).
 OVERLAP_SIGMAS = 5.0
@@ -252,6 +254,10 @@ def fit_attenuation(
     limit = ATTENUATION_LIMIT_NP / beta2 if beta2 > 0.0 else 0.0
     lowest = -LESS_WATER_LIMIT_NP / beta2 if less_water and beta2 > 0.0 else 0.0
     kappa, amplitude = 0.0, start[3]
+    if less_water:
+        # far from the reference's water the linearised step may not even keep the echo's
+        # sign: it starts from the best of a coarse scan over the less water allowed
+        corr, kappa, lag, amplitude = _scanned(x, corr, lag, where, f2, lowest)
     for _ in range(ATTENUATION_ITERATIONS):
         g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
         h = shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
@@ -274,6 +280,30 @@ def fit_attenuation(
     if not (information > 0.0 and abs(kappa) * math.sqrt(information) > ATTENUATION_SIGMAS * sigma):
         return start
     return corr, kappa, lag, amplitude
+
+
+def _scanned(
+    x: np.ndarray,
+    corr: Correlator,
+    lag: float,
+    where: np.ndarray,
+    f2: np.ndarray,
+    lowest: float,
+) -> tuple[Correlator, float, float, float]:
+    """The template through each of ``LESS_WATER_STEPS`` amounts of less water from 0 to
+    ``lowest`` (κ < 0), its delay and amplitude fitted: the one leaving the least residual
+    over ``where``, as (correlator, κ, lag, amplitude)."""
+    best: tuple[float, tuple[Correlator, float, float, float]] | None = None
+    for kappa in np.linspace(0.0, lowest, LESS_WATER_STEPS):
+        spectrum = corr.spectrum * np.exp(-kappa * f2)
+        energy = float(np.sum(fft.irfft(spectrum, corr.n_fft) ** 2))
+        trial = Correlator(corr.n, corr.n_fft, spectrum, energy)
+        trial_lag, amplitude = trial.fit(x, lag)
+        sse = float(np.sum((x - amplitude * trial.model(trial_lag))[where] ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, (trial, float(kappa), trial_lag, amplitude))
+    assert best is not None
+    return best[1]
 
 
 def residual_excess(x: np.ndarray, fit: np.ndarray, where: np.ndarray, sigma: float) -> float:

@@ -129,10 +129,11 @@ temperature, and the beam's diffraction changes the spectrum with the path too: 
 of it is even, so read it as an equivalent path). Less water than the reference's (κ < 0) is
 fitted only where the reference as it is leaves an excess in the echo's samples (the overlap
 test below, on the record's and the reference's noise) and the template through less water,
-down to ``LESS_WATER_LIMIT_NP`` of gain at β, leaves none: fitted always, it would amplify
-the template's edges, where the reference's noise is (and the Wiener weights, which narrow a
-noisy reference's band a little, read as less water: 1.8 × the bound at 5 MHz, 500 MS/s,
-40 dB). A reading 20 mm nearer than a 25 MHz reference, through the simulated cell's water
+down to ``LESS_WATER_LIMIT_NP`` of gain at β and started from the best of a coarse scan
+(76 mm nearer, the linearised step lost the echo's sign), leaves none. Fitted always, it
+would amplify the template's edges, where the reference's noise is (and the Wiener weights,
+which narrow a noisy reference's band a little, read as less water: 1.8 × the bound at
+5 MHz, 500 MS/s, 40 dB). A reading 20 mm nearer than a 25 MHz reference, through the simulated cell's water
 (``ucal.sim.rf``), was flagged overlapped with its std 1,400 times its spread; fitted, it is
 timed as one 20 mm further is.
 
