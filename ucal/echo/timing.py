@@ -133,9 +133,9 @@ down to ``LESS_WATER_LIMIT_NP`` of gain at β and started from the best of a coa
 (76 mm nearer, the linearised step lost the echo's sign), leaves none. Fitted always, it
 would amplify the template's edges, where the reference's noise is (and the Wiener weights,
 which narrow a noisy reference's band a little, read as less water: 1.8 × the bound at
-5 MHz, 500 MS/s, 40 dB). A reading 20 mm nearer than a 25 MHz reference, through the simulated cell's water
-(``ucal.sim.rf``), was flagged overlapped with its std 1,400 times its spread; fitted, it is
-timed as one 20 mm further is.
+5 MHz, 500 MS/s, 40 dB). A reading 20 mm nearer than a 25 MHz reference, through the
+simulated cell's water (``ucal.sim.rf``), was flagged overlapped with its std 1,400 times
+its spread; fitted, it is timed as one 20 mm further is.
 
 Offsets. An echo has no DC: the reference's mean is its offset, removed when it is read
 (``reference_from_samples``; 30 % of the peak left in made its peak, hence every amplitude,
