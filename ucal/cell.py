@@ -334,7 +334,9 @@ class PulserTruth:
     ``bits`` says). ``"manual"``: a pulser-receiver set by hand, the same oscilloscope alone
     beside it; ``gain_db`` its front panel's gain (the world's default: the profile's
     declaration, else 20 dB, where the block's echo at 50 mm is 0.8 of full screen), which a
-    run reads only through the records.
+    run reads only through the records. ``baseline_offset``: the receiver's output at rest, a
+    constant in every A-scan sample (fraction of full screen height, −0.5…0.5; 0 = none), in
+    the averages and in the reference echo a run captures.
     """
 
     amplitude_bits: int = 0
@@ -347,6 +349,7 @@ class PulserTruth:
     bits: int = 12
     scope: str = "keysight"
     gain_db: float = 20.0
+    baseline_offset: float = 0.0
 
 
 #: Standard gravity (m/s², ISO 80000-3), along −z of the robot base by default.
@@ -442,6 +445,9 @@ class WorldTruth:
     #: Near-field directivity: the echo of a tilted plane returns displaced by 2L·tan 2θ and,
     #: inside the near field, about as wide as the element (``ucal.sim.receiver``).
     near_field: bool = False
+    #: Water's absorption in the A-scans: every echo's spectrum through α₀(T)·f² over its own
+    #: water path, both ways (``ucal.sim.rf``); False: every echo of one shape.
+    water_absorption: bool = False
     #: The Simple Message server the controller behaves as
     #: (``drivers.controller.simulator.SERVERS``) and its start-up silence (s; None: the
     #: server's own).

@@ -28,6 +28,9 @@ the solvers do not model:
   first line ``time_min,temperature_c``, blank lines and ``#`` comments are skipped; at least
   one row. The water follows the straight line between readings and stays at the first
   (last) reading before (after) them (:class:`ucal.thermometer.TemperatureLog`);
+  ``absorption = true`` — every echo of an A-scan shaped by water's absorption α₀(T)·f² over
+  its own water path, both ways: its spectrum moves down and it broadens with the path
+  (``ucal.sim.rf``; default false, every echo of one shape);
 * ``[pulser] amplitude_bits`` (0…24; 0 = not quantised), ``gain_error_db`` (one sigma, 0…6 dB)
   and ``delay_ns`` (fixed electronic delay in every TOF, −1000…10 000 ns, default
   ``ucal.cell.DEFAULT_PULSER_DELAY_NS`` = 8 ns) — see :class:`ucal.cell.PulserTruth`;
@@ -42,6 +45,8 @@ the solvers do not model:
   profile whose pulser is set by hand): that oscilloscope alone beside a pulser-receiver set by
   hand, whose front panel's true gain is ``gain_db`` (default: the profile's declaration) and
   whose echoes' centre frequency is the world's ``[transducer] frequency_mhz``;
+  ``baseline_offset`` — the receiver's output at rest (−0.5…0.5 of full screen height), a
+  constant in every A-scan sample, in its averages and in the reference echo a run captures;
 
 Extra keys beyond SPEC.md:
 
@@ -128,7 +133,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
     "reflector": frozenset(
         {"point_mm", "normal", "size_mm", "edge_direction", "edge_radius_mm", "flatness_mm"}
     ),
-    "water": frozenset({"temperature_c", "drift_c_per_min", "temperature_log"}),
+    "water": frozenset({"temperature_c", "drift_c_per_min", "temperature_log", "absorption"}),
     "transducer": frozenset(
         {"frequency_mhz", "element_diameter_mm", "squint_deg", "squint_azimuth_deg", "near_field"}
     ),
@@ -143,6 +148,7 @@ KNOWN_WORLD_KEYS: dict[str, frozenset[str] | None] = {
             "bits",
             "scope",
             "gain_db",
+            "baseline_offset",
         }
     ),
     "noise": frozenset({"tof_ns", "amplitude", "seed"}),
@@ -170,6 +176,8 @@ MAX_DRIFT_C_PER_MIN = 10.0
 MAX_SQUINT_DEG = 5.0
 MAX_EDGE_RADIUS_MM = 20.0
 MAX_FLATNESS_MM = 5.0
+#: Largest baseline offset of the receiver's output a world may state (fraction of full screen).
+MAX_BASELINE_OFFSET = 0.5
 
 
 def load_world(path: str | Path | None, profile: CellProfile) -> WorldTruth:
@@ -277,6 +285,11 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
             hi=MAX_DRIFT_C_PER_MIN,
             unit="degC/min",
         )
+    v = r.get(water, "water.absorption")
+    if v is not None:
+        if not isinstance(v, bool):
+            raise r.error("water.absorption", f"must be true or false, got {v!r}")
+        changes["water_absorption"] = v
     transducer = r.table("transducer")
     freq, diam = read_transducer(r, transducer, "transducer", required=False)
     if freq is not None:
@@ -403,7 +416,8 @@ def _pulser(r: Reader, table: Mapping[str, Any], d: PulserTruth) -> PulserTruth:
     """``[pulser]`` over ``d`` (the profile's): amplitude_bits (0…24), gain_error_db (0…6 dB),
     delay_ns (−1000…10 000), register_map (a map file relative to the world file), kind
     (``PULSER_KINDS``), sample_rate_mhz (10…5000) and bits (8…16) of the digitiser, scope (its
-    family), gain_db (a pulser set by hand's front panel, −20…100 dB)."""
+    family), gain_db (a pulser set by hand's front panel, −20…100 dB), baseline_offset (the
+    receiver's output at rest, −0.5…0.5 of full screen)."""
     kind_raw = r.get(table, "pulser.kind")
     kind = d.kind if kind_raw is None else r.string("pulser.kind", kind_raw)
     if kind not in PULSER_KINDS:
@@ -420,6 +434,7 @@ def _pulser(r: Reader, table: Mapping[str, Any], d: PulserTruth) -> PulserTruth:
     gain = r.get(table, "pulser.gain_error_db")
     delay = r.get(table, "pulser.delay_ns")
     panel = r.get(table, "pulser.gain_db")
+    offset = r.get(table, "pulser.baseline_offset")
     if panel is not None and kind != "manual":
         raise r.error(
             "pulser.gain_db",
@@ -451,6 +466,11 @@ def _pulser(r: Reader, table: Mapping[str, Any], d: PulserTruth) -> PulserTruth:
         gain_db=d.gain_db
         if panel is None
         else r.number("pulser.gain_db", panel, lo=-20.0, hi=100.0, unit="dB"),
+        baseline_offset=d.baseline_offset
+        if offset is None
+        else r.number(
+            "pulser.baseline_offset", offset, lo=-MAX_BASELINE_OFFSET, hi=MAX_BASELINE_OFFSET
+        ),
     )
 
 

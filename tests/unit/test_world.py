@@ -367,3 +367,21 @@ def test_missing_keys_are_the_cell_as_described(tmp_path: Path) -> None:
     assert measured.tool_position_mm[2] == pytest.approx(96.0)
     truth = load_world(world, measured)
     np.testing.assert_array_equal(truth.tool_position_mm, drawn.tool_position_mm)
+
+
+def test_water_absorption_and_the_baseline_offset_are_world_keys(tmp_path: Path) -> None:
+    profile = CellProfile(model=load_model("tx90l"))
+    path = tmp_path / "w.toml"
+    path.write_text("[water]\nabsorption = true\n[pulser]\nbaseline_offset = -0.03\n")
+    world = load_world(path, profile)
+    assert world.water_absorption is True and world.pulser.baseline_offset == -0.03
+    nominal = load_world(None, profile)
+    assert nominal.water_absorption is False and nominal.pulser.baseline_offset == 0.0
+    for text, key in [
+        ("[water]\nabsorption = 1\n", "water.absorption"),
+        ("[pulser]\nbaseline_offset = 0.7\n", "pulser.baseline_offset"),
+        ("[water]\nabsorbtion = true\n", "absorption"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(ProfileError, match=key):
+            load_world(path, profile)

@@ -24,6 +24,18 @@ from ucal.echo.spectral import series_peak, shifted
 ATTENUATION_LIMIT_NP = 6.0
 ATTENUATION_ITERATIONS = 30
 ATTENUATION_TOLERANCE = 1e-4
+#: Less water than the reference's, where it is fitted (``less_water``): at most this much
+#: gain at β (Np: 26 dB, about 95 mm less at 25 MHz).
+LESS_WATER_LIMIT_NP = 3.0
+#: ... its coarse scan's steps, 0 included.
+LESS_WATER_STEPS = 13
+#: An echo is overlapped when its residual's excess over the noise passes this many of the
+#: excess's own standard deviations √(2m) (m samples in the echo).
+OVERLAP_SIGMAS = 5.0
+#: ... and its energy passes this share of the echo's (a residual 1 % of the echo's height):
+#: below, what is left is taken as the echo's own shape, which the reference matches only so
+#: well (its averaging over the trigger jitter, the spectrum's change with the tilt).
+OVERLAP_ENERGY = 1e-4
 #: A fitted κ is kept when this many of its std from 0; less, the spectrum has not changed
 #: beyond the noise and the reference is used as it is.
 ATTENUATION_SIGMAS = 3.0
@@ -223,11 +235,14 @@ def fit_attenuation(
     where: np.ndarray,
     dt_ns: float,
     sigma: float,
+    *,
+    less_water: bool = False,
 ) -> tuple[Correlator, float, float, float]:
     """The template through κ Np/MHz² more water, ``R·exp(−κf²)``, fitted to the record's
     samples ``where`` (module docstring): Gauss–Newton on κ with the amplitude, the delay
     refitted at each step; κ kept only when it is ``ATTENUATION_SIGMAS`` of its own std
-    from 0 (σ the noise). Returns (correlator, κ, lag, amplitude)."""
+    from 0 (σ the noise). With ``less_water`` κ may be negative too, down to
+    ``LESS_WATER_LIMIT_NP`` at β. Returns (correlator, κ, lag, amplitude)."""
     start = (corr, 0.0, lag, corr.fit(x, lag)[1])
     f2 = fft.rfftfreq(corr.n_fft, dt_ns * 1e-3) ** 2
     base = corr.spectrum
@@ -237,8 +252,12 @@ def fit_attenuation(
     # and the reference's noise beyond them, and the Wiener weights, which narrow a noisy
     # reference's band a little, were fitted as less water, the std widened for nothing
     limit = ATTENUATION_LIMIT_NP / beta2 if beta2 > 0.0 else 0.0
-    lowest = 0.0
+    lowest = -LESS_WATER_LIMIT_NP / beta2 if less_water and beta2 > 0.0 else 0.0
     kappa, amplitude = 0.0, start[3]
+    if less_water:
+        # far from the reference's water the linearised step may not even keep the echo's
+        # sign: it starts from the best of a coarse scan over the less water allowed
+        corr, kappa, lag, amplitude = _scanned(x, corr, lag, where, f2, lowest)
     for _ in range(ATTENUATION_ITERATIONS):
         g = shifted(corr.spectrum, corr.n_fft, lag)[: corr.n][where]
         h = shifted(-f2 * corr.spectrum, corr.n_fft, lag)[: corr.n][where]
@@ -263,6 +282,30 @@ def fit_attenuation(
     return corr, kappa, lag, amplitude
 
 
+def _scanned(
+    x: np.ndarray,
+    corr: Correlator,
+    lag: float,
+    where: np.ndarray,
+    f2: np.ndarray,
+    lowest: float,
+) -> tuple[Correlator, float, float, float]:
+    """The template through each of ``LESS_WATER_STEPS`` amounts of less water from 0 to
+    ``lowest`` (κ < 0), its delay and amplitude fitted: the one leaving the least residual
+    over ``where``, as (correlator, κ, lag, amplitude)."""
+    best: tuple[float, tuple[Correlator, float, float, float]] | None = None
+    for kappa in np.linspace(0.0, lowest, LESS_WATER_STEPS):
+        spectrum = corr.spectrum * np.exp(-kappa * f2)
+        energy = float(np.sum(fft.irfft(spectrum, corr.n_fft) ** 2))
+        trial = Correlator(corr.n, corr.n_fft, spectrum, energy)
+        trial_lag, amplitude = trial.fit(x, lag)
+        sse = float(np.sum((x - amplitude * trial.model(trial_lag))[where] ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, (trial, float(kappa), trial_lag, amplitude))
+    assert best is not None
+    return best[1]
+
+
 def residual_excess(x: np.ndarray, fit: np.ndarray, where: np.ndarray, sigma: float) -> float:
     """``Σ (x − fit)²/σ² − m`` over the ``m`` samples ``where``: the residual's energy beyond
     the noise's, in units of σ² (0 for a lone echo, up to the noise's own scatter ±√(2m))."""
@@ -270,3 +313,25 @@ def residual_excess(x: np.ndarray, fit: np.ndarray, where: np.ndarray, sigma: fl
         return 0.0
     residual = (x - fit)[where]
     return float(np.sum(residual**2)) / sigma**2 - float(residual.size)
+
+
+def leaves_excess(
+    x: np.ndarray,
+    fitted: tuple[Correlator, float, float, float],
+    where: np.ndarray,
+    sigma: float,
+    reference_noise: float,
+) -> bool:
+    """Whether the echo ``fitted`` (correlator, κ, lag, amplitude) leaves more in the
+    record's samples ``where`` than the record's noise ``sigma`` and the reference's
+    (``reference_noise`` of its peak) explain: the overlap test of ``ucal.echo.timing``,
+    before clipping is taken into account."""
+    corr, _, lag, amplitude = fitted
+    sigma = math.hypot(sigma, amplitude * reference_noise)
+    model = amplitude * corr.model(lag)
+    excess = residual_excess(x, model, where, sigma)
+    energy = float(np.sum(model[where] ** 2))
+    return bool(
+        excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(where))
+        and excess * sigma**2 > OVERLAP_ENERGY * energy
+    )

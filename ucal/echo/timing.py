@@ -127,7 +127,15 @@ template keeps it (``through_water``). The amplitude is the peak of the echo as 
 ``extra_water_mm`` = κ/(2α₀) says what the spectrum saw (at 20 °C; α₀ falls with the
 temperature, and the beam's diffraction changes the spectrum with the path too: κ takes what
 of it is even, so read it as an equivalent path). Less water than the reference's (κ < 0) is
-not fitted: it would amplify the template's edges, where the reference's noise is.
+fitted only where the reference as it is leaves an excess in the echo's samples (the overlap
+test below, on the record's and the reference's noise) and the template through less water,
+down to ``LESS_WATER_LIMIT_NP`` of gain at β and started from the best of a coarse scan
+(76 mm nearer, the linearised step lost the echo's sign), leaves none. Fitted always, it
+would amplify the template's edges, where the reference's noise is (and the Wiener weights,
+which narrow a noisy reference's band a little, read as less water: 1.8 × the bound at
+5 MHz, 500 MS/s, 40 dB). A reading 20 mm nearer than a 25 MHz reference, through the
+simulated cell's water (``ucal.sim.rf``), was flagged overlapped with its std 1,400 times
+its spread; fitted, it is timed as one 20 mm further is.
 
 Offsets. An echo has no DC: the reference's mean is its offset, removed when it is read
 (``reference_from_samples``; 30 % of the peak left in made its peak, hence every amplitude,
@@ -178,9 +186,12 @@ from ucal.echo.ascan import (
     noise_rms,
 )
 from ucal.echo.correlator import (
+    OVERLAP_ENERGY,
+    OVERLAP_SIGMAS,
     Correlator,
     explained_by_a_pair,
     fit_attenuation,
+    leaves_excess,
     pair_std_ns,
     residual_excess,
     through_water,
@@ -190,13 +201,6 @@ from ucal.echo.spectral import shifted
 #: ``EchoEstimate.method`` of the two estimators.
 METHOD_REFERENCE = "reference"
 METHOD_ENVELOPE = "envelope (coarse: no reference echo)"
-#: An echo is overlapped when its residual's excess over the noise passes this many of the
-#: excess's own standard deviations √(2m) (m samples in the echo).
-OVERLAP_SIGMAS = 5.0
-#: ... and its energy passes this share of the echo's (a residual 1 % of the echo's height):
-#: below, what is left is taken as the echo's own shape, which the reference matches only so
-#: well (its averaging over the trigger jitter, the spectrum's change with the tilt).
-OVERLAP_ENERGY = 1e-4
 #: Clipped samples: refits until the delay moves less than this (samples), at most this often.
 CLIP_TOLERANCE = 1e-6
 CLIP_ITERATIONS = 50
@@ -386,6 +390,14 @@ def _reference_estimate(
     # the water between: the echo's spectrum is the reference's times exp(−κ·f²)
     plain = corr
     fitted = fit_attenuation(x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma)
+    if fitted[1] == 0.0 and leaves_excess(x, fitted, in_echo, sigma, ref.noise_rms):
+        # less water than the reference's: fitted only where the reference as it is leaves
+        # an excess that the spectrum through less water takes away (module docstring)
+        less = fit_attenuation(
+            x, corr, lag, in_echo & ~ascan.at_rails(), dt, sigma, less_water=True
+        )
+        if less[1] < 0.0 and not leaves_excess(x, less, in_echo, sigma, ref.noise_rms):
+            fitted = less
     corr, kappa, lag, amplitude = fitted
 
     # clipped samples: censored, the echo refitted by the others

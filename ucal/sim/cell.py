@@ -72,6 +72,7 @@ import logging
 import math
 import threading
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import ndtr
@@ -118,6 +119,15 @@ BLOCK_FACE_REFLECTION = 0.94
 _MAX_SPECULAR_TILT_DEG = 45.0
 #: Echoes weaker than this (fraction of full screen) are left out of ``echoes``.
 _MIN_ECHO = 1e-6
+
+
+class Echo(NamedTuple):
+    """One echo of an acquisition, noise-free: when it arrives (ns), its envelope's peak
+    (fraction of full screen) and the water its sound crossed, one way (mm)."""
+
+    tof_ns: float
+    amplitude: float
+    water_path_mm: float
 
 
 class _Stream(IntEnum):
@@ -362,17 +372,25 @@ class SimulatedCell:
         block faces that the footprint spans. ``gate_ns`` (start, stop) keeps only the echoes
         arriving inside it (the main one too).
         """
-        origin, direction = self.true_beam(joint_readings_deg, motion_sign, t_s)
-        g = acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(float(gain_db))
-        found = self._echo_list(origin, direction, g, self.sound_speed_m_s(t_s))
+        beam = self.true_beam(joint_readings_deg, motion_sign, t_s)
+        found = self.echoes_along(beam, gain_db, t_s)
         if gate_ns is not None:
-            found = [e for e in found if gate_ns[0] <= e[0] <= gate_ns[1]]
-        return found
+            found = [e for e in found if gate_ns[0] <= e.tof_ns <= gate_ns[1]]
+        return [(e.tof_ns, e.amplitude) for e in found]
+
+    def echoes_along(
+        self, beam: tuple[np.ndarray, np.ndarray], gain_db: float, t_s: float = 0.0
+    ) -> list[Echo]:
+        """``echoes`` of the true ``beam`` (origin, direction: ``true_beam``), each with the
+        water its sound crossed (``Echo.water_path_mm``, one way: the multiple's is twice the
+        main one's), for the A-scan's echo shapes."""
+        g = acoustics.REFERENCE_AMPLITUDE * acoustics.gain_factor(float(gain_db))
+        return self._echo_list(beam[0], beam[1], g, self.sound_speed_m_s(t_s))
 
     def _echo_list(
         self, origin: np.ndarray, direction: np.ndarray, scale: float, c_m_s: float
-    ) -> list[tuple[float, float]]:
-        """``echoes`` for a beam ray, ``scale`` = reference amplitude × gain factor."""
+    ) -> list[Echo]:
+        """``echoes_along`` for a beam ray, ``scale`` = reference amplitude × gain factor."""
         found = self._echoing_hit(origin, direction)
         if found is None:
             return []
@@ -381,18 +399,22 @@ class SimulatedCell:
             self._arrival_ns(h.distance_mm, c_m_s),
             self._peak(h.tilt_deg, h.distance_mm, c_m_s),
         )
-        out = [(main[0], main[1] * scale * share)]
-        others: list[tuple[float, float]] = []
+        out = [Echo(main[0], main[1] * scale * share, h.distance_mm)]
+        others: list[Echo] = []
         # the multiple: the image of the face in the transducer's face, at twice the path and
         # twice the tilt, one more bounce on the face and one on the transducer
         if 2.0 * h.tilt_deg < _MAX_SPECULAR_TILT_DEG:
             peak = self._peak(2.0 * h.tilt_deg, 2.0 * h.distance_mm, c_m_s)
             factor = TRANSDUCER_FACE_REFLECTION * BLOCK_FACE_REFLECTION * share
-            others.append((self._arrival_ns(2.0 * h.distance_mm, c_m_s), peak * scale * factor))
+            others.append(self._echo(2.0 * h.distance_mm, c_m_s, peak * scale * factor))
         others += self._other_faces(origin, direction, h, share, scale, c_m_s)
         others += self._corners(origin, direction, scale, c_m_s)
-        out += sorted(e for e in others if e[1] > _MIN_ECHO)
+        out += sorted(e for e in others if e.amplitude > _MIN_ECHO)
         return out
+
+    def _echo(self, water_path_mm: float, c_m_s: float, amplitude: float) -> Echo:
+        """The echo of ``amplitude`` through ``water_path_mm`` (one way)."""
+        return Echo(self._arrival_ns(water_path_mm, c_m_s), amplitude, water_path_mm)
 
     def _peak(self, tilt_deg: float, water_path_mm: float, c_m_s: float) -> float:
         """Envelope peak of the noise-free broadband echo of unit scale (the receiver's)."""
@@ -423,13 +445,13 @@ class SimulatedCell:
         main_share: float,
         scale: float,
         c_m_s: float,
-    ) -> list[tuple[float, float]]:
+    ) -> list[Echo]:
         """Specular echoes of the other faces that the footprint reaches: the footprint's share
         on each (σ of ``_footprint_sigma_mm``), less the share the nearer faces took (exact for
         a face inside another, as the step on the XY face), at the path along the axis to its
         plane and the broadband echo's height at its tilt. A face nearer than the main one is
         one the axis misses that gives the smaller echo (``_echoing_hit``)."""
-        out = []
+        out: list[Echo] = []
         taken = main_share
         hits = [
             hit
@@ -452,19 +474,19 @@ class SimulatedCell:
                 continue
             taken += share
             peak = self._peak(hit.tilt_deg, hit.distance_mm, c_m_s)
-            out.append((self._arrival_ns(hit.distance_mm, c_m_s), peak * scale * share))
+            out.append(self._echo(hit.distance_mm, c_m_s, peak * scale * share))
         return out
 
     def _corners(
         self, origin: np.ndarray, direction: np.ndarray, scale: float, c_m_s: float
-    ) -> list[tuple[float, float]]:
+    ) -> list[Echo]:
         """Corner echoes of the block's pairs of faces (module doc of ``ucal.sim`` echoes)."""
         m = self.world.sample_matrix
         corner = m[:3, 3]
         size = float(self.world.sample_face_size_mm)
         radius = 0.5 * float(self.world.element_diameter_mm)
         d = np.asarray(direction, float)
-        out = []
+        out: list[Echo] = []
         for i, j in ((0, 1), (0, 2), (1, 2)):
             n_i, n_j, e = m[:3, i], m[:3, j], m[:3, 3 - i - j]
             if not (d @ n_i < 0.0 and d @ n_j < 0.0):
@@ -493,7 +515,7 @@ class SimulatedCell:
                 continue
             tilt_deg = math.degrees(math.asin(min(abs(b), 1.0)))
             peak = self._peak(tilt_deg, t, c_m_s)
-            out.append((self._arrival_ns(t, c_m_s), peak * scale * amp))
+            out.append(self._echo(t, c_m_s, peak * scale * amp))
         return out
 
     def ideal_echo(

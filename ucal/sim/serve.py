@@ -348,7 +348,13 @@ class SimulatedCellServer(Served):
         # instrument's gate never needs it.
         from ucal.sim.rf import RfOutput
 
-        return RfOutput(self.world.frequency_mhz, self.cell.noise_floor, self.world.noise.seed)
+        return RfOutput(
+            self.world.frequency_mhz,
+            self.cell.noise_floor,
+            self.world.noise.seed,
+            water_absorption=self.world.water_absorption,
+            baseline_offset=self.world.pulser.baseline_offset,
+        )
 
     def _rf_record(
         self,
@@ -360,24 +366,39 @@ class SimulatedCellServer(Served):
         settings: PulserSettings,
     ) -> np.ndarray:
         """The receiver's RF output over a record (``ucal.sim.rf``): the echoes of this
-        acquisition (``SimulatedCell.echoes`` where the arm was) and the receiver's noise at
-        its gain and averages."""
+        acquisition (``SimulatedCell.echoes_along`` where the arm was, each through its own
+        water), the receiver's noise at its gain and averages and its baseline offset."""
         from ucal.sim.rf import later_echoes
 
         if self.rf is None:
             self.rf = self._rf_output()
         noise = self.rf.noise_rms_fsh(settings.gain_db, settings.averages)
         later: list[tuple[float, float]] = []
+        water_mm: list[float] = []
+        temperature_c = self.world.water_temperature_c
         posture = self._posture
         if posture is not None and math.isfinite(tof_ns):
             joints, gain_db, t_s, motion_sign = posture
-            echoes = self.cell.echoes(joints, gain_db, t_s, motion_sign)
-            later = later_echoes(echoes)
+            beam = self.cell.true_beam(joints, motion_sign, t_s)
+            echoes = self.cell.echoes_along(beam, gain_db, t_s)
+            later = later_echoes([(e.tof_ns, e.amplitude) for e in echoes])
+            water_mm = [e.water_path_mm for e in echoes]
+            temperature_c = self.cell.water_temperature_c(t_s)
             if self.pulser_kind == "manual" and echoes and amplitude >= 1.0:
                 # the receiver's output beyond full screen, not the gate's saturated reading:
                 # the scope clips it (a panel's gain too high for the echo)
-                amplitude = max(amplitude, echoes[0][1])
-        return self.rf.record(t0_ns, dt_ns, n, amplitude, tof_ns, noise, later)
+                amplitude = max(amplitude, echoes[0].amplitude)
+        return self.rf.record(
+            t0_ns,
+            dt_ns,
+            n,
+            amplitude,
+            tof_ns,
+            noise,
+            later,
+            water_mm=water_mm,
+            temperature_c=temperature_c,
+        )
 
     def _ascan_transfer(self, words: int) -> None:
         """Let the time of one A-scan request of ``words`` registers pass (pulser server
