@@ -101,8 +101,9 @@ class StateStreamController(RobotController):
         self._skipped_types: set[int] = set()
         self._joint_type = ""  # the joint message the stream carries
         self._joint_count = 0  # joint frames since connecting
-        # (joint frames so far, time) at each STATUS: the stream's rate and STATUS cadence
-        self._status_marks: collections.deque[tuple[int, float]] = collections.deque(maxlen=64)
+        # (joint frames so far, time) at each STATUS: the stream's rate and STATUS cadence, over
+        # the 0.2 s ``stream_info`` measures even with a STATUS every millisecond
+        self._status_marks: collections.deque[tuple[int, float]] = collections.deque(maxlen=1024)
         self._samples: collections.deque[JointSample] = collections.deque(maxlen=history_size)
         # The point being executed: its target, when it was accepted, and its progress.
         self._target: np.ndarray | None = None

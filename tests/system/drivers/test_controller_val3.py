@@ -244,3 +244,11 @@ def test_stream_info_tells_the_servers_apart(cell, server, message, rate_hz, eve
     assert info["first_state_s"] == pytest.approx(
         0.0 if server == "simple" else 1.0, abs=1.0 / rate_hz
     )
+
+
+def test_stream_info_measures_a_stream_with_a_status_every_millisecond(cell):
+    """A STATUS every pass at 1 kHz: 0.2 s of them is 200 marks, more than a short history
+    holds (it once kept 64, so that no fast stream was ever measured)."""
+    _, _, client = cell("simple", state_rate_hz=1000.0)
+    info = client.stream_info()
+    assert (info["joint_rate_hz"], info["status_every"]) == (1000.0, 1)
