@@ -300,16 +300,24 @@ def measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, see
     ]
 
 
-def noisy_world(**pulser: object) -> str:
+def noisy_world(*, served_at_a_tenth: bool = False, **pulser: object) -> str:
     """A world file's text: the demo cell's joint offsets and noise (``ucal.sim.demo``), and
-    the ``[pulser]`` keys given (strings quoted)."""
+    the ``[pulser]`` keys given (strings quoted). ``served_at_a_tenth``: the state stream's
+    period, latency and jitter a tenth of the released server's (2, 0.2, 0.1 ms), for a cell
+    served at ``--time-scale 0.1``, whose moves and acquisitions are ten times faster: the
+    settle waits, one or two frames each, stay in proportion to the moves they end."""
     from ucal.sim.demo import DEMO_JOINT_OFFSETS_DEG, DEMO_NOISE
 
     keys = "".join(f"{k} = {json.dumps(v)}\n" for k, v in pulser.items())
+    timing = (
+        "[timing]\nstate_period_ms = 2.0\nstate_latency_ms = 0.2\nstate_jitter_ms = 0.1\n"
+        if served_at_a_tenth
+        else ""
+    )
     return (
         f"[robot]\njoint_offsets_deg = {DEMO_JOINT_OFFSETS_DEG.tolist()}\n"
         f"[noise]\ntof_ns = {DEMO_NOISE.tof_ns}\namplitude = {DEMO_NOISE.amplitude}\n"
-        f"seed = {DEMO_NOISE.seed}\n[pulser]\n{keys}"
+        f"seed = {DEMO_NOISE.seed}\n{timing}[pulser]\n{keys}"
     )
 
 
