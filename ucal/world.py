@@ -287,9 +287,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
         )
     v = r.get(water, "water.absorption")
     if v is not None:
-        if not isinstance(v, bool):
-            raise r.error("water.absorption", f"must be true or false, got {v!r}")
-        changes["water_absorption"] = v
+        changes["water_absorption"] = r.flag("water.absorption", v)
     transducer = r.table("transducer")
     freq, diam = read_transducer(r, transducer, "transducer", required=False)
     if freq is not None:
@@ -308,9 +306,7 @@ def world_from_data(data: Mapping[str, Any], path: str | Path, profile: CellProf
         )
     v = r.get(transducer, "transducer.near_field")
     if v is not None:
-        if not isinstance(v, bool):
-            raise r.error("transducer.near_field", f"must be true or false, got {v!r}")
-        changes["near_field"] = v
+        changes["near_field"] = r.flag("transducer.near_field", v)
 
     pulser = r.table("pulser")
     if pulser is not None:

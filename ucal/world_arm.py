@@ -83,10 +83,10 @@ def read_arm(
             [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(rows)]
         )
     for table, key, n, lo, hi, unit, name in _VALUES:
-        v = r.get(tables[table], f"{table}.{key}")
+        dotted = f"{table}.{key}"
+        v = r.get(tables[table], dotted)
         if v is None:
             continue
-        dotted = f"{table}.{key}"
         changes[name] = (
             r.number(dotted, v, lo=lo, hi=hi, unit=unit)
             if n == 0

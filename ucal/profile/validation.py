@@ -143,6 +143,12 @@ class Reader:
             raise self.error(key, f"must be <= {hi}, got {n}")
         return n
 
+    def flag(self, key: str, value: Any) -> bool:
+        """A TOML boolean (``true`` or ``false``; not 0 or 1)."""
+        if not isinstance(value, bool):
+            raise self.error(key, f"must be true or false, got {value!r}")
+        return value
+
     def string(self, key: str, value: Any) -> str:
         """A non-empty string."""
         if not isinstance(value, str) or not value.strip():
