@@ -331,7 +331,14 @@ def leaves_excess(
     model = amplitude * corr.model(lag)
     excess = residual_excess(x, model, where, sigma)
     energy = float(np.sum(model[where] ** 2))
-    return bool(
-        excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(where))
-        and excess * sigma**2 > OVERLAP_ENERGY * energy
+    return another_echo_shows(excess, int(np.count_nonzero(where)), sigma, energy)
+
+
+def another_echo_shows(excess: float, samples: int, sigma: float, echo_energy: float) -> bool:
+    """Whether a residual's ``excess`` (``residual_excess`` over ``samples`` samples, noise
+    ``sigma``) shows another echo: ``OVERLAP_SIGMAS`` of its own scatter √(2m) and
+    ``OVERLAP_ENERGY`` of the fitted echo's energy ``echo_energy`` (both, see the constants)."""
+    return (
+        excess > OVERLAP_SIGMAS * math.sqrt(2.0 * samples)
+        and excess * sigma**2 > OVERLAP_ENERGY * echo_energy
     )

@@ -186,9 +186,8 @@ from ucal.echo.ascan import (
     noise_rms,
 )
 from ucal.echo.correlator import (
-    OVERLAP_ENERGY,
-    OVERLAP_SIGMAS,
     Correlator,
+    another_echo_shows,
     explained_by_a_pair,
     fit_attenuation,
     leaves_excess,
@@ -429,11 +428,10 @@ def _reference_estimate(
 
     def over(y: np.ndarray, fit: np.ndarray) -> float | None:
         """The residual's excess when another echo shows in it (module docstring), else None."""
-        excess = residual_excess(y, fit, in_echo & used, sigma_eff)
-        shows = (
-            excess > OVERLAP_SIGMAS * math.sqrt(2.0 * np.count_nonzero(in_echo & used))
-            and excess * sigma_eff**2 > OVERLAP_ENERGY * amplitude**2 * energy_used
-        )
+        where = in_echo & used
+        excess = residual_excess(y, fit, where, sigma_eff)
+        samples = int(np.count_nonzero(where))
+        shows = another_echo_shows(excess, samples, sigma_eff, amplitude**2 * energy_used)
         return excess if shows else None
 
     # another echo over this one: more in the echo's samples than the fit and the noise
