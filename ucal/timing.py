@@ -10,10 +10,14 @@ to its clock (``ucal.sim.serve``), and a plan's estimate of the real-cell durati
   character silence before each frame: at 19,200 baud and n = 10 that is 22.9 ms, the figure
   measured on serial pulser-receivers. Over Modbus TCP a request costs about a millisecond on a
   cell network plus the instrument's own turnaround, ``TCP_READ_S`` in all.
-* A move lasts max |Δθ| / (joint speed · speed fraction) (the simulated controller's model),
-  then the servo settles for ``SETTLE_S`` before the controller reports it done. The joints'
-  speeds at speed 1.0 are the robot model's (``ucal.profile.models.joint_speeds_deg_s``: its model
-  file's ``speed_deg_s``), the same the simulated controller is given (``ucal.sim.serve``).
+* A move is the motion model's (``drivers.controller.motion``, the simulated controller's
+  too): a joint-interpolated trapezoid at the speed fraction of the joints' speeds at 1.0
+  (``ucal.profile.models.joint_speeds_deg_s``: the model file's ``speed_deg_s``), at most the
+  joints' accelerations (``joint_accelerations_deg_s2``), then the servo settling that move
+  needs before the controller reports it done. A static posture is reached from below through
+  a pre-point ``APPROACH_DEG`` short of it, sent with it as one trajectory of two queued points
+  (``move_s``): the arm rests on the pre-point only for the instant the VAL3 server takes to
+  start the next point, and settles once, at the target.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.controller.motion import DEFAULT_MAX_ACCEL_DEG_S2, trajectory_s
 from drivers.pulser.modbus_words import rtu_read_line_s
 from drivers.pulser.registers import MEASUREMENT_COUNT
 
@@ -33,8 +38,9 @@ TCP_TURNAROUND_S = 0.001
 TCP_READ_S = TCP_TURNAROUND_S + NETWORK_LATENCY_S
 #: Instrument turnaround after a Modbus RTU request (s).
 RTU_TURNAROUND_S = 0.001
-#: Servo settling after a move, before the controller reports it done (s).
-SETTLE_S = 0.05
+#: How far short of a static posture its approach's pre-point lies on each joint (deg), more
+#: than any joint's lost motion (``ucal.measure.approach``).
+APPROACH_DEG = 0.05
 
 
 def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT) -> float:
@@ -60,12 +66,21 @@ def read_s(framing: str, averages: int = 1, prf_hz: float = 1000.0, baud: int = 
 
 
 def move_s(
-    start_deg: np.ndarray, target_deg: np.ndarray, speed: float, speeds_deg_s: np.ndarray
+    start_deg: np.ndarray,
+    target_deg: np.ndarray,
+    speed: float,
+    speeds_deg_s: np.ndarray,
+    accel_deg_s2: np.ndarray | tuple[float, ...] = DEFAULT_MAX_ACCEL_DEG_S2,
+    approach_deg: float = 0.0,
 ) -> float:
     """Duration of a joint move at ``speed`` (fraction of the joints' ``speeds_deg_s``, their
-    speeds at 1.0), settling included (s)."""
-    delta = np.abs(np.asarray(target_deg, float) - np.asarray(start_deg, float))
-    return float(np.max(delta / (np.asarray(speeds_deg_s, float) * speed))) + SETTLE_S
+    speeds at 1.0), the joints accelerating at most at ``accel_deg_s2``, settling included
+    (s): the motion model's. With ``approach_deg`` (``APPROACH_DEG``: a static posture reached
+    from below) one trajectory through the pre-point that far short of ``target_deg`` on every
+    joint, settling once."""
+    target = np.asarray(target_deg, float)
+    points = [np.asarray(start_deg, float), target - approach_deg, target]
+    return trajectory_s(points if approach_deg else points[::2], speed, speeds_deg_s, accel_deg_s2)
 
 
 @dataclass(frozen=True)
@@ -134,14 +149,17 @@ def estimate_run(
     baud: int = 19200,
     search: SearchCost = FACE_SEARCH,
     first: SearchCost = FIRST_FACE,
+    accel_deg_s2: np.ndarray | tuple[float, ...] = DEFAULT_MAX_ACCEL_DEG_S2,
 ) -> DurationEstimate:
-    """Estimate a run that visits ``targets_deg`` in order and searches at each (``search``;
-    ``first``: what the first target adds), its moves at ``speed`` of the joints'
-    ``speeds_deg_s`` (deg/s at speed 1.0: the robot model's, ``joint_speeds_deg_s``)."""
+    """Estimate a run that visits ``targets_deg`` in order, each reached from below
+    (``move_s`` with ``APPROACH_DEG``), and searches at each (``search``; ``first``: what the
+    first target adds), its moves at ``speed`` of the joints' ``speeds_deg_s`` (deg/s at
+    speed 1.0: the robot model's, ``joint_speeds_deg_s``), accelerating at most at
+    ``accel_deg_s2``."""
     motion = 0.0
     here = np.asarray(start_deg, float)
     for q in targets_deg:
-        motion += move_s(here, q, speed, speeds_deg_s)
+        motion += move_s(here, q, speed, speeds_deg_s, accel_deg_s2, APPROACH_DEG)
         here = np.asarray(q, float)
     n = len(targets_deg)
     motion += n * search.motion_s * 0.3 / speed + first.motion_s * 0.3 / speed

@@ -1,8 +1,10 @@
 """The simulated arm behind the simulated controller: how it moves, what it reports, and the
 points it queues.
 
-Motion model: every joint moves linearly in time from start to target, all joints arriving
-together (``Segment``); the queued segments and where the arm rests before them are a
+Motion model: ``drivers.controller.motion``, the one a plan's estimate takes too: every point a
+joint-interpolated trapezoid, the joints starting and ending together, points queued and not
+blended (the arm rests on each and the next begins at once), the servo settling after the last
+(``Segment``, ``settling``); the queued segments and where the arm rests before them are a
 ``Plan``, replaced whole so that it can be read without a lock. ``SimulatedArm`` holds the
 plan, the faults (e-stop, drives, error, hold), the STATUS they give, and what a trajectory
 point does (``_enqueue``); ``drivers.controller.simulator.SimulatedController`` derives from it
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from drivers.clock import HOST_CLOCK, Clock
+from drivers.controller.motion import DEFAULT_MAX_ACCEL_DEG_S2, JointMove, joint_move
 from drivers.controller.server_variants import ServerVariant
 from drivers.controller.simple_message import JointTrajPt, RobotMode, Status
 
@@ -39,21 +42,42 @@ RANGE_EPS_DEG = 1e-4
 
 @dataclass(frozen=True)
 class Segment:
-    """One joint-interpolated move; times on the host monotonic clock (s)."""
+    """One joint-interpolated move (``move``, in the arm's own time) played at ``time_scale``;
+    times on the controller's clock (s); ``settle_s``: the servo settling after it, when it is
+    the last (clock s)."""
 
     seq: int
     t_start: float
     t_end: float
     start_deg: np.ndarray
     target_deg: np.ndarray
+    move: JointMove | None = None
+    settle_s: float = 0.0
+
+    def _own_time(self, t: float) -> float:
+        """``t`` of the clock as the move's own time since its start (s)."""
+        span = self.t_end - self.t_start
+        assert self.move is not None
+        return (t - self.t_start) / span * self.move.duration_s
 
     def at(self, t: float) -> np.ndarray:
         if t >= self.t_end:
             return self.target_deg.copy()
         if t <= self.t_start:
             return self.start_deg.copy()
-        f = (t - self.t_start) / (self.t_end - self.t_start)
-        return np.asarray(self.start_deg + f * (self.target_deg - self.start_deg))
+        if self.move is None:
+            f = (t - self.t_start) / (self.t_end - self.t_start)
+            return np.asarray(self.start_deg + f * (self.target_deg - self.start_deg))
+        return self.move.at(self._own_time(t))
+
+    def velocity(self, t: float) -> np.ndarray:
+        """Joint velocities (deg/s of the clock) at ``t``."""
+        span = self.t_end - self.t_start
+        if not self.t_start <= t < self.t_end or span <= 0.0:
+            return np.zeros(N_JOINTS)
+        if self.move is None:
+            return np.asarray((self.target_deg - self.start_deg) / span)
+        return self.move.velocity(self._own_time(t)) * (self.move.duration_s / span)
 
 
 @dataclass(frozen=True)
@@ -79,11 +103,19 @@ class Plan:
         """Joint velocities (deg/s) at ``t``: the moving segment's, else zero."""
         for seg in self.segments:
             if seg.t_start <= t < seg.t_end:
-                return np.asarray((seg.target_deg - seg.start_deg) / (seg.t_end - seg.t_start))
+                return seg.velocity(t)
         return np.zeros(N_JOINTS)
 
+    @property
+    def settles_until(self) -> float:
+        """When the last segment has settled (clock s); -inf without one."""
+        if not self.segments:
+            return -math.inf
+        last = self.segments[-1]
+        return last.t_end + last.settle_s + self.settle_s
+
     def in_motion(self, t: float) -> bool:
-        return bool(self.segments) and t < self.segments[-1].t_end + self.settle_s
+        return t < self.settles_until
 
     def sign_at(self, t: float) -> np.ndarray:
         """Direction (-1, 0, +1) of each joint's last motion begun by ``t``."""
@@ -113,8 +145,9 @@ class Plan:
 class SimulatedArm:
     """The arm a simulated controller moves (see the module docstring).
 
-    Joint limits and positions in degrees, speeds in deg/s; ``time_scale``, ``settle_s``,
-    ``on_motion``, ``on_point`` and ``clock`` as in ``SimulatedController``; ``variant`` says
+    Joint limits and positions in degrees, speeds in deg/s, accelerations in deg/s²
+    (``max_accel_deg_s2``); ``time_scale``, ``settle_s``, ``settling``, ``on_motion``,
+    ``on_point`` and ``clock`` as in ``SimulatedController``; ``variant`` says
     what the server does with a point it cannot execute. ``_history_s``: how long finished
     moves are kept for frames that describe the arm a little in the past (the server sets it).
     """
@@ -132,21 +165,25 @@ class SimulatedArm:
         on_motion: Callable[[dict[str, Any]], None] | None,
         on_point: Callable[[int], None] | None,
         clock: Clock | None,
+        max_accel_deg_s2: Sequence[float] = DEFAULT_MAX_ACCEL_DEG_S2,
+        settling: bool = False,
     ):
         self.joint_min_deg = np.asarray(joint_min_deg, dtype=float)
         self.joint_max_deg = np.asarray(joint_max_deg, dtype=float)
         self.max_speed_deg_s = np.asarray(max_speed_deg_s, dtype=float)
+        self.max_accel_deg_s2 = np.asarray(max_accel_deg_s2, dtype=float)
         for name, arr in (
             ("joint_min_deg", self.joint_min_deg),
             ("joint_max_deg", self.joint_max_deg),
             ("max_speed_deg_s", self.max_speed_deg_s),
+            ("max_accel_deg_s2", self.max_accel_deg_s2),
         ):
             if arr.shape != (N_JOINTS,) or not np.all(np.isfinite(arr)):
                 raise ValueError(f"{name} must be {N_JOINTS} finite numbers, got {arr.tolist()}")
         if np.any(self.joint_min_deg >= self.joint_max_deg):
             raise ValueError("every joint_min_deg must be below its joint_max_deg")
-        if np.any(self.max_speed_deg_s <= 0):
-            raise ValueError("max_speed_deg_s must be positive")
+        if np.any(self.max_speed_deg_s <= 0) or np.any(self.max_accel_deg_s2 <= 0):
+            raise ValueError("max_speed_deg_s and max_accel_deg_s2 must be positive")
         if initial_deg is None:
             initial = np.clip(np.zeros(N_JOINTS), self.joint_min_deg, self.joint_max_deg)
         else:
@@ -162,6 +199,7 @@ class SimulatedArm:
             raise ValueError(f"settle_s must be >= 0, got {settle_s}")
         self.variant = variant
         self.time_scale = float(time_scale)
+        self.settling = bool(settling)
         self.on_motion = on_motion
         self.on_point = on_point
         self.clock: Clock = clock if clock is not None else HOST_CLOCK
@@ -292,7 +330,7 @@ class SimulatedArm:
             # a move is done once it has settled (the last one is reported in motion until
             # then) and no frame still to be sent describes it
             keep_s = plan.settle_s + self._history_s
-            done = [s for s in plan.segments if s.t_end + keep_s <= now]
+            done = [s for s in plan.segments if s.t_end + s.settle_s + keep_s <= now]
             if not done:
                 return
             self._plan = Plan(
@@ -381,9 +419,14 @@ class SimulatedArm:
                 start_t, start = plan.segments[-1].t_end, plan.segments[-1].target_deg
             else:
                 start_t, start = now, plan.rest_deg
+            # points queued, not blended: this one starts when the last is reached
             t0 = max(now, start_t)
-            duration = float(np.max(np.abs(target - start) / (self.max_speed_deg_s * velocity)))
-            seg = Segment(msg.sequence, t0, t0 + duration * self.time_scale, start.copy(), target)
+            move = joint_move(start, target, velocity, self.max_speed_deg_s, self.max_accel_deg_s2)
+            scale = self.time_scale
+            settle = move.settle_s * scale if self.settling else 0.0
+            seg = Segment(
+                msg.sequence, t0, t0 + move.duration_s * scale, start.copy(), target, move, settle
+            )
             self._plan = dataclasses.replace(plan, segments=plan.segments + (seg,))
             self.moves_executed += 1
         log.debug(

@@ -10,10 +10,14 @@ joint-interpolated moves at ``velocity`` times each joint's maximum speed, STOP_
 motion client disconnects (``motionControl.pgx`` resets motion when a connection drops), and a
 state port that streams joint state and STATUS to every connected client.
 
-Motion model: every joint moves linearly in time from start to target, all joints arriving
-together; duration = max over joints of |Δ| / (max_speed · velocity) · ``time_scale``
-(``time_scale`` 0 makes moves instantaneous), and STATUS reports the arm in motion for
-``settle_s`` more (the servo settling before the controller calls a move done).
+Motion model (``drivers.controller.motion``, the one a plan's time estimate takes): each point a
+joint-interpolated trapezoid, every joint starting and ending together, at ``velocity`` times
+each joint's maximum speed and at most each joint's maximum acceleration (``max_accel_deg_s2``),
+its duration multiplied by ``time_scale`` (0 makes moves instantaneous). Points are queued and
+not blended, as the VAL3 server's ``movej`` with its descriptor's ``blend`` off: the arm rests on
+each and starts the next at once. With ``settling`` STATUS reports the arm in motion after the
+last point for the servo settling the model gives that move (scaled likewise), and for a fixed
+``settle_s`` more.
 ``joints_deg()`` evaluates that model at the current instant without locking, so other
 simulated devices may call it at a high rate; ``motion_sign()`` gives the direction of each
 joint's last motion (for lost motion in the joints).
@@ -38,7 +42,8 @@ place of the next reply / before the next state frame).
 
 The arm itself (its motion model, faults and queue of points) is ``drivers.controller.arm_model``;
 the server variants are ``drivers.controller.server_variants``; this module serves them on
-the two ports, and re-exports ``SERVERS`` and ``DEFAULT_MAX_SPEED_DEG_S``.
+the two ports, and re-exports ``SERVERS``, ``DEFAULT_MAX_SPEED_DEG_S`` and
+``DEFAULT_MAX_ACCEL_DEG_S2``.
 
 Time: ``clock`` (``drivers.clock``). On the host clock the state port streams at
 ``state_rate_hz`` from a thread of its own. On a ``SimClock`` the stream is a ticker of that
@@ -69,6 +74,7 @@ from drivers.controller.arm_model import (
     RANGE_EPS_DEG,
     SimulatedArm,
 )
+from drivers.controller.motion import DEFAULT_MAX_ACCEL_DEG_S2
 from drivers.controller.server_variants import SERVERS, ServerVariant
 from drivers.controller.simple_message import (
     CommType,
@@ -86,6 +92,7 @@ from drivers.errors import ProtocolError
 from drivers.loopback import Served, accept_clients
 
 __all__ = [
+    "DEFAULT_MAX_ACCEL_DEG_S2",
     "DEFAULT_MAX_SPEED_DEG_S",
     "N_JOINTS",
     "RANGE_EPS_DEG",
@@ -152,6 +159,8 @@ class SimulatedController(SimulatedArm, Served):
         state_jitter_s: float = 0.0,
         missing_state_frames: float = 0.0,
         seed: int = 0,
+        max_accel_deg_s2: Sequence[float] = DEFAULT_MAX_ACCEL_DEG_S2,
+        settling: bool = False,
     ):
         if server not in SERVERS:
             raise ValueError(f"server must be one of {', '.join(SERVERS)}, got {server!r}")
@@ -166,6 +175,8 @@ class SimulatedController(SimulatedArm, Served):
             on_motion=on_motion,
             on_point=on_point,
             clock=clock,
+            max_accel_deg_s2=max_accel_deg_s2,
+            settling=settling,
         )
         if host not in _LOOPBACK:
             raise ValueError(f"the simulator serves on 127.0.0.1 only, not {host!r}")

@@ -30,9 +30,9 @@ import numpy as np
 
 from ucal import interrupt
 from ucal.devices.rig import Rig
+from ucal.timing import APPROACH_DEG
 
-#: Final approach of every move (deg short of the target on each joint), larger than any backlash.
-APPROACH_DEG = 0.05
+__all__ = ["APPROACH", "APPROACH_DEG", "FinalApproachRig", "approaching"]
 
 #: The approach direction the offsets belong to: every static posture is reached with each joint
 #: moving in its positive direction (``FinalApproachRig``), the link lagging its encoder
@@ -52,11 +52,15 @@ class FinalApproachRig(_RigProxy):
     ``direction`` +1 (the default): from below. A joint with backlash leaves its link behind
     the encoder by half the lost motion, against the direction of its last motion. If a move
     would bring any joint against ``direction`` onto its target, or any joint last moved
-    against it (a sweep that ended the other way), the robot first goes ``APPROACH_DEG``
-    short of the target on every joint, then onto it: all static postures are then reached
-    the same way. With ``keep_still`` only the joints that need it go short (the others
-    straight to their target: a joint that is there stays, its link where it settled). The
-    two segments are one move in the counters. Everything else is the wrapped rig's.
+    against it (a sweep that ended the other way), the robot goes through a pre-point
+    ``APPROACH_DEG`` short of the target on every joint, then onto it: all static postures are
+    then reached the same way. The pre-point and the target are one trajectory, two queued
+    points: the controller (the VAL3 server's ``movej``, blend off) reaches the pre-point and
+    starts the last leg at once, without settling there or waiting for a state frame; it
+    settles once, at the target. With ``keep_still`` only the joints that need it go short
+    (the others straight to their target: a joint that is there stays, its link where it
+    settled). The two segments are one move in the counters. Everything else is the wrapped
+    rig's.
     """
 
     _rig: Rig
@@ -107,7 +111,7 @@ class FinalApproachRig(_RigProxy):
             short = np.clip(q - sign * self._approach_deg, rig.joint_min_deg, rig.joint_max_deg)
             short = np.where(need, short, q)
             interrupt.check()
-            rig.controller.move_joints(short, speed or rig.speed, rig.move_timeout_s)
+            rig.controller.start_move(short, speed or rig.speed)  # queued: no stop there
             rig.moved_to(short, here)
         return rig.move(q, speed)
 

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.controller.motion import DEFAULT_MAX_ACCEL_DEG_S2
 from ucal.errors import InputError
 from ucal.kinematics.dh import N_JOINTS, RobotModel
 
@@ -138,6 +139,19 @@ def joint_speeds_deg_s(model: RobotModel | None) -> np.ndarray:
     return np.asarray(np.min([joint_speeds_deg_s(load_model(n)) for n in KNOWN_MODELS], axis=0))
 
 
+def joint_accelerations_deg_s2(model: RobotModel | None) -> np.ndarray:
+    """The joints' accelerations (deg/s²) that the motion model (``drivers.controller.motion``)
+    takes for ``model`` in a plan's estimate and the simulated controller: its own, else its
+    shipped model's, else (no model, or another arm) a TX90-class arm's."""
+    if model is not None and model.acceleration_deg_s2 is not None:
+        return model.acceleration_deg_s2
+    if model is not None and model.name in KNOWN_MODELS:
+        shipped = load_model(model.name).acceleration_deg_s2
+        if shipped is not None:
+            return shipped
+    return np.asarray(DEFAULT_MAX_ACCEL_DEG_S2, float)
+
+
 def controller_model(model: RobotModel, source: object = "profile") -> RobotModel:
     """The arm as its controller models it: the shipped DH table of ``model``'s name (no
     Hayati twists; joint offsets are the caller's to leave out), ``model``'s joint ranges.
@@ -157,4 +171,5 @@ def controller_model(model: RobotModel, source: object = "profile") -> RobotMode
         model.joint_min_deg,
         model.joint_max_deg,
         speed_deg_s=model.speed_deg_s,
+        acceleration_deg_s2=model.acceleration_deg_s2,
     )

@@ -58,7 +58,7 @@ from ucal import timing
 from ucal.cell import CellProfile, WorldTruth
 from ucal.files import jsonable
 from ucal.kinematics.rotations import matrix_to_pose
-from ucal.profile.models import joint_speeds_deg_s
+from ucal.profile.models import joint_accelerations_deg_s2, joint_speeds_deg_s
 from ucal.sim.cell import SimulatedCell
 from ucal.sim.demo import demo_world
 from ucal.world import PULSER_KINDS
@@ -151,8 +151,9 @@ class SimulatedCellServer(Served):
                 time_scale=1.0 if self.simulated_time else self.time_scale,
                 on_motion=self._on_motion,
                 clock=self.clock,
-                settle_s=timing.SETTLE_S,
+                settling=True,
                 max_speed_deg_s=joint_speeds_deg_s(model).tolist(),
+                max_accel_deg_s2=joint_accelerations_deg_s2(model).tolist(),
                 server=self.server,
                 startup_silence_s=self.world.controller_silence_s,
                 state_rate_hz=None if period_s is None else 1.0 / period_s,

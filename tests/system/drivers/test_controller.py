@@ -64,8 +64,10 @@ def test_move_and_read_back(make_sim_controller, make_controller_client):
     assert record["stopped"] is False
     np.testing.assert_allclose(record["target_deg"], TARGET, atol=1e-3)
     np.testing.assert_allclose(record["start_deg"], HOME)
-    # Slowest joint J5: 50 deg at 0.5 · 400 deg/s = 0.25 s, times the fixture's time_scale 0.01.
-    assert record["duration_s"] == pytest.approx(0.25 * 0.01, rel=1e-3)
+    # Joint-interpolated trapezoid: J5 sets the path's speed (50 deg at 0.5 · 400 deg/s: 4 /s),
+    # J3 its acceleration (30 deg at 1000 deg/s²: 33.3 /s²): 1/4 + 4/33.3 = 0.37 s, times the
+    # fixture's time_scale 0.01.
+    assert record["duration_s"] == pytest.approx(0.37 * 0.01, rel=1e-3)
 
     samples = client.joint_samples(t0)
     assert samples and all(s.t_s >= t0 for s in samples)

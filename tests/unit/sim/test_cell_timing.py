@@ -10,6 +10,7 @@ import pytest
 
 from drivers.clock import SimClock
 from drivers.controller.client import SimpleMessageController
+from drivers.controller.motion import JointMove, joint_move
 from drivers.controller.simulator import SimulatedController
 from ucal.cell import CellTiming
 from ucal.errors import ProfileError
@@ -52,9 +53,9 @@ def test_timing_keys_are_read_in_ms_and_default_to_a_val3_server_on_a_lan(
         load_world(_world(tmp_path, "[timing]\nstate_latncy_ms = 3\n"), profile)
 
 
-def _samples_of_a_move(**stream: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _samples_of_a_move(**stream: float) -> tuple[np.ndarray, np.ndarray, float, JointMove]:
     """Move to TARGET on simulated time; the client's samples (arrival time, joint 1), the
-    instant the motion started and its duration."""
+    instant the motion started and the move (the motion model's)."""
     clock = SimClock(handoff_timeout_s=5.0)
     sim = SimulatedController(*LIMITS, clock=clock, **stream).start()  # type: ignore[arg-type]
     client = SimpleMessageController.from_url(sim.url)
@@ -69,24 +70,30 @@ def _samples_of_a_move(**stream: float) -> tuple[np.ndarray, np.ndarray, float, 
         client.close()
         clock.close()
         sim.stop()
-    duration = float(np.max(np.abs(TARGET) / (np.asarray(sim.max_speed_deg_s) * 0.5)))
+    move = joint_move(np.zeros(6), TARGET, 0.5, sim.max_speed_deg_s, sim.max_accel_deg_s2)
     ts = np.array([s.t_s for s in samples])
     j1 = np.array([s.joints_deg[0] for s in samples])
-    return ts, j1, t0, duration
+    return ts, j1, t0, move
+
+
+def _since_start(move: JointMove, j1: np.ndarray) -> np.ndarray:
+    """How long after the move's start joint 1 was at ``j1`` (s): the profile inverted."""
+    t = np.linspace(0.0, move.duration_s, 20001)
+    path = np.array([move.fraction(x) for x in t]) * TARGET[0]
+    return np.interp(j1, path, t)
 
 
 def test_frames_carry_the_arm_as_it_was_latency_before_they_arrive() -> None:
-    ts, j1, _, duration = _samples_of_a_move(state_latency_s=0.007, state_jitter_s=0.0)
+    ts, j1, _, move = _samples_of_a_move(state_latency_s=0.007, state_jitter_s=0.0)
     moving = (j1 > 1e-6) & (j1 < TARGET[0] - 1e-6)
     assert np.count_nonzero(moving) >= 3
-    rate = TARGET[0] / duration
-    # the arm started (at most a frame after the move was accepted) and moves at `rate`: each
-    # frame's position is that of 7 ms before it arrived, the same for every frame
-    lag = ts[moving] - j1[moving] / rate
-    assert np.ptp(lag) < 1e-6  # float32 radians on the wire
+    # the arm started (at most a frame after the move was accepted) and follows its profile:
+    # each frame's position is that of 7 ms before it arrived, the same for every frame
+    lag = ts[moving] - _since_start(move, j1[moving])
+    assert np.ptp(lag) < 1e-5  # float32 radians on the wire, the inverted profile's grid
     ts0, j10, _, _ = _samples_of_a_move(state_latency_s=0.0, state_jitter_s=0.0)
     moving0 = (j10 > 1e-6) & (j10 < TARGET[0] - 1e-6)
-    lag0 = ts0[moving0] - j10[moving0] / rate
+    lag0 = ts0[moving0] - _since_start(move, j10[moving0])
     assert float(np.median(lag) - np.median(lag0)) == pytest.approx(0.007, abs=1e-6)
 
 
