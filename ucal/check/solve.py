@@ -104,6 +104,7 @@ from ucal.model.least_squares import (
     score_gain,
     sees_drift,
 )
+from ucal.model.load import COMPLIANCE, unseen_compliance
 from ucal.model.quality import effect_pattern
 from ucal.model.residuals import two_sided_joints
 
@@ -263,8 +264,14 @@ class ChangeFit:
         self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
         self.reference = reference
         self.check = check
-        self._ref = MeasurementArrays.of(reference)
-        self._chk = MeasurementArrays.of(check)
+        # both runs' torques against the load posture of the offsets (``ucal.model.load``)
+        load = self.reference_prior.posture_load([m.joints_deg for m in reference])
+        self._ref = MeasurementArrays.of(reference, load=load)
+        self._chk = MeasurementArrays.of(check, load=load)
+        torques = np.vstack([self._ref.load_nm, self._chk.load_nm])
+        stds = np.array([cell.prior_stds[cell.index(n)] for n in COMPLIANCE])
+        for name, unseen in zip(COMPLIANCE, unseen_compliance(torques, stds), strict=True):
+            self.base_free[cell.index(name)] &= not unseen
         #: the reference's edge crossings and the check's (their rows after the faces')
         self.edges = edges
         self._edges = (EdgeArrays.of(edges[0]), EdgeArrays.of(edges[1]))
