@@ -12,6 +12,7 @@
 * ``judge``: every checked quantity (geometry, water, echo chain) against its 3σ and its
   tolerance: moved, ok or not determined;
 * ``causes``: what moved as causes with their sizes (the tool across or along its beam);
+* ``growth``: the arm grown by a warm-up (every DH length by one factor) as a suspect;
 * ``result``: the typed result, the message naming what moved, the history entry;
 * ``history``: the checks in the profile's history directory (``checks.json``);
 * ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).
