@@ -23,10 +23,10 @@ import numpy as np
 
 from ucal.check.causes import temperature_of
 from ucal.check.growth import GROWTH, temperature_rise_k
+from ucal.check.profile_fit import ProfileComparison
 from ucal.check.solve import (
     N_SIGMA,
     GeometryComparison,
-    ProfileComparison,
 )
 from ucal.model.fit import OFFSETS, SOUND, CellPrior
 

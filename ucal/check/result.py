@@ -23,9 +23,9 @@ from ucal.check.judge import (
     Quantity,
 )
 from ucal.check.measure import CheckRun
+from ucal.check.profile_fit import ProfileComparison
 from ucal.check.solve import (
     GeometryComparison,
-    ProfileComparison,
 )
 from ucal.model.fit import CellPrior, readings_approach
 from ucal.model.readings import faces_to_json

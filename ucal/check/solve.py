@@ -75,7 +75,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ucal.cell import CellProfile
 from ucal.check import growth
 from ucal.check.edges import EdgeArrays, EdgeReading, edge_residuals
 from ucal.model.fit import (
@@ -93,7 +92,6 @@ from ucal.model.fit import (
     ParameterTable,
     data_residuals,
     measurement_label,
-    offsets_prior_std_deg,
     solve_cell,
 )
 from ucal.model.geometry import FaceMeasurement
@@ -107,7 +105,7 @@ from ucal.model.least_squares import (
     score_gain,
     sees_drift,
 )
-from ucal.model.load import COMPLIANCE, unseen_compliance
+from ucal.model.load import COMPLIANCE
 from ucal.model.quality import effect_pattern
 from ucal.model.residuals import two_sided_joints
 
@@ -270,7 +268,7 @@ class ChangeFit:
         # from both sides (``ucal.model.least_squares.hold_unseen``)
         seen = dict(zip(BACKLASH, two_sided_joints([*reference, *check]), strict=True))
         seen[DRIFT[0]] = sees_drift(reference)
-        seen.update(dict.fromkeys(DH + BETA, False))
+        seen.update(dict.fromkeys(DH + BETA + COMPLIANCE, False))  # as the DH table: common
         self.base_free = np.array(
             [*(seen.get(n, True) for n in cell.names), sees_drift(check), False]
         )
@@ -282,14 +280,10 @@ class ChangeFit:
         self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
         self.reference = reference
         self.check = check
-        # both runs' torques against the load posture of the offsets (``ucal.model.load``)
         load = self.reference_prior.posture_load([m.joints_deg for m in reference])
         self._ref = MeasurementArrays.of(reference, load=load)
         self._chk = MeasurementArrays.of(check, load=load)
-        torques = np.vstack([self._ref.load_nm, self._chk.load_nm])
-        stds = np.array([cell.prior_stds[cell.index(n)] for n in COMPLIANCE])
-        for name, unseen in zip(COMPLIANCE, unseen_compliance(torques, stds), strict=True):
-            self.base_free[cell.index(name)] &= not unseen
+
         #: the reference's edge crossings and the check's (their rows after the faces')
         self.edges = edges
         self._edges = (EdgeArrays.of(edges[0]), EdgeArrays.of(edges[1]))
@@ -654,51 +648,6 @@ def drift_cause(gains: dict[str, dict[str, float]], chi2: float) -> str:
         return ""
     run = max(gains, key=lambda r: max(gains[r].values(), default=0.0))
     return effect_pattern(gains[run], chi2, RUN_WORDS[run])
-
-
-@dataclass(frozen=True)
-class ProfileComparison:
-    """The first check of a profile: its measurements fitted with the profile's calibration as
-    the prior of the joint offsets (``[calibration] std_deg``), the cell's other tolerances as
-    theirs."""
-
-    offsets_deg: np.ndarray  # as fitted
-    offsets_std_deg: np.ndarray
-    profile_offsets_deg: np.ndarray
-    sound_speed_m_s: float
-    sound_speed_std_m_s: float
-    chi2_reduced: float
-    dof: int
-    misfit: bool
-    worst: str
-    cause: str
-
-
-def compare_to_profile(
-    profile: CellProfile, prior: CellPrior, check: list[FaceMeasurement]
-) -> ProfileComparison:
-    """Whether the check's measurements agree with the calibration the profile holds: the χ²
-    of the fit whose joint-offset priors are the calibration's values and stds (a misfit at
-    ``MISFIT_P``: the cell is not as calibrated). A few postures leave most offsets to their
-    priors, so this is a consistency test, not a new calibration."""
-    table = cell_table(prior)
-    table.prior_stds[[table.index(n) for n in OFFSETS]] = offsets_prior_std_deg(profile)
-    # the DH table, the drift and the lost motion free with their priors, as calibrate fits
-    # them: held exact, a table within its tolerance misfits the check's faces
-    cell = solve_cell(prior, check, table=table)
-    q = cell.quality
-    return ProfileComparison(
-        np.array([cell.value(n) for n in OFFSETS]),
-        np.array([cell.sigma(n) for n in OFFSETS]),
-        np.asarray(profile.joint_offsets_deg, float),
-        cell.value(SOUND[0]),
-        cell.sigma(SOUND[0]),
-        q.chi2_reduced,
-        q.dof,
-        q.verdict == "misfit",
-        q.worst,
-        q.cause,
-    )
 
 
 def chi2_threshold(k: int) -> float:

@@ -151,14 +151,15 @@ def cell_table(prior: CellPrior) -> ParameterTable:
     )
 
 
-def hold_unloaded(table: ParameterTable, arrays: MeasurementArrays) -> None:
-    """Hold at their priors the compliances the readings' torques do not see
-    (``ucal.model.load.unseen_compliance``): J1 about a vertical axis, or every joint where
-    nothing weighs."""
+def hold_unloaded(table: ParameterTable, *arrays: MeasurementArrays) -> None:
+    """Hold at their priors the compliances the readings' torques (of every one of
+    ``arrays``) do not see (``ucal.model.load.unseen_compliance``): J1 about a vertical axis,
+    or every joint where nothing weighs."""
     if COMPLIANCE[0] not in table.names:
         return
     idx = np.array([table.index(n) for n in COMPLIANCE])
-    table.free[idx[unseen_compliance(arrays.load_nm, table.prior_stds[idx])]] = False
+    torques = np.vstack([a.load_nm for a in arrays])
+    table.free[idx[unseen_compliance(torques, table.prior_stds[idx])]] = False
 
 
 def solve_cell(

@@ -29,11 +29,11 @@ from ucal.check.judge import (
 from ucal.check.measure import CheckRun, EchoReading
 from ucal.check.plan import plan_check
 from ucal.check.procedure import CheckJob
+from ucal.check.profile_fit import compare_to_profile
 from ucal.check.result import named_changes, unexplained_text
 from ucal.check.solve import (
     ChangeFit,
     compare_geometry,
-    compare_to_profile,
     suspects,
 )
 from ucal.kinematics.dh import transform
