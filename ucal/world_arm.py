@@ -23,11 +23,14 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from ucal.cell import ArmTruth
 from ucal.kinematics.dh import RobotModel
-from ucal.profile.arm_load import read_stiffness
+from ucal.profile.arm_load import (
+    MAX_LINK_MASS_KG,
+    MAX_TOOL_MASS_KG,
+    read_centres,
+    read_stiffness,
+)
 from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
 
@@ -38,8 +41,6 @@ ROBOT_KEYS = frozenset(
 TOOL_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
 ARM_KEYS = frozenset({"offset_k", "warmup_k", "warmup_time_constant_min", "expansion_per_k"})
 
-MAX_LINK_MASS_KG = 500.0
-MAX_TOOL_MASS_KG = 50.0
 MAX_GRAVITY_M_S2 = 50.0
 MAX_ARM_K = 50.0
 MAX_EXPANSION_PER_K = 1e-4
@@ -73,11 +74,7 @@ def read_arm(
         changes["stiffness_nm_per_rad"] = read_stiffness(r, "robot.stiffness_nm_per_rad", v)
     v = r.get(robot, "robot.link_centre_of_mass_mm")
     if v is not None:
-        key = "robot.link_centre_of_mass_mm"
-        rows = r.array(key, v, 6)
-        changes["link_centre_of_mass_mm"] = np.array(
-            [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(rows)]
-        )
+        changes["link_centre_of_mass_mm"] = read_centres(r, "robot.link_centre_of_mass_mm", v)
     for table, key, n, lo, hi, unit, name in _VALUES:
         dotted = f"{table}.{key}"
         v = r.get(tables[table], dotted)

@@ -76,10 +76,7 @@ def read_arm_load(
         out["link_mass_kg"] = sheet.link_mass_kg
     v = r.get(robot, "robot.link_centre_of_mass_mm")
     if v is not None:
-        key = "robot.link_centre_of_mass_mm"
-        out["link_centre_of_mass_mm"] = np.array(
-            [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(r.array(key, v, 6))]
-        )
+        out["link_centre_of_mass_mm"] = read_centres(r, "robot.link_centre_of_mass_mm", v)
     elif sheet is not None:
         out["link_centre_of_mass_mm"] = sheet.link_centre_of_mass_mm
     if ("link_mass_kg" in out) != ("link_centre_of_mass_mm" in out):
@@ -101,6 +98,13 @@ def read_arm_load(
             "calibration.load_posture_deg", v, 6, lo=-720.0, hi=720.0, unit="deg"
         )
     return out
+
+
+def read_centres(r: Reader, key: str, value: Any) -> np.ndarray:
+    """Six centres of mass (mm, (6, 3)), ``[x, y, z]`` each."""
+    return np.array(
+        [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(r.array(key, value, 6))]
+    )
 
 
 def read_stiffness(r: Reader, key: str, value: Any) -> np.ndarray:
