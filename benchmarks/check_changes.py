@@ -15,16 +15,20 @@ it must pass) and one of each change (each against the same reference, ``CHANGES
 * ``J2 0.05``: joint 2's offset moved by 0.05° (either way);
 * ``block 0.5``: the block bumped 0.5 mm in a random horizontal direction;
 * ``warm 1``: the tank 1 °C warmer (decision 16: the water's change is reported as its own
-  cause, exit 0).
+  cause, exit 0);
+* ``arm 5``: the arm 5 K warmer than at the reference (``[arm] offset_k``, aluminium's 23 ppm/K:
+  every link 115 ppm longer), the arm's growth named (``ucal.check.growth``).
 
 A change is *named* when the check exits 1 with exactly the expected cause (``causes`` in its
-``--json``: the tool across or along the beam, the joint, the block's position) within 20 % of
-the change's size (counted apart: named with a suspect the check says it cannot tell it from,
-``fit.alike``); ``warm 1`` when it exits 0 with the water noted within 20 % of 1 °C.
-Printed: per change, how many of the cells named it, the sizes' largest error, what the others
-named; the unchanged cells' false alarms; the largest ``duration_s`` (cell time) and the plan's
-estimate; the quantities reported ``ok`` with a σ above their tolerance (must be none) and the
-ones reported ``not determined``, by name.
+``--json``: the tool across or along the beam, the joint, the block's position, the arm's
+growth) within 20 % of the change's size (counted apart: named with a suspect the check says
+it cannot tell it from, ``fit.alike``); ``warm 1`` when it exits 0 with the water noted within
+20 % of 1 °C. Every check's ``arm_growth_ppm`` is judged against the truth (0, or 115 ppm
+warmed): its error over its ``arm_growth_ppm_std``. Printed: per change, how many of the cells
+named it, the sizes' largest error, what the others named; the unchanged cells' false alarms;
+the arm growth's error against its σ over every check; the largest ``duration_s`` (cell time)
+and the plan's estimate; the quantities reported ``ok`` with a σ above their tolerance (must
+be none) and the ones reported ``not determined``, by name.
 
 Usage: ``python benchmarks/check_changes.py [--cells 4] [--jobs 2] [--seed 1] [--models
 tx90,tx90l,tx90xl] [--blocks fixtured,hand] [--changes NAME,...]``; ``--quick``: one TX90L
@@ -48,6 +52,7 @@ import numpy as np
 import realistic
 from _quick import parse_args
 
+from ucal.cell import ALUMINIUM_EXPANSION_PER_K
 from ucal.profile import load_profile
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
@@ -66,7 +71,10 @@ CHANGES = {
     "J2 0.05": ("J2", "offset", 0.05),
     "block 0.5": ("block", "position", 0.5),
     "warm 1": ("water", "°C", 1.0),
+    "arm 5": ("arm", "growth", 5.0 * ALUMINIUM_EXPANSION_PER_K * 1e6),
 }
+#: ``arm 5``: the arm this much warmer (K).
+ARM_WARMER_K = 5.0
 #: A size named within this fraction of the change's.
 SIZE_WITHIN = 0.2
 #: A check is meant to take at most this long on the cell (s).
@@ -87,6 +95,8 @@ class Cell:
     estimates: list[float] = field(default_factory=list)
     ok_beyond: list[str] = field(default_factory=list)  # "ok" with σ above the tolerance
     undetermined: Counter = field(default_factory=Counter)
+    #: each check's arm growth: (error against the truth, its std), ppm
+    growth: list[tuple[float, float]] = field(default_factory=list)
 
 
 def _vector(text: str, section: str, key: str) -> tuple[re.Match, list[float]]:
@@ -123,6 +133,8 @@ def changed(text: str, change: str, rng: np.random.Generator) -> str:
         a = rng.uniform(0.0, 2.0 * np.pi)
         step = CHANGES[change][2] * np.array([np.cos(a), np.sin(a), 0.0])
         return _put(text, "sample", "position_mm", np.add(pos, step))
+    if change.startswith("arm"):
+        return text + f"\n[arm]\noffset_k = {ARM_WARMER_K!r}\n"
     m = re.search(r"(?m)^temperature_c = (.*)$", text)
     assert m is not None
     return text.replace(m.group(0), f"temperature_c = {float(m.group(1)) + CHANGES[change][2]!r}")
@@ -154,8 +166,11 @@ def judged(out: dict, change: str) -> tuple[bool, float, str]:
     return ok, error, named
 
 
-def audit(cell: Cell, out: dict) -> None:
-    """The check's quantities: "ok" with σ above the tolerance, "not determined", its time."""
+def audit(cell: Cell, out: dict, growth_ppm: float = 0.0) -> None:
+    """The check's quantities: "ok" with σ above the tolerance, "not determined", its time,
+    its arm growth against the true ``growth_ppm``."""
+    if out.get("arm_growth_ppm") is not None:
+        cell.growth.append((out["arm_growth_ppm"] - growth_ppm, out["arm_growth_ppm_std"]))
     for q in out.get("quantities", []):
         std, tol = q.get("std"), q.get("tolerance")
         if q["verdict"] == "ok" and std is not None and tol is not None and std > tol:
@@ -195,7 +210,7 @@ def run_cell(seed: int, index: int, model: str, block: str, changes: tuple[str, 
             path = d / f"{change.replace(' ', '-')}.toml"
             path.write_text(reseeded(changed(text, change, rng), index + 2000))
             out = commissioning.run("check", profile_path, path)
-            audit(cell, out)
+            audit(cell, out, CHANGES[change][2] if change.startswith("arm") else 0.0)
             ok, error, named = judged(out, change)
             part = CHANGES[change][0]
             alike = bool(out.get("fit", {}).get("alike", {}).get(part))
@@ -235,6 +250,15 @@ def summarize(cells: list[Cell]) -> None:
         print(
             f"cell time per check: max {max(durations):.1f} s, median {np.median(durations):.1f} "
             f"s (budget {BUDGET_S:g} s); plan's estimate over Modbus TCP max {max(estimates):.1f} s"
+        )
+    growth = np.array([g for c in good for g in c.growth]).reshape(-1, 2)
+    if growth.size:
+        z = np.abs(growth[:, 0]) / growth[:, 1]
+        print(
+            f"arm growth over {len(z)} checks: error rms {np.sqrt(np.mean(growth[:, 0] ** 2)):.2f} "
+            f"ppm, sigma median {np.median(growth[:, 1]):.2f} ppm; within 3 sigma "
+            f"{np.mean(z <= 3):.0%}, beyond 4 sigma {int(np.sum(z > 4))}, max |z| {z.max():.1f}, "
+            f"rms z {np.sqrt(np.mean(z**2)):.2f}"
         )
     beyond = Counter(n for c in good for n in c.ok_beyond)
     print(f"quantities 'ok' with sigma above their tolerance: {sum(beyond.values())}")

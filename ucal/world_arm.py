@@ -23,16 +23,16 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from ucal.cell import ArmTruth
 from ucal.kinematics.dh import RobotModel
+from ucal.profile.arm_load import (
+    MAX_LINK_MASS_KG,
+    MAX_TOOL_MASS_KG,
+    read_centres,
+    read_stiffness,
+)
 from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
-
-#: Smallest joint stiffness a world may state (N·m/rad): below it the sag is no longer small
-#: (``ucal.sim.arm`` bends the arm by a fixed point that needs it small).
-MIN_STIFFNESS_NM_PER_RAD = 1e4
 
 #: The world's keys of the bending, warming arm, by table.
 ROBOT_KEYS = frozenset(
@@ -41,9 +41,6 @@ ROBOT_KEYS = frozenset(
 TOOL_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
 ARM_KEYS = frozenset({"offset_k", "warmup_k", "warmup_time_constant_min", "expansion_per_k"})
 
-MAX_STIFFNESS_NM_PER_RAD = 1e10
-MAX_LINK_MASS_KG = 500.0
-MAX_TOOL_MASS_KG = 50.0
 MAX_GRAVITY_M_S2 = 50.0
 MAX_ARM_K = 50.0
 MAX_EXPANSION_PER_K = 1e-4
@@ -74,14 +71,10 @@ def read_arm(
     tables = {"robot": robot, "tool": tool, "arm": arm}
     v = r.get(robot, "robot.stiffness_nm_per_rad")
     if v is not None:
-        changes["stiffness_nm_per_rad"] = _stiffness(r, v)
+        changes["stiffness_nm_per_rad"] = read_stiffness(r, "robot.stiffness_nm_per_rad", v)
     v = r.get(robot, "robot.link_centre_of_mass_mm")
     if v is not None:
-        key = "robot.link_centre_of_mass_mm"
-        rows = r.array(key, v, 6)
-        changes["link_centre_of_mass_mm"] = np.array(
-            [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(rows)]
-        )
+        changes["link_centre_of_mass_mm"] = read_centres(r, "robot.link_centre_of_mass_mm", v)
     for table, key, n, lo, hi, unit, name in _VALUES:
         dotted = f"{table}.{key}"
         v = r.get(tables[table], dotted)
@@ -95,21 +88,6 @@ def read_arm(
     if "stiffness_nm_per_rad" in changes:
         _model_masses(r, model, changes)
     return replace(ArmTruth(), **changes) if changes else None
-
-
-def _stiffness(r: Reader, value: Any) -> np.ndarray:
-    """Six stiffnesses: 0 (rigid) or within 1e4…1e10 N·m/rad."""
-    key = "robot.stiffness_nm_per_rad"
-    k = r.vector(key, value, 6, lo=0.0, hi=MAX_STIFFNESS_NM_PER_RAD, unit="N m/rad")
-    for i, x in enumerate(k):
-        if 0.0 < x < MIN_STIFFNESS_NM_PER_RAD:
-            raise r.error(
-                f"{key}[{i}]",
-                f"must be 0 (rigid) or >= {MIN_STIFFNESS_NM_PER_RAD:g} N m/rad, got {x:g}: "
-                "a softer joint sags by more than the small deflections the simulated arm "
-                "models",
-            )
-    return k
 
 
 def _model_masses(r: Reader, model: RobotModel, changes: dict[str, Any]) -> None:

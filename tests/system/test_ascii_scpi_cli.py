@@ -129,7 +129,7 @@ def test_ascan_timing_calibrates_covered_and_no_less_precise_than_the_gate(
 def test_the_ascii_scpi_cell_calibrates_as_the_modbus_cell_does(
     tmp_path: Path, gate: Callable[[], dict]
 ) -> None:
-    world = noisy_world(served_at_a_tenth=True, kind="ascii-scpi", sample_rate_mhz=100.0)
+    world = noisy_world(kind="ascii-scpi", sample_rate_mhz=100.0)
     host, modbus = finished_json(calibrate(tmp_path, "ascii-scpi", world, record=True)), gate()
     assert host["written"] and host["fit"]["verdict"] == "ok"
     assert host["unobservable_joints"] == modbus["unobservable_joints"]
@@ -212,11 +212,14 @@ def covered(result: dict) -> None:
 def test_a_rigol_ds1000z_calibrates_in_sim_and_through_sim_serve(
     tmp_path: Path, gate: Callable[[], dict]
 ) -> None:
-    world = noisy_world(served_at_a_tenth=True, kind="ascii-scpi", sample_rate_mhz=100.0)
-    # the lock-step rehearsal (world [pulser] scope), started beside the served run
+    # the lock-step rehearsal (world [pulser] scope), started beside the served run, its state
+    # stream the released server's: on simulated time a frame costs work, not waiting
+    world = noisy_world(kind="ascii-scpi", sample_rate_mhz=100.0)
     in_process = calibrate(tmp_path, "rigol", world + 'scope = "rigol"\n')
-    # the served cell (sim serve --scope rigol) on the host clock, ten times faster
-    (tmp_path / "world.toml").write_text(world)
+    # the served cell (sim serve --scope rigol) on the host clock, ten times faster: the same
+    # truth, its state stream ten times faster too
+    served_world = noisy_world(served_at_a_tenth=True, kind="ascii-scpi", sample_rate_mhz=100.0)
+    (tmp_path / "world.toml").write_text(served_world)
     profile = tmp_path / "served.toml"
     profile.write_text(default_profile_text("tx90l"))
     with serving(

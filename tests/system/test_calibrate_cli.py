@@ -149,7 +149,8 @@ def test_on_axis_beam_reports_joint6_unobservable_and_keeps_its_value(tmp_path):
     assert result["unobservable_joints"] == [6]
     assert result["std_deg"][5] is None
     assert result["joint_offsets_deg"][5] == 0.25
-    np.testing.assert_allclose(result["joint_offsets_deg"][:5], offsets[:5], atol=0.002)
+    err = np.abs(np.array(result["joint_offsets_deg"][:5]) - offsets[:5])
+    assert np.all(err <= 3 * np.array(result["std_deg"][:5])), (err, result["std_deg"])
 
 
 def test_errors_under_noise_are_within_three_reported_sigmas(tmp_path):
@@ -179,7 +180,8 @@ def test_a_weakly_determined_joint6_is_kept_and_the_others_written(tmp_path):
         tool_rotation=(0.0, 0.3, 0.0),
         tool_rotation_std=0.0,
         prior=[0.0, 0.0, 0.0, 0.0, 0.0, 0.25],
-        robot={"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0},
+        # the table and the joints' stiffness identified on this robot (rigid, as simulated)
+        robot={"dh_length_std_mm": 0.0, "dh_angle_std_deg": 0.0, "stiffness_nm_per_rad": [0] * 6},
     )
     # the tank warms by 0.1 °C/min during the run (twice the default tolerance); the joints
     # have lost motion, measured with the calibration pose's faces read again from above

@@ -1,5 +1,6 @@
 """``ucal check`` against the simulated cell: the commissioned cell passes, a moved joint 2 is
-named, in less than two minutes of real-cell time; both checks go into the profile's history."""
+named, so is the arm grown by a warm-up, in less than two minutes of real-cell time; both checks
+go into the profile's history."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ucal.cell import ALUMINIUM_EXPANSION_PER_K
 from ucal.profile import load_profile
 from ucal.sim import demo
 
@@ -25,9 +27,11 @@ def demo_world(
     j2_moved_deg: float,
     seed: int,
     tool_moved_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    arm_warmer_k: float = 0.0,
 ) -> Path:
     """The demo truth (``ucal.sim.demo``) as a world file, joint 2 moved, the tool remounted
-    by ``tool_moved_mm`` (flange frame) and another noise seed (another day's readings)."""
+    by ``tool_moved_mm`` (flange frame), the arm ``arm_warmer_k`` warmer than at the
+    commissioning and another noise seed (another day's readings)."""
     nominal = load_profile(profile_path).as_described()
     offsets = demo.DEMO_JOINT_OFFSETS_DEG + [0.0, j2_moved_deg, 0.0, 0.0, 0.0, 0.0]
     tool = nominal.tool_position_mm + demo.DEMO_TOOL_POSITION_ERROR_MM + np.asarray(tool_moved_mm)
@@ -43,10 +47,20 @@ def demo_world(
         f"{vec(nominal.sample_position_mm + demo.DEMO_SAMPLE_POSITION_ERROR_MM)}\n"
         f"rotation_deg = {vec(nominal.sample_rotation_deg)}\n"
         f"[noise]\ntof_ns = {demo.DEMO_NOISE.tof_ns}\namplitude = {demo.DEMO_NOISE.amplitude}\n"
-        f"seed = {seed}\n",
+        f"seed = {seed}\n[arm]\noffset_k = {arm_warmer_k!r}\n",
         encoding="utf-8",
     )
     return path
+
+
+def commissioned(tmp_path: Path, run_main: RunMain) -> Path:
+    """The demo cell calibrated and its reference check recorded: its profile."""
+    profile = tmp_path / "cell.toml"
+    code, _, err = run_main(["calibrate", str(profile), "--sim", "--yes", "-q"])
+    assert code == 0, err
+    code, _, err = run_main(["check", str(profile), "--sim", "--yes", "-q"])
+    assert code == 0, err
+    return profile
 
 
 def test_passes_the_commissioned_cell_and_names_a_moved_joint_2(
@@ -94,11 +108,7 @@ def test_passes_the_commissioned_cell_and_names_a_moved_joint_2(
 def test_names_a_tool_remounted_across_the_beam_from_the_edges(
     tmp_path: Path, run_main: RunMain
 ) -> None:
-    profile = tmp_path / "cell.toml"
-    code, _, err = run_main(["calibrate", str(profile), "--sim", "--yes", "-q"])
-    assert code == 0, err
-    code, _, err = run_main(["check", str(profile), "--sim", "--yes", "-q"])
-    assert code == 0, err
+    profile = commissioned(tmp_path, run_main)
 
     # 0.3 mm across the beam: no water path changes, the edge crossings do
     world = demo_world(profile, tmp_path / "across.toml", 0.0, seed=7, tool_moved_mm=(0.3, 0, 0))
@@ -117,3 +127,33 @@ def test_names_a_tool_remounted_across_the_beam_from_the_edges(
     ]
     assert q["J6"]["verdict"] == "not determined"
     assert "J6" in [n["name"] for n in result["not_determined"]]
+
+
+def test_names_the_arm_grown_by_a_warm_up_of_5_k_not_a_joint(
+    tmp_path: Path, run_main: RunMain
+) -> None:
+    profile = commissioned(tmp_path, run_main)
+
+    # unwarmed, another day's readings: as commissioned, the arm's growth within 3σ of none
+    world = demo_world(profile, tmp_path / "cold.toml", 0.0, seed=7)
+    code, out, err = run_main(["check", str(profile), "--sim", str(world), "--yes", "--json"])
+    assert code == 0, err
+    result = json.loads(out)
+    assert abs(result["arm_growth_ppm"]) < 3 * result["arm_growth_ppm_std"]
+
+    # 5 K warmer: every link 115 ppm longer (aluminium's 23 ppm/K)
+    world = demo_world(profile, tmp_path / "warm.toml", 0.0, seed=8, arm_warmer_k=5.0)
+    code, out, err = run_main(["check", str(profile), "--sim", str(world), "--yes", "--json"])
+    assert code == 1, err
+    result = json.loads(out)
+    truth = 5.0 * ALUMINIUM_EXPANSION_PER_K * 1e6
+    assert result["moved"] == ["arm"]
+    assert abs(result["arm_growth_ppm"] - truth) < 0.2 * truth
+    assert abs(result["arm_growth_ppm"] - truth) < 4 * result["arm_growth_ppm_std"] + 1.0
+    assert abs(result["arm_temperature_rise_k"] - 5.0) < 1.0
+    assert "the arm grew (warm-up) by +1" in result["error"] and "K warmer" in result["error"]
+    q = {q["name"]: q for q in result["quantities"]}
+    out_of = [n for n, v in q.items() if v["verdict"] == "out of tolerance"]
+    assert out_of == ["arm_growth_ppm", "arm_temperature_rise_k"]
+    (cause,) = result["causes"]
+    assert (cause["part"], cause["what"], cause["unit"]) == ("arm", "growth", "ppm")

@@ -90,11 +90,14 @@ def ucal(*args: str) -> tuple[int, dict, str]:
 @pytest.mark.long
 @pytest.mark.timeout(600)
 def test_a_cell_set_by_hand_calibrates_in_sim_and_through_sim_serve(tmp_path: Path) -> None:
+    # the same truth twice: the lock-step rehearsal's state stream the released server's (on
+    # simulated time a frame costs work, not waiting), the served cell's ten times faster
+    (tmp_path / "rehearsed.world.toml").write_text(noisy_world(sample_rate_mhz=100.0))
     (tmp_path / "world.toml").write_text(noisy_world(served_at_a_tenth=True, sample_rate_mhz=100.0))
     rehearsed_profile = cell_set_by_hand(tmp_path, "rehearsed")
     in_process = subprocess.Popen(
         [sys.executable, "-m", "ucal", "calibrate", str(rehearsed_profile)]
-        + ["--sim", str(tmp_path / "world.toml"), "--yes", "--json", "-q"],
+        + ["--sim", str(tmp_path / "rehearsed.world.toml"), "--yes", "--json", "-q"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,

@@ -83,7 +83,8 @@ def test_another_register_map_calibrates_like_the_shipped_one(tmp_path: Path) ->
     assert list(np.flatnonzero(~seen) + 1) == other["unobservable_joints"]
     assert seen.sum() >= 5
     # the same cell through another map: the same offsets within their std
-    assert np.all(np.abs(a - b)[seen] <= std[seen]), (a, b, std)
+    # two runs whose readings differ by the maps' rounding: their noise is not one draw
+    assert np.all(np.abs(a - b)[seen] <= 3 * np.sqrt(2) * std[seen]), (a, b, std)
     assert np.all(np.abs(b - OFFSETS_DEG)[seen] <= 3 * std[seen]), (b, std)
 
 

@@ -22,7 +22,10 @@ def heated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     """The offsets level on a tank whose heater cycles every 1.5 min by ±0.25 °C, with the
     thermometer's log (0.1 min behind, 0.3 °C off, 0.01 °C resolution), recorded."""
     d = tmp_path_factory.mktemp("thermometer")
-    (d / "cell.toml").write_text(default_profile_text("tx90l"))
+    # the simulated arm is rigid and the profile says so: the water's turn alone is at stake
+    rigid = "backlash_std_deg = 0.01"
+    stated = f"stiffness_nm_per_rad = {[0.0] * 6}\n{rigid}"
+    (d / "cell.toml").write_text(default_profile_text("tx90l").replace(rigid, stated))
     t = np.arange(0.0, 10.0, 0.05)
     tank = 20.0 + 0.25 * np.sin(2.0 * np.pi * t / 1.5)
     rows = "".join(f"{a:.2f},{b:.5f}\n" for a, b in zip(t, tank, strict=True))

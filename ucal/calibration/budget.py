@@ -51,13 +51,14 @@ from ucal.model.fit import (
 )
 from ucal.model.geometry import FaceMeasurement, beam_and_tcp
 from ucal.model.kinematic import KINEMATIC, STEP, scanning_postures, step_residuals
+from ucal.model.load import COMPLIANCE, URAD_DEG, PostureLoad
 from ucal.model.targets import calibration_pose
 
 #: The quantities no echo may see well enough: the kinematic model's lengths and twists, and
 #: the sound speed (with the lengths, one common scale that time of flight does not show).
 #: Link 6 is left to the tool: they are one rigid body, and tool-frame measures the tool with
 #: it (its stds are the tool's).
-UNSEEN = tuple(n for n in KINEMATIC if not n.startswith("dh6_")) + SOUND + STEP
+UNSEEN = tuple(n for n in KINEMATIC if not n.startswith("dh6_")) + SOUND + STEP + COMPLIANCE
 #: Postures drawn over the scanning region, and their seed (the same region every run).
 REGION_POSTURES = 100
 REGION_SEED = 0
@@ -86,9 +87,19 @@ class TcpBudget:
         }
 
 
-def _tcp(fit: CellFit, model: RobotModel, values: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """The tool centre at readings ``q`` (n, 6) in the base frame (n, 3), cell ``values``."""
+def _tcp(
+    fit: CellFit,
+    model: RobotModel,
+    values: np.ndarray,
+    q: np.ndarray,
+    load_nm: np.ndarray | None = None,
+) -> np.ndarray:
+    """The tool centre at readings ``q`` (n, 6) in the base frame (n, 3), cell ``values``;
+    each joint given by its compliance under ``load_nm`` (n, 6: the postures' torques less the
+    load posture's, ``ucal.model.load``) where the fit has the compliances."""
     table = fit.table
+    if load_nm is not None and COMPLIANCE[0] in table.names:
+        q = q + load_nm * (URAD_DEG * table.get(COMPLIANCE, values))
     _, tcp = beam_and_tcp(table_geometry(table, values, model), q, table.get(OFFSETS, values))
     return tcp
 
@@ -122,16 +133,19 @@ def tcp_budget(
     extra: ExtraRows | None = None,
     postures: int = REGION_POSTURES,
     quantities: tuple[str, ...] = UNSEEN,
+    load: PostureLoad | None = None,
 ) -> TcpBudget:
     """The tool-centre error over the scanning region about ``pose_deg`` that the priors and
     tolerances of ``quantities`` allow, fitted or held (module docstring). ``meas`` and
     ``extra``: the data rows of ``fit`` (its Jacobian's first ``fit.n_data`` rows), ``c0_m_s``
-    the sound speed their water paths were computed with."""
+    the sound speed their water paths were computed with; ``load``: the torques' reference of
+    the fit's rows (``CellPrior.posture_load``), under which the region's postures give."""
     if fit.jac is None:
         raise ValueError("the fit kept no Jacobian")
     table, v0 = fit.table, fit.estimate
     q = scanning_postures(pose_deg, postures, REGION_SEED, model)
-    project = _without_rigid_motion(_tcp(fit, model, v0, q))
+    load_nm = None if load is None else load.relative_nm(q)
+    project = _without_rigid_motion(_tcp(fit, model, v0, q, load_nm))
     free = np.flatnonzero(table.free)
     a = np.asarray(fit.jac, float)
     n_inv = np.linalg.pinv(a.T @ a)
@@ -144,11 +158,15 @@ def tcp_budget(
         d = np.zeros(len(v0))
         d[i] = 1.0
         d[free] += direction
-        diff = _tcp(fit, model, v0 + h * d, q) - _tcp(fit, model, v0 - h * d, q)
+        diff = _tcp(fit, model, v0 + h * d, q, load_nm) - _tcp(fit, model, v0 - h * d, q, load_nm)
         return np.asarray(project @ diff.ravel() / (2.0 * h))
 
     def data_rows(values: np.ndarray) -> np.ndarray:
-        rows = data_residuals(table, values, model, meas, c0_m_s).ravel() if meas else np.zeros(0)
+        rows = (
+            data_residuals(table, values, model, meas, c0_m_s, load=load).ravel()
+            if meas
+            else np.zeros(0)
+        )
         return rows if extra is None else np.concatenate([rows, extra.residuals(values)])
 
     contrib: dict[str, np.ndarray] = {}
@@ -202,11 +220,12 @@ def calibration_budget(
         return None
     prior = prior_from_profile(profile)
     c0 = prior.sound_speed_m_s
+    load = prior.posture_load([m.joints_deg for m in meas])
     extra = None
     if steps:
         table = fit.table
         extra = ExtraRows(
-            lambda v: step_residuals(table, v, prior.model, steps, c0),
+            lambda v: step_residuals(table, v, prior.model, steps, c0, load=load),
             tuple(f"{m.config}/step" for m in steps),
         )
-    return tcp_budget(fit, prior.model, meas, c0, calibration_pose(profile), extra)
+    return tcp_budget(fit, prior.model, meas, c0, calibration_pose(profile), extra, load=load)

@@ -25,6 +25,7 @@ import numpy as np
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.calibration.budget import TcpBudget, calibration_budget
+from ucal.calibration.load import load_posture
 from ucal.calibration.result import (
     CalibrationResult,
     FullResult,
@@ -151,6 +152,7 @@ def written(
         chi2_reduced=float(fit.chi2_reduced),
         date=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         unidentified_tcp_mm=None if budget is None else (budget.mean_mm, budget.max_mm),
+        load_posture_deg=load_posture(chosen, sound),
         **relative,
         **lost,
         **own,

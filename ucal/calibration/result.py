@@ -19,6 +19,7 @@ import numpy as np
 
 from ucal.calibration.budget import TcpBudget
 from ucal.calibration.exact import OffsetSolution
+from ucal.calibration.load import load_posture
 from ucal.calibration.weak import WeakJoint
 from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality, RunEffects
@@ -29,6 +30,7 @@ from ucal.model.postures import FullPlan
 from ucal.model.readings import CalibrationReadings
 from ucal.model.residuals import reference_time_min
 from ucal.procedure import RunFacts
+from ucal.sim.cell import SimulatedCell
 
 #: Why ``backlash_deg`` is null: no joint was read from both sides.
 BACKLASH_NOTE = (
@@ -181,6 +183,7 @@ class CalibrationResult(Generic[SolvedT]):
             "method": chosen.method,
             "level": self.level,
             "approach": APPROACH,
+            "load_posture_deg": load_posture(chosen, sound),
             # SPEC.md: null where not measured (readings from one side only)
             "backlash_deg": [None] * 6,
             "backlash_std_deg": [None] * 6,
@@ -215,6 +218,12 @@ class CalibrationResult(Generic[SolvedT]):
         truth = self.run.truth
         if truth is not None:
             out["truth_offsets_deg"] = truth.joint_offsets_deg
+            cell = self.solved.chosen.cell_fit or self.solved.sound.cell_fit
+            if truth.arm.bends and cell is not None and cell.load_posture_deg is not None:
+                # what the offsets hold on a bent arm: each link's sag at the load posture
+                out["truth_load_sag_deg"] = SimulatedCell(truth).sag_deg(
+                    cell.load_posture_deg, np.ones(6)
+                )
             if self.block is not None:
                 out["truth_offsets_block_deg"] = self.truth_offsets_block_deg()
         return out

@@ -9,9 +9,11 @@
 * ``observe``: what each measurement sees and which quantities the postures determine;
 * ``solve``: what moved — the check and the reference in one fit on the profile's model, the
   stepwise choice of the suspects that explain the data;
+* ``profile_fit``: the first check of a profile, its faces against the calibration it holds;
 * ``judge``: every checked quantity (geometry, water, echo chain) against its 3σ and its
   tolerance: moved, ok or not determined;
 * ``causes``: what moved as causes with their sizes (the tool across or along its beam);
+* ``growth``: the arm grown by a warm-up (every DH length by one factor) as a suspect;
 * ``result``: the typed result, the message naming what moved, the history entry;
 * ``history``: the checks in the profile's history directory (``checks.json``);
 * ``procedure``: the command's job on the measuring procedure (``ucal.procedure``).

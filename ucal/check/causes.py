@@ -1,5 +1,6 @@
 """What moved, as causes with their sizes: a joint's offset, the tool across or along its beam or
-its beam's direction, the block's position or its turn; the water's change as its own cause.
+its beam's direction, the block's position or its turn, the arm's growth (ppm,
+``ucal.check.growth``); the water's change as its own cause.
 
 A chosen suspect (``ucal.check.solve.select``) is split into what a commissioning acts on: the
 tool's change of position ``Δp`` (flange frame) into its part along the beam ``a`` (the tool's
@@ -19,15 +20,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
+from ucal.check.growth import ARM
 from ucal.check.solve import N_SIGMA, Change, GeometryComparison
 from ucal.model.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, _rpy_matrix
 
 
 @dataclass(frozen=True)
 class Cause:
-    """One thing that moved: ``part`` (a suspect: "J2", "tool", "block"), ``what`` ("offset",
-    "across the beam", "along the beam", "beam direction", "position", "turn"), its ``size``
-    (signed for a joint or along the beam, else a length) and one sigma in ``unit``, the
+    """One thing that moved: ``part`` (a suspect: "J2", "tool", "block", "arm"), ``what``
+    ("offset", "across the beam", "along the beam", "beam direction", "position", "turn",
+    "growth"), its ``size`` (signed for a joint, along the beam or the arm's growth, else a
+    length) and one sigma in ``unit``, the
     tolerance it is judged by and the unknowns' changes it is made of."""
 
     part: str
@@ -43,7 +46,7 @@ class Cause:
         return bool(abs(self.size) > N_SIGMA * self.std and abs(self.size) > self.tolerance)
 
     def words(self) -> str:
-        digits = 4 if self.unit == "deg" else 3
+        digits = {"deg": 4, "ppm": 1}.get(self.unit, 3)
         parts = ", ".join(f"{n} {v:+.{digits}f}" for n, v in self.changes.items())
         return (
             f"{self.what} {self.size:+.{digits}f} {self.unit} (± {self.std:.2g}; tolerance "
@@ -90,6 +93,9 @@ def suspect_causes(comparison: GeometryComparison, suspect: str) -> list[Cause]:
     if suspect in OFFSETS:
         c = by[suspect]
         return [Cause(suspect, "offset", c.change, c.std, "deg", c.tolerance)]
+    if suspect == ARM:
+        (c,) = by.values()
+        return [Cause(ARM, "growth", c.change, c.std, "ppm", c.tolerance)]
     if suspect not in ("tool", "block"):
         return []
     names = TOOL if suspect == "tool" else BLOCK

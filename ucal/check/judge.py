@@ -22,10 +22,11 @@ from typing import Any
 import numpy as np
 
 from ucal.check.causes import temperature_of
+from ucal.check.growth import GROWTH, temperature_rise_k
+from ucal.check.profile_fit import ProfileComparison
 from ucal.check.solve import (
     N_SIGMA,
     GeometryComparison,
-    ProfileComparison,
 )
 from ucal.model.fit import OFFSETS, SOUND, CellPrior
 
@@ -112,12 +113,15 @@ def unit_of(parameter: str) -> str:
         return "deg"
     if parameter.endswith("_mm"):
         return "mm"
+    if parameter.endswith("_ppm"):
+        return "ppm"
     return "m/s"
 
 
 def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> list[Quantity]:
-    """Each unknown of every suspect, and the water's temperature, as checked quantities
-    (module docstring: the water without a tolerance)."""
+    """Each unknown of every suspect, the water's temperature and the arm's temperature rise
+    its growth means (``ucal.check.growth``), as checked quantities (module docstring: the
+    water without a tolerance)."""
     words = {s.name: s.words for s in comparison.suspects}
     out = []
     for c in comparison.changes:
@@ -156,6 +160,10 @@ def geometry_quantities(comparison: GeometryComparison, prior: CellPrior) -> lis
                     verdict,
                 )
             )
+        if c.parameter == GROWTH:  # the temperature rise it means: K per ppm
+            k, part = temperature_rise_k(1.0), words[c.suspect]
+            rise = (c.change * k, 0.0, c.std * k, c.tolerance * k, verdict)
+            out.append(Quantity("arm_temperature_rise_k", part, "K", *rise))
     return out
 
 

@@ -14,8 +14,10 @@ to 0.015 mm, what the simulated cell's 8-bit amplitude leaves):
   tolerances, which the readings see (χ² above ``ALIKE_CHI2``), is explained by that suspect
   within ``ALIKE_CHI2`` (the cell's other unknowns free): the check would name both.
 
-The faces see the joints, the beam's direction, the tool along the beam, the block and the
-water (its paths of 40 to 160 mm tell the sound speed from a length); the edge crossings see
+The faces see the joints, the beam's direction, the tool along the beam, the block, the
+water (its paths of 40 to 160 mm tell the sound speed from a length) and the arm's growth
+(each tool centre moved in proportion to its flange's distance from the base,
+``ucal.check.growth``); the edge crossings see
 the tool across the beam, which no water path does, and the block in x and y. A turn of joint
 6 turns the beam about itself, on a tool whose centre is on the joint's axis: nothing an echo
 sees, nothing a scan feels; ``what_would_determine`` says so with the figures of the tool.
@@ -30,6 +32,7 @@ import numpy as np
 from ucal.acoustics import sound_speed_slope_m_s_per_c
 from ucal.cell import CellProfile
 from ucal.check.edges import EdgeLine, EdgeReading
+from ucal.check.growth import GROWTH
 from ucal.check.solve import ALIKE_CHI2, ChangeFit, Linearised, change_name, suspects
 from ucal.kinematics.ik import ik
 from ucal.model.geometry import FaceMeasurement
@@ -52,6 +55,7 @@ GROUPS = {
     "block": ("block_x_mm", "block_y_mm", "block_z_mm"),
     "block turn": ("block_rx_deg", "block_ry_deg", "block_rz_deg"),
     "water": SOUND,
+    "arm growth": (GROWTH,),
 }
 
 
@@ -202,6 +206,11 @@ def what_would_determine(parameter: str, profile: CellProfile, edges_read: bool)
             f"a tool off the joint-6 axis: this one's centre is {off_axis:.2f} mm from it and "
             f"its beam {tilt:.2f} deg off it, so a turn of joint 6 turns the beam about itself "
             "(what no echo sees moves no scan)"
+        )
+    if parameter in (GROWTH, "arm_temperature_rise_k"):
+        return (
+            "postures that read one face at reaches further apart (a growth moves each tool "
+            "centre in proportion to the flange's distance from the base; ucal calibrate's)"
         )
     if not any(parameter in ps for ps in GROUPS.values()):
         return "more readings of the echo chain than the reference's and the check's"

@@ -29,6 +29,7 @@ from ucal.check.judge import (
 from ucal.check.measure import CheckRun, EchoReading, run_check
 from ucal.check.observe import what_would_determine
 from ucal.check.plan import CheckPlan, estimate_check, plan_check, plan_summary
+from ucal.check.profile_fit import compare_to_profile
 from ucal.check.result import (
     CheckFindings,
     CheckResult,
@@ -38,7 +39,6 @@ from ucal.check.result import (
 )
 from ucal.check.solve import (
     compare_geometry,
-    compare_to_profile,
 )
 from ucal.devices.session import CellSession
 from ucal.model.fit import prior_from_profile

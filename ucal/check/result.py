@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ucal.check.causes import Cause, causes
+from ucal.check.growth import ARM, GROWTH, growth_words, temperature_rise_k
 from ucal.check.history import CheckEntry
 from ucal.check.judge import (
     CHANGED,
@@ -22,14 +23,22 @@ from ucal.check.judge import (
     Quantity,
 )
 from ucal.check.measure import CheckRun
+from ucal.check.profile_fit import ProfileComparison
 from ucal.check.solve import (
     GeometryComparison,
-    ProfileComparison,
 )
 from ucal.model.fit import CellPrior, readings_approach
 from ucal.model.readings import faces_to_json
 from ucal.procedure import RunFacts
 from ucal.timing import DurationEstimate
+
+#: ``check --json``'s keys of the arm's growth (``CheckFindings.growth_json``).
+GROWTH_KEYS = (
+    "arm_growth_ppm",
+    "arm_growth_ppm_std",
+    "arm_temperature_rise_k",
+    "arm_temperature_rise_k_std",
+)
 
 
 @dataclass
@@ -133,6 +142,7 @@ class CheckFindings:
         }
         if self.run is not None:  # every face read from below: as calibrate's offsets hold
             out["approach"] = readings_approach(self.run.faces)
+        out.update(self.growth_json())
         if self.geometry is not None:
             g = self.geometry
             out["fit"] = {
@@ -155,6 +165,17 @@ class CheckFindings:
                 "worst": p.worst,
             }
         return out
+
+    def growth_json(self) -> dict[str, float | None]:
+        """The arm's growth since the reference (ppm) and its one sigma, and the temperature
+        rise it means (K, aluminium's expansion): fitted with what moved where the arm was
+        not chosen (how much it could have grown unseen); ``null`` without a reference."""
+        c = next((c for c in self.quantities if c.name == GROWTH), None)
+        if c is None or c.difference is None:
+            return dict.fromkeys(GROWTH_KEYS)
+        k = temperature_rise_k(1.0)
+        values = (c.difference, c.std, c.difference * k, None if c.std is None else c.std * k)
+        return dict(zip(GROWTH_KEYS, values, strict=True))
 
     def history_entry(self, digest: str, duration_s: float, prior: CellPrior) -> CheckEntry:
         """The entry this check adds to the profile's history (id and time set on append);
@@ -246,7 +267,9 @@ def named_changes(
             tank = geometry.tank.get(suspect)
             alike += [] if tank is None else [tank]
             also = f" (or {' or '.join(alike)}: the check cannot tell them apart)" if alike else ""
-            if suspect.startswith("J"):
+            if suspect == ARM:
+                text = growth_words(out[0].size, out[0].std, out[0].tolerance)
+            elif suspect.startswith("J"):
                 c = out[0]
                 text = (
                     f"{words[suspect]} ({suspect}) moved by {_fmt(c.size, 'deg')} "
@@ -274,8 +297,8 @@ def unexplained_text(geometry: GeometryComparison) -> str:
         return ""
     return (
         f"the measurements disagree with the reference's beyond what a change of a joint, the "
-        f"tool, the block or the water explains (χ² {geometry.chi2:.1f} on {geometry.dof} "
-        f"measurements; worst {geometry.worst}): "
+        f"tool, the block, the water or the arm's length explains (χ² {geometry.chi2:.1f} on "
+        f"{geometry.dof} measurements; worst {geometry.worst}): "
         + (geometry.cause or "check the block's faces and the kinematic model (calibrate again)")
     )
 

@@ -7,8 +7,9 @@ tolerances as priors; the DH table held as the reference's own fit puts it) are 
 both sets, each set has its own drift of the sound speed (the tank warms or cools at its own
 rate in each run, against each reading's ``time_min``; its curvature, not fitted, carried in
 the covariance about that run's own reference time as calibrate carries it), and a *suspect* —
-a joint's offset, the tool frame, the block pose, the water's sound speed — may add a change
-to the check's.
+a joint's offset, the tool frame, the block pose, the water's sound speed, the arm's growth
+(every DH length of the check's longer by one factor: a warm-up, ``ucal.check.growth``) — may
+add a change to the check's.
 What cannot be told apart stays so: a joint-1 offset and a turn of the block about the base
 axis are one rotation, and both are named.
 
@@ -29,7 +30,8 @@ The decision rule (the 3σ rule, applied at each step; docs/decisions/0009):
 2. **By how much** — the chosen suspects' changes and their one-sigma from that fit, the
    covariance scaled by ``max(1, χ²ᵣ)``.
 3. **Out of tolerance** — an unknown of a chosen suspect whose change exceeds both 3σ and its
-   tolerance (``JOINT_TOLERANCE_DEG``, ``POSITION_TOLERANCE_MM``, ``ROTATION_TOLERANCE_DEG``);
+   tolerance (``JOINT_TOLERANCE_DEG``, ``POSITION_TOLERANCE_MM``, ``ROTATION_TOLERANCE_DEG``,
+   the growth's ``growth.GROWTH_TOLERANCE_PPM``);
    beyond 3σ but within tolerance it is ``changed`` (a drift to watch), exit 0; a σ above the
    tolerance is ``not determined`` (``ucal.check.judge``). The water has no tolerance here: its
    change is reported as its own cause (docs/decisions/0016).
@@ -73,7 +75,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ucal.cell import CellProfile
+from ucal.check import growth
 from ucal.check.edges import EdgeArrays, EdgeReading, edge_residuals
 from ucal.model.fit import (
     BACKLASH,
@@ -90,7 +92,6 @@ from ucal.model.fit import (
     ParameterTable,
     data_residuals,
     measurement_label,
-    offsets_prior_std_deg,
     solve_cell,
 )
 from ucal.model.geometry import FaceMeasurement
@@ -104,6 +105,7 @@ from ucal.model.least_squares import (
     score_gain,
     sees_drift,
 )
+from ucal.model.load import COMPLIANCE
 from ucal.model.quality import effect_pattern
 from ucal.model.residuals import two_sided_joints
 
@@ -148,7 +150,8 @@ class Suspect:
 
 def suspects(prior: CellPrior) -> tuple[Suspect, ...]:
     """Every suspect of a cell: the six joints, the tool (its turn about the beam moves
-    nothing), the block, the water (no tolerance: its own cause)."""
+    nothing), the block, the water (no tolerance: its own cause), the arm's growth
+    (``ucal.check.growth``)."""
     pose_tol = (POSITION_TOLERANCE_MM,) * 3 + (ROTATION_TOLERANCE_DEG,) * 3
     pose_std = (POSITION_CHANGE_STD_MM,) * 3 + (ROTATION_CHANGE_STD_DEG,) * 3
     joints = tuple(
@@ -160,6 +163,13 @@ def suspects(prior: CellPrior) -> tuple[Suspect, ...]:
         Suspect("tool", "the tool", TOOL[:5], pose_tol[:5], pose_std[:5]),
         Suspect("block", "the block", BLOCK, pose_tol, pose_std),
         Suspect("water", "the water", SOUND, (np.inf,), (SOUND_CHANGE_STD_M_S,)),
+        Suspect(
+            growth.ARM,
+            growth.ARM_WORDS,
+            (growth.GROWTH,),
+            (growth.GROWTH_TOLERANCE_PPM,),
+            (growth.GROWTH_CHANGE_STD_PPM,),
+        ),
     )
 
 
@@ -235,15 +245,18 @@ class ChangeFit:
         self.suspects = all_suspects
         self.changed = tuple(p for s in all_suspects for p in s.parameters)
         cell = cell_table(self.reference_prior)  # the cell's unknowns, Hayati's β₂ among them
-        names = cell.names + (CHECK_DRIFT,) + tuple(change_name(p) for p in self.changed)
+        # the arm's growth: 0 at the reference by definition (held), its change the check's
+        names = (
+            cell.names + (CHECK_DRIFT, growth.GROWTH) + tuple(change_name(p) for p in self.changed)
+        )
         drift_std = prior.drift_std_m_s_per_min
         values = np.concatenate(
-            [cell.prior, [prior.drift_prior_m_s_per_min], np.zeros(len(self.changed))]
+            [cell.prior, [prior.drift_prior_m_s_per_min, 0.0], np.zeros(len(self.changed))]
         )
         stds = np.concatenate(
             [
                 cell_table(prior).prior_stds,
-                [drift_std],
+                [drift_std, growth.GROWTH_CHANGE_STD_PPM],
                 [v for s in all_suspects for v in s.change_std],
             ]
         )
@@ -255,16 +268,22 @@ class ChangeFit:
         # from both sides (``ucal.model.least_squares.hold_unseen``)
         seen = dict(zip(BACKLASH, two_sided_joints([*reference, *check]), strict=True))
         seen[DRIFT[0]] = sees_drift(reference)
-        seen.update(dict.fromkeys(DH + BETA, False))
-        self.base_free = np.array([*(seen.get(n, True) for n in cell.names), sees_drift(check)])
+        seen.update(dict.fromkeys(DH + BETA + COMPLIANCE, False))  # as the DH table: common
+        self.base_free = np.array(
+            [*(seen.get(n, True) for n in cell.names), sees_drift(check), False]
+        )
         self.drift_idx = self.table.index(DRIFT[0])
         self.check_drift_idx = self.table.index(CHECK_DRIFT)
+        self.growth_idx = self.table.index(growth.GROWTH)
+        self.length_idx = np.array([self.table.index(n) for n in growth.LENGTHS])
         self.base_idx = np.array([self.table.index(p) for p in self.changed])
         self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
         self.reference = reference
         self.check = check
-        self._ref = MeasurementArrays.of(reference)
-        self._chk = MeasurementArrays.of(check)
+        load = self.reference_prior.posture_load([m.joints_deg for m in reference])
+        self._ref = MeasurementArrays.of(reference, load=load)
+        self._chk = MeasurementArrays.of(check, load=load)
+
         #: the reference's edge crossings and the check's (their rows after the faces')
         self.edges = edges
         self._edges = (EdgeArrays.of(edges[0]), EdgeArrays.of(edges[1]))
@@ -298,6 +317,7 @@ class ChangeFit:
         moved = values.copy()
         moved[self.base_idx] += values[self.change_idx]
         moved[self.drift_idx] = values[self.check_drift_idx]
+        moved = growth.grown(moved, self.length_idx, self.growth_idx)
         r_chk = data_residuals(self.table, moved, model, self._chk, c0)
         e_ref = edge_residuals(self.table, values, model, self._edges[0])
         e_chk = edge_residuals(self.table, moved, model, self._edges[1])
@@ -333,7 +353,7 @@ class ChangeFit:
         """A full value vector to start from: the reference's own fit (its DH table within
         the profile's tolerance, as calibrate fits it, then held), nothing changed."""
         estimate = solve_cell(self.reference_prior, self.reference).estimate
-        return np.concatenate([estimate, np.zeros(1 + len(self.changed))])
+        return np.concatenate([estimate, np.zeros(2 + len(self.changed))])
 
     def chi2(self, values: np.ndarray, chosen: list[str]) -> float:
         """χ² of the data and of the priors of the unknowns free with ``chosen``."""
@@ -628,51 +648,6 @@ def drift_cause(gains: dict[str, dict[str, float]], chi2: float) -> str:
         return ""
     run = max(gains, key=lambda r: max(gains[r].values(), default=0.0))
     return effect_pattern(gains[run], chi2, RUN_WORDS[run])
-
-
-@dataclass(frozen=True)
-class ProfileComparison:
-    """The first check of a profile: its measurements fitted with the profile's calibration as
-    the prior of the joint offsets (``[calibration] std_deg``), the cell's other tolerances as
-    theirs."""
-
-    offsets_deg: np.ndarray  # as fitted
-    offsets_std_deg: np.ndarray
-    profile_offsets_deg: np.ndarray
-    sound_speed_m_s: float
-    sound_speed_std_m_s: float
-    chi2_reduced: float
-    dof: int
-    misfit: bool
-    worst: str
-    cause: str
-
-
-def compare_to_profile(
-    profile: CellProfile, prior: CellPrior, check: list[FaceMeasurement]
-) -> ProfileComparison:
-    """Whether the check's measurements agree with the calibration the profile holds: the χ²
-    of the fit whose joint-offset priors are the calibration's values and stds (a misfit at
-    ``MISFIT_P``: the cell is not as calibrated). A few postures leave most offsets to their
-    priors, so this is a consistency test, not a new calibration."""
-    table = cell_table(prior)
-    table.prior_stds[[table.index(n) for n in OFFSETS]] = offsets_prior_std_deg(profile)
-    # the DH table, the drift and the lost motion free with their priors, as calibrate fits
-    # them: held exact, a table within its tolerance misfits the check's faces
-    cell = solve_cell(prior, check, table=table)
-    q = cell.quality
-    return ProfileComparison(
-        np.array([cell.value(n) for n in OFFSETS]),
-        np.array([cell.sigma(n) for n in OFFSETS]),
-        np.asarray(profile.joint_offsets_deg, float),
-        cell.value(SOUND[0]),
-        cell.sigma(SOUND[0]),
-        q.chi2_reduced,
-        q.dof,
-        q.verdict == "misfit",
-        q.worst,
-        q.cause,
-    )
 
 
 def chi2_threshold(k: int) -> float:

@@ -72,6 +72,7 @@ from ucal.model.fit import (
     CellFit,
     CellPrior,
     ExtraRows,
+    MeasurementArrays,
     ParameterTable,
     RunEffects,
     data_residuals,
@@ -87,7 +88,8 @@ from ucal.model.geometry import (
     beam_and_tcp,
     distance_joints,
 )
-from ucal.model.least_squares import cell_table
+from ucal.model.least_squares import cell_table, hold_unloaded
+from ucal.model.load import COMPLIANCE, PostureLoad
 from ucal.model.priors import twists_deg
 
 #: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
@@ -99,8 +101,8 @@ FULL_MAX_EVALUATIONS = 2000
 #: Height of the step on the block's XY face (mm): the length standard.
 STEP = ("step_mm",)
 #: The unknowns of the full level: the offsets level's (Hayati's twist of axes 2-3 among
-#: them: ``cell_table``) and the step's height.
-FULL_PARAMETERS = PARAMETERS + BETA + STEP
+#: them: ``cell_table``), each joint's compliance (``ucal.model.load``) and the step's height.
+FULL_PARAMETERS = PARAMETERS + BETA + COMPLIANCE + STEP
 #: The kinematic parameters the full level identifies (besides the joint offsets), table order.
 KINEMATIC = DH + BETA
 #: A kinematic column whose residual after projection on the kept columns is below this share
@@ -137,14 +139,16 @@ def step_residuals(
     meas: list[FaceMeasurement],
     c0_m_s: float,
     time_ref_min: float = 0.0,
+    load: PostureLoad | None = None,
 ) -> np.ndarray:
     """Normalised residual of the water path of each measurement over the step's top (n,):
     the path to the XY face's plane, less ``step_mm``, along the beam, against the measured
     one (``ucal.model.fit.data_residuals``' distance row, for a plane ``step_mm`` up;
-    ``time_ref_min``: the face measurements' reference time, ``reference_time_min``)."""
+    ``time_ref_min``: the face measurements' reference time, ``reference_time_min``; ``load``:
+    their torques' reference, ``CellPrior.posture_load``)."""
     if not meas:
         return np.zeros(0)
-    rows = data_residuals(table, values, model, meas, c0_m_s, time_ref_min)
+    rows = data_residuals(table, values, model, meas, c0_m_s, time_ref_min, load)
     geom = table_geometry(table, values, model)
     beam, _ = beam_and_tcp(
         geom, np.array([distance_joints(m) for m in meas]), table.get(OFFSETS, values)
@@ -213,17 +217,29 @@ def data_jacobian(
     hold_unseen(table, meas)  # the drift and lost motion these readings cannot see
     free = table.free & np.isfinite(table.prior_stds) & (table.prior_stds > 0)
     table.free = free
-    v0 = table.values if values is None else np.asarray(values, float)
+    v0 = table.values.copy() if values is None else np.asarray(values, float)
+    if values is None:
+        # what the postures see is the rigid arm's structure: the prior's sag (hundredths of a
+        # degree) tilts each modelled beam off normal by as much, which lets a translation
+        # across the beam (d5, a5) show at the thousandth of a sigma the test draws its line at
+        v0[[table.index(n) for n in COMPLIANCE]] = 0.0
     c0 = prior.sound_speed_m_s
     t_ref = reference_time_min(meas)
+    load = prior.posture_load([m.joints_deg for m in meas])
+    arrays = MeasurementArrays.of(meas, t_ref, load) if meas else None
+    if arrays is not None:
+        hold_unloaded(table, arrays)
+    free = table.free
 
     def fun(x: np.ndarray) -> np.ndarray:
         v = v0.copy()
         v[free] = x
         rows = (
-            data_residuals(table, v, prior.model, meas, c0, t_ref).ravel() if meas else np.zeros(0)
+            np.zeros(0)
+            if arrays is None
+            else data_residuals(table, v, prior.model, arrays, c0).ravel()
         )
-        steps_r = step_residuals(table, v, prior.model, steps or [], c0, t_ref)
+        steps_r = step_residuals(table, v, prior.model, steps or [], c0, t_ref, load)
         return np.concatenate([rows, steps_r])
 
     stds = table.prior_stds[free]
@@ -495,8 +511,9 @@ def solve_full(
     table = full_table(prior)
     c0 = prior.sound_speed_m_s
     t_ref = reference_time_min(meas)
+    load = prior.posture_load([m.joints_deg for m in meas])
     extra = ExtraRows(
-        lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref),
+        lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref, load),
         tuple(f"{m.config}/step" for m in steps),
     )
     # the block gauge (ucal.model.gauge): the block's yaw held as placed, J1 relative

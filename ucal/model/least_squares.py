@@ -15,6 +15,7 @@ from scipy.optimize import OptimizeResult, least_squares
 
 from ucal import interrupt
 from ucal.model.geometry import FaceMeasurement, beam_and_tcp, distance_joints
+from ucal.model.load import COMPLIANCE, unseen_compliance
 from ucal.model.priors import (
     BACKLASH,
     BETA,
@@ -92,6 +93,9 @@ class CellFit:
     jac: np.ndarray | None = None  # Jacobian of the augmented residuals at the solution
     n_data: int = 0  # its first n_data rows are the measurements'
     time_ref_min: float = 0.0  # the time the sound speed is given at (``reference_time_min``)
+    #: The readings whose gravity load the offsets hold (``ucal.model.load``); None: nothing
+    #: weighs.
+    load_posture_deg: np.ndarray | None = None
 
     def value(self, name: str) -> float:
         return float(self.estimate[self.table.index(name)])
@@ -139,10 +143,23 @@ def cell_table(prior: CellPrior) -> ParameterTable:
     carry it wrote J1 relative to the block 0.030° off at a reported 0.0036° (8σ) on a TX90L
     whose β₂ was 1.35 times the angle tolerance (``tests/system/test_offsets_level_twist.py``)."""
     return ParameterTable(
-        PARAMETERS + BETA,
-        np.append(prior.values(), twists_deg(prior.model)[1]),
-        np.append(prior.stds(), prior.dh_stds()[1, 3]),
+        PARAMETERS + BETA + COMPLIANCE,
+        np.concatenate(
+            [prior.values(), [twists_deg(prior.model)[1]], prior.compliance_urad_per_nm]
+        ),
+        np.concatenate([prior.stds(), [prior.dh_stds()[1, 3]], prior.compliance_std_urad_per_nm]),
     )
+
+
+def hold_unloaded(table: ParameterTable, *arrays: MeasurementArrays) -> None:
+    """Hold at their priors the compliances the readings' torques (of every one of
+    ``arrays``) do not see (``ucal.model.load.unseen_compliance``): J1 about a vertical axis,
+    or every joint where nothing weighs."""
+    if COMPLIANCE[0] not in table.names:
+        return
+    idx = np.array([table.index(n) for n in COMPLIANCE])
+    torques = np.vstack([a.load_nm for a in arrays])
+    table.free[idx[unseen_compliance(torques, table.prior_stds[idx])]] = False
 
 
 def solve_cell(
@@ -179,10 +196,12 @@ def solve_cell(
     c0 = prior.sound_speed_m_s
     n_extra = 0 if extra is None else len(extra.labels)
     n_data = 3 * len(meas) + n_extra
-    has_prior = np.isfinite(table.prior_stds) & table.free
 
     t_ref = reference_time_min(meas)
-    arrays = MeasurementArrays.of(meas, t_ref)
+    load = prior.posture_load([m.joints_deg for m in meas])
+    arrays = MeasurementArrays.of(meas, t_ref, load)
+    hold_unloaded(table, arrays)
+    has_prior = np.isfinite(table.prior_stds) & table.free
 
     def rows(v: np.ndarray) -> np.ndarray:
         r_data = data_residuals(table, v, prior.model, arrays, c0).ravel()
@@ -243,6 +262,7 @@ def solve_cell(
         jac,
         n_data,
         t_ref,
+        None if load is None else load.load_posture_deg,
     )
 
 

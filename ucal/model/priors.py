@@ -5,13 +5,20 @@ as priors (``CellPrior``), and the table of named parameters with the mask of th
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
-from ucal.cell import CellProfile
+from ucal.cell import STANDARD_GRAVITY_M_S2, CellProfile
 from ucal.kinematics.dh import RobotModel
+from ucal.kinematics.gravity import BodyWeights
+from ucal.model.load import COMPLIANCE, PostureLoad, model_bodies
+
+#: Gravity in the robot's base frame (m/s²): a floor-mounted arm.
+GRAVITY_M_S2 = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])
 
 #: Broad prior on each offset (deg): keeps a direction the data cannot see finite, nothing more.
 OFFSET_PRIOR_STD_DEG = 10.0
@@ -75,6 +82,11 @@ PRIOR_MEANING = {
     "plate_h_mm": "the plate height tolerance ([reflector] points_std_mm)",
     "plate_t1_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
     "plate_t2_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
+    **{
+        n: "the joints' stiffness tolerance ([robot] stiffness_nm_per_rad, stiffness_std_pct: "
+        "how far the arm gives under its own weight and the tool's)"
+        for n in COMPLIANCE
+    },
     "tof_delay_ns": f"the unmeasured electronic delay (0 ± {DELAY_PRIOR_STD_NS:g} ns)",
     **{
         n: f"the prior of {n}'s offset ([calibration] std_deg; wide when not calibrated)"
@@ -118,6 +130,22 @@ class CellPrior:
     drift_prior_c_per_min: float = 0.0
     #: Lost motion each joint may have (deg, one sigma; (6,)).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
+    #: Each joint's compliance (µrad per N·m) and its one sigma (``ucal.model.load``); the
+    #: arm's and tool's weights (None: nothing weighs) and the posture whose load the offsets
+    #: hold (None: the run's first reading).
+    compliance_urad_per_nm: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    compliance_std_urad_per_nm: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    bodies: BodyWeights | None = None
+    load_posture_deg: np.ndarray | None = None
+
+    def posture_load(self, postures: Sequence[np.ndarray]) -> PostureLoad | None:
+        """The torques of a run whose readings start with ``postures`` relative to the load
+        posture's (``load_posture_deg``, else the first of ``postures``); None where nothing
+        weighs or no posture is given."""
+        if self.bodies is None or (self.load_posture_deg is None and not len(postures)):
+            return None
+        ref = postures[0] if self.load_posture_deg is None else self.load_posture_deg
+        return PostureLoad.of(self.model, self.bodies, self.offsets_deg, np.asarray(ref, float))
 
     @property
     def sound_speed_m_s(self) -> float:
@@ -220,7 +248,28 @@ def prior_from_profile(profile: CellProfile) -> CellPrior:
         logged_departure_std_c=float(p.thermometer_std_c) if p.tank_logged else None,
         drift_prior_c_per_min=float(p.logged_drift_c_per_min),
         backlash_std_deg=np.broadcast_to(p.backlash_std_deg, 6).astype(float),
+        **_compliance(p),
     )
+
+
+def _compliance(p: CellProfile) -> dict[str, Any]:
+    """``CellPrior``'s compliance fields of a profile (``ucal.model.load``)."""
+    k = np.asarray(p.stiffness_nm_per_rad, float)
+    c = np.divide(1e6, k, out=np.zeros(6), where=k > 0.0)
+    bodies = model_bodies(
+        p.model,
+        p.link_mass_kg,
+        p.link_centre_of_mass_mm,
+        p.tool_mass_kg,
+        p.tool_centre_of_mass_mm,
+        GRAVITY_M_S2,
+    )
+    return {
+        "compliance_urad_per_nm": c,
+        "compliance_std_urad_per_nm": c * p.stiffness_std_pct / 100.0,
+        "bodies": bodies,
+        "load_posture_deg": p.load_posture_deg,
+    }
 
 
 def offsets_prior_std_deg(profile: object) -> np.ndarray:

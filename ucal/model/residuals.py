@@ -1,7 +1,8 @@
 """The residual model of the calibration solvers: the face measurements' normalised residuals
 for a vector of named unknowns (``ucal.model.priors``), as ``ucal.model.fit``'s
-docstring writes them, with the sound speed drifting over the run and the lost motion of
-each joint against each reading's approach.
+docstring writes them, with the sound speed drifting over the run, the lost motion of
+each joint against each reading's approach and each joint giving under its gravity load
+(``ucal.model.load``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ucal.model.geometry import (
     beam_and_tcp,
     distance_joints,
 )
+from ucal.model.load import COMPLIANCE, URAD_DEG, PostureLoad
 from ucal.model.priors import (
     BACKLASH,
     BETA,
@@ -122,18 +124,27 @@ class MeasurementArrays:
     #: (2n, 6) how much of the lost motion each posture's link lags behind the positive
     #: approach: (1 − approach)/2, so 0 approaching from below and 1 from above.
     lag: np.ndarray
+    #: (2n, 6) each posture's gravity torque less the load posture's (N·m,
+    #: ``ucal.model.load``); zeros where nothing weighs.
+    load_nm: np.ndarray
 
     @classmethod
     def of(
-        cls, meas: list[FaceMeasurement], time_ref_min: float | None = None
+        cls,
+        meas: list[FaceMeasurement],
+        time_ref_min: float | None = None,
+        load: PostureLoad | None = None,
     ) -> MeasurementArrays:
+        """The arrays of ``meas``, their times from ``time_ref_min`` (default: their
+        ``reference_time_min``), their torques relative to ``load``'s posture (None: none)."""
         faces = np.array([m.face for m in meas], int)
         t_ref = reference_time_min(meas) if time_ref_min is None else time_ref_min
         lag = 0.5 * (1.0 - approach_signs(meas))
+        postures = np.array(
+            [m.joints_deg for m in meas] + [distance_joints(m) for m in meas], float
+        ).reshape(-1, 6)
         return cls(
-            np.array(
-                [m.joints_deg for m in meas] + [distance_joints(m) for m in meas], float
-            ).reshape(-1, 6),
+            postures,
             faces,
             np.array([[i for i in range(3) if i != f] for f in faces], int),
             np.radians([m.tilt_std_deg for m in meas]),
@@ -141,6 +152,7 @@ class MeasurementArrays:
             np.array([m.distance_std_mm for m in meas], float),
             np.array([0.0 if m.time_min is None else m.time_min - t_ref for m in meas], float),
             np.concatenate([lag, lag]).reshape(-1, 6),
+            np.zeros_like(postures) if load is None else load.relative_nm(postures),
         )
 
 
@@ -163,14 +175,21 @@ def data_residuals(
     meas: list[FaceMeasurement] | MeasurementArrays,
     c0_m_s: float,
     time_ref_min: float | None = None,
+    load: PostureLoad | None = None,
 ) -> np.ndarray:
     """Normalised measurement residuals (n, 3): two tilt rows, one distance row each.
 
     The joints enter at ``reading + offset + lag·backlash`` (the offsets are the positive
     approach's, ``MeasurementArrays.lag``) and each water path at the sound speed of its time,
     ``c + ċ·(t − t_ref)``, where the table has those unknowns; ``time_ref_min`` is ``t_ref``
-    (default: ``reference_time_min`` of ``meas``)."""
-    arr = meas if isinstance(meas, MeasurementArrays) else MeasurementArrays.of(meas, time_ref_min)
+    (default: ``reference_time_min`` of ``meas``); each joint gives by its compliance times
+    the posture's torque less the load posture's (``ucal.model.load``; ``load``, where
+    ``meas`` is a list: the torques' reference)."""
+    arr = (
+        meas
+        if isinstance(meas, MeasurementArrays)
+        else MeasurementArrays.of(meas, time_ref_min, load)
+    )
     n = len(arr.faces)
     geom = table_geometry(table, values, model)
     offsets = table.get(OFFSETS, values)
@@ -181,6 +200,8 @@ def data_residuals(
     postures = arr.postures
     if BACKLASH[0] in table.names:
         postures = postures + arr.lag * table.get(BACKLASH, values)
+    if COMPLIANCE[0] in table.names:
+        postures = postures + arr.load_nm * (URAD_DEG * table.get(COMPLIANCE, values))
     both, tcp_both = beam_and_tcp(geom, postures, offsets)  # one FK call
     beam, beam_d, tcp = both[:n], both[n:], tcp_both[n:]
     rot = geom.block_rotation

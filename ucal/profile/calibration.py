@@ -72,6 +72,8 @@ class WrittenCalibration:
     dh: Sequence[Mapping[str, float]] | None = None
     dh_std: Sequence[Mapping[str, float]] | None = None
     unidentified_tcp_mm: tuple[float, float] | None = None
+    #: The readings whose gravity load the offsets hold (``ucal.profile.arm_load``).
+    load_posture_deg: Sequence[float] | None = None
 
     def table(self) -> dict[str, Any]:
         """The table's keys and values, in the order a new profile shows them."""
@@ -115,6 +117,8 @@ class WrittenCalibration:
         if self.unidentified_tcp_mm is not None:
             mean, most = self.unidentified_tcp_mm
             keys["unidentified_tcp_mm"] = [round(mean, 4), round(most, 4)]
+        if self.load_posture_deg is not None:
+            keys["load_posture_deg"] = [round(float(v), 6) for v in self.load_posture_deg]
         return keys
 
 

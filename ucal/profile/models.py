@@ -55,6 +55,9 @@ class ModelSheet:
     base_height_mm: float
     link_mass_kg: np.ndarray
     link_centre_of_mass_mm: np.ndarray
+    #: Each joint's nominal torsional stiffness (N·m/rad, (6,)), the solvers' prior; None:
+    #: the table states none.
+    stiffness_nm_per_rad: np.ndarray | None = None
 
 
 def model_table_text(name: str) -> str:
@@ -99,6 +102,7 @@ def model_sheet(name: str) -> ModelSheet:
         float(data["base_height_mm"]),
         _six(data, "link_mass_kg", where),
         _centres(data, "link_centre_of_mass_mm", where),
+        None if "stiffness_nm_per_rad" not in data else _six(data, "stiffness_nm_per_rad", where),
     )
 
 

@@ -26,6 +26,7 @@ from ucal.cell import (
 )
 from ucal.errors import InputError
 from ucal.kinematics.dh import RobotModel
+from ucal.profile.arm_load import ROBOT_LOAD_KEYS, TOOL_LOAD_KEYS, read_arm_load
 from ucal.profile.by_hand import KEYS as BY_HAND_KEYS
 from ucal.profile.by_hand import by_hand_to_dict, read_by_hand
 from ucal.profile.calibration import read_calibration
@@ -61,9 +62,12 @@ KNOWN_KEYS: dict[str, frozenset[str] | None] = {
             "dh_length_std_mm",
             "dh_angle_std_deg",
             "backlash_std_deg",
+            *ROBOT_LOAD_KEYS,
         }
     ),
-    "tool": frozenset({"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg"})
+    "tool": frozenset(
+        {"position_mm", "rotation_deg", "position_std_mm", "rotation_std_deg", *TOOL_LOAD_KEYS}
+    )
     | DESCRIPTION_KEYS["tool"],
     "sample": frozenset(
         {"position_mm", "rotation_deg", "face_size_mm", "position_std_mm", "rotation_std_deg"}
@@ -153,6 +157,7 @@ def profile_from_data(
         )
 
     model = read_robot(r, r.table("robot", required=True), "robot")
+    robot_model = model  # the [robot] table's, whose shipped sheet gives the masses
 
     tool = r.table("tool", required=True)
     tool_pos = r.vector("tool.position_mm", r.get(tool, "tool.position_mm", True), 3, unit="mm")
@@ -228,6 +233,7 @@ def profile_from_data(
                 )
             dh_std = read_dh_std(r, "calibration.dh_std", v)
 
+    load = read_arm_load(r, r.table("robot", required=True), tool, cal, robot_model)
     procedure = read_procedure(r, r.table("procedure"), model)
     controller = read_controller(r, r.table("controller"))
     pulser = read_pulser(r, r.table("pulser"), base_dir)
@@ -258,6 +264,7 @@ def profile_from_data(
         described_tool=drawn,
         described_sample=placed,
         **tolerances,
+        **load,
     )
 
 

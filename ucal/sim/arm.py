@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from ucal.cell import ArmTruth
+from ucal.kinematics.gravity import BodyWeights, gravity_torques_nm
 
 #: Fixed-point passes on the deflected posture (module docstring).
 SAG_ITERATIONS = 2
@@ -51,16 +52,14 @@ class ArmLoad:
         self.bends = arm.bends
         k = np.asarray(arm.stiffness_nm_per_rad, float)
         self._compliance = np.divide(1.0, k, out=np.zeros(6), where=k > 0.0)
-        # each link's centre of mass in its own DH frame, from where it is at the zero pose
-        c0 = np.asarray(arm.link_centre_of_mass_mm, float)
-        self._local_mm = np.array(
-            [f[:3, :3].T @ (c - f[:3, 3]) for f, c in zip(zero_frames, c0, strict=True)]
+        self._bodies = BodyWeights.of(
+            zero_frames,
+            arm.link_mass_kg,
+            arm.link_centre_of_mass_mm,
+            arm.tool_mass_kg,
+            arm.tool_centre_of_mass_mm,
+            arm.gravity_m_s2,
         )
-        self._tool_mm = np.asarray(arm.tool_centre_of_mass_mm, float)
-        masses = np.append(np.asarray(arm.link_mass_kg, float), float(arm.tool_mass_kg))
-        self._weights_n = masses[:, None] * np.asarray(arm.gravity_m_s2, float)[None, :]
-        # the forces outboard of each joint: bodies i..6 (the tool last)
-        self._outboard_n = np.cumsum(self._weights_n[::-1], axis=0)[::-1][:6]
 
     def lengths_mm(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The links' d and a (mm, (6,) each) at ``t_s`` seconds of the cell's clock."""
@@ -71,17 +70,9 @@ class ArmLoad:
 
     def gravity_torque_nm(self, frames: np.ndarray) -> np.ndarray:
         """The gravity torque about each joint's axis (N·m, (6,)) of everything outboard of
-        it, at the posture whose DH frames T_1..T_6 are ``frames`` (6, 4, 4)."""
-        rot, org = frames[:, :3, :3], frames[:, :3, 3]
-        centres = np.einsum("jab,jb->ja", rot, self._local_mm) + org
-        centres_m = 1e-3 * np.vstack([centres, rot[5] @ self._tool_mm + org[5]])
-        moments = np.cross(centres_m, self._weights_n)  # about the base origin
-        outboard_nm = np.cumsum(moments[::-1], axis=0)[::-1][:6]
-        # joint i turns about z of frame i−1 (the base frame for joint 1) through its origin
-        axes = np.vstack([[0.0, 0.0, 1.0], rot[:5, :, 2]])
-        origins_m = 1e-3 * np.vstack([np.zeros(3), org[:5]])
-        about = outboard_nm - np.cross(origins_m, self._outboard_n)
-        return np.asarray(np.einsum("ia,ia->i", axes, about))
+        it, at the posture whose DH frames T_1..T_6 are ``frames`` (6, 4, 4)
+        (``ucal.kinematics.gravity``)."""
+        return gravity_torques_nm(self._bodies, frames)
 
     def sag_rad(self, frames: np.ndarray) -> np.ndarray:
         """Each joint's deflection τ_i/k_i (rad, (6,)) at ``frames`` (0 on a rigid joint)."""

@@ -239,6 +239,24 @@ class SimulatedCell:
                 frames = self._chain(th + load.sag_rad(frames), d_mm, a_mm)
         return frames[-1]
 
+    def sag_deg(
+        self,
+        joint_readings_deg: np.ndarray,
+        motion_sign: np.ndarray | None = None,
+        t_s: float = 0.0,
+    ) -> np.ndarray:
+        """How far each link stands from its reading + offset under gravity (deg, (6,)) at
+        ``t_s``: the sag ``true_flange`` bends the arm by (zeros on a rigid arm)."""
+        load = self._load
+        if load is None or not load.bends:
+            return np.zeros(6)
+        th = np.radians(self.joint_angles_deg(joint_readings_deg, motion_sign))
+        d_mm, a_mm = load.lengths_mm(t_s)
+        sag = np.zeros(6)
+        for _ in range(SAG_ITERATIONS):
+            sag = load.sag_rad(self._chain(th + sag, d_mm, a_mm))
+        return np.degrees(sag)
+
     def _chain(self, th: np.ndarray, d_mm: np.ndarray, a_mm: np.ndarray) -> np.ndarray:
         """The DH frames T_1..T_6 (6, 4, 4) in the base frame of DH angles ``th`` (rad) on
         links of lengths ``d_mm``, ``a_mm``."""

@@ -93,8 +93,13 @@ def test_a_gauge_costs_nothing_and_a_known_table_leaves_only_the_scale(cell):
     # d1 moves the whole arm along axis 1: held at nominal, the fit's block takes it up (all
     # but what the block's own prior resists), where row 5's d moves the flange unseen
     assert budget.by_quantity.get("dh1_d_mm", 0.0) < 0.1 * budget.by_quantity["dh5_d_mm"]
-    # the table identified on this robot (tolerances 0): the common scale is what is left
-    known = prior_from_profile(profile.replace(dh_length_std_mm=0.0, dh_angle_std_deg=0.0))
+    # the table identified on this robot (tolerances 0), a rigid arm as the simulated one is
+    # (no compliance to carry): the common scale is what is left
+    known = prior_from_profile(
+        profile.replace(
+            dh_length_std_mm=0.0, dh_angle_std_deg=0.0, stiffness_nm_per_rad=np.zeros(6)
+        )
+    )
     fit = solve_cell(known, meas)
     small = tcp_budget(fit, known.model, meas, known.sound_speed_m_s, pose)
     assert set(small.by_quantity) <= {"sound_speed_m_s"}

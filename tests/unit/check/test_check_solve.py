@@ -16,6 +16,7 @@ import pytest
 
 from ucal.acoustics import sound_speed_m_s
 from ucal.check import procedure as check_procedure
+from ucal.check.causes import causes
 from ucal.check.history import read_checks
 from ucal.check.judge import (
     CHANGED,
@@ -28,11 +29,11 @@ from ucal.check.judge import (
 from ucal.check.measure import CheckRun, EchoReading
 from ucal.check.plan import plan_check
 from ucal.check.procedure import CheckJob
+from ucal.check.profile_fit import compare_to_profile
 from ucal.check.result import named_changes, unexplained_text
 from ucal.check.solve import (
     ChangeFit,
     compare_geometry,
-    compare_to_profile,
     suspects,
 )
 from ucal.kinematics.dh import transform
@@ -357,3 +358,89 @@ def test_the_transducer_is_judged_by_3_sigma_and_its_tolerance(
     assert q["amplitude_db"].verdict == amplitude
     assert q["centre_frequency_mhz"].verdict == centre
     assert q["tof_ns"].verdict == OK
+
+
+def grown_table(profile, growth_ppm: float, dh_error=DH_ERROR) -> np.ndarray:
+    """``dh_error`` with every link's d and a of the profile's table grown by ``growth_ppm``:
+    the arm warmed, as the simulator grows it."""
+    dh = profile.model.dh
+    g = 1e-6 * growth_ppm
+    return (
+        dh_error
+        + np.c_[(dh[:, 1] + dh_error[:, 0]) * g, (dh[:, 2] + dh_error[:, 1]) * g, np.zeros(6)]
+    )
+
+
+def test_an_arm_grown_by_115_ppm_is_named_by_its_growth_not_a_joint(cell) -> None:
+    """The arm 5 K warmer (aluminium: 115 ppm on every d and a) on a DH table off within its
+    tolerance: the check names the arm's growth, within 3σ of 115 ppm and its σ far below
+    the 50 ppm tolerance, and the temperature rise it means; no joint, nor the block."""
+    profile = cell[0]
+    prior = prior_from_profile(profile)
+    reference = measure(cell, 1, dh_error=DH_ERROR)
+    check = measure(cell, 2, dh_error=grown_table(profile, 115.0))
+    result = compare_geometry(prior, reference, check)
+    assert result.chosen == ["arm"] and not result.unexplained
+    assert result.alike["arm"] == ()
+    q = {q.name: q for q in geometry_quantities(result, prior)}
+    growth = q["arm_growth_ppm"]
+    assert growth.verdict == OUT and growth.unit == "ppm" and growth.tolerance == 50.0
+    assert abs(growth.difference - 115.0) < 3 * growth.std and growth.std < 5.0
+    rise = q["arm_temperature_rise_k"]
+    assert rise.verdict == OUT and abs(rise.difference - 5.0) < 3 * rise.std
+    assert [n for n, v in q.items() if v.verdict == OUT] == [
+        "arm_growth_ppm",
+        "arm_temperature_rise_k",
+    ]
+    (cause,) = causes(result)
+    assert (cause.part, cause.what, cause.unit) == ("arm", "growth", "ppm")
+    named, moved = named_changes(result, [], prior)
+    assert moved == ["arm"]
+    said = re.search(r"the arm grew \(warm-up\) by \+(\d+) ppm .* as an arm \+(\d\.\d) K", named[0])
+    assert said and abs(int(said.group(1)) - 115) <= 3 and said.group(2) == "5.0", named
+
+
+def test_the_arms_growth_and_the_block_and_the_water_are_told_apart(cell) -> None:
+    """The block bumped 0.5 mm sideways, then the tank 1 °C warmer: each is named by itself,
+    the arm's growth not chosen and within 3σ of none (the block moves every path to a face
+    alike, the growth in proportion to each flange's reach; the water scales the paths)."""
+    prior = prior_from_profile(cell[0])
+    reference = measure(cell, 1)
+    for change, named in (
+        ({"block_mm": (1.5 + 0.3, -1.0 + 0.4, 0.8)}, ["block"]),
+        ({"temperature_c": 21.0}, ["water"]),
+    ):
+        result = compare_geometry(prior, reference, measure(cell, 2, **change))
+        assert result.chosen == named, change
+        growth = next(c for c in result.changes if c.parameter == "arm_growth_ppm")
+        assert not growth.chosen and abs(growth.change) < 3 * growth.std, growth
+
+
+def test_the_arms_growth_is_within_its_sigma_on_unchanged_cells(
+    cell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Six unchanged cells (another noise draw each) and six grown by 20 ppm (within the
+    tolerance): the growth's error is within 3σ on every one and none is out of tolerance;
+    with each run's drift curvature held (its consider term, which these still tanks do not
+    use, the largest part of the σ), the σ is no more than the stated readings' stds allow
+    (their noise is 0.4–0.6 of them: the errors' rms over σ above 0.25)."""
+    profile = cell[0]
+    prior = prior_from_profile(profile)
+
+    def z_scores() -> np.ndarray:
+        z = []
+        for seed in range(6):
+            for ppm in (0.0, 20.0):
+                reference = measure(cell, 100 + seed, dh_error=DH_ERROR)
+                check = measure(cell, 200 + seed, dh_error=grown_table(profile, ppm))
+                result = compare_geometry(prior, reference, check)
+                growth = next(c for c in result.changes if c.parameter == "arm_growth_ppm")
+                assert not growth.out_of_tolerance
+                z.append((growth.change - ppm) / growth.std)
+        return np.abs(z)
+
+    z = z_scores()
+    assert np.all(z < 3.0), z
+    monkeypatch.setattr(least_squares, "curvature_std_m_s_per_min2", lambda *_: 0.0)
+    z = z_scores()
+    assert np.all(z < 3.0) and np.sqrt(np.mean(z**2)) > 0.25, z

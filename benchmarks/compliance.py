@@ -1,0 +1,159 @@
+"""The offsets level on random arms that bend under their own weight and the tool's.
+
+Each world is ``realistic.py``'s (block, tool, water, DH table, lost motion, drift within the
+declared tolerances) with an arm that gives: J2 and J3 of stiffness log-uniform in 1e5…1e6
+N·m/rad (the range published for arms of this class), J1 and J4–J6 in proportion to the
+model table's nominal stiffness, the links' masses ±10 % and their centres of mass ±5 mm off
+the model table's, a tool of 0.3–2 kg whose centre lies 20–80 mm out on its axis; the profile
+states the tool's mass within ±5 % and its centre within 5 mm, as a user who weighed it would.
+Every world is measured once over loopback and solved twice on the same measurements: by the
+solvers as they are (each joint's compliance an unknown with the model table's prior,
+``ucal.model.load``) and as a rigid arm (the compliance held at 0). Each is judged against
+the offsets the written ones stand for: the world's offsets less half its lost motion plus
+each link's sag at the load posture (``calibrate --json``'s ``load_posture_deg``); the rigid
+solver against the same. Printed per solver: coverage (|error| ≤ 3σ), the largest |z|, runs
+written and written with a joint beyond 4σ, and per joint the median |error| and std.
+
+Usage: ``python benchmarks/compliance.py --worlds 12 [--fixture] [--jobs 2] [--cache DIR]``;
+``--quick``: one world.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import pickle
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from _quick import parse_args
+from realistic import draw_world, effective_offsets_deg, make_profile, measure_world
+
+from ucal.calibration.procedure import judge
+from ucal.calibration.solve import solve
+from ucal.cell import CellProfile
+from ucal.profile import load_profile, write_profile
+from ucal.profile.models import model_sheet
+from ucal.sim.cell import SimulatedCell
+from ucal.world import load_world
+
+QUICK = {"worlds": 1, "jobs": 1}
+
+
+def draw_arm(rng: np.random.Generator, model: str) -> tuple[str, float, list[float]]:
+    """The world's ``[robot]`` and ``[tool]`` arm keys (text), the tool's mass and centre."""
+    sheet = model_sheet(model)
+    nominal = np.asarray(sheet.stiffness_nm_per_rad, float)
+    k23 = 10.0 ** rng.uniform(5.0, 6.0, 2)
+    scale = float(np.mean(k23 / nominal[1:3]))
+    k = nominal * scale
+    k[1:3] = k23
+    masses = sheet.link_mass_kg * rng.uniform(0.9, 1.1, 6)
+    centres = sheet.link_centre_of_mass_mm + rng.uniform(-5.0, 5.0, (6, 3))
+    tool_kg = float(rng.uniform(0.3, 2.0))
+    tool_mm = [0.0, 0.0, float(rng.uniform(20.0, 80.0))]
+    rows = ", ".join(str(list(map(float, c))) for c in centres)
+    robot = (
+        f"stiffness_nm_per_rad = {k.tolist()!r}\n"
+        f"link_mass_kg = {masses.tolist()!r}\n"
+        f"link_centre_of_mass_mm = [{rows}]\n"
+    )
+    tool = f"mass_kg = {tool_kg!r}\ncentre_of_mass_mm = {tool_mm!r}\n"
+    return robot + "\x00" + tool, tool_kg, tool_mm
+
+
+def bent_world(rng: np.random.Generator, profile: CellProfile, index: int) -> tuple[str, dict]:
+    """A ``realistic.py`` world with a bending arm, and the tool the profile states."""
+    text = draw_world(rng, profile, index)
+    arm, tool_kg, tool_mm = draw_arm(rng, profile.model.name)
+    robot, tool = arm.split("\x00")
+    text = text.replace("[robot]\n", "[robot]\n" + robot, 1)
+    text = text.replace("[tool]\n", "[tool]\n" + tool, 1)
+    stated = {
+        "mass_kg": tool_kg * float(rng.uniform(0.95, 1.05)),
+        "centre_of_mass_mm": (np.asarray(tool_mm) + rng.uniform(-5.0, 5.0, 3)).tolist(),
+    }
+    return text, stated
+
+
+def judged(profile: CellProfile, run, truth, rigid: bool) -> tuple[np.ndarray, bool, float]:
+    """|z| of the reported joints, whether written, the worst |error| (deg)."""
+    if rigid:
+        profile = replace(profile, stiffness_nm_per_rad=np.zeros(6))
+    sol, _ = solve(profile, run)
+    cell = sol.cell_fit
+    assert cell is not None
+    want = effective_offsets_deg(truth)
+    posture = cell.load_posture_deg
+    if posture is None:  # the rigid profile's fit has no load posture: the compliant one's
+        posture = run.measurements[0].joints_deg
+    want = want + SimulatedCell(truth).sag_deg(posture, np.ones(6))
+    ok = np.isfinite(sol.std_deg)
+    err = sol.offsets_deg - want
+    z = np.abs(err[ok]) / sol.std_deg[ok]
+    joints = ok & (np.arange(6) > 0)  # J1: absolute, as placed by hand
+    return z, judge(sol, cell.quality).ok, float(np.max(np.abs(err[joints]), initial=0.0))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--worlds", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=36)
+    ap.add_argument("--fixture", action="store_true")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--quick", action="store_true", help="one world")
+    args = parse_args(ap, QUICK)
+    work = args.cache or Path(tempfile.mkdtemp(prefix="ucal-compliance-"))
+    work.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(args.seed)
+    tag = "fixture" if args.fixture else "hand"
+    profiles, worlds = [], []
+    for i in range(args.worlds):
+        d = work / f"{tag}-{i:03d}"
+        d.mkdir(exist_ok=True)
+        path = make_profile(d, args.fixture)
+        text, stated = bent_world(rng, load_profile(path), i)
+        write_profile(path, {"tool": stated}, "the tool as weighed")
+        w = d / "world.toml"
+        if not w.exists():
+            w.write_text(text)
+        profiles.append(path)
+        worlds.append(w)
+    caches = [w.with_suffix(".pkl") for w in worlds]
+    t0 = time.monotonic()
+    with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+        list(pool.map(measure_world, profiles, worlds, caches))
+    print(f"measured {len(worlds)} worlds in {time.monotonic() - t0:.0f} s ({work})")
+    rows: dict[str, list[tuple[np.ndarray, bool, float]]] = {"compliant": [], "rigid": []}
+    for p, w, c in zip(profiles, worlds, caches, strict=True):
+        data = pickle.loads(c.read_bytes())
+        if data["run"] is None:
+            print(f"  {w}: {data['error']}")
+            continue
+        profile = load_profile(p)
+        truth = load_world(w, profile)
+        for name in rows:
+            rows[name].append(judged(profile, data["run"], truth, rigid=name == "rigid"))
+    print(
+        "| solver | coverage (|err| ≤ 3σ) | max |z| | written | written beyond 4σ "
+        "| worst |err| J2-J6, deg |"
+    )
+    print("| --- | --- | --- | --- | --- | --- |")
+    for name, outs in rows.items():
+        if not outs:
+            continue
+        z = np.concatenate([o[0] for o in outs])
+        written = [o for o in outs if o[1]]
+        beyond = sum(1 for o in written if np.any(o[0] > 4.0))
+        print(
+            f"| {name} | {np.mean(z <= 3.0) * 100:.1f} % of {len(z)} | {np.max(z):.1f} "
+            f"| {len(written)} / {len(outs)} | {beyond} | {max(o[2] for o in outs):.4f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,120 @@
+"""The profile's arm under its load: what gravity puts on each joint and how far it gives.
+
+Keys (SPEC.md's additions; none given: the shipped model table's masses and stiffnesses, a
+weightless tool):
+
+* ``[robot] stiffness_nm_per_rad = [6]`` — each joint's nominal torsional stiffness (0: rigid,
+  else 1e4…1e10 N·m/rad); default: the model table's. ``[robot] stiffness_std_pct`` — one
+  sigma of each joint's compliance (1/k) in per cent of the nominal one (0…200, default
+  ``STIFFNESS_STD_PCT``): the solvers carry each joint's compliance as an unknown with this
+  prior (``ucal.model.load``);
+* ``[robot] link_mass_kg = [6]``, ``link_centre_of_mass_mm = [[x, y, z] × 6]`` — each link's
+  mass and its centre of mass at the zero pose (base frame), for a model ucal does not ship
+  (default: the model table's; none for a model without one: nothing weighs);
+* ``[tool] mass_kg`` (0…50 kg, default 0) and ``centre_of_mass_mm`` (flange frame, default the
+  flange's centre): what the transducer and its holder weigh and where;
+* ``[calibration] load_posture_deg = [6]`` (written by ``calibrate``) — the joint readings at
+  whose gravity load the written offsets hold: the link of joint i stands at ``reading +
+  offset + c_i·(τ_i(q) − τ_i(load posture))``, so a posture loaded as the calibration's was
+  needs no correction and every other one is corrected by its own torque's difference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ucal.kinematics.dh import RobotModel
+from ucal.profile.models import KNOWN_MODELS, model_sheet
+from ucal.profile.validation import Reader
+
+#: One sigma of a joint's compliance when the profile states none (per cent of the nominal):
+#: the stiffness published for arms of this class spans 1e5…1e6 N·m/rad on the shoulder and
+#: elbow (no TX90 figure is public), i.e. a compliance log-uniform over a decade, whose
+#: one sigma is 64 % of its mean.
+STIFFNESS_STD_PCT = 64.0
+MAX_STIFFNESS_STD_PCT = 200.0
+MIN_STIFFNESS_NM_PER_RAD = 1e4
+MAX_STIFFNESS_NM_PER_RAD = 1e10
+MAX_TOOL_MASS_KG = 50.0
+MAX_LINK_MASS_KG = 500.0
+#: The keys of the arm's load a profile's ``[robot]`` and ``[tool]`` may hold.
+ROBOT_LOAD_KEYS = frozenset(
+    {"stiffness_nm_per_rad", "stiffness_std_pct", "link_mass_kg", "link_centre_of_mass_mm"}
+)
+TOOL_LOAD_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
+
+
+def read_arm_load(
+    r: Reader,
+    robot: Mapping[str, Any] | None,
+    tool: Mapping[str, Any] | None,
+    cal: Mapping[str, Any] | None,
+    model: RobotModel,
+) -> dict[str, Any]:
+    """``CellProfile``'s fields of the arm's load (module docstring), every key checked."""
+    sheet = model_sheet(model.name) if model.name in KNOWN_MODELS else None
+    out: dict[str, Any] = {}
+    v = r.get(robot, "robot.stiffness_nm_per_rad")
+    if v is not None:
+        out["stiffness_nm_per_rad"] = read_stiffness(r, "robot.stiffness_nm_per_rad", v)
+    elif sheet is not None and sheet.stiffness_nm_per_rad is not None:
+        out["stiffness_nm_per_rad"] = sheet.stiffness_nm_per_rad
+    v = r.get(robot, "robot.stiffness_std_pct")
+    if v is not None:
+        out["stiffness_std_pct"] = r.number(
+            "robot.stiffness_std_pct", v, lo=0.0, hi=MAX_STIFFNESS_STD_PCT, unit="%"
+        )
+    v = r.get(robot, "robot.link_mass_kg")
+    if v is not None:
+        out["link_mass_kg"] = r.vector(
+            "robot.link_mass_kg", v, 6, lo=0.0, hi=MAX_LINK_MASS_KG, unit="kg"
+        )
+    elif sheet is not None:
+        out["link_mass_kg"] = sheet.link_mass_kg
+    v = r.get(robot, "robot.link_centre_of_mass_mm")
+    if v is not None:
+        out["link_centre_of_mass_mm"] = read_centres(r, "robot.link_centre_of_mass_mm", v)
+    elif sheet is not None:
+        out["link_centre_of_mass_mm"] = sheet.link_centre_of_mass_mm
+    if ("link_mass_kg" in out) != ("link_centre_of_mass_mm" in out):
+        missing = "link_centre_of_mass_mm" if "link_mass_kg" in out else "link_mass_kg"
+        raise r.error(
+            f"robot.{missing}",
+            f"needed with the other: {model.name!r} is not a shipped model, so no table gives "
+            "its links' masses and centres",
+        )
+    v = r.get(tool, "tool.mass_kg")
+    if v is not None:
+        out["tool_mass_kg"] = r.number("tool.mass_kg", v, lo=0.0, hi=MAX_TOOL_MASS_KG, unit="kg")
+    v = r.get(tool, "tool.centre_of_mass_mm")
+    if v is not None:
+        out["tool_centre_of_mass_mm"] = r.vector("tool.centre_of_mass_mm", v, 3, unit="mm")
+    v = None if cal is None else r.get(cal, "calibration.load_posture_deg")
+    if v is not None:
+        out["load_posture_deg"] = r.vector(
+            "calibration.load_posture_deg", v, 6, lo=-720.0, hi=720.0, unit="deg"
+        )
+    return out
+
+
+def read_centres(r: Reader, key: str, value: Any) -> np.ndarray:
+    """Six centres of mass (mm, (6, 3)), ``[x, y, z]`` each."""
+    return np.array(
+        [r.vector(f"{key}[{i}]", row, 3, unit="mm") for i, row in enumerate(r.array(key, value, 6))]
+    )
+
+
+def read_stiffness(r: Reader, key: str, value: Any) -> np.ndarray:
+    """Six stiffnesses: 0 (rigid) or within 1e4…1e10 N·m/rad."""
+    k = r.vector(key, value, 6, lo=0.0, hi=MAX_STIFFNESS_NM_PER_RAD, unit="N m/rad")
+    for i, x in enumerate(k):
+        if 0.0 < x < MIN_STIFFNESS_NM_PER_RAD:
+            raise r.error(
+                f"{key}[{i}]",
+                f"must be 0 (rigid) or >= {MIN_STIFFNESS_NM_PER_RAD:g} N m/rad, got {x:g}: "
+                "a softer joint sags by more than the small deflections ucal models",
+            )
+    return k
