@@ -10,6 +10,7 @@ directory of the root ``conftest.py`` on ``sys.path``).
 * :class:`ScriptedVisaResource` — the same for a PyVISA message-based resource;
 * :class:`QuietPulser` — a pulser-receiver that accepts every setting; subclasses say what a
   gate reads;
+* :class:`FakeController` — a robot controller whose arm is at once where it was sent, at rest;
 * :func:`noisy_world` — a world file's text: the demo's offsets and noise, and ``[pulser]`` keys;
 * :func:`finished_json` — a ``ucal ... --json`` process waited for: exit 0, its JSON object;
 * :func:`std_of` — a result's ``std_deg`` with NaN where a joint was not determined;
@@ -38,6 +39,7 @@ from typing import Any, TextIO
 import numpy as np
 import pytest
 
+from drivers.controller.base import ControllerStatus, JointSample, RobotController
 from drivers.pulser.base import GateReading, PulserReceiver, PulserSettings
 from ucal.acoustics import sound_speed_m_s
 from ucal.cli import main
@@ -277,6 +279,46 @@ class QuietPulser(PulserReceiver):
 
     def read_gate(self, fresh: bool = True, timeout_s: float = 1.0) -> GateReading:
         raise NotImplementedError
+
+
+class FakeController(RobotController):
+    """Moves at once; always at rest, powered, no error. ``q`` is where the arm is (deg),
+    ``moves`` how many targets it was sent."""
+
+    def __init__(self, q: np.ndarray | None = None) -> None:
+        self.q = np.zeros(6) if q is None else np.asarray(q, float).copy()
+        self.moves = 0
+
+    @property
+    def endpoint(self) -> str:
+        return "fake-controller://bench"
+
+    def connect(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
+        return self.q.copy()
+
+    def status(self, timeout_s: float = 2.0) -> ControllerStatus:
+        return ControllerStatus(True, False, False, False)
+
+    def start_move(self, target_deg: np.ndarray, speed: float = 0.5) -> None:
+        self.moves += 1
+        self.q = np.asarray(target_deg, float).copy()
+
+    def wait_settled(
+        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
+    ) -> np.ndarray:
+        return self.q.copy()
+
+    def stop(self) -> None:
+        pass
+
+    def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
+        return []
 
 
 def measured_cell(profile, plan, model, offsets, block_rpy, corner, water_c, seed, sigma):

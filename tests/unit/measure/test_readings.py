@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drivers.controller.base import ControllerStatus, JointSample, RobotController
+from drivers.controller.base import JointSample
 from drivers.pulser.base import GateReading
 from ucal.acoustics import piston_directivity
 from ucal.devices.rig import READ_TRAVEL_STEPS, ZERO_FLOOR_FSH, Rig
@@ -23,48 +23,9 @@ from ucal.measure.running import BLOCK_TRUST, PLATE_TRUST
 from ucal.measure.search import PeakSearch, read_distance
 from ucal.profile.models import joint_speeds_deg_s
 
-from doubles import QuietPulser
+from doubles import FakeController, QuietPulser
 
 ENDPOINT = "fake-pulser://bench"
-
-
-class FakeController(RobotController):
-    """Moves at once; always at rest, powered, no error."""
-
-    def __init__(self) -> None:
-        self.q = np.zeros(6)
-        self.moves = 0
-
-    @property
-    def endpoint(self) -> str:
-        return "fake-controller://bench"
-
-    def connect(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def read_joints(self, timeout_s: float = 2.0) -> np.ndarray:
-        return self.q.copy()
-
-    def status(self, timeout_s: float = 2.0) -> ControllerStatus:
-        return ControllerStatus(True, False, False, False)
-
-    def start_move(self, target_deg: np.ndarray, speed: float = 0.5) -> None:
-        self.moves += 1
-        self.q = np.asarray(target_deg, float).copy()
-
-    def wait_settled(
-        self, target_deg: np.ndarray, timeout_s: float, tol_deg: float = 1e-3
-    ) -> np.ndarray:
-        return self.q.copy()
-
-    def stop(self) -> None:
-        pass
-
-    def joint_samples(self, since_t_s: float = 0.0) -> list[JointSample]:
-        return []
 
 
 class FakePulser(QuietPulser):

@@ -22,6 +22,8 @@ from ucal.toolframe.measure import PlateRig
 from ucal.toolframe.plan import EdgePlan, ToolFramePlan, reference_joints
 from ucal.toolframe.plane import fit_plane
 
+from doubles import FakeController
+
 #: The cell's truth: joint offsets never calibrated (the profile says 0) and the tool off its
 #: drawing (a 20° holder), as ``benchmarks/drift.py``'s seed 8, world 5.
 TRUE_OFFSETS = np.array([-1.76, -1.77, -1.33, 0.77, -0.59, 1.24])
@@ -55,24 +57,28 @@ class PlateCell:
         self.height = float(self.normal @ plan.centre_mm)
         self.direction = direction
         self.edge = float(direction @ plan.centre_mm) + EDGE_MM
-        self.q = np.asarray(q, float)
         self.approach = np.ones(6)
         self.joint_min_deg = np.full(6, -270.0)
         self.joint_max_deg = np.full(6, 270.0)
         self.speed, self.move_timeout_s = 0.3, 10.0
-        self.controller = self
+        self.controller = FakeController(q)
         self.pulser = SimpleNamespace(endpoint="modbus-tcp://127.0.0.1:1502")
         self.tilts: list[float] = []
 
+    @property
+    def q(self) -> np.ndarray:
+        """Where the arm is (deg): the controller's joints."""
+        return self.controller.q
+
+    @q.setter
+    def q(self, q: np.ndarray) -> None:
+        self.controller.q = np.asarray(q, float).copy()
+
     def read_joints(self) -> np.ndarray:
-        return self.q.copy()
+        return self.controller.read_joints()
 
     def move(self, q: np.ndarray, speed: float | None = None) -> np.ndarray:
-        self.q = np.asarray(q, float).copy()
-        return self.q.copy()
-
-    def move_joints(self, q: np.ndarray, speed: float, timeout: float) -> None:
-        self.move(q)
+        return self.controller.move_joints(q, speed or self.speed, self.move_timeout_s)
 
     def moved_to(self, target: np.ndarray, start: np.ndarray | None = None) -> None:
         pass
