@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import f as f_distribution
 
 from drivers.digitizer.visa import ScpiScope
 from ucal.profile import default_profile_text
@@ -114,10 +115,16 @@ def test_ascan_timing_calibrates_covered_and_no_less_precise_than_the_gate(
     assert np.all(error <= 3 * ascan_std[reported]), (error, ascan_std)
     # the echo timed from the A-scan is no worse than the device's peak-mode gate: J2-J5's stds
     # (which carry the tank's drift and the declared tolerances as much as the timing, and
-    # differ by the runs' own draws: within 15 %) and the fit's own misfit
+    # differ by the runs' own draws: within 15 %) and the fit's own misfit. That misfit is the
+    # wrist's tilts' (the water paths' part is nanometres: below), which the timing does not
+    # enter, from amplitude noise each run draws apart: the ratio of the two chi2 is F(dof,
+    # dof)-distributed (0.55-1.37 over four seeds at 39), held within its 99 % quantile
     j2_j5 = slice(1, 5)
     assert np.all(ascan_std[j2_j5] <= 1.15 * gate_std[j2_j5]), (ascan_std, gate_std)
-    assert ascan["fit"]["chi2_reduced"] <= 1.15 * gate()["fit"]["chi2_reduced"]
+    dof = ascan["fit"]["dof"]
+    assert dof == gate()["fit"]["dof"]
+    chi2_ratio = ascan["fit"]["chi2_reduced"] / gate()["fit"]["chi2_reduced"]
+    assert chi2_ratio <= f_distribution.ppf(0.99, dof, dof), chi2_ratio
     # the water paths themselves are reproduced far inside their timing noise by both (their
     # rms, nanometres, is the fit's arithmetic: a ratio of two such is no figure of the timing)
     path_noise_mm = 0.5 * DEMO_NOISE.tof_ns * 1e-9 * 1482.0e3
