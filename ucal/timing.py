@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.controller.motion import DEFAULT_MAX_ACCEL_DEG_S2, trajectory_s
+from drivers.controller.server_variants import SERVERS
 from drivers.pulser.modbus_words import rtu_read_line_s
 from drivers.pulser.registers import MEASUREMENT_COUNT
 
@@ -41,6 +42,12 @@ RTU_TURNAROUND_S = 0.001
 #: How far short of a static posture its approach's pre-point lies on each joint (deg), more
 #: than any joint's lost motion (``ucal.measure.approach``).
 APPROACH_DEG = 0.05
+#: What a stop costs beyond the motion model's settling (s): the client calls a move done on
+#: the first state frame after it settled, half the VAL3 server's period (20 ms) late on
+#: average, and that frame arrives its latency (``CellTiming.state_latency_s``, 2 ms) later.
+#: The searches' measured costs (``FACE_SEARCH`` …) hold it; a plan that counts its stops one
+#: by one adds it to each.
+SETTLED_FRAME_S = 0.5 / SERVERS["val3"].state_rate_hz + 0.002
 
 
 def transport_s(framing: str, baud: int = 19200, registers: int = MEASUREMENT_COUNT) -> float:

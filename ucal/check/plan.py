@@ -30,14 +30,26 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from ucal.cell import CellProfile
 from ucal.check.edges import SCAN, EdgeLine, EdgeReading, plan_edges
 from ucal.check.history import CheckEntry
+from ucal.kinematics.ik import ik
 from ucal.model.geometry import FACE_NAMES, Configuration
 from ucal.model.targets import CalibrationPlan, PlannedTarget, plan_calibration
 from ucal.procedure import WRIST_SEARCH, plan_line
-from ucal.profile.models import joint_speeds_deg_s
-from ucal.timing import DurationEstimate, SearchCost, estimate_run, transport_s
+from ucal.profile.models import joint_accelerations_deg_s2, joint_speeds_deg_s
+from ucal.timing import (
+    APPROACH_DEG,
+    SETTLED_FRAME_S,
+    DurationEstimate,
+    SearchCost,
+    estimate_run,
+    move_s,
+    read_s,
+    transport_s,
+)
 
 #: The configurations a check measures: the calibration pose and the second joint-1 azimuth;
 #: without room for the azimuth, joint 2 stepped.
@@ -143,36 +155,64 @@ def estimate_check(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
 
 
 #: An edge scan beyond the move to its line: the level read twice at its start, the coarse
-#: steps from there to the edge (and one beyond), the fine probes; each probe a move (with its
-#: approach from below: ``EDGE_PROBE_S`` of motion and settling at speed 0.3, as the simulated
-#: cell charges it) and one reading of ``SCAN.averages``.
-EDGE_PROBE_S = 0.15
+#: steps from there to the edge (and one beyond), then back to the fine probes across the fall;
+#: each probe one reading of ``SCAN.averages`` and a move reached from below on every joint,
+#: the motion model's (``ucal.timing.move_s``) over the joints' step along the line, and the
+#: state frame that reports it done (``SETTLED_FRAME_S``).
 
 
 def edge_probes(line: EdgeLine) -> int:
     """The probes of one edge scan (above)."""
-    coarse = math.ceil((line.edge_mm - line.start_mm) / SCAN.coarse_step_mm) + 1
-    return 2 + coarse + SCAN.fine_probes
+    return 2 + _coarse_steps(line) + SCAN.fine_probes
+
+
+def _coarse_steps(line: EdgeLine) -> int:
+    return math.ceil((line.edge_mm - line.start_mm) / SCAN.coarse_step_mm) + 1
+
+
+def edge_motion_s(line: EdgeLine, profile: CellProfile, accel_deg_s2: np.ndarray) -> float:
+    """The motion of one edge scan's probes after its first (s): each probe's step along the
+    line (mm) times the joints' rate along it at its start (deg/mm, the profile's kinematics)
+    is a move with its approach from below. The level's second reading steps 0 (the arm still
+    goes through its pre-point), each coarse step ``SCAN.coarse_step_mm``, the fine scan's
+    first probe back from the coarse fall by its half width and half a coarse step, each
+    later one the fine spacing; each stop reported by a state frame (``SETTLED_FRAME_S``)."""
+    model, tool = profile.model, profile.tool_matrix
+    offsets = np.asarray(profile.joint_offsets_deg, float)
+    q0 = ik(model, line.at(line.start_mm), tool, offsets, near_deg=line.start_deg)
+    rate = ik(model, line.at(line.start_mm + 1.0), tool, offsets, near_deg=q0) - q0
+    speed, joints = profile.procedure.speed, joint_speeds_deg_s(model)
+
+    def step_s(mm: float) -> float:
+        move = move_s(q0, q0 + mm * rate, speed, joints, accel_deg_s2, APPROACH_DEG)
+        return move + SETTLED_FRAME_S
+
+    fine_mm = 2.0 * SCAN.fine_half_mm / (SCAN.fine_probes - 1)
+    back_mm = SCAN.fine_half_mm + 0.5 * SCAN.coarse_step_mm
+    return (
+        step_s(0.0)
+        + _coarse_steps(line) * step_s(SCAN.coarse_step_mm)
+        + step_s(-back_mm)
+        + (SCAN.fine_probes - 1) * step_s(fine_mm)
+    )
 
 
 def estimate_edges(plan: CheckPlan, profile: CellProfile) -> DurationEstimate:
-    """The edge scans' duration: the move from the last echo posture to each line's start,
-    ``edge_probes`` probes a line (their moves at the joints' speed over the probes' spacing,
-    settling included)."""
+    """The edge scans' duration: the move from the check's first posture to each line's
+    start, then ``edge_probes`` probes a line, their moves ``edge_motion_s``, one reading of
+    ``SCAN.averages`` each."""
     speed = profile.procedure.speed
     joints = joint_speeds_deg_s(profile.model)
+    accel = joint_accelerations_deg_s2(profile.model)
+    per_read = {f: read_s(f, SCAN.averages) for f in ("tcp", "rtu")}
     total = DurationEstimate(0, 0, 0.0, 0.0, 0.0)
     here = plan.targets[0].joints_deg
     for line in plan.edges:
         n = edge_probes(line)
-        total = total + estimate_run(
-            [line.start_deg],
-            here,
-            speed,
-            speeds_deg_s=joints,
-            averages=SCAN.averages,
-            search=SearchCost(moves=n, reads=n, motion_s=n * EDGE_PROBE_S),
-            first=SearchCost(0, 0, 0.0),
+        motion = move_s(here, line.start_deg, speed, joints, accel, APPROACH_DEG) + SETTLED_FRAME_S
+        motion += edge_motion_s(line, profile, accel)
+        total = total + DurationEstimate(
+            n, n, motion, motion + n * per_read["tcp"], motion + n * per_read["rtu"]
         )
         here = line.start_deg
     return total
