@@ -54,6 +54,13 @@ try:
 except ImportError:  # not POSIX: every worker makes its own
     fcntl = None  # type: ignore[assignment]
 
+#: How much larger one run's J2-J5 stds may be than another's on the same world by their draws
+#: alone: a joint's std follows its faces' tilt stds, each fitted from its own probe grid's few
+#: residuals (0.1-1.8 mdeg from face to face and draw to draw), so two runs that time their
+#: echoes apart, and so draw their noise apart, differ by tens of percent: A-scan over gate
+#: timing, shaped echoes, seeds 1-6, 0.54-1.41 on J2-J5 (within 15 % on four seeds of six).
+DRAW_STD_RATIO = 1.5
+
 #: What :func:`calibrated_profile` writes (as ``calibrate`` and ``tool-frame`` write them).
 WRITTEN_OFFSETS_DEG = [0.0, -1.201831, 1.499818, -1.999015, 1.09977, 0.0]
 WRITTEN_STD_DEG = [-1.0, 0.006032, 0.004167, 0.0044, 0.000562, -1.0]
