@@ -198,7 +198,7 @@ def solve_cell(
     n_data = 3 * len(meas) + n_extra
 
     t_ref = reference_time_min(meas)
-    load = prior.posture_load([m.joints_deg for m in meas])
+    load = prior.posture_load(meas)
     arrays = MeasurementArrays.of(meas, t_ref, load)
     hold_unloaded(table, arrays)
     has_prior = np.isfinite(table.prior_stds) & table.free
