@@ -159,8 +159,8 @@ class Arm:
     rigid_profile: bool = False
 
     @classmethod
-    def draw(cls, rng: np.random.Generator, rigid_profile: bool) -> Arm:
-        arm, tool_kg, tool_mm = draw_arm(rng, MODEL)
+    def draw(cls, rng: np.random.Generator, rigid_profile: bool, model: str = MODEL) -> Arm:
+        arm, tool_kg, tool_mm = draw_arm(rng, model)
         robot, tool = arm.split("\x00")
         stated = {
             "mass_kg": tool_kg * float(rng.uniform(0.95, 1.05)),
