@@ -30,7 +30,10 @@ the arm growth's error against its σ over every check; the largest ``duration_s
 and the plan's estimate; the quantities reported ``ok`` with a σ above their tolerance (must
 be none) and the ones reported ``not determined``, by name.
 
-Usage: ``python benchmarks/check_changes.py [--cells 4] [--jobs 2] [--seed 1] [--models
+With ``--bent`` every arm gives under its weight and the tool's (``commissioning.py --bent``,
+``compliance.py``'s draws), the profile stating the tool's mass as weighed.
+
+Usage: ``python benchmarks/check_changes.py [--bent] [--cells 4] [--jobs 2] [--seed 1] [--models
 tx90,tx90l,tx90xl] [--blocks fixtured,hand] [--changes NAME,...]``; ``--quick``: one TX90L
 cell with a fixtured block, the unchanged check and three changes (across 0.3, J2 0.05, block
 0.5), the same code path in about half a minute of CPU.
@@ -53,7 +56,7 @@ import realistic
 from _quick import parse_args
 
 from ucal.cell import ALUMINIUM_EXPANSION_PER_K
-from ucal.profile import load_profile
+from ucal.profile import load_profile, write_profile
 
 #: ``--quick``: the defaults it changes (an option given on the command line still wins).
 QUICK = {
@@ -181,7 +184,9 @@ def audit(cell: Cell, out: dict, growth_ppm: float = 0.0) -> None:
         cell.estimates.append(float(out["estimated_s"]["tcp"]))
 
 
-def run_cell(seed: int, index: int, model: str, block: str, changes: tuple[str, ...]) -> Cell:
+def run_cell(
+    seed: int, index: int, model: str, block: str, changes: tuple[str, ...], bent: bool = False
+) -> Cell:
     """Commission one cell and check it unchanged and after each change (module docstring)."""
     rng = np.random.default_rng([seed, index])
     cell = Cell(f"{model} {block} {index}")
@@ -191,6 +196,11 @@ def run_cell(seed: int, index: int, model: str, block: str, changes: tuple[str, 
         text = realistic.draw_world(rng, load_profile(profile_path), index)
         world = d / "world.toml"
         world.write_text(text)
+        if bent:  # the arm from its own stream: the rigid cell's, bent
+            arm = commissioning.Arm.draw(np.random.default_rng([seed, index, 36]), False, model)
+            arm.bend(world)
+            text = world.read_text()
+            write_profile(profile_path, {"tool": arm.stated_tool}, "the tool as weighed")
         done = commissioning.run("calibrate", profile_path, world)
         if not done.get("written"):
             cell.error = f"calibrate: {done.get('error', 'not written')[:160]}"
@@ -278,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--models", default="tx90,tx90l,tx90xl")
     parser.add_argument("--blocks", default="fixtured,hand")
     parser.add_argument("--changes", default=",".join(CHANGES), help="of CHANGES, by name")
+    parser.add_argument("--bent", action="store_true", help="arms that bend (module docstring)")
     parser.add_argument("--quick", action="store_true")
     args = parse_args(parser, QUICK, argv)
     changes = tuple(args.changes.split(","))
@@ -285,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown changes {unknown}: choose among {list(CHANGES)}")
     jobs = [
-        (args.seed, i, model, block, changes)
+        (args.seed, i, model, block, changes, args.bent)
         for model in args.models.split(",")
         for block in args.blocks.split(",")
         for i in range(args.cells)

@@ -31,7 +31,16 @@ drawn within 0.05 mm / 0.005° one sigma) and the plate was touched with a calib
 are then measured too, the real TCP can come within verify's tolerance, and verify's verdict
 is put to the test both ways.
 
-Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1] [--fixture]``;
+With ``--bent`` the arm gives under its weight and the tool's as ``compliance.py`` draws it
+(J2/J3 stiffness log-uniform in 1e5…1e6 N·m/rad, the others in proportion, link masses ±10 %,
+centres ±5 mm, a tool of 0.3–2 kg), the profile stating the tool's mass within 5 % and its
+centre within 5 mm; the offsets are judged against the world's plus each link's sag at the
+load posture calibrate reports (what they hold, ``ucal.model.load``). ``--rigid-profile``
+(with ``--bent``): the same worlds, the profile stating a rigid arm (stiffness 0): the solvers
+as they were, beside.
+
+Usage: ``python benchmarks/commissioning.py --worlds 20 [--jobs 2] [--seed 1] [--fixture]
+[--bent [--rigid-profile]]``;
 ``--quick``: one world, one order (calibrate then tool-frame): the same code path in seconds.
 """
 
@@ -50,9 +59,11 @@ from pathlib import Path
 
 import numpy as np
 from _quick import parse_args
+from compliance import draw_arm
 
 from ucal.kinematics.rotations import tangent_basis
 from ucal.profile import create_profile, load_profile, write_profile
+from ucal.sim.cell import SimulatedCell
 from ucal.toolframe.fit import truth_in_profile_flange
 from ucal.toolframe.plane import fit_plane
 from ucal.world import load_world
@@ -137,10 +148,39 @@ seed = {int(rng.integers(1, 2**31))}
 """)
 
 
-def fresh_profile(path: Path, fixture: bool = False) -> Path:
+@dataclass(frozen=True)
+class Arm:
+    """``--bent``: the world's arm keys (``compliance.draw_arm``), the tool as the profile
+    states it, and whether the profile states a rigid arm."""
+
+    robot: str
+    tool: str
+    stated_tool: dict
+    rigid_profile: bool = False
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, rigid_profile: bool, model: str = MODEL) -> Arm:
+        arm, tool_kg, tool_mm = draw_arm(rng, model)
+        robot, tool = arm.split("\x00")
+        stated = {
+            "mass_kg": tool_kg * float(rng.uniform(0.95, 1.05)),
+            "centre_of_mass_mm": (np.asarray(tool_mm) + rng.uniform(-5.0, 5.0, 3)).tolist(),
+        }
+        return cls(robot, tool, stated, rigid_profile)
+
+    def bend(self, world: Path) -> None:
+        text = world.read_text().replace("[robot]\n", "[robot]\n" + self.robot, 1)
+        world.write_text(text.replace("[tool]\n", "[tool]\n" + self.tool, 1))
+
+
+def fresh_profile(path: Path, fixture: bool = False, arm: Arm | None = None) -> Path:
     create_profile(path, MODEL)
     keys: dict = {
-        "tool": {"position_std_mm": 1.5, "rotation_std_deg": 1.0},
+        "tool": {
+            "position_std_mm": 1.5,
+            "rotation_std_deg": 1.0,
+            **({} if arm is None else arm.stated_tool),
+        },
         "reflector": {"points_std_mm": FIXTURE.plate_mm[0] if fixture else 1.2},
     }
     if fixture:
@@ -148,6 +188,8 @@ def fresh_profile(path: Path, fixture: bool = False) -> Path:
             "position_std_mm": FIXTURE.block_mm[0],
             "rotation_std_deg": [FIXTURE.block_deg[0]] * 3,
         }
+    if arm is not None and arm.rigid_profile:
+        keys["robot"] = {"stiffness_nm_per_rad": [0.0] * 6}
     write_profile(path, keys, "the drawing and the touch")
     return path
 
@@ -186,16 +228,22 @@ def commission(
     seed: int,
     fixture: bool = False,
     orders: tuple[str, ...] = tuple(ORDERS),
+    bent: bool = False,
+    rigid_profile: bool = False,
 ) -> list[dict]:
     """The orders (names in ``ORDERS``) on one drawn world; per order the outcome, errors and
     z-scores."""
     rng = np.random.default_rng([seed, index])
+    # the arm from its own stream: a bent world is the rigid one's, bent
+    arm = Arm.draw(np.random.default_rng([seed, index, 36]), rigid_profile) if bent else None
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         draw_world(rng, fresh_profile(d / "template.toml", fixture), d / "world.toml", fixture)
+        if arm is not None:
+            arm.bend(d / "world.toml")
         for name in orders:
-            profile = fresh_profile(d / f"{name}.toml", fixture)
+            profile = fresh_profile(d / f"{name}.toml", fixture, arm)
             outs = {c: run(c, profile, d / "world.toml") for c in ORDERS[name]}
             outs["verify"] = run(
                 "verify",
@@ -241,7 +289,12 @@ def evaluate(index: int, order: str, outs: dict, final, truth) -> dict:
         row["tool_std_across_mm"] = max(tf["across_beam_std_mm"])
     if "joint_offsets_deg" in cal:
         est = np.asarray(cal["joint_offsets_deg"], float)
-        err = est - truth.joint_offsets_deg
+        want = np.asarray(truth.joint_offsets_deg, float)
+        if cal.get("load_posture_deg") is not None:  # what they hold: the load posture's sag
+            want = want + SimulatedCell(truth).sag_deg(
+                np.asarray(cal["load_posture_deg"]), np.ones(6)
+            )
+        err = est - want
         std = [np.nan if s is None else s for s in cal["std_deg"]]
         row["offset_err_deg"] = [
             float(e) if np.isfinite(s) else None for e, s in zip(err, std, strict=True)
@@ -279,6 +332,12 @@ def main() -> None:
         action="store_true",
         help="a fixtured block, a plate touched with a calibrated robot (module docstring)",
     )
+    ap.add_argument("--bent", action="store_true", help="an arm that bends (module docstring)")
+    ap.add_argument(
+        "--rigid-profile",
+        action="store_true",
+        help="with --bent: the profile states a rigid arm (the solvers as they were)",
+    )
     ap.add_argument(
         "--order",
         choices=("both", *ORDERS),
@@ -305,7 +364,9 @@ def main() -> None:
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
         indices = range(args.first, args.first + args.worlds)
         seeds, fixtures = [args.seed] * args.worlds, [args.fixture] * args.worlds
-        one = functools.partial(commission, orders=orders)
+        one = functools.partial(
+            commission, orders=orders, bent=args.bent, rigid_profile=args.rigid_profile
+        )
         for res in pool.map(one, indices, seeds, fixtures):
             rows += res
             if args.out:

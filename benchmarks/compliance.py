@@ -14,6 +14,14 @@ each link's sag at the load posture (``calibrate --json``'s ``load_posture_deg``
 solver against the same. Printed per solver: coverage (|error| ≤ 3σ), the largest |z|, runs
 written and written with a joint beyond 4σ, and per joint the median |error| and std.
 
+Then where ``path --for-controller``'s targets land the bent arm (``landing_mm``): on each
+world, for the cell as the full level writes it (its true table and tool, the offsets of its
+load posture), the targets of 60 poses the arm reaches over the scanning region about the
+run's load posture, executed by the world's arm: not corrected for its sag, corrected with
+the world's stiffness and the masses the profile states (the model table's links, the tool as
+weighed), and corrected with the model table's stiffness (a profile whose stiffness no level
+has identified). Printed: mean and max distance from the asked poses over all worlds.
+
 Usage: ``python benchmarks/compliance.py --worlds 12 [--fixture] [--jobs 2] [--cache DIR]``;
 ``--quick``: one world.
 """
@@ -34,9 +42,14 @@ from realistic import draw_world, effective_offsets_deg, make_profile, measure_w
 
 from ucal.calibration.procedure import judge
 from ucal.calibration.solve import solve
-from ucal.cell import CellProfile
+from ucal.cell import CellProfile, WorldTruth
+from ucal.kinematics.filtering import controller_targets
+from ucal.kinematics.rotations import matrix_to_pose
+from ucal.model.kinematic import scanning_postures
+from ucal.model.load import Deflection, model_bodies
+from ucal.model.priors import GRAVITY_M_S2
 from ucal.profile import load_profile, write_profile
-from ucal.profile.models import model_sheet
+from ucal.profile.models import controller_model, model_sheet
 from ucal.sim.cell import SimulatedCell
 from ucal.world import load_world
 
@@ -79,8 +92,11 @@ def bent_world(rng: np.random.Generator, profile: CellProfile, index: int) -> tu
     return text, stated
 
 
-def judged(profile: CellProfile, run, truth, rigid: bool) -> tuple[np.ndarray, bool, float]:
-    """|z| of the reported joints, whether written, the worst |error| (deg)."""
+def judged(
+    profile: CellProfile, run, truth, rigid: bool
+) -> tuple[np.ndarray, bool, float, np.ndarray]:
+    """|z| of the reported joints, whether written, the worst |error| (deg), the load
+    posture."""
     if rigid:
         profile = replace(profile, stiffness_nm_per_rad=np.zeros(6))
     sol, _ = solve(profile, run)
@@ -95,7 +111,54 @@ def judged(profile: CellProfile, run, truth, rigid: bool) -> tuple[np.ndarray, b
     err = sol.offsets_deg - want
     z = np.abs(err[ok]) / sol.std_deg[ok]
     joints = ok & (np.arange(6) > 0)  # J1: absolute, as placed by hand
-    return z, judge(sol, cell.quality).ok, float(np.max(np.abs(err[joints]), initial=0.0))
+    worst = float(np.max(np.abs(err[joints]), initial=0.0))
+    return z, judge(sol, cell.quality).ok, worst, np.asarray(posture, float)
+
+
+#: The targets ``landing_mm`` compares: not corrected, corrected with the world's stiffness,
+#: with the model table's.
+LANDINGS = ("not corrected", "world's stiffness", "table's stiffness")
+
+
+def landing_mm(
+    profile: CellProfile, truth: WorldTruth, load_posture: np.ndarray, n: int = 60
+) -> dict[str, np.ndarray]:
+    """How far (mm, (n,) each of ``LANDINGS``) the bent arm lands from poses it reaches over
+    the scanning region about ``load_posture``, on ``path --for-controller``'s targets for the
+    cell as the full level writes it (module docstring; the lost motion left out)."""
+    cell = SimulatedCell(truth)
+    model = truth.model.with_dh(truth.model.dh, truth.dh_beta_deg)
+    q = scanning_postures(load_posture, n, seed=1, model=model)
+    frames = np.array([cell.true_tcp(x) for x in q])
+    reached, asked = frames[:, :3, 3], matrix_to_pose(frames)
+    offsets = truth.joint_offsets_deg + cell.sag_deg(load_posture)
+    bodies = model_bodies(
+        model,
+        profile.link_mass_kg,
+        profile.link_centre_of_mass_mm,
+        profile.tool_mass_kg,
+        profile.tool_centre_of_mass_mm,
+        GRAVITY_M_S2,
+    )
+    stiffness = (None, truth.arm.stiffness_nm_per_rad, profile.stiffness_nm_per_rad)
+    out = {}
+    for name, k in zip(LANDINGS, stiffness, strict=True):
+        bend = None
+        if k is not None:
+            c = np.divide(1e6, k, out=np.zeros(6), where=np.asarray(k) > 0.0)
+            bend = Deflection.of(model, bodies, offsets, load_posture, c)
+        targets = controller_targets(
+            model,
+            controller_model(profile.model),
+            asked,
+            truth.beam_matrix,
+            offsets,
+            start_deg=q[0],
+            sag_deg=None if bend is None else bend.sag_deg,
+        )
+        landed = np.array([cell.true_tcp(x)[:3, 3] for x in targets.joints_deg])
+        out[name] = np.linalg.norm(landed - reached, axis=1)
+    return out
 
 
 def main() -> None:
@@ -128,7 +191,11 @@ def main() -> None:
     with concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
         list(pool.map(measure_world, profiles, worlds, caches))
     print(f"measured {len(worlds)} worlds in {time.monotonic() - t0:.0f} s ({work})")
-    rows: dict[str, list[tuple[np.ndarray, bool, float]]] = {"compliant": [], "rigid": []}
+    rows: dict[str, list[tuple[np.ndarray, bool, float, np.ndarray]]] = {
+        "compliant": [],
+        "rigid": [],
+    }
+    landed: dict[str, list[np.ndarray]] = {name: [] for name in LANDINGS}
     for p, w, c in zip(profiles, worlds, caches, strict=True):
         data = pickle.loads(c.read_bytes())
         if data["run"] is None:
@@ -138,6 +205,8 @@ def main() -> None:
         truth = load_world(w, profile)
         for name in rows:
             rows[name].append(judged(profile, data["run"], truth, rigid=name == "rigid"))
+        for name, mm in landing_mm(profile, truth, rows["compliant"][-1][3]).items():
+            landed[name].append(mm)
     print(
         "| solver | coverage (|err| ≤ 3σ) | max |z| | written | written beyond 4σ "
         "| worst |err| J2-J6, deg |"
@@ -153,6 +222,12 @@ def main() -> None:
             f"| {name} | {np.mean(z <= 3.0) * 100:.1f} % of {len(z)} | {np.max(z):.1f} "
             f"| {len(written)} / {len(outs)} | {beyond} | {max(o[2] for o in outs):.4f} |"
         )
+    print("\n| path --for-controller targets | landed mean, mm | max, mm |")
+    print("| --- | --- | --- |")
+    for name, runs in landed.items():
+        if runs:
+            mm = np.concatenate(runs)
+            print(f"| {name} | {np.mean(mm):.4f} | {np.max(mm):.4f} |")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,8 @@ from collections.abc import Callable
 import pytest
 from hypothesis import settings
 
+import ucal  # noqa: F401  (its one BLAS thread, set before numpy loads)
+
 # No test depends on the machine's speed: hypothesis's per-example deadline (200 ms) would
 # fail a test on a loaded machine for nothing it checks.
 settings.register_profile("ucal", deadline=None)

@@ -14,6 +14,7 @@ import pytest
 
 from ucal.cell import ALUMINIUM_EXPANSION_PER_K
 from ucal.profile import load_profile
+from ucal.report import gather_report, render_page
 from ucal.sim import demo
 
 pytestmark = pytest.mark.system
@@ -157,3 +158,14 @@ def test_names_the_arm_grown_by_a_warm_up_of_5_k_not_a_joint(
     assert out_of == ["arm_growth_ppm", "arm_temperature_rise_k"]
     (cause,) = result["causes"]
     assert (cause["part"], cause["what"], cause["unit"]) == ("arm", "growth", "ppm")
+
+    # the report's history shows the checks and the growth's trend: the reference at none,
+    # the cold check within its sigma, the warm one at its 115 ppm
+    report = gather_report(profile)
+    growth = [(c.reference, c.growth_ppm) for c in report.checks]
+    assert [r for r, _ in growth] == [True, False, False], growth
+    assert growth[0][1] is None and abs(growth[2][1] - result["arm_growth_ppm"]) < 1e-6
+    page = render_page(report)
+    stated = f"{result['arm_growth_ppm']:.1f} ± {result['arm_growth_ppm_std']:.1f}"
+    assert f"measured the arm {stated} ppm longer than at its reference" in page
+    assert page.count("<h3>Checks</h3>") == 1 and "arm growth (ppm, 1σ)" in page

@@ -220,7 +220,7 @@ def calibration_budget(
         return None
     prior = prior_from_profile(profile)
     c0 = prior.sound_speed_m_s
-    load = prior.posture_load([m.joints_deg for m in meas])
+    load = prior.posture_load(meas)
     extra = None
     if steps:
         table = fit.table

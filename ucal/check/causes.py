@@ -22,7 +22,7 @@ import numpy as np
 from ucal.acoustics import sound_speed_m_s, sound_speed_slope_m_s_per_c
 from ucal.check.growth import ARM
 from ucal.check.solve import N_SIGMA, Change, GeometryComparison
-from ucal.model.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, _rpy_matrix
+from ucal.model.fit import BLOCK, OFFSETS, SOUND, TOOL, CellPrior, rpy_matrix
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ def suspect_causes(comparison: GeometryComparison, suspect: str) -> list[Cause]:
             Cause("block", "turn", *_length(turn, turn_cov), "deg", turn_tol, turn_changes),
         ]
     rx, ry = (by[n].baseline for n in TOOL[3:5])
-    beam = _rpy_matrix(np.array([rx, ry, 0.0]))[:, 2]
+    beam = rpy_matrix(np.array([rx, ry, 0.0]))[:, 2]
     across = np.eye(3) - np.outer(beam, beam)
     return [
         Cause("tool", "across the beam", *_length(d, cov[:3, :3], across), "mm", tol, changes),

@@ -280,7 +280,7 @@ class ChangeFit:
         self.change_idx = np.array([self.table.index(change_name(p)) for p in self.changed])
         self.reference = reference
         self.check = check
-        load = self.reference_prior.posture_load([m.joints_deg for m in reference])
+        load = self.reference_prior.posture_load(reference)
         self._ref = MeasurementArrays.of(reference, load=load)
         self._chk = MeasurementArrays.of(check, load=load)
 

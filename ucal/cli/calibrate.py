@@ -19,6 +19,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from ucal.calibration.load import load_posture
 from ucal.calibration.procedure import FullCalibration, OffsetsCalibration
 from ucal.calibration.result import CalibrationResult, FullResult, OffsetsResult, backlash_note
 from ucal.cell import CellProfile
@@ -312,6 +313,17 @@ def show_approach(console: Console, result: CalibrationResult[Any]) -> None:
             f"joint moving in its positive direction; {backlash_note(result.effects)}"
         )
     )
+    load = load_posture(result.solved.chosen, result.solved.sound)
+    if load is not None:
+        console.print(
+            escape(
+                "load: the offsets hold the arm as its weight bends it at the load "
+                f"posture ({', '.join(f'{v:.2f}' for v in load)} deg, written as "
+                "load_posture_deg); another posture's sag from there is the joints' "
+                "compliance times the change in gravity torque, which path --for-controller "
+                "makes up for"
+            )
+        )
 
 
 def show_gauge(console: Console, result: CalibrationResult[Any]) -> None:

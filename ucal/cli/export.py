@@ -58,8 +58,9 @@ def val3(profile_path: Path, directory: Path, as_json: bool) -> None:
     stop.pgx) holding the public data tUcalTool (tool on flange[0]: the profile's [tool])
     and fUcalBlock (frame on world[0]: [sample], the block in the robot's base frame), and
     both as trsf values (trUcalTool, trUcalBlock); mm and deg, rx, ry, rz as VAL3 reads them.
-    DIR/ucal_cell.json holds the same. The joint offsets stay in the profile: for
-    calibrated accuracy move to targets from `ucal path ... --for-controller`.
+    DIR/ucal_cell.json holds the same. The joint offsets stay in the profile, and so does
+    the arm's sag under gravity: for calibrated accuracy move to targets from `ucal path ...
+    --for-controller`, which carry both for each target's posture.
     Exit 2 if DIR cannot be created or written (the message names it).
     """
 

@@ -1,8 +1,9 @@
 """``ucal path``: a Cartesian tool path (CSV) to a continuous joint path in one arm
 configuration (CSV), paper 004 (``ucal.kinematics.path``); with ``--for-controller``, to
-targets for the controller's nominal arm (``ucal.kinematics.filtering``). Each output row
-carries its VAL3 configuration; a path that changes it, or whose joints jump, is refused
-unless asked for."""
+targets for the controller's nominal arm (``ucal.kinematics.filtering``), each made up for
+the arm's sag under gravity at its own posture where the profile states how it gives. Each
+output row carries its VAL3 configuration; a path that changes it, or whose joints jump, is
+refused unless asked for."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import click
 import numpy as np
 
 from ucal import files
+from ucal.cell import CellProfile
 from ucal.cli.options import (
     check_output,
     emit_json,
@@ -29,6 +31,8 @@ from ucal.errors import InputError, SafetyError
 from ucal.kinematics.configuration import PARTS, ArmConfig
 from ucal.kinematics.filtering import controller_targets
 from ucal.kinematics.path import MAX_STEP_DEG, JointPath, PathChange, plan_joint_path
+from ucal.model.load import Deflection
+from ucal.model.priors import prior_from_profile
 from ucal.profile import load_profile
 from ucal.profile.models import controller_model
 
@@ -37,6 +41,9 @@ from ucal.profile.models import controller_model
 JOINT_HEADER = ("J1", "J2", "J3", "J4", "J5", "J6")
 POSE_HEADER = ("X", "Y", "Z", "RX", "RY", "RZ")
 CONFIG_HEADER = PARTS
+#: The last column of ``--for-controller``'s rows where the targets make up for the arm's sag
+#: under gravity: how far that moved each target (mm).
+DEFLECTION_HEADER = "deflection_mm"
 
 
 def read_pose_csv(path: Path) -> tuple[np.ndarray, list[int]]:
@@ -88,10 +95,15 @@ def _is_number(text: str) -> bool:
 
 
 def write_rows(
-    path: Path, header: tuple[str, ...], rows: np.ndarray, configs: tuple[ArmConfig, ...]
+    path: Path,
+    header: tuple[str, ...],
+    rows: np.ndarray,
+    configs: tuple[ArmConfig, ...],
+    deflection_mm: np.ndarray | None = None,
 ) -> None:
     """Write ``rows`` (n, 6), 9 decimals, each followed by its configuration's words, under
-    ``header`` and ``CONFIG_HEADER``.
+    ``header`` and ``CONFIG_HEADER``, then where given each row's ``deflection_mm`` (n,)
+    under ``DEFLECTION_HEADER``.
 
     Written to a temporary file beside ``path`` and renamed (a replaced file keeps its mode,
     a new one gets the umask's); raises ``InputError`` (exit 2) naming the file when it cannot
@@ -99,13 +111,48 @@ def write_rows(
     """
     text = io.StringIO(newline="")
     w = csv.writer(text)
-    w.writerow((*header, *CONFIG_HEADER))
-    for row, config in zip(rows, configs, strict=True):
-        w.writerow([*(f"{round(v, 9) + 0.0:.9f}" for v in row), *config.words()])  # no "-0"
+    extra = () if deflection_mm is None else (DEFLECTION_HEADER,)
+    w.writerow((*header, *CONFIG_HEADER, *extra))
+    for i, (row, config) in enumerate(zip(rows, configs, strict=True)):
+        more = () if deflection_mm is None else (_number(deflection_mm[i]),)
+        w.writerow([*(_number(v) for v in row), *config.words(), *more])
     try:
         files.commit(files.stage(Path(path), text.getvalue().encode("utf-8")), Path(path))
     except OSError as e:
         raise InputError(f"{path}: cannot write: {e.strerror or e}") from None
+
+
+def _number(v: float) -> str:
+    """A value as the rows hold it: 9 decimals, no "-0"."""
+    return f"{round(float(v), 9) + 0.0:.9f}"
+
+
+def profile_deflection(profile: CellProfile) -> tuple[Deflection | None, str]:
+    """How the profile's arm gives under gravity beyond what its offsets hold
+    (``ucal.model.load.Deflection``), or None and why it is taken as rigid."""
+    prior = prior_from_profile(profile)
+    found = Deflection.of(
+        prior.model,
+        prior.bodies,
+        prior.offsets_deg,
+        prior.load_posture_deg,
+        prior.compliance_urad_per_nm,
+    )
+    if found is not None:
+        return found, ""
+    if not np.any(prior.compliance_urad_per_nm > 0.0):
+        return None, "the profile states a rigid arm ([robot] stiffness_nm_per_rad all 0)"
+    if prior.bodies is None:
+        return None, "nothing weighs (no link masses, [tool] mass_kg 0)"
+    return None, UNLOADED_NOTE
+
+
+#: Why an arm that gives is taken as rigid: its offsets do not say at which load they hold.
+UNLOADED_NOTE = (
+    "the offsets state no load posture ([calibration] load_posture_deg, written by "
+    "calibrate), so the sag they hold is not known; calibrate again to have each target "
+    "corrected for it"
+)
 
 
 @click.command(
@@ -158,7 +205,9 @@ Examples:
     is_flag=True,
     help="Write targets for the controller's nominal arm (shipped DH table, zero offsets) "
     "carrying the profile's tool (as `ucal export val3` writes it), which land the calibrated "
-    "robot on IN's poses.",
+    "robot on IN's poses, each made up for the arm's sag under gravity at its own posture "
+    "where the profile states its joints' stiffness and load posture (then a last column "
+    "deflection_mm).",
 )
 @json_option
 def cli(
@@ -191,7 +240,9 @@ def cli(
       shoulder    lefty (wrist centre in front of axis 1) or righty (behind)
       elbow       epositive (J3 >= 0) or enegative
       wrist       wpositive (J5 >= 0) or wnegative
-    The last three are the row's VAL3 config, in the controller's words.
+      deflection_mm  with --for-controller on an arm that gives under
+                  gravity only: how far the sag correction moved the target
+    The configuration words are the row's VAL3 config, in the controller's words.
 
     Each point takes the solution nearest the previous one (paper 004's weighted shortest
     distance) in the previous point's configuration. Where no solution in that configuration
@@ -204,7 +255,12 @@ def cli(
     With --for-controller each row is instead the pose to send a VAL3 movel (tool as
     exported) in the row's configuration: the controller solves it with its own nominal
     model into the joint readings that put the calibrated robot on the pose asked for.
-    Start the path in the configuration --near gives; a movel keeps it.
+    Where the profile states how its joints give ([robot] stiffness_nm_per_rad, the links'
+    and [tool] masses) and the posture whose load its offsets hold ([calibration]
+    load_posture_deg, written by calibrate), each target also makes up for the sag of its
+    own posture under gravity relative to that one: the bent arm lands on the pose (--json's
+    gravity_corrected says whether it does, gravity_note why not). Start the path in the
+    configuration --near gives; a movel keeps it.
     """
 
     near_v = parse_floats(near, 6, "--near") if near is not None else None
@@ -212,8 +268,10 @@ def cli(
     profile = load_profile(profile_path)
     poses, lines = read_pose_csv(in_path)
     result: dict[str, Any] = {}
+    deflection_mm = None
     if for_controller:
         nominal = controller_model(profile.model, profile_path)
+        bend, rigid_why = profile_deflection(profile)
         filtered = controller_targets(
             profile.model,
             nominal,
@@ -222,14 +280,19 @@ def cli(
             profile.joint_offsets_deg,
             start_deg=near_v,
             limit_deg=limit_deg,
+            sag_deg=None if bend is None else bend.sag_deg,
         )
         path, header, rows = filtered.path, POSE_HEADER, filtered.targets
+        deflection_mm = filtered.deflection_mm
+        if rigid_why == UNLOADED_NOTE:
+            warn(f"targets not corrected for the arm's sag under gravity: {rigid_why}")
         result = {
             "for_controller": True,
             "nominal_model": nominal.name,
             "kinematics": profile.model.dh_source,
             "max_correction_mm": float(np.max(filtered.correction_mm)),
             "max_correction_deg": float(np.max(filtered.correction_deg)),
+            **gravity_keys(bend, filtered.sag_deg, deflection_mm, rigid_why),
         }
     else:
         path = plan_joint_path(
@@ -242,8 +305,25 @@ def cli(
         )
         header, rows = JOINT_HEADER, path.joints_deg
     refuse_or_warn(path, in_path, lines, allow)
-    write_rows(out_path, header, rows, path.configs)
+    write_rows(out_path, header, rows, path.configs, deflection_mm)
     report(path, lines, out_path, result, as_json)
+
+
+def gravity_keys(
+    bend: Deflection | None,
+    sag_deg: np.ndarray | None,
+    deflection_mm: np.ndarray | None,
+    rigid_why: str,
+) -> dict[str, Any]:
+    """``--json``'s keys of the sag correction: whether it was made, and its size or why not."""
+    if bend is None or sag_deg is None or deflection_mm is None:
+        return {"gravity_corrected": False, "gravity_note": rigid_why}
+    return {
+        "gravity_corrected": True,
+        "load_posture_deg": bend.load.load_posture_deg.tolist(),
+        "max_sag_deg": float(np.max(np.abs(sag_deg))),
+        "max_deflection_mm": float(np.max(deflection_mm)),
+    }
 
 
 def where(in_path: Path, lines: list[int], change: PathChange) -> str:
@@ -303,6 +383,12 @@ def report(
             f"largest correction: {result['max_correction_mm']:.4f} mm, "
             f"{result['max_correction_deg']:.4f} deg"
         )
+        if result["gravity_corrected"]:
+            click.echo(
+                "gravity: each target made up for its posture's sag relative to the load "
+                f"posture the offsets hold: up to {result['max_deflection_mm']:.4f} mm "
+                f"({result['max_sag_deg']:.4f} deg at a joint)"
+            )
     else:
         click.echo(f"wrote {len(joints)} joint rows to {out_path}")
     if path.changes:

@@ -110,12 +110,12 @@ from ucal.model.quality import (
 )
 from ucal.model.residuals import (
     MeasurementArrays,
-    _rpy_matrix,
     cell_geometry,
     data_residuals,
     measurement_label,
     readings_approach,
     reference_time_min,
+    rpy_matrix,
     table_geometry,
 )
 
@@ -147,7 +147,6 @@ __all__ = [
     "ParameterTable",
     "ResidualRow",
     "RunEffects",
-    "_rpy_matrix",
     "cell_geometry",
     "data_residuals",
     "hold_unseen",
@@ -159,6 +158,7 @@ __all__ = [
     "readings_approach",
     "reference_time_min",
     "residual_pattern",
+    "rpy_matrix",
     "solve_augmented",
     "solve_cell",
     "table_geometry",

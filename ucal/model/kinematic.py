@@ -225,7 +225,7 @@ def data_jacobian(
         v0[[table.index(n) for n in COMPLIANCE]] = 0.0
     c0 = prior.sound_speed_m_s
     t_ref = reference_time_min(meas)
-    load = prior.posture_load([m.joints_deg for m in meas])
+    load = prior.posture_load(meas)
     arrays = MeasurementArrays.of(meas, t_ref, load) if meas else None
     if arrays is not None:
         hold_unloaded(table, arrays)
@@ -511,7 +511,7 @@ def solve_full(
     table = full_table(prior)
     c0 = prior.sound_speed_m_s
     t_ref = reference_time_min(meas)
-    load = prior.posture_load([m.joints_deg for m in meas])
+    load = prior.posture_load(meas)
     extra = ExtraRows(
         lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref, load),
         tuple(f"{m.config}/step" for m in steps),

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
@@ -151,7 +151,14 @@ def cell_table(prior: CellPrior) -> ParameterTable:
     )
 
 
-def hold_unloaded(table: ParameterTable, *arrays: MeasurementArrays) -> None:
+class Loaded(Protocol):
+    """Readings' gravity torques less the load posture's (N·m, (n, 6); ``ucal.model.load``)."""
+
+    @property
+    def load_nm(self) -> np.ndarray: ...
+
+
+def hold_unloaded(table: ParameterTable, *arrays: Loaded) -> None:
     """Hold at their priors the compliances the readings' torques (of every one of
     ``arrays``) do not see (``ucal.model.load.unseen_compliance``): J1 about a vertical axis,
     or every joint where nothing weighs."""
@@ -198,7 +205,7 @@ def solve_cell(
     n_data = 3 * len(meas) + n_extra
 
     t_ref = reference_time_min(meas)
-    load = prior.posture_load([m.joints_deg for m in meas])
+    load = prior.posture_load(meas)
     arrays = MeasurementArrays.of(meas, t_ref, load)
     hold_unloaded(table, arrays)
     has_prior = np.isfinite(table.prior_stds) & table.free

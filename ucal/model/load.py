@@ -72,6 +72,38 @@ class PostureLoad:
         return torques_nm(self.model, self.bodies, q, self.offsets_deg) - self.reference_nm
 
 
+@dataclass(frozen=True)
+class Deflection:
+    """How far each joint of a calibrated arm gives at a posture beyond what its offsets hold:
+    ``c_i·(τ_i − τ_i(q_L))`` of ``load``'s torques with compliances ``compliance_urad_per_nm``
+    (µrad per N·m, (6,)), the arm's own model of its sag."""
+
+    load: PostureLoad
+    compliance_urad_per_nm: np.ndarray
+
+    @classmethod
+    def of(
+        cls,
+        model: RobotModel,
+        bodies: BodyWeights | None,
+        offsets_deg: np.ndarray,
+        load_posture_deg: np.ndarray | None,
+        compliance_urad_per_nm: np.ndarray,
+    ) -> Deflection | None:
+        """The deflection of an arm whose offsets hold at ``load_posture_deg``; None where
+        nothing weighs, no joint gives, or no load posture is known (offsets never calibrated
+        with one: what they hold is not stated)."""
+        c = np.asarray(compliance_urad_per_nm, float)
+        if bodies is None or load_posture_deg is None or not np.any(c > 0.0):
+            return None
+        return cls(PostureLoad.of(model, bodies, offsets_deg, load_posture_deg), c)
+
+    def sag_deg(self, joints_deg: np.ndarray) -> np.ndarray:
+        """Each link's turn (deg, (n, 6)) beyond reading + offset at the links' angles
+        reading + offset of ``joints_deg`` (n, 6), relative to the load posture's."""
+        return self.load.relative_nm(joints_deg) * (URAD_DEG * self.compliance_urad_per_nm)
+
+
 def torques_nm(
     model: RobotModel, bodies: BodyWeights, joints_deg: np.ndarray, offsets_deg: np.ndarray
 ) -> np.ndarray:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -95,6 +95,13 @@ PRIOR_MEANING = {
 }
 
 
+class Posed(Protocol):
+    """A reading taken at a posture: its joint readings (deg, (6,))."""
+
+    @property
+    def joints_deg(self) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class CellPrior:
     """What the profile believes, with its one-sigma tolerances (mm, deg, °C)."""
@@ -138,13 +145,13 @@ class CellPrior:
     bodies: BodyWeights | None = None
     load_posture_deg: np.ndarray | None = None
 
-    def posture_load(self, postures: Sequence[np.ndarray]) -> PostureLoad | None:
-        """The torques of a run whose readings start with ``postures`` relative to the load
-        posture's (``load_posture_deg``, else the first of ``postures``); None where nothing
-        weighs or no posture is given."""
-        if self.bodies is None or (self.load_posture_deg is None and not len(postures)):
+    def posture_load(self, meas: Sequence[Posed]) -> PostureLoad | None:
+        """The torques of a run whose readings are ``meas`` relative to the load posture's
+        (``load_posture_deg``, else the first reading's posture); None where nothing weighs
+        or no reading is given."""
+        if self.bodies is None or (self.load_posture_deg is None and not len(meas)):
             return None
-        ref = postures[0] if self.load_posture_deg is None else self.load_posture_deg
+        ref = meas[0].joints_deg if self.load_posture_deg is None else self.load_posture_deg
         return PostureLoad.of(self.model, self.bodies, self.offsets_deg, np.asarray(ref, float))
 
     @property

@@ -39,7 +39,7 @@ def measurement_label(m: FaceMeasurement) -> str:
     return f"{m.config}/{FACE_NAMES[m.face]}"
 
 
-def _rpy_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
+def rpy_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
     """``rpy_to_matrix`` for one triple, written out (it runs in the solver's inner loop)."""
     cx, cy, cz = np.cos(np.radians(rxyz_deg))
     sx, sy, sz = np.sin(np.radians(rxyz_deg))
@@ -55,8 +55,8 @@ def _rpy_matrix(rxyz_deg: np.ndarray) -> np.ndarray:
 
 def cell_geometry(table: ParameterTable, values: np.ndarray, model: RobotModel) -> CellGeometry:
     """The geometry (tool, block orientation) that a parameter vector describes."""
-    tool = transform(table.get(TOOL[:3], values), _rpy_matrix(table.get(TOOL[3:], values)))
-    return CellGeometry(model, tool, _rpy_matrix(table.get(BLOCK[3:], values)))
+    tool = transform(table.get(TOOL[:3], values), rpy_matrix(table.get(TOOL[3:], values)))
+    return CellGeometry(model, tool, rpy_matrix(table.get(BLOCK[3:], values)))
 
 
 class Reading(Protocol):

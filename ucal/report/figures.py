@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
     from matplotlib.typing import RcKeyType
 
+    from ucal.report.checks import CheckFacts
     from ucal.report.gather import Calibration, ToolCalibration
 
 #: Width of a figure (inches): the text width of an A4 page with 15 mm margins, about.
@@ -231,4 +232,39 @@ def residuals_figure(cal: Calibration) -> str:
         ax.set_xlabel("measurement (dotted ±1σ, dashed ±3σ)")
         ax.legend(ncols=3, loc="upper right", fontsize=7)
         ax.set_title("Residual of each measurement, in units of its noise")
+    return svg_uri(fig)
+
+
+def growth_figure(checks: Sequence[CheckFacts]) -> str:
+    """The arm's growth at each check that fitted it (ppm, ±3σ bars), its tolerance band and
+    the temperature rise it means on the right axis (SVG URI)."""
+    import matplotlib
+
+    from ucal.cell import ALUMINIUM_EXPANSION_PER_K
+
+    shown = [c for c in checks if c.growth_ppm is not None]
+    x = np.arange(len(shown))
+    y = np.array([c.growth_ppm for c in shown], float)
+    err = np.array([3.0 * (c.growth_std_ppm or 0.0) for c in shown], float)
+    tol = max(c.growth_tolerance_ppm for c in shown)
+    with matplotlib.rc_context(STYLE):
+        fig = _figure(PAGE_WIDTH_IN, 2.6)
+        ax = fig.subplots()
+        ax.axhspan(-tol, tol, color="#eeeeee", zorder=0, label=f"tolerance ±{tol:g} ppm")
+        ax.axhline(0.0, color="#777777", linewidth=0.8)
+        ax.errorbar(x, y, yerr=err, fmt="o", color="black", markersize=4.5, capsize=4, label="±3σ")
+        if len(shown) > 1:
+            ax.plot(x, y, color="#999999", linewidth=0.8, zorder=1)
+        ax.set_xticks(x, [f"#{c.id}" for c in shown])
+        ax.set_xlim(-0.6, len(shown) - 0.4)
+        ax.set_xlabel("check (history #)")
+        ax.set_ylabel("growth since the reference (ppm)")
+        per_k = ALUMINIUM_EXPANSION_PER_K * 1e6  # ppm per K
+        right = ax.secondary_yaxis(
+            "right",
+            functions=(lambda ppm: np.asarray(ppm) / per_k, lambda k: np.asarray(k) * per_k),
+        )
+        right.set_ylabel("as a warmer arm (K)")
+        ax.legend(loc="upper left", frameon=False)
+        fig.suptitle("The arm's growth at each check, bars ±3σ")
     return svg_uri(fig)

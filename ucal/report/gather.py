@@ -45,6 +45,7 @@ from ucal.profile import (
     real_path,
 )
 from ucal.profile.validation import DH_KEYS, parse_toml_bytes
+from ucal.report.checks import CheckFacts, gather_checks
 from ucal.verify.picture import verify_picture_path
 from ucal.verify.procedure import PICTURE_FACTS_KEY
 
@@ -227,6 +228,8 @@ class CellReport:
     notes: tuple[str, ...] = field(default=())
     #: Verify pictures of other cells (``--sim WORLD`` rehearsals), newest first.
     rehearsals: tuple[VerifyPicture, ...] = ()
+    #: Every ``ucal check`` of the cell, oldest first (``ucal.report.checks``).
+    checks: tuple[CheckFacts, ...] = ()
 
     @property
     def current_calibration(self) -> Calibration | None:
@@ -299,6 +302,7 @@ def gather_report(
         profile_sha256=_sha(current),
         notes=tuple(notes),
         rehearsals=tuple(v for v in pictures if not v.own_cell),
+        checks=gather_checks(p),
     )
 
 

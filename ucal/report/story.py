@@ -6,7 +6,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from ucal.check.growth import temperature_rise_k
+from ucal.report import figures
 from ucal.report import html as h
+from ucal.report.checks import CheckFacts
 from ucal.report.gather import CellReport, Change, Write
 
 #: Longest value shown in the history table's "what changed" (characters), then "…".
@@ -28,16 +31,22 @@ NAMED_KEYS: dict[str, tuple[str, str]] = {
 def history_section(r: CellReport) -> str:
     """The history part of the page: each write in sentences, oldest first, then the notes."""
     title = "6. History: what changed, when, why"
-    if not r.writes:
+    if not r.writes and not r.checks:
         return h.empty_part(title, "No recorded write: ucal never rewrote this profile.")
     out = [h.part(title)]
-    out.append(
-        f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
-        f"<code>{h.e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
-    )
-    out.append('<ol class="history">' + "".join(_write_item(w) for w in r.writes) + "</ol>")
+    if r.writes:
+        out.append(
+            f"<p>Every write ucal made, oldest first; the version each replaced is kept in "
+            f"<code>{h.e(r.history_dir)}</code> (<code>ucal profile undo</code> restores it).</p>"
+        )
+        out.append('<ol class="history">' + "".join(_write_item(w) for w in r.writes) + "</ol>")
+    else:
+        out.append("<p>No recorded write: ucal never rewrote this profile.</p>")
     for note in r.notes:
         out.append(h.note(h.e(note)))
+    checks = checks_part(r.checks)
+    if checks:
+        out.append(checks)
     out.append("</section>")
     return "\n".join(out)
 
@@ -127,3 +136,48 @@ def _value(v: Any) -> str:
     else:
         text = str(v)
     return text if len(text) <= MAX_VALUE_CHARS else text[: MAX_VALUE_CHARS - 1] + "…"
+
+
+def checks_part(checks: Sequence[CheckFacts]) -> str:
+    """The checks in the history part (HTML): a table, and the growth's trend where any check
+    fitted it; empty for a cell never checked."""
+    if not checks:
+        return ""
+    rows = []
+    for c in checks:
+        growth = (
+            "—"
+            if c.growth_ppm is None
+            else f"{h.num(c.growth_ppm, 1)} ± {h.num(c.growth_std_ppm, 1)}"
+            + f" ({h.num(temperature_rise_k(c.growth_ppm), 1)} K)"
+        )
+        against = "reference" if c.reference else f"against #{c.compared_with}"
+        named = ", ".join(c.named) if c.named else "nothing moved"
+        rows.append(
+            [f"#{c.id}", h.when_cell(c.time), h.e(against), h.e(c.verdict), h.e(named), growth]
+        )
+    out = [
+        "<h3>Checks</h3>",
+        "<p>Every <code>ucal check</code> of the cell, oldest first (the profile is never "
+        "written by one); the arm's growth is its DH lengths' common stretch since the "
+        "reference, in ppm and as the warmer aluminium arm it means.</p>",
+        h.table(
+            ["check", "when", "compared", "verdict", "named", "arm growth (ppm, 1σ)"],
+            rows,
+            [False, False, False, False, False, True],
+        ),
+    ]
+    if any(c.growth_ppm is not None for c in checks):
+        last = next(c for c in reversed(checks) if c.growth_ppm is not None)
+        out.append(
+            h.figure(
+                figures.growth_figure(checks),
+                "the arm's growth at each check",
+                f"The last check (#{last.id}) measured the arm "
+                f"{h.num(last.growth_ppm, 1)} ± {h.num(last.growth_std_ppm, 1)} ppm longer "
+                f"than at its reference, tolerance ±{h.num(last.growth_tolerance_ppm, 0)} ppm: "
+                "a rising trend is an arm warming (let it reach its working temperature "
+                "before a run, or check at the temperature it scans at).",
+            )
+        )
+    return "\n".join(out)

@@ -30,6 +30,12 @@ curvature c̈ is not fitted but carried in the covariance as calibrate carries i
 drift_std_c_per_min`` / D over the water paths' D minutes, through the peaks' path rows, the
 edge crossings holding no sound speed), and a misfit it explains is named as a drift that turns.
 
+Each link also gives under its gravity load as the calibration solvers model it
+(``ucal.model.load``): ``+ c·(τ(q) − τ(q_L))`` with ``q_L`` the load posture the profile's
+offsets hold (``[calibration] load_posture_deg``; an uncalibrated cell's first peak) and each
+joint's compliance ``c`` an unknown with its prior, held where the readings' torques do not
+move it: the plate's postures tilt the wrist, so J5's and J4's load changes between them.
+
 Priors (``CellPrior`` of the profile): tool ``[tool] position_std_mm``, ``rotation_std_deg``;
 offsets ``[calibration] std_deg`` (wide when not calibrated); DH table; sound speed; plate height
 ``[reflector] points_std_mm`` (not divided by √n: a robot not yet calibrated touches every
@@ -81,9 +87,9 @@ from ucal.model.fit import (
     ParameterTable,
     ResidualRow,
     RunEffects,
-    _rpy_matrix,
     hold_unseen,
     reference_time_min,
+    rpy_matrix,
     solve_augmented,
     verdict,
 )
@@ -92,7 +98,9 @@ from ucal.model.least_squares import (
     Curvature,
     effect_gains,
     face_row_minutes,
+    hold_unloaded,
 )
+from ucal.model.load import COMPLIANCE, URAD_DEG
 from ucal.model.quality import effect_cause
 from ucal.model.residuals import approach_signs
 from ucal.toolframe.plane import Plane
@@ -208,6 +216,24 @@ class _Data:
         return Curvature.of(self.prior, self.minutes, rows)
 
     @cached_property
+    def joints_deg(self) -> np.ndarray:
+        """(2·peaks + crossings, 6) the readings in ``data_residuals``' order: each peak's,
+        each peak's water path's, each crossing's."""
+        return np.array(
+            [p.joints_deg for p in self.peaks]
+            + [p.distance_joints_deg for p in self.peaks]
+            + [c.joints_deg for c in self.crossings]
+        ).reshape(-1, 6)
+
+    @cached_property
+    def load_nm(self) -> np.ndarray:
+        """(2·peaks + crossings, 6) each reading's gravity torque less the load posture's
+        (N·m, ``ucal.model.load``: the calibration's, else the first peak's); zeros where
+        nothing weighs."""
+        load = self.prior.posture_load(self.peaks)
+        return np.zeros_like(self.joints_deg) if load is None else load.relative_nm(self.joints_deg)
+
+    @cached_property
     def lag(self) -> np.ndarray:
         """(2·peaks + crossings, 6): how much of each joint's lost motion each posture's link
         lags behind the positive approach, (1 − approach)/2, in ``data_residuals``' order."""
@@ -223,16 +249,14 @@ def data_residuals(table: ParameterTable, values: np.ndarray, data: _Data) -> np
     dh[:, 1:4] = table.get(DH, values).reshape(6, 3)
     model = prior.model.with_dh(dh)
     offsets = table.get(OFFSETS, values)
-    tool = transform(table.get(TOOL[:3], values), _rpy_matrix(table.get(TOOL[3:], values)))
+    tool = transform(table.get(TOOL[:3], values), rpy_matrix(table.get(TOOL[3:], values)))
     n, h, axes = _plane(v, data.plate.plane)
     peaks, cross = data.peaks, data.crossings
-    q = np.array(
-        [p.joints_deg for p in peaks]
-        + [p.distance_joints_deg for p in peaks]
-        + [c.joints_deg for c in cross]
-    ).reshape(-1, 6)
+    q = data.joints_deg
     if BACKLASH[0] in table.names:  # the offsets are the positive approach's
         q = q + data.lag * table.get(BACKLASH, values)
+    if COMPLIANCE[0] in table.names:  # the offsets hold at the load posture's sag
+        q = q + data.load_nm * (URAD_DEG * table.get(COMPLIANCE, values))
     flange = fk_frames(model, q, offsets)[:, 6]
     beam = flange[:, :3, :3] @ tool[:3, 2]
     tcp = flange[:, :3, :3] @ tool[:3, 3] + flange[:, :3, 3]
@@ -300,7 +324,8 @@ def _table(
     fixed: tuple[str, ...],
 ) -> ParameterTable:
     n_edges = len(edge_start) // 2
-    names = OFFSETS + TOOL + SOUND + DH + PLATE + DELAY + DRIFT + BACKLASH + edge_names(n_edges)
+    names = OFFSETS + TOOL + SOUND + DH + PLATE + DELAY + DRIFT + BACKLASH + COMPLIANCE
+    names += edge_names(n_edges)
     dh = prior.model.dh[:, 1:4].ravel()
     values = np.concatenate(
         [
@@ -313,6 +338,7 @@ def _table(
             [0.0],
             [prior.drift_prior_m_s_per_min],  # the drift: its log's, else none
             np.zeros(6),  # the lost motion: none unless the data show it
+            prior.compliance_urad_per_nm,
             edge_start,
         ]
     )
@@ -328,6 +354,7 @@ def _table(
             [DELAY_PRIOR_STD_NS],
             [prior.drift_std_m_s_per_min],
             np.broadcast_to(prior.backlash_std_deg, 6),
+            prior.compliance_std_urad_per_nm,
             np.full(2 * n_edges, np.inf),
         ]
     )
@@ -336,6 +363,7 @@ def _table(
         if name != CURVATURE:  # not an unknown: held, it is not carried
             table.free[table.index(name)] = False
     hold_unseen(table, (*data.peaks, *data.crossings))
+    hold_unloaded(table, data)
     table.free &= table.prior_stds > 0
     return table
 
