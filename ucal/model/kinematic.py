@@ -91,6 +91,7 @@ from ucal.model.geometry import (
 from ucal.model.least_squares import cell_table, hold_unloaded
 from ucal.model.load import COMPLIANCE, PostureLoad
 from ucal.model.priors import twists_deg
+from ucal.model.stiffness import JointStiffness, identified_stiffness
 
 #: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
 #: degrees from the profile's, with the table free, the trust region crawls along the
@@ -363,6 +364,8 @@ class FullSolution:
     #: One sigma relative to the block as placed, and how J1 is known (``ucal.model.gauge``).
     std_block_deg: np.ndarray | None = None
     gauge: J1Gauge | None = None
+    #: Each joint's compliance as the fit found it (``ucal.model.stiffness``).
+    stiffness: tuple[JointStiffness, ...] = ()
 
     @property
     def unobservable_joints(self) -> tuple[int, ...]:
@@ -436,6 +439,7 @@ class FullSolution:
             "length_standard": (
                 None if self.length_standard is None else self.length_standard.to_json()
             ),
+            "stiffness": [s.to_json() for s in self.stiffness],
         }
 
 
@@ -572,6 +576,7 @@ def solve_full(
         standard,
         gauged.std_block_deg,
         gauged.gauge,
+        identified_stiffness(cell, load, np.array([m.joints_deg for m in meas])),
     )
 
 
