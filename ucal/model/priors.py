@@ -137,6 +137,9 @@ class CellPrior:
     compliance_std_urad_per_nm: np.ndarray = field(default_factory=lambda: np.zeros(6))
     bodies: BodyWeights | None = None
     load_posture_deg: np.ndarray | None = None
+    #: The offsets the torques are taken at (None: ``offsets_deg``): the full level's fitted
+    #: ones where they stand far from the profile's (``ucal.model.kinematic.solve_full``).
+    load_offsets_deg: np.ndarray | None = None
 
     def posture_load(self, postures: Sequence[np.ndarray]) -> PostureLoad | None:
         """The torques of a run whose readings start with ``postures`` relative to the load
@@ -145,7 +148,8 @@ class CellPrior:
         if self.bodies is None or (self.load_posture_deg is None and not len(postures)):
             return None
         ref = postures[0] if self.load_posture_deg is None else self.load_posture_deg
-        return PostureLoad.of(self.model, self.bodies, self.offsets_deg, np.asarray(ref, float))
+        at = self.offsets_deg if self.load_offsets_deg is None else self.load_offsets_deg
+        return PostureLoad.of(self.model, self.bodies, at, np.asarray(ref, float))
 
     @property
     def sound_speed_m_s(self) -> float:
