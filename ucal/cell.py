@@ -181,12 +181,13 @@ class CellProfile:
     #: Lost motion each joint may have (deg, one sigma, (6,); ``[robot] backlash_std_deg``).
     backlash_std_deg: np.ndarray = field(default_factory=lambda: np.full(6, 0.01))
     #: The arm under its load (``ucal.profile.arm_load``): each joint's nominal stiffness
-    #: (N·m/rad, (6,), 0 = rigid) and the one sigma of its compliance (% of the nominal), the
+    #: (N·m/rad, (6,), 0 = rigid) and the one sigma of its compliance (% of the nominal, (6,):
+    #: a full level's where it identified the joint, ``[calibration] stiffness_nm_per_rad``), the
     #: links' masses (kg, (6,)) and centres of mass at the zero pose (mm, base frame, (6, 3);
     #: None: nothing weighs), the tool's mass (kg) and centre of mass (mm, flange frame), and
     #: the readings at whose load the written offsets hold (None: not calibrated).
     stiffness_nm_per_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    stiffness_std_pct: float = 64.0
+    stiffness_std_pct: np.ndarray = field(default_factory=lambda: np.full(6, 64.0))
     link_mass_kg: np.ndarray | None = None
     link_centre_of_mass_mm: np.ndarray | None = None
     tool_mass_kg: float = 0.0

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from ucal.profile import create_profile, load_profile
+from ucal.profile.models import model_sheet
 
 from doubles import ucal_here
 
@@ -89,6 +90,10 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     # five postures cannot spare one to read from above: the lost motion is not measured
     # (it would pass its prior on to the offsets), and the offsets are the positive approach's
     assert out["backlash_deg"] == [None] * 6 and "From above" not in r.stderr
+    # a rigid arm: no compliance to identify, none written (the model table's prior stands)
+    assert out["stiffness_nm_per_rad"] == [None] * 6
+    assert set(out["stiffness_status"]) == {"not determined"}
+    assert np.array_equal(p.stiffness_nm_per_rad, model_sheet("tx90l").stiffness_nm_per_rad)
 
     # the recorded run solves again offline to the same numbers, and writes nothing
     written = profile.read_bytes()
@@ -96,7 +101,8 @@ def test_full_level_writes_the_identified_table_and_replays(tmp_path: Path) -> N
     assert r.returncode == 0, r.stderr[-2000:]
     again = json.loads(r.stdout)
     assert again["level"] == "full" and again["written"] is False
-    for key in ("joint_offsets_deg", "std_deg", "dh", "dh_std", "identification", "plan", "fit"):
+    keys = ("joint_offsets_deg", "std_deg", "dh", "dh_std", "identification", "plan", "fit")
+    for key in (*keys, "stiffness_nm_per_rad", "stiffness_std_nm_per_rad"):
         assert again[key] == out[key], key
     assert again["pulser_reads"] == out["pulser_reads"] and again["moves"] == out["moves"]
     assert profile.read_bytes() == written

@@ -62,6 +62,7 @@ from ucal.model.geometry import FACE_NAMES, FaceMeasurement
 from ucal.model.kinematic import solve_full
 from ucal.model.postures import FullPlan, first_postures, plan_full
 from ucal.model.readings import CalibrationReadings, write_readings
+from ucal.model.stiffness import written_stiffness
 from ucal.model.targets import CalibrationPlan, plan_calibration
 from ucal.procedure import (
     WRIST_SEARCH,
@@ -541,6 +542,7 @@ class FullCalibration(CalibrationJob):
                 solved.budget,
                 dh=sol.dh_rows(),
                 dh_std=sol.dh_std_rows(),
+                stiffness=written_stiffness(sol.stiffness),
             ),
             block_written(sol.cell, self.profile),
             self.readings(sol),

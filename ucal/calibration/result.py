@@ -29,6 +29,7 @@ from ucal.model.kinematic import FullSolution
 from ucal.model.postures import FullPlan
 from ucal.model.readings import CalibrationReadings
 from ucal.model.residuals import reference_time_min
+from ucal.model.stiffness import stiffness_note
 from ucal.procedure import RunFacts
 from ucal.sim.cell import SimulatedCell
 
@@ -224,6 +225,8 @@ class CalibrationResult(Generic[SolvedT]):
                 out["truth_load_sag_deg"] = SimulatedCell(truth).sag_deg(
                     cell.load_posture_deg, np.ones(6)
                 )
+            if truth.arm.bends:
+                out["truth_stiffness_nm_per_rad"] = truth.arm.stiffness_nm_per_rad
             if self.block is not None:
                 out["truth_offsets_block_deg"] = self.truth_offsets_block_deg()
         return out
@@ -275,6 +278,12 @@ class FullResult(CalibrationResult[FullSolved]):
                 {k: (None if v < 0 else v) for k, v in row.items()} for row in sol.dh_std_rows()
             ],
             "identification": sol.to_json(),
+            # SPEC.md: null where not identified (ucal.model.stiffness)
+            "stiffness_nm_per_rad": [s.stiffness_nm_per_rad for s in sol.stiffness],
+            "stiffness_std_nm_per_rad": [s.std_nm_per_rad for s in sol.stiffness],
+            "stiffness_std_pct": [s.std_pct if s.identified else None for s in sol.stiffness],
+            "stiffness_status": [s.status for s in sol.stiffness],
+            "stiffness_note": stiffness_note(sol.stiffness),
             "unidentified_tcp_mm": self.budget_json(),
             "plan": {
                 "postures": len(plan.postures),

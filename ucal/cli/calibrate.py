@@ -38,6 +38,7 @@ from ucal.devices.record import Record
 from ucal.errors import InputError, NotConfirmed
 from ucal.measure.approach import APPROACH
 from ucal.model.fit import FitQuality
+from ucal.model.stiffness import JointStiffness, stiffness_note
 from ucal.procedure import Job, Outcome
 from ucal.profile import (
     create_profile,
@@ -390,6 +391,7 @@ def show_full_result(console: Console, result: FullResult) -> None:
             p.status,
         )
     console.print(table)
+    show_stiffness(console, sol.stiffness)
     ident = sol.ident
     console.print(f"rank {ident.rank} of {ident.n_parameters} unknowns")
     for name, why in ident.redundant.items():
@@ -408,3 +410,37 @@ def show_full_result(console: Console, result: FullResult) -> None:
     show_gauge(console, result)
     show_fit(console, sol.cell.quality)
     console.print(f"{_sound_speed(result)}; {_run_line(result)}")
+
+
+def show_stiffness(console: Console, found: tuple[JointStiffness, ...]) -> None:
+    """Each joint's stiffness as the full level found it (``ucal.model.stiffness``)."""
+    if not found:
+        return
+    table = Table(title="Joint stiffness under gravity (calibrate --level full)")
+    for col in (
+        "joint",
+        "stiffness (N·m/rad)",
+        "σ (%)",
+        "compliance (µrad/N·m)",
+        "prior",
+        "status",
+    ):
+        table.add_column(col, justify="left" if col == "status" else "right")
+    for s in found:
+        k = s.stiffness_nm_per_rad
+        seen = s.compliance_std_urad_per_nm
+        table.add_row(
+            f"J{s.joint}",
+            "—" if k is None else f"{k:.4g}",
+            "—" if k is None or s.std_pct is None else f"{s.std_pct:.1f}",
+            "—" if seen is None else f"{s.compliance_urad_per_nm:.3g} ± {seen:.2g}",
+            f"{s.prior_urad_per_nm:.3g} ± {s.prior_std_urad_per_nm:.2g}",
+            s.status,
+        )
+    console.print(table)
+    for s in found:
+        if not s.identified:
+            console.print(escape(f"J{s.joint} stiffness not determined: {s.reason}"))
+    note = stiffness_note(found)
+    if note:
+        console.print(escape(note))

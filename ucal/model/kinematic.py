@@ -43,16 +43,23 @@ needs two opposite edges of one face, which the block's free edges are not.)
 
 A kinematic parameter that is independent but weakly seen (its data information below its
 prior's, or a std above ``PRIOR_DOMINATED`` of its tolerance) is fitted with its prior and
-reported as prior-dominated (e.g. ``d₅``, ``a₅``: they shift the flange across the beam,
-which a plane seen at normal incidence does not show): its value stays within its
-tolerance of the nominal one and its std says so. Joint offsets follow the offsets level: J1
-relative to the block as placed (the block gauge, ``ucal.model.gauge``), unobservable
-(kept) when their large std comes from a prior (J6 with the beam on its axis).
+reported as prior-dominated (e.g. ``d₅``, ``a₅``: they shift the flange across the beam, which
+a plane seen at normal incidence does not show): its value stays within its tolerance of the
+nominal one and its std says so. Each joint's compliance is an unknown too
+(``ucal.model.load``), its torque taken at the readings plus the offsets: on a cell never
+calibrated the profile's offsets are degrees off the arm's, which moves the torques'
+differences between postures by tenths of a N·m per degree (a soft J2's sag by µrad:
+micrometres at the tool, above the water paths' noise), so where the fitted offsets stand
+further than ``LOAD_OFFSETS_DEG`` from the profile's the fit is made again with the torques
+taken at them (an arm of 1e5 N·m/rad whose offsets were 1° off, every other quantity as the
+world's: χ²ᵣ 2.6, a misfit, with the profile's; 0.7 with the fitted ones). Joint offsets follow
+the offsets level: J1 relative to the block as placed (the block gauge, ``ucal.model.gauge``),
+unobservable (kept) when their large std comes from a prior (J6 with the beam on its axis).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -91,6 +98,7 @@ from ucal.model.geometry import (
 from ucal.model.least_squares import cell_table, hold_unloaded
 from ucal.model.load import COMPLIANCE, PostureLoad
 from ucal.model.priors import twists_deg
+from ucal.model.stiffness import JointStiffness, identified_stiffness
 
 #: Evaluations of the residuals the full level's fit may spend: from a fresh cell's offsets,
 #: degrees from the profile's, with the table free, the trust region crawls along the
@@ -112,6 +120,10 @@ REDUNDANT_REL = 1e-3
 #: parameter) is below this is seen by none: what is left is the rounding of a translation
 #: across every beam (d5, a5 on a block turned off the base axes: 5e-7), not information.
 UNSEEN_NORM = 1e-3
+
+#: Fitted offsets further than this from the profile's (deg) are fitted again with the torques
+#: taken at them (``solve_full``).
+LOAD_OFFSETS_DEG = 0.01
 
 #: A parameter whose std is above this share of its tolerance is reported prior-dominated.
 PRIOR_DOMINATED = 0.5
@@ -363,6 +375,8 @@ class FullSolution:
     #: One sigma relative to the block as placed, and how J1 is known (``ucal.model.gauge``).
     std_block_deg: np.ndarray | None = None
     gauge: J1Gauge | None = None
+    #: Each joint's compliance as the fit found it (``ucal.model.stiffness``).
+    stiffness: tuple[JointStiffness, ...] = ()
 
     @property
     def unobservable_joints(self) -> tuple[int, ...]:
@@ -436,6 +450,7 @@ class FullSolution:
             "length_standard": (
                 None if self.length_standard is None else self.length_standard.to_json()
             ),
+            "stiffness": [s.to_json() for s in self.stiffness],
         }
 
 
@@ -508,24 +523,34 @@ def solve_full(
         if structure is not None
         else identifiability(*data_jacobian(prior, meas, steps=steps))
     )
-    table = full_table(prior)
     c0 = prior.sound_speed_m_s
     t_ref = reference_time_min(meas)
-    load = prior.posture_load(meas)
-    extra = ExtraRows(
-        lambda v: step_residuals(table, v, prior.model, steps, c0, t_ref, load),
-        tuple(f"{m.config}/step" for m in steps),
-    )
-    # the block gauge (ucal.model.gauge): the block's yaw held as placed, J1 relative
-    cell = solve_cell(
-        prior,
-        meas,
-        fixed=fixed + (() if steps else STEP) + (BLOCK_YAW,),
-        max_std_deg=max_std_deg,
-        table=table,
-        extra=extra if steps else None,
-        max_evaluations=FULL_MAX_EVALUATIONS,
-    )
+
+    def fit(at: CellPrior, start: np.ndarray | None) -> tuple[CellFit, PostureLoad | None]:
+        table = full_table(at)
+        load = at.posture_load(meas)
+        extra = ExtraRows(
+            lambda v: step_residuals(table, v, at.model, steps, c0, t_ref, load),
+            tuple(f"{m.config}/step" for m in steps),
+        )
+        # the block gauge (ucal.model.gauge): the block's yaw held as placed, J1 relative
+        cell = solve_cell(
+            at,
+            meas,
+            fixed=fixed + (() if steps else STEP) + (BLOCK_YAW,),
+            max_std_deg=max_std_deg,
+            table=table,
+            extra=extra if steps else None,
+            max_evaluations=FULL_MAX_EVALUATIONS,
+            start=start,
+        )
+        return cell, load
+
+    cell, load = fit(prior, None)
+    fitted = cell.table.get(OFFSETS, cell.estimate)
+    if load is not None and np.max(np.abs(fitted - prior.offsets_deg)) > LOAD_OFFSETS_DEG:
+        # the torques at the links as fitted, not as the profile put them (module docstring)
+        cell, load = fit(replace(prior, load_offsets_deg=fitted), cell.estimate)
     gauged = gauged_offsets(
         cell, prior.offsets_deg, float(prior.block_rotation_std_deg[2]), max_std_deg
     )
@@ -572,6 +597,7 @@ def solve_full(
         standard,
         gauged.std_block_deg,
         gauged.gauge,
+        identified_stiffness(cell, load, np.array([m.joints_deg for m in meas])),
     )
 
 

@@ -23,9 +23,11 @@ of it (``[robot] stiffness_nm_per_rad``, default the model table's). A joint who
 differs by less than ``UNSEEN_SAG_RAD`` over the readings at its prior's one sigma is held
 (J1 about a vertical axis sees no torque at all): its compliance moves nothing the data see.
 
-The torques are those of the nominal table at the readings plus the profile's offsets (the
-sag's own effect on them, ~1 %, and the DH errors', ppm, are left out), with the model
-table's masses and the profile's tool (``[tool] mass_kg``, ``centre_of_mass_mm``).
+The torques are those of the nominal table at the readings plus the profile's offsets (the full
+level's fitted ones where they stand far from the profile's: ``CellPrior.load_offsets_deg``),
+with the model table's masses and the profile's tool (``[tool] mass_kg``,
+``centre_of_mass_mm``); the sag's own effect on them, ~1 %, and the DH errors', ppm, are left
+out.
 """
 
 from __future__ import annotations

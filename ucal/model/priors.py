@@ -144,6 +144,9 @@ class CellPrior:
     compliance_std_urad_per_nm: np.ndarray = field(default_factory=lambda: np.zeros(6))
     bodies: BodyWeights | None = None
     load_posture_deg: np.ndarray | None = None
+    #: The offsets the torques are taken at (None: ``offsets_deg``): the full level's fitted
+    #: ones where they stand far from the profile's (``ucal.model.kinematic.solve_full``).
+    load_offsets_deg: np.ndarray | None = None
 
     def posture_load(self, meas: Sequence[Posed]) -> PostureLoad | None:
         """The torques of a run whose readings are ``meas`` relative to the load posture's
@@ -152,7 +155,8 @@ class CellPrior:
         if self.bodies is None or (self.load_posture_deg is None and not len(meas)):
             return None
         ref = meas[0].joints_deg if self.load_posture_deg is None else self.load_posture_deg
-        return PostureLoad.of(self.model, self.bodies, self.offsets_deg, np.asarray(ref, float))
+        at = self.offsets_deg if self.load_offsets_deg is None else self.load_offsets_deg
+        return PostureLoad.of(self.model, self.bodies, at, np.asarray(ref, float))
 
     @property
     def sound_speed_m_s(self) -> float:

@@ -16,7 +16,12 @@ weightless tool):
 * ``[calibration] load_posture_deg = [6]`` (written by ``calibrate``) — the joint readings at
   whose gravity load the written offsets hold: the link of joint i stands at ``reading +
   offset + c_i·(τ_i(q) − τ_i(load posture))``, so a posture loaded as the calibration's was
-  needs no correction and every other one is corrected by its own torque's difference.
+  needs no correction and every other one is corrected by its own torque's difference;
+* ``[calibration] stiffness_nm_per_rad = [6]`` and ``stiffness_std_nm_per_rad = [6]`` (written
+  by ``calibrate --level full``, −1 where not determined: ``ucal.model.stiffness``) — each
+  joint's stiffness the full level identified and its one sigma: where given they take the
+  place of ``[robot] stiffness_nm_per_rad`` and ``stiffness_std_pct`` for that joint, so the
+  next calibration starts from what this one measured (its prior the narrower std).
 """
 
 from __future__ import annotations
@@ -62,10 +67,19 @@ def read_arm_load(
         out["stiffness_nm_per_rad"] = read_stiffness(r, "robot.stiffness_nm_per_rad", v)
     elif sheet is not None and sheet.stiffness_nm_per_rad is not None:
         out["stiffness_nm_per_rad"] = sheet.stiffness_nm_per_rad
+    std_pct = STIFFNESS_STD_PCT
     v = r.get(robot, "robot.stiffness_std_pct")
     if v is not None:
-        out["stiffness_std_pct"] = r.number(
-            "robot.stiffness_std_pct", v, lo=0.0, hi=MAX_STIFFNESS_STD_PCT, unit="%"
+        std_pct = r.number("robot.stiffness_std_pct", v, lo=0.0, hi=MAX_STIFFNESS_STD_PCT, unit="%")
+    out["stiffness_std_pct"] = np.full(6, std_pct)
+    calibrated = read_calibrated_stiffness(r, cal)
+    if calibrated is not None:
+        k, std = calibrated
+        given = k > 0.0
+        nominal = np.asarray(out.get("stiffness_nm_per_rad", np.zeros(6)), float)
+        out["stiffness_nm_per_rad"] = np.where(given, k, nominal)
+        out["stiffness_std_pct"] = np.where(
+            given, 100.0 * std / np.where(given, k, 1.0), out["stiffness_std_pct"]
         )
     v = r.get(robot, "robot.link_mass_kg")
     if v is not None:
@@ -98,6 +112,43 @@ def read_arm_load(
             "calibration.load_posture_deg", v, 6, lo=-720.0, hi=720.0, unit="deg"
         )
     return out
+
+
+def read_calibrated_stiffness(
+    r: Reader, cal: Mapping[str, Any] | None
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """``[calibration] stiffness_nm_per_rad`` and ``stiffness_std_nm_per_rad`` (module
+    docstring): (6,) each, −1 where not determined; None where not written."""
+    key, std_key = "calibration.stiffness_nm_per_rad", "calibration.stiffness_std_nm_per_rad"
+    v = None if cal is None else r.get(cal, key)
+    w = None if cal is None else r.get(cal, std_key)
+    if v is None and w is None:
+        return None
+    if v is None or w is None:
+        missing = key if v is None else std_key
+        raise r.error(
+            missing,
+            "written with the other by calibrate --level full: a stiffness without its std "
+            "(or a std without its stiffness) is no prior (write both, or remove both)",
+        )
+    k = r.vector(key, v, 6, lo=-1.0, hi=MAX_STIFFNESS_NM_PER_RAD, unit="N m/rad")
+    std = r.vector(std_key, w, 6, lo=-1.0, hi=MAX_STIFFNESS_NM_PER_RAD, unit="N m/rad")
+    for i in range(6):
+        if k[i] == -1.0 and std[i] == -1.0:
+            continue
+        if k[i] < MIN_STIFFNESS_NM_PER_RAD:
+            raise r.error(
+                f"{key}[{i}]",
+                f"must be -1 (not determined) or >= {MIN_STIFFNESS_NM_PER_RAD:g} N m/rad, "
+                f"got {k[i]:g}",
+            )
+        if not 0.0 < std[i] <= k[i] * MAX_STIFFNESS_STD_PCT / 100.0:
+            raise r.error(
+                f"{std_key}[{i}]",
+                f"must be above 0 and at most {MAX_STIFFNESS_STD_PCT:g} % of the stiffness "
+                f"({k[i]:g} N m/rad) where the stiffness is determined, got {std[i]:g}",
+            )
+    return k, std
 
 
 def read_centres(r: Reader, key: str, value: Any) -> np.ndarray:

@@ -74,6 +74,9 @@ class WrittenCalibration:
     unidentified_tcp_mm: tuple[float, float] | None = None
     #: The readings whose gravity load the offsets hold (``ucal.profile.arm_load``).
     load_posture_deg: Sequence[float] | None = None
+    #: Each joint's stiffness the full level identified and its one sigma (N·m/rad, −1 where
+    #: not determined: ``ucal.model.stiffness.written_stiffness``).
+    stiffness: tuple[Sequence[float], Sequence[float]] | None = None
 
     def table(self) -> dict[str, Any]:
         """The table's keys and values, in the order a new profile shows them."""
@@ -119,6 +122,10 @@ class WrittenCalibration:
             keys["unidentified_tcp_mm"] = [round(mean, 4), round(most, 4)]
         if self.load_posture_deg is not None:
             keys["load_posture_deg"] = [round(float(v), 6) for v in self.load_posture_deg]
+        if self.stiffness is not None:
+            k, std = self.stiffness
+            keys["stiffness_nm_per_rad"] = [float(v) for v in k]
+            keys["stiffness_std_nm_per_rad"] = [float(v) for v in std]
         return keys
 
 

@@ -32,6 +32,7 @@ from ucal.model.kinematic import FullSolution, Identifiability, IdentifiedParame
 from ucal.model.least_squares import CellFit
 from ucal.model.postures import FullPlan
 from ucal.model.quality import FitQuality, ResidualRow
+from ucal.model.stiffness import JointStiffness
 from ucal.procedure import CommandResult, Outcome, RunFacts, RunOptions
 from ucal.profile import load_profile
 from ucal.timing import DurationEstimate
@@ -143,6 +144,12 @@ def full_case(path: Path, cell: CellProfile) -> Case:
         {6: "on the beam's axis"},
         cell.model,
         {"dh2_a_mm": IdentifiedParameter(650.012, 0.004, 650.0, "identified")},
+        stiffness=tuple(
+            JointStiffness(j, 3.5, 0.1, 3.9, 2.5, 4.8, "identified")
+            if j == 2
+            else JointStiffness(j, 2.0, None, 2.0, 1.0, None, "not determined", "its torque")
+            for j in range(1, 7)
+        ),
     )
     solved = FullSolved(sol, FIT, Verdict(True, False, ""))
     plan = FullPlan((), 412, 0.8, 31.5, (20.0, 40.0))
@@ -168,7 +175,11 @@ def full_case(path: Path, cell: CellProfile) -> Case:
                 "prior_dominated": [],
                 "scale": "",
                 "length_standard": None,
+                "stiffness": [s.to_json() for s in sol.stiffness],
             },
+            "stiffness_nm_per_rad": [None, 1e6 / 3.5, None, None, None, None],
+            "stiffness_std_nm_per_rad": [None, 0.048e6 / 3.5, None, None, None, None],
+            "stiffness_status": ["not determined", "identified", *["not determined"] * 4],
             "plan": {"postures": 0, "candidates": 412, "log_det": 31.5, "d_criterion": 0.8},
             "sound_speed_m_s": float(table.values[table.index("sound_speed_m_s")]),
             "load_posture_deg": LOAD_POSTURE_DEG,
@@ -178,6 +189,8 @@ def full_case(path: Path, cell: CellProfile) -> Case:
             "rank 28 of 40 unknowns",
             "dh1_d_mm not identifiable, carried with its tolerance: the block's height",
             "dh2_a_mm │ 650.01200 │ 0.00400",
+            "J2 │           2.857e+05 │   4.8",
+            "J3 stiffness not determined: its torque",
             "180 moves, 1602 pulser reads; profile not written",
             "load: the offsets hold the arm as its weight bends it at the load posture (30.53,",
         ],
