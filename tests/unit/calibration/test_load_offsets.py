@@ -5,6 +5,7 @@ them: the profile's, or the full level's fitted ones where they stand far from t
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,9 @@ def test_the_torques_are_taken_at_the_load_offsets_where_given(tmp_path: Path) -
     assert prior.bodies is not None
     readings = np.array([[30.0, 20.0 + 5 * i, 100.0 - 4 * i, 0.0, 40.0, 0.0] for i in range(6)])
     fitted = prior.offsets_deg + np.array([0.5, 1.0, -1.0, 0.3, 0.8, 0.0])
-    at_profile = prior.posture_load(list(readings))
-    at_fitted = replace(prior, load_offsets_deg=fitted).posture_load(list(readings))
+    posed = [SimpleNamespace(joints_deg=q) for q in readings]  # readings taken at postures
+    at_profile = prior.posture_load(posed)
+    at_fitted = replace(prior, load_offsets_deg=fitted).posture_load(posed)
     assert at_profile is not None and at_fitted is not None
     want = PostureLoad.of(prior.model, prior.bodies, fitted, readings[0]).relative_nm(readings)
     assert np.allclose(at_fitted.relative_nm(readings), want)
