@@ -187,7 +187,7 @@ class CellProfile:
     #: None: nothing weighs), the tool's mass (kg) and centre of mass (mm, flange frame), and
     #: the readings at whose load the written offsets hold (None: not calibrated).
     stiffness_nm_per_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    stiffness_std_pct: np.ndarray = field(default_factory=lambda: np.full(6, 64.0))
+    stiffness_std_pct: np.ndarray = field(default_factory=lambda: np.full(6, 50.0))
     link_mass_kg: np.ndarray | None = None
     link_centre_of_mass_mm: np.ndarray | None = None
     tool_mass_kg: float = 0.0

@@ -14,7 +14,11 @@ Keys (``ucal.world``, SPEC.md's additions; none given: a rigid arm at its table'
 * ``[arm] offset_k`` (−50…50 K: the arm this much warmer than when its DH table held, from
   the start), ``warmup_k`` (−50…50 K more, approached as ``1 − exp(−t/τ)`` over the cell's
   clock), ``warmup_time_constant_min`` (τ, 0.1…10 000 min, default 30) and ``expansion_per_k``
-  (0…1e-4 per K, default aluminium's 23e-6): every link's d and a grow by that per K.
+  (0…1e-4 per K, default aluminium's 23e-6): every link's d and a grow by that per K;
+* SPEC.md's form of the same in ``[robot]``: ``temperature_rise_k`` (how much warmer the arm
+  is than when it was calibrated), ``warm_up_time_constant_min`` (0, the default: the rise
+  holds for the whole run; else it grows during the run as ``1 − exp(−t/τ)``) and
+  ``expansion_ppm_per_k`` (default 23). A world gives one form or the other.
 """
 
 from __future__ import annotations
@@ -34,16 +38,23 @@ from ucal.profile.arm_load import (
 from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
 
+MAX_GRAVITY_M_S2 = 50.0
+MAX_ARM_K = 50.0
+MAX_EXPANSION_PER_K = 1e-4
+#: SPEC.md's ``[robot]`` keys of the warm arm: (key, low, high, unit).
+WARM_KEYS = (
+    ("temperature_rise_k", -MAX_ARM_K, MAX_ARM_K, "K"),
+    ("warm_up_time_constant_min", 0.0, 10000.0, "min"),
+    ("expansion_ppm_per_k", 0.0, 100.0, "ppm/K"),
+)
 #: The world's keys of the bending, warming arm, by table.
 ROBOT_KEYS = frozenset(
     {"stiffness_nm_per_rad", "link_mass_kg", "link_centre_of_mass_mm", "gravity_m_s2"}
+    | {key for key, *_ in WARM_KEYS}
 )
 TOOL_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
 ARM_KEYS = frozenset({"offset_k", "warmup_k", "warmup_time_constant_min", "expansion_per_k"})
 
-MAX_GRAVITY_M_S2 = 50.0
-MAX_ARM_K = 50.0
-MAX_EXPANSION_PER_K = 1e-4
 #: The plain values: (table, key, count (0: a number), low, high, unit, ``ArmTruth`` field).
 _VALUES: tuple[tuple[str, str, int, float | None, float | None, str, str], ...] = (
     ("robot", "link_mass_kg", 6, 0.0, MAX_LINK_MASS_KG, "kg", "link_mass_kg"),
@@ -85,9 +96,39 @@ def read_arm(
             if n == 0
             else r.vector(dotted, v, n, lo=lo, hi=hi, unit=unit)
         )
+    _warm_arm(r, robot, arm, changes)
     if "stiffness_nm_per_rad" in changes:
         _model_masses(r, model, changes)
     return replace(ArmTruth(), **changes) if changes else None
+
+
+def _warm_arm(
+    r: Reader,
+    robot: Mapping[str, Any] | None,
+    arm: Mapping[str, Any] | None,
+    changes: dict[str, Any],
+) -> None:
+    """SPEC.md's ``[robot]`` keys of the warm arm as ``ArmTruth``'s fields (module docstring)."""
+    given = {}
+    for key, lo, hi, unit in WARM_KEYS:
+        v = r.get(robot, f"robot.{key}")
+        if v is not None:
+            given[key] = r.number(f"robot.{key}", v, lo=lo, hi=hi, unit=unit)
+    if not given:
+        return
+    if arm:
+        raise r.error(
+            f"robot.{next(iter(given))}",
+            "the arm's warming is given twice: [robot]'s keys or the [arm] table, not both",
+        )
+    rise = given.get("temperature_rise_k", 0.0)
+    tau = given.get("warm_up_time_constant_min", 0.0)
+    if tau > 0.0:  # grows during the run from the calibration's temperature
+        changes.update(warmup_k=rise, warmup_time_constant_min=max(tau, 0.1))
+    else:
+        changes["offset_k"] = rise
+    if "expansion_ppm_per_k" in given:
+        changes["expansion_per_k"] = given["expansion_ppm_per_k"] * 1e-6
 
 
 def _model_masses(r: Reader, model: RobotModel, changes: dict[str, Any]) -> None:

@@ -18,10 +18,11 @@ level (J2 ±5 N·m over its steps, J5 ~2 N·m between faces), so ``c`` keeps its
 and carries into the offsets' std what its uncertainty moves them by; the full level's
 postures load J2 and J3 differently by tens of N·m and measure their compliance.
 
-The unknowns ``COMPLIANCE`` are in µrad per N·m, each with the prior ``1e6/k̄ ± stiffness_std_pct``
-of it (``[robot] stiffness_nm_per_rad``, default the model table's). A joint whose torque
-differs by less than ``UNSEEN_SAG_RAD`` over the readings at its prior's one sigma is held
-(J1 about a vertical axis sees no torque at all): its compliance moves nothing the data see.
+The unknowns ``COMPLIANCE`` are in µrad per N·m, each with the prior ``1e6/k̄`` ± ``[robot]
+stiffness_std_fraction`` of it (``[robot] stiffness_nm_per_rad``, default the model table's).
+A joint whose torque differs by less than ``UNSEEN_SAG_RAD`` over the readings at its prior's
+one sigma is held (J1 about a vertical axis sees no torque at all): its compliance moves
+nothing the data see.
 
 The torques are those of the nominal table at the readings plus the profile's offsets (the full
 level's fitted ones where they stand far from the profile's: ``CellPrior.load_offsets_deg``),

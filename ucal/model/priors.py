@@ -83,7 +83,7 @@ PRIOR_MEANING = {
     "plate_t1_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
     "plate_t2_deg": "the plate tilt tolerance ([reflector] points_std_mm)",
     **{
-        n: "the joints' stiffness tolerance ([robot] stiffness_nm_per_rad, stiffness_std_pct: "
+        n: "the joints' stiffness tolerance ([robot] stiffness_nm_per_rad, stiffness_std_fraction: "
         "how far the arm gives under its own weight and the tool's)"
         for n in COMPLIANCE
     },

@@ -4,10 +4,10 @@ Keys (SPEC.md's additions; none given: the shipped model table's masses and stif
 weightless tool):
 
 * ``[robot] stiffness_nm_per_rad = [6]`` — each joint's nominal torsional stiffness (0: rigid,
-  else 1e4…1e10 N·m/rad); default: the model table's. ``[robot] stiffness_std_pct`` — one
-  sigma of each joint's compliance (1/k) in per cent of the nominal one (0…200, default
-  ``STIFFNESS_STD_PCT``): the solvers carry each joint's compliance as an unknown with this
-  prior (``ucal.model.load``);
+  else 1e4…1e10 N·m/rad); default: the model table's. ``[robot] stiffness_std_fraction`` —
+  one sigma of each joint's stiffness relative to it (0…2, default 0.5, SPEC.md), taken as
+  the same fraction of its compliance (1/k): the solvers carry each joint's compliance as an
+  unknown with this prior (``ucal.model.load``);
 * ``[robot] link_mass_kg = [6]``, ``link_centre_of_mass_mm = [[x, y, z] × 6]`` — each link's
   mass and its centre of mass at the zero pose (base frame), for a model ucal does not ship
   (default: the model table's; none for a model without one: nothing weighs);
@@ -20,7 +20,7 @@ weightless tool):
 * ``[calibration] stiffness_nm_per_rad = [6]`` and ``stiffness_std_nm_per_rad = [6]`` (written
   by ``calibrate --level full``, −1 where not determined: ``ucal.model.stiffness``) — each
   joint's stiffness the full level identified and its one sigma: where given they take the
-  place of ``[robot] stiffness_nm_per_rad`` and ``stiffness_std_pct`` for that joint, so the
+  place of ``[robot] stiffness_nm_per_rad`` and ``stiffness_std_fraction`` for that joint, so the
   next calibration starts from what this one measured (its prior the narrower std).
 """
 
@@ -36,10 +36,11 @@ from ucal.profile.models import KNOWN_MODELS, model_sheet
 from ucal.profile.validation import Reader
 
 #: One sigma of a joint's compliance when the profile states none (per cent of the nominal):
-#: the stiffness published for arms of this class spans 1e5…1e6 N·m/rad on the shoulder and
-#: elbow (no TX90 figure is public), i.e. a compliance log-uniform over a decade, whose
-#: one sigma is 64 % of its mean.
-STIFFNESS_STD_PCT = 64.0
+#: SPEC.md's default ``stiffness_std_fraction`` of 0.5. The stiffness published for arms of
+#: this class spans 1e5…1e6 N·m/rad on the shoulder and elbow (no TX90 figure is public): a
+#: compliance log-uniform over that decade has a one sigma of 64 % of its mean, so a cell
+#: whose arm may lie anywhere in it states 0.64.
+STIFFNESS_STD_PCT = 50.0
 MAX_STIFFNESS_STD_PCT = 200.0
 MIN_STIFFNESS_NM_PER_RAD = 1e4
 MAX_STIFFNESS_NM_PER_RAD = 1e10
@@ -47,7 +48,7 @@ MAX_TOOL_MASS_KG = 50.0
 MAX_LINK_MASS_KG = 500.0
 #: The keys of the arm's load a profile's ``[robot]`` and ``[tool]`` may hold.
 ROBOT_LOAD_KEYS = frozenset(
-    {"stiffness_nm_per_rad", "stiffness_std_pct", "link_mass_kg", "link_centre_of_mass_mm"}
+    {"stiffness_nm_per_rad", "stiffness_std_fraction", "link_mass_kg", "link_centre_of_mass_mm"}
 )
 TOOL_LOAD_KEYS = frozenset({"mass_kg", "centre_of_mass_mm"})
 
@@ -68,9 +69,10 @@ def read_arm_load(
     elif sheet is not None and sheet.stiffness_nm_per_rad is not None:
         out["stiffness_nm_per_rad"] = sheet.stiffness_nm_per_rad
     std_pct = STIFFNESS_STD_PCT
-    v = r.get(robot, "robot.stiffness_std_pct")
+    v = r.get(robot, "robot.stiffness_std_fraction")
     if v is not None:
-        std_pct = r.number("robot.stiffness_std_pct", v, lo=0.0, hi=MAX_STIFFNESS_STD_PCT, unit="%")
+        hi = MAX_STIFFNESS_STD_PCT / 100.0
+        std_pct = 100.0 * r.number("robot.stiffness_std_fraction", v, lo=0.0, hi=hi, unit="")
     out["stiffness_std_pct"] = np.full(6, std_pct)
     calibrated = read_calibrated_stiffness(r, cal)
     if calibrated is not None:

@@ -113,3 +113,21 @@ def test_a_tool_alone_scales_the_torque_by_its_own_mass_tolerance(profile: Path)
     # the tool is all of J2's and J3's torque: its mass's tolerance, no more, no less
     assert scale[1:3] == pytest.approx([TOOL_MASS_STD_PCT] * 2)
     assert scale[0] == 0.0  # J1 about a vertical axis: no torque, no share
+
+
+def test_the_stated_stiffness_fraction_is_the_compliances_prior(profile: Path) -> None:
+    """SPEC.md's ``[robot] stiffness_std_fraction``: one sigma relative (default 0.5), taken as
+    the same fraction of each joint's compliance; a value beyond 2 is refused by its key."""
+    default = prior_from_profile(load_profile(profile))
+    c = default.compliance_urad_per_nm
+    assert STIFFNESS_STD_PCT == 50.0
+    assert np.allclose(default.compliance_std_urad_per_nm, 0.5 * c)
+    write_profile(profile, {"robot": {"stiffness_std_fraction": 0.3}}, "a tighter prior")
+    assert np.allclose(
+        prior_from_profile(load_profile(profile)).compliance_std_urad_per_nm, 0.3 * c
+    )
+    write_profile(profile, {"robot": {"stiffness_std_fraction": 0.2}}, "tighter still")
+    text = profile.read_text().replace("stiffness_std_fraction = 0.2", "stiffness_std_fraction = 3")
+    profile.write_text(text)
+    with pytest.raises(ProfileError, match=r"robot\.stiffness_std_fraction"):
+        load_profile(profile)

@@ -199,6 +199,25 @@ def test_a_world_with_stiffness_alone_takes_its_model_tables_masses(profile: Cel
     np.testing.assert_allclose(_sag(up, rigid, q), -_sag(world, rigid, q), rtol=0.01)
 
 
+def test_spec_s_warm_arm_keys_are_the_arm_table_s(profile: CellProfile) -> None:
+    """SPEC.md's ``[robot] temperature_rise_k``, ``warm_up_time_constant_min`` and
+    ``expansion_ppm_per_k`` give the arm ``[arm]``'s keys give: a rise that holds for the run
+    (no time constant) or grows during it, the links' expansion in ppm."""
+    q = np.array([0.0, 90.0, 0.0, 0.0, 0.0, 0.0])
+
+    def x_mm(data: dict, t_s: float) -> float:
+        return float(SimulatedCell(_world(profile, data)).true_flange(q, t_s=t_s)[0, 3])
+
+    held = {"robot": {"temperature_rise_k": 5.0, "expansion_ppm_per_k": 20.0}}
+    same = {"arm": {"offset_k": 5.0, "expansion_per_k": 20e-6}}
+    assert x_mm(held, 0.0) == pytest.approx(x_mm(same, 0.0), abs=1e-9)
+    assert x_mm(held, 0.0) > x_mm({}, 0.0) + 0.1  # 100 ppm of 1.2 m
+    growing = {"robot": {"temperature_rise_k": 5.0, "warm_up_time_constant_min": 20.0}}
+    warmup = {"arm": {"warmup_k": 5.0, "warmup_time_constant_min": 20.0}}
+    assert x_mm(growing, 0.0) == x_mm({}, 0.0)
+    assert x_mm(growing, 1200.0) == pytest.approx(x_mm(warmup, 1200.0), abs=1e-9)
+
+
 BAD_ARMS = [
     ("[robot]\nstiffness_nm_per_rad = [0, 1e5, 1e5]\n", "robot.stiffness_nm_per_rad", "6 values"),
     (
@@ -220,6 +239,12 @@ BAD_ARMS = [
     ("[arm]\nwarmup_time_constant_min = 0\n", "arm.warmup_time_constant_min", ">= 0.1"),
     ("[arm]\nexpansion_per_k = 0.01\n", "arm.expansion_per_k", "<= 0.0001"),
     ("[arm]\nwarmupk = 5\n", "arm.warmupk", "did you mean warmup_k?"),
+    ("[robot]\ntemperature_rise_k = 60\n", "robot.temperature_rise_k", "<= 50"),
+    (
+        "[robot]\ntemperature_rise_k = 5\n[arm]\noffset_k = 5\n",
+        "robot.temperature_rise_k",
+        "given twice",
+    ),
     ('[arm]\nwarmup_k = 5\n[robot]\nmodel = "tx90l"\n', None, None),
 ]
 
