@@ -5,8 +5,8 @@ them: the profile's, or the full level's fitted ones where they stand far from t
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
