@@ -457,6 +457,8 @@ def test_warm_water_and_a_yawed_hand_placed_block(tmp_path):
 
     offsets = np.array([0.8, -1.2, 1.5, -2.0, 1.1, 0.6])
     profile = make_profile(tmp_path, tool_rotation=(0.0, 12.0, 0.0), fixture=False)
+    # the simulated arm is rigid and the profile says so: the water and the yaw are at stake
+    write_profile(profile, {"robot": {"stiffness_nm_per_rad": [0.0] * 6}}, "a rigid arm")
     corner = load_profile(profile).sample_position_mm
     world = make_world(
         tmp_path,

@@ -21,6 +21,13 @@ WORLD = """
 [robot]
 joint_offsets_deg = [0.3, -0.2, 0.25, -0.3, 0.2, 0.1]
 backlash_deg = [0.015, 0.02, 0.008, 0.018, 0.012, 0.01]
+# the arm bends as the model table's nominal stiffness says: the profile's prior, at its mean
+stiffness_nm_per_rad = [6.3e5, 2.56e5, 2.56e5, 6.7e4, 5.7e4, 2.2e4]
+# the TX90L's links (profiles/tx90l.toml): a world with its own DH table names its masses
+link_mass_kg = [16.934564, 14.350897, 7.501506, 6.420429, 0.56876, 0.030977]
+link_centre_of_mass_mm = [[19.143, 24.764, -64.596], [49.993, 221.192, 206.856],
+  [50.002, 115.008, 503.572], [48.002, 49.992, 860.301], [50.0, 49.931, 1072.823],
+  [49.757, 50.0, 1143.707]]
 dh = [
   { theta_offset_deg = 0.0, d_mm = 0.0, a_mm = 50.3, alpha_deg = -90.03 },
   { theta_offset_deg = -90.0, d_mm = 50.2, a_mm = 500.4, alpha_deg = 0.02, beta_deg = 0.04 },
