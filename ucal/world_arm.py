@@ -41,11 +41,13 @@ from ucal.profile.validation import Reader
 MAX_GRAVITY_M_S2 = 50.0
 MAX_ARM_K = 50.0
 MAX_EXPANSION_PER_K = 1e-4
+#: The shortest warm-up time constant a world may give (min), in either form.
+MIN_WARM_UP_MIN = 0.1
 #: SPEC.md's ``[robot]`` keys of the warm arm: (key, low, high, unit).
 WARM_KEYS = (
     ("temperature_rise_k", -MAX_ARM_K, MAX_ARM_K, "K"),
     ("warm_up_time_constant_min", 0.0, 10000.0, "min"),
-    ("expansion_ppm_per_k", 0.0, 100.0, "ppm/K"),
+    ("expansion_ppm_per_k", 0.0, MAX_EXPANSION_PER_K * 1e6, "ppm/K"),
 )
 #: The world's keys of the bending, warming arm, by table.
 ROBOT_KEYS = frozenset(
@@ -63,7 +65,15 @@ _VALUES: tuple[tuple[str, str, int, float | None, float | None, str, str], ...] 
     ("tool", "centre_of_mass_mm", 3, None, None, "mm", "tool_centre_of_mass_mm"),
     ("arm", "offset_k", 0, -MAX_ARM_K, MAX_ARM_K, "K", "offset_k"),
     ("arm", "warmup_k", 0, -MAX_ARM_K, MAX_ARM_K, "K", "warmup_k"),
-    ("arm", "warmup_time_constant_min", 0, 0.1, 10000.0, "min", "warmup_time_constant_min"),
+    (
+        "arm",
+        "warmup_time_constant_min",
+        0,
+        MIN_WARM_UP_MIN,
+        10000.0,
+        "min",
+        "warmup_time_constant_min",
+    ),
     ("arm", "expansion_per_k", 0, 0.0, MAX_EXPANSION_PER_K, "/K", "expansion_per_k"),
 )
 
@@ -123,8 +133,14 @@ def _warm_arm(
         )
     rise = given.get("temperature_rise_k", 0.0)
     tau = given.get("warm_up_time_constant_min", 0.0)
+    if 0.0 < tau < MIN_WARM_UP_MIN:
+        raise r.error(
+            "robot.warm_up_time_constant_min",
+            f"must be 0 (the rise holds for the whole run) or >= {MIN_WARM_UP_MIN:g} min, "
+            f"got {tau:g}",
+        )
     if tau > 0.0:  # grows during the run from the calibration's temperature
-        changes.update(warmup_k=rise, warmup_time_constant_min=max(tau, 0.1))
+        changes.update(warmup_k=rise, warmup_time_constant_min=tau)
     else:
         changes["offset_k"] = rise
     if "expansion_ppm_per_k" in given:

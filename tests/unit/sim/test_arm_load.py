@@ -241,6 +241,11 @@ BAD_ARMS = [
     ("[arm]\nwarmupk = 5\n", "arm.warmupk", "did you mean warmup_k?"),
     ("[robot]\ntemperature_rise_k = 60\n", "robot.temperature_rise_k", "<= 50"),
     (
+        "[robot]\ntemperature_rise_k = 5\nwarm_up_time_constant_min = 0.05\n",
+        "robot.warm_up_time_constant_min",
+        ">= 0.1 min",
+    ),
+    (
         "[robot]\ntemperature_rise_k = 5\n[arm]\noffset_k = 5\n",
         "robot.temperature_rise_k",
         "given twice",
